@@ -1,0 +1,243 @@
+"""Evaluate a model directory or a baseline on the Human3.6M S5 protocol (or HumanEva-I, stochastic).
+
+Human3.6M (Setting-B, spec sections 3.1, 6, 10.2): subject S5, the actions present in the data (13 of 15
+in our copy), ``--windows-per-action`` windows per action (256 = the full protocol) drawn with
+RandomState(1234567890); 50 observed frames, 25 predicted (1 s at 25 fps); error per future frame =
+mean over the 32 joints of the L2 distance in mm after pasting the 22 model joints into the ground
+truth and copying the 6 duplicated joints. Per action averaged over windows, then over actions.
+Zero-Velocity on the same windows (and the same corrupted observations) is reported beside every model.
+
+Aggregation of the n samples (``--select``): ``best`` is the oracle best-of-n against the ground truth
+(the paper's figure; not deployable), ``mean`` the mean of the samples (deployable). Both are always
+computed and stored; ``--select`` picks the one printed first and stored under "average".
+
+    python -m training.evaluate --baseline zero-velocity --data ../shared/data/h36m --json out.json
+    python -m training.evaluate --model models/h36m --samples 5 --windows-per-action 8 --mask random_leg_arm
+    python -m training.evaluate --protocol humaneva --baseline zero-velocity --data ../shared/data/humaneva
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .data.h36m import DEFAULT_DATA_ROOT, H36M, model_to_xyz32, xyz32_to_model
+from .metrics import HORIZONS_MS, at_horizons, per_frame_error, repair_ade
+
+OBS, PRED = 50, 25
+
+
+# ------------------------------------------------------------------------------------------ layout
+
+def to_bkl(x: np.ndarray) -> torch.Tensor:
+    """(B, L, J, 3) -> (B, K, L) float32 tensor, K = 3 J in joint-major order."""
+    B, L, J, _ = x.shape
+    return torch.from_numpy(np.ascontiguousarray(x, dtype=np.float32)).reshape(B, L, J * 3).permute(0, 2, 1).contiguous()
+
+
+def from_bkl(x: torch.Tensor) -> np.ndarray:
+    """(..., K, L) -> (..., L, J, 3) float64 numpy."""
+    x = x.detach().cpu().double()
+    *lead, K, L = x.shape
+    return x.transpose(-1, -2).reshape(*lead, L, K // 3, 3).numpy()
+
+
+def joint_to_coord_mask(jmask: np.ndarray) -> np.ndarray:
+    """(..., J) -> (..., J, 3)"""
+    return np.repeat(np.asarray(jmask)[..., None], 3, axis=-1)
+
+
+# ------------------------------------------------------------------------------------------ predictors
+
+def zero_velocity(obs: np.ndarray, jmask: np.ndarray, horizon: int = PRED) -> np.ndarray:
+    """Repeat the last visible value of every joint: (W, O, J, 3), (W, O, J) -> (W, horizon, J, 3).
+    A joint never visible stays at 0."""
+    W, O, J, _ = obs.shape
+    last = np.zeros((W, J, 3))
+    for f in range(O):
+        vis = jmask[:, f] > 0.5
+        last[vis] = obs[:, f][vis]
+    return np.repeat(last[:, None], horizon, axis=1)
+
+
+def tcd_predict(models: dict, obs: np.ndarray, jmask: np.ndarray, *, samples: int, steps: int | None, sampler: str,
+                eta: float, spacing: str, seed: int, device: str, batch_size: int = 16) -> dict:
+    """Cascade forecast for windows obs (W, 50, J, 3) metres with joint mask (W, 50, J).
+    Returns samples (S, W, 25, J, 3) and the repaired observation (W, 50, J, 3) (mean of short-term samples)."""
+    from .diffusion import cascade
+    short_m, short_s, short_cfg = models["short"]
+    long_m, long_s, long_cfg = models["long"]
+    short_len, long_len = short_cfg["window"]["seq_len"], long_cfg["window"]["seq_len"]
+    O = obs.shape[1]
+    if short_cfg["window"]["obs_len"] != O or long_len - O != PRED:
+        raise ValueError(f"models expect {short_cfg['window']['obs_len']} observed frames and {long_len} in all; "
+                         f"the protocol has {O} + {PRED}")
+    obs = obs * joint_to_coord_mask(jmask)  # missing values are zero in the model input
+    outs, reps = [], []
+    for b0 in range(0, len(obs), batch_size):
+        gen = torch.Generator().manual_seed(int(seed) * 1_000_003 + b0)
+        x = to_bkl(obs[b0:b0 + batch_size]).to(device)
+        m = to_bkl(joint_to_coord_mask(jmask[b0:b0 + batch_size])).to(device)
+        res = cascade(short_m, short_s, long_m, long_s, x, m, short_len=short_len, long_len=long_len,
+                      num_samples=samples, generator=gen, sampler=sampler, num_inference_steps=steps, eta=eta,
+                      timestep_spacing=spacing)
+        outs.append(from_bkl(res["samples"][..., O:]))
+        reps.append(from_bkl(res["short_mean"][..., :O]))
+    return {"samples": np.concatenate(outs, axis=1), "repaired": np.concatenate(reps, axis=0)}
+
+
+# ------------------------------------------------------------------------------------------ protocol
+
+def summarize(per_action_frames: dict[str, np.ndarray]) -> dict:
+    per_frame = np.mean(np.stack(list(per_action_frames.values())), axis=0)
+    return {"average": at_horizons(per_frame), "per_action": {a: at_horizons(v) for a, v in per_action_frames.items()},
+            "per_frame": [float(v) for v in per_frame]}
+
+
+def evaluate_h36m(args) -> dict:
+    data = H36M(args.data)
+    actions = data.test_actions()
+    models = None
+    if args.model:
+        from .export import load_model_dir
+        models = load_model_dir(args.model, args.device)
+    zv, zv_rep, best, mean = {}, {}, {}, {}
+    rep_sum, rep_cnt = 0.0, 0
+    t0 = time.time()
+    for ai, action in enumerate(actions):
+        wins = data.test_windows(action, OBS + PRED, OBS, args.windows_per_action)      # (W, 75, 32, 3) mm
+        gt32 = wins[:, OBS:]
+        obs_clean = xyz32_to_model(wins[:, :OBS]).astype(np.float64)                     # (W, 50, 22, 3) m
+        obs, jmask = obs_clean.copy(), np.ones(obs_clean.shape[:3], dtype=np.float32)
+        if args.mask != "none":
+            from .masks import corrupt
+            for w in range(len(obs)):
+                rng = np.random.default_rng([args.mask_seed, ai, w])
+                obs[w], jmask[w] = corrupt(obs_clean[w], args.mask, OBS, rng)
+        zv[action] = per_frame_error(model_to_xyz32(zero_velocity(obs, jmask), gt32), gt32).mean(axis=0)
+        if models is not None:
+            res = tcd_predict(models, obs, jmask, samples=args.samples, steps=args.steps, sampler=args.sampler,
+                              eta=args.eta, spacing=args.timestep_spacing, seed=args.seed * 1000 + ai,
+                              device=args.device, batch_size=args.batch_size)
+            errs = np.stack([per_frame_error(model_to_xyz32(s, gt32), gt32) for s in res["samples"]])  # (S, W, 25)
+            pick = errs.mean(axis=2).argmin(axis=0)                                                   # oracle
+            best[action] = errs[pick, np.arange(errs.shape[1])].mean(axis=0)
+            mean[action] = per_frame_error(model_to_xyz32(res["samples"].mean(axis=0), gt32), gt32).mean(axis=0)
+            if args.mask != "none":
+                s, c = repair_ade(res["repaired"], obs_clean, jmask)
+                rep_sum, rep_cnt = rep_sum + s, rep_cnt + c
+                zv_rep[action] = per_frame_error(
+                    model_to_xyz32(zero_velocity(res["repaired"], np.ones_like(jmask)), gt32), gt32).mean(axis=0)
+        if not args.quiet:
+            print(f"[{ai + 1}/{len(actions)}] {action}: {len(wins)} windows, {time.time() - t0:.0f} s", file=sys.stderr)
+    out = {"protocol": {"dataset": "h36m", "subject": "S5", "actions": actions, "windows_per_action": args.windows_per_action,
+                        "observed_frames": OBS, "predicted_frames": PRED, "fps": 25, "units": "mm",
+                        "error": "mean over 32 joints (22 predicted pasted into GT, 6 duplicates copied)",
+                        "mask": args.mask, "data": str(data.source.origin)},
+           "seeds": {"windows": 1234567890, "mask": args.mask_seed, "sampling": args.seed},
+           "zero_velocity": summarize(zv)}
+    if models is None:
+        out.update(method="zero-velocity", **summarize(zv))
+    else:
+        out["method"] = f"tcd {args.model}"
+        out["sampling"] = {"samples": args.samples, "steps": args.steps or models['short'][1].T, "sampler": args.sampler,
+                           "eta": args.eta, "timestep_spacing": args.timestep_spacing}
+        out["best_of_n"] = dict(summarize(best), label=f"oracle best-of-{args.samples} (selected against ground truth)")
+        out["mean_of_n"] = dict(summarize(mean), label=f"mean of {args.samples} samples (deployable)")
+        chosen = out["best_of_n" if args.select == "best" else "mean_of_n"]
+        out.update(select=args.select, average=chosen["average"], per_action=chosen["per_action"],
+                   per_frame=chosen["per_frame"])
+        if args.mask != "none":
+            out["repair"] = {"ade_mm": 1000.0 * rep_sum / max(rep_cnt, 1), "occluded_entries": rep_cnt,
+                             "label": "ADE over occluded observation entries (mean of short-term samples)"}
+            out["zero_velocity_on_repaired"] = summarize(zv_rep)
+    return out
+
+
+def evaluate_humaneva(args) -> dict:
+    from .data.humaneva import humaneva_test_windows, load_humaneva, multimodal_gt
+    from .stochastic import evaluate_stochastic
+    data = load_humaneva(args.data, split="Validate")
+    wins = humaneva_test_windows(data)                                   # (N, 75, 14, 3) metres
+    t_his = 15
+    D = wins.shape[2] * 3
+    gts = [w[t_his:].reshape(-1, D) for w in wins]
+    gt_multi = multimodal_gt(wins, t_his)
+    if args.model:
+        raise SystemExit("--protocol humaneva evaluates baselines only until a HumanEva model exists")
+    preds = [np.repeat(w[t_his - 1].reshape(1, 1, D), len(g), axis=1) for w, g in zip(wins, gts)]
+    res = evaluate_stochastic(preds, gts, gt_multi)
+    return {"protocol": {"dataset": "humaneva-i", "split": "Validate", "t_his": t_his, "t_pred": 60, "fps": 60,
+                         "windows": len(wins), "units": "m (DLow/GSPS: L2 norm of the flattened 42-dim pose)"},
+            "method": "zero-velocity", "seeds": {}, "stochastic": res}
+
+
+def print_table(out: dict) -> None:
+    cols = [str(h) for h in HORIZONS_MS]
+    def row(name, d):
+        return f"{name:<18}" + "".join(f"{d.get(c, float('nan')):>8.1f}" for c in cols)
+    blocks = [("zero-velocity", out["zero_velocity"])]
+    if "best_of_n" in out:
+        blocks = [(out["best_of_n"]["label"], out["best_of_n"]), (out["mean_of_n"]["label"], out["mean_of_n"])] + blocks
+    for label, block in blocks:
+        print(f"\n{label}  (mm; S5, {out['protocol']['windows_per_action']} windows/action, mask={out['protocol']['mask']})")
+        print(f"{'action':<18}" + "".join(f"{c + 'ms':>8}" for c in cols))
+        for a, d in block["per_action"].items():
+            print(row(a, d))
+        print(row("average", block["average"]))
+    if "repair" in out:
+        print(f"\nrepair ADE over occluded entries: {out['repair']['ade_mm']:.2f} mm ({out['repair']['occluded_entries']} entries)")
+
+
+def main(argv=None) -> int:
+    from .masks import PATTERNS
+    ap = argparse.ArgumentParser(prog="python -m training.evaluate", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    who = ap.add_mutually_exclusive_group(required=True)
+    who.add_argument("--baseline", choices=["zero-velocity"])
+    who.add_argument("--model", help="model directory (short.safetensors + long.safetensors)")
+    ap.add_argument("--protocol", choices=["h36m", "humaneva"], default="h36m")
+    ap.add_argument("--data", default=None, help="data directory (default ../shared/data/<dataset>)")
+    ap.add_argument("--json", help="write the results here")
+    ap.add_argument("--samples", type=int, default=5)
+    ap.add_argument("--steps", type=int, default=None, help="inference steps (default: all training steps)")
+    ap.add_argument("--sampler", choices=["ddpm", "ddim"], default="ddpm")
+    ap.add_argument("--eta", type=float, default=0.0, help="DDIM eta")
+    ap.add_argument("--timestep-spacing", choices=["leading", "trailing", "linspace"], default="trailing")
+    ap.add_argument("--select", choices=["best", "mean"], default="best",
+                    help="best = oracle best-of-n (paper), mean = mean of samples (deployable)")
+    ap.add_argument("--mask", choices=list(PATTERNS), default="none", help="observation corruption pattern")
+    ap.add_argument("--mask-seed", type=int, default=0)
+    ap.add_argument("--seed", type=int, default=0, help="sampling seed")
+    ap.add_argument("--windows-per-action", type=int, default=256)
+    ap.add_argument("--batch-size", type=int, default=16, help="windows per sampling batch")
+    ap.add_argument("--device", default="cpu")
+    ap.add_argument("--threads", type=int, default=None, help="torch CPU threads")
+    ap.add_argument("--quiet", action="store_true")
+    args = ap.parse_args(argv)
+    if not 1 <= args.windows_per_action <= 256:
+        ap.error("--windows-per-action must be in 1..256")
+    if args.samples < 1:
+        ap.error("--samples must be >= 1")
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    if args.data is None:
+        args.data = str(DEFAULT_DATA_ROOT / ("h36m" if args.protocol == "h36m" else "humaneva"))
+    out = evaluate_h36m(args) if args.protocol == "h36m" else evaluate_humaneva(args)
+    out["command"] = " ".join(["python -m training.evaluate"] + (argv if argv is not None else sys.argv[1:]))
+    if args.protocol == "h36m":
+        print_table(out)
+    else:
+        print(json.dumps(out["stochastic"], indent=2))
+    if args.json:
+        Path(args.json).write_text(json.dumps(out, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

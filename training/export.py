@@ -1,0 +1,184 @@
+"""Export trained (or random-init) models to a model directory of safetensors files.
+
+A model directory holds ``short.safetensors`` (50 -> 5 frames), ``long.safetensors`` (55 -> 20) and,
+when trained, ``repair.safetensors``, plus a readable ``model.json``. Each safetensors file carries its
+full configuration as JSON in the ``tcd_config`` metadata entry (format_version 1):
+
+    {"format_version": 1, "role": "short",
+     "model": {num_joints, coords, num_features, channels, num_layers, num_heads, ffn_dim,
+               diffusion_embedding_dim, time_embedding_dim, feature_embedding_dim, side_dim, layer_norm_eps},
+     "window": {"obs_len", "pred_len", "seq_len"},
+     "diffusion": {num_train_timesteps, beta_schedule, beta_start, beta_end, max_beta, betas, prediction_type,
+                   variance_type},
+     "data": {dataset, fps, units, root_relative, joint_names, joint_index_32, training_data, licence},
+     "training": {...}, "source_revision": "<git sha>"}
+
+Tensors are float32 with the PyTorch state_dict names (spec section 10.1).
+
+    python -m training.export --checkpoint runs/short/best.pt runs/long/best.pt --out models/h36m
+    python -m training.export --random-init --out fixtures/tiny --preset tiny --seed 0
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import torch
+from safetensors import safe_open
+from safetensors.torch import save_file
+
+from .diffusion import DiffusionConfig, Schedule
+from .model import ModelConfig, TCDModel, randomize_output_layer
+
+FORMAT_VERSION = 1
+ROLES = ("short", "long", "repair")
+CONFIG_KEY = "tcd_config"
+
+# Windows of the Human3.6M cascade (spec section 5) and the repair model.
+WINDOWS = {"short": (50, 5), "long": (55, 20), "repair": (50, 0)}
+
+PRESETS = {
+    "full": ModelConfig(),
+    "tiny": ModelConfig(channels=16, num_layers=2, num_heads=2, ffn_dim=16),
+}
+
+
+def source_revision() -> str:
+    try:
+        out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent, capture_output=True,
+                             text=True, timeout=5)
+        rev = out.stdout.strip()
+        if out.returncode == 0 and rev:
+            dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=Path(__file__).parent,
+                                   capture_output=True, text=True, timeout=5).stdout.strip()
+            return rev + ("-dirty" if dirty else "")
+    except (OSError, subprocess.SubprocessError):
+        pass
+    return "unknown"
+
+
+def h36m_data_meta(training_data: str = "Human3.6M S1,S6,S7,S8,S9 (exp-map, 25 fps)") -> dict:
+    from .data.h36m import joint_names_22, joints_used
+    return {"dataset": "h36m", "fps": 25.0, "units": "m", "root_relative": True,
+            "joint_names": joint_names_22(), "joint_index_32": joints_used(),
+            "training_data": training_data,
+            "licence": "Human3.6M: academic non-commercial research use only"}
+
+
+def build_config(role: str, model_cfg: ModelConfig, diff_cfg: DiffusionConfig, obs_len: int, pred_len: int,
+                 data: dict, training: dict | None = None) -> dict:
+    if role not in ROLES:
+        raise ValueError(f"role must be one of {ROLES}, got {role!r}")
+    return {"format_version": FORMAT_VERSION, "role": role, "model": model_cfg.to_dict(),
+            "window": {"obs_len": obs_len, "pred_len": pred_len, "seq_len": obs_len + pred_len},
+            "diffusion": diff_cfg.to_dict(), "data": data, "training": training or {},
+            "source_revision": source_revision()}
+
+
+def save_model_file(path: str | Path, model: TCDModel, config: dict) -> None:
+    tensors = {k: v.detach().to("cpu", torch.float32).contiguous() for k, v in model.state_dict().items()}
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    save_file(tensors, str(path), metadata={CONFIG_KEY: json.dumps(config)})
+
+
+def read_config(path: str | Path) -> dict:
+    with safe_open(str(path), framework="pt") as f:
+        meta = f.metadata() or {}
+    if CONFIG_KEY not in meta:
+        raise ValueError(f"{path}: no '{CONFIG_KEY}' entry in the safetensors metadata")
+    return json.loads(meta[CONFIG_KEY])
+
+
+def load_model_file(path: str | Path, device: str = "cpu") -> tuple[TCDModel, Schedule, dict]:
+    """Load a safetensors model file strictly into the reference classes (eval mode)."""
+    from safetensors.torch import load_file
+    cfg = read_config(path)
+    if cfg.get("format_version") != FORMAT_VERSION:
+        raise ValueError(f"{path}: format_version {cfg.get('format_version')} is not {FORMAT_VERSION}")
+    model_cfg = ModelConfig.from_dict(cfg["model"])
+    diff_cfg = DiffusionConfig.from_dict(cfg["diffusion"])
+    model = TCDModel(model_cfg, diff_cfg.num_train_timesteps)
+    model.load_state_dict(load_file(str(path)), strict=True)
+    return model.to(device).eval(), Schedule(diff_cfg), cfg
+
+
+def load_model_dir(path: str | Path, device: str = "cpu") -> dict[str, tuple[TCDModel, Schedule, dict]]:
+    d = Path(path)
+    out = {role: load_model_file(d / f"{role}.safetensors", device) for role in ROLES
+           if (d / f"{role}.safetensors").is_file()}
+    if "short" not in out or "long" not in out:
+        raise FileNotFoundError(f"{d} must hold short.safetensors and long.safetensors")
+    return out
+
+
+def write_model_json(d: Path) -> None:
+    """A readable summary of every model file in the directory."""
+    summary = {}
+    for role in ROLES:
+        p = d / f"{role}.safetensors"
+        if p.is_file():
+            cfg = read_config(p)
+            cfg["diffusion"] = {k: v for k, v in cfg["diffusion"].items() if k != "betas"}
+            summary[role] = cfg
+    (d / "model.json").write_text(json.dumps(summary, indent=2) + "\n")
+
+
+def random_init_dir(out: str | Path, preset: str = "tiny", seed: int = 0,
+                    diff_cfg: DiffusionConfig | None = None) -> Path:
+    """Seeded random-init short and long models (the last conv gets a small random weight, so that
+    outputs are non-trivial): fixtures for parity tests and benchmarks."""
+    d = Path(out)
+    diff_cfg = diff_cfg or DiffusionConfig()
+    for i, role in enumerate(("short", "long")):
+        torch.manual_seed(seed * 1000 + i)
+        model = TCDModel(PRESETS[preset], diff_cfg.num_train_timesteps)
+        randomize_output_layer(model, seed=seed * 1000 + i)
+        obs, pred = WINDOWS[role]
+        cfg = build_config(role, model.cfg, diff_cfg, obs, pred, h36m_data_meta(training_data="none (random init)"),
+                           {"random_init": True, "preset": preset, "seed": seed})
+        save_model_file(d / f"{role}.safetensors", model.eval(), cfg)
+    write_model_json(d)
+    return d
+
+
+def export_checkpoint(ckpt_path: str | Path, out_dir: str | Path) -> Path:
+    ck = torch.load(str(ckpt_path), map_location="cpu", weights_only=False)
+    model_cfg = ModelConfig.from_dict(ck["model_config"])
+    diff_cfg = DiffusionConfig.from_dict(ck["diffusion_config"])
+    model = TCDModel(model_cfg, diff_cfg.num_train_timesteps)
+    model.load_state_dict(ck["model"], strict=True)
+    role = ck["role"]
+    training = {k: ck.get(k) for k in ("epoch", "step", "best_val", "train_config", "elapsed_s")}
+    cfg = build_config(role, model_cfg, diff_cfg, ck["window"]["obs_len"], ck["window"]["pred_len"], ck["data"], training)
+    path = Path(out_dir) / f"{role}.safetensors"
+    save_model_file(path, model.eval(), cfg)
+    return path
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m training.export", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--checkpoint", nargs="+", help="training checkpoint(s) (.pt); each records its role")
+    ap.add_argument("--random-init", action="store_true", help="write seeded random-init short and long models")
+    ap.add_argument("--preset", choices=sorted(PRESETS), default="tiny", help="model size for --random-init")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", required=True, help="model directory to write")
+    args = ap.parse_args(argv)
+    if bool(args.checkpoint) == bool(args.random_init):
+        ap.error("give exactly one of --checkpoint or --random-init")
+    out = Path(args.out)
+    if args.random_init:
+        random_init_dir(out, args.preset, args.seed)
+    else:
+        for ck in args.checkpoint:
+            print(f"exported {export_checkpoint(ck, out)}")
+        write_model_json(out)
+    print(f"model directory: {out.resolve()}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,36 @@
+"""Deterministic-protocol metrics (Setting-B) and the repair metric."""
+from __future__ import annotations
+
+import numpy as np
+
+# Horizons reported in the paper's tables: ms -> 1-based future frame at 25 fps.
+HORIZONS_MS = (80, 160, 320, 400, 560, 720, 880, 1000)
+
+
+def horizon_frame(ms: int, fps: float = 25.0) -> int:
+    """1-based index of the future frame at ``ms`` milliseconds."""
+    return int(round(ms * fps / 1000.0))
+
+
+def per_frame_error(pred32_mm: np.ndarray, gt32_mm: np.ndarray) -> np.ndarray:
+    """Mean over joints of the L2 distance per frame. (..., T, J, 3) -> (..., T) in mm."""
+    return np.linalg.norm(np.asarray(pred32_mm) - np.asarray(gt32_mm), axis=-1).mean(axis=-1)
+
+
+def at_horizons(per_frame: np.ndarray, fps: float = 25.0, horizons=HORIZONS_MS) -> dict[str, float]:
+    """per_frame: (H,) errors of future frames 1..H -> {"80": err, ...} for horizons within H."""
+    out = {}
+    for ms in horizons:
+        k = horizon_frame(ms, fps)
+        if 1 <= k <= len(per_frame):
+            out[str(ms)] = float(per_frame[k - 1])
+    return out
+
+
+def repair_ade(repaired: np.ndarray, gt: np.ndarray, joint_mask: np.ndarray) -> tuple[float, int]:
+    """ADE over occluded observation entries: mean L2 distance (in the inputs' units) over the
+    (window, frame, joint) entries whose mask is 0. repaired, gt: (..., T, J, 3); joint_mask (..., T, J).
+    Returns (sum of distances, count) so callers can pool over windows."""
+    d = np.linalg.norm(np.asarray(repaired) - np.asarray(gt), axis=-1)
+    hidden = np.asarray(joint_mask) < 0.5
+    return float(d[hidden].sum()), int(hidden.sum())

@@ -1,0 +1,209 @@
+"""The CSDI/TCD denoiser (spec TCD_REFERENCE.md section 1), written from the spec.
+
+Every coordinate of a frame is a token: a window is a (B, K, L) tensor with K = 3 x joints.
+The network predicts the noise added to the entries that are not conditioned (mask 0).
+
+state_dict keys mirror the reference structure (section 10.1):
+``embed_layer.weight`` and ``diffmodel.*``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields
+
+import torch
+from torch import nn
+import torch.nn.functional as F
+
+
+@dataclass
+class ModelConfig:
+    num_joints: int = 22                # joints in the model layout (Human3.6M: 22)
+    coords: int = 3                     # coordinates per joint
+    channels: int = 64                  # residual channels C
+    num_layers: int = 12                # residual blocks (H36M 12, AMASS 4)
+    num_heads: int = 8                  # attention heads of both transformers
+    ffn_dim: int = 64                   # feed-forward width of the transformer layers
+    diffusion_embedding_dim: int = 128  # step embedding width (table and projections)
+    time_embedding_dim: int = 128       # sinusoidal frame-index embedding channels
+    feature_embedding_dim: int = 16     # learned per-coordinate embedding channels
+    layer_norm_eps: float = 1e-5        # PyTorch default of nn.TransformerEncoderLayer
+    dropout: float = 0.1                # transformer dropout (training only; the reference keeps PyTorch's default)
+
+    @property
+    def num_features(self) -> int:      # K
+        return self.num_joints * self.coords
+
+    @property
+    def side_dim(self) -> int:          # time + feature embeddings + the mask channel
+        return self.time_embedding_dim + self.feature_embedding_dim + 1
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["num_features"] = self.num_features
+        d["side_dim"] = self.side_dim
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "ModelConfig":
+        names = {f.name for f in fields(cls)}
+        cfg = cls(**{k: v for k, v in d.items() if k in names})
+        for derived in ("num_features", "side_dim"):
+            if derived in d and d[derived] != getattr(cfg, derived):
+                raise ValueError(f"model config: {derived}={d[derived]} disagrees with the sizes ({getattr(cfg, derived)})")
+        if cfg.channels % cfg.num_heads:
+            raise ValueError(f"model config: channels={cfg.channels} is not divisible by num_heads={cfg.num_heads}")
+        return cfg
+
+
+def conv1x1(cin: int, cout: int) -> nn.Conv1d:
+    """1x1 Conv1d with kaiming-normal weight (CSDI's Conv1d_with_init); bias keeps PyTorch's default."""
+    layer = nn.Conv1d(cin, cout, 1)
+    nn.init.kaiming_normal_(layer.weight)
+    return layer
+
+
+def step_embedding_table(num_steps: int, dim: int) -> torch.Tensor:
+    """Fixed table (num_steps, dim): row t = [sin(t f_j)]_j ++ [cos(t f_j)]_j, f_j = 10^(4 j/(dim/2 - 1))."""
+    half = dim // 2
+    steps = torch.arange(num_steps, dtype=torch.float32).unsqueeze(1)
+    freqs = 10.0 ** (torch.arange(half, dtype=torch.float32) / (half - 1) * 4.0).unsqueeze(0)
+    table = steps * freqs
+    return torch.cat([torch.sin(table), torch.cos(table)], dim=1)
+
+
+def frame_embedding(length: int, dim: int, device=None) -> torch.Tensor:
+    """Sinusoidal embedding of frame positions 0..length-1: (length, dim), even channels sin, odd cos."""
+    pos = torch.arange(length, dtype=torch.float32, device=device).unsqueeze(1)
+    div_term = torch.exp(torch.arange(0, dim, 2, dtype=torch.float32, device=device) * -(math.log(10000.0) / dim))
+    pe = torch.zeros(length, dim, device=device)
+    pe[:, 0::2] = torch.sin(pos * div_term)
+    pe[:, 1::2] = torch.cos(pos * div_term)
+    return pe
+
+
+class DiffusionEmbedding(nn.Module):
+    def __init__(self, num_steps: int, dim: int):
+        super().__init__()
+        # Not a learned weight: recomputed from the formula, kept out of the state_dict.
+        self.register_buffer("embedding", step_embedding_table(num_steps, dim), persistent=False)
+        self.projection1 = nn.Linear(dim, dim)
+        self.projection2 = nn.Linear(dim, dim)
+
+    def forward(self, step: torch.Tensor) -> torch.Tensor:
+        x = self.embedding[step]
+        x = F.silu(self.projection1(x))
+        return F.silu(self.projection2(x))
+
+
+def transformer(cfg: ModelConfig) -> nn.TransformerEncoder:
+    layer = nn.TransformerEncoderLayer(d_model=cfg.channels, nhead=cfg.num_heads, dim_feedforward=cfg.ffn_dim,
+                                       dropout=cfg.dropout, activation="gelu", layer_norm_eps=cfg.layer_norm_eps)
+    return nn.TransformerEncoder(layer, num_layers=1, enable_nested_tensor=False)
+
+
+class ResidualBlock(nn.Module):
+    def __init__(self, cfg: ModelConfig):
+        super().__init__()
+        C = cfg.channels
+        self.diffusion_projection = nn.Linear(cfg.diffusion_embedding_dim, C)
+        self.cond_projection = conv1x1(cfg.side_dim, 2 * C)
+        self.mid_projection = conv1x1(C, 2 * C)
+        self.output_projection = conv1x1(C, 2 * C)
+        self.time_layer = transformer(cfg)
+        self.feature_layer = transformer(cfg)
+
+    def forward_time(self, y: torch.Tensor, B: int, C: int, K: int, L: int) -> torch.Tensor:
+        if L == 1:
+            return y
+        y = y.reshape(B, C, K, L).permute(0, 2, 1, 3).reshape(B * K, C, L)   # one sequence per coordinate
+        y = self.time_layer(y.permute(2, 0, 1)).permute(1, 2, 0)            # (L, B*K, C) sequence-first
+        return y.reshape(B, K, C, L).permute(0, 2, 1, 3).reshape(B, C, K * L)
+
+    def forward_feature(self, y: torch.Tensor, B: int, C: int, K: int, L: int) -> torch.Tensor:
+        if K == 1:
+            return y
+        y = y.reshape(B, C, K, L).permute(0, 3, 1, 2).reshape(B * L, C, K)   # one sequence per frame
+        y = self.feature_layer(y.permute(2, 0, 1)).permute(1, 2, 0)         # (K, B*L, C)
+        return y.reshape(B, L, C, K).permute(0, 2, 3, 1).reshape(B, C, K * L)
+
+    def forward(self, x: torch.Tensor, cond: torch.Tensor, emb: torch.Tensor):
+        B, C, K, L = x.shape
+        x = x.reshape(B, C, K * L)
+        y = x + self.diffusion_projection(emb).unsqueeze(-1)                 # (B, C, K*L)
+        y = self.forward_time(y, B, C, K, L)
+        y = self.forward_feature(y, B, C, K, L)
+        y = self.mid_projection(y)                                           # (B, 2C, K*L)
+        y = y + self.cond_projection(cond.reshape(B, cond.shape[1], K * L))
+        gate, filt = torch.chunk(y, 2, dim=1)
+        y = torch.sigmoid(gate) * torch.tanh(filt)
+        y = self.output_projection(y)
+        residual, skip = torch.chunk(y, 2, dim=1)
+        out = (x + residual) / math.sqrt(2.0)
+        return out.reshape(B, C, K, L), skip.reshape(B, C, K, L)
+
+
+class DiffCSDI(nn.Module):
+    def __init__(self, cfg: ModelConfig, num_steps: int):
+        super().__init__()
+        C = cfg.channels
+        self.diffusion_embedding = DiffusionEmbedding(num_steps, cfg.diffusion_embedding_dim)
+        self.input_projection = conv1x1(2, C)
+        self.output_projection1 = conv1x1(C, C)
+        self.output_projection2 = conv1x1(C, 1)
+        nn.init.zeros_(self.output_projection2.weight)  # the reference zero-initialises the last conv
+        self.residual_layers = nn.ModuleList([ResidualBlock(cfg) for _ in range(cfg.num_layers)])
+
+    def forward(self, x: torch.Tensor, cond: torch.Tensor, step: torch.Tensor) -> torch.Tensor:
+        B, _, K, L = x.shape
+        h = F.relu(self.input_projection(x.reshape(B, 2, K * L))).reshape(B, -1, K, L)
+        emb = self.diffusion_embedding(step)
+        skip_sum = 0.0
+        for layer in self.residual_layers:
+            h, skip = layer(h, cond, emb)
+            skip_sum = skip_sum + skip
+        y = skip_sum.reshape(B, -1, K * L) / math.sqrt(len(self.residual_layers))
+        y = F.relu(self.output_projection1(y))
+        return self.output_projection2(y).reshape(B, K, L)
+
+
+class TCDModel(nn.Module):
+    """Side information + denoiser. ``forward(noisy, observed, mask, step) -> eps_hat``, all (B, K, L)."""
+
+    def __init__(self, cfg: ModelConfig, num_train_timesteps: int = 50):
+        super().__init__()
+        self.cfg = cfg
+        self.num_train_timesteps = num_train_timesteps
+        self.embed_layer = nn.Embedding(cfg.num_features, cfg.feature_embedding_dim)
+        self.diffmodel = DiffCSDI(cfg, num_train_timesteps)
+
+    def side_info(self, mask: torch.Tensor) -> torch.Tensor:
+        """(B, K, L) mask -> (B, side_dim, K, L): [frame embedding | feature embedding | mask]."""
+        B, K, L = mask.shape
+        if K != self.cfg.num_features:
+            raise ValueError(f"mask has K={K} features, the model expects {self.cfg.num_features}")
+        temb = frame_embedding(L, self.cfg.time_embedding_dim, mask.device)          # (L, 128)
+        temb = temb.t().unsqueeze(1).expand(-1, K, -1)                                  # (128, K, L)
+        femb = self.embed_layer.weight.t().unsqueeze(2).expand(-1, -1, L)               # (16, K, L)
+        side = torch.cat([temb, femb], dim=0).unsqueeze(0).expand(B, -1, -1, -1)
+        return torch.cat([side, mask.unsqueeze(1)], dim=1)
+
+    def forward(self, noisy: torch.Tensor, observed: torch.Tensor, mask: torch.Tensor,
+                step: torch.Tensor | int) -> torch.Tensor:
+        if not torch.is_tensor(step):
+            step = torch.tensor([step], device=noisy.device)
+        step = step.reshape(-1).to(noisy.device).long()
+        inp = torch.stack([mask * observed, (1 - mask) * noisy], dim=1)                # (B, 2, K, L)
+        return self.diffmodel(inp, self.side_info(mask), step)
+
+
+def randomize_output_layer(model: TCDModel, seed: int = 0, std: float = 0.02) -> None:
+    """Give the zero-initialised last conv a small seeded random weight (for fixtures: non-trivial outputs)."""
+    g = torch.Generator().manual_seed(seed)
+    w = model.diffmodel.output_projection2.weight
+    with torch.no_grad():
+        w.copy_(torch.randn(w.shape, generator=g) * std)
+
+
+def count_parameters(model: nn.Module) -> int:
+    return sum(p.numel() for p in model.parameters())
