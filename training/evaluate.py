@@ -162,7 +162,8 @@ def evaluate_h36m(args) -> dict:
 def evaluate_humaneva(args) -> dict:
     from .data.humaneva import humaneva_test_windows, load_humaneva, multimodal_gt
     from .stochastic import evaluate_stochastic
-    data = load_humaneva(args.data, split="Validate")
+    path = Path(args.data)
+    data = load_humaneva(path / "humaneva_i_15j_60hz.npz" if path.is_dir() else path, split="Validate")
     wins = humaneva_test_windows(data)                                   # (N, 75, 14, 3) metres
     t_his = 15
     D = wins.shape[2] * 3

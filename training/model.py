@@ -56,9 +56,17 @@ class ModelConfig:
         return cfg
 
 
-def conv1x1(cin: int, cout: int) -> nn.Conv1d:
+class Conv1x1(nn.Conv1d):
+    """Kernel-size-1 Conv1d (same parameters and state_dict as nn.Conv1d) computed as a matrix product,
+    which is several times faster than PyTorch's CPU convolution path for this shape."""
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:  # (B, Cin, N) -> (B, Cout, N)
+        return torch.matmul(self.weight.squeeze(-1), x) + self.bias.unsqueeze(-1)
+
+
+def conv1x1(cin: int, cout: int) -> Conv1x1:
     """1x1 Conv1d with kaiming-normal weight (CSDI's Conv1d_with_init); bias keeps PyTorch's default."""
-    layer = nn.Conv1d(cin, cout, 1)
+    layer = Conv1x1(cin, cout, 1)
     nn.init.kaiming_normal_(layer.weight)
     return layer
 

@@ -1,0 +1,165 @@
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from training.diffusion import (DiffusionConfig, Schedule, cascade, draw_noise, masked_eps_loss, q_sample, repair,
+                                sample, sample_many, step_pairs, training_loss)
+from training.model import ModelConfig, TCDModel, randomize_output_layer
+
+SCHED = Schedule(DiffusionConfig())
+K = 66
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    torch.manual_seed(0)
+    m = TCDModel(ModelConfig(channels=16, num_layers=2, num_heads=2, ffn_dim=16))
+    randomize_output_layer(m, seed=1, std=0.1)
+    return m.eval()
+
+
+def window(B=2, L=12, O=8, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    x0 = torch.randn(B, K, L, generator=g)
+    mask = torch.zeros(B, K, L)
+    mask[..., :O] = 1
+    return x0, mask
+
+
+class OracleEps(torch.nn.Module):
+    """Predicts the exact noise for a known x0: eps = (x_t - sqrt(abar_t) x0) / sqrt(1 - abar_t)."""
+
+    def __init__(self, x0):
+        super().__init__()
+        self.x0 = x0
+
+    def forward(self, x, observed, mask, step):
+        a = torch.as_tensor(SCHED.alphas_cumprod, dtype=torch.float64)[step].view(-1, 1, 1)
+        return ((x.double() - a.sqrt() * self.x0.double()) / (1 - a).sqrt()).float()
+
+
+def test_loss_ignores_conditioned_entries():
+    eps, mask = torch.randn(2, K, 10), torch.zeros(2, K, 10)
+    mask[..., :6] = 1
+    eps_hat = torch.randn(2, K, 10)
+    base = masked_eps_loss(eps, eps_hat, mask)
+    changed = eps_hat.clone()
+    changed[..., :6] += 100.0
+    assert masked_eps_loss(eps, changed, mask) == base
+    # normalised by the number of target entries
+    assert base == pytest.approx(float(((eps - eps_hat)[..., 6:] ** 2).mean()), rel=1e-6)
+
+
+def test_training_loss_gradient_is_zero_on_conditioned_outputs(tiny):
+    x0, mask = window()
+    eps_hat_holder = {}
+
+    class Spy(torch.nn.Module):
+        def forward(self, x, observed, mask, step):
+            out = tiny(x, observed, mask, step)
+            out.retain_grad()
+            eps_hat_holder["out"] = out
+            return out
+
+    loss = training_loss(Spy(), SCHED, x0, mask, generator=torch.Generator().manual_seed(0))
+    loss.backward()
+    g = eps_hat_holder["out"].grad
+    assert torch.all(g[..., :8] == 0) and g[..., 8:].abs().sum() > 0
+
+
+def test_q_sample_formula():
+    x0, eps = torch.ones(1, 1, 1), torch.full((1, 1, 1), 2.0)
+    t = torch.tensor([10])
+    a = SCHED.alphas_cumprod[10]
+    assert q_sample(SCHED, x0, t, eps).item() == pytest.approx(math.sqrt(a) + 2 * math.sqrt(1 - a), rel=1e-6)
+
+
+@pytest.mark.parametrize("sampler,steps,eta", [("ddpm", None, 0.0), ("ddim", 50, 0.0), ("ddim", 10, 0.0), ("ddim", 10, 1.0),
+                                               ("ddpm", 10, 0.0)])
+def test_samplers_with_oracle_eps_recover_x0(sampler, steps, eta):
+    x0, mask = window(B=3)
+    obs = x0.clone()
+    out = sample(OracleEps(x0), SCHED, obs, torch.zeros_like(mask), sampler=sampler, num_inference_steps=steps, eta=eta,
+                 generator=torch.Generator().manual_seed(0))
+    assert torch.allclose(out, x0, atol=2e-4)
+
+
+def test_injected_noise_determinism_and_observed_unchanged(tiny):
+    x0, mask = window()
+    noise = draw_noise(50, x0.shape, torch.Generator().manual_seed(3))
+    a = sample(tiny, SCHED, x0, mask, noise=noise)
+    b = sample(tiny, SCHED, x0, mask, noise=noise.clone())
+    assert torch.equal(a, b)
+    assert torch.equal(a[..., :8], x0[..., :8])                       # bit-identical observation
+    c = sample(tiny, SCHED, x0, mask, noise=draw_noise(50, x0.shape, torch.Generator().manual_seed(4)))
+    assert not torch.allclose(a[..., 8:], c[..., 8:])
+    with pytest.raises(ValueError, match="noise must have shape"):
+        sample(tiny, SCHED, x0, mask, noise=noise[:10])
+
+
+def test_ddim_eta0_ignores_step_noise(tiny):
+    x0, mask = window()
+    n1 = draw_noise(10, x0.shape, torch.Generator().manual_seed(0))
+    n2 = n1.clone()
+    n2[1:] = torch.randn_like(n2[1:])
+    kw = dict(sampler="ddim", num_inference_steps=10, eta=0.0)
+    assert torch.equal(sample(tiny, SCHED, x0, mask, noise=n1, **kw), sample(tiny, SCHED, x0, mask, noise=n2, **kw))
+
+
+def test_ddpm_first_step_by_hand():
+    """One DDPM step with a constant eps prediction, checked against the written formula."""
+    class Const(torch.nn.Module):
+        def forward(self, x, o, m, step):
+            return torch.full_like(x, 0.5)
+    x0, mask = torch.zeros(1, 1, 1), torch.zeros(1, 1, 1)
+    noise = torch.zeros(3, 1, 1, 1)
+    noise[0], noise[1], noise[2] = 1.3, -0.7, 9.0   # the last z is never used
+    T = SCHED.T
+    sched1 = Schedule(DiffusionConfig())
+    pairs = step_pairs(T, "ddpm", 2, "trailing")            # [(49, 24), (24, -1)]
+    out = sample(Const(), sched1, x0, mask, sampler="ddpm", num_inference_steps=2, noise=noise)
+    a49, a24 = SCHED.alphas_cumprod[49], SCHED.alphas_cumprod[24]
+    beta = 1 - a49 / a24
+    x = (1.3 - beta / math.sqrt(1 - a49) * 0.5) / math.sqrt(1 - beta)
+    x += math.sqrt(beta * (1 - a24) / (1 - a49)) * -0.7
+    x = (x - (1 - a24) / math.sqrt(1 - a24) * 0.5) / math.sqrt(a24)
+    assert pairs == [(49, 24), (24, -1)]
+    assert out.item() == pytest.approx(x, rel=1e-5)
+
+
+def test_batched_chains_equal_sequential(tiny):
+    x0, mask = window()
+    noise = torch.randn(3, 6, *x0.shape, generator=torch.Generator().manual_seed(5))
+    kw = dict(sampler="ddim", num_inference_steps=5, eta=1.0, noise=noise)
+    a = sample_many(tiny, SCHED, x0, mask, 3, batch_chains=True, **kw)
+    b = sample_many(tiny, SCHED, x0, mask, 3, batch_chains=False, **kw)
+    assert a.shape == (3, 2, K, 12)
+    assert torch.allclose(a, b, atol=1e-5)
+
+
+def test_cascade_structure(tiny):
+    obs, mask = window(B=2, L=8, O=8)
+    mask[0, :9, 2:5] = 0                                       # occlusion inside the observation
+    g = torch.Generator().manual_seed(0)
+    res = cascade(tiny, SCHED, tiny, SCHED, obs, mask, short_len=10, long_len=14, num_samples=3, generator=g,
+                  sampler="ddim", num_inference_steps=5)
+    short, mean, long = res["short_samples"], res["short_mean"], res["samples"]
+    assert short.shape == (3, 2, K, 10) and mean.shape == (2, K, 10) and long.shape == (3, 2, K, 14)
+    assert torch.allclose(mean, short.mean(0))
+    for s in range(3):
+        assert torch.equal(long[s, :, :, :10], mean)          # frames given to the long-term model
+    vis = mask.bool()
+    assert torch.equal(short[:, :, :, :8][:, vis], obs[vis].expand(3, -1))
+    assert not torch.equal(long[0, ..., 10:], long[1, ..., 10:])
+
+
+def test_repair_keeps_observed_and_fills_hidden(tiny):
+    obs, mask = window(B=2, L=8, O=8)
+    mask[:, :6, 3:6] = 0
+    out = repair(tiny, SCHED, obs * mask, mask, seq_len=10, num_samples=2, sampler="ddim", num_inference_steps=5,
+                 generator=torch.Generator().manual_seed(0))
+    assert out.shape == obs.shape
+    assert torch.equal(out[mask.bool()], obs[mask.bool()])
+    assert torch.all(out[~mask.bool()] != 0)

@@ -1,0 +1,55 @@
+import json
+
+import numpy as np
+import pytest
+
+from conftest import H36M_DIR, needs_h36m
+from training import evaluate
+from training.data.h36m import find_indices_256
+from training.export import random_init_dir
+
+
+def test_find_indices_256_draws_alternate_from_one_rng():
+    s1, s2 = find_indices_256(1000, 3000, 75, 50)
+    assert len(s1) == len(s2) == 128
+    rng = np.random.RandomState(1234567890)
+    draws = [rng.randint(16, hi) for _ in range(128) for hi in (1000 - 150, 3000 - 150)]
+    assert list(s1) == draws[0::2] and list(s2) == draws[1::2]
+    # input_n shifts the window start so that the prediction always begins at idx + 50
+    t1, _ = find_indices_256(1000, 3000, 35, 10)
+    assert np.array_equal(t1, s1 + 40)
+
+
+def test_zero_velocity_carries_the_last_visible_value():
+    obs = np.arange(2 * 3 * 1 * 3, dtype=float).reshape(2, 3, 1, 3)
+    jm = np.ones((2, 3, 1))
+    jm[0, 2, 0] = 0                                    # last frame hidden in window 0
+    out = evaluate.zero_velocity(obs, jm, horizon=4)
+    assert out.shape == (2, 4, 1, 3)
+    assert np.array_equal(out[0, 0, 0], obs[0, 1, 0]) and np.array_equal(out[1, 3, 0], obs[1, 2, 0])
+
+
+@needs_h36m
+def test_zero_velocity_reproduces_the_protocol_numbers(tmp_path):
+    out = tmp_path / "zv.json"
+    assert evaluate.main(["--baseline", "zero-velocity", "--data", str(H36M_DIR), "--json", str(out), "--quiet"]) == 0
+    res = json.loads(out.read_text())
+    expected = {"80": 24.3, "320": 77.4, "560": 108.8, "720": 123.2, "880": 133.7, "1000": 139.1}
+    for ms, mm in expected.items():
+        assert res["average"][ms] == pytest.approx(mm, abs=0.3), ms
+    assert len(res["per_frame"]) == 25 and len(res["per_action"]) == 13
+    assert res["protocol"]["windows_per_action"] == 256 and res["seeds"]["windows"] == 1234567890
+
+
+@needs_h36m
+def test_model_evaluation_runs_end_to_end(tmp_path):
+    d = random_init_dir(tmp_path / "m", preset="tiny")
+    out = tmp_path / "m.json"
+    assert evaluate.main(["--model", str(d), "--data", str(H36M_DIR), "--json", str(out), "--windows-per-action", "1",
+                          "--samples", "2", "--steps", "2", "--sampler", "ddim", "--mask", "random_leg_arm",
+                          "--quiet"]) == 0
+    res = json.loads(out.read_text())
+    assert set(res["average"]) == {"80", "160", "320", "400", "560", "720", "880", "1000"}
+    assert res["best_of_n"]["label"].startswith("oracle") and res["mean_of_n"]["label"].startswith("mean")
+    assert res["repair"]["occluded_entries"] > 0 and np.isfinite(res["repair"]["ade_mm"])
+    assert "zero_velocity_on_repaired" in res and res["select"] == "best"

@@ -1,0 +1,94 @@
+import math
+
+import numpy as np
+import pytest
+import torch
+from torch import nn
+
+from training.model import ModelConfig, TCDModel, count_parameters, frame_embedding, step_embedding_table
+
+
+def expected_keys(n_layers):
+    keys = ["embed_layer.weight"]
+    for p in ("diffusion_embedding.projection1", "diffusion_embedding.projection2", "input_projection",
+              "output_projection1", "output_projection2"):
+        keys += [f"diffmodel.{p}.weight", f"diffmodel.{p}.bias"]
+    for i in range(n_layers):
+        pre = f"diffmodel.residual_layers.{i}"
+        for p in ("diffusion_projection", "cond_projection", "mid_projection", "output_projection"):
+            keys += [f"{pre}.{p}.weight", f"{pre}.{p}.bias"]
+        for tr in ("time_layer", "feature_layer"):
+            lp = f"{pre}.{tr}.layers.0"
+            keys += [f"{lp}.self_attn.in_proj_weight", f"{lp}.self_attn.in_proj_bias",
+                     f"{lp}.self_attn.out_proj.weight", f"{lp}.self_attn.out_proj.bias"]
+            for p in ("linear1", "linear2", "norm1", "norm2"):
+                keys += [f"{lp}.{p}.weight", f"{lp}.{p}.bias"]
+    return keys
+
+
+def test_state_dict_keys_and_shapes_match_spec_10_1():
+    m = TCDModel(ModelConfig())
+    sd = m.state_dict()
+    assert sorted(sd) == sorted(expected_keys(12))
+    assert sd["embed_layer.weight"].shape == (66, 16)
+    assert sd["diffmodel.input_projection.weight"].shape == (64, 2, 1)
+    assert sd["diffmodel.output_projection2.weight"].shape == (1, 64, 1)
+    assert sd["diffmodel.residual_layers.3.cond_projection.weight"].shape == (128, 145, 1)
+    assert sd["diffmodel.residual_layers.3.time_layer.layers.0.self_attn.in_proj_weight"].shape == (192, 64)
+    assert torch.all(sd["diffmodel.output_projection2.weight"] == 0)  # reference init
+
+
+def test_parameter_count_matches_layer_sizes():
+    # spec 1.5: about 1.167 M for H36M, 94,016 per residual block
+    full = TCDModel(ModelConfig())
+    block = sum(p.numel() for p in full.diffmodel.residual_layers[0].parameters())
+    assert block == 94_016
+    assert count_parameters(full) == 1_166_689
+    assert count_parameters(TCDModel(ModelConfig(num_joints=18, num_layers=4))) == pytest.approx(0.41e6, rel=0.02)
+
+
+def test_conv1x1_equals_conv1d():
+    m = TCDModel(ModelConfig(channels=16, num_layers=1, num_heads=2, ffn_dim=16))
+    conv = m.diffmodel.residual_layers[0].mid_projection
+    x = torch.randn(3, 16, 40)
+    ref = nn.functional.conv1d(x, conv.weight, conv.bias)
+    assert torch.allclose(conv(x), ref, atol=1e-6)
+
+
+def test_embeddings_follow_the_formulas():
+    table = step_embedding_table(50, 128)
+    t, j = 7, 5
+    f = 10.0 ** (4.0 * j / 63)
+    assert table[t, j].item() == pytest.approx(math.sin(t * f), abs=1e-4)
+    assert table[t, 64 + j].item() == pytest.approx(math.cos(t * f), abs=1e-4)
+    pe = frame_embedding(75, 128)
+    pos, i = 30, 3
+    assert pe[pos, 2 * i].item() == pytest.approx(math.sin(pos / 10000 ** (2 * i / 128)), abs=1e-5)
+    assert pe[pos, 2 * i + 1].item() == pytest.approx(math.cos(pos / 10000 ** (2 * i / 128)), abs=1e-5)
+
+
+def test_side_info_layout():
+    m = TCDModel(ModelConfig(channels=16, num_layers=1, num_heads=2, ffn_dim=16))
+    mask = (torch.rand(2, 66, 9) > 0.5).float()
+    side = m.side_info(mask)
+    assert side.shape == (2, 145, 66, 9)
+    assert torch.equal(side[:, 144], mask)
+    assert torch.equal(side[0, 128:144, 5, 3], m.embed_layer.weight[5])
+    assert torch.equal(side[1, :128, 10, 4], frame_embedding(9, 128)[4])
+
+
+def test_forward_uses_mask_and_ignores_hidden_observations():
+    torch.manual_seed(0)
+    m = TCDModel(ModelConfig(channels=16, num_layers=2, num_heads=2, ffn_dim=16)).eval()
+    nn.init.normal_(m.diffmodel.output_projection2.weight, std=0.1)
+    x, obs = torch.randn(1, 66, 12), torch.randn(1, 66, 12)
+    mask = torch.zeros(1, 66, 12)
+    mask[..., :8] = 1
+    y = m(x, obs, mask, 10)
+    assert y.shape == (1, 66, 12) and y.abs().mean() > 1e-3
+    obs2 = obs.clone()
+    obs2[..., 8:] += 5.0                       # values under mask 0 are not seen
+    x2 = x.clone()
+    x2[..., :8] += 5.0                         # noisy values under mask 1 are not seen
+    assert torch.equal(m(x2, obs2, mask, 10), y)
+    assert not torch.allclose(m(x, obs, mask, 11), y)  # the step matters

@@ -1,0 +1,113 @@
+"""HumanEva-I loader and the DLow / GSPS stochastic-prediction test protocol.
+
+Data: ``humaneva_i_15j_60hz.npz`` (the VideoPose3D ``data_3d_humaneva15`` positions), keys
+``{Train|Validate}/{S1|S2|S3}/{action} chunk{n}``, float32 (T, 15, 3) metres at 60 Hz. The DLow
+protocol trains on the ``Train/*`` subjects and tests on ``Validate/*``.
+
+Protocol (DLow ``motion_pred/utils/dataset_humaneva.py``, ``dataset.py`` and ``eval.py``; GSPS and
+MotionDiff use the same definitions):
+
+* all 15 joints kept; joints 1..14 made relative to joint 0 (the root) and the root dropped:
+  14 joints, 42 dimensions (global translation removed, global rotation kept);
+* t_his = 15 observed, t_pred = 60 predicted frames (75 per window);
+* test windows start at ``range(0, T - 75, t_his)``. The upper bound is exclusive as in DLow's
+  ``iter_generator``: a chunk needs **more** than 75 frames to give a window, and the last window
+  that would end exactly at the chunk's end is not used;
+* three takes with a wrong head position are removed, as DLow does: ``Train/S3/Walking 1 chunk0``,
+  ``Train/S3/Walking 1 chunk2`` (train) and ``Validate/S3/Walking 1 chunk4`` (test);
+* multimodal ground truth: for each test window, the futures of all test windows whose last observed
+  pose (flattened 42-dim root-relative pose at frame t_his - 1) lies at L2 distance < threshold
+  (0.5 m) from this window's (strict inequality, as ``np.nonzero(pd < threshold)``); the window
+  itself is always included (distance 0).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+HUMANEVA_T_HIS = 15
+HUMANEVA_T_PRED = 60
+HUMANEVA_FPS = 60
+HUMANEVA_NUM_JOINTS = 15
+
+# 15-joint HumanEva skeleton of VideoPose3D / DLow (parents of joints 0..14).
+HUMANEVA_PARENTS = [-1, 0, 1, 2, 3, 1, 5, 6, 0, 8, 9, 0, 11, 12, 1]
+
+# Takes DLow drops because of a wrong head position (``dataset_humaneva.py``).
+HUMANEVA_EXCLUDED_TAKES = {
+    "Train": ("Train/S3/Walking 1 chunk0", "Train/S3/Walking 1 chunk2"),
+    "Validate": ("Validate/S3/Walking 1 chunk4",),
+}
+
+
+def load_humaneva(path, split: str = "Train", exclude_bad_takes: bool = True) -> dict[str, np.ndarray]:
+    """Load the chunks of one split: ``{"Validate/S1/Box 1 chunk0": (T, 15, 3) float32 metres}``.
+
+    ``split`` is ``"Train"`` (training subjects) or ``"Validate"`` (the test set of the protocol).
+    Keys keep the file's order (DLow's iteration order). The takes in ``HUMANEVA_EXCLUDED_TAKES``
+    are dropped unless ``exclude_bad_takes=False``. Raw absolute positions: see ``root_relative``.
+    """
+    if split not in ("Train", "Validate"):
+        raise ValueError(f"split must be 'Train' or 'Validate', got {split!r}")
+    excluded = set(HUMANEVA_EXCLUDED_TAKES[split]) if exclude_bad_takes else set()
+    out: dict[str, np.ndarray] = {}
+    with np.load(path) as data:
+        for key in data.files:
+            if not key.startswith(split + "/") or key in excluded:
+                continue
+            arr = np.asarray(data[key], dtype=np.float32)
+            if arr.ndim != 3 or arr.shape[1:] != (HUMANEVA_NUM_JOINTS, 3):
+                raise ValueError(f"{key}: expected (T, 15, 3), got {arr.shape}")
+            out[key] = arr
+    return out
+
+
+def root_relative(seq: np.ndarray) -> np.ndarray:
+    """(..., 15, 3) -> (..., 14, 3): joints 1..14 minus joint 0; the root is dropped."""
+    seq = np.asarray(seq)
+    return seq[..., 1:, :] - seq[..., :1, :]
+
+
+def window_starts(n_frames: int, t_total: int, step: int) -> range:
+    """DLow's window starts: ``range(0, n_frames - t_total, step)`` (upper bound exclusive)."""
+    return range(0, n_frames - t_total, step)
+
+
+def humaneva_test_windows(data: dict[str, np.ndarray], t_his: int = HUMANEVA_T_HIS,
+                          t_pred: int = HUMANEVA_T_PRED, step: int | None = None) -> np.ndarray:
+    """All test windows, root-relative: (N, t_his + t_pred, 14, 3), in ``data``'s order.
+
+    ``step`` defaults to ``t_his`` (DLow's ``iter_generator(step=t_his)``). Chunks with at most
+    ``t_his + t_pred`` frames give no window.
+    """
+    step = t_his if step is None else step
+    if step <= 0:
+        raise ValueError("step must be positive")
+    t_total = t_his + t_pred
+    windows = []
+    for seq in data.values():
+        rel = root_relative(seq)
+        for start in window_starts(rel.shape[0], t_total, step):
+            windows.append(rel[start:start + t_total])
+    if not windows:
+        return np.zeros((0, t_total, HUMANEVA_NUM_JOINTS - 1, 3), dtype=np.float32)
+    return np.stack(windows)
+
+
+def multimodal_gt(windows: np.ndarray, t_his: int = HUMANEVA_T_HIS, threshold: float = 0.5) -> list[np.ndarray]:
+    """DLow's ``get_multimodal_gt``: for each window i, ``(M_i, t_pred, D)`` futures of the windows whose
+    last observed pose is within L2 distance ``< threshold`` of window i's (window i included).
+
+    ``windows``: (N, T, J, 3) or (N, T, D). Distances are between flattened poses at frame
+    ``t_his - 1``, computed in float64. Futures are frames ``t_his:`` flattened to D = 3 J.
+    """
+    windows = np.asarray(windows)
+    n, t_total = windows.shape[:2]
+    flat = windows.reshape(n, t_total, -1)
+    start = flat[:, t_his - 1, :].astype(np.float64)
+    # Exact pairwise distances (no Gram-matrix cancellation), row by row to bound memory.
+    futures = flat[:, t_his:, :]
+    out: list[np.ndarray] = []
+    for i in range(n):
+        dist = np.linalg.norm(start - start[i], axis=1)
+        out.append(futures[np.nonzero(dist < threshold)[0]])
+    return out

@@ -1,0 +1,129 @@
+"""Stochastic-prediction metrics of the DLow / GSPS protocol (spec section 6), numpy.
+
+Shapes: ``pred`` (S, t_pred, D) samples, ``gt`` (t_pred, D) and ``gt_multi`` (M, t_pred, D), with D the
+flattened pose (e.g. 48 for Human3.6M Setting-A, 42 for HumanEva-I), in metres. The error of one
+sample at one frame is the **L2 norm of the whole D-dim pose difference** (not a per-joint mean).
+
+* APD: mean L2 distance over all unordered pairs of flattened (t_pred * D) samples; 0 when S = 1.
+* ADE: min over samples of the mean over frames of the per-frame error.
+* FDE: min over samples of the last frame's error.
+* MMADE / MMFDE: ADE / FDE against each multimodal future, averaged over those futures.
+
+``apd_top50`` is MotionDiff's **non-standard** diversity (mean of the 50 largest pairwise
+distances); report it only when comparing with MotionDiff's numbers, and say so.
+Papers print these numbers x1000 (e.g. DLow's ADE 0.425 appears as 425).
+"""
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+METRIC_KEYS = ("APD", "ADE", "FDE", "MMADE", "MMFDE")
+
+
+def _as_samples(pred) -> np.ndarray:
+    pred = np.asarray(pred, dtype=np.float64)
+    if pred.ndim != 3:
+        raise ValueError(f"pred must be (S, t_pred, D), got {pred.shape}")
+    return pred
+
+
+def pairwise_distances(pred) -> np.ndarray:
+    """The S (S - 1) / 2 distances between flattened samples, in ``scipy.spatial.distance.pdist`` order."""
+    pred = _as_samples(pred)
+    flat = pred.reshape(pred.shape[0], -1)
+    s = flat.shape[0]
+    # Row-wise differences (exact; avoids the cancellation of the Gram-matrix formula).
+    out = np.empty(s * (s - 1) // 2)
+    pos = 0
+    for a in range(s - 1):
+        d = np.linalg.norm(flat[a + 1:] - flat[a], axis=1)
+        out[pos:pos + d.size] = d
+        pos += d.size
+    return out
+
+
+def apd(pred) -> float:
+    """Average pairwise distance (DLow ``compute_diversity``); 0.0 for a single sample."""
+    d = pairwise_distances(pred)
+    return float(d.mean()) if d.size else 0.0
+
+
+def apd_top50(pred, k: int = 50) -> float:
+    """NON-STANDARD: MotionDiff's diversity, the mean of the ``k`` (50) largest pairwise distances.
+
+    With 50 samples there are 1225 pairs, so this is much larger than the standard ``apd``.
+    0.0 for a single sample; all pairs when there are fewer than ``k``.
+    """
+    d = pairwise_distances(pred)
+    if d.size == 0:
+        return 0.0
+    return float(np.sort(d)[::-1][:k].mean())
+
+
+def _frame_errors(pred, gt) -> np.ndarray:
+    """(S, t_pred) per-frame L2 norms of the flattened pose difference."""
+    pred = _as_samples(pred)
+    gt = np.asarray(gt, dtype=np.float64)
+    if gt.shape != pred.shape[1:]:
+        raise ValueError(f"gt {gt.shape} does not match samples {pred.shape[1:]}")
+    return np.linalg.norm(pred - gt[None], axis=2)
+
+
+def ade(pred, gt) -> float:
+    """Best-of-S average displacement error: min_s mean_t ||pred[s, t] - gt[t]||."""
+    return float(_frame_errors(pred, gt).mean(axis=1).min())
+
+
+def fde(pred, gt) -> float:
+    """Best-of-S final displacement error: min_s ||pred[s, -1] - gt[-1]||."""
+    return float(_frame_errors(pred, gt)[:, -1].min())
+
+
+def _check_multi(gt_multi) -> np.ndarray:
+    gt_multi = np.asarray(gt_multi, dtype=np.float64)
+    if gt_multi.ndim != 3 or gt_multi.shape[0] == 0:
+        raise ValueError(f"gt_multi must be a non-empty (M, t_pred, D) array, got {gt_multi.shape}")
+    return gt_multi
+
+
+def mmade(pred, gt_multi) -> float:
+    """Multimodal ADE: ``ade(pred, g)`` averaged over the M futures g of ``gt_multi`` (M, t_pred, D)."""
+    gt_multi = _check_multi(gt_multi)
+    return float(np.mean([ade(pred, g) for g in gt_multi]))
+
+
+def mmfde(pred, gt_multi) -> float:
+    """Multimodal FDE: ``fde(pred, g)`` averaged over the M futures g of ``gt_multi``."""
+    gt_multi = _check_multi(gt_multi)
+    return float(np.mean([fde(pred, g) for g in gt_multi]))
+
+
+def evaluate_stochastic(preds: Sequence[np.ndarray], gts: Sequence[np.ndarray],
+                        gt_multis: Sequence[np.ndarray], include_apd_top50: bool = False) -> dict[str, float]:
+    """Average each metric over the test windows (each window weighs 1, as DLow's ``AverageMeter``).
+
+    ``preds[i]`` (S, t_pred, D), ``gts[i]`` (t_pred, D), ``gt_multis[i]`` (M_i, t_pred, D).
+    Returns ``{"APD", "ADE", "FDE", "MMADE", "MMFDE"}`` (plus ``"APD_top50_nonstandard"`` if asked), in
+    the data's units (metres).
+    """
+    if not (len(preds) == len(gts) == len(gt_multis)):
+        raise ValueError(f"got {len(preds)} predictions, {len(gts)} ground truths, {len(gt_multis)} multimodal sets")
+    if len(preds) == 0:
+        raise ValueError("no windows to evaluate")
+    sums = {k: 0.0 for k in METRIC_KEYS}
+    top50 = 0.0
+    for pred, gt, gt_multi in zip(preds, gts, gt_multis):
+        sums["APD"] += apd(pred)
+        sums["ADE"] += ade(pred, gt)
+        sums["FDE"] += fde(pred, gt)
+        sums["MMADE"] += mmade(pred, gt_multi)
+        sums["MMFDE"] += mmfde(pred, gt_multi)
+        if include_apd_top50:
+            top50 += apd_top50(pred)
+    n = len(preds)
+    out = {k: v / n for k, v in sums.items()}
+    if include_apd_top50:
+        out["APD_top50_nonstandard"] = top50 / n
+    return out
