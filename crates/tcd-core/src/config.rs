@@ -1,0 +1,325 @@
+//! The model configuration carried in the safetensors `__metadata__` under the key `tcd_config`.
+//!
+//! The names are the diffusers / training-config names (`num_train_timesteps`, `beta_schedule`,
+//! `prediction_type`, `variance_type`, ...), so one vocabulary runs through Rust, Python and the
+//! weight files. Unknown keys are ignored; `data` keeps whatever it holds.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use crate::schedule::{BetaSchedule, NoiseSchedule};
+
+/// The weight-file format version this engine reads.
+pub const FORMAT_VERSION: u32 = 1;
+
+/// What a model was trained for (informative; the cascade checks window lengths, not roles).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Role {
+    /// Short-term model: `obs_len` observed frames, a few predicted frames (TCD: 50 + 5).
+    Short,
+    /// Long-term model: the short-term output as observation, the rest predicted (TCD: 55 + 20).
+    Long,
+    /// A model trained to repair (impute) corrupted observations.
+    Repair,
+}
+
+impl Role {
+    /// The name used in `tcd_config`.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Role::Short => "short",
+            Role::Long => "long",
+            Role::Repair => "repair",
+        }
+    }
+}
+
+/// Sizes of the CSDI denoiser (TCD_REFERENCE.md 1.5).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ModelConfig {
+    /// Joints in the model layout (Human3.6M: 22).
+    pub num_joints: usize,
+    /// Coordinates per joint (3).
+    pub coords: usize,
+    /// K = num_joints * coords: one token per coordinate.
+    pub num_features: usize,
+    /// Residual channels C.
+    pub channels: usize,
+    /// Residual blocks N.
+    pub num_layers: usize,
+    /// Attention heads of both transformers (C must be divisible by it).
+    pub num_heads: usize,
+    /// Feed-forward width F of the transformer layers.
+    pub ffn_dim: usize,
+    /// D: width of the diffusion-step table and its projections.
+    pub diffusion_embedding_dim: usize,
+    /// Sinusoidal frame-position channels of the side information.
+    pub time_embedding_dim: usize,
+    /// E: learned per-coordinate embedding channels of the side information.
+    pub feature_embedding_dim: usize,
+    /// S = time_embedding_dim + feature_embedding_dim + 1 (the mask channel).
+    pub side_dim: usize,
+    /// LayerNorm epsilon of the transformer layers.
+    pub layer_norm_eps: f64,
+}
+
+impl ModelConfig {
+    /// C / num_heads.
+    pub fn head_dim(&self) -> usize {
+        self.channels / self.num_heads.max(1)
+    }
+}
+
+/// Window lengths, in frames, of the sequences the model was trained on.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct WindowConfig {
+    /// Observed (conditioned) frames at the start of the window.
+    pub obs_len: usize,
+    /// Predicted frames after them.
+    pub pred_len: usize,
+    /// obs_len + pred_len: the L the model runs at.
+    pub seq_len: usize,
+}
+
+/// The diffusion process the model was trained with.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DiffusionConfig {
+    /// T: number of training diffusion steps.
+    pub num_train_timesteps: usize,
+    /// `cosine`, `linear` or `quad` (checked against `betas`); any other name means custom betas.
+    pub beta_schedule: String,
+    /// First beta of `linear`/`quad`.
+    pub beta_start: f64,
+    /// Last beta of `linear`/`quad`.
+    pub beta_end: f64,
+    /// Clip of the `cosine` schedule (TCD: 0.5).
+    pub max_beta: f64,
+    /// The T betas: authoritative.
+    pub betas: Vec<f64>,
+    /// Only `epsilon` is supported.
+    pub prediction_type: String,
+    /// `fixed_small` (posterior variance, the reference) or `fixed_large` (beta).
+    pub variance_type: String,
+}
+
+/// Description of the training data (informative; the engine does not use it).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct DataConfig {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dataset: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fps: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub units: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub root_relative: Option<bool>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub joint_names: Option<Vec<String>>,
+    /// Every other key, kept as it was.
+    #[serde(flatten)]
+    pub extra: BTreeMap<String, serde_json::Value>,
+}
+
+/// The whole `tcd_config` object.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TcdConfig {
+    /// Must be [`FORMAT_VERSION`].
+    pub format_version: u32,
+    pub role: Role,
+    pub model: ModelConfig,
+    pub window: WindowConfig,
+    pub diffusion: DiffusionConfig,
+    #[serde(default)]
+    pub data: DataConfig,
+}
+
+/// `prediction_type` values the engine supports.
+pub const PREDICTION_TYPES: [&str; 1] = ["epsilon"];
+/// `variance_type` values the engine supports.
+pub const VARIANCE_TYPES: [&str; 2] = ["fixed_small", "fixed_large"];
+
+impl TcdConfig {
+    /// Parses the JSON string stored under `tcd_config`; `path` names the file in errors.
+    pub fn from_json(json: &str, path: &Path) -> Result<Self> {
+        let cfg: TcdConfig = serde_json::from_str(json).map_err(|e| Error::BadMetadata {
+            path: path.to_path_buf(),
+            reason: e.to_string(),
+        })?;
+        Ok(cfg)
+    }
+
+    /// Checks sizes, window and schedule for consistency; `path` names the file in errors.
+    pub fn validate(&self, path: &Path) -> Result<()> {
+        let bad = |field: &str, reason: String| Error::InvalidConfig {
+            path: path.to_path_buf(),
+            field: field.to_string(),
+            reason,
+        };
+        if self.format_version != FORMAT_VERSION {
+            return Err(bad(
+                "format_version",
+                format!("must be {FORMAT_VERSION}, but is {}", self.format_version),
+            ));
+        }
+        let m = &self.model;
+        for (name, value) in [
+            ("model.num_joints", m.num_joints),
+            ("model.coords", m.coords),
+            ("model.channels", m.channels),
+            ("model.num_layers", m.num_layers),
+            ("model.num_heads", m.num_heads),
+            ("model.ffn_dim", m.ffn_dim),
+            ("model.feature_embedding_dim", m.feature_embedding_dim),
+        ] {
+            if value == 0 {
+                return Err(bad(name, "must be at least 1, but is 0".into()));
+            }
+        }
+        if m.num_features != m.num_joints * m.coords {
+            return Err(bad(
+                "model.num_features",
+                format!(
+                    "must equal num_joints * coords = {} * {} = {}, but is {}",
+                    m.num_joints,
+                    m.coords,
+                    m.num_joints * m.coords,
+                    m.num_features
+                ),
+            ));
+        }
+        if m.channels % m.num_heads != 0 {
+            return Err(bad(
+                "model.channels",
+                format!(
+                    "must be divisible by num_heads = {}, but is {}",
+                    m.num_heads, m.channels
+                ),
+            ));
+        }
+        if m.diffusion_embedding_dim < 4 || m.diffusion_embedding_dim % 2 != 0 {
+            return Err(bad(
+                "model.diffusion_embedding_dim",
+                format!("must be even and at least 4, but is {}", m.diffusion_embedding_dim),
+            ));
+        }
+        if m.time_embedding_dim < 2 || m.time_embedding_dim % 2 != 0 {
+            return Err(bad(
+                "model.time_embedding_dim",
+                format!("must be even and at least 2, but is {}", m.time_embedding_dim),
+            ));
+        }
+        let side = m.time_embedding_dim + m.feature_embedding_dim + 1;
+        if m.side_dim != side {
+            return Err(bad(
+                "model.side_dim",
+                format!(
+                    "must equal time_embedding_dim + feature_embedding_dim + 1 = {side}, but is {}",
+                    m.side_dim
+                ),
+            ));
+        }
+        if !(m.layer_norm_eps.is_finite() && m.layer_norm_eps > 0.0) {
+            return Err(bad(
+                "model.layer_norm_eps",
+                format!("must be a positive finite number, but is {}", m.layer_norm_eps),
+            ));
+        }
+        let w = &self.window;
+        if w.seq_len == 0 || w.seq_len != w.obs_len + w.pred_len {
+            return Err(bad(
+                "window.seq_len",
+                format!(
+                    "must equal obs_len + pred_len = {} and be at least 1, but is {}",
+                    w.obs_len + w.pred_len,
+                    w.seq_len
+                ),
+            ));
+        }
+        let d = &self.diffusion;
+        if d.num_train_timesteps == 0 {
+            return Err(bad(
+                "diffusion.num_train_timesteps",
+                "must be at least 1, but is 0".into(),
+            ));
+        }
+        if d.betas.len() != d.num_train_timesteps {
+            return Err(bad(
+                "diffusion.betas",
+                format!(
+                    "must have num_train_timesteps = {} values, but has {}",
+                    d.num_train_timesteps,
+                    d.betas.len()
+                ),
+            ));
+        }
+        if let Some((i, b)) = d
+            .betas
+            .iter()
+            .enumerate()
+            .find(|(_, b)| !(b.is_finite() && **b > 0.0 && **b < 1.0))
+        {
+            return Err(bad(
+                "diffusion.betas",
+                format!("must lie in the open interval (0, 1), but value {i} is {b}"),
+            ));
+        }
+        if !PREDICTION_TYPES.contains(&d.prediction_type.as_str()) {
+            return Err(bad(
+                "diffusion.prediction_type",
+                format!(
+                    "must be one of {PREDICTION_TYPES:?}, but is {:?}",
+                    d.prediction_type
+                ),
+            ));
+        }
+        if !VARIANCE_TYPES.contains(&d.variance_type.as_str()) {
+            return Err(bad(
+                "diffusion.variance_type",
+                format!("must be one of {VARIANCE_TYPES:?}, but is {:?}", d.variance_type),
+            ));
+        }
+        if let Some(schedule) = BetaSchedule::from_name(&d.beta_schedule) {
+            if schedule == BetaSchedule::Cosine && !(d.max_beta > 0.0 && d.max_beta <= 1.0) {
+                return Err(bad(
+                    "diffusion.max_beta",
+                    format!("must lie in (0, 1], but is {}", d.max_beta),
+                ));
+            }
+            let recomputed = schedule.betas(
+                d.num_train_timesteps,
+                d.beta_start,
+                d.beta_end,
+                d.max_beta,
+            );
+            for (index, (&stored, &rec)) in d.betas.iter().zip(&recomputed).enumerate() {
+                let diff = (stored - rec).abs();
+                // A NaN recomputation (absurd beta_start) is a mismatch too.
+                if diff.is_nan() || diff > 1e-9 {
+                    return Err(Error::BetasMismatch {
+                        path: path.to_path_buf(),
+                        schedule: d.beta_schedule.clone(),
+                        index,
+                        stored,
+                        recomputed: rec,
+                    });
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The noise schedule built from the stored (authoritative) betas.
+    pub fn schedule(&self) -> NoiseSchedule {
+        NoiseSchedule::from_betas(self.diffusion.betas.clone())
+    }
+
+    /// Serialises back to the JSON stored under `tcd_config`.
+    pub fn to_json(&self) -> String {
+        // Serialising plain structs of numbers and strings cannot fail; fall back to "{}" anyway.
+        serde_json::to_string(self).unwrap_or_else(|_| "{}".to_string())
+    }
+}

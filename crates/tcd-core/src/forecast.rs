@@ -1,0 +1,292 @@
+//! The TCD cascade (TCD_REFERENCE.md section 5) and observation repair.
+//!
+//! # Layout
+//! Inputs and outputs are **(B, K, frames)** row-major f32 in model units (K = joints·3, frame
+//! fastest), like every other array of the engine; samples are (S, B, K, frames). A pose array
+//! (B, T, J, 3) becomes (B, K, T) by moving the frame axis last.
+//!
+//! # Cascade
+//! 1. Short-term model (L_s = 55): x₀ = observation padded with zero frames, mask padded with
+//!    zeros; S chains per sequence; **mean over samples** of the merged outputs → (B, K, L_s)
+//!    (observed entries exact).
+//! 2. Long-term model (L_l = 75): x₀ = that mean in frames 0..L_s (mask 1 there), zeros after;
+//!    S chains per sequence.
+//! 3. Forecast = frames O..L_l of the long samples (TCD: 25 future frames) and their mean; the
+//!    repaired observation = frames 0..O of the short mean.
+//!
+//! Noise: injected arrays (S, n + 1, B, K, L) per stage, or one seed: the short stage uses stream
+//! stage [`stage::SHORT`] (the same streams as [`crate::sampler::sample`]), the long stage
+//! [`stage::LONG`].
+
+use crate::denoiser::Denoiser;
+use crate::error::{check_positive, Error, Result};
+use crate::rng::{stage, Noise};
+use crate::sampler::{run_job, validate_job, SamplerConfig};
+use crate::validate;
+
+/// Sampling options shared by both stages.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ForecastOptions {
+    /// S: chains per sequence (per stage). TCD: 5.
+    pub num_samples: usize,
+    pub sampler: SamplerConfig,
+}
+
+impl Default for ForecastOptions {
+    /// The paper's setting: 5 samples, DDPM over all training steps.
+    fn default() -> Self {
+        ForecastOptions {
+            num_samples: 5,
+            sampler: SamplerConfig::ddpm(),
+        }
+    }
+}
+
+/// The noise of a cascade.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum CascadeNoise<'a> {
+    /// Standard normals per stage: `short` (S, n + 1, B, K, L_s), `long` (S, n + 1, B, K, L_l).
+    Injected { short: &'a [f32], long: &'a [f32] },
+    /// Seeded ChaCha8 streams (see [`crate::rng`]).
+    Seeded { seed: u64, first_sequence: u64 },
+}
+
+impl CascadeNoise<'_> {
+    fn stage(&self, long: bool) -> Noise<'_> {
+        match *self {
+            CascadeNoise::Injected { short, long: l } => Noise::Injected(if long { l } else { short }),
+            CascadeNoise::Seeded {
+                seed,
+                first_sequence,
+            } => Noise::Seeded {
+                seed,
+                first_sequence,
+            },
+        }
+    }
+}
+
+/// What [`cascade`] returns.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CascadeOutput {
+    pub batch: usize,
+    pub num_features: usize,
+    pub num_samples: usize,
+    /// O: observed frames given.
+    pub obs_len: usize,
+    /// L_s: the short-term window.
+    pub short_len: usize,
+    /// P = L_l − O: forecast frames.
+    pub future_len: usize,
+    /// Mean forecast, (B, K, P).
+    pub mean: Vec<f32>,
+    /// Forecast samples, (S, B, K, P).
+    pub samples: Vec<f32>,
+    /// Repaired observation (short-stage mean over frames 0..O), (B, K, O).
+    pub repaired: Vec<f32>,
+    /// The short-stage mean, (B, K, L_s): what the long model was conditioned on.
+    pub short_mean: Vec<f32>,
+}
+
+/// What [`repair`] returns.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RepairOutput {
+    pub batch: usize,
+    pub num_features: usize,
+    pub num_samples: usize,
+    pub obs_len: usize,
+    /// Mean over samples, (B, K, O).
+    pub mean: Vec<f32>,
+    /// Samples, (S, B, K, O).
+    pub samples: Vec<f32>,
+}
+
+/// Frames `start..end` of every row of `src` (rows × len).
+fn take_frames(src: &[f32], len: usize, start: usize, end: usize) -> Vec<f32> {
+    src.chunks_exact(len).flat_map(|row| row[start..end].iter().copied()).collect()
+}
+
+/// Every row of `src` (rows × len) extended to `new_len` frames with `fill`.
+fn pad_frames(src: &[f32], len: usize, new_len: usize, fill: f32) -> Vec<f32> {
+    let mut out = Vec::with_capacity(src.len() / len.max(1) * new_len);
+    for row in src.chunks_exact(len) {
+        out.extend_from_slice(row);
+        out.extend(std::iter::repeat_n(fill, new_len - len));
+    }
+    out
+}
+
+/// Mean over the leading sample axis of (S × n) in sample order.
+fn mean_over_samples(samples: &[f32], num_samples: usize, n: usize) -> Vec<f32> {
+    let mut acc = vec![0.0f32; n];
+    for s in samples.chunks_exact(n).take(num_samples) {
+        for (a, v) in acc.iter_mut().zip(s) {
+            *a += v;
+        }
+    }
+    let inv = num_samples as f32;
+    acc.iter_mut().for_each(|a| *a /= inv);
+    acc
+}
+
+/// `observed` with 0 wherever mask = 0 (drops NaN markers of missing values).
+fn zero_unobserved(observed: &[f32], mask: &[f32]) -> Vec<f32> {
+    observed
+        .iter()
+        .zip(mask)
+        .map(|(&o, &m)| if m == 1.0 { o } else { 0.0 })
+        .collect()
+}
+
+fn check_observation(model: &Denoiser, observed: &[f32], mask: &[f32], batch: usize) -> Result<()> {
+    check_positive("batch", batch)?;
+    let (k, o) = (model.num_features(), model.obs_len());
+    let shape = format!("({batch}, {k}, {o}) = (B, K, obs_len)");
+    validate::mask("mask", mask, batch * k * o, &shape)?;
+    validate::finite_where("observed", observed, mask, 1.0, batch * k * o, &shape)
+}
+
+/// Runs the short-term → long-term cascade on `observed` / `mask`, (B, K, O) with O the short
+/// model's `obs_len`; `long` must have `obs_len` equal to the short model's `seq_len`.
+pub fn cascade(
+    short: &Denoiser,
+    long: &Denoiser,
+    observed: &[f32],
+    mask: &[f32],
+    batch: usize,
+    options: &ForecastOptions,
+    noise: CascadeNoise<'_>,
+) -> Result<CascadeOutput> {
+    let k = short.num_features();
+    if long.num_features() != k {
+        return Err(Error::invalid_input(
+            "long",
+            format!("a long-term model with the short-term model's num_features = {k}"),
+            format!("num_features = {}", long.num_features()),
+        ));
+    }
+    let (o, ls, ll) = (short.obs_len(), short.seq_len(), long.seq_len());
+    if long.obs_len() != ls || ll <= o {
+        return Err(Error::invalid_input(
+            "long",
+            format!("a long-term model whose obs_len equals the short-term model's seq_len = {ls}"),
+            format!("obs_len = {}, seq_len = {ll}", long.obs_len()),
+        ));
+    }
+    check_observation(short, observed, mask, batch)?;
+    let s = options.num_samples;
+    let rows = batch * k;
+
+    // Stage 1: short-term model on the padded observation.
+    let x_short = pad_frames(&zero_unobserved(observed, mask), o, ls, 0.0);
+    let m_short = pad_frames(mask, o, ls, 0.0);
+    let m_long = pad_frames(&vec![1.0f32; rows * ls], ls, ll, 0.0);
+    // Validate the long stage (sizes, plan, noise) before the expensive short stage runs.
+    let x_long_placeholder = vec![0.0f32; rows * ll];
+    let long_noise_name = "noise.long";
+    validate_job(
+        long,
+        &x_long_placeholder,
+        &m_long,
+        batch,
+        ll,
+        s,
+        &options.sampler,
+        noise.stage(true),
+        long_noise_name,
+        stage::LONG,
+    )?;
+    drop(x_long_placeholder);
+    let job = validate_job(
+        short,
+        &x_short,
+        &m_short,
+        batch,
+        ls,
+        s,
+        &options.sampler,
+        noise.stage(false),
+        "noise.short",
+        stage::SHORT,
+    )?;
+    let short_samples = run_job(short, &job);
+    let mut short_mean = mean_over_samples(&short_samples, s, rows * ls);
+    crate::sampler::merge_observed(&mut short_mean, &x_short, &m_short);
+
+    // Stage 2: long-term model conditioned on the short mean (frames 0..L_s, mask 1).
+    let x_long = pad_frames(&short_mean, ls, ll, 0.0);
+    let job = validate_job(
+        long,
+        &x_long,
+        &m_long,
+        batch,
+        ll,
+        s,
+        &options.sampler,
+        noise.stage(true),
+        long_noise_name,
+        stage::LONG,
+    )?;
+    let long_samples = run_job(long, &job);
+    let samples = take_frames(&long_samples, ll, o, ll);
+    let future_len = ll - o;
+    let mean = mean_over_samples(&samples, s, rows * future_len);
+    let repaired = take_frames(&short_mean, ls, 0, o);
+    Ok(CascadeOutput {
+        batch,
+        num_features: k,
+        num_samples: s,
+        obs_len: o,
+        short_len: ls,
+        future_len,
+        mean,
+        samples,
+        repaired,
+        short_mean,
+    })
+}
+
+/// Repairs (imputes) the mask-0 entries of an observation: runs `model` on `observed` / `mask`,
+/// (B, K, O) with O the model's `obs_len`, padded to its `seq_len` with mask-0 frames, and returns
+/// the samples and their mean over the observed frames 0..O (mask-1 entries exact).
+pub fn repair(
+    model: &Denoiser,
+    observed: &[f32],
+    mask: &[f32],
+    batch: usize,
+    options: &ForecastOptions,
+    noise: Noise<'_>,
+) -> Result<RepairOutput> {
+    check_observation(model, observed, mask, batch)?;
+    let (k, o, l) = (model.num_features(), model.obs_len(), model.seq_len());
+    let s = options.num_samples;
+    let x = pad_frames(&zero_unobserved(observed, mask), o, l, 0.0);
+    let m = pad_frames(mask, o, l, 0.0);
+    let job = validate_job(model, &x, &m, batch, l, s, &options.sampler, noise, "noise", stage::SHORT)?;
+    let all = run_job(model, &job);
+    let samples = take_frames(&all, l, 0, o);
+    let mut mean = mean_over_samples(&samples, s, batch * k * o);
+    crate::sampler::merge_observed(&mut mean, &take_frames(&x, l, 0, o), mask);
+    Ok(RepairOutput {
+        batch,
+        num_features: k,
+        num_samples: s,
+        obs_len: o,
+        mean,
+        samples,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn frame_helpers() {
+        let src = [1.0, 2.0, 3.0, 4.0];
+        assert_eq!(pad_frames(&src, 2, 3, 0.0), vec![1.0, 2.0, 0.0, 3.0, 4.0, 0.0]);
+        assert_eq!(take_frames(&[1.0, 2.0, 3.0, 4.0, 5.0, 6.0], 3, 1, 3), vec![2.0, 3.0, 5.0, 6.0]);
+        assert_eq!(mean_over_samples(&[1.0, 2.0, 3.0, 6.0], 2, 2), vec![2.0, 4.0]);
+        assert_eq!(zero_unobserved(&[f32::NAN, 2.0], &[0.0, 1.0]), vec![0.0, 2.0]);
+    }
+}

@@ -1,0 +1,46 @@
+//! # tcd-core
+//!
+//! A pure-Rust inference engine for Temporal Cascaded Diffusion (TCD) 3D human pose forecasting:
+//! the CSDI denoiser, DDPM / DDIM samplers, and the short-term → long-term cascade. It knows
+//! nothing of Python; the binding crate wraps this API.
+//!
+//! ```no_run
+//! use tcd_core::{cascade, CascadeNoise, Denoiser, ForecastOptions};
+//! # fn main() -> tcd_core::Result<()> {
+//! let short = Denoiser::load("short.safetensors")?;
+//! let long = Denoiser::load("long.safetensors")?;
+//! let (b, k, o) = (1, short.num_features(), short.obs_len());
+//! let observed = vec![0.0f32; b * k * o]; // (B, K, O), model units
+//! let mask = vec![1.0f32; b * k * o];     // 1 = observed
+//! let out = cascade(&short, &long, &observed, &mask, b, &ForecastOptions::default(),
+//!                   CascadeNoise::Seeded { seed: 0, first_sequence: 0 })?;
+//! assert_eq!(out.mean.len(), b * k * out.future_len);
+//! # Ok(()) }
+//! ```
+//!
+//! Conventions: every array is a flat row-major f32 buffer; sequences are **(B, K, L)** (frame
+//! fastest), samples lead with S. Masks are 1 (observed) / 0 (to generate).
+
+#![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used, clippy::panic))]
+
+pub mod config;
+pub mod denoiser;
+pub mod error;
+pub mod forecast;
+pub mod nn;
+pub mod rng;
+pub mod sampler;
+pub mod schedule;
+pub mod threads;
+mod validate;
+pub mod weights;
+
+pub use config::{DataConfig, DiffusionConfig, ModelConfig, Role, TcdConfig, WindowConfig};
+pub use denoiser::{CondTables, Denoiser, Prepared, Workspace};
+pub use error::{Error, Result};
+pub use forecast::{cascade, repair, CascadeNoise, CascadeOutput, ForecastOptions, RepairOutput};
+pub use rng::{chain_rng, seeded_noise, Noise};
+pub use sampler::{sample, timesteps, Plan, SamplerConfig, SamplerKind, TimestepSpacing};
+pub use schedule::{BetaSchedule, NoiseSchedule};
+pub use threads::with_threads;
+pub use weights::{expected_tensors, Tensor, WeightFile, CONFIG_KEY};

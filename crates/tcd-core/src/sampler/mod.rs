@@ -1,0 +1,425 @@
+//! Samplers: timestep spacing, per-step plans, and the chain loop.
+//!
+//! A *chain* is one sample of one sequence: x_T → ... → x₀, then merged with the observation
+//! (`x·(1−m) + x₀_obs·m`, observed entries returned bit-identical). Chains are independent and
+//! run in parallel with rayon; each owns its noise stream (see [`crate::rng`]), so the results do
+//! not depend on the number of threads.
+
+pub mod ddim;
+pub mod ddpm;
+
+use std::str::FromStr;
+
+use rayon::prelude::*;
+
+use crate::denoiser::{CondTables, Denoiser, Workspace};
+use crate::error::{check_len, check_positive, Error, Result};
+use crate::rng::{stage, ChainNoise, Noise};
+use crate::schedule::NoiseSchedule;
+use crate::validate;
+
+pub use ddim::DdimStep;
+pub use ddpm::{DdpmStep, VarianceType};
+
+/// How `num_inference_steps` steps are placed among the T training steps (diffusers semantics).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TimestepSpacing {
+    /// t = arange(n) · (T // n), reversed (for n = 5, T = 50: 40, 30, 20, 10, 0).
+    Leading,
+    /// t = round(arange(T, 0, −T/n)) − 1 (for n = 5, T = 50: 49, 39, 29, 19, 9).
+    Trailing,
+    /// t = round(linspace(0, T − 1, n)), reversed.
+    Linspace,
+}
+
+impl TimestepSpacing {
+    /// `leading` | `trailing` | `linspace`.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            TimestepSpacing::Leading => "leading",
+            TimestepSpacing::Trailing => "trailing",
+            TimestepSpacing::Linspace => "linspace",
+        }
+    }
+}
+
+impl FromStr for TimestepSpacing {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "leading" => Ok(TimestepSpacing::Leading),
+            "trailing" => Ok(TimestepSpacing::Trailing),
+            "linspace" => Ok(TimestepSpacing::Linspace),
+            other => Err(Error::invalid_input(
+                "timestep_spacing",
+                "\"leading\", \"trailing\" or \"linspace\"",
+                format!("{other:?}"),
+            )),
+        }
+    }
+}
+
+/// The descending training steps visited by a sampler with `num_inference_steps` steps.
+/// Rounding is numpy's (half to even).
+pub fn timesteps(
+    num_train_timesteps: usize,
+    num_inference_steps: usize,
+    spacing: TimestepSpacing,
+) -> Result<Vec<usize>> {
+    let (t_total, n) = (num_train_timesteps, num_inference_steps);
+    if n == 0 || n > t_total {
+        return Err(Error::invalid_input(
+            "num_inference_steps",
+            format!("an integer in 1..={t_total} (num_train_timesteps = {t_total})"),
+            n.to_string(),
+        ));
+    }
+    let ts: Vec<usize> = match spacing {
+        TimestepSpacing::Leading => {
+            let ratio = t_total / n;
+            (0..n).rev().map(|i| i * ratio).collect()
+        }
+        TimestepSpacing::Trailing => {
+            let ratio = t_total as f64 / n as f64;
+            (0..n)
+                .map(|i| {
+                    let v = (t_total as f64 - i as f64 * ratio).round_ties_even();
+                    (v as usize).saturating_sub(1)
+                })
+                .collect()
+        }
+        TimestepSpacing::Linspace => crate::schedule::linspace(0.0, (t_total - 1) as f64, n)
+            .into_iter()
+            .rev()
+            .map(|v| v.round_ties_even() as usize)
+            .collect(),
+    };
+    Ok(ts)
+}
+
+/// (t_i, t_{i+1}) pairs; `None` after the last step (ᾱ = 1).
+pub fn step_pairs(timesteps: &[usize]) -> Vec<(usize, Option<usize>)> {
+    timesteps
+        .iter()
+        .enumerate()
+        .map(|(i, &t)| (t, timesteps.get(i + 1).copied()))
+        .collect()
+}
+
+/// Which update rule a sampler uses.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum SamplerKind {
+    /// Ancestral DDPM; over all T steps it is the TCD reference.
+    Ddpm,
+    /// DDIM with stochasticity `eta` ∈ [0, 1].
+    Ddim { eta: f64 },
+}
+
+/// A sampler: update rule, number of steps and their spacing.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SamplerConfig {
+    pub kind: SamplerKind,
+    /// `None`: every training step (n = T).
+    pub num_inference_steps: Option<usize>,
+    pub timestep_spacing: TimestepSpacing,
+}
+
+impl SamplerConfig {
+    /// The reference: DDPM over all T steps.
+    pub fn ddpm() -> Self {
+        SamplerConfig {
+            kind: SamplerKind::Ddpm,
+            num_inference_steps: None,
+            timestep_spacing: TimestepSpacing::Trailing,
+        }
+    }
+
+    /// DDIM with `num_inference_steps` trailing-spaced steps.
+    pub fn ddim(num_inference_steps: usize, eta: f64) -> Self {
+        SamplerConfig {
+            kind: SamplerKind::Ddim { eta },
+            num_inference_steps: Some(num_inference_steps),
+            timestep_spacing: TimestepSpacing::Trailing,
+        }
+    }
+
+    /// The per-step coefficients for a model with this schedule and `variance_type`.
+    pub fn plan(&self, schedule: &NoiseSchedule, variance_type: &str) -> Result<Plan> {
+        let t_total = schedule.num_train_timesteps();
+        let n = self.num_inference_steps.unwrap_or(t_total);
+        let ts = timesteps(t_total, n, self.timestep_spacing)?;
+        let steps = match self.kind {
+            SamplerKind::Ddpm => {
+                let variance = VarianceType::from_name(variance_type)?;
+                step_pairs(&ts)
+                    .into_iter()
+                    .map(|(t, prev)| PlanStep {
+                        t,
+                        prev,
+                        update: Update::Ddpm(DdpmStep::new(schedule, t, prev, variance)),
+                    })
+                    .collect()
+            }
+            SamplerKind::Ddim { eta } => {
+                ddim::check_eta(eta)?;
+                step_pairs(&ts)
+                    .into_iter()
+                    .map(|(t, prev)| PlanStep {
+                        t,
+                        prev,
+                        update: Update::Ddim(DdimStep::new(schedule, t, prev, eta)),
+                    })
+                    .collect()
+            }
+        };
+        Ok(Plan { steps })
+    }
+}
+
+impl Default for SamplerConfig {
+    fn default() -> Self {
+        Self::ddpm()
+    }
+}
+
+/// The update of one step.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Update {
+    Ddpm(DdpmStep),
+    Ddim(DdimStep),
+}
+
+/// One planned step: network at `t`, then the update towards `prev`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PlanStep {
+    pub t: usize,
+    pub prev: Option<usize>,
+    pub update: Update,
+}
+
+impl PlanStep {
+    /// Applies the update to x given ε̂ and z.
+    pub fn apply(&self, x: &mut [f32], eps: &[f32], z: &[f32]) {
+        match &self.update {
+            Update::Ddpm(s) => s.apply(x, eps, z),
+            Update::Ddim(s) => s.apply(x, eps, z),
+        }
+    }
+}
+
+/// The steps of a sampler for one model.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Plan {
+    pub steps: Vec<PlanStep>,
+}
+
+impl Plan {
+    /// n.
+    pub fn num_steps(&self) -> usize {
+        self.steps.len()
+    }
+
+    /// Noise blocks per chain: n + 1 (x_T, then one z per step).
+    pub fn num_noise_blocks(&self) -> usize {
+        self.steps.len() + 1
+    }
+
+    /// The visited training steps, descending.
+    pub fn timesteps(&self) -> Vec<usize> {
+        self.steps.iter().map(|s| s.t).collect()
+    }
+}
+
+/// Runs one chain and returns the merged result (K·L values).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn run_chain(
+    denoiser: &Denoiser,
+    tables: &CondTables,
+    mask: &[f32],
+    observed: &[f32],
+    plan: &Plan,
+    noise: &mut ChainNoise<'_>,
+    ws: &mut Workspace,
+) -> Vec<f32> {
+    let n = mask.len();
+    let mut x = vec![0.0f32; n];
+    let mut eps = vec![0.0f32; n];
+    let mut z = vec![0.0f32; n];
+    noise.fill(0, &mut x);
+    for (i, step) in plan.steps.iter().enumerate() {
+        denoiser.forward_sequence(tables, mask, &x, observed, step.t, &mut eps, ws);
+        noise.fill(i + 1, &mut z);
+        step.apply(&mut x, &eps, &z);
+    }
+    merge_observed(&mut x, observed, mask);
+    x
+}
+
+/// x ← x·(1−m) + observed·m for a binary mask: observed entries are copied bit for bit.
+pub fn merge_observed(x: &mut [f32], observed: &[f32], mask: &[f32]) {
+    for ((xv, &ov), &mv) in x.iter_mut().zip(observed).zip(mask) {
+        if mv == 1.0 {
+            *xv = ov;
+        }
+    }
+}
+
+/// Validated inputs of a sampling call.
+pub(crate) struct SampleJob<'a> {
+    pub observed: &'a [f32],
+    pub mask: &'a [f32],
+    pub batch: usize,
+    pub length: usize,
+    pub num_samples: usize,
+    pub plan: Plan,
+    pub noise: Noise<'a>,
+    pub stage: u64,
+}
+
+/// Checks sizes, mask, observed values and noise; builds the plan.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn validate_job<'a>(
+    denoiser: &Denoiser,
+    observed: &'a [f32],
+    mask: &'a [f32],
+    batch: usize,
+    length: usize,
+    num_samples: usize,
+    sampler: &SamplerConfig,
+    noise: Noise<'a>,
+    noise_argument: &str,
+    stage: u64,
+) -> Result<SampleJob<'a>> {
+    check_positive("batch", batch)?;
+    check_positive("length", length)?;
+    check_positive("num_samples", num_samples)?;
+    let k = denoiser.num_features();
+    let shape = format!("({batch}, {k}, {length})");
+    validate::mask("mask", mask, batch * k * length, &shape)?;
+    validate::finite_where("observed", observed, mask, 1.0, batch * k * length, &shape)?;
+    let plan = sampler.plan(denoiser.schedule(), &denoiser.config().diffusion.variance_type)?;
+    if let Noise::Injected(data) = noise {
+        let blocks = plan.num_noise_blocks();
+        let nshape = format!("({num_samples}, {blocks}, {batch}, {k}, {length}) = (num_samples, num_inference_steps + 1, B, K, L)");
+        check_len(noise_argument, data.len(), num_samples * blocks * batch * k * length, &nshape)?;
+        validate::all_finite(noise_argument, data, data.len(), &nshape)?;
+    }
+    Ok(SampleJob {
+        observed,
+        mask,
+        batch,
+        length,
+        num_samples,
+        plan,
+        noise,
+        stage,
+    })
+}
+
+/// Runs every chain of a validated job in parallel; returns (S, B, K, L).
+pub(crate) fn run_job(denoiser: &Denoiser, job: &SampleJob<'_>) -> Vec<f32> {
+    let n = denoiser.num_features() * job.length;
+    let tables = denoiser.cond_tables(job.length);
+    let blocks = job.plan.num_noise_blocks();
+    let chains: Vec<Vec<f32>> = (0..job.num_samples * job.batch)
+        .into_par_iter()
+        .map_init(
+            || Workspace::new(denoiser, job.length),
+            |ws, c| {
+                let (s, b) = (c / job.batch, c % job.batch);
+                let mut noise = ChainNoise::new(job.noise, job.stage, s, b, blocks, job.batch);
+                run_chain(
+                    denoiser,
+                    &tables,
+                    &job.mask[b * n..(b + 1) * n],
+                    &job.observed[b * n..(b + 1) * n],
+                    &job.plan,
+                    &mut noise,
+                    ws,
+                )
+            },
+        )
+        .collect();
+    chains.concat()
+}
+
+/// Draws `num_samples` samples for each of `batch` sequences.
+///
+/// * `observed`, `mask`: (B, K, L); mask 1 = given, 0 = to generate; `observed` may hold NaN where
+///   mask = 0.
+/// * `noise`: [`Noise::Injected`] with shape (S, n + 1, B, K, L), or [`Noise::Seeded`] (stage
+///   [`stage::SHORT`]).
+///
+/// Returns the merged samples, (S, B, K, L): observed entries are `observed`, bit for bit.
+#[allow(clippy::too_many_arguments)]
+pub fn sample(
+    denoiser: &Denoiser,
+    observed: &[f32],
+    mask: &[f32],
+    batch: usize,
+    length: usize,
+    num_samples: usize,
+    sampler: &SamplerConfig,
+    noise: Noise<'_>,
+) -> Result<Vec<f32>> {
+    let job = validate_job(
+        denoiser,
+        observed,
+        mask,
+        batch,
+        length,
+        num_samples,
+        sampler,
+        noise,
+        "noise",
+        stage::SHORT,
+    )?;
+    Ok(run_job(denoiser, &job))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn spacing_reference_lists() {
+        let tr = |n| timesteps(50, n, TimestepSpacing::Trailing).unwrap();
+        let le = |n| timesteps(50, n, TimestepSpacing::Leading).unwrap();
+        let li = |n| timesteps(50, n, TimestepSpacing::Linspace).unwrap();
+        assert_eq!(tr(5), vec![49, 39, 29, 19, 9]);
+        assert_eq!(le(5), vec![40, 30, 20, 10, 0]);
+        assert_eq!(li(5), vec![49, 37, 24, 12, 0]);
+        // numpy: np.round(np.arange(50, 0, -12.5)) - 1 -> [49, 37, 24, 11] (half to even)
+        assert_eq!(tr(4), vec![49, 37, 24, 11]);
+        assert_eq!(tr(3), vec![49, 32, 16]);
+        assert_eq!(tr(1), vec![49]);
+        assert_eq!(le(1), vec![0]);
+        assert_eq!(li(1), vec![0]);
+        let all: Vec<usize> = (0..50).rev().collect();
+        for sp in [TimestepSpacing::Leading, TimestepSpacing::Trailing, TimestepSpacing::Linspace] {
+            assert_eq!(timesteps(50, 50, sp).unwrap(), all);
+            for n in 1..=50 {
+                let ts = timesteps(50, n, sp).unwrap();
+                assert_eq!(ts.len(), n);
+                assert!(ts.windows(2).all(|w| w[0] > w[1]), "{sp:?} n={n}: {ts:?}");
+                assert!(ts[0] < 50);
+            }
+        }
+    }
+
+    #[test]
+    fn spacing_errors_name_the_argument() {
+        for n in [0, 51] {
+            let e = timesteps(50, n, TimestepSpacing::Trailing).unwrap_err();
+            assert!(e.to_string().contains("num_inference_steps"), "{e}");
+        }
+        let e = "middle".parse::<TimestepSpacing>().unwrap_err();
+        assert!(e.to_string().contains("timestep_spacing"));
+        assert_eq!("linspace".parse::<TimestepSpacing>().unwrap(), TimestepSpacing::Linspace);
+    }
+
+    #[test]
+    fn pairs_end_with_none() {
+        assert_eq!(step_pairs(&[9, 4, 0]), vec![(9, Some(4)), (4, Some(0)), (0, None)]);
+    }
+}

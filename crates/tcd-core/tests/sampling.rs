@@ -1,0 +1,203 @@
+//! Samplers: invariants (observed entries unchanged), thread-count independence, seeding,
+//! injected vs seeded noise, DDIM determinism.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
+mod common;
+
+use std::sync::OnceLock;
+
+use common::*;
+use proptest::prelude::*;
+use tcd_core::rng::{seeded_noise, stage};
+use tcd_core::{sample, Denoiser, Noise, Role, SamplerConfig, SamplerKind, TimestepSpacing};
+
+fn model() -> &'static Denoiser {
+    static M: OnceLock<Denoiser> = OnceLock::new();
+    M.get_or_init(|| tiny_model(Role::Short, 5, 2, 21).0)
+}
+
+fn in_pool<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> T {
+    rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap().install(f)
+}
+
+fn sampler_strategy() -> impl Strategy<Value = SamplerConfig> {
+    prop_oneof![
+        (1usize..=10, 0usize..3).prop_map(|(n, sp)| SamplerConfig {
+            kind: SamplerKind::Ddpm,
+            num_inference_steps: Some(n),
+            timestep_spacing: [TimestepSpacing::Leading, TimestepSpacing::Trailing, TimestepSpacing::Linspace][sp],
+        }),
+        (1usize..=10, 0.0f64..=1.0).prop_map(|(n, eta)| SamplerConfig::ddim(n, eta)),
+    ]
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 12, ..ProptestConfig::default() })]
+
+    /// Observed entries come back bit-identical; results do not depend on the thread count.
+    #[test]
+    fn observed_unchanged_and_thread_independent(
+        batch in 1usize..3,
+        length in 1usize..8,
+        num_samples in 1usize..3,
+        seed in any::<u64>(),
+        p_obs in 0.0f64..1.0,
+        sampler in sampler_strategy(),
+    ) {
+        let m = model();
+        let n = batch * 6 * length;
+        let observed = values(n, seed ^ 1, 3.0);
+        let mask = binary_mask(n, seed ^ 2, p_obs);
+        let run = |threads| in_pool(threads, || {
+            sample(m, &observed, &mask, batch, length, num_samples, &sampler, Noise::seeded(seed)).unwrap()
+        });
+        let one = run(1);
+        let two = run(2);
+        prop_assert_eq!(one.len(), num_samples * n);
+        prop_assert!(one.iter().all(|v| v.is_finite()));
+        for (i, v) in one.iter().enumerate() {
+            if mask[i % n] == 1.0 {
+                prop_assert_eq!(v.to_bits(), observed[i % n].to_bits());
+            }
+        }
+        prop_assert_eq!(
+            one.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+            two.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+        );
+    }
+}
+
+#[test]
+fn same_seed_same_output_different_seed_differs() {
+    let m = model();
+    let n = 2 * 6 * 7;
+    let observed = values(n, 1, 1.0);
+    let mask = binary_mask(n, 2, 0.5);
+    let cfg = SamplerConfig::ddpm();
+    let a = sample(m, &observed, &mask, 2, 7, 2, &cfg, Noise::seeded(5)).unwrap();
+    let b = sample(m, &observed, &mask, 2, 7, 2, &cfg, Noise::seeded(5)).unwrap();
+    let c = sample(m, &observed, &mask, 2, 7, 2, &cfg, Noise::seeded(6)).unwrap();
+    assert_eq!(a, b);
+    assert_ne!(a, c);
+    // the two samples of a sequence differ
+    assert_ne!(&a[..n], &a[n..]);
+}
+
+#[test]
+fn seeded_equals_injected_seeded_noise_and_batch_composition_is_irrelevant() {
+    let m = model();
+    let (b, l, s) = (3usize, 7usize, 2usize);
+    let n = b * 6 * l;
+    let observed = values(n, 3, 1.0);
+    let mask = binary_mask(n, 4, 0.4);
+    let cfg = SamplerConfig::ddim(4, 0.7);
+    let seeded = sample(m, &observed, &mask, b, l, s, &cfg, Noise::seeded(9)).unwrap();
+    let noise = seeded_noise(9, 0, stage::SHORT, s, 5, b, 6 * l);
+    let injected = sample(m, &observed, &mask, b, l, s, &cfg, Noise::Injected(&noise)).unwrap();
+    assert_eq!(seeded, injected);
+    // sequence 2 alone, numbered 2, gives the same samples as inside the batch
+    let q = 6 * l;
+    let alone = sample(
+        m,
+        &observed[2 * q..],
+        &mask[2 * q..],
+        1,
+        l,
+        s,
+        &cfg,
+        Noise::Seeded { seed: 9, first_sequence: 2 },
+    )
+    .unwrap();
+    for si in 0..s {
+        assert_eq!(&alone[si * q..(si + 1) * q], &seeded[(si * b + 2) * q..(si * b + 3) * q]);
+    }
+}
+
+#[test]
+fn ddim_eta_zero_ignores_the_step_noise() {
+    let m = model();
+    let (l, s) = (7usize, 1usize);
+    let n = 6 * l;
+    let observed = values(n, 3, 1.0);
+    let mask = binary_mask(n, 4, 0.4);
+    let cfg = SamplerConfig::ddim(5, 0.0);
+    let mut noise = seeded_noise(1, 0, 0, s, 6, 1, n);
+    let a = sample(m, &observed, &mask, 1, l, s, &cfg, Noise::Injected(&noise)).unwrap();
+    for v in noise[n..].iter_mut() {
+        *v = -*v * 3.0; // change every z, keep x_T
+    }
+    let b = sample(m, &observed, &mask, 1, l, s, &cfg, Noise::Injected(&noise)).unwrap();
+    assert_eq!(a, b);
+    // DDPM does use it
+    let cfg = SamplerConfig { kind: SamplerKind::Ddpm, num_inference_steps: Some(5), timestep_spacing: TimestepSpacing::Trailing };
+    let c = sample(m, &observed, &mask, 1, l, s, &cfg, Noise::Injected(&noise)).unwrap();
+    noise[n + 3] += 1.0;
+    let d = sample(m, &observed, &mask, 1, l, s, &cfg, Noise::Injected(&noise)).unwrap();
+    assert_ne!(c, d);
+}
+
+#[test]
+fn ddpm_all_steps_is_the_reference_chain() {
+    // Explicit n = T with any spacing equals the default reference sampler.
+    let m = model();
+    let n = 6 * 7;
+    let observed = values(n, 3, 1.0);
+    let mask = binary_mask(n, 4, 0.4);
+    let reference = sample(m, &observed, &mask, 1, 7, 1, &SamplerConfig::ddpm(), Noise::seeded(3)).unwrap();
+    for sp in [TimestepSpacing::Leading, TimestepSpacing::Linspace] {
+        let cfg = SamplerConfig { kind: SamplerKind::Ddpm, num_inference_steps: Some(10), timestep_spacing: sp };
+        assert_eq!(sample(m, &observed, &mask, 1, 7, 1, &cfg, Noise::seeded(3)).unwrap(), reference);
+    }
+    // and a hand-written DDPM loop over the public forward (the operations of
+    // training/diffusion.py::sample) gives the same bits
+    let noise = seeded_noise(3, 0, 0, 1, 11, 1, n);
+    let ab = m.schedule().alphas_cumprod().to_vec();
+    let abar = |t: i64| if t < 0 { 1.0 } else { ab[t as usize] };
+    let mut x = noise[..n].to_vec();
+    let mut eps = vec![0.0f32; n];
+    for (i, t) in (0..10usize).rev().enumerate() {
+        m.forward(&x, &observed, &mask, 1, 7, t, &mut eps).unwrap();
+        let (a_t, a_next) = (abar(t as i64), abar(t as i64 - 1));
+        let beta = 1.0 - a_t / a_next;
+        let c1 = (1.0 / (1.0 - beta).sqrt()) as f32;
+        let c2 = (beta / (1.0 - a_t).sqrt()) as f32;
+        for (xv, ev) in x.iter_mut().zip(&eps) {
+            *xv = c1 * (*xv - c2 * ev);
+        }
+        if t > 0 {
+            let sigma = (beta * (1.0 - a_next) / (1.0 - a_t)).sqrt() as f32;
+            for (xv, zv) in x.iter_mut().zip(&noise[(i + 1) * n..(i + 2) * n]) {
+                *xv += sigma * zv;
+            }
+        }
+    }
+    for i in 0..n {
+        if mask[i] == 1.0 {
+            x[i] = observed[i];
+        }
+    }
+    assert_eq!(x, reference);
+}
+
+#[test]
+fn sampling_errors() {
+    let m = model();
+    let n = 6 * 7;
+    let observed = values(n, 3, 1.0);
+    let mask = binary_mask(n, 4, 0.4);
+    let arg = |e: tcd_core::Error| match e {
+        tcd_core::Error::InvalidInput { argument, .. } => argument,
+        other => panic!("{other:?}"),
+    };
+    let ddim = |k, eta| SamplerConfig::ddim(k, eta);
+    assert_eq!(arg(sample(m, &observed, &mask, 1, 7, 1, &ddim(11, 0.0), Noise::seeded(0)).unwrap_err()), "num_inference_steps");
+    assert_eq!(arg(sample(m, &observed, &mask, 1, 7, 1, &ddim(0, 0.0), Noise::seeded(0)).unwrap_err()), "num_inference_steps");
+    assert_eq!(arg(sample(m, &observed, &mask, 1, 7, 1, &ddim(3, 1.5), Noise::seeded(0)).unwrap_err()), "eta");
+    assert_eq!(arg(sample(m, &observed, &mask, 1, 7, 0, &ddim(3, 0.0), Noise::seeded(0)).unwrap_err()), "num_samples");
+    let short = vec![0.0f32; 4 * n - 1];
+    let e = sample(m, &observed, &mask, 1, 7, 1, &ddim(3, 0.0), Noise::Injected(&short)).unwrap_err();
+    assert!(e.to_string().contains("(1, 4, 1, 6, 7)"), "{e}");
+    let mut nan = vec![0.0f32; 4 * n];
+    nan[7] = f32::NAN;
+    assert_eq!(arg(sample(m, &observed, &mask, 1, 7, 1, &ddim(3, 0.0), Noise::Injected(&nan)).unwrap_err()), "noise");
+}

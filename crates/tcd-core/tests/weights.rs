@@ -1,0 +1,209 @@
+//! Loader: one test per way a weight file can be wrong.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
+mod common;
+
+use common::*;
+use safetensors::Dtype;
+use tcd_core::{Denoiser, Error, Role, WeightFile};
+
+fn good() -> (tcd_core::TcdConfig, std::collections::BTreeMap<String, RawTensor>) {
+    let cfg = tiny_config(Role::Short, 8, 2);
+    let t = random_tensors(&cfg, 1);
+    (cfg, t)
+}
+
+fn load_bytes(bytes: &[u8]) -> Result<Denoiser, Error> {
+    let dir = tempfile::tempdir().unwrap();
+    let p = write(dir.path(), "w.safetensors", bytes);
+    Denoiser::load(&p)
+}
+
+#[test]
+fn good_file_loads_with_its_config() {
+    let (cfg, t) = good();
+    let json = cfg.to_json();
+    let d = load_bytes(&serialize(&t, Some(json.clone()))).unwrap();
+    assert_eq!(d.config(), &cfg);
+    assert_eq!(d.config_json(), json);
+    assert_eq!(d.num_features(), 6);
+    assert_eq!(d.seq_len(), 10);
+    assert_eq!(d.obs_len(), 8);
+    assert_eq!(d.pred_len(), 2);
+    assert_eq!(d.num_train_timesteps(), 10);
+    assert_eq!(d.role(), Role::Short);
+    assert!(d.path().ends_with("w.safetensors"));
+    assert_eq!(d.schedule().betas(), cfg.diffusion.betas.as_slice());
+    assert!(d.step_embedding(9).is_some() && d.step_embedding(10).is_none());
+    let wf = WeightFile::from_bytes(&serialize(&t, Some(json)), "mem").unwrap();
+    assert_eq!(wf.names().count(), t.len());
+}
+
+#[test]
+fn unknown_config_keys_are_ignored_and_kept() {
+    let (cfg, t) = good();
+    let mut v: serde_json::Value = serde_json::from_str(&cfg.to_json()).unwrap();
+    v["training"] = serde_json::json!({"epochs": 50});
+    v["model"]["dropout"] = serde_json::json!(0.1);
+    v["data"] = serde_json::json!({"dataset": "h36m", "fps": 25.0, "units": "m", "root_relative": true,
+                                    "joint_names": ["a", "b"], "split": "S5"});
+    let d = load_bytes(&serialize(&t, Some(v.to_string()))).unwrap();
+    assert_eq!(d.config().data.dataset.as_deref(), Some("h36m"));
+    assert_eq!(d.config().data.extra["split"], serde_json::json!("S5"));
+    assert!(d.config_json().contains("epochs"));
+}
+
+#[test]
+fn missing_file_is_not_found() {
+    let dir = tempfile::tempdir().unwrap();
+    let e = Denoiser::load(dir.path().join("nope.safetensors")).unwrap_err();
+    assert!(matches!(e, Error::NotFound { .. }), "{e:?}");
+    assert!(e.to_string().contains("nope.safetensors"));
+    assert!(!e.is_weights_error());
+}
+
+#[test]
+fn directory_is_io_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let e = Denoiser::load(dir.path()).unwrap_err();
+    assert!(matches!(e, Error::Io { .. }), "{e:?}");
+}
+
+#[test]
+fn truncated_file_is_corrupt() {
+    let (cfg, t) = good();
+    let bytes = serialize(&t, Some(cfg.to_json()));
+    for cut in [0, 5, 100, bytes.len() - 1] {
+        let e = load_bytes(&bytes[..cut]).unwrap_err();
+        assert!(matches!(e, Error::Corrupt { .. }), "cut {cut}: {e:?}");
+        assert!(e.to_string().contains("w.safetensors"), "{e}");
+        assert!(e.is_weights_error());
+    }
+    let e = load_bytes(b"definitely not safetensors").unwrap_err();
+    assert!(matches!(e, Error::Corrupt { .. }), "{e:?}");
+}
+
+#[test]
+fn missing_metadata() {
+    let (_, t) = good();
+    let e = load_bytes(&serialize(&t, None)).unwrap_err();
+    assert!(matches!(e, Error::MissingMetadata { .. }), "{e:?}");
+    assert!(e.to_string().contains("tcd_config"));
+}
+
+#[test]
+fn bad_json() {
+    let (cfg, t) = good();
+    let e = load_bytes(&serialize(&t, Some("{not json".into()))).unwrap_err();
+    assert!(matches!(e, Error::BadMetadata { .. }), "{e:?}");
+    assert!(e.to_string().contains("w.safetensors"));
+    // valid JSON, wrong type / missing field
+    let mut v: serde_json::Value = serde_json::from_str(&cfg.to_json()).unwrap();
+    v["model"]["channels"] = serde_json::json!("sixteen");
+    let e = load_bytes(&serialize(&t, Some(v.to_string()))).unwrap_err();
+    assert!(matches!(e, Error::BadMetadata { .. }), "{e:?}");
+    let mut v: serde_json::Value = serde_json::from_str(&cfg.to_json()).unwrap();
+    v.as_object_mut().unwrap().remove("diffusion");
+    let e = load_bytes(&serialize(&t, Some(v.to_string()))).unwrap_err();
+    assert!(e.to_string().contains("diffusion"), "{e}");
+}
+
+#[test]
+fn missing_tensor() {
+    let (cfg, mut t) = good();
+    t.remove("diffmodel.residual_layers.1.time_layer.layers.0.norm2.bias");
+    let e = load_bytes(&serialize(&t, Some(cfg.to_json()))).unwrap_err();
+    match &e {
+        Error::MissingTensor { name, expected, .. } => {
+            assert_eq!(name, "diffmodel.residual_layers.1.time_layer.layers.0.norm2.bias");
+            assert_eq!(expected, &vec![16]);
+        }
+        other => panic!("{other:?}"),
+    }
+}
+
+#[test]
+fn extra_tensor() {
+    let (cfg, mut t) = good();
+    t.insert("diffmodel.diffusion_embedding.embedding".into(), RawTensor::f32(vec![2], &[0.0, 1.0]));
+    let e = load_bytes(&serialize(&t, Some(cfg.to_json()))).unwrap_err();
+    assert!(
+        matches!(&e, Error::UnexpectedTensor { name, .. } if name == "diffmodel.diffusion_embedding.embedding"),
+        "{e:?}"
+    );
+}
+
+#[test]
+fn wrong_shape() {
+    let (cfg, mut t) = good();
+    t.insert("diffmodel.input_projection.weight".into(), RawTensor::f32(vec![16, 2], &[0.0; 32]));
+    let e = load_bytes(&serialize(&t, Some(cfg.to_json()))).unwrap_err();
+    match &e {
+        Error::TensorShape { name, expected, received, .. } => {
+            assert_eq!(name, "diffmodel.input_projection.weight");
+            assert_eq!(expected, &vec![16, 2, 1]);
+            assert_eq!(received, &vec![16, 2]);
+        }
+        other => panic!("{other:?}"),
+    }
+    assert!(e.to_string().contains("[16, 2, 1]"), "{e}");
+}
+
+#[test]
+fn wrong_dtype() {
+    let (cfg, mut t) = good();
+    let w = t["embed_layer.weight"].clone();
+    let f64_bytes: Vec<u8> = w.values().iter().flat_map(|v| (*v as f64).to_le_bytes()).collect();
+    t.insert("embed_layer.weight".into(), RawTensor { dtype: Dtype::F64, shape: w.shape.clone(), bytes: f64_bytes });
+    let e = load_bytes(&serialize(&t, Some(cfg.to_json()))).unwrap_err();
+    assert!(matches!(&e, Error::TensorDtype { name, received, .. } if name == "embed_layer.weight" && received == "F64"), "{e:?}");
+}
+
+#[test]
+fn betas_disagreeing_with_schedule() {
+    let (mut cfg, t) = good();
+    cfg.diffusion.betas[3] += 1e-6;
+    let e = load_bytes(&serialize(&t, Some(cfg.to_json()))).unwrap_err();
+    assert!(matches!(&e, Error::BetasMismatch { index: 3, .. }), "{e:?}");
+    // a custom schedule name skips the recomputation but still needs betas in (0, 1)
+    cfg.diffusion.beta_schedule = "custom".into();
+    assert!(load_bytes(&serialize(&t, Some(cfg.to_json()))).is_ok());
+    cfg.diffusion.betas[0] = 1.0;
+    let e = load_bytes(&serialize(&t, Some(cfg.to_json()))).unwrap_err();
+    assert!(matches!(&e, Error::InvalidConfig { field, .. } if field == "diffusion.betas"), "{e:?}");
+}
+
+#[test]
+fn quad_and_linear_schedules_are_checked() {
+    let (mut cfg, t) = good();
+    cfg.diffusion.beta_schedule = "quad".into();
+    cfg.diffusion.betas = tcd_core::BetaSchedule::Quad.betas(10, 1e-4, 0.5, 0.5);
+    assert!(load_bytes(&serialize(&t, Some(cfg.to_json()))).is_ok());
+    cfg.diffusion.beta_schedule = "linear".into();
+    let e = load_bytes(&serialize(&t, Some(cfg.to_json()))).unwrap_err();
+    assert!(matches!(&e, Error::BetasMismatch { .. }), "{e:?}");
+}
+
+#[test]
+fn inconsistent_configs() {
+    let (cfg, t) = good();
+    type Edit = Box<dyn Fn(&mut tcd_core::TcdConfig)>;
+    let cases: Vec<(&str, Edit)> = vec![
+        ("model.side_dim", Box::new(|c| c.model.side_dim = 36)),
+        ("model.num_features", Box::new(|c| c.model.num_features = 7)),
+        ("model.channels", Box::new(|c| c.model.num_heads = 3)),
+        ("diffusion.betas", Box::new(|c| { c.diffusion.betas.pop(); })),
+        ("window.seq_len", Box::new(|c| c.window.seq_len = 11)),
+        ("format_version", Box::new(|c| c.format_version = 2)),
+        ("diffusion.prediction_type", Box::new(|c| c.diffusion.prediction_type = "v_prediction".into())),
+        ("diffusion.variance_type", Box::new(|c| c.diffusion.variance_type = "learned".into())),
+        ("model.layer_norm_eps", Box::new(|c| c.model.layer_norm_eps = 0.0)),
+    ];
+    for (field, edit) in cases {
+        let mut c = cfg.clone();
+        edit(&mut c);
+        let e = load_bytes(&serialize(&t, Some(c.to_json()))).unwrap_err();
+        assert!(matches!(&e, Error::InvalidConfig { field: f, .. } if f == field), "{field}: {e:?}");
+        assert!(e.to_string().contains(field), "{e}");
+    }
+}
