@@ -53,3 +53,29 @@ def test_model_evaluation_runs_end_to_end(tmp_path):
     assert res["best_of_n"]["label"].startswith("oracle") and res["mean_of_n"]["label"].startswith("mean")
     assert res["repair"]["occluded_entries"] > 0 and np.isfinite(res["repair"]["ade_mm"])
     assert "zero_velocity_on_repaired" in res and res["select"] == "best"
+
+
+@needs_h36m
+def test_txt_tree_source_equals_the_npz(tmp_path):
+    from training.data.h36m import H36MSource
+    npz = H36MSource(H36M_DIR)
+    raw = npz.raw(5, "walking", 1)[:40]
+    (tmp_path / "dataset" / "S5").mkdir(parents=True)
+    np.savetxt(tmp_path / "dataset" / "S5" / "walking_1.txt", raw, delimiter=",", fmt="%.9g")
+    txt = H36MSource(tmp_path)
+    assert txt.keys == {"S5/walking_1"} and txt.has(5, "walking", 1) and not txt.has(5, "walking", 2)
+    assert np.allclose(txt.raw(5, "walking", 1), raw, rtol=1e-6)
+    with pytest.raises(FileNotFoundError, match="no Human3.6M"):
+        H36MSource(tmp_path / "dataset" / "S5" / "nothing")
+
+
+@pytest.mark.skipif(not (H36M_DIR.parent / "humaneva" / "humaneva_i_15j_60hz.npz").is_file(), reason="HumanEva-I data absent")
+def test_humaneva_zero_velocity_protocol(tmp_path):
+    out = tmp_path / "he.json"
+    assert evaluate.main(["--protocol", "humaneva", "--baseline", "zero-velocity", "--json", str(out),
+                          "--data", str(H36M_DIR.parent / "humaneva"), "--quiet"]) == 0
+    res = json.loads(out.read_text())
+    assert res["protocol"]["windows"] == 188
+    s = res["stochastic"]
+    assert s["APD"] == 0.0                              # one deterministic sample has no diversity
+    assert 0 < s["ADE"] < s["FDE"] and 0 < s["MMADE"] < s["MMFDE"]
