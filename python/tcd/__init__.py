@@ -1,0 +1,38 @@
+"""tcd — Temporal Cascaded Diffusion: forecast and repair 3D human motion on the CPU.
+
+    >>> import tcd
+    >>> model = tcd.load("models/h36m")          # short.safetensors + long.safetensors
+    >>> f = model.forecast(obs, seed=0)          # obs: (50, 22, 3) metres, NaN = missing
+    >>> f.mean.shape, f.samples.shape            # (25, 22, 3), (5, 25, 22, 3)
+
+High level: :func:`load`, :class:`TCD` (``forecast``, ``repair``), :class:`Forecast`, :func:`forecast`.
+Low level, in the engine's (B, K, L) layout: :class:`Denoiser`, :func:`cascade_raw`, :func:`repair_raw`,
+:func:`seeded_noise`. Errors: :mod:`tcd.exceptions`. Inference runs in a Rust engine (no torch).
+"""
+from __future__ import annotations
+
+from . import exceptions
+from ._native import __version__
+from .denoiser import STAGE_LONG, STAGE_SHORT, Denoiser, cascade_raw, repair_raw, seeded_noise
+from .exceptions import InvalidInputError, TcdError, WeightsError
+from .model import TCD, Forecast, default_model_dir, forecast, load, repair
+
+__all__ = [
+    "__version__",
+    "load",
+    "forecast",
+    "repair",
+    "TCD",
+    "Forecast",
+    "default_model_dir",
+    "Denoiser",
+    "cascade_raw",
+    "repair_raw",
+    "seeded_noise",
+    "STAGE_SHORT",
+    "STAGE_LONG",
+    "exceptions",
+    "TcdError",
+    "InvalidInputError",
+    "WeightsError",
+]

@@ -1,0 +1,110 @@
+"""Stubs of the private native module ``tcd._native`` (crates/tcd-py). Use the ``tcd`` package.
+
+Arrays are float32 in the engine's layout: sequences (B, K, L), samples (S, B, K, L), injected
+noise (S, n + 1, B, K, L). Errors: ``tcd.exceptions.InvalidInputError`` (bad argument),
+``tcd.exceptions.WeightsError`` (bad weight file), ``FileNotFoundError`` (missing file),
+``OSError`` (unreadable file), ``tcd.exceptions.TcdError`` (anything else).
+"""
+import os
+from typing import Dict, List, Optional, Union
+
+import numpy as np
+import numpy.typing as npt
+
+__version__: str
+STAGE_SHORT: int
+STAGE_LONG: int
+
+_F32 = npt.NDArray[np.float32]
+
+class Denoiser:
+    @staticmethod
+    def load(path: Union[str, os.PathLike[str]]) -> Denoiser: ...
+    @staticmethod
+    def from_bytes(data: bytes, name: Union[str, os.PathLike[str]]) -> Denoiser: ...
+    @property
+    def path(self) -> str: ...
+    @property
+    def config_json(self) -> str: ...
+    @property
+    def role(self) -> str: ...
+    @property
+    def num_features(self) -> int: ...
+    @property
+    def num_joints(self) -> int: ...
+    @property
+    def coords(self) -> int: ...
+    @property
+    def obs_len(self) -> int: ...
+    @property
+    def pred_len(self) -> int: ...
+    @property
+    def seq_len(self) -> int: ...
+    @property
+    def num_train_timesteps(self) -> int: ...
+    def timesteps(
+        self,
+        sampler: str = "ddpm",
+        num_inference_steps: Optional[int] = None,
+        eta: float = 0.0,
+        timestep_spacing: str = "trailing",
+    ) -> List[int]: ...
+    def forward(self, noisy: _F32, observed: _F32, mask: _F32, step: int) -> _F32: ...
+    def sample(
+        self,
+        observed: _F32,
+        mask: _F32,
+        num_samples: int,
+        *,
+        noise: Optional[_F32] = None,
+        seed: Optional[int] = None,
+        first_sequence: int = 0,
+        sampler: str = "ddpm",
+        num_inference_steps: Optional[int] = None,
+        eta: float = 0.0,
+        timestep_spacing: str = "trailing",
+        threads: Optional[int] = None,
+    ) -> _F32: ...
+
+def cascade(
+    short: Denoiser,
+    long: Denoiser,
+    observed: _F32,
+    mask: _F32,
+    *,
+    num_samples: int = 5,
+    noise_short: Optional[_F32] = None,
+    noise_long: Optional[_F32] = None,
+    seed: Optional[int] = None,
+    first_sequence: int = 0,
+    sampler: str = "ddpm",
+    num_inference_steps: Optional[int] = None,
+    eta: float = 0.0,
+    timestep_spacing: str = "trailing",
+    threads: Optional[int] = None,
+) -> Dict[str, _F32]: ...
+def repair(
+    model: Denoiser,
+    observed: _F32,
+    mask: _F32,
+    *,
+    num_samples: int = 5,
+    noise: Optional[_F32] = None,
+    seed: Optional[int] = None,
+    first_sequence: int = 0,
+    sampler: str = "ddpm",
+    num_inference_steps: Optional[int] = None,
+    eta: float = 0.0,
+    timestep_spacing: str = "trailing",
+    threads: Optional[int] = None,
+) -> Dict[str, _F32]: ...
+def seeded_noise(
+    seed: int,
+    stage: int,
+    num_samples: int,
+    num_blocks: int,
+    batch: int,
+    num_features: int,
+    length: int,
+    first_sequence: int = 0,
+) -> _F32: ...

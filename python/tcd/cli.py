@@ -1,0 +1,170 @@
+"""The ``tcd`` command line.
+
+    tcd info [--model DIR] [--json]
+    tcd forecast IN.npz -o OUT.npz [--model DIR] [--samples N] [--steps S] [--sampler ddpm|ddim]
+                 [--eta E] [--spacing trailing|leading|linspace] [--seed S] [--units m|mm]
+                 [--threads N] [--overwrite]
+
+IN.npz holds ``poses``, (T, J, 3) or (B, T, J, 3) with NaN = missing, and optionally ``mask``
+(1 = observed). OUT.npz receives ``mean``, ``samples``, ``repaired`` and ``seed``. An existing OUT is
+never replaced without ``--overwrite``.
+
+Exit codes: 0 success; 2 bad input (arguments, input file, model directory, existing output);
+1 any other failure.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import zipfile
+from pathlib import Path
+from typing import Any, Dict, List, Optional, Sequence
+
+import numpy as np
+
+from . import __version__
+from .exceptions import InvalidInputError, TcdError, WeightsError
+from .model import TCD, load
+
+EXIT_OK = 0
+EXIT_FAILURE = 1
+EXIT_BAD_INPUT = 2
+
+
+class _BadInput(Exception):
+    """A problem the user can fix: reported on stderr with exit code 2."""
+
+
+def _parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="tcd", description="Temporal Cascaded Diffusion: 3D human motion forecasting.",
+                                 epilog="Exit codes: 0 success, 2 bad input, 1 other failure.")
+    ap.add_argument("--version", action="version", version=f"tcd {__version__}")
+    sub = ap.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+
+    info = sub.add_parser("info", help="describe a model directory")
+    info.add_argument("--model", metavar="DIR", help="model directory (default: the bundled model)")
+    info.add_argument("--json", action="store_true", help="print the full configuration as JSON")
+
+    fc = sub.add_parser("forecast", help="forecast the poses of an .npz file",
+                        description="Forecast the frames after the observed poses of IN.npz.")
+    fc.add_argument("input", metavar="IN.npz", help="input: `poses` (T, J, 3) or (B, T, J, 3), NaN = missing; "
+                    "optional `mask` (1 = observed)")
+    fc.add_argument("-o", "--output", metavar="OUT.npz", required=True,
+                    help="output: mean, samples, repaired, seed")
+    fc.add_argument("--model", metavar="DIR", help="model directory (default: the bundled model)")
+    fc.add_argument("--samples", type=int, default=5, metavar="N", help="samples per sequence (default 5)")
+    fc.add_argument("--steps", type=int, default=None, metavar="S",
+                    help="inference steps (default: every training step, the paper's DDPM)")
+    fc.add_argument("--sampler", default="ddpm", help="ddpm (default) or ddim")
+    fc.add_argument("--eta", type=float, default=0.0, help="DDIM eta in [0, 1] (default 0)")
+    fc.add_argument("--spacing", default="trailing", help="timestep spacing: trailing (default), leading, linspace")
+    fc.add_argument("--seed", type=int, default=None, help="noise seed (default: random, recorded in OUT)")
+    fc.add_argument("--units", default="m", help="units of the poses: m (default) or mm")
+    fc.add_argument("--threads", type=int, default=None, metavar="N", help="worker threads (default: all cores)")
+    fc.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
+    return ap
+
+
+def _load(model: Optional[str]) -> TCD:
+    try:
+        return load(model)
+    except (FileNotFoundError, NotADirectoryError, WeightsError, InvalidInputError) as e:
+        raise _BadInput(str(e)) from None
+
+
+def _info(args: argparse.Namespace) -> int:
+    m = _load(args.model)
+    if args.json:
+        print(json.dumps({"path": str(m.path), "obs_len": m.obs_len, "horizon": m.horizon,
+                          "num_joints": m.num_joints, "config": m.config}, indent=2))
+        return EXIT_OK
+    data = m.data
+    lines: List[str] = [
+        f"model directory: {m.path}",
+        f"observed frames (obs_len): {m.obs_len}",
+        f"forecast frames (horizon): {m.horizon}",
+        f"joints: {m.num_joints}" + (f" ({', '.join(m.joint_names)})" if m.joint_names else ""),
+        f"fps: {data.get('fps', 'unknown')}",
+        f"units: {data.get('units', 'unknown')}, root-relative: {data.get('root_relative', 'unknown')}",
+        f"dataset: {data.get('dataset', 'unknown')}; training data: {data.get('training_data', 'unknown')}",
+    ]
+    for role, d in (("short", m.short), ("long", m.long), ("repair", m.repair_model)):
+        if d is None:
+            lines.append(f"{role}: none")
+            continue
+        c = d.config
+        mc, diff = c.get("model", {}), c.get("diffusion", {})
+        lines.append(f"{role}: window {d.obs_len} + {d.pred_len} frames, channels {mc.get('channels')}, "
+                     f"layers {mc.get('num_layers')}, heads {mc.get('num_heads')}, "
+                     f"T = {d.num_train_timesteps} ({diff.get('beta_schedule')})")
+    print("\n".join(lines))
+    return EXIT_OK
+
+
+def _read_npz(path: Path) -> Dict[str, np.ndarray]:
+    if not path.is_file():
+        raise _BadInput(f"The input file {path} does not exist.")
+    try:
+        with np.load(path, allow_pickle=False) as f:
+            if not isinstance(f, np.lib.npyio.NpzFile):
+                raise _BadInput(f"The input file {path} is a single .npy array; an .npz archive with `poses` is required.")
+            return {k: f[k] for k in f.files}
+    except _BadInput:
+        raise
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as e:
+        raise _BadInput(f"The input file {path} is not a readable .npz archive: {e}") from None
+
+
+def _forecast(args: argparse.Namespace) -> int:
+    out = Path(args.output)
+    if out.exists() and not args.overwrite:
+        raise _BadInput(f"The output file {out} exists; pass --overwrite to replace it.")
+    if out.exists() and out.is_dir():
+        raise _BadInput(f"The output path {out} is a directory.")
+    if not out.parent.is_dir():
+        raise _BadInput(f"The output directory {out.parent} does not exist.")
+    data = _read_npz(Path(args.input))
+    if "poses" not in data:
+        raise _BadInput(f"The input file {args.input} has no `poses` array (it has: {', '.join(sorted(data)) or 'nothing'}).")
+    model = _load(args.model)
+    try:
+        f = model.forecast(data["poses"], data.get("mask"), num_samples=args.samples,
+                           num_inference_steps=args.steps, sampler=args.sampler, eta=args.eta,
+                           timestep_spacing=args.spacing, seed=args.seed, units=args.units, threads=args.threads)
+    except InvalidInputError as e:
+        source = {"obs": "the `poses` array of the input file", "mask": "the `mask` array of the input file",
+                  "num_samples": "--samples", "num_inference_steps": "--steps", "sampler": "--sampler",
+                  "eta": "--eta", "timestep_spacing": "--spacing", "seed": "--seed", "units": "--units",
+                  "threads": "--threads"}.get(e.argument or "")
+        raise _BadInput(f"{e} (`{e.argument}` is {source}.)" if source else str(e)) from None
+    try:
+        with open(out, "wb" if args.overwrite else "xb") as fh:
+            np.savez(fh, mean=f.mean, samples=f.samples, repaired=f.repaired, seed=np.uint64(f.seed))
+    except FileExistsError:
+        raise _BadInput(f"The output file {out} exists; pass --overwrite to replace it.") from None
+    print(f"wrote {out}: mean {f.mean.shape}, samples {f.samples.shape}, repaired {f.repaired.shape}, seed {f.seed}")
+    return EXIT_OK
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """Entry point of the ``tcd`` console script; returns the exit code."""
+    args = _parser().parse_args(argv)  # exits with 2 on a usage error
+    try:
+        if args.command == "info":
+            return _info(args)
+        return _forecast(args)
+    except _BadInput as e:
+        print(f"tcd {args.command}: error: {e}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except TcdError as e:
+        print(f"tcd {args.command}: error: {e}", file=sys.stderr)
+        return EXIT_FAILURE
+    except OSError as e:
+        print(f"tcd {args.command}: error: {e}", file=sys.stderr)
+        return EXIT_FAILURE
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

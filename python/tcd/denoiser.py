@@ -1,0 +1,196 @@
+"""The low-level API: one denoiser, the samplers and the cascade in the engine's layout.
+
+Arrays here are float32 **(B, K, L)**: B sequences, K = joints x 3 coordinates (index
+``joint * 3 + axis``), L frames (frame axis last). Masks are 1 (observed) / 0 (to generate).
+Injected noise is **(S, n + 1, B, K, L)**: for each of the S chains, block 0 is x_T and block i + 1
+the z of step i — with S = 1 the ``(num_steps + 1, B, K, L)`` array of ``training.diffusion.sample``.
+Pass ``noise`` for bit-exact parity tests, or a ``seed`` for the engine's seeded ChaCha8 streams
+(:func:`seeded_noise` materialises them).
+"""
+from __future__ import annotations
+
+import json
+import os
+from typing import Any, Dict, List, Optional, Union
+
+import numpy as np
+
+from . import _checks, _native
+
+__all__ = ["Denoiser", "cascade_raw", "repair_raw", "seeded_noise", "STAGE_SHORT", "STAGE_LONG"]
+
+PathLike = Union[str, "os.PathLike[str]"]
+
+#: Stream stage of :meth:`Denoiser.sample`, :func:`repair_raw` and the cascade's short-term stage.
+STAGE_SHORT: int = _native.STAGE_SHORT
+#: Stream stage of the cascade's long-term stage.
+STAGE_LONG: int = _native.STAGE_LONG
+
+
+def _noise(argument: str, value: Any) -> Optional[np.ndarray]:
+    return None if value is None else _checks.float32_array(argument, value)
+
+
+class Denoiser:
+    """A loaded TCD denoiser (one ``.safetensors`` file). Immutable and thread-safe."""
+
+    __slots__ = ("_native", "_config")
+
+    def __init__(self, native: _native.Denoiser) -> None:
+        if not isinstance(native, _native.Denoiser):
+            raise TypeError("use Denoiser.load(path) or Denoiser.from_bytes(data)")
+        self._native = native
+        self._config: Dict[str, Any] = json.loads(native.config_json)
+
+    @classmethod
+    def load(cls, path: PathLike) -> "Denoiser":
+        """Loads and validates a weight file. Missing file: ``FileNotFoundError``; invalid content:
+        :class:`tcd.exceptions.WeightsError`."""
+        return cls(_native.Denoiser.load(os.fspath(path)))
+
+    @classmethod
+    def from_bytes(cls, data: bytes, name: str = "<bytes>") -> "Denoiser":
+        """Like :meth:`load`, from the bytes of a weight file; ``name`` appears in error messages."""
+        return cls(_native.Denoiser.from_bytes(bytes(data), name))
+
+    # ------------------------------------------------------------------ configuration
+    @property
+    def config(self) -> Dict[str, Any]:
+        """The ``tcd_config`` JSON of the file, parsed (a fresh copy)."""
+        return json.loads(json.dumps(self._config))
+
+    @property
+    def path(self) -> str:
+        return self._native.path
+
+    @property
+    def role(self) -> str:
+        """``short``, ``long`` or ``repair``."""
+        return self._native.role
+
+    @property
+    def num_features(self) -> int:
+        """K = num_joints * 3."""
+        return self._native.num_features
+
+    @property
+    def num_joints(self) -> int:
+        return self._native.num_joints
+
+    @property
+    def obs_len(self) -> int:
+        """Observed (conditioning) frames of the training window."""
+        return self._native.obs_len
+
+    @property
+    def pred_len(self) -> int:
+        """Predicted frames of the training window."""
+        return self._native.pred_len
+
+    @property
+    def seq_len(self) -> int:
+        """L = obs_len + pred_len."""
+        return self._native.seq_len
+
+    @property
+    def num_train_timesteps(self) -> int:
+        return self._native.num_train_timesteps
+
+    def __repr__(self) -> str:
+        return repr(self._native)
+
+    # ------------------------------------------------------------------ compute
+    def timesteps(self, sampler: str = "ddpm", num_inference_steps: Optional[int] = None,
+                  timestep_spacing: str = "trailing") -> List[int]:
+        """The descending training steps the sampler visits (``None`` steps: all of them)."""
+        s, n, _, sp = _checks.sampler_args(sampler, num_inference_steps, 0.0, timestep_spacing,
+                                           self.num_train_timesteps)
+        return list(self._native.timesteps(s, n, 0.0, sp))
+
+    def num_noise_blocks(self, sampler: str = "ddpm", num_inference_steps: Optional[int] = None,
+                         timestep_spacing: str = "trailing") -> int:
+        """n + 1: the second axis of injected noise."""
+        return len(self.timesteps(sampler, num_inference_steps, timestep_spacing)) + 1
+
+    def forward(self, noisy: Any, observed: Any, mask: Any, step: int) -> np.ndarray:
+        """ε̂ = net(noisy, observed, mask, step): arrays (B, K, L) float32, ``step`` in
+        0..num_train_timesteps-1. Returns (B, K, L) float32."""
+        step = _checks.integer("step", step, 0, self.num_train_timesteps - 1)
+        return self._native.forward(_checks.float32_array("noisy", noisy),
+                                    _checks.float32_array("observed", observed),
+                                    _checks.float32_array("mask", mask), step)
+
+    def sample(self, observed: Any, mask: Any, num_samples: int = 1, *, noise: Any = None,
+               seed: Optional[int] = None, first_sequence: int = 0, sampler: str = "ddpm",
+               num_inference_steps: Optional[int] = None, eta: float = 0.0,
+               timestep_spacing: str = "trailing", threads: Optional[int] = None) -> np.ndarray:
+        """``num_samples`` merged samples per sequence: observed, mask (B, K, L) -> (S, B, K, L).
+
+        Exactly one of ``noise`` (S, n + 1, B, K, L) and ``seed`` must be given.
+        ``num_inference_steps=None`` runs every training step."""
+        num_samples = _checks.integer("num_samples", num_samples, 1)
+        s, n, e, sp = _checks.sampler_args(sampler, num_inference_steps, eta, timestep_spacing,
+                                           self.num_train_timesteps)
+        return self._native.sample(
+            _checks.float32_array("observed", observed), _checks.float32_array("mask", mask), num_samples,
+            noise=_noise("noise", noise), seed=_checks.seed(seed),
+            first_sequence=_checks.integer("first_sequence", first_sequence, 0, _checks.MAX_SEED),
+            sampler=s, num_inference_steps=n, eta=e, timestep_spacing=sp, threads=_checks.threads(threads))
+
+
+def cascade_raw(short: Denoiser, long: Denoiser, observed: Any, mask: Any, *, num_samples: int = 5,
+                noise_short: Any = None, noise_long: Any = None, seed: Optional[int] = None,
+                first_sequence: int = 0, sampler: str = "ddpm", num_inference_steps: Optional[int] = None,
+                eta: float = 0.0, timestep_spacing: str = "trailing",
+                threads: Optional[int] = None) -> Dict[str, np.ndarray]:
+    """The short-term -> long-term cascade in the engine's layout (``training.diffusion.cascade``).
+
+    observed, mask: (B, K, O) with O = ``short.obs_len``. Noise: ``noise_short`` (S, n + 1, B, K, L_s)
+    and ``noise_long`` (S, n + 1, B, K, L_l), or a ``seed``. Returns ``mean`` (B, K, P), ``samples``
+    (S, B, K, P) (P = L_l - O forecast frames), ``repaired`` (B, K, O) and ``short_mean`` (B, K, L_s).
+    """
+    for name, m in (("short", short), ("long", long)):
+        if not isinstance(m, Denoiser):
+            raise _checks.fail(name, "a tcd.Denoiser", type(m).__name__)
+    num_samples = _checks.integer("num_samples", num_samples, 1)
+    t = min(short.num_train_timesteps, long.num_train_timesteps)
+    s, n, e, sp = _checks.sampler_args(sampler, num_inference_steps, eta, timestep_spacing, t)
+    return dict(_native.cascade(
+        short._native, long._native, _checks.float32_array("observed", observed),
+        _checks.float32_array("mask", mask), num_samples=num_samples,
+        noise_short=_noise("noise_short", noise_short), noise_long=_noise("noise_long", noise_long),
+        seed=_checks.seed(seed), first_sequence=_checks.integer("first_sequence", first_sequence, 0, _checks.MAX_SEED),
+        sampler=s, num_inference_steps=n, eta=e, timestep_spacing=sp, threads=_checks.threads(threads)))
+
+
+def repair_raw(model: Denoiser, observed: Any, mask: Any, *, num_samples: int = 5, noise: Any = None,
+               seed: Optional[int] = None, first_sequence: int = 0, sampler: str = "ddpm",
+               num_inference_steps: Optional[int] = None, eta: float = 0.0,
+               timestep_spacing: str = "trailing", threads: Optional[int] = None) -> Dict[str, np.ndarray]:
+    """Fills the mask-0 entries of an observation (B, K, O), O = ``model.obs_len``
+    (``training.diffusion.repair``). Returns ``mean`` (B, K, O; observed entries exact) and ``samples``
+    (S, B, K, O). Noise: ``noise`` (S, n + 1, B, K, model.seq_len) or a ``seed``."""
+    if not isinstance(model, Denoiser):
+        raise _checks.fail("model", "a tcd.Denoiser", type(model).__name__)
+    num_samples = _checks.integer("num_samples", num_samples, 1)
+    s, n, e, sp = _checks.sampler_args(sampler, num_inference_steps, eta, timestep_spacing,
+                                       model.num_train_timesteps)
+    return dict(_native.repair(
+        model._native, _checks.float32_array("observed", observed), _checks.float32_array("mask", mask),
+        num_samples=num_samples, noise=_noise("noise", noise), seed=_checks.seed(seed),
+        first_sequence=_checks.integer("first_sequence", first_sequence, 0, _checks.MAX_SEED),
+        sampler=s, num_inference_steps=n, eta=e, timestep_spacing=sp, threads=_checks.threads(threads)))
+
+
+def seeded_noise(seed: int, stage: int, num_samples: int, num_blocks: int, batch: int, num_features: int,
+                 length: int, first_sequence: int = 0) -> np.ndarray:
+    """The engine's seeded noise streams in the injected layout (S, num_blocks, B, K, L): feeding
+    this array as ``noise`` reproduces the seeded call exactly (``stage``: :data:`STAGE_SHORT` for
+    :meth:`Denoiser.sample` / :func:`repair_raw` / the cascade's first stage, :data:`STAGE_LONG` for
+    its second)."""
+    return _native.seeded_noise(
+        _checks.integer("seed", seed, 0, _checks.MAX_SEED), _checks.integer("stage", stage, 0, _checks.MAX_SEED),
+        _checks.integer("num_samples", num_samples, 1), _checks.integer("num_blocks", num_blocks, 1),
+        _checks.integer("batch", batch, 1), _checks.integer("num_features", num_features, 1),
+        _checks.integer("length", length, 1),
+        _checks.integer("first_sequence", first_sequence, 0, _checks.MAX_SEED))

@@ -1,0 +1,349 @@
+"""The high-level API: a model directory, forecasts and repairs of pose sequences.
+
+Poses are ``(T, J, 3)`` or ``(B, T, J, 3)`` float arrays in the model's joint layout and order
+(``TCD.joint_names``), root-relative, in metres by default (``units="mm"`` for millimetres). NaN marks
+a missing value; an explicit ``mask`` (1 = observed) may be given instead or as well. Outputs come
+back in the caller's units, with the caller's batch axis (present or not).
+"""
+from __future__ import annotations
+
+import os
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Dict, List, Optional, Tuple, Union
+
+import numpy as np
+
+from . import _checks
+from .denoiser import Denoiser, cascade_raw, repair_raw
+from .exceptions import WeightsError
+
+__all__ = ["TCD", "Forecast", "load", "forecast", "repair", "default_model_dir"]
+
+PathLike = Union[str, "os.PathLike[str]"]
+
+_UNIT_SCALE = {"m": 1.0, "mm": 1000.0}
+
+
+def default_model_dir() -> Path:
+    """Where the bundled default model lives (``tcd/weights/``)."""
+    return Path(__file__).resolve().parent / "weights"
+
+
+@dataclass(frozen=True, eq=False)
+class Forecast:
+    """The result of :meth:`TCD.forecast` (arrays in the caller's units; ``B`` only if the input had it).
+
+    * ``mean``: ``(B?, H, J, 3)``, the mean over samples of the H forecast frames;
+    * ``samples``: ``(S, B?, H, J, 3)``;
+    * ``repaired``: the observation with its missing entries filled (same shape as the input; observed
+      entries are returned unchanged);
+    * ``seed``: the seed used (drawn from ``os.urandom`` when none was given): pass it back to reproduce.
+    """
+
+    mean: np.ndarray
+    samples: np.ndarray
+    repaired: np.ndarray
+    seed: int
+
+    def __repr__(self) -> str:
+        return (f"Forecast(mean={_checks.shape_str(self.mean.shape)}, samples={_checks.shape_str(self.samples.shape)}, "
+                f"repaired={_checks.shape_str(self.repaired.shape)}, seed={self.seed})")
+
+
+class _Poses:
+    """A validated pose input in the engine's layout."""
+
+    def __init__(self, observed: np.ndarray, mask: np.ndarray, original: np.ndarray, full_mask: np.ndarray,
+                 batched: bool, scale: float, dtype: np.dtype) -> None:
+        self.observed = observed      # (B, K, T) float32, model units, 0 where missing
+        self.mask = mask              # (B, K, T) float32 0/1
+        self.original = original      # (B, T, J, 3) the caller's values
+        self.full_mask = full_mask    # (B, T, J, 3) bool
+        self.batched = batched
+        self.scale = scale
+        self.dtype = dtype
+
+    def poses(self, bkl: np.ndarray) -> np.ndarray:
+        """(..., B, K, L) float32 model units -> (..., B?, L, J, 3) in the caller's units and dtype."""
+        *lead, b, k, length = bkl.shape
+        j = k // 3
+        out = np.swapaxes(bkl, -1, -2).reshape(*lead, b, length, j, 3).astype(self.dtype)
+        if self.scale != 1.0:
+            out = out * self.dtype.type(self.scale)
+        return out if self.batched else out[..., 0, :, :, :]
+
+    def repaired(self, bkt: np.ndarray) -> np.ndarray:
+        out = self.poses(bkt)
+        original = self.original if self.batched else self.original[0]
+        full_mask = self.full_mask if self.batched else self.full_mask[0]
+        # Observed entries bit for bit as given (also when units or dtype needed a conversion).
+        return np.where(full_mask, original.astype(self.dtype, copy=False), out)
+
+
+def _poses(obs: Any, mask: Any, num_joints: int, obs_len: int, units: str) -> _Poses:
+    """Checks ``obs`` / ``mask`` (see :meth:`TCD.forecast`) and converts them to (B, K, T) float32."""
+    try:
+        a = np.asarray(obs)
+    except (ValueError, TypeError) as e:
+        raise _checks.fail("obs", "an array of shape (T, J, 3) or (B, T, J, 3)",
+                           f"an object numpy cannot convert ({e})") from None
+    if a.dtype.kind not in "biuf":
+        raise _checks.fail("obs", "a float array of shape (T, J, 3) or (B, T, J, 3)", f"an array of dtype {a.dtype}")
+    want = f"(T, J, 3) or (B, T, J, 3) with T = {obs_len} frames and J = {num_joints} joints"
+    if a.ndim not in (3, 4):
+        raise _checks.fail("obs", f"an array of shape {want}", f"an array of shape {_checks.shape_str(a.shape)} ({a.ndim} dimensions)")
+    batched = a.ndim == 4
+    a4 = a if batched else a[None]
+    b, t, j, c = a4.shape
+    if c != 3:
+        raise _checks.fail("obs", f"an array of shape {want} (3 coordinates per joint)",
+                           f"shape {_checks.shape_str(a.shape)} with {c} coordinates per joint")
+    if j != num_joints:
+        raise _checks.fail("obs", f"an array of shape {want} (the model's joint layout)",
+                           f"shape {_checks.shape_str(a.shape)} with {j} joints")
+    if t != obs_len:
+        raise _checks.fail("obs", f"an array of shape {want}: exactly {obs_len} observed frames (the model's obs_len)",
+                           f"shape {_checks.shape_str(a.shape)} with {t} frames")
+    if b < 1:
+        raise _checks.fail("obs", f"an array of shape {want} with at least one sequence", f"shape {_checks.shape_str(a.shape)}")
+    dtype = np.result_type(a.dtype, np.float32) if a.dtype.kind == "f" else np.dtype(np.float64)
+    a4 = a4.astype(dtype, copy=False)
+    nan = np.isnan(a4)
+    inf = np.isinf(a4)
+    if inf.any():
+        raise _checks.fail("obs", "finite, with NaN marking missing values",
+                           f"{a4[inf][0]} at index {_index(np.argwhere(inf)[0], batched)}")
+
+    if mask is None:
+        full = ~nan
+    else:
+        try:
+            m = np.asarray(mask)
+        except (ValueError, TypeError) as e:
+            raise _checks.fail("mask", "an array of 0/1", f"an object numpy cannot convert ({e})") from None
+        if m.dtype.kind not in "biuf":
+            raise _checks.fail("mask", "an array of 0 (missing) and 1 (observed)", f"an array of dtype {m.dtype}")
+        shapes = (a.shape, a.shape[:-1])
+        if m.shape not in shapes:
+            raise _checks.fail("mask", f"an array of shape {_checks.shape_str(a.shape)} or {_checks.shape_str(a.shape[:-1])} (the shape of `obs`, optionally without its last axis)",
+                               f"shape {_checks.shape_str(m.shape)}")
+        bad = ~((m == 0) | (m == 1))
+        if bad.any():
+            raise _checks.fail("mask", "0 (missing) or 1 (observed) everywhere",
+                               f"{m[bad][0]!r} at index {tuple(int(i) for i in np.argwhere(bad)[0])}")
+        m = m.astype(bool)
+        if m.shape == a.shape[:-1]:
+            m = np.repeat(m[..., None], 3, axis=-1)
+        full = m if batched else m[None]
+        clash = full & nan
+        if clash.any():
+            raise _checks.fail("obs", "a number wherever `mask` is 1 (observed)",
+                               f"NaN at index {_index(np.argwhere(clash)[0], batched)}, where mask is 1")
+    empty = ~full.reshape(b, -1).any(axis=1)
+    if empty.any():
+        which = f"sequence {int(np.argmax(empty))} of `obs`" if batched else "`obs`"
+        arg = "obs" if mask is None else "mask"
+        raise _checks.fail(arg, "an observation with at least one observed value per sequence",
+                           f"{which} with every value missing")
+
+    scale = _UNIT_SCALE[units]
+    x = np.where(full, a4, 0.0)
+    if scale != 1.0:
+        x = x / scale
+    k = num_joints * 3
+    observed = np.ascontiguousarray(x.astype(np.float32).reshape(b, t, k).transpose(0, 2, 1))
+    mask_bkt = np.ascontiguousarray(full.astype(np.float32).reshape(b, t, k).transpose(0, 2, 1))
+    return _Poses(observed, mask_bkt, a4, full, batched, scale, dtype)
+
+
+def _index(idx: np.ndarray, batched: bool) -> Tuple[int, ...]:
+    idx = tuple(int(i) for i in idx)
+    return idx if batched else idx[1:]
+
+
+def _seed(seed: Any) -> int:
+    s = _checks.seed(seed)
+    return int.from_bytes(os.urandom(8), "little") if s is None else s
+
+
+class TCD:
+    """A Temporal Cascaded Diffusion model directory: short-term and long-term denoisers (and an
+    optional repair model). Load with :func:`tcd.load`. Immutable and thread-safe."""
+
+    def __init__(self, short: Denoiser, long: Denoiser, repair: Optional[Denoiser] = None,
+                 path: Optional[PathLike] = None, threads: Optional[int] = None) -> None:
+        self.short = short
+        self.long = long
+        self.repair_model = repair
+        self.path = None if path is None else Path(path)
+        self.threads = _checks.threads(threads)
+        where = str(path) if path is not None else "the model"
+        k = short.num_features
+        if short.num_features % 3:
+            raise WeightsError(f"{where}: the short-term model has num_features = {k}, not joints x 3.", short.path)
+        if long.num_features != k:
+            raise WeightsError(f"{where}: the long-term model has num_features = {long.num_features}, "
+                               f"but the short-term model has {k}.", long.path)
+        if long.obs_len != short.seq_len or long.seq_len <= short.obs_len:
+            raise WeightsError(f"{where}: the long-term model's obs_len ({long.obs_len}) must equal the short-term "
+                               f"model's seq_len ({short.seq_len}).", long.path)
+        if repair is not None and (repair.num_features != k or repair.obs_len != short.obs_len):
+            raise WeightsError(f"{where}: the repair model (num_features = {repair.num_features}, obs_len = "
+                               f"{repair.obs_len}) must match the short-term model (num_features = {k}, obs_len = "
+                               f"{short.obs_len}).", repair.path)
+
+    # ------------------------------------------------------------------ description
+    @property
+    def obs_len(self) -> int:
+        """Observed frames a forecast conditions on (TCD: 50)."""
+        return self.short.obs_len
+
+    @property
+    def horizon(self) -> int:
+        """Forecast frames H (TCD: 25)."""
+        return self.long.seq_len - self.short.obs_len
+
+    @property
+    def num_joints(self) -> int:
+        return self.short.num_features // 3
+
+    @property
+    def num_train_timesteps(self) -> int:
+        return self.short.num_train_timesteps
+
+    @property
+    def data(self) -> Dict[str, Any]:
+        """The ``data`` section of the short-term model's config (dataset, fps, units, joint_names, ...)."""
+        return dict(self.short.config.get("data") or {})
+
+    @property
+    def joint_names(self) -> Optional[List[str]]:
+        names = self.data.get("joint_names")
+        return list(names) if names else None
+
+    @property
+    def fps(self) -> Optional[float]:
+        return self.data.get("fps")
+
+    @property
+    def config(self) -> Dict[str, Dict[str, Any]]:
+        """Each model's ``tcd_config``, by role."""
+        out = {"short": self.short.config, "long": self.long.config}
+        if self.repair_model is not None:
+            out["repair"] = self.repair_model.config
+        return out
+
+    def __repr__(self) -> str:
+        return (f"TCD(path={str(self.path)!r}, obs_len={self.obs_len}, horizon={self.horizon}, "
+                f"num_joints={self.num_joints}, repair_model={self.repair_model is not None})")
+
+    # ------------------------------------------------------------------ inference
+    def _common(self, num_samples: Any, num_inference_steps: Any, sampler: Any, eta: Any, timestep_spacing: Any,
+                units: Any, threads: Any) -> Tuple[Dict[str, Any], str, Optional[int]]:
+        num_samples = _checks.integer("num_samples", num_samples, 1)
+        t = min(self.short.num_train_timesteps, self.long.num_train_timesteps)
+        s, n, e, sp = _checks.sampler_args(sampler, num_inference_steps, eta, timestep_spacing, t)
+        units = _checks.choice("units", units, tuple(_UNIT_SCALE))
+        threads = _checks.threads(threads)
+        kw = dict(num_samples=num_samples, sampler=s, num_inference_steps=n, eta=e, timestep_spacing=sp)
+        return kw, units, self.threads if threads is None else threads
+
+    def forecast(self, obs: Any, mask: Any = None, *, num_samples: int = 5, num_inference_steps: Optional[int] = None,
+                 sampler: str = "ddpm", eta: float = 0.0, timestep_spacing: str = "trailing",
+                 seed: Optional[int] = None, units: str = "m", threads: Optional[int] = None) -> Forecast:
+        """Forecasts the next :attr:`horizon` frames of ``obs``.
+
+        Args:
+            obs: ``(T, J, 3)`` or ``(B, T, J, 3)`` with T = :attr:`obs_len` (50), J = :attr:`num_joints`, in the
+                model's joint order, root-relative; NaN marks a missing value.
+            mask: optional, 1 = observed / 0 = missing, shape ``obs.shape`` or ``obs.shape[:-1]`` (per joint).
+                Entries with mask 0 are ignored (NaN or not); NaN where mask is 1 is an error.
+            num_samples: S, samples per sequence (and per cascade stage). TCD: 5.
+            num_inference_steps: ``None`` = every training step (50: the paper's DDPM sampler); fewer run
+                respaced DDPM, or DDIM with ``sampler="ddim"``.
+            sampler: ``"ddpm"`` or ``"ddim"``.
+            eta: DDIM stochasticity in [0, 1] (0 = deterministic given the initial noise).
+            timestep_spacing: ``"trailing"``, ``"leading"`` or ``"linspace"``: which training steps a
+                shortened sampler visits.
+            seed: the noise seed (an integer in [0, 2**64)); ``None`` draws one from ``os.urandom``
+                (recorded in ``Forecast.seed``). Results do not depend on the thread count or the batch.
+            units: ``"m"`` (default) or ``"mm"``: the units of ``obs`` and of every output.
+            threads: worker threads (``None``: the value given to :func:`tcd.load`, else all cores).
+        """
+        kw, units, threads = self._common(num_samples, num_inference_steps, sampler, eta, timestep_spacing, units, threads)
+        p = _poses(obs, mask, self.num_joints, self.obs_len, units)
+        seed = _seed(seed)
+        out = cascade_raw(self.short, self.long, p.observed, p.mask, seed=seed, threads=threads, **kw)
+        return Forecast(mean=p.poses(out["mean"]), samples=p.poses(out["samples"]),
+                        repaired=p.repaired(out["repaired"]), seed=seed)
+
+    def repair(self, obs: Any, mask: Any = None, *, num_samples: int = 5, num_inference_steps: Optional[int] = None,
+               sampler: str = "ddpm", eta: float = 0.0, timestep_spacing: str = "trailing",
+               seed: Optional[int] = None, units: str = "m", threads: Optional[int] = None) -> np.ndarray:
+        """Fills the missing entries of ``obs`` (same arguments as :meth:`forecast`) with the mean of
+        ``num_samples`` samples of the repair model (the short-term model when the directory has no
+        ``repair.safetensors``). Returns an array of the shape of ``obs``; observed entries unchanged.
+        Pass ``seed`` for a reproducible result."""
+        kw, units, threads = self._common(num_samples, num_inference_steps, sampler, eta, timestep_spacing, units, threads)
+        p = _poses(obs, mask, self.num_joints, self.obs_len, units)
+        model = self.repair_model if self.repair_model is not None else self.short
+        out = repair_raw(model, p.observed, p.mask, seed=_seed(seed), threads=threads, **kw)
+        return p.repaired(out["mean"])
+
+
+def load(path: Optional[PathLike] = None, *, threads: Optional[int] = None) -> TCD:
+    """Loads a model directory: ``short.safetensors`` + ``long.safetensors`` (+ ``repair.safetensors``), as
+    written by ``python -m training.export``. ``path=None`` loads the bundled default model.
+
+    Raises ``FileNotFoundError`` when a file is missing, :class:`tcd.exceptions.WeightsError` when a file
+    is invalid or the files do not fit together."""
+    threads = _checks.threads(threads)
+    if path is None:
+        d = default_model_dir()
+        if not (d / "short.safetensors").is_file():
+            raise FileNotFoundError(
+                "No default model is bundled with tcd yet: pass a model directory, e.g. "
+                "tcd.load('path/to/model') or `--model DIR` on the command line (a directory holding "
+                "short.safetensors and long.safetensors, as written by `python -m training.export`).")
+    else:
+        if not isinstance(path, (str, os.PathLike)):
+            raise _checks.fail("path", "a model directory (str or os.PathLike) or None", repr(path))
+        d = Path(path)
+        if not d.exists():
+            raise FileNotFoundError(f"The model directory {d} does not exist.")
+        if not d.is_dir():
+            raise NotADirectoryError(f"{d} is not a directory: pass the model directory that holds "
+                                     "short.safetensors and long.safetensors.")
+    for role in ("short", "long"):
+        if not (d / f"{role}.safetensors").is_file():
+            raise FileNotFoundError(f"The model directory {d} has no {role}.safetensors: a model directory holds "
+                                    "short.safetensors and long.safetensors (and optionally repair.safetensors).")
+    short = Denoiser.load(d / "short.safetensors")
+    long = Denoiser.load(d / "long.safetensors")
+    rp = d / "repair.safetensors"
+    repair_model = Denoiser.load(rp) if rp.is_file() else None
+    return TCD(short, long, repair_model, path=d, threads=threads)
+
+
+_default: Optional[TCD] = None
+_default_lock = threading.Lock()
+
+
+def _default_model() -> TCD:
+    global _default
+    with _default_lock:
+        if _default is None:
+            _default = load(None)
+        return _default
+
+
+def forecast(obs: Any, mask: Any = None, **kwargs: Any) -> Forecast:
+    """:meth:`TCD.forecast` with the bundled default model (see :func:`load`)."""
+    return _default_model().forecast(obs, mask, **kwargs)
+
+
+def repair(obs: Any, mask: Any = None, **kwargs: Any) -> np.ndarray:
+    """:meth:`TCD.repair` with the bundled default model (see :func:`load`)."""
+    return _default_model().repair(obs, mask, **kwargs)

@@ -1,0 +1,61 @@
+"""Helpers shared by test_api.py, test_parity.py and test_cli.py: random-init model directories and
+deliberately broken weight files. Weight files are rewritten with safetensors' numpy API (no torch)."""
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+CONFIG_KEY = "tcd_config"
+
+
+def make_model_dir(out: Path, preset: str = "tiny", seed: int = 0) -> Path:
+    """short.safetensors + long.safetensors (+ model.json) of a seeded random-init model."""
+    from training.export import random_init_dir  # needs torch (a dev dependency)
+
+    return random_init_dir(out, preset=preset, seed=seed)
+
+
+def read_weights(path: Path) -> tuple[dict, dict]:
+    """(tensors by name, metadata) of a safetensors file."""
+    from safetensors import safe_open
+
+    with safe_open(str(path), framework="np") as f:
+        meta = dict(f.metadata() or {})
+        tensors = {k: f.get_tensor(k) for k in f.keys()}
+    return tensors, meta
+
+
+def write_weights(path: Path, tensors: dict, meta: dict) -> Path:
+    from safetensors.numpy import save_file
+
+    save_file({k: np.ascontiguousarray(v) for k, v in tensors.items()}, str(path), metadata=meta)
+    return path
+
+
+def copy_dir(src: Path, dst: Path) -> Path:
+    shutil.copytree(src, dst)
+    return dst
+
+
+def config_of(meta: dict) -> dict:
+    return json.loads(meta[CONFIG_KEY])
+
+
+def with_config(meta: dict, cfg: dict) -> dict:
+    out = dict(meta)
+    out[CONFIG_KEY] = json.dumps(cfg)
+    return out
+
+
+def poses(rng: np.random.Generator, batch: int | None = None, frames: int = 50, joints: int = 22,
+          missing: float = 0.2) -> np.ndarray:
+    """Random root-relative poses in metres, (T, J, 3) or (B, T, J, 3), with a fraction set to NaN
+    (per joint: all three coordinates together)."""
+    shape = (frames, joints) if batch is None else (batch, frames, joints)
+    x = rng.normal(scale=0.3, size=(*shape, 3)).astype(np.float32)
+    miss = rng.random(shape) < missing
+    x[miss] = np.nan
+    return x

@@ -1,0 +1,572 @@
+"""The public Python API of `tcd`: reproducibility, invariants, units, masks, typed errors, weight-file
+errors. Forecasts run DDIM with 1-3 steps on a tiny random-init model to stay fast."""
+from __future__ import annotations
+
+import math
+import threading
+import time
+
+import numpy as np
+import pytest
+
+import tcd
+from tcd import _native
+from tcd.exceptions import InvalidInputError, TcdError, WeightsError
+
+from fixtures_util import config_of, copy_dir, make_model_dir, poses, read_weights, with_config, write_weights
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+FAST = dict(num_samples=2, sampler="ddim", num_inference_steps=3, eta=1.0)
+
+
+@pytest.fixture(scope="module")
+def model_dir(tmp_path_factory):
+    return make_model_dir(tmp_path_factory.mktemp("api_tiny"), "tiny", seed=0)
+
+
+@pytest.fixture(scope="module")
+def model(model_dir):
+    return tcd.load(model_dir)
+
+
+@pytest.fixture()
+def obs():
+    return poses(np.random.default_rng(0))
+
+
+# ------------------------------------------------------------------------------------ basics
+
+def test_load_and_describe(model, model_dir):
+    assert isinstance(model, tcd.TCD)
+    assert (model.obs_len, model.horizon, model.num_joints) == (50, 25, 22)
+    assert model.joint_names is not None and len(model.joint_names) == 22
+    assert model.repair_model is None
+    cfg = model.short.config
+    assert cfg["role"] == "short" and cfg["window"] == {"obs_len": 50, "pred_len": 5, "seq_len": 55}
+    d = tcd.Denoiser.load(model_dir / "long.safetensors")
+    assert (d.obs_len, d.seq_len, d.num_features, d.num_joints, d.role) == (55, 75, 66, 22, "long")
+    assert d.config["model"]["channels"] == 16 and d.num_train_timesteps == 50
+    d.config["model"]["channels"] = 0  # a copy: the model's config is not mutable from outside
+    assert d.config["model"]["channels"] == 16
+    assert isinstance(tcd.__version__, str) and tcd.__version__
+
+
+def test_forecast_shapes_unbatched_and_batched(model, obs):
+    f = model.forecast(obs, seed=1, **FAST)
+    assert isinstance(f, tcd.Forecast) and f.seed == 1
+    assert f.mean.shape == (25, 22, 3) and f.samples.shape == (2, 25, 22, 3) and f.repaired.shape == (50, 22, 3)
+    assert f.mean.dtype == np.float32 and np.isfinite(f.samples).all() and np.isfinite(f.repaired).all()
+    np.testing.assert_allclose(f.mean, f.samples.mean(axis=0), rtol=1e-5, atol=1e-5)
+    batch = np.stack([obs, poses(np.random.default_rng(1))])
+    fb = model.forecast(batch, seed=1, **FAST)
+    assert fb.mean.shape == (2, 25, 22, 3) and fb.samples.shape == (2, 2, 25, 22, 3)
+    assert fb.repaired.shape == (2, 50, 22, 3)
+    # noise streams are per sequence: sequence 0 of a batch == the same sequence alone
+    assert np.array_equal(fb.samples[:, 0], f.samples)
+    assert np.array_equal(fb.repaired[0], f.repaired)
+
+
+def test_same_seed_identical_different_seed_differs(model, obs):
+    a = model.forecast(obs, seed=7, **FAST)
+    b = model.forecast(obs, seed=7, **FAST)
+    c = model.forecast(obs, seed=8, **FAST)
+    assert np.array_equal(a.samples, b.samples) and np.array_equal(a.repaired, b.repaired)
+    assert not np.array_equal(a.samples, c.samples)
+    assert not np.array_equal(a.repaired, c.repaired)
+
+
+def test_seed_none_is_drawn_and_recorded(model, obs):
+    a = model.forecast(obs, **FAST)
+    b = model.forecast(obs, **FAST)
+    assert isinstance(a.seed, int) and 0 <= a.seed < 2**64 and a.seed != b.seed
+    again = model.forecast(obs, seed=a.seed, **FAST)
+    assert np.array_equal(again.samples, a.samples)
+
+
+def test_one_thread_equals_two_threads(model, obs):
+    batch = np.stack([obs, poses(np.random.default_rng(3))])
+    one = model.forecast(batch, seed=5, threads=1, **FAST)
+    two = model.forecast(batch, seed=5, threads=2, **FAST)
+    assert np.array_equal(one.samples, two.samples) and np.array_equal(one.repaired, two.repaired)
+    threaded = tcd.load(model.path, threads=2).forecast(batch, seed=5, **FAST)
+    assert np.array_equal(one.samples, threaded.samples)
+
+
+def test_ddpm_default_runs_all_steps(tmp_path, obs):
+    """The default sampler is DDPM over every training step (a T = 10 model keeps this fast):
+    num_inference_steps=T is the same thing, fewer steps are respaced DDPM, more are an error."""
+    from training.diffusion import DiffusionConfig
+    from training.export import random_init_dir
+
+    m = tcd.load(random_init_dir(tmp_path / "t10", "tiny", seed=1, diff_cfg=DiffusionConfig(num_train_timesteps=10)))
+    assert m.num_train_timesteps == 10
+    a = m.forecast(obs, seed=2, num_samples=1)
+    b = m.forecast(obs, seed=2, num_samples=1, num_inference_steps=10)
+    c = m.forecast(obs, seed=2, num_samples=1, num_inference_steps=5)
+    assert np.array_equal(a.samples, b.samples) and not np.array_equal(a.samples, c.samples)
+    e = bad("num_inference_steps", m.forecast, obs, num_inference_steps=11)
+    assert "1..10" in str(e)
+
+
+def test_observed_entries_unchanged(model, obs):
+    f = model.forecast(obs, seed=3, **FAST)
+    seen = ~np.isnan(obs)
+    assert (~seen).any() and seen.any()
+    assert np.array_equal(f.repaired[seen], obs[seen])  # bit-identical
+    assert np.isfinite(f.repaired[~seen]).all()
+    # float64 input: float64 output, observed entries still bit-identical
+    obs64 = obs.astype(np.float64) + 1e-9
+    f64 = model.forecast(obs64, seed=3, **FAST)
+    assert f64.mean.dtype == np.float64 and f64.repaired.dtype == np.float64
+    assert np.array_equal(f64.repaired[seen], obs64[seen])
+
+
+def test_units_mm_is_1000x_metres(model, obs):
+    m = model.forecast(obs, seed=4, **FAST)
+    mm = model.forecast(obs * 1000.0, seed=4, units="mm", **FAST)
+    # float32 rounding of the unit conversion: 1e-4 relative, plus 1e-6 of the largest value (in mm)
+    atol = 1e-6 * np.abs(mm.samples).max()
+    np.testing.assert_allclose(mm.samples, 1000.0 * m.samples, rtol=1e-4, atol=atol)
+    np.testing.assert_allclose(mm.mean, 1000.0 * m.mean, rtol=1e-4, atol=atol)
+    np.testing.assert_allclose(mm.repaired, 1000.0 * m.repaired, rtol=1e-4, atol=atol)
+    seen = ~np.isnan(obs)
+    assert np.array_equal(mm.repaired[seen], (obs * 1000.0)[seen])
+    assert not np.allclose(mm.samples, m.samples)  # really in other units
+
+
+def test_joint_mask_equals_coordinate_mask(model, obs):
+    rng = np.random.default_rng(9)
+    joint_mask = (rng.random((50, 22)) > 0.3).astype(np.float32)
+    full = np.repeat(joint_mask[..., None], 3, axis=-1)
+    x = np.nan_to_num(obs, nan=0.5)
+    a = model.forecast(x, joint_mask, seed=6, **FAST)
+    b = model.forecast(x, full, seed=6, **FAST)
+    c = model.forecast(x, full.astype(bool), seed=6, **FAST)
+    assert np.array_equal(a.samples, b.samples) and np.array_equal(a.samples, c.samples)
+    assert np.array_equal(a.repaired, b.repaired)
+
+
+def test_nan_equals_mask(model, obs):
+    missing = np.isnan(obs)
+    mask = (~missing).astype(np.float32)
+    filled = np.where(missing, np.float32(123.0), obs)  # values under mask 0 are ignored
+    a = model.forecast(obs, seed=8, **FAST)
+    b = model.forecast(filled, mask, seed=8, **FAST)
+    c = model.forecast(obs, mask, seed=8, **FAST)  # NaN and mask together
+    assert np.array_equal(a.samples, b.samples) and np.array_equal(a.samples, c.samples)
+    assert np.array_equal(a.repaired, b.repaired)
+    # a mask can also hide values that are present
+    d = model.forecast(filled, np.ones_like(mask), seed=8, **FAST)
+    assert not np.array_equal(a.samples, d.samples)
+
+
+def test_repair(model, obs):
+    r = model.repair(obs, seed=1, num_samples=2, sampler="ddim", num_inference_steps=3)
+    seen = ~np.isnan(obs)
+    assert r.shape == obs.shape and np.isfinite(r).all()
+    assert np.array_equal(r[seen], obs[seen])
+    again = model.repair(obs, seed=1, num_samples=2, sampler="ddim", num_inference_steps=3)
+    assert np.array_equal(r, again)
+    batch = model.repair(obs[None], seed=1, num_samples=2, sampler="ddim", num_inference_steps=3)
+    assert batch.shape == (1, 50, 22, 3) and np.array_equal(batch[0], r)
+
+
+def test_repair_uses_repair_model_when_present(model_dir, tmp_path, obs):
+    d = copy_dir(model_dir, tmp_path / "with_repair")
+    tensors, meta = read_weights(d / "short.safetensors")
+    cfg = config_of(meta)
+    cfg["role"], cfg["window"] = "repair", {"obs_len": 50, "pred_len": 0, "seq_len": 50}
+    tensors = {k: (v * np.float32(1.5) if k.endswith("output_projection2.weight") else v) for k, v in tensors.items()}
+    write_weights(d / "repair.safetensors", tensors, with_config(meta, cfg))
+    m = tcd.load(d)
+    assert m.repair_model is not None and m.repair_model.role == "repair"
+    kw = dict(seed=1, num_samples=1, sampler="ddim", num_inference_steps=2)
+    with_repair = m.repair(obs, **kw)
+    without = tcd.load(model_dir).repair(obs, **kw)
+    seen = ~np.isnan(obs)
+    assert np.array_equal(with_repair[seen], without[seen])
+    assert not np.array_equal(with_repair[~seen], without[~seen])
+
+
+# ------------------------------------------------------------------------------------ low level
+
+def test_denoiser_forward_and_seeded_noise(model_dir):
+    d = tcd.Denoiser.load(model_dir / "short.safetensors")
+    rng = np.random.default_rng(0)
+    x = rng.standard_normal((2, 66, 55)).astype(np.float32)
+    m = (rng.random((2, 66, 55)) < 0.5).astype(np.float32)
+    eps = d.forward(x, x, m, 10)
+    assert eps.shape == (2, 66, 55) and eps.dtype == np.float32 and np.isfinite(eps).all()
+    assert np.array_equal(eps[1:], d.forward(x[1:], x[1:], m[1:], 10))  # per-sequence
+    assert not np.array_equal(eps, d.forward(x, x, m, 11))
+    # float64 / non-contiguous inputs are converted
+    assert np.array_equal(eps, d.forward(x.astype(np.float64), np.asfortranarray(x), m, 10))
+    obs, mask = x[:1] * m[:1], m[:1]
+    kw = dict(sampler="ddim", num_inference_steps=4, eta=1.0)
+    noise = tcd.seeded_noise(5, tcd.STAGE_SHORT, 3, d.num_noise_blocks("ddim", 4), 1, 66, 55)
+    assert np.array_equal(d.sample(obs, mask, 3, seed=5, **kw), d.sample(obs, mask, 3, noise=noise, **kw))
+    assert d.timesteps("ddim", 4, "trailing") == [49, 37, 24, 11]
+    assert d.timesteps() == list(range(49, -1, -1))
+
+
+def test_gil_is_released_during_compute(model_dir):
+    """While a sampling call runs in another thread, this thread keeps running Python."""
+    d = tcd.Denoiser.load(model_dir / "short.safetensors")
+    obs = np.zeros((1, 66, 55), np.float32)
+    mask = np.zeros_like(obs)
+    mask[:, :, :50] = 1
+    durations = []
+
+    def work():
+        t0 = time.perf_counter()
+        d.sample(obs, mask, 4, seed=0, sampler="ddim", num_inference_steps=10, threads=1)
+        durations.append(time.perf_counter() - t0)
+
+    th = threading.Thread(target=work)
+    last = time.perf_counter()
+    gaps = []
+    th.start()
+    while th.is_alive():
+        now = time.perf_counter()
+        gaps.append(now - last)
+        last = now
+    th.join()
+    assert durations and durations[0] > 0.1
+    # holding the GIL for the whole call would stall this loop for about the call's duration
+    assert max(gaps) < 0.5 * durations[0], (max(gaps), durations[0])
+
+
+# ------------------------------------------------------------------------------------ property tests
+
+@settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture,
+                                                               HealthCheck.too_slow])
+@given(batch=st.sampled_from([None, 1, 2]), missing=st.floats(0.0, 0.9), seed=st.integers(0, 2**64 - 1),
+       mask_style=st.sampled_from(["nan", "joint", "coord"]), units=st.sampled_from(["m", "mm"]),
+       data_seed=st.integers(0, 1000))
+def test_property_shapes_and_observed_unchanged(model, batch, missing, seed, mask_style, units, data_seed):
+    rng = np.random.default_rng(data_seed)
+    x = poses(rng, batch, missing=missing)
+    if units == "mm":
+        x = x * np.float32(1000.0)
+    joint_seen = ~np.isnan(x[..., 0])
+    if not joint_seen.reshape(1 if batch is None else batch, -1).any(axis=-1).all():
+        x[..., 0, 0, :] = 0.1  # keep at least one observed joint per sequence
+        joint_seen = ~np.isnan(x[..., 0])
+    mask = None
+    if mask_style == "joint":
+        mask = joint_seen.astype(np.float32)
+        x = np.where(np.isnan(x), np.float32(-7.0), x)
+    elif mask_style == "coord":
+        mask = np.repeat(joint_seen[..., None], 3, axis=-1).astype(np.float32)
+        x = np.where(np.isnan(x), np.float32(3.0), x)
+    f = model.forecast(x, mask, seed=seed, num_samples=1, sampler="ddim", num_inference_steps=1, units=units)
+    lead = () if batch is None else (batch,)
+    assert f.mean.shape == (*lead, 25, 22, 3) and f.samples.shape == (1, *lead, 25, 22, 3)
+    assert f.repaired.shape == x.shape and f.seed == seed
+    assert np.isfinite(f.samples).all() and np.isfinite(f.repaired).all()
+    seen = np.repeat(joint_seen[..., None], 3, axis=-1)
+    assert np.array_equal(f.repaired[seen], x[seen])
+
+
+# ------------------------------------------------------------------------------------ bad input
+
+def bad(argument, fn, *args, **kwargs):
+    with pytest.raises(InvalidInputError) as ei:
+        fn(*args, **kwargs)
+    e = ei.value
+    assert isinstance(e, TcdError) and isinstance(e, ValueError)
+    assert e.argument == argument, (e.argument, str(e))
+    assert f"`{argument}`" in str(e)
+    return e
+
+
+def test_bad_obs(model, obs):
+    e = bad("obs", model.forecast, obs[0])                            # rank 2
+    assert "(T, J, 3) or (B, T, J, 3)" in str(e) and "(22, 3)" in str(e)
+    bad("obs", model.forecast, obs[None, None])                       # rank 5
+    e = bad("obs", model.forecast, obs[:, :21])                       # joints
+    assert "21 joints" in str(e) and "J = 22" in str(e)
+    bad("obs", model.forecast, obs[..., :2])                          # coordinates
+    e = bad("obs", model.forecast, obs[:49])                          # too few frames
+    assert "50" in str(e) and "49 frames" in str(e) and "obs_len" in str(e)
+    e = bad("obs", model.forecast, np.concatenate([obs, obs[:1]]))   # too many frames
+    assert "51 frames" in str(e)
+    x = obs.copy()
+    x[3, 4, 1] = np.inf
+    e = bad("obs", model.forecast, x)
+    assert "inf" in str(e) and "(3, 4, 1)" in str(e)
+    x[3, 4, 1] = -np.inf
+    bad("obs", model.forecast, x)
+    bad("obs", model.forecast, np.full((50, 22, 3), "a"))
+    bad("obs", model.forecast, np.zeros((0, 50, 22, 3), np.float32))
+
+
+def test_bad_mask(model, obs):
+    x = np.nan_to_num(obs)
+    ones = np.ones((50, 22, 3), np.float32)
+    m = ones.copy()
+    m[1, 2, 0] = 0.5
+    e = bad("mask", model.forecast, x, m)
+    assert "0.5" in str(e)
+    for v in (2.0, -1.0, np.nan):
+        m = ones.copy()
+        m[0, 0, 0] = v
+        bad("mask", model.forecast, x, m)
+    bad("mask", model.forecast, x, np.ones((50, 22, 2)))
+    bad("mask", model.forecast, x, np.ones((49, 22)))
+    bad("mask", model.forecast, x, np.ones((1, 50, 22, 3)))
+    # NaN where the mask says observed
+    e = bad("obs", model.forecast, obs, ones)
+    assert "NaN" in str(e) and "mask" in str(e)
+
+
+def test_all_missing_is_an_error(model, obs):
+    e = bad("obs", model.forecast, np.full_like(obs, np.nan))
+    assert "every value missing" in str(e)
+    bad("mask", model.forecast, np.nan_to_num(obs), np.zeros((50, 22)))
+    batch = np.stack([obs, np.full_like(obs, np.nan)])
+    e = bad("obs", model.forecast, batch)
+    assert "sequence 1" in str(e)
+    bad("obs", model.repair, np.full_like(obs, np.nan))
+
+
+@pytest.mark.parametrize("argument,kwargs", [
+    ("num_samples", {"num_samples": 0}),
+    ("num_samples", {"num_samples": -2}),
+    ("num_samples", {"num_samples": 1.5}),
+    ("num_samples", {"num_samples": True}),
+    ("num_inference_steps", {"num_inference_steps": 0}),
+    ("num_inference_steps", {"num_inference_steps": -1}),
+    ("num_inference_steps", {"num_inference_steps": 51}),
+    ("num_inference_steps", {"num_inference_steps": 10.0}),
+    ("sampler", {"sampler": "euler"}),
+    ("sampler", {"sampler": None}),
+    ("timestep_spacing", {"timestep_spacing": "middle"}),
+    ("units", {"units": "cm"}),
+    ("eta", {"eta": -0.1}),
+    ("eta", {"eta": 1.5}),
+    ("eta", {"eta": math.nan}),
+    ("eta", {"eta": "0"}),
+    ("seed", {"seed": -1}),
+    ("seed", {"seed": 2**64}),
+    ("seed", {"seed": 1.0}),
+    ("threads", {"threads": 0}),
+    ("threads", {"threads": 10**6}),
+])
+def test_bad_options(model, obs, argument, kwargs):
+    bad(argument, model.forecast, obs, **kwargs)
+    bad(argument, model.repair, obs, **kwargs)
+
+
+def test_bad_low_level_arguments(model_dir):
+    d = tcd.Denoiser.load(model_dir / "short.safetensors")
+    x = np.zeros((1, 66, 55), np.float32)
+    m = np.ones_like(x)
+    bad("noisy", d.forward, np.zeros((66, 55), np.float32), x[0], m[0], 0)
+    bad("noisy", d.forward, np.zeros((1, 65, 55), np.float32), x, m, 0)
+    bad("observed", d.forward, x, x[:, :, :54], m, 0)
+    bad("mask", d.forward, x, x, m[:, :, :54], 0)
+    m2 = m.copy()
+    m2[0, 0, 0] = 0.25
+    bad("mask", d.forward, x, x, m2, 0)
+    bad("step", d.forward, x, x, m, 50)
+    bad("step", d.forward, x, x, m, -1)
+    nan_obs = x.copy()
+    nan_obs[0, 1, 2] = np.nan
+    bad("observed", d.forward, x, nan_obs, m, 0)
+    bad("noise", d.sample, x, m, 1, noise=np.zeros((1, 50, 1, 66, 55), np.float32))  # needs 51 blocks
+    bad("noise", d.sample, x, m, 1, noise=np.zeros((1, 51, 1, 66, 55), np.float32), seed=1)
+    bad("seed", d.sample, x, m, 1)
+    bad("num_samples", d.sample, x, m, 0, seed=1)
+    bad("num_samples", d.sample, x, m, 10**9, seed=1)  # refused up front, not a failed allocation
+    bad("noise_short", tcd.cascade_raw, d, d, x[:, :, :50], m[:, :, :50], seed=1, noise_short=np.zeros(3))
+    bad("observed", tcd.cascade_raw, d, d, x[:, :, :49], m[:, :, :49], seed=1)
+    bad("long", tcd.cascade_raw, d, d, x[:, :, :50], m[:, :, :50], seed=1)  # short model as long model
+
+
+@pytest.mark.parametrize("argument,kwargs", [
+    ("num_samples", {"num_samples": 0}),
+    ("num_samples", {"num_samples": -1}),
+    ("num_inference_steps", {"num_inference_steps": 0}),
+    ("num_inference_steps", {"num_inference_steps": 51}),
+    ("sampler", {"sampler": "euler"}),
+    ("timestep_spacing", {"timestep_spacing": "middle"}),
+    ("eta", {"eta": 2.0}),
+    ("eta", {"eta": math.nan}),
+    ("threads", {"threads": 0}),
+    ("threads", {"threads": 10**6}),
+    ("seed", {}),
+    ("seed", {"seed": -1}),
+    ("seed", {"seed": 2**64}),
+    ("first_sequence", {"first_sequence": -1}),
+    ("num_samples", {"num_samples": 2**40}),
+])
+def test_native_errors_are_typed(model_dir, argument, kwargs):
+    """The binding's own checks and the engine's errors (bypassing the Python layer) map onto
+    tcd.exceptions too."""
+    d = _native.Denoiser.load(str(model_dir / "short.safetensors"))
+    x = np.zeros((1, 66, 55), np.float32)
+    kw = dict(kwargs)
+    if argument != "seed":
+        kw.setdefault("seed", 1)
+    n = kw.pop("num_samples", 1)
+    bad(argument, d.sample, x, np.ones_like(x), n, **kw)
+
+
+def test_native_engine_error_mapping(model_dir):
+    d = _native.Denoiser.load(str(model_dir / "short.safetensors"))
+    x = np.zeros((1, 66, 55), np.float32)
+    m = np.ones_like(x)
+    m[0, 0, 0] = 0.5
+    bad("mask", d.forward, x, x, m, 0)  # raised by tcd-core's validation
+    with pytest.raises(FileNotFoundError):
+        _native.Denoiser.load(str(model_dir / "nope.safetensors"))
+    with pytest.raises(WeightsError):
+        _native.Denoiser.from_bytes(b"\x00" * 16, "garbage")
+
+
+# ------------------------------------------------------------------------------------ loading
+
+def test_load_without_bundled_model_explains():
+    assert not (tcd.default_model_dir() / "short.safetensors").exists()
+    with pytest.raises(FileNotFoundError, match="No default model is bundled"):
+        tcd.load()
+    with pytest.raises(FileNotFoundError, match="pass a model directory"):
+        tcd.forecast(np.zeros((50, 22, 3), np.float32))
+
+
+def test_load_missing_paths(tmp_path, model_dir):
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        tcd.load(tmp_path / "nowhere")
+    with pytest.raises(NotADirectoryError):
+        tcd.load(model_dir / "short.safetensors")
+    d = copy_dir(model_dir, tmp_path / "no_long")
+    (d / "long.safetensors").unlink()
+    with pytest.raises(FileNotFoundError, match="long.safetensors"):
+        tcd.load(d)
+    with pytest.raises(FileNotFoundError):
+        tcd.Denoiser.load(tmp_path / "missing.safetensors")
+    with pytest.raises(OSError):  # a directory is not a weight file (engine Error::Io -> OSError)
+        tcd.Denoiser.load(tmp_path)
+    bad("path", tcd.load, 42)
+
+
+def broken_dir(model_dir, tmp_path, name, edit):
+    """A copy of the model directory whose short.safetensors was changed by edit(path)."""
+    d = copy_dir(model_dir, tmp_path / name)
+    edit(d / "short.safetensors")
+    return d
+
+
+def truncate(path):
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+
+
+def drop_tensor(path):
+    tensors, meta = read_weights(path)
+    del tensors["diffmodel.residual_layers.1.mid_projection.bias"]
+    write_weights(path, tensors, meta)
+
+
+def add_tensor(path):
+    tensors, meta = read_weights(path)
+    tensors["diffmodel.extra.weight"] = np.zeros((4, 4), np.float32)
+    write_weights(path, tensors, meta)
+
+
+def config_disagrees(path):
+    tensors, meta = read_weights(path)
+    cfg = config_of(meta)
+    cfg["model"]["channels"] = 32  # the tensors are C = 16
+    write_weights(path, tensors, with_config(meta, cfg))
+
+
+def wrong_layer_count(path):
+    tensors, meta = read_weights(path)
+    cfg = config_of(meta)
+    cfg["model"]["num_layers"] = 3
+    write_weights(path, tensors, with_config(meta, cfg))
+
+
+def wrong_dtype(path):
+    tensors, meta = read_weights(path)
+    tensors["embed_layer.weight"] = tensors["embed_layer.weight"].astype(np.float64)
+    write_weights(path, tensors, meta)
+
+
+def no_metadata(path):
+    tensors, _ = read_weights(path)
+    write_weights(path, tensors, {})
+
+
+def bad_json(path):
+    tensors, meta = read_weights(path)
+    write_weights(path, tensors, {**meta, "tcd_config": "{not json"})
+
+
+def garbage(path):
+    path.write_bytes(b"this is not a safetensors file at all")
+
+
+@pytest.mark.parametrize("edit,needle", [
+    (truncate, "truncated or corrupt"),
+    (drop_tensor, "lacks the tensor `diffmodel.residual_layers.1.mid_projection.bias`"),
+    (add_tensor, "diffmodel.extra.weight"),
+    (config_disagrees, "shape"),
+    (wrong_layer_count, "lacks the tensor"),
+    (wrong_dtype, "F32"),
+    (no_metadata, "tcd_config"),
+    (bad_json, "could not be parsed"),
+    (garbage, "not a valid safetensors file"),
+])
+def test_weights_errors(model_dir, tmp_path, edit, needle):
+    d = broken_dir(model_dir, tmp_path, edit.__name__, edit)
+    with pytest.raises(WeightsError, match=needle) as ei:
+        tcd.Denoiser.load(d / "short.safetensors")
+    assert isinstance(ei.value, ValueError) and isinstance(ei.value, TcdError)
+    assert ei.value.path is not None and ei.value.path.endswith("short.safetensors")
+    with pytest.raises(WeightsError):
+        tcd.load(d)
+
+
+def test_model_dir_whose_files_disagree(model_dir, tmp_path):
+    d = copy_dir(model_dir, tmp_path / "swapped")
+    (d / "long.safetensors").write_bytes((d / "short.safetensors").read_bytes())
+    with pytest.raises(WeightsError, match="obs_len"):
+        tcd.load(d)
+
+
+# ------------------------------------------------------------------------------------ stubs
+
+def test_native_stub_matches_the_module():
+    """python/tcd/_native.pyi names exactly the native module's public names, methods and parameters."""
+    import ast
+    import inspect
+    from pathlib import Path
+
+    tree = ast.parse((Path(tcd.__file__).parent / "_native.pyi").read_text())
+    stub_funcs = {n.name: n for n in tree.body if isinstance(n, ast.FunctionDef)}
+    stub_classes = {n.name: n for n in tree.body if isinstance(n, ast.ClassDef)}
+    stub_vars = {n.target.id for n in tree.body if isinstance(n, ast.AnnAssign) and not n.target.id.startswith("_")}
+    public = {n for n in dir(_native) if not n.startswith("_")}
+    assert public == set(stub_funcs) | set(stub_classes) | stub_vars
+
+    def params(fn):
+        a = fn.args
+        return [p.arg for p in [*a.posonlyargs, *a.args, *a.kwonlyargs] if p.arg != "self"]
+
+    def native_params(obj):
+        return [p for p in inspect.signature(obj).parameters if p != "self"]
+
+    for name, fn in stub_funcs.items():
+        assert params(fn) == native_params(getattr(_native, name)), name
+    for name, cls in stub_classes.items():
+        native_cls = getattr(_native, name)
+        members = {n.name: n for n in cls.body if isinstance(n, ast.FunctionDef)}
+        assert {n for n in members if not n.startswith("_")} == {n for n in dir(native_cls) if not n.startswith("_")}
+        for mname, fn in members.items():
+            if any(isinstance(d, ast.Name) and d.id == "property" for d in fn.decorator_list):
+                continue
+            assert params(fn) == native_params(getattr(native_cls, mname)), f"{name}.{mname}"

@@ -1,0 +1,175 @@
+"""The `tcd` command line: info, a forecast round trip, refusal to overwrite, exit code 2 on bad input."""
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import tcd
+from fixtures_util import make_model_dir, poses
+from tcd.cli import main
+
+FAST = ["--samples", "2", "--steps", "2", "--sampler", "ddim"]
+
+
+@pytest.fixture(scope="module")
+def model_dir(tmp_path_factory):
+    return make_model_dir(tmp_path_factory.mktemp("cli_tiny"), "tiny", seed=2)
+
+
+@pytest.fixture()
+def npz(tmp_path):
+    path = tmp_path / "in.npz"
+    np.savez(path, poses=poses(np.random.default_rng(0)))
+    return path
+
+
+def run(argv, capsys):
+    code = main([str(a) for a in argv])
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def test_info(model_dir, capsys):
+    code, out, err = run(["info", "--model", model_dir], capsys)
+    assert code == 0, err
+    assert "observed frames (obs_len): 50" in out and "forecast frames (horizon): 25" in out
+    assert "joints: 22" in out and "short: window 50 + 5 frames" in out and "repair: none" in out
+    code, out, _ = run(["info", "--model", model_dir, "--json"], capsys)
+    assert code == 0
+    import json
+
+    info = json.loads(out)
+    assert info["horizon"] == 25 and info["config"]["long"]["window"]["seq_len"] == 75
+
+
+def test_info_without_bundled_model(capsys):
+    code, out, err = run(["info"], capsys)
+    assert code == 2 and out == ""
+    assert "No default model is bundled" in err
+
+
+def test_forecast_round_trip(model_dir, npz, tmp_path, capsys):
+    out_path = tmp_path / "out.npz"
+    code, out, err = run(["forecast", npz, "-o", out_path, "--model", model_dir, "--seed", "11", *FAST], capsys)
+    assert code == 0, err
+    assert "wrote" in out
+    with np.load(out_path) as f:
+        got = {k: f[k] for k in f.files}
+    assert set(got) == {"mean", "samples", "repaired", "seed"}
+    assert got["mean"].shape == (25, 22, 3) and got["samples"].shape == (2, 25, 22, 3)
+    assert got["repaired"].shape == (50, 22, 3) and int(got["seed"]) == 11
+    poses_in = np.load(npz)["poses"]
+    want = tcd.load(model_dir).forecast(poses_in, seed=11, num_samples=2, num_inference_steps=2, sampler="ddim")
+    assert np.array_equal(got["samples"], want.samples) and np.array_equal(got["repaired"], want.repaired)
+    seen = ~np.isnan(poses_in)
+    assert np.array_equal(got["repaired"][seen], poses_in[seen])
+
+
+def test_forecast_batched_with_mask_and_random_seed(model_dir, tmp_path, capsys):
+    x = poses(np.random.default_rng(1), batch=2, missing=0.0)
+    mask = np.ones((2, 50, 22), np.float32)
+    mask[:, 10:20] = 0
+    inp = tmp_path / "in.npz"
+    np.savez(inp, poses=x, mask=mask)
+    out_path = tmp_path / "out.npz"
+    code, _, err = run(["forecast", inp, "-o", out_path, "--model", model_dir, "--units", "mm", *FAST], capsys)
+    assert code == 0, err
+    with np.load(out_path) as f:
+        assert f["mean"].shape == (2, 25, 22, 3) and f["samples"].shape == (2, 2, 25, 22, 3)
+        seed = int(f["seed"])
+        repaired = f["repaired"]
+    assert np.array_equal(repaired[:, :10], x[:, :10]) and not np.array_equal(repaired[:, 10:20], x[:, 10:20])
+    want = tcd.load(model_dir).forecast(x, mask, seed=seed, num_samples=2, num_inference_steps=2, sampler="ddim",
+                                        units="mm")
+    assert np.array_equal(repaired, want.repaired)
+
+
+def test_refuses_to_overwrite(model_dir, npz, tmp_path, capsys):
+    out_path = tmp_path / "out.npz"
+    out_path.write_bytes(b"precious")
+    code, _, err = run(["forecast", npz, "-o", out_path, "--model", model_dir, *FAST], capsys)
+    assert code == 2 and "exists" in err and "--overwrite" in err
+    assert out_path.read_bytes() == b"precious"
+    code, _, err = run(["forecast", npz, "-o", out_path, "--model", model_dir, "--overwrite", *FAST], capsys)
+    assert code == 0, err
+    with np.load(out_path) as f:
+        assert f["mean"].shape == (25, 22, 3)
+
+
+def save(path, **arrays):
+    np.savez(path, **arrays)
+    return path
+
+
+@pytest.mark.parametrize("case", [
+    "short_poses", "wrong_joints", "no_poses", "missing_input", "not_npz", "bad_mask", "all_missing",
+    "bad_samples", "bad_steps", "bad_sampler", "bad_units", "bad_eta", "missing_model", "negative_seed",
+])
+def test_bad_input_exit_code_2(model_dir, npz, tmp_path, capsys, case):
+    good = np.load(npz)["poses"]
+    inp, extra, model = npz, [], model_dir
+    if case == "short_poses":
+        inp = save(tmp_path / "x.npz", poses=good[:40])
+    elif case == "wrong_joints":
+        inp = save(tmp_path / "x.npz", poses=good[:, :17])
+    elif case == "no_poses":
+        inp = save(tmp_path / "x.npz", data=good)
+    elif case == "missing_input":
+        inp = tmp_path / "nope.npz"
+    elif case == "not_npz":
+        inp = tmp_path / "x.npz"
+        inp.write_text("hello")
+    elif case == "bad_mask":
+        inp = save(tmp_path / "x.npz", poses=np.nan_to_num(good), mask=np.full((50, 22), 0.5))
+    elif case == "all_missing":
+        inp = save(tmp_path / "x.npz", poses=np.full_like(good, np.nan))
+    elif case == "bad_samples":
+        extra = ["--samples", "0"]
+    elif case == "bad_steps":
+        extra = ["--steps", "51"]
+    elif case == "bad_sampler":
+        extra = ["--sampler", "euler"]
+    elif case == "bad_units":
+        extra = ["--units", "cm"]
+    elif case == "bad_eta":
+        extra = ["--eta", "2"]
+    elif case == "missing_model":
+        model = tmp_path / "no_model"
+    elif case == "negative_seed":
+        extra = ["--seed", "-5"]
+    out_path = tmp_path / "out.npz"
+    code, out, err = run(["forecast", inp, "-o", out_path, "--model", model, *FAST, *extra], capsys)
+    assert code == 2, (out, err)
+    assert err.startswith("tcd forecast: error: ") and len(err.strip()) > len("tcd forecast: error: ") + 10
+    assert "Traceback" not in err
+    assert not out_path.exists()
+
+
+def test_usage_errors_exit_2(capsys):
+    with pytest.raises(SystemExit) as ei:
+        main(["forecast"])  # no input, no -o
+    assert ei.value.code == 2
+    with pytest.raises(SystemExit) as ei:
+        main(["frobnicate"])
+    assert ei.value.code == 2
+    capsys.readouterr()
+
+
+def test_console_script_and_module(model_dir, tmp_path):
+    """The installed `tcd` script (and `python -m tcd`) run in a fresh process."""
+    env = {**os.environ, "PYTHONPATH": ""}
+    script = shutil.which("tcd")
+    cmd = [script] if script else [sys.executable, "-m", "tcd"]
+    r = subprocess.run([*cmd, "info", "--model", str(model_dir)], capture_output=True, text=True, env=env,
+                       cwd=tmp_path, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert "forecast frames (horizon): 25" in r.stdout
+    r = subprocess.run([sys.executable, "-m", "tcd", "forecast", str(tmp_path / "nope.npz"), "-o",
+                        str(tmp_path / "o.npz"), "--model", str(model_dir)], capture_output=True, text=True,
+                       env=env, cwd=tmp_path, timeout=120)
+    assert r.returncode == 2 and "does not exist" in r.stderr

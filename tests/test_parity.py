@@ -1,0 +1,264 @@
+"""Parity of the Rust engine (through the `tcd` binding) with the PyTorch reference in `training/`, on
+the same random-init weights and the same injected noise.
+
+Criteria (stated once, used throughout):
+* one forward: ``assert_allclose(rtol=1e-4, atol=1e-5)``;
+* whole chains and the cascade: max |rust - torch| <= 1e-4 in model units (metres), absolute.
+  A random-init denoiser predicts eps ~ 0, so x_0 ~ x_T / sqrt(alpha_bar) reaches ~1e2 and float32
+  rounding grows with it (observed: ~2e-7 relative, 5e-5 absolute at most), which the absolute bound
+  still covers.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+import tcd
+from fixtures_util import make_model_dir
+from training import diffusion as D
+from training.export import load_model_file
+
+CHAIN_ATOL = 1e-4   # model units (metres)
+O = 50  # observed frames of the cascade
+
+
+@pytest.fixture(scope="module", autouse=True)
+def one_torch_thread():
+    """PyTorch's intra-op threads thrash on a busy 2-core machine (10-30x slower): use one."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+@pytest.fixture(scope="module")
+def tiny_dir(tmp_path_factory):
+    return make_model_dir(tmp_path_factory.mktemp("parity_tiny"), "tiny", seed=3)
+
+
+@pytest.fixture(scope="module")
+def tiny(tiny_dir):
+    """role -> (rust Denoiser, torch model, schedule)."""
+    out = {}
+    for role in ("short", "long"):
+        path = tiny_dir / f"{role}.safetensors"
+        model, sched, _ = load_model_file(path)
+        out[role] = (tcd.Denoiser.load(path), model, sched)
+    return out
+
+
+def observation(rng, b, k, length, obs_frames, missing=0.2):
+    """observed / mask (B, K, L): the first obs_frames frames observed except a random fraction."""
+    mask = np.zeros((b, k, length), np.float32)
+    mask[:, :, :obs_frames] = (rng.random((b, k, obs_frames)) >= missing)
+    observed = (rng.normal(scale=0.3, size=(b, k, length)) * mask).astype(np.float32)
+    return observed, mask
+
+
+def max_diff(a, b, what=""):
+    """max |a - b|; printed with the largest |b| (see them with `pytest -s`)."""
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    d = float(np.abs(a - b).max())
+    print(f"parity {what}: max abs diff {d:.3g}, max |torch| {np.abs(b).max():.3g}, "
+          f"max rel diff {d / max(np.abs(b).max(), 1e-30):.3g}")
+    return d
+
+
+def chain_close(got, want, what):
+    """The chain criterion of the module docstring."""
+    d = max_diff(got, want, what)
+    return d <= CHAIN_ATOL
+
+
+def torch_forward(model, noisy, observed, mask, step):
+    with torch.no_grad():
+        t = torch.full((noisy.shape[0],), step, dtype=torch.long)
+        return model(torch.from_numpy(noisy), torch.from_numpy(observed), torch.from_numpy(mask), t).numpy()
+
+
+# ------------------------------------------------------------------------------------ forward
+
+MASKS = ["forecast", "random", "none_observed", "all_observed"]
+
+
+def make_mask(kind, rng, b, k, length):
+    if kind == "forecast":
+        m = np.zeros((b, k, length), np.float32)
+        m[:, :, :O] = 1
+        return m
+    if kind == "random":
+        return (rng.random((b, k, length)) < 0.5).astype(np.float32)
+    if kind == "none_observed":
+        return np.zeros((b, k, length), np.float32)
+    return np.ones((b, k, length), np.float32)
+
+
+@pytest.mark.parametrize("step", [0, 1, 17, 49])
+@pytest.mark.parametrize("mask_kind", MASKS)
+def test_forward_tiny(tiny, step, mask_kind):
+    den, model, _ = tiny["short"]
+    rng = np.random.default_rng(step * 7 + MASKS.index(mask_kind))
+    b, k, length = 2, den.num_features, den.seq_len
+    noisy = rng.standard_normal((b, k, length)).astype(np.float32)
+    observed = rng.normal(scale=0.3, size=(b, k, length)).astype(np.float32)
+    mask = make_mask(mask_kind, rng, b, k, length)
+    got = den.forward(noisy, observed, mask, step)
+    want = torch_forward(model, noisy, observed, mask, step)
+    assert got.shape == want.shape == (b, k, length) and got.dtype == np.float32
+    assert np.abs(want).max() > 1e-3  # a non-trivial output (the random last conv is non-zero)
+    max_diff(got, want, f"forward tiny step={step} mask={mask_kind}")
+    np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-5)
+
+
+def test_forward_tiny_long_model(tiny):
+    den, model, _ = tiny["long"]
+    rng = np.random.default_rng(11)
+    b, k, length = 1, den.num_features, den.seq_len
+    assert length == 75
+    noisy = rng.standard_normal((b, k, length)).astype(np.float32)
+    observed = rng.normal(scale=0.3, size=(b, k, length)).astype(np.float32)
+    mask = make_mask("forecast", rng, b, k, length)
+    got, want = den.forward(noisy, observed, mask, 30), torch_forward(model, noisy, observed, mask, 30)
+    max_diff(got, want, "forward tiny long L=75")
+    np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-5)
+
+
+def test_forward_full_size(tmp_path_factory):
+    """One forward of the paper-size denoiser (C = 64, 12 blocks, 8 heads) at K = 66, L = 75."""
+    d = make_model_dir(tmp_path_factory.mktemp("parity_full"), "full", seed=1)
+    path = d / "long.safetensors"
+    den = tcd.Denoiser.load(path)
+    model, _, cfg = load_model_file(path)
+    assert cfg["model"]["channels"] == 64 and cfg["model"]["num_layers"] == 12
+    rng = np.random.default_rng(5)
+    b, k, length = 1, den.num_features, den.seq_len
+    assert (k, length) == (66, 75)
+    noisy = rng.standard_normal((b, k, length)).astype(np.float32)
+    observed = rng.normal(scale=0.3, size=(b, k, length)).astype(np.float32)
+    mask = make_mask("random", rng, b, k, length)
+    got, want = den.forward(noisy, observed, mask, 23), torch_forward(model, noisy, observed, mask, 23)
+    assert np.abs(want).max() > 1e-3
+    max_diff(got, want, "forward full-size K=66 L=75")
+    np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-5)
+
+
+# ------------------------------------------------------------------------------------ chains
+
+CHAINS = [
+    # sampler, num_inference_steps, eta, timestep_spacing, num_samples
+    ("ddpm", None, 0.0, "trailing", 2),   # the reference: all 50 steps
+    ("ddpm", 10, 0.0, "trailing", 1),     # respaced DDPM
+    ("ddim", 10, 0.0, "trailing", 1),
+    ("ddim", 10, 1.0, "trailing", 1),
+    ("ddim", 10, 0.0, "leading", 1),
+    ("ddim", 10, 1.0, "leading", 1),
+    ("ddim", 10, 0.0, "linspace", 1),
+    ("ddim", 7, 0.5, "linspace", 2),
+]
+
+
+@pytest.mark.parametrize("sampler,steps,eta,spacing,num_samples", CHAINS)
+def test_chain_injected_noise(tiny, sampler, steps, eta, spacing, num_samples):
+    den, model, sched = tiny["short"]
+    rng = np.random.default_rng(100 + CHAINS.index((sampler, steps, eta, spacing, num_samples)))
+    b, k, length = 1, den.num_features, den.seq_len
+    observed, mask = observation(rng, b, k, length, O)
+    kw = dict(sampler=sampler, num_inference_steps=steps, eta=eta, timestep_spacing=spacing)
+    assert den.timesteps(sampler, steps, spacing) == [t for t, _ in D.step_pairs(50, sampler, steps, spacing)]
+    blocks = den.num_noise_blocks(sampler, steps, spacing)
+    noise = rng.standard_normal((num_samples, blocks, b, k, length)).astype(np.float32)
+    got = den.sample(observed, mask, num_samples, noise=noise, **kw)
+    want = D.sample_many(model, sched, torch.from_numpy(observed), torch.from_numpy(mask), num_samples,
+                         noise=torch.from_numpy(noise), **kw).numpy()
+    assert got.shape == want.shape == (num_samples, b, k, length)
+    assert np.abs(want).max() > 1.0  # the chain really moved
+    assert chain_close(got, want, f"chain {sampler} n={steps} eta={eta} {spacing} S={num_samples}")
+    # observed entries come back bit for bit
+    sel = np.broadcast_to(mask == 1, got.shape)
+    assert np.array_equal(got[sel], np.broadcast_to(observed, got.shape)[sel])
+
+
+def test_seeded_noise_matches_torch_fed_the_same_streams(tiny):
+    """The seeded path consumes exactly `tcd.seeded_noise`: PyTorch fed that array agrees."""
+    den, model, sched = tiny["short"]
+    rng = np.random.default_rng(21)
+    b, k, length, s = 2, den.num_features, den.seq_len, 2
+    observed, mask = observation(rng, b, k, length, O)
+    kw = dict(sampler="ddim", num_inference_steps=8, eta=1.0, timestep_spacing="trailing")
+    blocks = den.num_noise_blocks("ddim", 8, "trailing")
+    noise = tcd.seeded_noise(1234, tcd.STAGE_SHORT, s, blocks, b, k, length)
+    assert noise.shape == (s, blocks, b, k, length) and noise.dtype == np.float32
+    assert abs(float(noise.mean())) < 0.05 and abs(float(noise.std()) - 1) < 0.05
+    seeded = den.sample(observed, mask, s, seed=1234, **kw)
+    assert np.array_equal(seeded, den.sample(observed, mask, s, noise=noise, **kw))
+    want = D.sample_many(model, sched, torch.from_numpy(observed), torch.from_numpy(mask), s,
+                         noise=torch.from_numpy(noise), **kw).numpy()
+    assert chain_close(seeded, want, "seeded chain ddim n=8 eta=1")
+
+
+# ------------------------------------------------------------------------------------ cascade / repair
+
+def torch_cascade(tiny, observed, mask, s, noise_short, noise_long, **kw):
+    _, ms, ss = tiny["short"]
+    _, ml, sl = tiny["long"]
+    return D.cascade(ms, ss, ml, sl, torch.from_numpy(observed), torch.from_numpy(mask), short_len=55, long_len=75,
+                     num_samples=s, noise_short=torch.from_numpy(noise_short),
+                     noise_long=torch.from_numpy(noise_long), **kw)
+
+
+@pytest.mark.parametrize("sampler,steps,eta,s", [("ddpm", None, 0.0, 1), ("ddim", 10, 1.0, 2)])
+def test_cascade_injected_noise(tiny, sampler, steps, eta, s):
+    short, long = tiny["short"][0], tiny["long"][0]
+    rng = np.random.default_rng(31)
+    b, k = 1, short.num_features
+    observed, mask = observation(rng, b, k, O, O, missing=0.3)
+    kw = dict(sampler=sampler, num_inference_steps=steps, eta=eta, timestep_spacing="trailing")
+    n_s = short.num_noise_blocks(sampler, steps)
+    n_l = long.num_noise_blocks(sampler, steps)
+    noise_short = rng.standard_normal((s, n_s, b, k, short.seq_len)).astype(np.float32)
+    noise_long = rng.standard_normal((s, n_l, b, k, long.seq_len)).astype(np.float32)
+    got = tcd.cascade_raw(short, long, observed, mask, num_samples=s, noise_short=noise_short,
+                          noise_long=noise_long, **kw)
+    want = torch_cascade(tiny, observed, mask, s, noise_short, noise_long, **kw)
+    samples = want["samples"].numpy()
+    assert got["samples"].shape == (s, b, k, 25) and got["mean"].shape == (b, k, 25)
+    assert got["repaired"].shape == (b, k, O) and got["short_mean"].shape == (b, k, 55)
+    what = f"cascade {sampler} n={steps} eta={eta} S={s}"
+    assert chain_close(got["short_mean"], want["short_mean"], what + " short_mean")
+    assert chain_close(got["samples"], samples[..., O:], what + " samples")
+    assert chain_close(got["mean"], samples[..., O:].mean(axis=0), what + " mean")
+    assert chain_close(got["repaired"], want["short_mean"].numpy()[..., :O], what + " repaired")
+    assert np.abs(samples).max() > 1.0
+    sel = mask == 1
+    assert np.array_equal(got["repaired"][sel], observed[sel])
+
+
+def test_cascade_seeded_matches_torch_fed_the_same_streams(tiny):
+    short, long = tiny["short"][0], tiny["long"][0]
+    rng = np.random.default_rng(41)
+    b, k, s = 2, short.num_features, 1
+    observed, mask = observation(rng, b, k, O, O)
+    kw = dict(sampler="ddim", num_inference_steps=5, eta=1.0, timestep_spacing="trailing")
+    n = short.num_noise_blocks("ddim", 5)
+    noise_short = tcd.seeded_noise(99, tcd.STAGE_SHORT, s, n, b, k, short.seq_len)
+    noise_long = tcd.seeded_noise(99, tcd.STAGE_LONG, s, n, b, k, long.seq_len)
+    got = tcd.cascade_raw(short, long, observed, mask, num_samples=s, seed=99, **kw)
+    want = torch_cascade(tiny, observed, mask, s, noise_short, noise_long, **kw)
+    assert chain_close(got["samples"], want["samples"].numpy()[..., O:], "seeded cascade ddim n=5 eta=1")
+
+
+def test_repair_injected_noise(tiny):
+    den, model, sched = tiny["short"]
+    rng = np.random.default_rng(51)
+    b, k, s = 1, den.num_features, 2
+    observed, mask = observation(rng, b, k, O, O, missing=0.4)
+    kw = dict(sampler="ddim", num_inference_steps=10, eta=0.0, timestep_spacing="trailing")
+    noise = rng.standard_normal((s, 11, b, k, den.seq_len)).astype(np.float32)
+    got = tcd.repair_raw(den, observed, mask, num_samples=s, noise=noise, **kw)
+    want = D.repair(model, sched, torch.from_numpy(observed), torch.from_numpy(mask), seq_len=den.seq_len,
+                    num_samples=s, noise=torch.from_numpy(noise), **kw).numpy()
+    assert chain_close(got["mean"], want, "repair ddim n=10")
+    sel = mask == 1
+    assert np.array_equal(got["mean"][sel], observed[sel])
+    assert not np.array_equal(got["mean"][~sel], observed[~sel])  # the gaps were filled
