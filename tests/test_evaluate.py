@@ -42,17 +42,19 @@ def test_zero_velocity_reproduces_the_protocol_numbers(tmp_path):
 
 
 @needs_h36m
-def test_model_evaluation_runs_end_to_end(tmp_path):
+@pytest.mark.parametrize("engine", ["torch", "tcd"])
+def test_model_evaluation_runs_end_to_end(tmp_path, engine):
     d = random_init_dir(tmp_path / "m", preset="tiny")
     out = tmp_path / "m.json"
     assert evaluate.main(["--model", str(d), "--data", str(H36M_DIR), "--json", str(out), "--windows-per-action", "1",
                           "--samples", "2", "--steps", "2", "--sampler", "ddim", "--mask", "random_leg_arm",
-                          "--quiet"]) == 0
+                          "--engine", engine, "--quiet"]) == 0
     res = json.loads(out.read_text())
     assert set(res["average"]) == {"80", "160", "320", "400", "560", "720", "880", "1000"}
     assert res["best_of_n"]["label"].startswith("oracle") and res["mean_of_n"]["label"].startswith("mean")
     assert res["repair"]["occluded_entries"] > 0 and np.isfinite(res["repair"]["ade_mm"])
     assert "zero_velocity_on_repaired" in res and res["select"] == "best"
+    assert res["sampling"]["engine"] == engine
 
 
 @needs_h36m
