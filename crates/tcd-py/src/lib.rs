@@ -205,6 +205,27 @@ enum NoiseSource {
     Seeded(u64, u64),
 }
 
+/// Checks an observation (B, K, O) with O = `obs_len` and its mask of the same shape; returns B.
+/// `whose` names the model in the message ("the model's", "the short-term model's").
+fn observation_batch(
+    observed: &Array,
+    mask: &Array,
+    k: usize,
+    obs_len: usize,
+    whose: &str,
+) -> CoreResult<usize> {
+    let (b, o) = observed.bkl("observed", k)?;
+    if o != obs_len {
+        return Err(invalid(
+            "observed",
+            format!("{obs_len} frames ({whose} obs_len)"),
+            format!("{o} frames"),
+        ));
+    }
+    mask.expect_shape("mask", &[b, k, o], "(the shape of `observed`)")?;
+    Ok(b)
+}
+
 fn noise_source(
     argument: &str,
     noise: Option<&Array>,
@@ -503,18 +524,13 @@ fn cascade<'py>(
     let noise_long = noise_long.as_ref().map(Array::from_numpy);
     let prepared = (|| -> CoreResult<_> {
         let s = positive("num_samples", num_samples)?;
-        let (b, o) = observed.bkl("observed", k)?;
-        if o != short.obs_len() {
-            return Err(invalid(
-                "observed",
-                format!(
-                    "{} frames (the short-term model's obs_len)",
-                    short.obs_len()
-                ),
-                format!("{o} frames"),
-            ));
-        }
-        mask.expect_shape("mask", &[b, k, o], "(the shape of `observed`)")?;
+        let b = observation_batch(
+            &observed,
+            &mask,
+            k,
+            short.obs_len(),
+            "the short-term model's",
+        )?;
         check_work(s, b, k, short.seq_len().max(long.seq_len()))?;
         let cfg = sampler_config(sampler, num_inference_steps, eta, timestep_spacing)?;
         let (seed, first_sequence) = seed_args(seed, first_sequence)?;
@@ -615,15 +631,8 @@ fn repair<'py>(
     let noise = noise.as_ref().map(Array::from_numpy);
     let prepared = (|| -> CoreResult<_> {
         let s = positive("num_samples", num_samples)?;
-        let (b, o) = observed.bkl("observed", k)?;
-        if o != model.obs_len() {
-            return Err(invalid(
-                "observed",
-                format!("{} frames (the model's obs_len)", model.obs_len()),
-                format!("{o} frames"),
-            ));
-        }
-        mask.expect_shape("mask", &[b, k, o], "(the shape of `observed`)")?;
+        let b = observation_batch(&observed, &mask, k, model.obs_len(), "the model's")?;
+        let o = model.obs_len();
         check_work(s, b, k, model.seq_len())?;
         let cfg = sampler_config(sampler, num_inference_steps, eta, timestep_spacing)?;
         let (seed, first_sequence) = seed_args(seed, first_sequence)?;
