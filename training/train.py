@@ -50,6 +50,7 @@ class TrainConfig:
     mask_mix: list = field(default_factory=lambda: [["none", 1.0]])  # [[pattern, weight], ...] per window
     seed: int = 0
     amp: bool = True                 # bf16 autocast on CUDA
+    init_from: str = ""              # warm start: a checkpoint (.pt) whose model weights start this run
 
     @classmethod
     def load(cls, path: str | Path) -> "TrainConfig":
@@ -188,6 +189,13 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
         epoch, batch_i, best_val = ck["epoch"], ck["batch"], ck["best_val"]
         elapsed0, history = ck.get("elapsed_s", 0.0), ck.get("history", [])
         log(f"resumed from {last}: epoch {epoch}, batch {batch_i}")
+    elif cfg.init_from:
+        init = Path(cfg.init_from)
+        if not init.is_file():
+            raise FileNotFoundError(f"init_from: no checkpoint at {init}")
+        ck = torch.load(init, map_location=device, weights_only=False)
+        model.load_state_dict(ck["model"])  # strict: the architecture must match
+        log(f"warm start from {init} (its best validation loss {ck.get('best_val', float('nan')):.4f})")
     log(f"{cfg.role}: {count_parameters(model):,} parameters, {len(train_w):,} training windows, "
         f"{len(val_w):,} validation windows, {steps_per_epoch} steps/epoch x {cfg.epochs} epochs, device {device}")
     use_amp = cfg.amp and device.startswith("cuda")
