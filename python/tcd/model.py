@@ -7,6 +7,7 @@ back in the caller's units, with the caller's batch axis (present or not).
 """
 from __future__ import annotations
 
+import hashlib
 import os
 import threading
 from dataclasses import dataclass
@@ -173,12 +174,18 @@ class TCD:
     optional repair model). Load with :func:`tcd.load`. Immutable and thread-safe."""
 
     def __init__(self, short: Denoiser, long: Denoiser, repair: Optional[Denoiser] = None,
-                 path: Optional[PathLike] = None, threads: Optional[int] = None) -> None:
+                 path: Optional[PathLike] = None, threads: Optional[int] = None,
+                 file_sha256: Optional[Dict[str, str]] = None) -> None:
         self.short = short
         self.long = long
         self.repair_model = repair
         self.path = None if path is None else Path(path)
         self.threads = _checks.threads(threads)
+        #: SHA-256 (hex) of each weight file, by file name; empty when built from Denoisers directly.
+        self.file_sha256: Dict[str, str] = dict(file_sha256 or {})
+        #: SHA-256 (hex) identifying the model: the digest of its ``SHA256SUMS`` text (None without files).
+        self.sha256: Optional[str] = (hashlib.sha256(_checksum_text(self.file_sha256).encode()).hexdigest()
+                                      if self.file_sha256 else None)
         where = str(path) if path is not None else "the model"
         k = short.num_features
         if short.num_features % 3:
@@ -320,11 +327,60 @@ def load(path: Optional[PathLike] = None, *, threads: Optional[int] = None) -> T
         if not (d / f"{role}.safetensors").is_file():
             raise FileNotFoundError(f"The model directory {d} has no {role}.safetensors: a model directory holds "
                                     "short.safetensors and long.safetensors (and optionally repair.safetensors).")
-    short = Denoiser.load(d / "short.safetensors")
-    long = Denoiser.load(d / "long.safetensors")
-    rp = d / "repair.safetensors"
-    repair_model = Denoiser.load(rp) if rp.is_file() else None
-    return TCD(short, long, repair_model, path=d, threads=threads)
+    names = [f"{r}.safetensors" for r in ("short", "long", "repair") if (d / f"{r}.safetensors").is_file()]
+    blobs = {n: (d / n).read_bytes() for n in names}
+    digests = {n: hashlib.sha256(b).hexdigest() for n, b in blobs.items()}
+    _verify_checksums(d, digests, bundled=path is None)
+    short = Denoiser.from_bytes(blobs["short.safetensors"], str(d / "short.safetensors"))
+    long = Denoiser.from_bytes(blobs["long.safetensors"], str(d / "long.safetensors"))
+    rp = "repair.safetensors"
+    repair_model = Denoiser.from_bytes(blobs[rp], str(d / rp)) if rp in blobs else None
+    return TCD(short, long, repair_model, path=d, threads=threads, file_sha256=digests)
+
+
+CHECKSUM_FILE = "SHA256SUMS"
+
+
+def _checksum_text(digests: Dict[str, str]) -> str:
+    """``sha256sum`` format: one ``<hex>  <name>`` line per weight file, in role order."""
+    return "".join(f"{h}  {n}\n" for n, h in digests.items())
+
+
+def _verify_checksums(d: Path, digests: Dict[str, str], bundled: bool) -> None:
+    """Checks the weight files against ``d/SHA256SUMS`` (required for the bundled model, optional for others)."""
+    f = d / CHECKSUM_FILE
+    if not f.is_file():
+        if bundled:
+            raise WeightsError(f"The bundled model in {d} has no {CHECKSUM_FILE}: the installation is incomplete; "
+                               "reinstall tcd-forecast.", str(f))
+        return
+    expected: Dict[str, str] = {}
+    for i, line in enumerate(f.read_text().splitlines(), 1):
+        if not line.strip():
+            continue
+        parts = line.split()
+        if len(parts) != 2 or len(parts[0]) != 64:
+            raise WeightsError(f"{f}, line {i}: expected '<sha256 hex>  <file name>', got {line!r}.", str(f))
+        expected[parts[1].lstrip("*")] = parts[0].lower()
+    for n, h in digests.items():
+        if n not in expected:
+            raise WeightsError(f"{d / n} is not listed in {f}.", str(d / n))
+        if expected[n] != h:
+            hint = " The bundled weights are corrupt: reinstall tcd-forecast." if bundled else ""
+            raise WeightsError(f"{d / n}: SHA-256 {h} does not match {expected[n]} recorded in {f}.{hint}", str(d / n))
+    missing = sorted(set(expected) - set(digests))
+    if missing:
+        raise WeightsError(f"{f} lists {', '.join(missing)}, which {d} does not hold.", str(f))
+
+
+def write_checksums(d: PathLike) -> Path:
+    """Writes ``d/SHA256SUMS`` for the weight files of the model directory ``d`` (used when bundling)."""
+    d = Path(d)
+    names = [f"{r}.safetensors" for r in ("short", "long", "repair") if (d / f"{r}.safetensors").is_file()]
+    digests = {n: hashlib.sha256((d / n).read_bytes()).hexdigest() for n in names}
+    out = d / CHECKSUM_FILE
+    out.write_text(_checksum_text(digests))
+    return out
 
 
 _default: Optional[TCD] = None
