@@ -1,0 +1,122 @@
+"""Builds the demo clip bundled with the package (``python/tcd/data/demo_walking.npz``).
+
+    python -m training.make_demo_clip [--cmu ../shared/data/cmu/cmu_expmap_train.npz] [--key walking/walking_2]
+
+Source: the CMU Graphics Lab Motion Capture Database (mocap.cs.cmu.edu; free for research and for use in
+products, with attribution), exp-map release of the LTD / ConvSeq2Seq CMU benchmark.
+
+Conversion to the model's 22-joint Human3.6M layout:
+
+1. forward kinematics on the 38-joint CMU skeleton with the global translation and rotation removed
+   (``training.data.cmu.expmap_to_positions_cmu``), at the capture rate (120 Hz: the gait and running
+   periods of the clips, 1.2 s and 0.76 s per stride at 120 Hz, fix it);
+2. resampled to 25 fps by linear interpolation of the joint positions;
+3. rebuilt on the Human3.6M skeleton: the hips and the spine base stay at their fixed Human3.6M offsets
+   from the root (the global rotation is removed in both conventions: +x = the subject's left, +y up,
+   +z forward), and every other Human3.6M bone takes the **direction** of the matching CMU bone and
+   the **length** of the Human3.6M bone (``skeleton32.json``);
+4. the 22 model joints in metres (``xyz32_to_model``).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from training.data.cmu import expmap_to_positions_cmu, load_cmu_npz
+from training.data.h36m import joint_names_22, skeleton, xyz32_to_model
+
+CMU_FPS = 120.0
+MODEL_FPS = 25.0
+OUT = Path(__file__).resolve().parent.parent / "python" / "tcd" / "data" / "demo_walking.npz"
+
+# Human3.6M joint (32-joint index) -> the CMU bone (from joint, to joint) whose direction it takes.
+# Joints absent here either keep their fixed offset from the root (1, 6, 11) or coincide with their
+# parent (zero offset: 16 and 24 sit on the thorax like 13, 20 / 23 / 28 / 31 on their parent).
+H36M_FROM_CMU_BONE = {
+    # right leg (H36M 1..5, -x side) <- CMU 7..12
+    2: (8, 9), 3: (9, 10), 4: (10, 11), 5: (11, 12),
+    # left leg (H36M 6..10, +x side) <- CMU 1..6
+    7: (2, 3), 8: (3, 4), 9: (4, 5), 10: (5, 6),
+    # spine, neck, head
+    12: (13, 14), 13: (14, 15), 14: (15, 17), 15: (17, 19),
+    # left arm (H36M 16..23) <- CMU 20..28: clavicle, humerus, radius, thumb, hand
+    17: (20, 21), 18: (21, 22), 19: (22, 23), 21: (27, 28), 22: (23, 25),
+    # right arm (H36M 24..31) <- CMU 29..37
+    25: (29, 30), 26: (30, 31), 27: (31, 32), 29: (36, 37), 30: (32, 34),
+}
+
+
+def resample(x: np.ndarray, fps_in: float, fps_out: float) -> np.ndarray:
+    """Linear interpolation in time of (T, ...) samples taken at fps_in onto a fps_out grid."""
+    t_in = np.arange(len(x)) / fps_in
+    t_out = np.arange(0.0, t_in[-1] + 1e-9, 1.0 / fps_out)
+    flat = x.reshape(len(x), -1)
+    out = np.stack([np.interp(t_out, t_in, flat[:, c]) for c in range(flat.shape[1])], axis=1)
+    return out.reshape((len(t_out),) + x.shape[1:])
+
+
+def cmu_to_h36m32(cmu_mm: np.ndarray) -> np.ndarray:
+    """(T, 38, 3) CMU positions -> (T, 32, 3) Human3.6M positions in mm (see the module docstring)."""
+    sk = skeleton()
+    parents, offsets = sk["parents"], sk["offsets_mm"]
+    lengths = np.linalg.norm(offsets, axis=1)
+    out = np.zeros(cmu_mm.shape[:1] + (32, 3))
+    for j in range(1, 32):
+        p = parents[j]
+        if j in H36M_FROM_CMU_BONE:
+            a, b = H36M_FROM_CMU_BONE[j]
+            d = cmu_mm[:, b] - cmu_mm[:, a]
+            n = np.linalg.norm(d, axis=-1, keepdims=True)
+            if np.any(n < 1e-9):
+                raise ValueError(f"CMU bone {a}->{b} has zero length")
+            out[:, j] = out[:, p] + lengths[j] * d / n
+        elif p == 0:
+            out[:, j] = offsets[j]                  # fixed offset from the root (hips, spine base)
+        elif lengths[j] == 0.0 or j in (16, 24):
+            out[:, j] = out[:, 13] if j in (16, 24) else out[:, p]   # shoulders' base = thorax
+        else:
+            raise AssertionError(f"Human3.6M joint {j} has no CMU bone")
+    return out
+
+
+def build(cmu_path: str, key: str) -> dict:
+    seqs = load_cmu_npz(cmu_path)
+    if key not in seqs:
+        raise KeyError(f"{key} not in {cmu_path}")
+    cmu = expmap_to_positions_cmu(seqs[key], sample_rate=1)
+    cmu25 = resample(cmu, CMU_FPS, MODEL_FPS)
+    poses = xyz32_to_model(cmu_to_h36m32(cmu25))
+    return {
+        "poses": poses.astype(np.float32),
+        "fps": np.float32(MODEL_FPS),
+        "joint_names": np.array(joint_names_22()),
+        "source": np.array(json.dumps({
+            "dataset": "CMU Graphics Lab Motion Capture Database (mocap.cs.cmu.edu)",
+            "attribution": "The data used in this project was obtained from mocap.cs.cmu.edu. "
+                           "The database was created with funding from NSF EIA-0196217.",
+            "clip": key, "capture_fps": CMU_FPS,
+            "conversion": "python -m training.make_demo_clip (CMU bone directions, Human3.6M bone lengths, "
+                          "22-joint model layout, metres, root-relative, 25 fps)",
+        })),
+    }
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m training.make_demo_clip", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--cmu", default="../shared/data/cmu/cmu_expmap_train.npz")
+    ap.add_argument("--key", default="walking/walking_2")
+    ap.add_argument("--out", default=str(OUT))
+    args = ap.parse_args(argv)
+    clip = build(args.cmu, args.key)
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(args.out, **clip)
+    print(f"wrote {args.out}: {clip['poses'].shape[0]} frames at {MODEL_FPS:g} fps, {clip['poses'].shape[1]} joints")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
