@@ -1,0 +1,128 @@
+"""`tcd demo`, the bundled demo clip, and the bundled model's checksum checks."""
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import tcd
+import tcd.model
+from fixtures_util import make_model_dir
+from tcd import demo
+from tcd.cli import main
+from tcd.exceptions import WeightsError
+
+FAST = ["--samples", "2", "--steps", "2", "--sampler", "ddim", "--quiet"]
+
+
+@pytest.fixture(scope="module")
+def model_dir(tmp_path_factory):
+    return make_model_dir(tmp_path_factory.mktemp("demo_tiny"), "tiny", seed=3)
+
+
+def test_demo_clip_is_a_plausible_22_joint_walk():
+    clip = demo.load_clip()
+    p = clip["poses"]
+    assert p.dtype == np.float32 and p.ndim == 3 and p.shape[1:] == (22, 3)
+    assert p.shape[0] >= 75 and clip["fps"] == 25.0
+    assert np.isfinite(p).all()
+    assert "mocap.cs.cmu.edu" in clip["source"]["dataset"]
+    names = clip["joint_names"]
+    i = {n: k for k, n in enumerate(names)}
+    # Human3.6M bone lengths are kept exactly (knee -> ankle 454.2 mm, elbow -> wrist 251.7 mm)
+    shin = np.linalg.norm(p[:, i["right_knee"]] - p[:, i["right_ankle"]], axis=-1)
+    forearm = np.linalg.norm(p[:, i["left_elbow"]] - p[:, i["left_wrist"]], axis=-1)
+    np.testing.assert_allclose(shin, 0.4542, atol=2e-4)
+    np.testing.assert_allclose(forearm, 0.2517, atol=2e-4)
+    # upright, root-relative: head above the root, feet below; moving (walking), not frozen
+    assert (p[:, i["head"], 1] > 0.4).all() and (p[:, i["left_ankle"], 1] < -0.6).all()
+    assert np.abs(np.diff(p, axis=0)).max() > 0.01
+
+
+def test_occlusion_mask_hides_the_documented_limbs():
+    names = demo.load_clip()["joint_names"]
+    m = demo.occlusion_mask(50, names, seed=0)
+    i = {n: k for k, n in enumerate(names)}
+    assert m.shape == (50, 22)
+    assert (m[10:30, i["right_knee"]] == 0).all() and (m[25:45, i["left_wrist"]] == 0).all()
+    assert 0.1 < 1 - m.mean() < 0.35
+    np.testing.assert_array_equal(m, demo.occlusion_mask(50, names, seed=0))
+
+
+def test_linear_interpolation_fills_only_missing_frames():
+    t = np.arange(10, dtype=np.float32)
+    poses = np.stack([np.stack([t, 2 * t, -t], axis=-1)] * 2, axis=1)  # (10, 2, 3), linear in time
+    mask = np.ones((10, 2), np.float32)
+    mask[3:7, 0] = 0
+    out = demo.linear_interpolation(np.where(mask[..., None] > 0, poses, 0.0), mask)
+    np.testing.assert_allclose(out, poses, atol=1e-5)
+
+
+def test_demo_cli_runs_and_writes_results(model_dir, tmp_path, capsys):
+    out = tmp_path / "demo.npz"
+    assert main(["demo", "--model", str(model_dir), "-o", str(out), *FAST]) == 0
+    text = capsys.readouterr().out
+    assert "forecast error, mm" in text and "zero-velocity" in text and "repair of the occluded" in text
+    with np.load(out, allow_pickle=False) as f:
+        assert f["forecast_mean"].shape == (25, 22, 3)
+        assert f["forecast_samples"].shape == (2, 25, 22, 3)
+        obs, rep, mask = f["observed"], f["repaired"], f["occlusion_mask"]
+        summary = json.loads(str(f["summary"]))
+    np.testing.assert_array_equal(rep[mask > 0], obs[mask > 0])   # observed entries bit-identical
+    assert np.isfinite(rep).all()
+    assert set(summary["forecast_mm"]) == {"80", "160", "320", "400", "560", "720", "880", "1000"}
+    assert summary["model_sha256"] == tcd.load(model_dir).sha256
+    # deterministic for a fixed seed
+    out2 = tmp_path / "demo2.npz"
+    assert main(["demo", "--model", str(model_dir), "-o", str(out2), *FAST]) == 0
+    with np.load(out2) as f2, np.load(out) as f1:
+        np.testing.assert_array_equal(f1["forecast_mean"], f2["forecast_mean"])
+
+
+def test_demo_refuses_to_overwrite(model_dir, tmp_path, capsys):
+    out = tmp_path / "demo.npz"
+    out.write_bytes(b"keep me")
+    assert main(["demo", "--model", str(model_dir), "-o", str(out), *FAST]) == 2
+    assert "exists" in capsys.readouterr().err
+    assert out.read_bytes() == b"keep me"
+
+
+def test_demo_bad_steps_names_the_option(model_dir, tmp_path, capsys):
+    assert main(["demo", "--model", str(model_dir), "-o", str(tmp_path / "d.npz"), "--steps", "0", "--quiet"]) == 2
+    assert "--steps" in capsys.readouterr().err
+
+
+# ----------------------------------------------------------------------------- checksums
+
+def test_checksums_verified_when_present(model_dir, tmp_path):
+    d = Path(shutil.copytree(model_dir, tmp_path / "m"))
+    tcd.model.write_checksums(d)
+    m = tcd.load(d)
+    assert len(m.sha256) == 64 and set(m.file_sha256) == {"short.safetensors", "long.safetensors"}
+    raw = bytearray((d / "long.safetensors").read_bytes())
+    raw[-1] ^= 0x01  # one flipped bit in a weight
+    (d / "long.safetensors").write_bytes(bytes(raw))
+    with pytest.raises(WeightsError, match="SHA-256"):
+        tcd.load(d)
+
+
+def test_bundled_model_requires_checksums(model_dir, tmp_path, monkeypatch):
+    d = Path(shutil.copytree(model_dir, tmp_path / "bundled"))
+    monkeypatch.setattr(tcd.model, "default_model_dir", lambda: d)
+    with pytest.raises(WeightsError, match="SHA256SUMS"):
+        tcd.load()
+    tcd.model.write_checksums(d)
+    assert tcd.load().sha256 == tcd.load(d).sha256
+
+
+def test_bundled_model_loads_and_matches_its_checksums():
+    d = tcd.default_model_dir()
+    if not (d / "short.safetensors").is_file():
+        pytest.skip("no bundled model in this build")
+    m = tcd.load()
+    sums = {n: h for h, n in (line.split() for line in (d / "SHA256SUMS").read_text().splitlines() if line.strip())}
+    assert m.file_sha256 == {n: sums[n] for n in m.file_sha256}
+    assert m.num_joints == 22 and m.obs_len == 50 and m.horizon == 25
