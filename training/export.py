@@ -144,7 +144,19 @@ def random_init_dir(out: str | Path, preset: str = "tiny", seed: int = 0,
     return d
 
 
-def export_checkpoint(ckpt_path: str | Path, out_dir: str | Path) -> Path:
+def write_checksums(d: str | Path) -> Path:
+    """``SHA256SUMS`` (sha256sum format) for the weight files of a model directory; ``tcd.load`` checks it
+    (and requires it for the bundled model)."""
+    import hashlib
+    d = Path(d)
+    lines = [f"{hashlib.sha256((d / n).read_bytes()).hexdigest()}  {n}\n"
+             for n in (f"{r}.safetensors" for r in ("short", "long", "repair")) if (d / n).is_file()]
+    out = d / "SHA256SUMS"
+    out.write_text("".join(lines))
+    return out
+
+
+def export_checkpoint(ckpt_path: str | Path, out_dir: str | Path, description: str | None = None) -> Path:
     ck = torch.load(str(ckpt_path), map_location="cpu", weights_only=False)
     model_cfg = ModelConfig.from_dict(ck["model_config"])
     diff_cfg = DiffusionConfig.from_dict(ck["diffusion_config"])
@@ -152,6 +164,8 @@ def export_checkpoint(ckpt_path: str | Path, out_dir: str | Path) -> Path:
     model.load_state_dict(ck["model"], strict=True)
     role = ck["role"]
     training = {k: ck.get(k) for k in ("epoch", "step", "best_val", "train_config", "elapsed_s")}
+    if description:
+        training["description"] = description
     cfg = build_config(role, model_cfg, diff_cfg, ck["window"]["obs_len"], ck["window"]["pred_len"], ck["data"], training)
     path = Path(out_dir) / f"{role}.safetensors"
     save_model_file(path, model.eval(), cfg)
@@ -166,6 +180,8 @@ def main(argv=None) -> int:
     ap.add_argument("--preset", choices=sorted(PRESETS), default="tiny", help="model size for --random-init")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", required=True, help="model directory to write")
+    ap.add_argument("--description", help="free text recorded in each file's training metadata "
+                    "(e.g. how the model was trained)")
     args = ap.parse_args(argv)
     if bool(args.checkpoint) == bool(args.random_init):
         ap.error("give exactly one of --checkpoint or --random-init")
@@ -174,8 +190,9 @@ def main(argv=None) -> int:
         random_init_dir(out, args.preset, args.seed)
     else:
         for ck in args.checkpoint:
-            print(f"exported {export_checkpoint(ck, out)}")
+            print(f"exported {export_checkpoint(ck, out, args.description)}")
         write_model_json(out)
+    print(f"wrote {write_checksums(out)}")
     print(f"model directory: {out.resolve()}")
     return 0
 
