@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import subprocess
 import sys
 from pathlib import Path
@@ -164,6 +165,8 @@ def export_checkpoint(ckpt_path: str | Path, out_dir: str | Path, description: s
     model.load_state_dict(ck["model"], strict=True)
     role = ck["role"]
     training = {k: ck.get(k) for k in ("epoch", "step", "best_val", "train_config", "elapsed_s")}
+    if not (isinstance(training["best_val"], float) and math.isfinite(training["best_val"])):
+        training["best_val"] = None  # no validation yet (an early last.pt): JSON has no Infinity
     if description:
         training["description"] = description
     cfg = build_config(role, model_cfg, diff_cfg, ck["window"]["obs_len"], ck["window"]["pred_len"], ck["data"], training)

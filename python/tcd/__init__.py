@@ -16,12 +16,14 @@ from ._native import __version__
 from .denoiser import STAGE_LONG, STAGE_SHORT, Denoiser, cascade_raw, repair_raw, seeded_noise
 from .exceptions import InvalidInputError, TcdError, WeightsError
 from .model import TCD, Forecast, default_model_dir, forecast, load, repair
+from .batch_repair import repair_file  # `tcd repair` / offline repair of files of any length (issue 6)
 
 __all__ = [
     "__version__",
     "load",
     "forecast",
     "repair",
+    "repair_file",
     "TCD",
     "Forecast",
     "default_model_dir",

@@ -6,13 +6,16 @@
     tcd forecast IN.npz -o OUT.npz [--model DIR] [--samples N] [--steps S] [--sampler ddpm|ddim]
                  [--eta E] [--spacing trailing|leading|linspace] [--seed S] [--units m|mm]
                  [--threads N] [--overwrite]
+    tcd repair INPUT... -o OUTDIR [--model DIR] [--units m|mm] [--fps F] [--steps N] [--sampler ddpm|ddim]
+               [--samples N] [--seed S] [--overlap C] [--jobs N] [--overwrite] [--report FILE] [--quiet]
 
 IN.npz holds ``poses``, (T, J, 3) or (B, T, J, 3) with NaN = missing, and optionally ``mask``
 (1 = observed). OUT.npz receives ``mean``, ``samples``, ``repaired`` and ``seed``. An existing OUT is
 never replaced without ``--overwrite``.
 
 Exit codes: 0 success; 2 bad input (arguments, input file, model directory, existing output);
-1 any other failure.
+1 any other failure. ``tcd repair`` (see :mod:`tcd.batch_repair`): 1 when any input file failed (the
+others are still repaired), 2 for bad arguments.
 """
 from __future__ import annotations
 
@@ -81,6 +84,9 @@ def _parser() -> argparse.ArgumentParser:
                     "pip install 'tcd-forecast[plot]')")
     dm.add_argument("--overwrite", action="store_true", help="replace OUT (and GIF) if they exist")
     dm.add_argument("--quiet", action="store_true", help="no progress lines")
+    # --- tcd repair (issue 6): defined in tcd.batch_repair
+    from . import batch_repair as _batch_repair
+    _batch_repair.add_subparser(sub)
     return ap
 
 
@@ -208,6 +214,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             return _info(args)
         if args.command == "demo":
             return _demo(args)
+        if args.command == "repair":  # tcd repair (issue 6): prints its own errors
+            from . import batch_repair as _batch_repair
+            return _batch_repair.cli(args)
         return _forecast(args)
     except _BadInput as e:
         print(f"tcd {args.command}: error: {e}", file=sys.stderr)

@@ -1,0 +1,528 @@
+"""Offline repair of files of any length (`tcd repair`, `tcd.repair_file`, issue 6).
+
+A random-init tiny model's values are meaningless: these tests check the structure (shapes, masks,
+bit-identical observed values, windows and their conditioning), determinism, resumability and the error
+handling, not accuracy (benches/repair_quality.py measures that)."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import tcd
+from conftest import H36M_DIR, ROOT, needs_h36m
+from fixtures_util import make_model_dir, poses
+from tcd import batch_repair, fk
+from tcd.cli import main
+
+FAST = ["--steps", "2", "--sampler", "ddim", "--samples", "2"]
+FAST_KW = dict(num_inference_steps=2, sampler="ddim", num_samples=2)
+W = 50
+
+
+@pytest.fixture(scope="module")
+def model_dir(tmp_path_factory):
+    return make_model_dir(tmp_path_factory.mktemp("repair_tiny"), "tiny", seed=3)
+
+
+@pytest.fixture(scope="module")
+def model(model_dir):
+    return tcd.load(model_dir)
+
+
+def gappy(rng, frames, missing=0.2, block=None):
+    """Random poses (metres) with random missing joints and optionally a block of missing frames."""
+    x = poses(rng, frames=frames, missing=missing)
+    if block is not None:
+        x[block[0]:block[1]] = np.nan
+    return x
+
+
+def run(argv, capsys):
+    code = main(["repair", *[str(a) for a in argv]])
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def load_npz(path):
+    with np.load(path, allow_pickle=False) as f:
+        return {k: f[k] for k in f.files}
+
+
+def tree(d: Path):
+    """{relative path: arrays} of every file under d (asserting nothing but finished .npz files)."""
+    out = {}
+    for f in sorted(d.rglob("*")):
+        if f.is_file():
+            assert f.suffix == ".npz" and not f.name.startswith("."), f"stray file {f}"
+            out[f.relative_to(d).as_posix()] = load_npz(f)
+    return out
+
+
+def same_tree(a, b):
+    assert a.keys() == b.keys()
+    for k in a:
+        assert a[k].keys() == b[k].keys()
+        for name in a[k]:
+            assert np.array_equal(a[k][name], b[k][name]), (k, name)
+
+
+# ---------------------------------------------------------------------------------------------- windows
+@pytest.mark.parametrize("frames", [50, 51, 89, 90, 91, 313, 1000])
+@pytest.mark.parametrize("overlap", [1, 10, 25, 49])
+def test_window_starts_cover_with_overlap(frames, overlap):
+    starts = batch_repair.window_starts(frames, W, overlap)
+    assert starts[0] == 0 and starts[-1] + W == frames
+    for a, b in zip(starts, starts[1:]):
+        assert a < b and a + W - b >= overlap  # consecutive windows share >= overlap frames
+    assert len(starts) == max(1, -(-(frames - W) // (W - overlap)) + 1)
+
+
+# ---------------------------------------------------------------------------------------------- round trips
+@pytest.mark.parametrize("frames", [7, 50, 313])
+def test_round_trip_lengths(model, tmp_path, frames):
+    rng = np.random.default_rng(frames)
+    x = gappy(rng, frames, block=(frames // 3, frames // 3 + 12))
+    src, dst = tmp_path / "in.npz", tmp_path / "out.npz"
+    np.savez(src, poses=x)
+    info = tcd.repair_file(src, dst, model, seed=5, **FAST_KW)
+    got = load_npz(dst)
+    assert set(got) == {"poses", "mask", "provenance"}
+    assert got["poses"].shape == x.shape and got["poses"].dtype == x.dtype
+    assert not np.isnan(got["poses"]).any()
+    seen = ~np.isnan(x)
+    assert np.array_equal(got["poses"][seen], x[seen])  # observed values bit for bit
+    assert got["mask"].dtype == bool and np.array_equal(got["mask"], seen)
+    prov = json.loads(str(got["provenance"]))
+    assert prov["model_sha256"] == model.sha256 and len(prov["model_sha256"]) == 64
+    assert prov["sampler"] == "ddim" and prov["steps"] == 2 and prov["seed"] == 5 and prov["num_samples"] == 2
+    assert prov["tcd_version"] == tcd.__version__
+    assert info["status"] == "repaired" and info["frames"] == frames
+    assert info["windows"] == len(batch_repair.window_starts(max(frames, W), W, batch_repair.DEFAULT_OVERLAP))
+    assert info["missing_values"] == int((~seen).sum())
+
+
+def test_one_window_equals_tcd_repair(model, tmp_path):
+    """A file of exactly one window is TCD.repair of that window with the same seed (noise stream 0)."""
+    x = gappy(np.random.default_rng(14), W)
+    np.savez(tmp_path / "in.npz", poses=x)
+    tcd.repair_file(tmp_path / "in.npz", tmp_path / "out.npz", model, seed=21, **FAST_KW)
+    want = model.repair(x, seed=21, **FAST_KW)
+    assert np.array_equal(load_npz(tmp_path / "out.npz")["poses"], want)
+
+
+def test_explicit_mask_and_float64(model, tmp_path):
+    rng = np.random.default_rng(1)
+    x = rng.normal(scale=0.3, size=(80, 22, 3))  # float64, no NaN: the mask says what is missing
+    mask = (rng.random((80, 22)) > 0.3).astype(np.uint8)
+    np.savez(tmp_path / "in.npz", poses=x, mask=mask)
+    tcd.repair_file(tmp_path / "in.npz", tmp_path / "out.npz", model, **FAST_KW)
+    got = load_npz(tmp_path / "out.npz")
+    assert got["poses"].dtype == np.float64
+    assert np.array_equal(got["mask"], mask) and got["mask"].dtype == mask.dtype  # the mask as given
+    m3 = np.repeat(mask.astype(bool)[..., None], 3, -1)
+    assert np.array_equal(got["poses"][m3], x[m3])
+    assert not np.array_equal(got["poses"][~m3], x[~m3])  # masked values were replaced
+
+
+def test_later_windows_condition_on_repaired_frames(model, tmp_path, monkeypatch):
+    """Window k > 0 sees the frames already repaired as observed (mask 1, repaired values): no seams."""
+    calls = []
+    real = batch_repair.repair_raw
+
+    def spy(den, observed, mask, **kw):
+        out = real(den, observed, mask, **kw)
+        calls.append((observed.copy(), mask.copy(), out["mean"].copy()))
+        return out
+
+    monkeypatch.setattr(batch_repair, "repair_raw", spy)
+    rng = np.random.default_rng(2)
+    x = gappy(rng, 130, missing=0.3, block=(35, 48))  # the overlap of windows 0 and 1 (frames 40..49) has gaps
+    np.savez(tmp_path / "in.npz", poses=x)
+    tcd.repair_file(tmp_path / "in.npz", tmp_path / "out.npz", model, overlap=10, **FAST_KW)
+    starts = batch_repair.window_starts(130, W, 10)
+    assert starts == [0, 40, 80] and len(calls) == 3
+    out = load_npz(tmp_path / "out.npz")["poses"]
+    for k in (1, 2):
+        prev_obs, prev_mask, prev_mean = calls[k - 1]
+        obs, mask, _ = calls[k]
+        shared = starts[k - 1] + W - starts[k]
+        assert mask[0, :, :shared].all()  # every entry of the shared frames counts as observed
+        # ... with the values the previous window produced (repaired where they were missing)
+        assert np.array_equal(obs[0, :, :shared], prev_mean[0, :, W - shared:])
+        assert (prev_mask[0, :, W - shared:] == 0).any()
+        # the new frames keep the original mask
+        orig = (~np.isnan(x[starts[k] + shared:starts[k] + W])).reshape(W - shared, -1).T
+        assert np.array_equal(mask[0, :, shared:].astype(bool), orig)
+    # and the output's missing entries are the windows' values for their new frames
+    for k, (lo, hi) in enumerate(((0, 50), (50, 90), (90, 130))):
+        win = calls[k][2][0].T.reshape(W, 22, 3)[lo - starts[k]:hi - starts[k]]
+        miss = np.isnan(x[lo:hi])
+        assert np.array_equal(out[lo:hi][miss], win[miss])
+
+
+# ---------------------------------------------------------------------------------------------- determinism
+def test_same_seed_same_output_regardless_of_jobs_and_batching(model_dir, tmp_path, capsys):
+    rng = np.random.default_rng(3)
+    d = tmp_path / "data"
+    d.mkdir()
+    for i, t in enumerate((60, 210, 33)):
+        np.savez(d / f"s{i}.npz", poses=gappy(rng, t))
+    outs = {}
+    for jobs in ("1", "2"):
+        code, _, err = run([d, "-o", tmp_path / f"out{jobs}", "--model", model_dir, "--jobs", jobs, "--seed", "9",
+                            "--quiet", *FAST], capsys)
+        assert code == 0, err
+        outs[jobs] = tree(tmp_path / f"out{jobs}")
+    same_tree(outs["1"], outs["2"])
+    # one file alone through the API: the same as within the batch of three
+    tcd.repair_file(d / "s1.npz", tmp_path / "alone.npz", tcd.load(model_dir), seed=9, threads=1, **FAST_KW)
+    assert np.array_equal(load_npz(tmp_path / "alone.npz")["poses"], outs["1"]["s1.npz"]["poses"])
+    # another seed changes the repaired values
+    tcd.repair_file(d / "s1.npz", tmp_path / "other.npz", model_dir, seed=10, **FAST_KW)
+    assert not np.array_equal(load_npz(tmp_path / "other.npz")["poses"], outs["1"]["s1.npz"]["poses"])
+
+
+# ---------------------------------------------------------------------------------------------- the command
+def test_directory_with_bad_files(model_dir, tmp_path, capsys):
+    rng = np.random.default_rng(4)
+    d = tmp_path / "data"
+    (d / "a" / "b").mkdir(parents=True)
+    np.savez(d / "good1.npz", poses=gappy(rng, 70))
+    np.savez(d / "a" / "b" / "good2.npz", poses=gappy(rng, 20))
+    (d / "a" / "corrupt.npz").write_bytes(b"PK\x03\x04 truncated")
+    (d / "a" / "garbage.npz").write_bytes(b"not an archive at all")
+    np.savez(d / "wrong_shape.npz", poses=np.zeros((10, 17, 3), np.float32))
+    allnan = np.full((30, 22, 3), np.nan, np.float32)
+    np.savez(d / "all_missing.npz", poses=allnan)
+    inf = gappy(rng, 30)
+    inf[3, 4, 1] = np.inf
+    np.savez(d / "inf.npz", poses=inf)
+    np.savez(d / "no_poses.npz", joints=np.zeros(3))
+    (d / "notes.md").write_text("ignored: not an input suffix")
+    report = tmp_path / "report.json"
+    code, out, err = run([d, "-o", tmp_path / "out", "--model", model_dir, "--report", report, *FAST], capsys)
+    assert code == 1
+    assert "2 repaired, 0 skipped, 6 failed" in out
+    got = tree(tmp_path / "out")
+    assert set(got) == {"good1.npz", "a/b/good2.npz"}
+    rep = json.loads(report.read_text())
+    by = {Path(f["input"]).name: f for f in rep["files"]}
+    assert rep["summary"]["failed"] == 6 and rep["summary"]["repaired"] == 2
+    assert rep["model_sha256"] == tcd.load(model_dir).sha256
+    reasons = {
+        "corrupt.npz": "unreadable", "garbage.npz": "unreadable", "wrong_shape.npz": "wrong shape",
+        "all_missing.npz": "every value is missing", "inf.npz": "infinite", "no_poses.npz": "no `poses`",
+    }
+    for name, why in reasons.items():
+        assert by[name]["status"] == "failed" and why in by[name]["reason"], by[name]
+        assert name in err and why in err
+    assert by["good1.npz"]["status"] == "repaired" and by["good1.npz"]["frames"] == 70
+    assert "notes.md" not in by
+
+
+def test_rerun_skips_and_overwrite(model_dir, tmp_path, capsys):
+    rng = np.random.default_rng(5)
+    src = tmp_path / "in.npz"
+    np.savez(src, poses=gappy(rng, 60))
+    out = tmp_path / "out"
+    code, _, err = run([src, "-o", out, "--model", model_dir, "--seed", "1", "--quiet", *FAST], capsys)
+    assert code == 0, err
+    first = load_npz(out / "in.npz")
+    stamp = (out / "in.npz").stat().st_mtime_ns
+    time.sleep(0.01)
+    code, text, _ = run([src, "-o", out, "--model", model_dir, "--seed", "2", *FAST], capsys)
+    assert code == 0 and "0 repaired, 1 skipped" in text
+    assert (out / "in.npz").stat().st_mtime_ns == stamp  # untouched
+    code, text, _ = run([src, "-o", out, "--model", model_dir, "--seed", "2", "--overwrite", *FAST], capsys)
+    assert code == 0 and "1 repaired, 0 skipped" in text
+    second = load_npz(out / "in.npz")
+    assert not np.array_equal(first["poses"], second["poses"])
+    assert json.loads(str(second["provenance"]))["seed"] == 2
+    with pytest.raises(FileExistsError):
+        tcd.repair_file(src, out / "in.npz", model_dir, **FAST_KW)
+
+
+def test_never_overwrites_an_input(model_dir, tmp_path, capsys):
+    rng = np.random.default_rng(6)
+    d = tmp_path / "data"
+    d.mkdir()
+    x = gappy(rng, 40)
+    np.savez(d / "x.npz", poses=x)
+    before = (d / "x.npz").read_bytes()
+    code, _, err = run([d, "-o", d, "--model", model_dir, "--overwrite", *FAST], capsys)
+    assert code == 2 and "would overwrite the input" in err
+    assert (d / "x.npz").read_bytes() == before
+    with pytest.raises(ValueError):
+        tcd.repair_file(d / "x.npz", d / "x.npz", model_dir, overwrite=True, **FAST_KW)
+    assert (d / "x.npz").read_bytes() == before
+    # an output directory inside the input directory: its files are never taken as inputs
+    code, _, err = run([d, "-o", d / "repaired", "--model", model_dir, "--quiet", *FAST], capsys)
+    assert code == 0, err
+    code, text, _ = run([d, "-o", d / "repaired", "--model", model_dir, *FAST], capsys)
+    assert code == 0 and "0 repaired, 1 skipped, 0 failed" in text
+
+
+def test_bad_arguments_exit_2(model_dir, tmp_path, capsys):
+    src = tmp_path / "in.npz"
+    np.savez(src, poses=gappy(np.random.default_rng(7), 20))
+    for extra, why in ((["--units", "cm"], "--units"), (["--steps", "0"], "--steps"), (["--fps", "-5"], "--fps"),
+                       (["--overlap", "50"], "--overlap"), (["--sampler", "euler"], "--sampler")):
+        code, _, err = run([src, "-o", tmp_path / "o", "--model", model_dir, *extra], capsys)
+        assert code == 2 and why in err, (extra, err)
+    code, _, err = run([tmp_path / "missing.npz", "-o", tmp_path / "o", "--model", model_dir], capsys)
+    assert code == 2 and "does not exist" in err
+    code, _, err = run([src, "-o", tmp_path / "o", "--model", tmp_path / "nomodel"], capsys)
+    assert code == 2
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    code, _, err = run([empty, "-o", tmp_path / "o", "--model", model_dir], capsys)
+    assert code == 2 and "no input files" in err
+    assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())
+
+
+# ---------------------------------------------------------------------------------------------- interruptions
+def _dataset(d: Path, n: int = 4, frames: int = 90):
+    rng = np.random.default_rng(8)
+    d.mkdir()
+    for i in range(n):
+        np.savez(d / f"seq{i}.npz", poses=gappy(rng, frames + 17 * i))
+
+
+def test_interrupted_run_then_rerun_matches(model_dir, tmp_path, capsys, monkeypatch):
+    data = tmp_path / "data"
+    _dataset(data)
+    code, _, err = run([data, "-o", tmp_path / "ref", "--model", model_dir, "--quiet", *FAST], capsys)
+    assert code == 0, err
+    ref = tree(tmp_path / "ref")
+
+    # interrupt while writing the second output: after np.savez has written part of the temporary file
+    real_savez = np.savez
+    written = []
+
+    def savez(fh, **arrays):
+        if len(written) == 1:
+            fh.write(b"partial bytes")
+            raise KeyboardInterrupt
+        written.append(fh)
+        real_savez(fh, **arrays)
+
+    monkeypatch.setattr(batch_repair.np, "savez", savez)
+    out = tmp_path / "out"
+    code, _, err = run([data, "-o", out, "--model", model_dir, "--quiet", *FAST], capsys)
+    assert code == 130 and "interrupted" in err
+    partial = tree(out)  # asserts: no temporary or partial files left behind
+    assert len(partial) == 1
+    monkeypatch.setattr(batch_repair.np, "savez", real_savez)
+    code, text, err = run([data, "-o", out, "--model", model_dir, *FAST], capsys)
+    assert code == 0, err
+    assert "3 repaired, 1 skipped" in text
+    same_tree(tree(out), ref)
+
+
+def test_killed_subprocess_then_rerun_matches(model_dir, tmp_path, capsys):
+    data = tmp_path / "data"
+    _dataset(data, n=6, frames=150)
+    settings = ["--steps", "2", "--sampler", "ddim", "--samples", "1", "--jobs", "1"]
+    cmd = [sys.executable, "-m", "tcd", "repair", str(data), "--model", str(model_dir), "--quiet", *settings]
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in sys.path if p))
+    code, _, err = run([data, "-o", tmp_path / "ref", "--model", model_dir, "--quiet", *settings], capsys)
+    assert code == 0, err
+    ref = tree(tmp_path / "ref")
+    out = tmp_path / "out"
+    proc = subprocess.Popen(cmd + ["-o", str(out)], env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    deadline = time.time() + 60
+    while time.time() < deadline and proc.poll() is None and not list(out.glob("*.npz")):
+        time.sleep(0.01)
+    if proc.poll() is None:
+        os.kill(proc.pid, signal.SIGKILL)
+    proc.communicate()
+    # whatever was written is complete (a killed run may leave a hidden temporary file, never a partial
+    # output; the re-run removes it when it writes that output)
+    for f in out.glob("*.npz"):
+        load_npz(f)
+    done_before = len(list(out.glob("*.npz")))
+    assert proc.returncode in (0, -signal.SIGKILL)  # killed mid-way (or, on a fast machine, finished)
+    code, text, err = run([data, "-o", out, "--model", model_dir, *settings], capsys)
+    assert code == 0, err
+    assert f"{done_before} skipped" in text
+    same_tree(tree(out), ref)
+
+
+def test_atomic_write_leaves_nothing_on_failure(tmp_path, monkeypatch):
+    dst = tmp_path / "x.npz"
+
+    def boom(fh, **arrays):
+        fh.write(b"half")
+        raise OSError("disk full")
+
+    monkeypatch.setattr(batch_repair.np, "savez", boom)
+    with pytest.raises(OSError):
+        batch_repair.write_npz_atomic(dst, False, poses=np.zeros(3))
+    assert list(tmp_path.iterdir()) == []
+
+
+# ---------------------------------------------------------------------------------------------- units and rates
+def test_units_mm(model, tmp_path):
+    rng = np.random.default_rng(9)
+    x = gappy(rng, 120)
+    np.savez(tmp_path / "m.npz", poses=x)
+    np.savez(tmp_path / "mm.npz", poses=x * np.float32(1000))
+    tcd.repair_file(tmp_path / "m.npz", tmp_path / "out_m.npz", model, **FAST_KW)
+    tcd.repair_file(tmp_path / "mm.npz", tmp_path / "out_mm.npz", model, units="mm", **FAST_KW)
+    a = load_npz(tmp_path / "out_m.npz")["poses"]
+    b = load_npz(tmp_path / "out_mm.npz")["poses"]
+    seen = ~np.isnan(x)
+    assert np.array_equal(b[seen], (x * np.float32(1000))[seen])
+    assert np.allclose(b, a * 1000, atol=0.05)  # the same repair, in mm (up to float32 rounding)
+    assert json.loads(str(load_npz(tmp_path / "out_mm.npz")["provenance"]))["units"] == "mm"
+    # read as metres, the mm values are far from the model's range: a different result
+    tcd.repair_file(tmp_path / "mm.npz", tmp_path / "out_wrong.npz", model, **FAST_KW)
+    assert not np.allclose(load_npz(tmp_path / "out_wrong.npz")["poses"], b, atol=1.0)
+
+
+def test_resampling_mask_is_conservative():
+    x = np.arange(5, dtype=np.float64)[:, None] * np.ones((1, 2))
+    m = np.ones((5, 2), bool)
+    m[2, 0] = False
+    # 12.5 fps -> 25 fps: model frames at source positions 0, 0.5, 1, ..., 4
+    y, ym = batch_repair._resample_forward(x, m, 12.5, 25.0)
+    assert y.shape == (9, 2)
+    assert np.allclose(y[ym[:, 1], 1], np.arange(9)[ym[:, 1]] / 2)
+    assert ym[:, 1].all()
+    assert list(np.flatnonzero(~ym[:, 0])) == [3, 4, 5]  # every model frame touching source frame 2
+    # 50 fps -> 25: every other frame, exactly; back again: interpolation
+    x = np.random.default_rng(0).normal(size=(9, 3))
+    y, ym = batch_repair._resample_forward(x, np.ones_like(x, bool), 50.0, 25.0)
+    assert np.array_equal(y, x[::2]) and ym.all()
+    back = batch_repair._resample_backward(y, 9, 50.0, 25.0)
+    assert np.array_equal(back[::2], x[::2]) and np.allclose(back[1::2], (x[0:-1:2] + x[2::2]) / 2)
+    # 30 fps, 10 frames: 0.3 s -> 25 fps frames at 0, 0.04, ..., 0.32 (the last past the end: missing)
+    y, ym = batch_repair._resample_forward(np.zeros((10, 1)), np.ones((10, 1), bool), 30.0, 25.0)
+    assert len(y) == 9 and ym[:8].all() and not ym[8].any()
+
+
+def test_fps_resampled_and_back(model, tmp_path, monkeypatch):
+    seen_frames = []
+    real = batch_repair.FileJob.__init__
+
+    def init(self, *a, **kw):
+        real(self, *a, **kw)
+        seen_frames.append(self.model_frames)
+
+    monkeypatch.setattr(batch_repair.FileJob, "__init__", init)
+    rng = np.random.default_rng(10)
+    t = np.arange(201)[:, None, None] / 50.0
+    x = (np.sin(2 * np.pi * t + rng.normal(size=(1, 22, 3))) * 0.3).astype(np.float32)
+    x[rng.random((201, 22)) < 0.2] = np.nan
+    x[100:111] = np.nan
+    np.savez(tmp_path / "in.npz", poses=x)
+    tcd.repair_file(tmp_path / "in.npz", tmp_path / "out50.npz", model, fps=50, **FAST_KW)
+    assert seen_frames == [101]  # 4 s at 25 fps
+    got = load_npz(tmp_path / "out50.npz")
+    seen = ~np.isnan(x)
+    assert got["poses"].shape == x.shape and not np.isnan(got["poses"]).any()
+    assert np.array_equal(got["poses"][seen], x[seen])
+    assert json.loads(str(got["provenance"]))["fps"] == 50.0
+    # at the model's rate (explicitly or by default) nothing is resampled
+    tcd.repair_file(tmp_path / "in.npz", tmp_path / "out25.npz", model, fps=25, **FAST_KW)
+    tcd.repair_file(tmp_path / "in.npz", tmp_path / "outd.npz", model, **FAST_KW)
+    assert seen_frames[1:] == [201, 201]
+    assert np.array_equal(load_npz(tmp_path / "out25.npz")["poses"], load_npz(tmp_path / "outd.npz")["poses"])
+    assert not np.array_equal(load_npz(tmp_path / "out25.npz")["poses"], got["poses"])
+
+
+def test_cli_fps_and_units(model_dir, tmp_path, capsys):
+    rng = np.random.default_rng(11)
+    x = gappy(rng, 75) * np.float32(1000)
+    np.savez(tmp_path / "in.npz", poses=x)
+    code, _, err = run([tmp_path / "in.npz", "-o", tmp_path / "out", "--model", model_dir, "--fps", "30",
+                        "--units", "mm", "--quiet", *FAST], capsys)
+    assert code == 0, err
+    tcd.repair_file(tmp_path / "in.npz", tmp_path / "api.npz", model_dir, fps=30, units="mm", **FAST_KW)
+    a, b = load_npz(tmp_path / "out" / "in.npz"), load_npz(tmp_path / "api.npz")
+    assert np.array_equal(a["poses"], b["poses"])
+    prov = json.loads(str(a["provenance"]))
+    assert prov["fps"] == 30.0 and prov["units"] == "mm"
+
+
+# ---------------------------------------------------------------------------------------------- exp-map txt
+def _expmap_rows(rng, frames):
+    rows = rng.normal(scale=0.2, size=(frames, 99))
+    rows[:, :3] = rng.normal(scale=500, size=(frames, 3))  # root position: ignored
+    return rows
+
+
+def test_expmap_txt_input(model_dir, tmp_path, capsys):
+    rng = np.random.default_rng(12)
+    rows = _expmap_rows(rng, 64)
+    rows[10:14] = np.nan                       # missing frames
+    rows[20:30, 3 + 3 * 17:3 + 3 * 18] = np.nan  # left shoulder rotation unknown: the arm below it missing
+    d = tmp_path / "h36m" / "S5"
+    d.mkdir(parents=True)
+    np.savetxt(d / "walking_1.txt", rows, delimiter=",")
+    code, _, err = run([tmp_path / "h36m", "-o", tmp_path / "out", "--model", model_dir, "--quiet", *FAST], capsys)
+    assert code == 0, err
+    got = load_npz(tmp_path / "out" / "S5" / "walking_1.npz")
+    xyz = fk.expmap_to_model(np.loadtxt(d / "walking_1.txt", delimiter=","))
+    seen = ~np.isnan(xyz)
+    assert got["poses"].shape == (64, 22, 3) and not np.isnan(got["poses"]).any()
+    assert np.array_equal(got["mask"], seen)
+    assert not seen[10:14].any() and seen[:10].all()
+    names = tcd.load(model_dir).joint_names
+    arm = [names.index(n) for n in ("left_elbow", "left_wrist", "left_thumb", "left_hand")]
+    assert not seen[20:30, arm].any() and seen[20:30, names.index("left_shoulder")].all()
+    assert np.array_equal(got["poses"][seen], xyz[seen])
+    assert json.loads(str(got["provenance"]))["fps"] == fk.H36M_TXT_FPS
+    # a txt file that is not an exp-map table fails with its reason
+    (d / "bad.txt").write_text("1,2,3\n4,5,6\n")
+    code, _, err = run([tmp_path / "h36m", "-o", tmp_path / "out", "--model", model_dir, "--quiet", *FAST], capsys)
+    assert code == 1 and "bad.txt" in err and "99 values per row" in err
+
+
+# ---------------------------------------------------------------------------------------------- forward kinematics
+def test_packaged_skeleton_matches_training():
+    packaged = json.loads(fk.SKELETON_PATH.read_text())
+    training = json.loads((ROOT / "training" / "data" / "skeleton32.json").read_text())
+    assert packaged == training
+
+
+def test_fk_matches_training_kinematics():
+    from training.data import h36m
+
+    rows = _expmap_rows(np.random.default_rng(13), 30)
+    want = h36m.xyz32_to_model(h36m.expmap_to_xyz32(rows, sample_rate=1))
+    got = fk.expmap_to_model(rows)
+    assert np.allclose(got, want, atol=1e-6)
+    assert np.array_equal(got.astype(np.float32), want)
+
+
+@needs_h36m
+def test_fk_matches_training_on_real_expmap_file(tmp_path):
+    from training.data import h36m
+
+    with np.load(H36M_DIR / "h36m_expmap_50fps.npz") as z:
+        rows = np.asarray(z["S5/walking_1"][:300], dtype=np.float64)
+    path = tmp_path / "walking_1.txt"
+    np.savetxt(path, rows, delimiter=",", fmt="%.9g")
+    from_txt = fk.read_expmap_txt(path)
+    want = h36m.xyz32_to_model(h36m.expmap_to_xyz32(from_txt, sample_rate=1))
+    assert np.array_equal(fk.expmap_to_model(from_txt).astype(np.float32), want)
+    # the training pipeline's 25 fps frames are every other row
+    assert np.allclose(fk.expmap_to_model(from_txt)[::2], h36m.xyz32_to_model(h36m.expmap_to_xyz32(rows)), atol=1e-6)
+
+
+def test_progress_bar_only_on_a_terminal(monkeypatch):
+    assert batch_repair._progress_bar(10, quiet=False) is None  # pytest captures stderr: not a terminal
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True, raising=False)
+    assert batch_repair._progress_bar(10, quiet=True) is None
+    bar = batch_repair._progress_bar(10, quiet=False)
+    assert bar is not None and bar.total == 10
+    bar.close()
