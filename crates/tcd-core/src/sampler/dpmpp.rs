@@ -125,7 +125,8 @@ mod tests {
         let mut x = [0.5f32];
         let mut p = [123.0f32];
         plan[4].apply(&mut x, &[0.2], &mut p);
-        let want = (0.5 - plan[4].sqrt_one_minus_alpha_bar as f32 * 0.2) / plan[4].sqrt_alpha_bar as f32;
+        let want =
+            (0.5 - plan[4].sqrt_one_minus_alpha_bar as f32 * 0.2) / plan[4].sqrt_alpha_bar as f32;
         assert_eq!(x[0], want);
         assert_eq!(p[0], want);
     }
