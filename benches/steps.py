@@ -1,8 +1,8 @@
 """Accuracy vs latency of the samplers at fewer steps, same trained model, through the Rust engine ``tcd``.
 
     python benches/steps.py [--model DIR] [--data ../shared/data/h36m] [--windows-per-action N] [--samples N]
-                            [--seed S] [--threads N] [--latency-reps R] [--only NAME ...] [--json OUT]
-                            [--plot OUT.png]
+                            [--seed S] [--threads N] [--latency-reps R] [--actions A ...] [--only NAME ...]
+                            [--json OUT] [--plot OUT.png]
 
 Configurations (ENGINE.md, "Samplers at fewer steps"): DDPM over all 50 steps (the reference), DDIM at
 50 / 25 / 10 / 5 steps with eta 0 and 1, respaced DDPM at 20 and 10 steps, DPM-Solver++(2M) at 20 and
@@ -26,9 +26,15 @@ Protocol (reusing ``training.evaluate``, ``training.data.h36m``, ``training.mask
   (cascade: short + long stage), repetitions interleaved over the configurations (config 1, 2, ...,
   then again), after one warm-up call each.
 
-Run time (2-core machine, ``--windows-per-action 1 --samples 2``, the reduced cpu40 model): a few minutes;
-it grows linearly with windows x samples x total steps (the DDPM-50 and DDIM-50 rows dominate). The full
-protocol is 256 windows per action. Numbers from the reduced development model are only a smoke test.
+Run time: proportional to windows x samples x steps. Each window is forecast twice per configuration
+(clean and occluded), each forecast is a cascade of two stages, so one configuration costs
+2 x 2 x samples x steps forwards per window; over the 13 configurations the steps add up to 290 (DDPM-50 and
+the two DDIM-50 rows are 150 of them). Measured on the busy 2-core development machine with the reduced
+cpu40 model (batch of one window, 2 samples): ~21 s for a DDIM-5 forecast, ~280 s for a DDPM-50 one, so
+``--windows-per-action 1 --samples 2`` over all 13 actions and configurations takes hours there; use
+``--actions walking --only DDIM-5 DPM++2M`` for a check in minutes, and an idle many-core machine for real
+numbers (chains run in parallel over cores). The full protocol is 256 windows per action. Numbers from the
+reduced development model are only a smoke test.
 
 Bench-only dependency: matplotlib for ``--plot`` (``pip install tcd-forecast[bench]``).
 """
@@ -76,12 +82,15 @@ def sampling_kw(cfg: dict) -> dict:
     return dict(sampler=cfg["sampler"], steps=cfg["steps"], eta=cfg["eta"], spacing=cfg["timestep_spacing"])
 
 
-def load_windows(data_dir: str, per_action: int, mask_seed: int) -> list[dict]:
+def load_windows(data_dir: str, per_action: int, mask_seed: int, actions=None) -> list[dict]:
     """Per action: ground truth (W, 25, 32, 3) mm, clean observation (W, 50, 22, 3) m, and the
-    random_leg_arm-corrupted observation with its joint mask."""
+    random_leg_arm-corrupted observation with its joint mask. ``actions``: a subset (default all);
+    action indices (seeds) stay those of the full list."""
     data = H36M(data_dir)
     out = []
     for ai, action in enumerate(data.test_actions()):
+        if actions and action not in actions:
+            continue
         wins = data.test_windows(action, OBS + PRED, OBS, per_action)           # (W, 75, 32, 3) mm
         obs_clean = xyz32_to_model(wins[:, :OBS]).astype(np.float64)            # (W, 50, 22, 3) m
         occ, jmask = obs_clean.copy(), np.ones(obs_clean.shape[:3], dtype=np.float32)
@@ -174,8 +183,11 @@ def main(argv=None) -> int:
     ap.add_argument("--mask-seed", type=int, default=0, help="occlusion seed (default 0)")
     ap.add_argument("--threads", type=int, default=None, help="engine threads (default: all cores)")
     ap.add_argument("--latency-reps", type=int, default=5, help="timed repetitions per configuration (default 5)")
+    ap.add_argument("--actions", nargs="+", default=None, metavar="ACTION",
+                    help="only these S5 actions (default: all 13; for quick checks, e.g. walking)")
     ap.add_argument("--only", nargs="+", default=None, metavar="NAME",
-                    help="run only the configurations whose name starts with one of these (e.g. DDPM-50 DPM++2M)")
+                    help="run only these configurations: a full name, its first word (DDIM-5: both etas) or its "
+                         "family (DDIM, DDPM, DPM++2M)")
     ap.add_argument("--json", default=None, help="write results and protocol here")
     ap.add_argument("--plot", default=None, help="PNG: error at 1000 ms vs latency (needs matplotlib)")
     args = ap.parse_args(argv)
@@ -188,10 +200,14 @@ def main(argv=None) -> int:
     model = tcd.load(args.model, threads=args.threads)
     cfgs = configurations()
     if args.only:
-        cfgs = [c for c in cfgs if any(c["name"].startswith(p) for p in args.only)]
+        def wanted(name):
+            return any(p in (name, name.split(" ")[0], name.split("-")[0]) for p in args.only)
+        cfgs = [c for c in cfgs if wanted(c["name"])]
         if not cfgs:
             ap.error(f"--only {args.only} matches no configuration")
-    windows = load_windows(args.data, args.windows_per_action, args.mask_seed)
+    windows = load_windows(args.data, args.windows_per_action, args.mask_seed, args.actions)
+    if not windows:
+        ap.error(f"--actions {args.actions} matches no S5 test action")
     n_windows = sum(len(w["obs"]) for w in windows)
 
     rows = []
@@ -200,7 +216,7 @@ def main(argv=None) -> int:
         acc = accuracy(args.model, c, windows, args.samples, args.seed)
         rows.append(dict(c, **acc))
         print(f"[{i + 1}/{len(cfgs)}] {c['name']}: {time.time() - t0:.0f} s "
-              f"(1000 ms: {acc['mean_of_n']['average'].get('1000', float('nan')):.1f} mm)", file=sys.stderr)
+              f"(1000 ms: {acc['mean_of_n']['average'].get('1000', float('nan')):.1f} mm)", file=sys.stderr, flush=True)
     times = latency(model, cfgs, windows[0]["obs"][0], args.samples, args.latency_reps, args.threads)
     for r in rows:
         t = times[r["name"]]
