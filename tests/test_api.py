@@ -189,6 +189,20 @@ def test_repair_uses_repair_model_when_present(model_dir, tmp_path, obs):
     assert not np.array_equal(with_repair[~seen], without[~seen])
 
 
+def test_dpmpp2m_forecast_and_repair(model, obs):
+    """DPM-Solver++(2M) through the public API: reproducible, observed entries kept, one noise block."""
+    kw = dict(seed=3, num_samples=2, sampler="dpmpp2m", num_inference_steps=3)
+    f = model.forecast(obs, **kw)
+    assert f.samples.shape == (2, 25, 22, 3) and np.isfinite(f.samples).all()
+    assert np.array_equal(f.samples, model.forecast(obs, **kw).samples)
+    assert not np.array_equal(f.samples, model.forecast(obs, **dict(kw, seed=4)).samples)
+    r = model.repair(obs, **kw)
+    seen = ~np.isnan(obs)
+    assert np.array_equal(r[seen], obs[seen]) and np.isfinite(r).all()
+    assert model.short.num_noise_blocks("dpmpp2m", 3) == 1
+    assert model.short.timesteps("dpmpp2m", 3) == model.short.timesteps("ddim", 3)
+
+
 # ------------------------------------------------------------------------------------ low level
 
 def test_denoiser_forward_and_seeded_noise(model_dir):

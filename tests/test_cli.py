@@ -70,6 +70,17 @@ def test_forecast_round_trip(model_dir, npz, tmp_path, capsys):
     assert np.array_equal(got["repaired"][seen], poses_in[seen])
 
 
+def test_forecast_dpmpp2m(model_dir, npz, tmp_path, capsys):
+    out_path = tmp_path / "out_dpm.npz"
+    args = ["--samples", "2", "--steps", "3", "--sampler", "dpmpp2m", "--seed", "5"]
+    code, _, err = run(["forecast", npz, "-o", out_path, "--model", model_dir, *args], capsys)
+    assert code == 0, err
+    want = tcd.load(model_dir).forecast(np.load(npz)["poses"], seed=5, num_samples=2, num_inference_steps=3,
+                                        sampler="dpmpp2m")
+    with np.load(out_path) as f:
+        assert np.array_equal(f["samples"], want.samples)
+
+
 def test_forecast_batched_with_mask_and_random_seed(model_dir, tmp_path, capsys):
     x = poses(np.random.default_rng(1), batch=2, missing=0.0)
     mask = np.ones((2, 50, 22), np.float32)

@@ -155,6 +155,10 @@ CHAINS = [
     ("ddim", 10, 1.0, "leading", 1),
     ("ddim", 10, 0.0, "linspace", 1),
     ("ddim", 7, 0.5, "linspace", 2),
+    ("dpmpp2m", 5, 0.0, "trailing", 1),   # DPM-Solver++(2M): one noise block (x_T)
+    ("dpmpp2m", 10, 0.0, "trailing", 2),
+    ("dpmpp2m", 20, 0.0, "trailing", 1),
+    ("dpmpp2m", 10, 0.0, "linspace", 1),
 ]
 
 
@@ -207,7 +211,7 @@ def torch_cascade(tiny, observed, mask, s, noise_short, noise_long, **kw):
                      noise_long=torch.from_numpy(noise_long), **kw)
 
 
-@pytest.mark.parametrize("sampler,steps,eta,s", [("ddpm", None, 0.0, 1), ("ddim", 10, 1.0, 2)])
+@pytest.mark.parametrize("sampler,steps,eta,s", [("ddpm", None, 0.0, 1), ("ddim", 10, 1.0, 2), ("dpmpp2m", 10, 0.0, 2)])
 def test_cascade_injected_noise(tiny, sampler, steps, eta, s):
     short, long = tiny["short"][0], tiny["long"][0]
     rng = np.random.default_rng(31)
@@ -262,3 +266,30 @@ def test_repair_injected_noise(tiny):
     sel = mask == 1
     assert np.array_equal(got["mean"][sel], observed[sel])
     assert not np.array_equal(got["mean"][~sel], observed[~sel])  # the gaps were filled
+
+
+def test_dpmpp2m_noise_blocks_seeded_and_repair(tiny):
+    """dpmpp2m consumes x_T only: one noise block; the seeded path equals `seeded_noise` with one block
+    and PyTorch fed it; repair agrees with the reference."""
+    den, model, sched = tiny["short"]
+    assert den.num_noise_blocks("dpmpp2m", 10) == 1 and den.num_noise_blocks("ddim", 10) == 11
+    rng = np.random.default_rng(61)
+    b, k, s = 2, den.num_features, 2
+    observed, mask = observation(rng, b, k, den.seq_len, O)
+    kw = dict(sampler="dpmpp2m", num_inference_steps=10, timestep_spacing="trailing")
+    noise = tcd.seeded_noise(77, tcd.STAGE_SHORT, s, 1, b, k, den.seq_len)
+    seeded = den.sample(observed, mask, s, seed=77, **kw)
+    assert np.array_equal(seeded, den.sample(observed, mask, s, noise=noise, **kw))
+    want = D.sample_many(model, sched, torch.from_numpy(observed), torch.from_numpy(mask), s,
+                         noise=torch.from_numpy(noise), **kw).numpy()
+    assert chain_close(seeded, want, "seeded chain dpmpp2m n=10")
+    with pytest.raises(tcd.InvalidInputError, match="noise"):
+        den.sample(observed, mask, s, noise=np.zeros((s, 11, b, k, den.seq_len), np.float32), **kw)
+    obs, m = observation(rng, 1, k, O, O, missing=0.4)
+    rnoise = rng.standard_normal((s, 1, 1, k, den.seq_len)).astype(np.float32)
+    got = tcd.repair_raw(den, obs, m, num_samples=s, noise=rnoise, **kw)
+    want = D.repair(model, sched, torch.from_numpy(obs), torch.from_numpy(m), seq_len=den.seq_len, num_samples=s,
+                    noise=torch.from_numpy(rnoise), **kw).numpy()
+    assert chain_close(got["mean"], want, "repair dpmpp2m n=10")
+    sel = m == 1
+    assert np.array_equal(got["mean"][sel], obs[sel])

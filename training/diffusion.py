@@ -3,10 +3,11 @@
 Notation follows the MotionDiff supplement / DDPM: beta_t, alpha_t = 1 - beta_t,
 alpha_bar_t = prod_{s<=t} alpha_s; the network predicts epsilon.
 
-Injected noise. Every sampler accepts ``noise`` of shape (num_steps + 1, B, K, L): ``noise[0]`` is x_T
-and ``noise[i + 1]`` is the z used at step i (ignored where the step adds no noise). Another
-implementation fed the same array must produce the same numbers. Without ``noise`` a
-``torch.Generator`` (or the global RNG) draws it in the same layout.
+Injected noise. Every sampler accepts ``noise`` of shape (num_noise_blocks, B, K, L): ``noise[0]`` is x_T
+and ``noise[i + 1]`` is the z used at step i (ignored where the step adds no noise). ddpm and ddim take
+num_steps + 1 blocks; dpmpp2m (DPM-Solver++(2M), deterministic) consumes no per-step noise and takes one
+block, x_T. Another implementation fed the same array must produce the same numbers. Without ``noise``
+a ``torch.Generator`` (or the global RNG) draws it in the same layout.
 """
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ import torch
 
 SCHEDULES = ("cosine", "linear", "quad")
 SPACINGS = ("leading", "trailing", "linspace")
-SAMPLERS = ("ddpm", "ddim")
+SAMPLERS = ("ddpm", "ddim", "dpmpp2m")
 
 
 @dataclass
@@ -141,8 +142,59 @@ def step_pairs(T: int, sampler: str, num_inference_steps: int | None, spacing: s
     return list(zip(ts, ts[1:] + [-1]))
 
 
+def num_noise_blocks(sampler: str, num_steps: int) -> int:
+    """Leading axis of the injected noise of one chain: num_steps + 1 (x_T, then one z per step) for ddpm
+    and ddim, 1 (x_T only) for the deterministic dpmpp2m."""
+    if sampler not in SAMPLERS:
+        raise ValueError(f"sampler must be one of {SAMPLERS}, got {sampler!r}")
+    return 1 if sampler == "dpmpp2m" else num_steps + 1
+
+
+def dpmpp2m_coefficients(sched: Schedule, pairs: list[tuple[int, int]]) -> list[dict]:
+    """Float64 coefficients of DPM-Solver++(2M) (Lu et al. 2022, data prediction, multistep, order 2) over
+    explicit (t, t_next) pairs.
+
+    With alpha = sqrt(abar), sigma = sqrt(1 - abar), lambda = log(alpha / sigma), a step from s = t to
+    t' = t_next with h = lambda_t' - lambda_s is
+
+        x0_i = (x - sigma_s eps) / alpha_s
+        D    = x0_i                                         (first order: step 0)
+        D    = (1 + 1/(2r)) x0_i - 1/(2r) x0_{i-1}          (second order, r = h_{i-1} / h_i)
+        x   <- (sigma_t' / sigma_s) x - alpha_t' (exp(-h) - 1) D
+
+    The last step (t_next = -1, abar = 1, sigma = 0, lambda = +inf) is taken first order, which in that
+    limit returns x0_i exactly (diffusers: ``final_sigmas_type="zero"``, ``lower_order_final``).
+    Each dict: ``a`` = sigma_s, ``b`` = alpha_s (x0_i = (x - a eps) / b), ``final``, and for the other
+    steps ``cx`` = sigma_t'/sigma_s, ``c0`` = -alpha_t' expm1(-h), ``w_cur``, ``w_prev`` (D = w_cur x0_i
+    + w_prev x0_{i-1}; w_prev = 0 at first order).
+    """
+    def lam(t):
+        a = sched.abar(t)
+        return 0.5 * math.log(a) - 0.5 * math.log(1.0 - a)
+
+    out = []
+    h_prev = None
+    for i, (t, t_next) in enumerate(pairs):
+        a_t = sched.abar(t)
+        c = {"a": math.sqrt(1.0 - a_t), "b": math.sqrt(a_t), "final": t_next < 0}
+        if t_next >= 0:
+            a_n = sched.abar(t_next)
+            h = lam(t_next) - lam(t)
+            c["cx"] = math.sqrt(1.0 - a_n) / math.sqrt(1.0 - a_t)
+            c["c0"] = -math.sqrt(a_n) * math.expm1(-h)
+            if i == 0:
+                c["w_cur"], c["w_prev"] = 1.0, 0.0
+            else:
+                r = h_prev / h
+                c["w_cur"], c["w_prev"] = 1.0 + 0.5 / r, -0.5 / r
+            h_prev = h
+        out.append(c)
+    return out
+
+
 def draw_noise(num_steps: int, shape, generator: torch.Generator | None = None) -> torch.Tensor:
-    """The injected-noise layout: (num_steps + 1, *shape), standard normal, float32."""
+    """The injected-noise layout of ddpm / ddim: (num_steps + 1, *shape), standard normal, float32
+    (``num_steps = 0`` gives the single x_T block of dpmpp2m)."""
     return torch.randn((num_steps + 1, *shape), generator=generator, dtype=torch.float32)
 
 
@@ -156,6 +208,7 @@ def sample(model, sched: Schedule, observed: torch.Tensor, mask: torch.Tensor, *
     it is the reference sampler over all steps; fewer steps run respaced DDPM on the chosen subsequence
     (betas' = 1 - abar_t / abar_next).
     ddim: deterministic for eta = 0; x0_hat is not clipped; alpha_bar_prev = 1 after the last step.
+    dpmpp2m: DPM-Solver++(2M) (see ``dpmpp2m_coefficients``), deterministic: ``noise`` is (1, B, K, L), x_T.
     """
     if sampler not in SAMPLERS:
         raise ValueError(f"sampler must be one of {SAMPLERS}, got {sampler!r}")
@@ -163,13 +216,17 @@ def sample(model, sched: Schedule, observed: torch.Tensor, mask: torch.Tensor, *
         num_inference_steps = sched.T
     pairs = step_pairs(sched.T, sampler, num_inference_steps, timestep_spacing)
     shape = tuple(observed.shape)
+    blocks = num_noise_blocks(sampler, len(pairs))
     if noise is None:
-        noise = draw_noise(len(pairs), shape, generator)
-    if tuple(noise.shape) != (len(pairs) + 1, *shape):
-        raise ValueError(f"noise must have shape {(len(pairs) + 1, *shape)}, got {tuple(noise.shape)}")
+        noise = draw_noise(blocks - 1, shape, generator)
+    if tuple(noise.shape) != (blocks, *shape):
+        raise ValueError(f"noise must have shape {(blocks, *shape)}, got {tuple(noise.shape)}")
     noise = noise.to(observed.device, torch.float32)
     x = noise[0].clone()
     B = shape[0]
+    if sampler == "dpmpp2m":
+        coefs = dpmpp2m_coefficients(sched, pairs)
+        prev_x0 = None
     for i, (t, t_next) in enumerate(pairs):
         step = torch.full((B,), t, dtype=torch.long, device=observed.device)
         eps = model(x, observed, mask, step)
@@ -182,6 +239,15 @@ def sample(model, sched: Schedule, observed: torch.Tensor, mask: torch.Tensor, *
             if t_next >= 0:
                 sigma = math.sqrt(beta * (1.0 - a_next) / (1.0 - a_t))
                 x = x + sigma * noise[i + 1]
+        elif sampler == "dpmpp2m":
+            c = coefs[i]
+            x0_hat = (x - c["a"] * eps) / c["b"]
+            if c["final"]:
+                x = x0_hat
+            else:
+                d = x0_hat if c["w_prev"] == 0.0 else c["w_cur"] * x0_hat + c["w_prev"] * prev_x0
+                x = c["cx"] * x + c["c0"] * d
+            prev_x0 = x0_hat
         else:
             x0_hat = (x - math.sqrt(1.0 - a_t) * eps) / math.sqrt(a_t)
             sigma = eta * math.sqrt((1.0 - a_next) / (1.0 - a_t)) * math.sqrt(1.0 - a_t / a_next)
@@ -197,19 +263,22 @@ def sample_many(model, sched: Schedule, observed: torch.Tensor, mask: torch.Tens
                 batch_chains: bool = True, **kw) -> torch.Tensor:
     """num_samples independent chains per window -> (S, B, K, L).
 
-    ``noise``: (S, num_steps + 1, B, K, L) or None. With ``batch_chains`` the S chains run as one batch
+    ``noise``: (S, num_noise_blocks, B, K, L) or None (num_noise_blocks: num_steps + 1, or 1 for
+    dpmpp2m). With ``batch_chains`` the S chains run as one batch
     (same numbers as running them one by one, faster).
     """
     S, B = num_samples, observed.shape[0]
     if S < 1:
         raise ValueError(f"num_samples must be >= 1, got {S}")
-    n = len(step_pairs(sched.T, kw.get("sampler", "ddpm"), kw.get("num_inference_steps"), kw.get("timestep_spacing", "trailing")))
+    sampler = kw.get("sampler", "ddpm")
+    n = len(step_pairs(sched.T, sampler, kw.get("num_inference_steps") or sched.T, kw.get("timestep_spacing", "trailing")))
+    blocks = num_noise_blocks(sampler, n)
     if noise is None:
-        noise = torch.stack([draw_noise(n, tuple(observed.shape), generator) for _ in range(S)])
+        noise = torch.stack([draw_noise(blocks - 1, tuple(observed.shape), generator) for _ in range(S)])
     if not batch_chains:
         return torch.stack([sample(model, sched, observed, mask, noise=noise[s], **kw) for s in range(S)])
-    # (S, n+1, B, K, L) -> (n+1, S*B, K, L)
-    flat = noise.permute(1, 0, 2, 3, 4).reshape(n + 1, S * B, *observed.shape[1:])
+    # (S, blocks, B, K, L) -> (blocks, S*B, K, L)
+    flat = noise.permute(1, 0, 2, 3, 4).reshape(blocks, S * B, *observed.shape[1:])
     rep = lambda a: a.unsqueeze(0).expand(S, *a.shape).reshape(S * B, *a.shape[1:])  # noqa: E731
     out = sample(model, sched, rep(observed), rep(mask), noise=flat, **kw)
     return out.reshape(S, B, *observed.shape[1:])

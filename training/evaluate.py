@@ -222,7 +222,7 @@ def main(argv=None) -> int:
     ap.add_argument("--json", help="write the results here")
     ap.add_argument("--samples", type=int, default=5)
     ap.add_argument("--steps", type=int, default=None, help="inference steps (default: all training steps)")
-    ap.add_argument("--sampler", choices=["ddpm", "ddim"], default="ddpm")
+    ap.add_argument("--sampler", choices=["ddpm", "ddim", "dpmpp2m"], default="ddpm")
     ap.add_argument("--eta", type=float, default=0.0, help="DDIM eta")
     ap.add_argument("--timestep-spacing", choices=["leading", "trailing", "linspace"], default="trailing")
     ap.add_argument("--select", choices=["best", "mean"], default="best",

@@ -10,7 +10,7 @@ import numpy as np
 
 from .exceptions import InvalidInputError
 
-SAMPLERS = ("ddpm", "ddim")
+SAMPLERS = ("ddpm", "ddim", "dpmpp2m")
 SPACINGS = ("leading", "trailing", "linspace")
 UNITS = ("m", "mm")
 MAX_SEED = 2**64 - 1

@@ -1,7 +1,8 @@
 """Stubs of the private native module ``tcd._native`` (crates/tcd-py). Use the ``tcd`` package.
 
 Arrays are float32 in the engine's layout: sequences (B, K, L), samples (S, B, K, L), injected
-noise (S, n + 1, B, K, L). Errors: ``tcd.exceptions.InvalidInputError`` (bad argument),
+noise (S, n + 1, B, K, L) ((S, 1, B, K, L) for ``sampler="dpmpp2m"``). Samplers: "ddpm", "ddim",
+"dpmpp2m". Errors: ``tcd.exceptions.InvalidInputError`` (bad argument),
 ``tcd.exceptions.WeightsError`` (bad weight file), ``FileNotFoundError`` (missing file),
 ``OSError`` (unreadable file), ``tcd.exceptions.TcdError`` (anything else).
 """
@@ -49,6 +50,13 @@ class Denoiser:
         eta: float = 0.0,
         timestep_spacing: str = "trailing",
     ) -> List[int]: ...
+    def num_noise_blocks(
+        self,
+        sampler: str = "ddpm",
+        num_inference_steps: Optional[int] = None,
+        eta: float = 0.0,
+        timestep_spacing: str = "trailing",
+    ) -> int: ...
     def forward(self, noisy: _F32, observed: _F32, mask: _F32, step: int) -> _F32: ...
     def sample(
         self,

@@ -1,9 +1,9 @@
 """The ``tcd`` command line.
 
-    tcd demo [-o demo.npz] [--model DIR] [--samples N] [--steps S] [--sampler ddpm|ddim] [--seed S]
+    tcd demo [-o demo.npz] [--model DIR] [--samples N] [--steps S] [--sampler ddpm|ddim|dpmpp2m] [--seed S]
              [--threads N] [--plot demo.gif] [--overwrite] [--quiet]
     tcd info [--model DIR] [--json]
-    tcd forecast IN.npz -o OUT.npz [--model DIR] [--samples N] [--steps S] [--sampler ddpm|ddim]
+    tcd forecast IN.npz -o OUT.npz [--model DIR] [--samples N] [--steps S] [--sampler ddpm|ddim|dpmpp2m]
                  [--eta E] [--spacing trailing|leading|linspace] [--seed S] [--units m|mm]
                  [--threads N] [--overwrite]
     tcd repair INPUT... -o OUTDIR [--model DIR] [--units m|mm] [--fps F] [--steps N] [--sampler ddpm|ddim]
@@ -62,7 +62,7 @@ def _parser() -> argparse.ArgumentParser:
     fc.add_argument("--samples", type=int, default=5, metavar="N", help="samples per sequence (default 5)")
     fc.add_argument("--steps", type=int, default=None, metavar="S",
                     help="inference steps (default: every training step, the paper's DDPM)")
-    fc.add_argument("--sampler", default="ddpm", help="ddpm (default) or ddim")
+    fc.add_argument("--sampler", default="ddpm", help="ddpm (default), ddim or dpmpp2m (DPM-Solver++(2M))")
     fc.add_argument("--eta", type=float, default=0.0, help="DDIM eta in [0, 1] (default 0)")
     fc.add_argument("--spacing", default="trailing", help="timestep spacing: trailing (default), leading, linspace")
     fc.add_argument("--seed", type=int, default=None, help="noise seed (default: random, recorded in OUT)")
@@ -77,7 +77,7 @@ def _parser() -> argparse.ArgumentParser:
     dm.add_argument("--samples", type=int, default=None, metavar="N", help="samples (default 5)")
     dm.add_argument("--steps", type=int, default=None, metavar="S",
                     help="inference steps (default 20; the paper's DDPM uses all 50)")
-    dm.add_argument("--sampler", default=None, help="ddpm (default) or ddim")
+    dm.add_argument("--sampler", default=None, help="ddpm (default), ddim or dpmpp2m (DPM-Solver++(2M))")
     dm.add_argument("--seed", type=int, default=0, help="noise and occlusion seed (default 0)")
     dm.add_argument("--threads", type=int, default=None, metavar="N", help="worker threads (default: all cores)")
     dm.add_argument("--plot", metavar="GIF", help="also render an animation (needs matplotlib: "

@@ -4,6 +4,8 @@ Arrays here are float32 **(B, K, L)**: B sequences, K = joints x 3 coordinates (
 ``joint * 3 + axis``), L frames (frame axis last). Masks are 1 (observed) / 0 (to generate).
 Injected noise is **(S, n + 1, B, K, L)**: for each of the S chains, block 0 is x_T and block i + 1
 the z of step i — with S = 1 the ``(num_steps + 1, B, K, L)`` array of ``training.diffusion.sample``.
+The deterministic ``sampler="dpmpp2m"`` (DPM-Solver++(2M)) draws no per-step noise: its noise is
+(S, 1, B, K, L), x_T only (:meth:`Denoiser.num_noise_blocks`).
 Pass ``noise`` for bit-exact parity tests, or a ``seed`` for the engine's seeded ChaCha8 streams
 (:func:`seeded_noise` materialises them).
 """
@@ -109,8 +111,11 @@ class Denoiser:
 
     def num_noise_blocks(self, sampler: str = "ddpm", num_inference_steps: Optional[int] = None,
                          timestep_spacing: str = "trailing") -> int:
-        """n + 1: the second axis of injected noise."""
-        return len(self.timesteps(sampler, num_inference_steps, timestep_spacing)) + 1
+        """The second axis of injected noise: n + 1 (x_T, then one z per step) for ddpm / ddim, 1 (x_T
+        only) for the deterministic dpmpp2m."""
+        s, n, _, sp = _checks.sampler_args(sampler, num_inference_steps, 0.0, timestep_spacing,
+                                           self.num_train_timesteps)
+        return int(self._native.num_noise_blocks(s, n, 0.0, sp))
 
     def forward(self, noisy: Any, observed: Any, mask: Any, step: int) -> np.ndarray:
         """ε̂ = net(noisy, observed, mask, step): arrays (B, K, L) float32, ``step`` in
@@ -126,8 +131,9 @@ class Denoiser:
                timestep_spacing: str = "trailing", threads: Optional[int] = None) -> np.ndarray:
         """``num_samples`` merged samples per sequence: observed, mask (B, K, L) -> (S, B, K, L).
 
-        Exactly one of ``noise`` (S, n + 1, B, K, L) and ``seed`` must be given.
-        ``num_inference_steps=None`` runs every training step."""
+        Exactly one of ``noise`` (S, n + 1, B, K, L) — (S, 1, B, K, L) for ``sampler="dpmpp2m"`` — and
+        ``seed`` must be given. ``sampler``: ``"ddpm"``, ``"ddim"`` (``eta``) or ``"dpmpp2m"``
+        (DPM-Solver++(2M), deterministic). ``num_inference_steps=None`` runs every training step."""
         num_samples = _checks.integer("num_samples", num_samples, 1)
         s, n, e, sp = _checks.sampler_args(sampler, num_inference_steps, eta, timestep_spacing,
                                            self.num_train_timesteps)
@@ -146,7 +152,8 @@ def cascade_raw(short: Denoiser, long: Denoiser, observed: Any, mask: Any, *, nu
     """The short-term -> long-term cascade in the engine's layout (``training.diffusion.cascade``).
 
     observed, mask: (B, K, O) with O = ``short.obs_len``. Noise: ``noise_short`` (S, n + 1, B, K, L_s)
-    and ``noise_long`` (S, n + 1, B, K, L_l), or a ``seed``. Returns ``mean`` (B, K, P), ``samples``
+    and ``noise_long`` (S, n + 1, B, K, L_l) (one block instead of n + 1 for ``sampler="dpmpp2m"``), or a
+    ``seed``. Returns ``mean`` (B, K, P), ``samples``
     (S, B, K, P) (P = L_l - O forecast frames), ``repaired`` (B, K, O) and ``short_mean`` (B, K, L_s).
     """
     for name, m in (("short", short), ("long", long)):
@@ -169,7 +176,8 @@ def repair_raw(model: Denoiser, observed: Any, mask: Any, *, num_samples: int = 
                timestep_spacing: str = "trailing", threads: Optional[int] = None) -> Dict[str, np.ndarray]:
     """Fills the mask-0 entries of an observation (B, K, O), O = ``model.obs_len``
     (``training.diffusion.repair``). Returns ``mean`` (B, K, O; observed entries exact) and ``samples``
-    (S, B, K, O). Noise: ``noise`` (S, n + 1, B, K, model.seq_len) or a ``seed``."""
+    (S, B, K, O). Noise: ``noise`` (S, n + 1, B, K, model.seq_len) ((S, 1, ...) for ``sampler="dpmpp2m"``)
+    or a ``seed``."""
     if not isinstance(model, Denoiser):
         raise _checks.fail("model", "a tcd.Denoiser", type(model).__name__)
     num_samples = _checks.integer("num_samples", num_samples, 1)

@@ -269,9 +269,11 @@ class TCD:
                 Entries with mask 0 are ignored (NaN or not); NaN where mask is 1 is an error.
             num_samples: S, samples per sequence (and per cascade stage). TCD: 5.
             num_inference_steps: ``None`` = every training step (50: the paper's DDPM sampler); fewer run
-                respaced DDPM, or DDIM with ``sampler="ddim"``.
-            sampler: ``"ddpm"`` or ``"ddim"``.
-            eta: DDIM stochasticity in [0, 1] (0 = deterministic given the initial noise).
+                respaced DDPM, DDIM with ``sampler="ddim"`` or DPM-Solver++(2M) with ``sampler="dpmpp2m"``.
+            sampler: ``"ddpm"``, ``"ddim"`` or ``"dpmpp2m"`` (DPM-Solver++(2M), deterministic given the
+                initial noise; meant for 10-25 steps).
+            eta: DDIM stochasticity in [0, 1] (0 = deterministic given the initial noise); ignored by the
+                other samplers.
             timestep_spacing: ``"trailing"``, ``"leading"`` or ``"linspace"``: which training steps a
                 shortened sampler visits.
             seed: the noise seed (an integer in [0, 2**64)); ``None`` draws one from ``os.urandom``

@@ -5,7 +5,7 @@
 //! tcd_raw info    WEIGHTS
 //! tcd_raw forward WEIGHTS NOISY OBSERVED MASK B L STEP OUT            arrays (B, K, L)
 //! tcd_raw sample  WEIGHTS OBSERVED MASK B L S SAMPLER N ETA SPACING NOISE|seed:N OUT
-//!                 SAMPLER ddpm|ddim, N steps or `all`; NOISE (S, N+1, B, K, L); OUT (S, B, K, L)
+//!                 SAMPLER ddpm|ddim|dpmpp2m, N steps or `all`; NOISE (S, N+1, B, K, L) ((S, 1, B, K, L) for dpmpp2m); OUT (S, B, K, L)
 //! tcd_raw cascade SHORT LONG OBSERVED MASK B S SAMPLER N ETA SPACING seed:N OUT_PREFIX
 //!                 OBSERVED/MASK (B, K, O); writes OUT_PREFIX{mean,samples,repaired,short_mean}.f32
 //! tcd_raw noise   SEED STAGE S BLOCKS B BLOCK_LEN OUT                 the seeded streams, (S, BLOCKS, B, BLOCK_LEN)
@@ -50,7 +50,8 @@ fn sampler(kind: &str, steps: &str, eta: f64, spacing: &str) -> R<SamplerConfig>
     let kind = match kind {
         "ddpm" => SamplerKind::Ddpm,
         "ddim" => SamplerKind::Ddim { eta },
-        other => return Err(format!("sampler must be ddpm or ddim, got {other}").into()),
+        "dpmpp2m" => SamplerKind::DpmPp2m,
+        other => return Err(format!("sampler must be ddpm, ddim or dpmpp2m, got {other}").into()),
     };
     let num_inference_steps = if steps == "all" { None } else { Some(steps.parse()?) };
     Ok(SamplerConfig {

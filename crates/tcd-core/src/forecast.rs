@@ -14,7 +14,7 @@
 //! 3. Forecast = frames O..L_l of the long samples (TCD: 25 future frames) and their mean; the
 //!    repaired observation = frames 0..O of the short mean.
 //!
-//! Noise: injected arrays (S, n + 1, B, K, L) per stage, or one seed: the short stage uses stream
+//! Noise: injected arrays (S, n + 1, B, K, L) per stage ((S, 1, B, K, L) for dpmpp2m), or one seed: the short stage uses stream
 //! stage [`stage::SHORT`] (the same streams as [`crate::sampler::sample`]), the long stage
 //! [`stage::LONG`].
 

@@ -3,7 +3,9 @@
 //! # Layout
 //! The noise of one call is one f32 array of shape **(S, n + 1, B, K, L)** (S samples, n sampler
 //! steps): block 0 of a chain is x_T, block i + 1 the z used at step i (drawn but unused where
-//! σ = 0). With S = 1 this is the (n + 1, B, K, L) array of the PyTorch side.
+//! σ = 0). With S = 1 this is the (n + 1, B, K, L) array of the PyTorch side. The deterministic
+//! DPM-Solver++(2M) (`dpmpp2m`) draws no per-step noise: its chains have one block, x_T
+//! ([`crate::Plan::num_noise_blocks`]).
 //!
 //! # Generator
 //! Seeded noise is **ChaCha8** (`rand_chacha::ChaCha8Rng`, rand_chacha 0.9, stream 0) with the

@@ -28,6 +28,7 @@ fn sampler_strategy() -> impl Strategy<Value = SamplerConfig> {
             timestep_spacing: [TimestepSpacing::Leading, TimestepSpacing::Trailing, TimestepSpacing::Linspace][sp],
         }),
         (1usize..=10, 0.0f64..=1.0).prop_map(|(n, eta)| SamplerConfig::ddim(n, eta)),
+        (1usize..=10).prop_map(SamplerConfig::dpmpp2m),
     ]
 }
 
@@ -177,6 +178,64 @@ fn ddpm_all_steps_is_the_reference_chain() {
         }
     }
     assert_eq!(x, reference);
+}
+
+#[test]
+fn dpmpp2m_is_deterministic_with_one_noise_block_and_matches_a_hand_loop() {
+    let m = model();
+    let (l, s) = (7usize, 2usize);
+    let n = 6 * l;
+    let observed = values(n, 3, 1.0);
+    let mask = binary_mask(n, 4, 0.4);
+    let cfg = SamplerConfig::dpmpp2m(4);
+    let plan = cfg.plan(m.schedule(), "fixed_small").unwrap();
+    assert_eq!(plan.num_noise_blocks(), 1);
+    assert!(plan.is_multistep());
+    let seeded = sample(m, &observed, &mask, 1, l, s, &cfg, Noise::seeded(5)).unwrap();
+    let noise = seeded_noise(5, 0, stage::SHORT, s, 1, 1, n);
+    assert_eq!(sample(m, &observed, &mask, 1, l, s, &cfg, Noise::Injected(&noise)).unwrap(), seeded);
+    // n + 1 blocks are refused
+    let long = seeded_noise(5, 0, stage::SHORT, s, 5, 1, n);
+    let e = sample(m, &observed, &mask, 1, l, s, &cfg, Noise::Injected(&long)).unwrap_err();
+    assert!(e.to_string().contains("(2, 1, 1, 6, 7)"), "{e}");
+    // a hand-written DPM-Solver++(2M) loop over the public forward (training/diffusion.py's formulas)
+    let ab = m.schedule().alphas_cumprod().to_vec();
+    let ts = plan.timesteps();
+    let lam = |t: usize| 0.5 * ab[t].ln() - 0.5 * (1.0 - ab[t]).ln();
+    let mut x = noise[n..2 * n].to_vec(); // sample 1
+    let mut eps = vec![0.0f32; n];
+    let mut prev: Vec<f32> = Vec::new();
+    let mut h_prev = 0.0f64;
+    for (i, &t) in ts.iter().enumerate() {
+        m.forward(&x, &observed, &mask, 1, l, t, &mut eps).unwrap();
+        let (a, b) = ((1.0 - ab[t]).sqrt() as f32, ab[t].sqrt() as f32);
+        let x0: Vec<f32> = x.iter().zip(&eps).map(|(xv, ev)| (xv - a * ev) / b).collect();
+        if i + 1 == ts.len() {
+            x = x0;
+            break;
+        }
+        let tn = ts[i + 1];
+        let h = lam(tn) - lam(t);
+        let cx = ((1.0 - ab[tn]).sqrt() / (1.0 - ab[t]).sqrt()) as f32;
+        let c0 = (-ab[tn].sqrt() * (-h).exp_m1()) as f32;
+        for j in 0..n {
+            let d = if i == 0 {
+                x0[j]
+            } else {
+                let r = h_prev / h;
+                (1.0 + 0.5 / r) as f32 * x0[j] + (-0.5 / r) as f32 * prev[j]
+            };
+            x[j] = cx * x[j] + c0 * d;
+        }
+        prev = x0;
+        h_prev = h;
+    }
+    for i in 0..n {
+        if mask[i] == 1.0 {
+            x[i] = observed[i];
+        }
+    }
+    assert_eq!(&x[..], &seeded[n..]);
 }
 
 #[test]

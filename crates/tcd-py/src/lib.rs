@@ -5,7 +5,8 @@
 //! the GIL released around every forward / sampling call. The public API, with its argument
 //! checking in the caller's terms (poses, units, masks), is the Python package `tcd`; this module
 //! is private and works in the engine's layout: (B, K, L) float32 arrays, K = joints·3 with the
-//! frame axis last, and injected noise (S, n + 1, B, K, L).
+//! frame axis last, and injected noise (S, n + 1, B, K, L) ((S, 1, B, K, L) for the deterministic
+//! `dpmpp2m`, which only draws x_T).
 //!
 //! Inputs are copied out of numpy before the GIL is released, so another Python thread mutating
 //! an input array cannot race the engine.
@@ -96,10 +97,11 @@ fn sampler_config(
     let kind = match sampler {
         "ddpm" => SamplerKind::Ddpm,
         "ddim" => SamplerKind::Ddim { eta },
+        "dpmpp2m" => SamplerKind::DpmPp2m,
         other => {
             return Err(invalid(
                 "sampler",
-                "\"ddpm\" or \"ddim\"",
+                "\"ddpm\", \"ddim\" or \"dpmpp2m\"",
                 format!("{other:?}"),
             ));
         }
@@ -117,7 +119,7 @@ fn sampler_config(
     })
 }
 
-/// Noise blocks per chain (n + 1) of `sampler` on `model`; validates the sampler.
+/// Noise blocks per chain (n + 1; 1 for dpmpp2m) of `sampler` on `model`; validates the sampler.
 fn noise_blocks(model: &Denoiser, sampler: &SamplerConfig) -> CoreResult<usize> {
     Ok(sampler
         .plan(model.schedule(), &model.config().diffusion.variance_type)?
@@ -248,7 +250,7 @@ fn noise_source(
             n.expect_shape(
                 argument,
                 expected_shape,
-                "= (num_samples, num_inference_steps + 1, B, K, L)",
+                "= (num_samples, num_noise_blocks, B, K, L); num_noise_blocks = num_inference_steps + 1 (1 for dpmpp2m)",
             )?;
             Ok(NoiseSource::Injected(n.data.clone()))
         }
@@ -358,6 +360,21 @@ impl PyDenoiser {
         Ok(plan.timesteps())
     }
 
+    /// Noise blocks per chain, the second axis of injected noise: n + 1 (x_T, then one z per
+    /// step), or 1 for the deterministic `dpmpp2m`.
+    #[pyo3(signature = (sampler="ddpm", num_inference_steps=None, eta=0.0, timestep_spacing="trailing"))]
+    fn num_noise_blocks(
+        &self,
+        sampler: &str,
+        num_inference_steps: Option<i64>,
+        eta: f64,
+        timestep_spacing: &str,
+    ) -> PyResult<usize> {
+        let cfg = sampler_config(sampler, num_inference_steps, eta, timestep_spacing)
+            .map_err(PyTcdError)?;
+        Ok(noise_blocks(&self.inner, &cfg).map_err(PyTcdError)?)
+    }
+
     /// ε̂ = net(noisy, observed, mask, step); all arrays (B, K, L) float32.
     fn forward<'py>(
         &self,
@@ -411,7 +428,8 @@ impl PyDenoiser {
     }
 
     /// `num_samples` merged samples per sequence, (S, B, K, L). Noise: injected `noise`
-    /// (S, n + 1, B, K, L) or a `seed` (stream stage 0, sequences numbered from `first_sequence`).
+    /// (S, n + 1, B, K, L) ((S, 1, B, K, L) for dpmpp2m) or a `seed` (stream stage 0, sequences
+    /// numbered from `first_sequence`).
     #[pyo3(signature = (observed, mask, num_samples, *, noise=None, seed=None, first_sequence=0,
                         sampler="ddpm", num_inference_steps=None, eta=0.0,
                         timestep_spacing="trailing", threads=None))]
@@ -492,7 +510,7 @@ impl PyDenoiser {
 /// The short-term → long-term cascade on an observation (B, K, O), O = the short model's obs_len.
 /// Returns a dict: `mean` (B, K, P), `samples` (S, B, K, P), `repaired` (B, K, O), `short_mean`
 /// (B, K, L_s). Noise: injected `noise_short` (S, n + 1, B, K, L_s) and `noise_long`
-/// (S, n + 1, B, K, L_l), or a `seed`.
+/// (S, n + 1, B, K, L_l) (one block instead of n + 1 for dpmpp2m), or a `seed`.
 #[pyfunction]
 #[pyo3(signature = (short, long, observed, mask, *, num_samples=5, noise_short=None, noise_long=None,
                     seed=None, first_sequence=0, sampler="ddpm", num_inference_steps=None, eta=0.0,

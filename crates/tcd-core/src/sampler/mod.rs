@@ -7,6 +7,7 @@
 
 pub mod ddim;
 pub mod ddpm;
+pub mod dpmpp;
 
 use std::str::FromStr;
 
@@ -20,6 +21,7 @@ use crate::validate;
 
 pub use ddim::DdimStep;
 pub use ddpm::{DdpmStep, VarianceType};
+pub use dpmpp::DpmPp2mStep;
 
 /// How `num_inference_steps` steps are placed among the T training steps (diffusers semantics).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -113,6 +115,8 @@ pub enum SamplerKind {
     Ddpm,
     /// DDIM with stochasticity `eta` ∈ [0, 1].
     Ddim { eta: f64 },
+    /// DPM-Solver++(2M): deterministic multistep solver (one noise block per chain, x_T).
+    DpmPp2m,
 }
 
 /// A sampler: update rule, number of steps and their spacing.
@@ -138,6 +142,15 @@ impl SamplerConfig {
     pub fn ddim(num_inference_steps: usize, eta: f64) -> Self {
         SamplerConfig {
             kind: SamplerKind::Ddim { eta },
+            num_inference_steps: Some(num_inference_steps),
+            timestep_spacing: TimestepSpacing::Trailing,
+        }
+    }
+
+    /// DPM-Solver++(2M) with `num_inference_steps` trailing-spaced steps.
+    pub fn dpmpp2m(num_inference_steps: usize) -> Self {
+        SamplerConfig {
+            kind: SamplerKind::DpmPp2m,
             num_inference_steps: Some(num_inference_steps),
             timestep_spacing: TimestepSpacing::Trailing,
         }
@@ -171,6 +184,15 @@ impl SamplerConfig {
                     })
                     .collect()
             }
+            SamplerKind::DpmPp2m => DpmPp2mStep::plan(schedule, &ts)
+                .into_iter()
+                .zip(step_pairs(&ts))
+                .map(|(st, (t, prev))| PlanStep {
+                    t,
+                    prev,
+                    update: Update::DpmPp2m(st),
+                })
+                .collect(),
         };
         Ok(Plan { steps })
     }
@@ -187,6 +209,7 @@ impl Default for SamplerConfig {
 pub enum Update {
     Ddpm(DdpmStep),
     Ddim(DdimStep),
+    DpmPp2m(DpmPp2mStep),
 }
 
 /// One planned step: network at `t`, then the update towards `prev`.
@@ -198,12 +221,20 @@ pub struct PlanStep {
 }
 
 impl PlanStep {
-    /// Applies the update to x given ε̂ and z.
-    pub fn apply(&self, x: &mut [f32], eps: &[f32], z: &[f32]) {
+    /// Applies the update to x given ε̂, z (read only by steps that [`use noise`](Self::uses_noise))
+    /// and the per-chain multistep state `prev_x0` (the previous x̂₀; read and written only by
+    /// multistep updates, see [`Plan::is_multistep`]; may be empty otherwise).
+    pub fn apply(&self, x: &mut [f32], eps: &[f32], z: &[f32], prev_x0: &mut [f32]) {
         match &self.update {
             Update::Ddpm(s) => s.apply(x, eps, z),
             Update::Ddim(s) => s.apply(x, eps, z),
+            Update::DpmPp2m(s) => s.apply(x, eps, prev_x0),
         }
+    }
+
+    /// Whether the step consumes a noise block z (ddpm, ddim; not dpmpp2m).
+    pub fn uses_noise(&self) -> bool {
+        !matches!(self.update, Update::DpmPp2m(_))
     }
 }
 
@@ -219,9 +250,19 @@ impl Plan {
         self.steps.len()
     }
 
-    /// Noise blocks per chain: n + 1 (x_T, then one z per step).
+    /// Noise blocks per chain: n + 1 (x_T, then one z per step) for ddpm / ddim; 1 (x_T only) for
+    /// the deterministic dpmpp2m.
     pub fn num_noise_blocks(&self) -> usize {
-        self.steps.len() + 1
+        if self.steps.iter().all(PlanStep::uses_noise) {
+            self.steps.len() + 1
+        } else {
+            1
+        }
+    }
+
+    /// Whether the updates keep the previous x̂₀ (DPM-Solver++(2M)).
+    pub fn is_multistep(&self) -> bool {
+        self.steps.iter().any(|s| matches!(s.update, Update::DpmPp2m(_)))
     }
 
     /// The visited training steps, descending.
@@ -244,12 +285,17 @@ pub(crate) fn run_chain(
     let n = mask.len();
     let mut x = vec![0.0f32; n];
     let mut eps = vec![0.0f32; n];
-    let mut z = vec![0.0f32; n];
+    // Buffers a sampler does not use stay empty; nothing is allocated inside the step loop.
+    let uses_noise = plan.num_noise_blocks() > 1;
+    let mut z = vec![0.0f32; if uses_noise { n } else { 0 }];
+    let mut prev_x0 = vec![0.0f32; if plan.is_multistep() { n } else { 0 }];
     noise.fill(0, &mut x);
     for (i, step) in plan.steps.iter().enumerate() {
         denoiser.forward_sequence(tables, mask, &x, observed, step.t, &mut eps, ws);
-        noise.fill(i + 1, &mut z);
-        step.apply(&mut x, &eps, &z);
+        if uses_noise {
+            noise.fill(i + 1, &mut z);
+        }
+        step.apply(&mut x, &eps, &z, &mut prev_x0);
     }
     merge_observed(&mut x, observed, mask);
     x
@@ -300,7 +346,12 @@ pub(crate) fn validate_job<'a>(
     let plan = sampler.plan(denoiser.schedule(), &denoiser.config().diffusion.variance_type)?;
     if let Noise::Injected(data) = noise {
         let blocks = plan.num_noise_blocks();
-        let nshape = format!("({num_samples}, {blocks}, {batch}, {k}, {length}) = (num_samples, num_inference_steps + 1, B, K, L)");
+        let what = if blocks == 1 {
+            "1 (x_T only: dpmpp2m draws no per-step noise)"
+        } else {
+            "num_inference_steps + 1"
+        };
+        let nshape = format!("({num_samples}, {blocks}, {batch}, {k}, {length}) = (num_samples, {what}, B, K, L)");
         check_len(noise_argument, data.len(), num_samples * blocks * batch * k * length, &nshape)?;
         validate::all_finite(noise_argument, data, data.len(), &nshape)?;
     }
@@ -347,7 +398,8 @@ pub(crate) fn run_job(denoiser: &Denoiser, job: &SampleJob<'_>) -> Vec<f32> {
 ///
 /// * `observed`, `mask`: (B, K, L); mask 1 = given, 0 = to generate; `observed` may hold NaN where
 ///   mask = 0.
-/// * `noise`: [`Noise::Injected`] with shape (S, n + 1, B, K, L), or [`Noise::Seeded`] (stage
+/// * `noise`: [`Noise::Injected`] with shape (S, blocks, B, K, L) (blocks = n + 1, or 1 for
+///   dpmpp2m: [`Plan::num_noise_blocks`]), or [`Noise::Seeded`] (stage
 ///   [`stage::SHORT`]).
 ///
 /// Returns the merged samples, (S, B, K, L): observed entries are `observed`, bit for bit.
