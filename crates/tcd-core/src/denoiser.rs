@@ -15,6 +15,8 @@
 
 use std::path::{Path, PathBuf};
 
+use rayon::prelude::*;
+
 use crate::config::{Role, TcdConfig};
 use crate::error::{check_positive, Error, Result};
 use crate::kernels::{self, Epilogue, FastEncoder, FastLinear, FastScratch, Isa, Kernel, SeqLayout, TailInputs};
@@ -168,8 +170,17 @@ pub struct Workspace {
 }
 
 impl Workspace {
-    /// Buffers for sequences of `length` frames of `denoiser`.
+    /// Buffers for sequences of `length` frames of `denoiser`. With a SIMD kernel, one forward
+    /// is split over up to the current rayon pool's thread count (see [`Workspace::with_threads`]).
     pub fn new(denoiser: &Denoiser, length: usize) -> Self {
+        Self::with_threads(denoiser, length, rayon::current_num_threads())
+    }
+
+    /// Buffers for sequences of `length` frames of `denoiser`; with a SIMD kernel, one forward
+    /// (one chain) is split over `threads` rayon workers (coordinates for the time transformer
+    /// and the block tail, frames for the feature transformer). Use 1 when independent chains
+    /// already occupy the threads. Results do not depend on `threads`.
+    pub fn with_threads(denoiser: &Denoiser, length: usize, threads: usize) -> Self {
         let m = &denoiser.config.model;
         let n = m.num_features * length;
         let c = m.channels;
@@ -184,7 +195,8 @@ impl Workspace {
             skip: vec![0.0; n * c],
             scratch: EncoderScratch::new(m, length.max(m.num_features)),
             fast: if denoiser.fast.is_some() {
-                vec![FastScratch::new(c, m.ffn_dim, length.max(m.num_features), length)]
+                let parts = threads.clamp(1, m.num_features.max(1));
+                vec![FastScratch::new(c, m.ffn_dim, length.max(m.num_features), length); parts]
             } else {
                 Vec::new()
             },
@@ -461,7 +473,7 @@ impl Denoiser {
             || workspace.dims != (k, self.config.model.channels)
             || workspace.fast.is_empty() != self.fast.is_none()
         {
-            *workspace = Workspace::new(self, l);
+            *workspace = Workspace::with_threads(self, l, workspace.fast.len().max(1));
         }
         for (((nz, ob), m), o) in noisy
             .chunks_exact(n)
@@ -617,7 +629,7 @@ impl Denoiser {
             fast: scratch,
             ..
         } = ws;
-        let sc = &mut scratch[0];
+        let parts = scratch.len();
 
         let inp = &mut z[..2 * n];
         for (((pair, &mv), &ov), &nv) in inp.chunks_exact_mut(2).zip(mask).zip(observed).zip(noisy) {
@@ -646,7 +658,7 @@ impl Denoiser {
                     seq_stride: l * c,
                     tok_stride: c,
                 };
-                kernels::encoder(isa, &block.time, y, layout, sc);
+                kernels::encoder_par(isa, &block.time, y, layout, scratch);
             }
             if k > 1 {
                 let layout = SeqLayout {
@@ -655,7 +667,7 @@ impl Denoiser {
                     seq_stride: c,
                     tok_stride: l * c,
                 };
-                kernels::encoder(isa, &block.feature, y, layout, sc);
+                kernels::encoder_par(isa, &block.feature, y, layout, scratch);
             }
             let inputs = TailInputs {
                 mid: &block.mid,
@@ -666,11 +678,31 @@ impl Denoiser {
                 cond_mask: &layer.cond_mask,
                 next_bias: (i + 1 < num_layers).then(|| bias(i + 1)),
             };
-            kernels::block_tail(isa, &inputs, 0, l, c, y, h, skip, sc);
+            if parts <= 1 {
+                kernels::block_tail(isa, &inputs, 0, l, c, y, h, skip, &mut scratch[0]);
+            } else {
+                // Contiguous coordinate ranges per worker.
+                let per = k.div_ceil(parts) * l * c;
+                y.par_chunks_mut(per)
+                    .zip(h.par_chunks_mut(per))
+                    .zip(skip.par_chunks_mut(per))
+                    .zip(scratch.par_iter_mut())
+                    .enumerate()
+                    .for_each(|(p, (((yc, hc), sk), sc))| {
+                        kernels::block_tail(isa, &inputs, p * (per / (l * c)), l, c, yc, hc, sk, sc);
+                    });
+            }
         }
         let sqrt_layers = (num_layers as f64).sqrt() as f32;
         map_inplace(skip, |v| v / sqrt_layers);
-        kernels::gemm(isa, skip, c, n, &fast.out1, y, c, Epilogue::Relu);
+        if parts <= 1 {
+            kernels::gemm(isa, skip, c, n, &fast.out1, y, c, Epilogue::Relu);
+        } else {
+            let per = k.div_ceil(parts) * l * c;
+            skip.par_chunks(per).zip(y.par_chunks_mut(per)).for_each(|(s, yc)| {
+                kernels::gemm(isa, s, c, s.len() / c, &fast.out1, yc, c, Epilogue::Relu);
+            });
+        }
         self.output_projection2.forward(y, &mut out[..n]);
     }
 }

@@ -160,3 +160,26 @@ fn forcing_portable_and_unsupported_kernels() {
     auto.forward(&x, &x, &mask, 1, 10, 3, &mut b).unwrap();
     assert_eq!(a, b);
 }
+
+#[test]
+fn splitting_one_forward_over_threads_gives_the_same_bits() {
+    let cfg = config(5, 24, 3, 40, 2, 9, 4); // K = 15, L = 13
+    let d = model(&cfg, 61);
+    let (k, l) = (15usize, 13usize);
+    let n = k * l;
+    let (x, obs, mask) = (values(n, 1, 1.0), values(n, 2, 1.0), binary_mask(n, 3, 0.5));
+    let prepared = d.prepare(&mask, 1, l).unwrap();
+    let mut outs = Vec::new();
+    for threads in [1usize, 2, 3, 7, 40] {
+        let mut ws = Workspace::with_threads(&d, l, threads);
+        let mut o = vec![0.0f32; n];
+        tcd_core::with_threads(Some(threads.min(4)), || {
+            d.forward_with_workspace(&prepared, &mut ws, &x, &obs, 4, &mut o).unwrap()
+        })
+        .unwrap();
+        outs.push(o);
+    }
+    for o in &outs[1..] {
+        assert_eq!(o, &outs[0]);
+    }
+}

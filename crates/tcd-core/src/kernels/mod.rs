@@ -384,8 +384,8 @@ pub(crate) fn gemm(
     }
 }
 
-/// Runs one encoder layer in place on the sequences of `x` described by `layout`.
-pub(crate) fn encoder(isa: Isa, enc: &FastEncoder, x: &mut [f32], layout: SeqLayout, scratch: &mut FastScratch) {
+/// Checks `layout` against `x` and `scratch` for [`encoder`] / [`encoder_par`].
+fn check_encoder(enc: &FastEncoder, x: &[f32], layout: SeqLayout, scratch: &FastScratch) -> bool {
     let SeqLayout {
         num_seq,
         seq_len,
@@ -394,9 +394,13 @@ pub(crate) fn encoder(isa: Isa, enc: &FastEncoder, x: &mut [f32], layout: SeqLay
     } = layout;
     let c = enc.c;
     if num_seq == 0 || seq_len == 0 {
-        return;
+        return false;
     }
-    assert!(tok_stride >= c && (seq_len == 1 || seq_stride != 0 || num_seq == 1), "encoder strides");
+    // Injective: either sequences are contiguous blocks of rows (time transformer) or tokens
+    // are blocks of interleaved sequence rows (feature transformer).
+    let blocks_of_rows = tok_stride >= c && seq_stride >= seq_len * tok_stride;
+    let interleaved = seq_stride >= c && tok_stride >= num_seq * seq_stride;
+    assert!(blocks_of_rows || interleaved, "encoder strides");
     let last = (num_seq - 1) * seq_stride + (seq_len - 1) * tok_stride + c;
     assert!(x.len() >= last, "encoder sizes");
     assert!(
@@ -411,11 +415,38 @@ pub(crate) fn encoder(isa: Isa, enc: &FastEncoder, x: &mut [f32], layout: SeqLay
     );
     assert!(enc.ln1.0.len() == c && enc.ln1.1.len() == c && enc.ln2.0.len() == c && enc.ln2.1.len() == c);
     assert!(enc.qkv.out_dim == 3 * c && enc.out.in_dim == c && enc.ff1.in_dim == c && enc.ff2.out_dim == c);
+    true
+}
+
+/// Runs one encoder layer in place on the sequences of `x` described by `layout`.
+pub(crate) fn encoder(isa: Isa, enc: &FastEncoder, x: &mut [f32], layout: SeqLayout, scratch: &mut FastScratch) {
+    if !check_encoder(enc, x, layout, scratch) {
+        return;
+    }
     match isa.0 {
         #[cfg(target_arch = "x86_64")]
         IsaKind::Avx2 => x86::encoder_avx2(enc, x, layout, scratch),
         #[cfg(target_arch = "x86_64")]
         IsaKind::Avx512 => x86::encoder_avx512(enc, x, layout, scratch),
+    }
+}
+
+/// [`encoder`] with the sequences split over `scratch.len()` rayon workers (one scratch each).
+pub(crate) fn encoder_par(isa: Isa, enc: &FastEncoder, x: &mut [f32], layout: SeqLayout, scratch: &mut [FastScratch]) {
+    if scratch.len() <= 1 || layout.num_seq <= 1 {
+        if let Some(sc) = scratch.first_mut() {
+            encoder(isa, enc, x, layout, sc);
+        }
+        return;
+    }
+    if !scratch.iter().all(|sc| check_encoder(enc, x, layout, sc)) {
+        return;
+    }
+    match isa.0 {
+        #[cfg(target_arch = "x86_64")]
+        IsaKind::Avx2 => x86::encoder_par_avx2(enc, x, layout, scratch),
+        #[cfg(target_arch = "x86_64")]
+        IsaKind::Avx512 => x86::encoder_par_avx512(enc, x, layout, scratch),
     }
 }
 

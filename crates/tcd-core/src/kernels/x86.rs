@@ -12,6 +12,8 @@
 
 use std::arch::x86_64::*;
 
+use rayon::prelude::*;
+
 use super::{Epilogue, FastEncoder, FastScratch, Packed, SeqLayout, TailInputs};
 use crate::nn::activation::sigmoid;
 
@@ -433,20 +435,46 @@ unsafe fn attention<S: Simd, const HD: usize>(
                     }
                 }
                 let q: [S::V; HD] = std::array::from_fn(|d| S::load(tp.add(d * w)));
-                let mut m = S::splat(f32::NEG_INFINITY);
-                for j in 0..len {
+                // Pass 1: scores and their max; two keys per iteration (independent chains).
+                let score = |j: usize| {
                     let kp = qkv.add(j * stride + ko);
                     let mut s = S::mul(q[0], S::splat(*kp));
                     for (d, &qd) in q.iter().enumerate().skip(1) {
                         s = S::fma(qd, S::splat(*kp.add(d)), s);
                     }
-                    s = S::mul(s, scale);
-                    S::store(scores.add(j * w), s);
-                    m = S::max(m, s);
+                    S::mul(s, scale)
+                };
+                let mut m = S::splat(f32::NEG_INFINITY);
+                let mut j = 0;
+                while j + 2 <= len {
+                    let (s0, s1) = (score(j), score(j + 1));
+                    S::store(scores.add(j * w), s0);
+                    S::store(scores.add((j + 1) * w), s1);
+                    m = S::max(S::max(m, s0), s1);
+                    j += 2;
                 }
+                if j < len {
+                    let s0 = score(j);
+                    S::store(scores.add(j * w), s0);
+                    m = S::max(m, s0);
+                }
+                // Pass 2: p = e^(s − max), Σp and P·V; two keys per iteration, accumulated in
+                // key order.
                 let mut sum = S::zero();
                 let mut o = [S::zero(); HD];
-                for j in 0..len {
+                let mut j = 0;
+                while j + 2 <= len {
+                    let p0 = exp::<S>(S::sub(S::load(scores.add(j * w)), m));
+                    let p1 = exp::<S>(S::sub(S::load(scores.add((j + 1) * w)), m));
+                    sum = S::add(S::add(sum, p0), p1);
+                    let vp0 = qkv.add(j * stride + vo);
+                    let vp1 = vp0.add(stride);
+                    for (d, od) in o.iter_mut().enumerate() {
+                        *od = S::fma(p1, S::splat(*vp1.add(d)), S::fma(p0, S::splat(*vp0.add(d)), *od));
+                    }
+                    j += 2;
+                }
+                if j < len {
                     let p = exp::<S>(S::sub(S::load(scores.add(j * w)), m));
                     sum = S::add(sum, p);
                     let vp = qkv.add(j * stride + vo);
@@ -643,8 +671,51 @@ unsafe fn tail<S: Simd>(
 
 // ---------------------------------------------------------------------- entry points
 
+/// A base pointer shared by the workers of [`encoder_par_avx512`] / [`encoder_par_avx2`], each of
+/// which writes only the tokens of its own sequences.
+struct SharedBase(*mut f32);
+
+// SAFETY: the pointer is only dereferenced by the encoder kernels on disjoint token sets (the
+// dispatcher checked that the layout maps distinct (sequence, token) pairs to disjoint rows).
+unsafe impl Send for SharedBase {}
+// SAFETY: as above.
+unsafe impl Sync for SharedBase {}
+
+impl SharedBase {
+    fn get(&self) -> *mut f32 {
+        self.0
+    }
+}
+
 macro_rules! entries {
-    ($simd:ty, $features:literal, $gemm:ident, $encoder:ident, $tail:ident) => {
+    ($simd:ty, $features:literal, $gemm:ident, $encoder:ident, $encoder_par:ident, $tail:ident) => {
+        /// Encoder-layer entry point splitting the sequences over `scratch.len()` rayon workers
+        /// (layout checked injective and in bounds by [`super::encoder_par`]).
+        pub(super) fn $encoder_par(e: &FastEncoder, x: &mut [f32], layout: SeqLayout, scratch: &mut [FastScratch]) {
+            #[target_feature(enable = $features)]
+            unsafe fn inner(e: &FastEncoder, x: *mut f32, layout: SeqLayout, sc: &mut FastScratch) {
+                // SAFETY: forwarded from the caller.
+                unsafe { encoder::<$simd>(e, x, layout, sc) }
+            }
+            let parts = scratch.len();
+            let base = SharedBase(x.as_mut_ptr());
+            let base = &base;
+            scratch.par_iter_mut().enumerate().for_each(|(p, sc)| {
+                let (s0, s1) = (layout.num_seq * p / parts, layout.num_seq * (p + 1) / parts);
+                if s1 > s0 {
+                    let sub = SeqLayout {
+                        num_seq: s1 - s0,
+                        ..layout
+                    };
+                    // SAFETY: features detected (reachable only through an `Isa`); sequences
+                    // s0..s1 lie inside x (checked by the dispatcher) and no other worker touches
+                    // their tokens (the layout is injective, sequence ranges are disjoint); `x`
+                    // stays mutably borrowed until every worker has finished.
+                    unsafe { inner(e, base.get().add(s0 * layout.seq_stride), sub, sc) }
+                }
+            });
+        }
+
         /// GEMM entry point (sizes checked by [`super::gemm`]).
         #[allow(clippy::too_many_arguments)]
         pub(super) fn $gemm(x: &[f32], ldx: usize, rows: usize, w: &Packed, y: &mut [f32], ldy: usize, epi: Epilogue) {
@@ -703,8 +774,8 @@ macro_rules! entries {
     };
 }
 
-entries!(Avx512, "avx512f,fma", gemm_avx512, encoder_avx512, tail_avx512);
-entries!(Avx2, "avx2,fma", gemm_avx2, encoder_avx2, tail_avx2);
+entries!(Avx512, "avx512f,fma", gemm_avx512, encoder_avx512, encoder_par_avx512, tail_avx512);
+entries!(Avx2, "avx2,fma", gemm_avx2, encoder_avx2, encoder_par_avx2, tail_avx2);
 
 // ---------------------------------------------------------------------------- tests
 
