@@ -191,7 +191,7 @@ impl TcdConfig {
                 ),
             ));
         }
-        if m.channels % m.num_heads != 0 {
+        if !m.channels.is_multiple_of(m.num_heads) {
             return Err(bad(
                 "model.channels",
                 format!(
@@ -200,13 +200,13 @@ impl TcdConfig {
                 ),
             ));
         }
-        if m.diffusion_embedding_dim < 4 || m.diffusion_embedding_dim % 2 != 0 {
+        if m.diffusion_embedding_dim < 4 || !m.diffusion_embedding_dim.is_multiple_of(2) {
             return Err(bad(
                 "model.diffusion_embedding_dim",
                 format!("must be even and at least 4, but is {}", m.diffusion_embedding_dim),
             ));
         }
-        if m.time_embedding_dim < 2 || m.time_embedding_dim % 2 != 0 {
+        if m.time_embedding_dim < 2 || !m.time_embedding_dim.is_multiple_of(2) {
             return Err(bad(
                 "model.time_embedding_dim",
                 format!("must be even and at least 2, but is {}", m.time_embedding_dim),

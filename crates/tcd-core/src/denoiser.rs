@@ -15,8 +15,11 @@
 
 use std::path::{Path, PathBuf};
 
+use rayon::prelude::*;
+
 use crate::config::{Role, TcdConfig};
 use crate::error::{check_positive, Error, Result};
+use crate::kernels::{self, Epilogue, FastEncoder, FastLinear, FastScratch, Isa, Kernel, SeqLayout, TailInputs};
 use crate::nn::activation::{map_inplace, relu, sigmoid, silu};
 use crate::nn::embedding::{frame_embedding, step_embedding_table};
 use crate::nn::{EncoderLayer, EncoderScratch, Linear};
@@ -39,6 +42,44 @@ struct ResidualLayer {
     cond_mask: Vec<f32>,
 }
 
+/// A residual block with weights packed for the SIMD kernels.
+#[derive(Clone, Debug)]
+struct FastBlock {
+    time: FastEncoder,
+    feature: FastEncoder,
+    mid: FastLinear,
+    out: FastLinear,
+}
+
+/// The weights packed for the SIMD kernels of one instruction set.
+#[derive(Clone, Debug)]
+struct FastModel {
+    isa: Isa,
+    input: FastLinear,
+    out1: FastLinear,
+    blocks: Vec<FastBlock>,
+}
+
+impl FastModel {
+    fn new(isa: Isa, d: &Denoiser) -> FastModel {
+        FastModel {
+            isa,
+            input: FastLinear::new(isa, &d.input_projection),
+            out1: FastLinear::new(isa, &d.output_projection1),
+            blocks: d
+                .layers
+                .iter()
+                .map(|l| FastBlock {
+                    time: FastEncoder::new(isa, &l.time_layer),
+                    feature: FastEncoder::new(isa, &l.feature_layer),
+                    mid: FastLinear::new(isa, &l.mid_projection),
+                    out: FastLinear::new(isa, &l.output_projection),
+                })
+                .collect(),
+        }
+    }
+}
+
 /// The loaded model. Immutable after load; `Send + Sync`, share it between threads freely.
 #[derive(Clone, Debug)]
 pub struct Denoiser {
@@ -57,6 +98,10 @@ pub struct Denoiser {
     output_projection1: Linear,
     /// Conv1d C → 1.
     output_projection2: Linear,
+    /// The kernel in use (resolved: never `Auto`).
+    kernel: Kernel,
+    /// Packed weights of the SIMD kernel, if one is in use.
+    fast: Option<FastModel>,
 }
 
 /// The length-dependent cond tables: for every block, `W_t · pe(l) + b` (L × 2C).
@@ -120,11 +165,22 @@ pub struct Workspace {
     /// Σ skip (N × C).
     skip: Vec<f32>,
     scratch: EncoderScratch,
+    /// Scratch of the SIMD kernels (empty for the portable kernel).
+    fast: Vec<FastScratch>,
 }
 
 impl Workspace {
-    /// Buffers for sequences of `length` frames of `denoiser`.
+    /// Buffers for sequences of `length` frames of `denoiser`. With a SIMD kernel, one forward
+    /// is split over up to the current rayon pool's thread count (see [`Workspace::with_threads`]).
     pub fn new(denoiser: &Denoiser, length: usize) -> Self {
+        Self::with_threads(denoiser, length, rayon::current_num_threads())
+    }
+
+    /// Buffers for sequences of `length` frames of `denoiser`; with a SIMD kernel, one forward
+    /// (one chain) is split over `threads` rayon workers (coordinates for the time transformer
+    /// and the block tail, frames for the feature transformer). Use 1 when independent chains
+    /// already occupy the threads. Results do not depend on `threads`.
+    pub fn with_threads(denoiser: &Denoiser, length: usize, threads: usize) -> Self {
         let m = &denoiser.config.model;
         let n = m.num_features * length;
         let c = m.channels;
@@ -138,6 +194,12 @@ impl Workspace {
             g: vec![0.0; n * c],
             skip: vec![0.0; n * c],
             scratch: EncoderScratch::new(m, length.max(m.num_features)),
+            fast: if denoiser.fast.is_some() {
+                let parts = threads.clamp(1, m.num_features.max(1));
+                vec![FastScratch::new(c, m.ffn_dim, length.max(m.num_features), length); parts]
+            } else {
+                Vec::new()
+            },
         }
     }
 
@@ -224,7 +286,8 @@ impl Denoiser {
             });
         }
         let schedule = config.schedule();
-        Ok(Denoiser {
+        let kernel = Kernel::from_env()?;
+        Denoiser {
             path,
             config,
             config_json,
@@ -235,7 +298,24 @@ impl Denoiser {
             layers,
             output_projection1,
             output_projection2,
-        })
+            kernel: Kernel::Portable,
+            fast: None,
+        }
+        .with_kernel(kernel)
+    }
+
+    /// The same model running `kernel` (`Auto`: the best this CPU supports). Errors if the CPU
+    /// does not support the kernel. Packs the weights for it once.
+    pub fn with_kernel(mut self, kernel: Kernel) -> Result<Self> {
+        let kernel = kernel.resolve()?;
+        self.fast = Isa::for_kernel(kernel).map(|isa| FastModel::new(isa, &self));
+        self.kernel = kernel;
+        Ok(self)
+    }
+
+    /// The kernel this model runs (never `Auto`).
+    pub fn kernel(&self) -> Kernel {
+        self.kernel
     }
 
     // ----------------------------------------------------------------------------- accessors
@@ -389,8 +469,11 @@ impl Denoiser {
         validate::finite_where("observed", observed, &prepared.mask, 1.0, b * n, &shape)?;
         crate::error::check_len("out", out.len(), b * n, &shape)?;
         self.check_step(step)?;
-        if workspace.length != l || workspace.dims != (k, self.config.model.channels) {
-            *workspace = Workspace::new(self, l);
+        if workspace.length != l
+            || workspace.dims != (k, self.config.model.channels)
+            || workspace.fast.is_empty() != self.fast.is_none()
+        {
+            *workspace = Workspace::with_threads(self, l, workspace.fast.len().max(1));
         }
         for (((nz, ob), m), o) in noisy
             .chunks_exact(n)
@@ -429,6 +512,9 @@ impl Denoiser {
         out: &mut [f32],
         ws: &mut Workspace,
     ) {
+        if let Some(fast) = &self.fast {
+            return self.forward_sequence_fast(fast, tables, mask, noisy, observed, step, out, ws);
+        }
         let m = &self.config.model;
         let (k, l, c) = (m.num_features, tables.length, m.channels);
         let n = k * l;
@@ -512,6 +598,111 @@ impl Denoiser {
         map_inplace(skip, |v| v / sqrt_layers);
         self.output_projection1.forward(skip, y);
         map_inplace(y, relu);
+        self.output_projection2.forward(y, &mut out[..n]);
+    }
+}
+
+impl Denoiser {
+    /// [`Denoiser::forward_sequence`] on the SIMD kernels.
+    #[allow(clippy::too_many_arguments)]
+    fn forward_sequence_fast(
+        &self,
+        fast: &FastModel,
+        tables: &CondTables,
+        mask: &[f32],
+        noisy: &[f32],
+        observed: &[f32],
+        step: usize,
+        out: &mut [f32],
+        ws: &mut Workspace,
+    ) {
+        let m = &self.config.model;
+        let (k, l, c) = (m.num_features, tables.length, m.channels);
+        let n = k * l;
+        let num_layers = self.layers.len();
+        let isa = fast.isa;
+        let Workspace {
+            h,
+            y,
+            z,
+            skip,
+            fast: scratch,
+            ..
+        } = ws;
+        let parts = scratch.len();
+
+        let inp = &mut z[..2 * n];
+        for (((pair, &mv), &ov), &nv) in inp.chunks_exact_mut(2).zip(mask).zip(observed).zip(noisy) {
+            pair[0] = if mv == 0.0 { 0.0 } else { mv * ov };
+            pair[1] = if mv == 1.0 { 0.0 } else { (1.0 - mv) * nv };
+        }
+        kernels::gemm(isa, inp, 2, n, &fast.input, h, c, Epilogue::Relu);
+        skip.fill(0.0);
+        let bias = |i: usize| {
+            let off = (step * num_layers + i) * c;
+            &self.step_bias[off..off + c]
+        };
+        if num_layers > 0 {
+            let dp = bias(0);
+            for (yr, hr) in y.chunks_exact_mut(c).zip(h.chunks_exact(c)) {
+                for ((yv, hv), dv) in yr.iter_mut().zip(hr).zip(dp) {
+                    *yv = hv + dv;
+                }
+            }
+        }
+        for (i, (layer, block)) in self.layers.iter().zip(&fast.blocks).enumerate() {
+            if l > 1 {
+                let layout = SeqLayout {
+                    num_seq: k,
+                    seq_len: l,
+                    seq_stride: l * c,
+                    tok_stride: c,
+                };
+                kernels::encoder_par(isa, &block.time, y, layout, scratch);
+            }
+            if k > 1 {
+                let layout = SeqLayout {
+                    num_seq: l,
+                    seq_len: k,
+                    seq_stride: c,
+                    tok_stride: l * c,
+                };
+                kernels::encoder_par(isa, &block.feature, y, layout, scratch);
+            }
+            let inputs = TailInputs {
+                mid: &block.mid,
+                out: &block.out,
+                mask,
+                time_tab: &tables.time[i],
+                cond_feature: &layer.cond_feature,
+                cond_mask: &layer.cond_mask,
+                next_bias: (i + 1 < num_layers).then(|| bias(i + 1)),
+            };
+            if parts <= 1 {
+                kernels::block_tail(isa, &inputs, 0, l, c, y, h, skip, &mut scratch[0]);
+            } else {
+                // Contiguous coordinate ranges per worker.
+                let per = k.div_ceil(parts) * l * c;
+                y.par_chunks_mut(per)
+                    .zip(h.par_chunks_mut(per))
+                    .zip(skip.par_chunks_mut(per))
+                    .zip(scratch.par_iter_mut())
+                    .enumerate()
+                    .for_each(|(p, (((yc, hc), sk), sc))| {
+                        kernels::block_tail(isa, &inputs, p * (per / (l * c)), l, c, yc, hc, sk, sc);
+                    });
+            }
+        }
+        let sqrt_layers = (num_layers as f64).sqrt() as f32;
+        map_inplace(skip, |v| v / sqrt_layers);
+        if parts <= 1 {
+            kernels::gemm(isa, skip, c, n, &fast.out1, y, c, Epilogue::Relu);
+        } else {
+            let per = k.div_ceil(parts) * l * c;
+            skip.par_chunks(per).zip(y.par_chunks_mut(per)).for_each(|(s, yc)| {
+                kernels::gemm(isa, s, c, s.len() / c, &fast.out1, yc, c, Epilogue::Relu);
+            });
+        }
         self.output_projection2.forward(y, &mut out[..n]);
     }
 }

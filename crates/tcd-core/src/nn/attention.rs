@@ -20,7 +20,7 @@ impl MultiHeadAttention {
     /// From a packed input projection (C → 3C) and an output projection (C → C).
     pub fn new(in_proj: Linear, out_proj: Linear, num_heads: usize) -> Result<Self> {
         let c = out_proj.out_dim();
-        if num_heads == 0 || c % num_heads != 0 {
+        if num_heads == 0 || !c.is_multiple_of(num_heads) {
             return Err(Error::invalid_input(
                 "num_heads",
                 format!("a positive divisor of the channel count {c}"),
@@ -64,6 +64,16 @@ impl MultiHeadAttention {
     /// Number of heads.
     pub fn num_heads(&self) -> usize {
         self.num_heads
+    }
+
+    /// The packed input projection (C → 3C).
+    pub fn in_proj(&self) -> &Linear {
+        &self.in_proj
+    }
+
+    /// The output projection (C → C).
+    pub fn out_proj(&self) -> &Linear {
+        &self.out_proj
     }
 
     /// Attention of one sequence `x` (len × C) into `y` (len × C).

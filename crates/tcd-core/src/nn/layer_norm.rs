@@ -36,6 +36,21 @@ impl LayerNorm {
         Self::new(weight, bias, eps)
     }
 
+    /// The affine weight (dim).
+    pub fn weight(&self) -> &[f32] {
+        &self.weight
+    }
+
+    /// The affine bias (dim).
+    pub fn bias(&self) -> &[f32] {
+        &self.bias
+    }
+
+    /// Epsilon (as f32, the precision it is applied in).
+    pub fn eps(&self) -> f32 {
+        self.eps
+    }
+
     /// Normalises every row of `x` (rows × dim) in place:
     /// `y = (x − mean) / sqrt(var + eps) · weight + bias`, var biased (divided by dim).
     pub fn forward_inplace(&self, x: &mut [f32]) {

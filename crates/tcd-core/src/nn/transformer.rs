@@ -87,6 +87,21 @@ impl EncoderLayer {
         self.self_attn.channels()
     }
 
+    /// The self-attention block.
+    pub fn self_attn(&self) -> &MultiHeadAttention {
+        &self.self_attn
+    }
+
+    /// linear1 (C → F) and linear2 (F → C).
+    pub fn feed_forward(&self) -> (&Linear, &Linear) {
+        (&self.linear1, &self.linear2)
+    }
+
+    /// norm1 and norm2.
+    pub fn norms(&self) -> (&LayerNorm, &LayerNorm) {
+        (&self.norm1, &self.norm2)
+    }
+
     /// Runs the layer in place on `x`, a contiguous batch of sequences (num_seq × seq_len × C),
     /// one sequence at a time.
     pub fn forward(&self, x: &mut [f32], seq_len: usize, scratch: &mut EncoderScratch) {

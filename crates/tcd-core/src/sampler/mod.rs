@@ -372,10 +372,13 @@ pub(crate) fn run_job(denoiser: &Denoiser, job: &SampleJob<'_>) -> Vec<f32> {
     let n = denoiser.num_features() * job.length;
     let tables = denoiser.cond_tables(job.length);
     let blocks = job.plan.num_noise_blocks();
-    let chains: Vec<Vec<f32>> = (0..job.num_samples * job.batch)
+    let num_chains = job.num_samples * job.batch;
+    // Fewer chains than threads: split each chain's forward over the idle threads too.
+    let split = (rayon::current_num_threads() / num_chains.max(1)).max(1);
+    let chains: Vec<Vec<f32>> = (0..num_chains)
         .into_par_iter()
         .map_init(
-            || Workspace::new(denoiser, job.length),
+            || Workspace::with_threads(denoiser, job.length, split),
             |ws, c| {
                 let (s, b) = (c / job.batch, c % job.batch);
                 let mut noise = ChainNoise::new(job.noise, job.stage, s, b, blocks, job.batch);

@@ -1,0 +1,67 @@
+//! Median time of one denoiser forward (batch 1) per kernel, prepared tables and workspace reused:
+//!
+//! ```text
+//! cargo run --release --example bench_forward -- WEIGHTS [REPS] [KERNEL ...]
+//! ```
+//! KERNEL: portable, avx2, avx512 (default: every one this CPU supports).
+
+use std::error::Error;
+use std::time::Instant;
+
+use tcd_core::{Denoiser, Kernel, Workspace};
+
+fn main() -> Result<(), Box<dyn Error>> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let path = args.first().ok_or("usage: bench_forward WEIGHTS [REPS] [KERNEL ...]")?;
+    let reps: usize = args.get(1).map(|s| s.parse()).transpose()?.unwrap_or(15);
+    let kernels: Vec<Kernel> = if args.len() > 2 {
+        args[2..].iter().map(|s| s.parse()).collect::<Result<_, _>>()?
+    } else {
+        Kernel::supported()
+    };
+    let base = Denoiser::load(path)?;
+    let (k, l) = (base.num_features(), base.seq_len());
+    let n = k * l;
+    let noisy: Vec<f32> = (0..n).map(|i| ((i * 37 % 101) as f32 / 50.0) - 1.0).collect();
+    let observed: Vec<f32> = (0..n).map(|i| ((i * 53 % 89) as f32 / 89.0) - 0.5).collect();
+    let mask: Vec<f32> = (0..n).map(|i| if i % l < base.obs_len() { 1.0 } else { 0.0 }).collect();
+    let mut reference: Option<Vec<f32>> = None;
+    for kernel in kernels {
+        let d = base.clone().with_kernel(kernel)?;
+        let prepared = d.prepare(&mask, 1, l)?;
+        let mut ws = Workspace::new(&d, l);
+        let mut out = vec![0.0f32; n];
+        d.forward_with_workspace(&prepared, &mut ws, &noisy, &observed, 25, &mut out)?;
+        let diff = reference
+            .as_ref()
+            .map(|r| r.iter().zip(&out).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max));
+        if reference.is_none() {
+            reference = Some(out.clone());
+        }
+        let mut times = Vec::with_capacity(reps);
+        let cpu0 = thread_cpu_ns();
+        for _ in 0..reps {
+            let t0 = Instant::now();
+            d.forward_with_workspace(&prepared, &mut ws, &noisy, &observed, 25, &mut out)?;
+            times.push(t0.elapsed().as_secs_f64() * 1e3);
+        }
+        let cpu_ms = thread_cpu_ns().zip(cpu0).map(|(b, a)| (b - a) as f64 / 1e6 / reps as f64);
+        times.sort_by(|a, b| a.total_cmp(b));
+        println!(
+            "L={l} K={k} kernel={kernel}: median {:.2} ms, min {:.2} ms, this thread's CPU time {:.2} ms/forward, threads {}{}",
+            times[reps / 2],
+            times[0],
+            cpu_ms.unwrap_or(f64::NAN),
+            rayon::current_num_threads(),
+            diff.map(|d| format!(", max |diff| vs first {d:e}")).unwrap_or_default()
+        );
+    }
+    Ok(())
+}
+
+/// CPU time of the calling thread in ns (Linux `/proc/thread-self/schedstat`), if available: a
+/// timing that is robust to other processes competing for the cores.
+fn thread_cpu_ns() -> Option<u64> {
+    let s = std::fs::read_to_string("/proc/thread-self/schedstat").ok()?;
+    s.split_whitespace().next()?.parse().ok()
+}
