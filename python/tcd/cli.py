@@ -76,7 +76,7 @@ def _parser() -> argparse.ArgumentParser:
     dm.add_argument("-o", "--output", metavar="OUT.npz", default="demo.npz", help="output file (default demo.npz)")
     dm.add_argument("--samples", type=int, default=None, metavar="N", help="samples (default 5)")
     dm.add_argument("--steps", type=int, default=None, metavar="S",
-                    help="inference steps (default 20; the paper's DDPM uses all 50)")
+                    help="inference steps (default: all 50 training steps, the paper's DDPM)")
     dm.add_argument("--sampler", default=None, help="ddpm (default), ddim or dpmpp2m (DPM-Solver++(2M))")
     dm.add_argument("--seed", type=int, default=0, help="noise and occlusion seed (default 0)")
     dm.add_argument("--threads", type=int, default=None, metavar="N", help="worker threads (default: all cores)")
