@@ -442,12 +442,23 @@ def test_native_engine_error_mapping(model_dir):
 
 # ------------------------------------------------------------------------------------ loading
 
-def test_load_without_bundled_model_explains():
-    assert not (tcd.default_model_dir() / "short.safetensors").exists()
+def test_load_without_bundled_model_explains(tmp_path, monkeypatch):
+    import tcd.model
+    monkeypatch.setattr(tcd.model, "default_model_dir", lambda: tmp_path)   # an installation without weights
+    monkeypatch.setattr(tcd.model, "_default", None)
     with pytest.raises(FileNotFoundError, match="No default model is bundled"):
         tcd.load()
     with pytest.raises(FileNotFoundError, match="pass a model directory"):
         tcd.forecast(np.zeros((50, 22, 3), np.float32))
+
+
+def test_bundled_model_forecasts():
+    if not (tcd.default_model_dir() / "short.safetensors").is_file():
+        pytest.skip("no bundled model in this build")
+    obs = np.zeros((50, 22, 3), np.float32)
+    f = tcd.forecast(obs, num_samples=1, num_inference_steps=2, sampler="ddim", seed=0)
+    assert f.mean.shape == (25, 22, 3) and np.isfinite(f.mean).all()
+    assert tcd.load().sha256 is not None
 
 
 def test_load_missing_paths(tmp_path, model_dir):
