@@ -47,10 +47,21 @@ def test_info(model_dir, capsys):
     assert info["horizon"] == 25 and info["config"]["long"]["window"]["seq_len"] == 75
 
 
-def test_info_without_bundled_model(capsys):
+def test_info_without_bundled_model(capsys, tmp_path, monkeypatch):
+    import tcd.model
+    monkeypatch.setattr(tcd.model, "default_model_dir", lambda: tmp_path)   # an installation without weights
     code, out, err = run(["info"], capsys)
     assert code == 2 and out == ""
     assert "No default model is bundled" in err
+
+
+def test_info_bundled_model(capsys):
+    import tcd
+    if not (tcd.default_model_dir() / "short.safetensors").is_file():
+        pytest.skip("no bundled model in this build")
+    code, out, err = run(["info"], capsys)
+    assert code == 0, err
+    assert "layers 3" in out and "channels 32" in out
 
 
 def test_forecast_round_trip(model_dir, npz, tmp_path, capsys):

@@ -222,11 +222,23 @@ def plot(res: Dict[str, Any], path: Path, fps: float) -> None:
         from matplotlib.animation import FuncAnimation, PillowWriter
     except ImportError as e:  # pragma: no cover - depends on the environment
         raise ImportError("--plot needs matplotlib: pip install 'tcd-forecast[plot]'") from e
-    names = res["joint_names"]
+    names = list(res["joint_names"])
+    # the pelvis and hips are not model joints (root-relative, rotation removed: they are fixed); add them
+    # at their Human3.6M positions for drawing
+    fixed = {"pelvis": (0.0, 0.0, 0.0), "right_hip": (-0.1329, 0.0, 0.0), "left_hip": (0.1329, 0.0, 0.0)}
+    extra = np.array(list(fixed.values()), dtype=np.float32)
+
+    def with_hips(p):
+        return np.concatenate([p, np.broadcast_to(extra, p.shape[:-2] + extra.shape)], axis=-2)
+
+    names += list(fixed)
     idx = {n: i for i, n in enumerate(names)}
-    bones = [(idx[a], idx[b]) for a, b in BONES if a in idx and b in idx]
-    obs, rep, mask = res["observed"], res["repaired"], res["occlusion_mask"]
-    fut, fc = res["future"], res["forecast_mean"]
+    hip_bones = (("pelvis", "right_hip"), ("right_hip", "right_knee"), ("pelvis", "left_hip"),
+                 ("left_hip", "left_knee"), ("pelvis", "thorax"))
+    bones = [(idx[a], idx[b]) for a, b in BONES + hip_bones if a in idx and b in idx]
+    obs, rep = with_hips(res["observed"]), with_hips(res["repaired"])
+    fut, fc = with_hips(res["future"]), with_hips(res["forecast_mean"])
+    mask = np.concatenate([res["occlusion_mask"], np.ones((len(obs), len(fixed)), np.float32)], axis=1)
     n_obs, h = len(obs), len(fut)
     fig = plt.figure(figsize=(9, 4.5))
     axes = [fig.add_subplot(1, 2, i + 1, projection="3d") for i in range(2)]
@@ -251,7 +263,7 @@ def plot(res: Dict[str, Any], path: Path, fps: float) -> None:
                 axes[0].scatter(rep[i, hid, 0], rep[i, hid, 2], rep[i, hid, 1], color="tab:red", s=12)
             axes[0].set_title(f"repair: frame {i + 1}/{n_obs}\nblue repaired, red = was hidden, grey truth", fontsize=8)
             draw(axes[1], obs[i], "0.3")
-            axes[1].set_title("observed", fontsize=8)
+            axes[1].set_title("clean observation (ground truth)", fontsize=8)
         else:
             k = i - n_obs
             draw(axes[1], fut[k], "0.6", "--")
