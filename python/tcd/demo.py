@@ -35,7 +35,7 @@ CLIP_PATH = Path(__file__).resolve().parent / "data" / "demo_walking.npz"
 HORIZONS_MS = (80, 160, 320, 400, 560, 720, 880, 1000)
 
 # Demo defaults: the paper's sampler (DDPM over all 50 training steps, 5 samples). With the bundled
-# reduced model the whole demo takes about 25 s on a 2-core machine; fewer steps trade accuracy for time
+# reduced model the whole demo took 21 s on a 2-core machine (MODEL_CARD.md); fewer steps trade accuracy for time
 # (README, "Samplers at fewer steps").
 DEFAULT_SAMPLES = 5
 DEFAULT_STEPS: Optional[int] = None
