@@ -146,15 +146,10 @@ def random_init_dir(out: str | Path, preset: str = "tiny", seed: int = 0,
 
 
 def write_checksums(d: str | Path) -> Path:
-    """``SHA256SUMS`` (sha256sum format) for the weight files of a model directory; ``tcd.load`` checks it
-    (and requires it for the bundled model)."""
-    import hashlib
-    d = Path(d)
-    lines = [f"{hashlib.sha256((d / n).read_bytes()).hexdigest()}  {n}\n"
-             for n in (f"{r}.safetensors" for r in ("short", "long", "repair")) if (d / n).is_file()]
-    out = d / "SHA256SUMS"
-    out.write_text("".join(lines))
-    return out
+    """``SHA256SUMS`` for the weight files of a model directory: the file ``tcd.load`` checks (and requires
+    for the bundled model). One implementation, the package's."""
+    from tcd.model import write_checksums as _write  # the built package (installed by the dev set-up)
+    return _write(d)
 
 
 def export_checkpoint(ckpt_path: str | Path, out_dir: str | Path, description: str | None = None) -> Path:

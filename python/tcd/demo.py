@@ -29,6 +29,7 @@ from typing import Any, Dict, List, Optional, Tuple
 
 import numpy as np
 
+from .batch_repair import write_npz_atomic
 from .model import TCD
 
 CLIP_PATH = Path(__file__).resolve().parent / "data" / "demo_walking.npz"
@@ -207,10 +208,8 @@ def save(res: Dict[str, Any], path: Path, model: TCD) -> None:
     meta["model_sha256"] = model.sha256
     arrays = {k: res[k] for k in ("observed", "future", "forecast_mean", "forecast_samples", "occlusion_mask",
                                   "occluded_forecast_mean", "repaired")}
-    tmp = path.with_name(path.name + ".partial")
-    with open(tmp, "wb") as fh:
-        np.savez(fh, joint_names=np.array(res["joint_names"]), summary=np.array(json.dumps(meta)), **arrays)
-    tmp.replace(path)
+    write_npz_atomic(path, True, joint_names=np.array(res["joint_names"]), summary=np.array(json.dumps(meta)),
+                     **arrays)
 
 
 def plot(res: Dict[str, Any], path: Path, fps: float) -> None:
