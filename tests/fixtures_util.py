@@ -11,11 +11,12 @@ import numpy as np
 CONFIG_KEY = "tcd_config"
 
 
-def make_model_dir(out: Path, preset: str = "tiny", seed: int = 0) -> Path:
-    """short.safetensors + long.safetensors (+ model.json) of a seeded random-init model."""
+def make_model_dir(out: Path, preset: str = "tiny", seed: int = 0, repair_cond_fill: str | None = None) -> Path:
+    """short.safetensors + long.safetensors (+ repair.safetensors with ``repair_cond_fill``, + model.json)
+    of a seeded random-init model."""
     from training.export import random_init_dir  # needs torch (a dev dependency)
 
-    return random_init_dir(out, preset=preset, seed=seed)
+    return random_init_dir(out, preset=preset, seed=seed, repair_cond_fill=repair_cond_fill)
 
 
 def read_weights(path: Path) -> tuple[dict, dict]:

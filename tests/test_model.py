@@ -92,3 +92,51 @@ def test_forward_uses_mask_and_ignores_hidden_observations():
     x2[..., :8] += 5.0                         # noisy values under mask 1 are not seen
     assert torch.equal(m(x2, obs2, mask, 10), y)
     assert not torch.allclose(m(x, obs, mask, 11), y)  # the step matters
+
+
+def _np_fill(values, mask):
+    """np.interp per row: the same rule (hold at the ends, zero on a row with nothing observed)."""
+    out = np.zeros_like(values, dtype=np.float64)
+    idx = np.arange(values.shape[-1])
+    for r in np.ndindex(values.shape[:-1]):
+        m = mask[r] > 0.5
+        out[r] = np.interp(idx, idx[m], values[r][m]) if m.any() else 0.0
+    return out
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_linear_fill_matches_np_interp_and_ignores_hidden_values(seed):
+    from training.model import linear_fill
+    rng = np.random.default_rng(seed)
+    x = rng.normal(size=(3, 7, 20)).astype(np.float32)
+    m = (rng.random(x.shape) < [0.0, 0.2, 0.6][seed % 3]).astype(np.float32)
+    m[0, 0] = 0.0
+    m[0, 1] = 0.0
+    m[0, 1, 19] = 1.0           # only the last frame: held backwards
+    m[0, 2] = 0.0
+    m[0, 2, 0] = 1.0            # only the first: held forwards
+    x_nan = np.where(m > 0, x, np.nan).astype(np.float32)
+    got = linear_fill(torch.from_numpy(x_nan), torch.from_numpy(m)).numpy()
+    assert np.isfinite(got).all()
+    np.testing.assert_array_equal(got[m > 0], x[m > 0])        # observed: bit-identical
+    np.testing.assert_allclose(got, _np_fill(x, m), rtol=0, atol=1e-6)
+    assert (got[0, 0] == 0).all() and (got[0, 1] == x[0, 1, 19]).all() and (got[0, 2] == x[0, 2, 0]).all()
+
+
+def test_cond_fill_linear_changes_the_input_and_is_validated():
+    torch.manual_seed(0)
+    zero = TCDModel(ModelConfig(channels=16, num_layers=1, num_heads=2, ffn_dim=16))
+    lin = TCDModel(ModelConfig(channels=16, num_layers=1, num_heads=2, ffn_dim=16, cond_fill="linear"))
+    lin.load_state_dict(zero.state_dict())
+    nn.init.normal_(zero.diffmodel.output_projection2.weight)
+    lin.load_state_dict(zero.state_dict())
+    zero.eval(), lin.eval()
+    K, L = 66, 12
+    noisy, obs = torch.randn(1, K, L), torch.randn(1, K, L)
+    mask = torch.ones(1, K, L)
+    with torch.no_grad():
+        assert torch.equal(zero(noisy, obs, mask, 3), lin(noisy, obs, mask, 3))   # nothing to fill
+        mask[..., 4:8] = 0
+        assert not torch.allclose(zero(noisy, obs, mask, 3), lin(noisy, obs, mask, 3))
+    with pytest.raises(ValueError, match="cond_fill"):
+        ModelConfig.from_dict({"cond_fill": "cubic"})

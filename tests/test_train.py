@@ -42,6 +42,21 @@ def test_make_batch_masks_and_targets():
     assert torch.equal(x0[mask == 1], obs[mask == 1])                 # no noise pattern: visible = clean
 
 
+def test_mask_mix_entries_may_carry_a_rate():
+    wins = np.stack(synthetic_motion(n_seq=64, T=14))
+    hidden = {}
+    for rate in (0.1, 0.9):
+        cfg = tiny_cfg(mask_mix=[["random_joints", 1.0, rate]])
+        _, _, mask = make_batch(cfg, wins, np.random.default_rng(1))
+        hidden[rate] = 1.0 - float(mask[..., :10].mean())
+    assert abs(hidden[0.1] - 0.1) < 0.05 and abs(hidden[0.9] - 0.9) < 0.05, hidden
+    cfg = tiny_cfg(mask_mix=[["random_joints", 1.0, [0.3, 0.5]]])
+    _, _, mask = make_batch(cfg, wins, np.random.default_rng(2))
+    assert 0.25 < 1.0 - float(mask[..., :10].mean()) < 0.55
+    with pytest.raises(ValueError, match="mask_mix entry"):
+        make_batch(tiny_cfg(mask_mix=[["random_joints"]]), wins, np.random.default_rng(0))
+
+
 def test_short_cpu_training_lowers_the_loss(tmp_path):
     seqs = {"train": synthetic_motion(6, seed=0), "val": synthetic_motion(2, seed=1)}
     cfg = tiny_cfg(epochs=2, steps_per_epoch=25, val_every=2)

@@ -16,6 +16,9 @@ from torch import nn
 import torch.nn.functional as F
 
 
+COND_FILLS = ("zero", "linear")
+
+
 @dataclass
 class ModelConfig:
     num_joints: int = 22                # joints in the model layout (Human3.6M: 22)
@@ -29,6 +32,8 @@ class ModelConfig:
     feature_embedding_dim: int = 16     # learned per-coordinate embedding channels
     layer_norm_eps: float = 1e-5        # PyTorch default of nn.TransformerEncoderLayer
     dropout: float = 0.1                # transformer dropout (training only; the reference keeps PyTorch's default)
+    cond_fill: str = "zero"             # what the observed channel holds at masked entries: "zero" (CSDI/TCD)
+                                        # or "linear" (interpolated along time from the observed frames, PriSTI-style)
 
     @property
     def num_features(self) -> int:      # K
@@ -51,6 +56,8 @@ class ModelConfig:
         for derived in ("num_features", "side_dim"):
             if derived in d and d[derived] != getattr(cfg, derived):
                 raise ValueError(f"model config: {derived}={d[derived]} disagrees with the sizes ({getattr(cfg, derived)})")
+        if cfg.cond_fill not in COND_FILLS:
+            raise ValueError(f"model config: cond_fill must be one of {COND_FILLS}, got {cfg.cond_fill!r}")
         if cfg.channels % cfg.num_heads:
             raise ValueError(f"model config: channels={cfg.channels} is not divisible by num_heads={cfg.num_heads}")
         return cfg
@@ -201,8 +208,33 @@ class TCDModel(nn.Module):
         if not torch.is_tensor(step):
             step = torch.tensor([step], device=noisy.device)
         step = step.reshape(-1).to(noisy.device).long()
-        inp = torch.stack([mask * observed, (1 - mask) * noisy], dim=1)                # (B, 2, K, L)
+        cond = mask * observed if self.cfg.cond_fill == "zero" else linear_fill(observed, mask)
+        inp = torch.stack([cond, (1 - mask) * noisy], dim=1)                            # (B, 2, K, L)
         return self.diffmodel(inp, self.side_info(mask), step)
+
+
+def linear_fill(observed: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """(..., L) values and 0/1 mask -> observed entries kept, each masked entry linearly interpolated along
+    the last axis between the nearest observed entries before and after it, held constant before the first
+    and after the last, and 0 on a row with none. Masked entries of ``observed`` are never read (may be NaN).
+
+    In float32 the value is ``a + (b - a) * w`` with ``w = float(l - p) / float(n - p)``, the same operation
+    order as the Rust engine (tcd-core ``fill_linear``), so both give identical bits.
+    """
+    L = observed.shape[-1]
+    obs = mask > 0.5
+    x = torch.where(obs, observed, torch.zeros((), dtype=observed.dtype, device=observed.device))
+    idx = torch.arange(L, device=observed.device).expand_as(x)
+    prev = torch.where(obs, idx, torch.full_like(idx, -1)).cummax(-1).values
+    nxt = torch.where(obs, idx, torch.full_like(idx, L)).flip(-1).cummin(-1).values.flip(-1)
+    has_prev, has_next = prev >= 0, nxt < L
+    a = torch.gather(x, -1, prev.clamp(min=0))
+    b = torch.gather(x, -1, nxt.clamp(max=L - 1))
+    span = (nxt - prev).clamp(min=1).to(x.dtype)
+    w = (idx - prev).to(x.dtype) / span
+    between = a + (b - a) * w
+    out = torch.where(has_prev & has_next, between, torch.where(has_prev, a, torch.where(has_next, b, torch.zeros_like(x))))
+    return torch.where(obs, x, out)
 
 
 def randomize_output_layer(model: TCDModel, seed: int = 0, std: float = 0.02) -> None:

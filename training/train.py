@@ -47,7 +47,7 @@ class TrainConfig:
     val_timesteps: int = 0           # 0 = all T steps (the reference); n > 0: n evenly spaced steps
     val_max_windows: int = 0         # 0 = all validation windows
     steps_per_epoch: int = 0         # 0 = a full pass over the training windows
-    mask_mix: list = field(default_factory=lambda: [["none", 1.0]])  # [[pattern, weight], ...] per window
+    mask_mix: list = field(default_factory=lambda: [["none", 1.0]])  # [[pattern, weight(, rate)], ...] per window
     seed: int = 0
     amp: bool = True                 # bf16 autocast on CUDA
     init_from: str = ""              # warm start: a checkpoint (.pt) whose model weights start this run
@@ -101,6 +101,15 @@ class Windows:
         return np.stack([self.seqs[i][s:s + self.length] for i, s in self.index[rows]]).astype(np.float32)
 
 
+def _mix_rate(entry):
+    """The optional third item of a ``mask_mix`` entry: a rate, or a [low, high] range (random_joints)."""
+    if len(entry) not in (2, 3):
+        raise ValueError(f"mask_mix entry {entry!r}: expected [pattern, weight] or [pattern, weight, rate]")
+    if len(entry) == 2:
+        return None
+    return tuple(entry[2]) if isinstance(entry[2], (list, tuple)) else entry[2]
+
+
 def make_batch(cfg: TrainConfig, wins: np.ndarray, rng: np.random.Generator):
     """Clean windows (B, L, J, 3) -> (x0, observed, mask) tensors (B, K, L).
     Each window draws one pattern of ``mask_mix``; occluded observation entries become targets."""
@@ -109,12 +118,13 @@ def make_batch(cfg: TrainConfig, wins: np.ndarray, rng: np.random.Generator):
     observed = wins.copy()
     jmask = np.zeros((B, L, J), dtype=np.float32)
     jmask[:, :cfg.obs_len] = 1.0
-    patterns = [p for p, _ in cfg.mask_mix]
-    weights = np.asarray([w for _, w in cfg.mask_mix], dtype=np.float64)
+    rates = [_mix_rate(entry) for entry in cfg.mask_mix]
+    patterns = [entry[0] for entry in cfg.mask_mix]
+    weights = np.asarray([entry[1] for entry in cfg.mask_mix], dtype=np.float64)
     choice = rng.choice(len(patterns), size=B, p=weights / weights.sum())
     for b in range(B):
         if patterns[choice[b]] != "none":
-            observed[b], jmask[b] = corrupt(wins[b], patterns[choice[b]], cfg.obs_len, rng)
+            observed[b], jmask[b] = corrupt(wins[b], patterns[choice[b]], cfg.obs_len, rng, rate=rates[choice[b]])
     observed[:, cfg.obs_len:] = 0.0
     def bkl(a):
         return torch.from_numpy(np.ascontiguousarray(a.reshape(B, L, J * 3).transpose(0, 2, 1)))

@@ -38,6 +38,18 @@ impl Role {
     }
 }
 
+/// What the observed input channel holds at masked (mask = 0) entries.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum CondFill {
+    /// Zero, as in CSDI / TCD (`mask · observed`).
+    #[default]
+    Zero,
+    /// Linear interpolation along time between the nearest observed frames of the same coordinate,
+    /// held constant before the first and after the last (PriSTI-style interpolated conditioning).
+    Linear,
+}
+
 /// Sizes of the CSDI denoiser (TCD_REFERENCE.md 1.5).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ModelConfig {
@@ -65,6 +77,9 @@ pub struct ModelConfig {
     pub side_dim: usize,
     /// LayerNorm epsilon of the transformer layers.
     pub layer_norm_eps: f64,
+    /// The observed channel at masked entries (absent in older files: `zero`).
+    #[serde(default)]
+    pub cond_fill: CondFill,
 }
 
 impl ModelConfig {

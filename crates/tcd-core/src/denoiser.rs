@@ -17,7 +17,7 @@ use std::path::{Path, PathBuf};
 
 use rayon::prelude::*;
 
-use crate::config::{Role, TcdConfig};
+use crate::config::{CondFill, Role, TcdConfig};
 use crate::error::{check_positive, Error, Result};
 use crate::kernels::{self, Epilogue, FastEncoder, FastLinear, FastScratch, Isa, Kernel, SeqLayout, TailInputs};
 use crate::nn::activation::{map_inplace, relu, sigmoid, silu};
@@ -531,12 +531,9 @@ impl Denoiser {
             ..
         } = ws;
 
-        // Input: channel 0 = m·x₀, channel 1 = (1−m)·x_t; h = ReLU(input_projection) (N × C).
+        // Input: channel 0 = the observed channel, channel 1 = (1−m)·x_t; h = ReLU(input_projection) (N × C).
         let inp = &mut z[..2 * n];
-        for (((pair, &mv), &ov), &nv) in inp.chunks_exact_mut(2).zip(mask).zip(observed).zip(noisy) {
-            pair[0] = if mv == 0.0 { 0.0 } else { mv * ov };
-            pair[1] = if mv == 1.0 { 0.0 } else { (1.0 - mv) * nv };
-        }
+        build_input(m.cond_fill, l, mask, observed, noisy, inp);
         self.input_projection.forward(inp, h);
         map_inplace(h, relu);
         skip.fill(0.0);
@@ -632,10 +629,7 @@ impl Denoiser {
         let parts = scratch.len();
 
         let inp = &mut z[..2 * n];
-        for (((pair, &mv), &ov), &nv) in inp.chunks_exact_mut(2).zip(mask).zip(observed).zip(noisy) {
-            pair[0] = if mv == 0.0 { 0.0 } else { mv * ov };
-            pair[1] = if mv == 1.0 { 0.0 } else { (1.0 - mv) * nv };
-        }
+        build_input(m.cond_fill, l, mask, observed, noisy, inp);
         kernels::gemm(isa, inp, 2, n, &fast.input, h, c, Epilogue::Relu);
         skip.fill(0.0);
         let bias = |i: usize| {
@@ -732,5 +726,55 @@ mod tests {
         assert_eq!(t[(2 * a + 1) * c + 1], src[(b + 2) * c + 1]);
         transpose_tokens(&t, &mut back, b, a, c);
         assert_eq!(src, back);
+    }
+}
+
+/// The network input of one sequence, interleaved (N × 2) with N = K·L in (k, l) order: channel 0 is
+/// the observed channel (`m · x₀`, or with [`CondFill::Linear`] the observed values linearly
+/// interpolated along time over the masked entries), channel 1 is `(1 − m) · x_t`.
+fn build_input(fill: CondFill, length: usize, mask: &[f32], observed: &[f32], noisy: &[f32], inp: &mut [f32]) {
+    for (((pair, &mv), &ov), &nv) in inp.chunks_exact_mut(2).zip(mask).zip(observed).zip(noisy) {
+        pair[0] = if mv == 0.0 { 0.0 } else { mv * ov };
+        pair[1] = if mv == 1.0 { 0.0 } else { (1.0 - mv) * nv };
+    }
+    if fill == CondFill::Linear {
+        for ((row, m), o) in inp
+            .chunks_exact_mut(2 * length)
+            .zip(mask.chunks_exact(length))
+            .zip(observed.chunks_exact(length))
+        {
+            fill_linear(m, o, |ll, v| row[2 * ll] = v);
+        }
+    }
+}
+
+/// Linear interpolation of one coordinate's row over its masked entries (mask < 0.5): between the
+/// nearest observed entries `p < l < n` the value is `a + (b − a) · ((l − p) / (n − p))` in f32 (the
+/// operation order of the PyTorch reference `training.model.linear_fill`); before the first and after
+/// the last observed entry the nearest one is held; a row with none observed gets 0. `set(l, v)` is
+/// called for every masked entry; observed entries are not touched.
+pub fn fill_linear(mask: &[f32], observed: &[f32], mut set: impl FnMut(usize, f32)) {
+    let seen = |i: usize| mask[i] > 0.5;
+    let mut prev: Option<usize> = None;
+    let mut next = (0..mask.len()).find(|&i| seen(i));
+    for ll in 0..mask.len() {
+        if seen(ll) {
+            prev = Some(ll);
+            continue;
+        }
+        if next.is_some_and(|nx| nx < ll) {
+            next = (ll..mask.len()).find(|&i| seen(i));
+        }
+        let v = match (prev, next) {
+            (Some(p), Some(nx)) => {
+                let (a, b) = (observed[p], observed[nx]);
+                let w = (ll - p) as f32 / (nx - p) as f32;
+                a + (b - a) * w
+            }
+            (Some(p), None) => observed[p],
+            (None, Some(nx)) => observed[nx],
+            (None, None) => 0.0,
+        };
+        set(ll, v);
     }
 }

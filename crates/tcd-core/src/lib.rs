@@ -36,8 +36,8 @@ pub mod threads;
 mod validate;
 pub mod weights;
 
-pub use config::{DataConfig, DiffusionConfig, ModelConfig, Role, TcdConfig, WindowConfig};
-pub use denoiser::{CondTables, Denoiser, Prepared, Workspace};
+pub use config::{CondFill, DataConfig, DiffusionConfig, ModelConfig, Role, TcdConfig, WindowConfig};
+pub use denoiser::{fill_linear, CondTables, Denoiser, Prepared, Workspace};
 pub use error::{Error, Result};
 pub use kernels::{Kernel, KERNEL_ENV};
 pub use forecast::{cascade, repair, CascadeNoise, CascadeOutput, ForecastOptions, RepairOutput};

@@ -207,3 +207,37 @@ fn inconsistent_configs() {
         assert!(e.to_string().contains(field), "{e}");
     }
 }
+
+#[test]
+fn cond_fill_defaults_to_zero_parses_linear_and_rejects_others() {
+    let (cfg, t) = good();
+    let mut v: serde_json::Value = serde_json::from_str(&cfg.to_json()).unwrap();
+    v["model"].as_object_mut().unwrap().remove("cond_fill");
+    let d = load_bytes(&serialize(&t, Some(v.to_string()))).unwrap();
+    assert_eq!(d.config().model.cond_fill, tcd_core::CondFill::Zero);
+    v["model"]["cond_fill"] = serde_json::json!("linear");
+    let d = load_bytes(&serialize(&t, Some(v.to_string()))).unwrap();
+    assert_eq!(d.config().model.cond_fill, tcd_core::CondFill::Linear);
+    v["model"]["cond_fill"] = serde_json::json!("cubic");
+    let e = load_bytes(&serialize(&t, Some(v.to_string()))).unwrap_err();
+    assert!(matches!(e, Error::BadMetadata { .. }), "{e:?}");
+    assert!(e.to_string().contains("cubic"), "{e}");
+}
+
+#[test]
+fn fill_linear_interpolates_holds_the_ends_and_skips_observed() {
+    let nan = f32::NAN;
+    let mask = [0.0, 1.0, 0.0, 0.0, 1.0, 0.0, 0.0];
+    let obs = [nan, 1.0, nan, nan, 4.0, nan, nan];
+    let mut out = obs;
+    let mut touched = Vec::new();
+    tcd_core::fill_linear(&mask, &obs, |l, v| {
+        touched.push(l);
+        out[l] = v;
+    });
+    assert_eq!(touched, vec![0, 2, 3, 5, 6]);
+    assert_eq!(out, [1.0, 1.0, 2.0, 3.0, 4.0, 4.0, 4.0]);
+    let mut none = [9.0f32; 3];
+    tcd_core::fill_linear(&[0.0; 3], &[nan; 3], |l, v| none[l] = v);
+    assert_eq!(none, [0.0; 3]);
+}

@@ -32,6 +32,7 @@ pub fn tiny_config(role: Role, obs_len: usize, pred_len: usize) -> TcdConfig {
             feature_embedding_dim: 4,
             side_dim: 37,
             layer_norm_eps: 1e-5,
+            cond_fill: Default::default(),
         },
         window: WindowConfig {
             obs_len,
