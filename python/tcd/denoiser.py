@@ -117,13 +117,15 @@ class Denoiser:
                                            self.num_train_timesteps)
         return int(self._native.num_noise_blocks(s, n, 0.0, sp))
 
-    def forward(self, noisy: Any, observed: Any, mask: Any, step: int) -> np.ndarray:
+    def forward(self, noisy: Any, observed: Any, mask: Any, step: int, *,
+                threads: Optional[int] = None) -> np.ndarray:
         """ε̂ = net(noisy, observed, mask, step): arrays (B, K, L) float32, ``step`` in
-        0..num_train_timesteps-1. Returns (B, K, L) float32."""
+        0..num_train_timesteps-1. Returns (B, K, L) float32. ``threads`` (default: all cores) split
+        each sequence's forward across that many threads."""
         step = _checks.integer("step", step, 0, self.num_train_timesteps - 1)
         return self._native.forward(_checks.float32_array("noisy", noisy),
                                     _checks.float32_array("observed", observed),
-                                    _checks.float32_array("mask", mask), step)
+                                    _checks.float32_array("mask", mask), step, threads=_checks.threads(threads))
 
     def sample(self, observed: Any, mask: Any, num_samples: int = 1, *, noise: Any = None,
                seed: Optional[int] = None, first_sequence: int = 0, sampler: str = "ddpm",

@@ -376,6 +376,7 @@ impl PyDenoiser {
     }
 
     /// ε̂ = net(noisy, observed, mask, step); all arrays (B, K, L) float32.
+    #[pyo3(signature = (noisy, observed, mask, step, *, threads=None))]
     fn forward<'py>(
         &self,
         py: Python<'py>,
@@ -383,7 +384,9 @@ impl PyDenoiser {
         observed: PyReadonlyArrayDyn<'py, f32>,
         mask: PyReadonlyArrayDyn<'py, f32>,
         step: i64,
+        threads: Option<i64>,
     ) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
+        let threads = threads_arg(threads).map_err(PyTcdError)?;
         let k = self.inner.num_features();
         let (noisy, observed, mask) = (
             Array::from_numpy(&noisy),
@@ -411,17 +414,19 @@ impl PyDenoiser {
         let model = Arc::clone(&self.inner);
         let out = py
             .detach(move || -> CoreResult<Vec<f32>> {
-                let mut out = vec![0.0f32; noisy.data.len()];
-                model.forward(
-                    &noisy.data,
-                    &observed.data,
-                    &mask.data,
-                    b,
-                    l,
-                    step,
-                    &mut out,
-                )?;
-                Ok(out)
+                with_threads(threads, || {
+                    let mut out = vec![0.0f32; noisy.data.len()];
+                    model.forward(
+                        &noisy.data,
+                        &observed.data,
+                        &mask.data,
+                        b,
+                        l,
+                        step,
+                        &mut out,
+                    )?;
+                    Ok(out)
+                })?
             })
             .map_err(PyTcdError)?;
         to_numpy(py, &shape, out)
