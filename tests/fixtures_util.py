@@ -11,12 +11,12 @@ import numpy as np
 CONFIG_KEY = "tcd_config"
 
 
-def make_model_dir(out: Path, preset: str = "tiny", seed: int = 0, repair_cond_fill: str | None = None) -> Path:
-    """short.safetensors + long.safetensors (+ repair.safetensors with ``repair_cond_fill``, + model.json)
-    of a seeded random-init model."""
+def make_model_dir(out: Path, preset: str = "tiny", seed: int = 0, repair: dict | None = None) -> Path:
+    """short.safetensors + long.safetensors (+ repair.safetensors with the model-config overrides
+    ``repair``, + model.json) of a seeded random-init model."""
     from training.export import random_init_dir  # needs torch (a dev dependency)
 
-    return random_init_dir(out, preset=preset, seed=seed, repair_cond_fill=repair_cond_fill)
+    return random_init_dir(out, preset=preset, seed=seed, repair=repair)
 
 
 def read_weights(path: Path) -> tuple[dict, dict]:

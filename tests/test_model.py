@@ -140,3 +140,31 @@ def test_cond_fill_linear_changes_the_input_and_is_validated():
         assert not torch.allclose(zero(noisy, obs, mask, 3), lin(noisy, obs, mask, 3))
     with pytest.raises(ValueError, match="cond_fill"):
         ModelConfig.from_dict({"cond_fill": "cubic"})
+
+
+def test_linear_residual_target_round_trips_and_is_validated():
+    from training import diffusion as D
+    from training.model import from_target, linear_fill, to_target
+    cfg = ModelConfig(channels=16, num_layers=1, num_heads=2, ffn_dim=16, cond_fill="linear",
+                      target="linear_residual", target_scale=5.0)
+    torch.manual_seed(1)
+    x0 = torch.randn(2, 66, 12)
+    mask = (torch.rand(2, 66, 12) > 0.4).float()
+    r = to_target(cfg, x0, x0, mask)
+    assert torch.equal(r[mask > 0], torch.zeros_like(r[mask > 0]))      # observed entries: no residual
+    torch.testing.assert_close(r, (x0 - linear_fill(x0, mask)) * 5.0)
+    torch.testing.assert_close(from_target(cfg, r, x0, mask), x0, rtol=0, atol=1e-6)
+    absolute = ModelConfig(channels=16, num_layers=1, num_heads=2, ffn_dim=16)
+    assert to_target(absolute, x0, x0, mask) is x0 and from_target(absolute, r, x0, mask) is r
+    # the training loss noises the residual: with a model that reads its noisy input back, eps-hat = x_t
+    # differs between the targets exactly by how q_sample moved the data
+    model = TCDModel(cfg).eval()
+    sched = D.Schedule(D.DiffusionConfig())
+    t, eps = torch.full((2,), 49), torch.randn(2, 66, 12)
+    seen = {}
+    model.forward = lambda xt, obs, m, step: seen.setdefault("xt", xt) * 0
+    D.training_loss(model, sched, x0, mask, t=t, eps=eps)
+    torch.testing.assert_close(seen["xt"], D.q_sample(sched, r, t, eps))
+    for bad in ({"target": "residual"}, {"target_scale": 0.0}, {"target_scale": float("nan")}):
+        with pytest.raises(ValueError, match="target"):
+            ModelConfig.from_dict(bad)

@@ -8,6 +8,10 @@ and ``noise[i + 1]`` is the z used at step i (ignored where the step adds no noi
 num_steps + 1 blocks; dpmpp2m (DPM-Solver++(2M), deterministic) consumes no per-step noise and takes one
 block, x_T. Another implementation fed the same array must produce the same numbers. Without ``noise``
 a ``torch.Generator`` (or the global RNG) draws it in the same layout.
+
+Target. A model whose config says ``target="linear_residual"`` diffuses ``target_scale * (x0 -
+linear_fill(observed, mask))`` instead of x0 (training.model.to_target); samplers map the final x back
+(from_target) before merging the observation. ``target="absolute"`` (TCD) diffuses x0.
 """
 from __future__ import annotations
 
@@ -16,6 +20,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 import torch
+
+from .model import from_target, to_target
 
 SCHEDULES = ("cosine", "linear", "quad")
 SPACINGS = ("leading", "trailing", "linspace")
@@ -106,8 +112,9 @@ def training_loss(model, sched: Schedule, x0: torch.Tensor, mask: torch.Tensor,
         t = torch.randint(0, sched.T, (B,), generator=generator, device="cpu").to(x0.device)
     if eps is None:
         eps = torch.randn(x0.shape, generator=generator, device="cpu").to(x0.device)
-    xt = q_sample(sched, x0, t, eps)
-    eps_hat = model(xt, x0 if observed is None else observed, mask, t)
+    observed = x0 if observed is None else observed
+    xt = q_sample(sched, _to_target(model, x0, observed, mask), t, eps)
+    eps_hat = model(xt, observed, mask, t)
     return masked_eps_loss(eps, eps_hat, mask)
 
 
@@ -255,7 +262,18 @@ def sample(model, sched: Schedule, observed: torch.Tensor, mask: torch.Tensor, *
             x = math.sqrt(a_next) * x0_hat + dir_coef * eps
             if sigma > 0:
                 x = x + sigma * noise[i + 1]
+    x = _from_target(model, x, observed, mask)
     return x * (1 - mask) + observed * mask
+
+
+def _to_target(model, x0, observed, mask):
+    cfg = getattr(model, "cfg", None)
+    return x0 if cfg is None else to_target(cfg, x0, observed, mask)
+
+
+def _from_target(model, x, observed, mask):
+    cfg = getattr(model, "cfg", None)
+    return x if cfg is None else from_target(cfg, x, observed, mask)
 
 
 def sample_many(model, sched: Schedule, observed: torch.Tensor, mask: torch.Tensor, num_samples: int,

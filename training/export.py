@@ -128,18 +128,19 @@ def write_model_json(d: Path) -> None:
 
 
 def random_init_dir(out: str | Path, preset: str = "tiny", seed: int = 0,
-                    diff_cfg: DiffusionConfig | None = None, repair_cond_fill: str | None = None) -> Path:
+                    diff_cfg: DiffusionConfig | None = None, repair: dict | None = None) -> Path:
     """Seeded random-init short and long models (the last conv gets a small random weight, so that
-    outputs are non-trivial): fixtures for parity tests and benchmarks. With ``repair_cond_fill`` a
-    repair model (50 + 0 frames) with that ``cond_fill`` is written too."""
+    outputs are non-trivial): fixtures for parity tests and benchmarks. With ``repair`` (model-config
+    overrides, e.g. ``{"cond_fill": "linear"}``; ``{}`` for the preset as it is) a repair model
+    (50 + 0 frames) is written too."""
     d = Path(out)
     diff_cfg = diff_cfg or DiffusionConfig()
-    roles = ("short", "long") + (("repair",) if repair_cond_fill else ())
+    roles = ("short", "long") + (("repair",) if repair is not None else ())
     for i, role in enumerate(roles):
         torch.manual_seed(seed * 1000 + i)
         mcfg = PRESETS[preset]
         if role == "repair":
-            mcfg = ModelConfig.from_dict({**mcfg.to_dict(), "cond_fill": repair_cond_fill})
+            mcfg = ModelConfig.from_dict({**mcfg.to_dict(), **repair})
         model = TCDModel(mcfg, diff_cfg.num_train_timesteps)
         randomize_output_layer(model, seed=seed * 1000 + i)
         obs, pred = WINDOWS[role]

@@ -17,6 +17,7 @@ import torch.nn.functional as F
 
 
 COND_FILLS = ("zero", "linear")
+TARGETS = ("absolute", "linear_residual")
 
 
 @dataclass
@@ -34,6 +35,9 @@ class ModelConfig:
     dropout: float = 0.1                # transformer dropout (training only; the reference keeps PyTorch's default)
     cond_fill: str = "zero"             # what the observed channel holds at masked entries: "zero" (CSDI/TCD)
                                         # or "linear" (interpolated along time from the observed frames, PriSTI-style)
+    target: str = "absolute"            # what the diffusion generates: "absolute" (the poses, TCD) or
+                                        # "linear_residual": target_scale * (poses - linear_fill(observed, mask))
+    target_scale: float = 1.0           # multiplier of the residual (brings it to the scale of the data)
 
     @property
     def num_features(self) -> int:      # K
@@ -58,6 +62,10 @@ class ModelConfig:
                 raise ValueError(f"model config: {derived}={d[derived]} disagrees with the sizes ({getattr(cfg, derived)})")
         if cfg.cond_fill not in COND_FILLS:
             raise ValueError(f"model config: cond_fill must be one of {COND_FILLS}, got {cfg.cond_fill!r}")
+        if cfg.target not in TARGETS:
+            raise ValueError(f"model config: target must be one of {TARGETS}, got {cfg.target!r}")
+        if not (isinstance(cfg.target_scale, (int, float)) and math.isfinite(cfg.target_scale) and cfg.target_scale > 0):
+            raise ValueError(f"model config: target_scale must be a finite number > 0, got {cfg.target_scale!r}")
         if cfg.channels % cfg.num_heads:
             raise ValueError(f"model config: channels={cfg.channels} is not divisible by num_heads={cfg.num_heads}")
         return cfg
@@ -235,6 +243,22 @@ def linear_fill(observed: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     between = a + (b - a) * w
     out = torch.where(has_prev & has_next, between, torch.where(has_prev, a, torch.where(has_next, b, torch.zeros_like(x))))
     return torch.where(obs, x, out)
+
+
+def to_target(cfg: ModelConfig, x0: torch.Tensor, observed: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Clean windows -> the variable the diffusion runs on: x0 itself (``target="absolute"``) or
+    ``target_scale * (x0 - linear_fill(observed, mask))`` (``"linear_residual"``)."""
+    if cfg.target == "absolute":
+        return x0
+    return (x0 - linear_fill(observed, mask)) * cfg.target_scale
+
+
+def from_target(cfg: ModelConfig, x: torch.Tensor, observed: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Inverse of :func:`to_target` on a sample: ``linear_fill + x * (1 / target_scale)`` in float32 (the
+    Rust engine's operation order)."""
+    if cfg.target == "absolute":
+        return x
+    return linear_fill(observed, mask) + x * (1.0 / cfg.target_scale)
 
 
 def randomize_output_layer(model: TCDModel, seed: int = 0, std: float = 0.02) -> None:

@@ -50,6 +50,23 @@ pub enum CondFill {
     Linear,
 }
 
+/// The variable the diffusion generates.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Target {
+    /// The poses themselves (TCD).
+    #[default]
+    Absolute,
+    /// `target_scale · (poses − fill_linear(observed, mask))`: the residual over the linear
+    /// interpolation of the observation; a chain's result is mapped back as
+    /// `fill + x · (1 / target_scale)` before the observation is merged.
+    LinearResidual,
+}
+
+fn default_target_scale() -> f64 {
+    1.0
+}
+
 /// Sizes of the CSDI denoiser (TCD_REFERENCE.md 1.5).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ModelConfig {
@@ -80,6 +97,12 @@ pub struct ModelConfig {
     /// The observed channel at masked entries (absent in older files: `zero`).
     #[serde(default)]
     pub cond_fill: CondFill,
+    /// What the diffusion generates (absent in older files: `absolute`).
+    #[serde(default)]
+    pub target: Target,
+    /// Multiplier of the `linear_residual` target (absent: 1).
+    #[serde(default = "default_target_scale")]
+    pub target_scale: f64,
 }
 
 impl ModelConfig {
@@ -204,6 +227,12 @@ impl TcdConfig {
                     m.num_joints * m.coords,
                     m.num_features
                 ),
+            ));
+        }
+        if !(m.target_scale.is_finite() && m.target_scale > 0.0) {
+            return Err(bad(
+                "model.target_scale",
+                format!("must be a finite number > 0, but is {}", m.target_scale),
             ));
         }
         if !m.channels.is_multiple_of(m.num_heads) {

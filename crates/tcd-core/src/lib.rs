@@ -36,7 +36,7 @@ pub mod threads;
 mod validate;
 pub mod weights;
 
-pub use config::{CondFill, DataConfig, DiffusionConfig, ModelConfig, Role, TcdConfig, WindowConfig};
+pub use config::{CondFill, DataConfig, DiffusionConfig, ModelConfig, Role, Target, TcdConfig, WindowConfig};
 pub use denoiser::{fill_linear, CondTables, Denoiser, Prepared, Workspace};
 pub use error::{Error, Result};
 pub use kernels::{Kernel, KERNEL_ENV};

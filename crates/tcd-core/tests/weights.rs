@@ -198,6 +198,8 @@ fn inconsistent_configs() {
         ("diffusion.prediction_type", Box::new(|c| c.diffusion.prediction_type = "v_prediction".into())),
         ("diffusion.variance_type", Box::new(|c| c.diffusion.variance_type = "learned".into())),
         ("model.layer_norm_eps", Box::new(|c| c.model.layer_norm_eps = 0.0)),
+        ("model.target_scale", Box::new(|c| c.model.target_scale = 0.0)),
+        ("model.target_scale", Box::new(|c| c.model.target_scale = -5.0)),
     ];
     for (field, edit) in cases {
         let mut c = cfg.clone();
@@ -222,6 +224,26 @@ fn cond_fill_defaults_to_zero_parses_linear_and_rejects_others() {
     let e = load_bytes(&serialize(&t, Some(v.to_string()))).unwrap_err();
     assert!(matches!(e, Error::BadMetadata { .. }), "{e:?}");
     assert!(e.to_string().contains("cubic"), "{e}");
+}
+
+#[test]
+fn target_defaults_to_absolute_parses_linear_residual_and_rejects_others() {
+    let (cfg, t) = good();
+    let mut v: serde_json::Value = serde_json::from_str(&cfg.to_json()).unwrap();
+    v["model"].as_object_mut().unwrap().remove("target");
+    v["model"].as_object_mut().unwrap().remove("target_scale");
+    let d = load_bytes(&serialize(&t, Some(v.to_string()))).unwrap();
+    assert_eq!(d.config().model.target, tcd_core::Target::Absolute);
+    assert_eq!(d.config().model.target_scale, 1.0);
+    v["model"]["target"] = serde_json::json!("linear_residual");
+    v["model"]["target_scale"] = serde_json::json!(5.0);
+    let d = load_bytes(&serialize(&t, Some(v.to_string()))).unwrap();
+    assert_eq!(d.config().model.target, tcd_core::Target::LinearResidual);
+    assert_eq!(d.config().model.target_scale, 5.0);
+    v["model"]["target"] = serde_json::json!("residual");
+    let e = load_bytes(&serialize(&t, Some(v.to_string()))).unwrap_err();
+    assert!(matches!(e, Error::BadMetadata { .. }), "{e:?}");
+    assert!(e.to_string().contains("residual"), "{e}");
 }
 
 #[test]

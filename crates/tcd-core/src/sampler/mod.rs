@@ -13,7 +13,8 @@ use std::str::FromStr;
 
 use rayon::prelude::*;
 
-use crate::denoiser::{CondTables, Denoiser, Workspace};
+use crate::config::Target;
+use crate::denoiser::{fill_linear, CondTables, Denoiser, Workspace};
 use crate::error::{check_len, check_positive, Error, Result};
 use crate::rng::{stage, ChainNoise, Noise};
 use crate::schedule::NoiseSchedule;
@@ -296,6 +297,18 @@ pub(crate) fn run_chain(
             noise.fill(i + 1, &mut z);
         }
         step.apply(&mut x, &eps, &z, &mut prev_x0);
+    }
+    let m = &denoiser.config().model;
+    if m.target == Target::LinearResidual {
+        let inv = (1.0 / m.target_scale) as f32;
+        let length = n / denoiser.num_features();
+        for ((row, mr), or) in x
+            .chunks_exact_mut(length)
+            .zip(mask.chunks_exact(length))
+            .zip(observed.chunks_exact(length))
+        {
+            fill_linear(mr, or, |ll, v| row[ll] = v + row[ll] * inv);
+        }
     }
     merge_observed(&mut x, observed, mask);
     x

@@ -33,6 +33,8 @@ pub fn tiny_config(role: Role, obs_len: usize, pred_len: usize) -> TcdConfig {
             side_dim: 37,
             layer_norm_eps: 1e-5,
             cond_fill: Default::default(),
+            target: Default::default(),
+            target_scale: 1.0,
         },
         window: WindowConfig {
             obs_len,
