@@ -144,6 +144,75 @@ def test_forward_full_size(tmp_path_factory):
     np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-5)
 
 
+# ------------------------------------------------------------------------------- every kernel path
+
+ALL_KERNELS = ["portable", "avx2", "avx512"]
+
+
+def load_kernel(path, kernel, monkeypatch):
+    """The model at ``path`` on one kernel path (``TCD_KERNEL`` is read at load); skips paths this CPU lacks."""
+    if kernel not in tcd.supported_kernels():
+        pytest.skip(f"this CPU cannot run the {kernel} kernels")
+    monkeypatch.setenv("TCD_KERNEL", kernel)
+    den = tcd.Denoiser.load(path)
+    monkeypatch.delenv("TCD_KERNEL")
+    assert den.kernel == kernel
+    return den
+
+
+def test_supported_kernels_and_default():
+    ks = tcd.supported_kernels()
+    assert ks[0] == "portable" and set(ks) <= set(ALL_KERNELS)
+    assert ks == [k for k in ALL_KERNELS if k in ks]
+
+
+@pytest.fixture(scope="module")
+def reduced_dir(tmp_path_factory):
+    """The bundled model's size (3 layers x 32 channels, 4 heads of 8): the shapes the fast kernels tile."""
+    return make_model_dir(tmp_path_factory.mktemp("parity_reduced"), "reduced", seed=8)
+
+
+@pytest.mark.parametrize("kernel", ALL_KERNELS)
+@pytest.mark.parametrize("size", ["tiny", "reduced"])
+def test_forward_every_kernel(tiny_dir, reduced_dir, size, kernel, monkeypatch):
+    """Each kernel path this CPU supports (the portable one forced) against PyTorch, both roles."""
+    d = tiny_dir if size == "tiny" else reduced_dir
+    for role, step in (("short", 3), ("long", 41)):
+        path = d / f"{role}.safetensors"
+        den = load_kernel(path, kernel, monkeypatch)
+        model, _, _ = load_model_file(path)
+        rng = np.random.default_rng(ALL_KERNELS.index(kernel) * 10 + step)
+        b, k, length = 2, den.num_features, den.seq_len
+        noisy = rng.standard_normal((b, k, length)).astype(np.float32)
+        observed = rng.normal(scale=0.3, size=(b, k, length)).astype(np.float32)
+        mask = make_mask("random", rng, b, k, length)
+        got, want = den.forward(noisy, observed, mask, step), torch_forward(model, noisy, observed, mask, step)
+        max_diff(got, want, f"forward {size} {role} kernel={kernel}")
+        np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-5)
+
+
+@pytest.mark.parametrize("kernel", ALL_KERNELS)
+def test_cascade_every_kernel(reduced_dir, kernel, monkeypatch):
+    """A whole DDPM-10 cascade (2 samples) per kernel path, injected noise, against PyTorch."""
+    short = load_kernel(reduced_dir / "short.safetensors", kernel, monkeypatch)
+    long = load_kernel(reduced_dir / "long.safetensors", kernel, monkeypatch)
+    ms, ss, _ = load_model_file(reduced_dir / "short.safetensors")
+    ml, sl, _ = load_model_file(reduced_dir / "long.safetensors")
+    rng = np.random.default_rng(200 + ALL_KERNELS.index(kernel))
+    k, s = short.num_features, 2
+    observed, mask = observation(rng, 1, k, O, O)
+    kw = dict(sampler="ddpm", num_inference_steps=10, timestep_spacing="trailing")
+    ns = rng.standard_normal((s, 11, 1, k, short.seq_len)).astype(np.float32)
+    nl = rng.standard_normal((s, 11, 1, k, long.seq_len)).astype(np.float32)
+    got = tcd.cascade_raw(short, long, observed, mask, num_samples=s, noise_short=ns, noise_long=nl, **kw)
+    want = D.cascade(ms, ss, ml, sl, torch.from_numpy(observed), torch.from_numpy(mask), short_len=short.seq_len,
+                     long_len=long.seq_len, num_samples=s, noise_short=torch.from_numpy(ns),
+                     noise_long=torch.from_numpy(nl), **kw)
+    what = f"cascade reduced kernel={kernel}"
+    assert chain_close(got["short_mean"], want["short_mean"].numpy(), what + " short_mean")
+    assert chain_close(got["samples"], want["samples"].numpy()[..., O:], what + " samples")
+
+
 # ------------------------------------------------------------------------------------ chains
 
 CHAINS = [

@@ -44,6 +44,7 @@ WINDOWS = {"short": (50, 5), "long": (55, 20), "repair": (50, 0)}
 PRESETS = {
     "full": ModelConfig(),
     "tiny": ModelConfig(channels=16, num_layers=2, num_heads=2, ffn_dim=16),
+    "reduced": ModelConfig(channels=32, num_layers=3, num_heads=4, ffn_dim=32),  # the bundled model's size
 }
 
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from . import exceptions
 from ._native import __version__
-from .denoiser import STAGE_LONG, STAGE_SHORT, Denoiser, cascade_raw, repair_raw, seeded_noise
+from .denoiser import STAGE_LONG, STAGE_SHORT, Denoiser, cascade_raw, repair_raw, seeded_noise, supported_kernels
 from .exceptions import InvalidInputError, TcdError, WeightsError
 from .model import TCD, Forecast, default_model_dir, forecast, load, repair
 from .batch_repair import repair_file  # `tcd repair` / offline repair of files of any length (issue 6)
@@ -31,6 +31,7 @@ __all__ = [
     "cascade_raw",
     "repair_raw",
     "seeded_noise",
+    "supported_kernels",
     "STAGE_SHORT",
     "STAGE_LONG",
     "exceptions",

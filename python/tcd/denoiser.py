@@ -19,7 +19,7 @@ import numpy as np
 
 from . import _checks, _native
 
-__all__ = ["Denoiser", "cascade_raw", "repair_raw", "seeded_noise", "STAGE_SHORT", "STAGE_LONG"]
+__all__ = ["Denoiser", "cascade_raw", "repair_raw", "seeded_noise", "supported_kernels", "STAGE_SHORT", "STAGE_LONG"]
 
 PathLike = Union[str, "os.PathLike[str]"]
 
@@ -93,6 +93,12 @@ class Denoiser:
     def seq_len(self) -> int:
         """L = obs_len + pred_len."""
         return self._native.seq_len
+
+    @property
+    def kernel(self) -> str:
+        """The compute kernels in use: ``"portable"``, ``"avx2"`` or ``"avx512"`` (chosen when the file is
+        loaded: ``$TCD_KERNEL``, default the best this CPU supports, see :func:`supported_kernels`)."""
+        return self._native.kernel
 
     @property
     def num_train_timesteps(self) -> int:
@@ -190,6 +196,12 @@ def repair_raw(model: Denoiser, observed: Any, mask: Any, *, num_samples: int = 
         num_samples=num_samples, noise=_noise("noise", noise), seed=_checks.seed(seed),
         first_sequence=_checks.integer("first_sequence", first_sequence, 0, _checks.MAX_SEED),
         sampler=s, num_inference_steps=n, eta=e, timestep_spacing=sp, threads=_checks.threads(threads)))
+
+
+def supported_kernels() -> List[str]:
+    """The kernel paths this CPU can run (``"portable"`` always; ``"avx2"``, ``"avx512"`` where the CPU has
+    them), the best last. ``TCD_KERNEL`` (read when a model is loaded) accepts these and ``"auto"``."""
+    return list(_native.supported_kernels())
 
 
 def seeded_noise(seed: int, stage: int, num_samples: int, num_blocks: int, batch: int, num_features: int,

@@ -307,6 +307,12 @@ impl PyDenoiser {
     fn config_json(&self) -> String {
         self.inner.config_json().to_string()
     }
+    /// The compute kernels this model runs (`portable`, `avx2` or `avx512`; chosen at load from
+    /// `TCD_KERNEL`, default the best the CPU supports).
+    #[getter]
+    fn kernel(&self) -> &'static str {
+        self.inner.kernel().name()
+    }
     #[getter]
     fn role(&self) -> &'static str {
         self.inner.role().as_str()
@@ -746,6 +752,12 @@ fn seeded_noise<'py>(
 }
 
 /// The native module. Private: use the `tcd` package.
+/// The kernel paths this CPU can run, the best last (`TCD_KERNEL` accepts these and `auto`).
+#[pyfunction]
+fn supported_kernels() -> Vec<&'static str> {
+    tcd_core::Kernel::supported().into_iter().map(|k| k.name()).collect()
+}
+
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
@@ -755,5 +767,6 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(cascade, m)?)?;
     m.add_function(wrap_pyfunction!(repair, m)?)?;
     m.add_function(wrap_pyfunction!(seeded_noise, m)?)?;
+    m.add_function(wrap_pyfunction!(supported_kernels, m)?)?;
     Ok(())
 }
