@@ -167,6 +167,40 @@ def versions() -> dict:
     return v
 
 
+NAMES = {"tcd": "tcd", "torch": "PyTorch eager", "ort": "ONNX Runtime", "openvino": "OpenVINO",
+         "compile": "torch.compile"}
+
+
+def markdown(result: dict) -> str:
+    """The README's tables of a result (``--table-from`` prints them from a saved ``--json``)."""
+    rows = result["rows"]
+    peers = [p for p in NAMES if any(p in r["ms"] for r in rows)]
+    head = "| ms per forward | " + " | ".join(f"L = {r['L']}, {r['threads']} thr." for r in rows) + " |"
+    lines = [head, "|---" * (len(rows) + 1) + "|"]
+    for p in peers:
+        cells = []
+        for r in rows:
+            ms = r["ms"].get(p)
+            ratio = r.get("peer_over_tcd", {}).get(p)
+            cells.append("" if ms is None else f"{ms:.1f}" + ("" if ratio is None else f" ({ratio:.2f}×)"))
+        lines.append(f"| {NAMES[p]} | " + " | ".join(cells) + " |")
+    wf = result.get("whole_forecast")
+    if wf:
+        d = wf["ddpm50_x5"]
+        lines += ["", "| whole forecast | tcd (measured) | " + " | ".join(
+            f"{NAMES[k]} (estimated)" for k in sorted(d.get("peers_estimated_seconds", {}))) + " |",
+            "|---" * (2 + len(d.get("peers_estimated_seconds", {}))) + "|",
+            "| DDPM-50 × 5 samples, both stages (s) | " + f"{d['seconds']:.1f} | " + " | ".join(
+                f"{v:.1f}" for _, v in sorted(d.get("peers_estimated_seconds", {}).items())) + " |"]
+        if "ddim10_x1" in wf:
+            lines.append(f"| DDIM-10 × 1 sample (s) | {wf['ddim10_x1']['seconds']:.2f} |"
+                         + " |" * len(d.get("peers_estimated_seconds", {})))
+        lines.append("")
+        lines.append("Peak resident memory of a forecast (fresh process): "
+                     + ", ".join(f"{k} {v['peak_rss_mib']:.0f} MiB" for k, v in wf.items() if "peak_rss_mib" in v) + ".")
+    return "\n".join(lines)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--preset", default="full", choices=["full", "tiny"])
@@ -178,7 +212,12 @@ def main(argv=None) -> int:
     ap.add_argument("--whole-forecast", action="store_true", help="also time TCD.forecast (see the docstring)")
     ap.add_argument("--forecast-reps", type=int, default=3)
     ap.add_argument("--json", default=None)
+    ap.add_argument("--table-from", default=None, metavar="JSON",
+                    help="print the markdown tables of a saved --json result and exit (runs nothing)")
     args = ap.parse_args(argv)
+    if args.table_from:
+        print(markdown(json.loads(Path(args.table_from).read_text())))
+        return 0
     for p in ("ort", "openvino"):
         if p in args.peers:
             try:
@@ -226,6 +265,7 @@ def main(argv=None) -> int:
         for k, v in sorted(est.items()):
             print(f"whole forecast ddpm50_x5: {k} ~{v:.1f} s (estimated, {tmax} threads)")
         result["whole_forecast"] = wf
+    print(markdown(result))
     if args.json:
         Path(args.json).write_text(json.dumps(result, indent=2) + "\n")
     return 0

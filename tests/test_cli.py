@@ -62,6 +62,7 @@ def test_info_bundled_model(capsys):
     code, out, err = run(["info"], capsys)
     assert code == 0, err
     assert "layers 3" in out and "channels 32" in out
+    assert f"kernels: {tcd.supported_kernels()[-1]}" in out
 
 
 def test_forecast_round_trip(model_dir, npz, tmp_path, capsys):

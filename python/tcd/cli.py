@@ -29,6 +29,7 @@ from typing import Any, Dict, List, Optional, Sequence
 import numpy as np
 
 from . import __version__
+from .denoiser import supported_kernels
 from .exceptions import InvalidInputError, TcdError, WeightsError
 from .model import TCD, load
 
@@ -156,7 +157,11 @@ def _info(args: argparse.Namespace) -> int:
         mc, diff = c.get("model", {}), c.get("diffusion", {})
         lines.append(f"{role}: window {d.obs_len} + {d.pred_len} frames, channels {mc.get('channels')}, "
                      f"layers {mc.get('num_layers')}, heads {mc.get('num_heads')}, "
-                     f"T = {d.num_train_timesteps} ({diff.get('beta_schedule')})")
+                     f"T = {d.num_train_timesteps} ({diff.get('beta_schedule')})"
+                     + ("" if mc.get("cond_fill", "zero") == "zero" else f", conditioning {mc['cond_fill']}-filled")
+                     + ("" if mc.get("target", "absolute") == "absolute"
+                        else f", target {mc['target']} (scale {mc.get('target_scale', 1.0):g})"))
+    lines.append(f"kernels: {m.short.kernel} (this CPU supports: {', '.join(supported_kernels())})")
     print("\n".join(lines))
     return EXIT_OK
 
