@@ -50,7 +50,7 @@ class TrainConfig:
     mask_mix: list = field(default_factory=lambda: [["none", 1.0]])  # [[pattern, weight(, rate)], ...] per window
     seed: int = 0
     amp: bool = True                 # bf16 autocast on CUDA
-    init_from: str = ""              # warm start: a checkpoint (.pt) whose model weights start this run
+    init_from: str = ""              # warm start: a checkpoint (.pt) or exported .safetensors whose weights start this run
 
     @classmethod
     def load(cls, path: str | Path) -> "TrainConfig":
@@ -203,9 +203,14 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
         init = Path(cfg.init_from)
         if not init.is_file():
             raise FileNotFoundError(f"init_from: no checkpoint at {init}")
-        ck = torch.load(init, map_location=device, weights_only=False)
-        model.load_state_dict(ck["model"])  # strict: the architecture must match
-        log(f"warm start from {init} (its best validation loss {ck.get('best_val', float('nan')):.4f})")
+        if init.suffix == ".safetensors":  # an exported model (e.g. the bundled python/tcd/weights/short.safetensors)
+            from safetensors.torch import load_file
+            model.load_state_dict(load_file(str(init), device=device))  # strict: the architecture must match
+            log(f"warm start from exported weights {init}")
+        else:
+            ck = torch.load(init, map_location=device, weights_only=False)
+            model.load_state_dict(ck["model"])  # strict: the architecture must match
+            log(f"warm start from {init} (its best validation loss {ck.get('best_val', float('nan')):.4f})")
     log(f"{cfg.role}: {count_parameters(model):,} parameters, {len(train_w):,} training windows, "
         f"{len(val_w):,} validation windows, {steps_per_epoch} steps/epoch x {cfg.epochs} epochs, device {device}")
     use_amp = cfg.amp and device.startswith("cuda")

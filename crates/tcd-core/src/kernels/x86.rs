@@ -37,6 +37,8 @@ pub(crate) trait Simd: Copy {
     unsafe fn sub(a: Self::V, b: Self::V) -> Self::V;
     unsafe fn mul(a: Self::V, b: Self::V) -> Self::V;
     unsafe fn div(a: Self::V, b: Self::V) -> Self::V;
+    /// 1/a to about 1 ulp: the hardware estimate refined by one Newton step (cheaper than `div`).
+    unsafe fn recip(a: Self::V) -> Self::V;
     unsafe fn max(a: Self::V, b: Self::V) -> Self::V;
     unsafe fn min(a: Self::V, b: Self::V) -> Self::V;
     /// a·b + c, one rounding.
@@ -91,6 +93,12 @@ impl Simd for Avx512 {
     #[inline(always)]
     unsafe fn div(a: __m512, b: __m512) -> __m512 {
         _mm512_div_ps(a, b)
+    }
+    #[inline(always)]
+    unsafe fn recip(a: __m512) -> __m512 {
+        // rcp14 (relative error < 2^-14), one Newton step: r + r·(1 − a·r).
+        let r = _mm512_rcp14_ps(a);
+        _mm512_fmadd_ps(r, _mm512_fnmadd_ps(a, r, _mm512_set1_ps(1.0)), r)
     }
     #[inline(always)]
     unsafe fn max(a: __m512, b: __m512) -> __m512 {
@@ -170,6 +178,12 @@ impl Simd for Avx2 {
         _mm256_div_ps(a, b)
     }
     #[inline(always)]
+    unsafe fn recip(a: __m256) -> __m256 {
+        // rcp (relative error < 1.5·2^-12), one Newton step: r + r·(1 − a·r).
+        let r = _mm256_rcp_ps(a);
+        _mm256_fmadd_ps(r, _mm256_fnmadd_ps(a, r, _mm256_set1_ps(1.0)), r)
+    }
+    #[inline(always)]
     unsafe fn max(a: __m256, b: __m256) -> __m256 {
         _mm256_max_ps(a, b)
     }
@@ -236,6 +250,31 @@ unsafe fn exp<S: Simd>(x: S::V) -> S::V {
     }
 }
 
+/// e^x for x ≤ 0 (softmax arguments after the max is subtracted): [`exp`] without the upper clamp.
+#[inline(always)]
+unsafe fn exp_nonpositive<S: Simd>(x: S::V) -> S::V {
+    const LOG2E: f32 = std::f32::consts::LOG2_E;
+    const LN2_HI: f32 = 0.693_359_4;
+    const LN2_LO: f32 = -2.121_944_4e-4;
+    const SHIFTER: f32 = 12_582_912.0;
+    // SAFETY (whole body): vector arithmetic on registers, valid under the caller's ISA.
+    unsafe {
+        let x = S::max(x, S::splat(-87.0));
+        let t = S::fma(x, S::splat(LOG2E), S::splat(SHIFTER));
+        let n = S::sub(t, S::splat(SHIFTER));
+        let r = S::fma(n, S::splat(-LN2_HI), x);
+        let r = S::fma(n, S::splat(-LN2_LO), r);
+        let r2 = S::mul(r, r);
+        // p(r) = c0 + c1 r + ... + c5 r^5 by Estrin's scheme (shorter dependency chain than Horner).
+        let p01 = S::fma(S::splat(1.666_666_5e-1), r, S::splat(0.5));
+        let p23 = S::fma(S::splat(8.333_452e-3), r, S::splat(4.166_579_6e-2));
+        let p45 = S::fma(S::splat(1.987_569_1e-4), r, S::splat(1.398_199_9e-3));
+        let p = S::fma(S::fma(p45, r2, p23), r2, p01);
+        let y = S::add(S::fma(p, r2, r), S::splat(1.0));
+        S::mul(y, S::pow2_from_shifted(t))
+    }
+}
+
 /// erf(z) to ~1.3e-7 absolute: |z| < 1: z·Q(z²) (degree 5); 1 ≤ |z|: 1 − e^(−z²)·P(1/(1 + z/2))
 /// (degree 5), |z| clamped at 4 (erf(4) rounds to 1 in f32). Least-squares fits made for this
 /// engine.
@@ -253,7 +292,7 @@ unsafe fn erf<S: Simd>(z: S::V) -> S::V {
         q = S::fma(q, a2, S::splat(-0.376_120_75));
         q = S::fma(q, a2, S::splat(1.128_379));
         let small = S::mul(a, q);
-        let t = S::div(S::splat(1.0), S::fma(a, S::splat(0.5), S::splat(1.0)));
+        let t = S::recip(S::fma(a, S::splat(0.5), S::splat(1.0)));
         let mut p = S::splat(-0.231_343_9);
         p = S::fma(p, t, S::splat(0.638_257_3));
         p = S::fma(p, t, S::splat(-0.066_290_52));
@@ -283,8 +322,8 @@ unsafe fn gated<S: Simd>(a: S::V, f: S::V) -> S::V {
     // SAFETY: vector arithmetic on registers, valid under the caller's ISA.
     unsafe {
         let one = S::splat(1.0);
-        let sig = S::div(one, S::add(one, exp::<S>(S::sub(S::zero(), a))));
-        let th = S::sub(one, S::div(S::splat(2.0), S::add(one, exp::<S>(S::add(f, f)))));
+        let sig = S::recip(S::add(one, exp::<S>(S::sub(S::zero(), a))));
+        let th = S::fma(S::splat(-2.0), S::recip(S::add(one, exp::<S>(S::add(f, f)))), one);
         S::mul(sig, th)
     }
 }
@@ -404,8 +443,13 @@ unsafe fn gemm<S: Simd>(x: *const f32, ldx: usize, rows: usize, w: &Packed, y: *
 // -------------------------------------------------------------------------- attention
 
 /// Softmax attention of one sequence for head dimension HD: `qkv` (len × 3C, rows [q | k | v]),
-/// `out` (len × C, heads concatenated), `scores` (len × W scratch). W queries per vector: their
-/// scores against each key in one register, max, then exp / sum / P·V in a second pass.
+/// `out` (len × C, heads concatenated), `scores` (len × W scratch). W queries per vector (the
+/// scale folded into them); three passes over the keys, each made of independent work so that
+/// the out-of-order core overlaps the long exp chains instead of waiting on them:
+/// 1. scores against each key (two partial dot products per key, four keys per iteration) and
+///    their running max (two registers);
+/// 2. p = e^(s − max) in place and Σp (two partial sums);
+/// 3. P·V, two accumulator sets (even / odd keys) summed at the end.
 #[inline(always)]
 unsafe fn attention<S: Simd, const HD: usize>(
     qkv: *const f32,
@@ -421,7 +465,7 @@ unsafe fn attention<S: Simd, const HD: usize>(
     unsafe {
         let w = S::W;
         let stride = 3 * c;
-        let scale = S::splat((1.0 / (HD as f64).sqrt()) as f32);
+        let scale = (1.0 / (HD as f64).sqrt()) as f32;
         let mut tmp = [0.0f32; 256];
         let tp = tmp.as_mut_ptr();
         for h in 0..heads {
@@ -431,60 +475,92 @@ unsafe fn attention<S: Simd, const HD: usize>(
                 let nq = w.min(len - q0);
                 for d in 0..HD {
                     for lane in 0..w {
-                        *tp.add(d * w + lane) = if lane < nq { *qkv.add((q0 + lane) * stride + qo + d) } else { 0.0 };
+                        *tp.add(d * w + lane) =
+                            if lane < nq { *qkv.add((q0 + lane) * stride + qo + d) * scale } else { 0.0 };
                     }
                 }
                 let q: [S::V; HD] = std::array::from_fn(|d| S::load(tp.add(d * w)));
-                // Pass 1: scores and their max; two keys per iteration (independent chains).
+                // Pass 1: scores (two partial dot products) and their max.
                 let score = |j: usize| {
                     let kp = qkv.add(j * stride + ko);
-                    let mut s = S::mul(q[0], S::splat(*kp));
-                    for (d, &qd) in q.iter().enumerate().skip(1) {
-                        s = S::fma(qd, S::splat(*kp.add(d)), s);
+                    if HD >= 2 {
+                        let mut a = S::mul(q[0], S::splat(*kp));
+                        let mut b = S::mul(q[1], S::splat(*kp.add(1)));
+                        let mut d = 2;
+                        while d + 2 <= HD {
+                            a = S::fma(q[d], S::splat(*kp.add(d)), a);
+                            b = S::fma(q[d + 1], S::splat(*kp.add(d + 1)), b);
+                            d += 2;
+                        }
+                        if d < HD {
+                            a = S::fma(q[d], S::splat(*kp.add(d)), a);
+                        }
+                        S::add(a, b)
+                    } else {
+                        S::mul(q[0], S::splat(*kp))
                     }
-                    S::mul(s, scale)
                 };
-                let mut m = S::splat(f32::NEG_INFINITY);
+                let mut m0 = S::splat(f32::NEG_INFINITY);
+                let mut m1 = m0;
                 let mut j = 0;
-                while j + 2 <= len {
-                    let (s0, s1) = (score(j), score(j + 1));
+                while j + 4 <= len {
+                    let (s0, s1, s2, s3) = (score(j), score(j + 1), score(j + 2), score(j + 3));
                     S::store(scores.add(j * w), s0);
                     S::store(scores.add((j + 1) * w), s1);
-                    m = S::max(S::max(m, s0), s1);
-                    j += 2;
+                    S::store(scores.add((j + 2) * w), s2);
+                    S::store(scores.add((j + 3) * w), s3);
+                    m0 = S::max(m0, S::max(s0, s2));
+                    m1 = S::max(m1, S::max(s1, s3));
+                    j += 4;
                 }
-                if j < len {
+                while j < len {
                     let s0 = score(j);
                     S::store(scores.add(j * w), s0);
-                    m = S::max(m, s0);
+                    m0 = S::max(m0, s0);
+                    j += 1;
                 }
-                // Pass 2: p = e^(s − max), Σp and P·V; two keys per iteration, accumulated in
-                // key order.
-                let mut sum = S::zero();
-                let mut o = [S::zero(); HD];
+                let m = S::max(m0, m1);
+                // Pass 2: p = e^(s − max) ≤ 1 in place, and Σp.
+                let (mut sum0, mut sum1) = (S::zero(), S::zero());
                 let mut j = 0;
                 while j + 2 <= len {
-                    let p0 = exp::<S>(S::sub(S::load(scores.add(j * w)), m));
-                    let p1 = exp::<S>(S::sub(S::load(scores.add((j + 1) * w)), m));
-                    sum = S::add(S::add(sum, p0), p1);
+                    let p0 = exp_nonpositive::<S>(S::sub(S::load(scores.add(j * w)), m));
+                    let p1 = exp_nonpositive::<S>(S::sub(S::load(scores.add((j + 1) * w)), m));
+                    S::store(scores.add(j * w), p0);
+                    S::store(scores.add((j + 1) * w), p1);
+                    sum0 = S::add(sum0, p0);
+                    sum1 = S::add(sum1, p1);
+                    j += 2;
+                }
+                if j < len {
+                    let p0 = exp_nonpositive::<S>(S::sub(S::load(scores.add(j * w)), m));
+                    S::store(scores.add(j * w), p0);
+                    sum0 = S::add(sum0, p0);
+                }
+                // Pass 3: P·V, even and odd keys in separate accumulators.
+                let mut oa = [S::zero(); HD];
+                let mut ob = [S::zero(); HD];
+                let mut j = 0;
+                while j + 2 <= len {
+                    let (p0, p1) = (S::load(scores.add(j * w)), S::load(scores.add((j + 1) * w)));
                     let vp0 = qkv.add(j * stride + vo);
                     let vp1 = vp0.add(stride);
-                    for (d, od) in o.iter_mut().enumerate() {
-                        *od = S::fma(p1, S::splat(*vp1.add(d)), S::fma(p0, S::splat(*vp0.add(d)), *od));
+                    for d in 0..HD {
+                        oa[d] = S::fma(p0, S::splat(*vp0.add(d)), oa[d]);
+                        ob[d] = S::fma(p1, S::splat(*vp1.add(d)), ob[d]);
                     }
                     j += 2;
                 }
                 if j < len {
-                    let p = exp::<S>(S::sub(S::load(scores.add(j * w)), m));
-                    sum = S::add(sum, p);
-                    let vp = qkv.add(j * stride + vo);
-                    for (d, od) in o.iter_mut().enumerate() {
-                        *od = S::fma(p, S::splat(*vp.add(d)), *od);
+                    let p0 = S::load(scores.add(j * w));
+                    let vp0 = qkv.add(j * stride + vo);
+                    for (d, od) in oa.iter_mut().enumerate() {
+                        *od = S::fma(p0, S::splat(*vp0.add(d)), *od);
                     }
                 }
-                let inv = S::div(S::splat(1.0), sum);
-                for (d, &od) in o.iter().enumerate() {
-                    S::store(tp.add(d * w), S::mul(od, inv));
+                let inv = S::div(S::splat(1.0), S::add(sum0, sum1));
+                for d in 0..HD {
+                    S::store(tp.add(d * w), S::mul(S::add(oa[d], ob[d]), inv));
                 }
                 for lane in 0..nq {
                     let op = out.add((q0 + lane) * c + qo);
@@ -605,7 +681,7 @@ unsafe fn tail<S: Simd>(
 ) {
     let c2 = 2 * c;
     let w = S::W;
-    let sqrt2 = S::splat(std::f64::consts::SQRT_2 as f32);
+    let inv_sqrt2 = S::splat(std::f32::consts::FRAC_1_SQRT_2); // ≤ 1 ulp from PyTorch's division by √2
     // SAFETY (whole body): y, h, skip hold nk × frames × c floats; the tables, mask and
     // scratch sizes were checked by the dispatcher; vector accesses stay below c (resp. 2c)
     // per row, the scalar loops finish the rows.
@@ -647,7 +723,7 @@ unsafe fn tail<S: Simd>(
                 let (hp, sp, yp) = (h.add(o), skip.add(o), y.add(o));
                 let mut i = 0;
                 while i + w <= c {
-                    let hv = S::div(S::add(S::load(hp.add(i)), S::load(z.add(i))), sqrt2);
+                    let hv = S::mul(S::add(S::load(hp.add(i)), S::load(z.add(i))), inv_sqrt2);
                     S::store(hp.add(i), hv);
                     S::store(sp.add(i), S::add(S::load(sp.add(i)), S::load(z.add(c + i))));
                     if let Some(nb) = inp.next_bias {
