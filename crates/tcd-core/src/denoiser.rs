@@ -711,24 +711,6 @@ fn transpose_tokens(src: &[f32], dst: &mut [f32], a: usize, b: usize, c: usize) 
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::transpose_tokens;
-
-    #[test]
-    fn transpose_round_trip() {
-        let (a, b, c) = (3, 4, 2);
-        let src: Vec<f32> = (0..a * b * c).map(|v| v as f32).collect();
-        let mut t = vec![0.0; a * b * c];
-        let mut back = vec![0.0; a * b * c];
-        transpose_tokens(&src, &mut t, a, b, c);
-        // element (ia=1, ib=2, ch=1) goes to (ib=2, ia=1, ch=1)
-        assert_eq!(t[(2 * a + 1) * c + 1], src[(b + 2) * c + 1]);
-        transpose_tokens(&t, &mut back, b, a, c);
-        assert_eq!(src, back);
-    }
-}
-
 /// The network input of one sequence, interleaved (N × 2) with N = K·L in (k, l) order: channel 0 is
 /// the observed channel (`m · x₀`, or with [`CondFill::Linear`] the observed values linearly
 /// interpolated along time over the masked entries), channel 1 is `(1 − m) · x_t`.
@@ -776,5 +758,23 @@ pub fn fill_linear(mask: &[f32], observed: &[f32], mut set: impl FnMut(usize, f3
             (None, None) => 0.0,
         };
         set(ll, v);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::transpose_tokens;
+
+    #[test]
+    fn transpose_round_trip() {
+        let (a, b, c) = (3, 4, 2);
+        let src: Vec<f32> = (0..a * b * c).map(|v| v as f32).collect();
+        let mut t = vec![0.0; a * b * c];
+        let mut back = vec![0.0; a * b * c];
+        transpose_tokens(&src, &mut t, a, b, c);
+        // element (ia=1, ib=2, ch=1) goes to (ib=2, ia=1, ch=1)
+        assert_eq!(t[(2 * a + 1) * c + 1], src[(b + 2) * c + 1]);
+        transpose_tokens(&t, &mut back, b, a, c);
+        assert_eq!(src, back);
     }
 }
