@@ -2,7 +2,7 @@
 
     python benches/steps.py [--model DIR] [--data ../shared/data/h36m] [--windows-per-action N] [--samples N]
                             [--seed S] [--threads N] [--latency-reps R] [--actions A ...] [--only NAME ...]
-                            [--json OUT] [--plot OUT.png]
+                            [--accuracy-from JSON] [--json OUT] [--plot OUT.png]
 
 Configurations (ENGINE.md, "Samplers at fewer steps"): DDPM over all 50 steps (the reference), DDIM at
 50 / 25 / 10 / 5 steps with eta 0 and 1, respaced DDPM at 20 and 10 steps, DPM-Solver++(2M) at 20 and
@@ -35,6 +35,11 @@ cpu40 model (batch of one window, 2 samples): ~21 s for a DDIM-5 forecast, ~280 
 ``--actions walking --only DDIM-5 DPM++2M`` for a check in minutes, and an idle many-core machine for real
 numbers (chains run in parallel over cores). The full protocol is 256 windows per action. Numbers from the
 reduced development model are only a smoke test.
+
+Two phases on a busy machine: the accuracy columns do not depend on timing, so they can be computed while
+the machine does other work (``--latency-reps 0``, e.g. with ``RAYON_NUM_THREADS=1``), and the latency
+measured later on the idle machine with ``--accuracy-from THAT.json`` (same model and ``--samples``; the
+accuracy rows are copied, only the latency pass runs).
 
 Bench-only dependency: matplotlib for ``--plot`` (``pip install tcd-forecast[bench]``).
 """
@@ -182,7 +187,11 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0, help="sampling seed (default 0)")
     ap.add_argument("--mask-seed", type=int, default=0, help="occlusion seed (default 0)")
     ap.add_argument("--threads", type=int, default=None, help="engine threads (default: all cores)")
-    ap.add_argument("--latency-reps", type=int, default=5, help="timed repetitions per configuration (default 5)")
+    ap.add_argument("--latency-reps", type=int, default=5,
+                    help="timed repetitions per configuration (default 5; 0 = accuracy only, no latency pass)")
+    ap.add_argument("--accuracy-from", default=None, metavar="JSON",
+                    help="take the accuracy columns from this earlier --json run (same model, e.g. one made with "
+                         "--latency-reps 0 while the machine was busy) and only measure the latency now")
     ap.add_argument("--actions", nargs="+", default=None, metavar="ACTION",
                     help="only these S5 actions (default: all 13; for quick checks, e.g. walking)")
     ap.add_argument("--only", nargs="+", default=None, metavar="NAME",
@@ -193,8 +202,10 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if not 1 <= args.windows_per_action <= 256:
         ap.error("--windows-per-action must be in 1..256")
-    if args.samples < 1 or args.latency_reps < 1:
-        ap.error("--samples and --latency-reps must be >= 1")
+    if args.samples < 1 or args.latency_reps < 0:
+        ap.error("--samples must be >= 1 and --latency-reps >= 0")
+    if args.accuracy_from and args.latency_reps < 1:
+        ap.error("--accuracy-from measures the latency: --latency-reps must be >= 1")
 
     t_start = time.time()
     model = tcd.load(args.model, threads=args.threads)
@@ -210,17 +221,36 @@ def main(argv=None) -> int:
         ap.error(f"--actions {args.actions} matches no S5 test action")
     n_windows = sum(len(w["obs"]) for w in windows)
 
-    rows = []
-    for i, c in enumerate(cfgs):
-        t0 = time.time()
-        acc = accuracy(args.model, c, windows, args.samples, args.seed)
-        rows.append(dict(c, **acc))
-        print(f"[{i + 1}/{len(cfgs)}] {c['name']}: {time.time() - t0:.0f} s "
-              f"(1000 ms: {acc['mean_of_n']['average'].get('1000', float('nan')):.1f} mm)", file=sys.stderr, flush=True)
-    times = latency(model, cfgs, windows[0]["obs"][0], args.samples, args.latency_reps, args.threads)
-    for r in rows:
-        t = times[r["name"]]
-        r["latency_s"] = {"median": statistics.median(t), "min": min(t), "all": t}
+    rows, accuracy_protocol = [], None
+    if args.accuracy_from:
+        prev = json.loads(Path(args.accuracy_from).read_text())
+        accuracy_protocol = prev["protocol"]
+        if accuracy_protocol.get("model_sha256") != model.sha256:
+            ap.error(f"--accuracy-from {args.accuracy_from} was measured with another model "
+                     f"(sha256 {accuracy_protocol.get('model_sha256')}, this one {model.sha256})")
+        if accuracy_protocol.get("samples") != args.samples:
+            ap.error(f"--accuracy-from {args.accuracy_from} used --samples {accuracy_protocol.get('samples')}")
+        by_name = {r["name"]: r for r in prev["results"]}
+        missing = [c["name"] for c in cfgs if c["name"] not in by_name]
+        if missing:
+            ap.error(f"--accuracy-from {args.accuracy_from} lacks the configurations {missing}")
+        rows = [dict(by_name[c["name"]]) for c in cfgs]
+    else:
+        for i, c in enumerate(cfgs):
+            t0 = time.time()
+            acc = accuracy(args.model, c, windows, args.samples, args.seed)
+            rows.append(dict(c, **acc))
+            print(f"[{i + 1}/{len(cfgs)}] {c['name']}: {time.time() - t0:.0f} s "
+                  f"(1000 ms: {acc['mean_of_n']['average'].get('1000', float('nan')):.1f} mm)", file=sys.stderr,
+                  flush=True)
+    if args.latency_reps:
+        times = latency(model, cfgs, windows[0]["obs"][0], args.samples, args.latency_reps, args.threads)
+        for r in rows:
+            t = times[r["name"]]
+            r["latency_s"] = {"median": statistics.median(t), "min": min(t), "all": t}
+    else:
+        for r in rows:
+            r["latency_s"] = {"median": float("nan"), "min": float("nan"), "all": []}
 
     print(table(rows, args.samples))
     elapsed = time.time() - t_start
@@ -243,14 +273,18 @@ def main(argv=None) -> int:
             "model": str(model.path), "model_sha256": model.sha256,
             "threads": args.threads, "cpu_count": os.cpu_count(), "machine": platform.machine(),
             "platform": platform.platform(), "python": platform.python_version(),
-            "data": args.data, "elapsed_s": elapsed,
+            "data": args.data, "elapsed_s": elapsed, "accuracy_from": args.accuracy_from,
+            "accuracy_protocol": accuracy_protocol,
             "command": " ".join(["python benches/steps.py"] + (argv if argv is not None else sys.argv[1:])),
         },
         "results": rows,
     }
+    if accuracy_protocol:  # the accuracy columns (and so these fields) come from the earlier run
+        for k in ("actions", "windows_per_action", "windows", "seeds", "samples"):
+            out["protocol"][k] = accuracy_protocol.get(k)
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=2) + "\n")
-    if args.plot:
+    if args.plot and args.latency_reps:
         plot(rows, args.plot)
     return 0
 

@@ -1,0 +1,87 @@
+"""The benchmark scripts' own logic: benches/steps.py (accuracy pass, latency pass, the two-phase merge with
+--accuracy-from) and benches/peers.py's markdown tables. Timing values are never asserted."""
+from __future__ import annotations
+
+import importlib.util
+import json
+import math
+import sys
+from pathlib import Path
+
+import pytest
+
+from conftest import H36M_DIR, ROOT, needs_h36m
+from fixtures_util import make_model_dir
+
+
+def load_bench(name: str):
+    spec = importlib.util.spec_from_file_location(f"bench_{name}", ROOT / "benches" / f"{name}.py")
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@pytest.fixture(scope="module")
+def tiny_dir(tmp_path_factory):
+    return make_model_dir(tmp_path_factory.mktemp("bench_model") / "m", preset="tiny", seed=3)
+
+
+@needs_h36m
+def test_steps_two_phases_merge(tiny_dir, tmp_path):
+    """--latency-reps 0 writes accuracy only (latency NaN); --accuracy-from copies those rows unchanged and
+    adds the latency; a JSON of another model, other samples or missing configurations is refused."""
+    steps = load_bench("steps")
+    common = ["--model", str(tiny_dir), "--data", str(H36M_DIR), "--actions", "walking", "--only", "DDIM-5",
+              "--windows-per-action", "1", "--samples", "2"]
+    acc = tmp_path / "acc.json"
+    assert steps.main(common + ["--latency-reps", "0", "--json", str(acc)]) == 0
+    a = json.loads(acc.read_text())
+    assert [r["name"] for r in a["results"]] == ["DDIM-5 eta=0", "DDIM-5 eta=1"]
+    for r in a["results"]:
+        assert math.isnan(r["latency_s"]["median"]) and r["latency_s"]["all"] == []
+        assert math.isfinite(r["mean_of_n"]["average"]["1000"]) and r["repair"]["occluded_entries"] > 0
+
+    merged = tmp_path / "merged.json"
+    assert steps.main(common + ["--latency-reps", "1", "--accuracy-from", str(acc), "--json", str(merged)]) == 0
+    m = json.loads(merged.read_text())
+    for ra, rm in zip(a["results"], m["results"]):
+        assert rm["mean_of_n"] == ra["mean_of_n"] and rm["repair"] == ra["repair"]
+        assert rm["latency_s"]["median"] > 0 and len(rm["latency_s"]["all"]) == 1
+    assert m["protocol"]["accuracy_from"] == str(acc)
+    assert m["protocol"]["windows"] == a["protocol"]["windows"]
+
+    with pytest.raises(SystemExit):  # other --samples than the accuracy run
+        steps.main(common[:-1] + ["3", "--latency-reps", "1", "--accuracy-from", str(acc)])
+    with pytest.raises(SystemExit):  # a configuration the accuracy run lacks
+        steps.main(common[:7] + ["DDPM-10", "--windows-per-action", "1", "--samples", "2", "--latency-reps", "1",
+                                 "--accuracy-from", str(acc)])
+    other = make_model_dir(tmp_path / "other", preset="tiny", seed=4)
+    with pytest.raises(SystemExit):  # another model
+        steps.main(["--model", str(other)] + common[2:] + ["--latency-reps", "1", "--accuracy-from", str(acc)])
+    with pytest.raises(SystemExit):  # nothing to measure
+        steps.main(common + ["--latency-reps", "0", "--accuracy-from", str(acc)])
+
+
+def test_peers_markdown_tables():
+    """The README tables come from a saved result: one column per (L, threads), ratio peer / tcd in brackets,
+    the whole-forecast rows and the peak memory line."""
+    peers = load_bench("peers")
+    result = {"rows": [
+        {"L": 75, "threads": 2, "ms": {"tcd": 50.0, "torch": 200.0, "openvino": 100.0},
+         "peer_over_tcd": {"torch": 4.0, "openvino": 2.0}},
+        {"L": 55, "threads": 2, "ms": {"tcd": 40.0, "torch": 120.0, "openvino": 80.0},
+         "peer_over_tcd": {"torch": 3.0, "openvino": 2.0}}],
+        "whole_forecast": {"ddpm50_x5": {"seconds": 12.5, "peak_rss_mib": 61.0,
+                                         "peers_estimated_seconds": {"torch": 80.0, "openvino": 45.0}},
+                           "ddim10_x1": {"seconds": 0.31, "peak_rss_mib": 40.0}}}
+    md = peers.markdown(result)
+    lines = md.splitlines()
+    assert lines[0] == "| ms per forward | L = 75, 2 thr. | L = 55, 2 thr. |"
+    assert "| tcd | 50.0 | 40.0 |" in lines
+    assert "| PyTorch eager | 200.0 (4.00×) | 120.0 (3.00×) |" in lines
+    assert "| OpenVINO | 100.0 (2.00×) | 80.0 (2.00×) |" in lines
+    assert not any(line.startswith("| ONNX Runtime") for line in lines)  # a peer not in the result
+    assert "| DDPM-50 × 5 samples, both stages (s) | 12.5 | 45.0 | 80.0 |" in lines
+    assert any(line.startswith("| DDIM-10 × 1 sample (s) | 0.31 |") for line in lines)
+    assert lines[-1] == "Peak resident memory of a forecast (fresh process): ddpm50_x5 61 MiB, ddim10_x1 40 MiB."
