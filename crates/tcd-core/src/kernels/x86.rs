@@ -224,48 +224,37 @@ impl Simd for Avx2 {
 
 // ------------------------------------------------------------------------ vector math
 
-/// e^x, x clamped to [−87, 88]: Cody-Waite reduction and the degree-5 polynomial of
-/// [`crate::nn::activation::exp_nonpositive`] (relative error < 3e-7).
+/// e^x, x clamped to [−87, 88] (relative error < 3e-7).
 #[inline(always)]
 unsafe fn exp<S: Simd>(x: S::V) -> S::V {
-    const LOG2E: f32 = std::f32::consts::LOG2_E;
-    const LN2_HI: f32 = 0.693_359_4;
-    const LN2_LO: f32 = -2.121_944_4e-4;
-    const SHIFTER: f32 = 12_582_912.0;
-    // SAFETY (whole body): vector arithmetic on registers, valid under the caller's ISA.
-    unsafe {
-        let x = S::min(S::max(x, S::splat(-87.0)), S::splat(88.0));
-        let t = S::fma(x, S::splat(LOG2E), S::splat(SHIFTER));
-        let n = S::sub(t, S::splat(SHIFTER));
-        let r = S::fma(n, S::splat(-LN2_HI), x);
-        let r = S::fma(n, S::splat(-LN2_LO), r);
-        let mut p = S::splat(1.987_569_1e-4);
-        p = S::fma(p, r, S::splat(1.398_199_9e-3));
-        p = S::fma(p, r, S::splat(8.333_452e-3));
-        p = S::fma(p, r, S::splat(4.166_579_6e-2));
-        p = S::fma(p, r, S::splat(1.666_666_5e-1));
-        p = S::fma(p, r, S::splat(0.5));
-        let y = S::add(S::fma(p, S::mul(r, r), r), S::splat(1.0));
-        S::mul(y, S::pow2_from_shifted(t))
-    }
+    // SAFETY: vector arithmetic on registers, valid under the caller's ISA.
+    unsafe { exp_clamped::<S>(S::min(S::max(x, S::splat(-87.0)), S::splat(88.0))) }
 }
 
-/// e^x for x ≤ 0 (softmax arguments after the max is subtracted): [`exp`] without the upper clamp.
+/// e^x for x ≤ 0 (softmax arguments after the max is subtracted): only the lower clamp.
 #[inline(always)]
 unsafe fn exp_nonpositive<S: Simd>(x: S::V) -> S::V {
+    // SAFETY: vector arithmetic on registers, valid under the caller's ISA.
+    unsafe { exp_clamped::<S>(S::max(x, S::splat(-87.0))) }
+}
+
+/// e^x for x in [−87, 88]: Cody-Waite reduction and the degree-5 polynomial of
+/// [`crate::nn::activation::exp_nonpositive`], evaluated by Estrin's scheme (a shorter dependency
+/// chain than Horner's).
+#[inline(always)]
+unsafe fn exp_clamped<S: Simd>(x: S::V) -> S::V {
     const LOG2E: f32 = std::f32::consts::LOG2_E;
     const LN2_HI: f32 = 0.693_359_4;
     const LN2_LO: f32 = -2.121_944_4e-4;
     const SHIFTER: f32 = 12_582_912.0;
     // SAFETY (whole body): vector arithmetic on registers, valid under the caller's ISA.
     unsafe {
-        let x = S::max(x, S::splat(-87.0));
         let t = S::fma(x, S::splat(LOG2E), S::splat(SHIFTER));
         let n = S::sub(t, S::splat(SHIFTER));
         let r = S::fma(n, S::splat(-LN2_HI), x);
         let r = S::fma(n, S::splat(-LN2_LO), r);
         let r2 = S::mul(r, r);
-        // p(r) = c0 + c1 r + ... + c5 r^5 by Estrin's scheme (shorter dependency chain than Horner).
+        // p(r) = c0 + c1 r + ... + c5 r^5 = (c0 + c1 r) + r²((c2 + c3 r) + r²(c4 + c5 r)).
         let p01 = S::fma(S::splat(1.666_666_5e-1), r, S::splat(0.5));
         let p23 = S::fma(S::splat(8.333_452e-3), r, S::splat(4.166_579_6e-2));
         let p45 = S::fma(S::splat(1.987_569_1e-4), r, S::splat(1.398_199_9e-3));
