@@ -3,12 +3,29 @@
 //! ```text
 //! cargo run --release --example bench_forward -- WEIGHTS [REPS] [KERNEL ...]
 //! ```
-//! KERNEL: portable, avx2, avx512 (default: every one this CPU supports).
+//! KERNEL: portable, avx2, avx512 (default: every one this CPU supports). WEIGHTS may also be
+//! `paper55` / `paper75`: random-init weights of the paper's size (12 layers × 64 channels, K = 66)
+//! for L = 55 / 75, built in-process. `TCD_BENCH_THREADS=N` splits one forward over N threads.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic, dead_code)]
+
+#[path = "../tests/common/mod.rs"]
+mod common;
 
 use std::error::Error;
 use std::time::Instant;
 
-use tcd_core::{Denoiser, Kernel, Workspace};
+use tcd_core::{Denoiser, Kernel, Role, Workspace};
+
+/// Random-init weights of the paper's size for windows of `obs` + `pred` frames.
+fn paper_model(obs: usize, pred: usize) -> Result<Denoiser, Box<dyn Error>> {
+    let mut cfg = common::tiny_config(Role::Long, obs, pred);
+    let m = &mut cfg.model;
+    (m.num_joints, m.num_features, m.channels, m.num_heads, m.ffn_dim, m.num_layers) = (22, 66, 64, 8, 64, 12);
+    (m.diffusion_embedding_dim, m.time_embedding_dim, m.feature_embedding_dim) = (128, 128, 16);
+    m.side_dim = 128 + 16 + 1;
+    let bytes = common::serialize(&common::random_tensors(&cfg, 1), Some(cfg.to_json()));
+    Ok(Denoiser::from_bytes(&bytes, "paper.safetensors")?)
+}
 
 fn main() -> Result<(), Box<dyn Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -19,8 +36,15 @@ fn main() -> Result<(), Box<dyn Error>> {
     } else {
         Kernel::supported()
     };
-    let base = Denoiser::load(path)?;
+    let base = match path.as_str() {
+        "paper55" => paper_model(50, 5)?,
+        "paper75" => paper_model(55, 20)?,
+        _ => Denoiser::load(path)?,
+    };
+    let threads: usize = std::env::var("TCD_BENCH_THREADS").ok().and_then(|v| v.parse().ok()).unwrap_or(1);
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build()?;
     let (k, l) = (base.num_features(), base.seq_len());
+    let step = 25.min(base.num_train_timesteps() - 1);
     let n = k * l;
     let noisy: Vec<f32> = (0..n).map(|i| ((i * 37 % 101) as f32 / 50.0) - 1.0).collect();
     let observed: Vec<f32> = (0..n).map(|i| ((i * 53 % 89) as f32 / 89.0) - 0.5).collect();
@@ -29,9 +53,9 @@ fn main() -> Result<(), Box<dyn Error>> {
     for kernel in kernels {
         let d = base.clone().with_kernel(kernel)?;
         let prepared = d.prepare(&mask, 1, l)?;
-        let mut ws = Workspace::new(&d, l);
+        let mut ws = Workspace::with_threads(&d, l, threads);
         let mut out = vec![0.0f32; n];
-        d.forward_with_workspace(&prepared, &mut ws, &noisy, &observed, 25, &mut out)?;
+        pool.install(|| d.forward_with_workspace(&prepared, &mut ws, &noisy, &observed, step, &mut out))?;
         let diff = reference
             .as_ref()
             .map(|r| r.iter().zip(&out).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max));
@@ -42,7 +66,7 @@ fn main() -> Result<(), Box<dyn Error>> {
         let cpu0 = thread_cpu_ns();
         for _ in 0..reps {
             let t0 = Instant::now();
-            d.forward_with_workspace(&prepared, &mut ws, &noisy, &observed, 25, &mut out)?;
+            pool.install(|| d.forward_with_workspace(&prepared, &mut ws, &noisy, &observed, step, &mut out))?;
             times.push(t0.elapsed().as_secs_f64() * 1e3);
         }
         let cpu_ms = thread_cpu_ns().zip(cpu0).map(|(b, a)| (b - a) as f64 / 1e6 / reps as f64);
@@ -52,7 +76,7 @@ fn main() -> Result<(), Box<dyn Error>> {
             times[reps / 2],
             times[0],
             cpu_ms.unwrap_or(f64::NAN),
-            rayon::current_num_threads(),
+            threads,
             diff.map(|d| format!(", max |diff| vs first {d:e}")).unwrap_or_default()
         );
     }

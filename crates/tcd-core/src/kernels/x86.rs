@@ -264,6 +264,48 @@ unsafe fn exp_clamped<S: Simd>(x: S::V) -> S::V {
     }
 }
 
+/// [`exp_clamped`] of N independent vectors, step by step in lock-step: the N dependency chains
+/// are interleaved in the instruction stream, so that the core overlaps them instead of waiting
+/// on one chain's latency (the scheduler's window is too small to find that on its own).
+#[inline(always)]
+unsafe fn exp_clamped_n<S: Simd, const N: usize>(x: &mut [S::V; N]) {
+    const LOG2E: f32 = std::f32::consts::LOG2_E;
+    const LN2_HI: f32 = 0.693_359_4;
+    const LN2_LO: f32 = -2.121_944_4e-4;
+    const SHIFTER: f32 = 12_582_912.0;
+    // SAFETY (whole body): vector arithmetic on registers, valid under the caller's ISA.
+    unsafe {
+        let mut t = [S::zero(); N];
+        let mut r = [S::zero(); N];
+        let mut r2 = [S::zero(); N];
+        let mut p = [S::zero(); N];
+        let mut q = [S::zero(); N];
+        for i in 0..N {
+            t[i] = S::fma(x[i], S::splat(LOG2E), S::splat(SHIFTER));
+        }
+        for i in 0..N {
+            let n = S::sub(t[i], S::splat(SHIFTER));
+            r[i] = S::fma(n, S::splat(-LN2_LO), S::fma(n, S::splat(-LN2_HI), x[i]));
+        }
+        for i in 0..N {
+            r2[i] = S::mul(r[i], r[i]);
+            p[i] = S::fma(S::splat(1.987_569_1e-4), r[i], S::splat(1.398_199_9e-3));
+            q[i] = S::fma(S::splat(8.333_452e-3), r[i], S::splat(4.166_579_6e-2));
+        }
+        for i in 0..N {
+            p[i] = S::fma(p[i], r2[i], q[i]);
+            q[i] = S::fma(S::splat(1.666_666_5e-1), r[i], S::splat(0.5));
+        }
+        for i in 0..N {
+            p[i] = S::fma(p[i], r2[i], q[i]);
+        }
+        for i in 0..N {
+            let y = S::add(S::fma(p[i], r2[i], r[i]), S::splat(1.0));
+            x[i] = S::mul(y, S::pow2_from_shifted(t[i]));
+        }
+    }
+}
+
 /// erf(z) to ~1.3e-7 absolute: |z| < 1: z·Q(z²) (degree 5); 1 ≤ |z|: 1 − e^(−z²)·P(1/(1 + z/2))
 /// (degree 5), |z| clamped at 4 (erf(4) rounds to 1 in f32). Least-squares fits made for this
 /// engine.
@@ -492,6 +534,16 @@ unsafe fn attention<S: Simd, const HD: usize>(
                 let mut m0 = S::splat(f32::NEG_INFINITY);
                 let mut m1 = m0;
                 let mut j = 0;
+                // AVX2 has 16 vector registers: HD query vectors plus two keys' partial sums
+                // fit, four keys would spill. AVX-512 (32 registers) takes four keys.
+                while S::W < 16 && HD <= 8 && j + 2 <= len {
+                    let (s0, s1) = (score(j), score(j + 1));
+                    S::store(scores.add(j * w), s0);
+                    S::store(scores.add((j + 1) * w), s1);
+                    m0 = S::max(m0, s0);
+                    m1 = S::max(m1, s1);
+                    j += 2;
+                }
                 while j + 4 <= len {
                     let (s0, s1, s2, s3) = (score(j), score(j + 1), score(j + 2), score(j + 3));
                     S::store(scores.add(j * w), s0);
@@ -512,24 +564,40 @@ unsafe fn attention<S: Simd, const HD: usize>(
                 // Pass 2: p = e^(s − max) ≤ 1 in place, and Σp.
                 let (mut sum0, mut sum1) = (S::zero(), S::zero());
                 let mut j = 0;
-                while j + 2 <= len {
-                    let p0 = exp_nonpositive::<S>(S::sub(S::load(scores.add(j * w)), m));
-                    let p1 = exp_nonpositive::<S>(S::sub(S::load(scores.add((j + 1) * w)), m));
-                    S::store(scores.add(j * w), p0);
-                    S::store(scores.add((j + 1) * w), p1);
-                    sum0 = S::add(sum0, p0);
-                    sum1 = S::add(sum1, p1);
-                    j += 2;
+                while j + 4 <= len {
+                    let lo = S::splat(-87.0);
+                    let mut p = [S::zero(); 4];
+                    for (i, pi) in p.iter_mut().enumerate() {
+                        *pi = S::max(S::sub(S::load(scores.add((j + i) * w)), m), lo);
+                    }
+                    exp_clamped_n::<S, 4>(&mut p);
+                    for (i, &pi) in p.iter().enumerate() {
+                        S::store(scores.add((j + i) * w), pi);
+                    }
+                    sum0 = S::add(sum0, S::add(p[0], p[2]));
+                    sum1 = S::add(sum1, S::add(p[1], p[3]));
+                    j += 4;
                 }
-                if j < len {
+                while j < len {
                     let p0 = exp_nonpositive::<S>(S::sub(S::load(scores.add(j * w)), m));
                     S::store(scores.add(j * w), p0);
                     sum0 = S::add(sum0, p0);
+                    j += 1;
                 }
                 // Pass 3: P·V, even and odd keys in separate accumulators.
                 let mut oa = [S::zero(); HD];
                 let mut ob = [S::zero(); HD];
                 let mut j = 0;
+                // AVX2: one accumulator set (HD ≥ 8 independent FMA chains already cover the
+                // FMA latency; a second set would spill). AVX-512: two sets.
+                while S::W < 16 && HD >= 8 && j < len {
+                    let p0 = S::load(scores.add(j * w));
+                    let vp0 = qkv.add(j * stride + vo);
+                    for (d, od) in oa.iter_mut().enumerate() {
+                        *od = S::fma(p0, S::splat(*vp0.add(d)), *od);
+                    }
+                    j += 1;
+                }
                 while j + 2 <= len {
                     let (p0, p1) = (S::load(scores.add(j * w)), S::load(scores.add((j + 1) * w)));
                     let vp0 = qkv.add(j * stride + vo);
@@ -689,12 +757,21 @@ unsafe fn tail<S: Simd>(
                 let mvs = inp.mask[kk * frames + ll];
                 let mv = S::splat(mvs);
                 let g = gt.add(ll * c);
+                // z + cond at column i (gate) or c + i (filter).
+                let zc = |i: usize| {
+                    S::add(S::load(z.add(i)), S::fma(mv, S::load(cm.add(i)), S::add(S::load(tt.add(i)), S::load(ft.add(i)))))
+                };
                 let mut i = 0;
+                // Two vectors per iteration: independent exp chains for the core to overlap.
+                while i + 2 * w <= c {
+                    let g0 = gated::<S>(zc(i), zc(c + i));
+                    let g1 = gated::<S>(zc(i + w), zc(c + i + w));
+                    S::store(g.add(i), g0);
+                    S::store(g.add(i + w), g1);
+                    i += 2 * w;
+                }
                 while i + w <= c {
-                    let a = S::add(S::load(z.add(i)), S::fma(mv, S::load(cm.add(i)), S::add(S::load(tt.add(i)), S::load(ft.add(i)))));
-                    let j = c + i;
-                    let fl = S::add(S::load(z.add(j)), S::fma(mv, S::load(cm.add(j)), S::add(S::load(tt.add(j)), S::load(ft.add(j)))));
-                    S::store(g.add(i), gated::<S>(a, fl));
+                    S::store(g.add(i), gated::<S>(zc(i), zc(c + i)));
                     i += w;
                 }
                 while i < c {
