@@ -109,13 +109,18 @@ def make_peers(names, model, onnx_path: Path, den, arrays, threads: int, compile
     return fns
 
 
-def time_interleaved(fns: dict, reps: int, warmup: int = 3) -> dict:
+def time_interleaved(fns: dict, reps: int, warmup: int = 3, settle: float = 0.0) -> dict:
+    """Median ms per peer; ``settle`` seconds of sleep before each timed call, so that the worker
+    threads the previous peer leaves spin-waiting (OpenMP, TBB, rayon) have gone to sleep and do not
+    compete with the next peer for the cores."""
     for fn in fns.values():
         for _ in range(warmup):
             fn()
     times = {k: [] for k in fns}
     for _ in range(reps):
         for name, fn in fns.items():
+            if settle > 0:
+                time.sleep(settle)
             t0 = time.perf_counter()
             fn()
             times[name].append(time.perf_counter() - t0)
@@ -155,10 +160,21 @@ def whole_forecast(model_dir: Path, reps: int) -> dict:
     return out
 
 
+def cpu_simd_flags() -> list:
+    """The SIMD flags of /proc/cpuinfo that decide the kernel (empty where it cannot be read)."""
+    try:
+        flags = next(l for l in open("/proc/cpuinfo") if l.startswith("flags")).split(":", 1)[1].split()
+    except (OSError, StopIteration):
+        return []
+    return sorted(f for f in flags if f in {"avx", "avx2", "fma", "avx512f", "avx512_bf16", "avx512bw", "avx512vl"})
+
+
 def versions() -> dict:
     v = {"python": platform.python_version(), "torch": torch.__version__, "tcd": tcd.__version__,
          "cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
-         "tcd_kernel": os.environ.get("TCD_KERNEL", "auto")}
+         "tcd_kernel": os.environ.get("TCD_KERNEL", "auto"),
+         # what auto resolves to here, and the CPU's SIMD flags (a VM may hide AVX-512)
+         "tcd_supported_kernels": tcd.supported_kernels(), "cpu_simd_flags": cpu_simd_flags()}
     for mod in ("onnxruntime", "openvino"):
         try:
             v[mod] = __import__(mod).__version__
@@ -207,6 +223,9 @@ def main(argv=None) -> int:
     ap.add_argument("--lengths", type=int, nargs="+", default=[75, 55])
     ap.add_argument("--threads", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--reps", type=int, default=21)
+    ap.add_argument("--settle", type=float, default=0.3,
+                    help="seconds of sleep before each timed call (spinning worker threads of the previous "
+                         "peer go idle; without it the peer timed next is slowed, up to ~20 %% measured)")
     ap.add_argument("--peers", nargs="+", default=list(ALL_PEERS), choices=ALL_PEERS)
     ap.add_argument("--compile", action="store_true", help="also time torch.compile (inductor; slow to compile)")
     ap.add_argument("--whole-forecast", action="store_true", help="also time TCD.forecast (see the docstring)")
@@ -244,7 +263,7 @@ def main(argv=None) -> int:
                 for name, fn in fns.items():
                     diffs[name] = float(np.abs(fn() - ref).max())
                     np.testing.assert_allclose(fn(), ref, rtol=1e-3, atol=1e-4, err_msg=f"{name} disagrees with torch")
-            med = time_interleaved(fns, args.reps)
+            med = time_interleaved(fns, args.reps, settle=args.settle)
             row = {"L": L, "K": K, "threads": threads, "reps": args.reps, "ms": med, "max_abs_diff_vs_torch": diffs}
             if "tcd" in med:
                 row["peer_over_tcd"] = {k: v / med["tcd"] for k, v in med.items() if k != "tcd"}
@@ -252,7 +271,7 @@ def main(argv=None) -> int:
             print(f"L={L} threads={threads}: " + ", ".join(f"{k} {v:.1f} ms" for k, v in med.items())
                   + ("" if "tcd" not in med else "  | peer/tcd " + ", ".join(
                       f"{k} {v:.2f}" for k, v in row["peer_over_tcd"].items())))
-    result = {"preset": args.preset, "step": STEP, "versions": versions(), "rows": rows}
+    result = {"preset": args.preset, "step": STEP, "settle_s": args.settle, "versions": versions(), "rows": rows}
     if args.whole_forecast:
         tmax = max(args.threads)
         wf = whole_forecast(d, args.forecast_reps)
