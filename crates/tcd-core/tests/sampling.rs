@@ -68,6 +68,28 @@ proptest! {
     }
 }
 
+/// Chains left over after whole rounds (5 chains on 2 or 3 threads, 3 on 2) split their forwards
+/// over the idle threads: still the same bits as on one thread.
+#[test]
+fn leftover_chains_split_over_threads_same_bits() {
+    let m = model();
+    for (batch, num_samples) in [(1usize, 5usize), (1, 3), (3, 1)] {
+        let n = batch * 6 * 9;
+        let observed = values(n, 11, 1.0);
+        let mask = binary_mask(n, 12, 0.4);
+        let run = |threads| {
+            in_pool(threads, || {
+                sample(m, &observed, &mask, batch, 9, num_samples, &SamplerConfig::ddpm(), Noise::seeded(3)).unwrap()
+            })
+        };
+        let bits = |v: Vec<f32>| v.into_iter().map(f32::to_bits).collect::<Vec<_>>();
+        let one = bits(run(1));
+        for threads in [2, 3, 4] {
+            assert_eq!(one, bits(run(threads)), "batch {batch}, samples {num_samples}, threads {threads}");
+        }
+    }
+}
+
 #[test]
 fn same_seed_same_output_different_seed_differs() {
     let m = model();
