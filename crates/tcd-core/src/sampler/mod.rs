@@ -415,8 +415,8 @@ pub(crate) fn run_job(denoiser: &Denoiser, job: &SampleJob<'_>) -> Vec<f32> {
             .collect()
     };
     let mut chains = run(0..whole, 1);
-    if rest > 0 {
-        chains.extend(run(whole..num_chains, (threads / rest).max(1)));
+    if let Some(split) = threads.checked_div(rest) {
+        chains.extend(run(whole..num_chains, split.max(1)));
     }
     chains.concat()
 }
