@@ -473,6 +473,33 @@ unsafe fn gemm<S: Simd>(x: *const f32, ldx: usize, rows: usize, w: &Packed, y: *
 
 // -------------------------------------------------------------------------- attention
 
+/// q · k for the W queries of `q` (one vector per head dimension) and the key at `kp` (HD floats),
+/// in two partial sums. A function, not a closure: a closure is not reliably compiled with the
+/// caller's target features (the HD = 16 one was out of line, in SSE code), an `#[inline(always)]`
+/// function is inlined into the `#[target_feature]` entry point.
+#[inline(always)]
+unsafe fn score_key<S: Simd, const HD: usize>(q: &[S::V; HD], kp: *const f32) -> S::V {
+    // SAFETY (whole body): kp is valid for HD floats (caller).
+    unsafe {
+        if HD >= 2 {
+            let mut a = S::mul(q[0], S::splat(*kp));
+            let mut b = S::mul(q[1], S::splat(*kp.add(1)));
+            let mut d = 2;
+            while d + 2 <= HD {
+                a = S::fma(q[d], S::splat(*kp.add(d)), a);
+                b = S::fma(q[d + 1], S::splat(*kp.add(d + 1)), b);
+                d += 2;
+            }
+            if d < HD {
+                a = S::fma(q[d], S::splat(*kp.add(d)), a);
+            }
+            S::add(a, b)
+        } else {
+            S::mul(q[0], S::splat(*kp))
+        }
+    }
+}
+
 /// Softmax attention of one sequence for head dimension HD: `qkv` (len × 3C, rows [q | k | v]),
 /// `out` (len × C, heads concatenated), `scores` (len × W scratch). W queries per vector (the
 /// scale folded into them); three passes over the keys, each made of independent work so that
@@ -512,32 +539,15 @@ unsafe fn attention<S: Simd, const HD: usize>(
                 }
                 let q: [S::V; HD] = std::array::from_fn(|d| S::load(tp.add(d * w)));
                 // Pass 1: scores (two partial dot products) and their max.
-                let score = |j: usize| {
-                    let kp = qkv.add(j * stride + ko);
-                    if HD >= 2 {
-                        let mut a = S::mul(q[0], S::splat(*kp));
-                        let mut b = S::mul(q[1], S::splat(*kp.add(1)));
-                        let mut d = 2;
-                        while d + 2 <= HD {
-                            a = S::fma(q[d], S::splat(*kp.add(d)), a);
-                            b = S::fma(q[d + 1], S::splat(*kp.add(d + 1)), b);
-                            d += 2;
-                        }
-                        if d < HD {
-                            a = S::fma(q[d], S::splat(*kp.add(d)), a);
-                        }
-                        S::add(a, b)
-                    } else {
-                        S::mul(q[0], S::splat(*kp))
-                    }
-                };
+                let kp = qkv.add(ko);
                 let mut m0 = S::splat(f32::NEG_INFINITY);
                 let mut m1 = m0;
                 let mut j = 0;
                 // AVX2 has 16 vector registers: HD query vectors plus two keys' partial sums
                 // fit, four keys would spill. AVX-512 (32 registers) takes four keys.
                 while S::W < 16 && HD <= 8 && j + 2 <= len {
-                    let (s0, s1) = (score(j), score(j + 1));
+                    let s0 = score_key::<S, HD>(&q, kp.add(j * stride));
+                    let s1 = score_key::<S, HD>(&q, kp.add((j + 1) * stride));
                     S::store(scores.add(j * w), s0);
                     S::store(scores.add((j + 1) * w), s1);
                     m0 = S::max(m0, s0);
@@ -545,7 +555,10 @@ unsafe fn attention<S: Simd, const HD: usize>(
                     j += 2;
                 }
                 while j + 4 <= len {
-                    let (s0, s1, s2, s3) = (score(j), score(j + 1), score(j + 2), score(j + 3));
+                    let s0 = score_key::<S, HD>(&q, kp.add(j * stride));
+                    let s1 = score_key::<S, HD>(&q, kp.add((j + 1) * stride));
+                    let s2 = score_key::<S, HD>(&q, kp.add((j + 2) * stride));
+                    let s3 = score_key::<S, HD>(&q, kp.add((j + 3) * stride));
                     S::store(scores.add(j * w), s0);
                     S::store(scores.add((j + 1) * w), s1);
                     S::store(scores.add((j + 2) * w), s2);
@@ -555,7 +568,7 @@ unsafe fn attention<S: Simd, const HD: usize>(
                     j += 4;
                 }
                 while j < len {
-                    let s0 = score(j);
+                    let s0 = score_key::<S, HD>(&q, kp.add(j * stride));
                     S::store(scores.add(j * w), s0);
                     m0 = S::max(m0, s0);
                     j += 1;
@@ -723,6 +736,14 @@ unsafe fn encoder<S: Simd>(e: &FastEncoder, x: *mut f32, layout: SeqLayout, sc: 
 
 // ------------------------------------------------------------------------ block tail
 
+/// z + (time table + feature table + m · mask column) at column `i` (a function, not a closure:
+/// see [`score_key`]).
+#[inline(always)]
+unsafe fn zc<S: Simd>(z: *const f32, tt: *const f32, ft: *const f32, cm: *const f32, mv: S::V, i: usize) -> S::V {
+    // SAFETY: each pointer is valid for i + W floats (caller).
+    unsafe { S::add(S::load(z.add(i)), S::fma(mv, S::load(cm.add(i)), S::add(S::load(tt.add(i)), S::load(ft.add(i))))) }
+}
+
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 unsafe fn tail<S: Simd>(
@@ -758,20 +779,18 @@ unsafe fn tail<S: Simd>(
                 let mv = S::splat(mvs);
                 let g = gt.add(ll * c);
                 // z + cond at column i (gate) or c + i (filter).
-                let zc = |i: usize| {
-                    S::add(S::load(z.add(i)), S::fma(mv, S::load(cm.add(i)), S::add(S::load(tt.add(i)), S::load(ft.add(i)))))
-                };
                 let mut i = 0;
                 // Two vectors per iteration: independent exp chains for the core to overlap.
                 while i + 2 * w <= c {
-                    let g0 = gated::<S>(zc(i), zc(c + i));
-                    let g1 = gated::<S>(zc(i + w), zc(c + i + w));
+                    let (a0, f0) = (zc::<S>(z, tt, ft, cm, mv, i), zc::<S>(z, tt, ft, cm, mv, c + i));
+                    let (a1, f1) = (zc::<S>(z, tt, ft, cm, mv, i + w), zc::<S>(z, tt, ft, cm, mv, c + i + w));
+                    let (g0, g1) = (gated::<S>(a0, f0), gated::<S>(a1, f1));
                     S::store(g.add(i), g0);
                     S::store(g.add(i + w), g1);
                     i += 2 * w;
                 }
                 while i + w <= c {
-                    S::store(g.add(i), gated::<S>(zc(i), zc(c + i)));
+                    S::store(g.add(i), gated::<S>(zc::<S>(z, tt, ft, cm, mv, i), zc::<S>(z, tt, ft, cm, mv, c + i)));
                     i += w;
                 }
                 while i < c {
