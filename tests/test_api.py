@@ -599,7 +599,8 @@ def test_native_stub_matches_the_module():
 
 def test_bundled_repair_model():
     """The bundled directory carries a dedicated repair model (50 + 0 frames, linear-fill conditioning); it
-    fills an occluded window of the bundled demo clip, observed entries unchanged, within a loose bound."""
+    fills an occluded window of the bundled demo clip, observed entries unchanged, within 1.25 x the error of
+    linear interpolation."""
     if not (tcd.default_model_dir() / "repair.safetensors").is_file():
         pytest.skip("no bundled repair model in this build")
     from tcd.demo import load_clip
@@ -614,4 +615,9 @@ def test_bundled_repair_model():
     out = m.repair(clip, mask, num_samples=2, num_inference_steps=10, sampler="ddim", seed=0)
     np.testing.assert_array_equal(out[mask], clip[mask])
     err_mm = np.linalg.norm(out - clip, axis=-1)[~mask].mean() * 1000
-    assert np.isfinite(err_mm) and err_mm < 50.0, err_mm
+    # Against linear interpolation on the same gaps: the bundled model measured 47.7 vs 46.6 mm (1.02x);
+    # the short-term model's in-painting, which repaired before there was a repair model, gives 128.8 mm.
+    from tcd.demo import linear_interpolation
+    lin = linear_interpolation(np.where(mask[..., None], clip, np.nan), mask.astype(np.float32))
+    lin_mm = np.linalg.norm(lin - clip, axis=-1)[~mask].mean() * 1000
+    assert np.isfinite(err_mm) and err_mm <= 1.25 * lin_mm, (err_mm, lin_mm)
