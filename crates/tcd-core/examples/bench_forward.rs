@@ -4,8 +4,9 @@
 //! cargo run --release --example bench_forward -- WEIGHTS [REPS] [KERNEL ...]
 //! ```
 //! KERNEL: portable, avx2, avx512 (default: every one this CPU supports). WEIGHTS may also be
-//! `paper55` / `paper75`: random-init weights of the paper's size (12 layers × 64 channels, K = 66)
-//! for L = 55 / 75, built in-process. `TCD_BENCH_THREADS=N` splits one forward over N threads.
+//! `paper55` / `paper75`: random-init weights of the paper's size (12 layers × 64 channels, 8 heads,
+//! K = 66) for L = 55 / 75, built in-process; `paper75h4` etc. with another head count.
+//! `TCD_BENCH_THREADS=N` splits one forward over N threads.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic, dead_code)]
 
 #[path = "../tests/common/mod.rs"]
@@ -16,11 +17,12 @@ use std::time::Instant;
 
 use tcd_core::{Denoiser, Kernel, Role, Workspace};
 
-/// Random-init weights of the paper's size for windows of `obs` + `pred` frames.
-fn paper_model(obs: usize, pred: usize) -> Result<Denoiser, Box<dyn Error>> {
+/// Random-init weights of the paper's size (with `heads` attention heads) for windows of `obs` +
+/// `pred` frames.
+fn paper_model(obs: usize, pred: usize, heads: usize) -> Result<Denoiser, Box<dyn Error>> {
     let mut cfg = common::tiny_config(Role::Long, obs, pred);
     let m = &mut cfg.model;
-    (m.num_joints, m.num_features, m.channels, m.num_heads, m.ffn_dim, m.num_layers) = (22, 66, 64, 8, 64, 12);
+    (m.num_joints, m.num_features, m.channels, m.num_heads, m.ffn_dim, m.num_layers) = (22, 66, 64, heads, 64, 12);
     (m.diffusion_embedding_dim, m.time_embedding_dim, m.feature_embedding_dim) = (128, 128, 16);
     m.side_dim = 128 + 16 + 1;
     let bytes = common::serialize(&common::random_tensors(&cfg, 1), Some(cfg.to_json()));
@@ -36,9 +38,14 @@ fn main() -> Result<(), Box<dyn Error>> {
     } else {
         Kernel::supported()
     };
-    let base = match path.as_str() {
-        "paper55" => paper_model(50, 5)?,
-        "paper75" => paper_model(55, 20)?,
+    // paper55 / paper75, optionally with a head count: paper75h4 (head dim 16).
+    let paper = path.strip_prefix("paper").and_then(|rest| {
+        let (len, heads) = rest.split_once('h').unwrap_or((rest, "8"));
+        Some((len.parse::<usize>().ok()?, heads.parse::<usize>().ok()?))
+    });
+    let base = match paper {
+        Some((55, heads)) => paper_model(50, 5, heads)?,
+        Some((75, heads)) => paper_model(55, 20, heads)?,
         _ => Denoiser::load(path)?,
     };
     let threads: usize = std::env::var("TCD_BENCH_THREADS").ok().and_then(|v| v.parse().ok()).unwrap_or(1);
