@@ -243,30 +243,16 @@ unsafe fn exp_nonpositive<S: Simd>(x: S::V) -> S::V {
 /// chain than Horner's).
 #[inline(always)]
 unsafe fn exp_clamped<S: Simd>(x: S::V) -> S::V {
-    const LOG2E: f32 = std::f32::consts::LOG2_E;
-    const LN2_HI: f32 = 0.693_359_4;
-    const LN2_LO: f32 = -2.121_944_4e-4;
-    const SHIFTER: f32 = 12_582_912.0;
-    // SAFETY (whole body): vector arithmetic on registers, valid under the caller's ISA.
-    unsafe {
-        let t = S::fma(x, S::splat(LOG2E), S::splat(SHIFTER));
-        let n = S::sub(t, S::splat(SHIFTER));
-        let r = S::fma(n, S::splat(-LN2_HI), x);
-        let r = S::fma(n, S::splat(-LN2_LO), r);
-        let r2 = S::mul(r, r);
-        // p(r) = c0 + c1 r + ... + c5 r^5 = (c0 + c1 r) + r²((c2 + c3 r) + r²(c4 + c5 r)).
-        let p01 = S::fma(S::splat(1.666_666_5e-1), r, S::splat(0.5));
-        let p23 = S::fma(S::splat(8.333_452e-3), r, S::splat(4.166_579_6e-2));
-        let p45 = S::fma(S::splat(1.987_569_1e-4), r, S::splat(1.398_199_9e-3));
-        let p = S::fma(S::fma(p45, r2, p23), r2, p01);
-        let y = S::add(S::fma(p, r2, r), S::splat(1.0));
-        S::mul(y, S::pow2_from_shifted(t))
-    }
+    let mut v = [x];
+    // SAFETY: vector arithmetic on registers, valid under the caller's ISA.
+    unsafe { exp_clamped_n::<S, 1>(&mut v) };
+    v[0]
 }
 
-/// [`exp_clamped`] of N independent vectors, step by step in lock-step: the N dependency chains
-/// are interleaved in the instruction stream, so that the core overlaps them instead of waiting
-/// on one chain's latency (the scheduler's window is too small to find that on its own).
+/// [`exp_clamped`] of N independent vectors (the one implementation; N = 1 is `exp_clamped`), step
+/// by step in lock-step: the N dependency chains are interleaved in the instruction stream, so that
+/// the core overlaps them instead of waiting on one chain's latency (the scheduler's window is too
+/// small to find that on its own).
 #[inline(always)]
 unsafe fn exp_clamped_n<S: Simd, const N: usize>(x: &mut [S::V; N]) {
     const LOG2E: f32 = std::f32::consts::LOG2_E;
@@ -287,6 +273,7 @@ unsafe fn exp_clamped_n<S: Simd, const N: usize>(x: &mut [S::V; N]) {
             let n = S::sub(t[i], S::splat(SHIFTER));
             r[i] = S::fma(n, S::splat(-LN2_LO), S::fma(n, S::splat(-LN2_HI), x[i]));
         }
+        // p(r) = c0 + c1 r + ... + c5 r^5 = (c0 + c1 r) + r²((c2 + c3 r) + r²(c4 + c5 r)).
         for i in 0..N {
             r2[i] = S::mul(r[i], r[i]);
             p[i] = S::fma(S::splat(1.987_569_1e-4), r[i], S::splat(1.398_199_9e-3));
@@ -778,7 +765,6 @@ unsafe fn tail<S: Simd>(
                 let mvs = inp.mask[kk * frames + ll];
                 let mv = S::splat(mvs);
                 let g = gt.add(ll * c);
-                // z + cond at column i (gate) or c + i (filter).
                 let mut i = 0;
                 // Two vectors per iteration: independent exp chains for the core to overlap.
                 while i + 2 * w <= c {
