@@ -131,6 +131,51 @@ def make_batch(cfg: TrainConfig, wins: np.ndarray, rng: np.random.Generator):
     return bkl(wins), bkl(observed), bkl(np.repeat(jmask[..., None], 3, axis=-1))
 
 
+class BatchSource:
+    """The training batches of an epoch, each a pure function of (seed, epoch, batch index): the window
+    rows (a seeded permutation per epoch), the occlusion masks, the diffusion steps t and the noise eps.
+    So the batches are the same whether drawn here or in DataLoader worker processes, and a resumed run
+    continues with exactly the batches it would have drawn."""
+
+    def __init__(self, cfg: TrainConfig, windows: Windows, T: int, steps_per_epoch: int):
+        self.cfg, self.windows, self.T, self.steps_per_epoch = cfg, windows, T, steps_per_epoch
+        self._perm_epoch, self._perm = None, None
+
+    def batch(self, epoch: int, batch_i: int):
+        cfg = self.cfg
+        if self._perm_epoch != epoch:
+            self._perm = np.random.default_rng([cfg.seed, epoch]).permutation(len(self.windows))
+            self._perm_epoch = epoch
+        rows = self._perm[(np.arange(cfg.batch_size) + batch_i * cfg.batch_size) % len(self._perm)]
+        x0, obs, mask = make_batch(cfg, self.windows.gather(rows), np.random.default_rng([cfg.seed, epoch, batch_i]))
+        g = torch.Generator().manual_seed(((cfg.seed * 1_000_003 + epoch) * 1_000_003 + batch_i) % (1 << 62))
+        t = torch.randint(0, self.T, (x0.shape[0],), generator=g)   # the draw order of training_loss
+        eps = torch.randn(x0.shape, generator=g)
+        return x0, obs, mask, t, eps
+
+    def iterate(self, epoch: int, start: int, workers: int):
+        """Batches start..steps_per_epoch-1 of an epoch, in order."""
+        if workers <= 0:
+            for i in range(start, self.steps_per_epoch):
+                yield self.batch(epoch, i)
+            return
+        ds = _EpochBatches(self, epoch, start)
+        loader = torch.utils.data.DataLoader(ds, batch_size=None, shuffle=False, num_workers=workers,
+                                             pin_memory=torch.cuda.is_available(), prefetch_factor=4)
+        yield from loader
+
+
+class _EpochBatches(torch.utils.data.Dataset):
+    def __init__(self, source: BatchSource, epoch: int, start: int):
+        self.source, self.epoch, self.start = source, epoch, start
+
+    def __len__(self) -> int:
+        return self.source.steps_per_epoch - self.start
+
+    def __getitem__(self, i: int):
+        return self.source.batch(self.epoch, self.start + i)
+
+
 # ------------------------------------------------------------------------------------------ loop
 
 @torch.no_grad()
@@ -163,9 +208,10 @@ def save_checkpoint(path: Path, state: dict) -> None:
 
 def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume: bool = False,
           max_minutes: float | None = None, device: str = "cpu", checkpoint_minutes: float = 5.0,
-          sequences: dict | None = None, log=print) -> dict:
+          sequences: dict | None = None, workers: int = 0, log=print) -> dict:
     """Train (or resume) a model into ``out``. ``sequences`` ({"train": [...], "val": [...]} of (T, J, 3)
-    arrays in metres) replaces the dataset, for tests on synthetic motion."""
+    arrays in metres) replaces the dataset, for tests on synthetic motion. ``workers`` > 0 draws the
+    batches in that many DataLoader processes (the same batches, bit for bit, as ``workers`` = 0)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     model_cfg = ModelConfig.from_dict(cfg.model)
@@ -225,24 +271,21 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
 
     model.train()
     stopped = False
+    source = BatchSource(cfg, train_w, sched.T, steps_per_epoch)
     while epoch < cfg.epochs and not stopped:
-        perm = np.random.default_rng([cfg.seed, epoch]).permutation(len(train_w))
-        run_loss, run_n = 0.0, 0
-        while batch_i < steps_per_epoch:
-            rows = perm[(np.arange(cfg.batch_size) + batch_i * cfg.batch_size) % len(perm)]
-            rng = np.random.default_rng([cfg.seed, epoch, batch_i])
-            x0, obs, mask = (a.to(device, non_blocking=True) for a in make_batch(cfg, train_w.gather(rows), rng))
-            g = torch.Generator().manual_seed(((cfg.seed * 1_000_003 + epoch) * 1_000_003 + batch_i) % (1 << 62))
+        run_loss, run_n = torch.zeros((), device=device), 0
+        for x0, obs, mask, t, eps in source.iterate(epoch, batch_i, workers):
+            x0, obs, mask, t, eps = (a.to(device, non_blocking=True) for a in (x0, obs, mask, t, eps))
             with torch.autocast(device_type="cuda", dtype=torch.bfloat16, enabled=use_amp):
-                loss = training_loss(model, sched, x0, mask, generator=g, observed=obs)
+                loss = training_loss(model, sched, x0, mask, t=t, eps=eps, observed=obs)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
-            run_loss, run_n = run_loss + float(loss.detach()), run_n + 1
+            run_loss, run_n = run_loss + loss.detach().float(), run_n + 1
             batch_i += 1
             now = time.time()
             if batch_i % 100 == 0:
-                log(f"epoch {epoch} batch {batch_i}/{steps_per_epoch} loss {run_loss / run_n:.4f} "
+                log(f"epoch {epoch} batch {batch_i}/{steps_per_epoch} loss {float(run_loss) / run_n:.4f} "
                     f"lr {opt.param_groups[0]['lr']:.1e} {now - t_start:.0f}s")
             if max_minutes is not None and now - t_start > 60 * max_minutes:
                 stopped = True
@@ -252,7 +295,7 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
                 last_ck = now
         if stopped:
             break
-        history.append({"epoch": epoch, "train_loss": run_loss / max(run_n, 1)})
+        history.append({"epoch": epoch, "train_loss": float(run_loss) / max(run_n, 1)})
         epoch, batch_i = epoch + 1, 0
         lr_sched.step()
         if epoch % cfg.val_every == 0 or epoch == cfg.epochs:
@@ -286,6 +329,8 @@ def main(argv=None) -> int:
     ap.add_argument("--max-minutes", type=float, default=None, help="stop (resumably) after this many minutes")
     ap.add_argument("--device", default="cpu", help="cpu | cuda")
     ap.add_argument("--threads", type=int, default=None, help="torch CPU threads")
+    ap.add_argument("--workers", type=int, default=0,
+                    help="DataLoader processes drawing the batches (0: in the training process; same batches either way)")
     ap.add_argument("--write-cache", metavar="NPZ", help="write a compact model-space data cache and exit")
     args = ap.parse_args(argv)
     if args.write_cache:
@@ -297,7 +342,8 @@ def main(argv=None) -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
     cfg = TrainConfig.load(args.config)
-    res = train(cfg, args.out, data=args.data, resume=args.resume, max_minutes=args.max_minutes, device=args.device)
+    res = train(cfg, args.out, data=args.data, resume=args.resume, max_minutes=args.max_minutes, device=args.device,
+                workers=args.workers)
     print(json.dumps({k: v for k, v in res.items() if k != "history"}))
     return 0
 
