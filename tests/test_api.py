@@ -599,8 +599,8 @@ def test_native_stub_matches_the_module():
 
 def test_bundled_repair_model():
     """The bundled directory carries a dedicated repair model (50 + 0 frames, linear-fill conditioning); it
-    fills an occluded window of the bundled demo clip, observed entries unchanged, within 1.25 x the error of
-    linear interpolation."""
+    fills an occluded window of the bundled demo clip, observed entries unchanged, with at most 0.85 x the error
+    of linear interpolation."""
     if not (tcd.default_model_dir() / "repair.safetensors").is_file():
         pytest.skip("no bundled repair model in this build")
     from tcd.demo import load_clip
@@ -612,12 +612,13 @@ def test_bundled_repair_model():
     rng = np.random.default_rng(0)
     mask = rng.random(clip.shape[:2]) >= 0.3
     mask[20:30] = False                                        # 10 dropped frames
-    out = m.repair(clip, mask, num_samples=2, num_inference_steps=10, sampler="ddim", seed=0)
+    out = m.repair(clip, mask, num_samples=5, num_inference_steps=10, sampler="ddpm", seed=0)
     np.testing.assert_array_equal(out[mask], clip[mask])
     err_mm = np.linalg.norm(out - clip, axis=-1)[~mask].mean() * 1000
-    # Against linear interpolation on the same gaps: the bundled model measured 47.7 vs 46.6 mm (1.02x);
-    # the short-term model's in-painting, which repaired before there was a repair model, gives 128.8 mm.
+    # Against linear interpolation on the same gaps: the bundled model measured 32.8 vs 46.6 mm (0.70x); the
+    # previous CPU-trained repair model 47.7 mm (1.02x, with DDIM-10 x 2); the short-term model's in-painting,
+    # which repaired before there was a repair model, 128.8 mm.
     from tcd.demo import linear_interpolation
     lin = linear_interpolation(np.where(mask[..., None], clip, np.nan), mask.astype(np.float32))
     lin_mm = np.linalg.norm(lin - clip, axis=-1)[~mask].mean() * 1000
-    assert np.isfinite(err_mm) and err_mm <= 1.25 * lin_mm, (err_mm, lin_mm)
+    assert np.isfinite(err_mm) and err_mm <= 0.85 * lin_mm, (err_mm, lin_mm)

@@ -85,3 +85,27 @@ def test_peers_markdown_tables():
     assert "| DDPM-50 × 5 samples, both stages (s) | 12.5 | 45.0 | 80.0 |" in lines
     assert any(line.startswith("| DDIM-10 × 1 sample (s) | 0.31 |") for line in lines)
     assert lines[-1] == "Peak resident memory of a forecast (fresh process): ddpm50_x5 61 MiB, ddim10_x1 40 MiB."
+
+
+def test_repair_quality_baselines_fill_only_hidden_entries():
+    """benches/repair_quality.py's classical peers: linear interpolation is exact on a linear trajectory, the
+    cubic spline on a cubic one (where linear is not); both keep observed entries and hold the ends."""
+    pytest.importorskip("scipy")
+    import numpy as np
+    rq = load_bench("repair_quality")
+    t = np.arange(50, dtype=np.float64)
+    cubic = (1e-5 * (t - 20) ** 3 + 0.002 * t)[None, :, None, None] * np.ones((1, 50, 2, 3))
+    m = np.ones((1, 50, 2), dtype=bool)
+    m[0, 10:14, 0] = False          # an interior gap of joint 0
+    m[0, [25, 31, 40], 1] = False   # single frames of joint 1
+    m[0, 45:, 1] = False            # trailing frames of joint 1: held at the last observed value
+    x = np.where(np.repeat(m[..., None], 3, -1), cubic, np.nan)
+    lin, spl = rq.linear_fill(x, m), rq.spline_fill(x, m)
+    np.testing.assert_array_equal(spl[np.repeat(m[..., None], 3, -1)], cubic[np.repeat(m[..., None], 3, -1)])
+    np.testing.assert_allclose(spl[0, 10:14, 0], cubic[0, 10:14, 0], atol=1e-12)
+    np.testing.assert_allclose(spl[0, [25, 31, 40], 1], cubic[0, [25, 31, 40], 1], atol=1e-12)
+    np.testing.assert_array_equal(spl[0, 45:, 1], np.repeat(cubic[0, 44:45, 1], 5, 0))
+    assert np.abs(lin[0, 10:14, 0] - cubic[0, 10:14, 0]).max() > 1e-5   # linear is not exact on a cubic
+    line = 0.01 * t[None, :, None, None] * np.ones((1, 50, 2, 3))
+    np.testing.assert_allclose(rq.linear_fill(np.where(np.repeat(m[..., None], 3, -1), line, np.nan), m)[0, 10:14, 0],
+                               line[0, 10:14, 0], atol=1e-12)

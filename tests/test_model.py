@@ -104,6 +104,40 @@ def _np_fill(values, mask):
     return out
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_spline_fill_is_the_natural_cubic_spline_and_ignores_hidden_values(seed):
+    """spline_fill: scipy's natural cubic spline between the first and last observed frames, linear_fill's
+    rule outside them and on rows with fewer than 2 observed frames; observed entries bit-identical."""
+    from training.model import linear_fill, spline_fill
+    rng = np.random.default_rng(seed)
+    x = rng.normal(size=(3, 9, 30)).cumsum(-1).astype(np.float32)
+    m = (rng.random(x.shape) < [0.3, 0.6, 0.9][seed]).astype(np.float32)
+    m[0, 0] = 0.0
+    m[0, 1] = 0.0
+    m[0, 1, 12] = 1.0           # one observed frame: held
+    m[0, 2] = 0.0
+    m[0, 2, [3, 20]] = 1.0      # two: the straight line between them
+    x_nan = np.where(m > 0, x, np.nan).astype(np.float32)
+    got = spline_fill(torch.from_numpy(x_nan), torch.from_numpy(m)).numpy()
+    lin = linear_fill(torch.from_numpy(x_nan), torch.from_numpy(m)).numpy()
+    assert np.isfinite(got).all()
+    np.testing.assert_array_equal(got[m > 0], x[m > 0])
+    np.testing.assert_array_equal(got[0, :2], lin[0, :2])
+    np.testing.assert_allclose(got[0, 2], lin[0, 2], atol=1e-6)
+    interpolate = pytest.importorskip("scipy.interpolate")
+    for i in range(3):
+        for k in range(9):
+            seen = m[i, k] > 0
+            if seen.sum() < 2:
+                continue
+            f = np.flatnonzero(seen)
+            frames = np.arange(30)
+            inside = (frames > f[0]) & (frames < f[-1]) & ~seen
+            ref = interpolate.CubicSpline(f, x[i, k, seen].astype(np.float64), bc_type="natural")(frames)
+            np.testing.assert_allclose(got[i, k, inside], ref[inside], rtol=0, atol=2e-6)
+            np.testing.assert_array_equal(got[i, k, ~inside & ~seen], lin[i, k, ~inside & ~seen])
+
+
 @pytest.mark.parametrize("seed", range(4))
 def test_linear_fill_matches_np_interp_and_ignores_hidden_values(seed):
     from training.model import linear_fill

@@ -16,8 +16,8 @@ from torch import nn
 import torch.nn.functional as F
 
 
-COND_FILLS = ("zero", "linear")
-TARGETS = ("absolute", "linear_residual")
+COND_FILLS = ("zero", "linear", "spline")
+TARGETS = ("absolute", "linear_residual", "spline_residual")
 
 
 @dataclass
@@ -33,10 +33,12 @@ class ModelConfig:
     feature_embedding_dim: int = 16     # learned per-coordinate embedding channels
     layer_norm_eps: float = 1e-5        # PyTorch default of nn.TransformerEncoderLayer
     dropout: float = 0.1                # transformer dropout (training only; the reference keeps PyTorch's default)
-    cond_fill: str = "zero"             # what the observed channel holds at masked entries: "zero" (CSDI/TCD)
+    cond_fill: str = "zero"             # what the observed channel holds at masked entries: "zero" (CSDI/TCD),
+                                        # "linear" or "spline" (natural cubic spline, spline_fill)
                                         # or "linear" (interpolated along time from the observed frames, PriSTI-style)
     target: str = "absolute"            # what the diffusion generates: "absolute" (the poses, TCD) or
-                                        # "linear_residual": target_scale * (poses - linear_fill(observed, mask))
+                                        # "linear_residual": target_scale * (poses - linear_fill(observed, mask)),
+                                        # "spline_residual": the same over spline_fill
     target_scale: float = 1.0           # multiplier of the residual (brings it to the scale of the data)
 
     @property
@@ -216,7 +218,7 @@ class TCDModel(nn.Module):
         if not torch.is_tensor(step):
             step = torch.tensor([step], device=noisy.device)
         step = step.reshape(-1).to(noisy.device).long()
-        cond = mask * observed if self.cfg.cond_fill == "zero" else linear_fill(observed, mask)
+        cond = mask * observed if self.cfg.cond_fill == "zero" else FILLS[self.cfg.cond_fill](observed, mask)
         inp = torch.stack([cond, (1 - mask) * noisy], dim=1)                            # (B, 2, K, L)
         return self.diffmodel(inp, self.side_info(mask), step)
 
@@ -245,20 +247,84 @@ def linear_fill(observed: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     return torch.where(obs, x, out)
 
 
+def spline_fill(observed: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """(..., L) values and 0/1 mask -> observed entries kept, each masked entry between two observed entries
+    of its row filled by the natural cubic spline through the row's observed entries (knots at their frame
+    indices); before the first and after the last observed entry, and on rows with fewer than 2, the rule of
+    :func:`linear_fill` (held constant; 0 on a row with none). Masked entries of ``observed`` are never read.
+
+    Computed in float64 and rounded to the input dtype: the second derivatives by the Thomas algorithm
+    (``w = b - a * c'[i-1]``, ``c'[i] = c / w``, ``d'[i] = (d - a * d'[i-1]) / w``, then
+    ``M[i] = d'[i] - c'[i] * M[i+1]``), the value on a segment of length h at distances a (to its right knot)
+    and b (to its left knot) as ``M0*a*a*a/(6*h) + M1*b*b*b/(6*h) + (y0/h - M0*h/6)*a + (y1/h - M1*h/6)*b``:
+    the operation order of the Rust engine (tcd-core ``fill_spline``), so both give identical bits.
+    """
+    L = observed.shape[-1]
+    lin = linear_fill(observed, mask)
+    if L < 3:
+        return lin
+    obs = (mask > 0.5).reshape(-1, L)
+    x = torch.where(obs, observed.reshape(-1, L), torch.zeros((), dtype=observed.dtype, device=observed.device))
+    x = x.to(torch.float64)
+    dev = observed.device
+    S = x.shape[0]
+    n = obs.sum(-1)                                                   # knots per row
+    idx = torch.arange(L, device=dev).expand(S, L)
+    order = torch.where(obs, idx, idx + L).argsort(-1)               # observed frames first, ascending
+    kx = order.to(torch.float64)                                      # knot frames (valid below n)
+    ky = x.gather(-1, order)                                          # knot values
+    h = kx[:, 1:] - kx[:, :-1]
+    zero = torch.zeros(S, dtype=torch.float64, device=dev)
+    cp = [zero] * L
+    dp = [zero] * L
+    for i in range(1, L - 1):
+        active = i < n - 1
+        a, c = h[:, i - 1], h[:, i]
+        b = 2.0 * (a + c)
+        d = 6.0 * ((ky[:, i + 1] - ky[:, i]) / c - (ky[:, i] - ky[:, i - 1]) / a)
+        w = b - a * cp[i - 1]
+        cp[i] = torch.where(active, c / w, zero)
+        dp[i] = torch.where(active, (d - a * dp[i - 1]) / w, zero)
+    M = [zero] * L
+    for i in range(L - 2, 0, -1):
+        M[i] = torch.where(i < n - 1, dp[i] - cp[i] * M[i + 1], zero)
+    M = torch.stack(M, -1)
+    # segment of every frame: j = index of the last knot at or before it
+    j = (obs.long().cumsum(-1) - 1).clamp(min=0, max=L - 2)
+    j1 = j + 1
+    x0, x1 = kx.gather(-1, j), kx.gather(-1, j1)
+    y0, y1 = ky.gather(-1, j), ky.gather(-1, j1)
+    m0, m1 = M.gather(-1, j), M.gather(-1, j1)
+    t = idx.to(torch.float64)
+    hh = x1 - x0
+    a = x1 - t
+    b = t - x0
+    v = m0 * a * a * a / (6.0 * hh) + m1 * b * b * b / (6.0 * hh) + (y0 / hh - m0 * hh / 6.0) * a \
+        + (y1 / hh - m1 * hh / 6.0) * b
+    between = ~obs & (obs.long().cumsum(-1) >= 1) & (j1 < n.unsqueeze(-1))
+    v = torch.where(between, v, torch.zeros((), dtype=torch.float64, device=dev)).to(observed.dtype)
+    return torch.where(between.reshape(observed.shape), v.reshape(observed.shape), lin)
+
+
+FILLS = {"linear": linear_fill, "spline": spline_fill}
+RESIDUAL_FILLS = {"linear_residual": linear_fill, "spline_residual": spline_fill}
+
+
 def to_target(cfg: ModelConfig, x0: torch.Tensor, observed: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     """Clean windows -> the variable the diffusion runs on: x0 itself (``target="absolute"``) or
-    ``target_scale * (x0 - linear_fill(observed, mask))`` (``"linear_residual"``)."""
+    ``target_scale * (x0 - fill(observed, mask))`` with the fill of the target (``"linear_residual"``:
+    :func:`linear_fill`, ``"spline_residual"``: :func:`spline_fill`)."""
     if cfg.target == "absolute":
         return x0
-    return (x0 - linear_fill(observed, mask)) * cfg.target_scale
+    return (x0 - RESIDUAL_FILLS[cfg.target](observed, mask)) * cfg.target_scale
 
 
 def from_target(cfg: ModelConfig, x: torch.Tensor, observed: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """Inverse of :func:`to_target` on a sample: ``linear_fill + x * (1 / target_scale)`` in float32 (the
+    """Inverse of :func:`to_target` on a sample: ``fill + x * (1 / target_scale)`` in float32 (the
     Rust engine's operation order)."""
     if cfg.target == "absolute":
         return x
-    return linear_fill(observed, mask) + x * (1.0 / cfg.target_scale)
+    return RESIDUAL_FILLS[cfg.target](observed, mask) + x * (1.0 / cfg.target_scale)
 
 
 def randomize_output_layer(model: TCDModel, seed: int = 0, std: float = 0.02) -> None:

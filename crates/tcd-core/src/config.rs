@@ -48,6 +48,9 @@ pub enum CondFill {
     /// Linear interpolation along time between the nearest observed frames of the same coordinate,
     /// held constant before the first and after the last (PriSTI-style interpolated conditioning).
     Linear,
+    /// The natural cubic spline through the observed frames of the same coordinate, with the rule of
+    /// `Linear` before the first and after the last observed frame ([`crate::fill_spline`]).
+    Spline,
 }
 
 /// The variable the diffusion generates.
@@ -61,6 +64,8 @@ pub enum Target {
     /// interpolation of the observation; a chain's result is mapped back as
     /// `fill + x · (1 / target_scale)` before the observation is merged.
     LinearResidual,
+    /// `target_scale · (poses − fill_spline(observed, mask))`: the same over the natural cubic spline.
+    SplineResidual,
 }
 
 fn default_target_scale() -> f64 {
