@@ -765,8 +765,8 @@ pub fn fill_spline(mask: &[f32], observed: &[f32], mut set: impl FnMut(usize, f3
     }
     let (first, last) = (knots[0], knots[n - 1]);
     let mut j = 0;
-    for ll in 0..mask.len() {
-        if mask[ll] > 0.5 {
+    for (ll, &mv) in mask.iter().enumerate() {
+        if mv > 0.5 {
             continue;
         }
         if ll < first {
