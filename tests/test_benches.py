@@ -88,24 +88,29 @@ def test_peers_markdown_tables():
 
 
 def test_repair_quality_baselines_fill_only_hidden_entries():
-    """benches/repair_quality.py's classical peers: linear interpolation is exact on a linear trajectory, the
-    cubic spline on a cubic one (where linear is not); both keep observed entries and hold the ends."""
+    """benches/repair_quality.py's classical peers: linear interpolation is exact on a straight line; the
+    spline baseline is the natural cubic spline the bundled repair model is conditioned on (the same values
+    as training.model.spline_fill, the engine's fill); both keep observed entries and hold the ends."""
     pytest.importorskip("scipy")
     import numpy as np
+    import torch
+    from training.model import spline_fill
     rq = load_bench("repair_quality")
     t = np.arange(50, dtype=np.float64)
-    cubic = (1e-5 * (t - 20) ** 3 + 0.002 * t)[None, :, None, None] * np.ones((1, 50, 2, 3))
+    curve = (1e-5 * (t - 20) ** 3 + 0.002 * t + 0.01 * np.sin(t / 3))[None, :, None, None] * np.ones((1, 50, 2, 3))
     m = np.ones((1, 50, 2), dtype=bool)
     m[0, 10:14, 0] = False          # an interior gap of joint 0
     m[0, [25, 31, 40], 1] = False   # single frames of joint 1
     m[0, 45:, 1] = False            # trailing frames of joint 1: held at the last observed value
-    x = np.where(np.repeat(m[..., None], 3, -1), cubic, np.nan)
+    keep = np.repeat(m[..., None], 3, -1)
+    x = np.where(keep, curve, np.nan)
     lin, spl = rq.linear_fill(x, m), rq.spline_fill(x, m)
-    np.testing.assert_array_equal(spl[np.repeat(m[..., None], 3, -1)], cubic[np.repeat(m[..., None], 3, -1)])
-    np.testing.assert_allclose(spl[0, 10:14, 0], cubic[0, 10:14, 0], atol=1e-12)
-    np.testing.assert_allclose(spl[0, [25, 31, 40], 1], cubic[0, [25, 31, 40], 1], atol=1e-12)
-    np.testing.assert_array_equal(spl[0, 45:, 1], np.repeat(cubic[0, 44:45, 1], 5, 0))
-    assert np.abs(lin[0, 10:14, 0] - cubic[0, 10:14, 0]).max() > 1e-5   # linear is not exact on a cubic
+    np.testing.assert_array_equal(spl[keep], curve[keep])
+    np.testing.assert_allclose(spl[0, 45:, 1], np.repeat(curve[0, 44:45, 1], 5, 0), rtol=0, atol=1e-12)
+    ref = spline_fill(torch.from_numpy(x.transpose(0, 2, 3, 1).copy()),
+                      torch.from_numpy(keep.transpose(0, 2, 3, 1).astype(np.float64).copy())).numpy().transpose(0, 3, 1, 2)
+    np.testing.assert_allclose(spl, ref, rtol=0, atol=1e-12)
+    assert np.abs(spl[0, 10:14, 0] - lin[0, 10:14, 0]).max() > 1e-4    # the spline is not the linear fill
     line = 0.01 * t[None, :, None, None] * np.ones((1, 50, 2, 3))
-    np.testing.assert_allclose(rq.linear_fill(np.where(np.repeat(m[..., None], 3, -1), line, np.nan), m)[0, 10:14, 0],
-                               line[0, 10:14, 0], atol=1e-12)
+    np.testing.assert_allclose(rq.linear_fill(np.where(keep, line, np.nan), m)[0, 10:14, 0], line[0, 10:14, 0],
+                               atol=1e-12)
