@@ -61,7 +61,7 @@ def occlusion_mask(frames: int, num_joints: int, rng: np.random.Generator) -> np
     return out
 
 
-def build_inputs(data_dir: Path, indir: Path, files: int, max_frames: int, seed: int):
+def build_inputs(data_dir: Path, indir: Path, files: int, max_frames: int, seed: int, fps: int = 50):
     src = data_dir / "h36m_expmap_50fps.npz"
     if not src.is_file():
         raise SystemExit(f"no Human3.6M exp-map file at {src} (--data-dir or $TCD_DATA_DIR)")
@@ -69,7 +69,8 @@ def build_inputs(data_dir: Path, indir: Path, files: int, max_frames: int, seed:
     keys = sorted(k for k in data.files if k.startswith("S5/"))[:files]
     gts, ms = {}, {}
     for i, key in enumerate(keys):
-        gt = (tcd.fk.expmap_to_model(data[key][:max_frames]) * 1000.0).astype(np.float32)  # (T, 22, 3) mm
+        rows = data[key][:max_frames][::50 // fps]  # 50 fps, or every other frame for 25 fps
+        gt = (tcd.fk.expmap_to_model(rows) * 1000.0).astype(np.float32)  # (T, 22, 3) mm
         m = occlusion_mask(len(gt), gt.shape[1], np.random.default_rng([seed, i]))
         name = key.split("/", 1)[1]
         np.savez(indir / f"{name}.npz", poses=np.where(m[..., None], gt, np.nan).astype(np.float32), mask=m)
@@ -81,10 +82,13 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--files", type=int, default=24, help="S5 sequences (default all 24)")
     ap.add_argument("--max-frames", type=int, default=1000, help="first frames (50 fps) of each (default 1000)")
+    ap.add_argument("--fps", type=int, default=50, choices=(50, 25),
+                    help="frame rate of the written recordings: the source's 50, or 25 (every other frame)")
     ap.add_argument("--steps", type=int, default=None, help="tcd repair --steps (default: the model's, DDPM)")
     ap.add_argument("--samples", type=int, default=5)
     ap.add_argument("--jobs", type=int, default=None, help="tcd repair --jobs (default: all cores)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the masks and of tcd repair")
+    ap.add_argument("--repair-args", default="", help='more tcd repair arguments, e.g. "--overlap 5 --lookahead 15"')
     ap.add_argument("--model", default=None, help="model directory (default: the bundled model)")
     ap.add_argument("--data-dir", default=str(h36m.DEFAULT_H36M_DIR))
     ap.add_argument("--work", default=None, help="working directory, kept (default: a temporary one, removed)")
@@ -97,12 +101,13 @@ def main(argv=None) -> int:
         raise SystemExit(f"{outdir} exists: give a fresh --work directory")
     indir.mkdir(parents=True, exist_ok=True)
     try:
-        gts, ms = build_inputs(Path(args.data_dir), indir, args.files, args.max_frames, args.seed)
-        cmd = [sys.executable, "-m", "tcd", "repair", str(indir), "-o", str(outdir), "--units", "mm", "--fps", "50",
+        gts, ms = build_inputs(Path(args.data_dir), indir, args.files, args.max_frames, args.seed, args.fps)
+        cmd = [sys.executable, "-m", "tcd", "repair", str(indir), "-o", str(outdir), "--units", "mm", "--fps", str(args.fps),
                "--report", str(report), "--quiet", "--samples", str(args.samples), "--seed", str(args.seed)]
         for flag, value in (("--steps", args.steps), ("--jobs", args.jobs), ("--model", args.model)):
             if value is not None:
                 cmd += [flag, str(value)]
+        cmd += args.repair_args.split()
         t0 = time.perf_counter()
         proc = subprocess.run(cmd, capture_output=True, text=True)
         seconds = time.perf_counter() - t0
@@ -124,7 +129,7 @@ def main(argv=None) -> int:
         ade = {k: float(np.concatenate(v).mean()) for k, v in err.items()}
         frames = sum(len(g) for g in gts.values())
         res = {
-            "command": " ".join(["tcd"] + cmd[3:]).replace(str(work), "WORK"), "files": len(gts), "frames_50fps": frames,
+            "command": " ".join(["tcd"] + cmd[3:]).replace(str(work), "WORK"), "files": len(gts), "fps": args.fps, "frames": frames,
             "hidden_entries": int(sum((~m).sum() for m in ms.values())),
             "hidden_fraction": float(np.mean(np.concatenate([(~m).ravel() for m in ms.values()]))),
             "seconds": seconds, "frames_per_second": frames / seconds, "cores": os.cpu_count(),
@@ -136,9 +141,9 @@ def main(argv=None) -> int:
             shutil.rmtree(work, ignore_errors=True)
 
     steps = prov.get("steps")
-    print(f"`{res['command']}`: {res['files']} files, {frames} frames at 50 fps "
+    print(f"`{res['command']}`: {res['files']} files, {frames} frames at {args.fps} fps "
           f"({res['hidden_fraction']:.0%} of the joint-frames hidden), {seconds:.1f} s wall on {os.cpu_count()} cores\n")
-    print("| steps | frames/s (50 fps source) | tcd ADE (mm) | linear interp. | natural cubic spline | tcd / linear | tcd / spline |")
+    print(f"| steps | frames/s ({args.fps} fps source) | tcd ADE (mm) | linear interp. | natural cubic spline | tcd / linear | tcd / spline |")
     print("|---|---|---|---|---|---|---|")
     print(f"| {prov.get('sampler', 'ddpm').upper()}-{steps} x {args.samples} | {res['frames_per_second']:.0f} | "
           f"{ade['tcd']:.1f} | {ade['linear']:.1f} | {ade['spline']:.1f} | {res['tcd_over_linear']:.2f} | "

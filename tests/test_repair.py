@@ -76,13 +76,19 @@ def same_tree(a, b):
 
 # ---------------------------------------------------------------------------------------------- windows
 @pytest.mark.parametrize("frames", [50, 51, 89, 90, 91, 313, 1000])
-@pytest.mark.parametrize("overlap", [1, 10, 25, 49])
-def test_window_starts_cover_with_overlap(frames, overlap):
-    starts = batch_repair.window_starts(frames, W, overlap)
+@pytest.mark.parametrize("overlap,lookahead", [(1, 0), (10, 0), (25, 0), (49, 0), (5, 10), (1, 48), (20, 20)])
+def test_window_starts_cover_with_overlap(frames, overlap, lookahead):
+    starts = batch_repair.window_starts(frames, W, overlap, lookahead)
     assert starts[0] == 0 and starts[-1] + W == frames
     for a, b in zip(starts, starts[1:]):
-        assert a < b and a + W - b >= overlap  # consecutive windows share >= overlap frames
-    assert len(starts) == max(1, -(-(frames - W) // (W - overlap)) + 1)
+        assert a < b and a + W - b >= overlap + lookahead  # consecutive windows share >= overlap + lookahead frames
+    assert len(starts) == max(1, -(-(frames - W) // (W - overlap - lookahead)) + 1)
+
+
+@pytest.mark.parametrize("overlap,lookahead", [(0, 0), (5, 45), (10, -1)])
+def test_window_starts_refuse_no_progress(overlap, lookahead):
+    with pytest.raises(ValueError, match="overlap"):
+        batch_repair.window_starts(200, W, overlap, lookahead)
 
 
 # ---------------------------------------------------------------------------------------------- round trips
@@ -105,7 +111,8 @@ def test_round_trip_lengths(model, tmp_path, frames):
     assert prov["sampler"] == "ddim" and prov["steps"] == 2 and prov["seed"] == 5 and prov["num_samples"] == 2
     assert prov["tcd_version"] == tcd.__version__
     assert info["status"] == "repaired" and info["frames"] == frames
-    assert info["windows"] == len(batch_repair.window_starts(max(frames, W), W, batch_repair.DEFAULT_OVERLAP))
+    assert info["windows"] == len(batch_repair.window_starts(max(frames, W), W, batch_repair.DEFAULT_OVERLAP,
+                                                             batch_repair.DEFAULT_LOOKAHEAD))
     assert info["missing_values"] == int((~seen).sum())
 
 
@@ -133,7 +140,8 @@ def test_explicit_mask_and_float64(model, tmp_path):
 
 
 def test_later_windows_condition_on_repaired_frames(model, tmp_path, monkeypatch):
-    """Window k > 0 sees the frames already repaired as observed (mask 1, repaired values): no seams."""
+    """Window k > 0 sees the frames already repaired as observed (mask 1, repaired values): no seams
+    (lookahead 0: every frame of a window is committed)."""
     calls = []
     real = batch_repair.repair_raw
 
@@ -146,7 +154,7 @@ def test_later_windows_condition_on_repaired_frames(model, tmp_path, monkeypatch
     rng = np.random.default_rng(2)
     x = gappy(rng, 130, missing=0.3, block=(35, 48))  # the overlap of windows 0 and 1 (frames 40..49) has gaps
     np.savez(tmp_path / "in.npz", poses=x)
-    tcd.repair_file(tmp_path / "in.npz", tmp_path / "out.npz", model, overlap=10, **FAST_KW)
+    tcd.repair_file(tmp_path / "in.npz", tmp_path / "out.npz", model, overlap=10, lookahead=0, **FAST_KW)
     starts = batch_repair.window_starts(130, W, 10)
     assert starts == [0, 40, 80] and len(calls) == 3
     out = load_npz(tmp_path / "out.npz")["poses"]
@@ -166,6 +174,51 @@ def test_later_windows_condition_on_repaired_frames(model, tmp_path, monkeypatch
         win = calls[k][2][0].T.reshape(W, 22, 3)[lo - starts[k]:hi - starts[k]]
         miss = np.isnan(x[lo:hi])
         assert np.array_equal(out[lo:hi][miss], win[miss])
+
+
+
+def test_lookahead_frames_are_generated_again_by_the_next_window(model, tmp_path, monkeypatch):
+    """With lookahead L, a window (but the last) commits all but its L trailing frames; the next window sees
+    only the committed frames as observed (its first `overlap` frames, with the committing window's values)
+    and generates the L frames again, seeing what follows them; the output takes each frame from the window
+    that committed it."""
+    calls = []
+    real = batch_repair.repair_raw
+
+    def spy(den, observed, mask, **kw):
+        out = real(den, observed, mask, **kw)
+        calls.append((observed.copy(), mask.copy(), out["mean"].copy()))
+        return out
+
+    monkeypatch.setattr(batch_repair, "repair_raw", spy)
+    rng = np.random.default_rng(4)
+    x = gappy(rng, 130, missing=0.3, block=(36, 47))  # a gap across window 0's uncommitted tail (40..49)
+    np.savez(tmp_path / "in.npz", poses=x)
+    info = tcd.repair_file(tmp_path / "in.npz", tmp_path / "out.npz", model, overlap=5, lookahead=10, **FAST_KW)
+    starts = batch_repair.window_starts(130, W, 5, 10)
+    assert starts == [0, 35, 70, 80] and len(calls) == 4 and info["windows"] == 4
+    done = [40, 75, 110, 130]  # committed up to (exclusive) after each window
+    prov = json.loads(str(load_npz(tmp_path / "out.npz")["provenance"]))
+    assert prov["overlap"] == 5 and prov["lookahead"] == 10
+    out = load_npz(tmp_path / "out.npz")["poses"]
+    for k in (1, 2, 3):
+        obs, mask, _ = calls[k]
+        ctx = done[k - 1] - starts[k]
+        assert ctx == (5 if k < 3 else 30)
+        assert mask[0, :, :ctx].all()
+        prev_mean = calls[k - 1][2][0]
+        assert np.array_equal(obs[0, :, :ctx], prev_mean[:, starts[k] - starts[k - 1]:done[k - 1] - starts[k - 1]])
+        orig = (~np.isnan(x[done[k - 1]:starts[k] + W])).reshape(starts[k] + W - done[k - 1], -1).T
+        assert np.array_equal(mask[0, :, ctx:].astype(bool), orig)  # the lookahead frames keep their gaps
+    lo = 0
+    for k in range(4):
+        win = calls[k][2][0].T.reshape(W, 22, 3)[lo - starts[k]:done[k] - starts[k]]
+        miss = np.isnan(x[lo:done[k]])
+        assert np.array_equal(out[lo:done[k]][miss], win[miss])
+        lo = done[k]
+    # window 0's own values for its uncommitted tail were replaced by window 1's
+    tail = np.isnan(x[40:50])
+    assert not np.array_equal(out[40:50][tail], calls[0][2][0].T.reshape(W, 22, 3)[40:50][tail])
 
 
 # ---------------------------------------------------------------------------------------------- determinism
@@ -274,7 +327,7 @@ def test_bad_arguments_exit_2(model_dir, tmp_path, capsys):
     src = tmp_path / "in.npz"
     np.savez(src, poses=gappy(np.random.default_rng(7), 20))
     for extra, why in ((["--units", "cm"], "--units"), (["--steps", "0"], "--steps"), (["--fps", "-5"], "--fps"),
-                       (["--overlap", "50"], "--overlap"), (["--sampler", "euler"], "--sampler")):
+                       (["--overlap", "50"], "--overlap"), (["--lookahead", "45"], "--lookahead"), (["--sampler", "euler"], "--sampler")):
         code, _, err = run([src, "-o", tmp_path / "o", "--model", model_dir, *extra], capsys)
         assert code == 2 and why in err, (extra, err)
     code, _, err = run([tmp_path / "missing.npz", "-o", tmp_path / "o", "--model", model_dir], capsys)
