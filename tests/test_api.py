@@ -598,7 +598,7 @@ def test_native_stub_matches_the_module():
 
 
 def test_bundled_repair_model():
-    """The bundled directory carries a dedicated repair model (50 + 0 frames, linear-fill conditioning); it
+    """The bundled directory carries a dedicated repair model (50 + 0 frames, natural-spline conditioning); it
     fills an occluded window of the bundled demo clip, observed entries unchanged, with at most 0.75 x the error
     of linear interpolation."""
     if not (tcd.default_model_dir() / "repair.safetensors").is_file():
@@ -615,8 +615,8 @@ def test_bundled_repair_model():
     out = m.repair(clip, mask, num_samples=5, num_inference_steps=10, sampler="ddpm", seed=0)
     np.testing.assert_array_equal(out[mask], clip[mask])
     err_mm = np.linalg.norm(out - clip, axis=-1)[~mask].mean() * 1000
-    # Against linear interpolation on the same gaps: the bundled (spline-conditioned) model measured 25.3 vs
-    # 46.6 mm (0.54x); the GPU-trained linear-residual model 32.8 mm (0.70x); the first CPU repair model 47.7 mm
+    # Against linear interpolation on the same gaps: the bundled (spline-conditioned, two stages) model measured
+    # 25.6 vs 46.6 mm (0.55x; its first stage 25.3 mm); the GPU-trained linear-residual model 32.8 mm (0.70x); the first CPU repair model 47.7 mm
     # (1.02x, with DDIM-10 x 2); the short-term model's in-painting, before there was a repair model, 128.8 mm.
     from tcd.demo import linear_interpolation
     lin = linear_interpolation(np.where(mask[..., None], clip, np.nan), mask.astype(np.float32))

@@ -139,7 +139,7 @@ def test_repair_dataset_runs_tcd_repair_on_a_directory(tiny_dir, tmp_path):
     assert rd.main(["--model", str(tiny_dir), "--files", "2", "--max-frames", "120", "--steps", "2", "--samples", "1",
                     "--data-dir", str(H36M_DIR), "--work", str(tmp_path / "w"), "--json", str(out)]) == 0
     r = json.loads(out.read_text())
-    assert r["files"] == 2 and r["frames_50fps"] == 240 and 0 < r["hidden_fraction"] < 1
+    assert r["files"] == 2 and r["fps"] == 50 and r["frames"] == 240 and 0 < r["hidden_fraction"] < 1
     assert r["provenance"]["units"] == "mm" and r["provenance"]["fps"] == 50.0 and r["provenance"]["steps"] == 2
     assert all(math.isfinite(v) and v > 0 for v in r["ade_mm"].values())
     assert sorted(p.name for p in (tmp_path / "w" / "out").iterdir()) == sorted(
