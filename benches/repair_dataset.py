@@ -1,7 +1,8 @@
 """End-to-end throughput and quality of ``tcd repair`` on a directory of long occluded recordings (issue 6).
 
-    python benches/repair_dataset.py [--files N] [--max-frames F] [--steps S] [--samples N] [--jobs N]
-                                     [--seed S] [--model DIR] [--work DIR] [--json OUT]
+    python benches/repair_dataset.py [--files N] [--max-frames F] [--fps 50|25] [--steps S] [--samples N]
+                                     [--jobs N] [--seed S] [--model DIR] [--repair-args "..."] [--work DIR]
+                                     [--json OUT]
 
 Builds a directory of occluded recordings the way a practitioner holds them, then runs the command line
 on it as a user would, timed from the outside:
@@ -9,21 +10,21 @@ on it as a user would, timed from the outside:
 1. the Human3.6M S5 exp-map sequences (``../shared/data/h36m/h36m_expmap_50fps.npz`` or
    ``$TCD_DATA_DIR/h36m``), their first ``--max-frames`` frames (default 1000, 20 s), converted by forward
    kinematics (``tcd.fk.expmap_to_model``) to the model's 22 joints **in millimetres at 50 fps** (so the
-   ``--units`` and ``--fps`` paths are exercised);
-2. hidden entries: the sequence is cut into blocks of 50 frames (1 s) and each block gets one of the
+   ``--units`` and ``--fps`` paths are exercised), or with ``--fps 25`` every other frame (the model's rate);
+2. hidden entries: the sequence is cut into blocks of 50 frames and each block gets one of the
    benchmark's occlusion patterns (``training.masks``: random leg + arm 40 %, consecutive frames 20 %,
    random joints 10-40 %) in turn, seeded; written as ``WORK/in/<action>.npz`` with ``poses`` (NaN where
    hidden) and ``mask``;
 3. ``tcd repair WORK/in -o WORK/out --units mm --fps 50 --report WORK/report.json --quiet`` (plus
-   ``--steps``, ``--samples``, ``--jobs``, ``--seed``) in a subprocess; the wall time includes starting
+   ``--steps``, ``--samples``, ``--jobs``, ``--seed`` and ``--repair-args``) in a subprocess; the wall time includes starting
    Python and loading the model;
 4. checks that every observed value came back bit for bit, then the ADE (mm) over the hidden entries
    against linear interpolation and the natural cubic spline through each joint's observed frames (the
-   same baselines as ``benches/repair_quality.py``, over the whole 50 fps sequence).
+   same baselines as ``benches/repair_quality.py``, over the whole sequence at its own rate).
 
-Frames per second = source frames (50 fps) of all files / wall-clock seconds of the command. The
-command resamples to the model's 25 fps, so it generates half as many frames, in windows of 50 frames
-that overlap by 10. Needs scipy (``pip install 'tcd-forecast[bench]'``) and the Human3.6M data.
+Frames per second = source frames of all files / wall-clock seconds of the command. At 50 fps the
+command resamples to the model's 25 fps, so it generates half as many frames, and the model sees only the
+observations of the frames at 25 fps (the baselines use all of them). Needs scipy (``pip install 'tcd-forecast[bench]'``) and the Human3.6M data.
 """
 from __future__ import annotations
 
@@ -48,7 +49,7 @@ from repair_quality import PATTERNS, linear_fill, spline_fill  # noqa: E402
 from training import masks  # noqa: E402
 from training.data import h36m  # noqa: E402
 
-BLOCK = 50  # frames (1 s at 50 fps) per occlusion block
+BLOCK = 50  # frames per occlusion block (1 s at 50 fps, 2 s at 25 fps)
 
 
 def occlusion_mask(frames: int, num_joints: int, rng: np.random.Generator) -> np.ndarray:
