@@ -139,9 +139,8 @@ def test_explicit_mask_and_float64(model, tmp_path):
     assert not np.array_equal(got["poses"][~m3], x[~m3])  # masked values were replaced
 
 
-def test_later_windows_condition_on_repaired_frames(model, tmp_path, monkeypatch):
-    """Window k > 0 sees the frames already repaired as observed (mask 1, repaired values): no seams
-    (lookahead 0: every frame of a window is committed)."""
+def spy_windows(monkeypatch):
+    """Records (observed, mask, mean) of every engine call tcd.repair_file makes (one per window here)."""
     calls = []
     real = batch_repair.repair_raw
 
@@ -151,6 +150,13 @@ def test_later_windows_condition_on_repaired_frames(model, tmp_path, monkeypatch
         return out
 
     monkeypatch.setattr(batch_repair, "repair_raw", spy)
+    return calls
+
+
+def test_later_windows_condition_on_repaired_frames(model, tmp_path, monkeypatch):
+    """Window k > 0 sees the frames already repaired as observed (mask 1, repaired values): no seams
+    (lookahead 0: every frame of a window is committed)."""
+    calls = spy_windows(monkeypatch)
     rng = np.random.default_rng(2)
     x = gappy(rng, 130, missing=0.3, block=(35, 48))  # the overlap of windows 0 and 1 (frames 40..49) has gaps
     np.savez(tmp_path / "in.npz", poses=x)
@@ -182,15 +188,7 @@ def test_lookahead_frames_are_generated_again_by_the_next_window(model, tmp_path
     only the committed frames as observed (its first `overlap` frames, with the committing window's values)
     and generates the L frames again, seeing what follows them; the output takes each frame from the window
     that committed it."""
-    calls = []
-    real = batch_repair.repair_raw
-
-    def spy(den, observed, mask, **kw):
-        out = real(den, observed, mask, **kw)
-        calls.append((observed.copy(), mask.copy(), out["mean"].copy()))
-        return out
-
-    monkeypatch.setattr(batch_repair, "repair_raw", spy)
+    calls = spy_windows(monkeypatch)
     rng = np.random.default_rng(4)
     x = gappy(rng, 130, missing=0.3, block=(36, 47))  # a gap across window 0's uncommitted tail (40..49)
     np.savez(tmp_path / "in.npz", poses=x)
