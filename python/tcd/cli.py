@@ -7,7 +7,7 @@
                  [--eta E] [--spacing trailing|leading|linspace] [--seed S] [--units m|mm]
                  [--threads N] [--overwrite]
     tcd repair INPUT... -o OUTDIR [--model DIR] [--units m|mm] [--fps F] [--steps N] [--sampler ddpm|ddim]
-               [--samples N] [--seed S] [--overlap C] [--jobs N] [--overwrite] [--report FILE] [--quiet]
+               [--samples N] [--seed S] [--overlap C] [--lookahead L] [--jobs N] [--overwrite] [--report FILE] [--quiet]
 
 IN.npz holds ``poses``, (T, J, 3) or (B, T, J, 3) with NaN = missing, and optionally ``mask``
 (1 = observed). OUT.npz receives ``mean``, ``samples``, ``repaired`` and ``seed``. An existing OUT is
