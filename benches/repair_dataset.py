@@ -16,15 +16,16 @@ on it as a user would, timed from the outside:
    random joints 10-40 %) in turn, seeded; written as ``WORK/in/<action>.npz`` with ``poses`` (NaN where
    hidden) and ``mask``;
 3. ``tcd repair WORK/in -o WORK/out --units mm --fps 50 --report WORK/report.json --quiet`` (plus
-   ``--steps``, ``--samples``, ``--jobs``, ``--seed`` and ``--repair-args``) in a subprocess; the wall time includes starting
-   Python and loading the model;
+   ``--steps``, ``--samples``, ``--jobs``, ``--seed`` and ``--repair-args``) in a subprocess; the wall
+   time includes starting Python and loading the model;
 4. checks that every observed value came back bit for bit, then the ADE (mm) over the hidden entries
    against linear interpolation and the natural cubic spline through each joint's observed frames (the
    same baselines as ``benches/repair_quality.py``, over the whole sequence at its own rate).
 
 Frames per second = source frames of all files / wall-clock seconds of the command. At 50 fps the
 command resamples to the model's 25 fps, so it generates half as many frames, and the model sees only the
-observations of the frames at 25 fps (the baselines use all of them). Needs scipy (``pip install 'tcd-forecast[bench]'``) and the Human3.6M data.
+observations of the frames at 25 fps (the baselines use all of them). Needs scipy
+(``pip install 'tcd-forecast[bench]'``) and the Human3.6M data.
 """
 from __future__ import annotations
 
