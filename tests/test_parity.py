@@ -18,7 +18,6 @@ import tcd
 from fixtures_util import make_model_dir
 from training import diffusion as D
 from training.export import load_model_file
-from training.model import linear_fill
 
 CHAIN_ATOL = 1e-4   # model units (metres)
 O = 50  # observed frames of the cascade
@@ -367,37 +366,47 @@ def test_dpmpp2m_noise_blocks_seeded_and_repair(tiny):
 
 # ------------------------------------------------------------------------- interpolated conditioning
 
-@pytest.fixture(scope="module")
-def tiny_linear(tmp_path_factory):
-    """A repair model (50 + 0 frames) with cond_fill = "linear": (rust Denoiser, torch model, schedule)."""
-    d = make_model_dir(tmp_path_factory.mktemp("parity_linear"), "tiny", seed=5, repair={"cond_fill": "linear"})
+def tiny_repair(tmp_path_factory, name: str, seed: int, over: dict):
+    """A tiny repair model (50 + 0 frames) with the model-config overrides ``over``, each checked in both
+    the PyTorch and the Rust configuration: (rust Denoiser, torch model, schedule)."""
+    d = make_model_dir(tmp_path_factory.mktemp(name), "tiny", seed=seed, repair=over)
     path = d / "repair.safetensors"
     model, sched, _ = load_model_file(path)
-    assert model.cfg.cond_fill == "linear"
     den = tcd.Denoiser.load(path)
-    assert den.config["model"]["cond_fill"] == "linear"
+    for key, value in over.items():
+        assert getattr(model.cfg, key) == value and den.config["model"][key] == value, key
     return den, model, sched
 
 
+@pytest.fixture(scope="module")
+def tiny_linear(tmp_path_factory):
+    """A repair model with cond_fill = "linear"."""
+    return tiny_repair(tmp_path_factory, "parity_linear", 5, {"cond_fill": "linear"})
+
+
 @pytest.mark.parametrize("mask_kind", ["random", "gaps", "none_observed", "all_observed"])
-def test_forward_cond_fill_linear(tiny_linear, mask_kind):
-    """The interpolated observed channel: same numbers in Rust and PyTorch; masked observed entries
-    (NaN here) are never read."""
-    den, model, _ = tiny_linear
-    rng = np.random.default_rng(71 + len(mask_kind))
+@pytest.mark.parametrize("fill,seed", [("linear", 71), ("spline", 171)])
+def test_forward_cond_fill(request, fill, seed, mask_kind):
+    """The interpolated observed channel (linear or spline fill; rows with 0, 1, 2 and many observed frames;
+    leading, inner and trailing gaps): same numbers in Rust and PyTorch; masked observed entries (NaN here)
+    are never read."""
+    den, model, _ = request.getfixturevalue({"linear": "tiny_linear", "spline": "tiny_spline"}[fill])
+    rng = np.random.default_rng(seed + len(mask_kind))
     b, k, length = 2, den.num_features, den.seq_len
     noisy = rng.standard_normal((b, k, length)).astype(np.float32)
     observed = rng.normal(scale=0.3, size=(b, k, length)).astype(np.float32)
-    if mask_kind == "gaps":   # leading, inner and trailing gaps, a row with one observed frame
+    if mask_kind == "gaps":
         mask = np.ones((b, k, length), np.float32)
         mask[:, :, :3] = mask[:, :, 20:31] = mask[:, :, 45:] = 0
         mask[:, 0] = 0
-        mask[:, 0, 7] = 1
+        mask[:, 0, 7] = 1              # one observed frame: held
+        mask[:, 1] = 0
+        mask[:, 1, [4, 30]] = 1        # two: a straight line between them
     else:
         mask = make_mask(mask_kind, rng, b, k, length)
     got = den.forward(noisy, np.where(mask > 0, observed, np.nan).astype(np.float32), mask, 13)
     want = torch_forward(model, noisy, observed, mask, 13)
-    max_diff(got, want, f"forward cond_fill=linear mask={mask_kind}")
+    max_diff(got, want, f"forward cond_fill={fill} mask={mask_kind}")
     np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-5)
 
 
@@ -418,82 +427,28 @@ def test_repair_cond_fill_linear_injected_noise(tiny_linear):
 
 @pytest.fixture(scope="module")
 def tiny_residual(tmp_path_factory):
-    """A repair model that diffuses 5 x the residual over the linear fill: (rust Denoiser, torch model, schedule)."""
-    over = {"cond_fill": "linear", "target": "linear_residual", "target_scale": 5.0}
-    d = make_model_dir(tmp_path_factory.mktemp("parity_residual"), "tiny", seed=6, repair=over)
-    path = d / "repair.safetensors"
-    model, sched, _ = load_model_file(path)
-    assert (model.cfg.target, model.cfg.target_scale) == ("linear_residual", 5.0)
-    den = tcd.Denoiser.load(path)
-    assert den.config["model"]["target"] == "linear_residual"
-    return den, model, sched
+    """A repair model that diffuses 5 x the residual over the linear fill."""
+    return tiny_repair(tmp_path_factory, "parity_residual", 6,
+                       {"cond_fill": "linear", "target": "linear_residual", "target_scale": 5.0})
 
 
 @pytest.fixture(scope="module")
 def tiny_spline(tmp_path_factory):
     """A repair model conditioned on the natural cubic spline fill and diffusing 20 x the residual over it."""
-    over = {"cond_fill": "spline", "target": "spline_residual", "target_scale": 20.0}
-    d = make_model_dir(tmp_path_factory.mktemp("parity_spline"), "tiny", seed=8, repair=over)
-    path = d / "repair.safetensors"
-    model, sched, _ = load_model_file(path)
-    assert (model.cfg.cond_fill, model.cfg.target, model.cfg.target_scale) == ("spline", "spline_residual", 20.0)
-    den = tcd.Denoiser.load(path)
-    assert (den.config["model"]["cond_fill"], den.config["model"]["target"]) == ("spline", "spline_residual")
-    return den, model, sched
+    return tiny_repair(tmp_path_factory, "parity_spline", 8,
+                       {"cond_fill": "spline", "target": "spline_residual", "target_scale": 20.0})
 
 
-@pytest.mark.parametrize("mask_kind", ["random", "gaps", "none_observed", "all_observed"])
-def test_forward_cond_fill_spline(tiny_spline, mask_kind):
-    """The spline-filled observed channel (rows with 0, 1, 2 and many observed frames; leading, inner and
-    trailing gaps): same numbers in Rust and PyTorch; masked observed entries (NaN) are never read."""
-    den, model, _ = tiny_spline
-    rng = np.random.default_rng(171 + len(mask_kind))
-    b, k, length = 2, den.num_features, den.seq_len
-    noisy = rng.standard_normal((b, k, length)).astype(np.float32)
-    observed = rng.normal(scale=0.3, size=(b, k, length)).astype(np.float32)
-    if mask_kind == "gaps":
-        mask = np.ones((b, k, length), np.float32)
-        mask[:, :, :3] = mask[:, :, 20:31] = mask[:, :, 45:] = 0
-        mask[:, 0] = 0
-        mask[:, 0, 7] = 1              # one observed frame: held
-        mask[:, 1] = 0
-        mask[:, 1, [4, 30]] = 1        # two: a straight line between them
-    else:
-        mask = make_mask(mask_kind, rng, b, k, length)
-    got = den.forward(noisy, np.where(mask > 0, observed, np.nan).astype(np.float32), mask, 13)
-    want = torch_forward(model, noisy, observed, mask, 13)
-    max_diff(got, want, f"forward cond_fill=spline mask={mask_kind}")
-    np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-5)
-
-
-@pytest.mark.parametrize("sampler,steps", [("ddpm", 10), ("ddim", 5)])
-def test_repair_spline_residual_injected_noise(tiny_spline, sampler, steps):
-    """target = spline_residual: the chain's result is mapped back onto the spline fill, identically in Rust
-    and PyTorch; observed entries are returned bit for bit."""
-    from training.model import spline_fill
-    den, model, sched = tiny_spline
-    rng = np.random.default_rng(191 + steps)
-    b, k, s = 2, den.num_features, 2
-    observed, mask = observation(rng, b, k, O, O, missing=0.4)
-    mask[0, :, 10:25] = 0
-    kw = dict(sampler=sampler, num_inference_steps=steps, timestep_spacing="trailing")
-    noise = rng.standard_normal((s, steps + 1, b, k, den.seq_len)).astype(np.float32)
-    got = tcd.repair_raw(den, observed, mask, num_samples=s, noise=noise, **kw)
-    want = D.repair(model, sched, torch.from_numpy(observed), torch.from_numpy(mask), seq_len=den.seq_len,
-                    num_samples=s, noise=torch.from_numpy(noise), **kw).numpy()
-    assert chain_close(got["mean"], want, f"repair target=spline_residual {sampler} n={steps}")
-    sel = mask == 1
-    assert np.array_equal(got["mean"][sel], observed[sel])
-    base = spline_fill(torch.from_numpy(observed), torch.from_numpy(mask)).numpy()
-    assert not np.allclose(got["mean"], base, atol=1e-4)
-
-
-@pytest.mark.parametrize("sampler,steps", [("ddpm", 10), ("ddim", 5), ("dpmpp2m", 5)])
-def test_repair_linear_residual_injected_noise(tiny_residual, sampler, steps):
-    """target = linear_residual: the chain runs on the scaled residual and is mapped back onto the linear
-    fill before the observation is merged, identically in Rust and PyTorch."""
-    den, model, sched = tiny_residual
-    rng = np.random.default_rng(91 + steps)
+@pytest.mark.parametrize("fill,sampler,steps", [("linear", "ddpm", 10), ("linear", "ddim", 5), ("linear", "dpmpp2m", 5),
+                                                ("spline", "ddpm", 10), ("spline", "ddim", 5)])
+def test_repair_residual_injected_noise(request, fill, sampler, steps):
+    """target = linear_residual / spline_residual: the chain runs on the scaled residual and is mapped back
+    onto the fill before the observation is merged, identically in Rust and PyTorch; observed entries are
+    returned bit for bit."""
+    from training.model import FILLS
+    den, model, sched = request.getfixturevalue({"linear": "tiny_residual", "spline": "tiny_spline"}[fill])
+    seed, atol = {"linear": (91, 1e-3), "spline": (191, 1e-4)}[fill]
+    rng = np.random.default_rng(seed + steps)
     b, k, s = 2, den.num_features, 2
     observed, mask = observation(rng, b, k, O, O, missing=0.4)
     mask[0, :, 10:25] = 0          # a long gap, all joints
@@ -503,9 +458,9 @@ def test_repair_linear_residual_injected_noise(tiny_residual, sampler, steps):
     got = tcd.repair_raw(den, observed, mask, num_samples=s, noise=noise, **kw)
     want = D.repair(model, sched, torch.from_numpy(observed), torch.from_numpy(mask), seq_len=den.seq_len,
                     num_samples=s, noise=torch.from_numpy(noise), **kw).numpy()
-    assert chain_close(got["mean"], want, f"repair target=linear_residual {sampler} n={steps}")
+    assert chain_close(got["mean"], want, f"repair target={fill}_residual {sampler} n={steps}")
     sel = mask == 1
     assert np.array_equal(got["mean"][sel], observed[sel])
     # the chain's residual is not negligible, so the comparison above exercises the mapping back
-    base = linear_fill(torch.from_numpy(observed), torch.from_numpy(mask)).numpy()
-    assert not np.allclose(got["mean"], base, atol=1e-3)
+    base = FILLS[fill](torch.from_numpy(observed), torch.from_numpy(mask)).numpy()
+    assert not np.allclose(got["mean"], base, atol=atol)

@@ -34,8 +34,8 @@ class ModelConfig:
     layer_norm_eps: float = 1e-5        # PyTorch default of nn.TransformerEncoderLayer
     dropout: float = 0.1                # transformer dropout (training only; the reference keeps PyTorch's default)
     cond_fill: str = "zero"             # what the observed channel holds at masked entries: "zero" (CSDI/TCD),
-                                        # "linear" or "spline" (natural cubic spline, spline_fill)
-                                        # or "linear" (interpolated along time from the observed frames, PriSTI-style)
+                                        # "linear" (interpolated along time from the observed frames, PriSTI-style)
+                                        # or "spline" (the natural cubic spline through them, spline_fill)
     target: str = "absolute"            # what the diffusion generates: "absolute" (the poses, TCD) or
                                         # "linear_residual": target_scale * (poses - linear_fill(observed, mask)),
                                         # "spline_residual": the same over spline_fill
@@ -307,7 +307,7 @@ def spline_fill(observed: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
 
 
 FILLS = {"linear": linear_fill, "spline": spline_fill}
-RESIDUAL_FILLS = {"linear_residual": linear_fill, "spline_residual": spline_fill}
+RESIDUAL_FILLS = {f"{name}_residual": fill for name, fill in FILLS.items()}
 
 
 def to_target(cfg: ModelConfig, x0: torch.Tensor, observed: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:

@@ -68,6 +68,17 @@ pub enum Target {
     SplineResidual,
 }
 
+impl Target {
+    /// The fill a residual target is taken over (`None` for [`Target::Absolute`]).
+    pub fn residual_fill(self) -> Option<CondFill> {
+        match self {
+            Target::Absolute => None,
+            Target::LinearResidual => Some(CondFill::Linear),
+            Target::SplineResidual => Some(CondFill::Spline),
+        }
+    }
+}
+
 fn default_target_scale() -> f64 {
     1.0
 }

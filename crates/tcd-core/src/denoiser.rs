@@ -712,8 +712,8 @@ fn transpose_tokens(src: &[f32], dst: &mut [f32], a: usize, b: usize, c: usize) 
 }
 
 /// The network input of one sequence, interleaved (N × 2) with N = K·L in (k, l) order: channel 0 is
-/// the observed channel (`m · x₀`, or with [`CondFill::Linear`] the observed values linearly
-/// interpolated along time over the masked entries), channel 1 is `(1 − m) · x_t`.
+/// the observed channel (`m · x₀`, or with [`CondFill::Linear`] / [`CondFill::Spline`] the masked entries
+/// filled along time from the observed ones, [`CondFill::fill_row`]), channel 1 is `(1 − m) · x_t`.
 fn build_input(fill: CondFill, length: usize, mask: &[f32], observed: &[f32], noisy: &[f32], inp: &mut [f32]) {
     for (((pair, &mv), &ov), &nv) in inp.chunks_exact_mut(2).zip(mask).zip(observed).zip(noisy) {
         pair[0] = if mv == 0.0 { 0.0 } else { mv * ov };
@@ -725,11 +725,19 @@ fn build_input(fill: CondFill, length: usize, mask: &[f32], observed: &[f32], no
             .zip(mask.chunks_exact(length))
             .zip(observed.chunks_exact(length))
         {
-            if fill == CondFill::Spline {
-                fill_spline(m, o, |ll, v| row[2 * ll] = v);
-            } else {
-                fill_linear(m, o, |ll, v| row[2 * ll] = v);
-            }
+            fill.fill_row(m, o, |ll, v| row[2 * ll] = v);
+        }
+    }
+}
+
+impl CondFill {
+    /// Calls `set(l, v)` with this fill's value `v` for every masked entry `l` of one coordinate's row
+    /// ([`fill_linear`] or [`fill_spline`]); `Zero` calls nothing (its masked entries stay 0).
+    pub fn fill_row(self, mask: &[f32], observed: &[f32], set: impl FnMut(usize, f32)) {
+        match self {
+            CondFill::Zero => {}
+            CondFill::Linear => fill_linear(mask, observed, set),
+            CondFill::Spline => fill_spline(mask, observed, set),
         }
     }
 }

@@ -13,8 +13,7 @@ use std::str::FromStr;
 
 use rayon::prelude::*;
 
-use crate::config::Target;
-use crate::denoiser::{fill_linear, fill_spline, CondTables, Denoiser, Workspace};
+use crate::denoiser::{CondTables, Denoiser, Workspace};
 use crate::error::{check_len, check_positive, Error, Result};
 use crate::rng::{stage, ChainNoise, Noise};
 use crate::schedule::NoiseSchedule;
@@ -299,7 +298,7 @@ pub(crate) fn run_chain(
         step.apply(&mut x, &eps, &z, &mut prev_x0);
     }
     let m = &denoiser.config().model;
-    if m.target != Target::Absolute {
+    if let Some(fill) = m.target.residual_fill() {
         let inv = (1.0 / m.target_scale) as f32;
         let length = n / denoiser.num_features();
         for ((row, mr), or) in x
@@ -307,11 +306,7 @@ pub(crate) fn run_chain(
             .zip(mask.chunks_exact(length))
             .zip(observed.chunks_exact(length))
         {
-            if m.target == Target::SplineResidual {
-                fill_spline(mr, or, |ll, v| row[ll] = v + row[ll] * inv);
-            } else {
-                fill_linear(mr, or, |ll, v| row[ll] = v + row[ll] * inv);
-            }
+            fill.fill_row(mr, or, |ll, v| row[ll] = v + row[ll] * inv);
         }
     }
     merge_observed(&mut x, observed, mask);
