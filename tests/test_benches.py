@@ -144,3 +144,22 @@ def test_repair_dataset_runs_tcd_repair_on_a_directory(tiny_dir, tmp_path):
     assert all(math.isfinite(v) and v > 0 for v in r["ade_mm"].values())
     assert sorted(p.name for p in (tmp_path / "w" / "out").iterdir()) == sorted(
         p.name for p in (tmp_path / "w" / "in").iterdir())
+
+
+def test_train_throughput_smoke(tmp_path):
+    """benches/train_throughput.py on the CPU at the tiny size: every requested combination is timed (bf16 is
+    recorded as skipped off CUDA), the JSON holds windows/s, and the reference peer runs beside the
+    channels-last step. Timings are not asserted."""
+    bench = load_bench("train_throughput")
+    out = tmp_path / "tp.json"
+    rc = bench.main(["--device", "cpu", "--preset", "tiny", "--batch", "4", "--steps", "2", "--reps", "1",
+                     "--warmup", "1", "--roles", "short", "repair", "--modes", "eager", "--json", str(out)])
+    assert rc == 0
+    res = json.loads(out.read_text())
+    timed = [r for r in res["results"] if "windows_per_s" in r]
+    assert {(r["role"], r["impl"], r["seq_len"]) for r in timed} == {
+        ("short", "channels_last", 55), ("short", "reference", 55), ("repair", "channels_last", 50), ("repair", "reference", 50)}
+    assert all(r["windows_per_s"] > 0 and r["precision"] == "fp32" for r in timed)
+    assert {r["skipped"] for r in res["results"] if "windows_per_s" not in r} == {
+        "bf16 autocast is used on CUDA only (TrainConfig.amp)"}
+    assert res["meta"]["preset"] == "tiny" and res["meta"]["data"] == "synthetic"

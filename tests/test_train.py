@@ -6,7 +6,8 @@ import torch
 
 from training.diffusion import DiffusionConfig, Schedule
 from training.model import ModelConfig, TCDModel
-from training.train import TrainConfig, Windows, make_batch, train, validation_loss
+from training.batches import Windows, make_batch
+from training.train import TrainConfig, learning_rate, train, validation_loss
 
 
 def synthetic_motion(n_seq=6, T=60, J=22, seed=0):
@@ -123,3 +124,81 @@ def test_config_files_load(tmp_path):
 def test_windows_index():
     w = Windows([np.zeros((10, 22, 3)), np.zeros((4, 22, 3))], length=5, stride=2)
     assert len(w) == 3 and w.gather(np.array([2])).shape == (1, 5, 22, 3)
+
+
+def test_learning_rate_is_the_papers_multistep_schedule_with_a_warm_up():
+    cfg = tiny_cfg(epochs=20, lr=1e-3, milestones=(0.75, 0.9))
+    model = torch.nn.Linear(2, 2)
+    opt = torch.optim.SGD(model.parameters(), lr=cfg.lr)
+    ref = torch.optim.lr_scheduler.MultiStepLR(opt, milestones=[15, 18], gamma=0.1)
+    for epoch in range(cfg.epochs):
+        for b in range(3):
+            assert learning_rate(cfg, epoch * 3 + b, 3) == pytest.approx(opt.param_groups[0]["lr"], rel=1e-12)
+        opt.step()
+        ref.step()
+    warm = tiny_cfg(epochs=20, lr=1e-3, warmup_steps=4)
+    assert [learning_rate(warm, s, 3) for s in range(5)] == pytest.approx([2.5e-4, 5e-4, 7.5e-4, 1e-3, 1e-3])
+
+
+def test_bad_train_config_values_are_refused():
+    for kw, word in (({"batches": "gpu"}, "batches"), ({"ema_decay": 1.0}, "ema_decay"),
+                     ({"warmup_steps": -1}, "warmup_steps")):
+        with pytest.raises(ValueError, match=word):
+            tiny_cfg(**kw)
+
+
+def test_device_batches_train_resume_exactly_and_lower_the_loss(tmp_path):
+    """batches="device" (everything drawn on the device; here the CPU): a pure function of (seed, epoch,
+    batch), so an interrupted and resumed run ends with the weights of an uninterrupted one."""
+    seqs = {"train": synthetic_motion(6, seed=0), "val": synthetic_motion(2, seed=1)}
+    cfg = tiny_cfg(epochs=2, steps_per_epoch=25, val_every=2, batches="device",
+                   mask_mix=[["none", 1.0], ["random_leg_arm", 1.0, 0.4], ["noisy_25", 0.5]])
+    torch.manual_seed(cfg.seed)
+    untrained = TCDModel(ModelConfig.from_dict(cfg.model))
+    before = validation_loss(untrained, Schedule(DiffusionConfig()), cfg, Windows(seqs["val"], 14, cfg.val_stride), "cpu")
+    res = train(cfg, tmp_path / "full", sequences=seqs, log=lambda *a: None)
+    assert res["best_val"] < 0.6 * before, (before, res["best_val"])
+    part = tmp_path / "part"
+    train(cfg, part, sequences=seqs, max_minutes=0.0, log=lambda *a: None)   # stops after one batch
+    train(cfg, part, sequences=seqs, resume=True, log=lambda *a: None)
+    a = torch.load(tmp_path / "full" / "last.pt", weights_only=False)["model"]
+    b = torch.load(part / "last.pt", weights_only=False)["model"]
+    for k in a:
+        assert torch.equal(a[k], b[k]), k
+
+
+def test_ema_weights_are_validated_resumed_and_exported(tmp_path):
+    from training.export import export_checkpoint, load_model_file
+    seqs = {"train": synthetic_motion(4, seed=0), "val": synthetic_motion(2, seed=1)}
+    cfg = tiny_cfg(epochs=2, steps_per_epoch=6, ema_decay=0.9)
+    train(cfg, tmp_path / "full", sequences=seqs, log=lambda *a: None)
+    part = tmp_path / "part"
+    train(cfg, part, sequences=seqs, max_minutes=0.0, log=lambda *a: None)
+    train(cfg, part, sequences=seqs, resume=True, log=lambda *a: None)
+    full = torch.load(tmp_path / "full" / "last.pt", weights_only=False)
+    resumed = torch.load(part / "last.pt", weights_only=False)
+    assert full["ema_n"] == resumed["ema_n"] == 12
+    key = "diffmodel.residual_layers.0.mid_projection.weight"
+    assert not torch.allclose(full["ema"][key], full["model"][key])        # an average, not the last weights
+    for k in full["ema"]:
+        assert torch.allclose(full["ema"][k], resumed["ema"][k], atol=1e-6), k
+    path = export_checkpoint(tmp_path / "full" / "last.pt", tmp_path / "export")
+    exported, _, meta = load_model_file(path)
+    assert torch.equal(exported.state_dict()[key], full["ema"][key])
+    assert meta["training"]["weights"] == "ema"
+    # the validation loss recorded is the EMA weights' loss
+    ema_model = TCDModel(ModelConfig.from_dict(cfg.model))
+    ema_model.load_state_dict(full["ema"])
+    v = validation_loss(ema_model, Schedule(DiffusionConfig()), cfg, Windows(seqs["val"], 14, cfg.val_stride), "cpu")
+    assert full["history"][-1]["val_loss"] == pytest.approx(v, rel=1e-6)
+
+
+def test_compile_failure_falls_back_to_eager_training(tmp_path, monkeypatch):
+    def broken(*a, **k):
+        raise RuntimeError("no compiler here")
+    monkeypatch.setattr(torch, "compile", broken)
+    seqs = {"train": synthetic_motion(4, seed=0), "val": synthetic_motion(2, seed=1)}
+    lines = []
+    res = train(tiny_cfg(epochs=1, steps_per_epoch=3, compile=True), tmp_path, sequences=seqs, log=lines.append)
+    assert res["epoch"] == 1
+    assert any("torch.compile failed (RuntimeError: no compiler here); training eagerly" in l for l in lines), lines

@@ -164,9 +164,11 @@ def export_checkpoint(ckpt_path: str | Path, out_dir: str | Path, description: s
     model_cfg = ModelConfig.from_dict(ck["model_config"])
     diff_cfg = DiffusionConfig.from_dict(ck["diffusion_config"])
     model = TCDModel(model_cfg, diff_cfg.num_train_timesteps)
-    model.load_state_dict(ck["model"], strict=True)
+    # the weights that were validated: the moving average when the run kept one
+    model.load_state_dict(ck["ema"] if ck.get("ema") is not None else ck["model"], strict=True)
     role = ck["role"]
     training = {k: ck.get(k) for k in ("epoch", "step", "best_val", "train_config", "elapsed_s")}
+    training["weights"] = "ema" if ck.get("ema") is not None else "raw"
     if not (isinstance(training["best_val"], float) and math.isfinite(training["best_val"])):
         training["best_val"] = None  # no validation yet (an early last.pt): JSON has no Infinity
     if description:

@@ -1,14 +1,18 @@
 """Train a model on a lent GPU within a fixed time budget, in one or more resumable calls.
 
-    python -m training.gpu_session --config training/configs/gpu_repair.json --run runs/gpu_repair \\
-        --data data_cache/h36m_model_cache.npz --budget-minutes 16 --minutes 8 [--copy-to DIR]
+    python -m training.gpu_session --config training/configs/gpu_long.json --run gpu_carry/long \\
+        --data gpu_carry/h36m_model_cache.npz --budget-minutes 8 --minutes 8 \\
+        [--init-from python/tcd/weights/long.safetensors] [--copy-to $OUT/long] [--export $OUT/export]
 
-First call (no ``RUN/config.json`` yet): a short probe (``--probe-seconds``) measures the training
-steps per second on this machine with the real data pipeline; the number of epochs is then set so that
-the whole learning-rate schedule (milestones included) fits in ``--budget-minutes`` of training, the
-chosen config is written to ``RUN/config.json``, and training runs for ``--minutes``. Later calls
-resume from ``RUN/last.pt`` with ``RUN/config.json`` for another ``--minutes``. ``--copy-to`` copies the
-checkpoints, the config and the log there (the device tool's ``$OUT``).
+First call (no ``RUN/config.json`` yet): the training step of the config (its batches drawn on the
+device, its compile and precision settings) is timed by ``training.throughput`` (``--probe-steps``
+after the warm-up, which includes compiling); the number of epochs is then set so that the whole
+learning-rate schedule (warm-up and milestones) fits in ``--budget-minutes`` of training, the chosen
+config is written to ``RUN/config.json``, and training runs for ``--minutes``. Later calls resume from
+``RUN/last.pt`` with ``RUN/config.json`` for another ``--minutes`` (carry ``RUN`` back to the GPU
+machine between calls). ``--copy-to`` copies the checkpoints, the config and the log there (the device
+tool's ``$OUT``); ``--export`` writes the best checkpoint's weights (the EMA when the run keeps one) as
+``ROLE.safetensors`` there, the file a session compares with the bundled weights.
 """
 from __future__ import annotations
 
@@ -18,13 +22,13 @@ import math
 import os
 import shutil
 import sys
-import tempfile
 import time
 from dataclasses import asdict, replace
 from pathlib import Path
 
 import torch
 
+from .throughput import time_training_steps
 from .train import TrainConfig, train
 
 
@@ -37,7 +41,9 @@ def main(argv=None) -> int:
     ap.add_argument("--budget-minutes", type=float, required=True,
                     help="training minutes the whole schedule is sized for (all calls together)")
     ap.add_argument("--minutes", type=float, required=True, help="training minutes of this call")
-    ap.add_argument("--probe-seconds", type=float, default=45.0)
+    ap.add_argument("--probe-steps", type=int, default=30, help="timed steps of the throughput probe")
+    ap.add_argument("--init-from", default=None, help="warm start (overrides the config's init_from): .safetensors or .pt")
+    ap.add_argument("--export", default=None, help="write the best weights as ROLE.safetensors in this directory")
     ap.add_argument("--workers", type=int, default=max(1, min(12, (os.cpu_count() or 2) - 2)))
     ap.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     ap.add_argument("--copy-to", default=None)
@@ -64,18 +70,19 @@ def main(argv=None) -> int:
         resume = True
     else:
         cfg = TrainConfig.load(args.config)
+        if args.init_from:
+            cfg = replace(cfg, init_from=args.init_from)
+        if not cfg.steps_per_epoch:
+            raise SystemExit(f"{args.config}: a GPU session needs steps_per_epoch (the schedule is sized in epochs)")
         seqs = {split: load_sequences(cfg, args.data, split) for split in ("train", "val")}
-        probe_cfg = replace(cfg, epochs=10_000, val_every=10_000)
-        with tempfile.TemporaryDirectory() as tmp:
-            t0 = time.time()
-            res = train(probe_cfg, tmp, sequences=seqs, max_minutes=args.probe_seconds / 60, device=args.device,
-                        workers=args.workers, log=lambda *a: None)
-            steps = res["epoch"] * cfg.steps_per_epoch + res["batch"]
-        rate = steps / args.probe_seconds
-        epochs = max(1, int(rate * 60 * args.budget_minutes * 0.97 / cfg.steps_per_epoch))
-        log(f"probe: {steps} steps in {args.probe_seconds:.0f} s of training ({time.time() - t0:.0f} s with start-up): "
-            f"{rate:.1f} steps/s, batch {cfg.batch_size} -> {epochs} epochs of {cfg.steps_per_epoch} steps "
-            f"for {args.budget_minutes} min")
+        t0 = time.time()
+        probe = time_training_steps(cfg, seqs["train"], args.device, warmup=3, steps=args.probe_steps, reps=1, log=log)
+        rate = probe["steps_per_s"]
+        # 0.95: validations and checkpoints take the rest of the budget
+        epochs = max(1, int(rate * 60 * args.budget_minutes * 0.95 / cfg.steps_per_epoch))
+        log(f"probe: {rate:.2f} steps/s ({probe['windows_per_s']:.0f} windows/s, batch {cfg.batch_size}; "
+            f"warm-up with compiling {probe['warmup_s']:.0f} s, probe {time.time() - t0:.0f} s in all) -> "
+            f"{epochs} epochs of {cfg.steps_per_epoch} steps for {args.budget_minutes} min")
         cfg = replace(cfg, epochs=epochs, val_every=min(cfg.val_every, epochs))
         chosen.write_text(json.dumps(asdict(cfg), indent=1))
         resume = False
@@ -86,6 +93,11 @@ def main(argv=None) -> int:
         if "val_loss" in h:
             log(f"history: {h}")
     logf.close()
+    if args.export:
+        from .export import export_checkpoint
+        best = run / "best.pt" if (run / "best.pt").is_file() else run / "last.pt"
+        Path(args.export).mkdir(parents=True, exist_ok=True)
+        log(f"exported {export_checkpoint(best, args.export)} from {best}")
     if args.copy_to:
         dst = Path(args.copy_to)
         dst.mkdir(parents=True, exist_ok=True)

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from .batches import BatchSource, DeviceBatchSource, Windows, make_batch
 from .diffusion import DiffusionConfig, Schedule, training_loss
 from .model import ModelConfig, TCDModel, count_parameters
 
@@ -50,6 +51,10 @@ class TrainConfig:
     mask_mix: list = field(default_factory=lambda: [["none", 1.0]])  # [[pattern, weight(, rate)], ...] per window
     seed: int = 0
     amp: bool = True                 # bf16 autocast on CUDA
+    batches: str = "host"            # host: numpy masks per window (BatchSource); device: all drawn on the device
+    compile: bool = False            # torch.compile the training forward (eager where compiling fails)
+    ema_decay: float = 0.0           # > 0: exponential moving average of the weights, validated and exported
+    warmup_steps: int = 0            # linear learning-rate warm-up over the first optimizer steps
     init_from: str = ""              # warm start: a checkpoint (.pt) or exported .safetensors whose weights start this run
 
     @classmethod
@@ -60,6 +65,14 @@ class TrainConfig:
         if unknown:
             raise ValueError(f"{path}: unknown config keys {sorted(unknown)}")
         return cls(**{k: v for k, v in d.items() if k in known})
+
+    def __post_init__(self):
+        if self.batches not in ("host", "device"):
+            raise ValueError(f"train config: batches must be 'host' or 'device', got {self.batches!r}")
+        if not 0.0 <= self.ema_decay < 1.0:
+            raise ValueError(f"train config: ema_decay must be in [0, 1), got {self.ema_decay!r}")
+        if self.warmup_steps < 0:
+            raise ValueError(f"train config: warmup_steps must be >= 0, got {self.warmup_steps!r}")
 
 
 # ------------------------------------------------------------------------------------------ data
@@ -85,103 +98,78 @@ def write_cache(data: str | None, out: str | Path) -> None:
     np.savez_compressed(out, **arrays)
 
 
-class Windows:
-    """All windows of ``length`` frames with a stride, gathered on demand."""
-
-    def __init__(self, seqs: list[np.ndarray], length: int, stride: int):
-        self.seqs = seqs
-        self.length = length
-        self.index = np.asarray([(i, s) for i, q in enumerate(seqs) for s in range(0, len(q) - length + 1, stride)],
-                                dtype=np.int64).reshape(-1, 2)
-
-    def __len__(self) -> int:
-        return len(self.index)
-
-    def gather(self, rows: np.ndarray) -> np.ndarray:
-        return np.stack([self.seqs[i][s:s + self.length] for i, s in self.index[rows]]).astype(np.float32)
-
-
-def _mix_rate(entry):
-    """The optional third item of a ``mask_mix`` entry: a rate, or a [low, high] range (random_joints)."""
-    if len(entry) not in (2, 3):
-        raise ValueError(f"mask_mix entry {entry!r}: expected [pattern, weight] or [pattern, weight, rate]")
-    if len(entry) == 2:
-        return None
-    return tuple(entry[2]) if isinstance(entry[2], (list, tuple)) else entry[2]
-
-
-def make_batch(cfg: TrainConfig, wins: np.ndarray, rng: np.random.Generator):
-    """Clean windows (B, L, J, 3) -> (x0, observed, mask) tensors (B, K, L).
-    Each window draws one pattern of ``mask_mix``; occluded observation entries become targets."""
-    from .masks import corrupt
-    B, L, J, _ = wins.shape
-    observed = wins.copy()
-    jmask = np.zeros((B, L, J), dtype=np.float32)
-    jmask[:, :cfg.obs_len] = 1.0
-    rates = [_mix_rate(entry) for entry in cfg.mask_mix]
-    patterns = [entry[0] for entry in cfg.mask_mix]
-    weights = np.asarray([entry[1] for entry in cfg.mask_mix], dtype=np.float64)
-    choice = rng.choice(len(patterns), size=B, p=weights / weights.sum())
-    for b in range(B):
-        if patterns[choice[b]] != "none":
-            observed[b], jmask[b] = corrupt(wins[b], patterns[choice[b]], cfg.obs_len, rng, rate=rates[choice[b]])
-    observed[:, cfg.obs_len:] = 0.0
-    def bkl(a):
-        return torch.from_numpy(np.ascontiguousarray(a.reshape(B, L, J * 3).transpose(0, 2, 1)))
-    return bkl(wins), bkl(observed), bkl(np.repeat(jmask[..., None], 3, axis=-1))
-
-
-class BatchSource:
-    """The training batches of an epoch, each a pure function of (seed, epoch, batch index): the window
-    rows (a seeded permutation per epoch), the occlusion masks, the diffusion steps t and the noise eps.
-    So the batches are the same whether drawn here or in DataLoader worker processes, and a resumed run
-    continues with exactly the batches it would have drawn."""
-
-    def __init__(self, cfg: TrainConfig, windows: Windows, T: int, steps_per_epoch: int):
-        self.cfg, self.windows, self.T, self.steps_per_epoch = cfg, windows, T, steps_per_epoch
-        self._perm_epoch, self._perm = None, None
-
-    def batch(self, epoch: int, batch_i: int):
-        cfg = self.cfg
-        if self._perm_epoch != epoch:
-            self._perm = np.random.default_rng([cfg.seed, epoch]).permutation(len(self.windows))
-            self._perm_epoch = epoch
-        rows = self._perm[(np.arange(cfg.batch_size) + batch_i * cfg.batch_size) % len(self._perm)]
-        x0, obs, mask = make_batch(cfg, self.windows.gather(rows), np.random.default_rng([cfg.seed, epoch, batch_i]))
-        g = torch.Generator().manual_seed(((cfg.seed * 1_000_003 + epoch) * 1_000_003 + batch_i) % (1 << 62))
-        t = torch.randint(0, self.T, (x0.shape[0],), generator=g)   # the draw order of training_loss
-        eps = torch.randn(x0.shape, generator=g)
-        return x0, obs, mask, t, eps
-
-    def iterate(self, epoch: int, start: int, workers: int):
-        """Batches start..steps_per_epoch-1 of an epoch, in order."""
-        if workers <= 0:
-            for i in range(start, self.steps_per_epoch):
-                yield self.batch(epoch, i)
-            return
-        ds = _EpochBatches(self, epoch, start)
-        loader = torch.utils.data.DataLoader(ds, batch_size=None, shuffle=False, num_workers=workers,
-                                             pin_memory=torch.cuda.is_available(), prefetch_factor=4)
-        yield from loader
-
-
-class _EpochBatches(torch.utils.data.Dataset):
-    def __init__(self, source: BatchSource, epoch: int, start: int):
-        self.source, self.epoch, self.start = source, epoch, start
-
-    def __len__(self) -> int:
-        return self.source.steps_per_epoch - self.start
-
-    def __getitem__(self, i: int):
-        return self.source.batch(self.epoch, self.start + i)
-
-
 # ------------------------------------------------------------------------------------------ loop
+
+def learning_rate(cfg: TrainConfig, step: int, steps_per_epoch: int) -> float:
+    """The learning rate of optimizer step ``step`` (0-based): ``cfg.lr``, times ``gamma`` for each
+    milestone epoch (``int(f * epochs)``) reached (the paper's MultiStepLR), times a linear warm-up over
+    the first ``warmup_steps`` steps. A pure function of the step, so a resumed run needs no scheduler state."""
+    epoch = step // steps_per_epoch
+    lr = cfg.lr * cfg.gamma ** sum(epoch >= int(f * cfg.epochs) for f in cfg.milestones)
+    return lr * min(1.0, (step + 1) / cfg.warmup_steps) if cfg.warmup_steps else lr
+
+
+def training_forward(model: TCDModel, cfg: TrainConfig, batch_shape: tuple, device: str, log=print):
+    """The forward the optimizer steps through: the channels-last forward (training.channels_last), and
+    with ``cfg.compile`` that forward compiled by ``torch.compile``. The compiled forward is tried once,
+    forward and backward, on a batch of the training shape (B, K, L); where compiling fails (no compiler,
+    an unsupported backend) training goes on eagerly and the log says why."""
+    from .channels_last import ChannelsLast
+    fast = ChannelsLast(model)
+    if not cfg.compile:
+        return fast
+    try:
+        compiled = torch.compile(fast)
+        z = torch.zeros(batch_shape, device=device)
+        t = torch.zeros(batch_shape[0], dtype=torch.long, device=device)
+        with torch.autocast(device_type=torch.device(device).type, dtype=torch.bfloat16, enabled=amp_enabled(cfg, device)):
+            out = compiled(z, z, z, t)
+        out.float().sum().backward()
+        model.zero_grad(set_to_none=True)
+        return compiled
+    except Exception as exc:  # noqa: BLE001 - any compiler failure means: train eagerly
+        model.zero_grad(set_to_none=True)
+        log(f"torch.compile failed ({type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}); training eagerly")
+        return fast
+
+
+def amp_enabled(cfg: TrainConfig, device: str) -> bool:
+    return cfg.amp and torch.device(device).type == "cuda"
+
+
+def train_step(forward, opt: torch.optim.Optimizer, sched: Schedule, batch, amp: bool) -> torch.Tensor:
+    """One optimizer step on one batch (x0, observed, mask, t, eps); the loss (a device tensor: no sync)."""
+    x0, obs, mask, t, eps = batch
+    with torch.autocast(device_type=x0.device.type, dtype=torch.bfloat16, enabled=amp):
+        loss = training_loss(forward, sched, x0, mask, t=t, eps=eps, observed=obs)
+    opt.zero_grad(set_to_none=True)
+    loss.backward()
+    opt.step()
+    return loss.detach()
+
+
+def make_optimizer(model: torch.nn.Module, cfg: TrainConfig, device: str) -> torch.optim.Adam:
+    # fused Adam: one kernel for all parameters on a GPU instead of a dozen per tensor
+    return torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay,
+                            fused=torch.device(device).type == "cuda")
+
+
+def make_ema(model: TCDModel, cfg: TrainConfig):
+    """The exponential moving average of the weights (``cfg.ema_decay`` > 0), or None."""
+    if not cfg.ema_decay:
+        return None
+    from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
+    return AveragedModel(model, multi_avg_fn=get_ema_multi_avg_fn(cfg.ema_decay))
+
 
 @torch.no_grad()
 def validation_loss(model, sched: Schedule, cfg: TrainConfig, val: Windows, device: str) -> float:
-    """Mean masked loss over validation windows and diffusion steps, with fixed noise."""
+    """Mean masked loss over validation windows and diffusion steps, with fixed noise (host masks, the
+    same windows and draws whatever the batch source of training)."""
+    from .channels_last import ChannelsLast
+    was_training = model.training
     model.eval()
+    forward = ChannelsLast(model)
     rows = np.arange(len(val))
     if cfg.val_max_windows:
         rows = rows[np.linspace(0, len(val) - 1, min(cfg.val_max_windows, len(val))).astype(int)]
@@ -194,9 +182,9 @@ def validation_loss(model, sched: Schedule, cfg: TrainConfig, val: Windows, devi
         for t in ts:
             g = torch.Generator().manual_seed(int(t) * 100_003 + b0)
             tt = torch.full((len(r),), int(t), dtype=torch.long, device=device)
-            total += float(training_loss(model, sched, x0, mask, t=tt, generator=g, observed=obs)) * len(r)
+            total += float(training_loss(forward, sched, x0, mask, t=tt, generator=g, observed=obs)) * len(r)
             n += len(r)
-    model.train()
+    model.train(was_training)
     return total / max(n, 1)
 
 
@@ -211,18 +199,21 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
           sequences: dict | None = None, workers: int = 0, log=print) -> dict:
     """Train (or resume) a model into ``out``. ``sequences`` ({"train": [...], "val": [...]} of (T, J, 3)
     arrays in metres) replaces the dataset, for tests on synthetic motion. ``workers`` > 0 draws the
-    batches in that many DataLoader processes (the same batches, bit for bit, as ``workers`` = 0)."""
+    host batches in that many DataLoader processes (the same batches, bit for bit, as ``workers`` = 0).
+
+    Checkpoints hold the raw weights (``model``), the optimizer, and with ``ema_decay`` the averaged
+    weights (``ema``), which are the ones validated, kept in ``best.pt`` and exported."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     model_cfg = ModelConfig.from_dict(cfg.model)
     diff_cfg = DiffusionConfig.from_dict(cfg.diffusion)
     sched = Schedule(diff_cfg)
     L = cfg.obs_len + cfg.pred_len
+    if torch.device(device).type == "cuda":
+        torch.set_float32_matmul_precision("high")      # TF32 for what autocast leaves in float32
     torch.manual_seed(cfg.seed)
     model = TCDModel(model_cfg, diff_cfg.num_train_timesteps).to(device)
-    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-    milestones = [int(f * cfg.epochs) for f in cfg.milestones]
-    lr_sched = torch.optim.lr_scheduler.MultiStepLR(opt, milestones=milestones, gamma=cfg.gamma)
+    opt = make_optimizer(model, cfg, device)
     seqs = sequences or {split: load_sequences(cfg, data, split) for split in ("train", "val")}
     train_w = Windows(seqs["train"], L, cfg.train_stride)
     val_w = Windows(seqs["val"], L, cfg.val_stride)
@@ -235,13 +226,13 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
             "data": h36m_data_meta(), "train_config": asdict(cfg)}
     epoch, batch_i, best_val, elapsed0, history = 0, 0, float("inf"), 0.0, []
     last = out / "last.pt"
+    ck = None
     if resume and last.is_file():
         ck = torch.load(last, map_location=device, weights_only=False)
         if ck["train_config"] != asdict(cfg):
             raise ValueError(f"{last} was trained with another config; start a new --out or use the same config")
         model.load_state_dict(ck["model"])
         opt.load_state_dict(ck["optimizer"])
-        lr_sched.load_state_dict(ck["lr_scheduler"])
         epoch, batch_i, best_val = ck["epoch"], ck["batch"], ck["best_val"]
         elapsed0, history = ck.get("elapsed_s", 0.0), ck.get("history", [])
         log(f"resumed from {last}: epoch {epoch}, batch {batch_i}")
@@ -254,39 +245,53 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
             model.load_state_dict(load_file(str(init), device=device))  # strict: the architecture must match
             log(f"warm start from exported weights {init}")
         else:
-            ck = torch.load(init, map_location=device, weights_only=False)
-            model.load_state_dict(ck["model"])  # strict: the architecture must match
-            log(f"warm start from {init} (its best validation loss {ck.get('best_val', float('nan')):.4f})")
+            init_ck = torch.load(init, map_location=device, weights_only=False)
+            model.load_state_dict(init_ck.get("ema") or init_ck["model"])  # strict: the architecture must match
+            log(f"warm start from {init} (its best validation loss {init_ck.get('best_val', float('nan')):.4f})")
+    ema = make_ema(model, cfg)
+    if ema is not None and ck is not None:
+        ema.module.load_state_dict(ck["ema"])
+        ema.n_averaged.fill_(ck["ema_n"])
+    evaluated = model if ema is None else ema.module    # the weights validated and exported
     log(f"{cfg.role}: {count_parameters(model):,} parameters, {len(train_w):,} training windows, "
-        f"{len(val_w):,} validation windows, {steps_per_epoch} steps/epoch x {cfg.epochs} epochs, device {device}")
-    use_amp = cfg.amp and device.startswith("cuda")
+        f"{len(val_w):,} validation windows, {steps_per_epoch} steps/epoch x {cfg.epochs} epochs, device {device}, "
+        f"{cfg.batches} batches" + (f", EMA {cfg.ema_decay}" if ema is not None else ""))
+    amp = amp_enabled(cfg, device)
+    model.train()
+    forward = training_forward(model, cfg, (cfg.batch_size, model_cfg.num_features, L), device, log)
+    if cfg.batches == "device":
+        source = DeviceBatchSource(cfg, train_w, sched.T, steps_per_epoch, device)
+    else:
+        source = BatchSource(cfg, train_w, sched.T, steps_per_epoch)
     t_start = time.time()
     last_ck = t_start
 
     def state(best=None):
-        return dict(meta, model=model.state_dict(), optimizer=opt.state_dict(), lr_scheduler=lr_sched.state_dict(),
-                    epoch=epoch, batch=batch_i, step=epoch * steps_per_epoch + batch_i,
-                    best_val=best_val if best is None else best, elapsed_s=elapsed0 + time.time() - t_start,
-                    history=history)
+        s = dict(meta, model=model.state_dict(), optimizer=opt.state_dict(),
+                 epoch=epoch, batch=batch_i, step=epoch * steps_per_epoch + batch_i,
+                 best_val=best_val if best is None else best, elapsed_s=elapsed0 + time.time() - t_start,
+                 history=history)
+        if ema is not None:
+            s.update(ema=ema.module.state_dict(), ema_n=int(ema.n_averaged))
+        return s
 
-    model.train()
     stopped = False
-    source = BatchSource(cfg, train_w, sched.T, steps_per_epoch)
     while epoch < cfg.epochs and not stopped:
         run_loss, run_n = torch.zeros((), device=device), 0
-        for x0, obs, mask, t, eps in source.iterate(epoch, batch_i, workers):
-            x0, obs, mask, t, eps = (a.to(device, non_blocking=True) for a in (x0, obs, mask, t, eps))
-            with torch.autocast(device_type="cuda", dtype=torch.bfloat16, enabled=use_amp):
-                loss = training_loss(model, sched, x0, mask, t=t, eps=eps, observed=obs)
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
-            run_loss, run_n = run_loss + loss.detach().float(), run_n + 1
+        for batch in source.iterate(epoch, batch_i, workers):
+            lr = learning_rate(cfg, epoch * steps_per_epoch + batch_i, steps_per_epoch)
+            for group in opt.param_groups:
+                group["lr"] = lr
+            batch = tuple(a.to(device, non_blocking=True) for a in batch)
+            loss = train_step(forward, opt, sched, batch, amp)
+            if ema is not None:
+                ema.update_parameters(model)
+            run_loss, run_n = run_loss + loss.float(), run_n + 1
             batch_i += 1
             now = time.time()
             if batch_i % 100 == 0:
                 log(f"epoch {epoch} batch {batch_i}/{steps_per_epoch} loss {float(run_loss) / run_n:.4f} "
-                    f"lr {opt.param_groups[0]['lr']:.1e} {now - t_start:.0f}s")
+                    f"lr {lr:.1e} {now - t_start:.0f}s")
             if max_minutes is not None and now - t_start > 60 * max_minutes:
                 stopped = True
                 break
@@ -297,9 +302,8 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
             break
         history.append({"epoch": epoch, "train_loss": float(run_loss) / max(run_n, 1)})
         epoch, batch_i = epoch + 1, 0
-        lr_sched.step()
         if epoch % cfg.val_every == 0 or epoch == cfg.epochs:
-            v = validation_loss(model, sched, cfg, val_w, device)
+            v = validation_loss(evaluated, sched, cfg, val_w, device)
             history[-1]["val_loss"] = v
             log(f"epoch {epoch}: train loss {history[-1]['train_loss']:.4f} val loss {v:.4f}")
             if v < best_val:
@@ -309,7 +313,7 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
         last_ck = time.time()
     if stopped:
         # time budget reached: validate what we have so that best.pt always exists
-        v = validation_loss(model, sched, cfg, val_w, device)
+        v = validation_loss(evaluated, sched, cfg, val_w, device)
         history.append({"epoch": epoch, "batch": batch_i, "val_loss": v, "stopped": "max-minutes"})
         log(f"stopped after {max_minutes} min at epoch {epoch} batch {batch_i}: val loss {v:.4f}")
         if v < best_val:

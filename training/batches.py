@@ -1,0 +1,158 @@
+"""Where training batches come from. A batch is (x0, observed, mask, t, eps), each (B, K, L) but t (B,),
+and is a pure function of (seed, epoch, batch index), so a resumed run continues with exactly the batches
+it would have drawn.
+
+* :class:`BatchSource` (host): windows gathered with numpy, occlusion masks drawn per window by
+  ``training.masks`` (the reference patterns), t and eps by a CPU ``torch.Generator``; optionally in
+  DataLoader worker processes (the same bits).
+* :class:`DeviceBatchSource` (device): the whole training set lives on the device (float16 frames plus
+  the window starts) and everything is drawn there from a seeded device generator: window rows, masks
+  (``training.device_masks``, the same distributions as ``training.masks``, tied by
+  tests/test_device_masks.py), t and eps. No host work and no host-device copy per step: what a GPU
+  needs so that it never waits for Python. Its batches are not the host source's bits, only the same
+  distributions.
+"""
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+import torch
+
+if TYPE_CHECKING:
+    from .train import TrainConfig
+
+
+class Windows:
+    """All windows of ``length`` frames with a stride, gathered on demand."""
+
+    def __init__(self, seqs: list[np.ndarray], length: int, stride: int):
+        self.seqs = seqs
+        self.length = length
+        self.index = np.asarray([(i, s) for i, q in enumerate(seqs) for s in range(0, len(q) - length + 1, stride)],
+                                dtype=np.int64).reshape(-1, 2)
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def gather(self, rows: np.ndarray) -> np.ndarray:
+        return np.stack([self.seqs[i][s:s + self.length] for i, s in self.index[rows]]).astype(np.float32)
+
+
+def _mix_rate(entry):
+    """The optional third item of a ``mask_mix`` entry: a rate, or a [low, high] range (random_joints)."""
+    if len(entry) not in (2, 3):
+        raise ValueError(f"mask_mix entry {entry!r}: expected [pattern, weight] or [pattern, weight, rate]")
+    if len(entry) == 2:
+        return None
+    return tuple(entry[2]) if isinstance(entry[2], (list, tuple)) else entry[2]
+
+
+def make_batch(cfg: "TrainConfig", wins: np.ndarray, rng: np.random.Generator):
+    """Clean windows (B, L, J, 3) -> (x0, observed, mask) tensors (B, K, L).
+    Each window draws one pattern of ``mask_mix``; occluded observation entries become targets."""
+    from .masks import corrupt
+    B, L, J, _ = wins.shape
+    observed = wins.copy()
+    jmask = np.zeros((B, L, J), dtype=np.float32)
+    jmask[:, :cfg.obs_len] = 1.0
+    rates = [_mix_rate(entry) for entry in cfg.mask_mix]
+    patterns = [entry[0] for entry in cfg.mask_mix]
+    weights = np.asarray([entry[1] for entry in cfg.mask_mix], dtype=np.float64)
+    choice = rng.choice(len(patterns), size=B, p=weights / weights.sum())
+    for b in range(B):
+        if patterns[choice[b]] != "none":
+            observed[b], jmask[b] = corrupt(wins[b], patterns[choice[b]], cfg.obs_len, rng, rate=rates[choice[b]])
+    observed[:, cfg.obs_len:] = 0.0
+    def bkl(a):
+        return torch.from_numpy(np.ascontiguousarray(a.reshape(B, L, J * 3).transpose(0, 2, 1)))
+    return bkl(wins), bkl(observed), bkl(np.repeat(jmask[..., None], 3, axis=-1))
+
+
+class BatchSource:
+    """The training batches of an epoch, each a pure function of (seed, epoch, batch index): the window
+    rows (a seeded permutation per epoch), the occlusion masks, the diffusion steps t and the noise eps.
+    So the batches are the same whether drawn here or in DataLoader worker processes, and a resumed run
+    continues with exactly the batches it would have drawn."""
+
+    def __init__(self, cfg: "TrainConfig", windows: Windows, T: int, steps_per_epoch: int):
+        self.cfg, self.windows, self.T, self.steps_per_epoch = cfg, windows, T, steps_per_epoch
+        self._perm_epoch, self._perm = None, None
+
+    def batch(self, epoch: int, batch_i: int):
+        cfg = self.cfg
+        if self._perm_epoch != epoch:
+            self._perm = np.random.default_rng([cfg.seed, epoch]).permutation(len(self.windows))
+            self._perm_epoch = epoch
+        rows = self._perm[(np.arange(cfg.batch_size) + batch_i * cfg.batch_size) % len(self._perm)]
+        x0, obs, mask = make_batch(cfg, self.windows.gather(rows), np.random.default_rng([cfg.seed, epoch, batch_i]))
+        g = torch.Generator().manual_seed(((cfg.seed * 1_000_003 + epoch) * 1_000_003 + batch_i) % (1 << 62))
+        t = torch.randint(0, self.T, (x0.shape[0],), generator=g)   # the draw order of training_loss
+        eps = torch.randn(x0.shape, generator=g)
+        return x0, obs, mask, t, eps
+
+    def iterate(self, epoch: int, start: int, workers: int):
+        """Batches start..steps_per_epoch-1 of an epoch, in order."""
+        if workers <= 0:
+            for i in range(start, self.steps_per_epoch):
+                yield self.batch(epoch, i)
+            return
+        ds = _EpochBatches(self, epoch, start)
+        loader = torch.utils.data.DataLoader(ds, batch_size=None, shuffle=False, num_workers=workers,
+                                             pin_memory=torch.cuda.is_available(), prefetch_factor=4)
+        yield from loader
+
+
+class _EpochBatches(torch.utils.data.Dataset):
+    def __init__(self, source: BatchSource, epoch: int, start: int):
+        self.source, self.epoch, self.start = source, epoch, start
+
+    def __len__(self) -> int:
+        return self.source.steps_per_epoch - self.start
+
+    def __getitem__(self, i: int):
+        return self.source.batch(self.epoch, self.start + i)
+
+
+class DeviceBatchSource:
+    """The training batches of an epoch drawn on ``device`` (see the module docstring): rows of a seeded
+    permutation of all windows per epoch, masks by :class:`training.device_masks.MaskMix`, t and eps, all
+    from one device generator reseeded from (seed, epoch, batch index)."""
+
+    def __init__(self, cfg: "TrainConfig", windows: Windows, T: int, steps_per_epoch: int, device: str | torch.device):
+        from .device_masks import MaskMix
+        self.cfg, self.T, self.steps_per_epoch = cfg, T, steps_per_epoch
+        self.device = torch.device(device)
+        seqs = windows.seqs
+        offsets = np.concatenate([[0], np.cumsum([len(q) for q in seqs])[:-1]]).astype(np.int64)
+        # float16 holds Human3.6M in metres to 0.5 mm at 1 m: the cache carried to a GPU is float16 already.
+        self.frames = torch.from_numpy(np.concatenate(seqs).astype(np.float16)).to(self.device)
+        self.starts = torch.from_numpy(offsets[windows.index[:, 0]] + windows.index[:, 1]).to(self.device)
+        self.frame_offsets = torch.arange(windows.length, device=self.device)
+        self.mix = MaskMix(cfg.mask_mix, cfg.obs_len, windows.length)
+        self.gen = torch.Generator(device=self.device)
+        self._perm_epoch, self._perm = None, None
+
+    def batch(self, epoch: int, batch_i: int):
+        cfg, g, dev = self.cfg, self.gen, self.device
+        if self._perm_epoch != epoch:
+            g.manual_seed((cfg.seed * 1_000_003 + epoch) % (1 << 62))
+            self._perm = torch.randperm(len(self.starts), generator=g, device=dev)
+            self._perm_epoch = epoch
+        g.manual_seed((((cfg.seed * 1_000_003 + epoch) * 1_000_003 + batch_i) * 7 + 1) % (1 << 62))
+        rows = self._perm[(torch.arange(cfg.batch_size, device=dev) + batch_i * cfg.batch_size) % len(self._perm)]
+        wins = self.frames[self.starts[rows, None] + self.frame_offsets].float()      # (B, L, J, 3)
+        from .device_masks import corrupt_batch
+        observed, jmask = corrupt_batch(wins, self.mix, g)
+        B, L = wins.shape[:2]
+        def bkl(a):                                                            # (B, L, J, 3) -> (B, K, L)
+            return a.reshape(B, L, -1).transpose(1, 2).contiguous()
+        mask = jmask.repeat_interleave(3, dim=-1).transpose(1, 2).contiguous()
+        t = torch.randint(0, self.T, (B,), generator=g, device=dev)
+        eps = torch.randn(mask.shape, generator=g, device=dev)
+        return bkl(wins), bkl(observed), mask, t, eps
+
+    def iterate(self, epoch: int, start: int, workers: int = 0):
+        """Batches start..steps_per_epoch-1 of an epoch, in order (``workers`` is ignored: nothing to offload)."""
+        for i in range(start, self.steps_per_epoch):
+            yield self.batch(epoch, i)
