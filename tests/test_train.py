@@ -202,3 +202,30 @@ def test_compile_failure_falls_back_to_eager_training(tmp_path, monkeypatch):
     res = train(tiny_cfg(epochs=1, steps_per_epoch=3, compile=True), tmp_path, sequences=seqs, log=lines.append)
     assert res["epoch"] == 1
     assert any("torch.compile failed (RuntimeError: no compiler here); training eagerly" in l for l in lines), lines
+
+
+def test_gpu_session_sizes_the_schedule_trains_and_exports(tmp_path):
+    """training.gpu_session end to end on the CPU at the tiny size: the probe times the configured step, the
+    epochs are chosen to fit the budget and written to RUN/config.json, the run trains and the best (EMA)
+    weights are exported."""
+    from dataclasses import asdict
+    from training import gpu_session
+    from training.export import load_model_file
+    cache = tmp_path / "h36m_model_cache_test.npz"
+    seqs = {"train": synthetic_motion(4, seed=0), "val": synthetic_motion(2, seed=1)}
+    np.savez(cache, **{f"{split}/{i:02d}": s.astype(np.float16) for split, ss in seqs.items() for i, s in enumerate(ss)})
+    cfg_path = tmp_path / "cfg.json"
+    cfg_path.write_text(json.dumps(asdict(tiny_cfg(batches="device", ema_decay=0.9, steps_per_epoch=5, warmup_steps=3))))
+    run, export = tmp_path / "run", tmp_path / "export"
+    rc = gpu_session.main(["--config", str(cfg_path), "--run", str(run), "--data", str(cache), "--budget-minutes", "0.05",
+                           "--minutes", "1", "--probe-steps", "2", "--device", "cpu", "--export", str(export),
+                           "--copy-to", str(tmp_path / "copy")])
+    assert rc == 0
+    chosen = json.loads((run / "config.json").read_text())
+    assert chosen["epochs"] >= 1 and chosen["val_every"] <= chosen["epochs"]
+    log = (run / "log.txt").read_text()
+    assert "probe:" in log and "steps/s" in log
+    model, _, meta = load_model_file(export / "short.safetensors")
+    assert meta["training"]["weights"] == "ema" and meta["training"]["epoch"] == chosen["epochs"]
+    assert (tmp_path / "copy" / "best.pt").is_file()
+    assert "optimizer" not in torch.load(run / "best.pt", weights_only=False)      # weights only: small enough to hand back

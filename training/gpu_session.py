@@ -92,12 +92,12 @@ def main(argv=None) -> int:
     for h in res["history"]:
         if "val_loss" in h:
             log(f"history: {h}")
-    logf.close()
     if args.export:
         from .export import export_checkpoint
         best = run / "best.pt" if (run / "best.pt").is_file() else run / "last.pt"
         Path(args.export).mkdir(parents=True, exist_ok=True)
         log(f"exported {export_checkpoint(best, args.export)} from {best}")
+    logf.close()
     if args.copy_to:
         dst = Path(args.copy_to)
         dst.mkdir(parents=True, exist_ok=True)

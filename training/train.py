@@ -267,10 +267,13 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
     last_ck = t_start
 
     def state(best=None):
-        s = dict(meta, model=model.state_dict(), optimizer=opt.state_dict(),
-                 epoch=epoch, batch=batch_i, step=epoch * steps_per_epoch + batch_i,
+        # best.pt holds the weights only (it is exported or warm-started from, never resumed): a full-size
+        # model's optimizer state would take it past what a GPU call can hand back in one file
+        s = dict(meta, model=model.state_dict(), epoch=epoch, batch=batch_i, step=epoch * steps_per_epoch + batch_i,
                  best_val=best_val if best is None else best, elapsed_s=elapsed0 + time.time() - t_start,
                  history=history)
+        if best is None:
+            s["optimizer"] = opt.state_dict()
         if ema is not None:
             s.update(ema=ema.module.state_dict(), ema_n=int(ema.n_averaged))
         return s
