@@ -45,17 +45,28 @@ class MaskMix:
         total = sum(w for _, w, _ in self.entries)
         if not total > 0:
             raise ValueError(f"mask_mix {mask_mix!r}: the weights sum to 0")
-        self.weights = torch.tensor([w / total for _, w, _ in self.entries], dtype=torch.float64)
+        cols = {}
+        for group in (M.LEG_ARM_JOINTS32, M.RIGHT_LEG_JOINTS32):
+            c = torch.zeros(self.j32.size, dtype=torch.bool)
+            c[torch.as_tensor(M._model_columns(self.j32, group), dtype=torch.long)] = True
+            cols[group] = c
+        self._host = {"weights": torch.tensor([w / total for _, w, _ in self.entries], dtype=torch.float64),
+                      "legs": torch.as_tensor(M.LEGS_JOINTS32), "j32": torch.as_tensor(self.j32), **cols}
+        self._on = {}
+
+    def _consts(self, dev: torch.device) -> dict:
+        """The constant tensors on ``dev``, copied there once: a host-to-device copy in every batch would
+        make the host wait for the GPU."""
+        key = str(dev)
+        if key not in self._on:
+            self._on[key] = {k: v.to(dev) for k, v in self._host.items()}
+        return self._on[key]
 
     def _hidden(self, pattern: str, rate, B: int, g: torch.Generator) -> torch.Tensor:
         """(B, obs_len, J) bool: the observed entries the pattern hides, for every window."""
         O, J, dev = self.obs_len, self.j32.size, g.device
         frames = torch.arange(O, device=dev)
-
-        def cols(group):
-            c = torch.zeros(J, dtype=torch.bool, device=dev)
-            c[torch.as_tensor(M._model_columns(self.j32, group), device=dev, dtype=torch.long)] = True
-            return c
+        const = self._consts(dev)
 
         def n_random_frames(n):          # n distinct frames per window, uniformly: ranks of i.i.d. uniforms
             ranks = torch.rand(B, O, generator=g, device=dev).argsort(dim=1).argsort(dim=1)
@@ -68,19 +79,19 @@ class MaskMix:
         if pattern == "none":
             return torch.zeros(B, O, J, dtype=torch.bool, device=dev)
         if pattern == "random_leg_arm":
-            return n_random_frames(M._floor_count(rate, O))[:, :, None] & cols(M.LEG_ARM_JOINTS32)
+            return n_random_frames(M._floor_count(rate, O))[:, :, None] & const[M.LEG_ARM_JOINTS32]
         if pattern == "structured_leg":
-            return block(M._round_count(rate, O))[:, :, None] & cols(M.RIGHT_LEG_JOINTS32)
+            return block(M._round_count(rate, O))[:, :, None] & const[M.RIGHT_LEG_JOINTS32]
         if pattern == "consecutive_frames":
             return block(M._round_count(rate, O))[:, :, None].expand(B, O, J)
         if pattern == "random_frames":
             return n_random_frames(M._floor_count(rate, O))[:, :, None].expand(B, O, J)
         if pattern in M.NOISE_SIGMA_MM:
-            legs = torch.as_tensor(M.LEGS_JOINTS32, device=dev)
+            legs = const["legs"]
             pick = torch.rand(B, O, legs.numel(), generator=g, device=dev).argsort(dim=2)[..., :M.NOISY_HIDDEN_PER_FRAME]
             hidden32 = torch.zeros(B, O, M.N_JOINTS32, dtype=torch.bool, device=dev)
             hidden32.scatter_(2, legs[pick], True)
-            return hidden32[..., torch.as_tensor(self.j32, device=dev)]
+            return hidden32[..., const["j32"]]
         if pattern in ("random_joints", "random"):
             if pattern == "random":
                 p = torch.rand(B, 1, 1, generator=g, device=dev)
@@ -95,7 +106,7 @@ class MaskMix:
         """-> (mask (batch, seq_len, J) float32, 1 = observed and visible, rows >= obs_len 0;
         noise_sigma_mm (batch,) float32, the noisy patterns' sigma, 0 elsewhere), on the generator's device."""
         g, dev = generator, generator.device
-        choice = torch.multinomial(self.weights.to(dev), batch, replacement=True, generator=g)
+        choice = torch.multinomial(self._consts(dev)["weights"], batch, replacement=True, generator=g)
         hidden = torch.zeros(batch, self.obs_len, self.j32.size, dtype=torch.bool, device=dev)
         sigma = torch.zeros(batch, device=dev)
         # every entry is drawn for the whole batch (cheap on a GPU, no data-dependent shapes), then selected

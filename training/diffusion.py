@@ -77,6 +77,15 @@ class Schedule:
         self.alphas = 1.0 - self.betas
         self.alphas_cumprod = np.cumprod(self.alphas)
 
+    def alphas_cumprod_on(self, device) -> torch.Tensor:
+        """alpha_bar as a float32 tensor on ``device``, made once per device: a copy from the host in
+        every training step would make the host wait for the GPU."""
+        key = str(torch.device(device))
+        cache = self.__dict__.setdefault("_abar_on", {})
+        if key not in cache:
+            cache[key] = torch.as_tensor(self.alphas_cumprod, dtype=torch.float32, device=device)
+        return cache[key]
+
     def abar(self, t: int) -> float:
         """alpha_bar_t, with alpha_bar_{-1} = 1."""
         return 1.0 if t < 0 else float(self.alphas_cumprod[t])
@@ -88,7 +97,7 @@ class Schedule:
 
 def q_sample(sched: Schedule, x0: torch.Tensor, t: torch.Tensor, eps: torch.Tensor) -> torch.Tensor:
     """x_t = sqrt(abar_t) x0 + sqrt(1 - abar_t) eps, t of shape (B,)."""
-    abar = torch.as_tensor(sched.alphas_cumprod, dtype=torch.float32, device=x0.device)[t].view(-1, 1, 1)
+    abar = sched.alphas_cumprod_on(x0.device)[t].view(-1, 1, 1)
     return abar.sqrt() * x0 + (1.0 - abar).sqrt() * eps
 
 

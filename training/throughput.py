@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import statistics
 import time
+import warnings
 
 import numpy as np
 import torch
@@ -48,13 +49,16 @@ def time_training_steps(cfg: TrainConfig, seqs: list[np.ndarray], device: str, *
     source = DeviceBatchSource(cfg, Windows(seqs, L, cfg.train_stride), sched.T, 10 ** 9, dev)
     amp = amp_enabled(cfg, device)
 
+    def step(i: int) -> None:
+        train_step(forward, opt, sched, source.batch(0, i), amp)
+        if ema is not None:
+            ema.update(model)
+
     def run(n: int, start: int) -> float:
         _sync(dev)
         t0 = time.perf_counter()
         for i in range(start, start + n):
-            train_step(forward, opt, sched, source.batch(0, i), amp)
-            if ema is not None:
-                ema.update_parameters(model)
+            step(i)
         _sync(dev)
         return time.perf_counter() - t0
 
@@ -70,4 +74,14 @@ def time_training_steps(cfg: TrainConfig, seqs: list[np.ndarray], device: str, *
            "steps_per_s": round(steps / med, 3), "runs_s": [round(t, 4) for t in times]}
     if dev.type == "cuda":
         out["peak_mem_mib"] = round(torch.cuda.max_memory_allocated(dev) / 2 ** 20, 1)
+        # what makes the host wait for the GPU inside a step (there should be nothing): CUDA's sync
+        # debug mode warns at each synchronising call of one more step
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            torch.cuda.set_sync_debug_mode("warn")
+            try:
+                step(warmup + reps * steps)
+            finally:
+                torch.cuda.set_sync_debug_mode("default")
+        out["host_syncs_per_step"] = sum("synchroniz" in str(w.message) for w in caught)
     return out

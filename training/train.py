@@ -13,6 +13,7 @@ checkpoint is kept beside the last one (``best.pt``, ``last.pt``).
 from __future__ import annotations
 
 import argparse
+import copy
 import json
 import math
 import sys
@@ -154,12 +155,31 @@ def make_optimizer(model: torch.nn.Module, cfg: TrainConfig, device: str) -> tor
                             fused=torch.device(device).type == "cuda")
 
 
-def make_ema(model: TCDModel, cfg: TrainConfig):
+class EMA:
+    """Exponential moving average of the weights: a copy of the model (``.module``) that each ``update``
+    moves towards the trained weights by ``1 - decay`` (the first update copies them), one foreach lerp.
+    ``torch.optim.swa_utils.AveragedModel`` with ``get_ema_multi_avg_fn`` computes the same, but copies its
+    step counter from the host to the device on every update, which makes the host wait for the GPU once
+    per training step."""
+
+    def __init__(self, model: TCDModel, decay: float):
+        self.decay = decay
+        self.module = copy.deepcopy(model).eval().requires_grad_(False)
+        self.n_averaged = 0
+
+    @torch.no_grad()
+    def update(self, model: TCDModel) -> None:
+        mine, theirs = list(self.module.parameters()), [p.detach() for p in model.parameters()]
+        if self.n_averaged == 0:
+            torch._foreach_copy_(mine, theirs)
+        else:
+            torch._foreach_lerp_(mine, theirs, 1.0 - self.decay)
+        self.n_averaged += 1
+
+
+def make_ema(model: TCDModel, cfg: TrainConfig) -> EMA | None:
     """The exponential moving average of the weights (``cfg.ema_decay`` > 0), or None."""
-    if not cfg.ema_decay:
-        return None
-    from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
-    return AveragedModel(model, multi_avg_fn=get_ema_multi_avg_fn(cfg.ema_decay))
+    return EMA(model, cfg.ema_decay) if cfg.ema_decay else None
 
 
 @torch.no_grad()
@@ -251,7 +271,7 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
     ema = make_ema(model, cfg)
     if ema is not None and ck is not None:
         ema.module.load_state_dict(ck["ema"])
-        ema.n_averaged.fill_(ck["ema_n"])
+        ema.n_averaged = ck["ema_n"]
     evaluated = model if ema is None else ema.module    # the weights validated and exported
     log(f"{cfg.role}: {count_parameters(model):,} parameters, {len(train_w):,} training windows, "
         f"{len(val_w):,} validation windows, {steps_per_epoch} steps/epoch x {cfg.epochs} epochs, device {device}, "
@@ -275,7 +295,7 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
         if best is None:
             s["optimizer"] = opt.state_dict()
         if ema is not None:
-            s.update(ema=ema.module.state_dict(), ema_n=int(ema.n_averaged))
+            s.update(ema=ema.module.state_dict(), ema_n=ema.n_averaged)
         return s
 
     stopped = False
@@ -288,7 +308,7 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
             batch = tuple(a.to(device, non_blocking=True) for a in batch)
             loss = train_step(forward, opt, sched, batch, amp)
             if ema is not None:
-                ema.update_parameters(model)
+                ema.update(model)
             run_loss, run_n = run_loss + loss.float(), run_n + 1
             batch_i += 1
             now = time.time()
