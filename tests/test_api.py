@@ -622,3 +622,27 @@ def test_bundled_repair_model():
     lin = linear_interpolation(np.where(mask[..., None], clip, np.nan), mask.astype(np.float32))
     lin_mm = np.linalg.norm(lin - clip, axis=-1)[~mask].mean() * 1000
     assert np.isfinite(err_mm) and err_mm <= 0.75 * lin_mm, (err_mm, lin_mm)
+
+
+def test_sampler_options_one_type_for_every_layer(model, obs):
+    """SamplerOptions (defaults written once) and its fields as keywords give the same call at every layer;
+    a bad field is an InvalidInputError naming it, an unknown keyword a TypeError."""
+    o = tcd.SamplerOptions(sampler="ddim", num_inference_steps=3, eta=1.0)
+    a = model.forecast(obs, options=o, num_samples=2, seed=4)
+    b = model.forecast(obs, sampler="ddim", num_inference_steps=3, eta=1.0, num_samples=2, seed=4)
+    c = model.forecast(obs, options=tcd.SamplerOptions(sampler="ddim"), num_inference_steps=3, eta=1.0,
+                       num_samples=2, seed=4)                      # keywords override the options' fields
+    assert np.array_equal(a.samples, b.samples) and np.array_equal(a.samples, c.samples)
+    assert tcd.SamplerOptions() == tcd.SamplerOptions(sampler="ddpm", num_inference_steps=None, eta=0.0,
+                                                      timestep_spacing="trailing")
+    assert model.short.timesteps(options=o) == model.short.timesteps("ddim", 3) == [49, 32, 16]
+    assert model.short.num_noise_blocks(options=o) == 4
+    for kw, argument in (({"sampler": "euler"}, "sampler"), ({"eta": 2.0}, "eta"),
+                         ({"num_inference_steps": 0}, "num_inference_steps"), ({"timestep_spacing": "x"}, "timestep_spacing")):
+        bad(argument, tcd.SamplerOptions, **kw)
+    bad("num_inference_steps", model.forecast, obs, options=tcd.SamplerOptions(num_inference_steps=51))
+    bad("options", model.forecast, obs, options={"sampler": "ddim"})
+    with pytest.raises(TypeError, match="num_steps"):
+        model.forecast(obs, num_steps=3)
+    with pytest.raises(TypeError, match="multiple values"):
+        model.short.timesteps("ddim", sampler="ddpm")

@@ -10,8 +10,6 @@ import numpy as np
 
 from .exceptions import InvalidInputError
 
-SAMPLERS = ("ddpm", "ddim", "dpmpp2m")
-SPACINGS = ("leading", "trailing", "linspace")
 UNITS = ("m", "mm")
 MAX_SEED = 2**64 - 1
 
@@ -64,17 +62,6 @@ MAX_THREADS = 1024
 
 def threads(value: Any) -> Optional[int]:
     return optional_integer("threads", value, 1, MAX_THREADS)
-
-
-def sampler_args(sampler: Any, num_inference_steps: Any, eta_value: Any, timestep_spacing: Any,
-                 num_train_timesteps: int) -> Tuple[str, Optional[int], float, str]:
-    """Validated (sampler, num_inference_steps, eta, timestep_spacing)."""
-    return (
-        choice("sampler", sampler, SAMPLERS),
-        optional_integer("num_inference_steps", num_inference_steps, 1, num_train_timesteps),
-        eta(eta_value),
-        choice("timestep_spacing", timestep_spacing, SPACINGS),
-    )
 
 
 def float32_array(argument: str, value: Any) -> np.ndarray:

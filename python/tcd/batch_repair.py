@@ -60,6 +60,7 @@ from . import _checks, fk
 from ._native import __version__
 from .denoiser import STAGE_SHORT, Denoiser, repair_raw, seeded_noise
 from .exceptions import InvalidInputError
+from .options import SamplerOptions
 
 __all__ = ["repair_file", "RepairOptions", "DEFAULT_OVERLAP", "DEFAULT_SEED", "INPUT_SUFFIXES"]
 
@@ -84,10 +85,7 @@ class RepairOptions:
     """Validated settings of a repair run (see :func:`repair_file`)."""
 
     num_samples: int = 5
-    num_inference_steps: Optional[int] = None
-    sampler: str = "ddpm"
-    eta: float = 0.0
-    timestep_spacing: str = "trailing"
+    sampling: SamplerOptions = SamplerOptions()
     seed: int = DEFAULT_SEED
     units: str = "m"
     fps: Optional[float] = None
@@ -96,11 +94,11 @@ class RepairOptions:
     threads: Optional[int] = None
 
     @staticmethod
-    def make(model: Any, **kw: Any) -> "RepairOptions":
-        den = _denoiser(model)
-        s, n, e, sp = _checks.sampler_args(kw.get("sampler", "ddpm"), kw.get("num_inference_steps"),
-                                           kw.get("eta", 0.0), kw.get("timestep_spacing", "trailing"),
-                                           den.num_train_timesteps)
+    def make(model: Any, *, options: Optional[SamplerOptions] = None, sampler: Optional[Dict[str, Any]] = None,
+             **kw: Any) -> "RepairOptions":
+        """Checked settings: ``options`` / ``sampler`` (its fields) as :meth:`SamplerOptions.build`, the rest
+        as the keywords of :func:`repair_file`."""
+        sampling = SamplerOptions.build(options, **(sampler or {})).for_model(_denoiser(model).num_train_timesteps)
         seed = kw.get("seed", DEFAULT_SEED)
         fps = kw.get("fps")
         if fps is not None:
@@ -115,7 +113,7 @@ class RepairOptions:
         lookahead = _checks.integer("lookahead", kw.get("lookahead", DEFAULT_LOOKAHEAD), 0, model.obs_len - 1 - overlap)
         return RepairOptions(
             num_samples=_checks.integer("num_samples", kw.get("num_samples", 5), 1),
-            num_inference_steps=n, sampler=s, eta=e, timestep_spacing=sp,
+            sampling=sampling,
             seed=_checks.integer("seed", DEFAULT_SEED if seed is None else seed, 0, _checks.MAX_SEED),
             units=_checks.choice("units", kw.get("units", "m"), tuple(_UNIT_SCALE)),
             fps=fps,
@@ -131,18 +129,18 @@ def _denoiser(model: Any) -> Denoiser:
 
 def provenance(model: Any, opts: RepairOptions, fps: float) -> Dict[str, Any]:
     den = _denoiser(model)
-    steps = len(den.timesteps(opts.sampler, opts.num_inference_steps, opts.timestep_spacing))
+    steps = len(den.timesteps(options=opts.sampling))
     return {
         "tool": "tcd repair",
         "tcd_version": __version__,
         "model_sha256": model.sha256,
         "model_path": None if model.path is None else str(model.path),
         "repair_model": "repair" if model.repair_model is not None else "short",
-        "sampler": opts.sampler,
+        "sampler": opts.sampling.sampler,
         "steps": steps,
         "num_samples": opts.num_samples,
-        "eta": opts.eta,
-        "timestep_spacing": opts.timestep_spacing,
+        "eta": opts.sampling.eta,
+        "timestep_spacing": opts.sampling.timestep_spacing,
         "seed": opts.seed,
         "units": opts.units,
         "fps": fps,
@@ -485,7 +483,7 @@ def run_tasks(model: Any, tasks: Iterable[Task], opts: RepairOptions, *, overwri
     in task order."""
     den = _denoiser(model)
     w, k, length = model.obs_len, den.num_features, den.seq_len
-    blocks = den.num_noise_blocks(opts.sampler, opts.num_inference_steps, opts.timestep_spacing)
+    blocks = den.num_noise_blocks(options=opts.sampling)
     joint_index = (model.data or {}).get("joint_index_32")
     outcomes: Dict[int, Outcome] = {}
     order: List[int] = []
@@ -547,9 +545,7 @@ def run_tasks(model: Any, tasks: Iterable[Task], opts: RepairOptions, *, overwri
             noise.append(seeded_noise(opts.seed, STAGE_SHORT, opts.num_samples, blocks, 1, k, length,
                                       first_sequence=a.job.k))
         out = repair_raw(den, np.stack(obs), np.stack(msk), num_samples=opts.num_samples,
-                         noise=np.concatenate(noise, axis=2), sampler=opts.sampler,
-                         num_inference_steps=opts.num_inference_steps, eta=opts.eta,
-                         timestep_spacing=opts.timestep_spacing, threads=opts.threads)
+                         noise=np.concatenate(noise, axis=2), options=opts.sampling, threads=opts.threads)
         del noise
         still: List[Active] = []
         for a, mean in zip(active, out["mean"]):
@@ -579,11 +575,9 @@ def run_tasks(model: Any, tasks: Iterable[Task], opts: RepairOptions, *, overwri
 
 # ---------------------------------------------------------------------------------------------- public API
 def repair_file(src: PathLike, dst: PathLike, model: Any = None, *, num_samples: int = 5,
-                num_inference_steps: Optional[int] = None, sampler: str = "ddpm", eta: float = 0.0,
-                timestep_spacing: str = "trailing", seed: Optional[int] = DEFAULT_SEED, units: str = "m",
+                options: Optional[SamplerOptions] = None, seed: Optional[int] = DEFAULT_SEED, units: str = "m",
                 fps: Optional[float] = None, overlap: int = DEFAULT_OVERLAP, lookahead: int = DEFAULT_LOOKAHEAD,
-                threads: Optional[int] = None,
-                overwrite: bool = False) -> Dict[str, Any]:
+                threads: Optional[int] = None, overwrite: bool = False, **sampler: Any) -> Dict[str, Any]:
     """Repairs the pose sequence in ``src`` (an ``.npz`` with ``poses`` (T, J, 3), NaN = missing, and an
     optional ``mask``; or a Human3.6M exp-map ``.txt``) of any length T, and writes ``dst`` (an ``.npz``
     with ``poses``, ``mask`` and ``provenance``) atomically. See :mod:`tcd.batch_repair` for the windowing,
@@ -598,6 +592,7 @@ def repair_file(src: PathLike, dst: PathLike, model: Any = None, *, num_samples:
             them again seeing the frames after them.
         seed: the noise seed (default 0): the same seed gives the same output.
         units: ``"m"`` or ``"mm"``, the units of the poses (and of the output).
+        options, ``**sampler``: the sampler (:class:`tcd.SamplerOptions`, or its fields as keywords).
         Others: as :meth:`tcd.TCD.repair`.
 
     Returns a summary dict (``status``, ``frames``, ``missing_values``, ``windows``, ...). Raises
@@ -607,8 +602,7 @@ def repair_file(src: PathLike, dst: PathLike, model: Any = None, *, num_samples:
     from .model import TCD, load
 
     m = model if isinstance(model, TCD) else load(model)
-    opts = RepairOptions.make(m, num_samples=num_samples, num_inference_steps=num_inference_steps,
-                              sampler=sampler, eta=eta, timestep_spacing=timestep_spacing, seed=seed,
+    opts = RepairOptions.make(m, options=options, sampler=sampler, num_samples=num_samples, seed=seed,
                               units=units, fps=fps, overlap=overlap, lookahead=lookahead, threads=threads)
     s, d = Path(src), Path(dst)
     if same_path(s, d):
@@ -684,7 +678,7 @@ def collect_tasks(inputs: Sequence[PathLike], outdir: PathLike) -> Tuple[List[Ta
 
 
 # ---------------------------------------------------------------------------------------------- `tcd repair`
-CLI_USAGE = ("tcd repair INPUT... -o OUTDIR [--model DIR] [--units m|mm] [--fps F] [--steps N] [--sampler ddpm|ddim] "
+CLI_USAGE = ("tcd repair INPUT... -o OUTDIR [--model DIR] [--units m|mm] [--fps F] [--steps N] [--sampler ddpm|ddim|dpmpp2m] "
              "[--samples N] [--seed S] [--overlap C] [--lookahead L] [--jobs N] [--overwrite] [--report report.json] [--quiet]")
 
 
@@ -705,9 +699,8 @@ def add_subparser(sub: Any) -> Any:
     rp.add_argument("--fps", type=float, default=None, metavar="F",
                     help="frame rate of the inputs (default: the model's; 50 for exp-map .txt); other rates are "
                     "resampled to the model's and back")
-    rp.add_argument("--steps", type=int, default=None, metavar="N",
-                    help="inference steps (default: every training step, the paper's DDPM)")
-    rp.add_argument("--sampler", default="ddpm", help="ddpm (default) or ddim")
+    from .cli import add_sampler_flags
+    add_sampler_flags(rp, tuning=False)
     rp.add_argument("--samples", type=int, default=5, metavar="N", help="samples averaged per window (default 5)")
     rp.add_argument("--seed", type=int, default=DEFAULT_SEED, metavar="S",
                     help=f"noise seed (default {DEFAULT_SEED}): the same seed gives the same outputs")
@@ -757,14 +750,17 @@ def cli(args: Any) -> int:
         model = load(args.model)
     except (FileNotFoundError, NotADirectoryError, WeightsError, InvalidInputError) as e:
         return bad(str(e))
+    from .cli import SAMPLER_FLAGS, _BadInput, sampler_options
     try:
-        opts = RepairOptions.make(model, num_samples=args.samples, num_inference_steps=args.steps,
-                                  sampler=args.sampler, seed=args.seed, units=args.units, fps=args.fps,
-                                  overlap=args.overlap, lookahead=args.lookahead, threads=args.jobs)
+        opts = RepairOptions.make(model, options=sampler_options(args), num_samples=args.samples, seed=args.seed,
+                                  units=args.units, fps=args.fps, overlap=args.overlap, lookahead=args.lookahead,
+                                  threads=args.jobs)
+    except _BadInput as e:
+        return bad(str(e))
     except InvalidInputError as e:
-        flag = {"num_samples": "--samples", "num_inference_steps": "--steps", "sampler": "--sampler",
-                "seed": "--seed", "units": "--units", "fps": "--fps", "overlap": "--overlap",
-                "lookahead": "--lookahead", "threads": "--jobs"}.get(e.argument or "")
+        flag = {"num_samples": "--samples", "seed": "--seed", "units": "--units", "fps": "--fps",
+                "overlap": "--overlap", "lookahead": "--lookahead", "threads": "--jobs",
+                **SAMPLER_FLAGS}.get(e.argument or "")
         return bad(f"{e} (`{e.argument}` is {flag}.)" if flag else str(e))
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -809,7 +805,7 @@ def cli(args: Any) -> int:
     if args.report:
         report = {"tool": "tcd repair", "tcd_version": __version__, "model": str(model.path),
                   "model_sha256": model.sha256, "output": str(out),
-                  "settings": {"sampler": opts.sampler, "steps": opts.num_inference_steps, "samples": opts.num_samples,
+                  "settings": {"sampler": opts.sampling.sampler, "steps": opts.sampling.num_inference_steps, "samples": opts.num_samples,
                                "seed": opts.seed, "units": opts.units, "fps": opts.fps, "overlap": opts.overlap,
                                "lookahead": opts.lookahead, "jobs": opts.threads, "overwrite": bool(args.overwrite)},
                   "summary": summary, "files": [o.as_dict() for o in outcomes]}

@@ -6,7 +6,7 @@
     tcd forecast IN.npz -o OUT.npz [--model DIR] [--samples N] [--steps S] [--sampler ddpm|ddim|dpmpp2m]
                  [--eta E] [--spacing trailing|leading|linspace] [--seed S] [--units m|mm]
                  [--threads N] [--overwrite]
-    tcd repair INPUT... -o OUTDIR [--model DIR] [--units m|mm] [--fps F] [--steps N] [--sampler ddpm|ddim]
+    tcd repair INPUT... -o OUTDIR [--model DIR] [--units m|mm] [--fps F] [--steps N] [--sampler ddpm|ddim|dpmpp2m]
                [--samples N] [--seed S] [--overlap C] [--lookahead L] [--jobs N] [--overwrite] [--report FILE] [--quiet]
 
 IN.npz holds ``poses``, (T, J, 3) or (B, T, J, 3) with NaN = missing, and optionally ``mask``
@@ -32,6 +32,7 @@ from . import __version__
 from .denoiser import supported_kernels
 from .exceptions import InvalidInputError, TcdError, WeightsError
 from .model import TCD, load
+from .options import SAMPLERS, SPACINGS, SamplerOptions
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
@@ -40,6 +41,34 @@ EXIT_BAD_INPUT = 2
 
 class _BadInput(Exception):
     """A problem the user can fix: reported on stderr with exit code 2."""
+
+
+# The sampler flags of every command that samples: one mapping from SamplerOptions field to flag. A flag
+# not given is left out, so the defaults are SamplerOptions' own.
+SAMPLER_FLAGS = {"sampler": "--sampler", "num_inference_steps": "--steps", "eta": "--eta",
+                 "timestep_spacing": "--spacing"}
+
+
+def add_sampler_flags(p: argparse.ArgumentParser, *, tuning: bool = True) -> None:
+    """--steps and --sampler (and with ``tuning`` --eta and --spacing), defaults from SamplerOptions."""
+    d = SamplerOptions()
+    p.add_argument("--steps", dest="num_inference_steps", type=int, default=None, metavar="S",
+                   help="inference steps (default: every training step, the paper's DDPM)")
+    p.add_argument("--sampler", default=None, help=f"{', '.join(SAMPLERS)} (default {d.sampler}; dpmpp2m is "
+                   "DPM-Solver++(2M))")
+    if tuning:
+        p.add_argument("--eta", type=float, default=None, help=f"DDIM eta in [0, 1] (default {d.eta:g})")
+        p.add_argument("--spacing", dest="timestep_spacing", default=None,
+                       help=f"timestep spacing: {', '.join(SPACINGS)} (default {d.timestep_spacing})")
+
+
+def sampler_options(args: argparse.Namespace) -> SamplerOptions:
+    """The SamplerOptions of the sampler flags given; a bad value is an error naming its flag."""
+    given = {f: getattr(args, f) for f in SAMPLER_FLAGS if getattr(args, f, None) is not None}
+    try:
+        return SamplerOptions.build(**given)
+    except InvalidInputError as e:
+        raise _BadInput(f"{e} (`{e.argument}` is {SAMPLER_FLAGS[e.argument]}.)") from None
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -61,11 +90,7 @@ def _parser() -> argparse.ArgumentParser:
                     help="output: mean, samples, repaired, seed")
     fc.add_argument("--model", metavar="DIR", help="model directory (default: the bundled model)")
     fc.add_argument("--samples", type=int, default=5, metavar="N", help="samples per sequence (default 5)")
-    fc.add_argument("--steps", type=int, default=None, metavar="S",
-                    help="inference steps (default: every training step, the paper's DDPM)")
-    fc.add_argument("--sampler", default="ddpm", help="ddpm (default), ddim or dpmpp2m (DPM-Solver++(2M))")
-    fc.add_argument("--eta", type=float, default=0.0, help="DDIM eta in [0, 1] (default 0)")
-    fc.add_argument("--spacing", default="trailing", help="timestep spacing: trailing (default), leading, linspace")
+    add_sampler_flags(fc)
     fc.add_argument("--seed", type=int, default=None, help="noise seed (default: random, recorded in OUT)")
     fc.add_argument("--units", default="m", help="units of the poses: m (default) or mm")
     fc.add_argument("--threads", type=int, default=None, metavar="N", help="worker threads (default: all cores)")
@@ -76,9 +101,7 @@ def _parser() -> argparse.ArgumentParser:
     dm.add_argument("--model", metavar="DIR", help="model directory (default: the bundled model)")
     dm.add_argument("-o", "--output", metavar="OUT.npz", default="demo.npz", help="output file (default demo.npz)")
     dm.add_argument("--samples", type=int, default=None, metavar="N", help="samples (default 5)")
-    dm.add_argument("--steps", type=int, default=None, metavar="S",
-                    help="inference steps (default: all 50 training steps, the paper's DDPM)")
-    dm.add_argument("--sampler", default=None, help="ddpm (default), ddim or dpmpp2m (DPM-Solver++(2M))")
+    add_sampler_flags(dm, tuning=False)
     dm.add_argument("--seed", type=int, default=0, help="noise and occlusion seed (default 0)")
     dm.add_argument("--threads", type=int, default=None, metavar="N", help="worker threads (default: all cores)")
     dm.add_argument("--plot", metavar="GIF", help="also render an animation (needs matplotlib: "
@@ -106,14 +129,12 @@ def _demo(args: argparse.Namespace) -> int:
         except ImportError:
             raise _BadInput("--plot needs matplotlib: pip install 'tcd-forecast[plot]'") from None
     model = _load(args.model)
-    kw = {"samples": demo.DEFAULT_SAMPLES if args.samples is None else args.samples,
-          "steps": demo.DEFAULT_STEPS if args.steps is None else args.steps,
-          "sampler": demo.DEFAULT_SAMPLER if args.sampler is None else args.sampler}
+    samples = demo.DEFAULT_SAMPLES if args.samples is None else args.samples
     try:
-        res = demo.run(model, seed=args.seed, threads=args.threads, quiet=args.quiet, **kw)
+        res = demo.run(model, samples=samples, options=sampler_options(args), seed=args.seed, threads=args.threads,
+                       quiet=args.quiet)
     except InvalidInputError as e:
-        source = {"num_samples": "--samples", "num_inference_steps": "--steps", "sampler": "--sampler",
-                  "seed": "--seed", "threads": "--threads"}.get(e.argument or "")
+        source = {"num_samples": "--samples", "seed": "--seed", "threads": "--threads", **SAMPLER_FLAGS}.get(e.argument or "")
         raise _BadInput(f"{e} (`{e.argument}` is {source}.)" if source else str(e)) from None
     except ValueError as e:
         raise _BadInput(str(e)) from None
@@ -191,16 +212,15 @@ def _forecast(args: argparse.Namespace) -> int:
     data = _read_npz(Path(args.input))
     if "poses" not in data:
         raise _BadInput(f"The input file {args.input} has no `poses` array (it has: {', '.join(sorted(data)) or 'nothing'}).")
+    options = sampler_options(args)
     model = _load(args.model)
     try:
-        f = model.forecast(data["poses"], data.get("mask"), num_samples=args.samples,
-                           num_inference_steps=args.steps, sampler=args.sampler, eta=args.eta,
-                           timestep_spacing=args.spacing, seed=args.seed, units=args.units, threads=args.threads)
+        f = model.forecast(data["poses"], data.get("mask"), num_samples=args.samples, options=options,
+                           seed=args.seed, units=args.units, threads=args.threads)
     except InvalidInputError as e:
         source = {"obs": "the `poses` array of the input file", "mask": "the `mask` array of the input file",
-                  "num_samples": "--samples", "num_inference_steps": "--steps", "sampler": "--sampler",
-                  "eta": "--eta", "timestep_spacing": "--spacing", "seed": "--seed", "units": "--units",
-                  "threads": "--threads"}.get(e.argument or "")
+                  "num_samples": "--samples", "seed": "--seed", "units": "--units", "threads": "--threads",
+                  **SAMPLER_FLAGS}.get(e.argument or "")
         raise _BadInput(f"{e} (`{e.argument}` is {source}.)" if source else str(e)) from None
     try:
         with open(out, "wb" if args.overwrite else "xb") as fh:

@@ -31,16 +31,15 @@ import numpy as np
 
 from .batch_repair import write_npz_atomic
 from .model import TCD
+from .options import SamplerOptions
 
 CLIP_PATH = Path(__file__).resolve().parent / "data" / "demo_walking.npz"
 HORIZONS_MS = (80, 160, 320, 400, 560, 720, 880, 1000)
 
-# Demo defaults: the paper's sampler (DDPM over all 50 training steps, 5 samples). With the bundled
-# reduced model the whole demo took 21 s on a 2-core machine (MODEL_CARD.md); fewer steps trade accuracy for time
-# (README, "Samplers at fewer steps").
+# Demo defaults: the paper's sampler (SamplerOptions' defaults: DDPM over all 50 training steps), 5 samples.
+# With the bundled reduced model the whole demo took 21 s on a 2-core machine (MODEL_CARD.md); fewer steps trade
+# accuracy for time (README, "Samplers at fewer steps").
 DEFAULT_SAMPLES = 5
-DEFAULT_STEPS: Optional[int] = None
-DEFAULT_SAMPLER = "ddpm"
 DEFAULT_SEED = 0
 
 # The model's skeleton (Human3.6M 22-joint layout): limb joints by name, for the occlusion.
@@ -114,10 +113,12 @@ def _say(msg: str, quiet: bool) -> None:
         print(msg, file=sys.stderr, flush=True)
 
 
-def run(model: TCD, *, samples: int = DEFAULT_SAMPLES, steps: Optional[int] = DEFAULT_STEPS,
-        sampler: str = DEFAULT_SAMPLER, seed: int = DEFAULT_SEED, threads: Optional[int] = None,
-        quiet: bool = False, clip_path: Path = CLIP_PATH) -> Dict[str, Any]:
+def run(model: TCD, *, samples: int = DEFAULT_SAMPLES, options: Optional[SamplerOptions] = None,
+        seed: int = DEFAULT_SEED, threads: Optional[int] = None, quiet: bool = False,
+        clip_path: Path = CLIP_PATH) -> Dict[str, Any]:
     """Runs the demo; returns every array and number (what ``tcd demo`` prints and saves)."""
+    options = SamplerOptions.build(options)
+    steps, sampler = options.num_inference_steps, options.sampler
     clip = load_clip(clip_path)
     poses, fps, names = clip["poses"], clip["fps"], clip["joint_names"]
     if model.joint_names is not None and list(model.joint_names) != names:
@@ -129,7 +130,7 @@ def run(model: TCD, *, samples: int = DEFAULT_SAMPLES, steps: Optional[int] = DE
     if poses.shape[0] < n_obs + h:
         raise ValueError(f"the demo clip has {poses.shape[0]} frames; the model needs {n_obs + h}")
     obs, future = poses[:n_obs], poses[n_obs:n_obs + h]
-    kw = dict(num_samples=samples, num_inference_steps=steps, sampler=sampler, seed=seed, threads=threads)
+    kw = dict(num_samples=samples, options=options, seed=seed, threads=threads)
     res: Dict[str, Any] = {"fps": fps, "joint_names": names, "observed": obs, "future": future,
                            "settings": {"samples": samples, "steps": steps, "sampler": sampler, "seed": seed},
                            "timings_s": {}}

@@ -18,6 +18,7 @@ from typing import Any, Dict, List, Optional, Union
 import numpy as np
 
 from . import _checks, _native
+from .options import SamplerOptions
 
 __all__ = ["Denoiser", "cascade_raw", "repair_raw", "seeded_noise", "supported_kernels", "STAGE_SHORT", "STAGE_LONG"]
 
@@ -27,6 +28,18 @@ PathLike = Union[str, "os.PathLike[str]"]
 STAGE_SHORT: int = _native.STAGE_SHORT
 #: Stream stage of the cascade's long-term stage.
 STAGE_LONG: int = _native.STAGE_LONG
+
+
+def _positional_options(positional: tuple, options: Optional[SamplerOptions], sampler: Dict[str, Any]) -> SamplerOptions:
+    """``timesteps`` / ``num_noise_blocks`` take (sampler, num_inference_steps, timestep_spacing) positionally."""
+    names = ("sampler", "num_inference_steps", "timestep_spacing")
+    if len(positional) > len(names):
+        raise TypeError(f"at most {len(names)} positional arguments ({', '.join(names)}), got {len(positional)}")
+    for name, value in zip(names, positional):
+        if name in sampler:
+            raise TypeError(f"got multiple values for argument {name!r}")
+        sampler[name] = value
+    return SamplerOptions.build(options, **sampler)
 
 
 def _noise(argument: str, value: Any) -> Optional[np.ndarray]:
@@ -108,20 +121,18 @@ class Denoiser:
         return repr(self._native)
 
     # ------------------------------------------------------------------ compute
-    def timesteps(self, sampler: str = "ddpm", num_inference_steps: Optional[int] = None,
-                  timestep_spacing: str = "trailing") -> List[int]:
-        """The descending training steps the sampler visits (``None`` steps: all of them)."""
-        s, n, _, sp = _checks.sampler_args(sampler, num_inference_steps, 0.0, timestep_spacing,
-                                           self.num_train_timesteps)
-        return list(self._native.timesteps(s, n, 0.0, sp))
+    def timesteps(self, *positional: Any, options: Optional[SamplerOptions] = None, **sampler: Any) -> List[int]:
+        """The descending training steps the sampler visits: ``timesteps(sampler, num_inference_steps,
+        timestep_spacing)`` (positional, as before), the same as keywords, or ``options=``
+        (:class:`tcd.SamplerOptions`); ``num_inference_steps=None`` visits all of them."""
+        o = _positional_options(positional, options, sampler).for_model(self.num_train_timesteps)
+        return list(self._native.timesteps(**o.sampler_kwargs()))
 
-    def num_noise_blocks(self, sampler: str = "ddpm", num_inference_steps: Optional[int] = None,
-                         timestep_spacing: str = "trailing") -> int:
+    def num_noise_blocks(self, *positional: Any, options: Optional[SamplerOptions] = None, **sampler: Any) -> int:
         """The second axis of injected noise: n + 1 (x_T, then one z per step) for ddpm / ddim, 1 (x_T
-        only) for the deterministic dpmpp2m."""
-        s, n, _, sp = _checks.sampler_args(sampler, num_inference_steps, 0.0, timestep_spacing,
-                                           self.num_train_timesteps)
-        return int(self._native.num_noise_blocks(s, n, 0.0, sp))
+        only) for the deterministic dpmpp2m. Arguments as :meth:`timesteps`."""
+        o = _positional_options(positional, options, sampler).for_model(self.num_train_timesteps)
+        return int(self._native.num_noise_blocks(**o.sampler_kwargs()))
 
     def forward(self, noisy: Any, observed: Any, mask: Any, step: int, *,
                 threads: Optional[int] = None) -> np.ndarray:
@@ -134,68 +145,63 @@ class Denoiser:
                                     _checks.float32_array("mask", mask), step, threads=_checks.threads(threads))
 
     def sample(self, observed: Any, mask: Any, num_samples: int = 1, *, noise: Any = None,
-               seed: Optional[int] = None, first_sequence: int = 0, sampler: str = "ddpm",
-               num_inference_steps: Optional[int] = None, eta: float = 0.0,
-               timestep_spacing: str = "trailing", threads: Optional[int] = None) -> np.ndarray:
+               seed: Optional[int] = None, first_sequence: int = 0, options: Optional[SamplerOptions] = None,
+               threads: Optional[int] = None, **sampler: Any) -> np.ndarray:
         """``num_samples`` merged samples per sequence: observed, mask (B, K, L) -> (S, B, K, L).
 
         Exactly one of ``noise`` (S, n + 1, B, K, L) — (S, 1, B, K, L) for ``sampler="dpmpp2m"`` — and
-        ``seed`` must be given. ``sampler``: ``"ddpm"``, ``"ddim"`` (``eta``) or ``"dpmpp2m"``
-        (DPM-Solver++(2M), deterministic). ``num_inference_steps=None`` runs every training step."""
+        ``seed`` must be given. The sampler: ``options`` (:class:`tcd.SamplerOptions`) or its fields as
+        keywords (``sampler``, ``num_inference_steps``, ``eta``, ``timestep_spacing``)."""
         num_samples = _checks.integer("num_samples", num_samples, 1)
-        s, n, e, sp = _checks.sampler_args(sampler, num_inference_steps, eta, timestep_spacing,
-                                           self.num_train_timesteps)
+        o = SamplerOptions.build(options, **sampler).for_model(self.num_train_timesteps)
         return self._native.sample(
             _checks.float32_array("observed", observed), _checks.float32_array("mask", mask), num_samples,
             noise=_noise("noise", noise), seed=_checks.seed(seed),
             first_sequence=_checks.integer("first_sequence", first_sequence, 0, _checks.MAX_SEED),
-            sampler=s, num_inference_steps=n, eta=e, timestep_spacing=sp, threads=_checks.threads(threads))
+            threads=_checks.threads(threads), **o.sampler_kwargs())
 
 
 def cascade_raw(short: Denoiser, long: Denoiser, observed: Any, mask: Any, *, num_samples: int = 5,
                 noise_short: Any = None, noise_long: Any = None, seed: Optional[int] = None,
-                first_sequence: int = 0, sampler: str = "ddpm", num_inference_steps: Optional[int] = None,
-                eta: float = 0.0, timestep_spacing: str = "trailing",
-                threads: Optional[int] = None) -> Dict[str, np.ndarray]:
+                first_sequence: int = 0, options: Optional[SamplerOptions] = None,
+                threads: Optional[int] = None, **sampler: Any) -> Dict[str, np.ndarray]:
     """The short-term -> long-term cascade in the engine's layout (``training.diffusion.cascade``).
 
     observed, mask: (B, K, O) with O = ``short.obs_len``. Noise: ``noise_short`` (S, n + 1, B, K, L_s)
     and ``noise_long`` (S, n + 1, B, K, L_l) (one block instead of n + 1 for ``sampler="dpmpp2m"``), or a
-    ``seed``. Returns ``mean`` (B, K, P), ``samples``
-    (S, B, K, P) (P = L_l - O forecast frames), ``repaired`` (B, K, O) and ``short_mean`` (B, K, L_s).
+    ``seed``. The sampler: ``options`` or its fields as keywords (:class:`tcd.SamplerOptions`). Returns
+    ``mean`` (B, K, P), ``samples`` (S, B, K, P) (P = L_l - O forecast frames), ``repaired`` (B, K, O) and
+    ``short_mean`` (B, K, L_s).
     """
     for name, m in (("short", short), ("long", long)):
         if not isinstance(m, Denoiser):
             raise _checks.fail(name, "a tcd.Denoiser", type(m).__name__)
     num_samples = _checks.integer("num_samples", num_samples, 1)
-    t = min(short.num_train_timesteps, long.num_train_timesteps)
-    s, n, e, sp = _checks.sampler_args(sampler, num_inference_steps, eta, timestep_spacing, t)
+    o = SamplerOptions.build(options, **sampler).for_model(min(short.num_train_timesteps, long.num_train_timesteps))
     return dict(_native.cascade(
         short._native, long._native, _checks.float32_array("observed", observed),
         _checks.float32_array("mask", mask), num_samples=num_samples,
         noise_short=_noise("noise_short", noise_short), noise_long=_noise("noise_long", noise_long),
         seed=_checks.seed(seed), first_sequence=_checks.integer("first_sequence", first_sequence, 0, _checks.MAX_SEED),
-        sampler=s, num_inference_steps=n, eta=e, timestep_spacing=sp, threads=_checks.threads(threads)))
+        threads=_checks.threads(threads), **o.sampler_kwargs()))
 
 
 def repair_raw(model: Denoiser, observed: Any, mask: Any, *, num_samples: int = 5, noise: Any = None,
-               seed: Optional[int] = None, first_sequence: int = 0, sampler: str = "ddpm",
-               num_inference_steps: Optional[int] = None, eta: float = 0.0,
-               timestep_spacing: str = "trailing", threads: Optional[int] = None) -> Dict[str, np.ndarray]:
+               seed: Optional[int] = None, first_sequence: int = 0, options: Optional[SamplerOptions] = None,
+               threads: Optional[int] = None, **sampler: Any) -> Dict[str, np.ndarray]:
     """Fills the mask-0 entries of an observation (B, K, O), O = ``model.obs_len``
     (``training.diffusion.repair``). Returns ``mean`` (B, K, O; observed entries exact) and ``samples``
     (S, B, K, O). Noise: ``noise`` (S, n + 1, B, K, model.seq_len) ((S, 1, ...) for ``sampler="dpmpp2m"``)
-    or a ``seed``."""
+    or a ``seed``. The sampler: ``options`` or its fields as keywords (:class:`tcd.SamplerOptions`)."""
     if not isinstance(model, Denoiser):
         raise _checks.fail("model", "a tcd.Denoiser", type(model).__name__)
     num_samples = _checks.integer("num_samples", num_samples, 1)
-    s, n, e, sp = _checks.sampler_args(sampler, num_inference_steps, eta, timestep_spacing,
-                                       model.num_train_timesteps)
+    o = SamplerOptions.build(options, **sampler).for_model(model.num_train_timesteps)
     return dict(_native.repair(
         model._native, _checks.float32_array("observed", observed), _checks.float32_array("mask", mask),
         num_samples=num_samples, noise=_noise("noise", noise), seed=_checks.seed(seed),
         first_sequence=_checks.integer("first_sequence", first_sequence, 0, _checks.MAX_SEED),
-        sampler=s, num_inference_steps=n, eta=e, timestep_spacing=sp, threads=_checks.threads(threads)))
+        threads=_checks.threads(threads), **o.sampler_kwargs()))
 
 
 def supported_kernels() -> List[str]:

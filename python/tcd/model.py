@@ -19,6 +19,7 @@ import numpy as np
 from . import _checks
 from .denoiser import Denoiser, cascade_raw, repair_raw
 from .exceptions import WeightsError
+from .options import SamplerOptions
 
 __all__ = ["TCD", "Forecast", "load", "forecast", "repair", "default_model_dir"]
 
@@ -247,19 +248,18 @@ class TCD:
                 f"num_joints={self.num_joints}, repair_model={self.repair_model is not None})")
 
     # ------------------------------------------------------------------ inference
-    def _common(self, num_samples: Any, num_inference_steps: Any, sampler: Any, eta: Any, timestep_spacing: Any,
-                units: Any, threads: Any) -> Tuple[Dict[str, Any], str, Optional[int]]:
+    def _common(self, num_samples: Any, options: Optional[SamplerOptions], sampler: Dict[str, Any], units: Any,
+                threads: Any) -> Tuple[int, SamplerOptions, str, Optional[int]]:
         num_samples = _checks.integer("num_samples", num_samples, 1)
-        t = min(self.short.num_train_timesteps, self.long.num_train_timesteps)
-        s, n, e, sp = _checks.sampler_args(sampler, num_inference_steps, eta, timestep_spacing, t)
+        o = SamplerOptions.build(options, **sampler).for_model(min(self.short.num_train_timesteps,
+                                                                   self.long.num_train_timesteps))
         units = _checks.choice("units", units, tuple(_UNIT_SCALE))
         threads = _checks.threads(threads)
-        kw = dict(num_samples=num_samples, sampler=s, num_inference_steps=n, eta=e, timestep_spacing=sp)
-        return kw, units, self.threads if threads is None else threads
+        return num_samples, o, units, self.threads if threads is None else threads
 
-    def forecast(self, obs: Any, mask: Any = None, *, num_samples: int = 5, num_inference_steps: Optional[int] = None,
-                 sampler: str = "ddpm", eta: float = 0.0, timestep_spacing: str = "trailing",
-                 seed: Optional[int] = None, units: str = "m", threads: Optional[int] = None) -> Forecast:
+    def forecast(self, obs: Any, mask: Any = None, *, num_samples: int = 5, options: Optional[SamplerOptions] = None,
+                 seed: Optional[int] = None, units: str = "m", threads: Optional[int] = None,
+                 **sampler: Any) -> Forecast:
         """Forecasts the next :attr:`horizon` frames of ``obs``.
 
         Args:
@@ -268,37 +268,34 @@ class TCD:
             mask: optional, 1 = observed / 0 = missing, shape ``obs.shape`` or ``obs.shape[:-1]`` (per joint).
                 Entries with mask 0 are ignored (NaN or not); NaN where mask is 1 is an error.
             num_samples: S, samples per sequence (and per cascade stage). TCD: 5.
-            num_inference_steps: ``None`` = every training step (50: the paper's DDPM sampler); fewer run
-                respaced DDPM, DDIM with ``sampler="ddim"`` or DPM-Solver++(2M) with ``sampler="dpmpp2m"``.
-            sampler: ``"ddpm"``, ``"ddim"`` or ``"dpmpp2m"`` (DPM-Solver++(2M), deterministic given the
-                initial noise; meant for 10-25 steps).
-            eta: DDIM stochasticity in [0, 1] (0 = deterministic given the initial noise); ignored by the
-                other samplers.
-            timestep_spacing: ``"trailing"``, ``"leading"`` or ``"linspace"``: which training steps a
-                shortened sampler visits.
+            options: the sampler, a :class:`tcd.SamplerOptions` (default: the paper's DDPM over every
+                training step); or its fields as keywords: ``sampler`` (``"ddpm"``, ``"ddim"``,
+                ``"dpmpp2m"``), ``num_inference_steps``, ``eta``, ``timestep_spacing``.
             seed: the noise seed (an integer in [0, 2**64)); ``None`` draws one from ``os.urandom``
                 (recorded in ``Forecast.seed``). Results do not depend on the thread count or the batch.
             units: ``"m"`` (default) or ``"mm"``: the units of ``obs`` and of every output.
             threads: worker threads (``None``: the value given to :func:`tcd.load`, else all cores).
         """
-        kw, units, threads = self._common(num_samples, num_inference_steps, sampler, eta, timestep_spacing, units, threads)
+        num_samples, o, units, threads = self._common(num_samples, options, sampler, units, threads)
         p = _poses(obs, mask, self.num_joints, self.obs_len, units)
         seed = _seed(seed)
-        out = cascade_raw(self.short, self.long, p.observed, p.mask, seed=seed, threads=threads, **kw)
+        out = cascade_raw(self.short, self.long, p.observed, p.mask, num_samples=num_samples, options=o,
+                          seed=seed, threads=threads)
         return Forecast(mean=p.poses(out["mean"]), samples=p.poses(out["samples"]),
                         repaired=p.repaired(out["repaired"]), seed=seed)
 
-    def repair(self, obs: Any, mask: Any = None, *, num_samples: int = 5, num_inference_steps: Optional[int] = None,
-               sampler: str = "ddpm", eta: float = 0.0, timestep_spacing: str = "trailing",
-               seed: Optional[int] = None, units: str = "m", threads: Optional[int] = None) -> np.ndarray:
+    def repair(self, obs: Any, mask: Any = None, *, num_samples: int = 5, options: Optional[SamplerOptions] = None,
+               seed: Optional[int] = None, units: str = "m", threads: Optional[int] = None,
+               **sampler: Any) -> np.ndarray:
         """Fills the missing entries of ``obs`` (same arguments as :meth:`forecast`) with the mean of
         ``num_samples`` samples of the repair model (the short-term model when the directory has no
         ``repair.safetensors``). Returns an array of the shape of ``obs``; observed entries unchanged.
         Pass ``seed`` for a reproducible result."""
-        kw, units, threads = self._common(num_samples, num_inference_steps, sampler, eta, timestep_spacing, units, threads)
+        num_samples, o, units, threads = self._common(num_samples, options, sampler, units, threads)
         p = _poses(obs, mask, self.num_joints, self.obs_len, units)
         model = self.repair_model if self.repair_model is not None else self.short
-        out = repair_raw(model, p.observed, p.mask, seed=_seed(seed), threads=threads, **kw)
+        out = repair_raw(model, p.observed, p.mask, num_samples=num_samples, options=o, seed=_seed(seed),
+                         threads=threads)
         return p.repaired(out["mean"])
 
 

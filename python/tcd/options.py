@@ -1,0 +1,69 @@
+"""How each chain is sampled: the one home of the sampler settings, their defaults and their checks.
+
+Every layer that samples (``TCD.forecast`` / ``TCD.repair``, :class:`tcd.Denoiser`, :func:`tcd.cascade_raw`,
+:func:`tcd.repair_raw`, ``tcd repair``, the command line) takes a :class:`SamplerOptions` or builds one from
+the same keyword arguments with :meth:`SamplerOptions.build`; the binding hands its fields to the engine's
+``SamplerConfig`` in one place (``sampler_kwargs``).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, fields, replace
+from typing import Any, Dict, Optional
+
+from . import _checks
+
+SAMPLERS = ("ddpm", "ddim", "dpmpp2m")
+SPACINGS = ("trailing", "leading", "linspace")
+
+
+@dataclass(frozen=True)
+class SamplerOptions:
+    """The sampler of every chain. Checked when made (each bad value an
+    :class:`~tcd.exceptions.InvalidInputError` naming the field); the number of steps is checked against a
+    model's training steps where the model is known (:meth:`for_model`).
+
+    Attributes:
+        sampler: ``"ddpm"`` (ancestral, the paper's), ``"ddim"`` (``eta``) or ``"dpmpp2m"``
+            (DPM-Solver++(2M), deterministic given the initial noise; meant for 10-25 steps).
+        num_inference_steps: ``None`` = every training step (50: the paper's DDPM sampler); fewer run
+            respaced DDPM, DDIM or DPM-Solver++(2M).
+        eta: DDIM stochasticity in [0, 1] (0 = deterministic given the initial noise); ignored by the
+            other samplers.
+        timestep_spacing: ``"trailing"``, ``"leading"`` or ``"linspace"``: which training steps a
+            shortened sampler visits.
+    """
+
+    sampler: str = "ddpm"
+    num_inference_steps: Optional[int] = None
+    eta: float = 0.0
+    timestep_spacing: str = "trailing"
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__  # frozen: normalise the checked values once (numpy ints to int, eta to float)
+        set_(self, "sampler", _checks.choice("sampler", self.sampler, SAMPLERS))
+        set_(self, "num_inference_steps", _checks.optional_integer("num_inference_steps", self.num_inference_steps, 1))
+        set_(self, "eta", _checks.eta(self.eta))
+        set_(self, "timestep_spacing", _checks.choice("timestep_spacing", self.timestep_spacing, SPACINGS))
+
+    @classmethod
+    def build(cls, options: Optional["SamplerOptions"] = None, **overrides: Any) -> "SamplerOptions":
+        """``options`` (default: the defaults) with the fields named in ``overrides`` replaced; an unknown
+        name is a ``TypeError`` as for any function."""
+        if options is not None and not isinstance(options, SamplerOptions):
+            raise _checks.fail("options", "a tcd.SamplerOptions or None", f"{options!r} ({type(options).__name__})")
+        names = {f.name for f in fields(cls)}
+        unknown = sorted(set(overrides) - names)
+        if unknown:
+            raise TypeError(f"unexpected keyword argument {unknown[0]!r} (sampler settings: {', '.join(sorted(names))})")
+        base = options if options is not None else cls()
+        return replace(base, **overrides) if overrides else base
+
+    def for_model(self, num_train_timesteps: int) -> "SamplerOptions":
+        """Itself, once ``num_inference_steps`` is known to fit a model of ``num_train_timesteps`` steps."""
+        _checks.optional_integer("num_inference_steps", self.num_inference_steps, 1, num_train_timesteps)
+        return self
+
+    def sampler_kwargs(self) -> Dict[str, Any]:
+        """The binding's keyword arguments (the engine's ``SamplerConfig``)."""
+        return {"sampler": self.sampler, "num_inference_steps": self.num_inference_steps, "eta": self.eta,
+                "timestep_spacing": self.timestep_spacing}
