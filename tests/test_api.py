@@ -419,13 +419,17 @@ def test_bad_low_level_arguments(model_dir):
 def test_native_errors_are_typed(model_dir, argument, kwargs):
     """The binding's own checks and the engine's errors (bypassing the Python layer) map onto
     tcd.exceptions too."""
+    import dataclasses
+    import types
     d = _native.Denoiser.load(str(model_dir / "short.safetensors"))
     x = np.zeros((1, 66, 55), np.float32)
     kw = dict(kwargs)
     if argument != "seed":
         kw.setdefault("seed", 1)
     n = kw.pop("num_samples", 1)
-    bad(argument, d.sample, x, np.ones_like(x), n, **kw)
+    # the sampler fields on a plain object: tcd.SamplerOptions would refuse them before the binding sees them
+    fields = {f.name: kw.pop(f.name, f.default) for f in dataclasses.fields(tcd.SamplerOptions)}
+    bad(argument, d.sample, x, np.ones_like(x), n, types.SimpleNamespace(**fields), **kw)
 
 
 def test_native_engine_error_mapping(model_dir):

@@ -1,8 +1,8 @@
 """Stubs of the private native module ``tcd._native`` (crates/tcd-py). Use the ``tcd`` package.
 
 Arrays are float32 in the engine's layout: sequences (B, K, L), samples (S, B, K, L), injected
-noise (S, n + 1, B, K, L) ((S, 1, B, K, L) for ``sampler="dpmpp2m"``). Samplers: "ddpm", "ddim",
-"dpmpp2m". Errors: ``tcd.exceptions.InvalidInputError`` (bad argument),
+noise (S, n + 1, B, K, L) ((S, 1, B, K, L) for ``sampler="dpmpp2m"``). The sampler of a call is a
+``tcd.SamplerOptions`` (read by its attributes). Errors: ``tcd.exceptions.InvalidInputError`` (bad argument),
 ``tcd.exceptions.WeightsError`` (bad weight file), ``FileNotFoundError`` (missing file),
 ``OSError`` (unreadable file), ``tcd.exceptions.TcdError`` (anything else).
 """
@@ -11,6 +11,8 @@ from typing import Dict, List, Optional, Union
 
 import numpy as np
 import numpy.typing as npt
+
+from .options import SamplerOptions
 
 __version__: str
 STAGE_SHORT: int
@@ -45,34 +47,19 @@ class Denoiser:
     def kernel(self) -> str: ...
     @property
     def num_train_timesteps(self) -> int: ...
-    def timesteps(
-        self,
-        sampler: str = "ddpm",
-        num_inference_steps: Optional[int] = None,
-        eta: float = 0.0,
-        timestep_spacing: str = "trailing",
-    ) -> List[int]: ...
-    def num_noise_blocks(
-        self,
-        sampler: str = "ddpm",
-        num_inference_steps: Optional[int] = None,
-        eta: float = 0.0,
-        timestep_spacing: str = "trailing",
-    ) -> int: ...
+    def timesteps(self, options: SamplerOptions) -> List[int]: ...
+    def num_noise_blocks(self, options: SamplerOptions) -> int: ...
     def forward(self, noisy: _F32, observed: _F32, mask: _F32, step: int, threads: Optional[int] = None) -> _F32: ...
     def sample(
         self,
         observed: _F32,
         mask: _F32,
         num_samples: int,
+        options: SamplerOptions,
         *,
         noise: Optional[_F32] = None,
         seed: Optional[int] = None,
         first_sequence: int = 0,
-        sampler: str = "ddpm",
-        num_inference_steps: Optional[int] = None,
-        eta: float = 0.0,
-        timestep_spacing: str = "trailing",
         threads: Optional[int] = None,
     ) -> _F32: ...
 
@@ -81,31 +68,25 @@ def cascade(
     long: Denoiser,
     observed: _F32,
     mask: _F32,
+    num_samples: int,
+    options: SamplerOptions,
     *,
-    num_samples: int = 5,
     noise_short: Optional[_F32] = None,
     noise_long: Optional[_F32] = None,
     seed: Optional[int] = None,
     first_sequence: int = 0,
-    sampler: str = "ddpm",
-    num_inference_steps: Optional[int] = None,
-    eta: float = 0.0,
-    timestep_spacing: str = "trailing",
     threads: Optional[int] = None,
 ) -> Dict[str, _F32]: ...
 def repair(
     model: Denoiser,
     observed: _F32,
     mask: _F32,
+    num_samples: int,
+    options: SamplerOptions,
     *,
-    num_samples: int = 5,
     noise: Optional[_F32] = None,
     seed: Optional[int] = None,
     first_sequence: int = 0,
-    sampler: str = "ddpm",
-    num_inference_steps: Optional[int] = None,
-    eta: float = 0.0,
-    timestep_spacing: str = "trailing",
     threads: Optional[int] = None,
 ) -> Dict[str, _F32]: ...
 def seeded_noise(

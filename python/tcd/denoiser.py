@@ -126,13 +126,13 @@ class Denoiser:
         timestep_spacing)`` (positional, as before), the same as keywords, or ``options=``
         (:class:`tcd.SamplerOptions`); ``num_inference_steps=None`` visits all of them."""
         o = _positional_options(positional, options, sampler).for_model(self.num_train_timesteps)
-        return list(self._native.timesteps(**o.sampler_kwargs()))
+        return list(self._native.timesteps(o))
 
     def num_noise_blocks(self, *positional: Any, options: Optional[SamplerOptions] = None, **sampler: Any) -> int:
         """The second axis of injected noise: n + 1 (x_T, then one z per step) for ddpm / ddim, 1 (x_T
         only) for the deterministic dpmpp2m. Arguments as :meth:`timesteps`."""
         o = _positional_options(positional, options, sampler).for_model(self.num_train_timesteps)
-        return int(self._native.num_noise_blocks(**o.sampler_kwargs()))
+        return int(self._native.num_noise_blocks(o))
 
     def forward(self, noisy: Any, observed: Any, mask: Any, step: int, *,
                 threads: Optional[int] = None) -> np.ndarray:
@@ -155,10 +155,10 @@ class Denoiser:
         num_samples = _checks.integer("num_samples", num_samples, 1)
         o = SamplerOptions.build(options, **sampler).for_model(self.num_train_timesteps)
         return self._native.sample(
-            _checks.float32_array("observed", observed), _checks.float32_array("mask", mask), num_samples,
+            _checks.float32_array("observed", observed), _checks.float32_array("mask", mask), num_samples, o,
             noise=_noise("noise", noise), seed=_checks.seed(seed),
             first_sequence=_checks.integer("first_sequence", first_sequence, 0, _checks.MAX_SEED),
-            threads=_checks.threads(threads), **o.sampler_kwargs())
+            threads=_checks.threads(threads))
 
 
 def cascade_raw(short: Denoiser, long: Denoiser, observed: Any, mask: Any, *, num_samples: int = 5,
@@ -180,10 +180,10 @@ def cascade_raw(short: Denoiser, long: Denoiser, observed: Any, mask: Any, *, nu
     o = SamplerOptions.build(options, **sampler).for_model(min(short.num_train_timesteps, long.num_train_timesteps))
     return dict(_native.cascade(
         short._native, long._native, _checks.float32_array("observed", observed),
-        _checks.float32_array("mask", mask), num_samples=num_samples,
+        _checks.float32_array("mask", mask), num_samples, o,
         noise_short=_noise("noise_short", noise_short), noise_long=_noise("noise_long", noise_long),
         seed=_checks.seed(seed), first_sequence=_checks.integer("first_sequence", first_sequence, 0, _checks.MAX_SEED),
-        threads=_checks.threads(threads), **o.sampler_kwargs()))
+        threads=_checks.threads(threads)))
 
 
 def repair_raw(model: Denoiser, observed: Any, mask: Any, *, num_samples: int = 5, noise: Any = None,
@@ -199,9 +199,9 @@ def repair_raw(model: Denoiser, observed: Any, mask: Any, *, num_samples: int = 
     o = SamplerOptions.build(options, **sampler).for_model(model.num_train_timesteps)
     return dict(_native.repair(
         model._native, _checks.float32_array("observed", observed), _checks.float32_array("mask", mask),
-        num_samples=num_samples, noise=_noise("noise", noise), seed=_checks.seed(seed),
+        num_samples, o, noise=_noise("noise", noise), seed=_checks.seed(seed),
         first_sequence=_checks.integer("first_sequence", first_sequence, 0, _checks.MAX_SEED),
-        threads=_checks.threads(threads), **o.sampler_kwargs()))
+        threads=_checks.threads(threads)))
 
 
 def supported_kernels() -> List[str]:

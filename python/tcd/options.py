@@ -2,8 +2,8 @@
 
 Every layer that samples (``TCD.forecast`` / ``TCD.repair``, :class:`tcd.Denoiser`, :func:`tcd.cascade_raw`,
 :func:`tcd.repair_raw`, ``tcd repair``, the command line) takes a :class:`SamplerOptions` or builds one from
-the same keyword arguments with :meth:`SamplerOptions.build`; the binding hands its fields to the engine's
-``SamplerConfig`` in one place (``sampler_kwargs``).
+the same keyword arguments with :meth:`SamplerOptions.build`; the binding converts it into the engine's
+``SamplerConfig`` in one place (``SamplerOptions`` in crates/tcd-py/src/lib.rs, a ``FromPyObject``).
 """
 from __future__ import annotations
 
@@ -62,8 +62,3 @@ class SamplerOptions:
         """Itself, once ``num_inference_steps`` is known to fit a model of ``num_train_timesteps`` steps."""
         _checks.optional_integer("num_inference_steps", self.num_inference_steps, 1, num_train_timesteps)
         return self
-
-    def sampler_kwargs(self) -> Dict[str, Any]:
-        """The binding's keyword arguments (the engine's ``SamplerConfig``)."""
-        return {"sampler": self.sampler, "num_inference_steps": self.num_inference_steps, "eta": self.eta,
-                "timestep_spacing": self.timestep_spacing}

@@ -87,36 +87,48 @@ fn check_work(num_samples: usize, batch: usize, k: usize, length: usize) -> Core
     }
 }
 
-/// `sampler` / `num_inference_steps` / `eta` / `timestep_spacing` → the engine's config.
-fn sampler_config(
-    sampler: &str,
+/// `tcd.SamplerOptions` (any object with its four attributes) → the engine's [`SamplerConfig`]: the
+/// one place where the sampler settings cross from Python. The Python type checks its fields when it is
+/// made; the values are checked again here, because the binding can be called without it.
+#[derive(FromPyObject)]
+struct SamplerOptions {
+    #[pyo3(attribute)]
+    sampler: String,
+    #[pyo3(attribute)]
     num_inference_steps: Option<i64>,
+    #[pyo3(attribute)]
     eta: f64,
-    timestep_spacing: &str,
-) -> CoreResult<SamplerConfig> {
-    let kind = match sampler {
-        "ddpm" => SamplerKind::Ddpm,
-        "ddim" => SamplerKind::Ddim { eta },
-        "dpmpp2m" => SamplerKind::DpmPp2m,
-        other => {
-            return Err(invalid(
-                "sampler",
-                "\"ddpm\", \"ddim\" or \"dpmpp2m\"",
-                format!("{other:?}"),
-            ));
+    #[pyo3(attribute)]
+    timestep_spacing: String,
+}
+
+impl SamplerOptions {
+    fn config(&self) -> CoreResult<SamplerConfig> {
+        let kind = match self.sampler.as_str() {
+            "ddpm" => SamplerKind::Ddpm,
+            "ddim" => SamplerKind::Ddim { eta: self.eta },
+            "dpmpp2m" => SamplerKind::DpmPp2m,
+            other => {
+                return Err(invalid(
+                    "sampler",
+                    "\"ddpm\", \"ddim\" or \"dpmpp2m\"",
+                    format!("{other:?}"),
+                ));
+            }
+        };
+        if !(self.eta.is_finite() && (0.0..=1.0).contains(&self.eta)) {
+            return Err(invalid("eta", "a number in [0, 1]", self.eta.to_string()));
         }
-    };
-    if !(eta.is_finite() && (0.0..=1.0).contains(&eta)) {
-        return Err(invalid("eta", "a number in [0, 1]", eta.to_string()));
+        let num_inference_steps = self
+            .num_inference_steps
+            .map(|n| positive("num_inference_steps", n))
+            .transpose()?;
+        Ok(SamplerConfig {
+            kind,
+            num_inference_steps,
+            timestep_spacing: self.timestep_spacing.parse::<TimestepSpacing>()?,
+        })
     }
-    let num_inference_steps = num_inference_steps
-        .map(|n| positive("num_inference_steps", n))
-        .transpose()?;
-    Ok(SamplerConfig {
-        kind,
-        num_inference_steps,
-        timestep_spacing: timestep_spacing.parse::<TimestepSpacing>()?,
-    })
 }
 
 /// Noise blocks per chain (n + 1; 1 for dpmpp2m) of `sampler` on `model`; validates the sampler.
@@ -347,16 +359,8 @@ impl PyDenoiser {
     }
 
     /// The descending training steps a sampler visits.
-    #[pyo3(signature = (sampler="ddpm", num_inference_steps=None, eta=0.0, timestep_spacing="trailing"))]
-    fn timesteps(
-        &self,
-        sampler: &str,
-        num_inference_steps: Option<i64>,
-        eta: f64,
-        timestep_spacing: &str,
-    ) -> PyResult<Vec<usize>> {
-        let cfg = sampler_config(sampler, num_inference_steps, eta, timestep_spacing)
-            .map_err(PyTcdError)?;
+    fn timesteps(&self, options: SamplerOptions) -> PyResult<Vec<usize>> {
+        let cfg = options.config().map_err(PyTcdError)?;
         let plan = cfg
             .plan(
                 self.inner.schedule(),
@@ -368,16 +372,8 @@ impl PyDenoiser {
 
     /// Noise blocks per chain, the second axis of injected noise: n + 1 (x_T, then one z per
     /// step), or 1 for the deterministic `dpmpp2m`.
-    #[pyo3(signature = (sampler="ddpm", num_inference_steps=None, eta=0.0, timestep_spacing="trailing"))]
-    fn num_noise_blocks(
-        &self,
-        sampler: &str,
-        num_inference_steps: Option<i64>,
-        eta: f64,
-        timestep_spacing: &str,
-    ) -> PyResult<usize> {
-        let cfg = sampler_config(sampler, num_inference_steps, eta, timestep_spacing)
-            .map_err(PyTcdError)?;
+    fn num_noise_blocks(&self, options: SamplerOptions) -> PyResult<usize> {
+        let cfg = options.config().map_err(PyTcdError)?;
         Ok(noise_blocks(&self.inner, &cfg).map_err(PyTcdError)?)
     }
 
@@ -441,9 +437,8 @@ impl PyDenoiser {
     /// `num_samples` merged samples per sequence, (S, B, K, L). Noise: injected `noise`
     /// (S, n + 1, B, K, L) ((S, 1, B, K, L) for dpmpp2m) or a `seed` (stream stage 0, sequences
     /// numbered from `first_sequence`).
-    #[pyo3(signature = (observed, mask, num_samples, *, noise=None, seed=None, first_sequence=0,
-                        sampler="ddpm", num_inference_steps=None, eta=0.0,
-                        timestep_spacing="trailing", threads=None))]
+    #[pyo3(signature = (observed, mask, num_samples, options, *, noise=None, seed=None, first_sequence=0,
+                        threads=None))]
     #[allow(clippy::too_many_arguments)]
     fn sample<'py>(
         &self,
@@ -451,13 +446,10 @@ impl PyDenoiser {
         observed: PyReadonlyArrayDyn<'py, f32>,
         mask: PyReadonlyArrayDyn<'py, f32>,
         num_samples: i64,
+        options: SamplerOptions,
         noise: Option<PyReadonlyArrayDyn<'py, f32>>,
         seed: Option<i128>,
         first_sequence: i128,
-        sampler: &str,
-        num_inference_steps: Option<i64>,
-        eta: f64,
-        timestep_spacing: &str,
         threads: Option<i64>,
     ) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
         let k = self.inner.num_features();
@@ -469,7 +461,7 @@ impl PyDenoiser {
             let (b, l) = observed.bkl("observed", k)?;
             mask.expect_shape("mask", &[b, k, l], "(the shape of `observed`)")?;
             check_work(s, b, k, l)?;
-            let cfg = sampler_config(sampler, num_inference_steps, eta, timestep_spacing)?;
+            let cfg = options.config()?;
             let blocks = noise_blocks(&self.inner, &cfg)?;
             let (seed, first_sequence) = seed_args(seed, first_sequence)?;
             let src = noise_source(
@@ -523,9 +515,8 @@ impl PyDenoiser {
 /// (B, K, L_s). Noise: injected `noise_short` (S, n + 1, B, K, L_s) and `noise_long`
 /// (S, n + 1, B, K, L_l) (one block instead of n + 1 for dpmpp2m), or a `seed`.
 #[pyfunction]
-#[pyo3(signature = (short, long, observed, mask, *, num_samples=5, noise_short=None, noise_long=None,
-                    seed=None, first_sequence=0, sampler="ddpm", num_inference_steps=None, eta=0.0,
-                    timestep_spacing="trailing", threads=None))]
+#[pyo3(signature = (short, long, observed, mask, num_samples, options, *, noise_short=None, noise_long=None,
+                    seed=None, first_sequence=0, threads=None))]
 #[allow(clippy::too_many_arguments)]
 fn cascade<'py>(
     py: Python<'py>,
@@ -534,14 +525,11 @@ fn cascade<'py>(
     observed: PyReadonlyArrayDyn<'py, f32>,
     mask: PyReadonlyArrayDyn<'py, f32>,
     num_samples: i64,
+    options: SamplerOptions,
     noise_short: Option<PyReadonlyArrayDyn<'py, f32>>,
     noise_long: Option<PyReadonlyArrayDyn<'py, f32>>,
     seed: Option<i128>,
     first_sequence: i128,
-    sampler: &str,
-    num_inference_steps: Option<i64>,
-    eta: f64,
-    timestep_spacing: &str,
     threads: Option<i64>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let short = Arc::clone(&short.get().inner);
@@ -561,7 +549,7 @@ fn cascade<'py>(
             "the short-term model's",
         )?;
         check_work(s, b, k, short.seq_len().max(long.seq_len()))?;
-        let cfg = sampler_config(sampler, num_inference_steps, eta, timestep_spacing)?;
+        let cfg = options.config()?;
         let (seed, first_sequence) = seed_args(seed, first_sequence)?;
         let bs = noise_blocks(&short, &cfg)?;
         let bl = noise_blocks(&long, &cfg)?;
@@ -634,8 +622,7 @@ fn cascade<'py>(
 /// Repairs the mask-0 entries of an observation (B, K, O), O = the model's obs_len. Returns a
 /// dict: `mean` (B, K, O; observed entries exact) and `samples` (S, B, K, O).
 #[pyfunction]
-#[pyo3(signature = (model, observed, mask, *, num_samples=5, noise=None, seed=None, first_sequence=0,
-                    sampler="ddpm", num_inference_steps=None, eta=0.0, timestep_spacing="trailing",
+#[pyo3(signature = (model, observed, mask, num_samples, options, *, noise=None, seed=None, first_sequence=0,
                     threads=None))]
 #[allow(clippy::too_many_arguments)]
 fn repair<'py>(
@@ -644,13 +631,10 @@ fn repair<'py>(
     observed: PyReadonlyArrayDyn<'py, f32>,
     mask: PyReadonlyArrayDyn<'py, f32>,
     num_samples: i64,
+    options: SamplerOptions,
     noise: Option<PyReadonlyArrayDyn<'py, f32>>,
     seed: Option<i128>,
     first_sequence: i128,
-    sampler: &str,
-    num_inference_steps: Option<i64>,
-    eta: f64,
-    timestep_spacing: &str,
     threads: Option<i64>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let model = Arc::clone(&model.get().inner);
@@ -663,7 +647,7 @@ fn repair<'py>(
         let b = observation_batch(&observed, &mask, k, model.obs_len(), "the model's")?;
         let o = model.obs_len();
         check_work(s, b, k, model.seq_len())?;
-        let cfg = sampler_config(sampler, num_inference_steps, eta, timestep_spacing)?;
+        let cfg = options.config()?;
         let (seed, first_sequence) = seed_args(seed, first_sequence)?;
         let blocks = noise_blocks(&model, &cfg)?;
         let src = noise_source(
