@@ -38,7 +38,7 @@ HORIZONS_MS = (80, 160, 320, 400, 560, 720, 880, 1000)
 
 # Demo defaults: the paper's sampler (SamplerOptions' defaults: DDPM over all 50 training steps), 5 samples.
 # With the bundled reduced model the whole demo took 21 s on a 2-core machine (MODEL_CARD.md); fewer steps trade
-# accuracy for time (README, "Samplers at fewer steps").
+# accuracy for time (docs/samplers.md).
 DEFAULT_SAMPLES = 5
 DEFAULT_SEED = 0
 
