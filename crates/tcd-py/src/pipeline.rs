@@ -1,0 +1,251 @@
+//! The module's functions: the cascade and repair over several denoisers and chains, the seeded noise
+//! streams materialised, the kernel paths of this CPU.
+
+use std::sync::Arc;
+
+use numpy::{PyArrayDyn, PyReadonlyArrayDyn};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+use tcd_core::rng::seeded_noise as core_seeded_noise;
+use tcd_core::{
+    cascade as core_cascade, repair as core_repair, with_threads, CascadeNoise, ForecastOptions,
+};
+
+use crate::convert::*;
+use crate::denoiser::PyDenoiser;
+use crate::error::{invalid, PyTcdError};
+
+/// The short-term → long-term cascade on an observation (B, K, O), O = the short model's obs_len.
+/// Returns a dict: `mean` (B, K, P), `samples` (S, B, K, P), `repaired` (B, K, O), `short_mean`
+/// (B, K, L_s). Noise: injected `noise_short` (S, n + 1, B, K, L_s) and `noise_long`
+/// (S, n + 1, B, K, L_l) (one block instead of n + 1 for dpmpp2m), or a `seed`.
+#[pyfunction]
+#[pyo3(signature = (short, long, observed, mask, num_samples, options, *, noise_short=None, noise_long=None,
+                    seed=None, first_sequence=0, threads=None))]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn cascade<'py>(
+    py: Python<'py>,
+    short: &Bound<'py, PyDenoiser>,
+    long: &Bound<'py, PyDenoiser>,
+    observed: PyReadonlyArrayDyn<'py, f32>,
+    mask: PyReadonlyArrayDyn<'py, f32>,
+    num_samples: i64,
+    options: SamplerOptions,
+    noise_short: Option<PyReadonlyArrayDyn<'py, f32>>,
+    noise_long: Option<PyReadonlyArrayDyn<'py, f32>>,
+    seed: Option<i128>,
+    first_sequence: i128,
+    threads: Option<i64>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let short = Arc::clone(&short.get().inner);
+    let long = Arc::clone(&long.get().inner);
+    let k = short.num_features();
+    let observed = Array::from_numpy(&observed);
+    let mask = Array::from_numpy(&mask);
+    let noise_short = noise_short.as_ref().map(Array::from_numpy);
+    let noise_long = noise_long.as_ref().map(Array::from_numpy);
+    let prepared = (|| -> CoreResult<_> {
+        let s = positive("num_samples", num_samples)?;
+        let b = observation_batch(
+            &observed,
+            &mask,
+            k,
+            short.obs_len(),
+            "the short-term model's",
+        )?;
+        check_work(s, b, k, short.seq_len().max(long.seq_len()))?;
+        let cfg = options.config()?;
+        let (seed, first_sequence) = seed_args(seed, first_sequence)?;
+        let bs = noise_blocks(&short, &cfg)?;
+        let bl = noise_blocks(&long, &cfg)?;
+        let lk = long.num_features();
+        let src_short = noise_source(
+            "noise_short",
+            noise_short.as_ref(),
+            seed,
+            first_sequence,
+            &[s, bs, b, k, short.seq_len()],
+        )?;
+        let src_long = noise_source(
+            "noise_long",
+            noise_long.as_ref(),
+            seed,
+            first_sequence,
+            &[s, bl, b, lk, long.seq_len()],
+        )?;
+        Ok((s, b, cfg, src_short, src_long, threads_arg(threads)?))
+    })()
+    .map_err(PyTcdError)?;
+    let (s, b, cfg, src_short, src_long, threads) = prepared;
+    let out = py
+        .detach(move || {
+            let noise = match (&src_short, &src_long) {
+                (NoiseSource::Injected(a), NoiseSource::Injected(c)) => {
+                    CascadeNoise::Injected { short: a, long: c }
+                }
+                (NoiseSource::Seeded(seed, first_sequence), _)
+                | (_, NoiseSource::Seeded(seed, first_sequence)) => CascadeNoise::Seeded {
+                    seed: *seed,
+                    first_sequence: *first_sequence,
+                },
+            };
+            let options = ForecastOptions {
+                num_samples: s,
+                sampler: cfg,
+            };
+            with_threads(threads, || {
+                core_cascade(
+                    &short,
+                    &long,
+                    &observed.data,
+                    &mask.data,
+                    b,
+                    &options,
+                    noise,
+                )
+            })?
+        })
+        .map_err(PyTcdError)?;
+    let d = PyDict::new(py);
+    let kf = out.num_features;
+    d.set_item("mean", to_numpy(py, &[b, kf, out.future_len], out.mean)?)?;
+    d.set_item(
+        "samples",
+        to_numpy(py, &[s, b, kf, out.future_len], out.samples)?,
+    )?;
+    d.set_item(
+        "repaired",
+        to_numpy(py, &[b, kf, out.obs_len], out.repaired)?,
+    )?;
+    d.set_item(
+        "short_mean",
+        to_numpy(py, &[b, kf, out.short_len], out.short_mean)?,
+    )?;
+    Ok(d)
+}
+
+/// Repairs the mask-0 entries of an observation (B, K, O), O = the model's obs_len. Returns a
+/// dict: `mean` (B, K, O; observed entries exact) and `samples` (S, B, K, O).
+#[pyfunction]
+#[pyo3(signature = (model, observed, mask, num_samples, options, *, noise=None, seed=None, first_sequence=0,
+                    threads=None))]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn repair<'py>(
+    py: Python<'py>,
+    model: &Bound<'py, PyDenoiser>,
+    observed: PyReadonlyArrayDyn<'py, f32>,
+    mask: PyReadonlyArrayDyn<'py, f32>,
+    num_samples: i64,
+    options: SamplerOptions,
+    noise: Option<PyReadonlyArrayDyn<'py, f32>>,
+    seed: Option<i128>,
+    first_sequence: i128,
+    threads: Option<i64>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let model = Arc::clone(&model.get().inner);
+    let k = model.num_features();
+    let observed = Array::from_numpy(&observed);
+    let mask = Array::from_numpy(&mask);
+    let noise = noise.as_ref().map(Array::from_numpy);
+    let prepared = (|| -> CoreResult<_> {
+        let s = positive("num_samples", num_samples)?;
+        let b = observation_batch(&observed, &mask, k, model.obs_len(), "the model's")?;
+        let o = model.obs_len();
+        check_work(s, b, k, model.seq_len())?;
+        let cfg = options.config()?;
+        let (seed, first_sequence) = seed_args(seed, first_sequence)?;
+        let blocks = noise_blocks(&model, &cfg)?;
+        let src = noise_source(
+            "noise",
+            noise.as_ref(),
+            seed,
+            first_sequence,
+            &[s, blocks, b, k, model.seq_len()],
+        )?;
+        Ok((s, b, o, cfg, src, threads_arg(threads)?))
+    })()
+    .map_err(PyTcdError)?;
+    let (s, b, o, cfg, src, threads) = prepared;
+    let out = py
+        .detach(move || {
+            let options = ForecastOptions {
+                num_samples: s,
+                sampler: cfg,
+            };
+            with_threads(threads, || {
+                core_repair(
+                    &model,
+                    &observed.data,
+                    &mask.data,
+                    b,
+                    &options,
+                    src.as_noise(),
+                )
+            })?
+        })
+        .map_err(PyTcdError)?;
+    let d = PyDict::new(py);
+    d.set_item("mean", to_numpy(py, &[b, k, o], out.mean)?)?;
+    d.set_item("samples", to_numpy(py, &[s, b, k, o], out.samples)?)?;
+    Ok(d)
+}
+
+/// The seeded noise streams exactly as the engine consumes them, (S, num_blocks, B, K, L):
+/// ChaCha8 keyed by (seed, first_sequence + b, sample, stage), standard normals in block order.
+#[pyfunction]
+#[pyo3(signature = (seed, stage, num_samples, num_blocks, batch, num_features, length, first_sequence=0))]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn seeded_noise<'py>(
+    py: Python<'py>,
+    seed: i128,
+    stage: i128,
+    num_samples: i64,
+    num_blocks: i64,
+    batch: i64,
+    num_features: i64,
+    length: i64,
+    first_sequence: i128,
+) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
+    let (seed, stage, first_sequence) = (|| -> CoreResult<_> {
+        Ok((
+            u64_arg("seed", seed)?,
+            u64_arg("stage", stage)?,
+            u64_arg("first_sequence", first_sequence)?,
+        ))
+    })()
+    .map_err(PyTcdError)?;
+    let dims = (|| -> CoreResult<[usize; 5]> {
+        let dims = [
+            positive("num_samples", num_samples)?,
+            positive("num_blocks", num_blocks)?,
+            positive("batch", batch)?,
+            positive("num_features", num_features)?,
+            positive("length", length)?,
+        ];
+        // Refuse absurd sizes rather than abort on allocation failure (2^31 values = 8 GiB).
+        let total = dims.iter().try_fold(1usize, |acc, d| acc.checked_mul(*d));
+        match total {
+            Some(t) if t <= MAX_VALUES => Ok(dims),
+            _ => Err(invalid(
+                "num_samples",
+                "sizes whose product is at most 2^31 values",
+                format!("{dims:?}"),
+            )),
+        }
+    })()
+    .map_err(PyTcdError)?;
+    let [s, blocks, b, k, l] = dims;
+    let data =
+        py.detach(move || core_seeded_noise(seed, first_sequence, stage, s, blocks, b, k * l));
+    to_numpy(py, &dims, data)
+}
+
+/// The native module. Private: use the `tcd` package.
+/// The kernel paths this CPU can run, the best last (`TCD_KERNEL` accepts these and `auto`).
+#[pyfunction]
+pub(crate) fn supported_kernels() -> Vec<&'static str> {
+    tcd_core::Kernel::supported()
+        .into_iter()
+        .map(|k| k.name())
+        .collect()
+}
