@@ -20,6 +20,7 @@ import tcd
 from conftest import H36M_DIR, ROOT, needs_h36m
 from fixtures_util import make_model_dir, poses
 from tcd import batch_repair, fk
+from tcd.batch_repair import command as repair_command, runner as repair_runner, windows as repair_windows
 from tcd.cli import main
 
 FAST = ["--steps", "2", "--sampler", "ddim", "--samples", "2"]
@@ -142,14 +143,14 @@ def test_explicit_mask_and_float64(model, tmp_path):
 def spy_windows(monkeypatch):
     """Records (observed, mask, mean) of every engine call tcd.repair_file makes (one per window here)."""
     calls = []
-    real = batch_repair.repair_raw
+    real = repair_runner.repair_raw
 
     def spy(den, observed, mask, **kw):
         out = real(den, observed, mask, **kw)
         calls.append((observed.copy(), mask.copy(), out["mean"].copy()))
         return out
 
-    monkeypatch.setattr(batch_repair, "repair_raw", spy)
+    monkeypatch.setattr(repair_runner, "repair_raw", spy)
     return calls
 
 
@@ -365,13 +366,13 @@ def test_interrupted_run_then_rerun_matches(model_dir, tmp_path, capsys, monkeyp
         written.append(fh)
         real_savez(fh, **arrays)
 
-    monkeypatch.setattr(batch_repair.np, "savez", savez)
+    monkeypatch.setattr(np, "savez", savez)
     out = tmp_path / "out"
     code, _, err = run([data, "-o", out, "--model", model_dir, "--quiet", *FAST], capsys)
     assert code == 130 and "interrupted" in err
     partial = tree(out)  # asserts: no temporary or partial files left behind
     assert len(partial) == 1
-    monkeypatch.setattr(batch_repair.np, "savez", real_savez)
+    monkeypatch.setattr(np, "savez", real_savez)
     code, text, err = run([data, "-o", out, "--model", model_dir, *FAST], capsys)
     assert code == 0, err
     assert "3 repaired, 1 skipped" in text
@@ -414,7 +415,7 @@ def test_atomic_write_leaves_nothing_on_failure(tmp_path, monkeypatch):
         fh.write(b"half")
         raise OSError("disk full")
 
-    monkeypatch.setattr(batch_repair.np, "savez", boom)
+    monkeypatch.setattr(np, "savez", boom)
     with pytest.raises(OSError):
         batch_repair.write_npz_atomic(dst, False, poses=np.zeros(3))
     assert list(tmp_path.iterdir()) == []
@@ -444,19 +445,19 @@ def test_resampling_mask_is_conservative():
     m = np.ones((5, 2), bool)
     m[2, 0] = False
     # 12.5 fps -> 25 fps: model frames at source positions 0, 0.5, 1, ..., 4
-    y, ym = batch_repair._resample_forward(x, m, 12.5, 25.0)
+    y, ym = repair_windows._resample_forward(x, m, 12.5, 25.0)
     assert y.shape == (9, 2)
     assert np.allclose(y[ym[:, 1], 1], np.arange(9)[ym[:, 1]] / 2)
     assert ym[:, 1].all()
     assert list(np.flatnonzero(~ym[:, 0])) == [3, 4, 5]  # every model frame touching source frame 2
     # 50 fps -> 25: every other frame, exactly; back again: interpolation
     x = np.random.default_rng(0).normal(size=(9, 3))
-    y, ym = batch_repair._resample_forward(x, np.ones_like(x, bool), 50.0, 25.0)
+    y, ym = repair_windows._resample_forward(x, np.ones_like(x, bool), 50.0, 25.0)
     assert np.array_equal(y, x[::2]) and ym.all()
-    back = batch_repair._resample_backward(y, 9, 50.0, 25.0)
+    back = repair_windows._resample_backward(y, 9, 50.0, 25.0)
     assert np.array_equal(back[::2], x[::2]) and np.allclose(back[1::2], (x[0:-1:2] + x[2::2]) / 2)
     # 30 fps, 10 frames: 0.3 s -> 25 fps frames at 0, 0.04, ..., 0.32 (the last past the end: missing)
-    y, ym = batch_repair._resample_forward(np.zeros((10, 1)), np.ones((10, 1), bool), 30.0, 25.0)
+    y, ym = repair_windows._resample_forward(np.zeros((10, 1)), np.ones((10, 1), bool), 30.0, 25.0)
     assert len(y) == 9 and ym[:8].all() and not ym[8].any()
 
 
@@ -571,9 +572,9 @@ def test_fk_matches_training_on_real_expmap_file(tmp_path):
 
 
 def test_progress_bar_only_on_a_terminal(monkeypatch):
-    assert batch_repair._progress_bar(10, quiet=False) is None  # pytest captures stderr: not a terminal
+    assert repair_command._progress_bar(10, quiet=False) is None  # pytest captures stderr: not a terminal
     monkeypatch.setattr(sys.stderr, "isatty", lambda: True, raising=False)
-    assert batch_repair._progress_bar(10, quiet=True) is None
-    bar = batch_repair._progress_bar(10, quiet=False)
+    assert repair_command._progress_bar(10, quiet=True) is None
+    bar = repair_command._progress_bar(10, quiet=False)
     assert bar is not None and bar.total == 10
     bar.close()

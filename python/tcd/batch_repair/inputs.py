@@ -1,0 +1,145 @@
+"""Reading and checking one input file (``.npz`` poses or a Human3.6M exp-map ``.txt``)."""
+from __future__ import annotations
+
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Dict, Optional, Sequence
+
+import numpy as np
+
+from .. import _checks
+from .. import fk
+from .options import BadFile, PathLike, _UNIT_SCALE
+
+# ---------------------------------------------------------------------------------------------- inputs
+@dataclass
+class Loaded:
+    poses: np.ndarray      # (T, J, 3) the caller's values in the output dtype (NaN / anything where missing)
+    full_mask: np.ndarray  # (T, J, 3) bool, True = observed
+    mask_out: np.ndarray   # what goes to the output's `mask`
+    fps: float             # the input's frame rate
+
+    @property
+    def frames(self) -> int:
+        return int(self.poses.shape[0])
+
+
+def is_expmap_txt(path: Path) -> bool:
+    return path.suffix.lower() == ".txt"
+
+
+def _read_npz(path: Path) -> Dict[str, np.ndarray]:
+    try:
+        with open(path, "rb") as fh:
+            magic = fh.read(6)
+    except OSError as e:
+        raise BadFile(f"unreadable: {e}") from None
+    if magic == b"\x93NUMPY":
+        raise BadFile("unreadable: a single .npy array, not an .npz archive with `poses`")
+    if not magic.startswith(b"PK"):
+        raise BadFile("unreadable: not an .npz archive (no zip signature)" if magic else "unreadable: the file is empty")
+    try:
+        with np.load(path, allow_pickle=False) as f:
+            if not isinstance(f, np.lib.npyio.NpzFile):
+                raise BadFile("unreadable: a single .npy array, not an .npz archive with `poses`")
+            return {k: f[k] for k in f.files}
+    except BadFile:
+        raise
+    except AttributeError:  # np.load returned an ndarray (no context manager)
+        raise BadFile("unreadable: a single .npy array, not an .npz archive with `poses`") from None
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError, KeyError) as e:
+        raise BadFile(f"unreadable: not a valid .npz archive ({type(e).__name__}: {e})") from None
+
+
+def _check_pose_array(a: Any, num_joints: int) -> np.ndarray:
+    a = np.asarray(a)
+    if a.dtype.kind not in "biuf":
+        raise BadFile(f"`poses` has dtype {a.dtype}; a float array (T, {num_joints}, 3) is required")
+    if a.ndim != 3 or a.shape[1] != num_joints or a.shape[2] != 3 or a.shape[0] < 1:
+        raise BadFile(f"wrong shape: `poses` has shape {_checks.shape_str(a.shape)}; expected (T, {num_joints}, 3) "
+                      f"with T >= 1 frames and the model's {num_joints} joints")
+    dtype = np.result_type(a.dtype, np.float32) if a.dtype.kind == "f" else np.dtype(np.float64)
+    a = a.astype(dtype, copy=False)
+    inf = np.isinf(a)
+    if inf.any():
+        t, j, c = (int(i) for i in np.argwhere(inf)[0])
+        raise BadFile(f"`poses` holds an infinite value ({a[t, j, c]}) at frame {t}, joint {j}; "
+                      "only finite values and NaN (missing) are allowed")
+    return a
+
+
+def _check_mask(m: Any, a: np.ndarray) -> np.ndarray:
+    m = np.asarray(m)
+    if m.dtype.kind not in "biuf":
+        raise BadFile(f"`mask` has dtype {m.dtype}; 0 (missing) / 1 (observed) values are required")
+    if m.shape not in (a.shape, a.shape[:-1]):
+        raise BadFile(f"wrong shape: `mask` has shape {_checks.shape_str(m.shape)}; expected "
+                      f"{_checks.shape_str(a.shape)} or {_checks.shape_str(a.shape[:-1])}")
+    bad = ~((m == 0) | (m == 1))
+    if bad.any():
+        raise BadFile(f"`mask` holds {m[bad][0]!r} at index {tuple(int(i) for i in np.argwhere(bad)[0])}; "
+                      "only 0 (missing) and 1 (observed) are allowed")
+    full = m.astype(bool)
+    if full.shape != a.shape:
+        full = np.repeat(full[..., None], 3, axis=-1)
+    clash = full & np.isnan(a)
+    if clash.any():
+        t, j, _ = (int(i) for i in np.argwhere(clash)[0])
+        raise BadFile(f"`poses` is NaN at frame {t}, joint {j}, where `mask` is 1 (observed)")
+    return full
+
+
+def load_input(path: PathLike, num_joints: int, units: str = "m", fps: Optional[float] = None,
+               model_fps: Optional[float] = None, joint_index_32: Optional[Sequence[int]] = None) -> Loaded:
+    """Reads and checks one input file; raises :class:`BadFile` with the reason when it cannot be repaired."""
+    path = Path(path)
+    if not path.is_file():
+        raise BadFile("unreadable: not a file" if path.exists() else "unreadable: the file does not exist")
+    if is_expmap_txt(path):
+        if num_joints != 22 or (joint_index_32 is not None and list(joint_index_32) != fk.joints_used()):
+            raise BadFile("a Human3.6M exp-map .txt file, but the model does not use the Human3.6M 22-joint layout")
+        try:
+            rows = fk.read_expmap_txt(path)
+        except (OSError, UnicodeDecodeError) as e:
+            raise BadFile(f"unreadable: {e}") from None
+        except ValueError as e:
+            raise BadFile(f"unreadable as a Human3.6M exp-map file: {e}") from None
+        if np.isinf(rows).any():
+            t, c = (int(i) for i in np.argwhere(np.isinf(rows))[0])
+            raise BadFile(f"the exp-map file holds an infinite value at row {t}, column {c}")
+        poses = fk.expmap_to_model(rows) * _UNIT_SCALE[units]
+        full = ~np.isnan(poses)
+        src_fps = fk.H36M_TXT_FPS if fps is None else fps
+        mask_out = full
+    else:
+        data = _read_npz(path)
+        if "poses" not in data:
+            raise BadFile(f"no `poses` array (the archive holds: {', '.join(sorted(data)) or 'nothing'})")
+        poses = _check_pose_array(data["poses"], num_joints)
+        if "mask" in data:
+            full = _check_mask(data["mask"], poses)
+            mask_out = data["mask"]
+        else:
+            full = ~np.isnan(poses)
+            mask_out = full
+        src_fps = fps if fps is not None else (model_fps if model_fps is not None else float("nan"))
+    if not full.any():
+        raise BadFile("every value is missing: nothing to condition the repair on")
+    return Loaded(poses=poses, full_mask=full, mask_out=mask_out, fps=src_fps)
+
+
+def peek_frames(path: Path) -> int:
+    """T of an input without loading it (0 when that fails): the npz header or the txt line count."""
+    try:
+        if is_expmap_txt(path):
+            with open(path, "rb") as f:
+                return sum(1 for line in f if line.strip())
+        with zipfile.ZipFile(path) as z:
+            with z.open("poses.npy") as f:
+                version = np.lib.format.read_magic(f)
+                shape = (np.lib.format.read_array_header_1_0(f) if version == (1, 0)
+                         else np.lib.format.read_array_header_2_0(f))[0]
+                return int(shape[0]) if len(shape) == 3 else 0
+    except Exception:  # noqa: BLE001 - a progress estimate only; the real read reports the problem
+        return 0

@@ -1,0 +1,101 @@
+"""Settings of a repair run: the defaults, their checks (:class:`RepairOptions`), the denoiser used and
+the provenance recorded in every output."""
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+from typing import Any, Dict, Optional, Union
+
+import numpy as np
+
+from .. import _checks
+from .._native import __version__
+from ..denoiser import Denoiser
+from ..options import SamplerOptions
+
+PathLike = Union[str, "os.PathLike[str]"]
+
+DEFAULT_OVERLAP = 5
+DEFAULT_LOOKAHEAD = 10
+DEFAULT_SEED = 0
+DEFAULT_FILES_PER_BATCH = 4
+INPUT_SUFFIXES = (".npz", ".txt")
+_UNIT_SCALE = {"m": 1.0, "mm": 1000.0}
+_EPS = 1e-9
+
+
+class BadFile(Exception):
+    """An input that cannot be repaired; ``str(e)`` is the reason."""
+
+
+# ---------------------------------------------------------------------------------------------- options
+@dataclass(frozen=True)
+class RepairOptions:
+    """Validated settings of a repair run (see :func:`repair_file`)."""
+
+    num_samples: int = 5
+    sampling: SamplerOptions = SamplerOptions()
+    seed: int = DEFAULT_SEED
+    units: str = "m"
+    fps: Optional[float] = None
+    overlap: int = DEFAULT_OVERLAP
+    lookahead: int = DEFAULT_LOOKAHEAD
+    threads: Optional[int] = None
+
+    @staticmethod
+    def make(model: Any, *, options: Optional[SamplerOptions] = None, sampler: Optional[Dict[str, Any]] = None,
+             **kw: Any) -> "RepairOptions":
+        """Checked settings: ``options`` / ``sampler`` (its fields) as :meth:`SamplerOptions.build`, the rest
+        as the keywords of :func:`repair_file`."""
+        sampling = SamplerOptions.build(options, **(sampler or {})).for_model(_denoiser(model).num_train_timesteps)
+        seed = kw.get("seed", DEFAULT_SEED)
+        fps = kw.get("fps")
+        if fps is not None:
+            if isinstance(fps, bool) or not isinstance(fps, (int, float, np.integer, np.floating)) \
+                    or not math.isfinite(float(fps)) or float(fps) <= 0:
+                raise _checks.fail("fps", "a positive frame rate (frames per second)", repr(fps))
+            fps = float(fps)
+            if model.fps is None:
+                raise _checks.fail("fps", "None: the model does not record its frame rate, so inputs cannot be "
+                                   "resampled", repr(fps))
+        overlap = _checks.integer("overlap", kw.get("overlap", DEFAULT_OVERLAP), 1, model.obs_len - 1)
+        lookahead = _checks.integer("lookahead", kw.get("lookahead", DEFAULT_LOOKAHEAD), 0, model.obs_len - 1 - overlap)
+        return RepairOptions(
+            num_samples=_checks.integer("num_samples", kw.get("num_samples", 5), 1),
+            sampling=sampling,
+            seed=_checks.integer("seed", DEFAULT_SEED if seed is None else seed, 0, _checks.MAX_SEED),
+            units=_checks.choice("units", kw.get("units", "m"), tuple(_UNIT_SCALE)),
+            fps=fps,
+            overlap=overlap, lookahead=lookahead,
+            threads=_checks.threads(kw.get("threads")),
+        )
+
+
+def _denoiser(model: Any) -> Denoiser:
+    """The denoiser :meth:`TCD.repair` uses: the repair model, else the short-term model."""
+    return model.repair_model if model.repair_model is not None else model.short
+
+
+def provenance(model: Any, opts: RepairOptions, fps: float) -> Dict[str, Any]:
+    den = _denoiser(model)
+    steps = len(den.timesteps(options=opts.sampling))
+    return {
+        "tool": "tcd repair",
+        "tcd_version": __version__,
+        "model_sha256": model.sha256,
+        "model_path": None if model.path is None else str(model.path),
+        "repair_model": "repair" if model.repair_model is not None else "short",
+        "sampler": opts.sampling.sampler,
+        "steps": steps,
+        "num_samples": opts.num_samples,
+        "eta": opts.sampling.eta,
+        "timestep_spacing": opts.sampling.timestep_spacing,
+        "seed": opts.seed,
+        "units": opts.units,
+        "fps": fps,
+        "model_fps": model.fps,
+        "window": model.obs_len,
+        "overlap": opts.overlap,
+        "lookahead": opts.lookahead,
+    }
