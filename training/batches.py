@@ -19,6 +19,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
+from .device_masks import MaskMix, corrupt_batch
+from .masks import corrupt, mix_entry
+
 if TYPE_CHECKING:
     from .train import TrainConfig
 
@@ -39,26 +42,15 @@ class Windows:
         return np.stack([self.seqs[i][s:s + self.length] for i, s in self.index[rows]]).astype(np.float32)
 
 
-def _mix_rate(entry):
-    """The optional third item of a ``mask_mix`` entry: a rate, or a [low, high] range (random_joints)."""
-    if len(entry) not in (2, 3):
-        raise ValueError(f"mask_mix entry {entry!r}: expected [pattern, weight] or [pattern, weight, rate]")
-    if len(entry) == 2:
-        return None
-    return tuple(entry[2]) if isinstance(entry[2], (list, tuple)) else entry[2]
-
-
 def make_batch(cfg: "TrainConfig", wins: np.ndarray, rng: np.random.Generator):
     """Clean windows (B, L, J, 3) -> (x0, observed, mask) tensors (B, K, L).
     Each window draws one pattern of ``mask_mix``; occluded observation entries become targets."""
-    from .masks import corrupt
     B, L, J, _ = wins.shape
     observed = wins.copy()
     jmask = np.zeros((B, L, J), dtype=np.float32)
     jmask[:, :cfg.obs_len] = 1.0
-    rates = [_mix_rate(entry) for entry in cfg.mask_mix]
-    patterns = [entry[0] for entry in cfg.mask_mix]
-    weights = np.asarray([entry[1] for entry in cfg.mask_mix], dtype=np.float64)
+    patterns, weights, rates = zip(*(mix_entry(entry) for entry in cfg.mask_mix))
+    weights = np.asarray(weights, dtype=np.float64)
     choice = rng.choice(len(patterns), size=B, p=weights / weights.sum())
     for b in range(B):
         if patterns[choice[b]] != "none":
@@ -120,7 +112,6 @@ class DeviceBatchSource:
     from one device generator reseeded from (seed, epoch, batch index)."""
 
     def __init__(self, cfg: "TrainConfig", windows: Windows, T: int, steps_per_epoch: int, device: str | torch.device):
-        from .device_masks import MaskMix
         self.cfg, self.T, self.steps_per_epoch = cfg, T, steps_per_epoch
         self.device = torch.device(device)
         seqs = windows.seqs
@@ -142,7 +133,6 @@ class DeviceBatchSource:
         g.manual_seed((((cfg.seed * 1_000_003 + epoch) * 1_000_003 + batch_i) * 7 + 1) % (1 << 62))
         rows = self._perm[(torch.arange(cfg.batch_size, device=dev) + batch_i * cfg.batch_size) % len(self._perm)]
         wins = self.frames[self.starts[rows, None] + self.frame_offsets].float()      # (B, L, J, 3)
-        from .device_masks import corrupt_batch
         observed, jmask = corrupt_batch(wins, self.mix, g)
         B, L = wins.shape[:2]
         def bkl(a):                                                            # (B, L, J, 3) -> (B, K, L)

@@ -14,23 +14,6 @@ import torch
 from . import masks as M
 
 
-def mix_entry(entry) -> tuple[str, float, object]:
-    """One ``mask_mix`` entry ``[pattern, weight]`` or ``[pattern, weight, rate]`` -> (pattern, weight,
-    resolved rate: a float, a (low, high) pair, or None)."""
-    if not isinstance(entry, (list, tuple)) or len(entry) not in (2, 3):
-        raise ValueError(f"mask_mix entry {entry!r}: expected [pattern, weight] or [pattern, weight, rate]")
-    rate = None if len(entry) == 2 else (tuple(entry[2]) if isinstance(entry[2], (list, tuple)) else entry[2])
-    try:
-        pattern = M._check_pattern(entry[0])
-        rate = M._resolve_rate(pattern, rate)
-    except ValueError as exc:
-        raise ValueError(f"mask_mix entry {entry!r}: {exc}") from None
-    weight = entry[1]
-    if isinstance(weight, bool) or not isinstance(weight, (int, float)) or not weight >= 0:
-        raise ValueError(f"mask_mix entry {entry!r}: the weight must be a number >= 0")
-    return pattern, float(weight), rate
-
-
 class MaskMix:
     """A training config's ``mask_mix`` for windows of ``seq_len`` frames whose first ``obs_len`` are
     observed: each window draws one entry with probability proportional to its weight, then that entry's
@@ -41,7 +24,7 @@ class MaskMix:
         self.j32 = M._check_joints32(joints32)
         if not mask_mix:
             raise ValueError("mask_mix is empty")
-        self.entries = [mix_entry(e) for e in mask_mix]
+        self.entries = [M.mix_entry(e) for e in mask_mix]
         total = sum(w for _, w, _ in self.entries)
         if not total > 0:
             raise ValueError(f"mask_mix {mask_mix!r}: the weights sum to 0")

@@ -76,15 +76,15 @@ class Schedule:
         self.betas = make_betas(cfg)
         self.alphas = 1.0 - self.betas
         self.alphas_cumprod = np.cumprod(self.alphas)
+        self._abar_on: dict[str, torch.Tensor] = {}
 
     def alphas_cumprod_on(self, device) -> torch.Tensor:
         """alpha_bar as a float32 tensor on ``device``, made once per device: a copy from the host in
         every training step would make the host wait for the GPU."""
         key = str(torch.device(device))
-        cache = self.__dict__.setdefault("_abar_on", {})
-        if key not in cache:
-            cache[key] = torch.as_tensor(self.alphas_cumprod, dtype=torch.float32, device=device)
-        return cache[key]
+        if key not in self._abar_on:
+            self._abar_on[key] = torch.as_tensor(self.alphas_cumprod, dtype=torch.float32, device=device)
+        return self._abar_on[key]
 
     def abar(self, t: int) -> float:
         """alpha_bar_t, with alpha_bar_{-1} = 1."""

@@ -159,13 +159,18 @@ def write_checksums(d: str | Path) -> Path:
     return _write(d)
 
 
+def checkpoint_weights(ck: dict) -> dict:
+    """The weights a training checkpoint stands for: its moving average when the run kept one (the weights
+    that were validated), else the trained weights."""
+    return ck["ema"] if ck.get("ema") is not None else ck["model"]
+
+
 def export_checkpoint(ckpt_path: str | Path, out_dir: str | Path, description: str | None = None) -> Path:
     ck = torch.load(str(ckpt_path), map_location="cpu", weights_only=False)
     model_cfg = ModelConfig.from_dict(ck["model_config"])
     diff_cfg = DiffusionConfig.from_dict(ck["diffusion_config"])
     model = TCDModel(model_cfg, diff_cfg.num_train_timesteps)
-    # the weights that were validated: the moving average when the run kept one
-    model.load_state_dict(ck["ema"] if ck.get("ema") is not None else ck["model"], strict=True)
+    model.load_state_dict(checkpoint_weights(ck), strict=True)
     role = ck["role"]
     training = {k: ck.get(k) for k in ("epoch", "step", "best_val", "train_config", "elapsed_s")}
     training["weights"] = "ema" if ck.get("ema") is not None else "raw"

@@ -54,6 +54,7 @@ __all__ = [
     "make_mask",
     "corrupt",
     "coord_mask",
+    "mix_entry",
 ]
 
 PATTERNS: tuple[str, ...] = (
@@ -310,6 +311,25 @@ def corrupt(
         observed[:obs_len] += noise.astype(dtype, copy=False)
     observed[mask == 0] = 0.0  # assignment, not multiplication: NaN/inf in hidden entries become 0 too
     return observed, mask
+
+
+def mix_entry(entry) -> tuple[str, float, object]:
+    """One entry of a training config's ``mask_mix``, ``[pattern, weight]`` or ``[pattern, weight, rate]``,
+    checked -> (pattern, weight, resolved rate: a float, a (low, high) pair, or None). The one parser of
+    the entries, for the host batches (``training.batches.make_batch``) and the device batches
+    (``training.device_masks.MaskMix``)."""
+    if not isinstance(entry, (list, tuple)) or len(entry) not in (2, 3):
+        raise ValueError(f"mask_mix entry {entry!r}: expected [pattern, weight] or [pattern, weight, rate]")
+    rate = None if len(entry) == 2 else (tuple(entry[2]) if isinstance(entry[2], (list, tuple)) else entry[2])
+    try:
+        pattern = _check_pattern(entry[0])
+        rate = _resolve_rate(pattern, rate)
+    except ValueError as exc:
+        raise ValueError(f"mask_mix entry {entry!r}: {exc}") from None
+    weight = entry[1]
+    if isinstance(weight, bool) or not isinstance(weight, (int, float)) or not weight >= 0:
+        raise ValueError(f"mask_mix entry {entry!r}: the weight must be a number >= 0")
+    return pattern, float(weight), rate
 
 
 def coord_mask(joint_mask) -> np.ndarray:

@@ -266,7 +266,8 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
             log(f"warm start from exported weights {init}")
         else:
             init_ck = torch.load(init, map_location=device, weights_only=False)
-            model.load_state_dict(init_ck.get("ema") or init_ck["model"])  # strict: the architecture must match
+            from .export import checkpoint_weights
+            model.load_state_dict(checkpoint_weights(init_ck))  # strict: the architecture must match
             log(f"warm start from {init} (its best validation loss {init_ck.get('best_val', float('nan')):.4f})")
     ema = make_ema(model, cfg)
     if ema is not None and ck is not None:
