@@ -47,6 +47,15 @@ class _BadInput(Exception):
 # not given is left out, so the defaults are SamplerOptions' own.
 SAMPLER_FLAGS = {"sampler": "--sampler", "num_inference_steps": "--steps", "eta": "--eta",
                  "timestep_spacing": "--spacing"}
+# The API argument each flag sets, for the commands' error messages; a command adds or overrides its own.
+OPTION_FLAGS = {"num_samples": "--samples", "seed": "--seed", "units": "--units", "threads": "--threads",
+                **SAMPLER_FLAGS}
+
+
+def flag_message(e: InvalidInputError, flags: Dict[str, str] = OPTION_FLAGS) -> str:
+    """The error's message, saying which flag (or input) set the argument it names."""
+    flag = flags.get(e.argument or "")
+    return f"{e} (`{e.argument}` is {flag}.)" if flag else str(e)
 
 
 def add_sampler_flags(p: argparse.ArgumentParser, *, tuning: bool = True) -> None:
@@ -68,7 +77,7 @@ def sampler_options(args: argparse.Namespace) -> SamplerOptions:
     try:
         return SamplerOptions.build(**given)
     except InvalidInputError as e:
-        raise _BadInput(f"{e} (`{e.argument}` is {SAMPLER_FLAGS[e.argument]}.)") from None
+        raise _BadInput(flag_message(e)) from None
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -134,8 +143,7 @@ def _demo(args: argparse.Namespace) -> int:
         res = demo.run(model, samples=samples, options=sampler_options(args), seed=args.seed, threads=args.threads,
                        quiet=args.quiet)
     except InvalidInputError as e:
-        source = {"num_samples": "--samples", "seed": "--seed", "threads": "--threads", **SAMPLER_FLAGS}.get(e.argument or "")
-        raise _BadInput(f"{e} (`{e.argument}` is {source}.)" if source else str(e)) from None
+        raise _BadInput(flag_message(e)) from None
     except ValueError as e:
         raise _BadInput(str(e)) from None
     demo.save(res, out, model)
@@ -218,10 +226,8 @@ def _forecast(args: argparse.Namespace) -> int:
         f = model.forecast(data["poses"], data.get("mask"), num_samples=args.samples, options=options,
                            seed=args.seed, units=args.units, threads=args.threads)
     except InvalidInputError as e:
-        source = {"obs": "the `poses` array of the input file", "mask": "the `mask` array of the input file",
-                  "num_samples": "--samples", "seed": "--seed", "units": "--units", "threads": "--threads",
-                  **SAMPLER_FLAGS}.get(e.argument or "")
-        raise _BadInput(f"{e} (`{e.argument}` is {source}.)" if source else str(e)) from None
+        raise _BadInput(flag_message(e, {**OPTION_FLAGS, "obs": "the `poses` array of the input file",
+                                          "mask": "the `mask` array of the input file"})) from None
     try:
         with open(out, "wb" if args.overwrite else "xb") as fh:
             np.savez(fh, mean=f.mean, samples=f.samples, repaired=f.repaired, seed=np.uint64(f.seed))

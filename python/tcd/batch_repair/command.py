@@ -88,7 +88,7 @@ def cli(args: Any) -> int:
         model = load(args.model)
     except (FileNotFoundError, NotADirectoryError, WeightsError, InvalidInputError) as e:
         return bad(str(e))
-    from ..cli import SAMPLER_FLAGS, _BadInput, sampler_options
+    from ..cli import OPTION_FLAGS, _BadInput, flag_message, sampler_options
     try:
         opts = RepairOptions.make(model, options=sampler_options(args), num_samples=args.samples, seed=args.seed,
                                   units=args.units, fps=args.fps, overlap=args.overlap, lookahead=args.lookahead,
@@ -96,10 +96,8 @@ def cli(args: Any) -> int:
     except _BadInput as e:
         return bad(str(e))
     except InvalidInputError as e:
-        flag = {"num_samples": "--samples", "seed": "--seed", "units": "--units", "fps": "--fps",
-                "overlap": "--overlap", "lookahead": "--lookahead", "threads": "--jobs",
-                **SAMPLER_FLAGS}.get(e.argument or "")
-        return bad(f"{e} (`{e.argument}` is {flag}.)" if flag else str(e))
+        return bad(flag_message(e, {**OPTION_FLAGS, "threads": "--jobs", "fps": "--fps", "overlap": "--overlap",
+                                    "lookahead": "--lookahead"}))
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:
