@@ -224,6 +224,32 @@ def test_denoiser_forward_and_seeded_noise(model_dir):
     assert d.timesteps() == list(range(49, -1, -1))
 
 
+def test_stream_ids_per_sequence(model_dir):
+    """``sequences`` gives each sequence its own stream: a batch numbered [7, 2] equals sequence 0 alone
+    on stream 7 and sequence 1 alone on stream 2, and the engine checks one id per sequence."""
+    d = tcd.Denoiser.load(model_dir / "short.safetensors")
+    rng = np.random.default_rng(1)
+    m = (rng.random((2, 66, 55)) < 0.5).astype(np.float32)
+    x = rng.standard_normal((2, 66, 55)).astype(np.float32) * m
+    kw = dict(seed=3, sampler="ddim", num_inference_steps=3)
+    both = d.sample(x, m, 2, sequences=[7, 2], **kw)
+    assert np.array_equal(both[:, :1], d.sample(x[:1], m[:1], 2, first_sequence=7, **kw))
+    assert np.array_equal(both[:, 1:], d.sample(x[1:], m[1:], 2, sequences=np.array([2]), **kw))
+    assert not np.array_equal(both, d.sample(x, m, 2, **kw))
+    o = x[:, :, :50]
+    mo = m[:, :, :50]
+    rep = tcd.repair_raw(d, o, mo, num_samples=2, sequences=[1, 0], **kw)
+    assert np.array_equal(rep["samples"][:, :1], tcd.repair_raw(d, o[:1], mo[:1], num_samples=2, first_sequence=1,
+                                                                **kw)["samples"])
+    assert np.array_equal(rep["samples"][:, 1:], tcd.repair_raw(d, o[1:], mo[1:], num_samples=2, **kw)["samples"])
+    bad("sequences", d.sample, x, m, 1, sequences=[1], **kw)  # one id for two sequences: the engine says so
+    bad("sequences", d.sample, x, m, 1, sequences=[1, -2], **kw)
+    bad("sequences", d.sample, x, m, 1, sequences=[[1, 2]], **kw)
+    bad("sequences", d.sample, x, m, 1, sequences=[1, 2], first_sequence=4, **kw)
+    bad("sequences", d.sample, x, m, 1, noise=np.zeros((1, 4, 2, 66, 55), np.float32), sequences=[1, 2],
+        sampler="ddim", num_inference_steps=3)
+
+
 def test_gil_is_released_during_compute(model_dir):
     """While a sampling call runs in another thread, this thread keeps running Python."""
     d = tcd.Denoiser.load(model_dir / "short.safetensors")

@@ -60,6 +60,7 @@ class Denoiser:
         noise: Optional[_F32] = None,
         seed: Optional[int] = None,
         first_sequence: int = 0,
+        sequences: Optional[List[int]] = None,
         threads: Optional[int] = None,
     ) -> _F32: ...
 
@@ -75,6 +76,7 @@ def cascade(
     noise_long: Optional[_F32] = None,
     seed: Optional[int] = None,
     first_sequence: int = 0,
+    sequences: Optional[List[int]] = None,
     threads: Optional[int] = None,
 ) -> Dict[str, _F32]: ...
 def repair(
@@ -87,6 +89,7 @@ def repair(
     noise: Optional[_F32] = None,
     seed: Optional[int] = None,
     first_sequence: int = 0,
+    sequences: Optional[List[int]] = None,
     threads: Optional[int] = None,
 ) -> Dict[str, _F32]: ...
 def seeded_noise(

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import json
 import os
-from typing import Any, Dict, List, Optional, Union
+from typing import Any, Dict, List, Optional, Sequence, Union
 
 import numpy as np
 
@@ -145,12 +145,13 @@ class Denoiser:
                                     _checks.float32_array("mask", mask), step, threads=_checks.threads(threads))
 
     def sample(self, observed: Any, mask: Any, num_samples: int = 1, *, noise: Any = None,
-               seed: Optional[int] = None, first_sequence: int = 0, options: Optional[SamplerOptions] = None,
-               threads: Optional[int] = None, **sampler: Any) -> np.ndarray:
+               seed: Optional[int] = None, first_sequence: int = 0, sequences: Optional[Sequence[int]] = None,
+               options: Optional[SamplerOptions] = None, threads: Optional[int] = None, **sampler: Any) -> np.ndarray:
         """``num_samples`` merged samples per sequence: observed, mask (B, K, L) -> (S, B, K, L).
 
         Exactly one of ``noise`` (S, n + 1, B, K, L) — (S, 1, B, K, L) for ``sampler="dpmpp2m"`` — and
-        ``seed`` must be given. The sampler: ``options`` (:class:`tcd.SamplerOptions`) or its fields as
+        ``seed`` must be given; seeded sequence b draws stream ``first_sequence + b``, or ``sequences[b]``
+        (one id per sequence). The sampler: ``options`` (:class:`tcd.SamplerOptions`) or its fields as
         keywords (``sampler``, ``num_inference_steps``, ``eta``, ``timestep_spacing``)."""
         num_samples = _checks.integer("num_samples", num_samples, 1)
         o = SamplerOptions.build(options, **sampler).for_model(self.num_train_timesteps)
@@ -158,18 +159,20 @@ class Denoiser:
             _checks.float32_array("observed", observed), _checks.float32_array("mask", mask), num_samples, o,
             noise=_noise("noise", noise), seed=_checks.seed(seed),
             first_sequence=_checks.integer("first_sequence", first_sequence, 0, _checks.MAX_SEED),
-            threads=_checks.threads(threads))
+            sequences=_stream_ids(sequences), threads=_checks.threads(threads))
 
 
 def cascade_raw(short: Denoiser, long: Denoiser, observed: Any, mask: Any, *, num_samples: int = 5,
                 noise_short: Any = None, noise_long: Any = None, seed: Optional[int] = None,
-                first_sequence: int = 0, options: Optional[SamplerOptions] = None,
-                threads: Optional[int] = None, **sampler: Any) -> Dict[str, np.ndarray]:
+                first_sequence: int = 0, sequences: Optional[Sequence[int]] = None,
+                options: Optional[SamplerOptions] = None, threads: Optional[int] = None,
+                **sampler: Any) -> Dict[str, np.ndarray]:
     """The short-term -> long-term cascade in the engine's layout (``training.diffusion.cascade``).
 
     observed, mask: (B, K, O) with O = ``short.obs_len``. Noise: ``noise_short`` (S, n + 1, B, K, L_s)
     and ``noise_long`` (S, n + 1, B, K, L_l) (one block instead of n + 1 for ``sampler="dpmpp2m"``), or a
-    ``seed``. The sampler: ``options`` or its fields as keywords (:class:`tcd.SamplerOptions`). Returns
+    ``seed`` (streams numbered as in :meth:`Denoiser.sample`). The sampler: ``options`` or its fields as
+    keywords (:class:`tcd.SamplerOptions`). Returns
     ``mean`` (B, K, P), ``samples`` (S, B, K, P) (P = L_l - O forecast frames), ``repaired`` (B, K, O) and
     ``short_mean`` (B, K, L_s).
     """
@@ -183,16 +186,18 @@ def cascade_raw(short: Denoiser, long: Denoiser, observed: Any, mask: Any, *, nu
         _checks.float32_array("mask", mask), num_samples, o,
         noise_short=_noise("noise_short", noise_short), noise_long=_noise("noise_long", noise_long),
         seed=_checks.seed(seed), first_sequence=_checks.integer("first_sequence", first_sequence, 0, _checks.MAX_SEED),
-        threads=_checks.threads(threads)))
+        sequences=_stream_ids(sequences), threads=_checks.threads(threads)))
 
 
 def repair_raw(model: Denoiser, observed: Any, mask: Any, *, num_samples: int = 5, noise: Any = None,
-               seed: Optional[int] = None, first_sequence: int = 0, options: Optional[SamplerOptions] = None,
-               threads: Optional[int] = None, **sampler: Any) -> Dict[str, np.ndarray]:
+               seed: Optional[int] = None, first_sequence: int = 0, sequences: Optional[Sequence[int]] = None,
+               options: Optional[SamplerOptions] = None, threads: Optional[int] = None,
+               **sampler: Any) -> Dict[str, np.ndarray]:
     """Fills the mask-0 entries of an observation (B, K, O), O = ``model.obs_len``
     (``training.diffusion.repair``). Returns ``mean`` (B, K, O; observed entries exact) and ``samples``
     (S, B, K, O). Noise: ``noise`` (S, n + 1, B, K, model.seq_len) ((S, 1, ...) for ``sampler="dpmpp2m"``)
-    or a ``seed``. The sampler: ``options`` or its fields as keywords (:class:`tcd.SamplerOptions`)."""
+    or a ``seed`` (streams numbered as in :meth:`Denoiser.sample`). The sampler: ``options`` or its fields as
+    keywords (:class:`tcd.SamplerOptions`)."""
     if not isinstance(model, Denoiser):
         raise _checks.fail("model", "a tcd.Denoiser", type(model).__name__)
     num_samples = _checks.integer("num_samples", num_samples, 1)
@@ -201,7 +206,18 @@ def repair_raw(model: Denoiser, observed: Any, mask: Any, *, num_samples: int = 
         model._native, _checks.float32_array("observed", observed), _checks.float32_array("mask", mask),
         num_samples, o, noise=_noise("noise", noise), seed=_checks.seed(seed),
         first_sequence=_checks.integer("first_sequence", first_sequence, 0, _checks.MAX_SEED),
-        threads=_checks.threads(threads)))
+        sequences=_stream_ids(sequences), threads=_checks.threads(threads)))
+
+
+def _stream_ids(value: Any) -> Optional[List[int]]:
+    """``sequences`` as Python ints; the engine checks their range and that there is one per sequence."""
+    if value is None:
+        return None
+    a = np.asarray(value)
+    if a.ndim != 1 or (a.size and a.dtype.kind not in "iu"):
+        raise _checks.fail("sequences", "a 1-D sequence of integer stream ids, one per sequence",
+                           f"an array of shape {_checks.shape_str(a.shape)} and dtype {a.dtype}")
+    return [int(v) for v in a]
 
 
 def supported_kernels() -> List[str]:

@@ -16,7 +16,8 @@ use std::path::Path;
 
 use tcd_core::rng::seeded_noise;
 use tcd_core::{
-    cascade, sample, CascadeNoise, Denoiser, ForecastOptions, Noise, SamplerConfig, SamplerKind,
+    cascade, sample, CascadeNoise, Denoiser, ForecastOptions, Noise, Observed, SamplerConfig,
+    SamplerKind, Sequences,
 };
 
 type R<T> = Result<T, Box<dyn Error>>;
@@ -26,7 +27,10 @@ fn read_f32(path: &str) -> R<Vec<f32>> {
     if bytes.len() % 4 != 0 {
         return Err(format!("{path}: size {} is not a multiple of 4", bytes.len()).into());
     }
-    Ok(bytes.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect())
+    Ok(bytes
+        .chunks_exact(4)
+        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+        .collect())
 }
 
 fn write_f32(path: impl AsRef<Path>, data: &[f32]) -> R<()> {
@@ -43,7 +47,10 @@ fn num<T: std::str::FromStr>(args: &[String], i: usize, what: &str) -> R<T> {
 }
 
 fn arg<'a>(args: &'a [String], i: usize, what: &str) -> R<&'a str> {
-    Ok(args.get(i).ok_or_else(|| format!("missing argument {what}"))?.as_str())
+    Ok(args
+        .get(i)
+        .ok_or_else(|| format!("missing argument {what}"))?
+        .as_str())
 }
 
 fn sampler(kind: &str, steps: &str, eta: f64, spacing: &str) -> R<SamplerConfig> {
@@ -53,7 +60,11 @@ fn sampler(kind: &str, steps: &str, eta: f64, spacing: &str) -> R<SamplerConfig>
         "dpmpp2m" => SamplerKind::DpmPp2m,
         other => return Err(format!("sampler must be ddpm, ddim or dpmpp2m, got {other}").into()),
     };
-    let num_inference_steps = if steps == "all" { None } else { Some(steps.parse()?) };
+    let num_inference_steps = if steps == "all" {
+        None
+    } else {
+        Some(steps.parse()?)
+    };
     Ok(SamplerConfig {
         kind,
         num_inference_steps,
@@ -77,7 +88,11 @@ fn main() -> R<()> {
             let noisy = read_f32(arg(&args, 2, "NOISY")?)?;
             let observed = read_f32(arg(&args, 3, "OBSERVED")?)?;
             let mask = read_f32(arg(&args, 4, "MASK")?)?;
-            let (b, l, step): (usize, usize, usize) = (num(&args, 5, "B")?, num(&args, 6, "L")?, num(&args, 7, "STEP")?);
+            let (b, l, step): (usize, usize, usize) = (
+                num(&args, 5, "B")?,
+                num(&args, 6, "L")?,
+                num(&args, 7, "STEP")?,
+            );
             let mut out = vec![0.0f32; noisy.len()];
             d.forward(&noisy, &observed, &mask, b, l, step, &mut out)?;
             write_f32(arg(&args, 8, "OUT")?, &out)?;
@@ -86,8 +101,17 @@ fn main() -> R<()> {
             let d = Denoiser::load(arg(&args, 1, "WEIGHTS")?)?;
             let observed = read_f32(arg(&args, 2, "OBSERVED")?)?;
             let mask = read_f32(arg(&args, 3, "MASK")?)?;
-            let (b, l, s): (usize, usize, usize) = (num(&args, 4, "B")?, num(&args, 5, "L")?, num(&args, 6, "S")?);
-            let cfg = sampler(arg(&args, 7, "SAMPLER")?, arg(&args, 8, "N")?, num(&args, 9, "ETA")?, arg(&args, 10, "SPACING")?)?;
+            let (b, l, s): (usize, usize, usize) = (
+                num(&args, 4, "B")?,
+                num(&args, 5, "L")?,
+                num(&args, 6, "S")?,
+            );
+            let cfg = sampler(
+                arg(&args, 7, "SAMPLER")?,
+                arg(&args, 8, "N")?,
+                num(&args, 9, "ETA")?,
+                arg(&args, 10, "SPACING")?,
+            )?;
             let src = arg(&args, 11, "NOISE")?;
             let data;
             let noise = match seed_of(src) {
@@ -97,7 +121,7 @@ fn main() -> R<()> {
                     Noise::Injected(&data)
                 }
             };
-            let out = sample(&d, &observed, &mask, b, l, s, &cfg, noise)?;
+            let out = sample(&d, Observed::new(&observed, &mask, b, l), s, &cfg, noise)?;
             write_f32(arg(&args, 12, "OUT")?, &out)?;
         }
         Some("cascade") => {
@@ -106,10 +130,29 @@ fn main() -> R<()> {
             let observed = read_f32(arg(&args, 3, "OBSERVED")?)?;
             let mask = read_f32(arg(&args, 4, "MASK")?)?;
             let (b, s): (usize, usize) = (num(&args, 5, "B")?, num(&args, 6, "S")?);
-            let cfg = sampler(arg(&args, 7, "SAMPLER")?, arg(&args, 8, "N")?, num(&args, 9, "ETA")?, arg(&args, 10, "SPACING")?)?;
+            let cfg = sampler(
+                arg(&args, 7, "SAMPLER")?,
+                arg(&args, 8, "N")?,
+                num(&args, 9, "ETA")?,
+                arg(&args, 10, "SPACING")?,
+            )?;
             let seed = seed_of(arg(&args, 11, "seed:N")?).ok_or("the cascade takes seed:N")?;
-            let opts = ForecastOptions { num_samples: s, sampler: cfg };
-            let out = cascade(&short, &long, &observed, &mask, b, &opts, CascadeNoise::Seeded { seed, first_sequence: 0 })?;
+            let opts = ForecastOptions {
+                num_samples: s,
+                sampler: cfg,
+            };
+            let out = cascade(
+                &short,
+                &long,
+                &observed,
+                &mask,
+                b,
+                &opts,
+                CascadeNoise::Seeded {
+                    seed,
+                    sequences: Sequences::From(0),
+                },
+            )?;
             let prefix = arg(&args, 12, "OUT_PREFIX")?;
             write_f32(format!("{prefix}mean.f32"), &out.mean)?;
             write_f32(format!("{prefix}samples.f32"), &out.samples)?;
@@ -119,12 +162,21 @@ fn main() -> R<()> {
         Some("noise") => {
             let seed: u64 = num(&args, 1, "SEED")?;
             let stage: u64 = num(&args, 2, "STAGE")?;
-            let (s, blocks, b, len): (usize, usize, usize, usize) =
-                (num(&args, 3, "S")?, num(&args, 4, "BLOCKS")?, num(&args, 5, "B")?, num(&args, 6, "BLOCK_LEN")?);
-            write_f32(arg(&args, 7, "OUT")?, &seeded_noise(seed, 0, stage, s, blocks, b, len))?;
+            let (s, blocks, b, len): (usize, usize, usize, usize) = (
+                num(&args, 3, "S")?,
+                num(&args, 4, "BLOCKS")?,
+                num(&args, 5, "B")?,
+                num(&args, 6, "BLOCK_LEN")?,
+            );
+            write_f32(
+                arg(&args, 7, "OUT")?,
+                &seeded_noise(seed, Sequences::From(0), stage, s, blocks, b, len),
+            )?;
         }
         _ => {
-            eprintln!("usage: tcd_raw info|forward|sample|cascade|noise ... (see the source header)");
+            eprintln!(
+                "usage: tcd_raw info|forward|sample|cascade|noise ... (see the source header)"
+            );
             std::process::exit(2);
         }
     }

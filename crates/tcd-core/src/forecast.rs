@@ -20,8 +20,8 @@
 
 use crate::denoiser::Denoiser;
 use crate::error::{check_positive, Error, Result};
-use crate::rng::{stage, Noise};
-use crate::sampler::{run_job, validate_job, SamplerConfig};
+use crate::rng::{stage, Noise, Sequences};
+use crate::sampler::{run_job, validate_job, Observed, SamplerConfig};
 use crate::validate;
 
 /// Sampling options shared by both stages.
@@ -47,21 +47,17 @@ impl Default for ForecastOptions {
 pub enum CascadeNoise<'a> {
     /// Standard normals per stage: `short` (S, n + 1, B, K, L_s), `long` (S, n + 1, B, K, L_l).
     Injected { short: &'a [f32], long: &'a [f32] },
-    /// Seeded ChaCha8 streams (see [`crate::rng`]).
-    Seeded { seed: u64, first_sequence: u64 },
+    /// Seeded ChaCha8 streams (see [`crate::rng`]); both stages number sequences alike.
+    Seeded { seed: u64, sequences: Sequences<'a> },
 }
 
 impl CascadeNoise<'_> {
     fn stage(&self, long: bool) -> Noise<'_> {
         match *self {
-            CascadeNoise::Injected { short, long: l } => Noise::Injected(if long { l } else { short }),
-            CascadeNoise::Seeded {
-                seed,
-                first_sequence,
-            } => Noise::Seeded {
-                seed,
-                first_sequence,
-            },
+            CascadeNoise::Injected { short, long: l } => {
+                Noise::Injected(if long { l } else { short })
+            }
+            CascadeNoise::Seeded { seed, sequences } => Noise::Seeded { seed, sequences },
         }
     }
 }
@@ -103,7 +99,9 @@ pub struct RepairOutput {
 
 /// Frames `start..end` of every row of `src` (rows × len).
 fn take_frames(src: &[f32], len: usize, start: usize, end: usize) -> Vec<f32> {
-    src.chunks_exact(len).flat_map(|row| row[start..end].iter().copied()).collect()
+    src.chunks_exact(len)
+        .flat_map(|row| row[start..end].iter().copied())
+        .collect()
 }
 
 /// Every row of `src` (rows × len) extended to `new_len` frames with `fill`.
@@ -184,12 +182,18 @@ pub fn cascade(
     // Validate the long stage (sizes, plan, noise) before the expensive short stage runs.
     let x_long_placeholder = vec![0.0f32; rows * ll];
     let long_noise_name = "noise.long";
+    let long_shape = Observed {
+        values: &[],
+        mask: &m_long,
+        batch,
+        length: ll,
+    };
     validate_job(
         long,
-        &x_long_placeholder,
-        &m_long,
-        batch,
-        ll,
+        Observed {
+            values: &x_long_placeholder,
+            ..long_shape
+        },
         s,
         &options.sampler,
         noise.stage(true),
@@ -199,10 +203,12 @@ pub fn cascade(
     drop(x_long_placeholder);
     let job = validate_job(
         short,
-        &x_short,
-        &m_short,
-        batch,
-        ls,
+        Observed {
+            values: &x_short,
+            mask: &m_short,
+            batch,
+            length: ls,
+        },
         s,
         &options.sampler,
         noise.stage(false),
@@ -217,10 +223,10 @@ pub fn cascade(
     let x_long = pad_frames(&short_mean, ls, ll, 0.0);
     let job = validate_job(
         long,
-        &x_long,
-        &m_long,
-        batch,
-        ll,
+        Observed {
+            values: &x_long,
+            ..long_shape
+        },
         s,
         &options.sampler,
         noise.stage(true),
@@ -262,7 +268,21 @@ pub fn repair(
     let s = options.num_samples;
     let x = pad_frames(&zero_unobserved(observed, mask), o, l, 0.0);
     let m = pad_frames(mask, o, l, 0.0);
-    let job = validate_job(model, &x, &m, batch, l, s, &options.sampler, noise, "noise", stage::SHORT)?;
+    let observed = Observed {
+        values: &x,
+        mask: &m,
+        batch,
+        length: l,
+    };
+    let job = validate_job(
+        model,
+        observed,
+        s,
+        &options.sampler,
+        noise,
+        "noise",
+        stage::SHORT,
+    )?;
     let all = run_job(model, &job);
     let samples = take_frames(&all, l, 0, o);
     let mut mean = mean_over_samples(&samples, s, batch * k * o);
@@ -284,9 +304,21 @@ mod tests {
     #[test]
     fn frame_helpers() {
         let src = [1.0, 2.0, 3.0, 4.0];
-        assert_eq!(pad_frames(&src, 2, 3, 0.0), vec![1.0, 2.0, 0.0, 3.0, 4.0, 0.0]);
-        assert_eq!(take_frames(&[1.0, 2.0, 3.0, 4.0, 5.0, 6.0], 3, 1, 3), vec![2.0, 3.0, 5.0, 6.0]);
-        assert_eq!(mean_over_samples(&[1.0, 2.0, 3.0, 6.0], 2, 2), vec![2.0, 4.0]);
-        assert_eq!(zero_unobserved(&[f32::NAN, 2.0], &[0.0, 1.0]), vec![0.0, 2.0]);
+        assert_eq!(
+            pad_frames(&src, 2, 3, 0.0),
+            vec![1.0, 2.0, 0.0, 3.0, 4.0, 0.0]
+        );
+        assert_eq!(
+            take_frames(&[1.0, 2.0, 3.0, 4.0, 5.0, 6.0], 3, 1, 3),
+            vec![2.0, 3.0, 5.0, 6.0]
+        );
+        assert_eq!(
+            mean_over_samples(&[1.0, 2.0, 3.0, 6.0], 2, 2),
+            vec![2.0, 4.0]
+        );
+        assert_eq!(
+            zero_unobserved(&[f32::NAN, 2.0], &[0.0, 1.0]),
+            vec![0.0, 2.0]
+        );
     }
 }

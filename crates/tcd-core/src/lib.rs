@@ -5,7 +5,7 @@
 //! nothing of Python; the binding crate wraps this API.
 //!
 //! ```no_run
-//! use tcd_core::{cascade, CascadeNoise, Denoiser, ForecastOptions};
+//! use tcd_core::{cascade, CascadeNoise, Denoiser, ForecastOptions, Sequences};
 //! # fn main() -> tcd_core::Result<()> {
 //! let short = Denoiser::load("short.safetensors")?;
 //! let long = Denoiser::load("long.safetensors")?;
@@ -13,7 +13,7 @@
 //! let observed = vec![0.0f32; b * k * o]; // (B, K, O), model units
 //! let mask = vec![1.0f32; b * k * o];     // 1 = observed
 //! let out = cascade(&short, &long, &observed, &mask, b, &ForecastOptions::default(),
-//!                   CascadeNoise::Seeded { seed: 0, first_sequence: 0 })?;
+//!                   CascadeNoise::Seeded { seed: 0, sequences: Sequences::From(0) })?;
 //! assert_eq!(out.mean.len(), b * k * out.future_len);
 //! # Ok(()) }
 //! ```
@@ -41,8 +41,8 @@ pub use denoiser::{fill_linear, fill_spline, CondTables, Denoiser, Prepared, Wor
 pub use error::{Error, Result};
 pub use kernels::{Kernel, KERNEL_ENV};
 pub use forecast::{cascade, repair, CascadeNoise, CascadeOutput, ForecastOptions, RepairOutput};
-pub use rng::{chain_rng, seeded_noise, Noise};
-pub use sampler::{sample, timesteps, Plan, SamplerConfig, SamplerKind, TimestepSpacing};
+pub use rng::{chain_rng, seeded_noise, Noise, Sequences};
+pub use sampler::{sample, timesteps, Observed, Plan, SamplerConfig, SamplerKind, TimestepSpacing};
 pub use schedule::{BetaSchedule, NoiseSchedule};
 pub use threads::with_threads;
 pub use weights::{expected_tensors, Tensor, WeightFile, CONFIG_KEY};

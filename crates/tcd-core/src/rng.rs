@@ -13,7 +13,9 @@
 //! from **`rand_distr::StandardNormal`** (rand_distr 0.5 ziggurat on f64 with its libm maths,
 //! rounded to f32). One generator per chain (sequence × sample × stage), drawn in block order
 //! x_T, z_0, z_1, ..., so results depend neither on the thread count nor on which other
-//! sequences are in the batch (give `first_sequence` to continue a numbering across calls).
+//! sequences are in the batch: [`Sequences`] numbers them (from a first id, to continue a
+//! numbering across calls, or one id per sequence, to give each window of a long recording its own
+//! stream whatever batch it lands in).
 //! [`seeded_noise`] materialises exactly what the seeded path consumes, for parity tests.
 
 use rand::{Rng, SeedableRng};
@@ -34,8 +36,8 @@ pub mod stage {
 pub enum Noise<'a> {
     /// Caller-supplied standard normals, shape (S, n + 1, B, K, L).
     Injected(&'a [f32]),
-    /// Seeded ChaCha8 streams; sequence b of the call is numbered `first_sequence + b`.
-    Seeded { seed: u64, first_sequence: u64 },
+    /// Seeded ChaCha8 streams; sequence b of the call draws stream `sequences.id(b)`.
+    Seeded { seed: u64, sequences: Sequences<'a> },
 }
 
 impl Noise<'_> {
@@ -43,7 +45,38 @@ impl Noise<'_> {
     pub fn seeded(seed: u64) -> Self {
         Noise::Seeded {
             seed,
-            first_sequence: 0,
+            sequences: Sequences::From(0),
+        }
+    }
+}
+
+/// The stream id (the key's `sequence` word) of each sequence of a seeded call.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Sequences<'a> {
+    /// Sequence b is stream `first + b` (wrapping).
+    From(u64),
+    /// Sequence b is stream `ids[b]`: one id per sequence of the batch.
+    Ids(&'a [u64]),
+}
+
+impl Sequences<'_> {
+    /// The stream of sequence `b` (`Ids` already checked to hold one id per sequence).
+    pub fn id(&self, b: usize) -> u64 {
+        match *self {
+            Sequences::From(first) => first.wrapping_add(b as u64),
+            Sequences::Ids(ids) => ids[b],
+        }
+    }
+
+    /// Checks that `Ids` holds one id per sequence of a batch of `batch`.
+    pub(crate) fn check(&self, batch: usize) -> crate::Result<()> {
+        match *self {
+            Sequences::Ids(ids) if ids.len() != batch => Err(crate::Error::invalid_input(
+                "sequences",
+                format!("one stream id per sequence ({batch})"),
+                format!("{} ids", ids.len()),
+            )),
+            _ => Ok(()),
         }
     }
 }
@@ -68,7 +101,7 @@ pub fn fill_standard_normal(rng: &mut ChaCha8Rng, out: &mut [f32]) {
 /// `num_blocks` = n + 1, `block_len` = K·L.
 pub fn seeded_noise(
     seed: u64,
-    first_sequence: u64,
+    sequences: Sequences<'_>,
     stage: u64,
     num_samples: usize,
     num_blocks: usize,
@@ -78,7 +111,7 @@ pub fn seeded_noise(
     let mut out = vec![0.0f32; num_samples * num_blocks * batch * block_len];
     for s in 0..num_samples {
         for b in 0..batch {
-            let mut rng = chain_rng(seed, first_sequence + b as u64, s as u64, stage);
+            let mut rng = chain_rng(seed, sequences.id(b), s as u64, stage);
             for j in 0..num_blocks {
                 let off = ((s * num_blocks + j) * batch + b) * block_len;
                 fill_standard_normal(&mut rng, &mut out[off..off + block_len]);
@@ -118,12 +151,9 @@ impl<'a> ChainNoise<'a> {
                 num_blocks,
                 batch,
             },
-            Noise::Seeded {
+            Noise::Seeded { seed, sequences } => ChainNoise::Seeded(Box::new(chain_rng(
                 seed,
-                first_sequence,
-            } => ChainNoise::Seeded(Box::new(chain_rng(
-                seed,
-                first_sequence.wrapping_add(sequence as u64),
+                sequences.id(sequence),
                 sample as u64,
                 stage,
             ))),
@@ -157,15 +187,15 @@ mod tests {
 
     #[test]
     fn streams_are_reproducible_and_distinct() {
-        let a = seeded_noise(7, 0, stage::SHORT, 2, 3, 2, 5);
-        let b = seeded_noise(7, 0, stage::SHORT, 2, 3, 2, 5);
+        let a = seeded_noise(7, Sequences::From(0), stage::SHORT, 2, 3, 2, 5);
+        let b = seeded_noise(7, Sequences::From(0), stage::SHORT, 2, 3, 2, 5);
         assert_eq!(a, b);
-        let c = seeded_noise(8, 0, stage::SHORT, 2, 3, 2, 5);
+        let c = seeded_noise(8, Sequences::From(0), stage::SHORT, 2, 3, 2, 5);
         assert_ne!(a, c);
-        let d = seeded_noise(7, 0, stage::LONG, 2, 3, 2, 5);
+        let d = seeded_noise(7, Sequences::From(0), stage::LONG, 2, 3, 2, 5);
         assert_ne!(a, d);
         // sequence 1 of a batch of 2 == sequence 0 of a batch of 1 with first_sequence 1
-        let e = seeded_noise(7, 1, stage::SHORT, 2, 3, 1, 5);
+        let e = seeded_noise(7, Sequences::From(1), stage::SHORT, 2, 3, 1, 5);
         for s in 0..2 {
             for j in 0..3 {
                 let from_a = &a[((s * 3 + j) * 2 + 1) * 5..][..5];
@@ -173,11 +203,22 @@ mod tests {
                 assert_eq!(from_a, from_e);
             }
         }
+        // explicit ids: sequence b draws stream ids[b], whatever its position in the batch
+        let f = seeded_noise(7, Sequences::Ids(&[1, 0]), stage::SHORT, 2, 3, 2, 5);
+        for s in 0..2 {
+            for j in 0..3 {
+                let row = |v: &[f32], b: usize| v[((s * 3 + j) * 2 + b) * 5..][..5].to_vec();
+                assert_eq!(row(&f, 0), row(&a, 1));
+                assert_eq!(row(&f, 1), row(&a, 0));
+            }
+        }
+        assert!(Sequences::Ids(&[1, 2]).check(3).is_err());
+        assert!(Sequences::Ids(&[1, 2]).check(2).is_ok());
     }
 
     #[test]
     fn normals_look_standard() {
-        let v = seeded_noise(1, 0, 0, 1, 1, 1, 20_000);
+        let v = seeded_noise(1, Sequences::From(0), 0, 1, 1, 1, 20_000);
         let mean = v.iter().map(|&x| x as f64).sum::<f64>() / v.len() as f64;
         let var = v.iter().map(|&x| (x as f64 - mean).powi(2)).sum::<f64>() / v.len() as f64;
         assert!(mean.abs() < 0.03, "mean {mean}");

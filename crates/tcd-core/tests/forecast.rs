@@ -6,15 +6,23 @@ mod common;
 use common::*;
 use tcd_core::rng::{seeded_noise, stage};
 use tcd_core::{
-    cascade, repair, sample, CascadeNoise, Denoiser, ForecastOptions, Noise, Role, SamplerConfig,
+    cascade, repair, sample, CascadeNoise, Denoiser, ForecastOptions, Noise, Observed, Role,
+    SamplerConfig, Sequences,
 };
 
 fn models() -> (Denoiser, Denoiser) {
-    (tiny_model(Role::Short, 6, 2, 31).0, tiny_model(Role::Long, 8, 4, 32).0)
+    (
+        tiny_model(Role::Short, 6, 2, 31).0,
+        tiny_model(Role::Long, 8, 4, 32).0,
+    )
 }
 
 fn in_pool<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> T {
-    rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap().install(f)
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .unwrap()
+        .install(f)
 }
 
 #[test]
@@ -26,15 +34,26 @@ fn cascade_shapes_and_invariants() {
     mask[0] = 0.0;
     let mut observed_nan = observed.clone();
     observed_nan[0] = f32::NAN; // missing entry marked with NaN
-    let opts = ForecastOptions { num_samples: s, sampler: SamplerConfig::ddim(4, 0.5) };
-    let noise = CascadeNoise::Seeded { seed: 4, first_sequence: 0 };
+    let opts = ForecastOptions {
+        num_samples: s,
+        sampler: SamplerConfig::ddim(4, 0.5),
+    };
+    let noise = CascadeNoise::Seeded {
+        seed: 4,
+        sequences: Sequences::From(0),
+    };
     let out = cascade(&short, &long, &observed_nan, &mask, b, &opts, noise).unwrap();
     assert_eq!((out.obs_len, out.short_len, out.future_len), (6, 8, 6));
     assert_eq!(out.mean.len(), b * k * 6);
     assert_eq!(out.samples.len(), s * b * k * 6);
     assert_eq!(out.repaired.len(), b * k * o);
     assert_eq!(out.short_mean.len(), b * k * 8);
-    assert!(out.samples.iter().chain(&out.mean).chain(&out.repaired).all(|v| v.is_finite()));
+    assert!(out
+        .samples
+        .iter()
+        .chain(&out.mean)
+        .chain(&out.repaired)
+        .all(|v| v.is_finite()));
     // observed entries of the repaired observation are exact
     for i in 0..b * k * o {
         if mask[i] == 1.0 {
@@ -54,7 +73,10 @@ fn cascade_shapes_and_invariants() {
     assert_ne!(out.samples[2..6], out.samples[b * k * 6 + 2..b * k * 6 + 6]);
     // mean is the mean of the samples
     for i in 0..b * k * 6 {
-        let m: f32 = (0..s).map(|si| out.samples[si * b * k * 6 + i]).sum::<f32>() / s as f32;
+        let m: f32 = (0..s)
+            .map(|si| out.samples[si * b * k * 6 + i])
+            .sum::<f32>()
+            / s as f32;
         assert_eq!(m, out.mean[i]);
     }
 }
@@ -65,8 +87,23 @@ fn cascade_short_stage_is_plain_sampling() {
     let (b, k, o, s) = (1usize, 6usize, 6usize, 2usize);
     let observed = values(b * k * o, 1, 1.0);
     let mask = vec![1.0f32; b * k * o];
-    let opts = ForecastOptions { num_samples: s, sampler: SamplerConfig::ddpm() };
-    let out = cascade(&short, &long, &observed, &mask, b, &opts, CascadeNoise::Seeded { seed: 8, first_sequence: 0 }).unwrap();
+    let opts = ForecastOptions {
+        num_samples: s,
+        sampler: SamplerConfig::ddpm(),
+    };
+    let out = cascade(
+        &short,
+        &long,
+        &observed,
+        &mask,
+        b,
+        &opts,
+        CascadeNoise::Seeded {
+            seed: 8,
+            sequences: Sequences::From(0),
+        },
+    )
+    .unwrap();
     // rebuild the short stage by hand
     let mut x = vec![0.0f32; k * 8];
     let mut m = vec![0.0f32; k * 8];
@@ -74,9 +111,20 @@ fn cascade_short_stage_is_plain_sampling() {
         x[kk * 8..kk * 8 + 6].copy_from_slice(&observed[kk * 6..kk * 6 + 6]);
         m[kk * 8..kk * 8 + 6].fill(1.0);
     }
-    let samples = sample(&short, &x, &m, 1, 8, s, &opts.sampler, Noise::seeded(8)).unwrap();
+    let samples = sample(
+        &short,
+        Observed::new(&x, &m, 1, 8),
+        s,
+        &opts.sampler,
+        Noise::seeded(8),
+    )
+    .unwrap();
     for i in 0..k * 8 {
-        let want = if m[i] == 1.0 { x[i] } else { (samples[i] + samples[k * 8 + i]) / 2.0 };
+        let want = if m[i] == 1.0 {
+            x[i]
+        } else {
+            (samples[i] + samples[k * 8 + i]) / 2.0
+        };
         assert_eq!(out.short_mean[i], want);
     }
 }
@@ -87,16 +135,50 @@ fn cascade_thread_independent_and_injected_equals_seeded() {
     let (b, k, o, s) = (2usize, 6usize, 6usize, 2usize);
     let observed = values(b * k * o, 5, 1.0);
     let mask = binary_mask(b * k * o, 6, 0.7);
-    let opts = ForecastOptions { num_samples: s, sampler: SamplerConfig::ddim(3, 1.0) };
-    let seeded = CascadeNoise::Seeded { seed: 12, first_sequence: 0 };
-    let one = in_pool(1, || cascade(&short, &long, &observed, &mask, b, &opts, seeded).unwrap());
-    let two = in_pool(2, || cascade(&short, &long, &observed, &mask, b, &opts, seeded).unwrap());
+    let opts = ForecastOptions {
+        num_samples: s,
+        sampler: SamplerConfig::ddim(3, 1.0),
+    };
+    let seeded = CascadeNoise::Seeded {
+        seed: 12,
+        sequences: Sequences::From(0),
+    };
+    let one = in_pool(1, || {
+        cascade(&short, &long, &observed, &mask, b, &opts, seeded).unwrap()
+    });
+    let two = in_pool(2, || {
+        cascade(&short, &long, &observed, &mask, b, &opts, seeded).unwrap()
+    });
     assert_eq!(one, two);
-    let ns = seeded_noise(12, 0, stage::SHORT, s, 4, b, k * 8);
-    let nl = seeded_noise(12, 0, stage::LONG, s, 4, b, k * 12);
-    let inj = cascade(&short, &long, &observed, &mask, b, &opts, CascadeNoise::Injected { short: &ns, long: &nl }).unwrap();
+    let ns = seeded_noise(12, Sequences::From(0), stage::SHORT, s, 4, b, k * 8);
+    let nl = seeded_noise(12, Sequences::From(0), stage::LONG, s, 4, b, k * 12);
+    let inj = cascade(
+        &short,
+        &long,
+        &observed,
+        &mask,
+        b,
+        &opts,
+        CascadeNoise::Injected {
+            short: &ns,
+            long: &nl,
+        },
+    )
+    .unwrap();
     assert_eq!(one, inj);
-    let other = cascade(&short, &long, &observed, &mask, b, &opts, CascadeNoise::Seeded { seed: 13, first_sequence: 0 }).unwrap();
+    let other = cascade(
+        &short,
+        &long,
+        &observed,
+        &mask,
+        b,
+        &opts,
+        CascadeNoise::Seeded {
+            seed: 13,
+            sequences: Sequences::From(0),
+        },
+    )
+    .unwrap();
     assert_ne!(one.mean, other.mean);
 }
 
@@ -106,7 +188,10 @@ fn repair_imputes_only_missing_entries() {
     let (b, k, o, s) = (2usize, 6usize, 6usize, 3usize);
     let observed = values(b * k * o, 7, 1.0);
     let mask = binary_mask(b * k * o, 8, 0.6);
-    let opts = ForecastOptions { num_samples: s, sampler: SamplerConfig::ddim(5, 0.0) };
+    let opts = ForecastOptions {
+        num_samples: s,
+        sampler: SamplerConfig::ddim(5, 0.0),
+    };
     let r = repair(&short, &observed, &mask, b, &opts, Noise::seeded(1)).unwrap();
     assert_eq!(r.mean.len(), b * k * o);
     assert_eq!(r.samples.len(), s * b * k * o);
@@ -114,13 +199,18 @@ fn repair_imputes_only_missing_entries() {
         if mask[i] == 1.0 {
             assert_eq!(r.mean[i].to_bits(), observed[i].to_bits());
             for si in 0..s {
-                assert_eq!(r.samples[si * b * k * o + i].to_bits(), observed[i].to_bits());
+                assert_eq!(
+                    r.samples[si * b * k * o + i].to_bits(),
+                    observed[i].to_bits()
+                );
             }
         } else {
             assert!(r.mean[i].is_finite());
         }
     }
-    let again = in_pool(1, || repair(&short, &observed, &mask, b, &opts, Noise::seeded(1)).unwrap());
+    let again = in_pool(1, || {
+        repair(&short, &observed, &mask, b, &opts, Noise::seeded(1)).unwrap()
+    });
     assert_eq!(r, again);
 }
 
@@ -130,10 +220,25 @@ fn cascade_errors() {
     let k = 6;
     let observed = values(k * 6, 1, 1.0);
     let mask = vec![1.0f32; k * 6];
-    let opts = ForecastOptions { num_samples: 1, sampler: SamplerConfig::ddim(2, 0.0) };
-    let seeded = CascadeNoise::Seeded { seed: 0, first_sequence: 0 };
+    let opts = ForecastOptions {
+        num_samples: 1,
+        sampler: SamplerConfig::ddim(2, 0.0),
+    };
+    let seeded = CascadeNoise::Seeded {
+        seed: 0,
+        sequences: Sequences::From(0),
+    };
     // swapped models: the long model's obs_len (8) is not the short seq_len
-    let e = cascade(&long, &short, &vec![0.0; k * 8], &vec![1.0; k * 8], 1, &opts, seeded).unwrap_err();
+    let e = cascade(
+        &long,
+        &short,
+        &vec![0.0; k * 8],
+        &vec![1.0; k * 8],
+        1,
+        &opts,
+        seeded,
+    )
+    .unwrap_err();
     assert!(e.to_string().contains("`long`"), "{e}");
     // wrong observation length
     let e = cascade(&short, &long, &observed[1..], &mask, 1, &opts, seeded).unwrap_err();
@@ -141,10 +246,28 @@ fn cascade_errors() {
     // injected long noise of the wrong size is caught before anything runs
     let ns = vec![0.0f32; 3 * k * 8];
     let nl = vec![0.0f32; 3 * k * 12 - 1];
-    let e = cascade(&short, &long, &observed, &mask, 1, &opts, CascadeNoise::Injected { short: &ns, long: &nl }).unwrap_err();
+    let e = cascade(
+        &short,
+        &long,
+        &observed,
+        &mask,
+        1,
+        &opts,
+        CascadeNoise::Injected {
+            short: &ns,
+            long: &nl,
+        },
+    )
+    .unwrap_err();
     assert!(e.to_string().contains("`noise.long`"), "{e}");
-    let zero = ForecastOptions { num_samples: 0, ..opts };
-    assert!(cascade(&short, &long, &observed, &mask, 1, &zero, seeded).unwrap_err().to_string().contains("num_samples"));
+    let zero = ForecastOptions {
+        num_samples: 0,
+        ..opts
+    };
+    assert!(cascade(&short, &long, &observed, &mask, 1, &zero, seeded)
+        .unwrap_err()
+        .to_string()
+        .contains("num_samples"));
     // a model with different K
     let mut cfg = tiny_config(Role::Long, 8, 4);
     cfg.model.num_joints = 1;

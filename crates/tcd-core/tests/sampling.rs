@@ -9,7 +9,9 @@ use std::sync::OnceLock;
 use common::*;
 use proptest::prelude::*;
 use tcd_core::rng::{seeded_noise, stage};
-use tcd_core::{sample, Denoiser, Noise, Role, SamplerConfig, SamplerKind, TimestepSpacing};
+use tcd_core::{
+    sample, Denoiser, Noise, Observed, Role, SamplerConfig, SamplerKind, Sequences, TimestepSpacing,
+};
 
 fn model() -> &'static Denoiser {
     static M: OnceLock<Denoiser> = OnceLock::new();
@@ -17,7 +19,11 @@ fn model() -> &'static Denoiser {
 }
 
 fn in_pool<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> T {
-    rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap().install(f)
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .unwrap()
+        .install(f)
 }
 
 fn sampler_strategy() -> impl Strategy<Value = SamplerConfig> {
@@ -25,7 +31,11 @@ fn sampler_strategy() -> impl Strategy<Value = SamplerConfig> {
         (1usize..=10, 0usize..3).prop_map(|(n, sp)| SamplerConfig {
             kind: SamplerKind::Ddpm,
             num_inference_steps: Some(n),
-            timestep_spacing: [TimestepSpacing::Leading, TimestepSpacing::Trailing, TimestepSpacing::Linspace][sp],
+            timestep_spacing: [
+                TimestepSpacing::Leading,
+                TimestepSpacing::Trailing,
+                TimestepSpacing::Linspace
+            ][sp],
         }),
         (1usize..=10, 0.0f64..=1.0).prop_map(|(n, eta)| SamplerConfig::ddim(n, eta)),
         (1usize..=10).prop_map(SamplerConfig::dpmpp2m),
@@ -50,7 +60,7 @@ proptest! {
         let observed = values(n, seed ^ 1, 3.0);
         let mask = binary_mask(n, seed ^ 2, p_obs);
         let run = |threads| in_pool(threads, || {
-            sample(m, &observed, &mask, batch, length, num_samples, &sampler, Noise::seeded(seed)).unwrap()
+            sample(m, Observed::new(&observed, &mask, batch, length), num_samples, &sampler, Noise::seeded(seed)).unwrap()
         });
         let one = run(1);
         let two = run(2);
@@ -79,13 +89,24 @@ fn leftover_chains_split_over_threads_same_bits() {
         let mask = binary_mask(n, 12, 0.4);
         let run = |threads| {
             in_pool(threads, || {
-                sample(m, &observed, &mask, batch, 9, num_samples, &SamplerConfig::ddpm(), Noise::seeded(3)).unwrap()
+                sample(
+                    m,
+                    Observed::new(&observed, &mask, batch, 9),
+                    num_samples,
+                    &SamplerConfig::ddpm(),
+                    Noise::seeded(3),
+                )
+                .unwrap()
             })
         };
         let bits = |v: Vec<f32>| v.into_iter().map(f32::to_bits).collect::<Vec<_>>();
         let one = bits(run(1));
         for threads in [2, 3, 4] {
-            assert_eq!(one, bits(run(threads)), "batch {batch}, samples {num_samples}, threads {threads}");
+            assert_eq!(
+                one,
+                bits(run(threads)),
+                "batch {batch}, samples {num_samples}, threads {threads}"
+            );
         }
     }
 }
@@ -97,9 +118,30 @@ fn same_seed_same_output_different_seed_differs() {
     let observed = values(n, 1, 1.0);
     let mask = binary_mask(n, 2, 0.5);
     let cfg = SamplerConfig::ddpm();
-    let a = sample(m, &observed, &mask, 2, 7, 2, &cfg, Noise::seeded(5)).unwrap();
-    let b = sample(m, &observed, &mask, 2, 7, 2, &cfg, Noise::seeded(5)).unwrap();
-    let c = sample(m, &observed, &mask, 2, 7, 2, &cfg, Noise::seeded(6)).unwrap();
+    let a = sample(
+        m,
+        Observed::new(&observed, &mask, 2, 7),
+        2,
+        &cfg,
+        Noise::seeded(5),
+    )
+    .unwrap();
+    let b = sample(
+        m,
+        Observed::new(&observed, &mask, 2, 7),
+        2,
+        &cfg,
+        Noise::seeded(5),
+    )
+    .unwrap();
+    let c = sample(
+        m,
+        Observed::new(&observed, &mask, 2, 7),
+        2,
+        &cfg,
+        Noise::seeded(6),
+    )
+    .unwrap();
     assert_eq!(a, b);
     assert_ne!(a, c);
     // the two samples of a sequence differ
@@ -114,25 +156,42 @@ fn seeded_equals_injected_seeded_noise_and_batch_composition_is_irrelevant() {
     let observed = values(n, 3, 1.0);
     let mask = binary_mask(n, 4, 0.4);
     let cfg = SamplerConfig::ddim(4, 0.7);
-    let seeded = sample(m, &observed, &mask, b, l, s, &cfg, Noise::seeded(9)).unwrap();
-    let noise = seeded_noise(9, 0, stage::SHORT, s, 5, b, 6 * l);
-    let injected = sample(m, &observed, &mask, b, l, s, &cfg, Noise::Injected(&noise)).unwrap();
+    let seeded = sample(
+        m,
+        Observed::new(&observed, &mask, b, l),
+        s,
+        &cfg,
+        Noise::seeded(9),
+    )
+    .unwrap();
+    let noise = seeded_noise(9, Sequences::From(0), stage::SHORT, s, 5, b, 6 * l);
+    let injected = sample(
+        m,
+        Observed::new(&observed, &mask, b, l),
+        s,
+        &cfg,
+        Noise::Injected(&noise),
+    )
+    .unwrap();
     assert_eq!(seeded, injected);
     // sequence 2 alone, numbered 2, gives the same samples as inside the batch
     let q = 6 * l;
     let alone = sample(
         m,
-        &observed[2 * q..],
-        &mask[2 * q..],
-        1,
-        l,
+        Observed::new(&observed[2 * q..], &mask[2 * q..], 1, l),
         s,
         &cfg,
-        Noise::Seeded { seed: 9, first_sequence: 2 },
+        Noise::Seeded {
+            seed: 9,
+            sequences: Sequences::From(2),
+        },
     )
     .unwrap();
     for si in 0..s {
-        assert_eq!(&alone[si * q..(si + 1) * q], &seeded[(si * b + 2) * q..(si * b + 3) * q]);
+        assert_eq!(
+            &alone[si * q..(si + 1) * q],
+            &seeded[(si * b + 2) * q..(si * b + 3) * q]
+        );
     }
 }
 
@@ -144,18 +203,50 @@ fn ddim_eta_zero_ignores_the_step_noise() {
     let observed = values(n, 3, 1.0);
     let mask = binary_mask(n, 4, 0.4);
     let cfg = SamplerConfig::ddim(5, 0.0);
-    let mut noise = seeded_noise(1, 0, 0, s, 6, 1, n);
-    let a = sample(m, &observed, &mask, 1, l, s, &cfg, Noise::Injected(&noise)).unwrap();
+    let mut noise = seeded_noise(1, Sequences::From(0), 0, s, 6, 1, n);
+    let a = sample(
+        m,
+        Observed::new(&observed, &mask, 1, l),
+        s,
+        &cfg,
+        Noise::Injected(&noise),
+    )
+    .unwrap();
     for v in noise[n..].iter_mut() {
         *v = -*v * 3.0; // change every z, keep x_T
     }
-    let b = sample(m, &observed, &mask, 1, l, s, &cfg, Noise::Injected(&noise)).unwrap();
+    let b = sample(
+        m,
+        Observed::new(&observed, &mask, 1, l),
+        s,
+        &cfg,
+        Noise::Injected(&noise),
+    )
+    .unwrap();
     assert_eq!(a, b);
     // DDPM does use it
-    let cfg = SamplerConfig { kind: SamplerKind::Ddpm, num_inference_steps: Some(5), timestep_spacing: TimestepSpacing::Trailing };
-    let c = sample(m, &observed, &mask, 1, l, s, &cfg, Noise::Injected(&noise)).unwrap();
+    let cfg = SamplerConfig {
+        kind: SamplerKind::Ddpm,
+        num_inference_steps: Some(5),
+        timestep_spacing: TimestepSpacing::Trailing,
+    };
+    let c = sample(
+        m,
+        Observed::new(&observed, &mask, 1, l),
+        s,
+        &cfg,
+        Noise::Injected(&noise),
+    )
+    .unwrap();
     noise[n + 3] += 1.0;
-    let d = sample(m, &observed, &mask, 1, l, s, &cfg, Noise::Injected(&noise)).unwrap();
+    let d = sample(
+        m,
+        Observed::new(&observed, &mask, 1, l),
+        s,
+        &cfg,
+        Noise::Injected(&noise),
+    )
+    .unwrap();
     assert_ne!(c, d);
 }
 
@@ -166,14 +257,35 @@ fn ddpm_all_steps_is_the_reference_chain() {
     let n = 6 * 7;
     let observed = values(n, 3, 1.0);
     let mask = binary_mask(n, 4, 0.4);
-    let reference = sample(m, &observed, &mask, 1, 7, 1, &SamplerConfig::ddpm(), Noise::seeded(3)).unwrap();
+    let reference = sample(
+        m,
+        Observed::new(&observed, &mask, 1, 7),
+        1,
+        &SamplerConfig::ddpm(),
+        Noise::seeded(3),
+    )
+    .unwrap();
     for sp in [TimestepSpacing::Leading, TimestepSpacing::Linspace] {
-        let cfg = SamplerConfig { kind: SamplerKind::Ddpm, num_inference_steps: Some(10), timestep_spacing: sp };
-        assert_eq!(sample(m, &observed, &mask, 1, 7, 1, &cfg, Noise::seeded(3)).unwrap(), reference);
+        let cfg = SamplerConfig {
+            kind: SamplerKind::Ddpm,
+            num_inference_steps: Some(10),
+            timestep_spacing: sp,
+        };
+        assert_eq!(
+            sample(
+                m,
+                Observed::new(&observed, &mask, 1, 7),
+                1,
+                &cfg,
+                Noise::seeded(3)
+            )
+            .unwrap(),
+            reference
+        );
     }
     // and a hand-written DDPM loop over the public forward (the operations of
     // training/diffusion.py::sample) gives the same bits
-    let noise = seeded_noise(3, 0, 0, 1, 11, 1, n);
+    let noise = seeded_noise(3, Sequences::From(0), 0, 1, 11, 1, n);
     let ab = m.schedule().alphas_cumprod().to_vec();
     let abar = |t: i64| if t < 0 { 1.0 } else { ab[t as usize] };
     let mut x = noise[..n].to_vec();
@@ -213,12 +325,36 @@ fn dpmpp2m_is_deterministic_with_one_noise_block_and_matches_a_hand_loop() {
     let plan = cfg.plan(m.schedule(), "fixed_small").unwrap();
     assert_eq!(plan.num_noise_blocks(), 1);
     assert!(plan.is_multistep());
-    let seeded = sample(m, &observed, &mask, 1, l, s, &cfg, Noise::seeded(5)).unwrap();
-    let noise = seeded_noise(5, 0, stage::SHORT, s, 1, 1, n);
-    assert_eq!(sample(m, &observed, &mask, 1, l, s, &cfg, Noise::Injected(&noise)).unwrap(), seeded);
+    let seeded = sample(
+        m,
+        Observed::new(&observed, &mask, 1, l),
+        s,
+        &cfg,
+        Noise::seeded(5),
+    )
+    .unwrap();
+    let noise = seeded_noise(5, Sequences::From(0), stage::SHORT, s, 1, 1, n);
+    assert_eq!(
+        sample(
+            m,
+            Observed::new(&observed, &mask, 1, l),
+            s,
+            &cfg,
+            Noise::Injected(&noise)
+        )
+        .unwrap(),
+        seeded
+    );
     // n + 1 blocks are refused
-    let long = seeded_noise(5, 0, stage::SHORT, s, 5, 1, n);
-    let e = sample(m, &observed, &mask, 1, l, s, &cfg, Noise::Injected(&long)).unwrap_err();
+    let long = seeded_noise(5, Sequences::From(0), stage::SHORT, s, 5, 1, n);
+    let e = sample(
+        m,
+        Observed::new(&observed, &mask, 1, l),
+        s,
+        &cfg,
+        Noise::Injected(&long),
+    )
+    .unwrap_err();
     assert!(e.to_string().contains("(2, 1, 1, 6, 7)"), "{e}");
     // a hand-written DPM-Solver++(2M) loop over the public forward (training/diffusion.py's formulas)
     let ab = m.schedule().alphas_cumprod().to_vec();
@@ -231,7 +367,11 @@ fn dpmpp2m_is_deterministic_with_one_noise_block_and_matches_a_hand_loop() {
     for (i, &t) in ts.iter().enumerate() {
         m.forward(&x, &observed, &mask, 1, l, t, &mut eps).unwrap();
         let (a, b) = ((1.0 - ab[t]).sqrt() as f32, ab[t].sqrt() as f32);
-        let x0: Vec<f32> = x.iter().zip(&eps).map(|(xv, ev)| (xv - a * ev) / b).collect();
+        let x0: Vec<f32> = x
+            .iter()
+            .zip(&eps)
+            .map(|(xv, ev)| (xv - a * ev) / b)
+            .collect();
         if i + 1 == ts.len() {
             x = x0;
             break;
@@ -271,14 +411,71 @@ fn sampling_errors() {
         other => panic!("{other:?}"),
     };
     let ddim = |k, eta| SamplerConfig::ddim(k, eta);
-    assert_eq!(arg(sample(m, &observed, &mask, 1, 7, 1, &ddim(11, 0.0), Noise::seeded(0)).unwrap_err()), "num_inference_steps");
-    assert_eq!(arg(sample(m, &observed, &mask, 1, 7, 1, &ddim(0, 0.0), Noise::seeded(0)).unwrap_err()), "num_inference_steps");
-    assert_eq!(arg(sample(m, &observed, &mask, 1, 7, 1, &ddim(3, 1.5), Noise::seeded(0)).unwrap_err()), "eta");
-    assert_eq!(arg(sample(m, &observed, &mask, 1, 7, 0, &ddim(3, 0.0), Noise::seeded(0)).unwrap_err()), "num_samples");
+    assert_eq!(
+        arg(sample(
+            m,
+            Observed::new(&observed, &mask, 1, 7),
+            1,
+            &ddim(11, 0.0),
+            Noise::seeded(0)
+        )
+        .unwrap_err()),
+        "num_inference_steps"
+    );
+    assert_eq!(
+        arg(sample(
+            m,
+            Observed::new(&observed, &mask, 1, 7),
+            1,
+            &ddim(0, 0.0),
+            Noise::seeded(0)
+        )
+        .unwrap_err()),
+        "num_inference_steps"
+    );
+    assert_eq!(
+        arg(sample(
+            m,
+            Observed::new(&observed, &mask, 1, 7),
+            1,
+            &ddim(3, 1.5),
+            Noise::seeded(0)
+        )
+        .unwrap_err()),
+        "eta"
+    );
+    assert_eq!(
+        arg(sample(
+            m,
+            Observed::new(&observed, &mask, 1, 7),
+            0,
+            &ddim(3, 0.0),
+            Noise::seeded(0)
+        )
+        .unwrap_err()),
+        "num_samples"
+    );
     let short = vec![0.0f32; 4 * n - 1];
-    let e = sample(m, &observed, &mask, 1, 7, 1, &ddim(3, 0.0), Noise::Injected(&short)).unwrap_err();
+    let e = sample(
+        m,
+        Observed::new(&observed, &mask, 1, 7),
+        1,
+        &ddim(3, 0.0),
+        Noise::Injected(&short),
+    )
+    .unwrap_err();
     assert!(e.to_string().contains("(1, 4, 1, 6, 7)"), "{e}");
     let mut nan = vec![0.0f32; 4 * n];
     nan[7] = f32::NAN;
-    assert_eq!(arg(sample(m, &observed, &mask, 1, 7, 1, &ddim(3, 0.0), Noise::Injected(&nan)).unwrap_err()), "noise");
+    assert_eq!(
+        arg(sample(
+            m,
+            Observed::new(&observed, &mask, 1, 7),
+            1,
+            &ddim(3, 0.0),
+            Noise::Injected(&nan)
+        )
+        .unwrap_err()),
+        "noise"
+    );
 }

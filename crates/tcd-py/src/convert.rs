@@ -4,7 +4,7 @@
 use numpy::ndarray::{ArrayD, IxDyn};
 use numpy::{IntoPyArray, PyArrayDyn, PyReadonlyArrayDyn, PyUntypedArrayMethods};
 use pyo3::prelude::*;
-use tcd_core::{Denoiser, Error, Noise, SamplerConfig, SamplerKind, TimestepSpacing};
+use tcd_core::{Denoiser, Error, Noise, SamplerConfig, SamplerKind, Sequences, TimestepSpacing};
 
 use crate::error::{internal, invalid};
 
@@ -192,20 +192,60 @@ pub(crate) fn to_numpy<'py>(
     Ok(arr.into_pyarray(py))
 }
 
+/// The stream numbering of a seeded call, owned: sequence b draws stream `first_sequence + b`, or
+/// `sequences[b]` when the caller numbers every sequence (the engine checks one id per sequence).
+#[derive(Clone)]
+pub(crate) enum StreamIds {
+    From(u64),
+    Ids(Vec<u64>),
+}
+
+impl StreamIds {
+    pub(crate) fn as_sequences(&self) -> Sequences<'_> {
+        match self {
+            StreamIds::From(first) => Sequences::From(*first),
+            StreamIds::Ids(ids) => Sequences::Ids(ids),
+        }
+    }
+}
+
+/// `seed`, and `first_sequence` xor `sequences`, as the engine takes them.
 pub(crate) fn seed_args(
     seed: Option<i128>,
     first_sequence: i128,
-) -> CoreResult<(Option<u64>, u64)> {
-    Ok((
-        seed.map(|v| u64_arg("seed", v)).transpose()?,
-        u64_arg("first_sequence", first_sequence)?,
-    ))
+    sequences: Option<Vec<i128>>,
+) -> CoreResult<(Option<u64>, StreamIds)> {
+    let seed = seed.map(|v| u64_arg("seed", v)).transpose()?;
+    let first = u64_arg("first_sequence", first_sequence)?;
+    let ids = match sequences {
+        None => StreamIds::From(first),
+        Some(_) if seed.is_none() => {
+            return Err(invalid(
+                "sequences",
+                "None unless a `seed` is given",
+                "a list of stream ids",
+            ))
+        }
+        Some(_) if first != 0 => {
+            return Err(invalid(
+                "sequences",
+                "None when `first_sequence` is given (number the streams one way)",
+                "a list of stream ids",
+            ))
+        }
+        Some(v) => StreamIds::Ids(
+            v.into_iter()
+                .map(|id| u64_arg("sequences", id))
+                .collect::<CoreResult<_>>()?,
+        ),
+    };
+    Ok((seed, ids))
 }
 
 /// Where a sampling call's noise comes from: `noise` (injected) xor `seed`.
 pub(crate) enum NoiseSource {
     Injected(Vec<f32>),
-    Seeded(u64, u64),
+    Seeded(u64, StreamIds),
 }
 
 /// Checks an observation (B, K, O) with O = `obs_len` and its mask of the same shape; returns B.
@@ -233,7 +273,7 @@ pub(crate) fn noise_source(
     argument: &str,
     noise: Option<&Array>,
     seed: Option<u64>,
-    first_sequence: u64,
+    streams: StreamIds,
     expected_shape: &[usize],
 ) -> CoreResult<NoiseSource> {
     match (noise, seed) {
@@ -255,7 +295,7 @@ pub(crate) fn noise_source(
             )?;
             Ok(NoiseSource::Injected(n.data.clone()))
         }
-        (None, Some(s)) => Ok(NoiseSource::Seeded(s, first_sequence)),
+        (None, Some(s)) => Ok(NoiseSource::Seeded(s, streams)),
     }
 }
 
@@ -263,9 +303,9 @@ impl NoiseSource {
     pub(crate) fn as_noise(&self) -> Noise<'_> {
         match self {
             NoiseSource::Injected(v) => Noise::Injected(v),
-            NoiseSource::Seeded(seed, first_sequence) => Noise::Seeded {
+            NoiseSource::Seeded(seed, streams) => Noise::Seeded {
                 seed: *seed,
-                first_sequence: *first_sequence,
+                sequences: streams.as_sequences(),
             },
         }
     }

@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use numpy::{PyArrayDyn, PyReadonlyArrayDyn};
 use pyo3::prelude::*;
-use tcd_core::{sample as core_sample, with_threads, Denoiser};
+use tcd_core::{sample as core_sample, with_threads, Denoiser, Observed};
 
 use crate::convert::*;
 use crate::error::{invalid, PyTcdError};
@@ -162,8 +162,8 @@ impl PyDenoiser {
 
     /// `num_samples` merged samples per sequence, (S, B, K, L). Noise: injected `noise`
     /// (S, n + 1, B, K, L) ((S, 1, B, K, L) for dpmpp2m) or a `seed` (stream stage 0, sequences
-    /// numbered from `first_sequence`).
-    #[pyo3(signature = (observed, mask, num_samples, options, *, noise=None, seed=None, first_sequence=0,
+    /// numbered from `first_sequence`, or one stream id per sequence in `sequences`).
+    #[pyo3(signature = (observed, mask, num_samples, options, *, noise=None, seed=None, first_sequence=0, sequences=None,
                         threads=None))]
     #[allow(clippy::too_many_arguments)]
     fn sample<'py>(
@@ -176,6 +176,7 @@ impl PyDenoiser {
         noise: Option<PyReadonlyArrayDyn<'py, f32>>,
         seed: Option<i128>,
         first_sequence: i128,
+        sequences: Option<Vec<i128>>,
         threads: Option<i64>,
     ) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
         let k = self.inner.num_features();
@@ -189,12 +190,12 @@ impl PyDenoiser {
             check_work(s, b, k, l)?;
             let cfg = options.config()?;
             let blocks = noise_blocks(&self.inner, &cfg)?;
-            let (seed, first_sequence) = seed_args(seed, first_sequence)?;
+            let (seed, streams) = seed_args(seed, first_sequence, sequences)?;
             let src = noise_source(
                 "noise",
                 noise.as_ref(),
                 seed,
-                first_sequence,
+                streams,
                 &[s, blocks, b, k, l],
             )?;
             Ok((s, b, l, cfg, src, threads_arg(threads)?))
@@ -207,10 +208,7 @@ impl PyDenoiser {
                 with_threads(threads, || {
                     core_sample(
                         &model,
-                        &observed.data,
-                        &mask.data,
-                        b,
-                        l,
+                        Observed::new(&observed.data, &mask.data, b, l),
                         s,
                         &cfg,
                         src.as_noise(),

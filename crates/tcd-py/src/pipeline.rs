@@ -9,6 +9,7 @@ use pyo3::types::PyDict;
 use tcd_core::rng::seeded_noise as core_seeded_noise;
 use tcd_core::{
     cascade as core_cascade, repair as core_repair, with_threads, CascadeNoise, ForecastOptions,
+    Sequences,
 };
 
 use crate::convert::*;
@@ -21,7 +22,7 @@ use crate::error::{invalid, PyTcdError};
 /// (S, n + 1, B, K, L_l) (one block instead of n + 1 for dpmpp2m), or a `seed`.
 #[pyfunction]
 #[pyo3(signature = (short, long, observed, mask, num_samples, options, *, noise_short=None, noise_long=None,
-                    seed=None, first_sequence=0, threads=None))]
+                    seed=None, first_sequence=0, sequences=None, threads=None))]
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn cascade<'py>(
     py: Python<'py>,
@@ -35,6 +36,7 @@ pub(crate) fn cascade<'py>(
     noise_long: Option<PyReadonlyArrayDyn<'py, f32>>,
     seed: Option<i128>,
     first_sequence: i128,
+    sequences: Option<Vec<i128>>,
     threads: Option<i64>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let short = Arc::clone(&short.get().inner);
@@ -55,7 +57,7 @@ pub(crate) fn cascade<'py>(
         )?;
         check_work(s, b, k, short.seq_len().max(long.seq_len()))?;
         let cfg = options.config()?;
-        let (seed, first_sequence) = seed_args(seed, first_sequence)?;
+        let (seed, streams) = seed_args(seed, first_sequence, sequences)?;
         let bs = noise_blocks(&short, &cfg)?;
         let bl = noise_blocks(&long, &cfg)?;
         let lk = long.num_features();
@@ -63,14 +65,14 @@ pub(crate) fn cascade<'py>(
             "noise_short",
             noise_short.as_ref(),
             seed,
-            first_sequence,
+            streams.clone(),
             &[s, bs, b, k, short.seq_len()],
         )?;
         let src_long = noise_source(
             "noise_long",
             noise_long.as_ref(),
             seed,
-            first_sequence,
+            streams,
             &[s, bl, b, lk, long.seq_len()],
         )?;
         Ok((s, b, cfg, src_short, src_long, threads_arg(threads)?))
@@ -83,10 +85,10 @@ pub(crate) fn cascade<'py>(
                 (NoiseSource::Injected(a), NoiseSource::Injected(c)) => {
                     CascadeNoise::Injected { short: a, long: c }
                 }
-                (NoiseSource::Seeded(seed, first_sequence), _)
-                | (_, NoiseSource::Seeded(seed, first_sequence)) => CascadeNoise::Seeded {
+                (NoiseSource::Seeded(seed, streams), _)
+                | (_, NoiseSource::Seeded(seed, streams)) => CascadeNoise::Seeded {
                     seed: *seed,
-                    first_sequence: *first_sequence,
+                    sequences: streams.as_sequences(),
                 },
             };
             let options = ForecastOptions {
@@ -128,7 +130,7 @@ pub(crate) fn cascade<'py>(
 /// dict: `mean` (B, K, O; observed entries exact) and `samples` (S, B, K, O).
 #[pyfunction]
 #[pyo3(signature = (model, observed, mask, num_samples, options, *, noise=None, seed=None, first_sequence=0,
-                    threads=None))]
+                    sequences=None, threads=None))]
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn repair<'py>(
     py: Python<'py>,
@@ -140,6 +142,7 @@ pub(crate) fn repair<'py>(
     noise: Option<PyReadonlyArrayDyn<'py, f32>>,
     seed: Option<i128>,
     first_sequence: i128,
+    sequences: Option<Vec<i128>>,
     threads: Option<i64>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let model = Arc::clone(&model.get().inner);
@@ -153,13 +156,13 @@ pub(crate) fn repair<'py>(
         let o = model.obs_len();
         check_work(s, b, k, model.seq_len())?;
         let cfg = options.config()?;
-        let (seed, first_sequence) = seed_args(seed, first_sequence)?;
+        let (seed, streams) = seed_args(seed, first_sequence, sequences)?;
         let blocks = noise_blocks(&model, &cfg)?;
         let src = noise_source(
             "noise",
             noise.as_ref(),
             seed,
-            first_sequence,
+            streams,
             &[s, blocks, b, k, model.seq_len()],
         )?;
         Ok((s, b, o, cfg, src, threads_arg(threads)?))
@@ -235,8 +238,17 @@ pub(crate) fn seeded_noise<'py>(
     })()
     .map_err(PyTcdError)?;
     let [s, blocks, b, k, l] = dims;
-    let data =
-        py.detach(move || core_seeded_noise(seed, first_sequence, stage, s, blocks, b, k * l));
+    let data = py.detach(move || {
+        core_seeded_noise(
+            seed,
+            Sequences::From(first_sequence),
+            stage,
+            s,
+            blocks,
+            b,
+            k * l,
+        )
+    });
     to_numpy(py, &dims, data)
 }
 

@@ -12,9 +12,7 @@ from typing import Any, Callable, Dict, Iterable, Iterator, List, Optional, Sequ
 
 import numpy as np
 
-from ..denoiser import STAGE_SHORT
 from ..denoiser import repair_raw
-from ..denoiser import seeded_noise
 from ..exceptions import InvalidInputError
 from ..options import SamplerOptions
 from .files import write_npz_atomic
@@ -58,8 +56,7 @@ def run_tasks(model: Any, tasks: Iterable[Task], opts: RepairOptions, *, overwri
     call. Bad inputs and failed writes become ``failed`` outcomes; the run goes on. Returns the outcomes
     in task order."""
     den = _denoiser(model)
-    w, k, length = model.obs_len, den.num_features, den.seq_len
-    blocks = den.num_noise_blocks(options=opts.sampling)
+    w = model.obs_len
     joint_index = (model.data or {}).get("joint_index_32")
     outcomes: Dict[int, Outcome] = {}
     order: List[int] = []
@@ -113,16 +110,14 @@ def run_tasks(model: Any, tasks: Iterable[Task], opts: RepairOptions, *, overwri
 
     refill()
     while active:
-        obs, msk, noise = [], [], []
+        obs, msk = [], []
         for a in active:
             o, m = a.job.next_window()
             obs.append(o)
             msk.append(m)
-            noise.append(seeded_noise(opts.seed, STAGE_SHORT, opts.num_samples, blocks, 1, k, length,
-                                      first_sequence=a.job.k))
-        out = repair_raw(den, np.stack(obs), np.stack(msk), num_samples=opts.num_samples,
-                         noise=np.concatenate(noise, axis=2), options=opts.sampling, threads=opts.threads)
-        del noise
+        # Window k of a file draws the engine's stream k, whichever files share the batch.
+        out = repair_raw(den, np.stack(obs), np.stack(msk), num_samples=opts.num_samples, seed=opts.seed,
+                         sequences=[a.job.k for a in active], options=opts.sampling, threads=opts.threads)
         still: List[Active] = []
         for a, mean in zip(active, out["mean"]):
             a.job.accept(mean)

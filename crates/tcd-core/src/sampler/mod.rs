@@ -262,7 +262,9 @@ impl Plan {
 
     /// Whether the updates keep the previous x̂₀ (DPM-Solver++(2M)).
     pub fn is_multistep(&self) -> bool {
-        self.steps.iter().any(|s| matches!(s.update, Update::DpmPp2m(_)))
+        self.steps
+            .iter()
+            .any(|s| matches!(s.update, Update::DpmPp2m(_)))
     }
 
     /// The visited training steps, descending.
@@ -272,7 +274,6 @@ impl Plan {
 }
 
 /// Runs one chain and returns the merged result (K·L values).
-#[allow(clippy::too_many_arguments)]
 pub(crate) fn run_chain(
     denoiser: &Denoiser,
     tables: &CondTables,
@@ -322,56 +323,86 @@ pub fn merge_observed(x: &mut [f32], observed: &[f32], mask: &[f32]) {
     }
 }
 
-/// Validated inputs of a sampling call.
-pub(crate) struct SampleJob<'a> {
-    pub observed: &'a [f32],
+/// The observations of a sampling call: `values` and `mask`, both (B, K, L) with B = `batch`,
+/// L = `length` and K the model's `num_features`; mask 1 = given, 0 = to generate (`values` may
+/// hold NaN there).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Observed<'a> {
+    pub values: &'a [f32],
     pub mask: &'a [f32],
     pub batch: usize,
     pub length: usize,
+}
+
+impl<'a> Observed<'a> {
+    pub fn new(values: &'a [f32], mask: &'a [f32], batch: usize, length: usize) -> Self {
+        Observed {
+            values,
+            mask,
+            batch,
+            length,
+        }
+    }
+}
+
+/// Validated inputs of a sampling call.
+pub(crate) struct SampleJob<'a> {
+    pub observed: Observed<'a>,
     pub num_samples: usize,
     pub plan: Plan,
     pub noise: Noise<'a>,
     pub stage: u64,
 }
 
-/// Checks sizes, mask, observed values and noise; builds the plan.
-#[allow(clippy::too_many_arguments)]
+/// Checks sizes, mask, observed values and noise (named `noise_argument` in errors); builds the plan.
 pub(crate) fn validate_job<'a>(
     denoiser: &Denoiser,
-    observed: &'a [f32],
-    mask: &'a [f32],
-    batch: usize,
-    length: usize,
+    observed: Observed<'a>,
     num_samples: usize,
     sampler: &SamplerConfig,
     noise: Noise<'a>,
     noise_argument: &str,
     stage: u64,
 ) -> Result<SampleJob<'a>> {
+    let Observed {
+        values,
+        mask,
+        batch,
+        length,
+    } = observed;
     check_positive("batch", batch)?;
     check_positive("length", length)?;
     check_positive("num_samples", num_samples)?;
     let k = denoiser.num_features();
     let shape = format!("({batch}, {k}, {length})");
     validate::mask("mask", mask, batch * k * length, &shape)?;
-    validate::finite_where("observed", observed, mask, 1.0, batch * k * length, &shape)?;
-    let plan = sampler.plan(denoiser.schedule(), &denoiser.config().diffusion.variance_type)?;
-    if let Noise::Injected(data) = noise {
-        let blocks = plan.num_noise_blocks();
-        let what = if blocks == 1 {
-            "1 (x_T only: dpmpp2m draws no per-step noise)"
-        } else {
-            "num_inference_steps + 1"
-        };
-        let nshape = format!("({num_samples}, {blocks}, {batch}, {k}, {length}) = (num_samples, {what}, B, K, L)");
-        check_len(noise_argument, data.len(), num_samples * blocks * batch * k * length, &nshape)?;
-        validate::all_finite(noise_argument, data, data.len(), &nshape)?;
+    validate::finite_where("observed", values, mask, 1.0, batch * k * length, &shape)?;
+    let plan = sampler.plan(
+        denoiser.schedule(),
+        &denoiser.config().diffusion.variance_type,
+    )?;
+    match noise {
+        Noise::Injected(data) => {
+            let blocks = plan.num_noise_blocks();
+            let what = if blocks == 1 {
+                "1 (x_T only: dpmpp2m draws no per-step noise)"
+            } else {
+                "num_inference_steps + 1"
+            };
+            let nshape =
+                format!("({num_samples}, {blocks}, {batch}, {k}, {length}) = (num_samples, {what}, B, K, L)");
+            check_len(
+                noise_argument,
+                data.len(),
+                num_samples * blocks * batch * k * length,
+                &nshape,
+            )?;
+            validate::all_finite(noise_argument, data, data.len(), &nshape)?;
+        }
+        Noise::Seeded { sequences, .. } => sequences.check(batch)?,
     }
     Ok(SampleJob {
         observed,
-        mask,
-        batch,
-        length,
         num_samples,
         plan,
         noise,
@@ -381,10 +412,16 @@ pub(crate) fn validate_job<'a>(
 
 /// Runs every chain of a validated job in parallel; returns (S, B, K, L).
 pub(crate) fn run_job(denoiser: &Denoiser, job: &SampleJob<'_>) -> Vec<f32> {
-    let n = denoiser.num_features() * job.length;
-    let tables = denoiser.cond_tables(job.length);
+    let Observed {
+        values,
+        mask,
+        batch,
+        length,
+    } = job.observed;
+    let n = denoiser.num_features() * length;
+    let tables = denoiser.cond_tables(length);
     let blocks = job.plan.num_noise_blocks();
-    let num_chains = job.num_samples * job.batch;
+    let num_chains = job.num_samples * batch;
     let threads = rayon::current_num_threads().max(1);
     // Whole rounds of one chain per thread first; the chains left over (fewer than the threads)
     // then split their forwards over the idle threads. 5 chains on 2 threads: 2 rounds of 2, then
@@ -396,15 +433,15 @@ pub(crate) fn run_job(denoiser: &Denoiser, job: &SampleJob<'_>) -> Vec<f32> {
         range
             .into_par_iter()
             .map_init(
-                || Workspace::with_threads(denoiser, job.length, split),
+                || Workspace::with_threads(denoiser, length, split),
                 |ws, c| {
-                    let (s, b) = (c / job.batch, c % job.batch);
-                    let mut noise = ChainNoise::new(job.noise, job.stage, s, b, blocks, job.batch);
+                    let (s, b) = (c / batch, c % batch);
+                    let mut noise = ChainNoise::new(job.noise, job.stage, s, b, blocks, batch);
                     run_chain(
                         denoiser,
                         &tables,
-                        &job.mask[b * n..(b + 1) * n],
-                        &job.observed[b * n..(b + 1) * n],
+                        &mask[b * n..(b + 1) * n],
+                        &values[b * n..(b + 1) * n],
                         &job.plan,
                         &mut noise,
                         ws,
@@ -420,22 +457,15 @@ pub(crate) fn run_job(denoiser: &Denoiser, job: &SampleJob<'_>) -> Vec<f32> {
     chains.concat()
 }
 
-/// Draws `num_samples` samples for each of `batch` sequences.
+/// Draws `num_samples` samples for each sequence of `observed`.
 ///
-/// * `observed`, `mask`: (B, K, L); mask 1 = given, 0 = to generate; `observed` may hold NaN where
-///   mask = 0.
 /// * `noise`: [`Noise::Injected`] with shape (S, blocks, B, K, L) (blocks = n + 1, or 1 for
-///   dpmpp2m: [`Plan::num_noise_blocks`]), or [`Noise::Seeded`] (stage
-///   [`stage::SHORT`]).
+///   dpmpp2m: [`Plan::num_noise_blocks`]), or [`Noise::Seeded`] (stage [`stage::SHORT`]).
 ///
-/// Returns the merged samples, (S, B, K, L): observed entries are `observed`, bit for bit.
-#[allow(clippy::too_many_arguments)]
+/// Returns the merged samples, (S, B, K, L): observed entries are `observed.values`, bit for bit.
 pub fn sample(
     denoiser: &Denoiser,
-    observed: &[f32],
-    mask: &[f32],
-    batch: usize,
-    length: usize,
+    observed: Observed<'_>,
     num_samples: usize,
     sampler: &SamplerConfig,
     noise: Noise<'_>,
@@ -443,9 +473,6 @@ pub fn sample(
     let job = validate_job(
         denoiser,
         observed,
-        mask,
-        batch,
-        length,
         num_samples,
         sampler,
         noise,
@@ -474,7 +501,11 @@ mod tests {
         assert_eq!(le(1), vec![0]);
         assert_eq!(li(1), vec![0]);
         let all: Vec<usize> = (0..50).rev().collect();
-        for sp in [TimestepSpacing::Leading, TimestepSpacing::Trailing, TimestepSpacing::Linspace] {
+        for sp in [
+            TimestepSpacing::Leading,
+            TimestepSpacing::Trailing,
+            TimestepSpacing::Linspace,
+        ] {
             assert_eq!(timesteps(50, 50, sp).unwrap(), all);
             for n in 1..=50 {
                 let ts = timesteps(50, n, sp).unwrap();
@@ -493,11 +524,17 @@ mod tests {
         }
         let e = "middle".parse::<TimestepSpacing>().unwrap_err();
         assert!(e.to_string().contains("timestep_spacing"));
-        assert_eq!("linspace".parse::<TimestepSpacing>().unwrap(), TimestepSpacing::Linspace);
+        assert_eq!(
+            "linspace".parse::<TimestepSpacing>().unwrap(),
+            TimestepSpacing::Linspace
+        );
     }
 
     #[test]
     fn pairs_end_with_none() {
-        assert_eq!(step_pairs(&[9, 4, 0]), vec![(9, Some(4)), (4, Some(0)), (0, None)]);
+        assert_eq!(
+            step_pairs(&[9, 4, 0]),
+            vec![(9, Some(4)), (4, Some(0)), (0, None)]
+        );
     }
 }
