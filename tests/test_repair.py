@@ -270,8 +270,8 @@ def test_directory_with_bad_files(model_dir, tmp_path, capsys):
     assert rep["summary"]["failed"] == 6 and rep["summary"]["repaired"] == 2
     assert rep["model_sha256"] == tcd.load(model_dir).sha256
     reasons = {
-        "corrupt.npz": "unreadable", "garbage.npz": "unreadable", "wrong_shape.npz": "wrong shape",
-        "all_missing.npz": "every value is missing", "inf.npz": "infinite", "no_poses.npz": "no `poses`",
+        "corrupt.npz": "unreadable", "garbage.npz": "unreadable", "wrong_shape.npz": "17 joints",
+        "all_missing.npz": "every value is missing", "inf.npz": "finite, with NaN marking missing", "no_poses.npz": "no `poses`",
     }
     for name, why in reasons.items():
         assert by[name]["status"] == "failed" and why in by[name]["reason"], by[name]

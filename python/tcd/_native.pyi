@@ -20,6 +20,18 @@ STAGE_LONG: int
 
 _F32 = npt.NDArray[np.float32]
 
+# The exceptions (re-exported by tcd.exceptions): constructed as (message,), (message, argument) and
+# (message, path); str() is the message.
+class TcdError(Exception): ...
+
+class InvalidInputError(TcdError, ValueError):
+    @property
+    def argument(self) -> Optional[str]: ...
+
+class WeightsError(TcdError, ValueError):
+    @property
+    def path(self) -> Optional[str]: ...
+
 class Denoiser:
     @staticmethod
     def load(path: Union[str, os.PathLike[str]]) -> Denoiser: ...

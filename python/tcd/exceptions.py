@@ -11,28 +11,10 @@ model file or directory:
   configuration disagrees with its tensors (or a model directory's files disagree with each other).
   Also a ``ValueError``. ``.path`` names the file.
 """
-from __future__ import annotations
+from ._native import InvalidInputError, TcdError, WeightsError
 
-from typing import Optional
+# The classes are created in the native module (crates/tcd-py/src/error.rs), so the engine raises them
+# without importing this module; they are defined there once and re-exported here. Construct them as
+# ``InvalidInputError(message, argument)`` and ``WeightsError(message, path)``.
 
 __all__ = ["TcdError", "InvalidInputError", "WeightsError"]
-
-
-class TcdError(Exception):
-    """Base class of every error raised by ``tcd``."""
-
-
-class InvalidInputError(TcdError, ValueError):
-    """An argument has the wrong shape, value or content; ``argument`` names it."""
-
-    def __init__(self, message: str, argument: Optional[str] = None) -> None:
-        super().__init__(message)
-        self.argument = argument
-
-
-class WeightsError(TcdError, ValueError):
-    """A weight file (or model directory) is invalid; ``path`` names it."""
-
-    def __init__(self, message: str, path: Optional[str] = None) -> None:
-        super().__init__(message)
-        self.path = path

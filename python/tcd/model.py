@@ -17,6 +17,7 @@ from typing import Any, Dict, List, Optional, Tuple, Union
 import numpy as np
 
 from . import _checks
+from .poses import validate_poses
 from .denoiser import Denoiser, cascade_raw, repair_raw
 from .exceptions import WeightsError
 from .options import SamplerOptions
@@ -86,70 +87,9 @@ class _Poses:
 
 def _poses(obs: Any, mask: Any, num_joints: int, obs_len: int, units: str) -> _Poses:
     """Checks ``obs`` / ``mask`` (see :meth:`TCD.forecast`) and converts them to (B, K, T) float32."""
-    try:
-        a = np.asarray(obs)
-    except (ValueError, TypeError) as e:
-        raise _checks.fail("obs", "an array of shape (T, J, 3) or (B, T, J, 3)",
-                           f"an object numpy cannot convert ({e})") from None
-    if a.dtype.kind not in "biuf":
-        raise _checks.fail("obs", "a float array of shape (T, J, 3) or (B, T, J, 3)", f"an array of dtype {a.dtype}")
-    want = f"(T, J, 3) or (B, T, J, 3) with T = {obs_len} frames and J = {num_joints} joints"
-    if a.ndim not in (3, 4):
-        raise _checks.fail("obs", f"an array of shape {want}", f"an array of shape {_checks.shape_str(a.shape)} ({a.ndim} dimensions)")
-    batched = a.ndim == 4
-    a4 = a if batched else a[None]
-    b, t, j, c = a4.shape
-    if c != 3:
-        raise _checks.fail("obs", f"an array of shape {want} (3 coordinates per joint)",
-                           f"shape {_checks.shape_str(a.shape)} with {c} coordinates per joint")
-    if j != num_joints:
-        raise _checks.fail("obs", f"an array of shape {want} (the model's joint layout)",
-                           f"shape {_checks.shape_str(a.shape)} with {j} joints")
-    if t != obs_len:
-        raise _checks.fail("obs", f"an array of shape {want}: exactly {obs_len} observed frames (the model's obs_len)",
-                           f"shape {_checks.shape_str(a.shape)} with {t} frames")
-    if b < 1:
-        raise _checks.fail("obs", f"an array of shape {want} with at least one sequence", f"shape {_checks.shape_str(a.shape)}")
-    dtype = np.result_type(a.dtype, np.float32) if a.dtype.kind == "f" else np.dtype(np.float64)
-    a4 = a4.astype(dtype, copy=False)
-    nan = np.isnan(a4)
-    inf = np.isinf(a4)
-    if inf.any():
-        raise _checks.fail("obs", "finite, with NaN marking missing values",
-                           f"{a4[inf][0]} at index {_index(np.argwhere(inf)[0], batched)}")
-
-    if mask is None:
-        full = ~nan
-    else:
-        try:
-            m = np.asarray(mask)
-        except (ValueError, TypeError) as e:
-            raise _checks.fail("mask", "an array of 0/1", f"an object numpy cannot convert ({e})") from None
-        if m.dtype.kind not in "biuf":
-            raise _checks.fail("mask", "an array of 0 (missing) and 1 (observed)", f"an array of dtype {m.dtype}")
-        shapes = (a.shape, a.shape[:-1])
-        if m.shape not in shapes:
-            raise _checks.fail("mask", f"an array of shape {_checks.shape_str(a.shape)} or {_checks.shape_str(a.shape[:-1])} (the shape of `obs`, optionally without its last axis)",
-                               f"shape {_checks.shape_str(m.shape)}")
-        bad = ~((m == 0) | (m == 1))
-        if bad.any():
-            raise _checks.fail("mask", "0 (missing) or 1 (observed) everywhere",
-                               f"{m[bad][0]!r} at index {tuple(int(i) for i in np.argwhere(bad)[0])}")
-        m = m.astype(bool)
-        if m.shape == a.shape[:-1]:
-            m = np.repeat(m[..., None], 3, axis=-1)
-        full = m if batched else m[None]
-        clash = full & nan
-        if clash.any():
-            raise _checks.fail("obs", "a number wherever `mask` is 1 (observed)",
-                               f"NaN at index {_index(np.argwhere(clash)[0], batched)}, where mask is 1")
-    empty = ~full.reshape(b, -1).any(axis=1)
-    if empty.any():
-        which = f"sequence {int(np.argmax(empty))} of `obs`" if batched else "`obs`"
-        arg = "obs" if mask is None else "mask"
-        raise _checks.fail(arg, "an observation with at least one observed value per sequence",
-                           f"{which} with every value missing")
-
+    p = validate_poses(obs, mask, num_joints=num_joints, frames=obs_len)
+    a4, full, dtype = p.values, p.observed, p.dtype
+    b, t = a4.shape[:2]
     scale = _UNIT_SCALE[units]
     x = np.where(full, a4, 0.0)
     if scale != 1.0:
@@ -157,12 +97,7 @@ def _poses(obs: Any, mask: Any, num_joints: int, obs_len: int, units: str) -> _P
     k = num_joints * 3
     observed = np.ascontiguousarray(x.astype(np.float32).reshape(b, t, k).transpose(0, 2, 1))
     mask_bkt = np.ascontiguousarray(full.astype(np.float32).reshape(b, t, k).transpose(0, 2, 1))
-    return _Poses(observed, mask_bkt, a4, full, batched, scale, dtype)
-
-
-def _index(idx: np.ndarray, batched: bool) -> Tuple[int, ...]:
-    idx = tuple(int(i) for i in idx)
-    return idx if batched else idx[1:]
+    return _Poses(observed, mask_bkt, a4, full, p.batched, scale, dtype)
 
 
 def _seed(seed: Any) -> int:

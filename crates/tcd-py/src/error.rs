@@ -4,16 +4,22 @@
 //! |---|---|
 //! | `NotFound` | `FileNotFoundError` |
 //! | `Io` | `OSError` |
-//! | `Corrupt`, `MissingMetadata`, `BadMetadata`, `InvalidConfig`, `BetasMismatch`, `MissingTensor`, `UnexpectedTensor`, `TensorShape`, `TensorDtype` | `tcd.exceptions.WeightsError(message, path)` |
-//! | `InvalidInput` | `tcd.exceptions.InvalidInputError(message, argument)` |
-//! | `ThreadPool` (and any variant a newer engine adds) | `tcd.exceptions.TcdError` |
+//! | `Corrupt`, `MissingMetadata`, `BadMetadata`, `InvalidConfig`, `BetasMismatch`, `MissingTensor`, `UnexpectedTensor`, `TensorShape`, `TensorDtype` | `WeightsError(message, path)` |
+//! | `InvalidInput` | `InvalidInputError(message, argument)` |
+//! | `ThreadPool` (and any variant a newer engine adds) | `TcdError(message)` |
 //!
-//! `WeightsError` and `InvalidInputError` subclass both `TcdError` and `ValueError`. The message is
-//! always the engine's full sentence.
+//! The three exception classes are created here, in the native module, and `tcd.exceptions` re-exports
+//! them: one definition, and the engine raises them without importing anything. `WeightsError` and
+//! `InvalidInputError` subclass both `TcdError` and `ValueError`, so they are made with Python's
+//! `type(name, (TcdError, ValueError), namespace)` (a `#[pyclass]` has one base). They keep their
+//! constructor arguments in `args`: `(message, argument)` and `(message, path)`, so `str(e)` is the
+//! message (TcdError's `__str__`), `.argument` / `.path` read `args[1]`, and they pickle as they are
+//! (e.g. across Ray or multiprocessing workers). The message is always the engine's full sentence.
 
-use pyo3::exceptions::{PyFileNotFoundError, PyOSError, PyRuntimeError, PyValueError};
+use pyo3::exceptions::{PyException, PyFileNotFoundError, PyOSError, PyValueError};
 use pyo3::prelude::*;
-use pyo3::types::PyType;
+use pyo3::sync::PyOnceLock;
+use pyo3::types::{PyCFunction, PyDict, PyTuple, PyType};
 use tcd_core::Error;
 
 /// An engine error on its way to Python (`?` converts it into a `PyErr`).
@@ -31,34 +37,108 @@ pub fn invalid(argument: &str, expected: impl Into<String>, received: impl Into<
     Error::invalid_input(argument, expected, received)
 }
 
-/// `tcd.exceptions.<name>`, or `None` when the package is not importable (the native module
-/// loaded on its own).
-fn exception_type<'py>(py: Python<'py>, name: &str) -> Option<Bound<'py, PyType>> {
-    let module = py.import("tcd.exceptions").ok()?;
-    module.getattr(name).ok()?.cast_into::<PyType>().ok()
-}
+/// Base class of every error raised by ``tcd``.
+#[pyclass(extends = PyException, subclass, module = "tcd.exceptions", name = "TcdError")]
+pub struct TcdError;
 
-/// `tcd.exceptions.<name>(*args)`, falling back to `fallback(message)`.
-fn raise<A>(
-    py: Python<'_>,
-    name: &str,
-    args: A,
-    message: String,
-    fallback: fn(String) -> PyErr,
-) -> PyErr
-where
-    A: pyo3::PyErrArguments + Send + Sync + 'static,
-{
-    match exception_type(py, name) {
-        Some(ty) => PyErr::from_type(ty, args),
-        None => fallback(message),
+#[pymethods]
+impl TcdError {
+    #[new]
+    #[pyo3(signature = (*_args))]
+    fn new(_args: &Bound<'_, PyTuple>) -> Self {
+        TcdError
+    }
+
+    /// The message: the first constructor argument (the others are attributes such as `argument`).
+    fn __str__(slf: &Bound<'_, Self>) -> PyResult<String> {
+        let args = slf.getattr("args")?.cast_into::<PyTuple>()?;
+        Ok(match args.len() {
+            0 => String::new(),
+            _ => args.get_item(0)?.str()?.to_string(),
+        })
     }
 }
 
-/// A bug in the binding or engine, not the caller's fault: `tcd.exceptions.TcdError`.
+static INVALID_INPUT_ERROR: PyOnceLock<Py<PyType>> = PyOnceLock::new();
+static WEIGHTS_ERROR: PyOnceLock<Py<PyType>> = PyOnceLock::new();
+
+/// `class <name>(TcdError, ValueError)` whose `attribute` property is `args[1]` (None when absent).
+fn value_error_class<'py>(
+    py: Python<'py>,
+    name: &str,
+    doc: &str,
+    attribute: &str,
+) -> PyResult<Py<PyType>> {
+    let second_arg = PyCFunction::new_closure(py, None, None, |args, _kwargs| -> PyResult<Py<PyAny>> {
+        let py = args.py();
+        let exc_args = args.get_item(0)?.getattr("args")?.cast_into::<PyTuple>()?;
+        Ok(match exc_args.len() {
+            0 | 1 => py.None(),
+            _ => exc_args.get_item(1)?.unbind(),
+        })
+    })?;
+    let builtins = py.import("builtins")?;
+    let namespace = PyDict::new(py);
+    namespace.set_item("__doc__", doc)?;
+    namespace.set_item("__module__", "tcd.exceptions")?;
+    namespace.set_item(attribute, builtins.getattr("property")?.call1((second_arg,))?)?;
+    let bases = (py.get_type::<TcdError>(), py.get_type::<PyValueError>());
+    Ok(builtins
+        .getattr("type")?
+        .call1((name, bases, namespace))?
+        .cast_into::<PyType>()?
+        .unbind())
+}
+
+/// `InvalidInputError(message, argument=None)`.
+pub fn invalid_input_error(py: Python<'_>) -> PyResult<&Bound<'_, PyType>> {
+    INVALID_INPUT_ERROR
+        .get_or_try_init(py, || {
+            value_error_class(
+                py,
+                "InvalidInputError",
+                "An argument has the wrong shape, value or content; ``argument`` names it.",
+                "argument",
+            )
+        })
+        .map(|t| t.bind(py))
+}
+
+/// `WeightsError(message, path=None)`.
+pub fn weights_error(py: Python<'_>) -> PyResult<&Bound<'_, PyType>> {
+    WEIGHTS_ERROR
+        .get_or_try_init(py, || {
+            value_error_class(
+                py,
+                "WeightsError",
+                "A weight file (or model directory) is invalid; ``path`` names it.",
+                "path",
+            )
+        })
+        .map(|t| t.bind(py))
+}
+
+/// Adds the three classes to the module.
+pub fn add_exceptions(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    let py = m.py();
+    m.add("TcdError", py.get_type::<TcdError>())?;
+    m.add("InvalidInputError", invalid_input_error(py)?)?;
+    m.add("WeightsError", weights_error(py)?)?;
+    Ok(())
+}
+
+/// An exception of class `ty` (or, should the class be unavailable, that failure itself).
+fn raise<A: pyo3::PyErrArguments + Send + Sync + 'static>(ty: PyResult<&Bound<'_, PyType>>, args: A) -> PyErr {
+    match ty {
+        Ok(ty) => PyErr::from_type(ty.clone(), args),
+        Err(e) => e,
+    }
+}
+
+/// A bug in the binding or engine, not the caller's fault: `TcdError`.
 pub fn internal(py: Python<'_>, message: &str) -> PyErr {
     let m = format!("Internal error: {message}. Please report this.");
-    raise(py, "TcdError", (m.clone(),), m, PyRuntimeError::new_err)
+    raise(Ok(&py.get_type::<TcdError>()), (m,))
 }
 
 fn to_pyerr(py: Python<'_>, e: Error) -> PyErr {
@@ -75,50 +155,14 @@ fn to_pyerr(py: Python<'_>, e: Error) -> PyErr {
         | Error::UnexpectedTensor { path, .. }
         | Error::TensorShape { path, .. }
         | Error::TensorDtype { path, .. } => {
-            let path = path.display().to_string();
-            raise(
-                py,
-                "WeightsError",
-                (message.clone(), path),
-                message,
-                PyValueError::new_err,
-            )
+            raise(weights_error(py), (message, path.display().to_string()))
         }
-        Error::InvalidInput { argument, .. } => raise(
-            py,
-            "InvalidInputError",
-            (message.clone(), argument),
-            message,
-            PyValueError::new_err,
-        ),
-        Error::ThreadPool { .. } => raise(
-            py,
-            "TcdError",
-            (message.clone(),),
-            message,
-            PyRuntimeError::new_err,
-        ),
+        Error::InvalidInput { argument, .. } => raise(invalid_input_error(py), (message, argument)),
+        Error::ThreadPool { .. } => raise(Ok(&py.get_type::<TcdError>()), (message,)),
         // `tcd_core::Error` is #[non_exhaustive]: a variant added later is still a TcdError
         // (weights variants keep their class through `is_weights_error`).
-        other => {
-            if other.is_weights_error() {
-                raise(
-                    py,
-                    "WeightsError",
-                    (message.clone(), String::new()),
-                    message,
-                    PyValueError::new_err,
-                )
-            } else {
-                raise(
-                    py,
-                    "TcdError",
-                    (message.clone(),),
-                    message,
-                    PyRuntimeError::new_err,
-                )
-            }
-        }
+        other if other.is_weights_error() => raise(weights_error(py), (message, py.None())),
+        _ => raise(Ok(&py.get_type::<TcdError>()), (message,)),
     }
 }
 

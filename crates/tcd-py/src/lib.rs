@@ -1,7 +1,7 @@
 //! `tcd._native`: the PyO3 binding of `tcd-core`.
 //!
 //! This crate only converts: numpy arrays in, numpy arrays out, the engine's [`tcd_core::Error`]
-//! mapped onto `tcd.exceptions` (in [`error`], the one place where errors cross into Python), and
+//! mapped onto the package's exceptions, which are created here (in [`error`], the one place where errors cross into Python), and
 //! the GIL released around every forward / sampling call. The public API, with its argument
 //! checking in the caller's terms (poses, units, masks), is the Python package `tcd`; this module
 //! is private and works in the engine's layout: (B, K, L) float32 arrays, K = joints·3 with the
@@ -29,6 +29,7 @@ use crate::pipeline::{cascade, repair, seeded_noise, supported_kernels};
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    error::add_exceptions(m)?;
     m.add("STAGE_SHORT", stage::SHORT)?;
     m.add("STAGE_LONG", stage::LONG)?;
     m.add_class::<PyDenoiser>()?;

@@ -4,12 +4,13 @@ from __future__ import annotations
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Dict, Optional, Sequence
+from typing import Dict, Optional, Sequence, Tuple
 
 import numpy as np
 
-from .. import _checks
 from .. import fk
+from ..exceptions import InvalidInputError
+from ..poses import validate_poses
 from .options import BadFile, PathLike, _UNIT_SCALE
 
 # ---------------------------------------------------------------------------------------------- inputs
@@ -52,42 +53,15 @@ def _read_npz(path: Path) -> Dict[str, np.ndarray]:
         raise BadFile(f"unreadable: not a valid .npz archive ({type(e).__name__}: {e})") from None
 
 
-def _check_pose_array(a: Any, num_joints: int) -> np.ndarray:
-    a = np.asarray(a)
-    if a.dtype.kind not in "biuf":
-        raise BadFile(f"`poses` has dtype {a.dtype}; a float array (T, {num_joints}, 3) is required")
-    if a.ndim != 3 or a.shape[1] != num_joints or a.shape[2] != 3 or a.shape[0] < 1:
-        raise BadFile(f"wrong shape: `poses` has shape {_checks.shape_str(a.shape)}; expected (T, {num_joints}, 3) "
-                      f"with T >= 1 frames and the model's {num_joints} joints")
-    dtype = np.result_type(a.dtype, np.float32) if a.dtype.kind == "f" else np.dtype(np.float64)
-    a = a.astype(dtype, copy=False)
-    inf = np.isinf(a)
-    if inf.any():
-        t, j, c = (int(i) for i in np.argwhere(inf)[0])
-        raise BadFile(f"`poses` holds an infinite value ({a[t, j, c]}) at frame {t}, joint {j}; "
-                      "only finite values and NaN (missing) are allowed")
-    return a
-
-
-def _check_mask(m: Any, a: np.ndarray) -> np.ndarray:
-    m = np.asarray(m)
-    if m.dtype.kind not in "biuf":
-        raise BadFile(f"`mask` has dtype {m.dtype}; 0 (missing) / 1 (observed) values are required")
-    if m.shape not in (a.shape, a.shape[:-1]):
-        raise BadFile(f"wrong shape: `mask` has shape {_checks.shape_str(m.shape)}; expected "
-                      f"{_checks.shape_str(a.shape)} or {_checks.shape_str(a.shape[:-1])}")
-    bad = ~((m == 0) | (m == 1))
-    if bad.any():
-        raise BadFile(f"`mask` holds {m[bad][0]!r} at index {tuple(int(i) for i in np.argwhere(bad)[0])}; "
-                      "only 0 (missing) and 1 (observed) are allowed")
-    full = m.astype(bool)
-    if full.shape != a.shape:
-        full = np.repeat(full[..., None], 3, axis=-1)
-    clash = full & np.isnan(a)
-    if clash.any():
-        t, j, _ = (int(i) for i in np.argwhere(clash)[0])
-        raise BadFile(f"`poses` is NaN at frame {t}, joint {j}, where `mask` is 1 (observed)")
-    return full
+def _checked_poses(data: Dict[str, np.ndarray], num_joints: int) -> Tuple[np.ndarray, np.ndarray]:
+    """``poses`` (T, J, 3) in a float dtype and the observed entries (T, J, 3) bool, checked by the API's
+    :func:`tcd.poses.validate_poses`; a problem is a :class:`BadFile` naming the array."""
+    try:
+        p = validate_poses(data["poses"], data.get("mask"), num_joints=num_joints, batched_ok=False,
+                           names=("poses", "mask"), owner="The file's")
+    except InvalidInputError as e:
+        raise BadFile(str(e)) from None
+    return p.values[0], p.observed[0]
 
 
 def load_input(path: PathLike, num_joints: int, units: str = "m", fps: Optional[float] = None,
@@ -116,13 +90,8 @@ def load_input(path: PathLike, num_joints: int, units: str = "m", fps: Optional[
         data = _read_npz(path)
         if "poses" not in data:
             raise BadFile(f"no `poses` array (the archive holds: {', '.join(sorted(data)) or 'nothing'})")
-        poses = _check_pose_array(data["poses"], num_joints)
-        if "mask" in data:
-            full = _check_mask(data["mask"], poses)
-            mask_out = data["mask"]
-        else:
-            full = ~np.isnan(poses)
-            mask_out = full
+        poses, full = _checked_poses(data, num_joints)
+        mask_out = data["mask"] if "mask" in data else full
         src_fps = fps if fps is not None else (model_fps if model_fps is not None else float("nan"))
     if not full.any():
         raise BadFile("every value is missing: nothing to condition the repair on")

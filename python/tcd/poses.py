@@ -1,0 +1,125 @@
+"""The one check of a pose array and its mask, used by the API (:meth:`tcd.TCD.forecast`,
+:meth:`tcd.TCD.repair`) and by dataset repair (``tcd repair``) alike.
+
+What it checks is what only Python can see: that the input converts to numbers, its rank and layout
+(J joints × 3 coordinates), infinities, the mask's values and its two accepted shapes, NaN where the
+mask says observed, and that every sequence has something observed. Units, the engine's layout and the
+engine's own checks (sizes against the model, sampler settings) are the callers'.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Optional, Tuple
+
+import numpy as np
+
+from . import _checks
+from .exceptions import InvalidInputError
+
+__all__ = ["Poses", "validate_poses"]
+
+
+@dataclass(frozen=True)
+class Poses:
+    """A checked pose input, always with a batch axis."""
+
+    values: np.ndarray    # (B, T, J, 3) the caller's values in a float dtype (float64 for integer input)
+    observed: np.ndarray  # (B, T, J, 3) bool, True = observed (the mask, or ~isnan(values) without one)
+    batched: bool         # whether the caller gave the batch axis
+
+    @property
+    def dtype(self) -> np.dtype:
+        return self.values.dtype
+
+
+def _fail(names: Tuple[str, str], which: int, expected: str, received: str, owner: str) -> InvalidInputError:
+    e = _checks.fail(names[which], expected, received)
+    if owner == "Argument":
+        return e
+    return InvalidInputError(str(e).replace("Argument ", f"{owner} ", 1), names[which])
+
+
+def validate_poses(obs: Any, mask: Any = None, *, num_joints: int, frames: Optional[int] = None,
+                   batched_ok: bool = True, names: Tuple[str, str] = ("obs", "mask"),
+                   owner: str = "Argument") -> Poses:
+    """Checks poses (T, J, 3) (or (B, T, J, 3) when ``batched_ok``) with NaN = missing, and an optional
+    ``mask`` of the same shape or without the last axis (1 = observed).
+
+    ``frames``: the exact T required (None: any T >= 1). ``names``: what the two arrays are called in
+    the messages (and :attr:`InvalidInputError.argument`); ``owner`` how a message introduces them
+    ("Argument" for function arguments, e.g. "The file's" for arrays read from a file).
+    Raises :class:`tcd.exceptions.InvalidInputError` naming the array at fault."""
+    def fail(which: int, expected: str, received: str) -> InvalidInputError:
+        return _fail(names, which, expected, received, owner)
+
+    layouts = "(T, J, 3) or (B, T, J, 3)" if batched_ok else "(T, J, 3)"
+    try:
+        a = np.asarray(obs)
+    except (ValueError, TypeError) as e:
+        raise fail(0, f"an array of shape {layouts}", f"an object numpy cannot convert ({e})") from None
+    if a.dtype.kind not in "biuf":
+        raise fail(0, f"a float array of shape {layouts}", f"an array of dtype {a.dtype}")
+    t_rule = f"T = {frames} frames" if frames is not None else "T >= 1 frames"
+    want = f"{layouts} with {t_rule} and J = {num_joints} joints"
+    shape = _checks.shape_str(a.shape)
+    if a.ndim not in ((3, 4) if batched_ok else (3,)):
+        raise fail(0, f"an array of shape {want}", f"an array of shape {shape} ({a.ndim} dimensions)")
+    batched = a.ndim == 4
+    a4 = a if batched else a[None]
+    b, t, j, c = a4.shape
+    if c != 3:
+        raise fail(0, f"an array of shape {want} (3 coordinates per joint)",
+                   f"shape {shape} with {c} coordinates per joint")
+    if j != num_joints:
+        raise fail(0, f"an array of shape {want} (the model's joint layout)", f"shape {shape} with {j} joints")
+    if frames is not None and t != frames:
+        raise fail(0, f"an array of shape {want}: exactly {frames} observed frames (the model's obs_len)",
+                   f"shape {shape} with {t} frames")
+    if t < 1:
+        raise fail(0, f"an array of shape {want}", f"shape {shape} with no frames")
+    if b < 1:
+        raise fail(0, f"an array of shape {want} with at least one sequence", f"shape {shape}")
+    dtype = np.result_type(a.dtype, np.float32) if a.dtype.kind == "f" else np.dtype(np.float64)
+    a4 = a4.astype(dtype, copy=False)
+    nan = np.isnan(a4)
+    inf = np.isinf(a4)
+    if inf.any():
+        raise fail(0, "finite, with NaN marking missing values",
+                   f"{a4[inf][0]} at index {_index(np.argwhere(inf)[0], batched)}")
+
+    if mask is None:
+        full = ~nan
+    else:
+        try:
+            m = np.asarray(mask)
+        except (ValueError, TypeError) as e:
+            raise fail(1, "an array of 0/1", f"an object numpy cannot convert ({e})") from None
+        if m.dtype.kind not in "biuf":
+            raise fail(1, "an array of 0 (missing) and 1 (observed)", f"an array of dtype {m.dtype}")
+        if m.shape not in (a.shape, a.shape[:-1]):
+            raise fail(1, f"an array of shape {shape} or {_checks.shape_str(a.shape[:-1])} (the shape of "
+                          f"`{names[0]}`, optionally without its last axis)", f"shape {_checks.shape_str(m.shape)}")
+        bad = ~((m == 0) | (m == 1))
+        if bad.any():
+            raise fail(1, "0 (missing) or 1 (observed) everywhere",
+                       f"{m[bad][0]!r} at index {tuple(int(i) for i in np.argwhere(bad)[0])}")
+        m = m.astype(bool)
+        if m.shape == a.shape[:-1]:
+            m = np.repeat(m[..., None], 3, axis=-1)
+        full = m if batched else m[None]
+        clash = full & nan
+        if clash.any():
+            raise fail(0, f"a number wherever `{names[1]}` is 1 (observed)",
+                       f"NaN at index {_index(np.argwhere(clash)[0], batched)}, where {names[1]} is 1")
+    empty = ~full.reshape(b, -1).any(axis=1)
+    if empty.any():
+        which = f"sequence {int(np.argmax(empty))} of `{names[0]}`" if batched else f"`{names[0]}`"
+        raise fail(0 if mask is None else 1, "an observation with at least one observed value per sequence",
+                   f"{which} in which every value is missing")
+    return Poses(values=a4, observed=full, batched=batched)
+
+
+def _index(idx: np.ndarray, batched: bool) -> Tuple[int, ...]:
+    """An index into the caller's array (without the batch axis the caller did not give)."""
+    i = tuple(int(v) for v in idx)
+    return i if batched else i[1:]
