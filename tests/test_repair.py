@@ -540,12 +540,6 @@ def test_expmap_txt_input(model_dir, tmp_path, capsys):
 
 
 # ---------------------------------------------------------------------------------------------- forward kinematics
-def test_packaged_skeleton_matches_training():
-    packaged = json.loads(fk.SKELETON_PATH.read_text())
-    training = json.loads((ROOT / "training" / "data" / "skeleton32.json").read_text())
-    assert packaged == training
-
-
 def test_fk_matches_training_kinematics():
     from training.data import h36m
 

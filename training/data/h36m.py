@@ -15,12 +15,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .kinematics import fk_expmap
+from .kinematics import SKELETON_PATH, fk_expmap
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_DATA_ROOT = Path(os.environ.get("TCD_DATA_DIR", REPO_ROOT.parent / "shared" / "data"))
 DEFAULT_H36M_DIR = DEFAULT_DATA_ROOT / "h36m"
-SKELETON_PATH = Path(__file__).with_name("skeleton32.json")
 
 ACTIONS = ("walking", "eating", "smoking", "discussion", "directions", "greeting", "phoning", "posing",
            "purchases", "sitting", "sittingdown", "takingphoto", "waiting", "walkingdog", "walkingtogether")
