@@ -226,6 +226,7 @@ def test_gpu_session_sizes_the_schedule_trains_and_exports(tmp_path):
     log = (run / "log.txt").read_text()
     assert "probe:" in log and "steps/s" in log
     model, _, meta = load_model_file(export / "short.safetensors")
-    assert meta["training"]["weights"] == "ema" and meta["training"]["epoch"] == chosen["epochs"]
+    # best.pt is the epoch with the lowest validation loss: any of the run's epochs, not necessarily the last
+    assert meta["training"]["weights"] == "ema" and 1 <= meta["training"]["epoch"] <= chosen["epochs"]
     assert (tmp_path / "copy" / "best.pt").is_file()
     assert "optimizer" not in torch.load(run / "best.pt", weights_only=False)      # weights only: small enough to hand back
