@@ -10,6 +10,7 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
+use crate::sampler::VarianceType;
 use crate::schedule::{BetaSchedule, NoiseSchedule};
 
 /// The weight-file format version this engine reads.
@@ -144,7 +145,8 @@ pub struct WindowConfig {
 pub struct DiffusionConfig {
     /// T: number of training diffusion steps.
     pub num_train_timesteps: usize,
-    /// `cosine`, `linear` or `quad` (checked against `betas`); any other name means custom betas.
+    /// `cosine`, `linear` or `quad` (checked against `betas`); any other name means custom betas, so
+    /// this one stays a string (an open set, unlike the enums of this file).
     pub beta_schedule: String,
     /// First beta of `linear`/`quad`.
     pub beta_start: f64,
@@ -154,10 +156,10 @@ pub struct DiffusionConfig {
     pub max_beta: f64,
     /// The T betas: authoritative.
     pub betas: Vec<f64>,
-    /// Only `epsilon` is supported.
-    pub prediction_type: String,
+    /// What the network predicts.
+    pub prediction_type: PredictionType,
     /// `fixed_small` (posterior variance, the reference) or `fixed_large` (beta).
-    pub variance_type: String,
+    pub variance_type: VarianceType,
 }
 
 /// Description of the training data (informative; the engine does not use it).
@@ -191,10 +193,13 @@ pub struct TcdConfig {
     pub data: DataConfig,
 }
 
-/// `prediction_type` values the engine supports.
-pub const PREDICTION_TYPES: [&str; 1] = ["epsilon"];
-/// `variance_type` values the engine supports.
-pub const VARIANCE_TYPES: [&str; 2] = ["fixed_small", "fixed_large"];
+/// What the network predicts (`prediction_type`); the engine supports the noise only.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PredictionType {
+    /// ε, the noise added (TCD, CSDI).
+    Epsilon,
+}
 
 impl TcdConfig {
     /// Parses the JSON string stored under `tcd_config`; `path` names the file in errors.
@@ -325,21 +330,6 @@ impl TcdConfig {
             return Err(bad(
                 "diffusion.betas",
                 format!("must lie in the open interval (0, 1), but value {i} is {b}"),
-            ));
-        }
-        if !PREDICTION_TYPES.contains(&d.prediction_type.as_str()) {
-            return Err(bad(
-                "diffusion.prediction_type",
-                format!(
-                    "must be one of {PREDICTION_TYPES:?}, but is {:?}",
-                    d.prediction_type
-                ),
-            ));
-        }
-        if !VARIANCE_TYPES.contains(&d.variance_type.as_str()) {
-            return Err(bad(
-                "diffusion.variance_type",
-                format!("must be one of {VARIANCE_TYPES:?}, but is {:?}", d.variance_type),
             ));
         }
         if let Some(schedule) = BetaSchedule::from_name(&d.beta_schedule) {

@@ -36,13 +36,13 @@ pub mod threads;
 mod validate;
 pub mod weights;
 
-pub use config::{CondFill, DataConfig, DiffusionConfig, ModelConfig, Role, Target, TcdConfig, WindowConfig};
+pub use config::{CondFill, DataConfig, DiffusionConfig, ModelConfig, PredictionType, Role, Target, TcdConfig, WindowConfig};
 pub use denoiser::{fill_linear, fill_spline, CondTables, Denoiser, Prepared, Workspace};
 pub use error::{Error, Result};
 pub use kernels::{Kernel, KERNEL_ENV};
 pub use forecast::{cascade, repair, CascadeNoise, CascadeOutput, ForecastOptions, RepairOutput};
 pub use rng::{chain_rng, seeded_noise, Noise, Sequences};
-pub use sampler::{sample, timesteps, Observed, Plan, SamplerConfig, SamplerKind, TimestepSpacing};
+pub use sampler::{sample, timesteps, Observed, Plan, SamplerConfig, SamplerKind, TimestepSpacing, VarianceType};
 pub use schedule::{BetaSchedule, NoiseSchedule};
 pub use threads::with_threads;
 pub use weights::{expected_tensors, Tensor, WeightFile, CONFIG_KEY};

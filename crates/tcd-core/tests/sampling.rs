@@ -10,7 +10,7 @@ use common::*;
 use proptest::prelude::*;
 use tcd_core::rng::{seeded_noise, stage};
 use tcd_core::{
-    sample, Denoiser, Noise, Observed, Role, SamplerConfig, SamplerKind, Sequences, TimestepSpacing,
+    sample, Denoiser, Noise, Observed, Role, SamplerConfig, SamplerKind, Sequences, TimestepSpacing, VarianceType,
 };
 
 fn model() -> &'static Denoiser {
@@ -322,7 +322,7 @@ fn dpmpp2m_is_deterministic_with_one_noise_block_and_matches_a_hand_loop() {
     let observed = values(n, 3, 1.0);
     let mask = binary_mask(n, 4, 0.4);
     let cfg = SamplerConfig::dpmpp2m(4);
-    let plan = cfg.plan(m.schedule(), "fixed_small").unwrap();
+    let plan = cfg.plan(m.schedule(), VarianceType::FixedSmall).unwrap();
     assert_eq!(plan.num_noise_blocks(), 1);
     assert!(plan.is_multistep());
     let seeded = sample(

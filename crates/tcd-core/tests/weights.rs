@@ -195,8 +195,6 @@ fn inconsistent_configs() {
         ("diffusion.betas", Box::new(|c| { c.diffusion.betas.pop(); })),
         ("window.seq_len", Box::new(|c| c.window.seq_len = 11)),
         ("format_version", Box::new(|c| c.format_version = 2)),
-        ("diffusion.prediction_type", Box::new(|c| c.diffusion.prediction_type = "v_prediction".into())),
-        ("diffusion.variance_type", Box::new(|c| c.diffusion.variance_type = "learned".into())),
         ("model.layer_norm_eps", Box::new(|c| c.model.layer_norm_eps = 0.0)),
         ("model.target_scale", Box::new(|c| c.model.target_scale = 0.0)),
         ("model.target_scale", Box::new(|c| c.model.target_scale = -5.0)),
@@ -208,6 +206,22 @@ fn inconsistent_configs() {
         assert!(matches!(&e, Error::InvalidConfig { field: f, .. } if f == field), "{field}: {e:?}");
         assert!(e.to_string().contains(field), "{e}");
     }
+}
+
+#[test]
+fn unsupported_prediction_and_variance_types_are_refused_by_name() {
+    let (cfg, t) = good();
+    for (field, value) in [("prediction_type", "v_prediction"), ("variance_type", "learned")] {
+        let mut v: serde_json::Value = serde_json::from_str(&cfg.to_json()).unwrap();
+        v["diffusion"][field] = serde_json::json!(value);
+        let e = load_bytes(&serialize(&t, Some(v.to_string()))).unwrap_err();
+        assert!(matches!(e, Error::BadMetadata { .. }), "{e:?}");
+        assert!(e.to_string().contains(value), "{e}");
+    }
+    let mut v: serde_json::Value = serde_json::from_str(&cfg.to_json()).unwrap();
+    v["diffusion"]["variance_type"] = serde_json::json!("fixed_large");
+    let d = load_bytes(&serialize(&t, Some(v.to_string()))).unwrap();
+    assert_eq!(d.config().diffusion.variance_type, tcd_core::VarianceType::FixedLarge);
 }
 
 #[test]

@@ -115,7 +115,7 @@ impl SamplerOptions {
 /// Noise blocks per chain (n + 1; 1 for dpmpp2m) of `sampler` on `model`; validates the sampler.
 pub(crate) fn noise_blocks(model: &Denoiser, sampler: &SamplerConfig) -> CoreResult<usize> {
     Ok(sampler
-        .plan(model.schedule(), &model.config().diffusion.variance_type)?
+        .plan(model.schedule(), model.config().diffusion.variance_type)?
         .num_noise_blocks())
 }
 

@@ -90,7 +90,7 @@ impl PyDenoiser {
         let plan = cfg
             .plan(
                 self.inner.schedule(),
-                &self.inner.config().diffusion.variance_type,
+                self.inner.config().diffusion.variance_type,
             )
             .map_err(PyTcdError)?;
         Ok(plan.timesteps())

@@ -11,31 +11,18 @@
 //! `training/diffusion.py::sample`, and cast to f32 when applied (as PyTorch multiplies Python
 //! floats into float32 tensors): `x = c1 * (x - c2 * eps)`, then `x = x + sigma * z`.
 
-use crate::error::{Error, Result};
+use serde::{Deserialize, Serialize};
+
 use crate::schedule::NoiseSchedule;
 
-/// How σ is chosen (`variance_type`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// How σ is chosen (`variance_type` in the weight file's `diffusion`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
 pub enum VarianceType {
     /// σ² = β̃ = β'(1 − ᾱ_prev)/(1 − ᾱ_t): the reference.
     FixedSmall,
     /// σ² = β'.
     FixedLarge,
-}
-
-impl VarianceType {
-    /// `fixed_small` | `fixed_large`.
-    pub fn from_name(name: &str) -> Result<Self> {
-        match name {
-            "fixed_small" => Ok(VarianceType::FixedSmall),
-            "fixed_large" => Ok(VarianceType::FixedLarge),
-            other => Err(Error::invalid_input(
-                "variance_type",
-                "\"fixed_small\" or \"fixed_large\"",
-                format!("{other:?}"),
-            )),
-        }
-    }
 }
 
 /// The coefficients of one DDPM step.
@@ -118,6 +105,5 @@ mod tests {
         let beta = 1.0 - ab[49] / ab[39];
         assert!((st.c1 - 1.0 / (1.0 - beta).sqrt()).abs() < 1e-12);
         assert!((st.sigma - beta.sqrt()).abs() < 1e-12);
-        assert!(VarianceType::from_name("learned").is_err());
     }
 }

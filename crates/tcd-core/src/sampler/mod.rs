@@ -156,14 +156,13 @@ impl SamplerConfig {
         }
     }
 
-    /// The per-step coefficients for a model with this schedule and `variance_type`.
-    pub fn plan(&self, schedule: &NoiseSchedule, variance_type: &str) -> Result<Plan> {
+    /// The per-step coefficients for a model with this schedule and `variance` (its `variance_type`).
+    pub fn plan(&self, schedule: &NoiseSchedule, variance: VarianceType) -> Result<Plan> {
         let t_total = schedule.num_train_timesteps();
         let n = self.num_inference_steps.unwrap_or(t_total);
         let ts = timesteps(t_total, n, self.timestep_spacing)?;
         let steps = match self.kind {
             SamplerKind::Ddpm => {
-                let variance = VarianceType::from_name(variance_type)?;
                 step_pairs(&ts)
                     .into_iter()
                     .map(|(t, prev)| PlanStep {
@@ -379,7 +378,7 @@ pub(crate) fn validate_job<'a>(
     validate::finite_where("observed", values, mask, 1.0, batch * k * length, &shape)?;
     let plan = sampler.plan(
         denoiser.schedule(),
-        &denoiser.config().diffusion.variance_type,
+        denoiser.config().diffusion.variance_type,
     )?;
     match noise {
         Noise::Injected(data) => {

@@ -48,8 +48,8 @@ pub fn tiny_config(role: Role, obs_len: usize, pred_len: usize) -> TcdConfig {
             beta_end: 0.5,
             max_beta: 0.5,
             betas: cosine_betas(t, 0.5),
-            prediction_type: "epsilon".into(),
-            variance_type: "fixed_small".into(),
+            prediction_type: tcd_core::PredictionType::Epsilon,
+            variance_type: tcd_core::VarianceType::FixedSmall,
         },
         data: DataConfig::default(),
     }
