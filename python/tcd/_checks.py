@@ -2,7 +2,6 @@
 what was expected and what was received."""
 from __future__ import annotations
 
-import math
 import numbers
 from typing import Any, Optional, Sequence, Tuple
 
@@ -44,13 +43,26 @@ def choice(argument: str, value: Any, options: Sequence[str]) -> str:
     return value
 
 
-def eta(value: Any) -> float:
+def text(argument: str, value: Any, names: Sequence[str]) -> str:
+    """A str (its value is the engine's to check against ``names``, listed in the message)."""
+    if not isinstance(value, str):
+        listed = ", ".join(repr(o) for o in names)
+        raise fail(argument, f"one of {listed}", f"{value!r} ({type(value).__name__})")
+    return value
+
+
+def machine_int(argument: str, value: Any) -> int:
+    """An int (not bool) that fits the engine's 64-bit integers (its range is the engine's to check)."""
+    if not _is_int(value) or not -2**63 <= int(value) < 2**63:
+        raise fail(argument, "an integer", f"{value!r} ({type(value).__name__})")
+    return int(value)
+
+
+def real(argument: str, value: Any) -> float:
+    """A real number (not bool), as a float (its range is the engine's to check)."""
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (numbers.Real, np.floating, np.integer)):
-        raise fail("eta", "a number in [0, 1]", f"{value!r} ({type(value).__name__})")
-    v = float(value)
-    if not (math.isfinite(v) and 0.0 <= v <= 1.0):
-        raise fail("eta", "a number in [0, 1]", repr(v))
-    return v
+        raise fail(argument, "a number", f"{value!r} ({type(value).__name__})")
+    return float(value)
 
 
 def seed(value: Any) -> Optional[int]:

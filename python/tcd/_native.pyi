@@ -17,6 +17,8 @@ from .options import SamplerOptions
 __version__: str
 STAGE_SHORT: int
 STAGE_LONG: int
+SAMPLERS: List[str]
+SPACINGS: List[str]
 
 _F32 = npt.NDArray[np.float32]
 
@@ -114,4 +116,5 @@ def seeded_noise(
     length: int,
     first_sequence: int = 0,
 ) -> _F32: ...
+def check_sampler_options(options: SamplerOptions) -> None: ...
 def supported_kernels() -> List[str]: ...

@@ -125,13 +125,13 @@ class Denoiser:
         """The descending training steps the sampler visits: ``timesteps(sampler, num_inference_steps,
         timestep_spacing)`` (positional, as before), the same as keywords, or ``options=``
         (:class:`tcd.SamplerOptions`); ``num_inference_steps=None`` visits all of them."""
-        o = _positional_options(positional, options, sampler).for_model(self.num_train_timesteps)
+        o = _positional_options(positional, options, sampler)
         return list(self._native.timesteps(o))
 
     def num_noise_blocks(self, *positional: Any, options: Optional[SamplerOptions] = None, **sampler: Any) -> int:
         """The second axis of injected noise: n + 1 (x_T, then one z per step) for ddpm / ddim, 1 (x_T
         only) for the deterministic dpmpp2m. Arguments as :meth:`timesteps`."""
-        o = _positional_options(positional, options, sampler).for_model(self.num_train_timesteps)
+        o = _positional_options(positional, options, sampler)
         return int(self._native.num_noise_blocks(o))
 
     def forward(self, noisy: Any, observed: Any, mask: Any, step: int, *,
@@ -154,7 +154,7 @@ class Denoiser:
         (one id per sequence). The sampler: ``options`` (:class:`tcd.SamplerOptions`) or its fields as
         keywords (``sampler``, ``num_inference_steps``, ``eta``, ``timestep_spacing``)."""
         num_samples = _checks.integer("num_samples", num_samples, 1)
-        o = SamplerOptions.build(options, **sampler).for_model(self.num_train_timesteps)
+        o = SamplerOptions.build(options, **sampler)
         return self._native.sample(
             _checks.float32_array("observed", observed), _checks.float32_array("mask", mask), num_samples, o,
             noise=_noise("noise", noise), seed=_checks.seed(seed),
@@ -180,7 +180,7 @@ def cascade_raw(short: Denoiser, long: Denoiser, observed: Any, mask: Any, *, nu
         if not isinstance(m, Denoiser):
             raise _checks.fail(name, "a tcd.Denoiser", type(m).__name__)
     num_samples = _checks.integer("num_samples", num_samples, 1)
-    o = SamplerOptions.build(options, **sampler).for_model(min(short.num_train_timesteps, long.num_train_timesteps))
+    o = SamplerOptions.build(options, **sampler)
     return dict(_native.cascade(
         short._native, long._native, _checks.float32_array("observed", observed),
         _checks.float32_array("mask", mask), num_samples, o,
@@ -201,7 +201,7 @@ def repair_raw(model: Denoiser, observed: Any, mask: Any, *, num_samples: int = 
     if not isinstance(model, Denoiser):
         raise _checks.fail("model", "a tcd.Denoiser", type(model).__name__)
     num_samples = _checks.integer("num_samples", num_samples, 1)
-    o = SamplerOptions.build(options, **sampler).for_model(model.num_train_timesteps)
+    o = SamplerOptions.build(options, **sampler)
     return dict(_native.repair(
         model._native, _checks.float32_array("observed", observed), _checks.float32_array("mask", mask),
         num_samples, o, noise=_noise("noise", noise), seed=_checks.seed(seed),

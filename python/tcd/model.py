@@ -186,8 +186,7 @@ class TCD:
     def _common(self, num_samples: Any, options: Optional[SamplerOptions], sampler: Dict[str, Any], units: Any,
                 threads: Any) -> Tuple[int, SamplerOptions, str, Optional[int]]:
         num_samples = _checks.integer("num_samples", num_samples, 1)
-        o = SamplerOptions.build(options, **sampler).for_model(min(self.short.num_train_timesteps,
-                                                                   self.long.num_train_timesteps))
+        o = SamplerOptions.build(options, **sampler)
         units = _checks.choice("units", units, tuple(_UNIT_SCALE))
         threads = _checks.threads(threads)
         return num_samples, o, units, self.threads if threads is None else threads

@@ -1,26 +1,29 @@
-"""How each chain is sampled: the one home of the sampler settings, their defaults and their checks.
+"""How each chain is sampled: the one home of the sampler settings and their defaults.
 
 Every layer that samples (``TCD.forecast`` / ``TCD.repair``, :class:`tcd.Denoiser`, :func:`tcd.cascade_raw`,
 :func:`tcd.repair_raw`, ``tcd repair``, the command line) takes a :class:`SamplerOptions` or builds one from
 the same keyword arguments with :meth:`SamplerOptions.build`; the binding converts it into the engine's
-``SamplerConfig`` in one place (``SamplerOptions`` in crates/tcd-py/src/lib.rs, a ``FromPyObject``).
+``SamplerConfig`` in one place (``SamplerOptions`` in crates/tcd-py/src/convert.rs, a ``FromPyObject``).
+The values are checked by the engine's rules (``SamplerConfig::from_names``), when an options object is
+made and again when it is used; Python checks only that each field has the Python type the binding reads.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, fields, replace
 from typing import Any, Dict, Optional
 
-from . import _checks
+from . import _checks, _native
 
-SAMPLERS = ("ddpm", "ddim", "dpmpp2m")
-SPACINGS = ("trailing", "leading", "linspace")
+#: The samplers and the timestep spacings the engine knows, its default first.
+SAMPLERS = tuple(_native.SAMPLERS)
+SPACINGS = tuple(_native.SPACINGS)
 
 
 @dataclass(frozen=True)
 class SamplerOptions:
     """The sampler of every chain. Checked when made (each bad value an
     :class:`~tcd.exceptions.InvalidInputError` naming the field); the number of steps is checked against a
-    model's training steps where the model is known (:meth:`for_model`).
+    model's training steps when the model samples.
 
     Attributes:
         sampler: ``"ddpm"`` (ancestral, the paper's), ``"ddim"`` (``eta``) or ``"dpmpp2m"``
@@ -39,11 +42,13 @@ class SamplerOptions:
     timestep_spacing: str = "trailing"
 
     def __post_init__(self) -> None:
-        set_ = object.__setattr__  # frozen: normalise the checked values once (numpy ints to int, eta to float)
-        set_(self, "sampler", _checks.choice("sampler", self.sampler, SAMPLERS))
-        set_(self, "num_inference_steps", _checks.optional_integer("num_inference_steps", self.num_inference_steps, 1))
-        set_(self, "eta", _checks.eta(self.eta))
-        set_(self, "timestep_spacing", _checks.choice("timestep_spacing", self.timestep_spacing, SPACINGS))
+        set_ = object.__setattr__  # frozen: normalise the types once (numpy ints to int, eta to float)
+        set_(self, "sampler", _checks.text("sampler", self.sampler, SAMPLERS))
+        if self.num_inference_steps is not None:
+            set_(self, "num_inference_steps", _checks.machine_int("num_inference_steps", self.num_inference_steps))
+        set_(self, "eta", _checks.real("eta", self.eta))
+        set_(self, "timestep_spacing", _checks.text("timestep_spacing", self.timestep_spacing, SPACINGS))
+        _native.check_sampler_options(self)  # the values, by the engine's rules
 
     @classmethod
     def build(cls, options: Optional["SamplerOptions"] = None, **overrides: Any) -> "SamplerOptions":
@@ -57,8 +62,3 @@ class SamplerOptions:
             raise TypeError(f"unexpected keyword argument {unknown[0]!r} (sampler settings: {', '.join(sorted(names))})")
         base = options if options is not None else cls()
         return replace(base, **overrides) if overrides else base
-
-    def for_model(self, num_train_timesteps: int) -> "SamplerOptions":
-        """Itself, once ``num_inference_steps`` is known to fit a model of ``num_train_timesteps`` steps."""
-        _checks.optional_integer("num_inference_steps", self.num_inference_steps, 1, num_train_timesteps)
-        return self

@@ -4,7 +4,7 @@
 use numpy::ndarray::{ArrayD, IxDyn};
 use numpy::{IntoPyArray, PyArrayDyn, PyReadonlyArrayDyn, PyUntypedArrayMethods};
 use pyo3::prelude::*;
-use tcd_core::{Denoiser, Error, Noise, SamplerConfig, SamplerKind, Sequences, TimestepSpacing};
+use tcd_core::{Denoiser, Error, Noise, SamplerConfig, Sequences};
 
 use crate::error::{internal, invalid};
 
@@ -69,8 +69,8 @@ pub(crate) fn check_work(
 }
 
 /// `tcd.SamplerOptions` (any object with its four attributes) → the engine's [`SamplerConfig`]: the
-/// one place where the sampler settings cross from Python. The Python type checks its fields when it is
-/// made; the values are checked again here, because the binding can be called without it.
+/// one place where the sampler settings cross from Python. Their values are checked by the engine
+/// ([`SamplerConfig::from_names`]), also when the Python type is made (`check_sampler_options`).
 #[derive(FromPyObject)]
 pub(crate) struct SamplerOptions {
     #[pyo3(attribute)]
@@ -85,30 +85,11 @@ pub(crate) struct SamplerOptions {
 
 impl SamplerOptions {
     pub(crate) fn config(&self) -> CoreResult<SamplerConfig> {
-        let kind = match self.sampler.as_str() {
-            "ddpm" => SamplerKind::Ddpm,
-            "ddim" => SamplerKind::Ddim { eta: self.eta },
-            "dpmpp2m" => SamplerKind::DpmPp2m,
-            other => {
-                return Err(invalid(
-                    "sampler",
-                    "\"ddpm\", \"ddim\" or \"dpmpp2m\"",
-                    format!("{other:?}"),
-                ));
-            }
-        };
-        if !(self.eta.is_finite() && (0.0..=1.0).contains(&self.eta)) {
-            return Err(invalid("eta", "a number in [0, 1]", self.eta.to_string()));
-        }
         let num_inference_steps = self
             .num_inference_steps
             .map(|n| positive("num_inference_steps", n))
             .transpose()?;
-        Ok(SamplerConfig {
-            kind,
-            num_inference_steps,
-            timestep_spacing: self.timestep_spacing.parse::<TimestepSpacing>()?,
-        })
+        SamplerConfig::from_names(&self.sampler, num_inference_steps, self.eta, &self.timestep_spacing)
     }
 }
 

@@ -252,7 +252,13 @@ pub(crate) fn seeded_noise<'py>(
     to_numpy(py, &dims, data)
 }
 
-/// The native module. Private: use the `tcd` package.
+/// Checks a `tcd.SamplerOptions`'s values with the engine's rules (raises `InvalidInputError`).
+#[pyfunction]
+pub(crate) fn check_sampler_options(options: SamplerOptions) -> PyResult<()> {
+    options.config().map_err(PyTcdError)?;
+    Ok(())
+}
+
 /// The kernel paths this CPU can run, the best last (`TCD_KERNEL` accepts these and `auto`).
 #[pyfunction]
 pub(crate) fn supported_kernels() -> Vec<&'static str> {

@@ -48,7 +48,8 @@ class RepairOptions:
              **kw: Any) -> "RepairOptions":
         """Checked settings: ``options`` / ``sampler`` (its fields) as :meth:`SamplerOptions.build`, the rest
         as the keywords of :func:`repair_file`."""
-        sampling = SamplerOptions.build(options, **(sampler or {})).for_model(_denoiser(model).num_train_timesteps)
+        sampling = SamplerOptions.build(options, **(sampler or {}))
+        _denoiser(model).timesteps(options=sampling)  # the step count against the model, before any file is read
         seed = kw.get("seed", DEFAULT_SEED)
         fps = kw.get("fps")
         if fps is not None:

@@ -35,6 +35,9 @@ pub enum TimestepSpacing {
 }
 
 impl TimestepSpacing {
+    /// Every spacing's name, the default (`trailing`) first.
+    pub const NAMES: [&'static str; 3] = ["trailing", "leading", "linspace"];
+
     /// `leading` | `trailing` | `linspace`.
     pub fn as_str(self) -> &'static str {
         match self {
@@ -72,7 +75,7 @@ pub fn timesteps(
     if n == 0 || n > t_total {
         return Err(Error::invalid_input(
             "num_inference_steps",
-            format!("an integer in 1..={t_total} (num_train_timesteps = {t_total})"),
+            format!("an integer in 1..{t_total} (num_train_timesteps = {t_total})"),
             n.to_string(),
         ));
     }
@@ -119,6 +122,11 @@ pub enum SamplerKind {
     DpmPp2m,
 }
 
+impl SamplerKind {
+    /// Every sampler's name, the default (`ddpm`, the paper's) first.
+    pub const NAMES: [&'static str; 3] = ["ddpm", "ddim", "dpmpp2m"];
+}
+
 /// A sampler: update rule, number of steps and their spacing.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SamplerConfig {
@@ -129,6 +137,40 @@ pub struct SamplerConfig {
 }
 
 impl SamplerConfig {
+    /// The sampler named by the settings of the Python `SamplerOptions` and the command line: the one
+    /// check of their values. `sampler` is one of [`SamplerKind::NAMES`], `timestep_spacing` one of
+    /// [`TimestepSpacing::NAMES`], and `eta` must lie in [0, 1] whatever the sampler (only DDIM uses it,
+    /// but a bad value is refused rather than ignored). `num_inference_steps` is checked against a
+    /// model's training steps by [`SamplerConfig::plan`].
+    pub fn from_names(
+        sampler: &str,
+        num_inference_steps: Option<usize>,
+        eta: f64,
+        timestep_spacing: &str,
+    ) -> Result<Self> {
+        ddim::check_eta(eta)?;
+        let kind = match sampler {
+            "ddpm" => SamplerKind::Ddpm,
+            "ddim" => SamplerKind::Ddim { eta },
+            "dpmpp2m" => SamplerKind::DpmPp2m,
+            other => {
+                return Err(Error::invalid_input(
+                    "sampler",
+                    "\"ddpm\", \"ddim\" or \"dpmpp2m\"",
+                    format!("{other:?}"),
+                ))
+            }
+        };
+        if num_inference_steps == Some(0) {
+            return Err(Error::invalid_input("num_inference_steps", "at least 1 (or None for every training step)", "0"));
+        }
+        Ok(SamplerConfig {
+            kind,
+            num_inference_steps,
+            timestep_spacing: timestep_spacing.parse()?,
+        })
+    }
+
     /// The reference: DDPM over all T steps.
     pub fn ddpm() -> Self {
         SamplerConfig {
