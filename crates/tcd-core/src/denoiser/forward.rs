@@ -1,0 +1,123 @@
+//! The public forward calls (argument checks, workspace reuse) and the per-sequence dispatch to
+//! the portable or the packed (SIMD) path.
+
+use super::workspace::{CondTables, Prepared, Workspace};
+use super::Denoiser;
+use crate::error::{Error, Result};
+use crate::validate;
+
+impl Denoiser {
+    /// ε̂ for a batch: `noisy`, `observed`, `mask`, `out` all (B, K, L); `step` in 0..T.
+    /// Entries of `observed` where mask = 0 and of `noisy` where mask = 1 are ignored (may be NaN).
+    #[allow(clippy::too_many_arguments)]
+    pub fn forward(
+        &self,
+        noisy: &[f32],
+        observed: &[f32],
+        mask: &[f32],
+        batch: usize,
+        length: usize,
+        step: usize,
+        out: &mut [f32],
+    ) -> Result<()> {
+        let prepared = self.prepare(mask, batch, length)?;
+        self.forward_prepared(&prepared, noisy, observed, step, out)
+    }
+
+    /// [`Denoiser::forward`] with the step-independent work done once by [`Denoiser::prepare`].
+    pub fn forward_prepared(
+        &self,
+        prepared: &Prepared,
+        noisy: &[f32],
+        observed: &[f32],
+        step: usize,
+        out: &mut [f32],
+    ) -> Result<()> {
+        let mut ws = Workspace::new(self, prepared.length);
+        self.forward_with_workspace(prepared, &mut ws, noisy, observed, step, out)
+    }
+
+    /// [`Denoiser::forward_prepared`] using caller-owned buffers (no allocation when `workspace`
+    /// was made for this length).
+    pub fn forward_with_workspace(
+        &self,
+        prepared: &Prepared,
+        workspace: &mut Workspace,
+        noisy: &[f32],
+        observed: &[f32],
+        step: usize,
+        out: &mut [f32],
+    ) -> Result<()> {
+        let (b, l, k) = (prepared.batch, prepared.length, self.num_features());
+        let n = k * l;
+        let shape = format!("({b}, {k}, {l})");
+        let c2 = 2 * self.config.model.channels;
+        let tables = &prepared.tables;
+        if prepared.mask.len() != b * n
+            || tables.width != c2
+            || tables.time.len() != self.layers.len()
+            || tables.time.iter().any(|t| t.len() != l * c2)
+        {
+            return Err(Error::invalid_input(
+                "prepared",
+                format!(
+                    "the result of `prepare` on this model (K = {k}, {} layers, channels = {})",
+                    self.layers.len(),
+                    self.config.model.channels
+                ),
+                "one prepared by a model of a different shape",
+            ));
+        }
+        validate::finite_where("noisy", noisy, &prepared.mask, 0.0, b * n, &shape)?;
+        validate::finite_where("observed", observed, &prepared.mask, 1.0, b * n, &shape)?;
+        crate::error::check_len("out", out.len(), b * n, &shape)?;
+        self.check_step(step)?;
+        if workspace.length != l
+            || workspace.dims != (k, self.config.model.channels)
+            || workspace.fast.is_empty() != self.fast.is_none()
+        {
+            *workspace = Workspace::with_threads(self, l, workspace.fast.len().max(1));
+        }
+        for (((nz, ob), m), o) in noisy
+            .chunks_exact(n)
+            .zip(observed.chunks_exact(n))
+            .zip(prepared.mask.chunks_exact(n))
+            .zip(out.chunks_exact_mut(n))
+        {
+            self.forward_sequence(&prepared.tables, m, nz, ob, step, o, workspace);
+        }
+        Ok(())
+    }
+
+    pub(crate) fn check_step(&self, step: usize) -> Result<()> {
+        let t = self.num_train_timesteps();
+        if step < t {
+            Ok(())
+        } else {
+            Err(Error::invalid_input(
+                "step",
+                format!("a diffusion step in 0..{t} (num_train_timesteps = {t})"),
+                step.to_string(),
+            ))
+        }
+    }
+
+    /// One sequence (K × L values each), no validation: sizes, mask, step and the workspace length
+    /// were checked by the caller.
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn forward_sequence(
+        &self,
+        tables: &CondTables,
+        mask: &[f32],
+        noisy: &[f32],
+        observed: &[f32],
+        step: usize,
+        out: &mut [f32],
+        ws: &mut Workspace,
+    ) {
+        match &self.fast {
+            Some(fast) => self.forward_sequence_fast(fast, tables, mask, noisy, observed, step, out, ws),
+            None => self.forward_sequence_portable(tables, mask, noisy, observed, step, out, ws),
+        }
+    }
+}
