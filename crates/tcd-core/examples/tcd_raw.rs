@@ -79,7 +79,7 @@ fn main() -> R<()> {
             let mask = read_f32(arg(&args, 4, "MASK")?)?;
             let (b, l, step): (usize, usize, usize) = (num(&args, 5, "B")?, num(&args, 6, "L")?, num(&args, 7, "STEP")?);
             let mut out = vec![0.0f32; noisy.len()];
-            d.forward(&noisy, &observed, &mask, b, l, step, &mut out)?;
+            d.forward(&noisy, &observed, &mask, (b, l), step, &mut out)?;
             write_f32(arg(&args, 8, "OUT")?, &out)?;
         }
         Some("sample") => {

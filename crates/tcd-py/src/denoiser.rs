@@ -148,8 +148,7 @@ impl PyDenoiser {
                         &noisy.data,
                         &observed.data,
                         &mask.data,
-                        b,
-                        l,
+                        (b, l),
                         step,
                         &mut out,
                     )?;

@@ -6,20 +6,31 @@ use super::Denoiser;
 use crate::error::{Error, Result};
 use crate::validate;
 
+/// The inputs of one sequence's forward: its mask, noisy sample x_t and observation x₀ (K × L
+/// values each, (k, l) order), the cond tables for its length and the diffusion step.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct SequenceInputs<'a> {
+    pub tables: &'a CondTables,
+    pub mask: &'a [f32],
+    pub noisy: &'a [f32],
+    pub observed: &'a [f32],
+    pub step: usize,
+}
+
 impl Denoiser {
-    /// ε̂ for a batch: `noisy`, `observed`, `mask`, `out` all (B, K, L); `step` in 0..T.
-    /// Entries of `observed` where mask = 0 and of `noisy` where mask = 1 are ignored (may be NaN).
-    #[allow(clippy::too_many_arguments)]
+    /// ε̂ for a batch: `noisy`, `observed`, `mask`, `out` all (B, K, L), `shape` = (B, L); `step`
+    /// in 0..T. Entries of `observed` where mask = 0 and of `noisy` where mask = 1 are ignored (may
+    /// be NaN).
     pub fn forward(
         &self,
         noisy: &[f32],
         observed: &[f32],
         mask: &[f32],
-        batch: usize,
-        length: usize,
+        shape: (usize, usize),
         step: usize,
         out: &mut [f32],
     ) -> Result<()> {
+        let (batch, length) = shape;
         let prepared = self.prepare(mask, batch, length)?;
         self.forward_prepared(&prepared, noisy, observed, step, out)
     }
@@ -84,7 +95,14 @@ impl Denoiser {
             .zip(prepared.mask.chunks_exact(n))
             .zip(out.chunks_exact_mut(n))
         {
-            self.forward_sequence(&prepared.tables, m, nz, ob, step, o, workspace);
+            let seq = SequenceInputs {
+                tables: &prepared.tables,
+                mask: m,
+                noisy: nz,
+                observed: ob,
+                step,
+            };
+            self.forward_one(seq, o, workspace);
         }
         Ok(())
     }
@@ -102,9 +120,19 @@ impl Denoiser {
         }
     }
 
-    /// One sequence (K × L values each), no validation: sizes, mask, step and the workspace length
+    /// One sequence into `out` (K × L), no validation: sizes, mask, step and the workspace length
     /// were checked by the caller.
-    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn forward_one(&self, seq: SequenceInputs<'_>, out: &mut [f32], ws: &mut Workspace) {
+        match &self.fast {
+            Some(fast) => self.forward_sequence_fast(fast, seq, out, ws),
+            None => self.forward_sequence_portable(seq, out, ws),
+        }
+    }
+
+    /// [`Denoiser::forward_one`] with the inputs as separate arguments, the form
+    /// `sampler::run_chain` calls; once it passes [`SequenceInputs`] to `forward_one`, this goes,
+    /// and its allowance with it.
+    #[allow(clippy::too_many_arguments, reason = "the sampler's call form, see above")]
     pub(crate) fn forward_sequence(
         &self,
         tables: &CondTables,
@@ -115,9 +143,13 @@ impl Denoiser {
         out: &mut [f32],
         ws: &mut Workspace,
     ) {
-        match &self.fast {
-            Some(fast) => self.forward_sequence_fast(fast, tables, mask, noisy, observed, step, out, ws),
-            None => self.forward_sequence_portable(tables, mask, noisy, observed, step, out, ws),
-        }
+        let seq = SequenceInputs {
+            tables,
+            mask,
+            noisy,
+            observed,
+            step,
+        };
+        self.forward_one(seq, out, ws)
     }
 }

@@ -4,9 +4,12 @@
 use rayon::prelude::*;
 
 use super::fill::build_input;
-use super::workspace::{CondTables, Workspace};
+use super::forward::SequenceInputs;
+use super::workspace::Workspace;
 use super::Denoiser;
-use crate::kernels::{self, Epilogue, FastEncoder, FastLinear, Isa, SeqLayout, TailInputs};
+use crate::kernels::{
+    self, Epilogue, FastEncoder, FastLinear, Isa, Matrix, MatrixMut, SeqLayout, TailInputs, TailStreams,
+};
 use crate::nn::activation::map_inplace;
 
 /// A residual block with weights packed for the SIMD kernels.
@@ -48,19 +51,21 @@ impl FastModel {
 }
 
 impl Denoiser {
-    /// [`Denoiser::forward_sequence`] on the SIMD kernels.
-    #[allow(clippy::too_many_arguments)]
+    /// [`Denoiser::forward_one`] on the SIMD kernels.
     pub(super) fn forward_sequence_fast(
         &self,
         fast: &FastModel,
-        tables: &CondTables,
-        mask: &[f32],
-        noisy: &[f32],
-        observed: &[f32],
-        step: usize,
+        seq: SequenceInputs<'_>,
         out: &mut [f32],
         ws: &mut Workspace,
     ) {
+        let SequenceInputs {
+            tables,
+            mask,
+            noisy,
+            observed,
+            step,
+        } = seq;
         let m = &self.config.model;
         let (k, l, c) = (m.num_features, tables.length, m.channels);
         let n = k * l;
@@ -78,7 +83,7 @@ impl Denoiser {
 
         let inp = &mut z[..2 * n];
         build_input(m.cond_fill, l, mask, observed, noisy, inp);
-        kernels::gemm(isa, inp, 2, n, &fast.input, h, c, Epilogue::Relu);
+        kernels::gemm(isa, Matrix::dense(inp, n, 2), &fast.input, MatrixMut::dense(h, n, c), Epilogue::Relu);
         skip.fill(0.0);
         let bias = |i: usize| {
             let off = (step * num_layers + i) * c;
@@ -119,9 +124,11 @@ impl Denoiser {
                 cond_feature: &layer.cond_feature,
                 cond_mask: &layer.cond_mask,
                 next_bias: (i + 1 < num_layers).then(|| bias(i + 1)),
+                frames: l,
+                channels: c,
             };
             if parts <= 1 {
-                kernels::block_tail(isa, &inputs, 0, l, c, y, h, skip, &mut scratch[0]);
+                kernels::block_tail(isa, &inputs, 0, TailStreams { y, h, skip }, &mut scratch[0]);
             } else {
                 // Contiguous coordinate ranges per worker.
                 let per = k.div_ceil(parts) * l * c;
@@ -130,19 +137,20 @@ impl Denoiser {
                     .zip(skip.par_chunks_mut(per))
                     .zip(scratch.par_iter_mut())
                     .enumerate()
-                    .for_each(|(p, (((yc, hc), sk), sc))| {
-                        kernels::block_tail(isa, &inputs, p * (per / (l * c)), l, c, yc, hc, sk, sc);
+                    .for_each(|(p, (((y, h), skip), sc))| {
+                        kernels::block_tail(isa, &inputs, p * (per / (l * c)), TailStreams { y, h, skip }, sc);
                     });
             }
         }
         let sqrt_layers = (num_layers as f64).sqrt() as f32;
         map_inplace(skip, |v| v / sqrt_layers);
         if parts <= 1 {
-            kernels::gemm(isa, skip, c, n, &fast.out1, y, c, Epilogue::Relu);
+            kernels::gemm(isa, Matrix::dense(skip, n, c), &fast.out1, MatrixMut::dense(y, n, c), Epilogue::Relu);
         } else {
             let per = k.div_ceil(parts) * l * c;
             skip.par_chunks(per).zip(y.par_chunks_mut(per)).for_each(|(s, yc)| {
-                kernels::gemm(isa, s, c, s.len() / c, &fast.out1, yc, c, Epilogue::Relu);
+                let rows = s.len() / c;
+                kernels::gemm(isa, Matrix::dense(s, rows, c), &fast.out1, MatrixMut::dense(yc, rows, c), Epilogue::Relu);
             });
         }
         self.output_projection2.forward(y, &mut out[..n]);

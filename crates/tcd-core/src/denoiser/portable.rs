@@ -2,23 +2,21 @@
 //! implementation; any target).
 
 use super::fill::build_input;
-use super::workspace::{CondTables, Workspace};
+use super::forward::SequenceInputs;
+use super::workspace::Workspace;
 use super::Denoiser;
 use crate::nn::activation::{map_inplace, relu, sigmoid};
 
 impl Denoiser {
-    /// [`Denoiser::forward_sequence`] on the portable layers.
-    #[allow(clippy::too_many_arguments)]
-    pub(super) fn forward_sequence_portable(
-        &self,
-        tables: &CondTables,
-        mask: &[f32],
-        noisy: &[f32],
-        observed: &[f32],
-        step: usize,
-        out: &mut [f32],
-        ws: &mut Workspace,
-    ) {
+    /// [`Denoiser::forward_one`] on the portable layers.
+    pub(super) fn forward_sequence_portable(&self, seq: SequenceInputs<'_>, out: &mut [f32], ws: &mut Workspace) {
+        let SequenceInputs {
+            tables,
+            mask,
+            noisy,
+            observed,
+            step,
+        } = seq;
         let m = &self.config.model;
         let (k, l, c) = (m.num_features, tables.length, m.channels);
         let n = k * l;

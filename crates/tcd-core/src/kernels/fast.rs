@@ -6,6 +6,7 @@
 #[cfg(target_arch = "x86_64")]
 use super::x86;
 use super::{Isa, IsaKind};
+use crate::nn::attention::HeadScratch;
 use crate::nn::{EncoderLayer, Linear};
 
 /// A weight matrix packed for the SIMD GEMM: Wᵀ (in × out) cut into panels of `pw` output
@@ -111,9 +112,7 @@ pub(crate) struct FastScratch {
     /// Attention scores of one query block (len × 16).
     pub(super) scores: Vec<f32>,
     /// Portable-attention fallback (head dims other than 4, 8, 16).
-    pub(super) p_scores: Vec<f32>,
-    pub(super) p_kt: Vec<f32>,
-    pub(super) p_v: Vec<f32>,
+    pub(super) portable: HeadScratch,
     /// Residual-block tail: (L × 2C) and (L × C).
     pub(super) zt: Vec<f32>,
     pub(super) gt: Vec<f32>,
@@ -126,9 +125,7 @@ impl FastScratch {
             heads: vec![0.0; len * c],
             ffn: vec![0.0; len * f],
             scores: vec![0.0; len * 16],
-            p_scores: vec![0.0; len],
-            p_kt: vec![0.0; len * c],
-            p_v: vec![0.0; len * c],
+            portable: HeadScratch::new(c, len),
             zt: vec![0.0; frames * 2 * c],
             gt: vec![0.0; frames * c],
         }
@@ -145,7 +142,50 @@ pub(crate) struct SeqLayout {
     pub tok_stride: usize,
 }
 
-/// The per-block inputs of [`block_tail`].
+/// A row-major matrix in a slice: `rows` rows of `cols` values, row `r` at `data[r · ld ..]`
+/// (`ld ≥ cols`; the dispatcher that takes it checks it against the slice).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Matrix<'a> {
+    pub data: &'a [f32],
+    pub rows: usize,
+    pub cols: usize,
+    pub ld: usize,
+}
+
+impl<'a> Matrix<'a> {
+    /// `rows` × `cols`, rows contiguous (`ld = cols`).
+    pub(crate) fn dense(data: &'a [f32], rows: usize, cols: usize) -> Self {
+        Matrix {
+            data,
+            rows,
+            cols,
+            ld: cols,
+        }
+    }
+}
+
+/// [`Matrix`], writable.
+#[derive(Debug)]
+pub(crate) struct MatrixMut<'a> {
+    pub data: &'a mut [f32],
+    pub rows: usize,
+    pub cols: usize,
+    pub ld: usize,
+}
+
+impl<'a> MatrixMut<'a> {
+    /// `rows` × `cols`, rows contiguous (`ld = cols`).
+    pub(crate) fn dense(data: &'a mut [f32], rows: usize, cols: usize) -> Self {
+        MatrixMut {
+            data,
+            rows,
+            cols,
+            ld: cols,
+        }
+    }
+}
+
+/// The per-block inputs of [`block_tail`], shared by the workers.
 pub(crate) struct TailInputs<'a> {
     pub mid: &'a FastLinear,
     pub out: &'a FastLinear,
@@ -159,6 +199,18 @@ pub(crate) struct TailInputs<'a> {
     pub cond_mask: &'a [f32],
     /// The next block's step bias (C): if given, `y = h + next_bias` is written for it.
     pub next_bias: Option<&'a [f32]>,
+    /// L: tokens per coordinate.
+    pub frames: usize,
+    /// C.
+    pub channels: usize,
+}
+
+/// The residual streams of a run of whole coordinates (each `n · L · C`, token-major) that
+/// [`block_tail`] updates: the block input / next block's input `y`, the residual `h`, Σskip.
+pub(crate) struct TailStreams<'a> {
+    pub y: &'a mut [f32],
+    pub h: &'a mut [f32],
+    pub skip: &'a mut [f32],
 }
 
 // ------------------------------------------------------------------------ safe dispatchers
@@ -174,26 +226,20 @@ fn span(rows: usize, ld: usize, width: usize) -> usize {
     }
 }
 
-/// `y[r·ldy ..][..out] = epilogue(x[r·ldx ..][..in] · W + b)` for r in 0..rows.
-#[allow(clippy::too_many_arguments)]
-pub(crate) fn gemm(
-    isa: Isa,
-    x: &[f32],
-    ldx: usize,
-    rows: usize,
-    w: &FastLinear,
-    y: &mut [f32],
-    ldy: usize,
-    epi: Epilogue,
-) {
+/// `y = epilogue(x · W + b)`, row by row: x is (rows × in), y (rows × out) of the layer `w`.
+pub(crate) fn gemm(isa: Isa, x: Matrix<'_>, w: &FastLinear, y: MatrixMut<'_>, epi: Epilogue) {
     let p = &w.0;
-    assert!(ldx >= p.in_dim && ldy >= p.out_dim, "gemm strides");
-    assert!(x.len() >= span(rows, ldx, p.in_dim) && y.len() >= span(rows, ldy, p.out_dim), "gemm sizes");
+    assert!(x.cols == p.in_dim && y.cols == p.out_dim && x.rows == y.rows, "gemm shapes");
+    assert!(x.ld >= x.cols && y.ld >= y.cols, "gemm strides");
+    assert!(
+        x.data.len() >= span(x.rows, x.ld, x.cols) && y.data.len() >= span(y.rows, y.ld, y.cols),
+        "gemm sizes"
+    );
     match isa.0 {
         #[cfg(target_arch = "x86_64")]
-        IsaKind::Avx2 => x86::gemm_avx2(x, ldx, rows, p, y, ldy, epi),
+        IsaKind::Avx2 => x86::gemm_avx2(x, p, y, epi),
         #[cfg(target_arch = "x86_64")]
-        IsaKind::Avx512 => x86::gemm_avx512(x, ldx, rows, p, y, ldy, epi),
+        IsaKind::Avx512 => x86::gemm_avx512(x, p, y, epi),
     }
 }
 
@@ -221,9 +267,7 @@ fn check_encoder(enc: &FastEncoder, x: &[f32], layout: SeqLayout, scratch: &Fast
             && scratch.heads.len() >= seq_len * c
             && scratch.ffn.len() >= seq_len * enc.f
             && scratch.scores.len() >= seq_len * 16
-            && scratch.p_scores.len() >= seq_len
-            && scratch.p_kt.len() >= seq_len * c
-            && scratch.p_v.len() >= seq_len * c,
+            && scratch.portable.fits(c, seq_len),
         "encoder scratch"
     );
     assert!(enc.ln1.0.len() == c && enc.ln1.1.len() == c && enc.ln2.0.len() == c && enc.ln2.1.len() == c);
@@ -264,20 +308,11 @@ pub(crate) fn encoder_par(isa: Isa, enc: &FastEncoder, x: &mut [f32], layout: Se
 }
 
 /// The residual-block tail for the tokens of coordinates `k0..k0 + h.len() / (L·C)` (K × L
-/// token-major, `frames` = L): `z = mid(y) + cond`, `g = σ(z_gate)·tanh(z_filter)`,
+/// token-major, L = `inp.frames`): `z = mid(y) + cond`, `g = σ(z_gate)·tanh(z_filter)`,
 /// `[r | s] = out(g)`, `h = (h + r)/√2`, `skip += s`, and `y = h + next_bias` if asked.
-#[allow(clippy::too_many_arguments)]
-pub(crate) fn block_tail(
-    isa: Isa,
-    inp: &TailInputs<'_>,
-    k0: usize,
-    frames: usize,
-    c: usize,
-    y: &mut [f32],
-    h: &mut [f32],
-    skip: &mut [f32],
-    scratch: &mut FastScratch,
-) {
+pub(crate) fn block_tail(isa: Isa, inp: &TailInputs<'_>, k0: usize, streams: TailStreams<'_>, scratch: &mut FastScratch) {
+    let (frames, c) = (inp.frames, inp.channels);
+    let TailStreams { y, h, skip } = &streams;
     let n = h.len();
     let rows = frames * c;
     assert!(rows > 0 && n.is_multiple_of(rows) && y.len() == n && skip.len() == n, "tail sizes");
@@ -290,8 +325,8 @@ pub(crate) fn block_tail(
     assert!(scratch.zt.len() >= frames * c2 && scratch.gt.len() >= frames * c, "tail scratch");
     match isa.0 {
         #[cfg(target_arch = "x86_64")]
-        IsaKind::Avx2 => x86::tail_avx2(inp, k0, frames, c, y, h, skip, scratch),
+        IsaKind::Avx2 => x86::tail_avx2(inp, k0, streams, scratch),
         #[cfg(target_arch = "x86_64")]
-        IsaKind::Avx512 => x86::tail_avx512(inp, k0, frames, c, y, h, skip, scratch),
+        IsaKind::Avx512 => x86::tail_avx512(inp, k0, streams, scratch),
     }
 }

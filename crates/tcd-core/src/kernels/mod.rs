@@ -32,7 +32,8 @@ mod fast;
 mod x86;
 
 pub(crate) use fast::{
-    block_tail, encoder_par, gemm, Epilogue, FastEncoder, FastLinear, FastScratch, Packed, SeqLayout, TailInputs,
+    block_tail, encoder_par, gemm, Epilogue, FastEncoder, FastLinear, FastScratch, Matrix, MatrixMut, Packed, SeqLayout,
+    TailInputs, TailStreams,
 };
 
 /// The environment variable read at load time to choose the kernel.

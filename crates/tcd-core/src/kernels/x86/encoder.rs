@@ -74,9 +74,7 @@ pub(super) unsafe fn encoder<S: Simd>(e: &FastEncoder, x: *mut f32, layout: SeqL
                     c,
                     e.heads,
                     &mut sc.heads[..seq_len * c],
-                    &mut sc.p_scores,
-                    &mut sc.p_kt,
-                    &mut sc.p_v,
+                    &mut sc.portable,
                 ),
             }
             gemm::<S>(sc.heads.as_ptr(), c, seq_len, &e.out, xs, tok_stride, Epilogue::AddTo);

@@ -8,21 +8,33 @@ use crate::kernels::{Epilogue, Packed};
 /// Rows per GEMM register tile.
 const MR: usize = 6;
 
+/// One panel of packed weights as the micro-kernel reads it: `depth` (= in_dim) rows of the
+/// panel's pw floats from `weights`, pw biases from `bias`; its first `width` columns are outputs.
+#[derive(Clone, Copy)]
+struct Panel {
+    weights: *const f32,
+    bias: *const f32,
+    depth: usize,
+    width: usize,
+}
+
 /// One register tile: M rows (M ≤ MR) × one panel of NV vectors.
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
 unsafe fn tile<S: Simd, const NV: usize, const M: usize>(
     x: *const f32,
     ldx: usize,
-    k: usize,
-    panel: *const f32,
-    bias: *const f32,
+    panel: Panel,
     y: *mut f32,
     ldy: usize,
-    width: usize,
     epi: Epilogue,
 ) {
-    // SAFETY (whole body): x is valid for M rows of k floats at stride ldx, panel for k × NV·W
+    let Panel {
+        weights,
+        bias,
+        depth: k,
+        width,
+    } = panel;
+    // SAFETY (whole body): x is valid for M rows of k floats at stride ldx, weights for k × NV·W
     // floats, bias for NV·W floats, y for M rows of `width` floats at stride ldy (checked by the
     // dispatcher and `gemm`); full-vector stores happen only where `width` covers the vector.
     unsafe {
@@ -30,7 +42,7 @@ unsafe fn tile<S: Simd, const NV: usize, const M: usize>(
         let b: [S::V; NV] = std::array::from_fn(|v| S::load(bias.add(v * S::W)));
         let mut acc = [b; M];
         for i in 0..k {
-            let wp = panel.add(i * pw);
+            let wp = weights.add(i * pw);
             let wv: [S::V; NV] = std::array::from_fn(|v| S::load(wp.add(v * S::W)));
             for (m, accm) in acc.iter_mut().enumerate() {
                 let xb = S::splat(*x.add(m * ldx + i));
@@ -84,22 +96,25 @@ unsafe fn gemm_nv<S: Simd, const NV: usize>(
         let (k, pw) = (w.in_dim, w.pw);
         debug_assert_eq!(pw, NV * S::W);
         for p in 0..w.panels {
-            let panel = w.w.as_ptr().add(p * k * pw);
-            let bias = w.b.as_ptr().add(p * pw);
             let c0 = p * pw;
-            let width = pw.min(w.out_dim - c0);
+            let panel = Panel {
+                weights: w.w.as_ptr().add(p * k * pw),
+                bias: w.b.as_ptr().add(p * pw),
+                depth: k,
+                width: pw.min(w.out_dim - c0),
+            };
             let mut r = 0;
             while r + MR <= rows {
-                tile::<S, NV, MR>(x.add(r * ldx), ldx, k, panel, bias, y.add(r * ldy + c0), ldy, width, epi);
+                tile::<S, NV, MR>(x.add(r * ldx), ldx, panel, y.add(r * ldy + c0), ldy, epi);
                 r += MR;
             }
             let (xr, yr) = (x.add(r * ldx), y.add(r * ldy + c0));
             match rows - r {
-                1 => tile::<S, NV, 1>(xr, ldx, k, panel, bias, yr, ldy, width, epi),
-                2 => tile::<S, NV, 2>(xr, ldx, k, panel, bias, yr, ldy, width, epi),
-                3 => tile::<S, NV, 3>(xr, ldx, k, panel, bias, yr, ldy, width, epi),
-                4 => tile::<S, NV, 4>(xr, ldx, k, panel, bias, yr, ldy, width, epi),
-                5 => tile::<S, NV, 5>(xr, ldx, k, panel, bias, yr, ldy, width, epi),
+                1 => tile::<S, NV, 1>(xr, ldx, panel, yr, ldy, epi),
+                2 => tile::<S, NV, 2>(xr, ldx, panel, yr, ldy, epi),
+                3 => tile::<S, NV, 3>(xr, ldx, panel, yr, ldy, epi),
+                4 => tile::<S, NV, 4>(xr, ldx, panel, yr, ldy, epi),
+                5 => tile::<S, NV, 5>(xr, ldx, panel, yr, ldy, epi),
                 _ => {}
             }
         }

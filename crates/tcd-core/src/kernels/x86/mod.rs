@@ -17,7 +17,7 @@
 
 use rayon::prelude::*;
 
-use super::{Epilogue, FastEncoder, FastScratch, Packed, SeqLayout, TailInputs};
+use super::{Epilogue, FastEncoder, FastScratch, Matrix, MatrixMut, Packed, SeqLayout, TailInputs, TailStreams};
 use encoder::encoder;
 use gemm::gemm;
 use simd::{Avx2, Avx512};
@@ -77,17 +77,15 @@ macro_rules! entries {
             });
         }
 
-        /// GEMM entry point (sizes checked by [`super::gemm`]).
-        #[allow(clippy::too_many_arguments)]
-        pub(super) fn $gemm(x: &[f32], ldx: usize, rows: usize, w: &Packed, y: &mut [f32], ldy: usize, epi: Epilogue) {
+        /// GEMM entry point (shapes, strides and sizes checked by [`super::gemm`]).
+        pub(super) fn $gemm(x: Matrix<'_>, w: &Packed, y: MatrixMut<'_>, epi: Epilogue) {
             #[target_feature(enable = $features)]
-            #[allow(clippy::too_many_arguments)]
-            unsafe fn inner(x: &[f32], ldx: usize, rows: usize, w: &Packed, y: &mut [f32], ldy: usize, epi: Epilogue) {
-                // SAFETY: sizes and strides checked by the dispatcher.
-                unsafe { gemm::<$simd>(x.as_ptr(), ldx, rows, w, y.as_mut_ptr(), ldy, epi) }
+            unsafe fn inner(x: Matrix<'_>, w: &Packed, y: MatrixMut<'_>, epi: Epilogue) {
+                // SAFETY: shapes, strides and sizes checked by the dispatcher.
+                unsafe { gemm::<$simd>(x.data.as_ptr(), x.ld, x.rows, w, y.data.as_mut_ptr(), y.ld, epi) }
             }
             // SAFETY: reachable only through an `Isa` built after detecting these features.
-            unsafe { inner(x, ldx, rows, w, y, ldy, epi) }
+            unsafe { inner(x, w, y, epi) }
         }
 
         /// Encoder-layer entry point (sizes checked by [`super::encoder`]).
@@ -102,35 +100,14 @@ macro_rules! entries {
         }
 
         /// Residual-block tail entry point (sizes checked by [`super::block_tail`]).
-        #[allow(clippy::too_many_arguments)]
-        pub(super) fn $tail(
-            inp: &TailInputs<'_>,
-            k0: usize,
-            frames: usize,
-            c: usize,
-            y: &mut [f32],
-            h: &mut [f32],
-            skip: &mut [f32],
-            sc: &mut FastScratch,
-        ) {
+        pub(super) fn $tail(inp: &TailInputs<'_>, k0: usize, streams: TailStreams<'_>, sc: &mut FastScratch) {
             #[target_feature(enable = $features)]
-            #[allow(clippy::too_many_arguments)]
-            unsafe fn inner(
-                inp: &TailInputs<'_>,
-                k0: usize,
-                frames: usize,
-                c: usize,
-                y: &mut [f32],
-                h: &mut [f32],
-                skip: &mut [f32],
-                sc: &mut FastScratch,
-            ) {
-                let nk = h.len() / (frames * c);
+            unsafe fn inner(inp: &TailInputs<'_>, k0: usize, streams: TailStreams<'_>, sc: &mut FastScratch) {
                 // SAFETY: sizes checked by the dispatcher.
-                unsafe { tail::<$simd>(inp, k0, frames, c, y.as_mut_ptr(), h.as_mut_ptr(), skip.as_mut_ptr(), nk, sc) }
+                unsafe { tail::<$simd>(inp, k0, streams, sc) }
             }
             // SAFETY: reachable only through an `Isa` built after detecting these features.
-            unsafe { inner(inp, k0, frames, c, y, h, skip, sc) }
+            unsafe { inner(inp, k0, streams, sc) }
         }
     };
 }

@@ -5,7 +5,7 @@
 use super::gemm::gemm;
 use super::math::gated;
 use super::simd::Simd;
-use crate::kernels::{Epilogue, FastScratch, TailInputs};
+use crate::kernels::{Epilogue, FastScratch, TailInputs, TailStreams};
 use crate::nn::activation::sigmoid;
 
 /// z + (time table + feature table + m · mask column) at column `i` (a function, not a closure:
@@ -16,19 +16,12 @@ unsafe fn zc<S: Simd>(z: *const f32, tt: *const f32, ft: *const f32, cm: *const 
     unsafe { S::add(S::load(z.add(i)), S::fma(mv, S::load(cm.add(i)), S::add(S::load(tt.add(i)), S::load(ft.add(i))))) }
 }
 
+/// [`crate::kernels::block_tail`] on the coordinates `k0..` whose streams are given.
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
-pub(super) unsafe fn tail<S: Simd>(
-    inp: &TailInputs<'_>,
-    k0: usize,
-    frames: usize,
-    c: usize,
-    y: *mut f32,
-    h: *mut f32,
-    skip: *mut f32,
-    nk: usize,
-    sc: &mut FastScratch,
-) {
+pub(super) unsafe fn tail<S: Simd>(inp: &TailInputs<'_>, k0: usize, streams: TailStreams<'_>, sc: &mut FastScratch) {
+    let (frames, c) = (inp.frames, inp.channels);
+    let nk = streams.h.len() / (frames * c);
+    let (y, h, skip) = (streams.y.as_mut_ptr(), streams.h.as_mut_ptr(), streams.skip.as_mut_ptr());
     let c2 = 2 * c;
     let w = S::W;
     let inv_sqrt2 = S::splat(std::f32::consts::FRAC_1_SQRT_2); // ≤ 1 ulp from PyTorch's division by √2
