@@ -88,7 +88,7 @@ macro_rules! entries {
             unsafe { inner(x, w, y, epi) }
         }
 
-        /// Encoder-layer entry point (sizes checked by [`super::encoder`]).
+        /// Encoder-layer entry point (sizes checked by [`super::fast::encoder`]).
         pub(super) fn $encoder(e: &FastEncoder, x: &mut [f32], layout: SeqLayout, sc: &mut FastScratch) {
             #[target_feature(enable = $features)]
             unsafe fn inner(e: &FastEncoder, x: &mut [f32], layout: SeqLayout, sc: &mut FastScratch) {
