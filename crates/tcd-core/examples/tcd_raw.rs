@@ -94,7 +94,7 @@ fn main() -> R<()> {
                 num(&args, 7, "STEP")?,
             );
             let mut out = vec![0.0f32; noisy.len()];
-            d.forward(&noisy, &observed, &mask, b, l, step, &mut out)?;
+            d.forward(&noisy, &observed, &mask, (b, l), step, &mut out)?;
             write_f32(arg(&args, 8, "OUT")?, &out)?;
         }
         Some("sample") => {

@@ -8,7 +8,6 @@ use common::*;
 use tcd_core::{Denoiser, Kernel, Role, TcdConfig, Workspace};
 
 /// A config with the given sizes (K = joints·3).
-#[allow(clippy::too_many_arguments)]
 fn config(joints: usize, channels: usize, heads: usize, ffn: usize, layers: usize, obs: usize, pred: usize) -> TcdConfig {
     let mut cfg = tiny_config(Role::Long, obs, pred);
     let m = &mut cfg.model;
@@ -46,7 +45,7 @@ fn compare_all(cfg: &TcdConfig, seed: u64, tol: f64) {
         .iter()
         .map(|&s| {
             let mut o = vec![0.0f32; n];
-            portable.forward(&noisy, &observed, &mask, b, l, s, &mut o).unwrap();
+            portable.forward(&noisy, &observed, &mask, (b, l), s, &mut o).unwrap();
             o
         })
         .collect();
@@ -125,8 +124,8 @@ fn every_kernel_matches_the_naive_reference() {
         let d = base.clone().with_kernel(kernel).unwrap();
         for step in [0usize, 9] {
             let mut out = vec![0.0f32; n];
-            d.forward(&noisy, &observed, &mask, b, l, step, &mut out).unwrap();
-            let want = naive_forward(d.config(), &tensors, &noisy, &observed, &mask, b, l, step);
+            d.forward(&noisy, &observed, &mask, (b, l), step, &mut out).unwrap();
+            let want = naive_forward(d.config(), &tensors, &noisy, &observed, &mask, (b, l), step);
             let scale = want.iter().fold(0.0f64, |a, v| a.max(v.abs()));
             let err = max_abs_diff(&out, &want);
             assert!(err < 1e-5 * scale.max(1.0), "{kernel} step {step}: {err}");
@@ -157,7 +156,7 @@ fn forcing_portable_and_unsupported_kernels() {
     let mut a = vec![0.0f32; n];
     let mut b = vec![0.0f32; n];
     auto.forward_with_workspace(&prepared, &mut ws, &x, &x, 3, &mut a).unwrap();
-    auto.forward(&x, &x, &mask, 1, 10, 3, &mut b).unwrap();
+    auto.forward(&x, &x, &mask, (1, 10), 3, &mut b).unwrap();
     assert_eq!(a, b);
 }
 

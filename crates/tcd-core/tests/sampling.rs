@@ -291,7 +291,7 @@ fn ddpm_all_steps_is_the_reference_chain() {
     let mut x = noise[..n].to_vec();
     let mut eps = vec![0.0f32; n];
     for (i, t) in (0..10usize).rev().enumerate() {
-        m.forward(&x, &observed, &mask, 1, 7, t, &mut eps).unwrap();
+        m.forward(&x, &observed, &mask, (1, 7), t, &mut eps).unwrap();
         let (a_t, a_next) = (abar(t as i64), abar(t as i64 - 1));
         let beta = 1.0 - a_t / a_next;
         let c1 = (1.0 / (1.0 - beta).sqrt()) as f32;
@@ -365,7 +365,7 @@ fn dpmpp2m_is_deterministic_with_one_noise_block_and_matches_a_hand_loop() {
     let mut prev: Vec<f32> = Vec::new();
     let mut h_prev = 0.0f64;
     for (i, &t) in ts.iter().enumerate() {
-        m.forward(&x, &observed, &mask, 1, l, t, &mut eps).unwrap();
+        m.forward(&x, &observed, &mask, (1, l), t, &mut eps).unwrap();
         let (a, b) = ((1.0 - ab[t]).sqrt() as f32, ab[t].sqrt() as f32);
         let x0: Vec<f32> = x
             .iter()

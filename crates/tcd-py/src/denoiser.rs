@@ -148,8 +148,7 @@ impl PyDenoiser {
                         &noisy.data,
                         &observed.data,
                         &mask.data,
-                        b,
-                        l,
+                        (b, l),
                         step,
                         &mut out,
                     )?;
@@ -165,7 +164,7 @@ impl PyDenoiser {
     /// numbered from `first_sequence`, or one stream id per sequence in `sequences`).
     #[pyo3(signature = (observed, mask, num_samples, options, *, noise=None, seed=None, first_sequence=0, sequences=None,
                         threads=None))]
-    #[allow(clippy::too_many_arguments)]
+    #[expect(clippy::too_many_arguments, reason = "a Python signature: pyo3 maps each keyword argument to one parameter")]
     fn sample<'py>(
         &self,
         py: Python<'py>,

@@ -23,7 +23,7 @@ use crate::error::{invalid, PyTcdError};
 #[pyfunction]
 #[pyo3(signature = (short, long, observed, mask, num_samples, options, *, noise_short=None, noise_long=None,
                     seed=None, first_sequence=0, sequences=None, threads=None))]
-#[allow(clippy::too_many_arguments)]
+#[expect(clippy::too_many_arguments, reason = "a Python signature: pyo3 maps each keyword argument to one parameter")]
 pub(crate) fn cascade<'py>(
     py: Python<'py>,
     short: &Bound<'py, PyDenoiser>,
@@ -131,7 +131,7 @@ pub(crate) fn cascade<'py>(
 #[pyfunction]
 #[pyo3(signature = (model, observed, mask, num_samples, options, *, noise=None, seed=None, first_sequence=0,
                     sequences=None, threads=None))]
-#[allow(clippy::too_many_arguments)]
+#[expect(clippy::too_many_arguments, reason = "a Python signature: pyo3 maps each keyword argument to one parameter")]
 pub(crate) fn repair<'py>(
     py: Python<'py>,
     model: &Bound<'py, PyDenoiser>,
@@ -197,7 +197,7 @@ pub(crate) fn repair<'py>(
 /// ChaCha8 keyed by (seed, first_sequence + b, sample, stage), standard normals in block order.
 #[pyfunction]
 #[pyo3(signature = (seed, stage, num_samples, num_blocks, batch, num_features, length, first_sequence=0))]
-#[allow(clippy::too_many_arguments)]
+#[expect(clippy::too_many_arguments, reason = "a Python signature: pyo3 maps each keyword argument to one parameter")]
 pub(crate) fn seeded_noise<'py>(
     py: Python<'py>,
     seed: i128,

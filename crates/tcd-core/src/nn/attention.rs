@@ -83,14 +83,8 @@ impl MultiHeadAttention {
         let len = len.min(x.len() / c).min(y.len() / c);
         scratch.ensure(c, len);
         self.in_proj.forward(&x[..len * c], &mut scratch.qkv[..len * 3 * c]);
-        let AttentionScratch {
-            qkv,
-            heads,
-            scores,
-            kt,
-            v,
-        } = scratch;
-        scaled_dot_product_attention(qkv, len, c, self.num_heads, heads, scores, kt, v);
+        let AttentionScratch { qkv, heads, head } = scratch;
+        scaled_dot_product_attention(qkv, len, c, self.num_heads, heads, head);
         self.out_proj.forward(&heads[..len * c], &mut y[..len * c]);
     }
 }
@@ -102,12 +96,8 @@ pub struct AttentionScratch {
     qkv: Vec<f32>,
     /// Concatenated head outputs (len × C).
     heads: Vec<f32>,
-    /// One query's scores (len).
-    scores: Vec<f32>,
-    /// One head's keys, transposed (head_dim × len).
-    kt: Vec<f32>,
-    /// One head's values (len × head_dim).
-    v: Vec<f32>,
+    /// Buffers of one head.
+    head: HeadScratch,
 }
 
 impl AttentionScratch {
@@ -120,27 +110,68 @@ impl AttentionScratch {
         };
         grow(&mut self.qkv, len * 3 * channels);
         grow(&mut self.heads, len * channels);
+        self.head.ensure(channels, len);
+    }
+}
+
+/// The buffers [`scaled_dot_product_attention`] works in, one head at a time: a query's scores
+/// (len), the head's keys transposed (head_dim × len) and its values (len × head_dim), sized for
+/// head_dim up to C.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct HeadScratch {
+    pub(crate) scores: Vec<f32>,
+    pub(crate) kt: Vec<f32>,
+    pub(crate) v: Vec<f32>,
+}
+
+impl HeadScratch {
+    /// Buffers for sequences of up to `len` tokens of `channels`.
+    pub(crate) fn new(channels: usize, len: usize) -> Self {
+        let mut s = HeadScratch::default();
+        s.ensure(channels, len);
+        s
+    }
+
+    /// Grows the buffers for sequences of `len` tokens of `channels`.
+    fn ensure(&mut self, channels: usize, len: usize) {
+        let grow = |b: &mut Vec<f32>, n: usize| {
+            if b.len() < n {
+                b.resize(n, 0.0);
+            }
+        };
         grow(&mut self.scores, len);
         grow(&mut self.kt, len * channels);
         grow(&mut self.v, len * channels);
     }
+
+    /// Whether the buffers hold sequences of `len` tokens of `channels`.
+    pub(crate) fn fits(&self, channels: usize, len: usize) -> bool {
+        self.scores.len() >= len && self.kt.len() >= len * channels && self.v.len() >= len * channels
+    }
+}
+
+/// One head's place in the packed projections of a sequence: `len` rows of `[q | k | v]` (3C
+/// wide, C = `channels`), its `dim` columns at `offset` in each part, and its softmax scale.
+#[derive(Clone, Copy, Debug)]
+struct Head {
+    len: usize,
+    channels: usize,
+    dim: usize,
+    offset: usize,
+    scale: f32,
 }
 
 /// Softmax attention on packed projections: `qkv` is (len × 3C), each row `[q | k | v]`; writes the
-/// concatenated head outputs to `out` (len × C). Scratch: `scores` (len), `kt` and `v`
-/// (len × head_dim each). Scale 1/√head_dim (computed in f64, as PyTorch does, then cast);
+/// concatenated head outputs to `out` (len × C), working in `scratch`. Scale 1/√head_dim (computed in f64, as PyTorch does, then cast);
 /// max-subtracted softmax, normalised before multiplying V. Each head's keys are transposed
 /// first so that the scores of a query vectorise over the keys.
-#[allow(clippy::too_many_arguments)]
 pub(crate) fn scaled_dot_product_attention(
     qkv: &[f32],
     len: usize,
     channels: usize,
     num_heads: usize,
     out: &mut [f32],
-    scores: &mut [f32],
-    kt: &mut [f32],
-    v: &mut [f32],
+    scratch: &mut HeadScratch,
 ) {
     if num_heads == 0 || len == 0 {
         return;
@@ -148,6 +179,7 @@ pub(crate) fn scaled_dot_product_attention(
     let hd = channels / num_heads;
     let stride = 3 * channels;
     let scale = (1.0 / (hd as f64).sqrt()) as f32;
+    let HeadScratch { scores, kt, v } = scratch;
     let scores = &mut scores[..len];
     let kt = &mut kt[..hd * len];
     let v = &mut v[..len * hd];
@@ -159,11 +191,18 @@ pub(crate) fn scaled_dot_product_attention(
             }
             v[j * hd..(j + 1) * hd].copy_from_slice(&row[vo..vo + hd]);
         }
+        let head = Head {
+            len,
+            channels,
+            dim: hd,
+            offset: qo,
+            scale,
+        };
         match hd {
-            4 => attend_fixed::<4>(qkv, len, channels, qo, scale, out, scores, kt, v),
-            8 => attend_fixed::<8>(qkv, len, channels, qo, scale, out, scores, kt, v),
-            16 => attend_fixed::<16>(qkv, len, channels, qo, scale, out, scores, kt, v),
-            _ => attend_dynamic(qkv, len, channels, hd, qo, scale, out, scores, kt, v),
+            4 => attend_fixed::<4>(qkv, head, out, scores, kt, v),
+            8 => attend_fixed::<8>(qkv, head, out, scores, kt, v),
+            16 => attend_fixed::<16>(qkv, head, out, scores, kt, v),
+            _ => attend_dynamic(qkv, head, out, scores, kt, v),
         }
     }
 }
@@ -190,19 +229,16 @@ fn softmax_scores(q: &[f32], kt: &[f32], len: usize, scale: f32, scores: &mut [f
 }
 
 /// One head with a compile-time head dimension (the output accumulator lives in registers).
-#[allow(clippy::too_many_arguments)]
 #[inline]
-fn attend_fixed<const HD: usize>(
-    qkv: &[f32],
-    len: usize,
-    channels: usize,
-    qo: usize,
-    scale: f32,
-    out: &mut [f32],
-    scores: &mut [f32],
-    kt: &[f32],
-    v: &[f32],
-) {
+fn attend_fixed<const HD: usize>(qkv: &[f32], head: Head, out: &mut [f32], scores: &mut [f32], kt: &[f32], v: &[f32]) {
+    debug_assert_eq!(head.dim, HD);
+    let Head {
+        len,
+        channels,
+        offset: qo,
+        scale,
+        ..
+    } = head;
     let stride = 3 * channels;
     for (i, row) in qkv.chunks_exact(stride).take(len).enumerate() {
         let inv = softmax_scores(&row[qo..qo + HD], kt, len, scale, scores);
@@ -219,19 +255,14 @@ fn attend_fixed<const HD: usize>(
 }
 
 /// One head, any head dimension.
-#[allow(clippy::too_many_arguments)]
-fn attend_dynamic(
-    qkv: &[f32],
-    len: usize,
-    channels: usize,
-    hd: usize,
-    qo: usize,
-    scale: f32,
-    out: &mut [f32],
-    scores: &mut [f32],
-    kt: &[f32],
-    v: &[f32],
-) {
+fn attend_dynamic(qkv: &[f32], head: Head, out: &mut [f32], scores: &mut [f32], kt: &[f32], v: &[f32]) {
+    let Head {
+        len,
+        channels,
+        dim: hd,
+        offset: qo,
+        scale,
+    } = head;
     let stride = 3 * channels;
     for (i, row) in qkv.chunks_exact(stride).take(len).enumerate() {
         let inv = softmax_scores(&row[qo..qo + hd], kt, len, scale, scores);
@@ -307,8 +338,8 @@ mod tests {
         let (len, c) = (3usize, 4usize);
         let qkv: Vec<f32> = (0..len * 3 * c).map(|i| ((i as f32) * 0.77).cos()).collect();
         let mut out = vec![0.0; len * c];
-        let (mut scores, mut kt, mut v) = (vec![0.0; len], vec![0.0; len * c], vec![0.0; len * c]);
-        scaled_dot_product_attention(&qkv, len, c, 2, &mut out, &mut scores, &mut kt, &mut v);
+        let mut scratch = HeadScratch::new(c, len);
+        scaled_dot_product_attention(&qkv, len, c, 2, &mut out, &mut scratch);
         for h in 0..2 {
             // Build a 1-head packed qkv of width 2 for head h.
             let mut sub = Vec::new();
@@ -319,7 +350,7 @@ mod tests {
                 }
             }
             let mut o1 = vec![0.0; len * 2];
-            scaled_dot_product_attention(&sub, len, 2, 1, &mut o1, &mut scores, &mut kt, &mut v);
+            scaled_dot_product_attention(&sub, len, 2, 1, &mut o1, &mut scratch);
             for i in 0..len {
                 for d in 0..2 {
                     assert_eq!(o1[i * 2 + d], out[i * c + h * 2 + d]);

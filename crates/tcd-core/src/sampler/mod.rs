@@ -13,7 +13,7 @@ use std::str::FromStr;
 
 use rayon::prelude::*;
 
-use crate::denoiser::{CondTables, Denoiser, Workspace};
+use crate::denoiser::{CondTables, Denoiser, SequenceInputs, Workspace};
 use crate::error::{check_len, check_positive, Error, Result};
 use crate::rng::{stage, ChainNoise, Noise};
 use crate::schedule::NoiseSchedule;
@@ -333,7 +333,14 @@ pub(crate) fn run_chain(
     let mut prev_x0 = vec![0.0f32; if plan.is_multistep() { n } else { 0 }];
     noise.fill(0, &mut x);
     for (i, step) in plan.steps.iter().enumerate() {
-        denoiser.forward_sequence(tables, mask, &x, observed, step.t, &mut eps, ws);
+        let seq = SequenceInputs {
+            tables,
+            mask,
+            noisy: &x,
+            observed,
+            step: step.t,
+        };
+        denoiser.forward_one(seq, &mut eps, ws);
         if uses_noise {
             noise.fill(i + 1, &mut z);
         }

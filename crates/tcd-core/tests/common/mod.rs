@@ -218,18 +218,17 @@ fn encoder(t: &BTreeMap<String, RawTensor>, prefix: &str, cfg: &ModelConfig, seq
     }
 }
 
-/// The whole denoiser in f64, written from the PyTorch formulas; returns (B, K, L).
-#[allow(clippy::too_many_arguments)]
+/// The whole denoiser in f64, written from the PyTorch formulas; `shape` = (B, L), returns (B, K, L).
 pub fn naive_forward(
     cfg: &TcdConfig,
     t: &BTreeMap<String, RawTensor>,
     noisy: &[f32],
     observed: &[f32],
     mask: &[f32],
-    batch: usize,
-    length: usize,
+    shape: (usize, usize),
     step: usize,
 ) -> Vec<f64> {
+    let (batch, length) = shape;
     let m = &cfg.model;
     let (k, l, c, d, te, e) = (
         m.num_features,

@@ -1,0 +1,135 @@
+//! The CSDI/TCD denoiser ε̂ = net(x_t, x₀, m, t) (TCD_REFERENCE.md section 1): load + forward.
+//!
+//! # Layouts
+//! * Public arrays (`noisy`, `observed`, `mask`, `out`) are **(B, K, L) row-major** f32:
+//!   index `b·K·L + k·L + l`, k the coordinate (joint·3 + axis), l the frame.
+//! * Inside, one sequence at a time, activations are **token-major**: (N = K·L tokens × C
+//!   channels), token `n = k·L + l`, so the time transformer's sequences (fixed k) are contiguous
+//!   and the feature transformer works on a transposed copy (L × K × C).
+//!
+//! # Hoisting
+//! The cond projection `W_c · [pe(l) | emb(k) | m] + b` is split into a per-frame table
+//! (`W_t · pe(l) + b`, built by [`Denoiser::prepare`] once per length), a per-coordinate table
+//! (`W_f · emb(k)`, built at load) and the mask column; the step embedding and every block's
+//! diffusion projection are tabulated at load for all T steps. Both only regroup sums.
+//!
+//! # Files
+//! * `mod.rs`: the [`Denoiser`] type and its accessors;
+//! * `load.rs`: loading a weight file and hoisting (the step and cond tables), kernel choice;
+//! * `workspace.rs`: what forwards reuse: [`CondTables`], [`Prepared`], [`Workspace`];
+//! * `forward.rs`: the public forward calls (checks) and the per-sequence dispatch;
+//! * `portable.rs`: one sequence on the portable layers of [`crate::nn`];
+//! * `packed.rs`: one sequence on the SIMD kernels (weights packed at load);
+//! * `fill.rs`: the network input and the observed channel's fills ([`fill_linear`], [`fill_spline`]).
+
+use std::path::{Path, PathBuf};
+
+use crate::config::{Role, TcdConfig};
+use crate::kernels::Kernel;
+use crate::nn::{EncoderLayer, Linear};
+use crate::schedule::NoiseSchedule;
+
+mod fill;
+mod forward;
+mod load;
+mod packed;
+mod portable;
+mod workspace;
+
+pub use fill::{fill_linear, fill_spline};
+pub(crate) use forward::SequenceInputs;
+pub use workspace::{CondTables, Prepared, Workspace};
+
+use packed::FastModel;
+
+/// One residual block with its cond projection split for hoisting.
+#[derive(Clone, Debug)]
+struct ResidualLayer {
+    time_layer: EncoderLayer,
+    feature_layer: EncoderLayer,
+    mid_projection: Linear,
+    output_projection: Linear,
+    /// Time-embedding columns of cond_projection, with its bias: (time_embedding_dim → 2C).
+    cond_time: Linear,
+    /// `W_f · emb(k)` for every coordinate k: (K × 2C).
+    cond_feature: Vec<f32>,
+    /// The mask column of cond_projection (2C).
+    cond_mask: Vec<f32>,
+}
+
+/// The loaded model. Immutable after load; `Send + Sync`, share it between threads freely.
+#[derive(Clone, Debug)]
+pub struct Denoiser {
+    path: PathBuf,
+    config: TcdConfig,
+    config_json: String,
+    schedule: NoiseSchedule,
+    /// Conv1d 2 → C.
+    input_projection: Linear,
+    /// (T × D): SiLU(P2 · SiLU(P1 · table[t])).
+    step_embedding: Vec<f32>,
+    /// (T × N_layers × C): diffusion_projection_i(step_embedding[t]).
+    step_bias: Vec<f32>,
+    layers: Vec<ResidualLayer>,
+    /// Conv1d C → C.
+    output_projection1: Linear,
+    /// Conv1d C → 1.
+    output_projection2: Linear,
+    /// The kernel in use (resolved: never `Auto`).
+    kernel: Kernel,
+    /// Packed weights of the SIMD kernel, if one is in use.
+    fast: Option<FastModel>,
+}
+
+impl Denoiser {
+    /// The kernel this model runs (never `Auto`).
+    pub fn kernel(&self) -> Kernel {
+        self.kernel
+    }
+
+    /// The file the model came from (or the name given to [`Denoiser::from_bytes`]).
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+    /// The parsed `tcd_config`.
+    pub fn config(&self) -> &TcdConfig {
+        &self.config
+    }
+    /// The `tcd_config` JSON exactly as stored.
+    pub fn config_json(&self) -> &str {
+        &self.config_json
+    }
+    /// The model's role (`short`, `long`, `repair`).
+    pub fn role(&self) -> Role {
+        self.config.role
+    }
+    /// K: coordinates per frame.
+    pub fn num_features(&self) -> usize {
+        self.config.model.num_features
+    }
+    /// Observed frames of the training window.
+    pub fn obs_len(&self) -> usize {
+        self.config.window.obs_len
+    }
+    /// Predicted frames of the training window.
+    pub fn pred_len(&self) -> usize {
+        self.config.window.pred_len
+    }
+    /// L of the training window.
+    pub fn seq_len(&self) -> usize {
+        self.config.window.seq_len
+    }
+    /// T.
+    pub fn num_train_timesteps(&self) -> usize {
+        self.config.diffusion.num_train_timesteps
+    }
+    /// betas and ᾱ in f64.
+    pub fn schedule(&self) -> &NoiseSchedule {
+        &self.schedule
+    }
+    /// The step embedding e_t (D values) after both projections, for inspection.
+    pub fn step_embedding(&self, step: usize) -> Option<&[f32]> {
+        let d = self.config.model.diffusion_embedding_dim;
+        self.step_embedding.get(step * d..(step + 1) * d)
+    }
+}

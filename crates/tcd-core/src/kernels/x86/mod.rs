@@ -1,0 +1,116 @@
+//! x86-64 SIMD kernels (AVX-512F + FMA and AVX2 + FMA) written once, generically over a small
+//! vector trait [`simd::Simd`], and instantiated inside `#[target_feature]` entry points.
+//!
+//! Every generic function in these files is `#[inline(always)]`, so that it is compiled into the
+//! `#[target_feature]` entry point that calls it and the intrinsics inline into it.
+//!
+//! Soundness: the entry points (`*_avx2`, `*_avx512`) are safe functions that are only reachable
+//! through [`super::Isa`] values, which exist only after runtime detection of the features; the
+//! dispatchers in `super` check every size and stride against the slices before calling them, so
+//! the raw-pointer arithmetic in these files stays inside the slices.
+//!
+//! Files: `simd` (the vector trait and its AVX-512 / AVX2 implementations), `math` (exp, erf,
+//! GELU, gated activation), `gemm` (packed GEMM micro-kernel), `attention` (fused attention),
+//! `encoder` (LayerNorm and the encoder layer), `tail` (residual-block tail); this file holds the
+//! `#[target_feature]` entry points the dispatchers call.
+#![allow(unsafe_code)]
+
+use rayon::prelude::*;
+
+use super::{Epilogue, FastEncoder, FastScratch, Matrix, MatrixMut, Packed, SeqLayout, TailInputs, TailStreams};
+use encoder::encoder;
+use gemm::gemm;
+use simd::{Avx2, Avx512};
+use tail::tail;
+
+mod attention;
+mod encoder;
+mod gemm;
+mod math;
+mod simd;
+mod tail;
+
+// ---------------------------------------------------------------------- entry points
+
+/// A base pointer shared by the workers of [`encoder_par_avx512`] / [`encoder_par_avx2`], each of
+/// which writes only the tokens of its own sequences.
+struct SharedBase(*mut f32);
+
+// SAFETY: the pointer is only dereferenced by the encoder kernels on disjoint token sets (the
+// dispatcher checked that the layout maps distinct (sequence, token) pairs to disjoint rows).
+unsafe impl Send for SharedBase {}
+// SAFETY: as above.
+unsafe impl Sync for SharedBase {}
+
+impl SharedBase {
+    fn get(&self) -> *mut f32 {
+        self.0
+    }
+}
+
+macro_rules! entries {
+    ($simd:ty, $features:literal, $gemm:ident, $encoder:ident, $encoder_par:ident, $tail:ident) => {
+        /// Encoder-layer entry point splitting the sequences over `scratch.len()` rayon workers
+        /// (layout checked injective and in bounds by [`super::encoder_par`]).
+        pub(super) fn $encoder_par(e: &FastEncoder, x: &mut [f32], layout: SeqLayout, scratch: &mut [FastScratch]) {
+            #[target_feature(enable = $features)]
+            unsafe fn inner(e: &FastEncoder, x: *mut f32, layout: SeqLayout, sc: &mut FastScratch) {
+                // SAFETY: forwarded from the caller.
+                unsafe { encoder::<$simd>(e, x, layout, sc) }
+            }
+            let parts = scratch.len();
+            let base = SharedBase(x.as_mut_ptr());
+            let base = &base;
+            scratch.par_iter_mut().enumerate().for_each(|(p, sc)| {
+                let (s0, s1) = (layout.num_seq * p / parts, layout.num_seq * (p + 1) / parts);
+                if s1 > s0 {
+                    let sub = SeqLayout {
+                        num_seq: s1 - s0,
+                        ..layout
+                    };
+                    // SAFETY: features detected (reachable only through an `Isa`); sequences
+                    // s0..s1 lie inside x (checked by the dispatcher) and no other worker touches
+                    // their tokens (the layout is injective, sequence ranges are disjoint); `x`
+                    // stays mutably borrowed until every worker has finished.
+                    unsafe { inner(e, base.get().add(s0 * layout.seq_stride), sub, sc) }
+                }
+            });
+        }
+
+        /// GEMM entry point (shapes, strides and sizes checked by [`super::gemm`]).
+        pub(super) fn $gemm(x: Matrix<'_>, w: &Packed, y: MatrixMut<'_>, epi: Epilogue) {
+            #[target_feature(enable = $features)]
+            unsafe fn inner(x: Matrix<'_>, w: &Packed, y: MatrixMut<'_>, epi: Epilogue) {
+                // SAFETY: shapes, strides and sizes checked by the dispatcher.
+                unsafe { gemm::<$simd>(x.data.as_ptr(), x.ld, x.rows, w, y.data.as_mut_ptr(), y.ld, epi) }
+            }
+            // SAFETY: reachable only through an `Isa` built after detecting these features.
+            unsafe { inner(x, w, y, epi) }
+        }
+
+        /// Encoder-layer entry point (sizes checked by [`super::fast::encoder`]).
+        pub(super) fn $encoder(e: &FastEncoder, x: &mut [f32], layout: SeqLayout, sc: &mut FastScratch) {
+            #[target_feature(enable = $features)]
+            unsafe fn inner(e: &FastEncoder, x: &mut [f32], layout: SeqLayout, sc: &mut FastScratch) {
+                // SAFETY: sizes and strides checked by the dispatcher.
+                unsafe { encoder::<$simd>(e, x.as_mut_ptr(), layout, sc) }
+            }
+            // SAFETY: reachable only through an `Isa` built after detecting these features.
+            unsafe { inner(e, x, layout, sc) }
+        }
+
+        /// Residual-block tail entry point (sizes checked by [`super::block_tail`]).
+        pub(super) fn $tail(inp: &TailInputs<'_>, k0: usize, streams: TailStreams<'_>, sc: &mut FastScratch) {
+            #[target_feature(enable = $features)]
+            unsafe fn inner(inp: &TailInputs<'_>, k0: usize, streams: TailStreams<'_>, sc: &mut FastScratch) {
+                // SAFETY: sizes checked by the dispatcher.
+                unsafe { tail::<$simd>(inp, k0, streams, sc) }
+            }
+            // SAFETY: reachable only through an `Isa` built after detecting these features.
+            unsafe { inner(inp, k0, streams, sc) }
+        }
+    };
+}
+
+entries!(Avx512, "avx512f,fma", gemm_avx512, encoder_avx512, encoder_par_avx512, tail_avx512);
+entries!(Avx2, "avx2,fma", gemm_avx2, encoder_avx2, encoder_par_avx2, tail_avx2);
