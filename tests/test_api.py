@@ -260,7 +260,8 @@ def test_gil_is_released_during_compute(model_dir):
 
     def work():
         t0 = time.perf_counter()
-        d.sample(obs, mask, 4, seed=0, sampler="ddim", num_inference_steps=10, threads=1)
+        # enough work to take well over 0.1 s even on the fastest CPU seen (Zen 5, AVX-512: about 0.3 s)
+        d.sample(obs, mask, 8, seed=0, sampler="ddim", num_inference_steps=25, threads=1)
         durations.append(time.perf_counter() - t0)
 
     th = threading.Thread(target=work)

@@ -118,6 +118,41 @@ def test_refuses_to_overwrite(model_dir, npz, tmp_path, capsys):
     code, _, err = run(["forecast", npz, "-o", out_path, "--model", model_dir, *FAST], capsys)
     assert code == 2 and "exists" in err and "--overwrite" in err
     assert out_path.read_bytes() == b"precious"
+
+
+def test_failure_while_writing_leaves_no_output(model_dir, npz, tmp_path, capsys, monkeypatch):
+    """OUT is written atomically: a failure half-way (np.savez raising after some bytes) leaves no file
+    under OUT, or with --overwrite the old OUT as it was, and no temporary file."""
+    def savez(fh, **arrays):
+        fh.write(b"partial bytes")
+        raise OSError("disk full")
+
+    monkeypatch.setattr(np, "savez", savez)
+    out_path = tmp_path / "out.npz"
+    code, _, err = run(["forecast", npz, "-o", out_path, "--model", model_dir, *FAST], capsys)
+    assert code == 1 and "disk full" in err
+    assert not out_path.exists()
+    out_path.write_bytes(b"precious")
+    code, _, err = run(["forecast", npz, "-o", out_path, "--model", model_dir, "--overwrite", *FAST], capsys)
+    assert code == 1 and "disk full" in err
+    assert out_path.read_bytes() == b"precious"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.npz", "out.npz"]
+
+
+def test_output_appearing_during_the_run_is_kept(model_dir, npz, tmp_path, capsys, monkeypatch):
+    """Without --overwrite an OUT that appears after the start (another process) is never replaced."""
+    out_path = tmp_path / "out.npz"
+    real_savez = np.savez
+
+    def savez(fh, **arrays):
+        out_path.write_bytes(b"someone else's")
+        real_savez(fh, **arrays)
+
+    monkeypatch.setattr(np, "savez", savez)
+    code, _, err = run(["forecast", npz, "-o", out_path, "--model", model_dir, *FAST], capsys)
+    assert code == 2 and "exists" in err and "--overwrite" in err
+    assert out_path.read_bytes() == b"someone else's"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.npz", "out.npz"]
     code, _, err = run(["forecast", npz, "-o", out_path, "--model", model_dir, "--overwrite", *FAST], capsys)
     assert code == 0, err
     with np.load(out_path) as f:
@@ -131,7 +166,7 @@ def save(path, **arrays):
 
 @pytest.mark.parametrize("case", [
     "short_poses", "wrong_joints", "no_poses", "missing_input", "not_npz", "bad_mask", "all_missing",
-    "bad_samples", "bad_steps", "bad_sampler", "bad_units", "bad_eta", "missing_model", "negative_seed",
+    "bad_samples", "bad_steps", "bad_eta", "missing_model", "negative_seed",
 ])
 def test_bad_input_exit_code_2(model_dir, npz, tmp_path, capsys, case):
     good = np.load(npz)["poses"]
@@ -155,10 +190,6 @@ def test_bad_input_exit_code_2(model_dir, npz, tmp_path, capsys, case):
         extra = ["--samples", "0"]
     elif case == "bad_steps":
         extra = ["--steps", "51"]
-    elif case == "bad_sampler":
-        extra = ["--sampler", "euler"]
-    elif case == "bad_units":
-        extra = ["--units", "cm"]
     elif case == "bad_eta":
         extra = ["--eta", "2"]
     elif case == "missing_model":
@@ -169,6 +200,23 @@ def test_bad_input_exit_code_2(model_dir, npz, tmp_path, capsys, case):
     code, out, err = run(["forecast", inp, "-o", out_path, "--model", model, *FAST, *extra], capsys)
     assert code == 2, (out, err)
     assert err.startswith("tcd forecast: error: ") and len(err.strip()) > len("tcd forecast: error: ") + 10
+    assert "Traceback" not in err
+    assert not out_path.exists()
+
+
+@pytest.mark.parametrize("command, flag, value", [
+    ("forecast", "--sampler", "euler"), ("forecast", "--units", "cm"), ("forecast", "--spacing", "middle"),
+    ("demo", "--sampler", "euler"),
+])
+def test_bad_choice_is_a_usage_error(model_dir, npz, tmp_path, capsys, command, flag, value):
+    """An enumerated flag's choices are argparse's: a bad one exits with 2, naming the flag and the value."""
+    out_path = tmp_path / "out.npz"
+    argv = [command, *([npz] if command == "forecast" else []), "-o", out_path, "--model", model_dir, flag, value]
+    with pytest.raises(SystemExit) as ei:
+        run(argv, capsys)
+    assert ei.value.code == 2
+    err = capsys.readouterr().err
+    assert f"tcd {command}: error: " in err and flag in err and value in err
     assert "Traceback" not in err
     assert not out_path.exists()
 

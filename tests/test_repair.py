@@ -20,8 +20,8 @@ import tcd
 from conftest import H36M_DIR, ROOT, needs_h36m
 from fixtures_util import make_model_dir, poses
 from tcd import batch_repair, fk
-from tcd.batch_repair import command as repair_command, runner as repair_runner, windows as repair_windows
-from tcd.cli import main
+from tcd.batch_repair import runner as repair_runner, windows as repair_windows
+from tcd.cli import main, repair as repair_command
 
 FAST = ["--steps", "2", "--sampler", "ddim", "--samples", "2"]
 FAST_KW = dict(num_inference_steps=2, sampler="ddim", num_samples=2)
@@ -325,10 +325,15 @@ def test_never_overwrites_an_input(model_dir, tmp_path, capsys):
 def test_bad_arguments_exit_2(model_dir, tmp_path, capsys):
     src = tmp_path / "in.npz"
     np.savez(src, poses=gappy(np.random.default_rng(7), 20))
-    for extra, why in ((["--units", "cm"], "--units"), (["--steps", "0"], "--steps"), (["--fps", "-5"], "--fps"),
-                       (["--overlap", "50"], "--overlap"), (["--lookahead", "45"], "--lookahead"), (["--sampler", "euler"], "--sampler")):
+    for extra, why in ((["--steps", "0"], "--steps"), (["--fps", "-5"], "--fps"), (["--overlap", "50"], "--overlap"),
+                       (["--lookahead", "45"], "--lookahead")):
         code, _, err = run([src, "-o", tmp_path / "o", "--model", model_dir, *extra], capsys)
         assert code == 2 and why in err, (extra, err)
+    for flag, value in (("--units", "cm"), ("--sampler", "euler")):  # choices: argparse's usage error
+        with pytest.raises(SystemExit) as ei:
+            run([src, "-o", tmp_path / "o", "--model", model_dir, flag, value], capsys)
+        err = capsys.readouterr().err
+        assert ei.value.code == 2 and "tcd repair: error: " in err and flag in err and value in err, err
     code, _, err = run([tmp_path / "missing.npz", "-o", tmp_path / "o", "--model", model_dir], capsys)
     assert code == 2 and "does not exist" in err
     code, _, err = run([src, "-o", tmp_path / "o", "--model", tmp_path / "nomodel"], capsys)

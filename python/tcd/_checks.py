@@ -9,7 +9,6 @@ import numpy as np
 
 from .exceptions import InvalidInputError
 
-UNITS = ("m", "mm")
 MAX_SEED = 2**64 - 1
 
 

@@ -29,7 +29,7 @@ from typing import Any, Dict, List, Optional, Tuple
 
 import numpy as np
 
-from .batch_repair import write_npz_atomic
+from .files import write_named_atomic, write_npz_atomic
 from .model import TCD
 from .options import SamplerOptions
 
@@ -202,19 +202,21 @@ def summary(res: Dict[str, Any], model: TCD) -> str:
     return "\n".join(lines)
 
 
-def save(res: Dict[str, Any], path: Path, model: TCD) -> None:
-    """Writes the demo's arrays and numbers to ``path`` (.npz) atomically."""
+def save(res: Dict[str, Any], path: Path, model: TCD, overwrite: bool = True) -> None:
+    """Writes the demo's arrays and numbers to ``path`` (.npz) atomically (``FileExistsError`` when it exists
+    and not ``overwrite``)."""
     meta = {k: res[k] for k in ("settings", "timings_s", "forecast_mm", "occluded_forecast_mm", "zero_velocity_mm",
                                 "repair_ade_mm", "linear_interpolation_ade_mm", "occluded_fraction", "fps")}
     meta["model_sha256"] = model.sha256
     arrays = {k: res[k] for k in ("observed", "future", "forecast_mean", "forecast_samples", "occlusion_mask",
                                   "occluded_forecast_mean", "repaired")}
-    write_npz_atomic(path, True, joint_names=np.array(res["joint_names"]), summary=np.array(json.dumps(meta)),
+    write_npz_atomic(path, overwrite, joint_names=np.array(res["joint_names"]), summary=np.array(json.dumps(meta)),
                      **arrays)
 
 
-def plot(res: Dict[str, Any], path: Path, fps: float) -> None:
-    """Renders observed / repaired (left) and forecast vs truth (right) as an animated GIF."""
+def plot(res: Dict[str, Any], path: Path, fps: float, overwrite: bool = True) -> None:
+    """Renders observed / repaired (left) and forecast vs truth (right) as an animated GIF, written
+    atomically (``FileExistsError`` when it exists and not ``overwrite``)."""
     try:
         import matplotlib
         matplotlib.use("Agg")
@@ -274,5 +276,7 @@ def plot(res: Dict[str, Any], path: Path, fps: float) -> None:
         return []
 
     anim = FuncAnimation(fig, frame, frames=n_obs + h, interval=1000 / fps)
-    anim.save(str(path), writer=PillowWriter(fps=fps))
-    plt.close(fig)
+    try:
+        write_named_atomic(path, lambda tmp: anim.save(str(tmp), writer=PillowWriter(fps=fps)), overwrite)
+    finally:
+        plt.close(fig)

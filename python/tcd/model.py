@@ -17,7 +17,7 @@ from typing import Any, Dict, List, Optional, Tuple, Union
 import numpy as np
 
 from . import _checks
-from .poses import validate_poses
+from .poses import UNIT_SCALE, check_units, validate_poses
 from .denoiser import Denoiser, cascade_raw, repair_raw
 from .exceptions import WeightsError
 from .options import SamplerOptions
@@ -26,7 +26,6 @@ __all__ = ["TCD", "Forecast", "load", "forecast", "repair", "default_model_dir"]
 
 PathLike = Union[str, "os.PathLike[str]"]
 
-_UNIT_SCALE = {"m": 1.0, "mm": 1000.0}
 
 
 def default_model_dir() -> Path:
@@ -90,7 +89,7 @@ def _poses(obs: Any, mask: Any, num_joints: int, obs_len: int, units: str) -> _P
     p = validate_poses(obs, mask, num_joints=num_joints, frames=obs_len)
     a4, full, dtype = p.values, p.observed, p.dtype
     b, t = a4.shape[:2]
-    scale = _UNIT_SCALE[units]
+    scale = UNIT_SCALE[units]
     x = np.where(full, a4, 0.0)
     if scale != 1.0:
         x = x / scale
@@ -187,7 +186,7 @@ class TCD:
                 threads: Any) -> Tuple[int, SamplerOptions, str, Optional[int]]:
         num_samples = _checks.integer("num_samples", num_samples, 1)
         o = SamplerOptions.build(options, **sampler)
-        units = _checks.choice("units", units, tuple(_UNIT_SCALE))
+        units = check_units(units)
         threads = _checks.threads(threads)
         return num_samples, o, units, self.threads if threads is None else threads
 

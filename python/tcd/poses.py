@@ -16,7 +16,15 @@ import numpy as np
 from . import _checks
 from .exceptions import InvalidInputError
 
-__all__ = ["Poses", "validate_poses"]
+__all__ = ["Poses", "UNIT_SCALE", "check_units", "validate_poses"]
+
+#: The units a pose array may be in, each with what divides it into metres (the models' unit).
+UNIT_SCALE = {"m": 1.0, "mm": 1000.0}
+
+
+def check_units(value: Any) -> str:
+    """``value`` if it names one of :data:`UNIT_SCALE`'s units, else an InvalidInputError naming ``units``."""
+    return _checks.choice("units", value, tuple(UNIT_SCALE))
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,8 @@ import numpy as np
 from .. import fk
 from ..exceptions import InvalidInputError
 from ..poses import validate_poses
-from .options import BadFile, PathLike, _UNIT_SCALE
+from ..poses import UNIT_SCALE
+from .options import BadFile, PathLike
 
 # ---------------------------------------------------------------------------------------------- inputs
 @dataclass
@@ -82,7 +83,7 @@ def load_input(path: PathLike, num_joints: int, units: str = "m", fps: Optional[
         if np.isinf(rows).any():
             t, c = (int(i) for i in np.argwhere(np.isinf(rows))[0])
             raise BadFile(f"the exp-map file holds an infinite value at row {t}, column {c}")
-        poses = fk.expmap_to_model(rows) * _UNIT_SCALE[units]
+        poses = fk.expmap_to_model(rows) * UNIT_SCALE[units]
         full = ~np.isnan(poses)
         src_fps = fk.H36M_TXT_FPS if fps is None else fps
         mask_out = full

@@ -10,6 +10,7 @@ from typing import Any, Dict, Optional, Union
 import numpy as np
 
 from .. import _checks
+from ..poses import check_units
 from .._native import __version__
 from ..denoiser import Denoiser
 from ..options import SamplerOptions
@@ -21,7 +22,6 @@ DEFAULT_LOOKAHEAD = 10
 DEFAULT_SEED = 0
 DEFAULT_FILES_PER_BATCH = 4
 INPUT_SUFFIXES = (".npz", ".txt")
-_UNIT_SCALE = {"m": 1.0, "mm": 1000.0}
 _EPS = 1e-9
 
 
@@ -66,7 +66,7 @@ class RepairOptions:
             num_samples=_checks.integer("num_samples", kw.get("num_samples", 5), 1),
             sampling=sampling,
             seed=_checks.integer("seed", DEFAULT_SEED if seed is None else seed, 0, _checks.MAX_SEED),
-            units=_checks.choice("units", kw.get("units", "m"), tuple(_UNIT_SCALE)),
+            units=check_units(kw.get("units", "m")),
             fps=fps,
             overlap=overlap, lookahead=lookahead,
             threads=_checks.threads(kw.get("threads")),

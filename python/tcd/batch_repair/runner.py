@@ -14,8 +14,8 @@ import numpy as np
 
 from ..denoiser import repair_raw
 from ..exceptions import InvalidInputError
+from ..files import write_npz_atomic
 from ..options import SamplerOptions
-from .files import write_npz_atomic
 from .inputs import load_input, peek_frames
 from .options import BadFile, DEFAULT_FILES_PER_BATCH, DEFAULT_LOOKAHEAD, DEFAULT_OVERLAP, DEFAULT_SEED, INPUT_SUFFIXES, PathLike, RepairOptions, _denoiser, provenance
 from .windows import FileJob

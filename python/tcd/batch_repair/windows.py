@@ -8,7 +8,8 @@ from typing import List, Optional, Tuple
 import numpy as np
 
 from .inputs import Loaded
-from .options import _EPS, _UNIT_SCALE
+from ..poses import UNIT_SCALE
+from .options import _EPS
 
 # ---------------------------------------------------------------------------------------------- resampling
 def _resample_forward(x: np.ndarray, m: np.ndarray, src_fps: float, dst_fps: float) -> Tuple[np.ndarray, np.ndarray]:
@@ -60,7 +61,7 @@ class FileJob:
     def __init__(self, loaded: Loaded, window: int, overlap: int, model_fps: Optional[float], units: str,
                  lookahead: int = 0) -> None:
         self.loaded = loaded
-        self.scale = _UNIT_SCALE[units]
+        self.scale = UNIT_SCALE[units]
         p = loaded.poses
         t, j, _ = p.shape
         k = j * 3

@@ -1,4 +1,4 @@
-"""``tcd repair``: its arguments, its progress bar and its report."""
+"""``tcd repair``: its arguments, its progress bar and its report; the work is :mod:`tcd.batch_repair`'s."""
 from __future__ import annotations
 
 import json
@@ -7,20 +7,25 @@ import time
 from pathlib import Path
 from typing import Any
 
-
+from ..poses import UNIT_SCALE
 from .._native import __version__
+from ..batch_repair.inputs import peek_frames
+from ..batch_repair.options import (DEFAULT_FILES_PER_BATCH, DEFAULT_LOOKAHEAD, DEFAULT_OVERLAP, DEFAULT_SEED,
+                                    RepairOptions)
+from ..batch_repair.runner import Outcome, collect_tasks, run_tasks, same_path
 from ..exceptions import InvalidInputError
-from .files import write_text_atomic
-from .inputs import peek_frames
-from .options import DEFAULT_FILES_PER_BATCH, DEFAULT_LOOKAHEAD, DEFAULT_OVERLAP, DEFAULT_SEED, RepairOptions
-from .runner import Outcome, collect_tasks, run_tasks, same_path
+from ..files import write_text_atomic
+from .common import (EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK, OPTION_FLAGS, _BadInput, add_model_flag,
+                     add_sampler_flags, flag_message, load_model, sampler_options)
 
-# ---------------------------------------------------------------------------------------------- `tcd repair`
+# RepairOptions.make's arguments by the flag that sets each, for the error messages (--jobs sets threads).
+FLAGS = {**OPTION_FLAGS, "threads": "--jobs", "fps": "--fps", "overlap": "--overlap", "lookahead": "--lookahead"}
+
 CLI_USAGE = ("tcd repair INPUT... -o OUTDIR [--model DIR] [--units m|mm] [--fps F] [--steps N] [--sampler ddpm|ddim|dpmpp2m] "
              "[--samples N] [--seed S] [--overlap C] [--lookahead L] [--jobs N] [--overwrite] [--report report.json] [--quiet]")
 
 
-def add_subparser(sub: Any) -> Any:
+def add_parser(sub: Any) -> Any:
     """Adds the ``repair`` subcommand to the ``tcd`` argument parser."""
     rp = sub.add_parser(
         "repair", help="repair (fill the missing values of) pose files of any length",
@@ -32,12 +37,12 @@ def add_subparser(sub: Any) -> Any:
         "report), 2 bad arguments, 130 interrupted (re-run the command to resume).")
     rp.add_argument("inputs", nargs="+", metavar="INPUT", help=".npz / .txt files or directories")
     rp.add_argument("-o", "--output", metavar="OUTDIR", required=True, help="output directory (created if needed)")
-    rp.add_argument("--model", metavar="DIR", help="model directory (default: the bundled model)")
-    rp.add_argument("--units", default="m", help="units of the poses: m (default) or mm (outputs in the same units)")
+    add_model_flag(rp)
+    rp.add_argument("--units", default="m", choices=tuple(UNIT_SCALE),
+                    help="units of the poses: m (default) or mm (outputs in the same units)")
     rp.add_argument("--fps", type=float, default=None, metavar="F",
                     help="frame rate of the inputs (default: the model's; 50 for exp-map .txt); other rates are "
                     "resampled to the model's and back")
-    from ..cli import add_sampler_flags
     add_sampler_flags(rp, tuning=False)
     rp.add_argument("--samples", type=int, default=5, metavar="N", help="samples averaged per window (default 5)")
     rp.add_argument("--seed", type=int, default=DEFAULT_SEED, metavar="S",
@@ -64,14 +69,11 @@ def _progress_bar(total: int, quiet: bool) -> Any:
     return tqdm(total=total, unit="frame", unit_scale=True, desc="tcd repair", file=sys.stderr, dynamic_ncols=True)
 
 
-def cli(args: Any) -> int:
+def run(args: Any) -> int:
     """Runs ``tcd repair``; returns the exit code (0 ok, 1 some file failed, 2 bad arguments, 130 interrupted)."""
-    from ..exceptions import WeightsError
-    from ..model import load
-
     def bad(msg: str) -> int:
         print(f"tcd repair: error: {msg}", file=sys.stderr)
-        return 2
+        return EXIT_BAD_INPUT
 
     out = Path(args.output)
     if out.exists() and not out.is_dir():
@@ -85,19 +87,14 @@ def cli(args: Any) -> int:
     if args.report and any(same_path(Path(args.report), t.src) for t in tasks):
         return bad(f"the report {args.report} would overwrite an input.")
     try:
-        model = load(args.model)
-    except (FileNotFoundError, NotADirectoryError, WeightsError, InvalidInputError) as e:
-        return bad(str(e))
-    from ..cli import OPTION_FLAGS, _BadInput, flag_message, sampler_options
-    try:
+        model = load_model(args.model)
         opts = RepairOptions.make(model, options=sampler_options(args), num_samples=args.samples, seed=args.seed,
                                   units=args.units, fps=args.fps, overlap=args.overlap, lookahead=args.lookahead,
                                   threads=args.jobs)
     except _BadInput as e:
         return bad(str(e))
     except InvalidInputError as e:
-        return bad(flag_message(e, {**OPTION_FLAGS, "threads": "--jobs", "fps": "--fps", "overlap": "--overlap",
-                                    "lookahead": "--lookahead"}))
+        return bad(flag_message(e, FLAGS))
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:
@@ -128,7 +125,7 @@ def cli(args: Any) -> int:
             bar.close()
         print("tcd repair: interrupted; finished outputs are complete, re-run the command to resume.",
               file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
     finally:
         if bar is not None:
             bar.close()
@@ -149,9 +146,9 @@ def cli(args: Any) -> int:
             write_text_atomic(Path(args.report), json.dumps(report, indent=2) + "\n")
         except OSError as e:
             print(f"tcd repair: error: cannot write the report {args.report}: {e}", file=sys.stderr)
-            return 1
+            return EXIT_FAILURE
     if not args.quiet:
         fps_txt = f", {summary['frames_per_second']} frames/s" if summary["frames_per_second"] else ""
         print(f"tcd repair: {count['repaired']} repaired, {count['skipped']} skipped, {count['failed']} failed "
               f"({frames} frames in {seconds:.1f} s{fps_txt}) -> {out}")
-    return 1 if count["failed"] else 0
+    return EXIT_FAILURE if count["failed"] else EXIT_OK

@@ -1,0 +1,66 @@
+"""The ``tcd`` command line.
+
+    tcd demo [-o demo.npz] [--model DIR] [--samples N] [--steps S] [--sampler ddpm|ddim|dpmpp2m] [--seed S]
+             [--threads N] [--plot demo.gif] [--overwrite] [--quiet]
+    tcd info [--model DIR] [--json]
+    tcd forecast IN.npz -o OUT.npz [--model DIR] [--samples N] [--steps S] [--sampler ddpm|ddim|dpmpp2m]
+                 [--eta E] [--spacing trailing|leading|linspace] [--seed S] [--units m|mm]
+                 [--threads N] [--overwrite]
+    tcd repair INPUT... -o OUTDIR [--model DIR] [--units m|mm] [--fps F] [--steps N] [--sampler ddpm|ddim|dpmpp2m]
+               [--samples N] [--seed S] [--overlap C] [--lookahead L] [--jobs N] [--overwrite] [--report FILE] [--quiet]
+
+IN.npz holds ``poses``, (T, J, 3) or (B, T, J, 3) with NaN = missing, and optionally ``mask``
+(1 = observed). OUT.npz receives ``mean``, ``samples``, ``repaired`` and ``seed``. An existing OUT is
+never replaced without ``--overwrite``; every output is written under a temporary name and renamed into
+place (:mod:`tcd.files`), so it is complete or absent.
+
+Exit codes: 0 success; 2 bad input (arguments, input file, model directory, existing output);
+1 any other failure. ``tcd repair`` (see :mod:`tcd.batch_repair`): 1 when any input file failed (the
+others are still repaired), 2 for bad arguments, 130 when interrupted (re-run it to resume).
+
+One module per command (``info``, ``forecast``, ``demo``, ``repair``: ``add_parser`` and ``run``); what
+they share (exit codes, the option-to-flag mapping, the sampler flags) is in ``common``.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Optional, Sequence
+
+from .._native import __version__
+from ..exceptions import TcdError
+from . import demo, forecast, info, repair
+from .common import (EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK, OPTION_FLAGS, SAMPLER_FLAGS,
+                     _BadInput, add_sampler_flags, flag_message, sampler_options)
+
+__all__ = ["main", "EXIT_OK", "EXIT_FAILURE", "EXIT_BAD_INPUT", "EXIT_INTERRUPTED", "OPTION_FLAGS", "SAMPLER_FLAGS",
+           "flag_message", "add_sampler_flags", "sampler_options"]
+
+COMMANDS = {"info": info, "forecast": forecast, "demo": demo, "repair": repair}  # in the order of --help
+
+
+def _parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="tcd", description="Temporal Cascaded Diffusion: 3D human motion forecasting.",
+                                 epilog="Exit codes: 0 success, 2 bad input, 1 other failure.")
+    ap.add_argument("--version", action="version", version=f"tcd {__version__}")
+    sub = ap.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for command in COMMANDS.values():
+        command.add_parser(sub)
+    return ap
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """Entry point of the ``tcd`` console script; returns the exit code."""
+    args = _parser().parse_args(argv)  # exits with 2 on a usage error
+    try:
+        return COMMANDS[args.command].run(args)
+    except _BadInput as e:
+        return _error(args.command, e, EXIT_BAD_INPUT)
+    except (TcdError, OSError) as e:
+        return _error(args.command, e, EXIT_FAILURE)
+
+
+def _error(command: str, e: Exception, code: int) -> int:
+    print(f"tcd {command}: error: {e}", file=sys.stderr)
+    return code

@@ -1,0 +1,74 @@
+"""``tcd forecast IN.npz -o OUT.npz``: forecast the frames after the observed poses of a file."""
+from __future__ import annotations
+
+import argparse
+import zipfile
+from pathlib import Path
+from typing import Any, Dict
+
+import numpy as np
+
+from ..poses import UNIT_SCALE
+from ..exceptions import InvalidInputError
+from ..files import write_npz_atomic
+from .common import (EXIT_OK, OPTION_FLAGS, _BadInput, add_model_flag, add_sampler_flags, flag_message, load_model,
+                     output_exists, sampler_options, writing)
+
+# The arguments the input file sets, for the error messages.
+FLAGS = {**OPTION_FLAGS, "obs": "the `poses` array of the input file", "mask": "the `mask` array of the input file"}
+
+
+def add_parser(sub: Any) -> argparse.ArgumentParser:
+    p = sub.add_parser("forecast", help="forecast the poses of an .npz file",
+                       description="Forecast the frames after the observed poses of IN.npz.")
+    p.add_argument("input", metavar="IN.npz", help="input: `poses` (T, J, 3) or (B, T, J, 3), NaN = missing; "
+                   "optional `mask` (1 = observed)")
+    p.add_argument("-o", "--output", metavar="OUT.npz", required=True,
+                   help="output: mean, samples, repaired, seed")
+    add_model_flag(p)
+    p.add_argument("--samples", type=int, default=5, metavar="N", help="samples per sequence (default 5)")
+    add_sampler_flags(p)
+    p.add_argument("--seed", type=int, default=None, help="noise seed (default: random, recorded in OUT)")
+    p.add_argument("--units", default="m", choices=tuple(UNIT_SCALE), help="units of the poses: m (default) or mm")
+    p.add_argument("--threads", type=int, default=None, metavar="N", help="worker threads (default: all cores)")
+    p.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
+    return p
+
+
+def _read_npz(path: Path) -> Dict[str, np.ndarray]:
+    if not path.is_file():
+        raise _BadInput(f"The input file {path} does not exist.")
+    try:
+        with np.load(path, allow_pickle=False) as f:
+            if not isinstance(f, np.lib.npyio.NpzFile):
+                raise _BadInput(f"The input file {path} is a single .npy array; an .npz archive with `poses` is required.")
+            return {k: f[k] for k in f.files}
+    except _BadInput:
+        raise
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as e:
+        raise _BadInput(f"The input file {path} is not a readable .npz archive: {e}") from None
+
+
+def run(args: argparse.Namespace) -> int:
+    out = Path(args.output)
+    if out.exists() and not args.overwrite:
+        raise output_exists(out)
+    if out.exists() and out.is_dir():
+        raise _BadInput(f"The output path {out} is a directory.")
+    if not out.parent.is_dir():
+        raise _BadInput(f"The output directory {out.parent} does not exist.")
+    data = _read_npz(Path(args.input))
+    if "poses" not in data:
+        raise _BadInput(f"The input file {args.input} has no `poses` array (it has: {', '.join(sorted(data)) or 'nothing'}).")
+    options = sampler_options(args)
+    model = load_model(args.model)
+    try:
+        f = model.forecast(data["poses"], data.get("mask"), num_samples=args.samples, options=options,
+                           seed=args.seed, units=args.units, threads=args.threads)
+    except InvalidInputError as e:
+        raise _BadInput(flag_message(e, FLAGS)) from None
+    with writing(out):
+        write_npz_atomic(out, args.overwrite, mean=f.mean, samples=f.samples, repaired=f.repaired,
+                         seed=np.uint64(f.seed))
+    print(f"wrote {out}: mean {f.mean.shape}, samples {f.samples.shape}, repaired {f.repaired.shape}, seed {f.seed}")
+    return EXIT_OK
