@@ -22,17 +22,12 @@ def load_bench(name: str):
     return mod
 
 
-@pytest.fixture(scope="module")
-def tiny_dir(tmp_path_factory):
-    return make_model_dir(tmp_path_factory.mktemp("bench_model") / "m", preset="tiny", seed=3)
-
-
 @needs_h36m
-def test_steps_two_phases_merge(tiny_dir, tmp_path):
+def test_steps_two_phases_merge(tiny_model_dir, tmp_path):
     """--latency-reps 0 writes accuracy only (latency NaN); --accuracy-from copies those rows unchanged and
     adds the latency; a JSON of another model, other samples or missing configurations is refused."""
     steps = load_bench("steps")
-    common = ["--model", str(tiny_dir), "--data", str(H36M_DIR), "--actions", "walking", "--only", "DDIM-5",
+    common = ["--model", str(tiny_model_dir), "--data", str(H36M_DIR), "--actions", "walking", "--only", "DDIM-5",
               "--windows-per-action", "1", "--samples", "2"]
     acc = tmp_path / "acc.json"
     assert steps.main(common + ["--latency-reps", "0", "--json", str(acc)]) == 0
@@ -131,12 +126,12 @@ def test_repair_dataset_occlusion_blocks_cycle_the_patterns():
 
 
 @needs_h36m
-def test_repair_dataset_runs_tcd_repair_on_a_directory(tiny_dir, tmp_path):
+def test_repair_dataset_runs_tcd_repair_on_a_directory(tiny_model_dir, tmp_path):
     """The end-to-end bench writes occluded S5 recordings (mm, 50 fps), runs the `tcd repair` command on the
     directory, checks the observed values came back unchanged and reports ADE against the baselines."""
     rd = load_bench("repair_dataset")
     out = tmp_path / "r.json"
-    assert rd.main(["--model", str(tiny_dir), "--files", "2", "--max-frames", "120", "--steps", "2", "--samples", "1",
+    assert rd.main(["--model", str(tiny_model_dir), "--files", "2", "--max-frames", "120", "--steps", "2", "--samples", "1",
                     "--data-dir", str(H36M_DIR), "--work", str(tmp_path / "w"), "--json", str(out)]) == 0
     r = json.loads(out.read_text())
     assert r["files"] == 2 and r["fps"] == 50 and r["frames"] == 240 and 0 < r["hidden_fraction"] < 1
@@ -146,6 +141,7 @@ def test_repair_dataset_runs_tcd_repair_on_a_directory(tiny_dir, tmp_path):
         p.name for p in (tmp_path / "w" / "in").iterdir())
 
 
+@pytest.mark.slow
 def test_train_throughput_smoke(tmp_path):
     """benches/train_throughput.py on the CPU at the tiny size: every requested combination is timed (bf16 is
     recorded as skipped off CUDA), the JSON holds windows/s, and the reference peer runs beside the

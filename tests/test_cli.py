@@ -10,15 +10,10 @@ import numpy as np
 import pytest
 
 import tcd
-from fixtures_util import make_model_dir, poses
+from fixtures_util import poses
 from tcd.cli import main
 
 FAST = ["--samples", "2", "--steps", "2", "--sampler", "ddim"]
-
-
-@pytest.fixture(scope="module")
-def model_dir(tmp_path_factory):
-    return make_model_dir(tmp_path_factory.mktemp("cli_tiny"), "tiny", seed=2)
 
 
 @pytest.fixture()
@@ -34,12 +29,12 @@ def run(argv, capsys):
     return code, out.out, out.err
 
 
-def test_info(model_dir, capsys):
-    code, out, err = run(["info", "--model", model_dir], capsys)
+def test_info(tiny_model_dir, capsys):
+    code, out, err = run(["info", "--model", tiny_model_dir], capsys)
     assert code == 0, err
     assert "observed frames (obs_len): 50" in out and "forecast frames (horizon): 25" in out
     assert "joints: 22" in out and "short: window 50 + 5 frames" in out and "repair: none" in out
-    code, out, _ = run(["info", "--model", model_dir, "--json"], capsys)
+    code, out, _ = run(["info", "--model", tiny_model_dir, "--json"], capsys)
     assert code == 0
     import json
 
@@ -65,9 +60,9 @@ def test_info_bundled_model(capsys):
     assert f"kernels: {tcd.supported_kernels()[-1]}" in out
 
 
-def test_forecast_round_trip(model_dir, npz, tmp_path, capsys):
+def test_forecast_round_trip(tiny_model_dir, npz, tmp_path, capsys):
     out_path = tmp_path / "out.npz"
-    code, out, err = run(["forecast", npz, "-o", out_path, "--model", model_dir, "--seed", "11", *FAST], capsys)
+    code, out, err = run(["forecast", npz, "-o", out_path, "--model", tiny_model_dir, "--seed", "11", *FAST], capsys)
     assert code == 0, err
     assert "wrote" in out
     with np.load(out_path) as f:
@@ -76,51 +71,51 @@ def test_forecast_round_trip(model_dir, npz, tmp_path, capsys):
     assert got["mean"].shape == (25, 22, 3) and got["samples"].shape == (2, 25, 22, 3)
     assert got["repaired"].shape == (50, 22, 3) and int(got["seed"]) == 11
     poses_in = np.load(npz)["poses"]
-    want = tcd.load(model_dir).forecast(poses_in, seed=11, num_samples=2, num_inference_steps=2, sampler="ddim")
+    want = tcd.load(tiny_model_dir).forecast(poses_in, seed=11, num_samples=2, num_inference_steps=2, sampler="ddim")
     assert np.array_equal(got["samples"], want.samples) and np.array_equal(got["repaired"], want.repaired)
     seen = ~np.isnan(poses_in)
     assert np.array_equal(got["repaired"][seen], poses_in[seen])
 
 
-def test_forecast_dpmpp2m(model_dir, npz, tmp_path, capsys):
+def test_forecast_dpmpp2m(tiny_model_dir, npz, tmp_path, capsys):
     out_path = tmp_path / "out_dpm.npz"
     args = ["--samples", "2", "--steps", "3", "--sampler", "dpmpp2m", "--seed", "5"]
-    code, _, err = run(["forecast", npz, "-o", out_path, "--model", model_dir, *args], capsys)
+    code, _, err = run(["forecast", npz, "-o", out_path, "--model", tiny_model_dir, *args], capsys)
     assert code == 0, err
-    want = tcd.load(model_dir).forecast(np.load(npz)["poses"], seed=5, num_samples=2, num_inference_steps=3,
+    want = tcd.load(tiny_model_dir).forecast(np.load(npz)["poses"], seed=5, num_samples=2, num_inference_steps=3,
                                         sampler="dpmpp2m")
     with np.load(out_path) as f:
         assert np.array_equal(f["samples"], want.samples)
 
 
-def test_forecast_batched_with_mask_and_random_seed(model_dir, tmp_path, capsys):
+def test_forecast_batched_with_mask_and_random_seed(tiny_model_dir, tmp_path, capsys):
     x = poses(np.random.default_rng(1), batch=2, missing=0.0)
     mask = np.ones((2, 50, 22), np.float32)
     mask[:, 10:20] = 0
     inp = tmp_path / "in.npz"
     np.savez(inp, poses=x, mask=mask)
     out_path = tmp_path / "out.npz"
-    code, _, err = run(["forecast", inp, "-o", out_path, "--model", model_dir, "--units", "mm", *FAST], capsys)
+    code, _, err = run(["forecast", inp, "-o", out_path, "--model", tiny_model_dir, "--units", "mm", *FAST], capsys)
     assert code == 0, err
     with np.load(out_path) as f:
         assert f["mean"].shape == (2, 25, 22, 3) and f["samples"].shape == (2, 2, 25, 22, 3)
         seed = int(f["seed"])
         repaired = f["repaired"]
     assert np.array_equal(repaired[:, :10], x[:, :10]) and not np.array_equal(repaired[:, 10:20], x[:, 10:20])
-    want = tcd.load(model_dir).forecast(x, mask, seed=seed, num_samples=2, num_inference_steps=2, sampler="ddim",
+    want = tcd.load(tiny_model_dir).forecast(x, mask, seed=seed, num_samples=2, num_inference_steps=2, sampler="ddim",
                                         units="mm")
     assert np.array_equal(repaired, want.repaired)
 
 
-def test_refuses_to_overwrite(model_dir, npz, tmp_path, capsys):
+def test_refuses_to_overwrite(tiny_model_dir, npz, tmp_path, capsys):
     out_path = tmp_path / "out.npz"
     out_path.write_bytes(b"precious")
-    code, _, err = run(["forecast", npz, "-o", out_path, "--model", model_dir, *FAST], capsys)
+    code, _, err = run(["forecast", npz, "-o", out_path, "--model", tiny_model_dir, *FAST], capsys)
     assert code == 2 and "exists" in err and "--overwrite" in err
     assert out_path.read_bytes() == b"precious"
 
 
-def test_failure_while_writing_leaves_no_output(model_dir, npz, tmp_path, capsys, monkeypatch):
+def test_failure_while_writing_leaves_no_output(tiny_model_dir, npz, tmp_path, capsys, monkeypatch):
     """OUT is written atomically: a failure half-way (np.savez raising after some bytes) leaves no file
     under OUT, or with --overwrite the old OUT as it was, and no temporary file."""
     def savez(fh, **arrays):
@@ -129,17 +124,17 @@ def test_failure_while_writing_leaves_no_output(model_dir, npz, tmp_path, capsys
 
     monkeypatch.setattr(np, "savez", savez)
     out_path = tmp_path / "out.npz"
-    code, _, err = run(["forecast", npz, "-o", out_path, "--model", model_dir, *FAST], capsys)
+    code, _, err = run(["forecast", npz, "-o", out_path, "--model", tiny_model_dir, *FAST], capsys)
     assert code == 1 and "disk full" in err
     assert not out_path.exists()
     out_path.write_bytes(b"precious")
-    code, _, err = run(["forecast", npz, "-o", out_path, "--model", model_dir, "--overwrite", *FAST], capsys)
+    code, _, err = run(["forecast", npz, "-o", out_path, "--model", tiny_model_dir, "--overwrite", *FAST], capsys)
     assert code == 1 and "disk full" in err
     assert out_path.read_bytes() == b"precious"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["in.npz", "out.npz"]
 
 
-def test_output_appearing_during_the_run_is_kept(model_dir, npz, tmp_path, capsys, monkeypatch):
+def test_output_appearing_during_the_run_is_kept(tiny_model_dir, npz, tmp_path, capsys, monkeypatch):
     """Without --overwrite an OUT that appears after the start (another process) is never replaced."""
     out_path = tmp_path / "out.npz"
     real_savez = np.savez
@@ -149,11 +144,11 @@ def test_output_appearing_during_the_run_is_kept(model_dir, npz, tmp_path, capsy
         real_savez(fh, **arrays)
 
     monkeypatch.setattr(np, "savez", savez)
-    code, _, err = run(["forecast", npz, "-o", out_path, "--model", model_dir, *FAST], capsys)
+    code, _, err = run(["forecast", npz, "-o", out_path, "--model", tiny_model_dir, *FAST], capsys)
     assert code == 2 and "exists" in err and "--overwrite" in err
     assert out_path.read_bytes() == b"someone else's"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["in.npz", "out.npz"]
-    code, _, err = run(["forecast", npz, "-o", out_path, "--model", model_dir, "--overwrite", *FAST], capsys)
+    code, _, err = run(["forecast", npz, "-o", out_path, "--model", tiny_model_dir, "--overwrite", *FAST], capsys)
     assert code == 0, err
     with np.load(out_path) as f:
         assert f["mean"].shape == (25, 22, 3)
@@ -168,9 +163,9 @@ def save(path, **arrays):
     "short_poses", "wrong_joints", "no_poses", "missing_input", "not_npz", "bad_mask", "all_missing",
     "bad_samples", "bad_steps", "bad_eta", "missing_model", "negative_seed",
 ])
-def test_bad_input_exit_code_2(model_dir, npz, tmp_path, capsys, case):
+def test_bad_input_exit_code_2(tiny_model_dir, npz, tmp_path, capsys, case):
     good = np.load(npz)["poses"]
-    inp, extra, model = npz, [], model_dir
+    inp, extra, model = npz, [], tiny_model_dir
     if case == "short_poses":
         inp = save(tmp_path / "x.npz", poses=good[:40])
     elif case == "wrong_joints":
@@ -208,10 +203,10 @@ def test_bad_input_exit_code_2(model_dir, npz, tmp_path, capsys, case):
     ("forecast", "--sampler", "euler"), ("forecast", "--units", "cm"), ("forecast", "--spacing", "middle"),
     ("demo", "--sampler", "euler"),
 ])
-def test_bad_choice_is_a_usage_error(model_dir, npz, tmp_path, capsys, command, flag, value):
+def test_bad_choice_is_a_usage_error(tiny_model_dir, npz, tmp_path, capsys, command, flag, value):
     """An enumerated flag's choices are argparse's: a bad one exits with 2, naming the flag and the value."""
     out_path = tmp_path / "out.npz"
-    argv = [command, *([npz] if command == "forecast" else []), "-o", out_path, "--model", model_dir, flag, value]
+    argv = [command, *([npz] if command == "forecast" else []), "-o", out_path, "--model", tiny_model_dir, flag, value]
     with pytest.raises(SystemExit) as ei:
         run(argv, capsys)
     assert ei.value.code == 2
@@ -231,16 +226,16 @@ def test_usage_errors_exit_2(capsys):
     capsys.readouterr()
 
 
-def test_console_script_and_module(model_dir, tmp_path):
+def test_console_script_and_module(tiny_model_dir, tmp_path):
     """The installed `tcd` script (and `python -m tcd`) run in a fresh process."""
     env = {**os.environ, "PYTHONPATH": ""}
     script = shutil.which("tcd")
     cmd = [script] if script else [sys.executable, "-m", "tcd"]
-    r = subprocess.run([*cmd, "info", "--model", str(model_dir)], capture_output=True, text=True, env=env,
+    r = subprocess.run([*cmd, "info", "--model", str(tiny_model_dir)], capture_output=True, text=True, env=env,
                        cwd=tmp_path, timeout=120)
     assert r.returncode == 0, r.stderr
     assert "forecast frames (horizon): 25" in r.stdout
     r = subprocess.run([sys.executable, "-m", "tcd", "forecast", str(tmp_path / "nope.npz"), "-o",
-                        str(tmp_path / "o.npz"), "--model", str(model_dir)], capture_output=True, text=True,
+                        str(tmp_path / "o.npz"), "--model", str(tiny_model_dir)], capture_output=True, text=True,
                        env=env, cwd=tmp_path, timeout=120)
     assert r.returncode == 2 and "does not exist" in r.stderr

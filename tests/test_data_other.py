@@ -6,12 +6,11 @@ named by TCD_DATA_DIR) skip when it is absent.
 from __future__ import annotations
 
 import math
-import os
-from pathlib import Path
 
 import numpy as np
 import pytest
 
+from conftest import DATA, needs_data
 from training.data.amass import (
     AMASS_SPLITS,
     JOINTS_AMASS_18,
@@ -35,15 +34,14 @@ from training.data.humaneva import (
 )
 from training.data.kinematics import fk_axis_angle
 
-DATA_DIR = Path(os.environ.get("TCD_DATA_DIR", Path(__file__).resolve().parents[1] / ".." / "shared" / "data"))
-AMASS_DIR = DATA_DIR / "amass_samples"
+AMASS_DIR = DATA / "amass_samples"
 SKELETON = AMASS_DIR / "smpl_skeleton.npz"
-CMU_FILE = DATA_DIR / "cmu" / "cmu_expmap_train.npz"
-HUMANEVA_FILE = DATA_DIR / "humaneva" / "humaneva_i_15j_60hz.npz"
+CMU_FILE = DATA / "cmu" / "cmu_expmap_train.npz"
+HUMANEVA_FILE = DATA / "humaneva" / "humaneva_i_15j_60hz.npz"
 
-needs_amass = pytest.mark.skipif(not SKELETON.exists(), reason=f"AMASS samples not found under {AMASS_DIR}")
-needs_cmu = pytest.mark.skipif(not CMU_FILE.exists(), reason=f"{CMU_FILE} not found")
-needs_humaneva = pytest.mark.skipif(not HUMANEVA_FILE.exists(), reason=f"{HUMANEVA_FILE} not found")
+needs_amass = needs_data("amass_samples/smpl_skeleton.npz")
+needs_cmu = needs_data("cmu/cmu_expmap_train.npz")
+needs_humaneva = needs_data("humaneva/humaneva_i_15j_60hz.npz")
 
 # SMPL-H kinematic tree (52 joints), used to build synthetic skeleton files.
 SMPLH_PARENTS = np.array([-1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 20, 22, 23,

@@ -10,17 +10,11 @@ import pytest
 
 import tcd
 import tcd.model
-from fixtures_util import make_model_dir
 from tcd import demo
 from tcd.cli import main
 from tcd.exceptions import WeightsError
 
 FAST = ["--samples", "2", "--steps", "2", "--sampler", "ddim", "--quiet"]
-
-
-@pytest.fixture(scope="module")
-def model_dir(tmp_path_factory):
-    return make_model_dir(tmp_path_factory.mktemp("demo_tiny"), "tiny", seed=3)
 
 
 def test_demo_clip_is_a_plausible_22_joint_walk():
@@ -61,9 +55,9 @@ def test_linear_interpolation_fills_only_missing_frames():
     np.testing.assert_allclose(out, poses, atol=1e-5)
 
 
-def test_demo_cli_runs_and_writes_results(model_dir, tmp_path, capsys):
+def test_demo_cli_runs_and_writes_results(tiny_model_dir, tmp_path, capsys):
     out = tmp_path / "demo.npz"
-    assert main(["demo", "--model", str(model_dir), "-o", str(out), *FAST]) == 0
+    assert main(["demo", "--model", str(tiny_model_dir), "-o", str(out), *FAST]) == 0
     text = capsys.readouterr().out
     assert "forecast error, mm" in text and "zero-velocity" in text and "repair of the occluded" in text
     with np.load(out, allow_pickle=False) as f:
@@ -74,31 +68,31 @@ def test_demo_cli_runs_and_writes_results(model_dir, tmp_path, capsys):
     np.testing.assert_array_equal(rep[mask > 0], obs[mask > 0])   # observed entries bit-identical
     assert np.isfinite(rep).all()
     assert set(summary["forecast_mm"]) == {"80", "160", "320", "400", "560", "720", "880", "1000"}
-    assert summary["model_sha256"] == tcd.load(model_dir).sha256
+    assert summary["model_sha256"] == tcd.load(tiny_model_dir).sha256
     # deterministic for a fixed seed
     out2 = tmp_path / "demo2.npz"
-    assert main(["demo", "--model", str(model_dir), "-o", str(out2), *FAST]) == 0
+    assert main(["demo", "--model", str(tiny_model_dir), "-o", str(out2), *FAST]) == 0
     with np.load(out2) as f2, np.load(out) as f1:
         np.testing.assert_array_equal(f1["forecast_mean"], f2["forecast_mean"])
 
 
-def test_demo_refuses_to_overwrite(model_dir, tmp_path, capsys):
+def test_demo_refuses_to_overwrite(tiny_model_dir, tmp_path, capsys):
     out = tmp_path / "demo.npz"
     out.write_bytes(b"keep me")
-    assert main(["demo", "--model", str(model_dir), "-o", str(out), *FAST]) == 2
+    assert main(["demo", "--model", str(tiny_model_dir), "-o", str(out), *FAST]) == 2
     assert "exists" in capsys.readouterr().err
     assert out.read_bytes() == b"keep me"
 
 
-def test_demo_bad_steps_names_the_option(model_dir, tmp_path, capsys):
-    assert main(["demo", "--model", str(model_dir), "-o", str(tmp_path / "d.npz"), "--steps", "0", "--quiet"]) == 2
+def test_demo_bad_steps_names_the_option(tiny_model_dir, tmp_path, capsys):
+    assert main(["demo", "--model", str(tiny_model_dir), "-o", str(tmp_path / "d.npz"), "--steps", "0", "--quiet"]) == 2
     assert "--steps" in capsys.readouterr().err
 
 
 # ----------------------------------------------------------------------------- checksums
 
-def test_checksums_verified_when_present(model_dir, tmp_path):
-    d = Path(shutil.copytree(model_dir, tmp_path / "m"))
+def test_checksums_verified_when_present(tiny_model_dir, tmp_path):
+    d = Path(shutil.copytree(tiny_model_dir, tmp_path / "m"))
     tcd.model.write_checksums(d)
     m = tcd.load(d)
     assert len(m.sha256) == 64 and set(m.file_sha256) == {"short.safetensors", "long.safetensors"}
@@ -109,8 +103,8 @@ def test_checksums_verified_when_present(model_dir, tmp_path):
         tcd.load(d)
 
 
-def test_bundled_model_requires_checksums(model_dir, tmp_path, monkeypatch):
-    d = Path(shutil.copytree(model_dir, tmp_path / "bundled"))
+def test_bundled_model_requires_checksums(tiny_model_dir, tmp_path, monkeypatch):
+    d = Path(shutil.copytree(tiny_model_dir, tmp_path / "bundled"))
     monkeypatch.setattr(tcd.model, "default_model_dir", lambda: d)
     with pytest.raises(WeightsError, match="SHA256SUMS"):
         tcd.load()

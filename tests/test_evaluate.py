@@ -3,7 +3,7 @@ import json
 import numpy as np
 import pytest
 
-from conftest import H36M_DIR, needs_h36m
+from conftest import DATA, H36M_DIR, needs_data, needs_h36m
 from training import evaluate
 from training.data.h36m import find_indices_256
 from training.export import random_init_dir
@@ -71,11 +71,11 @@ def test_txt_tree_source_equals_the_npz(tmp_path):
         H36MSource(tmp_path / "dataset" / "S5" / "nothing")
 
 
-@pytest.mark.skipif(not (H36M_DIR.parent / "humaneva" / "humaneva_i_15j_60hz.npz").is_file(), reason="HumanEva-I data absent")
+@needs_data("humaneva/humaneva_i_15j_60hz.npz")
 def test_humaneva_zero_velocity_protocol(tmp_path):
     out = tmp_path / "he.json"
     assert evaluate.main(["--protocol", "humaneva", "--baseline", "zero-velocity", "--json", str(out),
-                          "--data", str(H36M_DIR.parent / "humaneva"), "--quiet"]) == 0
+                          "--data", str(DATA / "humaneva"), "--quiet"]) == 0
     res = json.loads(out.read_text())
     assert res["protocol"]["windows"] == 188
     s = res["stochastic"]

@@ -68,6 +68,7 @@ def outputs(tmp: Path) -> dict[str, str]:
     return out
 
 
+@pytest.mark.slow
 def test_golden_outputs_per_kernel(tmp_path, monkeypatch):
     import tcd
     recorded = json.loads(CHECKSUMS.read_text())

@@ -2,11 +2,11 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
 
+from conftest import H36M_DIR, needs_data
 from training.masks import (
     DEFAULT_RATES,
     JOINTS32_H36M_22,
@@ -24,12 +24,7 @@ LEG_ARM_COLS = [0, 1, 12, 13, 14]  # 32-joints 2, 3, 17, 18, 19 (1 is not in the
 RIGHT_LEG_COLS = [0, 1]  # 32-joints 2, 3
 LEGS_COLS = [0, 1, 4, 5]  # 32-joints 2, 3, 7, 8 (1 and 6 are not in the layout)
 
-_ROOT = Path(__file__).resolve().parents[1]
-SKELETON = next(
-    (c for c in (_ROOT / "shared" / "data" / "h36m" / "skeleton32.json",
-                 _ROOT.parent / "shared" / "data" / "h36m" / "skeleton32.json") if c.exists()),
-    _ROOT.parent / "shared" / "data" / "h36m" / "skeleton32.json",
-)
+SKELETON = H36M_DIR / "skeleton32.json"
 
 
 def rng(seed: int = 0) -> np.random.Generator:
@@ -61,7 +56,7 @@ def test_constants():
     assert JOINTS32_H36M_22 == (2, 3, 4, 5, 7, 8, 9, 10, 12, 13, 14, 15, 17, 18, 19, 21, 22, 25, 26, 27, 29, 30)
 
 
-@pytest.mark.skipif(not SKELETON.exists(), reason="shared skeleton file not available")
+@needs_data("h36m/skeleton32.json")
 def test_default_layout_matches_skeleton_file():
     assert list(JOINTS32_H36M_22) == json.loads(SKELETON.read_text())["joints_used_22"]
 

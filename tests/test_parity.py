@@ -33,16 +33,11 @@ def one_torch_thread():
 
 
 @pytest.fixture(scope="module")
-def tiny_dir(tmp_path_factory):
-    return make_model_dir(tmp_path_factory.mktemp("parity_tiny"), "tiny", seed=3)
-
-
-@pytest.fixture(scope="module")
-def tiny(tiny_dir):
+def tiny(tiny_model_dir):
     """role -> (rust Denoiser, torch model, schedule)."""
     out = {}
     for role in ("short", "long"):
-        path = tiny_dir / f"{role}.safetensors"
+        path = tiny_model_dir / f"{role}.safetensors"
         model, sched, _ = load_model_file(path)
         out[role] = (tcd.Denoiser.load(path), model, sched)
     return out
@@ -173,9 +168,9 @@ def reduced_dir(tmp_path_factory):
 
 @pytest.mark.parametrize("kernel", ALL_KERNELS)
 @pytest.mark.parametrize("size", ["tiny", "reduced"])
-def test_forward_every_kernel(tiny_dir, reduced_dir, size, kernel, monkeypatch):
+def test_forward_every_kernel(tiny_model_dir, reduced_dir, size, kernel, monkeypatch):
     """Each kernel path this CPU supports (the portable one forced) against PyTorch, both roles."""
-    d = tiny_dir if size == "tiny" else reduced_dir
+    d = tiny_model_dir if size == "tiny" else reduced_dir
     for role, step in (("short", 3), ("long", 41)):
         path = d / f"{role}.safetensors"
         den = load_kernel(path, kernel, monkeypatch)
@@ -190,6 +185,7 @@ def test_forward_every_kernel(tiny_dir, reduced_dir, size, kernel, monkeypatch):
         np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-5)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kernel", ALL_KERNELS)
 def test_cascade_every_kernel(reduced_dir, kernel, monkeypatch):
     """A whole DDPM-10 cascade (2 samples) per kernel path, injected noise, against PyTorch."""

@@ -18,7 +18,7 @@ import pytest
 
 import tcd
 from conftest import H36M_DIR, ROOT, needs_h36m
-from fixtures_util import make_model_dir, poses
+from fixtures_util import poses
 from tcd import batch_repair, fk
 from tcd.batch_repair import runner as repair_runner, windows as repair_windows
 from tcd.cli import main, repair as repair_command
@@ -26,16 +26,6 @@ from tcd.cli import main, repair as repair_command
 FAST = ["--steps", "2", "--sampler", "ddim", "--samples", "2"]
 FAST_KW = dict(num_inference_steps=2, sampler="ddim", num_samples=2)
 W = 50
-
-
-@pytest.fixture(scope="module")
-def model_dir(tmp_path_factory):
-    return make_model_dir(tmp_path_factory.mktemp("repair_tiny"), "tiny", seed=3)
-
-
-@pytest.fixture(scope="module")
-def model(model_dir):
-    return tcd.load(model_dir)
 
 
 def gappy(rng, frames, missing=0.2, block=None):
@@ -94,12 +84,12 @@ def test_window_starts_refuse_no_progress(overlap, lookahead):
 
 # ---------------------------------------------------------------------------------------------- round trips
 @pytest.mark.parametrize("frames", [7, 50, 313])
-def test_round_trip_lengths(model, tmp_path, frames):
+def test_round_trip_lengths(tiny_model, tmp_path, frames):
     rng = np.random.default_rng(frames)
     x = gappy(rng, frames, block=(frames // 3, frames // 3 + 12))
     src, dst = tmp_path / "in.npz", tmp_path / "out.npz"
     np.savez(src, poses=x)
-    info = tcd.repair_file(src, dst, model, seed=5, **FAST_KW)
+    info = tcd.repair_file(src, dst, tiny_model, seed=5, **FAST_KW)
     got = load_npz(dst)
     assert set(got) == {"poses", "mask", "provenance"}
     assert got["poses"].shape == x.shape and got["poses"].dtype == x.dtype
@@ -108,7 +98,7 @@ def test_round_trip_lengths(model, tmp_path, frames):
     assert np.array_equal(got["poses"][seen], x[seen])  # observed values bit for bit
     assert got["mask"].dtype == bool and np.array_equal(got["mask"], seen)
     prov = json.loads(str(got["provenance"]))
-    assert prov["model_sha256"] == model.sha256 and len(prov["model_sha256"]) == 64
+    assert prov["model_sha256"] == tiny_model.sha256 and len(prov["model_sha256"]) == 64
     assert prov["sampler"] == "ddim" and prov["steps"] == 2 and prov["seed"] == 5 and prov["num_samples"] == 2
     assert prov["tcd_version"] == tcd.__version__
     assert info["status"] == "repaired" and info["frames"] == frames
@@ -117,21 +107,21 @@ def test_round_trip_lengths(model, tmp_path, frames):
     assert info["missing_values"] == int((~seen).sum())
 
 
-def test_one_window_equals_tcd_repair(model, tmp_path):
+def test_one_window_equals_tcd_repair(tiny_model, tmp_path):
     """A file of exactly one window is TCD.repair of that window with the same seed (noise stream 0)."""
     x = gappy(np.random.default_rng(14), W)
     np.savez(tmp_path / "in.npz", poses=x)
-    tcd.repair_file(tmp_path / "in.npz", tmp_path / "out.npz", model, seed=21, **FAST_KW)
-    want = model.repair(x, seed=21, **FAST_KW)
+    tcd.repair_file(tmp_path / "in.npz", tmp_path / "out.npz", tiny_model, seed=21, **FAST_KW)
+    want = tiny_model.repair(x, seed=21, **FAST_KW)
     assert np.array_equal(load_npz(tmp_path / "out.npz")["poses"], want)
 
 
-def test_explicit_mask_and_float64(model, tmp_path):
+def test_explicit_mask_and_float64(tiny_model, tmp_path):
     rng = np.random.default_rng(1)
     x = rng.normal(scale=0.3, size=(80, 22, 3))  # float64, no NaN: the mask says what is missing
     mask = (rng.random((80, 22)) > 0.3).astype(np.uint8)
     np.savez(tmp_path / "in.npz", poses=x, mask=mask)
-    tcd.repair_file(tmp_path / "in.npz", tmp_path / "out.npz", model, **FAST_KW)
+    tcd.repair_file(tmp_path / "in.npz", tmp_path / "out.npz", tiny_model, **FAST_KW)
     got = load_npz(tmp_path / "out.npz")
     assert got["poses"].dtype == np.float64
     assert np.array_equal(got["mask"], mask) and got["mask"].dtype == mask.dtype  # the mask as given
@@ -154,14 +144,14 @@ def spy_windows(monkeypatch):
     return calls
 
 
-def test_later_windows_condition_on_repaired_frames(model, tmp_path, monkeypatch):
+def test_later_windows_condition_on_repaired_frames(tiny_model, tmp_path, monkeypatch):
     """Window k > 0 sees the frames already repaired as observed (mask 1, repaired values): no seams
     (lookahead 0: every frame of a window is committed)."""
     calls = spy_windows(monkeypatch)
     rng = np.random.default_rng(2)
     x = gappy(rng, 130, missing=0.3, block=(35, 48))  # the overlap of windows 0 and 1 (frames 40..49) has gaps
     np.savez(tmp_path / "in.npz", poses=x)
-    tcd.repair_file(tmp_path / "in.npz", tmp_path / "out.npz", model, overlap=10, lookahead=0, **FAST_KW)
+    tcd.repair_file(tmp_path / "in.npz", tmp_path / "out.npz", tiny_model, overlap=10, lookahead=0, **FAST_KW)
     starts = batch_repair.window_starts(130, W, 10)
     assert starts == [0, 40, 80] and len(calls) == 3
     out = load_npz(tmp_path / "out.npz")["poses"]
@@ -184,7 +174,7 @@ def test_later_windows_condition_on_repaired_frames(model, tmp_path, monkeypatch
 
 
 
-def test_lookahead_frames_are_generated_again_by_the_next_window(model, tmp_path, monkeypatch):
+def test_lookahead_frames_are_generated_again_by_the_next_window(tiny_model, tmp_path, monkeypatch):
     """With lookahead L, a window (but the last) commits all but its L trailing frames; the next window sees
     only the committed frames as observed (its first `overlap` frames, with the committing window's values)
     and generates the L frames again, seeing what follows them; the output takes each frame from the window
@@ -193,7 +183,7 @@ def test_lookahead_frames_are_generated_again_by_the_next_window(model, tmp_path
     rng = np.random.default_rng(4)
     x = gappy(rng, 130, missing=0.3, block=(36, 47))  # a gap across window 0's uncommitted tail (40..49)
     np.savez(tmp_path / "in.npz", poses=x)
-    info = tcd.repair_file(tmp_path / "in.npz", tmp_path / "out.npz", model, overlap=5, lookahead=10, **FAST_KW)
+    info = tcd.repair_file(tmp_path / "in.npz", tmp_path / "out.npz", tiny_model, overlap=5, lookahead=10, **FAST_KW)
     starts = batch_repair.window_starts(130, W, 5, 10)
     assert starts == [0, 35, 70, 80] and len(calls) == 4 and info["windows"] == 4
     done = [40, 75, 110, 130]  # committed up to (exclusive) after each window
@@ -221,7 +211,7 @@ def test_lookahead_frames_are_generated_again_by_the_next_window(model, tmp_path
 
 
 # ---------------------------------------------------------------------------------------------- determinism
-def test_same_seed_same_output_regardless_of_jobs_and_batching(model_dir, tmp_path, capsys):
+def test_same_seed_same_output_regardless_of_jobs_and_batching(tiny_model_dir, tmp_path, capsys):
     rng = np.random.default_rng(3)
     d = tmp_path / "data"
     d.mkdir()
@@ -229,21 +219,21 @@ def test_same_seed_same_output_regardless_of_jobs_and_batching(model_dir, tmp_pa
         np.savez(d / f"s{i}.npz", poses=gappy(rng, t))
     outs = {}
     for jobs in ("1", "2"):
-        code, _, err = run([d, "-o", tmp_path / f"out{jobs}", "--model", model_dir, "--jobs", jobs, "--seed", "9",
+        code, _, err = run([d, "-o", tmp_path / f"out{jobs}", "--model", tiny_model_dir, "--jobs", jobs, "--seed", "9",
                             "--quiet", *FAST], capsys)
         assert code == 0, err
         outs[jobs] = tree(tmp_path / f"out{jobs}")
     same_tree(outs["1"], outs["2"])
     # one file alone through the API: the same as within the batch of three
-    tcd.repair_file(d / "s1.npz", tmp_path / "alone.npz", tcd.load(model_dir), seed=9, threads=1, **FAST_KW)
+    tcd.repair_file(d / "s1.npz", tmp_path / "alone.npz", tcd.load(tiny_model_dir), seed=9, threads=1, **FAST_KW)
     assert np.array_equal(load_npz(tmp_path / "alone.npz")["poses"], outs["1"]["s1.npz"]["poses"])
     # another seed changes the repaired values
-    tcd.repair_file(d / "s1.npz", tmp_path / "other.npz", model_dir, seed=10, **FAST_KW)
+    tcd.repair_file(d / "s1.npz", tmp_path / "other.npz", tiny_model_dir, seed=10, **FAST_KW)
     assert not np.array_equal(load_npz(tmp_path / "other.npz")["poses"], outs["1"]["s1.npz"]["poses"])
 
 
 # ---------------------------------------------------------------------------------------------- the command
-def test_directory_with_bad_files(model_dir, tmp_path, capsys):
+def test_directory_with_bad_files(tiny_model_dir, tmp_path, capsys):
     rng = np.random.default_rng(4)
     d = tmp_path / "data"
     (d / "a" / "b").mkdir(parents=True)
@@ -260,7 +250,7 @@ def test_directory_with_bad_files(model_dir, tmp_path, capsys):
     np.savez(d / "no_poses.npz", joints=np.zeros(3))
     (d / "notes.md").write_text("ignored: not an input suffix")
     report = tmp_path / "report.json"
-    code, out, err = run([d, "-o", tmp_path / "out", "--model", model_dir, "--report", report, *FAST], capsys)
+    code, out, err = run([d, "-o", tmp_path / "out", "--model", tiny_model_dir, "--report", report, *FAST], capsys)
     assert code == 1
     assert "2 repaired, 0 skipped, 6 failed" in out
     got = tree(tmp_path / "out")
@@ -268,7 +258,7 @@ def test_directory_with_bad_files(model_dir, tmp_path, capsys):
     rep = json.loads(report.read_text())
     by = {Path(f["input"]).name: f for f in rep["files"]}
     assert rep["summary"]["failed"] == 6 and rep["summary"]["repaired"] == 2
-    assert rep["model_sha256"] == tcd.load(model_dir).sha256
+    assert rep["model_sha256"] == tcd.load(tiny_model_dir).sha256
     reasons = {
         "corrupt.npz": "unreadable", "garbage.npz": "unreadable", "wrong_shape.npz": "17 joints",
         "all_missing.npz": "every value is missing", "inf.npz": "finite, with NaN marking missing", "no_poses.npz": "no `poses`",
@@ -280,67 +270,67 @@ def test_directory_with_bad_files(model_dir, tmp_path, capsys):
     assert "notes.md" not in by
 
 
-def test_rerun_skips_and_overwrite(model_dir, tmp_path, capsys):
+def test_rerun_skips_and_overwrite(tiny_model_dir, tmp_path, capsys):
     rng = np.random.default_rng(5)
     src = tmp_path / "in.npz"
     np.savez(src, poses=gappy(rng, 60))
     out = tmp_path / "out"
-    code, _, err = run([src, "-o", out, "--model", model_dir, "--seed", "1", "--quiet", *FAST], capsys)
+    code, _, err = run([src, "-o", out, "--model", tiny_model_dir, "--seed", "1", "--quiet", *FAST], capsys)
     assert code == 0, err
     first = load_npz(out / "in.npz")
     stamp = (out / "in.npz").stat().st_mtime_ns
     time.sleep(0.01)
-    code, text, _ = run([src, "-o", out, "--model", model_dir, "--seed", "2", *FAST], capsys)
+    code, text, _ = run([src, "-o", out, "--model", tiny_model_dir, "--seed", "2", *FAST], capsys)
     assert code == 0 and "0 repaired, 1 skipped" in text
     assert (out / "in.npz").stat().st_mtime_ns == stamp  # untouched
-    code, text, _ = run([src, "-o", out, "--model", model_dir, "--seed", "2", "--overwrite", *FAST], capsys)
+    code, text, _ = run([src, "-o", out, "--model", tiny_model_dir, "--seed", "2", "--overwrite", *FAST], capsys)
     assert code == 0 and "1 repaired, 0 skipped" in text
     second = load_npz(out / "in.npz")
     assert not np.array_equal(first["poses"], second["poses"])
     assert json.loads(str(second["provenance"]))["seed"] == 2
     with pytest.raises(FileExistsError):
-        tcd.repair_file(src, out / "in.npz", model_dir, **FAST_KW)
+        tcd.repair_file(src, out / "in.npz", tiny_model_dir, **FAST_KW)
 
 
-def test_never_overwrites_an_input(model_dir, tmp_path, capsys):
+def test_never_overwrites_an_input(tiny_model_dir, tmp_path, capsys):
     rng = np.random.default_rng(6)
     d = tmp_path / "data"
     d.mkdir()
     x = gappy(rng, 40)
     np.savez(d / "x.npz", poses=x)
     before = (d / "x.npz").read_bytes()
-    code, _, err = run([d, "-o", d, "--model", model_dir, "--overwrite", *FAST], capsys)
+    code, _, err = run([d, "-o", d, "--model", tiny_model_dir, "--overwrite", *FAST], capsys)
     assert code == 2 and "would overwrite the input" in err
     assert (d / "x.npz").read_bytes() == before
     with pytest.raises(ValueError):
-        tcd.repair_file(d / "x.npz", d / "x.npz", model_dir, overwrite=True, **FAST_KW)
+        tcd.repair_file(d / "x.npz", d / "x.npz", tiny_model_dir, overwrite=True, **FAST_KW)
     assert (d / "x.npz").read_bytes() == before
     # an output directory inside the input directory: its files are never taken as inputs
-    code, _, err = run([d, "-o", d / "repaired", "--model", model_dir, "--quiet", *FAST], capsys)
+    code, _, err = run([d, "-o", d / "repaired", "--model", tiny_model_dir, "--quiet", *FAST], capsys)
     assert code == 0, err
-    code, text, _ = run([d, "-o", d / "repaired", "--model", model_dir, *FAST], capsys)
+    code, text, _ = run([d, "-o", d / "repaired", "--model", tiny_model_dir, *FAST], capsys)
     assert code == 0 and "0 repaired, 1 skipped, 0 failed" in text
 
 
-def test_bad_arguments_exit_2(model_dir, tmp_path, capsys):
+def test_bad_arguments_exit_2(tiny_model_dir, tmp_path, capsys):
     src = tmp_path / "in.npz"
     np.savez(src, poses=gappy(np.random.default_rng(7), 20))
     for extra, why in ((["--steps", "0"], "--steps"), (["--fps", "-5"], "--fps"), (["--overlap", "50"], "--overlap"),
                        (["--lookahead", "45"], "--lookahead")):
-        code, _, err = run([src, "-o", tmp_path / "o", "--model", model_dir, *extra], capsys)
+        code, _, err = run([src, "-o", tmp_path / "o", "--model", tiny_model_dir, *extra], capsys)
         assert code == 2 and why in err, (extra, err)
     for flag, value in (("--units", "cm"), ("--sampler", "euler")):  # choices: argparse's usage error
         with pytest.raises(SystemExit) as ei:
-            run([src, "-o", tmp_path / "o", "--model", model_dir, flag, value], capsys)
+            run([src, "-o", tmp_path / "o", "--model", tiny_model_dir, flag, value], capsys)
         err = capsys.readouterr().err
         assert ei.value.code == 2 and "tcd repair: error: " in err and flag in err and value in err, err
-    code, _, err = run([tmp_path / "missing.npz", "-o", tmp_path / "o", "--model", model_dir], capsys)
+    code, _, err = run([tmp_path / "missing.npz", "-o", tmp_path / "o", "--model", tiny_model_dir], capsys)
     assert code == 2 and "does not exist" in err
     code, _, err = run([src, "-o", tmp_path / "o", "--model", tmp_path / "nomodel"], capsys)
     assert code == 2
     empty = tmp_path / "empty"
     empty.mkdir()
-    code, _, err = run([empty, "-o", tmp_path / "o", "--model", model_dir], capsys)
+    code, _, err = run([empty, "-o", tmp_path / "o", "--model", tiny_model_dir], capsys)
     assert code == 2 and "no input files" in err
     assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())
 
@@ -353,10 +343,10 @@ def _dataset(d: Path, n: int = 4, frames: int = 90):
         np.savez(d / f"seq{i}.npz", poses=gappy(rng, frames + 17 * i))
 
 
-def test_interrupted_run_then_rerun_matches(model_dir, tmp_path, capsys, monkeypatch):
+def test_interrupted_run_then_rerun_matches(tiny_model_dir, tmp_path, capsys, monkeypatch):
     data = tmp_path / "data"
     _dataset(data)
-    code, _, err = run([data, "-o", tmp_path / "ref", "--model", model_dir, "--quiet", *FAST], capsys)
+    code, _, err = run([data, "-o", tmp_path / "ref", "--model", tiny_model_dir, "--quiet", *FAST], capsys)
     assert code == 0, err
     ref = tree(tmp_path / "ref")
 
@@ -373,24 +363,24 @@ def test_interrupted_run_then_rerun_matches(model_dir, tmp_path, capsys, monkeyp
 
     monkeypatch.setattr(np, "savez", savez)
     out = tmp_path / "out"
-    code, _, err = run([data, "-o", out, "--model", model_dir, "--quiet", *FAST], capsys)
+    code, _, err = run([data, "-o", out, "--model", tiny_model_dir, "--quiet", *FAST], capsys)
     assert code == 130 and "interrupted" in err
     partial = tree(out)  # asserts: no temporary or partial files left behind
     assert len(partial) == 1
     monkeypatch.setattr(np, "savez", real_savez)
-    code, text, err = run([data, "-o", out, "--model", model_dir, *FAST], capsys)
+    code, text, err = run([data, "-o", out, "--model", tiny_model_dir, *FAST], capsys)
     assert code == 0, err
     assert "3 repaired, 1 skipped" in text
     same_tree(tree(out), ref)
 
 
-def test_killed_subprocess_then_rerun_matches(model_dir, tmp_path, capsys):
+def test_killed_subprocess_then_rerun_matches(tiny_model_dir, tmp_path, capsys):
     data = tmp_path / "data"
     _dataset(data, n=6, frames=150)
     settings = ["--steps", "2", "--sampler", "ddim", "--samples", "1", "--jobs", "1"]
-    cmd = [sys.executable, "-m", "tcd", "repair", str(data), "--model", str(model_dir), "--quiet", *settings]
+    cmd = [sys.executable, "-m", "tcd", "repair", str(data), "--model", str(tiny_model_dir), "--quiet", *settings]
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in sys.path if p))
-    code, _, err = run([data, "-o", tmp_path / "ref", "--model", model_dir, "--quiet", *settings], capsys)
+    code, _, err = run([data, "-o", tmp_path / "ref", "--model", tiny_model_dir, "--quiet", *settings], capsys)
     assert code == 0, err
     ref = tree(tmp_path / "ref")
     out = tmp_path / "out"
@@ -407,7 +397,7 @@ def test_killed_subprocess_then_rerun_matches(model_dir, tmp_path, capsys):
         load_npz(f)
     done_before = len(list(out.glob("*.npz")))
     assert proc.returncode in (0, -signal.SIGKILL)  # killed mid-way (or, on a fast machine, finished)
-    code, text, err = run([data, "-o", out, "--model", model_dir, *settings], capsys)
+    code, text, err = run([data, "-o", out, "--model", tiny_model_dir, *settings], capsys)
     assert code == 0, err
     assert f"{done_before} skipped" in text
     same_tree(tree(out), ref)
@@ -427,13 +417,13 @@ def test_atomic_write_leaves_nothing_on_failure(tmp_path, monkeypatch):
 
 
 # ---------------------------------------------------------------------------------------------- units and rates
-def test_units_mm(model, tmp_path):
+def test_units_mm(tiny_model, tmp_path):
     rng = np.random.default_rng(9)
     x = gappy(rng, 120)
     np.savez(tmp_path / "m.npz", poses=x)
     np.savez(tmp_path / "mm.npz", poses=x * np.float32(1000))
-    tcd.repair_file(tmp_path / "m.npz", tmp_path / "out_m.npz", model, **FAST_KW)
-    tcd.repair_file(tmp_path / "mm.npz", tmp_path / "out_mm.npz", model, units="mm", **FAST_KW)
+    tcd.repair_file(tmp_path / "m.npz", tmp_path / "out_m.npz", tiny_model, **FAST_KW)
+    tcd.repair_file(tmp_path / "mm.npz", tmp_path / "out_mm.npz", tiny_model, units="mm", **FAST_KW)
     a = load_npz(tmp_path / "out_m.npz")["poses"]
     b = load_npz(tmp_path / "out_mm.npz")["poses"]
     seen = ~np.isnan(x)
@@ -441,7 +431,7 @@ def test_units_mm(model, tmp_path):
     assert np.allclose(b, a * 1000, atol=0.05)  # the same repair, in mm (up to float32 rounding)
     assert json.loads(str(load_npz(tmp_path / "out_mm.npz")["provenance"]))["units"] == "mm"
     # read as metres, the mm values are far from the model's range: a different result
-    tcd.repair_file(tmp_path / "mm.npz", tmp_path / "out_wrong.npz", model, **FAST_KW)
+    tcd.repair_file(tmp_path / "mm.npz", tmp_path / "out_wrong.npz", tiny_model, **FAST_KW)
     assert not np.allclose(load_npz(tmp_path / "out_wrong.npz")["poses"], b, atol=1.0)
 
 
@@ -466,7 +456,7 @@ def test_resampling_mask_is_conservative():
     assert len(y) == 9 and ym[:8].all() and not ym[8].any()
 
 
-def test_fps_resampled_and_back(model, tmp_path, monkeypatch):
+def test_fps_resampled_and_back(tiny_model, tmp_path, monkeypatch):
     seen_frames = []
     real = batch_repair.FileJob.__init__
 
@@ -481,7 +471,7 @@ def test_fps_resampled_and_back(model, tmp_path, monkeypatch):
     x[rng.random((201, 22)) < 0.2] = np.nan
     x[100:111] = np.nan
     np.savez(tmp_path / "in.npz", poses=x)
-    tcd.repair_file(tmp_path / "in.npz", tmp_path / "out50.npz", model, fps=50, **FAST_KW)
+    tcd.repair_file(tmp_path / "in.npz", tmp_path / "out50.npz", tiny_model, fps=50, **FAST_KW)
     assert seen_frames == [101]  # 4 s at 25 fps
     got = load_npz(tmp_path / "out50.npz")
     seen = ~np.isnan(x)
@@ -489,21 +479,21 @@ def test_fps_resampled_and_back(model, tmp_path, monkeypatch):
     assert np.array_equal(got["poses"][seen], x[seen])
     assert json.loads(str(got["provenance"]))["fps"] == 50.0
     # at the model's rate (explicitly or by default) nothing is resampled
-    tcd.repair_file(tmp_path / "in.npz", tmp_path / "out25.npz", model, fps=25, **FAST_KW)
-    tcd.repair_file(tmp_path / "in.npz", tmp_path / "outd.npz", model, **FAST_KW)
+    tcd.repair_file(tmp_path / "in.npz", tmp_path / "out25.npz", tiny_model, fps=25, **FAST_KW)
+    tcd.repair_file(tmp_path / "in.npz", tmp_path / "outd.npz", tiny_model, **FAST_KW)
     assert seen_frames[1:] == [201, 201]
     assert np.array_equal(load_npz(tmp_path / "out25.npz")["poses"], load_npz(tmp_path / "outd.npz")["poses"])
     assert not np.array_equal(load_npz(tmp_path / "out25.npz")["poses"], got["poses"])
 
 
-def test_cli_fps_and_units(model_dir, tmp_path, capsys):
+def test_cli_fps_and_units(tiny_model_dir, tmp_path, capsys):
     rng = np.random.default_rng(11)
     x = gappy(rng, 75) * np.float32(1000)
     np.savez(tmp_path / "in.npz", poses=x)
-    code, _, err = run([tmp_path / "in.npz", "-o", tmp_path / "out", "--model", model_dir, "--fps", "30",
+    code, _, err = run([tmp_path / "in.npz", "-o", tmp_path / "out", "--model", tiny_model_dir, "--fps", "30",
                         "--units", "mm", "--quiet", *FAST], capsys)
     assert code == 0, err
-    tcd.repair_file(tmp_path / "in.npz", tmp_path / "api.npz", model_dir, fps=30, units="mm", **FAST_KW)
+    tcd.repair_file(tmp_path / "in.npz", tmp_path / "api.npz", tiny_model_dir, fps=30, units="mm", **FAST_KW)
     a, b = load_npz(tmp_path / "out" / "in.npz"), load_npz(tmp_path / "api.npz")
     assert np.array_equal(a["poses"], b["poses"])
     prov = json.loads(str(a["provenance"]))
@@ -517,7 +507,7 @@ def _expmap_rows(rng, frames):
     return rows
 
 
-def test_expmap_txt_input(model_dir, tmp_path, capsys):
+def test_expmap_txt_input(tiny_model_dir, tmp_path, capsys):
     rng = np.random.default_rng(12)
     rows = _expmap_rows(rng, 64)
     rows[10:14] = np.nan                       # missing frames
@@ -525,7 +515,7 @@ def test_expmap_txt_input(model_dir, tmp_path, capsys):
     d = tmp_path / "h36m" / "S5"
     d.mkdir(parents=True)
     np.savetxt(d / "walking_1.txt", rows, delimiter=",")
-    code, _, err = run([tmp_path / "h36m", "-o", tmp_path / "out", "--model", model_dir, "--quiet", *FAST], capsys)
+    code, _, err = run([tmp_path / "h36m", "-o", tmp_path / "out", "--model", tiny_model_dir, "--quiet", *FAST], capsys)
     assert code == 0, err
     got = load_npz(tmp_path / "out" / "S5" / "walking_1.npz")
     xyz = fk.expmap_to_model(np.loadtxt(d / "walking_1.txt", delimiter=","))
@@ -533,14 +523,14 @@ def test_expmap_txt_input(model_dir, tmp_path, capsys):
     assert got["poses"].shape == (64, 22, 3) and not np.isnan(got["poses"]).any()
     assert np.array_equal(got["mask"], seen)
     assert not seen[10:14].any() and seen[:10].all()
-    names = tcd.load(model_dir).joint_names
+    names = tcd.load(tiny_model_dir).joint_names
     arm = [names.index(n) for n in ("left_elbow", "left_wrist", "left_thumb", "left_hand")]
     assert not seen[20:30, arm].any() and seen[20:30, names.index("left_shoulder")].all()
     assert np.array_equal(got["poses"][seen], xyz[seen])
     assert json.loads(str(got["provenance"]))["fps"] == fk.H36M_TXT_FPS
     # a txt file that is not an exp-map table fails with its reason
     (d / "bad.txt").write_text("1,2,3\n4,5,6\n")
-    code, _, err = run([tmp_path / "h36m", "-o", tmp_path / "out", "--model", model_dir, "--quiet", *FAST], capsys)
+    code, _, err = run([tmp_path / "h36m", "-o", tmp_path / "out", "--model", tiny_model_dir, "--quiet", *FAST], capsys)
     assert code == 1 and "bad.txt" in err and "99 values per row" in err
 
 

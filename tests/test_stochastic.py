@@ -137,4 +137,9 @@ def test_perfect_sample_gives_zero_error_with_multimodal_gt():
     res = evaluate_stochastic(preds, gts, mm)
     assert res["ADE"] == pytest.approx(0.0) and res["FDE"] == pytest.approx(0.0)
     assert res["APD"] == pytest.approx(math.sqrt(60 * 42))
-    assert res["MMADE"] >= 0.0
+    # each window's own future is among its multimodal futures (distance 0), the others are not: MMADE is
+    # the mean, over windows and their futures g, of the best sample's mean per-frame distance to g
+    assert all(any(np.array_equal(g, gt) for g in m) for m, gt in zip(mm, gts))
+    mmade = np.mean([np.mean([min(np.linalg.norm(p - g, axis=1).mean() for p in pred) for g in m])
+                     for pred, m in zip(preds, mm)])
+    assert res["MMADE"] == pytest.approx(mmade)

@@ -58,6 +58,7 @@ def test_mask_mix_entries_may_carry_a_rate():
         make_batch(tiny_cfg(mask_mix=[["random_joints"]]), wins, np.random.default_rng(0))
 
 
+@pytest.mark.slow
 def test_short_cpu_training_lowers_the_loss(tmp_path):
     seqs = {"train": synthetic_motion(6, seed=0), "val": synthetic_motion(2, seed=1)}
     cfg = tiny_cfg(epochs=2, steps_per_epoch=25, val_every=2)
@@ -72,6 +73,7 @@ def test_short_cpu_training_lowers_the_loss(tmp_path):
     assert (tmp_path / "best.pt").is_file() and (tmp_path / "last.pt").is_file()
 
 
+@pytest.mark.slow
 def test_resume_continues_exactly(tmp_path):
     seqs = {"train": synthetic_motion(4, seed=0), "val": synthetic_motion(2, seed=1)}
     cfg = tiny_cfg(epochs=2, steps_per_epoch=6)
@@ -89,6 +91,7 @@ def test_resume_continues_exactly(tmp_path):
 
 
 
+@pytest.mark.slow
 def test_dataloader_workers_draw_the_same_batches(tmp_path):
     """workers > 0 draws each batch (rows, masks, t, noise) in worker processes from the same seeds:
     the trained weights are bitwise those of the in-process run."""
@@ -147,6 +150,7 @@ def test_bad_train_config_values_are_refused():
             tiny_cfg(**kw)
 
 
+@pytest.mark.slow
 def test_device_batches_train_resume_exactly_and_lower_the_loss(tmp_path):
     """batches="device" (everything drawn on the device; here the CPU): a pure function of (seed, epoch,
     batch), so an interrupted and resumed run ends with the weights of an uninterrupted one."""
@@ -167,6 +171,7 @@ def test_device_batches_train_resume_exactly_and_lower_the_loss(tmp_path):
         assert torch.equal(a[k], b[k]), k
 
 
+@pytest.mark.slow
 def test_ema_weights_are_validated_resumed_and_exported(tmp_path):
     from training.export import export_checkpoint, load_model_file
     seqs = {"train": synthetic_motion(4, seed=0), "val": synthetic_motion(2, seed=1)}
@@ -204,6 +209,7 @@ def test_compile_failure_falls_back_to_eager_training(tmp_path, monkeypatch):
     assert any("torch.compile failed (RuntimeError: no compiler here); training eagerly" in l for l in lines), lines
 
 
+@pytest.mark.slow
 def test_gpu_session_sizes_the_schedule_trains_and_exports(tmp_path):
     """training.gpu_session end to end on the CPU at the tiny size: the probe times the configured step, the
     epochs are chosen to fit the budget and written to RUN/config.json, the run trains and the best (EMA)
