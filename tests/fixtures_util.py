@@ -7,6 +7,7 @@ import shutil
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 CONFIG_KEY = "tcd_config"
 
@@ -60,3 +61,17 @@ def poses(rng: np.random.Generator, batch: int | None = None, frames: int = 50, 
     miss = rng.random(shape) < missing
     x[miss] = np.nan
     return x
+
+
+def bad(argument: str, fn, *args, **kwargs):
+    """Asserts that ``fn(*args, **kwargs)`` raises InvalidInputError (a TcdError and a ValueError) naming
+    ``argument`` (its ``.argument`` and, in backquotes, its message); returns the error."""
+    from tcd.exceptions import InvalidInputError, TcdError
+
+    with pytest.raises(InvalidInputError) as ei:
+        fn(*args, **kwargs)
+    e = ei.value
+    assert isinstance(e, TcdError) and isinstance(e, ValueError)
+    assert e.argument == argument, (e.argument, str(e))
+    assert f"`{argument}`" in str(e)
+    return e

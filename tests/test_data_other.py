@@ -6,6 +6,7 @@ named by TCD_DATA_DIR) skip when it is absent.
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest

@@ -1,14 +1,11 @@
 import json
 
-import numpy as np
 import pytest
 import torch
-from safetensors import safe_open
 from safetensors.torch import load_file, save_file
 
-from training.export import (CONFIG_KEY, load_model_dir, load_model_file, main, random_init_dir, read_config,
-                             save_model_file, write_model_json)
-from training.train import TrainConfig, train
+from training.export import CONFIG_KEY, load_model_dir, load_model_file, main, random_init_dir, read_config
+from training.train import train
 from test_train import synthetic_motion, tiny_cfg
 
 

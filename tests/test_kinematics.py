@@ -1,7 +1,6 @@
 import json
 
 import numpy as np
-import pytest
 
 from conftest import H36M_DIR, needs_h36m
 from training.data import h36m

@@ -10,7 +10,7 @@ made and again when it is used; Python checks only that each field has the Pytho
 from __future__ import annotations
 
 from dataclasses import dataclass, fields, replace
-from typing import Any, Dict, Optional
+from typing import Any, Optional
 
 from . import _checks, _native
 

@@ -1,0 +1,293 @@
+"""Bad input and broken weight files: every refusal is a typed error (InvalidInputError or WeightsError,
+both ValueError and TcdError) naming the argument or the file, raised before anything is computed."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import tcd
+from tcd import _native
+from tcd.exceptions import TcdError, WeightsError
+
+from fixtures_util import bad, config_of, copy_dir, poses, read_weights, with_config, write_weights
+
+
+@pytest.fixture()
+def obs():
+    return poses(np.random.default_rng(0))
+
+
+# ------------------------------------------------------------------------------------ bad input
+
+def test_bad_obs(tiny_model, obs):
+    e = bad("obs", tiny_model.forecast, obs[0])                            # rank 2
+    assert "(T, J, 3) or (B, T, J, 3)" in str(e) and "(22, 3)" in str(e)
+    bad("obs", tiny_model.forecast, obs[None, None])                       # rank 5
+    e = bad("obs", tiny_model.forecast, obs[:, :21])                       # joints
+    assert "21 joints" in str(e) and "J = 22" in str(e)
+    bad("obs", tiny_model.forecast, obs[..., :2])                          # coordinates
+    e = bad("obs", tiny_model.forecast, obs[:49])                          # too few frames
+    assert "50" in str(e) and "49 frames" in str(e) and "obs_len" in str(e)
+    e = bad("obs", tiny_model.forecast, np.concatenate([obs, obs[:1]]))   # too many frames
+    assert "51 frames" in str(e)
+    x = obs.copy()
+    x[3, 4, 1] = np.inf
+    e = bad("obs", tiny_model.forecast, x)
+    assert "inf" in str(e) and "(3, 4, 1)" in str(e)
+    x[3, 4, 1] = -np.inf
+    bad("obs", tiny_model.forecast, x)
+    bad("obs", tiny_model.forecast, np.full((50, 22, 3), "a"))
+    bad("obs", tiny_model.forecast, np.zeros((0, 50, 22, 3), np.float32))
+
+
+def test_bad_mask(tiny_model, obs):
+    x = np.nan_to_num(obs)
+    ones = np.ones((50, 22, 3), np.float32)
+    m = ones.copy()
+    m[1, 2, 0] = 0.5
+    e = bad("mask", tiny_model.forecast, x, m)
+    assert "0.5" in str(e)
+    for v in (2.0, -1.0, np.nan):
+        m = ones.copy()
+        m[0, 0, 0] = v
+        bad("mask", tiny_model.forecast, x, m)
+    bad("mask", tiny_model.forecast, x, np.ones((50, 22, 2)))
+    bad("mask", tiny_model.forecast, x, np.ones((49, 22)))
+    bad("mask", tiny_model.forecast, x, np.ones((1, 50, 22, 3)))
+    # NaN where the mask says observed
+    e = bad("obs", tiny_model.forecast, obs, ones)
+    assert "NaN" in str(e) and "mask" in str(e)
+
+
+def test_all_missing_is_an_error(tiny_model, obs):
+    e = bad("obs", tiny_model.forecast, np.full_like(obs, np.nan))
+    assert "every value is missing" in str(e)
+    bad("mask", tiny_model.forecast, np.nan_to_num(obs), np.zeros((50, 22)))
+    batch = np.stack([obs, np.full_like(obs, np.nan)])
+    e = bad("obs", tiny_model.forecast, batch)
+    assert "sequence 1" in str(e)
+    bad("obs", tiny_model.repair, np.full_like(obs, np.nan))
+
+
+@pytest.mark.parametrize("argument,kwargs", [
+    ("num_samples", {"num_samples": 0}),
+    ("num_samples", {"num_samples": -2}),
+    ("num_samples", {"num_samples": 1.5}),
+    ("num_samples", {"num_samples": True}),
+    ("num_inference_steps", {"num_inference_steps": 0}),
+    ("num_inference_steps", {"num_inference_steps": -1}),
+    ("num_inference_steps", {"num_inference_steps": 51}),
+    ("num_inference_steps", {"num_inference_steps": 10.0}),
+    ("sampler", {"sampler": "euler"}),
+    ("sampler", {"sampler": None}),
+    ("timestep_spacing", {"timestep_spacing": "middle"}),
+    ("units", {"units": "cm"}),
+    ("eta", {"eta": -0.1}),
+    ("eta", {"eta": 1.5}),
+    ("eta", {"eta": math.nan}),
+    ("eta", {"eta": "0"}),
+    ("seed", {"seed": -1}),
+    ("seed", {"seed": 2**64}),
+    ("seed", {"seed": 1.0}),
+    ("threads", {"threads": 0}),
+    ("threads", {"threads": 10**6}),
+])
+def test_bad_options(tiny_model, obs, argument, kwargs):
+    bad(argument, tiny_model.forecast, obs, **kwargs)
+    bad(argument, tiny_model.repair, obs, **kwargs)
+
+
+def test_bad_low_level_arguments(tiny_model_dir):
+    d = tcd.Denoiser.load(tiny_model_dir / "short.safetensors")
+    x = np.zeros((1, 66, 55), np.float32)
+    m = np.ones_like(x)
+    bad("noisy", d.forward, np.zeros((66, 55), np.float32), x[0], m[0], 0)
+    bad("noisy", d.forward, np.zeros((1, 65, 55), np.float32), x, m, 0)
+    bad("observed", d.forward, x, x[:, :, :54], m, 0)
+    bad("mask", d.forward, x, x, m[:, :, :54], 0)
+    m2 = m.copy()
+    m2[0, 0, 0] = 0.25
+    bad("mask", d.forward, x, x, m2, 0)
+    bad("step", d.forward, x, x, m, 50)
+    bad("step", d.forward, x, x, m, -1)
+    nan_obs = x.copy()
+    nan_obs[0, 1, 2] = np.nan
+    bad("observed", d.forward, x, nan_obs, m, 0)
+    bad("noise", d.sample, x, m, 1, noise=np.zeros((1, 50, 1, 66, 55), np.float32))  # needs 51 blocks
+    bad("noise", d.sample, x, m, 1, noise=np.zeros((1, 51, 1, 66, 55), np.float32), seed=1)
+    bad("seed", d.sample, x, m, 1)
+    bad("num_samples", d.sample, x, m, 0, seed=1)
+    bad("num_samples", d.sample, x, m, 10**9, seed=1)  # refused up front, not a failed allocation
+    bad("noise_short", tcd.cascade_raw, d, d, x[:, :, :50], m[:, :, :50], seed=1, noise_short=np.zeros(3))
+    bad("observed", tcd.cascade_raw, d, d, x[:, :, :49], m[:, :, :49], seed=1)
+    bad("long", tcd.cascade_raw, d, d, x[:, :, :50], m[:, :, :50], seed=1)  # short model as long model
+
+
+@pytest.mark.parametrize("argument,kwargs", [
+    ("num_samples", {"num_samples": 0}),
+    ("num_samples", {"num_samples": -1}),
+    ("num_inference_steps", {"num_inference_steps": 0}),
+    ("num_inference_steps", {"num_inference_steps": 51}),
+    ("sampler", {"sampler": "euler"}),
+    ("timestep_spacing", {"timestep_spacing": "middle"}),
+    ("eta", {"eta": 2.0}),
+    ("eta", {"eta": math.nan}),
+    ("threads", {"threads": 0}),
+    ("threads", {"threads": 10**6}),
+    ("seed", {}),
+    ("seed", {"seed": -1}),
+    ("seed", {"seed": 2**64}),
+    ("first_sequence", {"first_sequence": -1}),
+    ("num_samples", {"num_samples": 2**40}),
+])
+def test_native_errors_are_typed(tiny_model_dir, argument, kwargs):
+    """The binding's own checks and the engine's errors (bypassing the Python layer) map onto
+    tcd.exceptions too."""
+    import dataclasses
+    import types
+    d = _native.Denoiser.load(str(tiny_model_dir / "short.safetensors"))
+    x = np.zeros((1, 66, 55), np.float32)
+    kw = dict(kwargs)
+    if argument != "seed":
+        kw.setdefault("seed", 1)
+    n = kw.pop("num_samples", 1)
+    # the sampler fields on a plain object: tcd.SamplerOptions would refuse them before the binding sees them
+    fields = {f.name: kw.pop(f.name, f.default) for f in dataclasses.fields(tcd.SamplerOptions)}
+    bad(argument, d.sample, x, np.ones_like(x), n, types.SimpleNamespace(**fields), **kw)
+
+
+def test_native_engine_error_mapping(tiny_model_dir):
+    d = _native.Denoiser.load(str(tiny_model_dir / "short.safetensors"))
+    x = np.zeros((1, 66, 55), np.float32)
+    m = np.ones_like(x)
+    m[0, 0, 0] = 0.5
+    bad("mask", d.forward, x, x, m, 0)  # raised by tcd-core's validation
+    with pytest.raises(FileNotFoundError):
+        _native.Denoiser.load(str(tiny_model_dir / "nope.safetensors"))
+    with pytest.raises(WeightsError):
+        _native.Denoiser.from_bytes(b"\x00" * 16, "garbage")
+
+
+# ------------------------------------------------------------------------------------ loading
+
+def test_load_without_bundled_model_explains(tmp_path, monkeypatch):
+    import tcd.model
+    monkeypatch.setattr(tcd.model, "default_model_dir", lambda: tmp_path)   # an installation without weights
+    monkeypatch.setattr(tcd.model, "_default", None)
+    with pytest.raises(FileNotFoundError, match="No default model is bundled"):
+        tcd.load()
+    with pytest.raises(FileNotFoundError, match="pass a model directory"):
+        tcd.forecast(np.zeros((50, 22, 3), np.float32))
+
+
+def test_bundled_model_forecasts():
+    if not (tcd.default_model_dir() / "short.safetensors").is_file():
+        pytest.skip("no bundled model in this build")
+    obs = np.zeros((50, 22, 3), np.float32)
+    f = tcd.forecast(obs, num_samples=1, num_inference_steps=2, sampler="ddim", seed=0)
+    assert f.mean.shape == (25, 22, 3) and np.isfinite(f.mean).all()
+    assert tcd.load().sha256 is not None
+
+
+def test_load_missing_paths(tmp_path, tiny_model_dir):
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        tcd.load(tmp_path / "nowhere")
+    with pytest.raises(NotADirectoryError):
+        tcd.load(tiny_model_dir / "short.safetensors")
+    d = copy_dir(tiny_model_dir, tmp_path / "no_long")
+    (d / "long.safetensors").unlink()
+    with pytest.raises(FileNotFoundError, match="long.safetensors"):
+        tcd.load(d)
+    with pytest.raises(FileNotFoundError):
+        tcd.Denoiser.load(tmp_path / "missing.safetensors")
+    with pytest.raises(OSError):  # a directory is not a weight file (engine Error::Io -> OSError)
+        tcd.Denoiser.load(tmp_path)
+    bad("path", tcd.load, 42)
+
+
+def broken_dir(tiny_model_dir, tmp_path, name, edit):
+    """A copy of the model directory whose short.safetensors was changed by edit(path)."""
+    d = copy_dir(tiny_model_dir, tmp_path / name)
+    edit(d / "short.safetensors")
+    return d
+
+
+def truncate(path):
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+
+
+def drop_tensor(path):
+    tensors, meta = read_weights(path)
+    del tensors["diffmodel.residual_layers.1.mid_projection.bias"]
+    write_weights(path, tensors, meta)
+
+
+def add_tensor(path):
+    tensors, meta = read_weights(path)
+    tensors["diffmodel.extra.weight"] = np.zeros((4, 4), np.float32)
+    write_weights(path, tensors, meta)
+
+
+def config_disagrees(path):
+    tensors, meta = read_weights(path)
+    cfg = config_of(meta)
+    cfg["model"]["channels"] = 32  # the tensors are C = 16
+    write_weights(path, tensors, with_config(meta, cfg))
+
+
+def wrong_layer_count(path):
+    tensors, meta = read_weights(path)
+    cfg = config_of(meta)
+    cfg["model"]["num_layers"] = 3
+    write_weights(path, tensors, with_config(meta, cfg))
+
+
+def wrong_dtype(path):
+    tensors, meta = read_weights(path)
+    tensors["embed_layer.weight"] = tensors["embed_layer.weight"].astype(np.float64)
+    write_weights(path, tensors, meta)
+
+
+def no_metadata(path):
+    tensors, _ = read_weights(path)
+    write_weights(path, tensors, {})
+
+
+def bad_json(path):
+    tensors, meta = read_weights(path)
+    write_weights(path, tensors, {**meta, "tcd_config": "{not json"})
+
+
+def garbage(path):
+    path.write_bytes(b"this is not a safetensors file at all")
+
+
+@pytest.mark.parametrize("edit,needle", [
+    (truncate, "truncated or corrupt"),
+    (drop_tensor, "lacks the tensor `diffmodel.residual_layers.1.mid_projection.bias`"),
+    (add_tensor, "diffmodel.extra.weight"),
+    (config_disagrees, "shape"),
+    (wrong_layer_count, "lacks the tensor"),
+    (wrong_dtype, "F32"),
+    (no_metadata, "tcd_config"),
+    (bad_json, "could not be parsed"),
+    (garbage, "not a valid safetensors file"),
+])
+def test_weights_errors(tiny_model_dir, tmp_path, edit, needle):
+    d = broken_dir(tiny_model_dir, tmp_path, edit.__name__, edit)
+    with pytest.raises(WeightsError, match=needle) as ei:
+        tcd.Denoiser.load(d / "short.safetensors")
+    assert isinstance(ei.value, ValueError) and isinstance(ei.value, TcdError)
+    assert ei.value.path is not None and ei.value.path.endswith("short.safetensors")
+    with pytest.raises(WeightsError):
+        tcd.load(d)
+
+
+def test_model_dir_whose_files_disagree(tiny_model_dir, tmp_path):
+    d = copy_dir(tiny_model_dir, tmp_path / "swapped")
+    (d / "long.safetensors").write_bytes((d / "short.safetensors").read_bytes())
+    with pytest.raises(WeightsError, match="obs_len"):
+        tcd.load(d)
