@@ -64,21 +64,10 @@ def draw_windows(n: int, length: int, seed: int, data_dir: Path) -> np.ndarray:
 
 
 def linear_fill(x: np.ndarray, m: np.ndarray) -> np.ndarray:
-    """x (B, T, J, 3), m (B, T, J) bool observed -> per (window, joint) linear interpolation in time."""
-    out = x.astype(np.float64).copy()
-    b, t, j, _ = x.shape
-    frames = np.arange(t)
-    for i in range(b):
-        for k in range(j):
-            seen = m[i, :, k]
-            if seen.all():
-                continue
-            if not seen.any():
-                out[i, :, k] = 0.0  # never observed in the window: the root (origin), a crude guess
-                continue
-            for c in range(3):
-                out[i, ~seen, k, c] = np.interp(frames[~seen], frames[seen], x[i, seen, k, c])
-    return out
+    """x (B, T, J, 3), m (B, T, J) bool observed -> per (window, joint) linear interpolation in time
+    (:func:`tcd.interpolate`, the engine's fill); a joint never observed in its window gets 0 (the root, a
+    crude guess)."""
+    return np.nan_to_num(tcd.interpolate(x.astype(np.float64), m, method="linear"), nan=0.0)
 
 
 def savgol_fill(x: np.ndarray, m: np.ndarray) -> np.ndarray:
@@ -91,23 +80,11 @@ def savgol_fill(x: np.ndarray, m: np.ndarray) -> np.ndarray:
 
 
 def spline_fill(x: np.ndarray, m: np.ndarray) -> np.ndarray:
-    """Per (window, joint) natural cubic spline in time through the observed frames
-    (``scipy.interpolate.CubicSpline``, ``bc_type="natural"``: what the bundled repair model is conditioned
-    on), held constant before the first / after the last observed frame; with fewer than 2 observed frames
-    it falls back to :func:`linear_fill`'s rule."""
-    from scipy.interpolate import CubicSpline
-
-    out = linear_fill(x, m)
-    frames = np.arange(x.shape[1])
-    for i in range(x.shape[0]):
-        for k in range(x.shape[2]):
-            seen = m[i, :, k]
-            if seen.all() or seen.sum() < 2:
-                continue
-            f = frames[seen]
-            out[i, ~seen, k] = CubicSpline(f, x[i, seen, k].astype(np.float64), axis=0, bc_type="natural")(
-                np.clip(frames[~seen], f[0], f[-1]))
-    return out
+    """Per (window, joint) natural cubic spline in time through the observed frames (:func:`tcd.interpolate`,
+    the engine's fill: what the bundled repair model is conditioned on; tests/test_interpolation.py checks
+    it against scipy's ``CubicSpline(bc_type="natural")``), held constant before the first / after the last
+    observed frame; :func:`linear_fill`'s rule for a joint never observed."""
+    return np.nan_to_num(tcd.interpolate(x.astype(np.float64), m, method="spline"), nan=0.0)
 
 
 def ade_mm(pred: np.ndarray, gt: np.ndarray, m: np.ndarray) -> float:

@@ -324,8 +324,7 @@ def test_bundled_repair_model():
     # Against linear interpolation on the same gaps: the bundled (spline-conditioned, two stages) model measured
     # 25.6 vs 46.6 mm (0.55x; its first stage 25.3 mm); the GPU-trained linear-residual model 32.8 mm (0.70x); the first CPU repair model 47.7 mm
     # (1.02x, with DDIM-10 x 2); the short-term model's in-painting, before there was a repair model, 128.8 mm.
-    from tcd.demo import linear_interpolation
-    lin = linear_interpolation(np.where(mask[..., None], clip, np.nan), mask.astype(np.float32))
+    lin = tcd.interpolate(clip, mask, method="linear")
     lin_mm = np.linalg.norm(lin - clip, axis=-1)[~mask].mean() * 1000
     assert np.isfinite(err_mm) and err_mm <= 0.75 * lin_mm, (err_mm, lin_mm)
 

@@ -83,8 +83,9 @@ def test_peers_markdown_tables():
 
 def test_repair_quality_baselines_fill_only_hidden_entries():
     """benches/repair_quality.py's classical peers: linear interpolation is exact on a straight line; the
-    spline baseline is the natural cubic spline the bundled repair model is conditioned on (the same values
-    as training.model.spline_fill, the engine's fill); both keep observed entries and hold the ends."""
+    spline baseline is the natural cubic spline the bundled repair model is conditioned on (the engine's fill,
+    tcd.interpolate, equal to training.model.spline_fill up to float32 rounding); both keep observed entries
+    and hold the ends."""
     pytest.importorskip("scipy")
     import numpy as np
     import torch
@@ -100,14 +101,14 @@ def test_repair_quality_baselines_fill_only_hidden_entries():
     x = np.where(keep, curve, np.nan)
     lin, spl = rq.linear_fill(x, m), rq.spline_fill(x, m)
     np.testing.assert_array_equal(spl[keep], curve[keep])
-    np.testing.assert_allclose(spl[0, 45:, 1], np.repeat(curve[0, 44:45, 1], 5, 0), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(spl[0, 45:, 1], np.repeat(curve[0, 44:45, 1], 5, 0), rtol=0, atol=1e-8)
     ref = spline_fill(torch.from_numpy(x.transpose(0, 2, 3, 1).copy()),
                       torch.from_numpy(keep.transpose(0, 2, 3, 1).astype(np.float64).copy())).numpy().transpose(0, 3, 1, 2)
-    np.testing.assert_allclose(spl, ref, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(spl, ref, rtol=0, atol=1e-8)   # values ~0.1: float32 rounding ~1e-8
     assert np.abs(spl[0, 10:14, 0] - lin[0, 10:14, 0]).max() > 1e-4    # the spline is not the linear fill
     line = 0.01 * t[None, :, None, None] * np.ones((1, 50, 2, 3))
     np.testing.assert_allclose(rq.linear_fill(np.where(keep, line, np.nan), m)[0, 10:14, 0], line[0, 10:14, 0],
-                               atol=1e-12)
+                               atol=1e-8)
 
 
 def test_repair_dataset_occlusion_blocks_cycle_the_patterns():

@@ -46,15 +46,6 @@ def test_occlusion_mask_hides_the_documented_limbs():
     np.testing.assert_array_equal(m, demo.occlusion_mask(50, names, seed=0))
 
 
-def test_linear_interpolation_fills_only_missing_frames():
-    t = np.arange(10, dtype=np.float32)
-    poses = np.stack([np.stack([t, 2 * t, -t], axis=-1)] * 2, axis=1)  # (10, 2, 3), linear in time
-    mask = np.ones((10, 2), np.float32)
-    mask[3:7, 0] = 0
-    out = demo.linear_interpolation(np.where(mask[..., None] > 0, poses, 0.0), mask)
-    np.testing.assert_allclose(out, poses, atol=1e-5)
-
-
 def test_demo_cli_runs_and_writes_results(tiny_model_dir, tmp_path, capsys):
     out = tmp_path / "demo.npz"
     assert main(["demo", "--model", str(tiny_model_dir), "-o", str(out), *FAST]) == 0

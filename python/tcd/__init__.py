@@ -6,7 +6,8 @@
     >>> f.mean.shape, f.samples.shape            # (25, 22, 3), (5, 25, 22, 3)
 
 High level: :func:`load`, :class:`TCD` (``forecast``, ``repair``), :class:`Forecast`, :func:`forecast`;
-the sampler of every call: :class:`SamplerOptions` (or its fields as keywords).
+the sampler of every call: :class:`SamplerOptions` (or its fields as keywords); the engine's fills of
+missing values along time (linear, natural cubic spline): :func:`interpolate`.
 Low level, in the engine's (B, K, L) layout: :class:`Denoiser`, :func:`cascade_raw`, :func:`repair_raw`,
 :func:`seeded_noise`. Errors: :mod:`tcd.exceptions`. Inference runs in a Rust engine (no torch).
 """
@@ -16,6 +17,7 @@ from . import exceptions
 from ._native import __version__
 from .denoiser import STAGE_LONG, STAGE_SHORT, Denoiser, cascade_raw, repair_raw, seeded_noise, supported_kernels
 from .exceptions import InvalidInputError, TcdError, WeightsError
+from .interpolation import interpolate
 from .model import TCD, Forecast, default_model_dir, forecast, load, repair
 from .options import SamplerOptions
 from .batch_repair import repair_file  # `tcd repair` / offline repair of files of any length (issue 6)
@@ -26,6 +28,7 @@ __all__ = [
     "forecast",
     "repair",
     "repair_file",
+    "interpolate",
     "TCD",
     "Forecast",
     "SamplerOptions",

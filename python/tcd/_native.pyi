@@ -19,6 +19,7 @@ STAGE_SHORT: int
 STAGE_LONG: int
 SAMPLERS: List[str]
 SPACINGS: List[str]
+INTERPOLATIONS: List[str]
 
 _F32 = npt.NDArray[np.float32]
 
@@ -116,5 +117,6 @@ def seeded_noise(
     length: int,
     first_sequence: int = 0,
 ) -> _F32: ...
+def interpolate(observed: _F32, mask: _F32, method: str) -> _F32: ...
 def check_sampler_options(options: SamplerOptions) -> None: ...
 def supported_kernels() -> List[str]: ...

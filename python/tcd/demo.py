@@ -30,6 +30,7 @@ from typing import Any, Dict, List, Optional
 import numpy as np
 
 from .files import write_named_atomic, write_npz_atomic
+from .interpolation import interpolate
 from .model import TCD
 from .options import SamplerOptions
 
@@ -95,19 +96,6 @@ def horizon_row(per_frame: np.ndarray, fps: float) -> Dict[int, float]:
     return out
 
 
-def linear_interpolation(poses: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """Fills each joint's missing frames by linear interpolation in time (held at the ends)."""
-    out = poses.copy()
-    t = np.arange(poses.shape[0])
-    for j in range(poses.shape[1]):
-        ok = mask[:, j] > 0
-        if ok.all() or not ok.any():
-            continue
-        for c in range(3):
-            out[~ok, j, c] = np.interp(t[~ok], t[ok], poses[ok, j, c])
-    return out
-
-
 def _say(msg: str, quiet: bool) -> None:
     if not quiet:
         print(msg, file=sys.stderr, flush=True)
@@ -167,7 +155,7 @@ def run(model: TCD, *, samples: int = DEFAULT_SAMPLES, options: Optional[Sampler
     res["repaired"] = rep
     hidden = mask == 0
     res["repair_ade_mm"] = float(1000.0 * np.linalg.norm(rep - obs, axis=-1)[hidden].mean())
-    lin = linear_interpolation(obs, mask)
+    lin = interpolate(occluded, method="linear")
     res["linear_interpolation_ade_mm"] = float(1000.0 * np.linalg.norm(lin - obs, axis=-1)[hidden].mean())
     res["repaired_observed_unchanged"] = bool(np.array_equal(rep[~hidden], obs[~hidden]))
     _say(f"      done in {res['timings_s']['repair']:.1f} s", quiet)

@@ -47,13 +47,14 @@ def _fail(names: Tuple[str, str], which: int, expected: str, received: str, owne
     return InvalidInputError(str(e).replace("Argument ", f"{owner} ", 1), names[which])
 
 
-def validate_poses(obs: Any, mask: Any = None, *, num_joints: int, frames: Optional[int] = None,
+def validate_poses(obs: Any, mask: Any = None, *, num_joints: Optional[int], frames: Optional[int] = None,
                    batched_ok: bool = True, names: Tuple[str, str] = ("obs", "mask"),
                    owner: str = "Argument") -> Poses:
     """Checks poses (T, J, 3) (or (B, T, J, 3) when ``batched_ok``) with NaN = missing, and an optional
     ``mask`` of the same shape or without the last axis (1 = observed).
 
-    ``frames``: the exact T required (None: any T >= 1). ``names``: what the two arrays are called in
+    ``num_joints``: the exact J required (None: any J >= 1). ``frames``: the exact T required (None: any
+    T >= 1). ``names``: what the two arrays are called in
     the messages (and :attr:`InvalidInputError.argument`); ``owner`` how a message introduces them
     ("Argument" for function arguments, e.g. "The file's" for arrays read from a file).
     Raises :class:`tcd.exceptions.InvalidInputError` naming the array at fault."""
@@ -68,7 +69,8 @@ def validate_poses(obs: Any, mask: Any = None, *, num_joints: int, frames: Optio
     if a.dtype.kind not in "biuf":
         raise fail(0, f"a float array of shape {layouts}", f"an array of dtype {a.dtype}")
     t_rule = f"T = {frames} frames" if frames is not None else "T >= 1 frames"
-    want = f"{layouts} with {t_rule} and J = {num_joints} joints"
+    j_rule = f"J = {num_joints} joints" if num_joints is not None else "J >= 1 joints"
+    want = f"{layouts} with {t_rule} and {j_rule}"
     shape = _checks.shape_str(a.shape)
     if a.ndim not in ((3, 4) if batched_ok else (3,)):
         raise fail(0, f"an array of shape {want}", f"an array of shape {shape} ({a.ndim} dimensions)")
@@ -78,8 +80,10 @@ def validate_poses(obs: Any, mask: Any = None, *, num_joints: int, frames: Optio
     if c != 3:
         raise fail(0, f"an array of shape {want} (3 coordinates per joint)",
                    f"shape {shape} with {c} coordinates per joint")
-    if j != num_joints:
+    if j != num_joints and num_joints is not None:
         raise fail(0, f"an array of shape {want} (the model's joint layout)", f"shape {shape} with {j} joints")
+    if j < 1:
+        raise fail(0, f"an array of shape {want}", f"shape {shape} with no joints")
     if frames is not None and t != frames:
         raise fail(0, f"an array of shape {want}: exactly {frames} observed frames (the model's obs_len)",
                    f"shape {shape} with {t} frames")

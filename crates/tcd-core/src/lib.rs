@@ -37,7 +37,7 @@ mod validate;
 pub mod weights;
 
 pub use config::{CondFill, DataConfig, DiffusionConfig, ModelConfig, PredictionType, Role, Target, TcdConfig, WindowConfig};
-pub use denoiser::{fill_linear, fill_spline, CondTables, Denoiser, Prepared, Workspace};
+pub use denoiser::{fill_linear, fill_rows, fill_spline, CondTables, Denoiser, Prepared, Workspace};
 pub use error::{Error, Result};
 pub use kernels::{Kernel, KERNEL_ENV};
 pub use forecast::{cascade, repair, CascadeNoise, CascadeOutput, ForecastOptions, RepairOutput};

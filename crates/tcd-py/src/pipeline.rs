@@ -8,8 +8,8 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use tcd_core::rng::seeded_noise as core_seeded_noise;
 use tcd_core::{
-    cascade as core_cascade, repair as core_repair, with_threads, CascadeNoise, ForecastOptions,
-    Sequences,
+    cascade as core_cascade, fill_rows, repair as core_repair, with_threads, CascadeNoise, CondFill,
+    ForecastOptions, Sequences,
 };
 
 use crate::convert::*;
@@ -191,6 +191,28 @@ pub(crate) fn repair<'py>(
     d.set_item("mean", to_numpy(py, &[b, k, o], out.mean)?)?;
     d.set_item("samples", to_numpy(py, &[s, b, k, o], out.samples)?)?;
     Ok(d)
+}
+
+/// `observed` (..., L) with its mask-0 entries filled along the last axis by the interpolating fill
+/// `method` (`CondFill::INTERPOLATIONS`): what a model with that conditioning fill sees. `mask` has the
+/// shape of `observed`; a row with nothing observed comes back all 0.
+#[pyfunction]
+pub(crate) fn interpolate<'py>(
+    py: Python<'py>,
+    observed: PyReadonlyArrayDyn<'py, f32>,
+    mask: PyReadonlyArrayDyn<'py, f32>,
+    method: &str,
+) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
+    let observed = Array::from_numpy(&observed);
+    let mask = Array::from_numpy(&mask);
+    let fill = CondFill::interpolation(method).map_err(PyTcdError)?;
+    mask.expect_shape("mask", &observed.shape, "(the shape of `observed`)")
+        .map_err(PyTcdError)?;
+    let length = observed.shape.last().copied().unwrap_or(0);
+    let out = py
+        .detach(|| fill_rows(fill, length, &mask.data, &observed.data))
+        .map_err(PyTcdError)?;
+    to_numpy(py, &observed.shape, out)
 }
 
 /// The seeded noise streams exactly as the engine consumes them, (S, num_blocks, B, K, L):

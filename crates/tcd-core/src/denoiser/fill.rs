@@ -3,6 +3,7 @@
 //! reference so that both give identical bits.
 
 use crate::config::CondFill;
+use crate::error::{Error, Result};
 
 /// The network input of one sequence, interleaved (N × 2) with N = K·L in (k, l) order: channel 0 is
 /// the observed channel (`m · x₀`, or with [`CondFill::Linear`] / [`CondFill::Spline`] the masked entries
@@ -33,6 +34,46 @@ impl CondFill {
             CondFill::Spline => fill_spline(mask, observed, set),
         }
     }
+}
+
+impl CondFill {
+    /// The fills that interpolate ([`fill_rows`]'s `method`), the default first.
+    pub const INTERPOLATIONS: [&'static str; 2] = ["linear", "spline"];
+
+    /// The interpolating fill named `method` (one of [`CondFill::INTERPOLATIONS`]).
+    pub fn interpolation(method: &str) -> Result<Self> {
+        match method {
+            "linear" => Ok(CondFill::Linear),
+            "spline" => Ok(CondFill::Spline),
+            other => Err(Error::invalid_input("method", "\"linear\" or \"spline\"", format!("{other:?}"))),
+        }
+    }
+}
+
+/// Every row of `observed` (rows × `length`, row-major) with its masked entries (mask < 0.5) filled
+/// along the row by `fill`, its observed entries copied: exactly what a model with this conditioning fill
+/// sees in its observed channel (`tcd.interpolate`). Masked entries of `observed` are never read; a row
+/// with nothing observed is all 0 ([`fill_linear`]'s rule).
+pub fn fill_rows(fill: CondFill, length: usize, mask: &[f32], observed: &[f32]) -> Result<Vec<f32>> {
+    if length == 0 || !observed.len().is_multiple_of(length) {
+        return Err(Error::invalid_input(
+            "observed",
+            "rows of length L >= 1 (an array whose last axis is time)",
+            format!("{} values in rows of length {length}", observed.len()),
+        ));
+    }
+    if mask.len() != observed.len() {
+        return Err(Error::invalid_input(
+            "mask",
+            format!("one value per value of `observed` ({})", observed.len()),
+            format!("{} values", mask.len()),
+        ));
+    }
+    let mut out: Vec<f32> = observed.iter().zip(mask).map(|(&o, &m)| if m > 0.5 { o } else { 0.0 }).collect();
+    for ((row, m), o) in out.chunks_exact_mut(length).zip(mask.chunks_exact(length)).zip(observed.chunks_exact(length)) {
+        fill.fill_row(m, o, |ll, v| row[ll] = v);
+    }
+    Ok(out)
 }
 
 /// Natural cubic spline through one coordinate's observed entries (mask > 0.5; knots at their indices),
@@ -153,5 +194,20 @@ mod tests {
         let mut none = [f32::NAN; 3];
         fill_spline(&[0.0; 3], &[f32::NAN; 3], |l, v| none[l] = v);
         assert_eq!(none, [0.0; 3]);
+    }
+
+    #[test]
+    fn fill_rows_fills_every_row_and_checks_sizes() {
+        use super::{fill_rows, CondFill};
+        let mask = [1.0, 0.0, 1.0, 0.0, 0.0, 0.0];
+        let obs = [2.0, f32::NAN, 4.0, f32::NAN, f32::NAN, f32::NAN];
+        let out = fill_rows(CondFill::Linear, 3, &mask, &obs).unwrap();
+        assert_eq!(out, [2.0, 3.0, 4.0, 0.0, 0.0, 0.0]); // a row with nothing observed is 0
+        assert_eq!(fill_rows(CondFill::Spline, 3, &mask, &obs).unwrap(), out); // two knots: the line
+        assert!(fill_rows(CondFill::Linear, 4, &mask, &obs).is_err());
+        assert!(fill_rows(CondFill::Linear, 0, &mask, &obs).is_err());
+        assert!(fill_rows(CondFill::Linear, 3, &mask[..3], &obs).is_err());
+        assert_eq!(CondFill::interpolation("spline").unwrap(), CondFill::Spline);
+        assert!(CondFill::interpolation("zero").is_err());
     }
 }

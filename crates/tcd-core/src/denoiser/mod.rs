@@ -36,7 +36,7 @@ mod packed;
 mod portable;
 mod workspace;
 
-pub use fill::{fill_linear, fill_spline};
+pub use fill::{fill_linear, fill_rows, fill_spline};
 pub(crate) use forward::SequenceInputs;
 pub use workspace::{CondTables, Prepared, Workspace};
 
