@@ -76,6 +76,7 @@ def test_all_missing_is_an_error(tiny_model, obs):
     ("num_samples", {"num_samples": -2}),
     ("num_samples", {"num_samples": 1.5}),
     ("num_samples", {"num_samples": True}),
+    ("num_samples", {"num_samples": 2**70}),    # beyond the binding's 64 bits: still a typed error
     ("num_inference_steps", {"num_inference_steps": 0}),
     ("num_inference_steps", {"num_inference_steps": -1}),
     ("num_inference_steps", {"num_inference_steps": 51}),
@@ -91,12 +92,25 @@ def test_all_missing_is_an_error(tiny_model, obs):
     ("seed", {"seed": -1}),
     ("seed", {"seed": 2**64}),
     ("seed", {"seed": 1.0}),
+    ("seed", {"seed": 2**130}),
     ("threads", {"threads": 0}),
     ("threads", {"threads": 10**6}),
 ])
 def test_bad_options(tiny_model, obs, argument, kwargs):
     bad(argument, tiny_model.forecast, obs, **kwargs)
     bad(argument, tiny_model.repair, obs, **kwargs)
+
+
+def test_settings_kept_for_later_are_checked_when_given(tiny_model_dir):
+    """A thread count given to tcd.load, and tcd repair's options, are refused at once with the engine's rules
+    (tcd.batch_repair.RepairOptions is checked before any file is read)."""
+    bad("threads", tcd.load, tiny_model_dir, threads=0)
+    bad("threads", tcd.load, tiny_model_dir, threads=2000)
+    m = tcd.load(tiny_model_dir)
+    from tcd.batch_repair import RepairOptions
+    bad("seed", RepairOptions.make, m, seed=-1)
+    bad("num_samples", RepairOptions.make, m, num_samples=0)
+    bad("threads", RepairOptions.make, m, threads=0)
 
 
 def test_bad_low_level_arguments(tiny_model_dir):

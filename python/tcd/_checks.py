@@ -7,9 +7,8 @@ from typing import Any, Optional, Sequence
 
 import numpy as np
 
+from . import _native
 from .exceptions import InvalidInputError
-
-MAX_SEED = 2**64 - 1
 
 
 def fail(argument: str, expected: str, received: str) -> InvalidInputError:
@@ -31,10 +30,6 @@ def integer(argument: str, value: Any, minimum: int, maximum: Optional[int] = No
     return v
 
 
-def optional_integer(argument: str, value: Any, minimum: int, maximum: Optional[int] = None) -> Optional[int]:
-    return None if value is None else integer(argument, value, minimum, maximum)
-
-
 def choice(argument: str, value: Any, options: Sequence[str]) -> str:
     if not isinstance(value, str) or value not in options:
         listed = ", ".join(repr(o) for o in options)
@@ -50,11 +45,17 @@ def text(argument: str, value: Any, names: Sequence[str]) -> str:
     return value
 
 
-def machine_int(argument: str, value: Any) -> int:
-    """An int (not bool) that fits the engine's 64-bit integers (its range is the engine's to check)."""
-    if not _is_int(value) or not -2**63 <= int(value) < 2**63:
+def machine_int(argument: str, value: Any, bits: int = 64) -> int:
+    """An int (not bool) that fits the binding's signed ``bits``-bit parameter (64, or 128 for seeds and stream
+    ids, whose range is 0..2**64 - 1): the conversion is Python's to check, the range the engine's (a value
+    out of range there is an InvalidInputError naming the argument, not an OverflowError)."""
+    if not _is_int(value) or not -2**(bits - 1) <= int(value) < 2**(bits - 1):
         raise fail(argument, "an integer", f"{value!r} ({type(value).__name__})")
     return int(value)
+
+
+def optional_machine_int(argument: str, value: Any, bits: int = 64) -> Optional[int]:
+    return None if value is None else machine_int(argument, value, bits)
 
 
 def real(argument: str, value: Any) -> float:
@@ -65,14 +66,24 @@ def real(argument: str, value: Any) -> float:
 
 
 def seed(value: Any) -> Optional[int]:
-    return optional_integer("seed", value, 0, MAX_SEED)
-
-
-MAX_THREADS = 1024
+    """A seed kept for later calls, checked now with the engine's rule (0..2**64 - 1)."""
+    v = optional_machine_int("seed", value, 128)
+    _native.check_call_settings(seed=v)
+    return v
 
 
 def threads(value: Any) -> Optional[int]:
-    return optional_integer("threads", value, 1, MAX_THREADS)
+    """A thread count kept for later calls, checked now with the engine's rule."""
+    v = optional_machine_int("threads", value)
+    _native.check_call_settings(threads=v)
+    return v
+
+
+def num_samples(value: Any) -> int:
+    """A sample count kept for later calls, checked now with the engine's rule (at least 1)."""
+    v = machine_int("num_samples", value)
+    _native.check_call_settings(num_samples=v)
+    return v
 
 
 def float32_array(argument: str, value: Any) -> np.ndarray:

@@ -139,10 +139,10 @@ class Denoiser:
         """ε̂ = net(noisy, observed, mask, step): arrays (B, K, L) float32, ``step`` in
         0..num_train_timesteps-1. Returns (B, K, L) float32. ``threads`` (default: all cores) split
         each sequence's forward across that many threads."""
-        step = _checks.integer("step", step, 0, self.num_train_timesteps - 1)
+        step = _checks.machine_int("step", step)
         return self._native.forward(_checks.float32_array("noisy", noisy),
                                     _checks.float32_array("observed", observed),
-                                    _checks.float32_array("mask", mask), step, threads=_checks.threads(threads))
+                                    _checks.float32_array("mask", mask), step, threads=_checks.optional_machine_int("threads", threads))
 
     def sample(self, observed: Any, mask: Any, num_samples: int = 1, *, noise: Any = None,
                seed: Optional[int] = None, first_sequence: int = 0, sequences: Optional[Sequence[int]] = None,
@@ -153,13 +153,13 @@ class Denoiser:
         ``seed`` must be given; seeded sequence b draws stream ``first_sequence + b``, or ``sequences[b]``
         (one id per sequence). The sampler: ``options`` (:class:`tcd.SamplerOptions`) or its fields as
         keywords (``sampler``, ``num_inference_steps``, ``eta``, ``timestep_spacing``)."""
-        num_samples = _checks.integer("num_samples", num_samples, 1)
+        num_samples = _checks.machine_int("num_samples", num_samples)
         o = SamplerOptions.build(options, **sampler)
         return self._native.sample(
             _checks.float32_array("observed", observed), _checks.float32_array("mask", mask), num_samples, o,
-            noise=_noise("noise", noise), seed=_checks.seed(seed),
-            first_sequence=_checks.integer("first_sequence", first_sequence, 0, _checks.MAX_SEED),
-            sequences=_stream_ids(sequences), threads=_checks.threads(threads))
+            noise=_noise("noise", noise), seed=_checks.optional_machine_int("seed", seed, 128),
+            first_sequence=_checks.machine_int("first_sequence", first_sequence, 128),
+            sequences=_stream_ids(sequences), threads=_checks.optional_machine_int("threads", threads))
 
 
 def cascade_raw(short: Denoiser, long: Denoiser, observed: Any, mask: Any, *, num_samples: int = 5,
@@ -179,14 +179,14 @@ def cascade_raw(short: Denoiser, long: Denoiser, observed: Any, mask: Any, *, nu
     for name, m in (("short", short), ("long", long)):
         if not isinstance(m, Denoiser):
             raise _checks.fail(name, "a tcd.Denoiser", type(m).__name__)
-    num_samples = _checks.integer("num_samples", num_samples, 1)
+    num_samples = _checks.machine_int("num_samples", num_samples)
     o = SamplerOptions.build(options, **sampler)
     return dict(_native.cascade(
         short._native, long._native, _checks.float32_array("observed", observed),
         _checks.float32_array("mask", mask), num_samples, o,
         noise_short=_noise("noise_short", noise_short), noise_long=_noise("noise_long", noise_long),
-        seed=_checks.seed(seed), first_sequence=_checks.integer("first_sequence", first_sequence, 0, _checks.MAX_SEED),
-        sequences=_stream_ids(sequences), threads=_checks.threads(threads)))
+        seed=_checks.optional_machine_int("seed", seed, 128), first_sequence=_checks.machine_int("first_sequence", first_sequence, 128),
+        sequences=_stream_ids(sequences), threads=_checks.optional_machine_int("threads", threads)))
 
 
 def repair_raw(model: Denoiser, observed: Any, mask: Any, *, num_samples: int = 5, noise: Any = None,
@@ -200,13 +200,13 @@ def repair_raw(model: Denoiser, observed: Any, mask: Any, *, num_samples: int = 
     keywords (:class:`tcd.SamplerOptions`)."""
     if not isinstance(model, Denoiser):
         raise _checks.fail("model", "a tcd.Denoiser", type(model).__name__)
-    num_samples = _checks.integer("num_samples", num_samples, 1)
+    num_samples = _checks.machine_int("num_samples", num_samples)
     o = SamplerOptions.build(options, **sampler)
     return dict(_native.repair(
         model._native, _checks.float32_array("observed", observed), _checks.float32_array("mask", mask),
-        num_samples, o, noise=_noise("noise", noise), seed=_checks.seed(seed),
-        first_sequence=_checks.integer("first_sequence", first_sequence, 0, _checks.MAX_SEED),
-        sequences=_stream_ids(sequences), threads=_checks.threads(threads)))
+        num_samples, o, noise=_noise("noise", noise), seed=_checks.optional_machine_int("seed", seed, 128),
+        first_sequence=_checks.machine_int("first_sequence", first_sequence, 128),
+        sequences=_stream_ids(sequences), threads=_checks.optional_machine_int("threads", threads)))
 
 
 def _stream_ids(value: Any) -> Optional[List[int]]:
@@ -233,8 +233,7 @@ def seeded_noise(seed: int, stage: int, num_samples: int, num_blocks: int, batch
     :meth:`Denoiser.sample` / :func:`repair_raw` / the cascade's first stage, :data:`STAGE_LONG` for
     its second)."""
     return _native.seeded_noise(
-        _checks.integer("seed", seed, 0, _checks.MAX_SEED), _checks.integer("stage", stage, 0, _checks.MAX_SEED),
-        _checks.integer("num_samples", num_samples, 1), _checks.integer("num_blocks", num_blocks, 1),
-        _checks.integer("batch", batch, 1), _checks.integer("num_features", num_features, 1),
-        _checks.integer("length", length, 1),
-        _checks.integer("first_sequence", first_sequence, 0, _checks.MAX_SEED))
+        _checks.machine_int("seed", seed, 128), _checks.machine_int("stage", stage, 128),
+        _checks.machine_int("num_samples", num_samples), _checks.machine_int("num_blocks", num_blocks),
+        _checks.machine_int("batch", batch), _checks.machine_int("num_features", num_features),
+        _checks.machine_int("length", length), _checks.machine_int("first_sequence", first_sequence, 128))

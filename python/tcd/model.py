@@ -100,7 +100,7 @@ def _poses(obs: Any, mask: Any, num_joints: int, obs_len: int, units: str) -> _P
 
 
 def _seed(seed: Any) -> int:
-    s = _checks.seed(seed)
+    s = _checks.optional_machine_int("seed", seed, 128)   # its range (0..2**64 - 1) is the engine's to check
     return int.from_bytes(os.urandom(8), "little") if s is None else s
 
 
@@ -184,10 +184,10 @@ class TCD:
     # ------------------------------------------------------------------ inference
     def _common(self, num_samples: Any, options: Optional[SamplerOptions], sampler: Dict[str, Any], units: Any,
                 threads: Any) -> Tuple[int, SamplerOptions, str, Optional[int]]:
-        num_samples = _checks.integer("num_samples", num_samples, 1)
+        num_samples = _checks.machine_int("num_samples", num_samples)   # ranges: the engine's
         o = SamplerOptions.build(options, **sampler)
         units = check_units(units)
-        threads = _checks.threads(threads)
+        threads = _checks.optional_machine_int("threads", threads)
         return num_samples, o, units, self.threads if threads is None else threads
 
     def forecast(self, obs: Any, mask: Any = None, *, num_samples: int = 5, options: Optional[SamplerOptions] = None,

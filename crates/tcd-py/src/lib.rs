@@ -24,7 +24,9 @@ use pyo3::prelude::*;
 use tcd_core::rng::stage;
 
 use crate::denoiser::PyDenoiser;
-use crate::pipeline::{cascade, check_sampler_options, interpolate, repair, seeded_noise, supported_kernels};
+use crate::pipeline::{
+    cascade, check_call_settings, check_sampler_options, interpolate, repair, seeded_noise, supported_kernels,
+};
 
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -39,6 +41,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(interpolate, m)?)?;
     m.add_function(wrap_pyfunction!(supported_kernels, m)?)?;
     m.add_function(wrap_pyfunction!(check_sampler_options, m)?)?;
+    m.add_function(wrap_pyfunction!(check_call_settings, m)?)?;
     m.add("SAMPLERS", tcd_core::SamplerKind::NAMES.to_vec())?;
     m.add("SPACINGS", tcd_core::TimestepSpacing::NAMES.to_vec())?;
     m.add("INTERPOLATIONS", tcd_core::CondFill::INTERPOLATIONS.to_vec())?;

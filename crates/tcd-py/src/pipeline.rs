@@ -281,6 +281,22 @@ pub(crate) fn check_sampler_options(options: SamplerOptions) -> PyResult<()> {
     Ok(())
 }
 
+/// Checks settings a caller keeps for later calls (`tcd.load(threads=...)`, `tcd repair`'s options) with
+/// the very conversions every call applies to them, so that their ranges have one home (raises
+/// `InvalidInputError` naming the setting).
+#[pyfunction]
+#[pyo3(signature = (*, num_samples=None, seed=None, threads=None))]
+pub(crate) fn check_call_settings(num_samples: Option<i64>, seed: Option<i128>, threads: Option<i64>) -> PyResult<()> {
+    (|| -> CoreResult<()> {
+        num_samples.map(|n| positive("num_samples", n)).transpose()?;
+        seed.map(|s| u64_arg("seed", s)).transpose()?;
+        threads_arg(threads)?;
+        Ok(())
+    })()
+    .map_err(PyTcdError)?;
+    Ok(())
+}
+
 /// The kernel paths this CPU can run, the best last (`TCD_KERNEL` accepts these and `auto`).
 #[pyfunction]
 pub(crate) fn supported_kernels() -> Vec<&'static str> {

@@ -63,9 +63,9 @@ class RepairOptions:
         overlap = _checks.integer("overlap", kw.get("overlap", DEFAULT_OVERLAP), 1, model.obs_len - 1)
         lookahead = _checks.integer("lookahead", kw.get("lookahead", DEFAULT_LOOKAHEAD), 0, model.obs_len - 1 - overlap)
         return RepairOptions(
-            num_samples=_checks.integer("num_samples", kw.get("num_samples", 5), 1),
+            num_samples=_checks.num_samples(kw.get("num_samples", 5)),
             sampling=sampling,
-            seed=_checks.integer("seed", DEFAULT_SEED if seed is None else seed, 0, _checks.MAX_SEED),
+            seed=_checks.seed(DEFAULT_SEED if seed is None else seed),
             units=check_units(kw.get("units", "m")),
             fps=fps,
             overlap=overlap, lookahead=lookahead,
