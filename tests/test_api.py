@@ -136,7 +136,7 @@ def test_joint_mask_equals_coordinate_mask(tiny_model, obs):
 def test_nan_equals_mask(tiny_model, obs):
     missing = np.isnan(obs)
     mask = (~missing).astype(np.float32)
-    filled = np.where(missing, np.float32(123.0), obs)  # values under mask 0 are ignored
+    filled = np.where(missing, np.float32(0.7), obs)  # values under mask 0 are ignored
     a = tiny_model.forecast(obs, seed=8, **FAST)
     b = tiny_model.forecast(filled, mask, seed=8, **FAST)
     c = tiny_model.forecast(obs, mask, seed=8, **FAST)  # NaN and mask together

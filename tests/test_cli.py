@@ -89,7 +89,7 @@ def test_forecast_dpmpp2m(tiny_model_dir, npz, tmp_path, capsys):
 
 
 def test_forecast_batched_with_mask_and_random_seed(tiny_model_dir, tmp_path, capsys):
-    x = poses(np.random.default_rng(1), batch=2, missing=0.0)
+    x = poses(np.random.default_rng(1), batch=2, missing=0.0) * np.float32(1000)   # millimetres
     mask = np.ones((2, 50, 22), np.float32)
     mask[:, 10:20] = 0
     inp = tmp_path / "in.npz"

@@ -40,6 +40,25 @@ def test_bad_obs(tiny_model, obs):
     bad("obs", tiny_model.forecast, x)
     bad("obs", tiny_model.forecast, np.full((50, 22, 3), "a"))
     bad("obs", tiny_model.forecast, np.zeros((0, 50, 22, 3), np.float32))
+    e = bad("obs", tiny_model.forecast, np.nan_to_num(obs) > 0)               # booleans are not coordinates
+    assert "dtype bool" in str(e)
+    bad("obs", tiny_model.forecast, obs.astype(np.complex64))
+
+
+def test_poses_not_in_the_declared_units(tiny_model, obs):
+    """Poses must measure like a person in the declared units (median distance of the observed joints from
+    their frame's centroid within 0.01-3 m); otherwise `units` is named with the unit that fits."""
+    for call in (tiny_model.forecast, tiny_model.repair):
+        e = bad("units", call, obs * 1000)                                 # millimetres given as metres
+        assert "pass units='mm'" in str(e)
+        e = bad("units", call, obs, units="mm")                            # metres given as millimetres
+        assert "pass units='m'" in str(e)
+        e = bad("units", call, obs * 1e30)
+        assert "no supported unit fits" in str(e)
+    spread = tcd.poses.spread_m(obs[None], ~np.isnan(obs[None]), "m")
+    assert 0.1 < spread < 1.0                                              # the test poses: a person's size
+    tiny_model.forecast(obs + 250.0, num_samples=1, num_inference_steps=1, sampler="ddim", seed=0)  # far away: fine
+    tiny_model.forecast(np.zeros((50, 22, 3)), num_samples=1, num_inference_steps=1, sampler="ddim", seed=0)
 
 
 def test_bad_mask(tiny_model, obs):
@@ -216,7 +235,7 @@ def test_load_missing_paths(tmp_path, tiny_model_dir):
         tcd.load(d)
     with pytest.raises(FileNotFoundError):
         tcd.Denoiser.load(tmp_path / "missing.safetensors")
-    with pytest.raises(OSError):  # a directory is not a weight file (engine Error::Io -> OSError)
+    with pytest.raises(WeightsError, match="is a directory"):   # a directory is not a weight file
         tcd.Denoiser.load(tmp_path)
     bad("path", tcd.load, 42)
 
@@ -279,6 +298,22 @@ def garbage(path):
     path.write_bytes(b"this is not a safetensors file at all")
 
 
+def nan_weight(path):
+    tensors, meta = read_weights(path)
+    w = tensors["diffmodel.diffusion_embedding.projection2.weight"].copy()
+    w.flat[5] = np.nan    # one NaN: it used to load, and forecasts came back finite and wrong
+    tensors["diffmodel.diffusion_embedding.projection2.weight"] = w
+    write_weights(path, tensors, meta)
+
+
+def inf_weight(path):
+    tensors, meta = read_weights(path)
+    w = tensors["embed_layer.weight"].copy()
+    w.flat[0] = -np.inf
+    tensors["embed_layer.weight"] = w
+    write_weights(path, tensors, meta)
+
+
 @pytest.mark.parametrize("edit,needle", [
     (truncate, "truncated or corrupt"),
     (drop_tensor, "lacks the tensor `diffmodel.residual_layers.1.mid_projection.bias`"),
@@ -289,6 +324,8 @@ def garbage(path):
     (no_metadata, "tcd_config"),
     (bad_json, "could not be parsed"),
     (garbage, "not a valid safetensors file"),
+    (nan_weight, r"`diffmodel.diffusion_embedding.projection2.weight` .* holds NaN at flat index 5"),
+    (inf_weight, r"`embed_layer.weight` .* holds -inf at flat index 0"),
 ])
 def test_weights_errors(tiny_model_dir, tmp_path, edit, needle):
     d = broken_dir(tiny_model_dir, tmp_path, edit.__name__, edit)

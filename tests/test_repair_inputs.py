@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 import tcd
 from conftest import H36M_DIR, needs_h36m
@@ -28,9 +29,10 @@ def test_units_mm(tiny_model, tmp_path):
     assert np.array_equal(b[seen], (x * np.float32(1000))[seen])
     assert np.allclose(b, a * 1000, atol=0.05)  # the same repair, in mm (up to float32 rounding)
     assert json.loads(str(load_npz(tmp_path / "out_mm.npz")["provenance"]))["units"] == "mm"
-    # read as metres, the mm values are far from the model's range: a different result
-    tcd.repair_file(tmp_path / "mm.npz", tmp_path / "out_wrong.npz", tiny_model, **FAST_KW)
-    assert not np.allclose(load_npz(tmp_path / "out_wrong.npz")["poses"], b, atol=1.0)
+    # read as metres, the mm values are no person's size: refused, naming the unit that fits, nothing written
+    with pytest.raises(tcd.InvalidInputError, match="look like millimetres: pass units='mm'"):
+        tcd.repair_file(tmp_path / "mm.npz", tmp_path / "out_wrong.npz", tiny_model, **FAST_KW)
+    assert not (tmp_path / "out_wrong.npz").exists()
 
 
 def test_resampling_mask_is_conservative():

@@ -86,7 +86,7 @@ class _Poses:
 
 def _poses(obs: Any, mask: Any, num_joints: int, obs_len: int, units: str) -> _Poses:
     """Checks ``obs`` / ``mask`` (see :meth:`TCD.forecast`) and converts them to (B, K, T) float32."""
-    p = validate_poses(obs, mask, num_joints=num_joints, frames=obs_len)
+    p = validate_poses(obs, mask, num_joints=num_joints, frames=obs_len, units=units)
     a4, full, dtype = p.values, p.observed, p.dtype
     b, t = a4.shape[:2]
     scale = UNIT_SCALE[units]

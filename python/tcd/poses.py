@@ -16,7 +16,7 @@ import numpy as np
 from . import _checks
 from .exceptions import InvalidInputError
 
-__all__ = ["Poses", "UNIT_SCALE", "check_units", "validate_poses"]
+__all__ = ["PLAUSIBLE_SPREAD_M", "Poses", "UNIT_SCALE", "check_units", "spread_m", "validate_poses"]
 
 #: The units a pose array may be in, each with what divides it into metres (the models' unit).
 UNIT_SCALE = {"m": 1.0, "mm": 1000.0}
@@ -40,6 +40,41 @@ class Poses:
         return self.values.dtype
 
 
+#: The plausible size of a person, in metres: the median distance of the observed joints from their frame's
+#: centroid. A person measures about 0.15-0.5 m on this statistic; outside [0.01, 3] m the values are not
+#: in the declared units (or are not poses). It is translation-invariant, so world coordinates pass too.
+PLAUSIBLE_SPREAD_M = (0.01, 3.0)
+
+
+def spread_m(values: np.ndarray, observed: np.ndarray, units: str) -> Optional[float]:
+    """The median distance (metres) of the observed joints from their frame's centroid, over the frames with
+    at least two fully observed joints; None when no frame has two (nothing to measure)."""
+    joint_seen = observed.all(axis=-1)                                   # (B, T, J)
+    frames = joint_seen.sum(axis=-1) >= 2                                # (B, T)
+    if not frames.any():
+        return None
+    v = np.where(joint_seen[..., None], values, 0.0)[frames].astype(np.float64)   # (N, J, 3)
+    seen = joint_seen[frames]
+    centroid = v.sum(axis=1, keepdims=True) / seen.sum(axis=1)[:, None, None]
+    dist = np.linalg.norm(v - centroid, axis=-1)[seen]
+    return float(np.median(dist)) / UNIT_SCALE[units]
+
+
+def _check_plausible(values: np.ndarray, observed: np.ndarray, units: str, name: str, owner: str) -> None:
+    spread = spread_m(values, observed, units)
+    low, high = PLAUSIBLE_SPREAD_M
+    if spread is None or spread == 0.0 or low <= spread <= high:   # 0: every joint at one point, no scale
+        return
+    likely = [u for u in UNIT_SCALE if low <= spread * UNIT_SCALE[units] / UNIT_SCALE[u] <= high]
+    hint = (f"the values look like {'millimetres' if likely[0] == 'mm' else 'metres'}: pass units={likely[0]!r}"
+            if likely else "no supported unit fits: are these poses?")
+    subject = (f"Argument `units` must be the unit of `{name}` ({units!r}), but" if owner == "Argument"
+               else f"{owner} `{name}` is not in the declared units ({units!r}):")
+    raise InvalidInputError(
+        f"{subject} its observed joints lie a median {spread:.4g} m from their frame's centroid (a person "
+        f"measures about 0.15-0.5 m; accepted {low}-{high} m): {hint}.", "units")
+
+
 def _fail(names: Tuple[str, str], which: int, expected: str, received: str, owner: str) -> InvalidInputError:
     e = _checks.fail(names[which], expected, received)
     if owner == "Argument":
@@ -49,14 +84,16 @@ def _fail(names: Tuple[str, str], which: int, expected: str, received: str, owne
 
 def validate_poses(obs: Any, mask: Any = None, *, num_joints: Optional[int], frames: Optional[int] = None,
                    batched_ok: bool = True, names: Tuple[str, str] = ("obs", "mask"),
-                   owner: str = "Argument") -> Poses:
+                   owner: str = "Argument", units: Optional[str] = None) -> Poses:
     """Checks poses (T, J, 3) (or (B, T, J, 3) when ``batched_ok``) with NaN = missing, and an optional
     ``mask`` of the same shape or without the last axis (1 = observed).
 
     ``num_joints``: the exact J required (None: any J >= 1). ``frames``: the exact T required (None: any
     T >= 1). ``names``: what the two arrays are called in
     the messages (and :attr:`InvalidInputError.argument`); ``owner`` how a message introduces them
-    ("Argument" for function arguments, e.g. "The file's" for arrays read from a file).
+    ("Argument" for function arguments, e.g. "The file's" for arrays read from a file). ``units``: when
+    given, the values must be plausible poses in that unit (:data:`PLAUSIBLE_SPREAD_M`), else an
+    InvalidInputError naming ``units`` and the unit that fits.
     Raises :class:`tcd.exceptions.InvalidInputError` naming the array at fault."""
     def fail(which: int, expected: str, received: str) -> InvalidInputError:
         return _fail(names, which, expected, received, owner)
@@ -66,7 +103,7 @@ def validate_poses(obs: Any, mask: Any = None, *, num_joints: Optional[int], fra
         a = np.asarray(obs)
     except (ValueError, TypeError) as e:
         raise fail(0, f"an array of shape {layouts}", f"an object numpy cannot convert ({e})") from None
-    if a.dtype.kind not in "biuf":
+    if a.dtype.kind not in "iuf":   # booleans are not coordinates
         raise fail(0, f"a float array of shape {layouts}", f"an array of dtype {a.dtype}")
     t_rule = f"T = {frames} frames" if frames is not None else "T >= 1 frames"
     j_rule = f"J = {num_joints} joints" if num_joints is not None else "J >= 1 joints"
@@ -128,6 +165,8 @@ def validate_poses(obs: Any, mask: Any = None, *, num_joints: Optional[int], fra
         which = f"sequence {int(np.argmax(empty))} of `{names[0]}`" if batched else f"`{names[0]}`"
         raise fail(0 if mask is None else 1, "an observation with at least one observed value per sequence",
                    f"{which} in which every value is missing")
+    if units is not None:
+        _check_plausible(a4, full, units, names[0], owner)
     return Poses(values=a4, observed=full, batched=batched)
 
 

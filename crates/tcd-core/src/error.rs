@@ -78,6 +78,19 @@ pub enum Error {
         received: Vec<usize>,
     },
 
+    /// A tensor holds NaN or an infinity: such weights load "fine" and forecast garbage, so they are refused.
+    #[error("The tensor `{name}` in the weights file {} holds {value} at flat index {index}: every weight must be finite (the file is corrupt or came from a diverged training run).", .path.display())]
+    NonFiniteTensor {
+        path: PathBuf,
+        name: String,
+        index: usize,
+        value: f32,
+    },
+
+    /// The weights path names a directory, not a file.
+    #[error("The weights path {} is a directory, not a .safetensors file (a model directory loads with tcd.load).", .path.display())]
+    NotAFile { path: PathBuf },
+
     /// A tensor is not F32.
     #[error("The tensor `{name}` in the weights file {} has dtype {received}, but F32 is required.", .path.display())]
     TensorDtype {
@@ -126,6 +139,8 @@ impl Error {
                 | Error::UnexpectedTensor { .. }
                 | Error::TensorShape { .. }
                 | Error::TensorDtype { .. }
+                | Error::NonFiniteTensor { .. }
+                | Error::NotAFile { .. }
         )
     }
 }

@@ -91,6 +91,11 @@ impl WeightFile {
     /// [`Error::Io`]; everything about the content is one of the weight-file variants.
     pub fn load(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
+        if path.is_dir() {
+            return Err(Error::NotAFile {
+                path: path.to_path_buf(),
+            });
+        }
         let bytes = std::fs::read(path).map_err(|source| {
             if source.kind() == std::io::ErrorKind::NotFound {
                 Error::NotFound {
@@ -152,6 +157,14 @@ impl WeightFile {
                 .chunks_exact(4)
                 .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
                 .collect();
+            if let Some((index, &value)) = data.iter().enumerate().find(|(_, v)| !v.is_finite()) {
+                return Err(Error::NonFiniteTensor {
+                    path: path.clone(),
+                    name: name.clone(),
+                    index,
+                    value,
+                });
+            }
             tensors.insert(
                 name.clone(),
                 Tensor {

@@ -63,10 +63,85 @@ fn missing_file_is_not_found() {
 }
 
 #[test]
-fn directory_is_io_error() {
+fn directory_is_not_a_file() {
     let dir = tempfile::tempdir().unwrap();
     let e = Denoiser::load(dir.path()).unwrap_err();
-    assert!(matches!(e, Error::Io { .. }), "{e:?}");
+    assert!(matches!(e, Error::NotAFile { .. }), "{e:?}");
+    assert!(e.is_weights_error() && e.to_string().contains("is a directory"), "{e}");
+}
+
+#[test]
+fn non_finite_weight_names_the_tensor() {
+    let (cfg, t) = good();
+    for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
+        let mut t = t.clone();
+        let name = t.keys().nth(3).unwrap().clone();
+        let mut v = t[&name].values();
+        v[1] = bad;
+        t.insert(name.clone(), RawTensor::f32(t[&name].shape.clone(), &v));
+        let e = load_bytes(&serialize(&t, Some(cfg.to_json()))).unwrap_err();
+        match &e {
+            Error::NonFiniteTensor { name: n, index, .. } => assert_eq!((n.as_str(), *index), (name.as_str(), 1)),
+            other => panic!("{other:?}"),
+        }
+        assert!(e.is_weights_error() && e.to_string().contains(&format!("`{name}`")), "{e}");
+    }
+}
+
+/// Fuzzing the loader: random byte flips anywhere, truncations and edits of the JSON header of a valid
+/// file. Every mutant either loads (then every tensor is finite and has its configured shape) or is a
+/// weights error; none panics. `TCD_FUZZ_CASES` sets the count (CI: the default 3000, about a second;
+/// the longer local run is in the issue note).
+#[test]
+fn fuzzed_weight_files_load_or_fail_cleanly() {
+    use rand::{Rng, SeedableRng};
+    let (cfg, t) = good();
+    let valid = serialize(&t, Some(cfg.to_json()));
+    let header_len = u64::from_le_bytes(valid[..8].try_into().unwrap()) as usize;
+    let cases: usize = std::env::var("TCD_FUZZ_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(3000);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(17);
+    let (mut loaded, mut refused) = (0usize, 0usize);
+    for case in 0..cases {
+        let mut b = valid.clone();
+        match case % 4 {
+            0 => {
+                // flip 1..8 random bits anywhere
+                for _ in 0..rng.random_range(1..=8) {
+                    let i = rng.random_range(0..b.len());
+                    b[i] ^= 1 << rng.random_range(0..8);
+                }
+            }
+            1 => b.truncate(rng.random_range(0..b.len())),
+            2 => {
+                // overwrite a byte of the JSON header (offsets, shapes, dtypes, the config) with printable ASCII
+                let i = 8 + rng.random_range(0..header_len);
+                b[i] = rng.random_range(32u8..127);
+            }
+            _ => {
+                // the 8-byte header length itself
+                let i = rng.random_range(0..8);
+                b[i] = rng.random();
+            }
+        }
+        let got = std::panic::catch_unwind(|| WeightFile::from_bytes(&b, "fuzz.safetensors"));
+        match got {
+            Err(_) => panic!("case {case}: the loader panicked"),
+            Ok(Ok(w)) => {
+                loaded += 1;
+                for (name, shape) in tcd_core::expected_tensors(&w.config().model) {
+                    let tensor = w.tensor(&name).unwrap();
+                    assert_eq!(tensor.shape, shape, "case {case}: {name}");
+                    assert!(tensor.data.iter().all(|v| v.is_finite()), "case {case}: {name} not finite");
+                }
+            }
+            Ok(Err(e)) => {
+                refused += 1;
+                assert!(e.is_weights_error(), "case {case}: {e:?}");
+            }
+        }
+    }
+    assert_eq!(loaded + refused, cases);
+    assert!(refused > cases / 2, "most mutants must be refused ({refused} of {cases})");
 }
 
 #[test]

@@ -4,7 +4,7 @@
 //! |---|---|
 //! | `NotFound` | `FileNotFoundError` |
 //! | `Io` | `OSError` |
-//! | `Corrupt`, `MissingMetadata`, `BadMetadata`, `InvalidConfig`, `BetasMismatch`, `MissingTensor`, `UnexpectedTensor`, `TensorShape`, `TensorDtype` | `WeightsError(message, path)` |
+//! | `Corrupt`, `MissingMetadata`, `BadMetadata`, `InvalidConfig`, `BetasMismatch`, `MissingTensor`, `UnexpectedTensor`, `TensorShape`, `TensorDtype`, `NonFiniteTensor`, `NotAFile` | `WeightsError(message, path)` |
 //! | `InvalidInput` | `InvalidInputError(message, argument)` |
 //! | `ThreadPool` (and any variant a newer engine adds) | `TcdError(message)` |
 //!
@@ -154,7 +154,9 @@ fn to_pyerr(py: Python<'_>, e: Error) -> PyErr {
         | Error::MissingTensor { path, .. }
         | Error::UnexpectedTensor { path, .. }
         | Error::TensorShape { path, .. }
-        | Error::TensorDtype { path, .. } => {
+        | Error::TensorDtype { path, .. }
+        | Error::NonFiniteTensor { path, .. }
+        | Error::NotAFile { path } => {
             raise(weights_error(py), (message, path.display().to_string()))
         }
         Error::InvalidInput { argument, .. } => raise(invalid_input_error(py), (message, argument)),

@@ -54,12 +54,12 @@ def _read_npz(path: Path) -> Dict[str, np.ndarray]:
         raise BadFile(f"unreadable: not a valid .npz archive ({type(e).__name__}: {e})") from None
 
 
-def _checked_poses(data: Dict[str, np.ndarray], num_joints: int) -> Tuple[np.ndarray, np.ndarray]:
+def _checked_poses(data: Dict[str, np.ndarray], num_joints: int, units: str) -> Tuple[np.ndarray, np.ndarray]:
     """``poses`` (T, J, 3) in a float dtype and the observed entries (T, J, 3) bool, checked by the API's
     :func:`tcd.poses.validate_poses`; a problem is a :class:`BadFile` naming the array."""
     try:
         p = validate_poses(data["poses"], data.get("mask"), num_joints=num_joints, batched_ok=False,
-                           names=("poses", "mask"), owner="The file's")
+                           names=("poses", "mask"), owner="The file's", units=units)
     except InvalidInputError as e:
         raise BadFile(str(e)) from None
     return p.values[0], p.observed[0]
@@ -91,7 +91,7 @@ def load_input(path: PathLike, num_joints: int, units: str = "m", fps: Optional[
         data = _read_npz(path)
         if "poses" not in data:
             raise BadFile(f"no `poses` array (the archive holds: {', '.join(sorted(data)) or 'nothing'})")
-        poses, full = _checked_poses(data, num_joints)
+        poses, full = _checked_poses(data, num_joints, units)
         mask_out = data["mask"] if "mask" in data else full
         src_fps = fps if fps is not None else (model_fps if model_fps is not None else float("nan"))
     if not full.any():
