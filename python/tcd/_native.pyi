@@ -7,7 +7,7 @@ noise (S, n + 1, B, K, L) ((S, 1, B, K, L) for ``sampler="dpmpp2m"``). The sampl
 ``OSError`` (unreadable file), ``tcd.exceptions.TcdError`` (anything else).
 """
 import os
-from typing import Dict, List, Optional, Union
+from typing import Any, Callable, Dict, List, Optional, Union
 
 import numpy as np
 import numpy.typing as npt
@@ -77,6 +77,7 @@ class Denoiser:
         first_sequence: int = 0,
         sequences: Optional[List[int]] = None,
         threads: Optional[int] = None,
+        progress: Optional[Callable[[int, int], Any]] = None,
     ) -> _F32: ...
 
 def cascade(
@@ -93,6 +94,7 @@ def cascade(
     first_sequence: int = 0,
     sequences: Optional[List[int]] = None,
     threads: Optional[int] = None,
+    progress: Optional[Callable[[int, int], Any]] = None,
 ) -> Dict[str, _F32]: ...
 def repair(
     model: Denoiser,
@@ -106,6 +108,7 @@ def repair(
     first_sequence: int = 0,
     sequences: Optional[List[int]] = None,
     threads: Optional[int] = None,
+    progress: Optional[Callable[[int, int], Any]] = None,
 ) -> Dict[str, _F32]: ...
 def seeded_noise(
     seed: int,

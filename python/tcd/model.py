@@ -192,7 +192,7 @@ class TCD:
 
     def forecast(self, obs: Any, mask: Any = None, *, num_samples: int = 5, options: Optional[SamplerOptions] = None,
                  seed: Optional[int] = None, units: str = "m", threads: Optional[int] = None,
-                 **sampler: Any) -> Forecast:
+                 progress: Any = False, **sampler: Any) -> Forecast:
         """Forecasts the next :attr:`horizon` frames of ``obs``.
 
         Args:
@@ -208,18 +208,21 @@ class TCD:
                 (recorded in ``Forecast.seed``). Results do not depend on the thread count or the batch.
             units: ``"m"`` (default) or ``"mm"``: the units of ``obs`` and of every output.
             threads: worker threads (``None``: the value given to :func:`tcd.load`, else all cores).
+            progress: ``True`` shows a tqdm bar on stderr; a callable ``f(done, total)`` gets the count of
+                denoiser forwards (:mod:`tcd.progress`). Ctrl-C stops the call (KeyboardInterrupt) within
+                about 0.1 s plus one forward, whatever ``progress`` is.
         """
         num_samples, o, units, threads = self._common(num_samples, options, sampler, units, threads)
         p = _poses(obs, mask, self.num_joints, self.obs_len, units)
         seed = _seed(seed)
         out = cascade_raw(self.short, self.long, p.observed, p.mask, num_samples=num_samples, options=o,
-                          seed=seed, threads=threads)
+                          seed=seed, threads=threads, progress=progress)
         return Forecast(mean=p.poses(out["mean"]), samples=p.poses(out["samples"]),
                         repaired=p.repaired(out["repaired"]), seed=seed)
 
     def repair(self, obs: Any, mask: Any = None, *, num_samples: int = 5, options: Optional[SamplerOptions] = None,
                seed: Optional[int] = None, units: str = "m", threads: Optional[int] = None,
-               **sampler: Any) -> np.ndarray:
+               progress: Any = False, **sampler: Any) -> np.ndarray:
         """Fills the missing entries of ``obs`` (same arguments as :meth:`forecast`) with the mean of
         ``num_samples`` samples of the repair model (the short-term model when the directory has no
         ``repair.safetensors``). Returns an array of the shape of ``obs``; observed entries unchanged.
@@ -228,7 +231,7 @@ class TCD:
         p = _poses(obs, mask, self.num_joints, self.obs_len, units)
         model = self.repair_model if self.repair_model is not None else self.short
         out = repair_raw(model, p.observed, p.mask, num_samples=num_samples, options=o, seed=_seed(seed),
-                         threads=threads)
+                         threads=threads, progress=progress)
         return p.repaired(out["mean"])
 
 

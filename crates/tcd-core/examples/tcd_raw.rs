@@ -16,7 +16,7 @@ use std::path::Path;
 
 use tcd_core::rng::seeded_noise;
 use tcd_core::{
-    cascade, sample, CascadeNoise, Denoiser, ForecastOptions, Noise, Observed, SamplerConfig,
+    cascade, sample, CascadeNoise, Control, Denoiser, ForecastOptions, Noise, Observed, SamplerConfig,
     SamplerKind, Sequences,
 };
 
@@ -121,7 +121,7 @@ fn main() -> R<()> {
                     Noise::Injected(&data)
                 }
             };
-            let out = sample(&d, Observed::new(&observed, &mask, b, l), s, &cfg, noise)?;
+            let out = sample(&d, Observed::new(&observed, &mask, b, l), s, &cfg, noise, &Control::default())?;
             write_f32(arg(&args, 12, "OUT")?, &out)?;
         }
         Some("cascade") => {
@@ -130,6 +130,9 @@ fn main() -> R<()> {
             let observed = read_f32(arg(&args, 3, "OBSERVED")?)?;
             let mask = read_f32(arg(&args, 4, "MASK")?)?;
             let (b, s): (usize, usize) = (num(&args, 5, "B")?, num(&args, 6, "S")?);
+            if observed.len() != b * short.num_features() * short.obs_len() {
+                return Err(format!("OBSERVED holds {} values, not B = {b} sequences (B, K, O)", observed.len()).into());
+            }
             let cfg = sampler(
                 arg(&args, 7, "SAMPLER")?,
                 arg(&args, 8, "N")?,
@@ -146,12 +149,12 @@ fn main() -> R<()> {
                 &long,
                 &observed,
                 &mask,
-                b,
                 &opts,
                 CascadeNoise::Seeded {
                     seed,
                     sequences: Sequences::From(0),
                 },
+                &Control::default(),
             )?;
             let prefix = arg(&args, 12, "OUT_PREFIX")?;
             write_f32(format!("{prefix}mean.f32"), &out.mean)?;

@@ -107,6 +107,10 @@ pub enum Error {
         received: String,
     },
 
+    /// The caller asked the call to stop ([`crate::Control::cancel`]); its partial results are dropped.
+    #[error("The call was interrupted.")]
+    Cancelled,
+
     /// A rayon thread pool could not be built.
     #[error("Could not build a thread pool with {threads} threads: {reason}.")]
     ThreadPool { threads: usize, reason: String },

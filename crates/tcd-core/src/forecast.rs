@@ -18,6 +18,7 @@
 //! stage [`stage::SHORT`] (the same streams as [`crate::sampler::sample`]), the long stage
 //! [`stage::LONG`].
 
+use crate::control::Control;
 use crate::denoiser::Denoiser;
 use crate::error::{check_positive, Error, Result};
 use crate::rng::{stage, Noise, Sequences};
@@ -145,15 +146,16 @@ fn check_observation(model: &Denoiser, observed: &[f32], mask: &[f32], batch: us
 }
 
 /// Runs the short-term → long-term cascade on `observed` / `mask`, (B, K, O) with O the short
-/// model's `obs_len`; `long` must have `obs_len` equal to the short model's `seq_len`.
+/// model's `obs_len` (B is their length over K·O); `long` must have `obs_len` equal to the short
+/// model's `seq_len`.
 pub fn cascade(
     short: &Denoiser,
     long: &Denoiser,
     observed: &[f32],
     mask: &[f32],
-    batch: usize,
     options: &ForecastOptions,
     noise: CascadeNoise<'_>,
+    control: &Control,
 ) -> Result<CascadeOutput> {
     let k = short.num_features();
     if long.num_features() != k {
@@ -171,6 +173,15 @@ pub fn cascade(
             format!("obs_len = {}, seq_len = {ll}", long.obs_len()),
         ));
     }
+    let per_sequence = k * o;
+    if observed.is_empty() || !observed.len().is_multiple_of(per_sequence) {
+        return Err(Error::invalid_input(
+            "observed",
+            format!("a (B, K, O) buffer with B >= 1, K = {k}, O = {o}: a multiple of {per_sequence} values"),
+            format!("{} values", observed.len()),
+        ));
+    }
+    let batch = observed.len() / per_sequence;
     check_observation(short, observed, mask, batch)?;
     let s = options.num_samples;
     let rows = batch * k;
@@ -188,7 +199,7 @@ pub fn cascade(
         batch,
         length: ll,
     };
-    validate_job(
+    let long_forwards = validate_job(
         long,
         Observed {
             values: &x_long_placeholder,
@@ -199,7 +210,8 @@ pub fn cascade(
         noise.stage(true),
         long_noise_name,
         stage::LONG,
-    )?;
+    )?
+    .forwards();
     drop(x_long_placeholder);
     let job = validate_job(
         short,
@@ -215,7 +227,8 @@ pub fn cascade(
         "noise.short",
         stage::SHORT,
     )?;
-    let short_samples = run_job(short, &job);
+    control.expect(job.forwards() + long_forwards);
+    let short_samples = run_job(short, &job, control)?;
     let mut short_mean = mean_over_samples(&short_samples, s, rows * ls);
     crate::sampler::merge_observed(&mut short_mean, &x_short, &m_short);
 
@@ -233,7 +246,7 @@ pub fn cascade(
         long_noise_name,
         stage::LONG,
     )?;
-    let long_samples = run_job(long, &job);
+    let long_samples = run_job(long, &job, control)?;
     let samples = take_frames(&long_samples, ll, o, ll);
     let future_len = ll - o;
     let mean = mean_over_samples(&samples, s, rows * future_len);
@@ -262,6 +275,7 @@ pub fn repair(
     batch: usize,
     options: &ForecastOptions,
     noise: Noise<'_>,
+    control: &Control,
 ) -> Result<RepairOutput> {
     check_observation(model, observed, mask, batch)?;
     let (k, o, l) = (model.num_features(), model.obs_len(), model.seq_len());
@@ -283,7 +297,8 @@ pub fn repair(
         "noise",
         stage::SHORT,
     )?;
-    let all = run_job(model, &job);
+    control.expect(job.forwards());
+    let all = run_job(model, &job, control)?;
     let samples = take_frames(&all, l, 0, o);
     let mut mean = mean_over_samples(&samples, s, batch * k * o);
     crate::sampler::merge_observed(&mut mean, &take_frames(&x, l, 0, o), mask);

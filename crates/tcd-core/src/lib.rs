@@ -5,15 +5,15 @@
 //! nothing of Python; the binding crate wraps this API.
 //!
 //! ```no_run
-//! use tcd_core::{cascade, CascadeNoise, Denoiser, ForecastOptions, Sequences};
+//! use tcd_core::{cascade, CascadeNoise, Control, Denoiser, ForecastOptions, Sequences};
 //! # fn main() -> tcd_core::Result<()> {
 //! let short = Denoiser::load("short.safetensors")?;
 //! let long = Denoiser::load("long.safetensors")?;
 //! let (b, k, o) = (1, short.num_features(), short.obs_len());
 //! let observed = vec![0.0f32; b * k * o]; // (B, K, O), model units
 //! let mask = vec![1.0f32; b * k * o];     // 1 = observed
-//! let out = cascade(&short, &long, &observed, &mask, b, &ForecastOptions::default(),
-//!                   CascadeNoise::Seeded { seed: 0, sequences: Sequences::From(0) })?;
+//! let out = cascade(&short, &long, &observed, &mask, &ForecastOptions::default(),
+//!                   CascadeNoise::Seeded { seed: 0, sequences: Sequences::From(0) }, &Control::default())?;
 //! assert_eq!(out.mean.len(), b * k * out.future_len);
 //! # Ok(()) }
 //! ```
@@ -24,6 +24,7 @@
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used, clippy::panic))]
 
 pub mod config;
+pub mod control;
 pub mod denoiser;
 pub mod error;
 pub mod forecast;
@@ -36,6 +37,7 @@ pub mod threads;
 mod validate;
 pub mod weights;
 
+pub use control::Control;
 pub use config::{CondFill, DataConfig, DiffusionConfig, ModelConfig, PredictionType, Role, Target, TcdConfig, WindowConfig};
 pub use denoiser::{fill_linear, fill_rows, fill_spline, CondTables, Denoiser, Prepared, Workspace};
 pub use error::{Error, Result};

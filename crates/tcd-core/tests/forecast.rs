@@ -6,7 +6,7 @@ mod common;
 use common::*;
 use tcd_core::rng::{seeded_noise, stage};
 use tcd_core::{
-    cascade, repair, sample, CascadeNoise, Denoiser, ForecastOptions, Noise, Observed, Role,
+    cascade, repair, sample, CascadeNoise, Control, Denoiser, ForecastOptions, Noise, Observed, Role,
     SamplerConfig, Sequences,
 };
 
@@ -42,7 +42,7 @@ fn cascade_shapes_and_invariants() {
         seed: 4,
         sequences: Sequences::From(0),
     };
-    let out = cascade(&short, &long, &observed_nan, &mask, b, &opts, noise).unwrap();
+    let out = cascade(&short, &long, &observed_nan, &mask, &opts, noise, &Control::default()).unwrap();
     assert_eq!((out.obs_len, out.short_len, out.future_len), (6, 8, 6));
     assert_eq!(out.mean.len(), b * k * 6);
     assert_eq!(out.samples.len(), s * b * k * 6);
@@ -96,12 +96,12 @@ fn cascade_short_stage_is_plain_sampling() {
         &long,
         &observed,
         &mask,
-        b,
         &opts,
         CascadeNoise::Seeded {
             seed: 8,
             sequences: Sequences::From(0),
         },
+        &Control::default(),
     )
     .unwrap();
     // rebuild the short stage by hand
@@ -117,6 +117,7 @@ fn cascade_short_stage_is_plain_sampling() {
         s,
         &opts.sampler,
         Noise::seeded(8),
+        &Control::default(),
     )
     .unwrap();
     for i in 0..k * 8 {
@@ -144,10 +145,10 @@ fn cascade_thread_independent_and_injected_equals_seeded() {
         sequences: Sequences::From(0),
     };
     let one = in_pool(1, || {
-        cascade(&short, &long, &observed, &mask, b, &opts, seeded).unwrap()
+        cascade(&short, &long, &observed, &mask, &opts, seeded, &Control::default()).unwrap()
     });
     let two = in_pool(2, || {
-        cascade(&short, &long, &observed, &mask, b, &opts, seeded).unwrap()
+        cascade(&short, &long, &observed, &mask, &opts, seeded, &Control::default()).unwrap()
     });
     assert_eq!(one, two);
     let ns = seeded_noise(12, Sequences::From(0), stage::SHORT, s, 4, b, k * 8);
@@ -157,12 +158,12 @@ fn cascade_thread_independent_and_injected_equals_seeded() {
         &long,
         &observed,
         &mask,
-        b,
         &opts,
         CascadeNoise::Injected {
             short: &ns,
             long: &nl,
         },
+        &Control::default(),
     )
     .unwrap();
     assert_eq!(one, inj);
@@ -171,12 +172,12 @@ fn cascade_thread_independent_and_injected_equals_seeded() {
         &long,
         &observed,
         &mask,
-        b,
         &opts,
         CascadeNoise::Seeded {
             seed: 13,
             sequences: Sequences::From(0),
         },
+        &Control::default(),
     )
     .unwrap();
     assert_ne!(one.mean, other.mean);
@@ -192,7 +193,7 @@ fn repair_imputes_only_missing_entries() {
         num_samples: s,
         sampler: SamplerConfig::ddim(5, 0.0),
     };
-    let r = repair(&short, &observed, &mask, b, &opts, Noise::seeded(1)).unwrap();
+    let r = repair(&short, &observed, &mask, b, &opts, Noise::seeded(1), &Control::default()).unwrap();
     assert_eq!(r.mean.len(), b * k * o);
     assert_eq!(r.samples.len(), s * b * k * o);
     for i in 0..b * k * o {
@@ -209,7 +210,7 @@ fn repair_imputes_only_missing_entries() {
         }
     }
     let again = in_pool(1, || {
-        repair(&short, &observed, &mask, b, &opts, Noise::seeded(1)).unwrap()
+        repair(&short, &observed, &mask, b, &opts, Noise::seeded(1), &Control::default()).unwrap()
     });
     assert_eq!(r, again);
 }
@@ -234,14 +235,14 @@ fn cascade_errors() {
         &short,
         &vec![0.0; k * 8],
         &vec![1.0; k * 8],
-        1,
         &opts,
         seeded,
+        &Control::default(),
     )
     .unwrap_err();
     assert!(e.to_string().contains("`long`"), "{e}");
     // wrong observation length
-    let e = cascade(&short, &long, &observed[1..], &mask, 1, &opts, seeded).unwrap_err();
+    let e = cascade(&short, &long, &observed[1..], &mask, &opts, seeded, &Control::default()).unwrap_err();
     assert!(e.to_string().contains("`observed`"), "{e}");
     // injected long noise of the wrong size is caught before anything runs
     let ns = vec![0.0f32; 3 * k * 8];
@@ -251,12 +252,12 @@ fn cascade_errors() {
         &long,
         &observed,
         &mask,
-        1,
         &opts,
         CascadeNoise::Injected {
             short: &ns,
             long: &nl,
         },
+        &Control::default(),
     )
     .unwrap_err();
     assert!(e.to_string().contains("`noise.long`"), "{e}");
@@ -264,7 +265,7 @@ fn cascade_errors() {
         num_samples: 0,
         ..opts
     };
-    assert!(cascade(&short, &long, &observed, &mask, 1, &zero, seeded)
+    assert!(cascade(&short, &long, &observed, &mask, &zero, seeded, &Control::default())
         .unwrap_err()
         .to_string()
         .contains("num_samples"));
@@ -274,6 +275,6 @@ fn cascade_errors() {
     cfg.model.num_features = 3;
     let t = random_tensors(&cfg, 1);
     let other = Denoiser::from_bytes(&serialize(&t, Some(cfg.to_json())), "k3").unwrap();
-    let e = cascade(&short, &other, &observed, &mask, 1, &opts, seeded).unwrap_err();
+    let e = cascade(&short, &other, &observed, &mask, &opts, seeded, &Control::default()).unwrap_err();
     assert!(e.to_string().contains("num_features"), "{e}");
 }

@@ -10,7 +10,7 @@ use common::*;
 use proptest::prelude::*;
 use tcd_core::rng::{seeded_noise, stage};
 use tcd_core::{
-    sample, Denoiser, Noise, Observed, Role, SamplerConfig, SamplerKind, Sequences, TimestepSpacing, VarianceType,
+    sample, Control, Denoiser, Error, Noise, Observed, Role, SamplerConfig, SamplerKind, Sequences, TimestepSpacing, VarianceType,
 };
 
 fn model() -> &'static Denoiser {
@@ -60,7 +60,7 @@ proptest! {
         let observed = values(n, seed ^ 1, 3.0);
         let mask = binary_mask(n, seed ^ 2, p_obs);
         let run = |threads| in_pool(threads, || {
-            sample(m, Observed::new(&observed, &mask, batch, length), num_samples, &sampler, Noise::seeded(seed)).unwrap()
+            sample(m, Observed::new(&observed, &mask, batch, length), num_samples, &sampler, Noise::seeded(seed), &Control::default()).unwrap()
         });
         let one = run(1);
         let two = run(2);
@@ -95,6 +95,7 @@ fn leftover_chains_split_over_threads_same_bits() {
                     num_samples,
                     &SamplerConfig::ddpm(),
                     Noise::seeded(3),
+                    &Control::default(),
                 )
                 .unwrap()
             })
@@ -124,6 +125,7 @@ fn same_seed_same_output_different_seed_differs() {
         2,
         &cfg,
         Noise::seeded(5),
+        &Control::default(),
     )
     .unwrap();
     let b = sample(
@@ -132,6 +134,7 @@ fn same_seed_same_output_different_seed_differs() {
         2,
         &cfg,
         Noise::seeded(5),
+        &Control::default(),
     )
     .unwrap();
     let c = sample(
@@ -140,6 +143,7 @@ fn same_seed_same_output_different_seed_differs() {
         2,
         &cfg,
         Noise::seeded(6),
+        &Control::default(),
     )
     .unwrap();
     assert_eq!(a, b);
@@ -162,6 +166,7 @@ fn seeded_equals_injected_seeded_noise_and_batch_composition_is_irrelevant() {
         s,
         &cfg,
         Noise::seeded(9),
+        &Control::default(),
     )
     .unwrap();
     let noise = seeded_noise(9, Sequences::From(0), stage::SHORT, s, 5, b, 6 * l);
@@ -171,6 +176,7 @@ fn seeded_equals_injected_seeded_noise_and_batch_composition_is_irrelevant() {
         s,
         &cfg,
         Noise::Injected(&noise),
+        &Control::default(),
     )
     .unwrap();
     assert_eq!(seeded, injected);
@@ -185,6 +191,7 @@ fn seeded_equals_injected_seeded_noise_and_batch_composition_is_irrelevant() {
             seed: 9,
             sequences: Sequences::From(2),
         },
+        &Control::default(),
     )
     .unwrap();
     for si in 0..s {
@@ -210,6 +217,7 @@ fn ddim_eta_zero_ignores_the_step_noise() {
         s,
         &cfg,
         Noise::Injected(&noise),
+        &Control::default(),
     )
     .unwrap();
     for v in noise[n..].iter_mut() {
@@ -221,6 +229,7 @@ fn ddim_eta_zero_ignores_the_step_noise() {
         s,
         &cfg,
         Noise::Injected(&noise),
+        &Control::default(),
     )
     .unwrap();
     assert_eq!(a, b);
@@ -236,6 +245,7 @@ fn ddim_eta_zero_ignores_the_step_noise() {
         s,
         &cfg,
         Noise::Injected(&noise),
+        &Control::default(),
     )
     .unwrap();
     noise[n + 3] += 1.0;
@@ -245,6 +255,7 @@ fn ddim_eta_zero_ignores_the_step_noise() {
         s,
         &cfg,
         Noise::Injected(&noise),
+        &Control::default(),
     )
     .unwrap();
     assert_ne!(c, d);
@@ -263,6 +274,7 @@ fn ddpm_all_steps_is_the_reference_chain() {
         1,
         &SamplerConfig::ddpm(),
         Noise::seeded(3),
+        &Control::default(),
     )
     .unwrap();
     for sp in [TimestepSpacing::Leading, TimestepSpacing::Linspace] {
@@ -278,7 +290,7 @@ fn ddpm_all_steps_is_the_reference_chain() {
                 1,
                 &cfg,
                 Noise::seeded(3)
-            )
+            , &Control::default())
             .unwrap(),
             reference
         );
@@ -331,6 +343,7 @@ fn dpmpp2m_is_deterministic_with_one_noise_block_and_matches_a_hand_loop() {
         s,
         &cfg,
         Noise::seeded(5),
+        &Control::default(),
     )
     .unwrap();
     let noise = seeded_noise(5, Sequences::From(0), stage::SHORT, s, 1, 1, n);
@@ -341,7 +354,7 @@ fn dpmpp2m_is_deterministic_with_one_noise_block_and_matches_a_hand_loop() {
             s,
             &cfg,
             Noise::Injected(&noise)
-        )
+        , &Control::default())
         .unwrap(),
         seeded
     );
@@ -353,6 +366,7 @@ fn dpmpp2m_is_deterministic_with_one_noise_block_and_matches_a_hand_loop() {
         s,
         &cfg,
         Noise::Injected(&long),
+        &Control::default(),
     )
     .unwrap_err();
     assert!(e.to_string().contains("(2, 1, 1, 6, 7)"), "{e}");
@@ -418,7 +432,7 @@ fn sampling_errors() {
             1,
             &ddim(11, 0.0),
             Noise::seeded(0)
-        )
+        , &Control::default())
         .unwrap_err()),
         "num_inference_steps"
     );
@@ -429,7 +443,7 @@ fn sampling_errors() {
             1,
             &ddim(0, 0.0),
             Noise::seeded(0)
-        )
+        , &Control::default())
         .unwrap_err()),
         "num_inference_steps"
     );
@@ -440,7 +454,7 @@ fn sampling_errors() {
             1,
             &ddim(3, 1.5),
             Noise::seeded(0)
-        )
+        , &Control::default())
         .unwrap_err()),
         "eta"
     );
@@ -451,7 +465,7 @@ fn sampling_errors() {
             0,
             &ddim(3, 0.0),
             Noise::seeded(0)
-        )
+        , &Control::default())
         .unwrap_err()),
         "num_samples"
     );
@@ -462,6 +476,7 @@ fn sampling_errors() {
         1,
         &ddim(3, 0.0),
         Noise::Injected(&short),
+        &Control::default(),
     )
     .unwrap_err();
     assert!(e.to_string().contains("(1, 4, 1, 6, 7)"), "{e}");
@@ -474,8 +489,42 @@ fn sampling_errors() {
             1,
             &ddim(3, 0.0),
             Noise::Injected(&nan)
-        )
+        , &Control::default())
         .unwrap_err()),
         "noise"
     );
+}
+
+#[test]
+fn control_counts_forwards_and_stops_the_call() {
+    let m = model();
+    let n = 2 * 6 * 7;
+    let observed = values(n, 1, 1.0);
+    let mask = binary_mask(n, 2, 0.5);
+    let cfg = SamplerConfig::ddpm(); // 10 training steps in the tiny model
+    let run = |control: &Control| sample(m, Observed::new(&observed, &mask, 2, 7), 3, &cfg, Noise::seeded(5), control);
+    // counted: 3 samples x 2 sequences x 10 steps, all of them done
+    let counted = Control::default();
+    let a = run(&counted).unwrap();
+    assert_eq!((counted.forwards_done(), counted.forwards_total()), (60, 60));
+    // cancelled before it starts: no forward runs
+    let stopped = Control::default();
+    stopped.cancel();
+    assert!(matches!(run(&stopped), Err(Error::Cancelled)));
+    assert_eq!((stopped.forwards_done(), stopped.forwards_total()), (0, 60));
+    // cancelled from another thread while it runs: the call returns Cancelled, having stopped early
+    let big = 2 * 6 * 7 * 40;
+    let (observed, mask) = (values(big, 3, 1.0), binary_mask(big, 4, 0.5));
+    let control = Control::default();
+    std::thread::scope(|s| {
+        let h = s.spawn(|| sample(m, Observed::new(&observed, &mask, 80, 7), 50, &cfg, Noise::seeded(1), &control));
+        while control.forwards_done() == 0 {
+            std::thread::yield_now();
+        }
+        control.cancel();
+        assert!(matches!(h.join().unwrap(), Err(Error::Cancelled)));
+    });
+    assert!(control.forwards_done() < control.forwards_total(), "{} of {}", control.forwards_done(), control.forwards_total());
+    // a control that was only read does not change results
+    assert_eq!(a, run(&Control::default()).unwrap());
 }

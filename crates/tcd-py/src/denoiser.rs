@@ -8,6 +8,7 @@ use pyo3::prelude::*;
 use tcd_core::{sample as core_sample, with_threads, Denoiser, Observed};
 
 use crate::convert::*;
+use crate::run::interruptible;
 use crate::error::{invalid, PyTcdError};
 
 /// A loaded TCD denoiser (one safetensors file). Immutable; safe to share between threads.
@@ -163,7 +164,7 @@ impl PyDenoiser {
     /// (S, n + 1, B, K, L) ((S, 1, B, K, L) for dpmpp2m) or a `seed` (stream stage 0, sequences
     /// numbered from `first_sequence`, or one stream id per sequence in `sequences`).
     #[pyo3(signature = (observed, mask, num_samples, options, *, noise=None, seed=None, first_sequence=0, sequences=None,
-                        threads=None))]
+                        threads=None, progress=None))]
     #[expect(clippy::too_many_arguments, reason = "a Python signature: pyo3 maps each keyword argument to one parameter")]
     fn sample<'py>(
         &self,
@@ -177,6 +178,7 @@ impl PyDenoiser {
         first_sequence: i128,
         sequences: Option<Vec<i128>>,
         threads: Option<i64>,
+        progress: Option<Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
         let k = self.inner.num_features();
         let observed = Array::from_numpy(&observed);
@@ -202,19 +204,18 @@ impl PyDenoiser {
         .map_err(PyTcdError)?;
         let (s, b, l, cfg, src, threads) = prepared;
         let model = Arc::clone(&self.inner);
-        let out = py
-            .detach(move || {
-                with_threads(threads, || {
-                    core_sample(
-                        &model,
-                        Observed::new(&observed.data, &mask.data, b, l),
-                        s,
-                        &cfg,
-                        src.as_noise(),
-                    )
-                })?
-            })
-            .map_err(PyTcdError)?;
+        let out = interruptible(py, progress.as_ref(), move |control| {
+            with_threads(threads, || {
+                core_sample(
+                    &model,
+                    Observed::new(&observed.data, &mask.data, b, l),
+                    s,
+                    &cfg,
+                    src.as_noise(),
+                    control,
+                )
+            })?
+        })?;
         to_numpy(py, &[s, b, k, l], out)
     }
 

@@ -6,6 +6,7 @@
 //! | `Io` | `OSError` |
 //! | `Corrupt`, `MissingMetadata`, `BadMetadata`, `InvalidConfig`, `BetasMismatch`, `MissingTensor`, `UnexpectedTensor`, `TensorShape`, `TensorDtype`, `NonFiniteTensor`, `NotAFile` | `WeightsError(message, path)` |
 //! | `InvalidInput` | `InvalidInputError(message, argument)` |
+//! | `Cancelled` | `KeyboardInterrupt` (a call stopped by Ctrl-C, see `run.rs`) |
 //! | `ThreadPool` (and any variant a newer engine adds) | `TcdError(message)` |
 //!
 //! The three exception classes are created here, in the native module, and `tcd.exceptions` re-exports
@@ -16,7 +17,7 @@
 //! message (TcdError's `__str__`), `.argument` / `.path` read `args[1]`, and they pickle as they are
 //! (e.g. across Ray or multiprocessing workers). The message is always the engine's full sentence.
 
-use pyo3::exceptions::{PyException, PyFileNotFoundError, PyOSError, PyValueError};
+use pyo3::exceptions::{PyException, PyFileNotFoundError, PyKeyboardInterrupt, PyOSError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::sync::PyOnceLock;
 use pyo3::types::{PyCFunction, PyDict, PyTuple, PyType};
@@ -160,6 +161,7 @@ fn to_pyerr(py: Python<'_>, e: Error) -> PyErr {
             raise(weights_error(py), (message, path.display().to_string()))
         }
         Error::InvalidInput { argument, .. } => raise(invalid_input_error(py), (message, argument)),
+        Error::Cancelled => PyKeyboardInterrupt::new_err(message),
         Error::ThreadPool { .. } => raise(Ok(&py.get_type::<TcdError>()), (message,)),
         // `tcd_core::Error` is #[non_exhaustive]: a variant added later is still a TcdError
         // (weights variants keep their class through `is_weights_error`).

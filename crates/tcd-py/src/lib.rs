@@ -19,6 +19,7 @@ mod convert;
 mod denoiser;
 mod error;
 mod pipeline;
+mod run;
 
 use pyo3::prelude::*;
 use tcd_core::rng::stage;

@@ -15,6 +15,7 @@ use tcd_core::{
 use crate::convert::*;
 use crate::denoiser::PyDenoiser;
 use crate::error::{invalid, PyTcdError};
+use crate::run::interruptible;
 
 /// The short-term → long-term cascade on an observation (B, K, O), O = the short model's obs_len.
 /// Returns a dict: `mean` (B, K, P), `samples` (S, B, K, P), `repaired` (B, K, O), `short_mean`
@@ -22,7 +23,7 @@ use crate::error::{invalid, PyTcdError};
 /// (S, n + 1, B, K, L_l) (one block instead of n + 1 for dpmpp2m), or a `seed`.
 #[pyfunction]
 #[pyo3(signature = (short, long, observed, mask, num_samples, options, *, noise_short=None, noise_long=None,
-                    seed=None, first_sequence=0, sequences=None, threads=None))]
+                    seed=None, first_sequence=0, sequences=None, threads=None, progress=None))]
 #[expect(clippy::too_many_arguments, reason = "a Python signature: pyo3 maps each keyword argument to one parameter")]
 pub(crate) fn cascade<'py>(
     py: Python<'py>,
@@ -38,6 +39,7 @@ pub(crate) fn cascade<'py>(
     first_sequence: i128,
     sequences: Option<Vec<i128>>,
     threads: Option<i64>,
+    progress: Option<Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let short = Arc::clone(&short.get().inner);
     let long = Arc::clone(&long.get().inner);
@@ -79,8 +81,7 @@ pub(crate) fn cascade<'py>(
     })()
     .map_err(PyTcdError)?;
     let (s, b, cfg, src_short, src_long, threads) = prepared;
-    let out = py
-        .detach(move || {
+    let out = interruptible(py, progress.as_ref(), move |control| {
             let noise = match (&src_short, &src_long) {
                 (NoiseSource::Injected(a), NoiseSource::Injected(c)) => {
                     CascadeNoise::Injected { short: a, long: c }
@@ -101,13 +102,12 @@ pub(crate) fn cascade<'py>(
                     &long,
                     &observed.data,
                     &mask.data,
-                    b,
                     &options,
                     noise,
+                    control,
                 )
             })?
-        })
-        .map_err(PyTcdError)?;
+        })?;
     let d = PyDict::new(py);
     let kf = out.num_features;
     d.set_item("mean", to_numpy(py, &[b, kf, out.future_len], out.mean)?)?;
@@ -130,7 +130,7 @@ pub(crate) fn cascade<'py>(
 /// dict: `mean` (B, K, O; observed entries exact) and `samples` (S, B, K, O).
 #[pyfunction]
 #[pyo3(signature = (model, observed, mask, num_samples, options, *, noise=None, seed=None, first_sequence=0,
-                    sequences=None, threads=None))]
+                    sequences=None, threads=None, progress=None))]
 #[expect(clippy::too_many_arguments, reason = "a Python signature: pyo3 maps each keyword argument to one parameter")]
 pub(crate) fn repair<'py>(
     py: Python<'py>,
@@ -144,6 +144,7 @@ pub(crate) fn repair<'py>(
     first_sequence: i128,
     sequences: Option<Vec<i128>>,
     threads: Option<i64>,
+    progress: Option<Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let model = Arc::clone(&model.get().inner);
     let k = model.num_features();
@@ -169,8 +170,7 @@ pub(crate) fn repair<'py>(
     })()
     .map_err(PyTcdError)?;
     let (s, b, o, cfg, src, threads) = prepared;
-    let out = py
-        .detach(move || {
+    let out = interruptible(py, progress.as_ref(), move |control| {
             let options = ForecastOptions {
                 num_samples: s,
                 sampler: cfg,
@@ -183,10 +183,10 @@ pub(crate) fn repair<'py>(
                     b,
                     &options,
                     src.as_noise(),
+                    control,
                 )
             })?
-        })
-        .map_err(PyTcdError)?;
+        })?;
     let d = PyDict::new(py);
     d.set_item("mean", to_numpy(py, &[b, k, o], out.mean)?)?;
     d.set_item("samples", to_numpy(py, &[s, b, k, o], out.samples)?)?;

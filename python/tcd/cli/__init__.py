@@ -5,7 +5,7 @@
     tcd info [--model DIR] [--json]
     tcd forecast IN.npz -o OUT.npz [--model DIR] [--samples N] [--steps S] [--sampler ddpm|ddim|dpmpp2m]
                  [--eta E] [--spacing trailing|leading|linspace] [--seed S] [--units m|mm]
-                 [--threads N] [--overwrite]
+                 [--threads N] [--overwrite] [--quiet]
     tcd repair INPUT... -o OUTDIR [--model DIR] [--units m|mm] [--fps F] [--steps N] [--sampler ddpm|ddim|dpmpp2m]
                [--samples N] [--seed S] [--overlap C] [--lookahead L] [--jobs N] [--overwrite] [--report FILE] [--quiet]
 
@@ -15,8 +15,9 @@ never replaced without ``--overwrite``; every output is written under a temporar
 place (:mod:`tcd.files`), so it is complete or absent.
 
 Exit codes: 0 success; 2 bad input (arguments, input file, model directory, existing output);
-1 any other failure. ``tcd repair`` (see :mod:`tcd.batch_repair`): 1 when any input file failed (the
-others are still repaired), 2 for bad arguments, 130 when interrupted (re-run it to resume).
+1 any other failure; 130 interrupted (Ctrl-C: one line, no traceback, nothing half-written). ``tcd repair``
+(see :mod:`tcd.batch_repair`): 1 when any input file failed (the others are still repaired), 2 for bad
+arguments, 130 when interrupted (re-run it to resume). A closed pipe (``tcd info | head``) ends quietly.
 
 One module per command (``info``, ``forecast``, ``demo``, ``repair``: ``add_parser`` and ``run``); what
 they share (exit codes, the option-to-flag mapping, the sampler flags) is in ``common``.
@@ -24,6 +25,7 @@ they share (exit codes, the option-to-flag mapping, the sampler flags) is in ``c
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from typing import Optional, Sequence
 
@@ -52,11 +54,24 @@ def _parser() -> argparse.ArgumentParser:
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
     """Entry point of the ``tcd`` console script; returns the exit code."""
-    args = _parser().parse_args(argv)  # exits with 2 on a usage error
+    try:
+        args = _parser().parse_args(argv)  # exits with 2 on a usage error
+    except KeyboardInterrupt:
+        print("tcd: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
     try:
         return COMMANDS[args.command].run(args)
     except _BadInput as e:
         return _error(args.command, e, EXIT_BAD_INPUT)
+    except KeyboardInterrupt:
+        # Ctrl-C: the engine stopped its threads and no output was half-written (atomic writes)
+        print(f"tcd {args.command}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except BrokenPipeError:
+        # the reader went away (`tcd info | head`): stop quietly, and let nothing flush into the closed pipe
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return EXIT_OK
     except (TcdError, OSError) as e:
         return _error(args.command, e, EXIT_FAILURE)
 

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 import zipfile
 from pathlib import Path
 from typing import Any, Dict
@@ -32,6 +33,7 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
     p.add_argument("--units", default="m", choices=tuple(UNIT_SCALE), help="units of the poses: m (default) or mm")
     p.add_argument("--threads", type=int, default=None, metavar="N", help="worker threads (default: all cores)")
     p.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
+    p.add_argument("--quiet", action="store_true", help="no progress bar (shown on a terminal otherwise)")
     return p
 
 
@@ -64,7 +66,8 @@ def run(args: argparse.Namespace) -> int:
     model = load_model(args.model)
     try:
         f = model.forecast(data["poses"], data.get("mask"), num_samples=args.samples, options=options,
-                           seed=args.seed, units=args.units, threads=args.threads)
+                           seed=args.seed, units=args.units, threads=args.threads,
+                           progress=not args.quiet and sys.stderr.isatty())
     except InvalidInputError as e:
         raise _BadInput(flag_message(e, FLAGS)) from None
     with writing(out):

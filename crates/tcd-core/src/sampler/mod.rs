@@ -13,6 +13,7 @@ use std::str::FromStr;
 
 use rayon::prelude::*;
 
+use crate::control::Control;
 use crate::denoiser::{CondTables, Denoiser, SequenceInputs, Workspace};
 use crate::error::{check_len, check_positive, Error, Result};
 use crate::rng::{stage, ChainNoise, Noise};
@@ -314,16 +315,24 @@ impl Plan {
     }
 }
 
-/// Runs one chain and returns the merged result (K·L values).
+/// One chain's sequence: its conditioning tables, mask and observed values (K·L each).
+pub(crate) struct ChainInputs<'a> {
+    pub tables: &'a CondTables,
+    pub mask: &'a [f32],
+    pub observed: &'a [f32],
+}
+
+/// Runs one chain and returns the merged result (K·L values); `Err(Cancelled)` as soon as `control`
+/// is cancelled (checked before every forward).
 pub(crate) fn run_chain(
     denoiser: &Denoiser,
-    tables: &CondTables,
-    mask: &[f32],
-    observed: &[f32],
+    chain: ChainInputs<'_>,
     plan: &Plan,
     noise: &mut ChainNoise<'_>,
     ws: &mut Workspace,
-) -> Vec<f32> {
+    control: &Control,
+) -> Result<Vec<f32>> {
+    let ChainInputs { tables, mask, observed } = chain;
     let n = mask.len();
     let mut x = vec![0.0f32; n];
     let mut eps = vec![0.0f32; n];
@@ -333,6 +342,7 @@ pub(crate) fn run_chain(
     let mut prev_x0 = vec![0.0f32; if plan.is_multistep() { n } else { 0 }];
     noise.fill(0, &mut x);
     for (i, step) in plan.steps.iter().enumerate() {
+        control.check()?;
         let seq = SequenceInputs {
             tables,
             mask,
@@ -341,6 +351,7 @@ pub(crate) fn run_chain(
             step: step.t,
         };
         denoiser.forward_one(seq, &mut eps, ws);
+        control.forward_done();
         if uses_noise {
             noise.fill(i + 1, &mut z);
         }
@@ -359,7 +370,7 @@ pub(crate) fn run_chain(
         }
     }
     merge_observed(&mut x, observed, mask);
-    x
+    Ok(x)
 }
 
 /// x ← x·(1−m) + observed·m for a binary mask: observed entries are copied bit for bit.
@@ -458,8 +469,16 @@ pub(crate) fn validate_job<'a>(
     })
 }
 
-/// Runs every chain of a validated job in parallel; returns (S, B, K, L).
-pub(crate) fn run_job(denoiser: &Denoiser, job: &SampleJob<'_>) -> Vec<f32> {
+impl SampleJob<'_> {
+    /// The per-sequence forwards this job runs (for [`Control::expect`]).
+    pub(crate) fn forwards(&self) -> usize {
+        self.num_samples * self.observed.batch * self.plan.num_steps()
+    }
+}
+
+/// Runs every chain of a validated job in parallel; returns (S, B, K, L), or `Err(Cancelled)` when
+/// `control` is cancelled while it runs.
+pub(crate) fn run_job(denoiser: &Denoiser, job: &SampleJob<'_>, control: &Control) -> Result<Vec<f32>> {
     let Observed {
         values,
         mask,
@@ -477,7 +496,7 @@ pub(crate) fn run_job(denoiser: &Denoiser, job: &SampleJob<'_>) -> Vec<f32> {
     // Results do not depend on the split (a chain's forward is bitwise independent of it).
     let rest = num_chains % threads;
     let whole = num_chains - rest;
-    let run = |range: std::ops::Range<usize>, split: usize| -> Vec<Vec<f32>> {
+    let run = |range: std::ops::Range<usize>, split: usize| -> Result<Vec<Vec<f32>>> {
         range
             .into_par_iter()
             .map_init(
@@ -485,24 +504,28 @@ pub(crate) fn run_job(denoiser: &Denoiser, job: &SampleJob<'_>) -> Vec<f32> {
                 |ws, c| {
                     let (s, b) = (c / batch, c % batch);
                     let mut noise = ChainNoise::new(job.noise, job.stage, s, b, blocks, batch);
+                    let chain = ChainInputs {
+                        tables: &tables,
+                        mask: &mask[b * n..(b + 1) * n],
+                        observed: &values[b * n..(b + 1) * n],
+                    };
                     run_chain(
                         denoiser,
-                        &tables,
-                        &mask[b * n..(b + 1) * n],
-                        &values[b * n..(b + 1) * n],
+                        chain,
                         &job.plan,
                         &mut noise,
                         ws,
+                        control,
                     )
                 },
             )
             .collect()
     };
-    let mut chains = run(0..whole, 1);
+    let mut chains = run(0..whole, 1)?;
     if let Some(split) = threads.checked_div(rest) {
-        chains.extend(run(whole..num_chains, split.max(1)));
+        chains.extend(run(whole..num_chains, split.max(1))?);
     }
-    chains.concat()
+    Ok(chains.concat())
 }
 
 /// Draws `num_samples` samples for each sequence of `observed`.
@@ -511,12 +534,14 @@ pub(crate) fn run_job(denoiser: &Denoiser, job: &SampleJob<'_>) -> Vec<f32> {
 ///   dpmpp2m: [`Plan::num_noise_blocks`]), or [`Noise::Seeded`] (stage [`stage::SHORT`]).
 ///
 /// Returns the merged samples, (S, B, K, L): observed entries are `observed.values`, bit for bit.
+/// `control` counts the forwards and can stop the call ([`Control`]; `&Control::default()` if unused).
 pub fn sample(
     denoiser: &Denoiser,
     observed: Observed<'_>,
     num_samples: usize,
     sampler: &SamplerConfig,
     noise: Noise<'_>,
+    control: &Control,
 ) -> Result<Vec<f32>> {
     let job = validate_job(
         denoiser,
@@ -527,7 +552,8 @@ pub fn sample(
         "noise",
         stage::SHORT,
     )?;
-    Ok(run_job(denoiser, &job))
+    control.expect(job.forwards());
+    run_job(denoiser, &job, control)
 }
 
 #[cfg(test)]

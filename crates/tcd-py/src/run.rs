@@ -1,0 +1,66 @@
+//! Running a long engine call from Python: the work runs on a scoped thread while the calling thread,
+//! without the GIL, waits for it in slices of [`POLL`]. Between slices it takes the GIL to run Python's
+//! signal handlers (Ctrl-C raises `KeyboardInterrupt` there) and to report progress; when either raises,
+//! the call is cancelled (every chain stops before its next forward), the thread is joined, and that
+//! exception is returned: nothing keeps computing in the background.
+
+use std::sync::mpsc::{channel, RecvTimeoutError};
+use std::time::Duration;
+
+use pyo3::prelude::*;
+use tcd_core::Control;
+
+use crate::convert::CoreResult;
+use crate::error::{internal, PyTcdError};
+
+/// How often the waiting thread looks at signals and progress: the bound on how late Ctrl-C is seen.
+const POLL: Duration = Duration::from_millis(100);
+
+/// Runs `work` interruptibly; `progress`, a Python callable, gets `(forwards_done, forwards_total)` at
+/// every poll and once at the end.
+pub(crate) fn interruptible<T, F>(py: Python<'_>, progress: Option<&Bound<'_, PyAny>>, work: F) -> PyResult<T>
+where
+    T: Send,
+    F: FnOnce(&Control) -> CoreResult<T> + Send,
+{
+    let control = Control::default();
+    let report = |control: &Control| -> PyResult<()> {
+        match progress {
+            Some(callback) => callback
+                .call1((control.forwards_done(), control.forwards_total()))
+                .map(drop),
+            None => Ok(()),
+        }
+    };
+    std::thread::scope(|scope| {
+        let (tx, rx) = channel();
+        let ctl = &control;
+        scope.spawn(move || {
+            // the receiver outlives the thread unless the caller is already gone: nothing to report then
+            let _ = tx.send(work(ctl));
+        });
+        let mut rx = rx;
+        loop {
+            // the receiver is not Sync: it travels into the GIL-free closure and back
+            let (got, back) = py.detach(move || (rx.recv_timeout(POLL), rx));
+            rx = back;
+            match got {
+                Ok(result) => {
+                    let out = result.map_err(PyTcdError)?;
+                    report(ctl)?;
+                    return Ok(out);
+                }
+                Err(RecvTimeoutError::Timeout) => {
+                    if let Err(e) = py.check_signals().and_then(|()| report(ctl)) {
+                        ctl.cancel();
+                        let _ = py.detach(move || rx.recv());
+                        return Err(e);
+                    }
+                }
+                Err(RecvTimeoutError::Disconnected) => {
+                    return Err(internal(py, "the engine's worker thread ended without a result"));
+                }
+            }
+        }
+    })
+}

@@ -1,0 +1,43 @@
+"""Progress of a long engine call, for ``progress=`` in the API and the command line's bars.
+
+The engine counts per-sequence denoiser forwards; the binding calls back ``(done, total)`` about ten times
+a second from the calling thread, and once at the end (see ``crates/tcd-py/src/run.rs``). ``progress``:
+``None`` / ``False`` shows nothing, ``True`` a tqdm bar on stderr, and a callable ``f(done, total)`` gets
+the counts (raising in it stops the call with that exception, as Ctrl-C does with KeyboardInterrupt)."""
+from __future__ import annotations
+
+import sys
+from contextlib import contextmanager
+from typing import Any, Callable, Iterator, Optional
+
+from . import _checks
+
+__all__ = ["reporter"]
+
+Callback = Callable[[int, int], Any]
+
+
+@contextmanager
+def reporter(progress: Any, desc: str) -> Iterator[Optional[Callback]]:
+    """The callback to hand to the binding for ``progress`` (None for none); a bar is closed on exit."""
+    if progress is None or progress is False:
+        yield None
+        return
+    if progress is not True:
+        if not callable(progress):
+            raise _checks.fail("progress", "True, False, None or a callable f(done, total)", repr(progress))
+        yield progress
+        return
+    from tqdm import tqdm
+
+    bar = tqdm(total=0, unit="forward", desc=desc, file=sys.stderr, dynamic_ncols=True, leave=False)
+
+    def update(done: int, total: int) -> None:
+        if total != bar.total:
+            bar.total = total
+        bar.update(done - bar.n)
+
+    try:
+        yield update
+    finally:
+        bar.close()
