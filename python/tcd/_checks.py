@@ -3,7 +3,7 @@ what was expected and what was received."""
 from __future__ import annotations
 
 import numbers
-from typing import Any, Optional, Sequence
+from typing import Any, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -79,10 +79,11 @@ def threads(value: Any) -> Optional[int]:
     return v
 
 
-def num_samples(value: Any) -> int:
-    """A sample count kept for later calls, checked now with the engine's rule (at least 1)."""
+def num_samples(value: Any, window: Optional[Tuple[int, int]] = None) -> int:
+    """A sample count kept for later calls, checked now with the engine's rules: at least 1, and with
+    ``window = (K, L)`` small enough for the samples of one sequence of that size to fit in memory."""
     v = machine_int("num_samples", value)
-    _native.check_call_settings(num_samples=v)
+    _native.check_call_settings(num_samples=v, window=window)
     return v
 
 

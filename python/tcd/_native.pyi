@@ -7,7 +7,7 @@ noise (S, n + 1, B, K, L) ((S, 1, B, K, L) for ``sampler="dpmpp2m"``). The sampl
 ``OSError`` (unreadable file), ``tcd.exceptions.TcdError`` (anything else).
 """
 import os
-from typing import Any, Callable, Dict, List, Optional, Union
+from typing import Any, Callable, Dict, List, Optional, Tuple, Union
 
 import numpy as np
 import numpy.typing as npt
@@ -123,6 +123,10 @@ def seeded_noise(
 def interpolate(observed: _F32, mask: _F32, method: str) -> _F32: ...
 def check_sampler_options(options: SamplerOptions) -> None: ...
 def check_call_settings(
-    *, num_samples: Optional[int] = None, seed: Optional[int] = None, threads: Optional[int] = None
+    *,
+    num_samples: Optional[int] = None,
+    seed: Optional[int] = None,
+    threads: Optional[int] = None,
+    window: Optional[Tuple[int, int]] = None,
 ) -> None: ...
 def supported_kernels() -> List[str]: ...

@@ -1,15 +1,59 @@
 """Every file the package writes goes through here: it is written under a temporary name in the
-destination directory and renamed into place, so an output either is complete or does not exist."""
+destination directory and renamed into place, so an output either is complete or does not exist. And the
+one reader of the user's .npz inputs (:func:`read_npz`), which says what a file is when it is not one."""
 from __future__ import annotations
 
 import errno
 import os
 import secrets
+import zipfile
 from contextlib import contextmanager
 from pathlib import Path
-from typing import IO, Any, Callable, Iterator
+from typing import IO, Any, Callable, Dict, Iterator
 
 import numpy as np
+
+
+class UnreadableFile(ValueError):
+    """An input that is not a readable .npz archive; the message says what it is instead."""
+
+
+def read_npz(path: Path) -> Dict[str, np.ndarray]:
+    """Every array of the .npz archive ``path`` (never unpickling). Raises FileNotFoundError when nothing
+    is there, and :class:`UnreadableFile` naming what the file is otherwise: a directory, a file without
+    read permission, an empty file, a single .npy array, a text file, another binary, a damaged archive."""
+    path = Path(path)
+    if path.is_dir():
+        raise UnreadableFile("a directory, not an .npz file")
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(512)
+    except FileNotFoundError:
+        raise
+    except PermissionError:
+        raise UnreadableFile("not readable: permission denied") from None
+    except OSError as e:
+        raise UnreadableFile(f"not readable: {e.strerror or e}") from None
+    if not head:
+        raise UnreadableFile("empty")
+    if head.startswith(b"\x93NUMPY"):
+        raise UnreadableFile("a single .npy array, not an .npz archive with `poses` (save with numpy.savez)")
+    if not head.startswith(b"PK"):
+        try:
+            head.decode("utf-8")
+            what = "a text file"
+        except UnicodeDecodeError:
+            what = "a binary file"
+        raise UnreadableFile(f"{what}, not an .npz archive (no zip signature)")
+    try:
+        with np.load(path, allow_pickle=False) as f:
+            return {k: f[k] for k in f.files}
+    except ValueError as e:
+        if "pickle" in str(e):
+            raise UnreadableFile("an .npz archive holding object (pickled) arrays, which are never loaded") from None
+        raise UnreadableFile(f"not a valid .npz archive ({e})") from None
+    except (OSError, zipfile.BadZipFile, EOFError, KeyError) as e:
+        raise UnreadableFile(f"not a valid .npz archive ({type(e).__name__}: {e})") from None
 
 
 def _exists(dst: Path) -> FileExistsError:

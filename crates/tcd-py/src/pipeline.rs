@@ -284,11 +284,22 @@ pub(crate) fn check_sampler_options(options: SamplerOptions) -> PyResult<()> {
 /// Checks settings a caller keeps for later calls (`tcd.load(threads=...)`, `tcd repair`'s options) with
 /// the very conversions every call applies to them, so that their ranges have one home (raises
 /// `InvalidInputError` naming the setting).
+/// With `window = (K, L)`, `num_samples` is also checked against the work of one sequence of that size.
 #[pyfunction]
-#[pyo3(signature = (*, num_samples=None, seed=None, threads=None))]
-pub(crate) fn check_call_settings(num_samples: Option<i64>, seed: Option<i128>, threads: Option<i64>) -> PyResult<()> {
+#[pyo3(signature = (*, num_samples=None, seed=None, threads=None, window=None))]
+pub(crate) fn check_call_settings(
+    num_samples: Option<i64>,
+    seed: Option<i128>,
+    threads: Option<i64>,
+    window: Option<(usize, usize)>,
+) -> PyResult<()> {
     (|| -> CoreResult<()> {
-        num_samples.map(|n| positive("num_samples", n)).transpose()?;
+        if let Some(n) = num_samples {
+            let s = positive("num_samples", n)?;
+            if let Some((k, l)) = window {
+                check_work(s, 1, k, l)?;
+            }
+        }
         seed.map(|s| u64_arg("seed", s)).transpose()?;
         threads_arg(threads)?;
         Ok(())

@@ -10,8 +10,8 @@ import numpy as np
 
 from .. import fk
 from ..exceptions import InvalidInputError
-from ..poses import validate_poses
-from ..poses import UNIT_SCALE
+from ..files import UnreadableFile, read_npz
+from ..poses import UNIT_SCALE, validate_poses
 from .options import BadFile, PathLike
 
 # ---------------------------------------------------------------------------------------------- inputs
@@ -33,25 +33,9 @@ def is_expmap_txt(path: Path) -> bool:
 
 def _read_npz(path: Path) -> Dict[str, np.ndarray]:
     try:
-        with open(path, "rb") as fh:
-            magic = fh.read(6)
-    except OSError as e:
+        return read_npz(path)
+    except (UnreadableFile, OSError) as e:
         raise BadFile(f"unreadable: {e}") from None
-    if magic == b"\x93NUMPY":
-        raise BadFile("unreadable: a single .npy array, not an .npz archive with `poses`")
-    if not magic.startswith(b"PK"):
-        raise BadFile("unreadable: not an .npz archive (no zip signature)" if magic else "unreadable: the file is empty")
-    try:
-        with np.load(path, allow_pickle=False) as f:
-            if not isinstance(f, np.lib.npyio.NpzFile):
-                raise BadFile("unreadable: a single .npy array, not an .npz archive with `poses`")
-            return {k: f[k] for k in f.files}
-    except BadFile:
-        raise
-    except AttributeError:  # np.load returned an ndarray (no context manager)
-        raise BadFile("unreadable: a single .npy array, not an .npz archive with `poses`") from None
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError, KeyError) as e:
-        raise BadFile(f"unreadable: not a valid .npz archive ({type(e).__name__}: {e})") from None
 
 
 def _checked_poses(data: Dict[str, np.ndarray], num_joints: int, units: str) -> Tuple[np.ndarray, np.ndarray]:

@@ -63,7 +63,7 @@ class RepairOptions:
         overlap = _checks.integer("overlap", kw.get("overlap", DEFAULT_OVERLAP), 1, model.obs_len - 1)
         lookahead = _checks.integer("lookahead", kw.get("lookahead", DEFAULT_LOOKAHEAD), 0, model.obs_len - 1 - overlap)
         return RepairOptions(
-            num_samples=_checks.num_samples(kw.get("num_samples", 5)),
+            num_samples=_checks.num_samples(kw.get("num_samples", 5), window=(_denoiser(model).num_features, _denoiser(model).seq_len)),
             sampling=sampling,
             seed=_checks.seed(DEFAULT_SEED if seed is None else seed),
             units=check_units(kw.get("units", "m")),

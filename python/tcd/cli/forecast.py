@@ -3,15 +3,14 @@ from __future__ import annotations
 
 import argparse
 import sys
-import zipfile
 from pathlib import Path
 from typing import Any, Dict
 
 import numpy as np
 
-from ..poses import UNIT_SCALE
 from ..exceptions import InvalidInputError
-from ..files import write_npz_atomic
+from ..files import UnreadableFile, read_npz, write_npz_atomic
+from ..poses import UNIT_SCALE
 from .common import (EXIT_OK, OPTION_FLAGS, _BadInput, add_model_flag, add_sampler_flags, flag_message, load_model,
                      output_exists, sampler_options, writing)
 
@@ -38,17 +37,12 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
 
 
 def _read_npz(path: Path) -> Dict[str, np.ndarray]:
-    if not path.is_file():
-        raise _BadInput(f"The input file {path} does not exist.")
     try:
-        with np.load(path, allow_pickle=False) as f:
-            if not isinstance(f, np.lib.npyio.NpzFile):
-                raise _BadInput(f"The input file {path} is a single .npy array; an .npz archive with `poses` is required.")
-            return {k: f[k] for k in f.files}
-    except _BadInput:
-        raise
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as e:
-        raise _BadInput(f"The input file {path} is not a readable .npz archive: {e}") from None
+        return read_npz(path)
+    except FileNotFoundError:
+        raise _BadInput(f"The input file {path} does not exist.") from None
+    except UnreadableFile as e:
+        raise _BadInput(f"The input file {path} cannot be read: it is {e}.") from None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -59,6 +53,9 @@ def run(args: argparse.Namespace) -> int:
         raise _BadInput(f"The output path {out} is a directory.")
     if not out.parent.is_dir():
         raise _BadInput(f"The output directory {out.parent} does not exist.")
+    if out.exists() and Path(args.input).exists() and out.samefile(args.input):
+        raise _BadInput(f"The output {out} is the input file: choose another output path (the input is never "
+                        "overwritten, with or without --overwrite).")
     data = _read_npz(Path(args.input))
     if "poses" not in data:
         raise _BadInput(f"The input file {args.input} has no `poses` array (it has: {', '.join(sorted(data)) or 'nothing'}).")
