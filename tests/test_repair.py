@@ -238,8 +238,12 @@ def test_rerun_skips_and_overwrite(tiny_model_dir, tmp_path, capsys):
     first = load_npz(out / "in.npz")
     stamp = (out / "in.npz").stat().st_mtime_ns
     time.sleep(0.01)
-    code, text, _ = run([src, "-o", out, "--model", tiny_model_dir, "--seed", "2", *FAST], capsys)
-    assert code == 0 and "0 repaired, 1 skipped" in text
+    code, text, _ = run([src, "-o", out, "--model", tiny_model_dir, "--seed", "1", *FAST], capsys)
+    assert code == 0 and "0 repaired, 1 skipped" in text      # finished with these settings: resumed past it
+    # an output made with other settings is not "finished": it is reported, and left as it is
+    code, text, err = run([src, "-o", out, "--model", tiny_model_dir, "--seed", "2", *FAST], capsys)
+    assert code == 1 and "0 repaired, 0 skipped, 1 failed" in text
+    assert "was made with other settings: seed 1 (this run: 2)" in err
     assert (out / "in.npz").stat().st_mtime_ns == stamp  # untouched
     code, text, _ = run([src, "-o", out, "--model", tiny_model_dir, "--seed", "2", "--overwrite", *FAST], capsys)
     assert code == 0 and "1 repaired, 0 skipped" in text
@@ -248,6 +252,11 @@ def test_rerun_skips_and_overwrite(tiny_model_dir, tmp_path, capsys):
     assert json.loads(str(second["provenance"]))["seed"] == 2
     with pytest.raises(FileExistsError):
         tcd.repair_file(src, out / "in.npz", tiny_model_dir, **FAST_KW)
+    # any other file at the output path is reported, never taken for a finished output
+    (out / "in.npz").write_text("not an output")
+    code, _, err = run([src, "-o", out, "--model", tiny_model_dir, "--seed", "2", *FAST], capsys)
+    assert code == 1 and "is not a readable tcd repair output" in err
+    assert (out / "in.npz").read_text() == "not an output"
 
 
 def test_never_overwrites_an_input(tiny_model_dir, tmp_path, capsys):

@@ -6,6 +6,7 @@ import json
 import math
 import os
 import time
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Dict, Iterable, Iterator, List, Optional, Sequence, Tuple
@@ -84,6 +85,7 @@ def run_tasks(model: Any, tasks: Iterable[Task], opts: RepairOptions, *, overwri
             frames_cb(now - self.reported)
             self.reported = now
 
+    settings = resume_settings(provenance(model, opts, None))
     it: Iterator[Tuple[int, Task]] = iter(enumerate(tasks))
     active: List[Active] = []
 
@@ -97,7 +99,12 @@ def run_tasks(model: Any, tasks: Iterable[Task], opts: RepairOptions, *, overwri
             t0 = time.perf_counter()
             if task.dst.exists() and not overwrite:
                 n = peek_frames(task.src)
-                done(i, Outcome(task, "skipped", "the output exists (pass --overwrite to replace it)", frames=n))
+                mismatch = finished_output_mismatch(task.dst, {**settings, "input": task.name or task.src.name})
+                if mismatch is None:
+                    done(i, Outcome(task, "skipped", "already repaired with these settings", frames=n))
+                else:
+                    done(i, Outcome(task, "failed", f"the output exists but {mismatch}; pass --overwrite to "
+                                                    "replace it", frames=n))
                 frames_cb(n)
                 continue
             try:
@@ -186,6 +193,31 @@ def repair_file(src: PathLike, dst: PathLike, model: Any = None, *, num_samples:
     if o.status == "skipped":
         raise FileExistsError(f"The output file {d} exists; pass overwrite=True to replace it.")
     return o.as_dict()
+
+
+# What an existing output must have been made with to count as finished: everything in its provenance but
+# the frame rate (the input's own), the model's path (the same weights may move) and the package version.
+_NOT_SETTINGS = ("fps", "model_path", "tcd_version")
+
+
+def resume_settings(prov: Dict[str, Any]) -> Dict[str, Any]:
+    return {k: v for k, v in prov.items() if k not in _NOT_SETTINGS}
+
+
+def finished_output_mismatch(dst: Path, settings: Dict[str, Any]) -> Optional[str]:
+    """None when ``dst`` is a readable tcd repair output made with ``settings``; else what is wrong with it."""
+    try:
+        with np.load(dst, allow_pickle=False) as z:
+            if not {"poses", "mask", "provenance"} <= set(z.files):
+                return "is not a tcd repair output (it lacks poses, mask or provenance)"
+            recorded = json.loads(str(z["provenance"]))
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, AttributeError, TypeError):
+        return "is not a readable tcd repair output"
+    differ = sorted(k for k in settings if recorded.get(k) != settings[k])
+    if differ:
+        shown = ", ".join(f"{k} {recorded.get(k)!r} (this run: {settings[k]!r})" for k in differ)
+        return f"was made with other settings: {shown}"
+    return None
 
 
 def same_path(a: Path, b: Path) -> bool:
