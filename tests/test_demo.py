@@ -75,6 +75,26 @@ def test_demo_refuses_to_overwrite(tiny_model_dir, tmp_path, capsys):
     assert out.read_bytes() == b"keep me"
 
 
+def test_demo_runs_again_over_its_own_output_only(tiny_model_dir, tmp_path, capsys):
+    out = tmp_path / "demo.npz"
+    argv = ["demo", "--model", str(tiny_model_dir), "-o", str(out), "--quiet", *FAST]
+    assert main(argv) == 0
+    first = out.read_bytes()
+    text = capsys.readouterr().out
+    assert main(argv + ["--seed", "1"]) == 0                 # its own output: replaced without --overwrite
+    assert out.read_bytes() != first
+    # the closing sentences: what the table shows, and how good this model is (from its own size)
+    cfg = tcd.load(tiny_model_dir).short.config["model"]
+    assert "The table is the forecast error in mm" in text
+    assert f"This is a reduced model ({cfg['num_layers']} layers x {cfg['channels']} channels" in text
+    assert "beats Zero-Velocity at" in text
+    # a GIF is the demo's only when the demo's .npz records its SHA-256
+    gif = tmp_path / "anim.gif"
+    gif.write_bytes(b"GIF89a someone else's animation")
+    assert not demo.is_own_output(gif, out)
+    assert demo.is_own_output(out, out) and not demo.is_own_output(out, tmp_path / "missing.npz")
+
+
 def test_demo_bad_steps_names_the_option(tiny_model_dir, tmp_path, capsys):
     assert main(["demo", "--model", str(tiny_model_dir), "-o", str(tmp_path / "d.npz"), "--steps", "0", "--quiet"]) == 2
     assert "--steps" in capsys.readouterr().err

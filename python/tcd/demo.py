@@ -21,6 +21,7 @@ and true skeletons.
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import sys
 import time
@@ -186,16 +187,66 @@ def summary(res: Dict[str, Any], model: TCD) -> str:
         f"{'yes' if res['repaired_observed_unchanged'] else 'NO'}",
         "",
         "time: " + ", ".join(f"{k.replace('_', ' ')} {v:.2f} s" for k, v in res["timings_s"].items()),
+        "",
+        "The table is the forecast error in mm at each horizon (lower is better) from a clean and from an occluded "
+        "observation, beside Zero-Velocity (the last observed pose held), and the repair line compares the model's "
+        "filling of hidden joints with linear interpolation.",
+        verdict(res, model),
     ]
     return "\n".join(lines)
 
 
-def save(res: Dict[str, Any], path: Path, model: TCD, overwrite: bool = True) -> None:
+#: The paper's model size (layers, channels): what "full size" means below.
+PAPER_SIZE = (12, 64)
+
+
+def verdict(res: Dict[str, Any], model: TCD) -> str:
+    """One sentence on how good this model is, from its own metadata (size) and this run's numbers."""
+    cfg = model.short.config["model"]
+    size = (cfg["num_layers"], cfg["channels"])
+    ms = [m for m in HORIZONS_MS if m in res["forecast_mm"]]
+    wins = sum(res["forecast_mm"][m] < res["zero_velocity_mm"][m] for m in ms)
+    full = size >= PAPER_SIZE
+    kind = (f"a full-size model ({size[0]} layers x {size[1]} channels, the paper's size)" if full else
+            f"a reduced model ({size[0]} layers x {size[1]} channels, the paper's is {PAPER_SIZE[0]} x {PAPER_SIZE[1]})")
+    caveat = ("one clip is not a benchmark (docs/reference.md has the evaluation protocol)" if full else
+              "its forecasts show how the package works, not the paper's accuracy")
+    return f"This is {kind}: on this clip it beats Zero-Velocity at {wins} of {len(ms)} horizons; {caveat}."
+
+
+#: What the demo writes into its .npz's summary, so that a later `tcd demo` knows the file is its own.
+DEMO_TOOL = "tcd demo"
+
+
+def sha256_of(path: Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def is_own_output(path: Path, npz: Path) -> bool:
+    """Whether ``path`` is an earlier output of ``tcd demo`` (the only existing file a re-run replaces
+    without ``--overwrite``): the demo .npz ``npz`` itself (its summary names the tool), or the GIF whose
+    SHA-256 that summary records."""
+    try:
+        with np.load(npz, allow_pickle=False) as z:
+            summary = json.loads(str(z["summary"]))
+    except Exception:  # anything unreadable, or not ours, is not the demo's output
+        return False
+    if summary.get("tool") != DEMO_TOOL:
+        return False
+    if Path(path) == Path(npz):
+        return True
+    return path.is_file() and summary.get("plot_sha256") == sha256_of(path)
+
+
+def save(res: Dict[str, Any], path: Path, model: TCD, overwrite: bool = True,
+         plot_sha256: Optional[str] = None) -> None:
     """Writes the demo's arrays and numbers to ``path`` (.npz) atomically (``FileExistsError`` when it exists
-    and not ``overwrite``)."""
+    and not ``overwrite``); ``plot_sha256``: that of the GIF written beside it, recorded in the summary."""
     meta = {k: res[k] for k in ("settings", "timings_s", "forecast_mm", "occluded_forecast_mm", "zero_velocity_mm",
                                 "repair_ade_mm", "linear_interpolation_ade_mm", "occluded_fraction", "fps")}
     meta["model_sha256"] = model.sha256
+    meta["tool"] = DEMO_TOOL
+    meta["plot_sha256"] = plot_sha256
     arrays = {k: res[k] for k in ("observed", "future", "forecast_mean", "forecast_samples", "occlusion_mask",
                                   "occluded_forecast_mean", "repaired")}
     write_npz_atomic(path, overwrite, joint_names=np.array(res["joint_names"]), summary=np.array(json.dumps(meta)),

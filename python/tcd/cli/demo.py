@@ -23,16 +23,19 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
     p.add_argument("--threads", type=int, default=None, metavar="N", help="worker threads (default: all cores)")
     p.add_argument("--plot", metavar="GIF", help="also render an animation (needs matplotlib: "
                    "pip install 'tcd-forecast[plot]')")
-    p.add_argument("--overwrite", action="store_true", help="replace OUT (and GIF) if they exist")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace OUT (and GIF) even if they are not this command's earlier outputs")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     return p
 
 
 def run(args: argparse.Namespace) -> int:
     out = Path(args.output)
+    # a re-run replaces the demo's own previous outputs (the .npz it wrote, the GIF whose SHA-256 that .npz
+    # records), never another file, unless --overwrite
     targets = [out] + ([Path(args.plot)] if args.plot else [])
     for t in targets:
-        if t.exists() and not args.overwrite:
+        if t.exists() and not (args.overwrite or demo.is_own_output(t, out)):
             raise output_exists(t)
         if not t.resolve().parent.is_dir():
             raise _BadInput(f"The output directory {t.parent} does not exist.")
@@ -50,12 +53,14 @@ def run(args: argparse.Namespace) -> int:
         raise _BadInput(flag_message(e)) from None
     except ValueError as e:
         raise _BadInput(str(e)) from None
-    with writing(out):
-        demo.save(res, out, model, overwrite=args.overwrite)
-    print(demo.summary(res, model))
-    print(f"\nwrote {out}")
+    plot_sha256 = None
     if args.plot:
-        with writing(Path(args.plot)):
-            demo.plot(res, Path(args.plot), res["fps"], overwrite=args.overwrite)
-        print(f"wrote {args.plot}")
+        gif = Path(args.plot)
+        with writing(gif):
+            demo.plot(res, gif, res["fps"], overwrite=args.overwrite or demo.is_own_output(gif, out))
+        plot_sha256 = demo.sha256_of(gif)
+    with writing(out):
+        demo.save(res, out, model, overwrite=args.overwrite or demo.is_own_output(out, out), plot_sha256=plot_sha256)
+    print(demo.summary(res, model))
+    print(f"\nwrote {out}" + (f" and {args.plot}" if args.plot else ""))
     return EXIT_OK
