@@ -8,7 +8,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import tcd
 from fixtures_util import poses
 
 FAST = dict(sampler="ddim", num_inference_steps=2, num_samples=2)

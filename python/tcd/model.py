@@ -16,7 +16,7 @@ from typing import Any, Dict, List, Optional, Tuple, Union
 
 import numpy as np
 
-from . import _checks
+from . import _checks, wild_calls
 from .poses import UNIT_SCALE, check_units, validate_poses
 from .denoiser import Denoiser, cascade_raw, repair_raw
 from .exceptions import WeightsError
@@ -41,13 +41,16 @@ class Forecast:
     * ``samples``: ``(S, B?, H, J, 3)``;
     * ``repaired``: the observation with its missing entries filled (same shape as the input; observed
       entries are returned unchanged);
-    * ``seed``: the seed used (drawn from ``os.urandom`` when none was given): pass it back to reproduce.
+    * ``seed``: the seed used (drawn from ``os.urandom`` when none was given): pass it back to reproduce;
+    * ``times``: ``(H,)`` seconds of each forecast frame after the last observed one.
     """
 
     mean: np.ndarray
     samples: np.ndarray
     repaired: np.ndarray
     seed: int
+    #: seconds of each forecast frame after the last observed frame (at the caller's frame rate)
+    times: Optional[np.ndarray] = None
 
     def __repr__(self) -> str:
         return (f"Forecast(mean={_checks.shape_str(self.mean.shape)}, samples={_checks.shape_str(self.samples.shape)}, "
@@ -192,7 +195,8 @@ class TCD:
 
     def forecast(self, obs: Any, mask: Any = None, *, num_samples: int = 5, options: Optional[SamplerOptions] = None,
                  seed: Optional[int] = None, units: str = "m", threads: Optional[int] = None,
-                 progress: Any = False, **sampler: Any) -> Forecast:
+                 progress: Any = False, layout: Optional[str] = None, fps: Optional[float] = None,
+                 up: Any = "y", **sampler: Any) -> Forecast:
         """Forecasts the next :attr:`horizon` frames of ``obs``.
 
         Args:
@@ -211,25 +215,43 @@ class TCD:
             progress: ``True`` shows a tqdm bar on stderr; a callable ``f(done, total)`` gets the count of
                 denoiser forwards (:mod:`tcd.progress`). Ctrl-C stops the call (KeyboardInterrupt) within
                 about 0.1 s plus one forward, whatever ``progress`` is.
+            layout, fps, up: poses from the wild (:mod:`tcd.wild`): ``layout`` one of
+                :data:`tcd.layouts.LAYOUTS` (``"h36m32"``, ``"h36m17"``, ``"smpl24"``, ``"coco17"``; J its
+                joints) in world or camera coordinates with ``up`` the vertical axis (``"y"``, ``"z"``, ...
+                or a unit vector), at ``fps`` frames per second and of any length >= 2 observed frames.
+                The forecast comes back in the same layout, coordinates and frame rate (``Forecast.times``).
         """
         num_samples, o, units, threads = self._common(num_samples, options, sampler, units, threads)
+        if layout is not None or fps is not None:
+            seed = _seed(seed)
+            mean, samples, repaired, times = wild_calls.forecast(
+                self, obs, mask, layout="h36m22" if layout is None else layout, fps=fps, up=up,
+                num_samples=num_samples, options=o, seed=seed, units=units, threads=threads, progress=progress)
+            return Forecast(mean=mean, samples=samples, repaired=repaired, seed=seed, times=times)
         p = _poses(obs, mask, self.num_joints, self.obs_len, units)
         seed = _seed(seed)
         out = cascade_raw(self.short, self.long, p.observed, p.mask, num_samples=num_samples, options=o,
                           seed=seed, threads=threads, progress=progress)
         return Forecast(mean=p.poses(out["mean"]), samples=p.poses(out["samples"]),
-                        repaired=p.repaired(out["repaired"]), seed=seed)
+                        repaired=p.repaired(out["repaired"]), seed=seed,
+                        times=np.arange(1, self.horizon + 1) / float(self.fps or 25.0))
 
     def repair(self, obs: Any, mask: Any = None, *, num_samples: int = 5, options: Optional[SamplerOptions] = None,
                seed: Optional[int] = None, units: str = "m", threads: Optional[int] = None,
-               progress: Any = False, **sampler: Any) -> np.ndarray:
+               progress: Any = False, layout: Optional[str] = None, fps: Optional[float] = None,
+               up: Any = "y", **sampler: Any) -> np.ndarray:
         """Fills the missing entries of ``obs`` (same arguments as :meth:`forecast`) with the mean of
         ``num_samples`` samples of the repair model (the short-term model when the directory has no
         ``repair.safetensors``). Returns an array of the shape of ``obs``; observed entries unchanged.
-        Pass ``seed`` for a reproducible result."""
+        Pass ``seed`` for a reproducible result. ``layout``, ``fps``, ``up``: as in :meth:`forecast`, for an
+        observation of at most the model's window (longer ones: :func:`tcd.repair_file`)."""
         num_samples, o, units, threads = self._common(num_samples, options, sampler, units, threads)
-        p = _poses(obs, mask, self.num_joints, self.obs_len, units)
         model = self.repair_model if self.repair_model is not None else self.short
+        if layout is not None or fps is not None:
+            return wild_calls.repair(self, model, obs, mask, layout="h36m22" if layout is None else layout, fps=fps,
+                                     up=up, num_samples=num_samples, options=o, seed=_seed(seed), units=units,
+                                     threads=threads, progress=progress)
+        p = _poses(obs, mask, self.num_joints, self.obs_len, units)
         out = repair_raw(model, p.observed, p.mask, num_samples=num_samples, options=o, seed=_seed(seed),
                          threads=threads, progress=progress)
         return p.repaired(out["mean"])

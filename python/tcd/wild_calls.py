@@ -1,0 +1,119 @@
+""":meth:`tcd.TCD.forecast` and :meth:`tcd.TCD.repair` on poses from the wild (``layout``, ``fps``, world
+coordinates): the checks, the conversions of :mod:`tcd.wild` around the engine, and the frame-rate
+interpolation of the outputs."""
+from __future__ import annotations
+
+import math
+from typing import Any, Optional, Tuple
+
+import numpy as np
+
+from . import _checks, wild
+from .denoiser import cascade_raw, repair_raw
+from .exceptions import InvalidInputError
+from .layouts import get_layout
+from .poses import UNIT_SCALE, validate_poses
+
+__all__ = ["forecast", "repair"]
+
+
+def _fps(value: Any, model_fps: float) -> float:
+    if value is None:
+        return model_fps
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
+            or not math.isfinite(float(value)) or float(value) <= 0:
+        raise _checks.fail("fps", "a positive, finite frame rate (frames per second)", repr(value))
+    return float(value)
+
+
+def _prepare(model: Any, obs: Any, mask: Any, layout: Any, fps: Any, up: Any, units: str, frames: int):
+    """Checks the call's poses and settings; returns what the engine needs and how to come back."""
+    lay = get_layout(layout)
+    if model.fps is None:
+        raise _checks.fail("fps", "None: the model does not record its frame rate, so poses cannot be resampled",
+                           repr(fps))
+    src_fps = _fps(fps, float(model.fps))
+    up_v = wild.up_vector(up)
+    p = validate_poses(obs, mask, num_joints=lay.num_joints, units=units)
+    seen_frames = p.observed.reshape(p.observed.shape[0], p.observed.shape[1], -1).any(-1).sum(-1)
+    if (seen_frames < 2).any():
+        raise _checks.fail("obs", "an observation with at least 2 observed frames per sequence (to measure motion)",
+                           f"{int(seen_frames.min())} observed frame(s)")
+    joint_seen = p.observed.all(-1, keepdims=True)           # a joint is observed when all 3 coordinates are
+    x = np.where(joint_seen, p.values, np.nan).astype(np.float64) / UNIT_SCALE[units]
+    xm, times = wild.resample_to_model(x, src_fps, float(model.fps), frames)
+    y, scene = wild.to_model(xm, lay, up_v)
+    b, t = y.shape[:2]
+    seen = np.isfinite(y).all(-1, keepdims=True)
+    flat = lambda a: np.ascontiguousarray(a.reshape(b, t, -1).transpose(0, 2, 1), dtype=np.float32)  # noqa: E731
+    return p, src_fps, scene, times, flat(np.where(seen, y, 0.0)), flat(np.broadcast_to(seen, y.shape))
+
+
+def _model_poses(bkl: np.ndarray) -> np.ndarray:
+    """(..., B, K, L) engine output -> (..., B, L, 22, 3) float64."""
+    *lead, b, k, length = bkl.shape
+    return np.swapaxes(bkl, -1, -2).reshape(*lead, b, length, k // 3, 3).astype(np.float64)
+
+
+def _at_times(values: np.ndarray, times: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """Linear interpolation along the frame axis (-3) of (..., F, J, 3) values given at ``times`` onto ``at``."""
+    idx = np.clip(np.searchsorted(times, at, side="right") - 1, 0, len(times) - 2)
+    w = ((at - times[idx]) / (times[idx + 1] - times[idx]))[:, None, None]
+    return values[..., idx, :, :] * (1 - w) + values[..., idx + 1, :, :] * w
+
+
+def _repaired(p: Any, rep_w: np.ndarray, times: np.ndarray, scale: float) -> np.ndarray:
+    """The caller's observation with its missing entries filled inside the model's window (world poses at
+    model frames ``times``, in input frames), observed entries bit for bit, earlier frames as given."""
+    t_in = p.values.shape[1]
+    frames = np.arange(t_in, dtype=np.float64)
+    inside = frames >= times[0] - 1e-9
+    filled = p.values.astype(np.float64).copy()
+    if inside.any():
+        filled[:, inside] = _at_times(rep_w, times, frames[inside]) * scale
+    out = np.where(p.observed, p.values, filled.astype(p.dtype))
+    return out if p.batched else out[0]
+
+
+def forecast(model: Any, obs: Any, mask: Any, *, layout: Any, fps: Any, up: Any, num_samples: int, options: Any,
+             seed: int, units: str, threads: Optional[int], progress: Any) -> Tuple[np.ndarray, ...]:
+    """(mean, samples, repaired, times): the forecast in the caller's layout, coordinates, units and frame
+    rate, ``times`` the seconds of each forecast frame after the last observed one."""
+    p, src_fps, scene, times, observed, seen = _prepare(model, obs, mask, layout, fps, up, units, model.obs_len)
+    out = cascade_raw(model.short, model.long, observed, seen, num_samples=num_samples, options=options, seed=seed,
+                      threads=threads, progress=progress)
+    h = model.horizon
+    root_f, rot_f = wild.future_frames(scene, h)
+    mean_w = wild.from_model(_model_poses(out["mean"]), scene, root_f, rot_f, own_frames=False)
+    samples_w = wild.from_model(_model_poses(out["samples"]), scene, root_f, rot_f, own_frames=False)
+    rep_w = wild.from_model(_model_poses(out["repaired"]), scene, scene.root, scene.rot, own_frames=True)
+    # future frames at the caller's rate: model frame k is (k + 1) / model_fps s after the last observed
+    # frame, which is time 0 (the repaired last frame)
+    model_t = np.arange(h + 1) / float(model.fps)
+    n = int(math.floor(h / float(model.fps) * src_fps + 1e-9))
+    at = np.arange(1, n + 1) / src_fps
+    scale = UNIT_SCALE[units]
+
+    def caller(future_w: np.ndarray) -> np.ndarray:
+        last = np.broadcast_to(rep_w[:, -1:], future_w.shape[:-3] + (1,) + future_w.shape[-2:])
+        y = _at_times(np.concatenate([last, future_w], axis=-3), model_t, at) * scale
+        y = y.astype(p.dtype)
+        return y if p.batched else y[..., 0, :, :, :]
+
+    return caller(mean_w), caller(samples_w), _repaired(p, rep_w, times, scale), at
+
+
+def repair(model: Any, den: Any, obs: Any, mask: Any, *, layout: Any, fps: Any, up: Any, num_samples: int,
+           options: Any, seed: int, units: str, threads: Optional[int], progress: Any) -> np.ndarray:
+    """The observation with its missing entries filled by ``den``, in the caller's layout, coordinates,
+    units and frame rate; at most the model's window (longer files: :func:`tcd.repair_file`)."""
+    p, src_fps, scene, times, observed, seen = _prepare(model, obs, mask, layout, fps, up, units, den.obs_len)
+    if times[0] > 1e-9:
+        raise InvalidInputError(
+            f"Argument `obs` must span at most the model's window ({model.obs_len} frames at {model.fps:g} fps) "
+            f"to be repaired in one call, but received {p.values.shape[1]} frames at {src_fps:g} fps: repair "
+            "longer sequences with tcd.repair_file (overlapping windows).", "obs")
+    out = repair_raw(den, observed, seen, num_samples=num_samples, options=options, seed=seed, threads=threads,
+                     progress=progress)
+    rep_w = wild.from_model(_model_poses(out["mean"]), scene, scene.root, scene.rot, own_frames=True)
+    return _repaired(p, rep_w, times, UNIT_SCALE[units])

@@ -1,0 +1,140 @@
+"""Poses from the wild (issue 17, first part): the joint layouts' mappings, world coordinates, frame rates
+and lengths, through the public API (tcd.TCD.forecast / repair with layout=, fps=, up=)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fixtures_util import bad
+from tcd import layouts, wild
+from tcd.demo import load_clip
+
+FAST = dict(num_samples=2, seed=0, sampler="ddim", num_inference_steps=3)
+SAME_PLACE = {16: 13, 20: 19, 23: 22, 24: 13, 28: 27, 31: 30}
+
+
+def h36m32(frames: int = 50) -> np.ndarray:
+    """The demo clip (model layout, on the Human3.6M skeleton) as 32-joint Human3.6M poses."""
+    clip = load_clip()["poses"].astype(np.float64)[:frames]
+    rest, _ = wild._rest()
+    x = np.zeros((len(clip), 32, 3))
+    x[:, list(layouts.MODEL_IDS)] = clip
+    x[:, list(layouts.FIXED_IDS)] = rest[list(layouts.FIXED_IDS)]
+    for dst, src in SAME_PLACE.items():
+        x[:, dst] = x[:, src]
+    return x
+
+
+def world(x: np.ndarray, angle: float = 0.7, shift=(10.0, -3.0, 0.9)) -> np.ndarray:
+    """Canonical poses (+y up) turned by ``angle`` about a z-up world's vertical and moved by ``shift``."""
+    return np.einsum("ij,tkj->tki", _world_rot(angle), x) + np.asarray(shift)
+
+
+def _world_rot(angle: float) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]) @ np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0]])
+
+
+def in_layout(x32: np.ndarray, name: str) -> np.ndarray:
+    """32-joint poses as the given layout would hold them (face points and spine joints made up plausibly)."""
+    lay = layouts.get_layout(name)
+    out = np.full((len(x32), lay.num_joints, 3), np.nan)
+    for i, t in enumerate(lay.to32):
+        if t is not None:
+            out[:, i] = x32[:, t]
+    if name == "coco17":
+        side = x32[:, 6] - x32[:, 1]
+        out[:, 3], out[:, 4] = x32[:, 14] + 0.3 * side, x32[:, 14] - 0.3 * side      # ears
+        out[:, 0] = out[:, 1] = out[:, 2] = x32[:, 15]                               # nose, eyes
+    if name == "smpl24":
+        out[:, 3], out[:, 6], out[:, 13], out[:, 14] = x32[:, 11], x32[:, 12], x32[:, 16], x32[:, 24]
+    return out
+
+
+@pytest.mark.parametrize("name", ["h36m32", "h36m17", "smpl24", "coco17"])
+def test_layout_round_trip_is_exact(name):
+    """Into the model's convention and back on the same frames: every joint the caller gave comes back."""
+    x = in_layout(world(h36m32()), name)
+    y, scene = wild.to_model(x[None], layouts.get_layout(name), wild.up_vector("z"))
+    back = wild.from_model(y, scene, scene.root, scene.rot, own_frames=True)[0]
+    np.testing.assert_allclose(back, x, rtol=0, atol=1e-12)
+    lacks = {"h36m32": 0, "h36m17": 8, "smpl24": 5, "coco17": 10}[name]
+    assert int(np.isnan(y[0, 0, :, 0]).sum()) == lacks        # model joints the layout lacks: in-painted
+
+
+def test_h36m32_on_the_model_skeleton_costs_nothing(tiny_model):
+    """h36m32 poses built on the Human3.6M skeleton, canonical: the same forecast as the native path."""
+    x = h36m32()
+    native = tiny_model.forecast(x[:, list(layouts.MODEL_IDS)], **FAST)
+    f = tiny_model.forecast(x, layout="h36m32", **FAST)
+    np.testing.assert_allclose(f.samples[:, :, list(layouts.MODEL_IDS)], native.samples, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(f.times, native.times)
+    assert f.mean.shape == (25, 32, 3)
+
+
+@pytest.mark.parametrize("name", ["h36m32", "h36m17", "smpl24", "coco17"])
+def test_world_coordinates_move_with_the_input(tiny_model, name):
+    """Turning and moving the observation turns and moves the forecast and the repair with it."""
+    a = in_layout(world(h36m32(), angle=0.2, shift=(0.0, 0.0, 0.0)), name)
+    b = in_layout(world(h36m32(), angle=2.1, shift=(5.0, 7.0, -1.0)), name)
+    fa = tiny_model.forecast(a, layout=name, up="z", **FAST)
+    fb = tiny_model.forecast(b, layout=name, up="z", **FAST)
+    turn = _world_rot(2.1) @ _world_rot(0.2).T
+    np.testing.assert_allclose(np.einsum("ij,...j->...i", turn, fa.mean) + [5.0, 7.0, -1.0], fb.mean, atol=1e-9)
+    gappy = b.copy()
+    gappy[10:20, 3:6] = np.nan
+    r = tiny_model.repair(gappy, layout=name, up="z", **FAST)
+    seen = ~np.isnan(gappy)
+    assert np.array_equal(r[seen], gappy[seen]) and np.isfinite(r[10:20, 3:6]).all()
+
+
+def test_any_frame_rate_and_length(tiny_model):
+    x25 = h36m32()
+    from tcd.batch_repair.windows import _resample_backward
+    x50 = _resample_backward(x25.reshape(50, -1), 99, 50.0, 25.0).reshape(99, 32, 3)   # the same motion at 50 fps
+    f25 = tiny_model.forecast(x25, layout="h36m32", **FAST)
+    f50 = tiny_model.forecast(x50, layout="h36m32", fps=50, **FAST)
+    assert f50.mean.shape == (50, 32, 3)
+    np.testing.assert_allclose(f50.times, np.arange(1, 51) / 50)
+    np.testing.assert_allclose(f50.mean[1::2], f25.mean, atol=1e-6)    # every other 50 fps frame is a model frame
+    short = tiny_model.forecast(x25[-20:], layout="h36m32", **FAST)      # 0.8 s: padded with missing frames
+    assert short.mean.shape == (25, 32, 3) and short.repaired.shape == (20, 32, 3) and np.isfinite(short.mean).all()
+    long = tiny_model.forecast(np.concatenate([x25, x25]), layout="h36m32", **FAST)  # 4 s: the last 2 s are used
+    np.testing.assert_allclose(long.mean, f25.mean, atol=1e-9)
+    bad("obs", tiny_model.repair, np.concatenate([x25, x25]), layout="h36m32")       # repair: one window at most
+
+
+def test_the_future_root_keeps_its_velocity_and_turn_rate(tiny_model):
+    x = h36m32()
+    t = np.arange(50)[:, None, None]
+    walking = x + t * np.array([0.0, 0.0, 0.05])                         # 0.05 m per frame forward (1.25 m/s)
+    f = tiny_model.forecast(walking, layout="h36m32", **FAST)
+    np.testing.assert_allclose(f.mean[:, 0], (49 + np.arange(1, 26))[:, None] * [0.0, 0.0, 0.05], atol=1e-9)
+    rate = 0.02                                                          # radians per frame about +y
+    turning = np.stack([world_y(x[i], rate * i) for i in range(50)])
+    f = tiny_model.forecast(turning, layout="h36m32", **FAST)
+    across = f.mean[:, 6] - f.mean[:, 1]                                 # right hip -> left hip
+    heading = np.unwrap(np.arctan2(-across[:, 2], across[:, 0]))
+    np.testing.assert_allclose(np.diff(heading), rate, atol=1e-9)
+    np.testing.assert_allclose(heading[0], rate * 50, atol=1e-9)
+
+
+def world_y(pose: np.ndarray, angle: float) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    return pose @ np.array([[c, 0, -s], [0, 1, 0], [s, 0, c]])
+
+
+def test_bad_wild_inputs(tiny_model):
+    x = h36m32()
+    bad("layout", tiny_model.forecast, x, layout="openpose25")
+    bad("obs", tiny_model.forecast, x[:, :17], layout="h36m32")          # 17 joints are not h36m32's 32
+    for fps in (0, -25, float("nan"), True, "25"):
+        bad("fps", tiny_model.forecast, x, layout="h36m32", fps=fps)
+    for up in ("w", (1.0, 1.0, 0.0), (0.0, 1.0)):
+        bad("up", tiny_model.forecast, x, layout="h36m32", up=up)
+    one = np.full_like(x, np.nan)
+    one[7] = x[7]
+    bad("obs", tiny_model.forecast, one, layout="h36m32")                # one observed frame: no motion
+    no_hips = x.copy()
+    no_hips[:, [1, 6]] = np.nan
+    bad("obs", tiny_model.forecast, no_hips, layout="h36m32")            # nothing to place the body by
