@@ -67,7 +67,8 @@ def test_forecast_round_trip(tiny_model_dir, npz, tmp_path, capsys):
     assert "wrote" in out
     with np.load(out_path) as f:
         got = {k: f[k] for k in f.files}
-    assert set(got) == {"mean", "samples", "repaired", "seed"}
+    assert set(got) == {"mean", "samples", "repaired", "seed", "times"}
+    np.testing.assert_allclose(got["times"], np.arange(1, 26) / 25.0)
     assert got["mean"].shape == (25, 22, 3) and got["samples"].shape == (2, 25, 22, 3)
     assert got["repaired"].shape == (50, 22, 3) and int(got["seed"]) == 11
     poses_in = np.load(npz)["poses"]

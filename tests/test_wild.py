@@ -138,3 +138,25 @@ def test_bad_wild_inputs(tiny_model):
     no_hips = x.copy()
     no_hips[:, [1, 6]] = np.nan
     bad("obs", tiny_model.forecast, no_hips, layout="h36m32")            # nothing to place the body by
+
+
+def test_cli_forecast_with_layout_fps_and_up(tiny_model_dir, tmp_path, capsys):
+    from tcd.cli import main
+    x = in_layout(world(h36m32()), "h36m17")
+    np.savez(tmp_path / "in.npz", poses=x * 1000)                              # millimetres, z up, 25 fps
+    out = tmp_path / "out.npz"
+    assert main(["forecast", str(tmp_path / "in.npz"), "-o", str(out), "--model", str(tiny_model_dir), "--layout",
+                 "h36m17", "--fps", "25", "--up", "z", "--units", "mm", "--samples", "2", "--seed", "0",
+                 "--sampler", "ddim", "--steps", "3"]) == 0
+    want = tcd_load(tiny_model_dir).forecast(x * 1000, layout="h36m17", fps=25, up="z", units="mm", **FAST)
+    with np.load(out) as z:
+        np.testing.assert_array_equal(z["mean"], want.mean)
+        np.testing.assert_array_equal(z["times"], want.times)
+    assert main(["forecast", str(tmp_path / "in.npz"), "-o", str(tmp_path / "o2.npz"), "--model", str(tiny_model_dir),
+                 "--layout", "h36m17", "--fps", "0", "--units", "mm"]) == 2
+    assert "(`fps` is --fps.)" in capsys.readouterr().err
+
+
+def tcd_load(d):
+    import tcd
+    return tcd.load(d)

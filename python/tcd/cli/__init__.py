@@ -5,12 +5,12 @@
     tcd info [--model DIR] [--json]
     tcd forecast IN.npz -o OUT.npz [--model DIR] [--samples N] [--steps S] [--sampler ddpm|ddim|dpmpp2m]
                  [--eta E] [--spacing trailing|leading|linspace] [--seed S] [--units m|mm]
-                 [--threads N] [--overwrite] [--quiet]
+                 [--layout L] [--fps F] [--up AXIS] [--threads N] [--overwrite] [--quiet]
     tcd repair INPUT... -o OUTDIR [--model DIR] [--units m|mm] [--fps F] [--steps N] [--sampler ddpm|ddim|dpmpp2m]
                [--samples N] [--seed S] [--overlap C] [--lookahead L] [--jobs N] [--overwrite] [--report FILE] [--quiet]
 
 IN.npz holds ``poses``, (T, J, 3) or (B, T, J, 3) with NaN = missing, and optionally ``mask``
-(1 = observed). OUT.npz receives ``mean``, ``samples``, ``repaired`` and ``seed``. An existing OUT is
+(1 = observed). OUT.npz receives ``mean``, ``samples``, ``repaired``, ``seed`` and ``times``. An existing OUT is
 never replaced without ``--overwrite``; every output is written under a temporary name and renamed into
 place (:mod:`tcd.files`), so it is complete or absent.
 

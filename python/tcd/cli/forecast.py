@@ -10,12 +10,14 @@ import numpy as np
 
 from ..exceptions import InvalidInputError
 from ..files import UnreadableFile, read_npz, write_npz_atomic
+from ..layouts import LAYOUTS
 from ..poses import UNIT_SCALE
 from .common import (EXIT_OK, OPTION_FLAGS, _BadInput, add_model_flag, add_sampler_flags, flag_message, load_model,
                      output_exists, sampler_options, writing)
 
 # The arguments the input file sets, for the error messages.
-FLAGS = {**OPTION_FLAGS, "obs": "the `poses` array of the input file", "mask": "the `mask` array of the input file"}
+FLAGS = {**OPTION_FLAGS, "obs": "the `poses` array of the input file", "mask": "the `mask` array of the input file",
+         "fps": "--fps", "layout": "--layout", "up": "--up"}
 
 
 def add_parser(sub: Any) -> argparse.ArgumentParser:
@@ -24,12 +26,19 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
     p.add_argument("input", metavar="IN.npz", help="input: `poses` (T, J, 3) or (B, T, J, 3), NaN = missing; "
                    "optional `mask` (1 = observed)")
     p.add_argument("-o", "--output", metavar="OUT.npz", required=True,
-                   help="output: mean, samples, repaired, seed")
+                   help="output: mean, samples, repaired, seed, times (s after the last observed frame)")
     add_model_flag(p)
     p.add_argument("--samples", type=int, default=5, metavar="N", help="samples per sequence (default 5)")
     add_sampler_flags(p)
     p.add_argument("--seed", type=int, default=None, help="noise seed (default: random, recorded in OUT)")
     p.add_argument("--units", default="m", choices=tuple(UNIT_SCALE), help="units of the poses: m (default) or mm")
+    p.add_argument("--layout", default=None, choices=tuple(LAYOUTS),
+                   help="joint layout of the poses (default: the model's own, root-relative); with another "
+                   "layout, world or camera coordinates are accepted (see --up)")
+    p.add_argument("--fps", type=float, default=None, metavar="F",
+                   help="frame rate of the poses (default: the model's); any length is accepted")
+    p.add_argument("--up", default="y", choices=("x", "y", "z", "-x", "-y", "-z"),
+                   help="the vertical axis of the poses' coordinates (default y)")
     p.add_argument("--threads", type=int, default=None, metavar="N", help="worker threads (default: all cores)")
     p.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
     p.add_argument("--quiet", action="store_true", help="no progress bar (shown on a terminal otherwise)")
@@ -64,11 +73,12 @@ def run(args: argparse.Namespace) -> int:
     try:
         f = model.forecast(data["poses"], data.get("mask"), num_samples=args.samples, options=options,
                            seed=args.seed, units=args.units, threads=args.threads,
-                           progress=not args.quiet and sys.stderr.isatty())
+                           progress=not args.quiet and sys.stderr.isatty(), layout=args.layout, fps=args.fps,
+                           up=args.up)
     except InvalidInputError as e:
         raise _BadInput(flag_message(e, FLAGS)) from None
     with writing(out):
         write_npz_atomic(out, args.overwrite, mean=f.mean, samples=f.samples, repaired=f.repaired,
-                         seed=np.uint64(f.seed))
+                         seed=np.uint64(f.seed), times=f.times)
     print(f"wrote {out}: mean {f.mean.shape}, samples {f.samples.shape}, repaired {f.repaired.shape}, seed {f.seed}")
     return EXIT_OK
