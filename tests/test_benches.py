@@ -159,3 +159,15 @@ def test_train_throughput_smoke(tmp_path):
     assert {r["skipped"] for r in res["results"] if "windows_per_s" not in r} == {
         "bf16 autocast is used on CUDA only (TrainConfig.amp)"}
     assert res["meta"]["preset"] == "tiny" and res["meta"]["data"] == "synthetic"
+
+
+@needs_h36m
+def test_in_the_wild_smoke(tiny_model_dir, tmp_path):
+    """benches/in_the_wild.py runs every input path through the public API and writes its table."""
+    bench = load_bench("in_the_wild")
+    out = tmp_path / "wild.json"
+    assert bench.main(["--data", str(H36M_DIR), "--model", str(tiny_model_dir), "--windows-per-action", "1",
+                       "--steps", "1", "--json", str(out)]) == 0
+    rows = json.loads(out.read_text())["rows"]
+    assert len(rows) == 14 and {r["space"] for r in rows} == {"canonical", "root-relative", "world"}
+    assert all(r["tcd_mm"]["1s"] > 0 and r["zero_velocity_mm"]["1s"] > 0 for r in rows)

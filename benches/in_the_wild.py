@@ -1,0 +1,159 @@
+"""Forecasting poses from the wild through the public API (issue 17): Human3.6M S5 fed as other layouts, in
+world coordinates, at 50 fps, against the native path on the same windows.
+
+    python3 benches/in_the_wild.py [--data ../shared/data/h36m] [--windows-per-action 8] [--samples 1] \
+        [--sampler ddim --steps 10] [--json benches/results/in_the_wild.json]
+
+Windows: the S5 test protocol's first ``--windows-per-action`` windows per action (``H36M.test_windows``
+order). The native path gets the protocol's input (22 model joints, root and global rotation removed per
+frame, 25 fps, 50 frames). The wild paths get the same motion as the sensor would: the 32 (``h36m32``) or 17
+(``h36m17``) joints with the recorded global rotation and root position, at 50 fps (99 frames), ``up="y"``;
+variants hide 20 % of the joints per frame (seeded) or keep only the last 0.8 s.
+
+Errors (mm, mean per-joint position error of the mean forecast, at 0.5 s and 1 s) over the joints the layout
+shares with the model (22 for h36m32, 14 for h36m17), each beside Zero-Velocity (the last observed pose held)
+in the same space: the native path in its canonical space (its ground truth has the future frames' own root
+rotation removed: information a forecast from the wild does not have); the wild paths root-relative (each
+frame's pelvis subtracted, the heading kept) and in world coordinates. Only the repository's public API is
+used. The bundled model is reduced: the numbers measure the conversions, not the paper's accuracy.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import tcd  # noqa: E402
+from tcd import fk, layouts  # noqa: E402
+from training.data.h36m import DEFAULT_H36M_DIR, H36MSource, find_indices_256, ACTIONS  # noqa: E402
+
+HORIZONS_S = (0.5, 1.0)
+H36M17_MODEL = [i for i, t in enumerate(layouts.LAYOUTS["h36m17"].to32) if t in layouts.MODEL_IDS]
+
+
+def world_xyz32(rows: np.ndarray) -> np.ndarray:
+    """(T, 99) exp-map rows at 50 Hz -> (T, 32, 3) metres with the recorded global rotation and root position
+    (the row-vector convention of ``tcd.fk``: p_world = p_local R_root + root)."""
+    local = fk.expmap_to_xyz32(rows)
+    rot = fk.expmap_to_rotmat(rows[:, 3:6])
+    return (np.einsum("tjk,tkl->tjl", local, rot) + rows[:, None, 0:3]) / 1000.0
+
+
+def windows(src: H36MSource, action: str, per_action: int):
+    """(canonical 25 fps (W, 75, 32, 3), world 50 fps (W, 149, 32, 3)) metres, the protocol's windows."""
+    subs = [s for s in (1, 2) if src.has(5, action, s)]
+    raw = [src.raw(5, action, s) for s in (subs[0], subs[-1])]
+    canon = [fk.expmap_to_xyz32(r[::2]) / 1000.0 for r in raw]
+    worlds = [world_xyz32(r) for r in raw]
+    st1, st2 = find_indices_256(len(canon[0]), len(canon[1]), 75)
+    c, w = [], []
+    for a, b in zip(st1, st2):
+        for i, s in ((0, a), (1, b)):
+            c.append(canon[i][s:s + 75])
+            w.append(worlds[i][2 * s:2 * s + 149])
+    return np.stack(c[:per_action]), np.stack(w[:per_action])
+
+
+def mpjpe_mm(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
+    """(W, F, J, 3) -> (F,) mean over windows and joints, mm."""
+    return 1000.0 * np.linalg.norm(pred - gt, axis=-1).mean(axis=(0, 2))
+
+
+def at_horizons(err: np.ndarray, fps: float) -> dict:
+    return {f"{h:g}s": round(float(err[int(round(h * fps)) - 1]), 1) for h in HORIZONS_S}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", default=str(DEFAULT_H36M_DIR))
+    ap.add_argument("--model", default=None, help="model directory (default: the bundled model)")
+    ap.add_argument("--windows-per-action", type=int, default=8)
+    ap.add_argument("--samples", type=int, default=1)
+    ap.add_argument("--sampler", default="ddim")
+    ap.add_argument("--steps", type=int, default=10)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--json", type=Path, default=None)
+    args = ap.parse_args(argv)
+
+    model = tcd.load(args.model)
+    src = H36MSource(args.data)
+    kw = dict(num_samples=args.samples, sampler=args.sampler, num_inference_steps=args.steps, seed=args.seed)
+    rng = np.random.default_rng(args.seed)
+    acc: dict = {}
+    t0 = time.perf_counter()
+
+    def add(name, space, tcd_err, zv_err):
+        row = acc.setdefault((name, space), {"tcd": [], "zero_velocity": []})
+        row["tcd"].append(tcd_err)
+        row["zero_velocity"].append(zv_err)
+
+    for action in [a for a in ACTIONS if src.has(5, a, 1) or src.has(5, a, 2)]:
+        canon, world = windows(src, action, args.windows_per_action)
+        model_idx = list(layouts.MODEL_IDS)
+        # native: the protocol's input
+        obs, gt = canon[:, :50, model_idx], canon[:, 50:, model_idx]
+        f = model.forecast(obs, **kw)
+        zv = np.repeat(obs[:, -1:], 25, axis=1)
+        add("native h36m22 25fps", "canonical", mpjpe_mm(f.mean, gt), mpjpe_mm(zv, gt))
+        add("native h36m22 25fps (h36m17's joints)", "canonical",
+            mpjpe_mm(f.mean[:, :, _h17_in_model()], gt[:, :, _h17_in_model()]),
+            mpjpe_mm(zv[:, :, _h17_in_model()], gt[:, :, _h17_in_model()]))
+        future = world[:, 100::2]                                   # the 25 future frames at 25 fps (1 s)
+        for name in ("h36m32", "h36m17"):
+            lay = layouts.LAYOUTS[name]
+            to = list(lay.to32)
+            x = world[:, :99][:, :, to]                             # 50 fps, 99 frames (2 s)
+            keep32 = [to.index(j) for j in layouts.MODEL_IDS] if name == "h36m32" else H36M17_MODEL
+            gt_l = future[:, :, to]
+            for variant in ("", "occluded 20%", "0.8 s observed"):
+                xin = x.copy()
+                if variant.startswith("occluded"):
+                    hide = rng.random(xin.shape[:3]) < 0.2
+                    hide[:, -1, 0] = False                          # keep the last frame's pelvis
+                    xin[hide] = np.nan
+                if variant.startswith("0.8"):
+                    xin = xin[:, -40:]
+                f = model.forecast(xin, layout=name, fps=50, up="y", **kw)
+                pred = f.mean[:, 1::2]                               # the 25 fps frames of the 50 fps forecast
+                last = np.repeat(x[:, -1:], 25, axis=1)
+                label = f"{name} world 50fps" + (f", {variant}" if variant else "")
+                rel = lambda a: a - a[:, :, :1]                     # noqa: E731  pelvis (joint 0) subtracted
+                add(label, "root-relative", mpjpe_mm(rel(pred)[:, :, keep32], rel(gt_l)[:, :, keep32]),
+                    mpjpe_mm(rel(last)[:, :, keep32], rel(gt_l)[:, :, keep32]))
+                add(label, "world", mpjpe_mm(pred[:, :, keep32], gt_l[:, :, keep32]),
+                    mpjpe_mm(last[:, :, keep32], gt_l[:, :, keep32]))
+    rows = []
+    for (name, space), d in acc.items():
+        t, z = np.mean(d["tcd"], axis=0), np.mean(d["zero_velocity"], axis=0)
+        rows.append({"input": name, "space": space, "tcd_mm": at_horizons(t, 25.0),
+                     "zero_velocity_mm": at_horizons(z, 25.0),
+                     "ratio_1s": round(float(t[24] / z[24]), 3)})
+    report = {"protocol": {"subject": 5, "windows_per_action": args.windows_per_action, "sampler": args.sampler,
+                           "steps": args.steps, "samples": args.samples, "seed": args.seed,
+                           "model_sha256": model.sha256}, "seconds": round(time.perf_counter() - t0, 1), "rows": rows}
+    w = max(len(r["input"]) for r in rows)
+    print(f"{'input':<{w}}  {'space':<13}  tcd 0.5s / 1s   zero-vel 0.5s / 1s   tcd/zv at 1s")
+    for r in rows:
+        t, z = r["tcd_mm"], r["zero_velocity_mm"]
+        print(f"{r['input']:<{w}}  {r['space']:<13}  {t['0.5s']:6.1f} / {t['1s']:6.1f}   "
+              f"{z['0.5s']:6.1f} / {z['1s']:6.1f}        {r['ratio_1s']:.3f}")
+    if args.json:
+        args.json.write_text(json.dumps(report, indent=1) + "\n")
+    return 0
+
+
+def _h17_in_model() -> list:
+    """Positions, among the model's 22 joints, of the joints h36m17 has."""
+    ids = [layouts.LAYOUTS["h36m17"].to32[i] for i in H36M17_MODEL]
+    return [layouts.MODEL_IDS.index(j) for j in ids]
+
+
+if __name__ == "__main__":
+    sys.exit(main())
