@@ -2,6 +2,7 @@
 what was expected and what was received."""
 from __future__ import annotations
 
+import math
 import numbers
 from typing import Any, Optional, Sequence, Tuple
 
@@ -62,6 +63,14 @@ def real(argument: str, value: Any) -> float:
     """A real number (not bool), as a float (its range is the engine's to check)."""
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (numbers.Real, np.floating, np.integer)):
         raise fail(argument, "a number", f"{value!r} ({type(value).__name__})")
+    return float(value)
+
+
+def frame_rate(value: Any) -> float:
+    """A positive, finite frame rate (frames per second), as a float; an InvalidInputError naming ``fps``."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (numbers.Real, np.floating, np.integer)) \
+            or not math.isfinite(float(value)) or float(value) <= 0:
+        raise fail("fps", "a positive, finite frame rate (frames per second)", repr(value))
     return float(value)
 
 

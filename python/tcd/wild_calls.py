@@ -18,12 +18,7 @@ __all__ = ["forecast", "repair"]
 
 
 def _fps(value: Any, model_fps: float) -> float:
-    if value is None:
-        return model_fps
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
-            or not math.isfinite(float(value)) or float(value) <= 0:
-        raise _checks.fail("fps", "a positive, finite frame rate (frames per second)", repr(value))
-    return float(value)
+    return model_fps if value is None else _checks.frame_rate(value)
 
 
 def _prepare(model: Any, obs: Any, mask: Any, layout: Any, fps: Any, up: Any, units: str, frames: int):

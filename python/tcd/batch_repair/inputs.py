@@ -4,13 +4,14 @@ from __future__ import annotations
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Dict, Optional, Sequence, Tuple
+from typing import Any, Dict, Optional, Sequence, Tuple
 
 import numpy as np
 
-from .. import fk
+from .. import fk, wild
 from ..exceptions import InvalidInputError
 from ..files import UnreadableFile, read_npz
+from ..layouts import get_layout
 from ..poses import UNIT_SCALE, validate_poses
 from .options import BadFile, PathLike
 
@@ -21,6 +22,20 @@ class Loaded:
     full_mask: np.ndarray  # (T, J, 3) bool, True = observed
     mask_out: np.ndarray   # what goes to the output's `mask`
     fps: float             # the input's frame rate
+    # another joint layout (tcd.wild): poses / full_mask above are the model-layout conversion, in the
+    # caller's units; these keep the caller's own poses and what brings the repair back to them
+    scene: Optional[wild.Scene] = None
+    original: Optional[np.ndarray] = None
+    original_mask: Optional[np.ndarray] = None
+
+    def back(self, repaired: np.ndarray, scale: float) -> np.ndarray:
+        """Model-layout repaired poses (T, 22, 3) in the caller's units -> the caller's layout, observed
+        entries bit for bit (identity for the model's own layout)."""
+        if self.scene is None:
+            return repaired
+        s = self.scene
+        y = wild.from_model(repaired[None].astype(np.float64) / scale, s, s.root, s.rot, own_frames=True)[0]
+        return np.where(self.original_mask, self.original, (y * scale).astype(self.original.dtype))
 
     @property
     def frames(self) -> int:
@@ -50,7 +65,8 @@ def _checked_poses(data: Dict[str, np.ndarray], num_joints: int, units: str) -> 
 
 
 def load_input(path: PathLike, num_joints: int, units: str = "m", fps: Optional[float] = None,
-               model_fps: Optional[float] = None, joint_index_32: Optional[Sequence[int]] = None) -> Loaded:
+               model_fps: Optional[float] = None, joint_index_32: Optional[Sequence[int]] = None,
+               layout: str = "h36m22", up: str = "y") -> Loaded:
     """Reads and checks one input file; raises :class:`BadFile` with the reason when it cannot be repaired."""
     path = Path(path)
     if not path.is_file():
@@ -75,12 +91,33 @@ def load_input(path: PathLike, num_joints: int, units: str = "m", fps: Optional[
         data = _read_npz(path)
         if "poses" not in data:
             raise BadFile(f"no `poses` array (the archive holds: {', '.join(sorted(data)) or 'nothing'})")
-        poses, full = _checked_poses(data, num_joints, units)
+        lay = get_layout(layout)
+        poses, full = _checked_poses(data, lay.num_joints if not lay.canonical else num_joints, units)
         mask_out = data["mask"] if "mask" in data else full
         src_fps = fps if fps is not None else (model_fps if model_fps is not None else float("nan"))
+        if not lay.canonical:
+            return _converted(poses, full, mask_out, src_fps, lay, up, units)
     if not full.any():
         raise BadFile("every value is missing: nothing to condition the repair on")
     return Loaded(poses=poses, full_mask=full, mask_out=mask_out, fps=src_fps)
+
+
+def _converted(poses: np.ndarray, full: np.ndarray, mask_out: np.ndarray, fps: float, lay: Any, up: str,
+               units: str) -> Loaded:
+    """A file in another layout: converted to the model's convention for the windows (:mod:`tcd.wild`)."""
+    scale = UNIT_SCALE[units]
+    joint_seen = full.all(-1, keepdims=True)
+    x = np.where(joint_seen, poses, np.nan).astype(np.float64)[None] / scale
+    try:
+        y, scene = wild.to_model(x, lay, wild.up_vector(up), arg="poses")
+    except InvalidInputError as e:
+        raise BadFile(str(e).replace("Argument `poses`", "The file's `poses`", 1)) from None
+    seen = np.isfinite(y[0])
+    model_poses = np.where(seen, y[0] * scale, 0.0).astype(poses.dtype)
+    if not seen.any():
+        raise BadFile("no model joint is observed: nothing to condition the repair on")
+    return Loaded(poses=model_poses, full_mask=seen, mask_out=mask_out, fps=fps, scene=scene, original=poses,
+                  original_mask=full)
 
 
 def peek_frames(path: Path) -> int:

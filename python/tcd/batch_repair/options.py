@@ -2,18 +2,18 @@
 the provenance recorded in every output."""
 from __future__ import annotations
 
-import math
 import os
 from dataclasses import dataclass
 from typing import Any, Dict, Optional, Union
 
-import numpy as np
 
 from .. import _checks
 from ..poses import check_units
 from .._native import __version__
 from ..denoiser import Denoiser
+from ..layouts import get_layout
 from ..options import SamplerOptions
+from ..wild import up_vector
 
 PathLike = Union[str, "os.PathLike[str]"]
 
@@ -42,6 +42,8 @@ class RepairOptions:
     overlap: int = DEFAULT_OVERLAP
     lookahead: int = DEFAULT_LOOKAHEAD
     threads: Optional[int] = None
+    layout: str = "h36m22"          # the inputs' joint layout (tcd.layouts); others are converted (tcd.wild)
+    up: str = "y"                   # the inputs' vertical axis, for layouts other than the model's
 
     @staticmethod
     def make(model: Any, *, options: Optional[SamplerOptions] = None, sampler: Optional[Dict[str, Any]] = None,
@@ -53,10 +55,7 @@ class RepairOptions:
         seed = kw.get("seed", DEFAULT_SEED)
         fps = kw.get("fps")
         if fps is not None:
-            if isinstance(fps, bool) or not isinstance(fps, (int, float, np.integer, np.floating)) \
-                    or not math.isfinite(float(fps)) or float(fps) <= 0:
-                raise _checks.fail("fps", "a positive frame rate (frames per second)", repr(fps))
-            fps = float(fps)
+            fps = _checks.frame_rate(fps)
             if model.fps is None:
                 raise _checks.fail("fps", "None: the model does not record its frame rate, so inputs cannot be "
                                    "resampled", repr(fps))
@@ -70,7 +69,16 @@ class RepairOptions:
             fps=fps,
             overlap=overlap, lookahead=lookahead,
             threads=_checks.threads(kw.get("threads")),
+            layout=get_layout(kw.get("layout") or "h36m22").name,
+            up=_checked_up(kw.get("up", "y")),
         )
+
+
+def _checked_up(up: Any) -> str:
+    up_vector(up)                    # the check; the name is what the options and the provenance keep
+    if not isinstance(up, str):
+        raise _checks.fail("up", "'x', 'y' or 'z' (optionally signed) for tcd repair", repr(up))
+    return up
 
 
 def _denoiser(model: Any) -> Denoiser:
@@ -99,4 +107,6 @@ def provenance(model: Any, opts: RepairOptions, fps: float) -> Dict[str, Any]:
         "window": model.obs_len,
         "overlap": opts.overlap,
         "lookahead": opts.lookahead,
+        "layout": opts.layout,
+        "up": opts.up,
     }

@@ -108,7 +108,8 @@ def run_tasks(model: Any, tasks: Iterable[Task], opts: RepairOptions, *, overwri
                 frames_cb(n)
                 continue
             try:
-                loaded = load_input(task.src, model.num_joints, opts.units, opts.fps, model.fps, joint_index)
+                loaded = load_input(task.src, model.num_joints, opts.units, opts.fps, model.fps, joint_index,
+                                    opts.layout, opts.up)
             except BadFile as e:
                 done(i, Outcome(task, "failed", str(e), seconds=time.perf_counter() - t0))
                 frames_cb(peek_frames(task.src))
@@ -155,7 +156,8 @@ def run_tasks(model: Any, tasks: Iterable[Task], opts: RepairOptions, *, overwri
 def repair_file(src: PathLike, dst: PathLike, model: Any = None, *, num_samples: int = 5,
                 options: Optional[SamplerOptions] = None, seed: Optional[int] = DEFAULT_SEED, units: str = "m",
                 fps: Optional[float] = None, overlap: int = DEFAULT_OVERLAP, lookahead: int = DEFAULT_LOOKAHEAD,
-                threads: Optional[int] = None, overwrite: bool = False, **sampler: Any) -> Dict[str, Any]:
+                threads: Optional[int] = None, overwrite: bool = False, layout: Optional[str] = None,
+                up: str = "y", **sampler: Any) -> Dict[str, Any]:
     """Repairs the pose sequence in ``src`` (an ``.npz`` with ``poses`` (T, J, 3), NaN = missing, and an
     optional ``mask``; or a Human3.6M exp-map ``.txt``) of any length T, and writes ``dst`` (an ``.npz``
     with ``poses``, ``mask`` and ``provenance``) atomically. See :mod:`tcd.batch_repair` for the windowing,
@@ -170,6 +172,8 @@ def repair_file(src: PathLike, dst: PathLike, model: Any = None, *, num_samples:
             them again seeing the frames after them.
         seed: the noise seed (default 0): the same seed gives the same output.
         units: ``"m"`` or ``"mm"``, the units of the poses (and of the output).
+        layout, up: poses in another joint layout (:mod:`tcd.layouts`), in world or camera coordinates with
+            ``up`` the vertical axis: converted to the model's convention and back (:mod:`tcd.wild`).
         options, ``**sampler``: the sampler (:class:`tcd.SamplerOptions`, or its fields as keywords).
         Others: as :meth:`tcd.TCD.repair`.
 
@@ -181,7 +185,8 @@ def repair_file(src: PathLike, dst: PathLike, model: Any = None, *, num_samples:
 
     m = model if isinstance(model, TCD) else load(model)
     opts = RepairOptions.make(m, options=options, sampler=sampler, num_samples=num_samples, seed=seed,
-                              units=units, fps=fps, overlap=overlap, lookahead=lookahead, threads=threads)
+                              units=units, fps=fps, overlap=overlap, lookahead=lookahead, threads=threads,
+                              layout=layout, up=up)
     s, d = Path(src), Path(dst)
     if same_path(s, d):
         raise InvalidInputError(f"The output {d} is the input {s}: an input is never overwritten in place.", "dst")

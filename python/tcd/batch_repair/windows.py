@@ -125,4 +125,4 @@ class FileJob:
             y = _resample_backward(y, t, ld.fps, float(self.model_fps))
         dtype = ld.poses.dtype
         rep = (y.reshape(t, j, 3) * self.scale).astype(dtype) if self.scale != 1.0 else y.reshape(t, j, 3).astype(dtype)
-        return np.where(ld.full_mask, ld.poses, rep)
+        return ld.back(np.where(ld.full_mask, ld.poses, rep), self.scale)

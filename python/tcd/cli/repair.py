@@ -7,6 +7,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from ..layouts import LAYOUTS
 from ..poses import UNIT_SCALE
 from .._native import __version__
 from ..batch_repair.inputs import peek_frames
@@ -19,7 +20,8 @@ from .common import (EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK, OP
                      add_sampler_flags, flag_message, load_model, sampler_options)
 
 # RepairOptions.make's arguments by the flag that sets each, for the error messages (--jobs sets threads).
-FLAGS = {**OPTION_FLAGS, "threads": "--jobs", "fps": "--fps", "overlap": "--overlap", "lookahead": "--lookahead"}
+FLAGS = {**OPTION_FLAGS, "threads": "--jobs", "fps": "--fps", "overlap": "--overlap", "lookahead": "--lookahead",
+         "layout": "--layout", "up": "--up"}
 
 CLI_USAGE = ("tcd repair INPUT... -o OUTDIR [--model DIR] [--units m|mm] [--fps F] [--steps N] [--sampler ddpm|ddim|dpmpp2m] "
              "[--samples N] [--seed S] [--overlap C] [--lookahead L] [--jobs N] [--overwrite] [--report report.json] [--quiet]")
@@ -43,6 +45,11 @@ def add_parser(sub: Any) -> Any:
     rp.add_argument("--fps", type=float, default=None, metavar="F",
                     help="frame rate of the inputs (default: the model's; 50 for exp-map .txt); other rates are "
                     "resampled to the model's and back")
+    rp.add_argument("--layout", default=None, choices=tuple(LAYOUTS),
+                    help="joint layout of the inputs (default: the model's own, root-relative); with another "
+                    "layout, world or camera coordinates are accepted (see --up)")
+    rp.add_argument("--up", default="y", choices=("x", "y", "z", "-x", "-y", "-z"),
+                    help="the vertical axis of the inputs' coordinates (default y)")
     add_sampler_flags(rp, tuning=False)
     rp.add_argument("--samples", type=int, default=5, metavar="N", help="samples averaged per window (default 5)")
     rp.add_argument("--seed", type=int, default=DEFAULT_SEED, metavar="S",
@@ -90,7 +97,7 @@ def run(args: Any) -> int:
         model = load_model(args.model)
         opts = RepairOptions.make(model, options=sampler_options(args), num_samples=args.samples, seed=args.seed,
                                   units=args.units, fps=args.fps, overlap=args.overlap, lookahead=args.lookahead,
-                                  threads=args.jobs)
+                                  threads=args.jobs, layout=args.layout, up=args.up)
     except _BadInput as e:
         return bad(str(e))
     except InvalidInputError as e:
