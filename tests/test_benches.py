@@ -169,5 +169,7 @@ def test_in_the_wild_smoke(tiny_model_dir, tmp_path):
     assert bench.main(["--data", str(H36M_DIR), "--model", str(tiny_model_dir), "--windows-per-action", "1",
                        "--steps", "1", "--json", str(out)]) == 0
     rows = json.loads(out.read_text())["rows"]
-    assert len(rows) == 14 and {r["space"] for r in rows} == {"canonical", "root-relative", "world"}
+    cmu = bench.DEFAULT_CMU.is_file()
+    assert len(rows) == 14 + 4 * cmu and {r["space"] for r in rows} == {"canonical", "root-relative", "world"}
+    assert any(r["input"].startswith("CMU h36m32 world 120fps") for r in rows) == cmu
     assert all(r["tcd_mm"]["1s"] > 0 and r["zero_velocity_mm"]["1s"] > 0 for r in rows)
