@@ -16,6 +16,9 @@ in world coordinates (the recorded root trajectory and rotation) as ``h36m32`` j
 1 s to forecast, every 1 s of each take, at most ``--windows-per-action`` per action. Only the wild paths
 (there is no native CMU input), errors at the caller's frames.
 
+AMASS (``--amass``): the sample takes in world coordinates (z up, root orientation and translation kept) as
+``smpl24`` joints at 120 fps, 2 s (and 0.8 s) observed, 1 s forecast, windows every second.
+
 Errors (mm, mean per-joint position error of the mean forecast, at 0.5 s and 1 s) over the joints the layout
 shares with the model (22 for h36m32, 14 for h36m17), each beside Zero-Velocity (the last observed pose held)
 in the same space: the native path in its canonical space (its ground truth has the future frames' own root
@@ -42,6 +45,23 @@ from training.data.h36m import DEFAULT_H36M_DIR, H36MSource, find_indices_256, A
 
 CMU_FPS = 120.0
 DEFAULT_CMU = ROOT.parent / "shared" / "data" / "cmu" / "cmu_expmap_train.npz"
+DEFAULT_AMASS = ROOT.parent / "shared" / "data" / "amass_samples"
+SMPL24_MODEL = [i for i, t in enumerate(layouts.LAYOUTS["smpl24"].to32) if t in layouts.MODEL_IDS]
+
+
+def amass_world_smpl24(path: Path, skeleton: Path):
+    """An AMASS take -> ((T, 24, 3) SMPL joints in world coordinates (z up, metres), frame rate): forward
+    kinematics on the mean SMPL-H skeleton with the recorded root orientation and translation; SMPL's hand
+    joints are SMPL-H's index-finger bases (joints 22 and 37)."""
+    from training.data.amass import load_smpl_skeleton
+    from training.data.kinematics import fk_axis_angle
+    rest, parents = load_smpl_skeleton(skeleton)
+    with np.load(path) as z:
+        poses = np.asarray(z["poses"], dtype=np.float64).reshape(len(z["poses"]), -1, 3)
+        trans = np.asarray(z["trans"], dtype=np.float64)
+        rate = float(z["mocap_framerate"])
+    joints = fk_axis_angle(poses, rest, parents) - rest[0] + trans[:, None, :]
+    return joints[:, list(range(22)) + [22, 37]], rate
 
 
 def cmu_world_h36m32(rows: np.ndarray) -> np.ndarray:
@@ -109,6 +129,7 @@ def main(argv=None) -> int:
     ap.add_argument("--steps", type=int, default=10)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--cmu", default=str(DEFAULT_CMU), help="the CMU exp-map takes (skipped when absent)")
+    ap.add_argument("--amass", default=str(DEFAULT_AMASS), help="AMASS takes and smpl_skeleton.npz (skipped when absent)")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
 
@@ -184,6 +205,25 @@ def main(argv=None) -> int:
                         mpjpe_mm(rel(last)[:, :, model_idx], rel(gt)[:, :, model_idx]))
                     add(label, "world", mpjpe_mm(f.mean[:, :, model_idx], gt[:, :, model_idx]),
                         mpjpe_mm(last[:, :, model_idx], gt[:, :, model_idx]))
+    skeleton = Path(args.amass) / "smpl_skeleton.npz"
+    if skeleton.is_file():
+        for path in sorted(Path(args.amass).glob("*.npz")):
+            if path == skeleton:
+                continue
+            world, rate = amass_world_smpl24(path, skeleton)
+            second = int(round(rate))
+            for observed, label in ((2 * second, "AMASS smpl24 world"), (int(0.8 * second), "AMASS smpl24 world, 0.8 s observed")):
+                label = f"{label.split(',')[0]} {rate:.0f}fps" + (label[len('AMASS smpl24 world'):])
+                for start in range(0, len(world) - observed - second, second):
+                    seq = world[None, start:start + observed + second + 1]
+                    x, gt = seq[:, :observed + 1], seq[:, observed + 1:]
+                    f = model.forecast(x, layout="smpl24", fps=rate, up="z", **kw)
+                    last = np.repeat(x[:, -1:], gt.shape[1], axis=1)
+                    rel = lambda a: a - a[:, :, :1]                 # noqa: E731
+                    add(label, "root-relative", mpjpe_mm(rel(f.mean)[:, :, SMPL24_MODEL], rel(gt)[:, :, SMPL24_MODEL]),
+                        mpjpe_mm(rel(last)[:, :, SMPL24_MODEL], rel(gt)[:, :, SMPL24_MODEL]))
+                    add(label, "world", mpjpe_mm(f.mean[:, :, SMPL24_MODEL], gt[:, :, SMPL24_MODEL]),
+                        mpjpe_mm(last[:, :, SMPL24_MODEL], gt[:, :, SMPL24_MODEL]))
     rows = []
     for (name, space), d in acc.items():
         t, z = np.mean(d["tcd"], axis=0), np.mean(d["zero_velocity"], axis=0)
