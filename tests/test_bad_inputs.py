@@ -48,6 +48,8 @@ def make_input(kind: str, d):
         return npz(p, poses=np.array([good, "x"], dtype=object))
     if kind == "no_poses":
         return npz(p, pose=good)
+    if kind == "amass":                       # SMPL-H parameters, as AMASS distributes them
+        return npz(p, poses=np.zeros((50, 156)), trans=np.zeros((50, 3)), mocap_framerate=np.array(120.0))
     if kind == "directory":
         (d / "dir.npz").mkdir()
         return d / "dir.npz"
@@ -69,7 +71,8 @@ FORECAST_CASES = [
     ("binary", [], 2, "it is a binary file, not an .npz archive"),
     ("empty", [], 2, "it is empty"),
     ("pickled", [], 2, "object (pickled) arrays, which are never loaded"),
-    ("no_poses", [], 2, "has no `poses` array (it has: pose)"),
+    ("no_poses", [], 2, "it is an .npz archive without a `poses` array (it holds: pose)"),
+    ("amass", [], 2, "it is an AMASS file: its `poses` are SMPL-H joint rotations"),
     ("directory", [], 2, "it is a directory, not an .npz file"),
     ("missing", [], 2, "does not exist"),
     ("millimetres", [], 2, "pass units='mm'. (`units` is --units.)"),
@@ -137,6 +140,7 @@ def test_repair_bad_options(tiny_model_dir, tmp_path, capsys, extra, fragment):
 
 @pytest.mark.parametrize("kind,fragment", [
     ("npy_named_npz", "a single .npy array"),
+    ("amass", "an AMASS file"),
     ("text", "a text file"),
     ("pickled", "object (pickled) arrays"),
     ("millimetres", "pass units='mm'"),

@@ -56,6 +56,20 @@ def read_npz(path: Path) -> Dict[str, np.ndarray]:
         raise UnreadableFile(f"not a valid .npz archive ({type(e).__name__}: {e})") from None
 
 
+def read_pose_npz(path: Path) -> Dict[str, np.ndarray]:
+    """:func:`read_npz` of an input of poses: it must hold ``poses`` as joint positions. An AMASS file (SMPL-H
+    parameters under the same name) or an archive without ``poses`` is an :class:`UnreadableFile` saying so."""
+    data = read_npz(path)
+    if "poses" not in data:
+        raise UnreadableFile(f"an .npz archive without a `poses` array (it holds: {', '.join(sorted(data)) or 'nothing'})")
+    if data["poses"].ndim == 2 and {"trans", "mocap_framerate"} <= set(data):
+        raise UnreadableFile(
+            "an AMASS file: its `poses` are SMPL-H joint rotations (axis-angle), not joint positions; compute the "
+            "joints with the SMPL-H body model (the smplx package) and pass them as `poses` (T, 24, 3) with "
+            "layout smpl24")
+    return data
+
+
 def _exists(dst: Path) -> FileExistsError:
     return FileExistsError(errno.EEXIST, os.strerror(errno.EEXIST), str(dst))  # as open(dst, "x") raises
 

@@ -10,7 +10,7 @@ import numpy as np
 
 from .. import fk, wild
 from ..exceptions import InvalidInputError
-from ..files import UnreadableFile, read_npz
+from ..files import UnreadableFile, read_pose_npz
 from ..layouts import get_layout
 from ..poses import UNIT_SCALE, validate_poses
 from .options import BadFile, PathLike
@@ -48,7 +48,7 @@ def is_expmap_txt(path: Path) -> bool:
 
 def _read_npz(path: Path) -> Dict[str, np.ndarray]:
     try:
-        return read_npz(path)
+        return read_pose_npz(path)
     except (UnreadableFile, OSError) as e:
         raise BadFile(f"unreadable: {e}") from None
 
@@ -89,8 +89,6 @@ def load_input(path: PathLike, num_joints: int, units: str = "m", fps: Optional[
         mask_out = full
     else:
         data = _read_npz(path)
-        if "poses" not in data:
-            raise BadFile(f"no `poses` array (the archive holds: {', '.join(sorted(data)) or 'nothing'})")
         lay = get_layout(layout)
         poses, full = _checked_poses(data, lay.num_joints if not lay.canonical else num_joints, units)
         mask_out = data["mask"] if "mask" in data else full

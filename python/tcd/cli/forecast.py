@@ -9,7 +9,7 @@ from typing import Any, Dict
 import numpy as np
 
 from ..exceptions import InvalidInputError
-from ..files import UnreadableFile, read_npz, write_npz_atomic
+from ..files import UnreadableFile, read_pose_npz, write_npz_atomic
 from ..layouts import LAYOUTS
 from ..poses import UNIT_SCALE
 from .common import (EXIT_OK, OPTION_FLAGS, _BadInput, add_model_flag, add_sampler_flags, flag_message, load_model,
@@ -47,7 +47,7 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
 
 def _read_npz(path: Path) -> Dict[str, np.ndarray]:
     try:
-        return read_npz(path)
+        return read_pose_npz(path)
     except FileNotFoundError:
         raise _BadInput(f"The input file {path} does not exist.") from None
     except UnreadableFile as e:
@@ -66,8 +66,6 @@ def run(args: argparse.Namespace) -> int:
         raise _BadInput(f"The output {out} is the input file: choose another output path (the input is never "
                         "overwritten, with or without --overwrite).")
     data = _read_npz(Path(args.input))
-    if "poses" not in data:
-        raise _BadInput(f"The input file {args.input} has no `poses` array (it has: {', '.join(sorted(data)) or 'nothing'}).")
     options = sampler_options(args)
     model = load_model(args.model)
     try:
