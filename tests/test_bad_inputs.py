@@ -83,7 +83,7 @@ FORECAST_CASES = [
     ("good", ["--threads", "0"], 2, "(`threads` is --threads.)"),
     ("good", ["--steps", "0"], 2, "--steps"),
     ("good", ["--sampler", "euler"], 2, "invalid choice: 'euler'"),
-    ("good", ["--units", "cm"], 2, "invalid choice: 'cm'"),
+    ("good", ["--units", "inch"], 2, "invalid choice: 'inch'"),
     ("good", ["--model", "/nonexistent/model"], 2, "does not exist"),
 ]
 

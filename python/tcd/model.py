@@ -210,7 +210,7 @@ class TCD:
                 ``"dpmpp2m"``), ``num_inference_steps``, ``eta``, ``timestep_spacing``.
             seed: the noise seed (an integer in [0, 2**64)); ``None`` draws one from ``os.urandom``
                 (recorded in ``Forecast.seed``). Results do not depend on the thread count or the batch.
-            units: ``"m"`` (default) or ``"mm"``: the units of ``obs`` and of every output.
+            units: ``"m"`` (default), ``"cm"`` or ``"mm"``: the units of ``obs`` and of every output.
             threads: worker threads (``None``: the value given to :func:`tcd.load`, else all cores).
             progress: ``True`` shows a tqdm bar on stderr; a callable ``f(done, total)`` gets the count of
                 denoiser forwards (:mod:`tcd.progress`). Ctrl-C stops the call (KeyboardInterrupt) within

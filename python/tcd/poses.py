@@ -8,6 +8,7 @@ engine's own checks (sizes against the model, sampler settings) are the callers'
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any, Optional, Tuple
 
@@ -19,7 +20,7 @@ from .exceptions import InvalidInputError
 __all__ = ["PLAUSIBLE_SPREAD_M", "Poses", "UNIT_SCALE", "check_units", "spread_m", "validate_poses"]
 
 #: The units a pose array may be in, each with what divides it into metres (the models' unit).
-UNIT_SCALE = {"m": 1.0, "mm": 1000.0}
+UNIT_SCALE = {"m": 1.0, "cm": 100.0, "mm": 1000.0}
 
 
 def check_units(value: Any) -> str:
@@ -65,9 +66,13 @@ def _check_plausible(values: np.ndarray, observed: np.ndarray, units: str, name:
     low, high = PLAUSIBLE_SPREAD_M
     if spread is None or spread == 0.0 or low <= spread <= high:   # 0: every joint at one point, no scale
         return
-    likely = [u for u in UNIT_SCALE if low <= spread * UNIT_SCALE[units] / UNIT_SCALE[u] <= high]
-    hint = (f"the values look like {'millimetres' if likely[0] == 'mm' else 'metres'}: pass units={likely[0]!r}"
-            if likely else "no supported unit fits: are these poses?")
+    # the unit in which the person measures closest to a typical 0.3 m
+    fits = {u: spread * UNIT_SCALE[units] / UNIT_SCALE[u] for u in UNIT_SCALE}
+    fits = {u: v for u, v in fits.items() if low <= v <= high}
+    likely = min(fits, key=lambda u: abs(math.log(fits[u] / 0.3))) if fits else None
+    words = {"m": "metres", "cm": "centimetres", "mm": "millimetres"}
+    hint = (f"the values look like {words[likely]}: pass units={likely!r}" if likely
+            else "no supported unit fits: are these poses?")
     subject = (f"Argument `units` must be the unit of `{name}` ({units!r}), but" if owner == "Argument"
                else f"{owner} `{name}` is not in the declared units ({units!r}):")
     raise InvalidInputError(

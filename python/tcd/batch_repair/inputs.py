@@ -71,6 +71,11 @@ def load_input(path: PathLike, num_joints: int, units: str = "m", fps: Optional[
     path = Path(path)
     if not path.is_file():
         raise BadFile("unreadable: not a file" if path.exists() else "unreadable: the file does not exist")
+    if path.suffix.lower() == ".bvh":
+        poses32, rate = _bvh_poses(path)
+        poses, full = _checked_poses({"poses": poses32}, 32, units)
+        src_fps = fps if fps is not None else rate
+        return _converted(poses, full, full, src_fps, get_layout("h36m32"), up, units)
     if is_expmap_txt(path):
         if num_joints != 22 or (joint_index_32 is not None and list(joint_index_32) != fk.joints_used()):
             raise BadFile("a Human3.6M exp-map .txt file, but the model does not use the Human3.6M 22-joint layout")
@@ -116,6 +121,18 @@ def _converted(poses: np.ndarray, full: np.ndarray, mask_out: np.ndarray, fps: f
         raise BadFile("no model joint is observed: nothing to condition the repair on")
     return Loaded(poses=model_poses, full_mask=seen, mask_out=mask_out, fps=fps, scene=scene, original=poses,
                   original_mask=full)
+
+
+def _bvh_poses(path: Path) -> Tuple[np.ndarray, float]:
+    """A BVH file as (T, 32, 3) h36m32 poses (NaN where it has no such joint) and its frame rate."""
+    from .. import bvh
+    try:
+        pos, names, parents, rate = bvh.read_bvh(path)
+    except UnreadableFile as e:
+        raise BadFile(f"unreadable: {e}") from None
+    except ImportError as e:
+        raise BadFile(str(e)) from None
+    return bvh.to_h36m32(pos, names, parents), rate
 
 
 def peek_frames(path: Path) -> int:

@@ -171,7 +171,7 @@ def repair_file(src: PathLike, dst: PathLike, model: Any = None, *, num_samples:
         lookahead: trailing frames of each window (but the last) left to the next window, which generates
             them again seeing the frames after them.
         seed: the noise seed (default 0): the same seed gives the same output.
-        units: ``"m"`` or ``"mm"``, the units of the poses (and of the output).
+        units: ``"m"``, ``"cm"`` or ``"mm"``, the units of the poses (and of the output).
         layout, up: poses in another joint layout (:mod:`tcd.layouts`), in world or camera coordinates with
             ``up`` the vertical axis: converted to the model's convention and back (:mod:`tcd.wild`).
         options, ``**sampler``: the sampler (:class:`tcd.SamplerOptions`, or its fields as keywords).

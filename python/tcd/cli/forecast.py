@@ -24,14 +24,14 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
     p = sub.add_parser("forecast", help="forecast the poses of an .npz file",
                        description="Forecast the frames after the observed poses of IN.npz.")
     p.add_argument("input", metavar="IN.npz", help="input: `poses` (T, J, 3) or (B, T, J, 3), NaN = missing; "
-                   "optional `mask` (1 = observed)")
+                   "optional `mask` (1 = observed); or a .bvh file (read as h36m32 joints, at its frame rate)")
     p.add_argument("-o", "--output", metavar="OUT.npz", required=True,
                    help="output: mean, samples, repaired, seed, times (s after the last observed frame)")
     add_model_flag(p)
     p.add_argument("--samples", type=int, default=5, metavar="N", help="samples per sequence (default 5)")
     add_sampler_flags(p)
     p.add_argument("--seed", type=int, default=None, help="noise seed (default: random, recorded in OUT)")
-    p.add_argument("--units", default="m", choices=tuple(UNIT_SCALE), help="units of the poses: m (default) or mm")
+    p.add_argument("--units", default="m", choices=tuple(UNIT_SCALE), help="units of the poses: m (default), cm or mm")
     p.add_argument("--layout", default=None, choices=tuple(LAYOUTS),
                    help="joint layout of the poses (default: the model's own, root-relative); with another "
                    "layout, world or camera coordinates are accepted (see --up)")
@@ -54,6 +54,17 @@ def _read_npz(path: Path) -> Dict[str, np.ndarray]:
         raise _BadInput(f"The input file {path} cannot be read: it is {e}.") from None
 
 
+def _read_bvh(path: Path):
+    from .. import bvh
+    if not path.is_file():
+        raise _BadInput(f"The input file {path} does not exist.")
+    try:
+        pos, names, parents, rate = bvh.read_bvh(path)
+    except (UnreadableFile, ImportError) as e:
+        raise _BadInput(f"The input file {path} cannot be read: {e}.") from None
+    return {"poses": bvh.to_h36m32(pos, names, parents)}, rate
+
+
 def run(args: argparse.Namespace) -> int:
     out = Path(args.output)
     if out.exists() and not args.overwrite:
@@ -65,14 +76,20 @@ def run(args: argparse.Namespace) -> int:
     if out.exists() and Path(args.input).exists() and out.samefile(args.input):
         raise _BadInput(f"The output {out} is the input file: choose another output path (the input is never "
                         "overwritten, with or without --overwrite).")
-    data = _read_npz(Path(args.input))
+    layout, fps = args.layout, args.fps
+    if Path(args.input).suffix.lower() == ".bvh":
+        data, file_fps = _read_bvh(Path(args.input))
+        if layout not in (None, "h36m32"):
+            raise _BadInput(f"--layout {layout}: a BVH file is read as h36m32 joints (matched by name).")
+        layout, fps = "h36m32", fps if fps is not None else file_fps
+    else:
+        data = _read_npz(Path(args.input))
     options = sampler_options(args)
     model = load_model(args.model)
     try:
         f = model.forecast(data["poses"], data.get("mask"), num_samples=args.samples, options=options,
                            seed=args.seed, units=args.units, threads=args.threads,
-                           progress=not args.quiet and sys.stderr.isatty(), layout=args.layout, fps=args.fps,
-                           up=args.up)
+                           progress=not args.quiet and sys.stderr.isatty(), layout=layout, fps=fps, up=args.up)
     except InvalidInputError as e:
         raise _BadInput(flag_message(e, FLAGS)) from None
     with writing(out):

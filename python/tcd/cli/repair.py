@@ -23,7 +23,7 @@ from .common import (EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK, OP
 FLAGS = {**OPTION_FLAGS, "threads": "--jobs", "fps": "--fps", "overlap": "--overlap", "lookahead": "--lookahead",
          "layout": "--layout", "up": "--up"}
 
-CLI_USAGE = ("tcd repair INPUT... -o OUTDIR [--model DIR] [--units m|mm] [--fps F] [--steps N] [--sampler ddpm|ddim|dpmpp2m] "
+CLI_USAGE = ("tcd repair INPUT... -o OUTDIR [--model DIR] [--units m|cm|mm] [--fps F] [--steps N] [--sampler ddpm|ddim|dpmpp2m] "
              "[--samples N] [--seed S] [--overlap C] [--lookahead L] [--jobs N] [--overwrite] [--report report.json] [--quiet]")
 
 
@@ -41,7 +41,7 @@ def add_parser(sub: Any) -> Any:
     rp.add_argument("-o", "--output", metavar="OUTDIR", required=True, help="output directory (created if needed)")
     add_model_flag(rp)
     rp.add_argument("--units", default="m", choices=tuple(UNIT_SCALE),
-                    help="units of the poses: m (default) or mm (outputs in the same units)")
+                    help="units of the poses: m (default), cm or mm (outputs in the same units)")
     rp.add_argument("--fps", type=float, default=None, metavar="F",
                     help="frame rate of the inputs (default: the model's; 50 for exp-map .txt); other rates are "
                     "resampled to the model's and back")
