@@ -201,7 +201,7 @@ def test_bad_input_exit_code_2(tiny_model_dir, npz, tmp_path, capsys, case):
 
 
 @pytest.mark.parametrize("command, flag, value", [
-    ("forecast", "--sampler", "euler"), ("forecast", "--units", "cm"), ("forecast", "--spacing", "middle"),
+    ("forecast", "--sampler", "euler"), ("forecast", "--units", "inch"), ("forecast", "--spacing", "middle"),
     ("demo", "--sampler", "euler"),
 ])
 def test_bad_choice_is_a_usage_error(tiny_model_dir, npz, tmp_path, capsys, command, flag, value):

@@ -103,7 +103,7 @@ def test_all_missing_is_an_error(tiny_model, obs):
     ("sampler", {"sampler": "euler"}),
     ("sampler", {"sampler": None}),
     ("timestep_spacing", {"timestep_spacing": "middle"}),
-    ("units", {"units": "cm"}),
+    ("units", {"units": "inch"}),
     ("eta", {"eta": -0.1}),
     ("eta", {"eta": 1.5}),
     ("eta", {"eta": math.nan}),

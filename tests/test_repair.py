@@ -286,7 +286,7 @@ def test_bad_arguments_exit_2(tiny_model_dir, tmp_path, capsys):
                        (["--lookahead", "45"], "--lookahead")):
         code, _, err = run([src, "-o", tmp_path / "o", "--model", tiny_model_dir, *extra], capsys)
         assert code == 2 and why in err, (extra, err)
-    for flag, value in (("--units", "cm"), ("--sampler", "euler")):  # choices: argparse's usage error
+    for flag, value in (("--units", "inch"), ("--sampler", "euler")):  # choices: argparse's usage error
         with pytest.raises(SystemExit) as ei:
             run([src, "-o", tmp_path / "o", "--model", tiny_model_dir, flag, value], capsys)
         err = capsys.readouterr().err
