@@ -8,7 +8,9 @@ Windows: the S5 test protocol's first ``--windows-per-action`` windows per actio
 order). The native path gets the protocol's input (22 model joints, root and global rotation removed per
 frame, 25 fps, 50 frames). The wild paths get the same motion as the sensor would: the 32 (``h36m32``) or 17
 (``h36m17``) joints with the recorded global rotation and root position, at 50 fps (99 frames), ``up="y"``;
-variants hide 20 % of the joints per frame (seeded) or keep only the last 0.8 s.
+variants hide joints with the paper's occlusion patterns (``random_leg_arm``: 40 % of the frames lose a leg
+or an arm; ``consecutive_frames``: 20 % of the frames in one block; ``training/masks.py``, seeded) or keep only
+the last 0.8 s.
 
 CMU (``--cmu``, a different lab, subjects and proportions): the training-split takes of the LTD benchmark
 in world coordinates (the recorded root trajectory and rotation) as ``h36m32`` joints (the correspondence of
@@ -42,6 +44,9 @@ sys.path.insert(0, str(ROOT))
 import tcd  # noqa: E402
 from tcd import fk, layouts  # noqa: E402
 from training.data.h36m import DEFAULT_H36M_DIR, H36MSource, find_indices_256, ACTIONS  # noqa: E402
+from training.masks import make_mask  # noqa: E402
+
+PAPER_PATTERNS = ("random_leg_arm", "consecutive_frames")
 
 CMU_FPS = 120.0
 DEFAULT_CMU = ROOT.parent / "shared" / "data" / "cmu" / "cmu_expmap_train.npz"
@@ -163,12 +168,12 @@ def main(argv=None) -> int:
             x = world[:, :99][:, :, to]                             # 50 fps, 99 frames (2 s)
             keep32 = [to.index(j) for j in layouts.MODEL_IDS] if name == "h36m32" else H36M17_MODEL
             gt_l = future[:, :, to]
-            for variant in ("", "occluded 20%", "0.8 s observed"):
+            for variant in ("", "random_leg_arm", "consecutive_frames", "0.8 s observed"):
                 xin = x.copy()
-                if variant.startswith("occluded"):
-                    hide = rng.random(xin.shape[:3]) < 0.2
-                    hide[:, -1, 0] = False                          # keep the last frame's pelvis
-                    xin[hide] = np.nan
+                if variant in PAPER_PATTERNS:                       # the paper's occlusions (training/masks.py)
+                    for i in range(len(xin)):
+                        seen = make_mask(variant, xin.shape[1], xin.shape[1], rng, joints32=to) > 0
+                        xin[i][~seen] = np.nan
                 if variant.startswith("0.8"):
                     xin = xin[:, -40:]
                 f = model.forecast(xin, layout=name, fps=50, up="y", **kw)
