@@ -19,11 +19,13 @@ in world coordinates (the recorded root trajectory and rotation) as ``h36m32`` j
 (there is no native CMU input), errors at the caller's frames.
 
 AMASS (``--amass``): the sample takes in world coordinates (z up, root orientation and translation kept) as
-``smpl24`` joints at 120 fps, 2 s (and 0.8 s) observed, 1 s forecast, windows every second.
+``smpl24`` joints at 120 fps, 2 s observed, 1 s forecast, windows every second. Every source runs in every
+variant (as given, the two occlusion patterns, the last 0.8 s).
 
 Errors (mm, mean per-joint position error of the mean forecast, at 0.5 s and 1 s) over the joints the layout
-shares with the model (22 for h36m32, 14 for h36m17), each beside Zero-Velocity (the last observed pose held)
-in the same space: the native path in its canonical space (its ground truth has the future frames' own root
+shares with the model (22 for h36m32, 14 for h36m17, 19 for smpl24), each beside Zero-Velocity (the last
+observed pose held) in the same space, and the error of the root alone (the extrapolated trajectory against
+the root held where it was): the native path in its canonical space (its ground truth has the future frames' own root
 rotation removed: information a forecast from the wild does not have); the wild paths root-relative (each
 frame's pelvis subtracted, the heading kept) and in world coordinates. Only the repository's public API is
 used. The bundled model is reduced: the numbers measure the conversions, not the paper's accuracy.
@@ -150,9 +152,33 @@ def main(argv=None) -> int:
         row["tcd"].append(tcd_err)
         row["zero_velocity"].append(zv_err)
 
+    def wild(label, x, gt, layout, fps, up, joints, every=1):
+        """Runs the wild path on x (B, T, J, 3) in every variant; ``gt`` (B, F, J, 3) at the forecast's
+        frames ``every``-th; errors over ``joints`` (root-relative, world) and of the root (joint 0)."""
+        to = [t if t is not None else 0 for t in layouts.LAYOUTS[layout].to32]
+        short = int(round(0.8 * fps))
+        for variant in ("", *PAPER_PATTERNS, "0.8 s observed"):
+            xin = x.copy()
+            if variant in PAPER_PATTERNS:                           # the paper's occlusions (training/masks.py)
+                for i in range(len(xin)):
+                    seen = make_mask(variant, xin.shape[1], xin.shape[1], rng, joints32=to) > 0
+                    xin[i][~seen] = np.nan
+            if variant.startswith("0.8"):
+                xin = xin[:, -short:]
+            f = model.forecast(xin, layout=layout, fps=fps, up=up, **kw)
+            pred = f.mean[:, every - 1::every][:, :gt.shape[1]]
+            last = np.repeat(x[:, -1:], gt.shape[1], axis=1)
+            name = label + (f", {variant}" if variant else "")
+            rel = lambda a: a - a[:, :, :1]                         # noqa: E731  the pelvis (joint 0) subtracted
+            add(name, "root-relative", mpjpe_mm(rel(pred)[:, :, joints], rel(gt)[:, :, joints]),
+                mpjpe_mm(rel(last)[:, :, joints], rel(gt)[:, :, joints]))
+            add(name, "world", mpjpe_mm(pred[:, :, joints], gt[:, :, joints]),
+                mpjpe_mm(last[:, :, joints], gt[:, :, joints]))
+            add(name, "root", mpjpe_mm(pred[:, :, :1], gt[:, :, :1]), mpjpe_mm(last[:, :, :1], gt[:, :, :1]))
+
+    model_idx = list(layouts.MODEL_IDS)
     for action in [a for a in ACTIONS if src.has(5, a, 1) or src.has(5, a, 2)]:
         canon, world = windows(src, action, args.windows_per_action)
-        model_idx = list(layouts.MODEL_IDS)
         # native: the protocol's input
         obs, gt = canon[:, :50, model_idx], canon[:, 50:, model_idx]
         f = model.forecast(obs, **kw)
@@ -162,54 +188,25 @@ def main(argv=None) -> int:
             mpjpe_mm(f.mean[:, :, _h17_in_model()], gt[:, :, _h17_in_model()]),
             mpjpe_mm(zv[:, :, _h17_in_model()], gt[:, :, _h17_in_model()]))
         future = world[:, 100::2]                                   # the 25 future frames at 25 fps (1 s)
-        for name in ("h36m32", "h36m17"):
-            lay = layouts.LAYOUTS[name]
-            to = list(lay.to32)
-            x = world[:, :99][:, :, to]                             # 50 fps, 99 frames (2 s)
-            keep32 = [to.index(j) for j in layouts.MODEL_IDS] if name == "h36m32" else H36M17_MODEL
-            gt_l = future[:, :, to]
-            for variant in ("", "random_leg_arm", "consecutive_frames", "0.8 s observed"):
-                xin = x.copy()
-                if variant in PAPER_PATTERNS:                       # the paper's occlusions (training/masks.py)
-                    for i in range(len(xin)):
-                        seen = make_mask(variant, xin.shape[1], xin.shape[1], rng, joints32=to) > 0
-                        xin[i][~seen] = np.nan
-                if variant.startswith("0.8"):
-                    xin = xin[:, -40:]
-                f = model.forecast(xin, layout=name, fps=50, up="y", **kw)
-                pred = f.mean[:, 1::2]                               # the 25 fps frames of the 50 fps forecast
-                last = np.repeat(x[:, -1:], 25, axis=1)
-                label = f"{name} world 50fps" + (f", {variant}" if variant else "")
-                rel = lambda a: a - a[:, :, :1]                     # noqa: E731  pelvis (joint 0) subtracted
-                add(label, "root-relative", mpjpe_mm(rel(pred)[:, :, keep32], rel(gt_l)[:, :, keep32]),
-                    mpjpe_mm(rel(last)[:, :, keep32], rel(gt_l)[:, :, keep32]))
-                add(label, "world", mpjpe_mm(pred[:, :, keep32], gt_l[:, :, keep32]),
-                    mpjpe_mm(last[:, :, keep32], gt_l[:, :, keep32]))
+        for name, joints in (("h36m32", model_idx), ("h36m17", H36M17_MODEL)):
+            to = list(layouts.LAYOUTS[name].to32)                   # 50 fps, 99 frames (2 s); truth at 25 fps
+            wild(f"H36M {name} world 50fps", world[:, :99][:, :, to], future[:, :, to], name, 50.0, "y", joints,
+                 every=2)
     if args.cmu is not None and Path(args.cmu).is_file():
         from training.data.cmu import load_cmu_npz
-        takes = load_cmu_npz(args.cmu)
         per_action: dict = {}
-        model_idx = list(layouts.MODEL_IDS)
-        for key, rows_ in takes.items():
+        for key, take in load_cmu_npz(args.cmu).items():
             action = key.split("/")[0]
-            world = cmu_world_h36m32(rows_.astype(np.float64))
+            world = cmu_world_h36m32(take.astype(np.float64))
             for start in range(0, len(world) - 361, 120):
                 if per_action.get(action, 0) >= args.windows_per_action:
                     break
                 per_action[action] = per_action.get(action, 0) + 1
                 for fps in (120.0, 30.0):
-                    step = int(CMU_FPS / fps)
-                    seq = world[start:start + 361:step]
+                    seq = world[None, start:start + 361:int(CMU_FPS / fps)]
                     n_obs = int(2 * fps) + 1
-                    x, gt = seq[None, :n_obs], seq[None, n_obs:n_obs + int(fps)]
-                    f = model.forecast(x, layout="h36m32", fps=fps, up="y", **kw)
-                    last = np.repeat(x[:, -1:], int(fps), axis=1)
-                    rel = lambda a: a - a[:, :, :1]                 # noqa: E731
-                    label = f"CMU h36m32 world {fps:g}fps"
-                    add(label, "root-relative", mpjpe_mm(rel(f.mean)[:, :, model_idx], rel(gt)[:, :, model_idx]),
-                        mpjpe_mm(rel(last)[:, :, model_idx], rel(gt)[:, :, model_idx]))
-                    add(label, "world", mpjpe_mm(f.mean[:, :, model_idx], gt[:, :, model_idx]),
-                        mpjpe_mm(last[:, :, model_idx], gt[:, :, model_idx]))
+                    wild(f"CMU h36m32 world {fps:g}fps", seq[:, :n_obs], seq[:, n_obs:n_obs + int(fps)], "h36m32",
+                         fps, "y", model_idx)
     skeleton = Path(args.amass) / "smpl_skeleton.npz"
     if skeleton.is_file():
         for path in sorted(Path(args.amass).glob("*.npz")):
@@ -217,18 +214,10 @@ def main(argv=None) -> int:
                 continue
             world, rate = amass_world_smpl24(path, skeleton)
             second = int(round(rate))
-            for observed, label in ((2 * second, "AMASS smpl24 world"), (int(0.8 * second), "AMASS smpl24 world, 0.8 s observed")):
-                label = f"{label.split(',')[0]} {rate:.0f}fps" + (label[len('AMASS smpl24 world'):])
-                for start in range(0, len(world) - observed - second, second):
-                    seq = world[None, start:start + observed + second + 1]
-                    x, gt = seq[:, :observed + 1], seq[:, observed + 1:]
-                    f = model.forecast(x, layout="smpl24", fps=rate, up="z", **kw)
-                    last = np.repeat(x[:, -1:], gt.shape[1], axis=1)
-                    rel = lambda a: a - a[:, :, :1]                 # noqa: E731
-                    add(label, "root-relative", mpjpe_mm(rel(f.mean)[:, :, SMPL24_MODEL], rel(gt)[:, :, SMPL24_MODEL]),
-                        mpjpe_mm(rel(last)[:, :, SMPL24_MODEL], rel(gt)[:, :, SMPL24_MODEL]))
-                    add(label, "world", mpjpe_mm(f.mean[:, :, SMPL24_MODEL], gt[:, :, SMPL24_MODEL]),
-                        mpjpe_mm(last[:, :, SMPL24_MODEL], gt[:, :, SMPL24_MODEL]))
+            for start in range(0, len(world) - 3 * second, second):
+                seq = world[None, start:start + 3 * second + 1]
+                wild(f"AMASS smpl24 world {rate:.0f}fps", seq[:, :2 * second + 1], seq[:, 2 * second + 1:], "smpl24",
+                     rate, "z", SMPL24_MODEL)
     rows = []
     for (name, space), d in acc.items():
         t, z = np.mean(d["tcd"], axis=0), np.mean(d["zero_velocity"], axis=0)

@@ -171,7 +171,7 @@ def test_in_the_wild_smoke(tiny_model_dir, tmp_path):
     rows = json.loads(out.read_text())["rows"]
     cmu = bench.DEFAULT_CMU.is_file()
     amass = (bench.DEFAULT_AMASS / "smpl_skeleton.npz").is_file()
-    assert len(rows) == 18 + 4 * cmu + 4 * amass
-    assert {r["space"] for r in rows} == {"canonical", "root-relative", "world"}
+    assert len(rows) == 26 + 24 * cmu + 12 * amass
+    assert {r["space"] for r in rows} == {"canonical", "root-relative", "world", "root"}
     assert any(r["input"].startswith("CMU h36m32 world 120fps") for r in rows) == cmu
     assert all(r["tcd_mm"]["1s"] > 0 and r["zero_velocity_mm"]["1s"] > 0 for r in rows)
