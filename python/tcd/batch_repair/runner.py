@@ -40,6 +40,7 @@ class Outcome:
     missing: int = 0                # missing (frame, joint, axis) entries repaired
     windows: int = 0
     seconds: float = 0.0
+    worker: Optional[str] = None     # host:pid of the Ray worker that repaired it (tcd repair --ray)
 
     def as_dict(self) -> Dict[str, Any]:
         d = {"input": str(self.task.src), "output": str(self.task.dst), "status": self.status,
@@ -47,6 +48,8 @@ class Outcome:
              "seconds": round(self.seconds, 4)}
         if self.reason is not None:
             d["reason"] = self.reason
+        if self.worker is not None:
+            d["worker"] = self.worker
         return d
 
 

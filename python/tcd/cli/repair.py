@@ -63,6 +63,9 @@ def add_parser(sub: Any) -> Any:
     rp.add_argument("--overwrite", action="store_true", help="replace existing outputs (default: skip them)")
     rp.add_argument("--report", metavar="FILE", help="write a JSON report of every input (status, reason, frames)")
     rp.add_argument("--quiet", action="store_true", help="no progress bar and no summary")
+    rp.add_argument("--ray", nargs="?", const="", default=None, metavar="ADDRESS",
+                    help="spread the files over a Ray cluster: ADDRESS, else $RAY_ADDRESS, else a local cluster on "
+                    "this machine (needs the ray extra; the output and model directories must be shared)")
     return rp
 
 
@@ -106,6 +109,17 @@ def run(args: Any) -> int:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         return bad(f"cannot create the output directory {out}: {e}")
+    if args.ray is not None:
+        from ..batch_repair import distributed
+        try:
+            where = distributed.connect(args.ray or None)
+        except (ImportError, ConnectionError) as e:
+            return bad(str(e))
+        problem = distributed.check_writable(out.resolve())
+        if problem:
+            return bad(f"the Ray workers cannot write the outputs: {problem}")
+        if not args.quiet:
+            print(f"tcd repair: running on {where}", file=sys.stderr)
 
     for c in collisions:
         print(f"tcd repair: {c.task.src}: failed: {c.reason}", file=sys.stderr)
@@ -125,8 +139,12 @@ def run(args: Any) -> int:
 
     t0 = time.perf_counter()
     try:
-        outcomes = run_tasks(model, tasks, opts, overwrite=args.overwrite,
-                             files_per_batch=DEFAULT_FILES_PER_BATCH, on_frames=on_frames, on_outcome=on_outcome)
+        if args.ray is not None:
+            outcomes = distributed.run_tasks_ray(model, tasks, opts, overwrite=args.overwrite, on_frames=on_frames,
+                                                 on_outcome=on_outcome)
+        else:
+            outcomes = run_tasks(model, tasks, opts, overwrite=args.overwrite,
+                                 files_per_batch=DEFAULT_FILES_PER_BATCH, on_frames=on_frames, on_outcome=on_outcome)
     except KeyboardInterrupt:
         if bar is not None:
             bar.close()
