@@ -175,3 +175,16 @@ def test_in_the_wild_smoke(tiny_model_dir, tmp_path):
     assert {r["space"] for r in rows} == {"canonical", "root-relative", "world", "root"}
     assert any(r["input"].startswith("CMU h36m32 world 120fps") for r in rows) == cmu
     assert all(r["tcd_mm"]["1s"] > 0 and r["zero_velocity_mm"]["1s"] > 0 for r in rows)
+
+
+@pytest.mark.slow
+def test_repair_scaling_smoke(tmp_path):
+    """benches/repair_scaling.py runs the local and the Ray paths on the same files and reports the overhead."""
+    pytest.importorskip("ray")
+    bench = load_bench("repair_scaling")
+    out = tmp_path / "scaling.json"
+    assert bench.main(["--files", "2", "--frames", "60", "--small-files", "2", "--steps", "2", "--json", str(out)]) == 0
+    r = json.loads(out.read_text())
+    assert [row["path"] for row in r["rows"]] == ["local, --jobs 1", "local, --jobs 2", "ray, 1 worker(s)",
+                                                  "ray, 2 worker(s)"]
+    assert all(row["frames_per_s"] > 0 for row in r["rows"]) and "overhead_per_file_ms" in r["small_files"]

@@ -240,7 +240,7 @@ def same_path(a: Path, b: Path) -> bool:
 
 # ---------------------------------------------------------------------------------------------- planning (CLI)
 def collect_tasks(inputs: Sequence[PathLike], outdir: PathLike) -> Tuple[List[Task], List[Outcome]]:
-    """Expands files and directories (recursively: ``*.npz`` and ``*.txt``) into tasks writing
+    """Expands files and directories (recursively: ``*.npz``, ``*.txt`` and ``*.bvh``) into tasks writing
     ``outdir/<relative path>.npz``. Files under ``outdir`` are never inputs. Returns (tasks, failures):
     a second input mapping to an already used output path is a failure. Raises ``FileNotFoundError``
     for a missing input and ``ValueError`` when an output path is an input path."""
