@@ -10,11 +10,12 @@
 //! | `ThreadPool` (and any variant a newer engine adds) | `TcdError(message)` |
 //!
 //! The three exception classes are created here, in the native module, and `tcd.exceptions` re-exports
-//! them: one definition, and the engine raises them without importing anything. `WeightsError` and
-//! `InvalidInputError` subclass both `TcdError` and `ValueError`, so they are made with Python's
-//! `type(name, (TcdError, ValueError), namespace)` (a `#[pyclass]` has one base). They keep their
-//! constructor arguments in `args`: `(message, argument)` and `(message, path)`, so `str(e)` is the
-//! message (TcdError's `__str__`), `.argument` / `.path` read `args[1]`, and they pickle as they are
+//! them: one definition, and the engine raises them without importing anything. They are plain Python
+//! classes (the abi3 wheel's stable ABI cannot subclass a native exception before Python 3.12):
+//! `TcdError(Exception)` from three lines of Python, `WeightsError` and `InvalidInputError` with
+//! `type(name, (TcdError, ValueError), namespace)`. They keep their constructor arguments in `args`:
+//! `(message, argument)` and `(message, path)`, so `str(e)` is the message (TcdError's `__str__`),
+//! `.argument` / `.path` read `args[1]`, and they pickle as they are
 //! (e.g. across Ray or multiprocessing workers). The message is always the engine's full sentence.
 
 use pyo3::exceptions::{PyException, PyFileNotFoundError, PyKeyboardInterrupt, PyOSError, PyValueError};
@@ -38,26 +39,33 @@ pub fn invalid(argument: &str, expected: impl Into<String>, received: impl Into<
     Error::invalid_input(argument, expected, received)
 }
 
-/// Base class of every error raised by ``tcd``.
-#[pyclass(extends = PyException, subclass, module = "tcd.exceptions", name = "TcdError")]
-pub struct TcdError;
+static TCD_ERROR: PyOnceLock<Py<PyType>> = PyOnceLock::new();
 
-#[pymethods]
-impl TcdError {
-    #[new]
-    #[pyo3(signature = (*_args))]
-    fn new(_args: &Bound<'_, PyTuple>) -> Self {
-        TcdError
-    }
+/// `TcdError`, the base class of every error raised by `tcd`: an `Exception` whose `str()` is its first
+/// constructor argument (the others are attributes such as `argument`). Defined by a few lines of Python,
+/// not a `#[pyclass]`: the stable ABI of the abi3 wheel cannot subclass a native exception before 3.12.
+pub fn tcd_error(py: Python<'_>) -> PyResult<&Bound<'_, PyType>> {
+    TCD_ERROR
+        .get_or_try_init(py, || -> PyResult<Py<PyType>> {
+            let namespace = PyDict::new(py);
+            py.run(
+                c"class TcdError(Exception):
+    \"Base class of every error raised by ``tcd``.\"
+    __module__ = 'tcd.exceptions'
 
-    /// The message: the first constructor argument (the others are attributes such as `argument`).
-    fn __str__(slf: &Bound<'_, Self>) -> PyResult<String> {
-        let args = slf.getattr("args")?.cast_into::<PyTuple>()?;
-        Ok(match args.len() {
-            0 => String::new(),
-            _ => args.get_item(0)?.str()?.to_string(),
+    def __str__(self):
+        return str(self.args[0]) if self.args else ''
+",
+                None,
+                Some(&namespace),
+            )?;
+            Ok(namespace
+                .get_item("TcdError")?
+                .ok_or_else(|| PyException::new_err("TcdError was not defined"))?
+                .cast_into::<PyType>()?
+                .unbind())
         })
-    }
+        .map(|t| t.bind(py))
 }
 
 static INVALID_INPUT_ERROR: PyOnceLock<Py<PyType>> = PyOnceLock::new();
@@ -83,7 +91,7 @@ fn value_error_class<'py>(
     namespace.set_item("__doc__", doc)?;
     namespace.set_item("__module__", "tcd.exceptions")?;
     namespace.set_item(attribute, builtins.getattr("property")?.call1((second_arg,))?)?;
-    let bases = (py.get_type::<TcdError>(), py.get_type::<PyValueError>());
+    let bases = (tcd_error(py)?.clone(), py.get_type::<PyValueError>());
     Ok(builtins
         .getattr("type")?
         .call1((name, bases, namespace))?
@@ -122,7 +130,7 @@ pub fn weights_error(py: Python<'_>) -> PyResult<&Bound<'_, PyType>> {
 /// Adds the three classes to the module.
 pub fn add_exceptions(m: &Bound<'_, PyModule>) -> PyResult<()> {
     let py = m.py();
-    m.add("TcdError", py.get_type::<TcdError>())?;
+    m.add("TcdError", tcd_error(py)?)?;
     m.add("InvalidInputError", invalid_input_error(py)?)?;
     m.add("WeightsError", weights_error(py)?)?;
     Ok(())
@@ -139,7 +147,7 @@ fn raise<A: pyo3::PyErrArguments + Send + Sync + 'static>(ty: PyResult<&Bound<'_
 /// A bug in the binding or engine, not the caller's fault: `TcdError`.
 pub fn internal(py: Python<'_>, message: &str) -> PyErr {
     let m = format!("Internal error: {message}. Please report this.");
-    raise(Ok(&py.get_type::<TcdError>()), (m,))
+    raise(tcd_error(py), (m,))
 }
 
 fn to_pyerr(py: Python<'_>, e: Error) -> PyErr {
@@ -162,11 +170,11 @@ fn to_pyerr(py: Python<'_>, e: Error) -> PyErr {
         }
         Error::InvalidInput { argument, .. } => raise(invalid_input_error(py), (message, argument)),
         Error::Cancelled => PyKeyboardInterrupt::new_err(message),
-        Error::ThreadPool { .. } => raise(Ok(&py.get_type::<TcdError>()), (message,)),
+        Error::ThreadPool { .. } => raise(tcd_error(py), (message,)),
         // `tcd_core::Error` is #[non_exhaustive]: a variant added later is still a TcdError
         // (weights variants keep their class through `is_weights_error`).
         other if other.is_weights_error() => raise(weights_error(py), (message, py.None())),
-        _ => raise(Ok(&py.get_type::<TcdError>()), (message,)),
+        _ => raise(tcd_error(py), (message,)),
     }
 }
 

@@ -1,0 +1,38 @@
+#!/usr/bin/env bash
+# The release path, as a user without a Rust toolchain meets it: build the sdist and the abi3 manylinux wheel
+# (scripts/build_wheels.sh), install the wheel into a fresh virtual environment with no cargo/rustc on the
+# PATH, and run `tcd demo` and a smoke test from outside the source tree (so nothing imports the checkout).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+bash scripts/build_wheels.sh
+root=$(pwd)
+work=$(mktemp -d)
+trap 'rm -rf "$work"' EXIT
+python3 -m venv "$work/venv"
+nort_path="$work/venv/bin:/usr/local/bin:/usr/bin:/bin"
+if PATH="$nort_path" command -v cargo >/dev/null || PATH="$nort_path" command -v rustc >/dev/null; then
+    echo "wheel check: a Rust toolchain is still on the PATH" >&2; exit 1
+fi
+cd "$work"
+start=$(date +%s.%N)
+PATH="$nort_path" python -m pip install -q "$root"/dist/*.whl
+echo "wheel check: installed in $(python3 -c "print(round($(date +%s.%N) - $start, 1))") s"
+PATH="$nort_path" tcd --version
+PATH="$nort_path" tcd demo -o "$work/demo.npz" --steps 5 --quiet | tail -n 1
+PATH="$nort_path" python - <<'PY'
+import numpy as np, tcd
+assert "/venv/" in tcd.__file__, tcd.__file__             # the installed wheel, not the checkout
+obs = np.load(tcd.__file__.replace("__init__.py", "data/demo_walking.npz"))["poses"][:50]
+f = tcd.load().forecast(obs, num_samples=2, seed=0, sampler="ddim", num_inference_steps=5)
+assert f.mean.shape == (25, 22, 3) and np.isfinite(f.mean).all()
+print("wheel check: smoke test passed,", tcd.__version__, tcd.supported_kernels())
+PY
+# the sdist builds too (Rust sources and weights inside): a wheel from it, with the toolchain back on the PATH
+cd "$root"
+python3 -m pip wheel -q --no-deps dist/*.tar.gz -w "$work/from_sdist"
+python3 - "$work"/from_sdist/*.whl <<'PY'
+import sys, zipfile
+names = zipfile.ZipFile(sys.argv[1]).namelist()
+assert "tcd/weights/short.safetensors" in names and "tcd/data/demo_walking.npz" in names, names
+print("wheel check: the sdist builds a wheel with the weights and the demo clip")
+PY
