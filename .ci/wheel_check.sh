@@ -25,8 +25,24 @@ assert "/venv/" in tcd.__file__, tcd.__file__             # the installed wheel,
 obs = np.load(tcd.__file__.replace("__init__.py", "data/demo_walking.npz"))["poses"][:50]
 f = tcd.load().forecast(obs, num_samples=2, seed=0, sampler="ddim", num_inference_steps=5)
 assert f.mean.shape == (25, 22, 3) and np.isfinite(f.mean).all()
+# the release build's kernels agree: the portable path equals the fastest this CPU has (read at load time)
+import os
+os.environ["TCD_KERNEL"] = "portable"
+p = tcd.load().forecast(obs, num_samples=2, seed=0, sampler="ddim", num_inference_steps=5)
+assert np.allclose(p.mean, f.mean, rtol=1e-4, atol=1e-5), np.abs(p.mean - f.mean).max()
 print("wheel check: smoke test passed,", tcd.__version__, tcd.supported_kernels())
 PY
+# the oldest CPython the abi3 wheel claims, where this machine has it (on the PATH or under pyenv)
+py39=""
+for candidate in python3.9 "$HOME"/.pyenv/versions/3.9*/bin/python3.9; do
+    if "$candidate" -c "" 2>/dev/null; then py39=$candidate; break; fi
+done
+if [ -n "$py39" ]; then
+    "$py39" -m venv "$work/venv39"
+    PATH="$work/venv39/bin:/usr/local/bin:/usr/bin:/bin" python -m pip install -q "$root"/dist/*.whl
+    PATH="$work/venv39/bin:/usr/local/bin:/usr/bin:/bin" tcd demo -o "$work/demo39.npz" --steps 2 --quiet | tail -n 1
+    echo "wheel check: Python 3.9 runs the wheel"
+fi
 # the sdist builds too (Rust sources and weights inside): a wheel from it, with the toolchain back on the PATH
 cd "$root"
 python3 -m pip wheel -q --no-deps dist/*.tar.gz -w "$work/from_sdist"
