@@ -12,7 +12,7 @@ import tcd
 from conftest import H36M_DIR, needs_h36m
 from repair_util import FAST, FAST_KW, gappy, load_npz, run
 from tcd import batch_repair, fk
-from tcd.batch_repair import windows as repair_windows
+from tcd.resample import resample_backward, resample_forward
 
 
 # ---------------------------------------------------------------------------------------------- units and rates
@@ -40,19 +40,19 @@ def test_resampling_mask_is_conservative():
     m = np.ones((5, 2), bool)
     m[2, 0] = False
     # 12.5 fps -> 25 fps: model frames at source positions 0, 0.5, 1, ..., 4
-    y, ym = repair_windows._resample_forward(x, m, 12.5, 25.0)
+    y, ym = resample_forward(x, m, 12.5, 25.0)
     assert y.shape == (9, 2)
     assert np.allclose(y[ym[:, 1], 1], np.arange(9)[ym[:, 1]] / 2)
     assert ym[:, 1].all()
     assert list(np.flatnonzero(~ym[:, 0])) == [3, 4, 5]  # every model frame touching source frame 2
     # 50 fps -> 25: every other frame, exactly; back again: interpolation
     x = np.random.default_rng(0).normal(size=(9, 3))
-    y, ym = repair_windows._resample_forward(x, np.ones_like(x, bool), 50.0, 25.0)
+    y, ym = resample_forward(x, np.ones_like(x, bool), 50.0, 25.0)
     assert np.array_equal(y, x[::2]) and ym.all()
-    back = repair_windows._resample_backward(y, 9, 50.0, 25.0)
+    back = resample_backward(y, 9, 50.0, 25.0)
     assert np.array_equal(back[::2], x[::2]) and np.allclose(back[1::2], (x[0:-1:2] + x[2::2]) / 2)
     # 30 fps, 10 frames: 0.3 s -> 25 fps frames at 0, 0.04, ..., 0.32 (the last past the end: missing)
-    y, ym = repair_windows._resample_forward(np.zeros((10, 1)), np.ones((10, 1), bool), 30.0, 25.0)
+    y, ym = resample_forward(np.zeros((10, 1)), np.ones((10, 1), bool), 30.0, 25.0)
     assert len(y) == 9 and ym[:8].all() and not ym[8].any()
 
 

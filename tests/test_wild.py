@@ -90,8 +90,8 @@ def test_world_coordinates_move_with_the_input(tiny_model, name):
 
 def test_any_frame_rate_and_length(tiny_model):
     x25 = h36m32()
-    from tcd.batch_repair.windows import _resample_backward
-    x50 = _resample_backward(x25.reshape(50, -1), 99, 50.0, 25.0).reshape(99, 32, 3)   # the same motion at 50 fps
+    from tcd.resample import resample_backward
+    x50 = resample_backward(x25.reshape(50, -1), 99, 50.0, 25.0).reshape(99, 32, 3)   # the same motion at 50 fps
     f25 = tiny_model.forecast(x25, layout="h36m32", **FAST)
     f50 = tiny_model.forecast(x50, layout="h36m32", fps=50, **FAST)
     assert f50.mean.shape == (50, 32, 3)
@@ -165,10 +165,10 @@ def tcd_load(d):
 def test_repair_file_and_tcd_repair_with_a_layout(tiny_model_dir, tmp_path, capsys):
     """A long world-coordinate h36m17 file at 50 fps, repaired through the windows and back: observed values
     bit for bit, gaps filled, the provenance records the layout; tcd repair gives the same file."""
-    from tcd.batch_repair.windows import _resample_backward
+    from tcd.resample import resample_backward
     from tcd.cli import main
     x = in_layout(world(h36m32(75)), "h36m17")
-    x50 = _resample_backward(x.reshape(75, -1), 149, 50.0, 25.0).reshape(149, 17, 3)
+    x50 = resample_backward(x.reshape(75, -1), 149, 50.0, 25.0).reshape(149, 17, 3)
     x50[40:60, 11:14] = np.nan                                          # the left arm lost for 0.4 s
     np.savez(tmp_path / "take.npz", poses=x50 * 1000)
     kw = dict(num_samples=1, num_inference_steps=2, sampler="ddim")

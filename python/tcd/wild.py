@@ -39,11 +39,11 @@ import numpy as np
 from . import _checks, fk
 from .exceptions import InvalidInputError
 from .layouts import FIXED_IDS, MODEL_IDS, Layout
+from .resample import resample_forward
 
 __all__ = ["UP_AXES", "up_vector", "Scene", "to_model", "from_model", "future_frames", "resample_to_model"]
 
 UP_AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
-_EPS = 1e-9
 #: How far back the root's velocity and turn rate are measured (model frames: 0.2 s at 25 fps).
 EXTRAPOLATION_FRAMES = 5
 
@@ -310,12 +310,11 @@ def resample_to_model(x: np.ndarray, fps: float, model_fps: float, frames: int) 
     """(B, T, J, 3) at ``fps`` (NaN = missing) -> the last ``frames`` model frames at ``model_fps`` on a grid
     ending at the last input frame, (B, frames, J, 3) NaN = missing, and each model frame's time in input
     frames (frames,) (negative for padding)."""
-    from .batch_repair.windows import _resample_forward
     b, t, j, _ = x.shape
     rev = x[:, ::-1].reshape(b, t, -1)
     outs = []
     for i in range(b):
-        y, m = _resample_forward(np.nan_to_num(rev[i]), ~np.isnan(rev[i]), fps, model_fps)
+        y, m = resample_forward(np.nan_to_num(rev[i]), ~np.isnan(rev[i]), fps, model_fps)
         outs.append(np.where(m, y, np.nan)[::-1])
     n = outs[0].shape[0]
     res = np.stack(outs).reshape(b, n, j, 3)

@@ -22,7 +22,6 @@ DEFAULT_LOOKAHEAD = 10
 DEFAULT_SEED = 0
 DEFAULT_FILES_PER_BATCH = 4
 INPUT_SUFFIXES = (".npz", ".txt", ".bvh")
-_EPS = 1e-9
 
 
 class BadFile(Exception):

@@ -9,38 +9,7 @@ import numpy as np
 
 from .inputs import Loaded
 from ..poses import UNIT_SCALE
-from .options import _EPS
-
-# ---------------------------------------------------------------------------------------------- resampling
-def _resample_forward(x: np.ndarray, m: np.ndarray, src_fps: float, dst_fps: float) -> Tuple[np.ndarray, np.ndarray]:
-    """(T, K) values and bool mask at ``src_fps`` -> (T', K) at ``dst_fps`` (see the module doc)."""
-    t = x.shape[0]
-    n = int(math.ceil((t - 1) * dst_fps / src_fps - _EPS)) + 1
-    pos = np.arange(n) * (src_fps / dst_fps)  # fractional source index of each model frame
-    i0 = np.floor(pos + _EPS).astype(np.int64)
-    frac = pos - i0
-    exact = frac < _EPS
-    frac = np.where(exact, 0.0, frac)
-    inside = i0 < t
-    i0c = np.minimum(i0, t - 1)
-    i1 = np.where(exact, i0c, np.minimum(i0c + 1, t - 1))
-    ok = inside & (exact | (i0 + 1 < t))
-    xv = np.where(m, x, 0.0)
-    out = (1.0 - frac)[:, None] * xv[i0c] + frac[:, None] * xv[i1]
-    out_mask = m[i0c] & m[i1] & ok[:, None]
-    return np.where(out_mask, out, 0.0), out_mask
-
-
-def _resample_backward(y: np.ndarray, frames: int, src_fps: float, dst_fps: float) -> np.ndarray:
-    """(T', K) values at ``dst_fps`` -> (frames, K) at ``src_fps`` by linear interpolation."""
-    n = y.shape[0]
-    pos = np.arange(frames) * (dst_fps / src_fps)
-    j0 = np.minimum(np.floor(pos + _EPS).astype(np.int64), n - 1)
-    frac = np.clip(pos - j0, 0.0, 1.0)
-    frac = np.where(frac < _EPS, 0.0, frac)
-    j1 = np.minimum(j0 + 1, n - 1)
-    return (1.0 - frac)[:, None] * y[j0] + frac[:, None] * y[j1]
-
+from ..resample import resample_backward, resample_forward
 
 def window_starts(frames: int, window: int, overlap: int, lookahead: int = 0) -> List[int]:
     """Start frames of the windows covering ``frames`` (>= ``window``) frames; consecutive windows share
@@ -70,7 +39,7 @@ class FileJob:
         self.resample = (model_fps is not None and math.isfinite(loaded.fps)
                          and abs(loaded.fps - model_fps) > 1e-9 * model_fps)
         if self.resample:
-            x, m = _resample_forward(x, m, loaded.fps, float(model_fps))
+            x, m = resample_forward(x, m, loaded.fps, float(model_fps))
         self.model_frames = x.shape[0]
         padded = max(self.model_frames, window)
         self.values = np.zeros((padded, k), np.float32)
@@ -122,7 +91,7 @@ class FileJob:
         t, j, _ = ld.poses.shape
         y = self.values[: self.model_frames].astype(np.float64)
         if self.resample:
-            y = _resample_backward(y, t, ld.fps, float(self.model_fps))
+            y = resample_backward(y, t, ld.fps, float(self.model_fps))
         dtype = ld.poses.dtype
         rep = (y.reshape(t, j, 3) * self.scale).astype(dtype) if self.scale != 1.0 else y.reshape(t, j, 3).astype(dtype)
         return ld.back(np.where(ld.full_mask, ld.poses, rep), self.scale)
