@@ -54,6 +54,9 @@ class Layout:
     combined: Dict[int, Tuple[int, ...]] = field(default_factory=dict)
     #: the joints whose midpoint is the root (pelvis) when the layout has no pelvis joint
     pelvis_from: Tuple[int, ...] = ()
+    #: carried joints (to32 None) -> the 32-skeleton joint they hang from, where it is not their nearest
+    #: layout ancestor that stands for a placed joint (the default, see tcd.wild)
+    anchors: Dict[int, int] = field(default_factory=dict)
     #: whether poses in this layout are always root-relative with the heading removed (the model's own)
     canonical: bool = False
 
@@ -123,6 +126,7 @@ COCO17 = Layout(
     # the face points are carried
     combined={13: (5, 6), 14: (3, 4)},
     pelvis_from=(11, 12),
+    anchors={face: 14 for face in range(5)},                 # nose, eyes and ears ride on the head
 )
 
 LAYOUTS: Dict[str, Layout] = {lay.name: lay for lay in (_h36m22(), _h36m32(), H36M17, SMPL24, COCO17)}

@@ -201,11 +201,11 @@ def _static_ancestor(layout: Layout, j: int) -> int:
 
 
 def _anchor32(layout: Layout, i: int) -> int:
-    """The 32-id a carried layout joint hangs from: its nearest layout ancestor that stands for a placed
-    joint (COCO's face points: the head, the mid-point of the ears), else the root."""
+    """The 32-id a carried layout joint hangs from: the layout's own choice (``Layout.anchors``: COCO's
+    face points on the head), else its nearest layout ancestor that stands for a placed joint, else the root."""
+    if i in layout.anchors:
+        return layout.anchors[i]
     placed = set(FIXED_IDS) | set(MODEL_IDS)
-    if layout.name == "coco17" and i <= 4:
-        return 14
     p = layout.parents[i]
     while p >= 0:
         t = layout.to32[p]
