@@ -18,7 +18,7 @@ import numpy as np
 
 from .files import UnreadableFile
 
-__all__ = ["read_bvh", "to_h36m32"]
+__all__ = ["read_bvh", "to_h36m32", "read_bvh_h36m32"]
 
 # Human3.6M 32-skeleton id <- accepted BVH names (compared lower-case, without a "prefix:")
 _NAMES: Dict[int, Tuple[str, ...]] = {
@@ -103,3 +103,10 @@ def to_h36m32(pos: np.ndarray, names: List[str], parents: List[int]) -> np.ndarr
         if i is not None:
             out[:, id32] = pos[:, i]
     return out
+
+
+def read_bvh_h36m32(path: Path) -> Tuple[np.ndarray, float]:
+    """A BVH file as (T, 32, 3) h36m32 poses in the file's units (NaN where it has no such joint) and its
+    frame rate: what ``tcd forecast`` and ``tcd repair`` read. Errors as :func:`read_bvh`."""
+    pos, names, parents, rate = read_bvh(path)
+    return to_h36m32(pos, names, parents), rate

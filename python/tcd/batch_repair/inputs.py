@@ -125,14 +125,13 @@ def _converted(poses: np.ndarray, full: np.ndarray, mask_out: np.ndarray, fps: f
 
 def _bvh_poses(path: Path) -> Tuple[np.ndarray, float]:
     """A BVH file as (T, 32, 3) h36m32 poses (NaN where it has no such joint) and its frame rate."""
-    from .. import bvh
+    from ..bvh import read_bvh_h36m32
     try:
-        pos, names, parents, rate = bvh.read_bvh(path)
+        return read_bvh_h36m32(path)
     except UnreadableFile as e:
         raise BadFile(f"unreadable: {e}") from None
     except ImportError as e:
         raise BadFile(str(e)) from None
-    return bvh.to_h36m32(pos, names, parents), rate
 
 
 def peek_frames(path: Path) -> int:

@@ -55,14 +55,14 @@ def _read_npz(path: Path) -> Dict[str, np.ndarray]:
 
 
 def _read_bvh(path: Path):
-    from .. import bvh
+    from ..bvh import read_bvh_h36m32
     if not path.is_file():
         raise _BadInput(f"The input file {path} does not exist.")
     try:
-        pos, names, parents, rate = bvh.read_bvh(path)
+        poses, rate = read_bvh_h36m32(path)
     except (UnreadableFile, ImportError) as e:
         raise _BadInput(f"The input file {path} cannot be read: {e}.") from None
-    return {"poses": bvh.to_h36m32(pos, names, parents)}, rate
+    return {"poses": poses}, rate
 
 
 def run(args: argparse.Namespace) -> int:
