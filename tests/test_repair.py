@@ -257,6 +257,10 @@ def test_rerun_skips_and_overwrite(tiny_model_dir, tmp_path, capsys):
     code, _, err = run([src, "-o", out, "--model", tiny_model_dir, "--seed", "2", *FAST], capsys)
     assert code == 1 and "is not a readable tcd repair output" in err
     assert (out / "in.npz").read_text() == "not an output"
+    # an archive whose provenance is JSON but not a record is reported too (it used to crash the run)
+    np.savez(out / "in.npz", poses=np.zeros(1), mask=np.zeros(1), provenance=np.array("[1, 2]"))
+    code, _, err = run([src, "-o", out, "--model", tiny_model_dir, "--seed", "2", *FAST], capsys)
+    assert code == 1 and "is not a readable tcd repair output" in err
 
 
 def test_never_overwrites_an_input(tiny_model_dir, tmp_path, capsys):

@@ -213,13 +213,16 @@ def resume_settings(prov: Dict[str, Any]) -> Dict[str, Any]:
 
 
 def finished_output_mismatch(dst: Path, settings: Dict[str, Any]) -> Optional[str]:
-    """None when ``dst`` is a readable tcd repair output made with ``settings``; else what is wrong with it."""
+    """None when ``dst`` is a readable tcd repair output made with ``settings``; else what is wrong with it.
+    Reads only the provenance (np.load is lazy), not the poses: a resume over many outputs stays cheap."""
     try:
         with np.load(dst, allow_pickle=False) as z:
             if not {"poses", "mask", "provenance"} <= set(z.files):
                 return "is not a tcd repair output (it lacks poses, mask or provenance)"
             recorded = json.loads(str(z["provenance"]))
     except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, AttributeError, TypeError):
+        return "is not a readable tcd repair output"
+    if not isinstance(recorded, dict):                       # provenance that is JSON but not a record
         return "is not a readable tcd repair output"
     differ = sorted(k for k in settings if recorded.get(k) != settings[k])
     if differ:
