@@ -53,6 +53,20 @@ def test_forecast_shapes_unbatched_and_batched(tiny_model, obs):
     assert np.array_equal(fb.repaired[0], f.repaired)
 
 
+def test_forecast_times_follow_the_models_frame_rate(tiny_model, tiny_model_dir, tmp_path, obs):
+    """Forecast.times are (k + 1) / fps; a model that records no frame rate gets None, not a made-up rate."""
+    f = tiny_model.forecast(obs, seed=1, **FAST)
+    np.testing.assert_allclose(f.times, np.arange(1, 26) / tiny_model.fps)
+    d = copy_dir(tiny_model_dir, tmp_path / "no_fps")
+    for role in ("short", "long"):
+        tensors, meta = read_weights(d / f"{role}.safetensors")
+        cfg = config_of(meta)
+        cfg.get("data", {}).pop("fps", None)
+        write_weights(d / f"{role}.safetensors", tensors, with_config(meta, cfg))
+    m = tcd.load(d)
+    assert m.fps is None and m.forecast(obs, seed=1, **FAST).times is None
+
+
 def test_same_seed_identical_different_seed_differs(tiny_model, obs):
     a = tiny_model.forecast(obs, seed=7, **FAST)
     b = tiny_model.forecast(obs, seed=7, **FAST)

@@ -42,7 +42,8 @@ class Forecast:
     * ``repaired``: the observation with its missing entries filled (same shape as the input; observed
       entries are returned unchanged);
     * ``seed``: the seed used (drawn from ``os.urandom`` when none was given): pass it back to reproduce;
-    * ``times``: ``(H,)`` seconds of each forecast frame after the last observed one.
+    * ``times``: ``(H,)`` seconds of each forecast frame after the last observed one (None when the model
+      does not record its frame rate).
     """
 
     mean: np.ndarray
@@ -234,7 +235,7 @@ class TCD:
                           seed=seed, threads=threads, progress=progress)
         return Forecast(mean=p.poses(out["mean"]), samples=p.poses(out["samples"]),
                         repaired=p.repaired(out["repaired"]), seed=seed,
-                        times=np.arange(1, self.horizon + 1) / float(self.fps or 25.0))
+                        times=None if self.fps is None else np.arange(1, self.horizon + 1) / float(self.fps))
 
     def repair(self, obs: Any, mask: Any = None, *, num_samples: int = 5, options: Optional[SamplerOptions] = None,
                seed: Optional[int] = None, units: str = "m", threads: Optional[int] = None,

@@ -93,7 +93,8 @@ def run(args: argparse.Namespace) -> int:
     except InvalidInputError as e:
         raise _BadInput(flag_message(e, FLAGS)) from None
     with writing(out):
+        times = {} if f.times is None else {"times": f.times}
         write_npz_atomic(out, args.overwrite, mean=f.mean, samples=f.samples, repaired=f.repaired,
-                         seed=np.uint64(f.seed), times=f.times)
+                         seed=np.uint64(f.seed), **times)
     print(f"wrote {out}: mean {f.mean.shape}, samples {f.samples.shape}, repaired {f.repaired.shape}, seed {f.seed}")
     return EXIT_OK
