@@ -50,7 +50,8 @@ class RepairOptions:
         """Checked settings: ``options`` / ``sampler`` (its fields) as :meth:`SamplerOptions.build`, the rest
         as the keywords of :func:`repair_file`."""
         sampling = SamplerOptions.build(options, **(sampler or {}))
-        _denoiser(model).timesteps(options=sampling)  # the step count against the model, before any file is read
+        den = _denoiser(model)
+        den.timesteps(options=sampling)  # the step count against the model, before any file is read
         seed = kw.get("seed", DEFAULT_SEED)
         fps = kw.get("fps")
         if fps is not None:
@@ -61,7 +62,7 @@ class RepairOptions:
         overlap = _checks.integer("overlap", kw.get("overlap", DEFAULT_OVERLAP), 1, model.obs_len - 1)
         lookahead = _checks.integer("lookahead", kw.get("lookahead", DEFAULT_LOOKAHEAD), 0, model.obs_len - 1 - overlap)
         return RepairOptions(
-            num_samples=_checks.num_samples(kw.get("num_samples", 5), window=(_denoiser(model).num_features, _denoiser(model).seq_len)),
+            num_samples=_checks.num_samples(kw.get("num_samples", 5), window=(den.num_features, den.seq_len)),
             sampling=sampling,
             seed=_checks.seed(DEFAULT_SEED if seed is None else seed),
             units=check_units(kw.get("units", "m")),
