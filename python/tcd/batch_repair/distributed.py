@@ -115,21 +115,21 @@ def run_tasks_ray(model: Any, tasks: Sequence[Task], opts: RepairOptions, *, ove
     opts_remote = opts if opts.threads is not None else dataclasses.replace(opts, threads=1)
     remote = ray.remote(num_cpus=opts_remote.threads, max_retries=max_retries)(_repair_chunk)
     tasks = list(tasks)
-    chunks = [tasks[i:i + files_per_task] for i in range(0, len(tasks), files_per_task)]
-    pending = {remote.remote(str(model.path), chunk, opts_remote, overwrite): chunk for chunk in chunks}
-    by_task: Dict[int, Outcome] = {}
-    index = {id(t): i for i, t in enumerate(tasks)}
-    waiting = list(pending)
+    outcomes: List[Optional[Outcome]] = [None] * len(tasks)
+    starts = {remote.remote(str(model.path), tasks[i:i + files_per_task], opts_remote, overwrite): i
+              for i in range(0, len(tasks), files_per_task)}
+    waiting = list(starts)
     while waiting:
         ready, waiting = ray.wait(waiting, num_returns=1)
-        chunk = pending[ready[0]]
+        start = starts[ready[0]]
+        chunk = tasks[start:start + files_per_task]
         try:
             results = ray.get(ready[0])
         except ray.exceptions.RayError as e:
             reason = f"failed on every attempt on the cluster ({type(e).__name__})"
             results = [Outcome(t, "failed", reason) for t in chunk]
-        for t, o in zip(chunk, results):
-            by_task[index[id(t)]] = o
+        for k, o in enumerate(results):
+            outcomes[start + k] = o
             if on_outcome is not None:
                 on_outcome(o)
             if on_frames is not None and o.frames:
@@ -140,4 +140,4 @@ def run_tasks_ray(model: Any, tasks: Sequence[Task], opts: RepairOptions, *, ove
                 stale.unlink()
             except OSError:
                 pass
-    return [by_task[i] for i in range(len(tasks))]
+    return [o for o in outcomes if o is not None]
