@@ -65,3 +65,23 @@ def test_strict_loading_rejects_missing_and_extra_tensors(tmp_path):
 def test_cli_requires_one_source(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main(["--out", str(tmp_path)])
+
+
+def test_files_replace_roles_only_when_they_load(tmp_path):
+    """`--files`: how exported weights become the bundled ones; a file that does not load strictly, or
+    is not named after a role, replaces nothing."""
+    import tcd
+    src, bundle = random_init_dir(tmp_path / "new", "tiny", seed=4), random_init_dir(tmp_path / "bundle", "tiny", seed=5)
+    before = (bundle / "short.safetensors").read_bytes()
+    assert main(["--files", str(src / "long.safetensors"), "--out", str(bundle)]) == 0
+    assert (bundle / "long.safetensors").read_bytes() == (src / "long.safetensors").read_bytes()
+    assert (bundle / "short.safetensors").read_bytes() == before
+    tcd.load(bundle)                                # checksums and model.json rewritten
+    assert json.loads((bundle / "model.json").read_text()).keys() >= {"short", "long"}
+    broken = tmp_path / "long.safetensors"
+    broken.write_bytes(b"not a model")
+    with pytest.raises(Exception):
+        main(["--files", str(broken), "--out", str(bundle)])
+    assert (bundle / "long.safetensors").read_bytes() == (src / "long.safetensors").read_bytes()
+    with pytest.raises(SystemExit, match="file name"):
+        main(["--files", str(src / "model.json"), "--out", str(bundle)])

@@ -210,8 +210,10 @@ def dpmpp2m_coefficients(sched: Schedule, pairs: list[tuple[int, int]]) -> list[
 
 def draw_noise(num_steps: int, shape, generator: torch.Generator | None = None) -> torch.Tensor:
     """The injected-noise layout of ddpm / ddim: (num_steps + 1, *shape), standard normal, float32
-    (``num_steps = 0`` gives the single x_T block of dpmpp2m)."""
-    return torch.randn((num_steps + 1, *shape), generator=generator, dtype=torch.float32)
+    (``num_steps = 0`` gives the single x_T block of dpmpp2m), drawn on the generator's device (a GPU's
+    noise never crosses from the host)."""
+    device = generator.device if generator is not None else None
+    return torch.randn((num_steps + 1, *shape), generator=generator, dtype=torch.float32, device=device)
 
 
 @torch.no_grad()

@@ -80,7 +80,7 @@ def tcd_predict(models: dict, obs: np.ndarray, jmask: np.ndarray, *, samples: in
     obs = obs * joint_to_coord_mask(jmask)  # missing values are zero in the model input
     outs, reps = [], []
     for b0 in range(0, len(obs), batch_size):
-        gen = torch.Generator().manual_seed(int(seed) * 1_000_003 + b0)
+        gen = torch.Generator(device=device).manual_seed(int(seed) * 1_000_003 + b0)
         x = to_bkl(obs[b0:b0 + batch_size]).to(device)
         m = to_bkl(joint_to_coord_mask(jmask[b0:b0 + batch_size])).to(device)
         res = cascade(short_m, short_s, long_m, long_s, x, m, short_len=short_len, long_len=long_len,
@@ -111,26 +111,36 @@ def summarize(per_action_frames: dict[str, np.ndarray]) -> dict:
             "per_frame": [float(v) for v in per_frame]}
 
 
-def evaluate_h36m(args) -> dict:
-    data = H36M(args.data)
+def protocol_windows(data: H36M, action: str, action_index: int, windows_per_action: int, mask: str,
+                     mask_seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One action's protocol windows: the future ground truth (W, 25, 32, 3) mm, the clean observation
+    (W, 50, 22, 3) m, and the observation corrupted by the pattern ``mask`` with its joint mask (W, 50, 22)
+    (window w's corruption drawn from ``default_rng([mask_seed, action_index, w])``)."""
+    wins = data.test_windows(action, OBS + PRED, OBS, windows_per_action)               # (W, 75, 32, 3) mm
+    obs_clean = xyz32_to_model(wins[:, :OBS]).astype(np.float64)                         # (W, 50, 22, 3) m
+    obs, jmask = obs_clean.copy(), np.ones(obs_clean.shape[:3], dtype=np.float32)
+    if mask != "none":
+        from .masks import corrupt
+        for w in range(len(obs)):
+            rng = np.random.default_rng([mask_seed, action_index, w])
+            obs[w], jmask[w] = corrupt(obs_clean[w], mask, OBS, rng)
+    return wins[:, OBS:], obs_clean, obs, jmask
+
+
+def evaluate_h36m(args, models: dict | None = None, data: H36M | None = None) -> dict:
+    """The protocol for ``args`` (the options of :func:`main`). ``models`` (``export.load_model_dir``'s
+    dict, possibly with faster forwards: ``training.protocol``) and ``data`` are loaded when not given."""
+    data = data if data is not None else H36M(args.data)
     actions = data.test_actions()
-    models = None
-    if args.model:
+    if models is None and args.model:
         from .export import load_model_dir
         models = load_model_dir(args.model, args.device)
     zv, zv_rep, best, mean = {}, {}, {}, {}
     rep_sum, rep_cnt = 0.0, 0
     t0 = time.time()
     for ai, action in enumerate(actions):
-        wins = data.test_windows(action, OBS + PRED, OBS, args.windows_per_action)      # (W, 75, 32, 3) mm
-        gt32 = wins[:, OBS:]
-        obs_clean = xyz32_to_model(wins[:, :OBS]).astype(np.float64)                     # (W, 50, 22, 3) m
-        obs, jmask = obs_clean.copy(), np.ones(obs_clean.shape[:3], dtype=np.float32)
-        if args.mask != "none":
-            from .masks import corrupt
-            for w in range(len(obs)):
-                rng = np.random.default_rng([args.mask_seed, ai, w])
-                obs[w], jmask[w] = corrupt(obs_clean[w], args.mask, OBS, rng)
+        gt32, obs_clean, obs, jmask = protocol_windows(data, action, ai, args.windows_per_action, args.mask,
+                                                       args.mask_seed)
         zv[action] = per_frame_error(model_to_xyz32(zero_velocity(obs, jmask), gt32), gt32).mean(axis=0)
         if models is not None:
             kw = dict(samples=args.samples, steps=args.steps, sampler=args.sampler, eta=args.eta,
@@ -149,7 +159,7 @@ def evaluate_h36m(args) -> dict:
                 zv_rep[action] = per_frame_error(
                     model_to_xyz32(zero_velocity(res["repaired"], np.ones_like(jmask)), gt32), gt32).mean(axis=0)
         if not args.quiet:
-            print(f"[{ai + 1}/{len(actions)}] {action}: {len(wins)} windows, {time.time() - t0:.0f} s", file=sys.stderr)
+            print(f"[{ai + 1}/{len(actions)}] {action}: {len(obs)} windows, {time.time() - t0:.0f} s", file=sys.stderr)
     out = {"protocol": {"dataset": "h36m", "subject": "S5", "actions": actions, "windows_per_action": args.windows_per_action,
                         "observed_frames": OBS, "predicted_frames": PRED, "fps": 25, "units": "mm",
                         "error": "mean over 32 joints (22 predicted pasted into GT, 6 duplicates copied)",

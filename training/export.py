@@ -23,6 +23,8 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -184,22 +186,43 @@ def export_checkpoint(ckpt_path: str | Path, out_dir: str | Path, description: s
     return path
 
 
+def copy_model_files(files: list[Path], out: Path) -> None:
+    """Copies model files named ``ROLE.safetensors`` into ``out`` after loading each strictly (a file that
+    does not load replaces nothing)."""
+    for f in files:
+        if f.stem not in ROLES:
+            raise SystemExit(f"{f}: the file name must be one of {', '.join(r + '.safetensors' for r in ROLES)}")
+        load_model_file(f)
+    out.mkdir(parents=True, exist_ok=True)
+    for f in files:
+        tmp = out / (f.name + ".tmp")
+        shutil.copyfile(f, tmp)
+        os.replace(tmp, out / f.name)
+        print(f"copied {f} -> {out / f.name}")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m training.export", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--checkpoint", nargs="+", help="training checkpoint(s) (.pt); each records its role")
     ap.add_argument("--random-init", action="store_true", help="write seeded random-init short and long models")
+    ap.add_argument("--files", nargs="+", metavar="ROLE.safetensors",
+                    help="exported model files to copy into --out, each checked to load strictly first (how the "
+                         "weights a GPU period exported replace the bundled ones of their roles)")
     ap.add_argument("--preset", choices=sorted(PRESETS), default="tiny", help="model size for --random-init")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", required=True, help="model directory to write")
     ap.add_argument("--description", help="free text recorded in each file's training metadata "
                     "(e.g. how the model was trained)")
     args = ap.parse_args(argv)
-    if bool(args.checkpoint) == bool(args.random_init):
-        ap.error("give exactly one of --checkpoint or --random-init")
+    if sum(map(bool, (args.checkpoint, args.random_init, args.files))) != 1:
+        ap.error("give exactly one of --checkpoint, --random-init or --files")
     out = Path(args.out)
     if args.random_init:
         random_init_dir(out, args.preset, args.seed)
+    elif args.files:
+        copy_model_files([Path(f) for f in args.files], out)
+        write_model_json(out)
     else:
         for ck in args.checkpoint:
             print(f"exported {export_checkpoint(ck, out, args.description)}")

@@ -5,13 +5,17 @@
 #                                                   # (gpu12_long_cmp_*.json, each at most MINUTES) -> $OUT/cmp_*.log
 #   bash training/gpu_period.sh ROLE MINUTES        # a whole schedule of gpu12_ROLE.json (short|long|repair)
 #                                                   # in MINUTES of training -> $OUT/export/ROLE.safetensors
-# Reads the carried folder gpu_carry/ (ignored by git): h36m_model_cache.npz (python3 -m training.train
-# --write-cache gpu_carry/h36m_model_cache.npz) and, to warm-start, init/ROLE.safetensors (the best
-# full-size weights so far).
+#   bash training/gpu_period.sh eval MINUTES [DIR]  # training.protocol on model directory DIR (default
+#                                                   # gpu_carry/candidate), resumed from gpu_carry/protocol/NAME
+#                                                   # -> $OUT/protocol/NAME/*.json (NAME: DIR's base name)
+# Reads the carried folder gpu_carry/ (ignored by git), which `python3 -m training.gpu_carry` prepares:
+# h36m_model_cache.npz (training data), h36m/ (S5, the evaluation protocol), init/ROLE.safetensors (the
+# best full-size weights so far, to warm-start), candidate/ and protocol/ (for eval).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${OUT:-runs/gpu_out}
 CARRY=${GPU_CARRY:-gpu_carry}
+DEVICE=${GPU_DEVICE:-cuda}      # cpu for a dry run here (tests/test_protocol.py)
 mkdir -p "$OUT"
 export PYTHONUNBUFFERED=1
 nvidia-smi --query-gpu=name,memory.used,memory.total,clocks.sm --format=csv,noheader || true
@@ -23,7 +27,7 @@ case "${1:-}" in
   compare)
     for b in b256 b32; do
       python3 -m training.train --config "training/configs/gpu12_long_cmp_$b.json" --out "runs/cmp_$b" \
-        --data "$CARRY/h36m_model_cache.npz" --device cuda --max-minutes "${2:-4}" 2>&1 | tee "$OUT/cmp_$b.log"
+        --data "$CARRY/h36m_model_cache.npz" --device "$DEVICE" --max-minutes "${2:-4}" 2>&1 | tee "$OUT/cmp_$b.log"
     done
     ;;
   short|long|repair)
@@ -32,8 +36,17 @@ case "${1:-}" in
     if [ -f "$CARRY/init/$role.safetensors" ]; then init=(--init-from "$CARRY/init/$role.safetensors"); fi
     python3 -m training.gpu_session --config "training/configs/gpu12_$role.json" --run "runs/gpu12_$role" \
       --data "$CARRY/h36m_model_cache.npz" --budget-minutes "$minutes" --minutes "$minutes" "${init[@]}" \
-      --copy-to "$OUT/$role" --export "$OUT/export" 2>&1 | tee "$OUT/$role.log"
+      --device "$DEVICE" --copy-to "$OUT/$role" --export "$OUT/export" 2>&1 | tee "$OUT/$role.log"
+    ;;
+  eval)
+    minutes=${2:?minutes}; model=${3:-$CARRY/candidate}
+    name=$(basename "$model"); results="$OUT/protocol/$name"
+    mkdir -p "$results"
+    if [ -d "$CARRY/protocol/$name" ]; then cp "$CARRY/protocol/$name"/*_*.json "$results"/ 2>/dev/null || true; fi
+    python3 -m training.protocol --model "$model" --out "$results" --data "$CARRY/h36m" --device "$DEVICE" \
+      --max-minutes "$minutes" ${PROTOCOL_ARGS:-} 2>&1 | tee "$OUT/eval_$name.log"
     ;;
   *)
-    echo "usage: bash training/gpu_period.sh bench [MINUTES] | compare [MINUTES] | short|long|repair MINUTES" >&2; exit 2 ;;
+    echo "usage: bash training/gpu_period.sh bench [MINUTES] | compare [MINUTES] | short|long|repair MINUTES" \
+         "| eval MINUTES [DIR]" >&2; exit 2 ;;
 esac
