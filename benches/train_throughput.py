@@ -4,7 +4,9 @@ optimizer step, EMA update) for the short (L = 55), long (L = 75) and repair (L 
     python benches/train_throughput.py --json benches/results/train_throughput_h100.json      # on a GPU
     python benches/train_throughput.py --device cpu --preset tiny --batch 8 --steps 3 --warmup 1   # smoke
 
-Every combination of ``--roles`` x ``--impls`` x ``--modes`` x ``--precisions`` is timed in one process:
+Every combination of ``--roles`` x ``--impls`` x ``--modes`` x ``--precisions`` is timed in one process,
+the goal's configuration (long, channels-last, compiled, bf16) and today's step (long, reference, eager,
+fp32) first:
 
 * impl ``channels_last``: the training forward (training/channels_last.py) as ``training.train`` runs
   it; ``reference``: ``TCDModel.forward`` itself, the (B, C, K, L) layout with sequence-first permutes
@@ -39,7 +41,16 @@ from training.export import PRESETS  # noqa: E402
 from training.throughput import synthetic_sequences, time_training_steps  # noqa: E402
 from training.train import TrainConfig, load_sequences  # noqa: E402
 
-ROLES, IMPLS, MODES, PRECISIONS = ("short", "long", "repair"), ("channels_last", "reference"), ("eager", "compiled"), ("fp32", "bf16")
+ROLES, IMPLS, MODES, PRECISIONS = ("long", "short", "repair"), ("channels_last", "reference"), ("compiled", "eager"), ("bf16", "fp32")
+# Timed first, so that a short time budget still measures them: the goal's configuration (the long-term
+# model's step as gpu12_long.json trains it) and today's step (the reference layout, eager, fp32), its peer.
+FIRST = (("long", "channels_last", "compiled", "bf16"), ("long", "reference", "eager", "fp32"))
+
+
+def combinations(args) -> list[tuple[str, str, str, str]]:
+    """Every requested (role, impl, mode, precision), the ``FIRST`` ones first, then role by role."""
+    every = list(itertools.product(args.roles, args.impls, args.modes, args.precisions))
+    return [c for c in FIRST if c in every] + [c for c in every if c not in FIRST]
 
 
 def measure(role: str, impl: str, mode: str, precision: str, args, seqs) -> dict:
@@ -89,7 +100,7 @@ def main(argv=None) -> int:
     seqs = load_sequences(TrainConfig(), args.data, "train") if args.data else synthetic_sequences()
     t_start = time.time()
     results = []
-    for role, impl, mode, precision in itertools.product(args.roles, args.impls, args.modes, args.precisions):
+    for role, impl, mode, precision in combinations(args):
         skip = None
         if args.max_minutes is not None and time.time() - t_start > 60 * args.max_minutes:
             skip = "time budget"

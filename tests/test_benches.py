@@ -188,3 +188,39 @@ def test_repair_scaling_smoke(tmp_path):
     assert [row["path"] for row in r["rows"]] == ["local, --jobs 1", "local, --jobs 2", "ray, 1 worker(s)",
                                                   "ray, 2 worker(s)"]
     assert all(row["frames_per_s"] > 0 for row in r["rows"]) and "overhead_per_file_ms" in r["small_files"]
+
+
+def test_train_step_floor_counts_a_training_step():
+    """benches/train_step_floor.py at the tiny size: the per-window FLOPs of a training step are about three
+    forwards' (forward, and the backward's two products per forward product), measured apart here; a fused
+    step moves fewer bytes than an unfused one; bf16 raises no floor below fp32's."""
+    import torch
+    from torch.utils.flop_counter import FlopCounterMode
+    from training.channels_last import ChannelsLast
+    from training.export import PRESETS
+    from training.model import TCDModel
+    floor = load_bench("train_step_floor")
+    r = floor.floor("long", 3, "tiny")
+    per = r["per_window"]
+    model = TCDModel(PRESETS["tiny"], 50)
+    x = torch.randn(1, model.cfg.num_features, r["seq_len"])
+    with FlopCounterMode(display=False) as fc:
+        ChannelsLast(model)(x, x, (x > 0).float(), torch.tensor([3]))
+    assert 2.5 < per["flops"] / fc.get_total_flops() < 3.5
+    assert 0 < per["bytes_fused"] < per["bytes_unfused"]
+    assert per["bytes_matmul_attention"] <= per["bytes_fused"]
+    for kind in ("unfused", "fused"):
+        assert r["floors"][f"bf16_{kind}"]["windows_per_s"] >= r["floors"][f"fp32_{kind}"]["windows_per_s"] > 0
+    assert r["floors"]["fp32_fused"]["windows_per_s"] > r["floors"]["fp32_unfused"]["windows_per_s"]
+
+
+def test_train_throughput_times_the_goal_and_todays_step_first():
+    """A GPU period's time budget may cut the list: the two numbers the issue compares come first."""
+    import argparse
+    bench = load_bench("train_throughput")
+    every = argparse.Namespace(roles=list(bench.ROLES), impls=list(bench.IMPLS), modes=list(bench.MODES),
+                               precisions=list(bench.PRECISIONS))
+    order = bench.combinations(every)
+    assert order[:2] == list(bench.FIRST) and len(order) == len(set(order)) == 24
+    only_short = argparse.Namespace(roles=["short"], impls=["channels_last"], modes=["eager"], precisions=["fp32"])
+    assert bench.combinations(only_short) == [("short", "channels_last", "eager", "fp32")]
