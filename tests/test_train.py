@@ -236,3 +236,21 @@ def test_gpu_session_sizes_the_schedule_trains_and_exports(tmp_path):
     assert meta["training"]["weights"] == "ema" and 1 <= meta["training"]["epoch"] <= chosen["epochs"]
     assert (tmp_path / "copy" / "best.pt").is_file()
     assert "optimizer" not in torch.load(run / "best.pt", weights_only=False)      # weights only: small enough to hand back
+
+
+def test_gpu_session_fits_training_into_the_call():
+    """--call-minutes: training gets what set-up, probe, the training's own compiling and the reserve leave;
+    a one-call schedule is sized to that, a schedule spread over calls keeps its budget; no time left is an
+    error before anything trains."""
+    import argparse
+    import time
+    from training import gpu_session
+    now = time.time()
+    ns = lambda **kw: argparse.Namespace(**{"call_minutes": 5.0, "minutes": 8.0, "budget_minutes": 8.0, **kw})  # noqa: E731
+    minutes, budget = gpu_session.fit_call(ns(), now, 1.0, lambda *a: None)
+    assert minutes == pytest.approx(5.0 - 1.0 - gpu_session.RESERVE_MINUTES, abs=0.01) and budget == minutes
+    assert gpu_session.fit_call(ns(budget_minutes=20.0), now, 1.0, lambda *a: None)[1] == 20.0
+    assert gpu_session.fit_call(ns(minutes=1.0, budget_minutes=1.0), now, 1.0, lambda *a: None) == (1.0, 1.0)
+    assert gpu_session.fit_call(ns(call_minutes=None), now, 1.0, lambda *a: None) == (8.0, 8.0)
+    with pytest.raises(SystemExit, match="no time left"):
+        gpu_session.fit_call(ns(call_minutes=2.0), now, 1.0, lambda *a: None)

@@ -36,7 +36,8 @@ case "${1:-}" in
     if [ -f "$CARRY/init/$role.safetensors" ]; then init=(--init-from "$CARRY/init/$role.safetensors"); fi
     python3 -m training.gpu_session --config "training/configs/gpu12_$role.json" --run "runs/gpu12_$role" \
       --data "$CARRY/h36m_model_cache.npz" --budget-minutes "$minutes" --minutes "$minutes" "${init[@]}" \
-      --device "$DEVICE" --copy-to "$OUT/$role" --export "$OUT/export" 2>&1 | tee "$OUT/$role.log"
+      --call-minutes "${CALL_MINUTES:-9.5}" --device "$DEVICE" --copy-to "$OUT/$role" --export "$OUT/export" \
+      2>&1 | tee "$OUT/$role.log"
     ;;
   eval)
     minutes=${2:?minutes}; model=${3:-$CARRY/candidate}

@@ -31,6 +31,28 @@ from .throughput import time_training_steps
 from .train import TrainConfig, train
 
 
+RESERVE_MINUTES = 1.0   # after training: the final validation, checkpoints, export and copies
+
+
+def fit_call(args, t_call: float, compile_minutes: float, log) -> tuple[float, float]:
+    """(training minutes of this call, minutes the schedule is sized for) within ``--call-minutes``: what the
+    set-up and the probe left, less the training set-up's own compiling (about the probe's warm-up) and
+    ``RESERVE_MINUTES``. A one-call schedule (budget <= minutes) is sized to the minutes that remain, so
+    that its learning-rate decays happen."""
+    if args.call_minutes is None:
+        return args.minutes, args.budget_minutes
+    left = args.call_minutes - (time.time() - t_call) / 60 - compile_minutes - RESERVE_MINUTES
+    if left < 0.1:
+        raise SystemExit(f"--call-minutes {args.call_minutes}: no time left to train in this call "
+                         f"({left:.2f} min after set-up, probe and the {RESERVE_MINUTES} min reserve)")
+    minutes = min(args.minutes, left)
+    budget = minutes if args.budget_minutes <= args.minutes else args.budget_minutes
+    if minutes < args.minutes:
+        log(f"--call-minutes {args.call_minutes}: training {minutes:.2f} min in this call (asked {args.minutes}), "
+            f"the schedule sized for {budget:.2f} min")
+    return minutes, budget
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m training.gpu_session", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -46,7 +68,11 @@ def main(argv=None) -> int:
     ap.add_argument("--workers", type=int, default=max(1, min(12, (os.cpu_count() or 2) - 2)))
     ap.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     ap.add_argument("--copy-to", default=None)
+    ap.add_argument("--call-minutes", type=float, default=None,
+                    help="wall-clock minutes this whole call may take (the device tool's limit is 10): training "
+                         "gets what the set-up and probe leave, less a reserve for validation and export")
     args = ap.parse_args(argv)
+    t_call = time.time()
 
     run = Path(args.run)
     run.mkdir(parents=True, exist_ok=True)
@@ -67,6 +93,7 @@ def main(argv=None) -> int:
         cfg = TrainConfig(**json.loads(chosen.read_text()))
         seqs = {split: load_sequences(cfg, args.data, split) for split in ("train", "val")}
         resume = True
+        args.minutes, _ = fit_call(args, t_call, 0.0, log)
     else:
         cfg = TrainConfig.load(args.config)
         if args.init_from:
@@ -77,6 +104,7 @@ def main(argv=None) -> int:
         t0 = time.time()
         probe = time_training_steps(cfg, seqs["train"], args.device, warmup=3, steps=args.probe_steps, reps=1, log=log)
         rate = probe["steps_per_s"]
+        args.minutes, args.budget_minutes = fit_call(args, t_call, probe["warmup_s"] / 60, log)
         # 0.95: validations and checkpoints take the rest of the budget
         epochs = max(1, int(rate * 60 * args.budget_minutes * 0.95 / cfg.steps_per_epoch))
         log(f"probe: {rate:.2f} steps/s ({probe['windows_per_s']:.0f} windows/s, batch {cfg.batch_size}; "
