@@ -28,39 +28,64 @@ def run(model_dir, out, *extra):
     return protocol.main(["--model", str(model_dir), "--out", str(out), "--data", str(H36M_DIR), *FEW, *extra])
 
 
+def units(out):
+    return sorted(str(p.relative_to(out)) for p in out.glob("*_*/*.json"))
+
+
 @needs_h36m
-def test_every_part_written_resumed_and_summarized(model_dir, tmp_path, capsys):
+def test_every_unit_written_resumed_and_summarized(model_dir, tmp_path, capsys):
     out = tmp_path / "res"
     assert run(model_dir, out, "--patterns", "none,random_leg_arm") == 0
-    names = sorted(p.name for p in out.iterdir())
-    assert names == ["forecast_none.json", "forecast_random_leg_arm.json", "repair_random_leg_arm.json",
-                     "summary.json"]
+    actions = H36M(H36M_DIR).test_actions()
+    assert units(out) == sorted(f"{part}/{a}.json" for part in ("forecast_none", "forecast_random_leg_arm",
+                                                                 "repair_random_leg_arm") for a in actions)
     summary = json.loads((out / "summary.json").read_text())
     assert list(summary["forecast"]) == ["none", "random_leg_arm"] and list(summary["repair"]) == ["random_leg_arm"]
+    assert summary["incomplete"] == [] and summary["actions"] == len(actions) == 13
     f = summary["forecast"]["none"]
+    assert f["actions"] == 13 and f["windows_per_action"] == 1 and f["samples"] == 2 and f["steps"] == 2
     assert f["mean_of_n_ratio"] == pytest.approx(f["mean_of_n_mm"] / f["zero_velocity_mm"])
-    assert f["windows_per_action"] == 1 and f["samples"] == 2 and f["steps"] == 2
-    part = json.loads((out / "forecast_none.json").read_text())
-    assert part["settings"]["weights_sha256"].keys() == {"short", "long", "repair"}
+    unit = json.loads((out / "forecast_none" / f"{actions[0]}.json").read_text())
+    assert unit["protocol"]["actions"] == [actions[0]]
+    assert unit["settings"]["weights_sha256"].keys() == {"short", "long", "repair"}
     assert "| none |" in capsys.readouterr().out
 
-    # a second call keeps every part and computes nothing
-    stamps = {p.name: p.stat().st_mtime_ns for p in out.glob("forecast_*.json")}
+    # a second call keeps every unit and computes nothing
+    stamps = {u: (out / u).stat().st_mtime_ns for u in units(out)}
     assert run(model_dir, out, "--patterns", "none,random_leg_arm") == 0
-    assert stamps == {p.name: p.stat().st_mtime_ns for p in out.glob("forecast_*.json")}
-    assert "done before" in capsys.readouterr().err
-    # parts made with other settings are never mixed in
+    assert stamps == {u: (out / u).stat().st_mtime_ns for u in units(out)}
+    assert "13 of 13 actions done before" in capsys.readouterr().err
+    # units made with other settings are never mixed in
     with pytest.raises(SystemExit, match="other settings"):
         run(model_dir, out, "--patterns", "none", "--seed", "1")
 
 
 @needs_h36m
-def test_budget_stops_before_a_part_and_says_what_is_left(model_dir, tmp_path, capsys):
+def test_units_pool_to_the_whole_protocol_run(model_dir, tmp_path):
+    """Action by action (what a resumed evaluation does) gives the numbers of training.evaluate's one run
+    over every action: same seeds per action, the same mean over actions."""
+    out = tmp_path / "res"
+    run(model_dir, out, "--patterns", "random_leg_arm", "--forward", "reference", "--batch-size", "16")
+    whole = E.main(["--model", str(model_dir), "--data", str(H36M_DIR), "--mask", "random_leg_arm",
+                    "--windows-per-action", "1", "--samples", "2", "--steps", "2", "--quiet", "--threads", "1",
+                    "--json", str(tmp_path / "whole.json")])
+    assert whole == 0
+    ref = json.loads((tmp_path / "whole.json").read_text())
+    got = json.loads((out / "summary.json").read_text())["forecast"]["random_leg_arm"]
+    for block in ("best_of_n", "mean_of_n", "zero_velocity"):
+        for h, v in ref[block]["average"].items():
+            assert got[f"{block}_all_horizons"][h] == pytest.approx(v, rel=1e-9)
+    assert got["cascade_repair_ade_mm"] == pytest.approx(ref["repair"]["ade_mm"], rel=1e-9)
+
+
+@needs_h36m
+def test_budget_stops_before_a_unit_and_says_what_is_left(model_dir, tmp_path, capsys):
     out = tmp_path / "res"
     assert run(model_dir, out, "--patterns", "none", "--max-minutes", "0") == 0
-    assert not (out / "forecast_none.json").exists()
+    assert units(out) == []
     captured = capsys.readouterr()
-    assert "run again to continue" in captured.err and "not done yet: forecast_none" in captured.out
+    assert "run again to continue" in captured.err
+    assert "not done yet: forecast_none (0 of 13 actions)" in captured.out
 
 
 @needs_h36m
@@ -69,16 +94,14 @@ def test_channels_last_forward_gives_the_reference_numbers(model_dir, tmp_path):
     a, b = tmp_path / "fast", tmp_path / "ref"
     run(model_dir, a, "--patterns", "random_leg_arm")
     run(model_dir, b, "--patterns", "random_leg_arm", "--forward", "reference")
-    for name in ("forecast_random_leg_arm.json", "repair_random_leg_arm.json"):
-        x, y = (json.loads((d / name).read_text()) for d in (a, b))
-        if "per_frame" in x:
-            np.testing.assert_allclose(x["per_frame"], y["per_frame"], rtol=1e-5)
-            np.testing.assert_allclose(x["mean_of_n"]["per_frame"], y["mean_of_n"]["per_frame"], rtol=1e-5)
-        else:
-            for k in ("tcd", "linear", "spline"):
-                assert x["ade_mm"][k] == pytest.approx(y["ade_mm"][k], rel=1e-5)
-    cmp = protocol.compare(a, b)
-    assert cmp["better"] == {"forecast": None, "repair": None}       # equal within the margin
+    x, y = (json.loads((d / "summary.json").read_text()) for d in (a, b))
+    fx, fy = x["forecast"]["random_leg_arm"], y["forecast"]["random_leg_arm"]
+    for block in ("best_of_n_all_horizons", "mean_of_n_all_horizons", "zero_velocity_all_horizons"):
+        for h in fx[block]:
+            assert fx[block][h] == pytest.approx(fy[block][h], rel=1e-5)
+    for k in ("tcd", "linear", "spline"):
+        assert x["repair"]["random_leg_arm"][k] == pytest.approx(y["repair"]["random_leg_arm"][k], rel=1e-5)
+    assert protocol.compare(a, b)["better"] == {"forecast": None, "repair": None}      # equal within the margin
 
 
 @needs_h36m
@@ -87,7 +110,7 @@ def test_repair_baselines_are_the_engine_interpolations(model_dir, tmp_path):
     (``tcd.interpolate``) on the same corrupted windows."""
     out = tmp_path / "res"
     run(model_dir, out, "--patterns", "structured_leg")
-    part = json.loads((out / "repair_structured_leg.json").read_text())
+    got = json.loads((out / "summary.json").read_text())["repair"]["structured_leg"]
     data = H36M(H36M_DIR)
     for method in ("linear", "spline"):
         total, count = 0.0, 0
@@ -97,25 +120,24 @@ def test_repair_baselines_are_the_engine_interpolations(model_dir, tmp_path):
             hidden = jmask < 0.5
             total += float(np.linalg.norm(filled - clean, axis=-1)[hidden].sum())
             count += int(hidden.sum())
-        assert count == part["hidden_entries"] > 0
-        assert part["ade_mm"][method] == pytest.approx(1000.0 * total / count, rel=1e-4)
+        assert count == got["hidden_entries"] > 0
+        assert got[method] == pytest.approx(1000.0 * total / count, rel=1e-4)
 
 
-def test_compare_needs_a_margin_to_call_one_better(tmp_path):
-    """Scores: the mean over patterns of mean-of-n / Zero-Velocity at 1 s, and of repair / spline."""
-    def results(d, ratio, rep):
+def test_compare_needs_a_margin_and_every_action(tmp_path):
+    """Scores: the mean over patterns of mean-of-n / Zero-Velocity at 1 s, and of repair / spline, on the
+    patterns both sets evaluated on every action."""
+    def results(d, ratio, rep, noisy_actions=13):
         d.mkdir()
-        (d / "forecast_none.json").write_text(json.dumps({
-            "protocol": {"mask": "none", "windows_per_action": 256}, "sampling": {"samples": 5, "steps": 50},
-            "zero_velocity": {"average": {"1000": 100.0}}, "best_of_n": {"average": {"1000": 70.0}},
-            "mean_of_n": {"average": {"1000": 100.0 * ratio}}}))
-        (d / "repair_noisy_25.json").write_text(json.dumps({
-            "pattern": "noisy_25", "ade_mm": {"tcd": rep, "linear": 4.0, "spline": 2.0}}))
+        (d / "summary.json").write_text(json.dumps({"actions": 13, "forecast": {
+            "none": {"actions": 13, "mean_of_n_ratio": ratio}, "noisy_25": {"actions": noisy_actions, "mean_of_n_ratio": 0.1}},
+            "repair": {"noisy_25": {"actions": 13, "tcd_over_spline": rep}}}))
         return d
-    a = results(tmp_path / "a", 0.80, 1.0)
-    b = results(tmp_path / "b", 0.805, 3.0)
+    a = results(tmp_path / "a", 0.80, 0.5)
+    b = results(tmp_path / "b", 0.805, 1.5, noisy_actions=7)     # b's noisy_25 forecast is not complete
     cmp = protocol.compare(a, b)
-    assert cmp["a"]["forecast"] == pytest.approx(0.80) and cmp["b"]["repair"] == pytest.approx(1.5)
+    assert cmp["a"]["forecast_patterns"] == ["none"] and cmp["a"]["forecast"] == pytest.approx(0.80)
+    assert cmp["b"]["repair"] == pytest.approx(1.5)
     assert cmp["better"] == {"forecast": None, "repair": str(a)}        # 0.6 % apart is within the 1 % margin
     assert protocol.compare(a, b, margin=0.001)["better"]["forecast"] == str(a)
 
@@ -160,11 +182,11 @@ def test_gpu_period_eval_call_dry_run_on_the_cpu(model_dir, tmp_path):
 
     first = call(tmp_path / "out1")
     got = tmp_path / "out1" / "protocol" / "candidate"
-    assert {p.name for p in got.glob("*_*.json")} == {"forecast_none.json", "forecast_noisy_25.json",
-                                                     "repair_noisy_25.json"}
+    assert {p.name for p in got.glob("*_*") if len(list(p.glob("*.json"))) == 13} == {
+        "forecast_none", "forecast_noisy_25", "repair_noisy_25"}
     assert "| noisy_25 |" in first
     # what came back is carried into the next call, which computes nothing again
     shutil.copytree(tmp_path / "out1" / "protocol", carry / "protocol")
     second = call(tmp_path / "out2")
-    assert "done before" in second and json.loads((tmp_path / "out2" / "protocol" / "candidate" / "summary.json")
+    assert "13 of 13 actions done before" in second and json.loads((tmp_path / "out2" / "protocol" / "candidate" / "summary.json")
                                                .read_text()) == json.loads((got / "summary.json").read_text())

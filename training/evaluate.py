@@ -127,9 +127,11 @@ def protocol_windows(data: H36M, action: str, action_index: int, windows_per_act
     return wins[:, OBS:], obs_clean, obs, jmask
 
 
-def evaluate_h36m(args, models: dict | None = None, data: H36M | None = None) -> dict:
+def evaluate_h36m(args, models: dict | None = None, data: H36M | None = None, only: list[str] | None = None) -> dict:
     """The protocol for ``args`` (the options of :func:`main`). ``models`` (``export.load_model_dir``'s
-    dict, possibly with faster forwards: ``training.protocol``) and ``data`` are loaded when not given."""
+    dict, possibly with faster forwards: ``training.protocol``) and ``data`` are loaded when not given.
+    ``only``: evaluate these actions alone, each with the seeds it has in the whole protocol (its index
+    among all actions), so that per-action results pooled later equal the whole run's."""
     data = data if data is not None else H36M(args.data)
     actions = data.test_actions()
     if models is None and args.model:
@@ -139,6 +141,8 @@ def evaluate_h36m(args, models: dict | None = None, data: H36M | None = None) ->
     rep_sum, rep_cnt = 0.0, 0
     t0 = time.time()
     for ai, action in enumerate(actions):
+        if only is not None and action not in only:
+            continue
         gt32, obs_clean, obs, jmask = protocol_windows(data, action, ai, args.windows_per_action, args.mask,
                                                        args.mask_seed)
         zv[action] = per_frame_error(model_to_xyz32(zero_velocity(obs, jmask), gt32), gt32).mean(axis=0)
@@ -160,7 +164,8 @@ def evaluate_h36m(args, models: dict | None = None, data: H36M | None = None) ->
                     model_to_xyz32(zero_velocity(res["repaired"], np.ones_like(jmask)), gt32), gt32).mean(axis=0)
         if not args.quiet:
             print(f"[{ai + 1}/{len(actions)}] {action}: {len(obs)} windows, {time.time() - t0:.0f} s", file=sys.stderr)
-    out = {"protocol": {"dataset": "h36m", "subject": "S5", "actions": actions, "windows_per_action": args.windows_per_action,
+    evaluated = [a for a in actions if only is None or a in only]
+    out = {"protocol": {"dataset": "h36m", "subject": "S5", "actions": evaluated, "windows_per_action": args.windows_per_action,
                         "observed_frames": OBS, "predicted_frames": PRED, "fps": 25, "units": "mm",
                         "error": "mean over 32 joints (22 predicted pasted into GT, 6 duplicates copied)",
                         "mask": args.mask, "data": str(data.source.origin)},

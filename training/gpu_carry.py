@@ -116,7 +116,7 @@ def main(argv=None) -> int:
         if dst.exists():
             shutil.rmtree(dst)
         shutil.copytree(args.protocol, dst)
-        print(f"{dst}: {len(list(dst.rglob('*_*.json')))} parts done")
+        print(f"{dst}: {len(list(dst.rglob('*_*/*.json')))} units (action x part) done")
 
     size = folder_bytes(out)
     print(f"{out}: {size / 2**20:.1f} MiB of the {CARRY_LIMIT / 2**20:.0f} MiB a call carries (with the working tree)")

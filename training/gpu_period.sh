@@ -7,7 +7,7 @@
 #                                                   # in MINUTES of training -> $OUT/export/ROLE.safetensors
 #   bash training/gpu_period.sh eval MINUTES [DIR]  # training.protocol on model directory DIR (default
 #                                                   # gpu_carry/candidate), resumed from gpu_carry/protocol/NAME
-#                                                   # -> $OUT/protocol/NAME/*.json (NAME: DIR's base name)
+#                                                   # -> $OUT/protocol/NAME/ (NAME: DIR's base name)
 # Reads the carried folder gpu_carry/ (ignored by git), which `python3 -m training.gpu_carry` prepares:
 # h36m_model_cache.npz (training data), h36m/ (S5, the evaluation protocol), init/ROLE.safetensors (the
 # best full-size weights so far, to warm-start), candidate/ and protocol/ (for eval).
@@ -43,7 +43,7 @@ case "${1:-}" in
     minutes=${2:?minutes}; model=${3:-$CARRY/candidate}
     name=$(basename "$model"); results="$OUT/protocol/$name"
     mkdir -p "$results"
-    if [ -d "$CARRY/protocol/$name" ]; then cp "$CARRY/protocol/$name"/*_*.json "$results"/ 2>/dev/null || true; fi
+    if [ -d "$CARRY/protocol/$name" ]; then cp -r "$CARRY/protocol/$name"/. "$results"/; fi
     python3 -m training.protocol --model "$model" --out "$results" --data "$CARRY/h36m" --device "$DEVICE" \
       --max-minutes "$minutes" ${PROTOCOL_ARGS:-} 2>&1 | tee "$OUT/eval_$name.log"
     ;;

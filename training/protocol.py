@@ -1,4 +1,4 @@
-"""The whole evaluation of a model directory in one process (issue 15, part 3), resumable part by part.
+"""The whole evaluation of a model directory in one process (issue 15, part 3), resumable action by action.
 
     python -m training.protocol --model DIR --out RESULTS [--device cuda] [--max-minutes 9]
     python -m training.protocol --compare RESULTS_A RESULTS_B      # which model set is better
@@ -8,17 +8,19 @@ random leg + arm occlusion 40 %, structured leg occlusion, consecutive missing f
 25 mm), on the Human3.6M S5 protocol of :mod:`training.evaluate` (256 windows per action, DDPM over all
 steps, 5 samples unless told otherwise):
 
-* ``forecast_<pattern>.json``: the cascade's errors (oracle best of n, mean of n, Zero-Velocity on the same
-  windows), written by :func:`training.evaluate.evaluate_h36m`;
-* ``repair_<pattern>.json`` (patterns that hide entries, when DIR holds ``repair.safetensors``): ADE in mm
-  over the hidden entries of the repair model (mean of n samples), of linear interpolation and of the
-  natural cubic spline (``training.model.linear_fill`` / ``spline_fill``, bit for bit the engine's fills),
-  on the same corrupted observations.
+* ``forecast_<pattern>/<action>.json``: the cascade's errors (oracle best of n, mean of n, Zero-Velocity on
+  the same windows), written by :func:`training.evaluate.evaluate_h36m` for that action alone;
+* ``repair_<pattern>/<action>.json`` (patterns that hide entries, when DIR holds ``repair.safetensors``):
+  the summed distances over the hidden entries of the repair model (mean of n samples), of linear
+  interpolation and of the natural cubic spline (``training.model.linear_fill`` / ``spline_fill``, bit for
+  bit the engine's fills), on the same corrupted observations.
 
-Each part is written (atomically) as soon as it is done and skipped when its file exists, so the
-evaluation can span several device calls of at most 10 minutes: ``--max-minutes`` starts no part that
-the slowest part so far would carry past the budget. ``summary.json`` and the table printed last gather
-whatever parts exist.
+Each unit (one action of one part) is written atomically as soon as it is done and skipped when its file
+exists, so the evaluation can span several device calls of at most 10 minutes and a call cut short loses
+one action at most; ``--max-minutes`` starts no unit that the slowest unit so far would carry past the
+budget. ``summary.json`` and the table printed last pool the units that exist over actions (the mean
+over actions of each action's errors, as the whole protocol averages them; repair ADE pooled over hidden
+entries) and say how many actions each pattern has so far; a pattern counts as done with all of them.
 
 Speed: the samplers run the model through its channels-last forward (``training.channels_last``, equal to
 the reference within 1e-5; ``--forward reference`` for the reference itself), with TF32 matrix products
@@ -83,46 +85,33 @@ def fast_models(models: dict, *, forward: str, precision: str, compile_: bool, d
 
 # ------------------------------------------------------------------------------------------ repair
 
-def repair_errors(models: dict, data: H36M, pattern: str, *, windows_per_action: int, samples: int,
-                  steps: int | None, sampler: str, spacing: str, seed: int, mask_seed: int, device: str,
-                  batch_size: int, quiet: bool = False) -> dict:
-    """ADE (mm) over the hidden observation entries of the repair model and the two interpolations, on
-    the protocol windows corrupted as :func:`evaluate.protocol_windows` corrupts them for the forecast."""
+def repair_action(models: dict, data: H36M, pattern: str, action_index: int, action: str, *,
+                  windows_per_action: int, samples: int, steps: int | None, sampler: str, spacing: str, seed: int,
+                  mask_seed: int, device: str, batch_size: int) -> dict:
+    """Summed distances (mm) over the hidden observation entries of one action's protocol windows, corrupted
+    as :func:`evaluate.protocol_windows` corrupts them for the forecast: the repair model and the two
+    interpolations."""
     from .diffusion import repair
     from .model import FILLS
     model, sched, cfg = models["repair"]
     seq_len = cfg["window"]["seq_len"]
-    sums = {"tcd": 0.0, "linear": 0.0, "spline": 0.0}
-    count = 0
-    per_action = {}
-    t0 = time.time()
-    actions = data.test_actions()
-    for ai, action in enumerate(actions):
-        _, obs_clean, obs, jmask = E.protocol_windows(data, action, ai, windows_per_action, pattern, mask_seed)
-        obs = obs * E.joint_to_coord_mask(jmask)
-        a_sums = dict.fromkeys(sums, 0.0)
-        a_count = 0
-        for b0 in range(0, len(obs), batch_size):
-            x = E.to_bkl(obs[b0:b0 + batch_size]).to(device)
-            m = E.to_bkl(E.joint_to_coord_mask(jmask[b0:b0 + batch_size])).to(device)
-            gen = torch.Generator(device=device).manual_seed(seed * 1_000_003 + ai * 10_007 + b0)
-            filled = {"tcd": repair(model, sched, x, m, seq_len=seq_len, num_samples=samples, generator=gen,
-                                    sampler=sampler, num_inference_steps=steps, timestep_spacing=spacing)}
-            for fill in ("linear", "spline"):
-                filled[fill] = FILLS[fill](x, m)
-            for name, value in filled.items():
-                s, c = repair_ade(E.from_bkl(value), obs_clean[b0:b0 + batch_size], jmask[b0:b0 + batch_size])
-                a_sums[name] += s
-            a_count += c
-        per_action[action] = {k: 1000.0 * v / max(a_count, 1) for k, v in a_sums.items()}
-        for k in sums:
-            sums[k] += a_sums[k]
-        count += a_count
-        if not quiet:
-            print(f"[{ai + 1}/{len(actions)}] repair {pattern} {action}: {time.time() - t0:.0f} s", file=sys.stderr)
-    return {"pattern": pattern, "ade_mm": {k: 1000.0 * v / max(count, 1) for k, v in sums.items()},
-            "hidden_entries": count, "per_action": per_action,
-            "label": "ADE in mm over the hidden observation entries (tcd: mean of the samples)"}
+    _, obs_clean, obs, jmask = E.protocol_windows(data, action, action_index, windows_per_action, pattern, mask_seed)
+    obs = obs * E.joint_to_coord_mask(jmask)
+    sums, count = {"tcd": 0.0, "linear": 0.0, "spline": 0.0}, 0
+    for b0 in range(0, len(obs), batch_size):
+        x = E.to_bkl(obs[b0:b0 + batch_size]).to(device)
+        m = E.to_bkl(E.joint_to_coord_mask(jmask[b0:b0 + batch_size])).to(device)
+        gen = torch.Generator(device=device).manual_seed(seed * 1_000_003 + action_index * 10_007 + b0)
+        filled = {"tcd": repair(model, sched, x, m, seq_len=seq_len, num_samples=samples, generator=gen,
+                                sampler=sampler, num_inference_steps=steps, timestep_spacing=spacing),
+                  "linear": FILLS["linear"](x, m), "spline": FILLS["spline"](x, m)}
+        for name, value in filled.items():
+            total, c = repair_ade(E.from_bkl(value), obs_clean[b0:b0 + batch_size], jmask[b0:b0 + batch_size])
+            sums[name] += 1000.0 * total
+        count += c
+    return {"pattern": pattern, "action": action, "sum_mm": sums, "hidden_entries": count,
+            "ade_mm": {k: v / max(count, 1) for k, v in sums.items()},
+            "label": "distances in mm over the hidden observation entries (tcd: mean of the samples)"}
 
 
 # ------------------------------------------------------------------------------------------ parts
@@ -131,7 +120,7 @@ def parts(patterns, has_repair: bool) -> list[tuple[str, str]]:
     """(kind, pattern) in the order they run: every forecast first (the headline numbers), then repair."""
     out = [("forecast", p) for p in patterns]
     if has_repair:
-        out += [("repair", p) for p in patterns if p not in ("none",)]
+        out += [("repair", p) for p in patterns if p != "none"]
     return out
 
 
@@ -160,79 +149,104 @@ def run(args) -> int:
     models = fast_models(loaded, forward=args.forward, precision=args.precision, compile_=args.compile,
                          device=args.device)
     data = H36M(args.data)
-    settings = {"model": str(args.model), "weights_sha256": weight_digests(Path(args.model)), "device": args.device, "forward": args.forward,
-                "precision": args.precision, "compile": args.compile, "samples": args.samples,
+    actions = data.test_actions()
+    settings = {"model": str(args.model), "weights_sha256": weight_digests(Path(args.model)), "device": args.device,
+                "forward": args.forward, "precision": args.precision, "compile": args.compile, "samples": args.samples,
                 "steps": args.steps, "sampler": args.sampler, "timestep_spacing": args.timestep_spacing,
                 "windows_per_action": args.windows_per_action, "seed": args.seed, "mask_seed": args.mask_seed}
     if torch.cuda.is_available() and torch.device(args.device).type == "cuda":
         settings["gpu"] = torch.cuda.get_device_name()
-    t_start, slowest = time.time(), 0.0
-    todo = parts(args.patterns, "repair" in models)
-    for kind, pattern in todo:
-        path = out / f"{kind}_{pattern}.json"
-        if path.is_file():
-            prev = json.loads(path.read_text()).get("settings", {})
-            if identity(prev) != identity(settings):
-                raise SystemExit(f"{path} was made with other settings or weights ({identity(prev)}, now "
-                                 f"{identity(settings)}); use another --out")
-            print(f"{kind} {pattern}: done before ({path.name})", file=sys.stderr)
-            continue
-        elapsed = (time.time() - t_start) / 60
-        if args.max_minutes is not None and elapsed + slowest > args.max_minutes:
-            print(f"stopping before {kind} {pattern}: {elapsed:.1f} min used, the slowest part took "
-                  f"{slowest:.1f} of the {args.max_minutes} min budget; run again to continue", file=sys.stderr)
+    t_start, slowest, stopped = time.time(), 0.0, False
+    for kind, pattern in parts(args.patterns, "repair" in models):
+        part = out / f"{kind}_{pattern}"
+        part.mkdir(exist_ok=True)
+        done_before = 0
+        for ai, action in enumerate(actions):
+            path = part / f"{action}.json"
+            if path.is_file():
+                prev = json.loads(path.read_text()).get("settings", {})
+                if identity(prev) != identity(settings):
+                    raise SystemExit(f"{path} was made with other settings or weights ({identity(prev)}, now "
+                                     f"{identity(settings)}); use another --out")
+                done_before += 1
+                continue
+            elapsed = (time.time() - t_start) / 60
+            if args.max_minutes is not None and elapsed + slowest > args.max_minutes:
+                print(f"stopping before {kind} {pattern} {action}: {elapsed:.1f} min used, the slowest unit took "
+                      f"{slowest:.1f} of the {args.max_minutes} min budget; run again to continue", file=sys.stderr)
+                stopped = True
+                break
+            t0 = time.time()
+            if kind == "forecast":
+                ns = argparse.Namespace(model=args.model, mask=pattern, mask_seed=args.mask_seed, seed=args.seed,
+                                        samples=args.samples, steps=args.steps, sampler=args.sampler, eta=0.0,
+                                        timestep_spacing=args.timestep_spacing,
+                                        windows_per_action=args.windows_per_action, batch_size=args.batch_size,
+                                        device=args.device, engine="torch", select="best", quiet=True)
+                res = E.evaluate_h36m(ns, models=models, data=data, only=[action])
+            else:
+                res = repair_action(models, data, pattern, ai, action, windows_per_action=args.windows_per_action,
+                                    samples=args.samples, steps=args.steps, sampler=args.sampler,
+                                    spacing=args.timestep_spacing, seed=args.seed, mask_seed=args.mask_seed,
+                                    device=args.device, batch_size=args.batch_size)
+            res["settings"], res["seconds"] = settings, time.time() - t0
+            write_json(path, res)
+            slowest = max(slowest, res["seconds"] / 60)
+            if not args.quiet:
+                print(f"{kind} {pattern} [{ai + 1}/{len(actions)}] {action}: {res['seconds']:.0f} s", file=sys.stderr)
+        if done_before:
+            print(f"{kind} {pattern}: {done_before} of {len(actions)} actions done before", file=sys.stderr)
+        if stopped:
             break
-        t0 = time.time()
-        if kind == "forecast":
-            ns = argparse.Namespace(model=args.model, mask=pattern, mask_seed=args.mask_seed, seed=args.seed,
-                                    samples=args.samples, steps=args.steps, sampler=args.sampler, eta=0.0,
-                                    timestep_spacing=args.timestep_spacing, windows_per_action=args.windows_per_action,
-                                    batch_size=args.batch_size, device=args.device, engine="torch",
-                                    select="best", quiet=args.quiet)
-            res = E.evaluate_h36m(ns, models=models, data=data)
-        else:
-            res = repair_errors(models, data, pattern, windows_per_action=args.windows_per_action,
-                                samples=args.samples, steps=args.steps, sampler=args.sampler,
-                                spacing=args.timestep_spacing, seed=args.seed, mask_seed=args.mask_seed,
-                                device=args.device, batch_size=args.batch_size, quiet=args.quiet)
-        res["settings"], res["seconds"] = settings, time.time() - t0
-        write_json(path, res)
-        slowest = max(slowest, res["seconds"] / 60)
-        print(f"{kind} {pattern}: {res['seconds']:.0f} s -> {path}", file=sys.stderr)
-    summary = summarize(out)
+    summary = summarize(out, actions)
     write_json(out / "summary.json", summary)
     print(table(summary))
-    missing = [f"{k}_{p}" for k, p in todo if not (out / f"{k}_{p}.json").is_file()]
-    if missing:
-        print(f"\nnot done yet: {', '.join(missing)}")
+    if summary["incomplete"]:
+        print(f"\nnot done yet: {', '.join(summary['incomplete'])}")
     return 0
 
 
 # ------------------------------------------------------------------------------------------ summary
 
-def summarize(out: Path) -> dict:
-    """Every part in ``out`` reduced to the goal table's numbers (errors at 1000 ms, ratios to Zero-Velocity)."""
+def _mean_over_actions(units: list[dict], block: str) -> dict[str, float]:
+    """The whole protocol's average at each horizon: the mean over actions of each action's error."""
+    rows = [next(iter(u[block]["per_action"].values())) for u in units]
+    return {h: float(np.mean([r[h] for r in rows])) for h in rows[0]}
+
+
+def summarize(out: Path, actions: list[str]) -> dict:
+    """The units in ``out`` pooled per pattern (see the module docstring), with the goal table's numbers at
+    1000 ms and the ratios to Zero-Velocity. ``incomplete`` lists the parts that lack actions."""
     from .masks import PATTERNS
-    order = lambda path: PATTERNS.index(path.stem.split("_", 1)[1])  # noqa: E731  (protocol order)
-    forecast, repair_ = {}, {}
-    for path in sorted(out.glob("forecast_*.json"), key=order):
-        r = json.loads(path.read_text())
-        zv = r["zero_velocity"]["average"][HORIZON]
-        forecast[r["protocol"]["mask"]] = {
-            "zero_velocity_mm": zv,
-            "best_of_n_mm": r["best_of_n"]["average"][HORIZON], "mean_of_n_mm": r["mean_of_n"]["average"][HORIZON],
-            "best_of_n_ratio": r["best_of_n"]["average"][HORIZON] / zv,
-            "mean_of_n_ratio": r["mean_of_n"]["average"][HORIZON] / zv,
-            "mean_of_n_all_horizons": r["mean_of_n"]["average"], "best_of_n_all_horizons": r["best_of_n"]["average"],
-            "zero_velocity_all_horizons": r["zero_velocity"]["average"],
-            "cascade_repair_ade_mm": r.get("repair", {}).get("ade_mm"),
-            "windows_per_action": r["protocol"]["windows_per_action"], "samples": r["sampling"]["samples"],
-            "steps": r["sampling"]["steps"]}
-    for path in sorted(out.glob("repair_*.json"), key=order):
-        r = json.loads(path.read_text())
-        a = r["ade_mm"]
-        repair_[r["pattern"]] = dict(a, tcd_over_linear=a["tcd"] / a["linear"], tcd_over_spline=a["tcd"] / a["spline"])
-    return {"horizon_ms": int(HORIZON), "forecast": forecast, "repair": repair_}
+    forecast, repair_, incomplete = {}, {}, []
+    parts_found = sorted((d for d in out.iterdir() if d.is_dir() and "_" in d.name),
+                         key=lambda d: (d.name.split("_", 1)[0] != "forecast", PATTERNS.index(d.name.split("_", 1)[1])))
+    for d in parts_found:
+        kind, pattern = d.name.split("_", 1)
+        units = [json.loads((d / f"{a}.json").read_text()) for a in actions if (d / f"{a}.json").is_file()]
+        if len(units) < len(actions):
+            incomplete.append(f"{d.name} ({len(units)} of {len(actions)} actions)")
+        if not units:
+            continue
+        if kind == "forecast":
+            zv, best, mean = (_mean_over_actions(units, b) for b in ("zero_velocity", "best_of_n", "mean_of_n"))
+            entries = sum(u.get("repair", {}).get("occluded_entries", 0) for u in units)
+            rep = sum(u["repair"]["ade_mm"] * u["repair"]["occluded_entries"] for u in units if "repair" in u)
+            forecast[pattern] = {
+                "actions": len(units), "zero_velocity_mm": zv[HORIZON], "best_of_n_mm": best[HORIZON],
+                "mean_of_n_mm": mean[HORIZON], "best_of_n_ratio": best[HORIZON] / zv[HORIZON],
+                "mean_of_n_ratio": mean[HORIZON] / zv[HORIZON], "zero_velocity_all_horizons": zv,
+                "best_of_n_all_horizons": best, "mean_of_n_all_horizons": mean,
+                "cascade_repair_ade_mm": rep / entries if entries else None,
+                "windows_per_action": units[0]["protocol"]["windows_per_action"],
+                "samples": units[0]["sampling"]["samples"], "steps": units[0]["sampling"]["steps"]}
+        else:
+            count = sum(u["hidden_entries"] for u in units)
+            a = {k: sum(u["sum_mm"][k] for u in units) / max(count, 1) for k in ("tcd", "linear", "spline")}
+            repair_[pattern] = dict(a, actions=len(units), hidden_entries=count, tcd_over_linear=a["tcd"] / a["linear"],
+                                    tcd_over_spline=a["tcd"] / a["spline"])
+    return {"horizon_ms": int(HORIZON), "actions": len(actions), "forecast": forecast, "repair": repair_,
+            "incomplete": incomplete}
 
 
 def score(summary: dict) -> dict:
@@ -248,24 +262,28 @@ def score(summary: dict) -> dict:
 def table(summary: dict) -> str:
     lines = ["| pattern | Zero-Velocity mm | best of n mm (ratio) | mean of n mm (ratio) |", "|---|---|---|---|"]
     for p, v in summary["forecast"].items():
+        p = p if v["actions"] == summary["actions"] else f"{p} ({v['actions']} of {summary['actions']} actions)"
         lines.append(f"| {p} | {v['zero_velocity_mm']:.1f} | {v['best_of_n_mm']:.1f} ({v['best_of_n_ratio']:.3f}) "
                      f"| {v['mean_of_n_mm']:.1f} ({v['mean_of_n_ratio']:.3f}) |")
     if summary["repair"]:
         lines += ["", "| pattern | repair ADE mm: tcd | linear | spline | tcd / linear | tcd / spline |",
                   "|---|---|---|---|---|---|"]
         for p, v in summary["repair"].items():
+            p = p if v["actions"] == summary["actions"] else f"{p} ({v['actions']} of {summary['actions']} actions)"
             lines.append(f"| {p} | {v['tcd']:.2f} | {v['linear']:.2f} | {v['spline']:.2f} | "
                          f"{v['tcd_over_linear']:.3f} | {v['tcd_over_spline']:.3f} |")
     return "\n".join(lines)
 
 
 def compare(a: Path, b: Path, margin: float = 0.01) -> dict:
-    """Scores of two result directories on the patterns both evaluated; ``better`` names, per part, the
+    """Scores of two result directories (their ``summary.json``) on the patterns both evaluated on every
+    action; ``better`` names, per part, the
     directory whose score is lower by more than ``margin`` (relative): None when neither is (within
     sampling noise, keep what is bundled) or the part was not evaluated in both."""
-    sa, sb = summarize(a), summarize(b)
+    sa, sb = (json.loads((d / "summary.json").read_text()) for d in (a, b))
     for key in ("forecast", "repair"):
-        common = set(sa[key]) & set(sb[key])
+        common = {p for p in set(sa[key]) & set(sb[key])
+                  if sa[key][p]["actions"] == sa["actions"] and sb[key][p]["actions"] == sb["actions"]}
         sa[key] = {p: v for p, v in sa[key].items() if p in common}
         sb[key] = {p: v for p, v in sb[key].items() if p in common}
     fa, fb = score(sa), score(sb)
