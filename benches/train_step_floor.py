@@ -1,5 +1,6 @@
-"""The floor of one training step, counted on the CPU: FLOPs and the bytes the step's operations move, per
-window, and the windows/s those allow on a GPU (the device method's "two numbers first").
+"""The floor of one training step and of one sampling forward, counted on the CPU: FLOPs and the bytes the
+operations move, per window, and the windows/s those allow on a GPU (the device method's "two numbers
+first"); from the forwards, the minutes of the whole evaluation protocol at each floor.
 
     python benches/train_step_floor.py [--roles long short repair] [--batch 2] [--json OUT]
 
@@ -77,7 +78,9 @@ class ByteCounter(TorchDispatchMode):
         return out
 
 
-def trace(role: str, batch: int, preset: str = "full") -> dict:
+def trace(role: str, batch: int, preset: str = "full", inference: bool = False) -> dict:
+    """FLOPs and bytes of one training step of ``batch`` windows, or with ``inference`` of one forward of
+    the denoiser in eval mode on ``batch`` windows (what a sampler calls once per step and sample)."""
     cfg = TrainConfig.load(ROOT / "training" / "configs" / f"{role}.json")
     cfg = replace(cfg, model={**PRESETS[preset].to_dict(), **cfg.model}, batch_size=batch, ema_decay=0.999,
                   batches="device", compile=False, amp=False)
@@ -92,9 +95,18 @@ def trace(role: str, batch: int, preset: str = "full") -> dict:
     forward = training_forward(model, cfg, (batch, model_cfg.num_features, L), "cpu", lambda *a: None)
     source = DeviceBatchSource(cfg, Windows(synthetic_sequences(), L, cfg.train_stride), sched.T, 10 ** 9,
                                torch.device("cpu"))
-    train_step(forward, opt, sched, source.batch(0, 0), False)        # Adam's state exists from here on
-    ema.update(model)
-    b = source.batch(0, 1)
+    if inference:
+        model.eval()
+        x0, observed, mask, t, _ = source.batch(0, 0)
+        step = lambda: forward(x0, observed, mask, t)  # noqa: E731
+    else:
+        train_step(forward, opt, sched, source.batch(0, 0), False)        # Adam's state exists from here on
+        ema.update(model)
+        b = source.batch(0, 1)
+
+        def step():
+            train_step(forward, opt, sched, b, False)
+            ema.update(model)
     flops, counter = FlopCounterMode(display=False), ByteCounter()
     sdpa = torch.nn.functional.scaled_dot_product_attention
     # A GPU runs attention with dropout as one fused kernel (flash / memory-efficient: the mask drawn inside,
@@ -102,9 +114,8 @@ def trace(role: str, batch: int, preset: str = "full") -> dict:
     # fused CPU kernel instead (dropout 0 inside attention only): its reads and writes are the GPU kernel's.
     torch.nn.functional.scaled_dot_product_attention = lambda q, k, v, dropout_p=0.0, **kw: sdpa(q, k, v, **kw)
     try:
-        with flops, counter:
-            train_step(forward, opt, sched, b, False)
-            ema.update(model)
+        with flops, counter, torch.set_grad_enabled(not inference):
+            step()
     finally:
         torch.nn.functional.scaled_dot_product_attention = sdpa
     by_op = dict(counter.by_op)
@@ -114,8 +125,8 @@ def trace(role: str, batch: int, preset: str = "full") -> dict:
             "by_op": by_op}
 
 
-def floor(role: str, batch: int, preset: str = "full") -> dict:
-    big, one = trace(role, batch, preset), trace(role, 1, preset)
+def floor(role: str, batch: int, preset: str = "full", inference: bool = False) -> dict:
+    big, one = trace(role, batch, preset, inference), trace(role, 1, preset, inference)
     keys = ("flops", "bytes_unfused", "bytes_fused", "bytes_matmul_attention")
     per = {k: (big[k] - one[k]) / (batch - 1) for k in keys}
     out = {"role": role, "seq_len": big["seq_len"], "per_window": per,
@@ -134,6 +145,18 @@ def floor(role: str, batch: int, preset: str = "full") -> dict:
     return out
 
 
+def protocol_minutes(forwards: list[dict], windows: int = 13 * 256, samples: int = 5, steps: int = 50) -> dict:
+    """Minutes of training.protocol's whole evaluation at each floor (short + long forwards for each of the
+    5 forecast parts, the repair forward for each of the 4 repair parts); {} unless all three roles ran."""
+    by_role = {r["role"]: r["floors"] for r in forwards}
+    if set(by_role) != {"short", "long", "repair"}:
+        return {}
+    calls = windows * samples * steps
+    return {kind: calls / 60 * (5 * sum(1 / by_role[r][kind]["windows_per_s"] for r in ("short", "long"))
+                                + 4 / by_role["repair"][kind]["windows_per_s"])
+            for kind in by_role["long"]}
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--roles", nargs="+", choices=["short", "long", "repair"], default=["long", "short", "repair"])
@@ -143,21 +166,27 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.batch < 2:
         ap.error("--batch must be >= 2 (the per-window cost is a slope)")
-    torch.set_num_threads(max(1, torch.get_num_threads()))
-    results = [floor(r, args.batch, args.preset) for r in args.roles]
-    print("| role (L) | GFLOP/window | MB/window unfused | MB/window fused | floor windows/s, fp32: unfused / fused "
-          "| bf16: unfused / fused |")
-    print("|---|---|---|---|---|---|")
-    for r in results:
-        p, f = r["per_window"], r["floors"]
-        print(f"| {r['role']} ({r['seq_len']}) | {p['flops'] / 1e9:.1f} | {p['bytes_unfused'] / 1e6:,.0f} | "
-              f"{p['bytes_fused'] / 1e6:,.0f} | {f['fp32_unfused']['windows_per_s']:,.0f} / "
-              f"{f['fp32_fused']['windows_per_s']:,.0f} | {f['bf16_unfused']['windows_per_s']:,.0f} / "
-              f"{f['bf16_fused']['windows_per_s']:,.0f} |")
+    results = {"train_step": [floor(r, args.batch, args.preset) for r in args.roles],
+               "forward": [floor(r, args.batch, args.preset, inference=True) for r in args.roles]}
+    for what, rows in results.items():
+        unit = "window" if what == "train_step" else "window-sample"
+        print(f"\n{what.replace('_', ' ')}: per {unit}, floors in {unit}s/s on the H100")
+        print("| role (L) | GFLOP | MB unfused | MB fused | fp32: unfused / fused | bf16: unfused / fused |")
+        print("|---|---|---|---|---|---|")
+        for r in rows:
+            p, f = r["per_window"], r["floors"]
+            print(f"| {r['role']} ({r['seq_len']}) | {p['flops'] / 1e9:.1f} | {p['bytes_unfused'] / 1e6:,.0f} | "
+                  f"{p['bytes_fused'] / 1e6:,.0f} | {f['fp32_unfused']['windows_per_s']:,.0f} / "
+                  f"{f['fp32_fused']['windows_per_s']:,.0f} | {f['bf16_unfused']['windows_per_s']:,.0f} / "
+                  f"{f['bf16_fused']['windows_per_s']:,.0f} |")
+    protocol = protocol_minutes(results["forward"])
+    if protocol:
+        print("\nthe evaluation protocol (training.protocol: 3,328 windows x 5 samples x 50 steps; 5 forecast and "
+              "4 repair parts), minutes at the floor: " + ", ".join(f"{k} {v:.0f}" for k, v in protocol.items()))
     if args.json:
         Path(args.json).write_text(json.dumps({"gpu": H100, "batch": args.batch, "preset": args.preset, "torch": torch.__version__,
                                                "command": " ".join(["python benches/train_step_floor.py"] + (argv or sys.argv[1:])),
-                                               "results": results}, indent=1) + "\n")
+                                               "protocol_minutes_at_floor": protocol, **results}, indent=1) + "\n")
     return 0
 
 
