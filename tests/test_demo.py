@@ -131,3 +131,17 @@ def test_bundled_model_loads_and_matches_its_checksums():
     sums = {n: h for h, n in (line.split() for line in (d / "SHA256SUMS").read_text().splitlines() if line.strip())}
     assert m.file_sha256 == {n: sums[n] for n in m.file_sha256}
     assert m.num_joints == 22 and m.obs_len == 50 and m.horizon == 25
+
+
+def test_summary_columns_stay_apart_for_any_error(tiny_model_dir):
+    """An untrained model's errors reach metres (six digits in mm): the table widens instead of running
+    numbers together."""
+    model = tcd.load(tiny_model_dir)
+    res = demo.run(model, samples=1, options=tcd.SamplerOptions(num_inference_steps=2), quiet=True)
+    res["forecast_mm"] = {m: 123456.7 for m in res["forecast_mm"]}       # as the full-size random model gives
+    rows = [line for line in demo.summary(res, model).splitlines()
+            if line.startswith(("  tcd, ", "  zero-velocity", "  horizon"))]
+    assert len(rows) == 4
+    for line in rows:
+        assert len(line[30:].split()) == len(res["forecast_mm"]), line
+    assert "123456.7" in rows[1]

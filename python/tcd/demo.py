@@ -166,7 +166,9 @@ def run(model: TCD, *, samples: int = DEFAULT_SAMPLES, options: Optional[Sampler
 def summary(res: Dict[str, Any], model: TCD) -> str:
     """The short text ``tcd demo`` prints."""
     ms = [m for m in HORIZONS_MS if m in res["forecast_mm"]]
-    w = 7
+    blocks = ("forecast_mm", "occluded_forecast_mm", "zero_velocity_mm")
+    # wide enough for every number (an untrained model's errors reach metres), one space between columns
+    w = 1 + max(7, *(len(f"{res[b][m]:.1f}") for b in blocks for m in ms))
     head = "".join(f"{m:>{w}}" for m in ms)
     row = lambda name, d: f"  {name:<28}" + "".join(f"{d[m]:>{w}.1f}" for m in ms)  # noqa: E731
     s = res["settings"]
