@@ -27,7 +27,7 @@ case "${1:-}" in
   compare)
     for b in b256 b32; do
       python3 -m training.train --config "training/configs/gpu12_long_cmp_$b.json" --out "runs/cmp_$b" \
-        --data "$CARRY/h36m_model_cache.npz" --device "$DEVICE" --max-minutes "${2:-4}" 2>&1 | tee "$OUT/cmp_$b.log"
+        --data "$CARRY/h36m_model_cache.npz" --device "$DEVICE" --max-minutes "${2:-3.5}" 2>&1 | tee "$OUT/cmp_$b.log"
     done
     ;;
   short|long|repair)
