@@ -15,18 +15,25 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${OUT:-runs/gpu_out}
 CARRY=${GPU_CARRY:-gpu_carry}
-DEVICE=${GPU_DEVICE:-cuda}      # cpu for a dry run here (tests/test_protocol.py)
+# Dry runs here (tests/test_gpu_period.py): GPU_DEVICE=cpu, GPU_CONFIG (another training config for
+# short|long|repair), BENCH_ARGS and PROTOCOL_ARGS (options added to the benchmark and to training.protocol).
+DEVICE=${GPU_DEVICE:-cuda}
+# Run directories. A warm device machine keeps ignored folders between calls: a second call of the same
+# ROLE there resumes RUNS/gpu12_ROLE (the multi-call schedule); name another GPU_RUNS to start afresh.
+RUNS=${GPU_RUNS:-runs}
 mkdir -p "$OUT"
 export PYTHONUNBUFFERED=1
 nvidia-smi --query-gpu=name,memory.used,memory.total,clocks.sm --format=csv,noheader || true
 python3 -c "import torch; print('torch', torch.__version__, 'cuda', torch.cuda.is_available())"
 case "${1:-}" in
   bench)
-    python3 benches/train_throughput.py --max-minutes "${2:-6}" --json "$OUT/train_throughput.json" 2>&1 | tee "$OUT/bench.log"
+    # shellcheck disable=SC2086  # BENCH_ARGS is a list of options
+    python3 benches/train_throughput.py --max-minutes "${2:-6}" --json "$OUT/train_throughput.json" ${BENCH_ARGS:-} \
+      2>&1 | tee "$OUT/bench.log"
     ;;
   compare)
     for b in b256 b32; do
-      python3 -m training.train --config "training/configs/gpu12_long_cmp_$b.json" --out "runs/cmp_$b" \
+      python3 -m training.train --config "training/configs/gpu12_long_cmp_$b.json" --out "$RUNS/cmp_$b" \
         --data "$CARRY/h36m_model_cache.npz" --device "$DEVICE" --max-minutes "${2:-3.5}" 2>&1 | tee "$OUT/cmp_$b.log"
     done
     ;;
@@ -34,7 +41,7 @@ case "${1:-}" in
     role=$1; minutes=${2:?minutes of training}
     init=()
     if [ -f "$CARRY/init/$role.safetensors" ]; then init=(--init-from "$CARRY/init/$role.safetensors"); fi
-    python3 -m training.gpu_session --config "training/configs/gpu12_$role.json" --run "runs/gpu12_$role" \
+    python3 -m training.gpu_session --config "${GPU_CONFIG:-training/configs/gpu12_$role.json}" --run "$RUNS/gpu12_$role" \
       --data "$CARRY/h36m_model_cache.npz" --budget-minutes "$minutes" --minutes "$minutes" "${init[@]}" \
       --call-minutes "${CALL_MINUTES:-9.5}" --device "$DEVICE" --copy-to "$OUT/$role" --export "$OUT/export" \
       2>&1 | tee "$OUT/$role.log"
@@ -44,6 +51,7 @@ case "${1:-}" in
     name=$(basename "$model"); results="$OUT/protocol/$name"
     mkdir -p "$results"
     if [ -d "$CARRY/protocol/$name" ]; then cp -r "$CARRY/protocol/$name"/. "$results"/; fi
+    # shellcheck disable=SC2086
     python3 -m training.protocol --model "$model" --out "$results" --data "$CARRY/h36m" --device "$DEVICE" \
       --max-minutes "$minutes" ${PROTOCOL_ARGS:-} 2>&1 | tee "$OUT/eval_$name.log"
     ;;

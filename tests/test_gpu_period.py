@@ -1,0 +1,76 @@
+"""training/gpu_period.sh, each mode as a GPU period calls it, dry-run on the CPU at the tiny size: a wrong
+path or a shell mistake found here costs no GPU minute. (The eval mode's dry run is in test_protocol.py.)"""
+import json
+import os
+import subprocess
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from test_train import synthetic_motion, tiny_cfg
+from training.export import load_model_file
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def period(mode_args, tmp_path, **env):
+    out = tmp_path / "out"
+    e = dict(os.environ, GPU_DEVICE="cpu", OUT=str(out), GPU_RUNS=str(tmp_path / "runs"))
+    e.update(env)
+    r = subprocess.run(["bash", "training/gpu_period.sh", *mode_args], cwd=ROOT, env=e, capture_output=True, text=True)
+    return r, out
+
+
+@pytest.fixture
+def carry(tmp_path):
+    """A carry folder with a (synthetic) training cache, as training.gpu_carry lays it out."""
+    d = tmp_path / "carry"
+    d.mkdir()
+    seqs = {"train": synthetic_motion(4, seed=0), "val": synthetic_motion(2, seed=1)}
+    np.savez(d / "h36m_model_cache.npz",
+             **{f"{split}/{i:02d}": s.astype(np.float16) for split, ss in seqs.items() for i, s in enumerate(ss)})
+    return d
+
+
+@pytest.mark.slow
+def test_role_call_trains_and_exports_within_the_call(carry, tmp_path):
+    cfg = tmp_path / "cfg.json"
+    cfg.write_text(json.dumps(asdict(tiny_cfg(role="long", batches="device", ema_decay=0.9, steps_per_epoch=5)),
+                              indent=1))
+    r, out = period(["long", "0.05"], tmp_path, GPU_CARRY=str(carry), GPU_CONFIG=str(cfg), CALL_MINUTES="3")
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    _, _, meta = load_model_file(out / "export" / "long.safetensors")
+    assert meta["training"]["weights"] == "ema"
+    log = (out / "long.log").read_text()
+    assert (out / "long" / "best.pt").is_file() and "probe:" in log and "warm start" not in log
+    # the next period: the weights carried in init/ start the run (a fresh run folder, as on a new machine)
+    (carry / "init").mkdir()
+    (out / "export" / "long.safetensors").rename(carry / "init" / "long.safetensors")
+    r, out = period(["long", "0.05"], tmp_path, GPU_CARRY=str(carry), GPU_CONFIG=str(cfg), CALL_MINUTES="3",
+                    GPU_RUNS=str(tmp_path / "runs2"))
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    assert f"warm start from exported weights {carry / 'init' / 'long.safetensors'}" in (out / "long.log").read_text()
+
+
+def test_call_minutes_too_short_fails_before_training(carry, tmp_path):
+    cfg = tmp_path / "cfg.json"
+    cfg.write_text(json.dumps(asdict(tiny_cfg(role="short", batches="device"))))
+    r, out = period(["short", "1"], tmp_path, GPU_CARRY=str(carry), GPU_CONFIG=str(cfg), CALL_MINUTES="1")
+    assert r.returncode != 0 and "no time left to train" in r.stdout + r.stderr
+    assert not (out / "export").exists()
+
+
+def test_bench_call_writes_the_throughput_json(tmp_path):
+    r, out = period(["bench", "1"], tmp_path, BENCH_ARGS="--preset tiny --batch 4 --steps 1 --reps 1 --warmup 1 "
+                                                        "--roles repair --impls channels_last --modes eager")
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    res = json.loads((out / "train_throughput.json").read_text())
+    assert [(x["role"], x["impl"], x["mode"]) for x in res["results"] if "windows_per_s" in x] == [
+        ("repair", "channels_last", "eager")]
+
+
+def test_unknown_mode_prints_the_usage(tmp_path):
+    r, _ = period(["train"], tmp_path)
+    assert r.returncode == 2 and "usage: bash training/gpu_period.sh" in r.stderr and "eval MINUTES" in r.stderr
