@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import H36M_DIR, needs_h36m
 from test_train import synthetic_motion, tiny_cfg
 from training.export import load_model_file
 
@@ -74,3 +75,30 @@ def test_bench_call_writes_the_throughput_json(tmp_path):
 def test_unknown_mode_prints_the_usage(tmp_path):
     r, _ = period(["train"], tmp_path)
     assert r.returncode == 2 and "usage: bash training/gpu_period.sh" in r.stderr and "eval MINUTES" in r.stderr
+
+
+@needs_h36m
+def test_gpu_carry_prepares_the_folder(tmp_path, capsys):
+    """training.gpu_carry: the training cache and the S5 subset, full-size weights only as warm starts, the
+    candidate and the returned protocol units, and the folder's size against the carry limit."""
+    from training import gpu_carry
+    from training.data.h36m import H36MSource
+    from training.export import random_init_dir
+    weights = random_init_dir(tmp_path / "weights", "full", seed=2)
+    random_init_dir(tmp_path / "small", "tiny", seed=2, repair={}).joinpath("repair.safetensors").rename(
+        weights / "repair.safetensors")                                   # a role that is not full size
+    returned = tmp_path / "returned" / "protocol" / "candidate" / "forecast_none"
+    returned.mkdir(parents=True)
+    (returned / "walking.json").write_text("{}")
+    out = tmp_path / "carry"
+    assert gpu_carry.main(["--data", str(H36M_DIR), "--out", str(out), "--weights", str(weights),
+                           "--candidate", str(weights), "--protocol", str(tmp_path / "returned" / "protocol")]) == 0
+    src = H36MSource(out / "h36m")
+    assert src.keys and all(k.startswith("S5/") for k in src.keys)
+    assert sorted(p.name for p in (out / "init").iterdir()) == ["long.safetensors", "short.safetensors"]
+    assert sorted(p.name for p in (out / "candidate").iterdir()) == ["long.safetensors", "repair.safetensors",
+                                                                     "short.safetensors"]
+    assert (out / "protocol" / "candidate" / "forecast_none" / "walking.json").is_file()
+    printed = capsys.readouterr().out
+    assert "repair: no full-size weights" in printed and "MiB of the 64 MiB" in printed
+    assert gpu_carry.folder_bytes(out) < gpu_carry.CARRY_LIMIT
