@@ -254,3 +254,39 @@ def test_gpu_session_fits_training_into_the_call():
     assert gpu_session.fit_call(ns(call_minutes=None), now, 1.0, lambda *a: None) == (8.0, 8.0)
     with pytest.raises(SystemExit, match="no time left"):
         gpu_session.fit_call(ns(call_minutes=2.0), now, 1.0, lambda *a: None)
+
+
+def test_ema_probes_are_validated_beside_and_change_nothing(tmp_path):
+    """ema_probe_decays: each probe's and the raw weights' validation loss beside the exported EMA's, at
+    every validation; the run itself (losses, exported weights) is the same as without probes; probes
+    resume with the run."""
+    seqs = {"train": synthetic_motion(4, seed=0), "val": synthetic_motion(2, seed=1)}
+    base = dict(epochs=2, steps_per_epoch=4, ema_decay=0.9)
+    plain = train(tiny_cfg(**base), tmp_path / "plain", sequences=seqs, log=lambda *a: None)
+    lines = []
+    probed = train(tiny_cfg(**base, ema_probe_decays=[0.5, 0.99]), tmp_path / "probed", sequences=seqs, log=lines.append)
+    assert [h["val_loss"] for h in probed["history"]] == [h["val_loss"] for h in plain["history"]]
+    assert [h["train_loss"] for h in probed["history"]] == [h["train_loss"] for h in plain["history"]]
+    for h in probed["history"]:
+        assert set(h["val_loss_probes"]) == {"ema_0.5", "ema_0.99", "raw"}
+        assert all(np.isfinite(v) for v in h["val_loss_probes"].values())
+        assert len(set(h["val_loss_probes"].values()) | {h["val_loss"]}) == 4       # four different weights
+    assert any(line.startswith("  probes: ema_0.5") for line in lines)
+    ck = torch.load(tmp_path / "probed" / "last.pt", weights_only=False)
+    assert [p["decay"] for p in ck["ema_probes"]] == [0.5, 0.99] and ck["ema_probes"][0]["n"] == 8
+    assert "ema_probes" not in torch.load(tmp_path / "probed" / "best.pt", weights_only=False)
+    # stopped after its first batch and resumed: the probes end where the uninterrupted run's do
+    cfg = tiny_cfg(**base, ema_probe_decays=[0.5, 0.99])
+    train(cfg, tmp_path / "resumed", sequences=seqs, max_minutes=0, log=lambda *a: None)
+    resumed = train(cfg, tmp_path / "resumed", sequences=seqs, resume=True, log=lambda *a: None)
+    assert resumed["history"][-1]["val_loss_probes"] == probed["history"][-1]["val_loss_probes"]
+    # ... from the probes' saved state: shifted weights in last.pt show in the resumed probe alone
+    train(cfg, tmp_path / "shifted", sequences=seqs, max_minutes=0, log=lambda *a: None)
+    ck = torch.load(tmp_path / "shifted" / "last.pt", weights_only=False)
+    ck["ema_probes"][1]["weights"] = {k: v + 0.05 for k, v in ck["ema_probes"][1]["weights"].items()}
+    torch.save(ck, tmp_path / "shifted" / "last.pt")
+    shifted = train(cfg, tmp_path / "shifted", sequences=seqs, resume=True, log=lambda *a: None)["history"][-1]
+    assert shifted["val_loss_probes"]["ema_0.5"] == probed["history"][-1]["val_loss_probes"]["ema_0.5"]
+    assert shifted["val_loss_probes"]["ema_0.99"] != probed["history"][-1]["val_loss_probes"]["ema_0.99"]
+    with pytest.raises(ValueError, match="ema_probe_decays"):
+        tiny_cfg(ema_probe_decays=[1.0])

@@ -55,6 +55,7 @@ class TrainConfig:
     batches: str = "host"            # host: numpy masks per window (BatchSource); device: all drawn on the device
     compile: bool = False            # torch.compile the training forward (eager where compiling fails)
     ema_decay: float = 0.0           # > 0: exponential moving average of the weights, validated and exported
+    ema_probe_decays: list = field(default_factory=list)  # more averages, validated beside (and the raw weights)
     warmup_steps: int = 0            # linear learning-rate warm-up over the first optimizer steps
     init_from: str = ""              # warm start: a checkpoint (.pt) or exported .safetensors whose weights start this run
 
@@ -74,6 +75,9 @@ class TrainConfig:
             raise ValueError(f"train config: ema_decay must be in [0, 1), got {self.ema_decay!r}")
         if self.warmup_steps < 0:
             raise ValueError(f"train config: warmup_steps must be >= 0, got {self.warmup_steps!r}")
+        probes = list(self.ema_probe_decays)
+        if any(not isinstance(d, (int, float)) or not 0.0 < d < 1.0 for d in probes) or len(set(probes)) < len(probes):
+            raise ValueError(f"train config: ema_probe_decays must be distinct numbers in (0, 1), got {probes!r}")
 
 
 # ------------------------------------------------------------------------------------------ data
@@ -274,6 +278,12 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
         ema.module.load_state_dict(ck["ema"])
         ema.n_averaged = ck["ema_n"]
     evaluated = model if ema is None else ema.module    # the weights validated and exported
+    # Probes: other decays (and the raw weights) validated beside the exported average, so that a run
+    # measures the decay to choose at the cost of a few validations and one foreach lerp per probe and step.
+    probes = [EMA(model, d) for d in cfg.ema_probe_decays]
+    for probe, saved in zip(probes, ck.get("ema_probes", []) if ck is not None else []):
+        probe.module.load_state_dict(saved["weights"])
+        probe.n_averaged = saved["n"]
     log(f"{cfg.role}: {count_parameters(model):,} parameters, {len(train_w):,} training windows, "
         f"{len(val_w):,} validation windows, {steps_per_epoch} steps/epoch x {cfg.epochs} epochs, device {device}, "
         f"{cfg.batches} batches" + (f", EMA {cfg.ema_decay}" if ema is not None else ""))
@@ -297,7 +307,21 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
             s["optimizer"] = opt.state_dict()
         if ema is not None:
             s.update(ema=ema.module.state_dict(), ema_n=ema.n_averaged)
+        if probes and best is None:
+            s["ema_probes"] = [{"decay": p.decay, "weights": p.module.state_dict(), "n": p.n_averaged} for p in probes]
         return s
+
+    def validate(entry: dict) -> float:
+        """The exported weights' validation loss (returned and in ``entry``), and the probes' beside it."""
+        v = validation_loss(evaluated, sched, cfg, val_w, device)
+        entry["val_loss"] = v
+        if probes:
+            others = {f"ema_{p.decay:g}": validation_loss(p.module, sched, cfg, val_w, device) for p in probes}
+            if ema is not None:
+                others["raw"] = validation_loss(model, sched, cfg, val_w, device)
+            entry["val_loss_probes"] = others
+            log("  probes: " + ", ".join(f"{k} {x:.4f}" for k, x in others.items()) + f" (exported: {v:.4f})")
+        return v
 
     stopped = False
     while epoch < cfg.epochs and not stopped:
@@ -310,6 +334,8 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
             loss = train_step(forward, opt, sched, batch, amp)
             if ema is not None:
                 ema.update(model)
+            for probe in probes:
+                probe.update(model)
             run_loss, run_n = run_loss + loss.float(), run_n + 1
             batch_i += 1
             now = time.time()
@@ -327,8 +353,7 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
         history.append({"epoch": epoch, "train_loss": float(run_loss) / max(run_n, 1)})
         epoch, batch_i = epoch + 1, 0
         if epoch % cfg.val_every == 0 or epoch == cfg.epochs:
-            v = validation_loss(evaluated, sched, cfg, val_w, device)
-            history[-1]["val_loss"] = v
+            v = validate(history[-1])
             log(f"epoch {epoch}: train loss {history[-1]['train_loss']:.4f} val loss {v:.4f}")
             if v < best_val:
                 best_val = v
@@ -337,8 +362,8 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
         last_ck = time.time()
     if stopped:
         # time budget reached: validate what we have so that best.pt always exists
-        v = validation_loss(evaluated, sched, cfg, val_w, device)
-        history.append({"epoch": epoch, "batch": batch_i, "val_loss": v, "stopped": "max-minutes"})
+        history.append({"epoch": epoch, "batch": batch_i, "stopped": "max-minutes"})
+        v = validate(history[-1])
         log(f"stopped after {max_minutes} min at epoch {epoch} batch {batch_i}: val loss {v:.4f}")
         if v < best_val:
             best_val = v
