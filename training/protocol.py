@@ -76,7 +76,7 @@ def fast_models(models: dict, *, forward: str, precision: str, compile_: bool, d
         if precision == "bf16":
             net = Autocast(net, dev.type)
         if compile_:
-            compiled = torch.compile(net, dynamic=True)
+            compiled = torch.compile(net)                 # static shapes: one (chains, K, L) per role
             compiled.cfg = net.cfg
             net = compiled
         out[role] = (net, sched, cfg)

@@ -311,11 +311,12 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
             s["ema_probes"] = [{"decay": p.decay, "weights": p.module.state_dict(), "n": p.n_averaged} for p in probes]
         return s
 
-    def validate(entry: dict) -> float:
-        """The exported weights' validation loss (returned and in ``entry``), and the probes' beside it."""
+    def validate(entry: dict, with_probes: bool) -> float:
+        """The exported weights' validation loss (returned and in ``entry``), and with ``with_probes`` the
+        probes' beside it (at the end of the schedule or of the call only: each probe costs a validation)."""
         v = validation_loss(evaluated, sched, cfg, val_w, device)
         entry["val_loss"] = v
-        if probes:
+        if probes and with_probes:
             others = {f"ema_{p.decay:g}": validation_loss(p.module, sched, cfg, val_w, device) for p in probes}
             if ema is not None:
                 others["raw"] = validation_loss(model, sched, cfg, val_w, device)
@@ -353,7 +354,7 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
         history.append({"epoch": epoch, "train_loss": float(run_loss) / max(run_n, 1)})
         epoch, batch_i = epoch + 1, 0
         if epoch % cfg.val_every == 0 or epoch == cfg.epochs:
-            v = validate(history[-1])
+            v = validate(history[-1], with_probes=epoch == cfg.epochs)
             log(f"epoch {epoch}: train loss {history[-1]['train_loss']:.4f} val loss {v:.4f}")
             if v < best_val:
                 best_val = v
@@ -363,7 +364,7 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
     if stopped:
         # time budget reached: validate what we have so that best.pt always exists
         history.append({"epoch": epoch, "batch": batch_i, "stopped": "max-minutes"})
-        v = validate(history[-1])
+        v = validate(history[-1], with_probes=True)
         log(f"stopped after {max_minutes} min at epoch {epoch} batch {batch_i}: val loss {v:.4f}")
         if v < best_val:
             best_val = v
