@@ -7,6 +7,7 @@ import json
 import math
 import sys
 
+import numpy as np
 import pytest
 
 from conftest import H36M_DIR, ROOT, needs_h36m
@@ -224,3 +225,21 @@ def test_train_throughput_times_the_goal_and_todays_step_first():
     assert order[:2] == list(bench.FIRST) and len(order) == len(set(order)) == 24
     only_short = argparse.Namespace(roles=["short"], impls=["channels_last"], modes=["eager"], precisions=["fp32"])
     assert bench.combinations(only_short) == [("short", "channels_last", "eager", "fp32")]
+
+
+def test_root_extrapolation_reads_the_root_at_the_callers_frames():
+    """benches/root_extrapolation.py's root path: a walker at 50 fps (a fixed pose sliding 1 cm a frame) is
+    continued at its speed by the constant-velocity rule, held by the 0 rule, and in between by a decay,
+    read at every one of the caller's 50 future frames."""
+    from test_wild import h36m32
+    bench = load_bench("root_extrapolation")
+    pose = h36m32(1)[0]
+    t = np.arange(100)[:, None, None]
+    x = (pose[None] + t * np.array([0.01, 0.0, 0.0]))[None]                 # (1, 100, 32, 3) at 50 fps
+    last = x[0, -1, 0]
+    ahead = np.arange(1, 51)[:, None] * np.array([0.01, 0.0, 0.0])
+    np.testing.assert_allclose(bench.root_forecast(x, "h36m32", 50.0, "y", None)[0], last + ahead, atol=1e-9)
+    np.testing.assert_allclose(bench.root_forecast(x, "h36m32", 50.0, "y", 0.0)[0], np.repeat(last[None], 50, 0),
+                               atol=1e-9)
+    damped = bench.root_forecast(x, "h36m32", 50.0, "y", 0.4)[0, :, 0] - last[0]
+    assert np.all(np.diff(damped) > 0) and 0 < damped[-1] < ahead[-1, 0]

@@ -78,7 +78,7 @@ def forecast(model: Any, obs: Any, mask: Any, *, layout: Any, fps: Any, up: Any,
     out = cascade_raw(model.short, model.long, observed, seen, num_samples=num_samples, options=options, seed=seed,
                       threads=threads, progress=progress)
     h = model.horizon
-    root_f, rot_f = wild.future_frames(scene, h)
+    root_f, rot_f = wild.future_frames(scene, h, float(model.fps), wild.ROOT_DAMPING_S)
     mean_w = wild.from_model(_model_poses(out["mean"]), scene, root_f, rot_f, own_frames=False)
     samples_w = wild.from_model(_model_poses(out["samples"]), scene, root_f, rot_f, own_frames=False)
     rep_w = wild.from_model(_model_poses(out["repaired"]), scene, scene.root, scene.rot, own_frames=True)
