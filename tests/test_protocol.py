@@ -124,22 +124,45 @@ def test_repair_baselines_are_the_engine_interpolations(model_dir, tmp_path):
         assert got[method] == pytest.approx(1000.0 * total / count, rel=1e-4)
 
 
-def test_compare_needs_a_margin_and_every_action(tmp_path):
+def test_compare_is_a_paired_test_over_actions(tmp_path):
     """Scores: the mean over patterns of mean-of-n / Zero-Velocity at 1 s, and of repair / spline, on the
-    patterns both sets evaluated on every action."""
-    def results(d, ratio, rep, noisy_actions=13):
-        d.mkdir()
-        (d / "summary.json").write_text(json.dumps({"actions": 13, "forecast": {
-            "none": {"actions": 13, "mean_of_n_ratio": ratio}, "noisy_25": {"actions": noisy_actions, "mean_of_n_ratio": 0.1}},
-            "repair": {"noisy_25": {"actions": 13, "tcd_over_spline": rep}}}))
+    patterns both sets evaluated on every action; one set is better only by more than the margin and more
+    than two standard errors of the per-action differences."""
+    actions = [f"action{i:02d}" for i in range(13)]
+
+    def results(d, ratios, repair, forecast_actions=13):
+        for i, act in enumerate(actions):
+            if i < forecast_actions:
+                (d / "forecast_none").mkdir(parents=True, exist_ok=True)
+                (d / "forecast_none" / f"{act}.json").write_text(json.dumps({
+                    "protocol": {"windows_per_action": 64, "actions": [act]}, "sampling": {"samples": 5, "steps": 50},
+                    "zero_velocity": {"per_action": {act: {"1000": 100.0}}},
+                    "best_of_n": {"per_action": {act: {"1000": 70.0}}},
+                    "mean_of_n": {"per_action": {act: {"1000": 100.0 * ratios[i]}}}}))
+            (d / "repair_noisy_25").mkdir(parents=True, exist_ok=True)
+            (d / "repair_noisy_25" / f"{act}.json").write_text(json.dumps({
+                "pattern": "noisy_25", "action": act, "hidden_entries": 10,
+                "sum_mm": {"tcd": 20.0 * repair[i], "linear": 40.0, "spline": 20.0}}))
+        (d / "summary.json").write_text(json.dumps(protocol.summarize(d, actions)))
         return d
-    a = results(tmp_path / "a", 0.80, 0.5)
-    b = results(tmp_path / "b", 0.805, 1.5, noisy_actions=7)     # b's noisy_25 forecast is not complete
+
+    rng = np.random.default_rng(0)
+    noisy = lambda level, spread: level + spread * rng.standard_normal(13)       # noqa: E731
+    a = results(tmp_path / "a", noisy(0.80, 0.02), np.full(13, 0.5))
+    b = results(tmp_path / "b", noisy(0.805, 0.02), np.full(13, 1.5))
     cmp = protocol.compare(a, b)
-    assert cmp["a"]["forecast_patterns"] == ["none"] and cmp["a"]["forecast"] == pytest.approx(0.80)
-    assert cmp["b"]["repair"] == pytest.approx(1.5)
-    assert cmp["better"] == {"forecast": None, "repair": str(a)}        # 0.6 % apart is within the 1 % margin
-    assert protocol.compare(a, b, margin=0.001)["better"]["forecast"] == str(a)
+    assert cmp["a"]["repair"] == pytest.approx(0.5) and cmp["b"]["repair"] == pytest.approx(1.5)
+    assert cmp["paired"]["forecast"]["pairs"] == 13 and cmp["paired"]["repair"]["standard_error"] == 0.0
+    assert cmp["better"] == {"forecast": None, "repair": str(a)}
+    assert protocol.compare(a, b, margin=0.0)["better"]["forecast"] is None          # within sampling noise
+    # the same 1 % lead on every action is no noise; still within a 5 % margin
+    c = results(tmp_path / "c", np.full(13, 0.80), np.full(13, 1.0))
+    d = results(tmp_path / "d", np.full(13, 0.808), np.full(13, 1.0))
+    assert protocol.compare(c, d, margin=0.001)["better"] == {"forecast": str(c), "repair": None}
+    assert protocol.compare(c, d, margin=0.05)["better"]["forecast"] is None
+    # a pattern one set has not finished is left out of both
+    e = results(tmp_path / "e", np.full(13, 0.5), np.full(13, 1.0), forecast_actions=7)
+    assert protocol.compare(c, e)["a"]["forecast_patterns"] == [] and protocol.compare(c, e)["better"]["forecast"] is None
 
 
 def test_bf16_autocast_forward_stays_close_and_float32():

@@ -1,7 +1,7 @@
 """The whole evaluation of a model directory in one process (issue 15, part 3), resumable action by action.
 
     python -m training.protocol --model DIR --out RESULTS [--device cuda] [--max-minutes 9]
-    python -m training.protocol --compare RESULTS_A RESULTS_B      # which model set is better
+    python -m training.protocol --compare RESULTS_A RESULTS_B      # which model set is better (paired test)
 
 For every pattern of ``--patterns`` (default: clean input, then the paper's four imperfect observations:
 random leg + arm occlusion 40 %, structured leg occlusion, consecutive missing frames, Gaussian noise
@@ -275,26 +275,50 @@ def table(summary: dict) -> str:
     return "\n".join(lines)
 
 
+def unit_scores(d: Path, key: str, pattern: str) -> dict[str, float]:
+    """action -> that action's score in one part: mean-of-n over Zero-Velocity at 1 s (forecast), the repair
+    model's summed distances over the spline's (repair)."""
+    out = {}
+    for path in sorted((d / f"{key}_{pattern}").glob("*.json")):
+        u = json.loads(path.read_text())
+        if key == "forecast":
+            action = next(iter(u["mean_of_n"]["per_action"]))
+            out[action] = u["mean_of_n"]["per_action"][action][HORIZON] / u["zero_velocity"]["per_action"][action][HORIZON]
+        else:
+            out[u["action"]] = u["sum_mm"]["tcd"] / u["sum_mm"]["spline"]
+    return out
+
+
 def compare(a: Path, b: Path, margin: float = 0.01) -> dict:
     """Scores of two result directories (their ``summary.json``) on the patterns both evaluated on every
-    action; ``better`` names, per part, the
-    directory whose score is lower by more than ``margin`` (relative): None when neither is (within
-    sampling noise, keep what is bundled) or the part was not evaluated in both."""
+    action, and per part a paired test over (pattern, action): the mean difference of the two sets' per-action
+    scores and its standard error. ``better`` names the directory whose scores are lower by more than two
+    standard errors and by more than ``margin`` (relative); None when neither is (within sampling noise:
+    keep what is bundled) or the part was not evaluated in both."""
     sa, sb = (json.loads((d / "summary.json").read_text()) for d in (a, b))
+    paired, better = {}, {}
     for key in ("forecast", "repair"):
-        common = {p for p in set(sa[key]) & set(sb[key])
-                  if sa[key][p]["actions"] == sa["actions"] and sb[key][p]["actions"] == sb["actions"]}
+        common = sorted(p for p in set(sa[key]) & set(sb[key])
+                        if sa[key][p]["actions"] == sa["actions"] and sb[key][p]["actions"] == sb["actions"])
         sa[key] = {p: v for p, v in sa[key].items() if p in common}
         sb[key] = {p: v for p, v in sb[key].items() if p in common}
+        diffs = []
+        for p in common:
+            ua, ub = unit_scores(a, key, p), unit_scores(b, key, p)
+            diffs += [ua[act] - ub[act] for act in sorted(set(ua) & set(ub))]
+        d = np.asarray(diffs, dtype=np.float64)
+        se = float(d.std(ddof=1) / np.sqrt(len(d))) if len(d) > 1 else float("inf")
+        paired[key] = {"pairs": len(d), "mean_difference": float(d.mean()) if len(d) else None, "standard_error": se}
     fa, fb = score(sa), score(sb)
-    better = {}
     for key in ("forecast", "repair"):
-        x, y = fa[key], fb[key]
-        if x is None or y is None or abs(x - y) <= margin * max(x, y):
-            better[key] = None
+        x, y, pr = fa[key], fb[key], paired[key]
+        if x is None or y is None or not pr["pairs"] or abs(x - y) <= margin * max(x, y) \
+                or abs(pr["mean_difference"]) <= 2 * pr["standard_error"] or (x < y) != (pr["mean_difference"] < 0):
+            better[key] = None             # too close, too noisy, or the pooled and per-action views disagree
         else:
             better[key] = str(a) if x < y else str(b)
-    return {"a": {"dir": str(a), **fa}, "b": {"dir": str(b), **fb}, "margin": margin, "better": better}
+    return {"a": {"dir": str(a), **fa}, "b": {"dir": str(b), **fb}, "margin": margin, "paired": paired,
+            "better": better}
 
 
 def main(argv=None) -> int:
