@@ -7,7 +7,7 @@ import pytest
 
 pytest.importorskip("bvhio")
 
-from tcd import bvh  # noqa: E402
+from tcd import bvh, wild  # noqa: E402
 from tcd.cli import main  # noqa: E402
 
 # a small CMU-style hierarchy in centimetres: (name, parent, offset)
@@ -81,8 +81,13 @@ def test_forecast_and_repair_a_bvh_file(tiny_model_dir, tmp_path, capsys):
     with np.load(out) as z:
         assert z["mean"].shape == (30, 32, 3) and z["repaired"].shape == (FRAMES, 32, 3)   # 1 s at 30 fps
         np.testing.assert_allclose(z["times"], np.arange(1, 31) / FPS, atol=1e-6)
-        # the root keeps walking along +z at 3 cm per frame
-        np.testing.assert_allclose(z["mean"][:, 0, 2], 3.0 * (FRAMES - 1 + np.arange(1, 31)), atol=1e-6)
+        # the root walks on along +z from 3 cm per frame (3.6 per 25 fps model frame), slowing with the
+        # time constant of tcd.wild.ROOT_DAMPING_S; read at the file's 30 fps from the model frames
+        tau = wild.ROOT_DAMPING_S * 25.0
+        model_frames = np.arange(26)
+        travel = 3.6 * tau * (1 - np.exp(-model_frames / tau))
+        want = 3.0 * (FRAMES - 1) + np.interp(np.arange(1, 31) * 25.0 / FPS, model_frames, travel)
+        np.testing.assert_allclose(z["mean"][:, 0, 2], want, atol=1e-6)
     assert main(["repair", str(tmp_path / "in"), "-o", str(tmp_path / "rep"), "--model", str(tiny_model_dir),
                  "--units", "cm", "--samples", "1", "--steps", "2", "--sampler", "ddim", "--quiet"]) == 0
     pos, names, parents, _ = bvh.read_bvh(src)
