@@ -37,7 +37,7 @@ from pathlib import Path
 import torch
 from torch.utils._python_dispatch import TorchDispatchMode
 from torch.utils._pytree import tree_flatten
-from torch.utils.flop_counter import FlopCounterMode
+from torch.utils.flop_counter import FlopCounterMode, flop_registry
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -54,6 +54,25 @@ H100 = {"bf16_flops": 798e12, "bytes_per_s": 3.0e12, "source": "KINDS.md, nvidia
 UNFUSABLE = ("mm", "bmm", "addmm", "_scaled_dot_product", "native_layer_norm", "_foreach", "_fused_adam",
              "embedding")
 MATMUL_ATTENTION = ("mm", "bmm", "addmm", "_scaled_dot_product")
+_aten = torch.ops.aten
+
+
+def _as_raw(counted):
+    """A registry formula (already taking shapes) passed as a custom mapping: marked raw, so that
+    FlopCounterMode does not wrap it a second time."""
+    def formula(*args, **kwargs):
+        return counted(*args, **kwargs)
+    formula._get_raw = True
+    return formula
+
+
+# The fused CPU attention kernel traced below has no FLOP formula in older PyTorch (2.11, the GPU machine's
+# version, counts none): give it the GPU flash kernel's, whose leading arguments are the same.
+CPU_ATTENTION_FLOPS = {} if _aten._scaled_dot_product_flash_attention_for_cpu in flop_registry else {
+    _aten._scaled_dot_product_flash_attention_for_cpu:
+        _as_raw(flop_registry[_aten._scaled_dot_product_flash_attention]),
+    _aten._scaled_dot_product_flash_attention_for_cpu_backward:
+        _as_raw(flop_registry[_aten._scaled_dot_product_flash_attention_backward])}
 
 
 def _bytes(t: torch.Tensor) -> int:
@@ -107,7 +126,7 @@ def trace(role: str, batch: int, preset: str = "full", inference: bool = False) 
         def step():
             train_step(forward, opt, sched, b, False)
             ema.update(model)
-    flops, counter = FlopCounterMode(display=False), ByteCounter()
+    flops, counter = FlopCounterMode(display=False, custom_mapping=CPU_ATTENTION_FLOPS), ByteCounter()
     sdpa = torch.nn.functional.scaled_dot_product_attention
     # A GPU runs attention with dropout as one fused kernel (flash / memory-efficient: the mask drawn inside,
     # the L x L scores never stored); the CPU falls back to the unfused math for dropout > 0. Trace the

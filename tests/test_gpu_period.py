@@ -1,7 +1,6 @@
 """training/gpu_period.sh, each mode as a GPU period calls it, dry-run on the CPU at the tiny size: a wrong
 path or a shell mistake found here costs no GPU minute. (The eval mode's dry run is in test_protocol.py.)"""
 import json
-import os
 import subprocess
 from dataclasses import asdict
 from pathlib import Path
@@ -9,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import H36M_DIR, needs_h36m
+from conftest import H36M_DIR, gpu_machine_env, needs_h36m
 from test_train import synthetic_motion, tiny_cfg
 from training.export import load_model_file
 
@@ -18,7 +17,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def period(mode_args, tmp_path, **env):
     out = tmp_path / "out"
-    e = dict(os.environ, GPU_DEVICE="cpu", OUT=str(out), GPU_RUNS=str(tmp_path / "runs"))
+    e = gpu_machine_env(tmp_path, OUT=str(out), GPU_RUNS=str(tmp_path / "runs"))
     e.update(env)
     r = subprocess.run(["bash", "training/gpu_period.sh", *mode_args], cwd=ROOT, env=e, capture_output=True, text=True)
     return r, out
@@ -102,3 +101,16 @@ def test_gpu_carry_prepares_the_folder(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert "repair: no full-size weights" in printed and "MiB of the 64 MiB" in printed
     assert gpu_carry.folder_bytes(out) < gpu_carry.CARRY_LIMIT
+
+
+def test_compare_configs_differ_in_the_batch_recipe_only():
+    """`gpu_period.sh compare`: batch 256 (scaled rate, warm-up) against the paper's batch 32 on the same number
+    of windows per epoch; everything else (model, data, masks, validation, seed) the same."""
+    from training.train import TrainConfig
+    a, b = (json.loads((ROOT / f"training/configs/gpu12_long_cmp_{n}.json").read_text()) for n in ("b256", "b32"))
+    recipe = {"comment", "batch_size", "lr", "warmup_steps", "steps_per_epoch"}
+    assert {k for k in a.keys() | b.keys() if a.get(k) != b.get(k)} == recipe
+    assert a["batch_size"] * a["steps_per_epoch"] == b["batch_size"] * b["steps_per_epoch"]
+    assert (a["batch_size"], b["batch_size"], b["lr"], b["warmup_steps"]) == (256, 32, 1e-3, 0)
+    for name in ("b256", "b32"):
+        TrainConfig.load(ROOT / f"training/configs/gpu12_long_cmp_{name}.json")

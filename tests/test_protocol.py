@@ -7,7 +7,7 @@ import pytest
 import torch
 
 import tcd
-from conftest import H36M_DIR, needs_h36m
+from conftest import H36M_DIR, gpu_machine_env, needs_h36m
 from fixtures_util import make_model_dir
 from training import evaluate as E
 from training import protocol
@@ -184,7 +184,6 @@ def test_bf16_autocast_forward_stays_close_and_float32():
 def test_gpu_period_eval_call_dry_run_on_the_cpu(model_dir, tmp_path):
     """`gpu_period.sh eval` as a GPU period runs it (its CPU dry run): the carried S5 subset, results under
     $OUT/protocol/NAME, and the next call resumes from the parts carried back in gpu_carry/protocol/."""
-    import os
     import shutil
     import subprocess
     from pathlib import Path
@@ -193,8 +192,8 @@ def test_gpu_period_eval_call_dry_run_on_the_cpu(model_dir, tmp_path):
     carry = tmp_path / "carry"
     assert gpu_carry.write_eval_subset(H36M_DIR, carry / "h36m" / "h36m_expmap_50fps.npz") > 0
     shutil.copytree(model_dir, carry / "candidate")
-    env = dict(os.environ, GPU_DEVICE="cpu", GPU_CARRY=str(carry), OUT=str(tmp_path / "out1"),
-               PROTOCOL_ARGS="--windows-per-action 1 --samples 2 --steps 2 --patterns none,noisy_25 --quiet")
+    env = gpu_machine_env(tmp_path, GPU_CARRY=str(carry), OUT=str(tmp_path / "out1"),
+                          PROTOCOL_ARGS="--windows-per-action 1 --samples 2 --steps 2 --patterns none,noisy_25 --quiet")
 
     def call(out):
         env["OUT"] = str(out)
