@@ -290,3 +290,28 @@ def test_ema_probes_are_validated_beside_and_change_nothing(tmp_path):
     assert shifted["val_loss_probes"]["ema_0.99"] != probed["history"][-1]["val_loss_probes"]["ema_0.99"]
     with pytest.raises(ValueError, match="ema_probe_decays"):
         tiny_cfg(ema_probe_decays=[1.0])
+
+
+def test_gpu_session_plans_the_whole_schedule_into_the_minutes():
+    """plan_schedule: 20 epochs of as many steps as the probed rate allows once the schedule's validations
+    (timed) are paid for, so the decays fall at 75 % and 90 % of the steps and the schedule ends within the
+    minutes; the config's own epoch size plays no part (it used to round a few minutes down to whole epochs
+    of 500 steps: 1,440 steps' time gave 2 epochs, 1,000 steps, both decays after the first)."""
+    from training import gpu_session
+    from training.train import learning_rate, validations_per_schedule
+    cfg = tiny_cfg(epochs=50, steps_per_epoch=500, val_every=5, ema_decay=0.999, ema_probe_decays=[0.99, 0.9997],
+                   milestones=[0.75, 0.9], warmup_steps=0)
+    plan = gpu_session.plan_schedule(cfg, steps_per_s=4.0, minutes=6.0, validation_s=10.0)
+    steps = plan.epochs * plan.steps_per_epoch
+    assert (plan.epochs, plan.val_every) == (20, 5)
+    assert validations_per_schedule(plan) == 4 + 3              # 4 of the EMA, then 2 probes and the raw weights
+    spent = steps / 4.0 + validations_per_schedule(plan) * 10.0
+    assert 0.9 * 360 < spent <= 360                              # the minutes are used, and not overrun
+    rates = [learning_rate(plan, i, plan.steps_per_epoch) for i in range(steps)]
+    drops = [i for i in range(1, steps) if rates[i] < rates[i - 1]]
+    assert drops == [15 * plan.steps_per_epoch, 18 * plan.steps_per_epoch]
+    assert [round(d / steps, 2) for d in drops] == [0.75, 0.9]
+    # very few steps: epochs of one step, still at least one step
+    few = gpu_session.plan_schedule(cfg, steps_per_s=0.05, minutes=2.0, validation_s=1.0)
+    assert few.steps_per_epoch == 1 and 1 <= few.epochs < 20 and few.val_every <= few.epochs
+    assert gpu_session.plan_schedule(cfg, steps_per_s=1.0, minutes=0.01, validation_s=60.0).epochs == 1

@@ -6,9 +6,9 @@
 
 First call (no ``RUN/config.json`` yet): the training step of the config (its batches drawn on the
 device, its compile and precision settings) is timed by ``training.throughput`` (``--probe-steps``
-after the warm-up, which includes compiling); the number of epochs is then set so that the whole
-learning-rate schedule (warm-up and milestones) fits in ``--budget-minutes`` of training, the chosen
-config is written to ``RUN/config.json``, and training runs for ``--minutes``. Later calls resume from
+after the warm-up, which includes compiling) and one validation is timed; the schedule is then cut
+(``plan_schedule``: 20 epochs of as many steps as fit) so that the whole learning-rate schedule (warm-up
+and milestones) and its validations fit in ``--budget-minutes`` of training, the chosen config is written to ``RUN/config.json``, and training runs for ``--minutes``. Later calls resume from
 ``RUN/last.pt`` with ``RUN/config.json`` for another ``--minutes`` (carry ``RUN`` back to the GPU
 machine between calls). ``--copy-to`` copies the checkpoints, the config and the log there (the device
 tool's ``$OUT``); ``--export`` writes the best checkpoint's weights (the EMA when the run keeps one) as
@@ -27,11 +27,31 @@ from pathlib import Path
 
 import torch
 
-from .throughput import time_training_steps
-from .train import TrainConfig, train
+from .throughput import time_training_steps, time_validation
+from .train import TrainConfig, train, validations_per_schedule
 
 
 RESERVE_MINUTES = 1.0   # after training: the final validation, checkpoints, export and copies
+SCHEDULE_EPOCHS = 20    # a schedule's epochs: its decays at 75 % and 90 % fall on whole epochs (15 and 18)
+VALIDATIONS = 4         # validations of the exported weights over a schedule (every 5 of the 20 epochs)
+OVERHEAD = 0.03         # of the training time: checkpoints at epoch ends, log lines
+
+
+def plan_schedule(cfg: TrainConfig, steps_per_s: float, minutes: float, validation_s: float) -> TrainConfig:
+    """``cfg`` with ``epochs``, ``steps_per_epoch`` and ``val_every`` set so that the whole schedule (its
+    steps at the probed rate, its validations at the timed cost, ``OVERHEAD``) fits in ``minutes``.
+
+    The schedule is cut into ``SCHEDULE_EPOCHS`` epochs of as many steps as fit, not into whole epochs of
+    the config's size: with a few minutes of training, epochs of a fixed size would leave up to one epoch's
+    time unused and round the learning-rate decays (``int(f * epochs)``) onto the same early epoch. Fewer
+    steps than ``SCHEDULE_EPOCHS`` make epochs of one step."""
+    epochs = SCHEDULE_EPOCHS
+    planned = replace(cfg, epochs=epochs, val_every=max(1, epochs // VALIDATIONS))
+    train_s = 60 * minutes * (1 - OVERHEAD) - validations_per_schedule(planned) * validation_s
+    steps = max(1, int(steps_per_s * train_s))
+    if steps < epochs:
+        planned = replace(planned, epochs=steps, val_every=max(1, steps // VALIDATIONS))
+    return replace(planned, steps_per_epoch=max(1, steps // planned.epochs))
 
 
 def fit_call(args, t_call: float, compile_minutes: float, log) -> tuple[float, float]:
@@ -104,13 +124,14 @@ def main(argv=None) -> int:
         t0 = time.time()
         probe = time_training_steps(cfg, seqs["train"], args.device, warmup=3, steps=args.probe_steps, reps=1, log=log)
         rate = probe["steps_per_s"]
+        validation_s = time_validation(cfg, seqs["val"], args.device)
         args.minutes, args.budget_minutes = fit_call(args, t_call, probe["warmup_s"] / 60, log)
-        # 0.95: validations and checkpoints take the rest of the budget
-        epochs = max(1, int(rate * 60 * args.budget_minutes * 0.95 / cfg.steps_per_epoch))
+        cfg = plan_schedule(cfg, rate, args.budget_minutes, validation_s)
         log(f"probe: {rate:.2f} steps/s ({probe['windows_per_s']:.0f} windows/s, batch {cfg.batch_size}; "
-            f"warm-up with compiling {probe['warmup_s']:.0f} s, probe {time.time() - t0:.0f} s in all) -> "
-            f"{epochs} epochs of {cfg.steps_per_epoch} steps for {args.budget_minutes} min")
-        cfg = replace(cfg, epochs=epochs, val_every=min(cfg.val_every, epochs))
+            f"warm-up with compiling {probe['warmup_s']:.0f} s, probe {time.time() - t0:.0f} s in all), "
+            f"one validation {validation_s:.1f} s -> {cfg.epochs} epochs of {cfg.steps_per_epoch} steps "
+            f"({cfg.epochs * cfg.steps_per_epoch * cfg.batch_size:,} windows; {validations_per_schedule(cfg)} "
+            f"validations) for {args.budget_minutes:.2f} min")
         chosen.write_text(json.dumps(asdict(cfg), indent=1))
         resume = False
     res = train(cfg, run, sequences=seqs, resume=resume, max_minutes=args.minutes, device=args.device,

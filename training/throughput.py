@@ -13,7 +13,8 @@ import torch
 from .batches import DeviceBatchSource, Windows
 from .diffusion import DiffusionConfig, Schedule
 from .model import ModelConfig, TCDModel
-from .train import TrainConfig, amp_enabled, make_ema, make_optimizer, train_step, training_forward
+from .train import (TrainConfig, amp_enabled, make_ema, make_optimizer, train_step, training_forward,
+                    validation_loss)
 
 
 def synthetic_sequences(n: int = 16, frames: int = 400, joints: int = 22, seed: int = 0) -> list[np.ndarray]:
@@ -85,3 +86,17 @@ def time_training_steps(cfg: TrainConfig, seqs: list[np.ndarray], device: str, *
                 torch.cuda.set_sync_debug_mode("default")
         out["host_syncs_per_step"] = sum("synchroniz" in str(w.message) for w in caught)
     return out
+
+
+def time_validation(cfg: TrainConfig, val_seqs: list[np.ndarray], device: str) -> float:
+    """Seconds of one ``training.train.validation_loss`` of ``cfg`` (its validation windows, steps and batch
+    size; the eager forward it runs) on ``device``, with fresh weights: the cost does not depend on them.
+    One cold call, so it includes the eval path's first-call overheads: an upper bound for later calls."""
+    model_cfg = ModelConfig.from_dict(cfg.model)
+    diff_cfg = DiffusionConfig.from_dict(cfg.diffusion)
+    torch.manual_seed(cfg.seed)
+    model = TCDModel(model_cfg, diff_cfg.num_train_timesteps).to(device)
+    val = Windows(val_seqs, cfg.obs_len + cfg.pred_len, cfg.val_stride)
+    t0 = time.perf_counter()
+    validation_loss(model, Schedule(diff_cfg), cfg, val, device)   # returns a float: the device is done
+    return time.perf_counter() - t0

@@ -114,6 +114,19 @@ def learning_rate(cfg: TrainConfig, step: int, steps_per_epoch: int) -> float:
     return lr * min(1.0, (step + 1) / cfg.warmup_steps) if cfg.warmup_steps else lr
 
 
+def validates_after(cfg: TrainConfig, epoch: int) -> bool:
+    """Whether training validates after ``epoch`` (1-based count of finished epochs): every ``val_every``
+    epochs and after the last one (where the probes are validated too)."""
+    return epoch % cfg.val_every == 0 or epoch == cfg.epochs
+
+
+def validations_per_schedule(cfg: TrainConfig) -> int:
+    """validation_loss calls of a schedule run to its end: the exported weights' at each validation, and
+    at the last one each probe's and (with an EMA) the raw weights'."""
+    probes = len(cfg.ema_probe_decays) + (1 if cfg.ema_probe_decays and cfg.ema_decay else 0)
+    return sum(validates_after(cfg, e) for e in range(1, cfg.epochs + 1)) + probes
+
+
 def training_forward(model: TCDModel, cfg: TrainConfig, batch_shape: tuple, device: str, log=print):
     """The forward the optimizer steps through: the channels-last forward (training.channels_last), and
     with ``cfg.compile`` that forward compiled by ``torch.compile``. The compiled forward is tried once,
@@ -353,7 +366,7 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
             break
         history.append({"epoch": epoch, "train_loss": float(run_loss) / max(run_n, 1)})
         epoch, batch_i = epoch + 1, 0
-        if epoch % cfg.val_every == 0 or epoch == cfg.epochs:
+        if validates_after(cfg, epoch):
             v = validate(history[-1], with_probes=epoch == cfg.epochs)
             log(f"epoch {epoch}: train loss {history[-1]['train_loss']:.4f} val loss {v:.4f}")
             if v < best_val:
