@@ -31,6 +31,7 @@ import argparse
 import json
 import sys
 from collections import defaultdict
+from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
 
@@ -49,7 +50,11 @@ from training.model import ModelConfig, TCDModel  # noqa: E402
 from training.throughput import synthetic_sequences  # noqa: E402
 from training.train import TrainConfig, make_ema, make_optimizer, train_step, training_forward  # noqa: E402
 
-H100 = {"bf16_flops": 798e12, "bytes_per_s": 3.0e12, "source": "KINDS.md, nvidia-h100-x1, seen 2026-11-13"}
+H100 = {"bf16_flops": 798e12, "bytes_per_s": 3.0e12, "memory_bytes": 81559 * 2 ** 20,
+        "source": "KINDS.md, nvidia-h100-x1, seen 2026-11-13"}
+# of the device memory, what saved activations may take: the rest for the CUDA context, the backward's
+# transient buffers and the caching allocator's slack (a margin, not a measurement)
+MEMORY_SHARE = 0.85
 # operations no compiler fuses into a neighbour: their inputs and outputs cross device memory
 UNFUSABLE = ("mm", "bmm", "addmm", "_scaled_dot_product", "native_layer_norm", "_foreach", "_fused_adam",
              "embedding")
@@ -97,12 +102,13 @@ class ByteCounter(TorchDispatchMode):
         return out
 
 
-def trace(role: str, batch: int, preset: str = "full", inference: bool = False) -> dict:
-    """FLOPs and bytes of one training step of ``batch`` windows, or with ``inference`` of one forward of
-    the denoiser in eval mode on ``batch`` windows (what a sampler calls once per step and sample)."""
+def _step(role: str, batch: int, preset: str, inference: bool, amp: bool = False):
+    """(model, step, L): one training step of ``batch`` windows as ``training.train`` runs it (eager, batches on
+    the device, Adam and the EMA, ``amp``: bf16 autocast), Adam's state already made; or with ``inference``
+    one forward of the denoiser in eval mode (what a sampler calls once per step and sample)."""
     cfg = TrainConfig.load(ROOT / "training" / "configs" / f"{role}.json")
     cfg = replace(cfg, model={**PRESETS[preset].to_dict(), **cfg.model}, batch_size=batch, ema_decay=0.999,
-                  batches="device", compile=False, amp=False)
+                  batches="device", compile=False, amp=amp)
     model_cfg = ModelConfig.from_dict(cfg.model)
     diff_cfg = DiffusionConfig.from_dict(cfg.diffusion)
     L = cfg.obs_len + cfg.pred_len
@@ -117,26 +123,55 @@ def trace(role: str, batch: int, preset: str = "full", inference: bool = False) 
     if inference:
         model.eval()
         x0, observed, mask, t, _ = source.batch(0, 0)
-        step = lambda: forward(x0, observed, mask, t)  # noqa: E731
-    else:
-        train_step(forward, opt, sched, source.batch(0, 0), False)        # Adam's state exists from here on
-        ema.update(model)
-        b = source.batch(0, 1)
+        return model, lambda: forward(x0, observed, mask, t), L
+    train_step(forward, opt, sched, source.batch(0, 0), amp)        # Adam's state exists from here on
+    ema.update(model)
+    b = source.batch(0, 1)
 
-        def step():
-            train_step(forward, opt, sched, b, False)
-            ema.update(model)
-    flops, counter = FlopCounterMode(display=False, custom_mapping=CPU_ATTENTION_FLOPS), ByteCounter()
+    def step():
+        train_step(forward, opt, sched, b, amp)
+        ema.update(model)
+    return model, step, L
+
+
+@contextmanager
+def fused_attention():
+    """A GPU runs attention with dropout as one fused kernel (flash / memory-efficient: the mask drawn inside,
+    the L x L scores never stored); the CPU falls back to the unfused math for dropout > 0. Inside this,
+    the fused CPU kernel runs instead (dropout 0 inside attention only): its reads, writes and saved
+    tensors are the GPU kernel's."""
     sdpa = torch.nn.functional.scaled_dot_product_attention
-    # A GPU runs attention with dropout as one fused kernel (flash / memory-efficient: the mask drawn inside,
-    # the L x L scores never stored); the CPU falls back to the unfused math for dropout > 0. Trace the
-    # fused CPU kernel instead (dropout 0 inside attention only): its reads and writes are the GPU kernel's.
     torch.nn.functional.scaled_dot_product_attention = lambda q, k, v, dropout_p=0.0, **kw: sdpa(q, k, v, **kw)
     try:
-        with flops, counter, torch.set_grad_enabled(not inference):
-            step()
+        yield
     finally:
         torch.nn.functional.scaled_dot_product_attention = sdpa
+
+
+def saved_bytes(role: str, batch: int, preset: str = "full", amp: bool = False) -> int:
+    """Bytes of what one training step keeps for its backward: the storages autograd saves in the forward,
+    parameters excluded, attention as the fused kernel. Device memory must hold them at the end of the
+    forward, so they bound the batch; eager (a compiled step recomputes some elementwise results instead)
+    and without the backward's transient buffers."""
+    model, step, _ = _step(role, batch, preset, False, amp)
+    params = {p.untyped_storage().data_ptr() for p in model.parameters()}
+    seen = {}
+
+    def pack(t):
+        seen[t.untyped_storage().data_ptr()] = t.untyped_storage().nbytes()
+        return t
+    with fused_attention(), torch.autograd.graph.saved_tensors_hooks(pack, lambda t: t):
+        step()
+    return sum(n for ptr, n in seen.items() if ptr not in params)
+
+
+def trace(role: str, batch: int, preset: str = "full", inference: bool = False) -> dict:
+    """FLOPs and bytes of one training step of ``batch`` windows, or with ``inference`` of one forward of
+    the denoiser in eval mode on ``batch`` windows (what a sampler calls once per step and sample)."""
+    _, step, L = _step(role, batch, preset, inference)
+    flops, counter = FlopCounterMode(display=False, custom_mapping=CPU_ATTENTION_FLOPS), ByteCounter()
+    with fused_attention(), flops, counter, torch.set_grad_enabled(not inference):
+        step()
     by_op = dict(counter.by_op)
     return {"seq_len": L, "flops": flops.get_total_flops(), "bytes_unfused": sum(by_op.values()),
             "bytes_fused": sum(v for k, v in by_op.items() if k.startswith(UNFUSABLE)),
@@ -159,6 +194,12 @@ def floor(role: str, batch: int, preset: str = "full", inference: bool = False) 
             t_bytes = (per[f"bytes_{kind}"] - cut) / H100["bytes_per_s"]
             out["floors"][f"{precision}_{kind}"] = {"windows_per_s": 1.0 / max(t_flop, t_bytes),
                                                     "bound": "bytes" if t_bytes > t_flop else "flops"}
+    if not inference:
+        for precision in ("fp32", "bf16"):
+            amp = precision == "bf16"     # CPU autocast: its bf16 operation list is close to CUDA's, not equal
+            saved = (saved_bytes(role, batch, preset, amp) - saved_bytes(role, 1, preset, amp)) / (batch - 1)
+            out["saved_per_window"] = {**out.get("saved_per_window", {}), precision: saved}
+            out.setdefault("largest_batch_h100", {})[precision] = int(MEMORY_SHARE * H100["memory_bytes"] // saved)
     out["top_ops_bytes"] = sorted(((k, (big["by_op"][k] - one["by_op"].get(k, 0)) / (batch - 1))
                                    for k in big["by_op"]), key=lambda kv: -kv[1])[:12]
     return out
@@ -198,6 +239,12 @@ def main(argv=None) -> int:
                   f"{p['bytes_fused'] / 1e6:,.0f} | {f['fp32_unfused']['windows_per_s']:,.0f} / "
                   f"{f['fp32_fused']['windows_per_s']:,.0f} | {f['bf16_unfused']['windows_per_s']:,.0f} / "
                   f"{f['bf16_fused']['windows_per_s']:,.0f} |")
+    print("\nactivations a training step saves for its backward (eager, attention fused), per window, and the "
+          f"largest batch whose activations fit {MEMORY_SHARE:.0%} of the H100's memory:")
+    for r in results["train_step"]:
+        saved, big = r["saved_per_window"], r["largest_batch_h100"]
+        print(f"  {r['role']} (L = {r['seq_len']}): fp32 {saved['fp32'] / 2 ** 20:,.0f} MiB (batch <= {big['fp32']}), "
+              f"bf16 {saved['bf16'] / 2 ** 20:,.0f} MiB (batch <= {big['bf16']})")
     protocol = protocol_minutes(results["forward"])
     if protocol:
         print("\nthe evaluation protocol (training.protocol: 3,328 windows x 5 samples x 50 steps; 5 forecast and "

@@ -24,6 +24,7 @@ gives windows/s. ``--max-minutes`` skips the combinations left when the time is 
 from __future__ import annotations
 
 import argparse
+import gc
 import itertools
 import json
 import platform
@@ -53,23 +54,47 @@ def combinations(args) -> list[tuple[str, str, str, str]]:
     return [c for c in FIRST if c in every] + [c for c in every if c not in FIRST]
 
 
-def measure(role: str, impl: str, mode: str, precision: str, args, seqs) -> dict:
+def measure(role: str, impl: str, mode: str, precision: str, args, seqs, batch: int) -> dict:
     cfg = TrainConfig.load(ROOT / "training" / "configs" / f"{role}.json")
-    cfg = replace(cfg, model={**PRESETS[args.preset].to_dict(), **cfg.model}, batch_size=args.batch,
+    cfg = replace(cfg, model={**PRESETS[args.preset].to_dict(), **cfg.model}, batch_size=batch,
                   ema_decay=args.ema_decay, batches="device", compile=mode == "compiled", amp=precision == "bf16")
     r = time_training_steps(cfg, seqs, args.device, reference=impl == "reference", warmup=args.warmup,
                             steps=args.steps, reps=args.reps)
     return {"role": role, "seq_len": cfg.obs_len + cfg.pred_len, "impl": impl, "mode": mode, "precision": precision, **r}
 
 
+def measure_fitting(role: str, impl: str, mode: str, precision: str, args, seqs) -> dict:
+    """``measure`` at ``--batch``, halved while the step runs out of device memory: windows/s is per window,
+    so a smaller batch still measures the step (the full-size fp32 steps need about 444 MiB of saved
+    activations per window, benches/train_step_floor.py: batch 256 of the long-term model does not fit an
+    H100). The batches that did not fit are recorded (``out_of_memory_at``)."""
+    batch, too_big = args.batch, []
+    while True:
+        try:
+            r = measure(role, impl, mode, precision, args, seqs, batch)
+            break
+        except torch.cuda.OutOfMemoryError:
+            too_big.append(batch)
+            if batch == 1:
+                raise
+        finally:
+            gc.collect()                      # the failed step's tensors, before the next try takes memory
+            if torch.cuda.is_available():
+                torch.cuda.empty_cache()
+        batch //= 2
+    return {**r, "out_of_memory_at": too_big} if too_big else r
+
+
 def table(results: list[dict]) -> str:
-    lines = ["| role (L) | impl | mode | precision | windows/s | ms/step | warm-up s |", "|---|---|---|---|---|---|---|"]
+    lines = ["| role (L) | impl | mode | precision | batch | windows/s | ms/step | warm-up s |",
+             "|---|---|---|---|---|---|---|---|"]
     for r in results:
         if "windows_per_s" in r:
-            lines.append(f"| {r['role']} ({r['seq_len']}) | {r['impl']} | {r['mode']} | {r['precision']} | "
+            lines.append(f"| {r['role']} ({r['seq_len']}) | {r['impl']} | {r['mode']} | {r['precision']} | {r['batch']} | "
                          f"{r['windows_per_s']:,.1f} | {r['ms_per_step']:.1f} | {r['warmup_s']:.1f} |")
         else:
-            lines.append(f"| {r['role']} | {r['impl']} | {r['mode']} | {r['precision']} | {r.get('error') or r.get('skipped')} | | |")
+            lines.append(f"| {r['role']} | {r['impl']} | {r['mode']} | {r['precision']} | | "
+                         f"{r.get('error') or r.get('skipped')} | | |")
     return "\n".join(lines)
 
 
@@ -110,7 +135,7 @@ def main(argv=None) -> int:
             results.append({"role": role, "impl": impl, "mode": mode, "precision": precision, "skipped": skip})
             continue
         try:
-            r = measure(role, impl, mode, precision, args, seqs)
+            r = measure_fitting(role, impl, mode, precision, args, seqs)
         except Exception as exc:  # noqa: BLE001 - one failing combination (a compiler error) must not stop the rest
             r = {"role": role, "impl": impl, "mode": mode, "precision": precision,
                  "error": f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"[:300]}

@@ -243,3 +243,38 @@ def test_root_extrapolation_reads_the_root_at_the_callers_frames():
                                atol=1e-9)
     damped = bench.root_forecast(x, "h36m32", 50.0, "y", 0.4)[0, :, 0] - last[0]
     assert np.all(np.diff(damped) > 0) and 0 < damped[-1] < ahead[-1, 0]
+
+
+def test_train_throughput_halves_the_batch_that_runs_out_of_memory(monkeypatch, tmp_path):
+    """A combination whose batch does not fit the device is measured at the largest halved batch that does,
+    and says which batches did not fit; the next combination starts again at --batch."""
+    import torch
+    bench = load_bench("train_throughput")
+    tried = []
+
+    def fake(cfg, seqs, device, **kw):
+        tried.append(cfg.batch_size)
+        if cfg.batch_size > 64 and not kw["reference"]:
+            raise torch.cuda.OutOfMemoryError("CUDA out of memory (simulated)")
+        return {"batch": cfg.batch_size, "windows_per_s": 100.0, "ms_per_step": 1.0, "warmup_s": 0.0}
+
+    monkeypatch.setattr(bench, "time_training_steps", fake)
+    out = tmp_path / "tp.json"
+    assert bench.main(["--device", "cpu", "--roles", "long", "--modes", "eager", "--precisions", "fp32",
+                       "--json", str(out)]) == 0
+    res = {r["impl"]: r for r in json.loads(out.read_text())["results"]}
+    assert tried == [256, 256, 128, 64]                     # today's step (the peer) is timed first
+    assert res["channels_last"]["batch"] == 64 and res["channels_last"]["out_of_memory_at"] == [256, 128]
+    assert res["reference"]["batch"] == 256 and "out_of_memory_at" not in res["reference"]
+
+
+def test_train_step_floor_counts_the_saved_activations():
+    """The activations a step saves grow with the batch; bf16 autocast saves fewer bytes per window than fp32;
+    the largest batch that fits follows from them."""
+    floor = load_bench("train_step_floor")
+    one, three = floor.saved_bytes("repair", 1, "tiny"), floor.saved_bytes("repair", 3, "tiny")
+    assert 0 < one < three
+    r = floor.floor("repair", 3, "tiny")
+    assert 0 < r["saved_per_window"]["bf16"] < r["saved_per_window"]["fp32"]
+    assert r["largest_batch_h100"]["fp32"] == int(floor.MEMORY_SHARE * floor.H100["memory_bytes"]
+                                                  // r["saved_per_window"]["fp32"])
