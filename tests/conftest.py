@@ -71,3 +71,15 @@ def tiny_model(tiny_model_dir):
     import tcd
 
     return tcd.load(tiny_model_dir)
+
+
+@pytest.fixture(scope="module")
+def one_torch_thread():
+    """For a module (``pytestmark = pytest.mark.usefixtures("one_torch_thread")``) that runs the PyTorch
+    reference beside the engine: PyTorch's intra-op threads thrash on a busy 2-core machine (10-30x
+    slower), so it uses one."""
+    import torch
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)

@@ -1,5 +1,5 @@
-"""Helpers shared by test_api.py, test_parity.py and test_cli.py: random-init model directories and
-deliberately broken weight files. Weight files are rewritten with safetensors' numpy API (no torch)."""
+"""Helpers shared by test_api.py, test_parity.py, test_parity_trained.py and test_cli.py: random-init model
+directories, a model on one kernel path, and deliberately broken weight files. Weight files are rewritten with safetensors' numpy API (no torch)."""
 from __future__ import annotations
 
 import json
@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 CONFIG_KEY = "tcd_config"
+ALL_KERNELS = ["portable", "avx2", "avx512"]   # the engine's kernel paths, in tcd.supported_kernels() order
 
 
 def make_model_dir(out: Path, preset: str = "tiny", seed: int = 0, repair: dict | None = None) -> Path:
@@ -75,3 +76,15 @@ def bad(argument: str, fn, *args, **kwargs):
     assert e.argument == argument, (e.argument, str(e))
     assert f"`{argument}`" in str(e)
     return e
+
+
+def load_kernel(path, kernel: str, monkeypatch):
+    """The model at ``path`` on one kernel path (``TCD_KERNEL`` is read at load); skips paths this CPU lacks."""
+    import tcd
+    if kernel not in tcd.supported_kernels():
+        pytest.skip(f"this CPU cannot run the {kernel} kernels")
+    monkeypatch.setenv("TCD_KERNEL", kernel)
+    den = tcd.Denoiser.load(path)
+    monkeypatch.delenv("TCD_KERNEL")
+    assert den.kernel == kernel
+    return den

@@ -15,7 +15,7 @@ import pytest
 import torch
 
 import tcd
-from fixtures_util import make_model_dir
+from fixtures_util import ALL_KERNELS, load_kernel, make_model_dir
 from training import diffusion as D
 from training.export import load_model_file
 
@@ -23,13 +23,7 @@ CHAIN_ATOL = 1e-4   # model units (metres)
 O = 50  # observed frames of the cascade
 
 
-@pytest.fixture(scope="module", autouse=True)
-def one_torch_thread():
-    """PyTorch's intra-op threads thrash on a busy 2-core machine (10-30x slower): use one."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 @pytest.fixture(scope="module")
@@ -140,18 +134,6 @@ def test_forward_full_size(tmp_path_factory):
 
 # ------------------------------------------------------------------------------- every kernel path
 
-ALL_KERNELS = ["portable", "avx2", "avx512"]
-
-
-def load_kernel(path, kernel, monkeypatch):
-    """The model at ``path`` on one kernel path (``TCD_KERNEL`` is read at load); skips paths this CPU lacks."""
-    if kernel not in tcd.supported_kernels():
-        pytest.skip(f"this CPU cannot run the {kernel} kernels")
-    monkeypatch.setenv("TCD_KERNEL", kernel)
-    den = tcd.Denoiser.load(path)
-    monkeypatch.delenv("TCD_KERNEL")
-    assert den.kernel == kernel
-    return den
 
 
 def test_supported_kernels_and_default():

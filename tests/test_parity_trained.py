@@ -26,6 +26,7 @@ import pytest
 import torch
 
 import tcd
+from fixtures_util import ALL_KERNELS, load_kernel
 from tcd.demo import load_clip, occlusion_mask
 from training import diffusion as D
 from training.export import load_model_file
@@ -33,16 +34,9 @@ from training.export import load_model_file
 RTOL = 2e-5           # of the output's scale
 CONTRIBUTION = 1e3    # the network's contribution over the tolerance, at least
 NEAR_MOTION_M = 0.25  # mean |output - clip| over the generated entries, metres
-KERNELS = ["portable", "avx2", "avx512"]
 
 
-@pytest.fixture(scope="module", autouse=True)
-def one_torch_thread():
-    """PyTorch's intra-op threads thrash on a busy 2-core machine: use one."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 @pytest.fixture(scope="module")
@@ -76,15 +70,7 @@ def silenced(model):
 
 
 def load(path, kernel=None, monkeypatch=None):
-    if kernel is None:
-        return tcd.Denoiser.load(path)
-    if kernel not in tcd.supported_kernels():
-        pytest.skip(f"this CPU cannot run the {kernel} kernels")
-    monkeypatch.setenv("TCD_KERNEL", kernel)
-    den = tcd.Denoiser.load(path)
-    monkeypatch.delenv("TCD_KERNEL")
-    assert den.kernel == kernel
-    return den
+    return tcd.Denoiser.load(path) if kernel is None else load_kernel(path, kernel, monkeypatch)
 
 
 def window(clip, start, length, observed_frames, occlude=False):
@@ -145,7 +131,7 @@ def test_chain_on_trained_weights(bundled, clip, role, sampler, steps, eta):
     check(got, want, silent, truth, mask, f"{role} {sampler}-{steps}")
 
 
-@pytest.mark.parametrize("kernel", KERNELS)
+@pytest.mark.parametrize("kernel", ALL_KERNELS)
 def test_chain_on_trained_weights_every_kernel(bundled, clip, kernel, monkeypatch):
     """DDIM-10 on the long-term model (the stage with the largest differences above) on each kernel path."""
     path, model, sched, silent_model = bundled["long"]
