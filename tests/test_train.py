@@ -315,3 +315,27 @@ def test_gpu_session_plans_the_whole_schedule_into_the_minutes():
     few = gpu_session.plan_schedule(cfg, steps_per_s=0.05, minutes=2.0, validation_s=1.0)
     assert few.steps_per_epoch == 1 and 1 <= few.epochs < 20 and few.val_every <= few.epochs
     assert gpu_session.plan_schedule(cfg, steps_per_s=1.0, minutes=0.01, validation_s=60.0).epochs == 1
+
+
+def test_choose_average_keeps_the_lowest_validated_weights(tmp_path):
+    """choose_average: at the validation with probes, a probe (or the raw weights) whose validation loss is
+    below the exported average's is what best.pt keeps and what is exported, under its name; off (the
+    default), best.pt keeps the average whatever the probes say."""
+    from training.export import checkpoint_weights, export_checkpoint, load_model_file
+    seqs = {"train": synthetic_motion(4, seed=0), "val": synthetic_motion(2, seed=1)}
+    # an average far too slow for 8 steps: it stays near the initial weights, which the others beat
+    base = dict(epochs=2, steps_per_epoch=4, ema_decay=0.99, ema_probe_decays=[0.5])
+    chose = train(tiny_cfg(**base, choose_average=True), tmp_path / "chose", sequences=seqs, log=lambda *a: None)
+    last = chose["history"][-1]
+    name = min(last["val_loss_probes"], key=last["val_loss_probes"].get)
+    assert last["val_loss_probes"][name] < last["val_loss"] and last["chosen"] == name
+    ck = torch.load(tmp_path / "chose" / "best.pt", weights_only=False)
+    assert ck["chosen"]["name"] == name and ck["best_val"] == last["val_loss_probes"][name] == chose["best_val"]
+    model, _, meta = load_model_file(export_checkpoint(tmp_path / "chose" / "best.pt", tmp_path / "export"))
+    assert meta["training"]["weights"] == name
+    assert all(torch.equal(model.state_dict()[k], v) for k, v in checkpoint_weights(ck).items())
+    assert not all(torch.equal(ck["ema"][k], v) for k, v in ck["chosen"]["weights"].items())
+    # the same run without the option: the same losses, and best.pt holds the average
+    kept = train(tiny_cfg(**base), tmp_path / "kept", sequences=seqs, log=lambda *a: None)
+    assert kept["history"][-1]["val_loss_probes"] == last["val_loss_probes"] and "chosen" not in kept["history"][-1]
+    assert "chosen" not in torch.load(tmp_path / "kept" / "best.pt", weights_only=False)

@@ -162,9 +162,19 @@ def write_checksums(d: str | Path) -> Path:
 
 
 def checkpoint_weights(ck: dict) -> dict:
-    """The weights a training checkpoint stands for: its moving average when the run kept one (the weights
-    that were validated), else the trained weights."""
+    """The weights a training checkpoint stands for: the ones chosen by validation where the run chose
+    (``choose_average``: a probe's average or the raw weights), else its moving average when the run kept
+    one (the weights that were validated), else the trained weights."""
+    if ck.get("chosen") is not None:
+        return ck["chosen"]["weights"]
     return ck["ema"] if ck.get("ema") is not None else ck["model"]
+
+
+def checkpoint_weights_name(ck: dict) -> str:
+    """What ``checkpoint_weights`` returns, by name: ``ema``, ``raw`` or the chosen probe's (``ema_0.99``)."""
+    if ck.get("chosen") is not None:
+        return ck["chosen"]["name"]
+    return "ema" if ck.get("ema") is not None else "raw"
 
 
 def export_checkpoint(ckpt_path: str | Path, out_dir: str | Path, description: str | None = None) -> Path:
@@ -175,7 +185,7 @@ def export_checkpoint(ckpt_path: str | Path, out_dir: str | Path, description: s
     model.load_state_dict(checkpoint_weights(ck), strict=True)
     role = ck["role"]
     training = {k: ck.get(k) for k in ("epoch", "step", "best_val", "train_config", "elapsed_s")}
-    training["weights"] = "ema" if ck.get("ema") is not None else "raw"
+    training["weights"] = checkpoint_weights_name(ck)
     if not (isinstance(training["best_val"], float) and math.isfinite(training["best_val"])):
         training["best_val"] = None  # no validation yet (an early last.pt): JSON has no Infinity
     if description:

@@ -56,6 +56,7 @@ class TrainConfig:
     compile: bool = False            # torch.compile the training forward (eager where compiling fails)
     ema_decay: float = 0.0           # > 0: exponential moving average of the weights, validated and exported
     ema_probe_decays: list = field(default_factory=list)  # more averages, validated beside (and the raw weights)
+    choose_average: bool = False     # where probes are validated, best.pt keeps the lowest of all (see train)
     warmup_steps: int = 0            # linear learning-rate warm-up over the first optimizer steps
     init_from: str = ""              # warm start: a checkpoint (.pt) or exported .safetensors whose weights start this run
 
@@ -326,15 +327,32 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
 
     def validate(entry: dict, with_probes: bool) -> float:
         """The exported weights' validation loss (returned and in ``entry``), and with ``with_probes`` the
-        probes' beside it (at the end of the schedule or of the call only: each probe costs a validation)."""
+        probes' beside it (at the end of the schedule or of the call only: each probe costs a validation);
+        best.pt is written when the loss is the lowest so far. With ``choose_average``, a probe (or the raw
+        weights) whose loss is below the exported average's is what best.pt keeps (``chosen``, exported
+        under its name): the probes' weights live in last.pt only, which is too large to bring back from a
+        GPU call, so the measurement can choose the decay only where it is made."""
+        nonlocal best_val
         v = validation_loss(evaluated, sched, cfg, val_w, device)
         entry["val_loss"] = v
+        chosen = None
         if probes and with_probes:
-            others = {f"ema_{p.decay:g}": validation_loss(p.module, sched, cfg, val_w, device) for p in probes}
+            weights = {f"ema_{p.decay:g}": p.module for p in probes}
             if ema is not None:
-                others["raw"] = validation_loss(model, sched, cfg, val_w, device)
+                weights["raw"] = model
+            others = {name: validation_loss(w, sched, cfg, val_w, device) for name, w in weights.items()}
             entry["val_loss_probes"] = others
             log("  probes: " + ", ".join(f"{k} {x:.4f}" for k, x in others.items()) + f" (exported: {v:.4f})")
+            name = min(others, key=others.get)
+            if cfg.choose_average and others[name] < v:
+                chosen = {"name": name, "weights": weights[name].state_dict()}
+                entry["chosen"] = name
+        lowest = v if chosen is None else others[chosen["name"]]
+        if lowest < best_val:
+            best_val = lowest
+            save_checkpoint(out / "best.pt", dict(state(best=lowest), **({"chosen": chosen} if chosen else {})))
+            if chosen:
+                log(f"  best.pt keeps {chosen['name']} ({lowest:.4f} against the exported average's {v:.4f})")
         return v
 
     stopped = False
@@ -369,9 +387,6 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
         if validates_after(cfg, epoch):
             v = validate(history[-1], with_probes=epoch == cfg.epochs)
             log(f"epoch {epoch}: train loss {history[-1]['train_loss']:.4f} val loss {v:.4f}")
-            if v < best_val:
-                best_val = v
-                save_checkpoint(out / "best.pt", state(best=v))
         save_checkpoint(last, state())
         last_ck = time.time()
     if stopped:
@@ -379,9 +394,6 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
         history.append({"epoch": epoch, "batch": batch_i, "stopped": "max-minutes"})
         v = validate(history[-1], with_probes=True)
         log(f"stopped after {max_minutes} min at epoch {epoch} batch {batch_i}: val loss {v:.4f}")
-        if v < best_val:
-            best_val = v
-            save_checkpoint(out / "best.pt", state(best=v))
         save_checkpoint(last, state())
     return {"epoch": epoch, "batch": batch_i, "best_val": best_val, "history": history}
 
