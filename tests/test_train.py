@@ -339,3 +339,20 @@ def test_choose_average_keeps_the_lowest_validated_weights(tmp_path):
     kept = train(tiny_cfg(**base), tmp_path / "kept", sequences=seqs, log=lambda *a: None)
     assert kept["history"][-1]["val_loss_probes"] == last["val_loss_probes"] and "chosen" not in kept["history"][-1]
     assert "chosen" not in torch.load(tmp_path / "kept" / "best.pt", weights_only=False)
+
+
+def test_training_stops_at_the_deadline(tmp_path):
+    """train(deadline=): a wall-clock stop (a GPU call's), counted whatever set-up and compiling took: a
+    deadline already past stops after the first batch, validated and resumable, like max_minutes=0;
+    gpu_session's deadline leaves RESERVE_MINUTES of the call."""
+    import argparse
+    import time
+    from training import gpu_session
+    seqs = {"train": synthetic_motion(4, seed=0), "val": synthetic_motion(2, seed=1)}
+    cfg = tiny_cfg(epochs=2, steps_per_epoch=4)
+    res = train(cfg, tmp_path / "r", sequences=seqs, deadline=time.time() - 1, log=lambda *a: None)
+    assert (res["epoch"], res["batch"]) == (0, 1) and res["history"][-1]["stopped"] == "max-minutes"
+    assert train(cfg, tmp_path / "r", sequences=seqs, resume=True, log=lambda *a: None)["epoch"] == 2
+    t = time.time()
+    assert gpu_session.deadline(argparse.Namespace(call_minutes=9.5), t) == t + 60 * (9.5 - gpu_session.RESERVE_MINUTES)
+    assert gpu_session.deadline(argparse.Namespace(call_minutes=None), t) is None

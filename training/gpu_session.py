@@ -37,6 +37,14 @@ VALIDATIONS = 4         # validations of the exported weights over a schedule (e
 OVERHEAD = 0.03         # of the training time: checkpoints at epoch ends, log lines
 
 
+def deadline(args, t_call: float) -> float | None:
+    """The wall-clock time (``time.time()``) at which training must stop so that the last validation, the
+    export and the copies fit in ``--call-minutes``; None without it. Training counts its minutes from
+    the end of its own compiling, which a resumed call does cold (no probe compiled in its process): the
+    deadline holds the call's limit whatever that took."""
+    return None if args.call_minutes is None else t_call + 60 * (args.call_minutes - RESERVE_MINUTES)
+
+
 def plan_schedule(cfg: TrainConfig, steps_per_s: float, minutes: float, validation_s: float) -> TrainConfig:
     """``cfg`` with ``epochs``, ``steps_per_epoch`` and ``val_every`` set so that the whole schedule (its
     steps at the probed rate, its validations at the timed cost, ``OVERHEAD``) fits in ``minutes``.
@@ -56,9 +64,10 @@ def plan_schedule(cfg: TrainConfig, steps_per_s: float, minutes: float, validati
 
 def fit_call(args, t_call: float, compile_minutes: float, log) -> tuple[float, float]:
     """(training minutes of this call, minutes the schedule is sized for) within ``--call-minutes``: what the
-    set-up and the probe left, less the training set-up's own compiling (about the probe's warm-up) and
+    set-up and the probe left, less the training set-up's own compiling (``compile_minutes``) and
     ``RESERVE_MINUTES``. A one-call schedule (budget <= minutes) is sized to the minutes that remain, so
-    that its learning-rate decays happen."""
+    that its learning-rate decays happen. (The call's end itself is kept by ``deadline``, whatever the
+    compiling takes.)"""
     if args.call_minutes is None:
         return args.minutes, args.budget_minutes
     left = args.call_minutes - (time.time() - t_call) / 60 - compile_minutes - RESERVE_MINUTES
@@ -124,18 +133,23 @@ def main(argv=None) -> int:
         t0 = time.time()
         probe = time_training_steps(cfg, seqs["train"], args.device, warmup=3, steps=args.probe_steps, reps=1, log=log)
         rate = probe["steps_per_s"]
+        # training compiles its own forward again, which costs a fraction of the cold compile once this
+        # process has compiled the step (a CPU measurement: 2.3 s against 14.7 s): time that one step too
+        recompile_s = (time_training_steps(cfg, seqs["train"], args.device, warmup=1, steps=1, reps=1)["warmup_s"]
+                       if cfg.compile else 0.0)
         validation_s = time_validation(cfg, seqs["val"], args.device)
-        args.minutes, args.budget_minutes = fit_call(args, t_call, probe["warmup_s"] / 60, log)
+        args.minutes, args.budget_minutes = fit_call(args, t_call, recompile_s / 60, log)
         cfg = plan_schedule(cfg, rate, args.budget_minutes, validation_s)
         log(f"probe: {rate:.2f} steps/s ({probe['windows_per_s']:.0f} windows/s, batch {cfg.batch_size}; "
-            f"warm-up with compiling {probe['warmup_s']:.0f} s, probe {time.time() - t0:.0f} s in all), "
+            f"warm-up with compiling {probe['warmup_s']:.0f} s, again {recompile_s:.0f} s, probe {time.time() - t0:.0f} s "
+            f"in all), "
             f"one validation {validation_s:.1f} s -> {cfg.epochs} epochs of {cfg.steps_per_epoch} steps "
             f"({cfg.epochs * cfg.steps_per_epoch * cfg.batch_size:,} windows; {validations_per_schedule(cfg)} "
             f"validations) for {args.budget_minutes:.2f} min")
         chosen.write_text(json.dumps(asdict(cfg), indent=1))
         resume = False
-    res = train(cfg, run, sequences=seqs, resume=resume, max_minutes=args.minutes, device=args.device,
-                workers=args.workers, log=log)
+    res = train(cfg, run, sequences=seqs, resume=resume, max_minutes=args.minutes, deadline=deadline(args, t_call),
+                device=args.device, workers=args.workers, log=log)
     log(json.dumps({k: v for k, v in res.items() if k != "history"}))
     for h in res["history"]:
         if "val_loss" in h:

@@ -234,10 +234,13 @@ def save_checkpoint(path: Path, state: dict) -> None:
 
 def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume: bool = False,
           max_minutes: float | None = None, device: str = "cpu", checkpoint_minutes: float = 5.0,
-          sequences: dict | None = None, workers: int = 0, log=print) -> dict:
+          sequences: dict | None = None, workers: int = 0, deadline: float | None = None, log=print) -> dict:
     """Train (or resume) a model into ``out``. ``sequences`` ({"train": [...], "val": [...]} of (T, J, 3)
     arrays in metres) replaces the dataset, for tests on synthetic motion. ``workers`` > 0 draws the
     host batches in that many DataLoader processes (the same batches, bit for bit, as ``workers`` = 0).
+    Training stops resumably after ``max_minutes`` of training (counted once the forward is compiled) or
+    at ``deadline`` (a ``time.time()`` value: a GPU call's wall clock, whatever set-up and compiling took),
+    whichever comes first.
 
     Checkpoints hold the raw weights (``model``), the optimizer, and with ``ema_decay`` the averaged
     weights (``ema``), which are the ones validated, kept in ``best.pt`` and exported."""
@@ -310,6 +313,8 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
         source = BatchSource(cfg, train_w, sched.T, steps_per_epoch)
     t_start = time.time()
     last_ck = t_start
+    ends = [t for t in (None if max_minutes is None else t_start + 60 * max_minutes, deadline) if t is not None]
+    stop_at = min(ends) if ends else None
 
     def state(best=None):
         # best.pt holds the weights only (it is exported or warm-started from, never resumed): a full-size
@@ -374,7 +379,7 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
             if batch_i % 100 == 0:
                 log(f"epoch {epoch} batch {batch_i}/{steps_per_epoch} loss {float(run_loss) / run_n:.4f} "
                     f"lr {lr:.1e} {now - t_start:.0f}s")
-            if max_minutes is not None and now - t_start > 60 * max_minutes:
+            if stop_at is not None and now > stop_at:
                 stopped = True
                 break
             if now - last_ck > 60 * checkpoint_minutes:
@@ -391,9 +396,10 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
         last_ck = time.time()
     if stopped:
         # time budget reached: validate what we have so that best.pt always exists
+        trained = (time.time() - t_start) / 60
         history.append({"epoch": epoch, "batch": batch_i, "stopped": "max-minutes"})
         v = validate(history[-1], with_probes=True)
-        log(f"stopped after {max_minutes} min at epoch {epoch} batch {batch_i}: val loss {v:.4f}")
+        log(f"stopped after {trained:.2f} min of training at epoch {epoch} batch {batch_i}: val loss {v:.4f}")
         save_checkpoint(last, state())
     return {"epoch": epoch, "batch": batch_i, "best_val": best_val, "history": history}
 
