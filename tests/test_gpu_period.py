@@ -114,3 +114,19 @@ def test_compare_configs_differ_in_the_batch_recipe_only():
     assert (a["batch_size"], b["batch_size"], b["lr"], b["warmup_steps"]) == (256, 32, 1e-3, 0)
     for name in ("b256", "b32"):
         TrainConfig.load(ROOT / f"training/configs/gpu12_long_cmp_{name}.json")
+
+
+def test_compare_call_shares_the_call_between_its_runs(carry, tmp_path):
+    """`gpu_period.sh compare` runs each config in turn, each stopped by its share of the call's minutes as
+    well as by MINUTES of training: with a call too short for the first run's share (CALL_MINUTES 1.4: 42 s,
+    less 45 s for its last validation), the first run stops after one batch, validated; the second still runs."""
+    cfgs = []
+    for name in ("cmp_a", "cmp_b"):
+        cfgs.append(tmp_path / f"{name}.json")
+        cfgs[-1].write_text(json.dumps(asdict(tiny_cfg(role="long", batches="device", epochs=2, steps_per_epoch=3))))
+    r, out = period(["compare", "5"], tmp_path, GPU_CARRY=str(carry), CALL_MINUTES="1.4",
+                    GPU_CMP_CONFIGS=" ".join(map(str, cfgs)))
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    first, second = (out / "cmp_a.log").read_text(), (out / "cmp_b.log").read_text()
+    assert "stopped after" in first and "at epoch 0 batch 1" in first
+    assert "val loss" in second

@@ -2,7 +2,8 @@
 # One call of a GPU period (the device tool's `run`, at most 10 minutes each); docs/training.md has the plan.
 #   bash training/gpu_period.sh bench [MINUTES]     # benches/train_throughput.py -> $OUT/train_throughput.json
 #   bash training/gpu_period.sh compare [MINUTES]   # batch 256 against the paper's batch 32 on equal windows
-#                                                   # (gpu12_long_cmp_*.json, each at most MINUTES) -> $OUT/cmp_*.log
+#                                                   # (gpu12_long_cmp_*.json, each at most MINUTES and its share
+#                                                   # of CALL_MINUTES) -> $OUT/cmp_*.log
 #   bash training/gpu_period.sh ROLE MINUTES        # a whole schedule of gpu12_ROLE.json (short|long|repair)
 #                                                   # in MINUTES of training -> $OUT/export/ROLE.safetensors
 #   bash training/gpu_period.sh eval MINUTES [DIR]  # training.protocol on model directory DIR (default
@@ -12,6 +13,7 @@
 # h36m_model_cache.npz (training data), h36m/ (S5, the evaluation protocol), init/ROLE.safetensors (the
 # best full-size weights so far, to warm-start), candidate/ and protocol/ (for eval).
 set -euo pipefail
+T0=$(date +%s)   # the call's start: compare shares the call's minutes from here
 cd "$(dirname "$0")/.."
 OUT=${OUT:-runs/gpu_out}
 CARRY=${GPU_CARRY:-gpu_carry}
@@ -32,9 +34,19 @@ case "${1:-}" in
       2>&1 | tee "$OUT/bench.log"
     ;;
   compare)
-    for b in b256 b32; do
-      python3 -m training.train --config "training/configs/gpu12_long_cmp_$b.json" --out "$RUNS/cmp_$b" \
-        --data "$CARRY/h36m_model_cache.npz" --device "$DEVICE" --max-minutes "${2:-3.5}" 2>&1 | tee "$OUT/cmp_$b.log"
+    # Each run compiles cold in its own process, which --max-minutes does not count: each also stops at its
+    # share of what is left of the call (CALL_MINUTES), less 45 s for its last validation and exit, so that
+    # the second run's log is not cut off at the device's 10 minutes. GPU_CMP_CONFIGS: other configs.
+    # shellcheck disable=SC2206  # GPU_CMP_CONFIGS is a list of paths
+    configs=(${GPU_CMP_CONFIGS:-training/configs/gpu12_long_cmp_b256.json training/configs/gpu12_long_cmp_b32.json})
+    end=$(( T0 + $(python3 -c "print(int(60 * ${CALL_MINUTES:-9.5}))") ))
+    left=${#configs[@]}
+    for config in "${configs[@]}"; do
+      name=$(basename "$config" .json); name=${name#gpu12_long_}
+      now=$(date +%s); stop=$(( now + (end - now) / left - 45 )); left=$(( left - 1 ))
+      echo "$name: training stops by $(( stop - now )) s from now (or after ${2:-3.5} min of training)"
+      python3 -m training.train --config "$config" --out "$RUNS/$name" --data "$CARRY/h36m_model_cache.npz" \
+        --device "$DEVICE" --max-minutes "${2:-3.5}" --stop-at "$stop" 2>&1 | tee "$OUT/$name.log"
     done
     ;;
   short|long|repair)

@@ -412,6 +412,8 @@ def main(argv=None) -> int:
     ap.add_argument("--data", default=None, help="Human3.6M directory or a cache from --write-cache")
     ap.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
     ap.add_argument("--max-minutes", type=float, default=None, help="stop (resumably) after this many minutes")
+    ap.add_argument("--stop-at", type=float, default=None, metavar="UNIX_SECONDS",
+                    help="stop (resumably) at this wall-clock time (date +%%s), whatever set-up and compiling took")
     ap.add_argument("--device", default="cpu", help="cpu | cuda")
     ap.add_argument("--threads", type=int, default=None, help="torch CPU threads")
     ap.add_argument("--workers", type=int, default=0,
@@ -428,7 +430,7 @@ def main(argv=None) -> int:
         torch.set_num_threads(args.threads)
     cfg = TrainConfig.load(args.config)
     res = train(cfg, args.out, data=args.data, resume=args.resume, max_minutes=args.max_minutes, device=args.device,
-                workers=args.workers)
+                workers=args.workers, deadline=args.stop_at)
     print(json.dumps({k: v for k, v in res.items() if k != "history"}))
     return 0
 
