@@ -195,11 +195,11 @@ def floor(role: str, batch: int, preset: str = "full", inference: bool = False) 
             out["floors"][f"{precision}_{kind}"] = {"windows_per_s": 1.0 / max(t_flop, t_bytes),
                                                     "bound": "bytes" if t_bytes > t_flop else "flops"}
     if not inference:
-        for precision in ("fp32", "bf16"):
-            amp = precision == "bf16"     # CPU autocast: its bf16 operation list is close to CUDA's, not equal
-            saved = (saved_bytes(role, batch, preset, amp) - saved_bytes(role, 1, preset, amp)) / (batch - 1)
-            out["saved_per_window"] = {**out.get("saved_per_window", {}), precision: saved}
-            out.setdefault("largest_batch_h100", {})[precision] = int(MEMORY_SHARE * H100["memory_bytes"] // saved)
+        # bf16: CPU autocast, whose bf16 operation list is close to CUDA's, not equal
+        saved = {precision: (saved_bytes(role, batch, preset, amp) - saved_bytes(role, 1, preset, amp)) / (batch - 1)
+                 for precision, amp in (("fp32", False), ("bf16", True))}
+        out["saved_per_window"] = saved
+        out["largest_batch_h100"] = {k: int(MEMORY_SHARE * H100["memory_bytes"] // v) for k, v in saved.items()}
     out["top_ops_bytes"] = sorted(((k, (big["by_op"][k] - one["by_op"].get(k, 0)) / (batch - 1))
                                    for k in big["by_op"]), key=lambda kv: -kv[1])[:12]
     return out

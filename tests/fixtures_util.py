@@ -1,5 +1,6 @@
 """Helpers shared by test_api.py, test_parity.py, test_parity_trained.py and test_cli.py: random-init model
-directories, a model on one kernel path, and deliberately broken weight files. Weight files are rewritten with safetensors' numpy API (no torch)."""
+directories, a model on one kernel path, and deliberately broken weight files. Weight files are rewritten
+with safetensors' numpy API (no torch)."""
 from __future__ import annotations
 
 import json

@@ -161,20 +161,18 @@ def write_checksums(d: str | Path) -> Path:
     return _write(d)
 
 
+def named_checkpoint_weights(ck: dict) -> tuple[str, dict]:
+    """(name, weights) a training checkpoint stands for: the ones chosen by validation where the run chose
+    (``choose_average``: a probe's average, e.g. ``ema_0.99``, or ``raw``), else its moving average when the
+    run kept one (``ema``, the weights that were validated), else the trained weights (``raw``)."""
+    if ck.get("chosen") is not None:
+        return ck["chosen"]["name"], ck["chosen"]["weights"]
+    return ("ema", ck["ema"]) if ck.get("ema") is not None else ("raw", ck["model"])
+
+
 def checkpoint_weights(ck: dict) -> dict:
-    """The weights a training checkpoint stands for: the ones chosen by validation where the run chose
-    (``choose_average``: a probe's average or the raw weights), else its moving average when the run kept
-    one (the weights that were validated), else the trained weights."""
-    if ck.get("chosen") is not None:
-        return ck["chosen"]["weights"]
-    return ck["ema"] if ck.get("ema") is not None else ck["model"]
-
-
-def checkpoint_weights_name(ck: dict) -> str:
-    """What ``checkpoint_weights`` returns, by name: ``ema``, ``raw`` or the chosen probe's (``ema_0.99``)."""
-    if ck.get("chosen") is not None:
-        return ck["chosen"]["name"]
-    return "ema" if ck.get("ema") is not None else "raw"
+    """The weights of ``named_checkpoint_weights``."""
+    return named_checkpoint_weights(ck)[1]
 
 
 def export_checkpoint(ckpt_path: str | Path, out_dir: str | Path, description: str | None = None) -> Path:
@@ -182,10 +180,11 @@ def export_checkpoint(ckpt_path: str | Path, out_dir: str | Path, description: s
     model_cfg = ModelConfig.from_dict(ck["model_config"])
     diff_cfg = DiffusionConfig.from_dict(ck["diffusion_config"])
     model = TCDModel(model_cfg, diff_cfg.num_train_timesteps)
-    model.load_state_dict(checkpoint_weights(ck), strict=True)
+    name, weights = named_checkpoint_weights(ck)
+    model.load_state_dict(weights, strict=True)
     role = ck["role"]
     training = {k: ck.get(k) for k in ("epoch", "step", "best_val", "train_config", "elapsed_s")}
-    training["weights"] = checkpoint_weights_name(ck)
+    training["weights"] = name
     if not (isinstance(training["best_val"], float) and math.isfinite(training["best_val"])):
         training["best_val"] = None  # no validation yet (an early last.pt): JSON has no Infinity
     if description:

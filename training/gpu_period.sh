@@ -20,6 +20,7 @@ CARRY=${GPU_CARRY:-gpu_carry}
 # Dry runs here (tests/test_gpu_period.py): GPU_DEVICE=cpu, GPU_CONFIG (another training config for
 # short|long|repair), BENCH_ARGS and PROTOCOL_ARGS (options added to the benchmark and to training.protocol).
 DEVICE=${GPU_DEVICE:-cuda}
+CALL_MINUTES=${CALL_MINUTES:-9.5}   # wall clock a call may take (the device tool stops it at 10)
 # Run directories. A warm device machine keeps ignored folders between calls: a second call of the same
 # ROLE there resumes RUNS/gpu12_ROLE (the multi-call schedule); name another GPU_RUNS to start afresh.
 RUNS=${GPU_RUNS:-runs}
@@ -39,7 +40,7 @@ case "${1:-}" in
     # the second run's log is not cut off at the device's 10 minutes. GPU_CMP_CONFIGS: other configs.
     # shellcheck disable=SC2206  # GPU_CMP_CONFIGS is a list of paths
     configs=(${GPU_CMP_CONFIGS:-training/configs/gpu12_long_cmp_b256.json training/configs/gpu12_long_cmp_b32.json})
-    end=$(( T0 + $(python3 -c "print(int(60 * ${CALL_MINUTES:-9.5}))") ))
+    end=$(( T0 + $(python3 -c "print(int(60 * $CALL_MINUTES))") ))
     left=${#configs[@]}
     for config in "${configs[@]}"; do
       name=$(basename "$config" .json); name=${name#gpu12_long_}
@@ -55,7 +56,7 @@ case "${1:-}" in
     if [ -f "$CARRY/init/$role.safetensors" ]; then init=(--init-from "$CARRY/init/$role.safetensors"); fi
     python3 -m training.gpu_session --config "${GPU_CONFIG:-training/configs/gpu12_$role.json}" --run "$RUNS/gpu12_$role" \
       --data "$CARRY/h36m_model_cache.npz" --budget-minutes "$minutes" --minutes "$minutes" "${init[@]}" \
-      --call-minutes "${CALL_MINUTES:-9.5}" --device "$DEVICE" --copy-to "$OUT/$role" --export "$OUT/export" \
+      --call-minutes "$CALL_MINUTES" --device "$DEVICE" --copy-to "$OUT/$role" --export "$OUT/export" \
       2>&1 | tee "$OUT/$role.log"
     ;;
   eval)

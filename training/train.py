@@ -121,11 +121,18 @@ def validates_after(cfg: TrainConfig, epoch: int) -> bool:
     return epoch % cfg.val_every == 0 or epoch == cfg.epochs
 
 
+def probe_names(cfg: TrainConfig) -> list[str]:
+    """The weights validated beside the exported ones where probes are: each probe average (``ema_0.99``)
+    and, when the exported weights are an average, the raw weights (``raw``)."""
+    if not cfg.ema_probe_decays:
+        return []
+    return [f"ema_{d:g}" for d in cfg.ema_probe_decays] + (["raw"] if cfg.ema_decay else [])
+
+
 def validations_per_schedule(cfg: TrainConfig) -> int:
     """validation_loss calls of a schedule run to its end: the exported weights' at each validation, and
-    at the last one each probe's and (with an EMA) the raw weights'."""
-    probes = len(cfg.ema_probe_decays) + (1 if cfg.ema_probe_decays and cfg.ema_decay else 0)
-    return sum(validates_after(cfg, e) for e in range(1, cfg.epochs + 1)) + probes
+    at the last one each of ``probe_names``."""
+    return sum(validates_after(cfg, e) for e in range(1, cfg.epochs + 1)) + len(probe_names(cfg))
 
 
 def training_forward(model: TCDModel, cfg: TrainConfig, batch_shape: tuple, device: str, log=print):
@@ -342,9 +349,8 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
         entry["val_loss"] = v
         chosen = None
         if probes and with_probes:
-            weights = {f"ema_{p.decay:g}": p.module for p in probes}
-            if ema is not None:
-                weights["raw"] = model
+            modules = [p.module for p in probes] + ([model] if ema is not None else [])
+            weights = dict(zip(probe_names(cfg), modules, strict=True))
             others = {name: validation_loss(w, sched, cfg, val_w, device) for name, w in weights.items()}
             entry["val_loss_probes"] = others
             log("  probes: " + ", ".join(f"{k} {x:.4f}" for k, x in others.items()) + f" (exported: {v:.4f})")
