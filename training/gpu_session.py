@@ -8,10 +8,11 @@ First call (no ``RUN/config.json`` yet): the training step of the config (its ba
 device, its compile and precision settings) is timed by ``training.throughput`` (``--probe-steps``
 after the warm-up, which includes compiling) and one validation is timed; the schedule is then cut
 (``plan_schedule``: 20 epochs of as many steps as fit) so that the whole learning-rate schedule (warm-up
-and milestones) and its validations fit in ``--budget-minutes`` of training, the chosen config is written to ``RUN/config.json``, and training runs for ``--minutes``. Later calls resume from
-``RUN/last.pt`` with ``RUN/config.json`` for another ``--minutes`` (carry ``RUN`` back to the GPU
-machine between calls). ``--copy-to`` copies the checkpoints, the config and the log there (the device
-tool's ``$OUT``); ``--export`` writes the best checkpoint's weights (the EMA when the run keeps one) as
+and milestones) and its validations fit in ``--budget-minutes`` of training, the chosen config is written
+to ``RUN/config.json``, and training runs for ``--minutes``. Later calls resume from ``RUN/last.pt`` with
+``RUN/config.json`` for another ``--minutes`` (carry ``RUN`` back to the GPU machine between calls).
+``--copy-to`` copies the checkpoints, the config and the log there (the device tool's ``$OUT``);
+``--export`` writes the best checkpoint's weights (``training.export.named_checkpoint_weights``) as
 ``ROLE.safetensors`` there, the file a session compares with the bundled weights.
 """
 from __future__ import annotations
@@ -141,9 +142,8 @@ def main(argv=None) -> int:
         args.minutes, args.budget_minutes = fit_call(args, t_call, recompile_s / 60, log)
         cfg = plan_schedule(cfg, rate, args.budget_minutes, validation_s)
         log(f"probe: {rate:.2f} steps/s ({probe['windows_per_s']:.0f} windows/s, batch {cfg.batch_size}; "
-            f"warm-up with compiling {probe['warmup_s']:.0f} s, again {recompile_s:.0f} s, probe {time.time() - t0:.0f} s "
-            f"in all), "
-            f"one validation {validation_s:.1f} s -> {cfg.epochs} epochs of {cfg.steps_per_epoch} steps "
+            f"warm-up with compiling {probe['warmup_s']:.0f} s, again {recompile_s:.0f} s, "
+            f"probe {time.time() - t0:.0f} s in all), one validation {validation_s:.1f} s -> {cfg.epochs} epochs of {cfg.steps_per_epoch} steps "
             f"({cfg.epochs * cfg.steps_per_epoch * cfg.batch_size:,} windows; {validations_per_schedule(cfg)} "
             f"validations) for {args.budget_minutes:.2f} min")
         chosen.write_text(json.dumps(asdict(cfg), indent=1))
