@@ -8,6 +8,12 @@ each has its own). A kernel path this CPU supports but the file has no table for
 that never recorded one) is skipped with the command that records it:
 
     TCD_KERNEL=avx512 python3 tests/test_golden.py --record
+
+A table is recorded once and then must hold on every CPU that runs its path. The avx2 table was re-recorded
+once, on 2026-11-25 (issue 27): the AVX2 path had computed reciprocals with ``_mm256_rcp_ps``, whose
+estimate differs between Intel and AMD (the table recorded on AMD failed on a Sapphire Rapids Xeon); it
+now divides exactly (``crates/tcd-core/src/kernels/x86/simd.rs``). The portable and avx512 tables are
+unchanged.
 """
 from __future__ import annotations
 

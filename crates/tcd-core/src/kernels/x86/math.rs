@@ -114,15 +114,29 @@ pub(super) unsafe fn gelu<S: Simd>(x: S::V) -> S::V {
     }
 }
 
-/// σ(a)·tanh(f) with σ(a) = 1/(1 + e^(−a)) and tanh(f) = 1 − 2/(1 + e^(2f)).
+/// σ(a)·tanh(f), σ(a) = 1/(1 + e^(−a)), tanh(f) = 1 − 2/(1 + e^(2f)).
+///
+/// Where `recip` is a specified estimate refined by Newton (AVX-512's `rcp14`), as two reciprocals.
+/// Where it is an exact division (AVX2: its estimate `rcp_ps` differs between Intel and AMD, issue
+/// 27), as one division, (e^(2f) − 1) / ((1 + e^(−a))·(1 + e^(2f))), which costs half of two: the
+/// clamps keep that denominator finite (tanh(±9) rounds to ±1 in f32; below a = −60, σ(a) < 1e−26).
+/// The AVX-512 form stays as it was so that its golden outputs, recorded on AVX-512 CPUs, still hold.
 #[inline(always)]
 pub(super) unsafe fn gated<S: Simd>(a: S::V, f: S::V) -> S::V {
     // SAFETY: vector arithmetic on registers, valid under the caller's ISA.
     unsafe {
         let one = S::splat(1.0);
-        let sig = S::recip(S::add(one, exp::<S>(S::sub(S::zero(), a))));
-        let th = S::fma(S::splat(-2.0), S::recip(S::add(one, exp::<S>(S::add(f, f)))), one);
-        S::mul(sig, th)
+        if S::RECIP_IS_DIVISION {
+            let a = S::max(a, S::splat(-60.0));
+            let f = S::min(S::max(f, S::splat(-9.0)), S::splat(9.0));
+            let e2f = exp::<S>(S::add(f, f));
+            let den = S::mul(S::add(one, exp::<S>(S::sub(S::zero(), a))), S::add(one, e2f));
+            S::div(S::sub(e2f, one), den)
+        } else {
+            let sig = S::recip(S::add(one, exp::<S>(S::sub(S::zero(), a))));
+            let th = S::fma(S::splat(-2.0), S::recip(S::add(one, exp::<S>(S::add(f, f)))), one);
+            S::mul(sig, th)
+        }
     }
 }
 

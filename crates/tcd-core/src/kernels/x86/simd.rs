@@ -18,8 +18,13 @@ pub(crate) trait Simd: Copy {
     unsafe fn sub(a: Self::V, b: Self::V) -> Self::V;
     unsafe fn mul(a: Self::V, b: Self::V) -> Self::V;
     unsafe fn div(a: Self::V, b: Self::V) -> Self::V;
-    /// 1/a to about 1 ulp: the hardware estimate refined by one Newton step (cheaper than `div`).
+    /// 1/a to about 1 ulp, with the same bits on every CPU that runs the implementor: only
+    /// instructions whose results are specified (the rule `tests::no_implementation_defined_estimates`
+    /// in kernels/x86/mod.rs guards).
     unsafe fn recip(a: Self::V) -> Self::V;
+    /// Whether `recip` is an exact division (no specified estimate to refine): formulas with several
+    /// reciprocals then fold them into one division (`math::gated`).
+    const RECIP_IS_DIVISION: bool;
     unsafe fn max(a: Self::V, b: Self::V) -> Self::V;
     unsafe fn min(a: Self::V, b: Self::V) -> Self::V;
     /// a·b + c, one rounding.
@@ -40,6 +45,7 @@ pub(crate) struct Avx512;
 
 impl Simd for Avx512 {
     const W: usize = 16;
+    const RECIP_IS_DIVISION: bool = false;
     type V = __m512;
     #[inline(always)]
     unsafe fn splat(x: f32) -> __m512 {
@@ -77,7 +83,9 @@ impl Simd for Avx512 {
     }
     #[inline(always)]
     unsafe fn recip(a: __m512) -> __m512 {
-        // rcp14 (relative error < 2^-14), one Newton step: r + r·(1 − a·r).
+        // rcp14 (relative error < 2^-14), one Newton step: r + r·(1 − a·r). Unlike AVX2's `rcp_ps`,
+        // `rcp14` is specified bit for bit (the SDM gives its reference table), so every AVX-512 CPU
+        // returns the same estimate: the golden tables match on Zen 5 and Sapphire Rapids.
         let r = _mm512_rcp14_ps(a);
         _mm512_fmadd_ps(r, _mm512_fnmadd_ps(a, r, _mm512_set1_ps(1.0)), r)
     }
@@ -123,6 +131,7 @@ pub(crate) struct Avx2;
 
 impl Simd for Avx2 {
     const W: usize = 8;
+    const RECIP_IS_DIVISION: bool = true;
     type V = __m256;
     #[inline(always)]
     unsafe fn splat(x: f32) -> __m256 {
@@ -160,9 +169,10 @@ impl Simd for Avx2 {
     }
     #[inline(always)]
     unsafe fn recip(a: __m256) -> __m256 {
-        // rcp (relative error < 1.5·2^-12), one Newton step: r + r·(1 − a·r).
-        let r = _mm256_rcp_ps(a);
-        _mm256_fmadd_ps(r, _mm256_fnmadd_ps(a, r, _mm256_set1_ps(1.0)), r)
+        // Exact division. AVX2's estimate `rcp_ps` is implementation-defined (Intel and AMD return
+        // different bits, so a Newton step on it does too): the avx2 path's outputs depended on the
+        // CPU's vendor (issue 27). `vdivps` is IEEE-rounded everywhere.
+        _mm256_div_ps(_mm256_set1_ps(1.0), a)
     }
     #[inline(always)]
     unsafe fn max(a: __m256, b: __m256) -> __m256 {
