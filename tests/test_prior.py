@@ -1,0 +1,150 @@
+"""The prior forecaster's PyTorch reference (training/prior.py): the DCT, the untrained network (Zero-
+Velocity), rollout, the loss, config checks, and resumable training (a stopped and resumed run equals an
+uninterrupted one)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from training.prior import PriorConfig, PriorNet, batch, dct_matrix, load, loss_fn, train
+
+
+def synthetic_frames(n_frames: int = 400, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Smooth random motion (n_frames, 66) and every window start of 60 frames."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n_frames)[:, None] / 25.0
+    frames = (0.3 * np.sin(2 * np.pi * rng.uniform(0.2, 1.5, 66) * t + rng.uniform(0, 6, 66))).astype(np.float32)
+    return frames, np.arange(n_frames - 60 + 1)
+
+
+def test_dct_is_orthonormal():
+    m = dct_matrix(50)
+    np.testing.assert_allclose(m @ m.T, np.eye(50), atol=1e-12)
+    assert np.allclose(m[0], m[0, 0])                  # row 0 is the mean
+
+
+def test_untrained_network_is_zero_velocity_and_rolls_out():
+    cfg = PriorConfig(blocks=3)
+    torch.manual_seed(0)
+    net = PriorNet(cfg)
+    obs = torch.randn(4, 50, 66)
+    out = net.rollout(obs, 25)
+    assert out.shape == (4, 25, 66)
+    torch.testing.assert_close(out, obs[:, -1:].expand(4, 25, 66), atol=1e-5, rtol=0)
+
+
+def test_rollout_feeds_back_its_chunks():
+    cfg = PriorConfig(blocks=2, chunk=10)
+    torch.manual_seed(0)
+    net = PriorNet(cfg)
+    with torch.no_grad():
+        for p in net.parameters():
+            p.normal_(0, 0.05)
+    obs = torch.randn(2, 60, 66)
+    first = net(obs[:, -50:])
+    second = net(torch.cat([obs[:, -40:], first], dim=1))
+    out = net.rollout(obs, 23)
+    torch.testing.assert_close(out[:, :10], first)
+    torch.testing.assert_close(out[:, 10:20], second)
+    assert out.shape == (2, 23, 66)
+
+
+def test_loss_is_joint_distance_plus_velocity():
+    target = torch.zeros(1, 2, 66)
+    pred = torch.zeros(1, 2, 66)
+    pred[0, 1, :3] = torch.tensor([3.0, 4.0, 0.0])      # one joint 5 away in frame 1
+    pos = 5.0 / 44                                      # mean over 2 frames x 22 joints
+    vel = 5.0 / 22                                      # one velocity of 22
+    assert loss_fn(pred, target, 0.0).item() == pytest.approx(pos)
+    assert loss_fn(pred, target, 1.0).item() == pytest.approx(pos + vel)
+
+
+def test_batch_is_a_pure_function_and_flips():
+    frames, starts = synthetic_frames()
+    cfg = PriorConfig(batch_size=64, flip_prob=0.5)
+    a, b = batch(cfg, frames, starts, 7), batch(cfg, frames, starts, 7)
+    assert torch.equal(a, b) and a.shape == (64, 60, 66)
+    assert not torch.equal(a, batch(cfg, frames, starts, 8))
+    # every window is a run of consecutive frames, forwards or reversed
+    f = torch.from_numpy(frames)
+    fwd = rev = 0
+    for w in a:
+        i = int(torch.argmin(((f - w[0]) ** 2).sum(1)))
+        if i + 60 <= len(f) and torch.equal(w, f[i:i + 60]):
+            fwd += 1
+        elif i - 59 >= 0 and torch.equal(w, f[i - 59:i + 1].flip(0)):
+            rev += 1
+    assert fwd + rev == 64 and fwd > 10 and rev > 10
+
+
+@pytest.mark.parametrize("field,value", [("chunk", 0), ("blocks", 0), ("flip_prob", 1.5), ("chunk", 60)])
+def test_config_rejects_bad_values(field, value):
+    with pytest.raises(ValueError, match=field):
+        PriorConfig(**{field: value})
+
+
+def test_unknown_config_key_is_named(tmp_path):
+    p = tmp_path / "c.json"
+    p.write_text('{"blocks": 2, "block": 3}')
+    with pytest.raises(ValueError, match="block"):
+        PriorConfig.load(p)
+
+
+def test_resumed_training_equals_uninterrupted(tmp_path):
+    torch.set_num_threads(1)
+    frames = synthetic_frames()
+    cfg = PriorConfig(blocks=2, batch_size=16, iterations=6, lr_decay_at=0.5)
+    whole = train(cfg, tmp_path / "whole", frames=frames, log=lambda m: None)
+    assert whole["done"]
+    # the same run stopped after its first iteration (max_minutes=0) and resumed
+    part = train(cfg, tmp_path / "part", frames=frames, max_minutes=0.0, log=lambda m: None)
+    assert part["iteration"] == 1 and not part["done"]
+    done = train(cfg, tmp_path / "part", frames=frames, resume=True, log=lambda m: None)
+    assert done["iteration"] == 6
+    a = torch.load(tmp_path / "whole" / "last.pt", weights_only=False)["model"]
+    b = torch.load(tmp_path / "part" / "last.pt", weights_only=False)["model"]
+    for k in a:
+        torch.testing.assert_close(a[k], b[k], rtol=0, atol=0, msg=k)
+    with pytest.raises(ValueError, match="another config"):
+        train(PriorConfig(blocks=3, batch_size=16, iterations=6), tmp_path / "part", frames=frames, resume=True,
+              log=lambda m: None)
+
+
+def test_training_lowers_the_loss(tmp_path):
+    torch.set_num_threads(1)
+    frames = synthetic_frames()
+    cfg = PriorConfig(blocks=2, batch_size=32, iterations=150, lr=3e-3)
+    held_out = batch(cfg, *frames, 10_000)            # an iteration the run never draws
+
+    def loss_of(net):
+        with torch.no_grad():
+            return loss_fn(net(held_out[:, :50]), held_out[:, 50:], 1.0).item()
+
+    torch.manual_seed(cfg.seed)
+    before = loss_of(PriorNet(cfg))                  # the run's initial weights: Zero-Velocity
+    train(cfg, tmp_path, frames=frames, log=lambda m: None)
+    after = loss_of(load(tmp_path / "last.pt"))
+    assert after < 0.7 * before, (before, after)
+
+
+def test_schedule_may_change_only_where_the_run_so_far_is_the_same(tmp_path):
+    torch.set_num_threads(1)
+    frames = synthetic_frames()
+    long = PriorConfig(blocks=2, batch_size=16, iterations=12, lr_decay_at=0.5)     # decays at 6
+    short = PriorConfig(blocks=2, batch_size=16, iterations=8, lr_decay_at=0.5)     # decays at 4
+    train(short, tmp_path / "short", frames=frames, log=lambda m: None)
+    # 3 iterations of a schedule that never decays, resumed as the short one: the same first 3 rates
+    part = train(PriorConfig(blocks=2, batch_size=16, iterations=3, lr_decay_at=1.0), tmp_path / "p3",
+                 frames=frames, log=lambda m: None)
+    assert part["done"]
+    done = train(short, tmp_path / "p3", frames=frames, resume=True, log=lambda m: None)
+    assert done["iteration"] == 8
+    a = torch.load(tmp_path / "short" / "last.pt", weights_only=False)["model"]
+    b = torch.load(tmp_path / "p3" / "last.pt", weights_only=False)["model"]
+    for k in a:
+        torch.testing.assert_close(a[k], b[k], rtol=0, atol=0, msg=k)
+    # the long run's iterations 4 and 5 had lr 3e-4, the short schedule's lr_final: refused
+    train(long, tmp_path / "six", frames=frames, log=lambda m: None)
+    with pytest.raises(ValueError, match="another config"):
+        train(short, tmp_path / "six", frames=frames, resume=True, log=lambda m: None)
