@@ -3,7 +3,12 @@
 The engine counts per-sequence denoiser forwards; the binding calls back ``(done, total)`` about ten times
 a second from the calling thread, and once at the end (see ``crates/tcd-py/src/run.rs``). ``progress``:
 ``None`` / ``False`` shows nothing, ``True`` a tqdm bar on stderr, and a callable ``f(done, total)`` gets
-the counts (raising in it stops the call with that exception, as Ctrl-C does with KeyboardInterrupt)."""
+the counts (raising in it stops the call with that exception, as Ctrl-C does with KeyboardInterrupt).
+
+Ctrl-C is seen by a call made from the main thread (the only one where Python runs signal handlers; from
+another thread, raise in the callback) in a process where SIGINT raises KeyboardInterrupt, Python's default:
+a process started with SIGINT ignored (a script's ``python app.py &``) keeps it ignored, and tcd does not
+change it. A Ctrl-C that arrived just before the call stops it before its first forward."""
 from __future__ import annotations
 
 import sys

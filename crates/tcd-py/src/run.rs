@@ -3,6 +3,17 @@
 //! signal handlers (Ctrl-C raises `KeyboardInterrupt` there) and to report progress; when either raises,
 //! the call is cancelled (every chain stops before its next forward), the thread is joined, and that
 //! exception is returned: nothing keeps computing in the background.
+//!
+//! A signal can arrive before the first slice: between the caller's last Python bytecode (where Python
+//! itself would have raised it) and this function, while Rust code holds the GIL (converting the
+//! arguments, preparing the noise). Such a signal is only pending, so the signals are checked once more
+//! before the worker starts: a call interrupted before it started does no work. (Unchecked, it was seen
+//! after the first slice, or only once the result was back when the work took less than one slice.)
+//!
+//! Only the main thread runs Python's signal handlers (`check_signals` does nothing elsewhere): a call made
+//! from another thread is stopped by an exception raised in its `progress` callback, not by Ctrl-C. And a
+//! process that ignores SIGINT (`SIG_IGN`, e.g. inherited from a non-interactive shell's `cmd &`) never
+//! sees it: the disposition is the application's, which this binding does not change.
 
 use std::sync::mpsc::{channel, RecvTimeoutError};
 use std::time::Duration;
@@ -23,6 +34,7 @@ where
     T: Send,
     F: FnOnce(&Control) -> CoreResult<T> + Send,
 {
+    py.check_signals()?; // one that arrived before the call: see the module's documentation
     let control = Control::default();
     let report = |control: &Control| -> PyResult<()> {
         match progress {

@@ -3,9 +3,11 @@ sampler flags and loading the model."""
 from __future__ import annotations
 
 import argparse
+import signal
+import threading
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Dict, Iterator, Optional
+from typing import Any, Dict, Iterator, Optional, Tuple
 
 from ..exceptions import InvalidInputError, WeightsError
 from ..model import TCD, load
@@ -15,10 +17,47 @@ EXIT_OK = 0
 EXIT_FAILURE = 1
 EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130  # tcd repair: re-run the command to resume
+EXIT_TERMINATED = 143   # 128 + SIGTERM
 
 
 class _BadInput(Exception):
     """A problem the user can fix: reported on stderr with exit code 2."""
+
+
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM while a command runs: raised by :func:`stop_signals`' handler so that it stops as Ctrl-C does
+    (the engine's call is cancelled, temporary files are removed, nothing half-written); a KeyboardInterrupt
+    so that every path that cleans up after Ctrl-C cleans up after it too."""
+
+
+def stopped(e: KeyboardInterrupt) -> Tuple[str, int]:
+    """The word and exit code of a stop: ``("interrupted", 130)`` for Ctrl-C, ``("terminated", 143)`` for SIGTERM."""
+    return ("terminated", EXIT_TERMINATED) if isinstance(e, _Terminated) else ("interrupted", EXIT_INTERRUPTED)
+
+
+def _raise_terminated(signum: int, frame: Any) -> None:
+    raise _Terminated()
+
+
+@contextmanager
+def stop_signals() -> Iterator[None]:
+    """Around a command: SIGTERM stops it as Ctrl-C does (:class:`_Terminated`, exit 143).
+
+    A signal ignored when the command starts stays ignored, as Python itself does for SIGINT and as GNU make,
+    coreutils and the shells do: a non-interactive shell starts ``tcd ... &`` with SIGINT (and SIGQUIT)
+    ignored so that the Ctrl-C meant for the foreground command, which reaches the whole process group, does
+    not stop it; ``kill PID`` (SIGTERM) does. A handler the embedding program installed is kept too (only
+    the default disposition is replaced), and so is everything when called from a thread other than the main
+    one (Python runs handlers there only). The disposition found is restored on the way out."""
+    if threading.current_thread() is not threading.main_thread() or \
+            signal.getsignal(signal.SIGTERM) != signal.SIG_DFL:
+        yield
+        return
+    try:
+        signal.signal(signal.SIGTERM, _raise_terminated)
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 # The sampler flags of every command that samples: one mapping from SamplerOptions field to flag. A flag

@@ -16,8 +16,8 @@ from ..batch_repair.options import (DEFAULT_FILES_PER_BATCH, DEFAULT_LOOKAHEAD, 
 from ..batch_repair.runner import Outcome, collect_tasks, run_tasks, same_path
 from ..exceptions import InvalidInputError
 from ..files import write_text_atomic
-from .common import (EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK, OPTION_FLAGS, _BadInput, add_model_flag,
-                     add_sampler_flags, flag_message, load_model, sampler_options)
+from .common import (EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_OK, OPTION_FLAGS, _BadInput, add_model_flag, add_sampler_flags,
+                     flag_message, load_model, sampler_options, stopped)
 
 # RepairOptions.make's arguments by the flag that sets each, for the error messages (--jobs sets threads).
 FLAGS = {**OPTION_FLAGS, "threads": "--jobs", "fps": "--fps", "overlap": "--overlap", "lookahead": "--lookahead",
@@ -36,7 +36,7 @@ def add_parser(sub: Any) -> Any:
         "Writes OUTDIR/<relative path>.npz with `poses`, `mask` and `provenance`; observed values are kept bit for "
         "bit. Finished outputs are skipped on a re-run (resume) unless --overwrite.",
         epilog="Exit codes: 0 every file repaired (or skipped), 1 some file failed (listed on stderr and in the "
-        "report), 2 bad arguments, 130 interrupted (re-run the command to resume).")
+        "report), 2 bad arguments, 130 interrupted (143 terminated; re-run the command to resume).")
     rp.add_argument("inputs", nargs="+", metavar="INPUT", help=".npz / .txt files or directories")
     rp.add_argument("-o", "--output", metavar="OUTDIR", required=True, help="output directory (created if needed)")
     add_model_flag(rp)
@@ -80,7 +80,8 @@ def _progress_bar(total: int, quiet: bool) -> Any:
 
 
 def run(args: Any) -> int:
-    """Runs ``tcd repair``; returns the exit code (0 ok, 1 some file failed, 2 bad arguments, 130 interrupted)."""
+    """Runs ``tcd repair``; returns the exit code (0 ok, 1 some file failed, 2 bad arguments, 130 interrupted,
+    143 terminated)."""
     def bad(msg: str) -> int:
         print(f"tcd repair: error: {msg}", file=sys.stderr)
         return EXIT_BAD_INPUT
@@ -145,12 +146,12 @@ def run(args: Any) -> int:
         else:
             outcomes = run_tasks(model, tasks, opts, overwrite=args.overwrite,
                                  files_per_batch=DEFAULT_FILES_PER_BATCH, on_frames=on_frames, on_outcome=on_outcome)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as e:  # Ctrl-C or SIGTERM
         if bar is not None:
             bar.close()
-        print("tcd repair: interrupted; finished outputs are complete, re-run the command to resume.",
-              file=sys.stderr)
-        return EXIT_INTERRUPTED
+        word, code = stopped(e)
+        print(f"tcd repair: {word}; finished outputs are complete, re-run the command to resume.", file=sys.stderr)
+        return code
     finally:
         if bar is not None:
             bar.close()
