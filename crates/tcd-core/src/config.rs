@@ -204,6 +204,16 @@ pub enum PredictionType {
 impl TcdConfig {
     /// Parses the JSON string stored under `tcd_config`; `path` names the file in errors.
     pub fn from_json(json: &str, path: &Path) -> Result<Self> {
+        // A prior file given to the denoiser's loader: say what it holds, not that its role is unknown.
+        if crate::prior::config::role_of(json).as_deref() == Some(crate::prior::config::ROLE) {
+            return Err(Error::InvalidConfig {
+                path: path.to_path_buf(),
+                field: "role".into(),
+                reason: "is \"prior\": the file holds the deterministic prior forecaster, which loads with \
+                         `Prior::load` (Python: `tcd.Prior.load`), not as a denoiser"
+                    .into(),
+            });
+        }
         let cfg: TcdConfig = serde_json::from_str(json).map_err(|e| Error::BadMetadata {
             path: path.to_path_buf(),
             reason: e.to_string(),

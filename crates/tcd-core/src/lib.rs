@@ -1,7 +1,8 @@
 //! # tcd-core
 //!
 //! A pure-Rust inference engine for Temporal Cascaded Diffusion (TCD) 3D human pose forecasting:
-//! the CSDI denoiser, DDPM / DDIM samplers, and the short-term → long-term cascade. It knows
+//! the CSDI denoiser, DDPM / DDIM samplers, and the short-term → long-term cascade; and the
+//! deterministic prior forecaster ([`Prior`], its arrays frame-major (B, T, K)). It knows
 //! nothing of Python; the binding crate wraps this API.
 //!
 //! ```no_run
@@ -30,6 +31,7 @@ pub mod error;
 pub mod forecast;
 pub mod kernels;
 pub mod nn;
+pub mod prior;
 pub mod rng;
 pub mod sampler;
 pub mod schedule;
@@ -42,6 +44,7 @@ pub use config::{CondFill, DataConfig, DiffusionConfig, ModelConfig, PredictionT
 pub use denoiser::{fill_linear, fill_rows, fill_spline, CondTables, Denoiser, Prepared, Workspace};
 pub use error::{Error, Result};
 pub use kernels::{Kernel, KERNEL_ENV};
+pub use prior::{dct_matrix, prior_expected_tensors, Prior, PriorConfig, PriorModelConfig};
 pub use forecast::{cascade, repair, CascadeNoise, CascadeOutput, ForecastOptions, RepairOutput};
 pub use rng::{chain_rng, seeded_noise, Noise, Sequences};
 pub use sampler::{sample, timesteps, Observed, Plan, SamplerConfig, SamplerKind, TimestepSpacing, VarianceType};

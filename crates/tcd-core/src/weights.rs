@@ -91,96 +91,16 @@ impl WeightFile {
     /// [`Error::Io`]; everything about the content is one of the weight-file variants.
     pub fn load(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
-        if path.is_dir() {
-            return Err(Error::NotAFile {
-                path: path.to_path_buf(),
-            });
-        }
-        let bytes = std::fs::read(path).map_err(|source| {
-            if source.kind() == std::io::ErrorKind::NotFound {
-                Error::NotFound {
-                    path: path.to_path_buf(),
-                }
-            } else {
-                Error::Io {
-                    path: path.to_path_buf(),
-                    source,
-                }
-            }
-        })?;
-        Self::from_bytes(&bytes, path)
+        Self::from_bytes(&read_file(path)?, path)
     }
 
     /// Validates the bytes of a safetensors file; `path` only names it in errors.
     pub fn from_bytes(bytes: &[u8], path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref().to_path_buf();
-        let corrupt = |e: safetensors::SafeTensorError| Error::Corrupt {
-            path: path.clone(),
-            reason: e.to_string(),
-        };
-        let (_, metadata) = SafeTensors::read_metadata(bytes).map_err(corrupt)?;
-        let config_json = metadata
-            .metadata()
-            .as_ref()
-            .and_then(|m| m.get(CONFIG_KEY))
-            .cloned()
-            .ok_or_else(|| Error::MissingMetadata { path: path.clone() })?;
+        let config_json = read_config_json(bytes, &path)?;
         let config = TcdConfig::from_json(&config_json, &path)?;
         config.validate(&path)?;
-
-        let st = SafeTensors::deserialize(bytes).map_err(corrupt)?;
-        let expected = expected_tensors(&config.model);
-        let mut tensors = BTreeMap::new();
-        for (name, shape) in &expected {
-            let view = st.tensor(name).map_err(|_| Error::MissingTensor {
-                path: path.clone(),
-                name: name.clone(),
-                expected: shape.clone(),
-            })?;
-            if view.dtype() != Dtype::F32 {
-                return Err(Error::TensorDtype {
-                    path: path.clone(),
-                    name: name.clone(),
-                    received: view.dtype().to_string(),
-                });
-            }
-            if view.shape() != shape.as_slice() {
-                return Err(Error::TensorShape {
-                    path: path.clone(),
-                    name: name.clone(),
-                    expected: shape.clone(),
-                    received: view.shape().to_vec(),
-                });
-            }
-            let data: Vec<f32> = view
-                .data()
-                .chunks_exact(4)
-                .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-                .collect();
-            if let Some((index, &value)) = data.iter().enumerate().find(|(_, v)| !v.is_finite()) {
-                return Err(Error::NonFiniteTensor {
-                    path: path.clone(),
-                    name: name.clone(),
-                    index,
-                    value,
-                });
-            }
-            tensors.insert(
-                name.clone(),
-                Tensor {
-                    shape: shape.clone(),
-                    data,
-                },
-            );
-        }
-        let mut names: Vec<&str> = st.names();
-        names.sort_unstable();
-        if let Some(extra) = names.into_iter().find(|n| !tensors.contains_key(*n)) {
-            return Err(Error::UnexpectedTensor {
-                path: path.clone(),
-                name: extra.to_string(),
-            });
-        }
+        let tensors = read_tensors(bytes, &path, &expected_tensors(&config.model))?;
         Ok(WeightFile {
             path,
             config,
@@ -222,4 +142,108 @@ impl WeightFile {
             expected: Vec::new(),
         })
     }
+}
+
+/// Reads a file into memory: a missing file is [`Error::NotFound`], a directory [`Error::NotAFile`],
+/// an unreadable one [`Error::Io`]. Shared by every model type's `load`.
+pub(crate) fn read_file(path: &Path) -> Result<Vec<u8>> {
+    if path.is_dir() {
+        return Err(Error::NotAFile {
+            path: path.to_path_buf(),
+        });
+    }
+    std::fs::read(path).map_err(|source| {
+        if source.kind() == std::io::ErrorKind::NotFound {
+            Error::NotFound {
+                path: path.to_path_buf(),
+            }
+        } else {
+            Error::Io {
+                path: path.to_path_buf(),
+                source,
+            }
+        }
+    })
+}
+
+/// The [`CONFIG_KEY`] JSON string of a safetensors file's `__metadata__` (not yet parsed).
+pub(crate) fn read_config_json(bytes: &[u8], path: &Path) -> Result<String> {
+    let (_, metadata) = SafeTensors::read_metadata(bytes).map_err(|e| corrupt(path, e))?;
+    metadata
+        .metadata()
+        .as_ref()
+        .and_then(|m| m.get(CONFIG_KEY))
+        .cloned()
+        .ok_or_else(|| Error::MissingMetadata {
+            path: path.to_path_buf(),
+        })
+}
+
+fn corrupt(path: &Path, e: safetensors::SafeTensorError) -> Error {
+    Error::Corrupt {
+        path: path.to_path_buf(),
+        reason: e.to_string(),
+    }
+}
+
+/// Exactly the tensors `expected` (name, shape) of a safetensors file, each F32 with its shape and
+/// finite: anything missing, extra, of another dtype or shape, or non-finite is an error naming it.
+pub(crate) fn read_tensors(
+    bytes: &[u8],
+    path: &Path,
+    expected: &[(String, Vec<usize>)],
+) -> Result<BTreeMap<String, Tensor>> {
+    let st = SafeTensors::deserialize(bytes).map_err(|e| corrupt(path, e))?;
+    let mut tensors = BTreeMap::new();
+    for (name, shape) in expected {
+        let view = st.tensor(name).map_err(|_| Error::MissingTensor {
+            path: path.to_path_buf(),
+            name: name.clone(),
+            expected: shape.clone(),
+        })?;
+        if view.dtype() != Dtype::F32 {
+            return Err(Error::TensorDtype {
+                path: path.to_path_buf(),
+                name: name.clone(),
+                received: view.dtype().to_string(),
+            });
+        }
+        if view.shape() != shape.as_slice() {
+            return Err(Error::TensorShape {
+                path: path.to_path_buf(),
+                name: name.clone(),
+                expected: shape.clone(),
+                received: view.shape().to_vec(),
+            });
+        }
+        let data: Vec<f32> = view
+            .data()
+            .chunks_exact(4)
+            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            .collect();
+        if let Some((index, &value)) = data.iter().enumerate().find(|(_, v)| !v.is_finite()) {
+            return Err(Error::NonFiniteTensor {
+                path: path.to_path_buf(),
+                name: name.clone(),
+                index,
+                value,
+            });
+        }
+        tensors.insert(
+            name.clone(),
+            Tensor {
+                shape: shape.clone(),
+                data,
+            },
+        );
+    }
+    let mut names: Vec<&str> = st.names();
+    names.sort_unstable();
+    if let Some(extra) = names.into_iter().find(|n| !tensors.contains_key(*n)) {
+        return Err(Error::UnexpectedTensor {
+            path: path.to_path_buf(),
+            name: extra.to_string(),
+        });
+    }
+    Ok(tensors)
 }

@@ -243,6 +243,33 @@ pub(crate) fn gemm(isa: Isa, x: Matrix<'_>, w: &FastLinear, y: MatrixMut<'_>, ep
     }
 }
 
+/// The affine layer norm of the prior's blocks, taken over the `k` rows of each of the `l` columns of
+/// a (K × L) sequence (the coordinates of one frame; frame fastest).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct ColumnNorm<'a> {
+    pub k: usize,
+    pub l: usize,
+    /// Per-row affine weight and bias (K each).
+    pub weight: &'a [f32],
+    pub bias: &'a [f32],
+    pub eps: f32,
+}
+
+/// `state += LN(y)·weight + bias` for every (K × L) sequence of `state` and `y`, the layer norm of
+/// each column over its K rows (biased variance), in the order `state + ((y − mean)·rstd)·w + b`;
+/// `stats` is 2·L floats of scratch.
+pub(crate) fn column_norm_residual(isa: Isa, p: &ColumnNorm<'_>, state: &mut [f32], y: &[f32], stats: &mut [f32]) {
+    let size = p.k * p.l;
+    assert!(size > 0 && state.len().is_multiple_of(size) && y.len() == state.len(), "column norm sizes");
+    assert!(p.weight.len() == p.k && p.bias.len() == p.k && stats.len() >= 2 * p.l, "column norm parameters");
+    match isa.0 {
+        #[cfg(target_arch = "x86_64")]
+        IsaKind::Avx2 => x86::column_norm_residual_avx2(p, state, y, stats),
+        #[cfg(target_arch = "x86_64")]
+        IsaKind::Avx512 => x86::column_norm_residual_avx512(p, state, y, stats),
+    }
+}
+
 /// Checks `layout` against `x` and `scratch` for [`encoder`] / [`encoder_par`].
 fn check_encoder(enc: &FastEncoder, x: &[f32], layout: SeqLayout, scratch: &FastScratch) -> bool {
     let SeqLayout {

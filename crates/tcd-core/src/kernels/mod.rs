@@ -32,8 +32,8 @@ mod fast;
 mod x86;
 
 pub(crate) use fast::{
-    block_tail, encoder_par, gemm, Epilogue, FastEncoder, FastLinear, FastScratch, Matrix, MatrixMut, Packed, SeqLayout,
-    TailInputs, TailStreams,
+    block_tail, column_norm_residual, encoder_par, gemm, ColumnNorm, Epilogue, FastEncoder, FastLinear, FastScratch,
+    Matrix, MatrixMut, Packed, SeqLayout, TailInputs, TailStreams,
 };
 
 /// The environment variable read at load time to choose the kernel.

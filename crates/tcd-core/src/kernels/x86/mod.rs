@@ -11,7 +11,8 @@
 //!
 //! Files: `simd` (the vector trait and its AVX-512 / AVX2 implementations), `math` (exp, erf,
 //! GELU, gated activation), `gemm` (packed GEMM micro-kernel), `attention` (fused attention),
-//! `encoder` (LayerNorm and the encoder layer), `tail` (residual-block tail); this file holds the
+//! `encoder` (LayerNorm and the encoder layer), `tail` (residual-block tail), `prior` (the prior's
+//! layer norm over the rows of each column, with its own entry points); this file holds the
 //! `#[target_feature]` entry points the dispatchers call.
 #![allow(unsafe_code)]
 
@@ -27,8 +28,11 @@ mod attention;
 mod encoder;
 mod gemm;
 mod math;
+mod prior;
 mod simd;
 mod tail;
+
+pub(super) use prior::{column_norm_residual_avx2, column_norm_residual_avx512};
 
 // ---------------------------------------------------------------------- entry points
 

@@ -1,0 +1,162 @@
+//! The prior's `tcd_config` (role `"prior"`): its own model fields, no window or diffusion block.
+//! Same format version, metadata key and `data` block as the denoisers' ([`crate::config`]);
+//! `docs/tcd_config.schema.json` defines both.
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use crate::config::{DataConfig, FORMAT_VERSION};
+use crate::error::{Error, Result};
+
+/// The `role` of a prior file.
+pub const ROLE: &str = "prior";
+
+/// Sizes of the prior network (`training/prior.py`, `PriorNet`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PriorModelConfig {
+    /// Joints in the model layout (Human3.6M: 22).
+    pub num_joints: usize,
+    /// Coordinates per joint (3).
+    pub coords: usize,
+    /// K = num_joints * coords: the width of one frame.
+    pub num_features: usize,
+    /// Observed frames one forward reads (the DCT length).
+    pub obs_len: usize,
+    /// Frames one forward predicts; longer horizons are rolled out chunk by chunk.
+    pub chunk: usize,
+    /// Temporal FC + layer norm blocks.
+    pub blocks: usize,
+    /// Epsilon of the layer norm over the K coordinates of a frame.
+    pub layer_norm_eps: f64,
+}
+
+/// The whole `tcd_config` object of a prior file.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PriorConfig {
+    /// Must be [`FORMAT_VERSION`].
+    pub format_version: u32,
+    /// Must be [`ROLE`].
+    pub role: String,
+    pub model: PriorModelConfig,
+    #[serde(default)]
+    pub data: DataConfig,
+}
+
+/// The `role` of a `tcd_config` JSON, where it parses and has a string role (to tell a file of the
+/// other kind apart before parsing it fully).
+pub(crate) fn role_of(json: &str) -> Option<String> {
+    #[derive(Deserialize)]
+    struct RoleOnly {
+        role: Option<String>,
+    }
+    serde_json::from_str::<RoleOnly>(json).ok()?.role
+}
+
+impl PriorConfig {
+    /// Parses the JSON stored under `tcd_config`; `path` names the file in errors. A denoiser's file
+    /// is refused by its role before its fields are read.
+    pub fn from_json(json: &str, path: &Path) -> Result<Self> {
+        if let Some(role) = role_of(json).filter(|r| r != ROLE) {
+            return Err(Error::InvalidConfig {
+                path: path.to_path_buf(),
+                field: "role".into(),
+                reason: format!(
+                    "must be \"{ROLE}\" for the prior forecaster, but is {role:?} (a denoiser: it loads with \
+                     `Denoiser::load`, in Python `tcd.Denoiser.load` or a model directory with `tcd.load`)"
+                ),
+            });
+        }
+        serde_json::from_str(json).map_err(|e| Error::BadMetadata {
+            path: path.to_path_buf(),
+            reason: e.to_string(),
+        })
+    }
+
+    /// Checks sizes for consistency; `path` names the file in errors.
+    pub fn validate(&self, path: &Path) -> Result<()> {
+        let bad = |field: &str, reason: String| Error::InvalidConfig {
+            path: path.to_path_buf(),
+            field: field.to_string(),
+            reason,
+        };
+        if self.format_version != FORMAT_VERSION {
+            return Err(bad(
+                "format_version",
+                format!("must be {FORMAT_VERSION}, but is {}", self.format_version),
+            ));
+        }
+        if self.role != ROLE {
+            return Err(bad(
+                "role",
+                format!("must be \"{ROLE}\", but is {:?}", self.role),
+            ));
+        }
+        let m = &self.model;
+        for (name, value) in [
+            ("model.num_joints", m.num_joints),
+            ("model.coords", m.coords),
+            ("model.obs_len", m.obs_len),
+            ("model.chunk", m.chunk),
+            ("model.blocks", m.blocks),
+        ] {
+            if value == 0 {
+                return Err(bad(name, "must be at least 1, but is 0".into()));
+            }
+        }
+        if Some(m.num_features) != m.num_joints.checked_mul(m.coords) {
+            return Err(bad(
+                "model.num_features",
+                format!(
+                    "must equal num_joints * coords = {} * {}, but is {}",
+                    m.num_joints, m.coords, m.num_features
+                ),
+            ));
+        }
+        if m.chunk > m.obs_len {
+            return Err(bad(
+                "model.chunk",
+                format!(
+                    "must not exceed obs_len = {}, but is {}",
+                    m.obs_len, m.chunk
+                ),
+            ));
+        }
+        if !(m.layer_norm_eps.is_finite() && m.layer_norm_eps > 0.0) {
+            return Err(bad(
+                "model.layer_norm_eps",
+                format!(
+                    "must be a positive finite number, but is {}",
+                    m.layer_norm_eps
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Serialises back to the JSON stored under `tcd_config`.
+    pub fn to_json(&self) -> String {
+        // Serialising plain structs of numbers and strings cannot fail; fall back to "{}" anyway.
+        serde_json::to_string(self).unwrap_or_else(|_| "{}".to_string())
+    }
+}
+
+/// The tensor names and shapes of a prior with this configuration (PyTorch `state_dict` names of
+/// `PriorNet`; the DCT matrix is no tensor: the engine computes it, [`super::dct_matrix`]).
+/// K = num_features, L = obs_len.
+pub fn prior_expected_tensors(m: &PriorModelConfig) -> Vec<(String, Vec<usize>)> {
+    let (k, l) = (m.num_features, m.obs_len);
+    let mut v: Vec<(String, Vec<usize>)> = vec![
+        ("fc_in.weight".into(), vec![k, k]),
+        ("fc_in.bias".into(), vec![k]),
+    ];
+    for i in 0..m.blocks {
+        v.push((format!("blocks.{i}.fc.weight"), vec![l, l]));
+        v.push((format!("blocks.{i}.fc.bias"), vec![l]));
+        v.push((format!("blocks.{i}.norm_weight"), vec![k]));
+        v.push((format!("blocks.{i}.norm_bias"), vec![k]));
+    }
+    v.push(("fc_out.weight".into(), vec![k, k]));
+    v.push(("fc_out.bias".into(), vec![k]));
+    v
+}
