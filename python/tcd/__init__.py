@@ -9,7 +9,8 @@ High level: :func:`load`, :class:`TCD` (``forecast``, ``repair``), :class:`Forec
 the sampler of every call: :class:`SamplerOptions` (or its fields as keywords); the engine's fills of
 missing values along time (linear, natural cubic spline): :func:`interpolate`.
 Low level, in the engine's (B, K, L) layout: :class:`Denoiser`, :func:`cascade_raw`, :func:`repair_raw`,
-:func:`seeded_noise`. Errors: :mod:`tcd.exceptions`. Inference runs in a Rust engine (no torch).
+:func:`seeded_noise`. The deterministic prior forecaster on (B, T, K) frames: :class:`Prior`.
+Errors: :mod:`tcd.exceptions`. Inference runs in a Rust engine (no torch).
 """
 from __future__ import annotations
 
@@ -20,6 +21,7 @@ from .exceptions import InvalidInputError, TcdError, WeightsError
 from .interpolation import interpolate
 from .model import TCD, Forecast, default_model_dir, forecast, load, repair
 from .options import SamplerOptions
+from .prior import Prior
 from .batch_repair import repair_file  # `tcd repair` / offline repair of files of any length (issue 6)
 
 __all__ = [
@@ -34,6 +36,7 @@ __all__ = [
     "SamplerOptions",
     "default_model_dir",
     "Denoiser",
+    "Prior",
     "cascade_raw",
     "repair_raw",
     "seeded_noise",

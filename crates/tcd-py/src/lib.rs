@@ -12,19 +12,22 @@
 //! an input array cannot race the engine.
 
 //!
-//! Files: [`convert`] (arguments and arrays in and out), [`denoiser`] (the `Denoiser` class),
+//! Files: [`convert`] (arguments and arrays in and out), [`denoiser`] (the `Denoiser` class), [`prior`]
+//! (the `Prior` class: the deterministic forecaster, arrays (B, T, K)),
 //! [`pipeline`] (the module's functions), [`error`] (engine errors into Python exceptions).
 
 mod convert;
 mod denoiser;
 mod error;
 mod pipeline;
+mod prior;
 mod run;
 
 use pyo3::prelude::*;
 use tcd_core::rng::stage;
 
 use crate::denoiser::PyDenoiser;
+use crate::prior::PyPrior;
 use crate::pipeline::{
     cascade, check_call_settings, check_sampler_options, interpolate, repair, seeded_noise, supported_kernels,
 };
@@ -36,6 +39,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("STAGE_SHORT", stage::SHORT)?;
     m.add("STAGE_LONG", stage::LONG)?;
     m.add_class::<PyDenoiser>()?;
+    m.add_class::<PyPrior>()?;
     m.add_function(wrap_pyfunction!(cascade, m)?)?;
     m.add_function(wrap_pyfunction!(repair, m)?)?;
     m.add_function(wrap_pyfunction!(seeded_noise, m)?)?;

@@ -1,0 +1,147 @@
+//! `tcd._native.Prior`: the deterministic prior forecaster (one `prior.safetensors` file) and its
+//! rollout. Unlike the denoiser's (B, K, L), its arrays are frame-major (B, T, K), as the engine's.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use numpy::{PyArray2, PyArrayDyn, PyReadonlyArrayDyn};
+use pyo3::prelude::*;
+use tcd_core::{with_threads, Prior};
+
+use crate::convert::*;
+use crate::error::{invalid, PyTcdError};
+use crate::run::interruptible;
+
+/// A loaded prior forecaster. Immutable; safe to share between threads.
+#[pyclass(frozen, module = "tcd._native", name = "Prior")]
+pub(crate) struct PyPrior {
+    inner: Arc<Prior>,
+}
+
+#[pymethods]
+impl PyPrior {
+    /// Loads and validates a prior weight file.
+    #[staticmethod]
+    fn load(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
+        let p = py.detach(move || Prior::load(&path)).map_err(PyTcdError)?;
+        Ok(PyPrior { inner: Arc::new(p) })
+    }
+
+    /// Loads and validates the bytes of a prior weight file; `name` names it in error messages.
+    #[staticmethod]
+    fn from_bytes(py: Python<'_>, data: Vec<u8>, name: PathBuf) -> PyResult<Self> {
+        let p = py
+            .detach(move || Prior::from_bytes(&data, &name))
+            .map_err(PyTcdError)?;
+        Ok(PyPrior { inner: Arc::new(p) })
+    }
+
+    #[getter]
+    fn path(&self) -> String {
+        self.inner.path().display().to_string()
+    }
+    /// The `tcd_config` JSON exactly as stored in the file.
+    #[getter]
+    fn config_json(&self) -> String {
+        self.inner.config_json().to_string()
+    }
+    /// The compute kernels this model runs (`portable`, `avx2` or `avx512`; chosen at load from
+    /// `TCD_KERNEL`, default the best the CPU supports).
+    #[getter]
+    fn kernel(&self) -> &'static str {
+        self.inner.kernel().name()
+    }
+    #[getter]
+    fn num_features(&self) -> usize {
+        self.inner.num_features()
+    }
+    #[getter]
+    fn num_joints(&self) -> usize {
+        self.inner.config().model.num_joints
+    }
+    #[getter]
+    fn coords(&self) -> usize {
+        self.inner.config().model.coords
+    }
+    #[getter]
+    fn obs_len(&self) -> usize {
+        self.inner.obs_len()
+    }
+    #[getter]
+    fn chunk(&self) -> usize {
+        self.inner.chunk()
+    }
+    #[getter]
+    fn blocks(&self) -> usize {
+        self.inner.config().model.blocks
+    }
+    /// The DCT matrix the engine computed (obs_len, obs_len) float32, row f the f-th cosine.
+    #[getter]
+    fn dct_matrix<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f32>>> {
+        let l = self.inner.obs_len();
+        let rows: Vec<Vec<f32>> = self
+            .inner
+            .dct()
+            .chunks_exact(l)
+            .map(<[f32]>::to_vec)
+            .collect();
+        PyArray2::from_vec2(py, &rows).map_err(|e| {
+            crate::error::internal(py, &format!("the DCT matrix has a bad shape ({e})"))
+        })
+    }
+
+    /// The next `horizon` frames of each sequence of `obs` (B, T, K) float32, T >= obs_len (the last
+    /// obs_len frames are read): (B, horizon, K), chunks rolled out.
+    #[pyo3(signature = (obs, horizon, *, threads=None))]
+    fn predict<'py>(
+        &self,
+        py: Python<'py>,
+        obs: PyReadonlyArrayDyn<'py, f32>,
+        horizon: i64,
+        threads: Option<i64>,
+    ) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
+        let k = self.inner.num_features();
+        let l = self.inner.obs_len();
+        let obs = Array::from_numpy(&obs);
+        let (b, t, horizon, threads) = (|| -> CoreResult<_> {
+            let (b, t) = match obs.shape.as_slice() {
+                &[b, t, kk] if kk == k && b >= 1 && t >= l => (b, t),
+                _ => {
+                    return Err(invalid(
+                        "obs",
+                        format!("a float32 array of shape (B, T, K) with K = {k}, B >= 1 and T >= obs_len = {l}"),
+                        format!("shape {}", Array::shape_str(&obs.shape)),
+                    ))
+                }
+            };
+            let horizon = positive("horizon", horizon)?;
+            // the output's size, refused up front like a sampler's (num_samples = 1, L = horizon)
+            check_work(1, b, k, horizon).map_err(|_| {
+                invalid(
+                    "horizon",
+                    format!("small enough that B x horizon x K = {b} x {horizon} x {k} is at most 2^31 values"),
+                    horizon.to_string(),
+                )
+            })?;
+            Ok((b, t, horizon, threads_arg(threads)?))
+        })()
+        .map_err(PyTcdError)?;
+        let model = Arc::clone(&self.inner);
+        let out = interruptible(py, None, move |control| {
+            with_threads(threads, || model.predict(&obs.data, b, t, horizon, control))?
+        })?;
+        to_numpy(py, &[b, horizon, k], out)
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "Prior(path={:?}, num_features={}, obs_len={}, chunk={}, blocks={}, kernel={:?})",
+            self.path(),
+            self.num_features(),
+            self.obs_len(),
+            self.chunk(),
+            self.blocks(),
+            self.kernel()
+        )
+    }
+}
