@@ -37,13 +37,27 @@ def write(path: Path, cfg: dict) -> Path:
     return path
 
 
-def schema_fields(schema: dict = SCHEMA, prefix: str = ""):
-    """(dotted name, sub-schema, required) of every property the schema names."""
+def role_schema(role: str) -> dict:
+    """The schema's rules for a file of ``role`` as one object: the top level with the branch of its
+    ``if role == "prior"`` applied (the model block taken from ``$defs``; no window or diffusion for the prior)."""
+    branch = SCHEMA["then"] if role == "prior" else SCHEMA["else"]
+    props = dict(SCHEMA["properties"])
+    for name, sub in branch.get("properties", {}).items():
+        if sub is False:
+            del props[name]
+        else:
+            props[name] = SCHEMA["$defs"][sub["$ref"].rsplit("/", 1)[-1]]
+    return {"required": SCHEMA["required"] + branch.get("required", []), "properties": props}
+
+
+def schema_fields(role: str = "short", schema: dict | None = None, prefix: str = ""):
+    """(dotted name, sub-schema, required) of every property the schema names for a file of ``role``."""
+    schema = role_schema(role) if schema is None else schema
     required = set(schema.get("required", ()))
     for name, sub in schema.get("properties", {}).items():
         yield prefix + name, sub, name in required
         if sub.get("type") == "object" and "properties" in sub:
-            yield from schema_fields(sub, prefix + name + ".")
+            yield from schema_fields(role, sub, prefix + name + ".")
 
 
 def drop(cfg: dict, dotted: str) -> dict:
@@ -119,5 +133,73 @@ def _zeros():
 def test_the_docs_name_every_field():
     text = (ROOT / "docs" / "weights.md").read_text()
     documented = set(re.findall(r"^\| `([a-z_0-9.]+)` \|", text, flags=re.M))
-    leaves = {name for name, sub, _ in schema_fields() if "properties" not in sub}
+    leaves = {name for role in ("short", "prior") for name, sub, _ in schema_fields(role) if "properties" not in sub}
     assert documented == leaves
+
+
+# ------------------------------------------------------------------------------- the prior (role "prior")
+
+PRIOR_GOLDEN = ROOT / "tests" / "fixtures" / "tcd_config_prior_golden.json"
+
+
+def prior_golden_config() -> dict:
+    """What the exporter writes for a 2-block prior of the default config (without the source revision)."""
+    from training.export import build_prior_config, prior_data_meta, random_prior
+    from training.prior import PriorConfig
+    cfg = build_prior_config(random_prior(blocks=2), prior_data_meta(PriorConfig()), {"random_init": True})
+    cfg.pop("source_revision")
+    return cfg
+
+
+def write_prior(path: Path, cfg: dict) -> Path:
+    """A prior file with a 2-block prior's tensors and ``cfg`` as given."""
+    from training.export import random_prior, save_model_file
+    save_model_file(path, random_prior(blocks=2), cfg)
+    return path
+
+
+def test_prior_golden_config_is_what_the_exporter_writes_and_the_engine_reads(tmp_path):
+    golden = json.loads(PRIOR_GOLDEN.read_text())
+    assert prior_golden_config() == golden, ("the exporter's prior config changed: if on purpose, update "
+                                             "docs/tcd_config.schema.json, docs/weights.md and this fixture together")
+    jsonschema.validate(golden, SCHEMA)
+    assert golden["data"]["training_data"] == "Human3.6M S1,S6,S7,S8,S9,S11 (exp-map, 25 fps)"
+    p = tcd.Prior.load(write_prior(tmp_path / "prior.safetensors", golden))
+    assert p.config == golden
+    assert (p.num_features, p.num_joints, p.obs_len, p.chunk, p.blocks) == (66, 22, 50, 10, 2)
+
+
+def test_engine_requires_what_the_schema_requires_of_a_prior(tmp_path):
+    golden = json.loads(PRIOR_GOLDEN.read_text())
+    required = [name for name, _, req in schema_fields("prior") if req]
+    assert {"format_version", "role", "model.obs_len", "model.chunk", "model.blocks"} <= set(required)
+    assert not any(name.startswith(("window", "diffusion")) for name, _, _ in schema_fields("prior"))
+    for name in required:
+        path = write_prior(tmp_path / f"no_{name}.safetensors", drop(golden, name))
+        with pytest.raises(WeightsError) as e:
+            tcd.Prior.load(path)
+        assert name.split(".")[-1] in str(e.value), (name, str(e.value))
+    assert not [name for name, sub, req in schema_fields("prior") if not req and "default" in sub]  # none to default
+
+
+def test_the_schema_tells_the_roles_apart():
+    prior = json.loads(PRIOR_GOLDEN.read_text())
+    short = json.loads(GOLDEN.read_text())
+    for bad in ({**prior, "window": short["window"]},                          # a prior has no window
+                {**prior, "model": short["model"]},                            # nor the denoiser's model fields
+                {**short, "role": "prior"},
+                {k: v for k, v in short.items() if k != "diffusion"},          # a denoiser needs its diffusion
+                {**short, "model": prior["model"]}):
+        with pytest.raises(jsonschema.ValidationError):
+            jsonschema.validate(bad, SCHEMA)
+
+
+def test_a_file_of_one_kind_does_not_load_as_the_other(tmp_path):
+    prior = write_prior(tmp_path / "prior.safetensors", json.loads(PRIOR_GOLDEN.read_text()))
+    short = write(tmp_path / "short.safetensors", json.loads(GOLDEN.read_text()))
+    with pytest.raises(WeightsError, match="prior forecaster") as e:
+        tcd.Denoiser.load(prior)
+    assert e.value.path == str(prior)
+    with pytest.raises(WeightsError, match="Denoiser") as e:
+        tcd.Prior.load(short)
+    assert e.value.path == str(short)

@@ -15,8 +15,14 @@ full configuration as JSON in the ``tcd_config`` metadata entry (format_version 
 
 Tensors are float32 with the PyTorch state_dict names (spec section 10.1).
 
+The deterministic prior forecaster (``training/prior.py``) goes into the same directory as
+``prior.safetensors``: the ``PriorNet`` state_dict (the DCT matrix is no tensor: the engine computes it)
+and ``{"format_version": 1, "role": "prior", "model": {num_joints, coords, num_features, obs_len, chunk,
+blocks, layer_norm_eps}, "data": {...}, "training": {...}, "source_revision"}``.
+
     python -m training.export --checkpoint runs/short/best.pt runs/long/best.pt --out models/h36m
     python -m training.export --random-init --out fixtures/tiny --preset tiny --seed 0
+    python -m training.export --prior runs/prior/last.pt --out models/h36m
 """
 from __future__ import annotations
 
@@ -37,7 +43,9 @@ from .diffusion import DiffusionConfig, Schedule
 from .model import ModelConfig, TCDModel, randomize_output_layer
 
 FORMAT_VERSION = 1
-ROLES = ("short", "long", "repair")
+ROLES = ("short", "long", "repair")       # the denoisers' roles
+PRIOR_ROLE = "prior"                       # the prior forecaster's role, in PRIOR_FILE
+PRIOR_FILE = "prior.safetensors"
 CONFIG_KEY = "tcd_config"
 
 # Windows of the Human3.6M cascade (spec section 5) and the repair model.
@@ -82,7 +90,7 @@ def build_config(role: str, model_cfg: ModelConfig, diff_cfg: DiffusionConfig, o
             "source_revision": source_revision()}
 
 
-def save_model_file(path: str | Path, model: TCDModel, config: dict) -> None:
+def save_model_file(path: str | Path, model: torch.nn.Module, config: dict) -> None:
     tensors = {k: v.detach().to("cpu", torch.float32).contiguous() for k, v in model.state_dict().items()}
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     save_file(tensors, str(path), metadata={CONFIG_KEY: json.dumps(config)})
@@ -119,7 +127,7 @@ def load_model_dir(path: str | Path, device: str = "cpu") -> dict[str, tuple[TCD
 
 
 def write_model_json(d: Path) -> None:
-    """A readable summary of every model file in the directory."""
+    """A readable summary of every model file in the directory (the denoisers' without their betas)."""
     summary = {}
     for role in ROLES:
         p = d / f"{role}.safetensors"
@@ -127,6 +135,8 @@ def write_model_json(d: Path) -> None:
             cfg = read_config(p)
             cfg["diffusion"] = {k: v for k, v in cfg["diffusion"].items() if k != "betas"}
             summary[role] = cfg
+    if (d / PRIOR_FILE).is_file():
+        summary[PRIOR_ROLE] = read_config(d / PRIOR_FILE)
     (d / "model.json").write_text(json.dumps(summary, indent=2) + "\n")
 
 
@@ -196,18 +206,109 @@ def export_checkpoint(ckpt_path: str | Path, out_dir: str | Path, description: s
 
 
 def copy_model_files(files: list[Path], out: Path) -> None:
-    """Copies model files named ``ROLE.safetensors`` into ``out`` after loading each strictly (a file that
-    does not load replaces nothing)."""
+    """Copies model files named ``ROLE.safetensors`` (or ``prior.safetensors``) into ``out`` after loading
+    each strictly (a file that does not load replaces nothing)."""
+    names = [r + ".safetensors" for r in ROLES] + [PRIOR_FILE]
     for f in files:
-        if f.stem not in ROLES:
-            raise SystemExit(f"{f}: the file name must be one of {', '.join(r + '.safetensors' for r in ROLES)}")
-        load_model_file(f)
+        if f.name not in names:
+            raise SystemExit(f"{f}: the file name must be one of {', '.join(names)}")
+        if f.name == PRIOR_FILE:
+            load_prior_file(f)
+        else:
+            load_model_file(f)
     out.mkdir(parents=True, exist_ok=True)
     for f in files:
         tmp = out / (f.name + ".tmp")
         shutil.copyfile(f, tmp)
         os.replace(tmp, out / f.name)
         print(f"copied {f} -> {out / f.name}")
+
+
+# ------------------------------------------------------------------------------- the prior forecaster
+
+def prior_data_meta(cfg) -> dict:
+    """The ``data`` block of a prior trained with ``cfg`` (a ``training.prior.PriorConfig``): the denoisers'
+    Human3.6M description, naming the subjects the prior was trained on."""
+    return h36m_data_meta(training_data=f"Human3.6M {','.join(f'S{s}' for s in cfg.subjects)} (exp-map, 25 fps)")
+
+
+def build_prior_config(model, data: dict, training: dict | None = None) -> dict:
+    """The ``tcd_config`` of a ``training.prior.PriorNet`` (docs/tcd_config.schema.json, role ``prior``)."""
+    k = model.fc_in.in_features
+    eps = {float(b.eps) for b in model.blocks}
+    if len(eps) != 1:
+        raise ValueError(f"the prior's blocks must share one layer-norm epsilon, got {sorted(eps)}")
+    return {"format_version": FORMAT_VERSION, "role": PRIOR_ROLE,
+            "model": {"num_joints": k // 3, "coords": 3, "num_features": k, "obs_len": model.cfg.obs_len,
+                      "chunk": model.cfg.chunk, "blocks": len(model.blocks), "layer_norm_eps": eps.pop()},
+            "data": data, "training": training or {}, "source_revision": source_revision()}
+
+
+def load_prior_file(path: str | Path):
+    """(``training.prior.PriorNet`` in eval mode, its config) from a prior file, loaded strictly."""
+    from safetensors.torch import load_file
+
+    from .prior import PriorConfig, PriorNet
+    cfg = read_config(path)
+    if cfg.get("format_version") != FORMAT_VERSION or cfg.get("role") != PRIOR_ROLE:
+        raise ValueError(f"{path}: not a prior file of format_version {FORMAT_VERSION} "
+                         f"(role {cfg.get('role')!r}, format_version {cfg.get('format_version')!r})")
+    m = cfg["model"]
+    if m["coords"] != 3 or m["num_features"] != 3 * m["num_joints"]:
+        raise ValueError(f"{path}: PriorNet takes 3 coordinates per joint, got {m}")
+    model = PriorNet(PriorConfig(obs_len=m["obs_len"], chunk=m["chunk"], blocks=m["blocks"]), joints=m["num_joints"])
+    for b in model.blocks:
+        b.eps = float(m["layer_norm_eps"])
+    model.load_state_dict(load_file(str(path)), strict=True)
+    return model.eval(), cfg
+
+
+def save_prior(path: str | Path, model, training: dict | None = None) -> Path:
+    """Writes a ``training.prior.PriorNet`` as a prior file (its data block from its config's subjects)."""
+    path = Path(path)
+    save_model_file(path, model.eval(), build_prior_config(model, prior_data_meta(model.cfg), training))
+    return path
+
+
+def export_prior(ckpt_path: str | Path, out_dir: str | Path, description: str | None = None) -> Path:
+    """``out_dir/prior.safetensors`` from a ``training.prior`` checkpoint (``last.pt``: its trained weights).
+    The checkpoint is read once into memory, so a training run that replaces it meanwhile cannot mix two
+    versions."""
+    import io
+
+    from . import prior
+    data = Path(ckpt_path).read_bytes()
+    ck = torch.load(io.BytesIO(data), map_location="cpu", weights_only=False)
+    model = prior.load(io.BytesIO(data))
+    history = ck.get("history") or []
+    training = {"train_config": ck["config"], "iteration": ck["iteration"], "elapsed_s": ck.get("elapsed_s"),
+                "loss": history[-1]["loss"] if history else None, "weights": "raw"}
+    if description:
+        training["description"] = description
+    return save_prior(Path(out_dir) / PRIOR_FILE, model, training)
+
+
+def random_prior(blocks: int = 24, seed: int = 0, obs_len: int = 50, chunk: int = 10, joints: int = 22):
+    """A ``training.prior.PriorNet`` with every weight drawn from a seeded normal of unit-gain scale (std
+    1/sqrt(fan_in) for the matrices, 0.1 for the biases, 1 + 0.1 N(0, 1) for the norm weights), fc_out then
+    scaled by 1/20 so that the forecast lies a few tenths of a metre (rms) from the last pose, the scale of
+    real motion (unscaled: metres): unlike the trained init (fc_out ~ 1e-8, i.e. Zero-Velocity) every
+    weight shapes the output. A fixture for parity tests and benchmarks."""
+    from .prior import PriorConfig, PriorNet
+    model = PriorNet(PriorConfig(obs_len=obs_len, chunk=chunk, blocks=blocks), joints=joints)
+    g = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for name, p in model.named_parameters():
+            z = torch.randn(p.shape, generator=g)
+            if p.dim() == 2:
+                p.copy_(z / math.sqrt(p.shape[1]))
+            elif name.endswith("norm_weight"):
+                p.copy_(1.0 + 0.1 * z)
+            else:
+                p.copy_(0.1 * z)
+        model.fc_out.weight.mul_(0.05)
+        model.fc_out.bias.mul_(0.05)
+    return model.eval()
 
 
 def main(argv=None) -> int:
@@ -218,19 +319,24 @@ def main(argv=None) -> int:
     ap.add_argument("--files", nargs="+", metavar="ROLE.safetensors",
                     help="exported model files to copy into --out, each checked to load strictly first (how the "
                          "weights a GPU period exported replace the bundled ones of their roles)")
+    ap.add_argument("--prior", metavar="CKPT", help="a training.prior checkpoint (last.pt): writes prior.safetensors "
+                    "(the deterministic prior forecaster) into --out beside the denoisers")
     ap.add_argument("--preset", choices=sorted(PRESETS), default="tiny", help="model size for --random-init")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", required=True, help="model directory to write")
     ap.add_argument("--description", help="free text recorded in each file's training metadata "
                     "(e.g. how the model was trained)")
     args = ap.parse_args(argv)
-    if sum(map(bool, (args.checkpoint, args.random_init, args.files))) != 1:
-        ap.error("give exactly one of --checkpoint, --random-init or --files")
+    if sum(map(bool, (args.checkpoint, args.random_init, args.files, args.prior))) != 1:
+        ap.error("give exactly one of --checkpoint, --random-init, --files or --prior")
     out = Path(args.out)
     if args.random_init:
         random_init_dir(out, args.preset, args.seed)
     elif args.files:
         copy_model_files([Path(f) for f in args.files], out)
+        write_model_json(out)
+    elif args.prior:
+        print(f"exported {export_prior(args.prior, out, args.description)}")
         write_model_json(out)
     else:
         for ck in args.checkpoint:
