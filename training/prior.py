@@ -54,6 +54,7 @@ class PriorConfig:
     velocity_weight: float = 1.0     # weight of the velocity term of the loss
     subjects: tuple = (1, 6, 7, 8, 9, 11)   # siMLPe's training subjects (S5 is the test subject)
     seed: int = 0
+    init_from: str = ""              # a later installment: the last.pt whose weights start this run (fresh Adam)
 
     @classmethod
     def load(cls, path: str | Path) -> "PriorConfig":
@@ -249,6 +250,10 @@ def train(cfg: PriorConfig, out: str | Path, *, data: str | None = None, resume:
         opt.load_state_dict(ck["optimizer"])
         it, elapsed0, history = ck["iteration"], ck["elapsed_s"], ck["history"]
         log(f"resumed from {last}: iteration {it}")
+    elif cfg.init_from:
+        init = torch.load(cfg.init_from, map_location="cpu", weights_only=False)
+        model.load_state_dict(init["model"])            # strict: the architecture must match
+        log(f"weights from {cfg.init_from} (iteration {init['iteration']} of its run)")
     fr, starts = frames if frames is not None else training_frames(cfg, data)
     forward = torch.compile(model) if compile else model
     log(f"prior: {count_parameters(model):,} parameters, {len(starts):,} training windows, "

@@ -5,7 +5,8 @@
     >>> f = model.forecast(obs, seed=0)          # obs: (50, 22, 3) metres, NaN = missing
     >>> f.mean.shape, f.samples.shape            # (25, 22, 3), (5, 25, 22, 3)
 
-High level: :func:`load`, :class:`TCD` (``forecast``, ``repair``), :class:`Forecast`, :func:`forecast`;
+High level: :func:`load`, :class:`TCD` (``forecast``, ``predict``: the prior's point forecast, ``repair``),
+:class:`Forecast`, :func:`forecast`, :func:`predict`;
 the sampler of every call: :class:`SamplerOptions` (or its fields as keywords); the engine's fills of
 missing values along time (linear, natural cubic spline): :func:`interpolate`.
 Low level, in the engine's (B, K, L) layout: :class:`Denoiser`, :func:`cascade_raw`, :func:`repair_raw`,
@@ -19,7 +20,7 @@ from ._native import __version__
 from .denoiser import STAGE_LONG, STAGE_SHORT, Denoiser, cascade_raw, repair_raw, seeded_noise, supported_kernels
 from .exceptions import InvalidInputError, TcdError, WeightsError
 from .interpolation import interpolate
-from .model import TCD, Forecast, default_model_dir, forecast, load, repair
+from .model import TCD, Forecast, default_model_dir, forecast, load, predict, repair
 from .options import SamplerOptions
 from .prior import Prior
 from .batch_repair import repair_file  # `tcd repair` / offline repair of files of any length (issue 6)
@@ -28,6 +29,7 @@ __all__ = [
     "__version__",
     "load",
     "forecast",
+    "predict",
     "repair",
     "repair_file",
     "interpolate",

@@ -126,7 +126,7 @@ def run(model: TCD, *, samples: int = DEFAULT_SAMPLES, options: Optional[Sampler
     zv = np.repeat(obs[-1:], h, axis=0)
     res["zero_velocity_mm"] = horizon_row(mpjpe_mm(zv, future), fps)
 
-    stages = 3
+    stages = 4 if model.prior is not None else 3
     _say(f"[1/{stages}] forecasting {h} frames from {n_obs} observed ({samples} samples, {sampler} "
          f"{steps or model.num_train_timesteps} steps)...", quiet)
     t0 = time.perf_counter()
@@ -149,7 +149,19 @@ def run(model: TCD, *, samples: int = DEFAULT_SAMPLES, options: Optional[Sampler
     res["occluded_forecast_mm"] = horizon_row(mpjpe_mm(fo.mean, future), fps)
     _say(f"      done in {res['timings_s']['forecast_occluded']:.1f} s", quiet)
 
-    _say(f"[3/{stages}] repairing the occluded observation...", quiet)
+    if model.prior is not None:
+        _say(f"[3/{stages}] point forecasts of the prior (TCD.predict), clean and occluded (repair then "
+             "predict)...", quiet)
+        t0 = time.perf_counter()
+        p = model.predict(obs, seed=seed, threads=threads)
+        res["timings_s"]["point_forecast"] = time.perf_counter() - t0
+        po = model.predict(occluded, **kw)
+        res["point_mean"], res["occluded_point_mean"] = p.mean, po.mean
+        res["point_mm"] = horizon_row(mpjpe_mm(p.mean, future), fps)
+        res["occluded_point_mm"] = horizon_row(mpjpe_mm(po.mean, future), fps)
+        _say(f"      done in {res['timings_s']['point_forecast'] * 1000:.1f} ms (clean)", quiet)
+
+    _say(f"[{stages}/{stages}] repairing the occluded observation...", quiet)
     t0 = time.perf_counter()
     rep = model.repair(occluded, **kw)
     res["timings_s"]["repair"] = time.perf_counter() - t0
@@ -166,11 +178,12 @@ def run(model: TCD, *, samples: int = DEFAULT_SAMPLES, options: Optional[Sampler
 def summary(res: Dict[str, Any], model: TCD) -> str:
     """The short text ``tcd demo`` prints."""
     ms = [m for m in HORIZONS_MS if m in res["forecast_mm"]]
-    blocks = ("forecast_mm", "occluded_forecast_mm", "zero_velocity_mm")
+    blocks = ("forecast_mm", "occluded_forecast_mm", "zero_velocity_mm") + (
+        ("point_mm", "occluded_point_mm") if "point_mm" in res else ())
     # wide enough for every number (an untrained model's errors reach metres), one space between columns
     w = 1 + max(7, *(len(f"{res[b][m]:.1f}") for b in blocks for m in ms))
     head = "".join(f"{m:>{w}}" for m in ms)
-    row = lambda name, d: f"  {name:<28}" + "".join(f"{d[m]:>{w}.1f}" for m in ms)  # noqa: E731
+    row = lambda name, d: f"  {name:<32}" + "".join(f"{d[m]:>{w}.1f}" for m in ms)  # noqa: E731
     s = res["settings"]
     lines = [
         f"tcd demo: model {model.path} (sha256 {str(model.sha256)[:12]}), clip: CMU walking, "
@@ -178,9 +191,11 @@ def summary(res: Dict[str, Any], model: TCD) -> str:
         f"sampler {s['sampler']}, {s['steps'] or model.num_train_timesteps} steps, {s['samples']} samples, seed {s['seed']}",
         "",
         "forecast error, mm (mean per-joint position error of the mean of the samples):",
-        f"  {'horizon (ms)':<28}" + head,
+        f"  {'horizon (ms)':<32}" + head,
         row("tcd, clean observation", res["forecast_mm"]),
         row("tcd, occluded observation", res["occluded_forecast_mm"]),
+        *([row("prior point forecast, clean", res["point_mm"]),
+           row("prior, occluded (repair+predict)", res["occluded_point_mm"])] if "point_mm" in res else []),
         row("zero-velocity (clean)", res["zero_velocity_mm"]),
         "",
         f"repair of the occluded observation ({100 * res['occluded_fraction']:.0f} % hidden): "
@@ -191,8 +206,9 @@ def summary(res: Dict[str, Any], model: TCD) -> str:
         "time: " + ", ".join(f"{k.replace('_', ' ')} {v:.2f} s" for k, v in res["timings_s"].items()),
         "",
         "The table is the forecast error in mm at each horizon (lower is better) from a clean and from an occluded "
-        "observation, beside Zero-Velocity (the last observed pose held), and the repair line compares the model's "
-        "filling of hidden joints with linear interpolation.",
+        "observation, beside Zero-Velocity (the last observed pose held) and, where the model has one, the "
+        "deterministic prior's point forecast; the repair line compares the model's filling of hidden joints "
+        "with linear interpolation.",
         verdict(res, model),
     ]
     return "\n".join(lines)
@@ -246,11 +262,13 @@ def save(res: Dict[str, Any], path: Path, model: TCD, overwrite: bool = True,
     and not ``overwrite``); ``plot_sha256``: that of the GIF written beside it, recorded in the summary."""
     meta = {k: res[k] for k in ("settings", "timings_s", "forecast_mm", "occluded_forecast_mm", "zero_velocity_mm",
                                 "repair_ade_mm", "linear_interpolation_ade_mm", "occluded_fraction", "fps")}
+    meta.update({k: res[k] for k in ("point_mm", "occluded_point_mm") if k in res})
     meta["model_sha256"] = model.sha256
     meta["tool"] = DEMO_TOOL
     meta["plot_sha256"] = plot_sha256
     arrays = {k: res[k] for k in ("observed", "future", "forecast_mean", "forecast_samples", "occlusion_mask",
-                                  "occluded_forecast_mean", "repaired")}
+                                  "occluded_forecast_mean", "repaired", "point_mean", "occluded_point_mean")
+              if k in res}
     write_npz_atomic(path, overwrite, joint_names=np.array(res["joint_names"]), summary=np.array(json.dumps(meta)),
                      **arrays)
 

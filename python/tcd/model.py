@@ -19,12 +19,17 @@ import numpy as np
 from . import _checks, wild_calls
 from .poses import UNIT_SCALE, check_units, validate_poses
 from .denoiser import Denoiser, cascade_raw, repair_raw
-from .exceptions import WeightsError
+from . import _native
+from .exceptions import InvalidInputError, WeightsError
 from .options import SamplerOptions
+from .prior import Prior
 
-__all__ = ["TCD", "Forecast", "load", "forecast", "repair", "default_model_dir"]
+__all__ = ["TCD", "Forecast", "load", "forecast", "predict", "repair", "default_model_dir"]
 
 PathLike = Union[str, "os.PathLike[str]"]
+
+#: how :meth:`TCD.predict` fills missing observation entries before the prior forecasts
+FILLS = ("auto", "model", "spline", "linear")
 
 
 
@@ -37,8 +42,9 @@ def default_model_dir() -> Path:
 class Forecast:
     """The result of :meth:`TCD.forecast` (arrays in the caller's units; ``B`` only if the input had it).
 
-    * ``mean``: ``(B?, H, J, 3)``, the mean over samples of the H forecast frames;
-    * ``samples``: ``(S, B?, H, J, 3)``;
+    * ``mean``: ``(B?, H, J, 3)``, the mean over samples of the H forecast frames (:meth:`TCD.predict`:
+      the deterministic point forecast);
+    * ``samples``: ``(S, B?, H, J, 3)``; ``None`` from :meth:`TCD.predict`, which draws no samples;
     * ``repaired``: the observation with its missing entries filled (same shape as the input; observed
       entries are returned unchanged);
     * ``seed``: the seed used (drawn from ``os.urandom`` when none was given): pass it back to reproduce;
@@ -47,14 +53,15 @@ class Forecast:
     """
 
     mean: np.ndarray
-    samples: np.ndarray
+    samples: Optional[np.ndarray]
     repaired: np.ndarray
     seed: int
     #: seconds of each forecast frame after the last observed frame (at the caller's frame rate)
     times: Optional[np.ndarray] = None
 
     def __repr__(self) -> str:
-        return (f"Forecast(mean={_checks.shape_str(self.mean.shape)}, samples={_checks.shape_str(self.samples.shape)}, "
+        samples = "None" if self.samples is None else _checks.shape_str(self.samples.shape)
+        return (f"Forecast(mean={_checks.shape_str(self.mean.shape)}, samples={samples}, "
                 f"repaired={_checks.shape_str(self.repaired.shape)}, seed={self.seed})")
 
 
@@ -114,10 +121,12 @@ class TCD:
 
     def __init__(self, short: Denoiser, long: Denoiser, repair: Optional[Denoiser] = None,
                  path: Optional[PathLike] = None, threads: Optional[int] = None,
-                 file_sha256: Optional[Dict[str, str]] = None) -> None:
+                 file_sha256: Optional[Dict[str, str]] = None, prior: Optional[Prior] = None) -> None:
         self.short = short
         self.long = long
         self.repair_model = repair
+        #: the deterministic prior forecaster of :meth:`predict` (``prior.safetensors``), or None
+        self.prior = prior
         self.path = None if path is None else Path(path)
         self.threads = _checks.threads(threads)
         #: SHA-256 (hex) of each weight file, by file name; empty when built from Denoisers directly.
@@ -135,6 +144,10 @@ class TCD:
         if long.obs_len != short.seq_len or long.seq_len <= short.obs_len:
             raise WeightsError(f"{where}: the long-term model's obs_len ({long.obs_len}) must equal the short-term "
                                f"model's seq_len ({short.seq_len}).", long.path)
+        if prior is not None and (prior.num_features != k or prior.obs_len > short.obs_len):
+            raise WeightsError(f"{where}: the prior (num_features = {prior.num_features}, obs_len = {prior.obs_len}) "
+                               f"must match the short-term model (num_features = {k}) and read at most its "
+                               f"{short.obs_len} observed frames.", prior.path)
         if repair is not None and (repair.num_features != k or repair.obs_len != short.obs_len):
             raise WeightsError(f"{where}: the repair model (num_features = {repair.num_features}, obs_len = "
                                f"{repair.obs_len}) must match the short-term model (num_features = {k}, obs_len = "
@@ -179,11 +192,14 @@ class TCD:
         out = {"short": self.short.config, "long": self.long.config}
         if self.repair_model is not None:
             out["repair"] = self.repair_model.config
+        if self.prior is not None:
+            out["prior"] = self.prior.config
         return out
 
     def __repr__(self) -> str:
         return (f"TCD(path={str(self.path)!r}, obs_len={self.obs_len}, horizon={self.horizon}, "
-                f"num_joints={self.num_joints}, repair_model={self.repair_model is not None})")
+                f"num_joints={self.num_joints}, repair_model={self.repair_model is not None}, "
+                f"prior={self.prior is not None})")
 
     # ------------------------------------------------------------------ inference
     def _common(self, num_samples: Any, options: Optional[SamplerOptions], sampler: Dict[str, Any], units: Any,
@@ -223,16 +239,16 @@ class TCD:
                 The forecast comes back in the same layout, coordinates and frame rate (``Forecast.times``).
         """
         num_samples, o, units, threads = self._common(num_samples, options, sampler, units, threads)
+        seed = _seed(seed)
+        run = lambda observed, seen: cascade_raw(self.short, self.long, observed, seen,  # noqa: E731
+                                                 num_samples=num_samples, options=o, seed=seed, threads=threads,
+                                                 progress=progress)
         if layout is not None or fps is not None:
-            seed = _seed(seed)
             mean, samples, repaired, times = wild_calls.forecast(
-                self, obs, mask, layout="h36m22" if layout is None else layout, fps=fps, up=up,
-                num_samples=num_samples, options=o, seed=seed, units=units, threads=threads, progress=progress)
+                self, obs, mask, layout="h36m22" if layout is None else layout, fps=fps, up=up, units=units, run=run)
             return Forecast(mean=mean, samples=samples, repaired=repaired, seed=seed, times=times)
         p = _poses(obs, mask, self.num_joints, self.obs_len, units)
-        seed = _seed(seed)
-        out = cascade_raw(self.short, self.long, p.observed, p.mask, num_samples=num_samples, options=o,
-                          seed=seed, threads=threads, progress=progress)
+        out = run(p.observed, p.mask)
         return Forecast(mean=p.poses(out["mean"]), samples=p.poses(out["samples"]),
                         repaired=p.repaired(out["repaired"]), seed=seed,
                         times=None if self.fps is None else np.arange(1, self.horizon + 1) / float(self.fps))
@@ -256,6 +272,70 @@ class TCD:
         out = repair_raw(model, p.observed, p.mask, num_samples=num_samples, options=o, seed=_seed(seed),
                          threads=threads, progress=progress)
         return p.repaired(out["mean"])
+
+    def predict(self, obs: Any, mask: Any = None, *, fill: str = "auto", num_samples: int = 5,
+                options: Optional[SamplerOptions] = None, seed: Optional[int] = None, units: str = "m",
+                threads: Optional[int] = None, progress: Any = False, layout: Optional[str] = None,
+                fps: Optional[float] = None, up: Any = "y", **sampler: Any) -> Forecast:
+        """The deterministic point forecast of the next :attr:`horizon` frames by the prior
+        (``prior.safetensors``: a siMLPe-class network, one forward per 10 frames, no sampling), with the
+        inputs and conventions of :meth:`forecast` (mask/NaN, units, batches, ``layout``/``fps``/``up``).
+
+        An observation with missing entries is repaired first, the paper's repair-then-predict pipeline:
+        ``fill="auto"`` (default) uses the repair model where the directory has one (its sampler: the
+        ``num_samples``/``options``/``seed`` arguments, as in :meth:`repair`) and the natural cubic spline
+        otherwise; ``"model"`` the repair model (the short-term model without one); ``"spline"`` or
+        ``"linear"`` the fills of :func:`tcd.interpolate` (a joint never observed in the window cannot be
+        filled that way: an error). A complete observation goes to the prior as given.
+
+        Returns a :class:`Forecast` whose ``mean`` is the point forecast, ``samples`` ``None``,
+        ``repaired`` the filled observation and ``seed`` the repair's seed. Raises ``FileNotFoundError`` when
+        the model directory has no ``prior.safetensors``."""
+        if self.prior is None:
+            raise FileNotFoundError(f"The model directory {self.path} has no prior.safetensors: TCD.predict needs "
+                                    "the prior forecaster (the bundled model has one; see MODEL_CARD.md).")
+        if _checks.text("fill", fill, FILLS) not in FILLS:
+            raise _checks.fail("fill", "one of " + ", ".join(repr(f) for f in FILLS), repr(fill))
+        num_samples, o, units, threads = self._common(num_samples, options, sampler, units, threads)
+        seed = _seed(seed)
+        run = lambda observed, seen: self._predict_raw(observed, seen, fill=fill, num_samples=num_samples,  # noqa: E731
+                                                       options=o, seed=seed, threads=threads, progress=progress)
+        if layout is not None or fps is not None:
+            mean, _, repaired, times = wild_calls.forecast(self, obs, mask, layout="h36m22" if layout is None else layout,
+                                                           fps=fps, up=up, units=units, run=run)
+            return Forecast(mean=mean, samples=None, repaired=repaired, seed=seed, times=times)
+        p = _poses(obs, mask, self.num_joints, self.obs_len, units)
+        out = run(p.observed, p.mask)
+        return Forecast(mean=p.poses(out["mean"]), samples=None, repaired=p.repaired(out["repaired"]), seed=seed,
+                        times=None if self.fps is None else np.arange(1, self.horizon + 1) / float(self.fps))
+
+    def _predict_raw(self, observed: np.ndarray, seen: np.ndarray, *, fill: str, num_samples: int,
+                     options: SamplerOptions, seed: int, threads: Optional[int], progress: Any) -> Dict[str, Any]:
+        """Repair-then-predict in the engine's layout: observed, seen (B, K, T) float32 (0 where missing) ->
+        {"mean": (B, K, H) point forecast, "repaired": (B, K, T), "samples": None}."""
+        repaired = observed
+        missing = seen < 0.5
+        if missing.any():
+            if fill == "auto":
+                fill = "model" if self.repair_model is not None else "spline"
+            if fill == "model":
+                den = self.repair_model if self.repair_model is not None else self.short
+                out = repair_raw(den, observed, seen, num_samples=num_samples, options=options, seed=seed,
+                                 threads=threads, progress=progress)
+                repaired = np.where(missing, out["mean"], observed).astype(np.float32)
+            else:
+                never = missing.all(axis=-1)
+                if never.any():
+                    b, k = np.argwhere(never)[0]
+                    raise InvalidInputError(
+                        f"Argument `obs` has coordinate {k} of joint {k // 3} never observed in sequence {b}: "
+                        f"fill={fill!r} interpolates along time and has nothing to start from; use fill='model'.",
+                        "obs")
+                repaired = np.ascontiguousarray(_native.interpolate(observed, seen, fill), dtype=np.float32)
+                repaired = np.where(missing, repaired, observed)
+        hist = np.ascontiguousarray(repaired[..., -self.prior.obs_len:].transpose(0, 2, 1))   # (B, T, K)
+        mean = self.prior.predict(hist, self.horizon, threads=threads)                         # (B, H, K)
+        return {"mean": np.ascontiguousarray(mean.transpose(0, 2, 1)), "repaired": repaired, "samples": None}
 
 
 def load(path: Optional[PathLike] = None, *, threads: Optional[int] = None) -> TCD:
@@ -285,7 +365,7 @@ def load(path: Optional[PathLike] = None, *, threads: Optional[int] = None) -> T
         if not (d / f"{role}.safetensors").is_file():
             raise FileNotFoundError(f"The model directory {d} has no {role}.safetensors: a model directory holds "
                                     "short.safetensors and long.safetensors (and optionally repair.safetensors).")
-    names = [f"{r}.safetensors" for r in ("short", "long", "repair") if (d / f"{r}.safetensors").is_file()]
+    names = [f"{r}.safetensors" for r in ROLES if (d / f"{r}.safetensors").is_file()]
     blobs = {n: (d / n).read_bytes() for n in names}
     digests = {n: hashlib.sha256(b).hexdigest() for n, b in blobs.items()}
     _verify_checksums(d, digests, bundled=path is None)
@@ -293,10 +373,14 @@ def load(path: Optional[PathLike] = None, *, threads: Optional[int] = None) -> T
     long = Denoiser.from_bytes(blobs["long.safetensors"], str(d / "long.safetensors"))
     rp = "repair.safetensors"
     repair_model = Denoiser.from_bytes(blobs[rp], str(d / rp)) if rp in blobs else None
-    return TCD(short, long, repair_model, path=d, threads=threads, file_sha256=digests)
+    pp = "prior.safetensors"
+    prior = Prior.from_bytes(blobs[pp], str(d / pp)) if pp in blobs else None
+    return TCD(short, long, repair_model, path=d, threads=threads, file_sha256=digests, prior=prior)
 
 
 CHECKSUM_FILE = "SHA256SUMS"
+#: the weight files of a model directory, by role, in checksum order
+ROLES = ("short", "long", "repair", "prior")
 
 
 def _checksum_text(digests: Dict[str, str]) -> str:
@@ -334,7 +418,7 @@ def _verify_checksums(d: Path, digests: Dict[str, str], bundled: bool) -> None:
 def write_checksums(d: PathLike) -> Path:
     """Writes ``d/SHA256SUMS`` for the weight files of the model directory ``d`` (used when bundling)."""
     d = Path(d)
-    names = [f"{r}.safetensors" for r in ("short", "long", "repair") if (d / f"{r}.safetensors").is_file()]
+    names = [f"{r}.safetensors" for r in ROLES if (d / f"{r}.safetensors").is_file()]
     digests = {n: hashlib.sha256((d / n).read_bytes()).hexdigest() for n in names}
     out = d / CHECKSUM_FILE
     out.write_text(_checksum_text(digests))
@@ -356,6 +440,11 @@ def _default_model() -> TCD:
 def forecast(obs: Any, mask: Any = None, **kwargs: Any) -> Forecast:
     """:meth:`TCD.forecast` with the bundled default model (see :func:`load`)."""
     return _default_model().forecast(obs, mask, **kwargs)
+
+
+def predict(obs: Any, mask: Any = None, **kwargs: Any) -> Forecast:
+    """:meth:`TCD.predict` with the bundled default model (see :func:`load`)."""
+    return _default_model().predict(obs, mask, **kwargs)
 
 
 def repair(obs: Any, mask: Any = None, **kwargs: Any) -> np.ndarray:

@@ -4,12 +4,12 @@ interpolation of the outputs."""
 from __future__ import annotations
 
 import math
-from typing import Any, Optional, Tuple
+from typing import Any, Callable, Dict, Optional, Tuple
 
 import numpy as np
 
 from . import _checks, wild
-from .denoiser import cascade_raw, repair_raw
+from .denoiser import repair_raw
 from .exceptions import InvalidInputError
 from .layouts import get_layout
 from .poses import UNIT_SCALE, validate_poses
@@ -70,17 +70,20 @@ def _repaired(p: Any, rep_w: np.ndarray, times: np.ndarray, scale: float) -> np.
     return out if p.batched else out[0]
 
 
-def forecast(model: Any, obs: Any, mask: Any, *, layout: Any, fps: Any, up: Any, num_samples: int, options: Any,
-             seed: int, units: str, threads: Optional[int], progress: Any) -> Tuple[np.ndarray, ...]:
+def forecast(model: Any, obs: Any, mask: Any, *, layout: Any, fps: Any, up: Any, units: str,
+             run: Callable[[np.ndarray, np.ndarray], Dict[str, Any]]) -> Tuple[Any, ...]:
     """(mean, samples, repaired, times): the forecast in the caller's layout, coordinates, units and frame
-    rate, ``times`` the seconds of each forecast frame after the last observed one."""
+    rate, ``times`` the seconds of each forecast frame after the last observed one. ``run(observed, seen)``
+    forecasts in the model's space and layout ((B, K, T) in, a dict of ``mean`` (B, K, H), ``samples``
+    (S, B, K, H) or None and ``repaired`` (B, K, T) out): the cascade (:meth:`TCD.forecast`) or the prior
+    (:meth:`TCD.predict`)."""
     p, src_fps, scene, times, observed, seen = _prepare(model, obs, mask, layout, fps, up, units, model.obs_len)
-    out = cascade_raw(model.short, model.long, observed, seen, num_samples=num_samples, options=options, seed=seed,
-                      threads=threads, progress=progress)
+    out = run(observed, seen)
     h = model.horizon
     root_f, rot_f = wild.future_frames(scene, h, float(model.fps), wild.ROOT_DAMPING_S)
     mean_w = wild.from_model(_model_poses(out["mean"]), scene, root_f, rot_f, own_frames=False)
-    samples_w = wild.from_model(_model_poses(out["samples"]), scene, root_f, rot_f, own_frames=False)
+    samples_w = (None if out["samples"] is None else
+                 wild.from_model(_model_poses(out["samples"]), scene, root_f, rot_f, own_frames=False))
     rep_w = wild.from_model(_model_poses(out["repaired"]), scene, scene.root, scene.rot, own_frames=True)
     # future frames at the caller's rate: model frame k is (k + 1) / model_fps s after the last observed
     # frame, which is time 0 (the repaired last frame)
@@ -95,7 +98,8 @@ def forecast(model: Any, obs: Any, mask: Any, *, layout: Any, fps: Any, up: Any,
         y = y.astype(p.dtype)
         return y if p.batched else y[..., 0, :, :, :]
 
-    return caller(mean_w), caller(samples_w), _repaired(p, rep_w, times, scale), at
+    samples = None if samples_w is None else caller(samples_w)
+    return caller(mean_w), samples, _repaired(p, rep_w, times, scale), at
 
 
 def repair(model: Any, den: Any, obs: Any, mask: Any, *, layout: Any, fps: Any, up: Any, num_samples: int,

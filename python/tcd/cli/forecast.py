@@ -17,7 +17,7 @@ from .common import (EXIT_OK, OPTION_FLAGS, _BadInput, add_model_flag, add_sampl
 
 # The arguments the input file sets, for the error messages.
 FLAGS = {**OPTION_FLAGS, "obs": "the `poses` array of the input file", "mask": "the `mask` array of the input file",
-         "fps": "--fps", "layout": "--layout", "up": "--up"}
+         "fps": "--fps", "layout": "--layout", "up": "--up", "fill": "--fill"}
 
 
 def add_parser(sub: Any) -> argparse.ArgumentParser:
@@ -26,9 +26,17 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
     p.add_argument("input", metavar="IN.npz", help="input: `poses` (T, J, 3) or (B, T, J, 3), NaN = missing; "
                    "optional `mask` (1 = observed); or a .bvh file (read as h36m32 joints, at its frame rate)")
     p.add_argument("-o", "--output", metavar="OUT.npz", required=True,
-                   help="output: mean, samples, repaired, seed, times (s after the last observed frame)")
+                   help="output: mean, samples (not with --point), repaired, seed, times (s after the last observed "
+                   "frame)")
     add_model_flag(p)
-    p.add_argument("--samples", type=int, default=5, metavar="N", help="samples per sequence (default 5)")
+    p.add_argument("--point", action="store_true",
+                   help="the deterministic point forecast of the prior (TCD.predict): missing entries are "
+                   "repaired first (see --fill); OUT gets mean, repaired, seed, times and no samples")
+    p.add_argument("--fill", default="auto", choices=("auto", "model", "spline", "linear"),
+                   help="--point: how missing entries are filled before the prior forecasts (auto: the repair "
+                   "model where the directory has one, else the natural cubic spline)")
+    p.add_argument("--samples", type=int, default=5, metavar="N",
+                   help="samples per sequence (default 5; with --point, of the repair)")
     add_sampler_flags(p)
     p.add_argument("--seed", type=int, default=None, help="noise seed (default: random, recorded in OUT)")
     p.add_argument("--units", default="m", choices=tuple(UNIT_SCALE), help="units of the poses: m (default), cm or mm")
@@ -86,15 +94,23 @@ def run(args: argparse.Namespace) -> int:
         data = _read_npz(Path(args.input))
     options = sampler_options(args)
     model = load_model(args.model)
+    if args.point and model.prior is None:
+        raise _BadInput(f"--point: the model directory {model.path} has no prior.safetensors.")
+    call = model.predict if args.point else model.forecast
+    extra = {"fill": args.fill} if args.point else {}
     try:
-        f = model.forecast(data["poses"], data.get("mask"), num_samples=args.samples, options=options,
-                           seed=args.seed, units=args.units, threads=args.threads,
-                           progress=not args.quiet and sys.stderr.isatty(), layout=layout, fps=fps, up=args.up)
+        f = call(data["poses"], data.get("mask"), num_samples=args.samples, options=options, seed=args.seed,
+                 units=args.units, threads=args.threads, progress=not args.quiet and sys.stderr.isatty(),
+                 layout=layout, fps=fps, up=args.up, **extra)
     except InvalidInputError as e:
         raise _BadInput(flag_message(e, FLAGS)) from None
+    arrays = {"mean": f.mean, "repaired": f.repaired, "seed": np.uint64(f.seed)}
+    if f.samples is not None:
+        arrays["samples"] = f.samples
+    if f.times is not None:
+        arrays["times"] = f.times
     with writing(out):
-        times = {} if f.times is None else {"times": f.times}
-        write_npz_atomic(out, args.overwrite, mean=f.mean, samples=f.samples, repaired=f.repaired,
-                         seed=np.uint64(f.seed), **times)
-    print(f"wrote {out}: mean {f.mean.shape}, samples {f.samples.shape}, repaired {f.repaired.shape}, seed {f.seed}")
+        write_npz_atomic(out, args.overwrite, **arrays)
+    shapes = ", ".join(f"{k} {v.shape}" for k, v in arrays.items() if k in ("mean", "samples", "repaired"))
+    print(f"wrote {out}: {shapes}, seed {f.seed}")
     return EXIT_OK
