@@ -278,3 +278,26 @@ def test_train_step_floor_counts_the_saved_activations():
     assert 0 < r["saved_per_window"]["bf16"] < r["saved_per_window"]["fp32"]
     assert r["largest_batch_h100"]["fp32"] == int(floor.MEMORY_SHARE * floor.H100["memory_bytes"]
                                                   // r["saved_per_window"]["fp32"])
+
+
+def test_prior_speed_smoke(tmp_path):
+    """benches/prior_speed.py times tcd.Prior and PyTorch eager on the same model and inputs (outputs compared
+    first) for one forecast and a batch, at each thread count, and writes its table and JSON. Timings are not
+    asserted."""
+    import tcd
+    bench = load_bench("prior_speed")
+    out = tmp_path / "prior_speed.json"
+    assert bench.main(["--random", "--blocks", "2", "--reps", "1", "--batch", "5", "--threads", "1", "2",
+                       "--pause", "0", "--json", str(out)]) == 0
+    r = json.loads(out.read_text())
+    assert [(row["batch"], row["threads"], row["horizon"]) for row in r["rows"]] == [
+        (1, 1, 25), (1, 2, 25), (5, 1, 25), (5, 2, 25)]
+    for row in r["rows"]:
+        assert row["median_s"]["tcd"] > 0 and row["median_s"]["torch"] > 0 and row["max_abs_diff"] < 1e-4
+    assert r["model"] == {"weights": "random, 2 blocks", "blocks": 2, "obs_len": 50, "chunk": 10, "num_features": 66}
+    assert r["machine"]["cpu"] and r["machine"]["tcd_kernel"] in tcd.supported_kernels()
+    assert r["goals"]["batch_met"] is None                      # only a batch of 1,000 is judged
+    md = bench.markdown(r)
+    assert md.splitlines()[0] == ("| median | 1 forecast, 1 thr. | 1 forecast, 2 thr. | batch of 5, 1 thr. | "
+                                  "batch of 5, 2 thr. |")
+    assert md.splitlines()[2].startswith("| tcd (Rust) | ") and "×) |" in md.splitlines()[3]
