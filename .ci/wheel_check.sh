@@ -49,6 +49,6 @@ python3 -m pip wheel -q --no-deps dist/*.tar.gz -w "$work/from_sdist"
 python3 - "$work"/from_sdist/*.whl <<'PY'
 import sys, zipfile
 names = zipfile.ZipFile(sys.argv[1]).namelist()
-assert "tcd/weights/short.safetensors" in names and "tcd/data/demo_walking.npz" in names, names
+assert "tcd/weights/short.safetensors" in names and "tcd/weights/prior.safetensors" in names and "tcd/data/demo_walking.npz" in names, names
 print("wheel check: the sdist builds a wheel with the weights and the demo clip")
 PY
