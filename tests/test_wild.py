@@ -63,11 +63,20 @@ def test_layout_round_trip_is_exact(name):
 
 
 def test_h36m32_on_the_model_skeleton_costs_nothing(tiny_model):
-    """h36m32 poses built on the Human3.6M skeleton, canonical: the same forecast as the native path."""
+    """h36m32 poses built on the Human3.6M skeleton, canonical: the native path's forecast, joined to the last
+    observed pose over the first tcd.wild.JOIN_FRAMES frames (frame f: the last pose + f / 5 of the way to
+    the native forecast), the native forecast itself after them."""
     x = h36m32()
-    native = tiny_model.forecast(x[:, list(layouts.MODEL_IDS)], **FAST)
+    model = list(layouts.MODEL_IDS)
+    native = tiny_model.forecast(x[:, model], **FAST)
     f = tiny_model.forecast(x, layout="h36m32", **FAST)
-    np.testing.assert_allclose(f.samples[:, :, list(layouts.MODEL_IDS)], native.samples, rtol=1e-5, atol=1e-6)
+    n = wild.JOIN_FRAMES
+    assert n == 5
+    w = np.minimum(np.arange(1, 26) / n, 1.0)[:, None, None]
+    np.testing.assert_allclose(f.samples[:, :, model], x[-1, model] + (native.samples - x[-1, model]) * w,
+                               rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(f.samples[:, n - 1:, model], native.samples[:, n - 1:], rtol=1e-5, atol=1e-6)
+    assert np.abs(native.samples[:, 0] - x[-1, model]).max() > 0.01        # the join has something to do
     np.testing.assert_allclose(f.times, native.times)
     assert f.mean.shape == (25, 32, 3)
 
@@ -200,3 +209,83 @@ def test_repair_file_and_tcd_repair_with_a_layout(tiny_model_dir, tmp_path, caps
                  "--sampler", "ddim", "--quiet"]) == 0
     with np.load(tmp_path / "cli" / "take.npz") as z:
         np.testing.assert_array_equal(z["poses"], out)
+
+
+# ---------------------------------------------------------------------------------------------- issue 27
+SOMOF13 = (1, 2, 4, 5, 7, 8, 12, 16, 17, 18, 19, 20, 21)   # 3DPW through SoMoF: hips, knees, ankles, neck, arms
+
+
+def test_a_13_joint_smpl_observation_without_a_pelvis_forecasts(tiny_model):
+    """3DPW's 13 SoMoF joints as smpl24, no pelvis (issue 27, part 3): the root is the mid-point of the hips
+    (where the model's skeleton has its pelvis), so on the Human3.6M skeleton the forecast is the one with
+    the pelvis given; the pelvis the caller never gave is not made up (NaN in the forecast and the repair)."""
+    full = in_layout(world(h36m32()), "smpl24")
+    given = np.full_like(full, np.nan)
+    given[:, list(SOMOF13)] = full[:, list(SOMOF13)]
+    with_pelvis = given.copy()
+    with_pelvis[:, 0] = full[:, 0]
+    f = tiny_model.forecast(given, layout="smpl24", fps=25, up="z", **FAST)
+    want = tiny_model.forecast(with_pelvis, layout="smpl24", fps=25, up="z", **FAST)
+    assert f.mean.shape == (25, 24, 3) and np.isfinite(f.mean[:, list(SOMOF13)]).all()
+    np.testing.assert_allclose(f.mean[:, list(SOMOF13)], want.mean[:, list(SOMOF13)], atol=1e-5)
+    assert np.isnan(f.mean[:, 0]).all() and np.isnan(f.samples[..., 0, :]).all() and np.isnan(f.repaired[:, 0]).all()
+    assert np.isfinite(want.mean[:, 0]).all()
+    coco = in_layout(world(h36m32()), "coco17")                          # COCO: hips only, as before
+    assert np.isfinite(tiny_model.forecast(coco, layout="coco17", up="z", **FAST).mean).all()
+
+
+@pytest.mark.parametrize("name", ["h36m32", "smpl24"])
+def test_a_pelvis_missing_in_some_frames_is_placed_by_the_hips(tiny_model, name):
+    """Where the pelvis is missing, the root is the mid-point of the hips moved by the pelvis's own offset from
+    it (measured in the root frame on the frames that show both): a pelvis 5 cm above its hips, as SMPL's,
+    hidden for the last 0.8 s, is repaired exactly and forecasts as if it had been seen."""
+    x = h36m32()
+    x[:, 0] += [0.0, 0.05, 0.01]                                         # up and forward of the hips' mid-point
+    x = np.stack([world_y(pose, 0.01 * i) for i, pose in enumerate(x)])  # turning while walking
+    x += np.arange(50)[:, None, None] * [0.01, 0.0, 0.03]
+    seen = in_layout(world(x), name)
+    hidden = seen.copy()
+    hidden[30:, 0] = np.nan
+    r = tiny_model.repair(hidden, layout=name, up="z", **FAST)
+    np.testing.assert_allclose(r[30:, 0], seen[30:, 0], atol=1e-9)
+    a = tiny_model.forecast(hidden, layout=name, up="z", **FAST)
+    b = tiny_model.forecast(seen, layout=name, up="z", **FAST)
+    np.testing.assert_allclose(a.mean, b.mean, atol=1e-9)
+
+
+@pytest.mark.parametrize("name", ["h36m32", "h36m17", "smpl24", "coco17"])
+def test_the_forecast_starts_at_the_last_observed_pose(name, monkeypatch):
+    """Issue 27, part 4: the conversion back puts a forecast on the sequence's median skeleton (bone lengths,
+    hips, carried joints), which is not the last frame's when the caller's skeleton jitters or the pelvis
+    tilts; a model that holds the last pose still starts at the last observed pose, the first forecast frame
+    1 / JOIN_FRAMES of the way to the median skeleton's version."""
+    rng = np.random.default_rng(0)
+    x32 = h36m32() * 1.1 + rng.normal(0.0, 0.005, (50, 32, 3))          # another person, jittery like a lifter
+    x = in_layout(world(x32), name)
+    y, scene = wild.to_model(x[None], layouts.get_layout(name), wild.up_vector("z"))
+    held = np.repeat(y[:, -1:], 25, axis=1)                              # a model that holds the last pose
+    root, rot = np.repeat(scene.root[:, -1:], 25, axis=1), np.repeat(scene.rot[:, -1:], 25, axis=1)
+    out = wild.from_model(held, scene, root, rot, own_frames=False)[0]
+    monkeypatch.setattr(wild, "JOIN_FRAMES", 0)
+    unjoined = wild.from_model(held, scene, root, rot, own_frames=False)[0]
+    last, seen = x[-1], ~np.isnan(x[-1, :, 0])
+    assert np.linalg.norm(unjoined[0, seen] - last[seen], axis=-1).mean() > 0.002   # the conversion moves it
+    w = np.minimum(np.arange(1, 26) / 5, 1.0)[:, None, None]
+    np.testing.assert_allclose(out[:, seen], last[seen] + (unjoined[:, seen] - last[seen]) * w, atol=1e-12)
+    np.testing.assert_allclose(out[4:], unjoined[4:], atol=1e-12)
+
+
+def test_a_joint_never_shown_does_not_carry_the_bones_below_it():
+    """3DPW's 13 joints as smpl24 on a larger person: the neck hangs from the root, not from the thorax the
+    caller never showed, so whatever the model in-paints for the thorax, the 13 joints of the observation's
+    own frames come back exactly (they were measured from the root)."""
+    full = in_layout(world(h36m32() * 1.1), "smpl24")
+    x = np.full_like(full, np.nan)
+    x[:, list(SOMOF13)] = full[:, list(SOMOF13)]
+    y, scene = wild.to_model(x[None], layouts.get_layout("smpl24"), wild.up_vector("z"))
+    missing = np.isnan(y)
+    assert missing[0, 0].any()                                           # thorax, head, feet, hands
+    filled = np.where(missing, np.random.default_rng(1).normal(0.0, 0.3, y.shape), y)
+    back = wild.from_model(filled, scene, scene.root, scene.rot, own_frames=True)[0]
+    np.testing.assert_allclose(back[:, list(SOMOF13)], x[:, list(SOMOF13)], rtol=0, atol=1e-12)
+

@@ -10,22 +10,38 @@ The rules, in the order they are applied:
    at its last frame (an entry is observed only when the source frames on both sides are: a gap never
    shrinks); a shorter one is padded with missing frames at the start, a longer one keeps its last
    ``obs_len`` frames.
-2. **Root and heading.** Per frame, the root is the pelvis (or the mid-point of the hips), the heading the
-   direction from the right to the left hip in the plane normal to ``up``; the pose is translated and
-   turned so that the root is at the origin and the hips lie along +x. Frames without a pelvis and both
-   hips get root and heading interpolated from the frames that have them.
+2. **Root and heading.** Per frame, the heading is the direction from the right to the left hip in the
+   plane normal to ``up``, and the root is the pelvis; where the pelvis is missing (3DPW's 13 SoMoF joints,
+   COCO-style lifters: every layout), the root is the mid-point of the hips moved by the pelvis's offset
+   from it along the root frame's axes: the sequence's own (the median over the frames that show the
+   pelvis and both hips), else the model skeleton's, which is 0 (Human3.6M's pelvis is the mid-point of
+   its hips). The pose is translated and turned so that the root is at the origin and the hips lie along
+   +x. Frames without the hips get the heading, and frames without a pelvis and the hips the root,
+   interpolated from the frames that have them; a sequence needs both hips in at least one frame. A
+   pelvis placed by the hips only places the body: where the caller never showed one, the outputs' pelvis
+   stays NaN.
 3. **Skeleton.** Each model joint is placed along the caller's direction from its nearest observed
    ancestor (in the Human3.6M tree), at the model's distance for that pair (retargeting by bone
    direction); the root and hips are the model's fixed joints. A model joint the layout lacks is missing
    and in-painted by the model.
-4. **Back.** Forecast and repaired poses are put back on the caller's bone lengths (each model bone scaled
-   by the caller's length over the model's: per sequence the median over observed frames), joints of the layout the model lacks are carried rigidly (the median
-   offset from their anchor joint in the root frame, :class:`tcd.layouts.Layout`), and each frame is put
-   back in world coordinates; a joint never observed that the model cannot give stays NaN.
+4. **Back.** Forecast and repaired poses are put back on the caller's bone lengths: each model bone, from
+   the joint's nearest ancestor that the sequence shows in some frame, scaled by the caller's length over
+   the model's (per sequence the median over observed frames; a joint the caller never showed keeps the
+   model's bone, and is no anchor for the bones below it). Joints of the layout the model lacks are carried
+   rigidly (the median offset from their anchor joint in the root frame, :class:`tcd.layouts.Layout`), and
+   each frame is put back in world coordinates; a joint never observed that the model cannot give stays
+   NaN. The observation's own frames go through the conversion and back unchanged; a forecast on the
+   medians would not start at the last observed pose where the caller's hips tilt or its bones vary from
+   frame to frame (``last_pose_conversion_mm`` in benches/in_the_wild.py), which rule 6 takes care of.
 5. **Future root.** The forecast's root starts at the velocity and turn rate (about ``up``) of the last
    0.2 s of the observation, both decaying with a time constant of ``ROOT_DAMPING_S`` (0.4 s): a walker
    keeps walking, a turn or a stop is not carried on for a whole second. Future frames come at the
    caller's frame rate, with their times in seconds after the last observed frame.
+6. **Joining the observation.** In the root frame, forecast frame ``f`` (1, 2, ... model frames after the
+   last observed one) is the last observed pose moved ``min(f / JOIN_FRAMES, 1)`` of the way to the
+   model's forecast (5 frames, 0.2 s): the forecast starts where the person is and is the model's own from
+   0.2 s on. A joint the last frame lacks is the model's throughout. (A call without ``layout`` and
+   ``fps`` does not come here: it returns the model's frames as they are.)
 
 Observed values are returned unchanged in ``repaired``.
 """
@@ -42,7 +58,7 @@ from .exceptions import InvalidInputError
 from .layouts import FIXED_IDS, MODEL_IDS, Layout
 from .resample import resample_forward
 
-__all__ = ["UP_AXES", "up_vector", "Scene", "to_model", "from_model", "future_frames", "resample_to_model"]
+__all__ = ["UP_AXES", "up_vector", "Scene", "to_model", "from_model", "join", "future_frames", "resample_to_model"]
 
 UP_AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
 #: How far back the root's velocity and turn rate are measured (model frames: 0.2 s at 25 fps).
@@ -51,6 +67,13 @@ EXTRAPOLATION_FRAMES = 5
 #: root held). 0.4 s: the least summed root error at 1 s over Human3.6M's training subjects, CMU and the
 #: AMASS samples of the rules benches/root_extrapolation.py compares (results/root_extrapolation.json).
 ROOT_DAMPING_S: Optional[float] = 0.4
+#: Model frames (0.2 s at 25 fps) over which a forecast passes from the last observed pose to the model's
+#: (0: the model's frames unchanged). The bundled model's first frame does not start where the person is
+#: (DDIM-10, one sample, Human3.6M S5 windows 8-15 as h36m32: 25.8 mm from the truth at 40 ms against
+#: Zero-Velocity's 14.7). 5: on those windows the 80 ms error is least at 4 and 5 frames (25.1 mm;
+#: Zero-Velocity 28.1), the first frame no worse than Zero-Velocity's from 3 on; longer joins only lean
+#: longer on the held pose (docs/wild.md; benches/in_the_wild.py --first-window 8 --join-frames N).
+JOIN_FRAMES = 5
 
 
 def up_vector(up: object) -> np.ndarray:
@@ -116,28 +139,58 @@ def _mean_of(x: np.ndarray, joints: Tuple[int, ...]) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------------------------- root frames
+def _hip_root_offset(layout: Layout, x: np.ndarray, mid: np.ndarray, rot: np.ndarray, width: np.ndarray,
+                     hips: np.ndarray) -> np.ndarray:
+    """Per sequence, the pelvis's offset from the mid-point of the hips along the root frame's axes (B, 3):
+    the median over the frames that show the pelvis and both hips; for a sequence that never shows its
+    pelvis, the model skeleton's offset scaled by the caller's hip width over the model's (on the Human3.6M
+    skeleton the pelvis is the mid-point of the hips: the offset is 0 to 1e-7 m)."""
+    rest, _ = _rest()
+    pelvis = _mean_of(x, layout.source_of(0))
+    both = np.isfinite(pelvis).all(-1) & hips
+    own = np.einsum("btc,btck->btk", np.where(both[..., None], pelvis - mid, np.nan), rot)
+    model_width = np.linalg.norm(rest[6] - rest[1])
+    model_off = rest[0] - 0.5 * (rest[1] + rest[6])
+    out = _median(own)
+    caller_width = _median(np.where(hips, width, np.nan))
+    none = ~np.isfinite(out).all(-1)
+    out[none] = model_off * (caller_width[none, None] / model_width)
+    return out
+
+
 def _frames(x: np.ndarray, layout: Layout, up: np.ndarray, arg: str) -> Tuple[np.ndarray, np.ndarray]:
     """Per frame of (B, T, J, 3) poses: the root (B, T, 3) and the rotation (B, T, 3, 3) whose columns are
-    the root frame's axes (left, up, forward) in the caller's coordinates; interpolated where missing."""
+    the root frame's axes (left, up, forward) in the caller's coordinates; interpolated where missing. The
+    root is the pelvis, or where the pelvis is missing, the mid-point of the hips moved by the pelvis's
+    offset from it (:func:`_hip_root_offset`)."""
     b, t = x.shape[:2]
     if layout.canonical:
         return np.zeros((b, t, 3)), np.broadcast_to(np.eye(3), (b, t, 3, 3)).copy()
-    root = _mean_of(x, layout.source_of(0))
-    across = _mean_of(x, layout.source_of(6)) - _mean_of(x, layout.source_of(1))
+    left_hip, right_hip = _mean_of(x, layout.source_of(6)), _mean_of(x, layout.source_of(1))
+    across = left_hip - right_hip
     across = across - (across @ up)[..., None] * up
     norm = np.linalg.norm(across, axis=-1)
-    ok = np.isfinite(root).all(-1) & np.isfinite(norm) & (norm > 1e-6)
+    hips = np.isfinite(norm) & (norm > 1e-6)
     for i in range(b):
-        if not ok[i].any():
+        if not hips[i].any():
             which = f"sequence {i} of `{arg}`" if b > 1 else f"`{arg}`"
             raise InvalidInputError(
-                f"Argument `{arg}` must show the root (pelvis or both hips) and both hips in at least one "
-                f"frame, to place the body, but {which} has none such.", arg)
-        known = np.flatnonzero(ok[i])
-        frames = np.arange(t)
+                f"Argument `{arg}` must show both hips in at least one frame, to place the body (the root is "
+                f"the pelvis, or the mid-point of the hips where the pelvis is missing), but {which} has no "
+                "frame with both hips.", arg)
+    left = across / np.where(hips, norm, 1.0)[..., None]
+    rot = np.stack([left, np.broadcast_to(up, left.shape), np.cross(left, up)], axis=-1)
+    mid = 0.5 * (left_hip + right_hip)
+    offset = _hip_root_offset(layout, x, mid, rot, np.linalg.norm(left_hip - right_hip, axis=-1), hips)
+    root = _mean_of(x, layout.source_of(0))
+    from_hips = np.where(hips[..., None], mid + np.einsum("btck,bk->btc", rot, offset), np.nan)
+    root = np.where(np.isfinite(root).all(-1, keepdims=True), root, from_hips)
+    has_root = np.isfinite(root).all(-1)                    # every frame with both hips, and more
+    frames = np.arange(t)
+    for i in range(b):
         for c in range(3):
-            root[i, :, c] = np.interp(frames, known, root[i, known, c])
-            across[i, :, c] = np.interp(frames, known, across[i, known, c])
+            root[i, :, c] = np.interp(frames, np.flatnonzero(has_root[i]), root[i, has_root[i], c])
+            across[i, :, c] = np.interp(frames, np.flatnonzero(hips[i]), across[i, hips[i], c])
     across = across - (across @ up)[..., None] * up
     left = across / np.linalg.norm(across, axis=-1, keepdims=True)
     forward = np.cross(left, up)
@@ -183,9 +236,11 @@ class Scene:
     up: np.ndarray
     root: np.ndarray                  # (B, T, 3) the root, caller coordinates
     rot: np.ndarray                   # (B, T, 3, 3) the root frame (columns: left, up, forward)
-    lengths: Dict[int, np.ndarray]    # model 32-id -> (B, T) caller distance to its nearest layout ancestor
+    lengths: Dict[int, np.ndarray]    # model 32-id -> (B, T) caller distance to ``ancestor``
+    ancestor: Dict[int, np.ndarray]   # model 32-id -> (B,) its nearest placed ancestor the sequence shows
     fixed: Dict[int, np.ndarray]      # fixed 32-id -> (B, T, 3) caller position in the root frame
     carried: Dict[int, Tuple[int, np.ndarray]]   # layout joint -> (anchor 32-id, (B, T, 3) offset)
+    last: np.ndarray                  # (B, J, 3) the last frame's caller pose in its root frame, NaN = unobserved
 
     def value(self, per_frame: np.ndarray, frames: bool) -> np.ndarray:
         """``per_frame`` on the observation's own frames where finite (``frames``), else (and for other
@@ -196,13 +251,15 @@ class Scene:
         return np.where(np.isfinite(per_frame), per_frame, med)
 
 
-def _layout_has(layout: Layout, j: int) -> bool:
-    return bool(layout.source_of(j)) or j == 0
-
-
-def _static_ancestor(layout: Layout, j: int) -> int:
-    """The nearest ancestor (among the placed joints) that the layout has; the root at worst."""
-    return next((a for a in _tree()[1][j] if _layout_has(layout, a)), 0)
+def _shown_ancestor(shown: Dict[int, np.ndarray], j: int) -> np.ndarray:
+    """Per sequence (B,), the nearest ancestor of ``j`` among the placed joints that the sequence shows in
+    some frame (``shown``: 32-id -> (B,) bool); the root at worst. A joint the caller's layout has but never
+    showed (3DPW's 13 joints as smpl24: no spine) is skipped, so the bone is measured from a joint that
+    was seen."""
+    out = np.zeros(len(shown[0]), dtype=np.int64)
+    for a in reversed(_tree()[1][j]):
+        out = np.where(shown[a], a, out)
+    return out
 
 
 def _anchor32(layout: Layout, i: int) -> int:
@@ -227,6 +284,7 @@ def to_model(x: np.ndarray, layout: Layout, up: np.ndarray, arg: str = "obs") ->
     canon = np.einsum("btjc,btck->btjk", x - root[:, :, None, :], rot)   # along the root frame's axes
     placed = set(FIXED_IDS) | set(MODEL_IDS)
     src = {j: _mean_of(canon, layout.source_of(j)) for j in placed}
+    pelvis_seen = np.isfinite(src[0]).all(-1, keepdims=True)
     src[0] = np.zeros_like(src[0])                           # the root is the origin of its own frame
     order, ancestors = _tree()
     model: Dict[int, np.ndarray] = {j: np.broadcast_to(rest[j], canon.shape[:2] + (3,)).copy() for j in FIXED_IDS}
@@ -247,21 +305,32 @@ def to_model(x: np.ndarray, layout: Layout, up: np.ndarray, arg: str = "obs") ->
             out[use] = (model[a] + step)[use]
             todo &= ~use
         model[j] = out
-    lengths = {j: np.linalg.norm(src[j] - src[_static_ancestor(layout, j)], axis=-1) for j in MODEL_IDS}
+    shown = {j: np.isfinite(src[j]).all(-1).any(-1) for j in placed}
+    shown[0] = np.ones_like(shown[0])
+    ancestor = {j: _shown_ancestor(shown, j) for j in MODEL_IDS}
+    lengths = {}
+    for j in MODEL_IDS:
+        lengths[j] = np.full(src[j].shape[:-1], np.nan)
+        for a in np.unique(ancestor[j]):
+            use = ancestor[j] == a
+            lengths[j][use] = np.linalg.norm(src[j][use] - src[a][use], axis=-1)
     fixed = {j: src[j] for j in FIXED_IDS}
+    fixed[0] = np.where(pelvis_seen, src[0], np.nan)         # where the caller showed a pelvis (else: the hips')
     carried = {}
     for i, t in enumerate(layout.to32):
         if t is None or t not in placed:
             a = _anchor32(layout, i)
             carried[i] = (a, canon[:, :, i] - src[a])
-    scene = Scene(layout, up, root, rot, lengths, fixed, carried)
+    scene = Scene(layout, up, root, rot, lengths, ancestor, fixed, carried, canon[:, -1])
     return np.stack([model[j] for j in MODEL_IDS], axis=2), scene
 
 
 def from_model(y: np.ndarray, scene: Scene, root: np.ndarray, rot: np.ndarray, own_frames: bool) -> np.ndarray:
     """(..., B, F, 22, 3) model poses -> (..., B, F, J, 3) caller poses in the root frames ``root`` (B, F, 3),
     ``rot`` (B, F, 3, 3). ``own_frames``: the F frames are the observation's (repair), so the caller's
-    per-frame bone lengths and offsets are used where observed; otherwise (forecast) their medians."""
+    per-frame bone lengths and offsets are used where observed; otherwise they are the F model frames after
+    the last observed one (forecast): the sequence's medians, and each joint the last frame shows passes
+    from where it was to the model's forecast over the first JOIN_FRAMES frames (:func:`join`)."""
     rest, _ = _rest()
     layout = scene.layout
     lead = y.shape[:-2]
@@ -271,28 +340,54 @@ def from_model(y: np.ndarray, scene: Scene, root: np.ndarray, rot: np.ndarray, o
         model[j] = np.broadcast_to(rest[j], lead + (3,))
         fixed = scene.value(scene.fixed[j], own_frames)
         out[j] = np.broadcast_to(np.where(np.isfinite(fixed), fixed, rest[j]), lead + (3,))
-    order, ancestors = _tree()
+    order, _ = _tree()
     for j in order:
         if j in FIXED_IDS:
             continue
-        a = _static_ancestor(layout, j)
-        # the model's bone, scaled by the caller's length over the model's: the model's own output where the
-        # two skeletons agree, and an exact round trip of the caller's frames through to_model
-        ratio = 1.0                                          # a joint the caller lacks: the model's bone
-        if _layout_has(layout, j):
-            length = scene.value(scene.lengths[j], own_frames)[..., None]
-            ratio = np.where(np.isfinite(length), length / np.linalg.norm(rest[j] - rest[a]), 1.0)
-        out[j] = out[a] + (model[j] - model[a]) * ratio
+        # the model's bone from the joint's nearest ancestor the sequence shows, scaled by the caller's length
+        # over the model's: the model's own output where the two skeletons agree, and an exact round trip of
+        # the caller's frames through to_model; a joint the caller never showed: the model's bone
+        anc = scene.ancestor[j]
+        base = np.zeros(lead + (3,))
+        bone = np.zeros(lead + (3,))
+        model_length = np.ones(len(anc))
+        for a in np.unique(anc):
+            use = (anc == a)[:, None, None]
+            base = np.where(use, out[a], base)
+            bone = np.where(use, model[j] - model[a], bone)
+            model_length[anc == a] = np.linalg.norm(rest[j] - rest[a])
+        length = scene.value(scene.lengths[j], own_frames)[..., None]
+        ratio = np.where(np.isfinite(length), length / model_length[:, None, None], 1.0)
+        out[j] = base + bone * ratio
     joints: List[np.ndarray] = []
     placed = set(FIXED_IDS) | set(MODEL_IDS)
+    # a pelvis the caller never showed is not made up: the root placed from the hips stays inside
+    pelvis = np.isfinite(scene.value(scene.fixed[0], own_frames)).all(-1, keepdims=True)
     for i, t in enumerate(layout.to32):
-        if t is not None and t in placed:
+        if t == 0:
+            joints.append(np.where(pelvis, out[0], np.nan))
+        elif t is not None and t in placed:
             joints.append(out[t])
         else:
             a, off = scene.carried[i]
             joints.append(out[a] + scene.value(off, own_frames))
     canon = np.stack(joints, axis=-2)
+    if not own_frames:
+        canon = join(canon, scene.last)
     return np.einsum("...btjk,btck->...btjc", canon, rot) + root[:, :, None, :]
+
+
+def join(canon: np.ndarray, last: np.ndarray, frames: Optional[int] = None) -> np.ndarray:
+    """The forecast (..., B, F, J, 3) in the root frame, frame f (1, 2, ...) moved from the last observed
+    pose ``last`` (B, J, 3) to the model's: ``last + (forecast - last) * min(f / frames, 1)`` with ``frames``
+    JOIN_FRAMES (0: the model's unchanged); joints the last frame lacks are the model's."""
+    frames = JOIN_FRAMES if frames is None else frames
+    if frames <= 0:
+        return canon
+    f = canon.shape[-3]
+    w = np.minimum(np.arange(1, f + 1, dtype=np.float64) / frames, 1.0)[:, None, None]
+    start = last[:, None]
+    return np.where(np.isfinite(start), start + (canon - start) * w, canon)
 
 
 def future_frames(scene: Scene, count: int, fps: float,
