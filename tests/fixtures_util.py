@@ -79,13 +79,14 @@ def bad(argument: str, fn, *args, **kwargs):
     return e
 
 
-def load_kernel(path, kernel: str, monkeypatch):
-    """The model at ``path`` on one kernel path (``TCD_KERNEL`` is read at load); skips paths this CPU lacks."""
+def load_kernel(path, kernel: str, monkeypatch, cls=None):
+    """The model at ``path`` (a ``cls``: ``tcd.Denoiser`` by default, or ``tcd.Prior``) on one kernel path
+    (``TCD_KERNEL`` is read at load); skips paths this CPU lacks."""
     import tcd
     if kernel not in tcd.supported_kernels():
         pytest.skip(f"this CPU cannot run the {kernel} kernels")
     monkeypatch.setenv("TCD_KERNEL", kernel)
-    den = tcd.Denoiser.load(path)
+    model = (cls or tcd.Denoiser).load(path)
     monkeypatch.delenv("TCD_KERNEL")
-    assert den.kernel == kernel
-    return den
+    assert model.kernel == kernel
+    return model

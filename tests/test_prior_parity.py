@@ -34,6 +34,7 @@ import pytest
 import torch
 
 import tcd
+import fixtures_util
 from fixtures_util import ALL_KERNELS, bad, read_weights, write_weights
 from tcd.exceptions import InvalidInputError, WeightsError
 from training import export
@@ -97,14 +98,8 @@ def weights(request):
 
 
 def load_kernel(path, kernel: str, monkeypatch) -> tcd.Prior:
-    """The prior at ``path`` on one kernel path (``TCD_KERNEL`` is read at load); skips paths this CPU lacks."""
-    if kernel not in tcd.supported_kernels():
-        pytest.skip(f"this CPU cannot run the {kernel} kernels")
-    monkeypatch.setenv("TCD_KERNEL", kernel)
-    p = tcd.Prior.load(path)
-    monkeypatch.delenv("TCD_KERNEL")
-    assert p.kernel == kernel
-    return p
+    """The prior at ``path`` on one kernel path (fixtures_util.load_kernel)."""
+    return fixtures_util.load_kernel(path, kernel, monkeypatch, cls=tcd.Prior)
 
 
 def observations(batch: int, frames: int = 60) -> np.ndarray:
