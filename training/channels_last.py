@@ -31,7 +31,7 @@ import torch
 from torch import nn
 import torch.nn.functional as F
 
-from .model import FILLS, TCDModel, frame_embedding
+from .model import TCDModel, condition, frame_embedding
 
 
 def encoder_layer(layer: nn.TransformerEncoderLayer, x: torch.Tensor) -> torch.Tensor:
@@ -62,6 +62,10 @@ class ChannelsLast(nn.Module):
         self.model = model
         self.cfg = model.cfg          # read by the losses and samplers (training.diffusion)
 
+    @property
+    def prior(self):                  # read by the losses and samplers, as cfg
+        return self.model.prior
+
     def forward(self, noisy: torch.Tensor, observed: torch.Tensor, mask: torch.Tensor,
                 step: torch.Tensor | int) -> torch.Tensor:
         m = self.model
@@ -72,7 +76,7 @@ class ChannelsLast(nn.Module):
         if not torch.is_tensor(step):
             step = torch.tensor([step], device=noisy.device)
         step = step.reshape(-1).to(noisy.device).long()
-        cond = mask * observed if cfg.cond_fill == "zero" else FILLS[cfg.cond_fill](observed, mask)
+        cond = condition(cfg, observed, mask, m.prior)
         x = torch.stack([cond, (1 - mask) * noisy], dim=-1)                   # (B, K, L, 2)
         h = F.relu(F.linear(x, _w(net.input_projection), net.input_projection.bias))   # (B, K, L, C)
         emb = net.diffusion_embedding(step)                                   # (B or 1, 128)

@@ -1,7 +1,8 @@
 """DDPM maths for TCD: schedules (float64), forward noising, the masked epsilon loss, samplers, cascade, repair.
 
 Notation follows the MotionDiff supplement / DDPM: beta_t, alpha_t = 1 - beta_t,
-alpha_bar_t = prod_{s<=t} alpha_s; the network predicts epsilon.
+alpha_bar_t = prod_{s<=t} alpha_s; the network predicts epsilon (TCD), or x0 where the config's
+``prediction_type`` is ``"sample"`` (the samplers turn it into the noise: ``predicted_noise``).
 
 Injected noise. Every sampler accepts ``noise`` of shape (num_noise_blocks, B, K, L): ``noise[0]`` is x_T
 and ``noise[i + 1]`` is the z used at step i (ignored where the step adds no noise). ddpm and ddim take
@@ -26,6 +27,7 @@ from .model import from_target, to_target
 SCHEDULES = ("cosine", "linear", "quad")
 SPACINGS = ("leading", "trailing", "linspace")
 SAMPLERS = ("ddpm", "ddim", "dpmpp2m")
+PREDICTION_TYPES = ("epsilon", "sample")
 
 
 @dataclass
@@ -35,17 +37,23 @@ class DiffusionConfig:
     beta_start: float = 1e-4        # linear / quad only
     beta_end: float = 0.5           # linear / quad only
     max_beta: float = 0.5           # cosine clip (TCD clips at 0.5, not 0.999)
+    prediction_type: str = "epsilon"  # what the network outputs: the noise (TCD, CSDI) or "sample": the clean
+                                      # target x0 (the residual, for a residual target), as CoMusion and MDM do
+
+    def __post_init__(self):
+        if self.prediction_type not in PREDICTION_TYPES:
+            raise ValueError(f"diffusion config: prediction_type must be one of {PREDICTION_TYPES}, got {self.prediction_type!r}")
 
     def to_dict(self) -> dict:
         d = asdict(self)
         d["betas"] = make_betas(self).tolist()
-        d["prediction_type"] = "epsilon"
         d["variance_type"] = "fixed_small"
         return d
 
     @classmethod
     def from_dict(cls, d: dict) -> "DiffusionConfig":
-        cfg = cls(**{k: d[k] for k in ("num_train_timesteps", "beta_schedule", "beta_start", "beta_end", "max_beta") if k in d})
+        cfg = cls(**{k: d[k] for k in ("num_train_timesteps", "beta_schedule", "beta_start", "beta_end", "max_beta",
+                                       "prediction_type") if k in d})
         if "betas" in d and not np.allclose(np.asarray(d["betas"], dtype=np.float64), make_betas(cfg), rtol=0, atol=1e-12):
             raise ValueError("diffusion config: the stored betas disagree with the schedule they name")
         return cfg
@@ -122,9 +130,23 @@ def training_loss(model, sched: Schedule, x0: torch.Tensor, mask: torch.Tensor,
     if eps is None:
         eps = torch.randn(x0.shape, generator=generator, device="cpu").to(x0.device)
     observed = x0 if observed is None else observed
-    xt = q_sample(sched, _to_target(model, x0, observed, mask), t, eps)
-    eps_hat = model(xt, observed, mask, t)
-    return masked_eps_loss(eps, eps_hat, mask)
+    target = _to_target(model, x0, observed, mask)
+    xt = q_sample(sched, target, t, eps)
+    out = model(xt, observed, mask, t)
+    # x0-prediction: the same masked mean square, on the clean target instead of the noise
+    return masked_eps_loss(target if sched.cfg.prediction_type == "sample" else eps, out, mask)
+
+
+def predicted_noise(sched: Schedule, out: torch.Tensor, x: torch.Tensor, t: int) -> torch.Tensor:
+    """The network's output at step t as the noise the samplers step with: itself for epsilon-prediction;
+    for x0-prediction ``(x - sqrt(abar_t) x0) * (1 / sqrt(1 - abar_t))``, coefficients rounded to float32
+    from float64 (the Rust engine's operation order)."""
+    if sched.cfg.prediction_type == "epsilon":
+        return out
+    a_t = sched.abar(t)
+    a = torch.tensor(math.sqrt(a_t), dtype=torch.float32)
+    inv_s = torch.tensor(1.0 / math.sqrt(1.0 - a_t), dtype=torch.float32)
+    return (x - a * out) * inv_s
 
 
 # --------------------------------------------------------------------------------------------
@@ -247,7 +269,7 @@ def sample(model, sched: Schedule, observed: torch.Tensor, mask: torch.Tensor, *
         prev_x0 = None
     for i, (t, t_next) in enumerate(pairs):
         step = torch.full((B,), t, dtype=torch.long, device=observed.device)
-        eps = model(x, observed, mask, step)
+        eps = predicted_noise(sched, model(x, observed, mask, step), x, t)
         a_t, a_next = sched.abar(t), sched.abar(t_next)
         if sampler == "ddpm":
             beta = 1.0 - a_t / a_next                      # = beta_t when the steps are consecutive
@@ -279,12 +301,12 @@ def sample(model, sched: Schedule, observed: torch.Tensor, mask: torch.Tensor, *
 
 def _to_target(model, x0, observed, mask):
     cfg = getattr(model, "cfg", None)
-    return x0 if cfg is None else to_target(cfg, x0, observed, mask)
+    return x0 if cfg is None else to_target(cfg, x0, observed, mask, getattr(model, "prior", None))
 
 
 def _from_target(model, x, observed, mask):
     cfg = getattr(model, "cfg", None)
-    return x if cfg is None else from_target(cfg, x, observed, mask)
+    return x if cfg is None else from_target(cfg, x, observed, mask, getattr(model, "prior", None))
 
 
 def sample_many(model, sched: Schedule, observed: torch.Tensor, mask: torch.Tensor, num_samples: int,

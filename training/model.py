@@ -16,8 +16,8 @@ from torch import nn
 import torch.nn.functional as F
 
 
-COND_FILLS = ("zero", "linear", "spline")
-TARGETS = ("absolute", "linear_residual", "spline_residual")
+COND_FILLS = ("zero", "linear", "spline", "prior")
+TARGETS = ("absolute", "linear_residual", "spline_residual", "prior_residual")
 
 
 @dataclass
@@ -36,9 +36,12 @@ class ModelConfig:
     cond_fill: str = "zero"             # what the observed channel holds at masked entries: "zero" (CSDI/TCD),
                                         # "linear" (interpolated along time from the observed frames, PriSTI-style)
                                         # or "spline" (the natural cubic spline through them, spline_fill)
+                                        # or "prior" (prior_fill: the spline over the observed frames, the
+                                        # prior forecaster's rollout over the frames after them)
     target: str = "absolute"            # what the diffusion generates: "absolute" (the poses, TCD) or
                                         # "linear_residual": target_scale * (poses - linear_fill(observed, mask)),
-                                        # "spline_residual": the same over spline_fill
+                                        # "spline_residual": the same over spline_fill,
+                                        # "prior_residual": the same over prior_fill (needs cond_fill "prior")
     target_scale: float = 1.0           # multiplier of the residual (brings it to the scale of the data)
 
     @property
@@ -66,6 +69,9 @@ class ModelConfig:
             raise ValueError(f"model config: cond_fill must be one of {COND_FILLS}, got {cfg.cond_fill!r}")
         if cfg.target not in TARGETS:
             raise ValueError(f"model config: target must be one of {TARGETS}, got {cfg.target!r}")
+        if (cfg.target == "prior_residual") != (cfg.cond_fill == "prior"):
+            raise ValueError("model config: target 'prior_residual' and cond_fill 'prior' go together "
+                             f"(got target {cfg.target!r}, cond_fill {cfg.cond_fill!r})")
         if not (isinstance(cfg.target_scale, (int, float)) and math.isfinite(cfg.target_scale) and cfg.target_scale > 0):
             raise ValueError(f"model config: target_scale must be a finite number > 0, got {cfg.target_scale!r}")
         if cfg.channels % cfg.num_heads:
@@ -202,6 +208,20 @@ class TCDModel(nn.Module):
         self.embed_layer = nn.Embedding(cfg.num_features, cfg.feature_embedding_dim)
         self.diffmodel = DiffCSDI(cfg, num_train_timesteps)
 
+    @property
+    def prior(self):
+        """The frozen prior forecaster of a ``cond_fill="prior"`` model (``attach_prior``), else None."""
+        return self.__dict__.get("_prior")
+
+    def attach_prior(self, prior: nn.Module) -> None:
+        """Give a ``cond_fill="prior"`` model its prior forecaster (a ``training.prior.PriorNet``). It is
+        kept out of the module tree on purpose: not in the state_dict (the weight file holds the denoiser;
+        the prior ships as its own file), not trained (frozen, eval mode)."""
+        prior.eval()
+        for p in prior.parameters():
+            p.requires_grad_(False)
+        self.__dict__["_prior"] = prior
+
     def side_info(self, mask: torch.Tensor) -> torch.Tensor:
         """(B, K, L) mask -> (B, side_dim, K, L): [frame embedding | feature embedding | mask]."""
         B, K, L = mask.shape
@@ -218,7 +238,7 @@ class TCDModel(nn.Module):
         if not torch.is_tensor(step):
             step = torch.tensor([step], device=noisy.device)
         step = step.reshape(-1).to(noisy.device).long()
-        cond = mask * observed if self.cfg.cond_fill == "zero" else FILLS[self.cfg.cond_fill](observed, mask)
+        cond = condition(self.cfg, observed, mask, self.prior)
         inp = torch.stack([cond, (1 - mask) * noisy], dim=1)                            # (B, 2, K, L)
         return self.diffmodel(inp, self.side_info(mask), step)
 
@@ -307,24 +327,60 @@ def spline_fill(observed: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
 
 
 FILLS = {"linear": linear_fill, "spline": spline_fill}
-RESIDUAL_FILLS = {f"{name}_residual": fill for name, fill in FILLS.items()}
 
 
-def to_target(cfg: ModelConfig, x0: torch.Tensor, observed: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+def prior_fill(prior: nn.Module, observed: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """(B, K, L) observation -> observed entries kept; the masked entries of the first ``obs_len`` frames
+    (the prior's observation length) filled by :func:`spline_fill` over those frames; the masked entries
+    after them by the prior's rollout from the filled frames (frame ``obs_len + i`` = the prior's i-th
+    forecast frame). A long-term window's teacher-forced frames (mask 1 after ``obs_len``) stay as given;
+    the prior still forecasts from the first ``obs_len`` frames, so the fill is the same function of the
+    observation in the short and the long model."""
+    if prior is None:
+        raise ValueError("a cond_fill='prior' model needs its prior forecaster (TCDModel.attach_prior)")
+    O = prior.cfg.obs_len
+    L = observed.shape[-1]
+    if L <= O:
+        raise ValueError(f"prior_fill: the window has {L} frames, not more than the prior's {O} observed ones")
+    head = spline_fill(observed[..., :O], mask[..., :O])                           # (B, K, O)
+    with torch.no_grad():
+        future = prior.rollout(head.float().transpose(1, 2), L - O).transpose(1, 2).to(observed.dtype)
+    fill = torch.cat([head, future], dim=-1)
+    return torch.where(mask > 0.5, observed, fill)
+
+
+def condition(cfg: ModelConfig, observed: torch.Tensor, mask: torch.Tensor, prior: nn.Module | None = None) -> torch.Tensor:
+    """What the observed channel of the network holds (``cfg.cond_fill``): ``mask * observed`` (CSDI/TCD),
+    or the observation with its masked entries filled (linear, spline, prior)."""
+    if cfg.cond_fill == "zero":
+        return mask * observed
+    if cfg.cond_fill == "prior":
+        return prior_fill(prior, observed, mask)
+    return FILLS[cfg.cond_fill](observed, mask)
+
+
+def residual_base(cfg: ModelConfig, observed: torch.Tensor, mask: torch.Tensor, prior: nn.Module | None = None) -> torch.Tensor:
+    """What a residual target is taken over: the fill its name says (``"spline_residual"``: spline_fill, ...)."""
+    name = cfg.target.removesuffix("_residual")
+    return prior_fill(prior, observed, mask) if name == "prior" else FILLS[name](observed, mask)
+
+
+def to_target(cfg: ModelConfig, x0: torch.Tensor, observed: torch.Tensor, mask: torch.Tensor,
+              prior: nn.Module | None = None) -> torch.Tensor:
     """Clean windows -> the variable the diffusion runs on: x0 itself (``target="absolute"``) or
-    ``target_scale * (x0 - fill(observed, mask))`` with the fill of the target (``"linear_residual"``:
-    :func:`linear_fill`, ``"spline_residual"``: :func:`spline_fill`)."""
+    ``target_scale * (x0 - base)`` with the base of the residual (:func:`residual_base`)."""
     if cfg.target == "absolute":
         return x0
-    return (x0 - RESIDUAL_FILLS[cfg.target](observed, mask)) * cfg.target_scale
+    return (x0 - residual_base(cfg, observed, mask, prior)) * cfg.target_scale
 
 
-def from_target(cfg: ModelConfig, x: torch.Tensor, observed: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """Inverse of :func:`to_target` on a sample: ``fill + x * (1 / target_scale)`` in float32 (the
+def from_target(cfg: ModelConfig, x: torch.Tensor, observed: torch.Tensor, mask: torch.Tensor,
+                prior: nn.Module | None = None) -> torch.Tensor:
+    """Inverse of :func:`to_target` on a sample: ``base + x * (1 / target_scale)`` in float32 (the
     Rust engine's operation order)."""
     if cfg.target == "absolute":
         return x
-    return RESIDUAL_FILLS[cfg.target](observed, mask) + x * (1.0 / cfg.target_scale)
+    return residual_base(cfg, observed, mask, prior) + x * (1.0 / cfg.target_scale)
 
 
 def randomize_output_layer(model: TCDModel, seed: int = 0, std: float = 0.02) -> None:

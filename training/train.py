@@ -59,6 +59,7 @@ class TrainConfig:
     choose_average: bool = False     # where probes are validated, best.pt keeps the lowest of all (see train)
     warmup_steps: int = 0            # linear learning-rate warm-up over the first optimizer steps
     init_from: str = ""              # warm start: a checkpoint (.pt) or exported .safetensors whose weights start this run
+    prior: str = ""                  # a cond_fill="prior" model's prior forecaster: prior.safetensors or a training.prior last.pt
 
     @classmethod
     def load(cls, path: str | Path) -> "TrainConfig":
@@ -102,6 +103,20 @@ def write_cache(data: str | None, out: str | Path) -> None:
     h = H36M(data or DEFAULT_H36M_DIR)
     arrays = {f"{split}/{key}": seq.astype(np.float16) for split in ("train", "val") for key, seq in h.sequences(split)}
     np.savez_compressed(out, **arrays)
+
+
+def load_prior(path: str):
+    """The prior forecaster a ``cond_fill="prior"`` model is trained around: an exported
+    ``prior.safetensors`` or a ``training.prior`` checkpoint (``last.pt``)."""
+    if not path:
+        raise ValueError("train config: a cond_fill='prior' model needs 'prior' (prior.safetensors or a prior last.pt)")
+    if not Path(path).is_file():
+        raise FileNotFoundError(f"train config: prior: no file at {path}")
+    if str(path).endswith(".safetensors"):
+        from .export import load_prior_file
+        return load_prior_file(path)[0]
+    from .prior import load
+    return load(path)
 
 
 # ------------------------------------------------------------------------------------------ loop
@@ -261,6 +276,8 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
         torch.set_float32_matmul_precision("high")      # TF32 for what autocast leaves in float32
     torch.manual_seed(cfg.seed)
     model = TCDModel(model_cfg, diff_cfg.num_train_timesteps).to(device)
+    if model_cfg.cond_fill == "prior":
+        model.attach_prior(load_prior(cfg.prior).to(device))
     opt = make_optimizer(model, cfg, device)
     seqs = sequences or {split: load_sequences(cfg, data, split) for split in ("train", "val")}
     train_w = Windows(seqs["train"], L, cfg.train_stride)
