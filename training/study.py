@@ -51,9 +51,11 @@ def load_run(run: Path):
 
 def evaluate_run(run: Path, prior_path: str, *, windows_per_action: int, samples: int, steps: int, seed: int,
                  data: str | None = None, batch_size: int = 32) -> dict:
+    from .channels_last import ChannelsLast
     from .diffusion import sample_many
     from .prior import load as load_prior_ckpt
     model, sched, tc, ck = load_run(run)
+    forward = ChannelsLast(model)    # the same network (within 1e-5), about 2x faster on the CPU
     if tc["obs_len"] != GIVEN or tc["obs_len"] + tc["pred_len"] != OBS + PRED:
         raise ValueError(f"{run}: a study candidate is a long-term model ({GIVEN} + {OBS + PRED - GIVEN} frames), "
                          f"got {tc['obs_len']} + {tc['pred_len']}")
@@ -80,7 +82,7 @@ def evaluate_run(run: Path, prior_path: str, *, windows_per_action: int, samples
                                        np.zeros((len(given[b0:b0 + batch_size]), OBS + PRED - GIVEN, J, 3))], axis=1))
             m = torch.zeros_like(x)
             m[..., :GIVEN] = 1.0
-            s = sample_many(model, sched, x, m, samples, generator=g, sampler="ddim", num_inference_steps=steps)
+            s = sample_many(forward, sched, x, m, samples, generator=g, sampler="ddim", num_inference_steps=steps)
             outs.append(from_bkl(s[..., OBS:]))
         smp = np.concatenate(outs, axis=1)                                                      # (S, W, 25, J, 3)
         errs = np.stack([per_frame_error(model_to_xyz32(s, gt32), gt32) for s in smp])          # (S, W, 25)
