@@ -289,6 +289,9 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
     meta = {"role": cfg.role, "model_config": model_cfg.to_dict(), "diffusion_config": diff_cfg.to_dict(),
             "window": {"obs_len": cfg.obs_len, "pred_len": cfg.pred_len, "seq_len": L},
             "data": h36m_data_meta(), "train_config": asdict(cfg)}
+    if model_cfg.cond_fill == "prior":    # which prior the model was trained around (a path can be overwritten)
+        import hashlib
+        meta["prior_sha256"] = hashlib.sha256(Path(cfg.prior).read_bytes()).hexdigest()
     epoch, batch_i, best_val, elapsed0, history = 0, 0, float("inf"), 0.0, []
     last = out / "last.pt"
     ck = None
