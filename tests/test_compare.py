@@ -1,0 +1,40 @@
+"""training.compare: the paired test that gates bundled weights."""
+import json
+
+import pytest
+
+from training.compare import compare, main
+
+
+def result(errors, seed=0, windows=256):
+    per_action = {f"a{i}": {"1000": e, "80": e / 10} for i, e in enumerate(errors)}
+    return {"protocol": {"subject": "S5", "windows_per_action": windows, "data": "x"}, "seeds": {"sampling": seed},
+            "per_action": per_action, "mean_of_n": {"per_action": per_action}}
+
+
+def test_a_consistent_drop_beyond_the_margin_is_better_and_noise_is_not():
+    old = [100.0, 110.0, 120.0, 130.0, 90.0]
+    assert compare(result([e - 3 for e in old]), result(old))["verdict"] == "new is better"
+    assert compare(result(old), result([e - 3 for e in old]))["verdict"] == "bundled is better"
+    mixed = [e + d for e, d in zip(old, (-6, 5, -6, 5, -1))]          # 0.6 mm lower on average, noisy
+    assert compare(result(mixed), result(old))["verdict"] == "within noise"
+    small = [e - 0.5 for e in old]                                      # consistent but below the 1 % margin
+    assert compare(result(small), result(old))["verdict"] == "within noise"
+    assert compare(result(small), result(old), margin=0.001)["verdict"] == "new is better"
+
+
+def test_results_of_different_protocols_are_refused(tmp_path):
+    with pytest.raises(ValueError, match="same protocol"):
+        compare(result([1.0, 2.0], windows=64), result([1.0, 2.0]))
+    with pytest.raises(ValueError, match="same seeds"):
+        compare(result([1.0, 2.0], seed=1), result([1.0, 2.0]))
+    with pytest.raises(ValueError, match="best_of_n"):
+        compare(result([1.0, 2.0]), result([1.0, 2.0]), key="best_of_n")
+
+
+def test_exit_status_gates(tmp_path):
+    a, b = tmp_path / "a.json", tmp_path / "b.json"
+    a.write_text(json.dumps(result([90.0, 95.0, 99.0])))
+    b.write_text(json.dumps(result([100.0, 104.0, 110.0])))
+    assert main([str(a), str(b)]) == 0
+    assert main([str(b), str(a)]) == 1

@@ -1,0 +1,70 @@
+"""The paired comparison that decides whether new weights replace the bundled ones.
+
+    python -m training.compare NEW.json BUNDLED.json [--key average] [--horizon 1000] [--margin 0.01]
+
+Both files are ``training.evaluate --json`` results of the same protocol (same windows, patterns and seeds:
+checked). The test is paired over actions: for every action both evaluated, the difference of the two
+per-action errors at ``--horizon`` ms (``--key``: ``average`` = what each run reported first, or
+``mean_of_n`` / ``best_of_n`` for a TCD run). NEW is better when its mean error is lower by more than
+``--margin`` (relative) AND the mean paired difference is below zero by more than two standard errors;
+BUNDLED is better in the mirror case; otherwise the difference is within sampling noise (keep what is
+bundled). Exit status 0 when NEW is better, 1 otherwise, so a script can gate on it.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+
+def per_action(result: dict, key: str, horizon: str) -> dict[str, float]:
+    if key == "average":
+        table = result["per_action"]
+    elif key in result:
+        table = result[key]["per_action"]
+    else:
+        raise ValueError(f"the result has no {key!r} (keys: {sorted(result)})")
+    return {a: float(v[horizon]) for a, v in table.items()}
+
+
+def compare(new: dict, old: dict, *, key: str = "average", horizon: str = "1000", margin: float = 0.01) -> dict:
+    for what in ("protocol", "seeds"):
+        a = {k: v for k, v in new[what].items() if k != "data"}
+        b = {k: v for k, v in old[what].items() if k != "data"}
+        if a != b:
+            raise ValueError(f"the two results were not measured on the same {what}: {a} against {b}")
+    pa, pb = per_action(new, key, horizon), per_action(old, key, horizon)
+    actions = sorted(set(pa) & set(pb))
+    if len(actions) < 2:
+        raise ValueError(f"a paired test needs at least 2 actions in common, got {actions}")
+    d = np.array([pa[a] - pb[a] for a in actions])
+    se = float(d.std(ddof=1) / np.sqrt(len(d)))
+    xa, xb = float(np.mean([pa[a] for a in actions])), float(np.mean([pb[a] for a in actions]))
+    verdict = "within noise"
+    if abs(xa - xb) > margin * max(xa, xb) and abs(d.mean()) > 2 * se:
+        verdict = "new is better" if d.mean() < 0 else "bundled is better"
+    return {"horizon_ms": horizon, "key": key, "actions": len(actions), "new": xa, "bundled": xb,
+            "mean_difference": float(d.mean()), "standard_error": se,
+            "new_better_on": int((d < 0).sum()), "margin": margin, "verdict": verdict}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m training.compare", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("new")
+    ap.add_argument("bundled")
+    ap.add_argument("--key", default="average", help="average (default), mean_of_n or best_of_n")
+    ap.add_argument("--horizon", default="1000", help="ms (default 1000)")
+    ap.add_argument("--margin", type=float, default=0.01, help="relative difference that counts (default 0.01)")
+    args = ap.parse_args(argv)
+    res = compare(*(json.loads(Path(p).read_text()) for p in (args.new, args.bundled)), key=args.key,
+                  horizon=args.horizon, margin=args.margin)
+    print(json.dumps(res, indent=1))
+    return 0 if res["verdict"] == "new is better" else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
