@@ -123,6 +123,7 @@ def cascade(
     sequences: Optional[List[int]] = None,
     threads: Optional[int] = None,
     progress: Optional[Callable[[int, int], Any]] = None,
+    prior: Optional[Prior] = None,
 ) -> Dict[str, _F32]: ...
 def repair(
     model: Denoiser,

@@ -147,6 +147,7 @@ fn main() -> R<()> {
             let out = cascade(
                 &short,
                 &long,
+                None,
                 &observed,
                 &mask,
                 &opts,

@@ -52,6 +52,24 @@ pub enum CondFill {
     /// The natural cubic spline through the observed frames of the same coordinate, with the rule of
     /// `Linear` before the first and after the last observed frame ([`crate::fill_spline`]).
     Spline,
+    /// The prior forecaster's fill (`training.model.prior_fill`): the spline over the prior's
+    /// `obs_len` observed frames, the prior's rollout from them after. It depends on the observation
+    /// only, so the caller computes it once per call and puts it into the masked entries of `observed`
+    /// ([`crate::cascade`] does, given the [`crate::Prior`]); the denoiser then takes the value it finds
+    /// there. Goes with [`Target::PriorResidual`].
+    Prior,
+}
+
+impl CondFill {
+    /// The name used in `tcd_config`.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            CondFill::Zero => "zero",
+            CondFill::Linear => "linear",
+            CondFill::Spline => "spline",
+            CondFill::Prior => "prior",
+        }
+    }
 }
 
 /// The variable the diffusion generates.
@@ -67,6 +85,9 @@ pub enum Target {
     LinearResidual,
     /// `target_scale · (poses − fill_spline(observed, mask))`: the same over the natural cubic spline.
     SplineResidual,
+    /// `target_scale · (poses − prior fill)`: the same over the prior forecaster's fill
+    /// ([`CondFill::Prior`], which it requires).
+    PriorResidual,
 }
 
 impl Target {
@@ -76,6 +97,17 @@ impl Target {
             Target::Absolute => None,
             Target::LinearResidual => Some(CondFill::Linear),
             Target::SplineResidual => Some(CondFill::Spline),
+            Target::PriorResidual => Some(CondFill::Prior),
+        }
+    }
+
+    /// The name used in `tcd_config`.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Target::Absolute => "absolute",
+            Target::LinearResidual => "linear_residual",
+            Target::SplineResidual => "spline_residual",
+            Target::PriorResidual => "prior_residual",
         }
     }
 }
@@ -117,7 +149,7 @@ pub struct ModelConfig {
     /// What the diffusion generates (absent in older files: `absolute`).
     #[serde(default)]
     pub target: Target,
-    /// Multiplier of the `linear_residual` target (absent: 1).
+    /// Multiplier of a residual target (absent: 1).
     #[serde(default = "default_target_scale")]
     pub target_scale: f64,
 }
@@ -193,12 +225,15 @@ pub struct TcdConfig {
     pub data: DataConfig,
 }
 
-/// What the network predicts (`prediction_type`); the engine supports the noise only.
+/// What the network predicts (`prediction_type`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum PredictionType {
     /// ε, the noise added (TCD, CSDI).
     Epsilon,
+    /// x₀, the clean diffusion variable (the residual, for a residual target): every sampler first turns
+    /// it into the noise, `ε̂ = (x_t − √ᾱ_t · out) · (1/√(1 − ᾱ_t))` ([`crate::sampler::SampleToNoise`]).
+    Sample,
 }
 
 impl TcdConfig {
@@ -259,6 +294,22 @@ impl TcdConfig {
                     m.num_features
                 ),
             ));
+        }
+        // The prior's fill is both the conditioning and the residual's base: one without the other is a
+        // model the reference cannot build (training.model.ModelConfig refuses it too).
+        if (m.target == Target::PriorResidual) != (m.cond_fill == CondFill::Prior) {
+            let (field, reason) = if m.target == Target::PriorResidual {
+                ("model.target", format!(
+                    "is \"prior_residual\", which needs cond_fill \"prior\" (the two go together), but cond_fill is {:?}",
+                    m.cond_fill.as_str()
+                ))
+            } else {
+                ("model.cond_fill", format!(
+                    "is \"prior\", which needs target \"prior_residual\" (the two go together), but target is {:?}",
+                    m.target.as_str()
+                ))
+            };
+            return Err(bad(field, reason));
         }
         if !(m.target_scale.is_finite() && m.target_scale > 0.0) {
             return Err(bad(

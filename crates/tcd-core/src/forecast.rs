@@ -17,10 +17,21 @@
 //! Noise: injected arrays (S, n + 1, B, K, L) per stage ((S, 1, B, K, L) for dpmpp2m), or one seed: the short stage uses stream
 //! stage [`stage::SHORT`] (the same streams as [`crate::sampler::sample`]), the long stage
 //! [`stage::LONG`].
+//!
+//! # Conditioning on the prior forecaster
+//! A model with `cond_fill` [`CondFill::Prior`] sees, at its masked entries, the prior's fill of its
+//! stage's observation ([`prior_fill`]: `training.model.prior_fill`). The fill depends on the
+//! observation only, the same at every step and for every sample, so it is computed once per stage,
+//! before the chains, and written into the masked entries of the stage's `observed`, where the
+//! denoiser reads it (as its observed channel and as the base of the `prior_residual` target). The
+//! short stage fills its padded observation; the long stage fills its window (the short mean over the
+//! first L_s frames, mask 1) from its first `prior.obs_len` frames, so only its frames L_s..L_l change.
 
+use crate::config::CondFill;
 use crate::control::Control;
-use crate::denoiser::Denoiser;
-use crate::error::{check_positive, Error, Result};
+use crate::denoiser::{fill_spline, Denoiser};
+use crate::error::{check_len, check_positive, Error, Result};
+use crate::prior::Prior;
 use crate::rng::{stage, Noise, Sequences};
 use crate::sampler::{run_job, validate_job, Observed, SamplerConfig};
 use crate::validate;
@@ -137,6 +148,98 @@ fn zero_unobserved(observed: &[f32], mask: &[f32]) -> Vec<f32> {
         .collect()
 }
 
+/// The prior a model of the `which` stage (`"short-term"`, `"long-term"`) runs with: `None` for a model
+/// not conditioned on it; for a [`CondFill::Prior`] model `prior`, which must be given, have the model's
+/// `num_features` and read fewer frames (`obs_len`) than the model's window.
+fn stage_prior<'p>(model: &Denoiser, prior: Option<&'p Prior>, which: &str) -> Result<Option<&'p Prior>> {
+    if model.config().model.cond_fill != CondFill::Prior {
+        return Ok(None);
+    }
+    let Some(p) = prior else {
+        return Err(Error::invalid_input(
+            "prior",
+            format!(
+                "the prior forecaster (prior.safetensors): the {which} model is conditioned on it (cond_fill \"prior\")"
+            ),
+            "none",
+        ));
+    };
+    let (k, l) = (model.num_features(), model.seq_len());
+    if p.num_features() != k || p.obs_len() >= l {
+        return Err(Error::invalid_input(
+            "prior",
+            format!(
+                "a prior forecaster with the {which} model's num_features = {k} and an obs_len below its seq_len = {l}"
+            ),
+            format!("num_features = {}, obs_len = {}", p.num_features(), p.obs_len()),
+        ));
+    }
+    Ok(Some(p))
+}
+
+/// Replaces the mask-0 entries of `values`, (B, K, L) with B = `batch` and L = `length`, by the prior's
+/// fill (`training.model.prior_fill`): over the first O = `prior.obs_len()` frames of every row the
+/// natural cubic spline through that row's observed entries among them ([`fill_spline`], the reference's
+/// bits), after them the prior's rollout ([`Prior::predict`]) from those O filled frames (frame O + i is
+/// its i-th forecast frame). Mask-1 entries are kept (a long-term window's given frames after O too);
+/// mask-0 entries of `values` are never read. Needs O < L; `control` can stop the rollout.
+pub fn prior_fill(
+    prior: &Prior,
+    values: &mut [f32],
+    mask: &[f32],
+    batch: usize,
+    length: usize,
+    control: &Control,
+) -> Result<()> {
+    let (k, o) = (prior.num_features(), prior.obs_len());
+    check_positive("batch", batch)?;
+    if length <= o {
+        return Err(Error::invalid_input(
+            "length",
+            format!("more frames than the prior reads (obs_len = {o})"),
+            length.to_string(),
+        ));
+    }
+    let shape = format!("({batch}, {k}, {length})");
+    check_len("values", values.len(), batch * k * length, &shape)?;
+    check_len("mask", mask.len(), batch * k * length, &shape)?;
+    let horizon = length - o;
+    // The filled first O frames, frame-major (B, O, K) as the prior reads them.
+    let mut head = vec![0.0f32; batch * o * k];
+    let mut row_head = vec![0.0f32; o];
+    for (r, (row, m)) in values
+        .chunks_exact(length)
+        .zip(mask.chunks_exact(length))
+        .enumerate()
+    {
+        row_head.copy_from_slice(&row[..o]);
+        fill_spline(&m[..o], &row[..o], |ll, v| row_head[ll] = v);
+        let (b, kk) = (r / k, r % k);
+        for (t, &v) in row_head.iter().enumerate() {
+            head[(b * o + t) * k + kk] = v;
+        }
+    }
+    let future = prior.predict(&head, batch, o, horizon, control)?; // (B, horizon, K)
+    for (r, (row, m)) in values
+        .chunks_exact_mut(length)
+        .zip(mask.chunks_exact(length))
+        .enumerate()
+    {
+        let (b, kk) = (r / k, r % k);
+        for (ll, (v, &mv)) in row.iter_mut().zip(m).enumerate() {
+            if mv > 0.5 {
+                continue;
+            }
+            *v = if ll < o {
+                head[(b * o + ll) * k + kk]
+            } else {
+                future[(b * horizon + ll - o) * k + kk]
+            };
+        }
+    }
+    Ok(())
+}
+
 fn check_observation(model: &Denoiser, observed: &[f32], mask: &[f32], batch: usize) -> Result<()> {
     check_positive("batch", batch)?;
     let (k, o) = (model.num_features(), model.obs_len());
@@ -147,10 +250,13 @@ fn check_observation(model: &Denoiser, observed: &[f32], mask: &[f32], batch: us
 
 /// Runs the short-term → long-term cascade on `observed` / `mask`, (B, K, O) with O the short
 /// model's `obs_len` (B is their length over K·O); `long` must have `obs_len` equal to the short
-/// model's `seq_len`.
+/// model's `seq_len`. `prior`: the prior forecaster, required where either model is conditioned on
+/// it (`cond_fill` [`CondFill::Prior`]; see the module's notes), unused otherwise.
+#[expect(clippy::too_many_arguments, reason = "the cascade's inputs: two models, the prior, data, options, noise, control")]
 pub fn cascade(
     short: &Denoiser,
     long: &Denoiser,
+    prior: Option<&Prior>,
     observed: &[f32],
     mask: &[f32],
     options: &ForecastOptions,
@@ -183,12 +289,18 @@ pub fn cascade(
     }
     let batch = observed.len() / per_sequence;
     check_observation(short, observed, mask, batch)?;
+    let short_prior = stage_prior(short, prior, "short-term")?;
+    let long_prior = stage_prior(long, prior, "long-term")?;
     let s = options.num_samples;
     let rows = batch * k;
 
-    // Stage 1: short-term model on the padded observation.
-    let x_short = pad_frames(&zero_unobserved(observed, mask), o, ls, 0.0);
+    // Stage 1: short-term model on the padded observation (its masked entries the prior's fill, for a
+    // model conditioned on it).
+    let mut x_short = pad_frames(&zero_unobserved(observed, mask), o, ls, 0.0);
     let m_short = pad_frames(mask, o, ls, 0.0);
+    if let Some(p) = short_prior {
+        prior_fill(p, &mut x_short, &m_short, batch, ls, control)?;
+    }
     let m_long = pad_frames(&vec![1.0f32; rows * ls], ls, ll, 0.0);
     // Validate the long stage (sizes, plan, noise) before the expensive short stage runs.
     let x_long_placeholder = vec![0.0f32; rows * ll];
@@ -232,8 +344,12 @@ pub fn cascade(
     let mut short_mean = mean_over_samples(&short_samples, s, rows * ls);
     crate::sampler::merge_observed(&mut short_mean, &x_short, &m_short);
 
-    // Stage 2: long-term model conditioned on the short mean (frames 0..L_s, mask 1).
-    let x_long = pad_frames(&short_mean, ls, ll, 0.0);
+    // Stage 2: long-term model conditioned on the short mean (frames 0..L_s, mask 1), its frames after
+    // them the prior's fill from the first obs_len frames, for a model conditioned on it.
+    let mut x_long = pad_frames(&short_mean, ls, ll, 0.0);
+    if let Some(p) = long_prior {
+        prior_fill(p, &mut x_long, &m_long, batch, ll, control)?;
+    }
     let job = validate_job(
         long,
         Observed {
@@ -267,7 +383,8 @@ pub fn cascade(
 
 /// Repairs (imputes) the mask-0 entries of an observation: runs `model` on `observed` / `mask`,
 /// (B, K, O) with O the model's `obs_len`, padded to its `seq_len` with mask-0 frames, and returns
-/// the samples and their mean over the observed frames 0..O (mask-1 entries exact).
+/// the samples and their mean over the observed frames 0..O (mask-1 entries exact). A model conditioned
+/// on the prior forecaster (`cond_fill` [`CondFill::Prior`]) is refused: repair never uses the prior.
 pub fn repair(
     model: &Denoiser,
     observed: &[f32],
@@ -277,6 +394,13 @@ pub fn repair(
     noise: Noise<'_>,
     control: &Control,
 ) -> Result<RepairOutput> {
+    if model.config().model.cond_fill == CondFill::Prior {
+        return Err(Error::invalid_input(
+            "model",
+            "a repair model that is not conditioned on the prior forecaster (repair never runs the prior)",
+            "a model with cond_fill \"prior\"",
+        ));
+    }
     check_observation(model, observed, mask, batch)?;
     let (k, o, l) = (model.num_features(), model.obs_len(), model.seq_len());
     let s = options.num_samples;

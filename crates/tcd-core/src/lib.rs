@@ -13,7 +13,7 @@
 //! let (b, k, o) = (1, short.num_features(), short.obs_len());
 //! let observed = vec![0.0f32; b * k * o]; // (B, K, O), model units
 //! let mask = vec![1.0f32; b * k * o];     // 1 = observed
-//! let out = cascade(&short, &long, &observed, &mask, &ForecastOptions::default(),
+//! let out = cascade(&short, &long, None, &observed, &mask, &ForecastOptions::default(),
 //!                   CascadeNoise::Seeded { seed: 0, sequences: Sequences::From(0) }, &Control::default())?;
 //! assert_eq!(out.mean.len(), b * k * out.future_len);
 //! # Ok(()) }
@@ -45,7 +45,7 @@ pub use denoiser::{fill_linear, fill_rows, fill_spline, CondTables, Denoiser, Pr
 pub use error::{Error, Result};
 pub use kernels::{Kernel, KERNEL_ENV};
 pub use prior::{dct_matrix, prior_expected_tensors, Prior, PriorConfig, PriorModelConfig};
-pub use forecast::{cascade, repair, CascadeNoise, CascadeOutput, ForecastOptions, RepairOutput};
+pub use forecast::{cascade, prior_fill, repair, CascadeNoise, CascadeOutput, ForecastOptions, RepairOutput};
 pub use rng::{chain_rng, seeded_noise, Noise, Sequences};
 pub use sampler::{sample, timesteps, Observed, Plan, SamplerConfig, SamplerKind, TimestepSpacing, VarianceType};
 pub use schedule::{BetaSchedule, NoiseSchedule};

@@ -10,7 +10,8 @@ use common::*;
 use proptest::prelude::*;
 use tcd_core::rng::{seeded_noise, stage};
 use tcd_core::{
-    sample, Control, Denoiser, Error, Noise, Observed, Role, SamplerConfig, SamplerKind, Sequences, TimestepSpacing, VarianceType,
+    sample, Control, Denoiser, Error, Noise, Observed, PredictionType, Role, SamplerConfig, SamplerKind, Sequences,
+    TimestepSpacing, VarianceType,
 };
 
 fn model() -> &'static Denoiser {
@@ -527,4 +528,48 @@ fn control_counts_forwards_and_stops_the_call() {
     assert!(control.forwards_done() < control.forwards_total(), "{} of {}", control.forwards_done(), control.forwards_total());
     // a control that was only read does not change results
     assert_eq!(a, run(&Control::default()).unwrap());
+}
+
+#[test]
+fn x0_prediction_turns_the_output_into_the_noise_in_every_sampler() {
+    // The same weights as `model()`, read as an x0-predicting model.
+    let mut cfg = tiny_config(Role::Short, 5, 2);
+    cfg.diffusion.prediction_type = PredictionType::Sample;
+    let m = model_of(&cfg, 21);
+    let (l, n) = (7usize, 6 * 7);
+    let observed = values(n, 31, 1.0);
+    let mask = binary_mask(n, 32, 0.4);
+    for sc in [SamplerConfig::ddpm(), SamplerConfig::ddim(4, 1.0), SamplerConfig::dpmpp2m(4)] {
+        let plan = sc.plan(m.schedule(), VarianceType::FixedSmall).unwrap();
+        assert!(plan.steps.iter().all(|st| st.to_noise.is_none()));
+        let x0_plan = plan.clone().for_prediction(PredictionType::Sample, m.schedule());
+        assert!(x0_plan.steps.iter().all(|st| st.to_noise.is_some()));
+        assert_eq!(plan.clone().for_prediction(PredictionType::Epsilon, m.schedule()), plan);
+        let blocks = plan.num_noise_blocks();
+        let noise = values(blocks * n, 33, 1.5);
+        let obs = Observed::new(&observed, &mask, 1, l);
+        let got = sample(&m, obs, 1, &sc, Noise::Injected(&noise), &Control::default()).unwrap();
+        // A hand loop over the public forward: eps = (x - a * out) * inv_s with a = sqrt(abar_t),
+        // inv_s = 1 / sqrt(1 - abar_t) rounded from f64 (training.diffusion.predicted_noise), then the step.
+        let mut x = noise[..n].to_vec();
+        let mut out = vec![0.0f32; n];
+        let mut prev = vec![0.0f32; n];
+        for (i, st) in plan.steps.iter().enumerate() {
+            m.forward(&x, &observed, &mask, (1, l), st.t, &mut out).unwrap();
+            let ab = m.schedule().alpha_bar(Some(st.t));
+            let (a, inv_s) = (ab.sqrt() as f32, (1.0 / (1.0 - ab).sqrt()) as f32);
+            let eps: Vec<f32> = x.iter().zip(&out).map(|(xv, ov)| (xv - a * ov) * inv_s).collect();
+            let z = if blocks > 1 { &noise[(i + 1) * n..(i + 2) * n] } else { &noise[..0] };
+            st.apply(&mut x, &eps, z, &mut prev);
+        }
+        for j in 0..n {
+            if mask[j] == 1.0 {
+                x[j] = observed[j];
+            }
+        }
+        assert_eq!(got, x, "{sc:?}");
+        // the epsilon reading of the same weights gives another chain: the conversion ran
+        let eps_chain = sample(model(), obs, 1, &sc, Noise::Injected(&noise), &Control::default()).unwrap();
+        assert_ne!(eps_chain, got, "{sc:?}");
+    }
 }

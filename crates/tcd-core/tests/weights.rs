@@ -352,3 +352,60 @@ fn fill_linear_interpolates_holds_the_ends_and_skips_observed() {
     tcd_core::fill_linear(&[0.0; 3], &[nan; 3], |l, v| none[l] = v);
     assert_eq!(none, [0.0; 3]);
 }
+
+#[test]
+fn prior_fill_and_prior_residual_parse_together_and_not_alone() {
+    use tcd_core::{CondFill, Target};
+    let (cfg, t) = good();
+    let mut v: serde_json::Value = serde_json::from_str(&cfg.to_json()).unwrap();
+    v["model"]["cond_fill"] = serde_json::json!("prior");
+    v["model"]["target"] = serde_json::json!("prior_residual");
+    v["model"]["target_scale"] = serde_json::json!(10.0);
+    let d = load_bytes(&serialize(&t, Some(v.to_string()))).unwrap();
+    assert_eq!(d.config().model.cond_fill, CondFill::Prior);
+    assert_eq!(d.config().model.target, Target::PriorResidual);
+    assert_eq!(d.config().model.target.residual_fill(), Some(CondFill::Prior));
+    // round trip: the names written back are the ones read
+    let back: serde_json::Value = serde_json::from_str(&d.config().to_json()).unwrap();
+    assert_eq!(back["model"]["cond_fill"], "prior");
+    assert_eq!(back["model"]["target"], "prior_residual");
+    // one without the other: refused, naming the field that is set and the one it needs
+    for (fill, target, field, other) in [
+        ("prior", "absolute", "model.cond_fill", "prior_residual"),
+        ("prior", "spline_residual", "model.cond_fill", "prior_residual"),
+        ("zero", "prior_residual", "model.target", "cond_fill \"prior\""),
+        ("spline", "prior_residual", "model.target", "cond_fill \"prior\""),
+    ] {
+        v["model"]["cond_fill"] = serde_json::json!(fill);
+        v["model"]["target"] = serde_json::json!(target);
+        let e = load_bytes(&serialize(&t, Some(v.to_string()))).unwrap_err();
+        assert!(matches!(&e, Error::InvalidConfig { field: f, .. } if f == field), "{fill}/{target}: {e:?}");
+        assert!(e.is_weights_error());
+        let msg = e.to_string();
+        assert!(msg.contains(field) && msg.contains(other) && msg.contains("go together"), "{msg}");
+    }
+    // a Target without the Prior fill in code too (config built directly, then validated)
+    let mut c = cfg.clone();
+    c.model.target = Target::PriorResidual;
+    let e = c.validate(std::path::Path::new("x")).unwrap_err();
+    assert!(e.to_string().contains("`model.target`"), "{e}");
+}
+
+#[test]
+fn prediction_type_sample_parses() {
+    use tcd_core::PredictionType;
+    let (cfg, t) = good();
+    let mut v: serde_json::Value = serde_json::from_str(&cfg.to_json()).unwrap();
+    v["diffusion"]["prediction_type"] = serde_json::json!("sample");
+    let d = load_bytes(&serialize(&t, Some(v.to_string()))).unwrap();
+    assert_eq!(d.config().diffusion.prediction_type, PredictionType::Sample);
+    let back: serde_json::Value = serde_json::from_str(&d.config().to_json()).unwrap();
+    assert_eq!(back["diffusion"]["prediction_type"], "sample");
+    v["diffusion"]["prediction_type"] = serde_json::json!("epsilon");
+    let d = load_bytes(&serialize(&t, Some(v.to_string()))).unwrap();
+    assert_eq!(d.config().diffusion.prediction_type, PredictionType::Epsilon);
+    // a required field: absent is an error, as before
+    v["diffusion"].as_object_mut().unwrap().remove("prediction_type");
+    let e = load_bytes(&serialize(&t, Some(v.to_string()))).unwrap_err();
+    assert!(e.to_string().contains("prediction_type"), "{e}");
+}

@@ -15,15 +15,17 @@ use tcd_core::{
 use crate::convert::*;
 use crate::denoiser::PyDenoiser;
 use crate::error::{invalid, PyTcdError};
+use crate::prior::PyPrior;
 use crate::run::interruptible;
 
 /// The short-term → long-term cascade on an observation (B, K, O), O = the short model's obs_len.
 /// Returns a dict: `mean` (B, K, P), `samples` (S, B, K, P), `repaired` (B, K, O), `short_mean`
 /// (B, K, L_s). Noise: injected `noise_short` (S, n + 1, B, K, L_s) and `noise_long`
-/// (S, n + 1, B, K, L_l) (one block instead of n + 1 for dpmpp2m), or a `seed`.
+/// (S, n + 1, B, K, L_l) (one block instead of n + 1 for dpmpp2m), or a `seed`. `prior`: the prior
+/// forecaster, required where a model is conditioned on it (`cond_fill` "prior"), unused otherwise.
 #[pyfunction]
 #[pyo3(signature = (short, long, observed, mask, num_samples, options, *, noise_short=None, noise_long=None,
-                    seed=None, first_sequence=0, sequences=None, threads=None, progress=None))]
+                    seed=None, first_sequence=0, sequences=None, threads=None, progress=None, prior=None))]
 #[expect(clippy::too_many_arguments, reason = "a Python signature: pyo3 maps each keyword argument to one parameter")]
 pub(crate) fn cascade<'py>(
     py: Python<'py>,
@@ -40,9 +42,11 @@ pub(crate) fn cascade<'py>(
     sequences: Option<Vec<i128>>,
     threads: Option<i64>,
     progress: Option<Bound<'py, PyAny>>,
+    prior: Option<&Bound<'py, PyPrior>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let short = Arc::clone(&short.get().inner);
     let long = Arc::clone(&long.get().inner);
+    let prior = prior.map(|p| Arc::clone(&p.get().inner));
     let k = short.num_features();
     let observed = Array::from_numpy(&observed);
     let mask = Array::from_numpy(&mask);
@@ -100,6 +104,7 @@ pub(crate) fn cascade<'py>(
                 core_cascade(
                     &short,
                     &long,
+                    prior.as_deref(),
                     &observed.data,
                     &mask.data,
                     &options,

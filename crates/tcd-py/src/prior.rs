@@ -21,7 +21,7 @@ const INLINE_CHUNKS: usize = 32;
 /// A loaded prior forecaster. Immutable; safe to share between threads.
 #[pyclass(frozen, module = "tcd._native", name = "Prior")]
 pub(crate) struct PyPrior {
-    inner: Arc<Prior>,
+    pub(crate) inner: Arc<Prior>,
 }
 
 #[pymethods]

@@ -1,13 +1,14 @@
 //! The network input of one sequence and the fills of its observed channel along time
-//! ([`CondFill`]: none, linear, natural cubic spline), with the operation order of the PyTorch
-//! reference so that both give identical bits.
+//! ([`CondFill`]: none, linear, natural cubic spline, the prior's fill found in `observed`), with the
+//! operation order of the PyTorch reference so that both give identical bits.
 
 use crate::config::CondFill;
 use crate::error::{Error, Result};
 
 /// The network input of one sequence, interleaved (N × 2) with N = K·L in (k, l) order: channel 0 is
 /// the observed channel (`m · x₀`, or with [`CondFill::Linear`] / [`CondFill::Spline`] the masked entries
-/// filled along time from the observed ones, [`CondFill::fill_row`]), channel 1 is `(1 − m) · x_t`.
+/// filled along time from the observed ones, with [`CondFill::Prior`] the values `observed` holds there:
+/// [`CondFill::fill_row`]), channel 1 is `(1 − m) · x_t`.
 pub(super) fn build_input(fill: CondFill, length: usize, mask: &[f32], observed: &[f32], noisy: &[f32], inp: &mut [f32]) {
     for (((pair, &mv), &ov), &nv) in inp.chunks_exact_mut(2).zip(mask).zip(observed).zip(noisy) {
         pair[0] = if mv == 0.0 { 0.0 } else { mv * ov };
@@ -26,12 +27,20 @@ pub(super) fn build_input(fill: CondFill, length: usize, mask: &[f32], observed:
 
 impl CondFill {
     /// Calls `set(l, v)` with this fill's value `v` for every masked entry `l` of one coordinate's row
-    /// ([`fill_linear`] or [`fill_spline`]); `Zero` calls nothing (its masked entries stay 0).
-    pub fn fill_row(self, mask: &[f32], observed: &[f32], set: impl FnMut(usize, f32)) {
+    /// ([`fill_linear`] or [`fill_spline`]; [`CondFill::Prior`]: the value `observed` holds there, where
+    /// the caller has put the prior's fill); `Zero` calls nothing (its masked entries stay 0).
+    pub fn fill_row(self, mask: &[f32], observed: &[f32], mut set: impl FnMut(usize, f32)) {
         match self {
             CondFill::Zero => {}
             CondFill::Linear => fill_linear(mask, observed, set),
             CondFill::Spline => fill_spline(mask, observed, set),
+            CondFill::Prior => {
+                for (ll, (&mv, &ov)) in mask.iter().zip(observed).enumerate() {
+                    if mv <= 0.5 {
+                        set(ll, ov);
+                    }
+                }
+            }
         }
     }
 }

@@ -18,9 +18,11 @@ pub(crate) struct SequenceInputs<'a> {
 }
 
 impl Denoiser {
-    /// ε̂ for a batch: `noisy`, `observed`, `mask`, `out` all (B, K, L), `shape` = (B, L); `step`
-    /// in 0..T. Entries of `observed` where mask = 0 and of `noisy` where mask = 1 are ignored (may
-    /// be NaN).
+    /// The network's output for a batch (ε̂, or x̂₀ for `prediction_type` `sample`): `noisy`,
+    /// `observed`, `mask`, `out` all (B, K, L), `shape` = (B, L); `step` in 0..T. Entries of `observed`
+    /// where mask = 0 and of `noisy` where mask = 1 are ignored (may be NaN), except that a
+    /// [`crate::CondFill::Prior`] model reads the prior's fill from `observed` where mask = 0 (it must be
+    /// finite there).
     pub fn forward(
         &self,
         noisy: &[f32],
@@ -81,6 +83,10 @@ impl Denoiser {
         }
         validate::finite_where("noisy", noisy, &prepared.mask, 0.0, b * n, &shape)?;
         validate::finite_where("observed", observed, &prepared.mask, 1.0, b * n, &shape)?;
+        if self.config.model.cond_fill == crate::config::CondFill::Prior {
+            // The masked entries hold the prior's fill, which the network reads (CondFill::Prior).
+            validate::all_finite("observed", observed, b * n, &shape)?;
+        }
         crate::error::check_len("out", out.len(), b * n, &shape)?;
         self.check_step(step)?;
         if workspace.length != l

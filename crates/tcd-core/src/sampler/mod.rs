@@ -4,6 +4,10 @@
 //! (`x·(1−m) + x₀_obs·m`, observed entries returned bit-identical). Chains are independent and
 //! run in parallel with rayon; each owns its noise stream (see [`crate::rng`]), so the results do
 //! not depend on the number of threads.
+//!
+//! Every update steps with ε̂. A model that predicts x₀ (`prediction_type` `sample`) has its output
+//! turned into ε̂ right after each forward ([`SampleToNoise`], set per step by [`Plan::for_prediction`]),
+//! so ddpm, ddim and dpmpp2m serve both.
 
 pub mod ddim;
 pub mod ddpm;
@@ -13,6 +17,7 @@ use std::str::FromStr;
 
 use rayon::prelude::*;
 
+use crate::config::{CondFill, PredictionType};
 use crate::control::Control;
 use crate::denoiser::{CondTables, Denoiser, SequenceInputs, Workspace};
 use crate::error::{check_len, check_positive, Error, Result};
@@ -212,6 +217,7 @@ impl SamplerConfig {
                         t,
                         prev,
                         update: Update::Ddpm(DdpmStep::new(schedule, t, prev, variance)),
+                        to_noise: None,
                     })
                     .collect()
             }
@@ -223,6 +229,7 @@ impl SamplerConfig {
                         t,
                         prev,
                         update: Update::Ddim(DdimStep::new(schedule, t, prev, eta)),
+                        to_noise: None,
                     })
                     .collect()
             }
@@ -233,6 +240,7 @@ impl SamplerConfig {
                     t,
                     prev,
                     update: Update::DpmPp2m(st),
+                    to_noise: None,
                 })
                 .collect(),
         };
@@ -254,12 +262,45 @@ pub enum Update {
     DpmPp2m(DpmPp2mStep),
 }
 
+/// x₀-prediction's output as the noise the updates step with (`training.diffusion.predicted_noise`):
+/// `ε̂ = (x_t − a · out) · inv_s` in f32, with `a = √ᾱ_t` and `inv_s = 1/√(1 − ᾱ_t)` computed in f64 and
+/// rounded once, the reference's operations in its order.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SampleToNoise {
+    /// √ᾱ_t, rounded to f32.
+    pub a: f32,
+    /// 1/√(1 − ᾱ_t), rounded to f32.
+    pub inv_s: f32,
+}
+
+impl SampleToNoise {
+    /// The conversion at training step `t`.
+    pub fn new(schedule: &NoiseSchedule, t: usize) -> Self {
+        let alpha_bar = schedule.alpha_bar(Some(t));
+        SampleToNoise {
+            a: alpha_bar.sqrt() as f32,
+            inv_s: (1.0 / (1.0 - alpha_bar).sqrt()) as f32,
+        }
+    }
+
+    /// `out` (the network's x̂₀ on entry) ← (x − a · out) · inv_s, element-wise.
+    pub fn apply(&self, x: &[f32], out: &mut [f32]) {
+        let (a, inv_s) = (self.a, self.inv_s);
+        for (ov, &xv) in out.iter_mut().zip(x) {
+            *ov = (xv - a * *ov) * inv_s;
+        }
+    }
+}
+
 /// One planned step: network at `t`, then the update towards `prev`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PlanStep {
     pub t: usize,
     pub prev: Option<usize>,
     pub update: Update,
+    /// For an x₀-predicting model, how its output becomes the noise before the update
+    /// ([`Plan::for_prediction`]); `None`: the output is the noise.
+    pub to_noise: Option<SampleToNoise>,
 }
 
 impl PlanStep {
@@ -313,6 +354,18 @@ impl Plan {
     pub fn timesteps(&self) -> Vec<usize> {
         self.steps.iter().map(|s| s.t).collect()
     }
+
+    /// The plan for a model that predicts `prediction` on `schedule`: with [`PredictionType::Sample`]
+    /// every step first turns the output into the noise ([`SampleToNoise`] at its `t`).
+    pub fn for_prediction(mut self, prediction: PredictionType, schedule: &NoiseSchedule) -> Self {
+        for step in &mut self.steps {
+            step.to_noise = match prediction {
+                PredictionType::Epsilon => None,
+                PredictionType::Sample => Some(SampleToNoise::new(schedule, step.t)),
+            };
+        }
+        self
+    }
 }
 
 /// One chain's sequence: its conditioning tables, mask and observed values (K·L each).
@@ -352,6 +405,9 @@ pub(crate) fn run_chain(
         };
         denoiser.forward_one(seq, &mut eps, ws);
         control.forward_done();
+        if let Some(to_noise) = &step.to_noise {
+            to_noise.apply(&x, &mut eps);
+        }
         if uses_noise {
             noise.fill(i + 1, &mut z);
         }
@@ -436,10 +492,14 @@ pub(crate) fn validate_job<'a>(
     let shape = format!("({batch}, {k}, {length})");
     validate::mask("mask", mask, batch * k * length, &shape)?;
     validate::finite_where("observed", values, mask, 1.0, batch * k * length, &shape)?;
-    let plan = sampler.plan(
-        denoiser.schedule(),
-        denoiser.config().diffusion.variance_type,
-    )?;
+    if denoiser.config().model.cond_fill == CondFill::Prior {
+        // The masked entries hold the prior's fill, which the network reads (CondFill::Prior).
+        validate::all_finite("observed", values, batch * k * length, &shape)?;
+    }
+    let diffusion = &denoiser.config().diffusion;
+    let plan = sampler
+        .plan(denoiser.schedule(), diffusion.variance_type)?
+        .for_prediction(diffusion.prediction_type, denoiser.schedule());
     match noise {
         Noise::Injected(data) => {
             let blocks = plan.num_noise_blocks();
@@ -602,6 +662,26 @@ mod tests {
             "linspace".parse::<TimestepSpacing>().unwrap(),
             TimestepSpacing::Linspace
         );
+    }
+
+    #[test]
+    fn sample_to_noise_recovers_the_noise_of_an_exact_x0() {
+        // x_t = sqrt(abar) x0 + sqrt(1 - abar) eps: given the exact x0 the conversion returns eps.
+        let s = NoiseSchedule::from_betas(crate::schedule::cosine_betas(50, 0.5));
+        for t in [0, 1, 17, 49] {
+            let c = SampleToNoise::new(&s, t);
+            let ab = s.alpha_bar(Some(t));
+            assert_eq!(c.a, ab.sqrt() as f32);
+            assert_eq!(c.inv_s, (1.0 / (1.0 - ab).sqrt()) as f32);
+            let (x0, eps) = ([0.3f64, -1.2, 2.5], [0.7f64, -0.4, 1.9]);
+            let x: Vec<f32> = x0.iter().zip(&eps).map(|(a, e)| (ab.sqrt() * a + (1.0 - ab).sqrt() * e) as f32).collect();
+            let mut out: Vec<f32> = x0.iter().map(|&v| v as f32).collect();
+            c.apply(&x, &mut out);
+            for (got, want) in out.iter().zip(&eps) {
+                // f32 rounding of x amplified by inv_s (up to 1 / sqrt(1 - abar_0), about 1e2 at t = 0)
+                assert!((*got as f64 - want).abs() < 1e-6 * c.inv_s as f64 * 4.0, "t={t}: {got} vs {want}");
+            }
+        }
     }
 
     #[test]

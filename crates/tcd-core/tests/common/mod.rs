@@ -346,3 +346,41 @@ pub fn naive_forward(
     }
     out
 }
+
+/// A tiny model of `cfg` (edited by the caller: its fill, target, prediction type) straight from bytes.
+pub fn model_of(cfg: &TcdConfig, seed: u64) -> Denoiser {
+    let tensors = random_tensors(cfg, seed);
+    Denoiser::from_bytes(&serialize(&tensors, Some(cfg.to_json())), format!("tiny-{}.safetensors", cfg.role.as_str()))
+        .unwrap()
+}
+
+/// A small random prior forecaster: K = `num_features`, `obs_len` frames in, `chunk` out, 2 blocks,
+/// weights of unit-gain scale (its forecast moves well away from the last pose).
+pub fn tiny_prior(num_features: usize, obs_len: usize, chunk: usize, seed: u64) -> Prior {
+    let cfg = PriorConfig {
+        format_version: 1,
+        role: "prior".into(),
+        model: PriorModelConfig {
+            num_joints: num_features / 3,
+            coords: 3,
+            num_features,
+            obs_len,
+            chunk,
+            blocks: 2,
+            layer_norm_eps: 1e-5,
+        },
+        data: DataConfig::default(),
+    };
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let tensors: BTreeMap<String, RawTensor> = prior_expected_tensors(&cfg.model)
+        .into_iter()
+        .map(|(name, shape)| {
+            let n: usize = shape.iter().product();
+            let a = if shape.len() == 2 { (3.0 / shape[1] as f32).sqrt() } else { 0.3 };
+            let centre = if name.ends_with("norm_weight") { 1.0 } else { 0.0 };
+            let data: Vec<f32> = (0..n).map(|_| centre + rng.random_range(-a..a)).collect();
+            (name, RawTensor::f32(shape, &data))
+        })
+        .collect();
+    Prior::from_bytes(&serialize(&tensors, Some(cfg.to_json())), "prior.safetensors").unwrap()
+}
