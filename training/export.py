@@ -80,6 +80,26 @@ def h36m_data_meta(training_data: str = "Human3.6M S1,S6,S7,S8,S9 (exp-map, 25 f
             "licence": "Human3.6M: academic non-commercial research use only"}
 
 
+def humaneva_data_meta(training_data: str = "HumanEva-I Train split, S1,S2,S3 (60 Hz)") -> dict:
+    """The ``data`` block of a HumanEva-I model: 14 joints (joints 1..14 of the 15-joint VideoPose3D layout
+    relative to the pelvis, the protocol's 42 dimensions), 60 Hz, metres, world axes with +z up (the global
+    rotation is kept, as the DLow / GSPS protocol does; only the translation is removed)."""
+    from .data.humaneva import HUMANEVA_FPS, HUMANEVA_MODEL_JOINT_NAMES
+    return {"dataset": "humaneva", "fps": float(HUMANEVA_FPS), "units": "m", "root_relative": True,
+            "joint_names": list(HUMANEVA_MODEL_JOINT_NAMES), "layout": "humaneva15", "root_joint": "pelvis",
+            "up": "z", "training_data": training_data,
+            "licence": "HumanEva-I: research use only (registration required)"}
+
+
+def data_meta(dataset: str, training_data: str | None = None) -> dict:
+    """The ``data`` block of a model trained on ``dataset`` ("h36m" or "humaneva")."""
+    if dataset == "humaneva":
+        return humaneva_data_meta() if training_data is None else humaneva_data_meta(training_data)
+    if dataset == "h36m":
+        return h36m_data_meta() if training_data is None else h36m_data_meta(training_data)
+    raise ValueError(f"unknown dataset {dataset!r}: 'h36m' or 'humaneva'")
+
+
 def build_config(role: str, model_cfg: ModelConfig, diff_cfg: DiffusionConfig, obs_len: int, pred_len: int,
                  data: dict, training: dict | None = None) -> dict:
     if role not in ROLES:
@@ -228,8 +248,11 @@ def copy_model_files(files: list[Path], out: Path) -> None:
 
 def prior_data_meta(cfg) -> dict:
     """The ``data`` block of a prior trained with ``cfg`` (a ``training.prior.PriorConfig``): the denoisers'
-    Human3.6M description, naming the subjects the prior was trained on."""
-    return h36m_data_meta(training_data=f"Human3.6M {','.join(f'S{s}' for s in cfg.subjects)} (exp-map, 25 fps)")
+    description of its dataset, naming the subjects the prior was trained on."""
+    subjects = ",".join(f"S{s}" for s in cfg.subjects)
+    if getattr(cfg, "dataset", "h36m") == "humaneva":
+        return humaneva_data_meta(training_data=f"HumanEva-I Train split, {subjects} (60 Hz)")
+    return h36m_data_meta(training_data=f"Human3.6M {subjects} (exp-map, 25 fps)")
 
 
 def build_prior_config(model, data: dict, training: dict | None = None) -> dict:

@@ -1,26 +1,32 @@
 """The deterministic prior forecaster (issue 28): a siMLPe-class network, written here from the published
 description (``../shared/spec/PRIOR.md``), trained on the CPU in resumable installments.
 
-The network maps ``obs_len`` observed frames of the 22 model joints (root-relative, metres) to the next
-``chunk`` frames:
+The network maps ``obs_len`` observed frames of the model joints (root-relative, metres; K = 3 x joints:
+66 for Human3.6M's 22, 42 for HumanEva-I's 14) to the next ``chunk`` frames:
 
-    x (B, obs_len, 66) --DCT over time--> fc_in (66 -> 66, per frame)
-        --> ``blocks`` x [ temporal FC (obs_len -> obs_len, per coordinate), layer norm over the 66
+    x (B, obs_len, K) --DCT over time--> fc_in (K -> K, per frame)
+        --> ``blocks`` x [ temporal FC (obs_len -> obs_len, per coordinate), layer norm over the K
             coordinates per frame, residual ]
-        --> fc_out (66 -> 66) --inverse DCT--> first ``chunk`` frames + the last observed pose
+        --> fc_out (K -> K) --inverse DCT--> first ``chunk`` frames + the last observed pose
+
+``chunk`` is at most ``obs_len``: the inverse DCT has ``obs_len`` frames (HumanEva-I's 15 observed frames
+give at most 15 at once; its 60 are rolled out).
 
 No non-linearity anywhere: each block is linear but for its layer norm. fc_out and every temporal FC start
 at (almost) zero, so the untrained network is Zero-Velocity. Longer horizons are rolled out: the
 prediction is appended to the observation and the last ``obs_len`` frames predict the next chunk.
 
 Training (``python -m training.prior``): random windows of ``obs_len + chunk`` frames from the training
-subjects, reversed in time with probability ``flip_prob``; loss = mean per-joint L2 distance of the chunk
-plus the same on its frame-to-frame velocities; Adam with weight decay; the learning rate decays once at
-``lr_decay_at`` of the iterations (``lr`` -> ``lr_final``). Every draw is a pure function of (seed,
-iteration), so a resumed run continues exactly where it stopped.
+subjects of ``dataset`` (``"h36m"``: Human3.6M, the 22 model joints at 25 fps; ``"humaneva"``: HumanEva-I's
+Train split, 14 root-relative joints at 60 Hz, ``training.data.humaneva.training_sequences``), reversed in
+time with probability ``flip_prob``; loss = mean per-joint L2 distance of the chunk plus the same on its
+frame-to-frame velocities; Adam with weight decay; the learning rate decays once at ``lr_decay_at`` of the
+iterations (``lr`` -> ``lr_final``). Every draw is a pure function of (seed, iteration), so a resumed run
+continues exactly where it stopped.
 
     python -m training.prior --config training/configs/prior.json --out runs/prior [--resume]
                              [--max-minutes M] [--threads 1]
+    python -m training.prior --config training/configs/humaneva_prior.json --out runs/humaneva_prior
 """
 from __future__ import annotations
 
@@ -37,6 +43,8 @@ import torch
 from torch import nn
 
 NUM_JOINTS = 22
+#: the model joints of each dataset the prior trains on (Human3.6M: 22; HumanEva-I: joints 1..14 of 15)
+DATASET_JOINTS = {"h36m": 22, "humaneva": 14}
 
 
 @dataclass
@@ -52,9 +60,10 @@ class PriorConfig:
     iterations: int = 40_000
     flip_prob: float = 0.5           # temporal-flip augmentation
     velocity_weight: float = 1.0     # weight of the velocity term of the loss
-    subjects: tuple = (1, 6, 7, 8, 9, 11)   # siMLPe's training subjects (S5 is the test subject)
+    subjects: tuple = (1, 6, 7, 8, 9, 11)   # siMLPe's training subjects (S5 is the test subject); HumanEva: 1..3
     seed: int = 0
     init_from: str = ""              # a later installment: the last.pt whose weights start this run (fresh Adam)
+    dataset: str = "h36m"            # "h36m" (Human3.6M, 22 joints) or "humaneva" (HumanEva-I Train split, 14 joints)
 
     @classmethod
     def load(cls, path: str | Path) -> "PriorConfig":
@@ -75,9 +84,20 @@ class PriorConfig:
             raise ValueError(f"prior config: chunk ({self.chunk}) must not exceed obs_len ({self.obs_len})")
         if not 0.0 <= self.flip_prob <= 1.0:
             raise ValueError(f"prior config: flip_prob must be in [0, 1], got {self.flip_prob!r}")
+        if self.dataset not in DATASET_JOINTS:
+            raise ValueError(f"prior config: dataset must be one of {sorted(DATASET_JOINTS)}, got {self.dataset!r}")
+        if self.dataset == "humaneva" and not set(self.subjects) <= {1, 2, 3}:
+            raise ValueError("prior config: a HumanEva-I prior trains on subjects among [1, 2, 3] (the Train split's "
+                             f"S1..S3); set \"subjects\": [1, 2, 3], got {list(self.subjects)}")
+
+    @property
+    def num_joints(self) -> int:
+        """The model joints of the dataset (22 for Human3.6M, 14 for HumanEva-I)."""
+        return DATASET_JOINTS[self.dataset]
 
     @classmethod
     def from_dict(cls, d: dict) -> "PriorConfig":
+        """The config of a checkpoint's dict (one written before ``dataset`` existed is a Human3.6M one)."""
         return cls(**{**d, "subjects": tuple(d["subjects"])})
 
     def to_dict(self) -> dict:
@@ -118,10 +138,10 @@ class TemporalBlock(nn.Module):
 
 
 class PriorNet(nn.Module):
-    def __init__(self, cfg: PriorConfig, joints: int = NUM_JOINTS):
+    def __init__(self, cfg: PriorConfig, joints: int | None = None):
         super().__init__()
         self.cfg = cfg
-        K = 3 * joints
+        K = 3 * (cfg.num_joints if joints is None else joints)
         self.register_buffer("dct", torch.from_numpy(dct_matrix(cfg.obs_len)).float(), persistent=False)
         self.fc_in = nn.Linear(K, K)
         self.blocks = nn.ModuleList([TemporalBlock(cfg.obs_len, K) for _ in range(cfg.blocks)])
@@ -159,23 +179,34 @@ def count_parameters(model: nn.Module) -> int:
 
 # ------------------------------------------------------------------------------------------ data
 
-def training_frames(cfg: PriorConfig, data: str | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """All training sequences concatenated, (N, 66) float32 metres, and the start rows of every window of
-    ``obs_len + chunk`` frames that lies inside one sequence."""
+def training_sequences(cfg: PriorConfig, data: str | None = None) -> list[np.ndarray]:
+    """The training sequences of ``cfg.subjects`` in ``cfg.dataset``, (T, J, 3) float32 metres each."""
+    if cfg.dataset == "humaneva":
+        from .data.humaneva import training_sequences as humaneva_sequences
+        return list(humaneva_sequences(data, cfg.subjects).values())
     from .data.h36m import DEFAULT_H36M_DIR, H36M, SPLITS
     known = {s for subs in SPLITS.values() for s in subs}
     if set(cfg.subjects) - known or 5 in cfg.subjects:
         raise ValueError(f"prior config: subjects must be among {sorted(known - {5})} (S5 is the test subject), "
                          f"got {list(cfg.subjects)}")
     h = H36M(data or DEFAULT_H36M_DIR)
-    seqs = [seq for split in ("train", "val") for key, seq in h.sequences(split)
+    return [seq for split in ("train", "val") for key, seq in h.sequences(split)
             if int(key.split("/")[0][1:]) in cfg.subjects]
+
+
+def training_frames(cfg: PriorConfig, data: str | None = None,
+                    seqs: list[np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """All training sequences (``seqs``, else :func:`training_sequences`) concatenated, (N, K) float32
+    metres, and the start rows of every window of ``obs_len + chunk`` frames that lies inside one sequence."""
+    seqs = training_sequences(cfg, data) if seqs is None else seqs
     L = cfg.obs_len + cfg.chunk
     frames, starts, offset = [], [], 0
     for seq in seqs:
         frames.append(seq.reshape(len(seq), -1))
         starts.extend(range(offset, offset + len(seq) - L + 1))
         offset += len(seq)
+    if not starts:
+        raise ValueError(f"no training window of {L} frames (obs_len + chunk) in the {cfg.dataset} data")
     return np.concatenate(frames).astype(np.float32), np.asarray(starts, dtype=np.int64)
 
 
@@ -241,7 +272,7 @@ def train(cfg: PriorConfig, out: str | Path, *, data: str | None = None, resume:
     it, elapsed0, history = 0, 0.0, []
     if resume and last.is_file():
         ck = torch.load(last, map_location="cpu", weights_only=False)
-        if ck["config"] != cfg.to_dict():
+        if PriorConfig.from_dict(ck["config"]).to_dict() != cfg.to_dict():   # (a config before `dataset`: h36m)
             if not same_run_so_far(PriorConfig.from_dict(ck["config"]), cfg, ck["iteration"]):
                 raise ValueError(f"{last} was trained with another config; start a new --out or use the same config")
             log(f"{last}: the schedule changes to {cfg.iterations} iterations (decay at {cfg.lr_decay_at}); "
@@ -255,6 +286,9 @@ def train(cfg: PriorConfig, out: str | Path, *, data: str | None = None, resume:
         model.load_state_dict(init["model"])            # strict: the architecture must match
         log(f"weights from {cfg.init_from} (iteration {init['iteration']} of its run)")
     fr, starts = frames if frames is not None else training_frames(cfg, data)
+    if fr.shape[1] != 3 * cfg.num_joints:
+        raise ValueError(f"the {cfg.dataset} prior has {cfg.num_joints} joints ({3 * cfg.num_joints} coordinates), "
+                         f"the training frames {fr.shape[1]} coordinates")
     forward = torch.compile(model) if compile else model
     log(f"prior: {count_parameters(model):,} parameters, {len(starts):,} training windows, "
         f"{torch.get_num_threads()} thread(s)")
@@ -305,7 +339,8 @@ def main(argv=None) -> int:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--config", required=True, help="prior config JSON (keys of PriorConfig)")
     ap.add_argument("--out", required=True, help="run directory (last.pt)")
-    ap.add_argument("--data", default=None, help="Human3.6M directory (default ../shared/data/h36m)")
+    ap.add_argument("--data", default=None, help="the config's dataset: the Human3.6M directory (default "
+                    "../shared/data/h36m) or the HumanEva-I directory or .npz (default ../shared/data/humaneva)")
     ap.add_argument("--resume", action="store_true", help="continue from <out>/last.pt")
     ap.add_argument("--max-minutes", type=float, default=None)
     ap.add_argument("--checkpoint-minutes", type=float, default=5.0)

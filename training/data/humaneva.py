@@ -19,11 +19,19 @@ MotionDiff use the same definitions):
   pose (flattened 42-dim root-relative pose at frame t_his - 1) lies at L2 distance < threshold
   (0.5 m) from this window's (strict inequality, as ``np.nonzero(pd < threshold)``); the window
   itself is always included (distance 0).
+
+Training (``training.train`` and ``training.prior`` with ``"dataset": "humaneva"``): the chunks of the
+Train split (the bad takes removed) in the model's space, joints 1..14 relative to the pelvis
+(:func:`training_sequences`), every window of the model's length inside one chunk. The protocol has no
+validation split: a model is scored on ``Validate`` only at the end (``training.evaluate``).
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
+HUMANEVA_FILE_NAME = "humaneva_i_15j_60hz.npz"
 HUMANEVA_T_HIS = 15
 HUMANEVA_T_PRED = 60
 HUMANEVA_FPS = 60
@@ -31,6 +39,16 @@ HUMANEVA_NUM_JOINTS = 15
 
 # 15-joint HumanEva skeleton of VideoPose3D / DLow (parents of joints 0..14).
 HUMANEVA_PARENTS = [-1, 0, 1, 2, 3, 1, 5, 6, 0, 8, 9, 0, 11, 12, 1]
+
+# Names of the 15 joints in the file's order (VideoPose3D ``humaneva_dataset.py``: pelvis, thorax, lsho, lelb,
+# lwri, rsho, relb, rwri, lhip, lkne, lank, rhip, rkne, rank, head; left/right are the subject's).
+HUMANEVA_JOINT_NAMES = ("pelvis", "thorax", "left_shoulder", "left_elbow", "left_wrist", "right_shoulder",
+                        "right_elbow", "right_wrist", "left_hip", "left_knee", "left_ankle", "right_hip",
+                        "right_knee", "right_ankle", "head")
+# The model's joints: joints 1..14 relative to the pelvis (the protocol's 42 dimensions).
+HUMANEVA_MODEL_JOINT_NAMES = HUMANEVA_JOINT_NAMES[1:]
+# The subjects of the Train split (S1, S2, S3), the only ones a model may be trained on.
+HUMANEVA_TRAIN_SUBJECTS = (1, 2, 3)
 
 # Takes DLow drops because of a wrong head position (``dataset_humaneva.py``).
 HUMANEVA_EXCLUDED_TAKES = {
@@ -59,6 +77,28 @@ def load_humaneva(path, split: str = "Train", exclude_bad_takes: bool = True) ->
                 raise ValueError(f"{key}: expected (T, 15, 3), got {arr.shape}")
             out[key] = arr
     return out
+
+
+def humaneva_file(path=None) -> Path:
+    """The data file: ``path`` itself, ``path/humaneva_i_15j_60hz.npz`` for a directory, or (None) the
+    shared data directory's copy (``$TCD_DATA_DIR/humaneva``, else ``../shared/data/humaneva``)."""
+    if path is None:
+        from .h36m import DEFAULT_DATA_ROOT
+        path = DEFAULT_DATA_ROOT / "humaneva"
+    path = Path(path)
+    return path / HUMANEVA_FILE_NAME if path.is_dir() else path
+
+
+def training_sequences(path=None, subjects=HUMANEVA_TRAIN_SUBJECTS) -> dict[str, np.ndarray]:
+    """The Train split's chunks of ``subjects`` (ints among 1, 2, 3), bad takes removed, root-relative:
+    ``{"Train/S1/Box 1 chunk1": (T, 14, 3) float32 metres}`` in the file's order (the model's space)."""
+    subjects = tuple(int(s) for s in subjects)
+    if not subjects or set(subjects) - set(HUMANEVA_TRAIN_SUBJECTS):
+        raise ValueError(f"HumanEva-I training subjects must be among {list(HUMANEVA_TRAIN_SUBJECTS)} "
+                         f"(S1..S3 of the Train split), got {list(subjects)}")
+    wanted = {f"S{s}" for s in subjects}
+    return {k: root_relative(v).astype(np.float32) for k, v in load_humaneva(humaneva_file(path), "Train").items()
+            if k.split("/")[1] in wanted}
 
 
 def root_relative(seq: np.ndarray) -> np.ndarray:
