@@ -50,6 +50,11 @@ CONFIG_KEY = "tcd_config"
 
 # Windows of the Human3.6M cascade (spec section 5) and the repair model.
 WINDOWS = {"short": (50, 5), "long": (55, 20), "repair": (50, 0)}
+# HumanEva-I's cascade, 15 observed -> 60 at 60 Hz (configs/humaneva_short.json says why its first stage is one
+# frame), and a repair model of its observation; and the model joints of each dataset.
+HUMANEVA_WINDOWS = {"short": (15, 1), "long": (16, 59), "repair": (15, 0)}
+DATASET_WINDOWS = {"h36m": WINDOWS, "humaneva": HUMANEVA_WINDOWS}
+DATASET_JOINTS = {"h36m": 22, "humaneva": 14}
 
 PRESETS = {
     "full": ModelConfig(),

@@ -2,6 +2,12 @@
 
     python -m training.train --config training/configs/short.json --out runs/short [--resume]
                              [--max-minutes M] [--device cpu|cuda]
+    python -m training.train --config training/configs/humaneva_long.json --out runs/humaneva_long
+
+``"dataset": "humaneva"`` trains on HumanEva-I instead (the DLow / GSPS split: the Train split's chunks,
+bad takes removed, joints 1..14 relative to the pelvis, 60 Hz; ``training.data.humaneva``). That protocol
+has no validation split, so the validation loss is measured on windows of the training chunks (stride
+``val_stride``): it tracks the fit, it is not held out.
 
 Defaults (TrainConfig) are the paper's: Adam lr 1e-3, weight decay 1e-6, batch 32, 50 epochs,
 learning rate x0.1 at 75 % and 90 % of the epochs, validation loss (mean over all diffusion steps)
@@ -29,10 +35,13 @@ from .diffusion import DiffusionConfig, Schedule, training_loss
 from .model import ModelConfig, TCDModel, count_parameters
 
 
+DATASETS = ("h36m", "humaneva")
+
+
 @dataclass
 class TrainConfig:
     role: str = "short"              # short (50 -> 5), long (55 -> 20, teacher-forced), repair (50 -> 0)
-    dataset: str = "h36m"
+    dataset: str = "h36m"            # "h36m" (Human3.6M, 22 joints, 25 fps) or "humaneva" (HumanEva-I, 14, 60 Hz)
     obs_len: int = 50                # observed frames (mask 1 unless occluded)
     pred_len: int = 5                # predicted frames (mask 0)
     model: dict = field(default_factory=dict)       # ModelConfig overrides
@@ -71,6 +80,8 @@ class TrainConfig:
         return cls(**{k: v for k, v in d.items() if k in known})
 
     def __post_init__(self):
+        if self.dataset not in DATASETS:
+            raise ValueError(f"train config: dataset must be one of {DATASETS}, got {self.dataset!r}")
         if self.batches not in ("host", "device"):
             raise ValueError(f"train config: batches must be 'host' or 'device', got {self.batches!r}")
         if not 0.0 <= self.ema_decay < 1.0:
@@ -86,9 +97,11 @@ class TrainConfig:
 
 def load_sequences(cfg: TrainConfig, data: str | None, split: str) -> list[np.ndarray]:
     """Model-space sequences (T, J, 3) metres for a split. ``data`` is a raw data directory or a cache
-    written by ``--write-cache`` (an npz of ``{split}/{key}`` arrays)."""
-    if cfg.dataset != "h36m":
-        raise ValueError(f"dataset {cfg.dataset!r}: only h36m training is wired up")
+    written by ``--write-cache`` (an npz of ``{split}/{key}`` arrays); for HumanEva-I the data directory
+    or its .npz, and both splits are the Train split's chunks (see the module docstring)."""
+    if cfg.dataset == "humaneva":
+        from .data.humaneva import training_sequences
+        return list(training_sequences(data).values())
     from .data.h36m import DEFAULT_H36M_DIR, H36M
     path = Path(data) if data else DEFAULT_H36M_DIR
     if path.is_file() and path.name.startswith("h36m_model_cache"):
@@ -280,15 +293,19 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
         model.attach_prior(load_prior(cfg.prior).to(device))
     opt = make_optimizer(model, cfg, device)
     seqs = sequences or {split: load_sequences(cfg, data, split) for split in ("train", "val")}
+    joints = {int(q.shape[1]) for split in seqs.values() for q in split}
+    if joints != {model_cfg.num_joints}:
+        raise ValueError(f"the {cfg.dataset} sequences have {sorted(joints)} joints, the model "
+                         f"{model_cfg.num_joints} (model.num_joints in the config)")
     train_w = Windows(seqs["train"], L, cfg.train_stride)
     val_w = Windows(seqs["val"], L, cfg.val_stride)
     if not len(train_w) or not len(val_w):
         raise ValueError(f"no training or validation window of {L} frames in the data")
     steps_per_epoch = cfg.steps_per_epoch or math.ceil(len(train_w) / cfg.batch_size)
-    from .export import h36m_data_meta
+    from .export import data_meta
     meta = {"role": cfg.role, "model_config": model_cfg.to_dict(), "diffusion_config": diff_cfg.to_dict(),
             "window": {"obs_len": cfg.obs_len, "pred_len": cfg.pred_len, "seq_len": L},
-            "data": h36m_data_meta(), "train_config": asdict(cfg)}
+            "data": data_meta(cfg.dataset), "train_config": asdict(cfg)}
     if model_cfg.cond_fill == "prior":    # which prior the model was trained around (a path can be overwritten)
         import hashlib
         meta["prior_sha256"] = hashlib.sha256(Path(cfg.prior).read_bytes()).hexdigest()
@@ -435,7 +452,8 @@ def main(argv=None) -> int:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--config", help="JSON TrainConfig (training/configs/*.json)")
     ap.add_argument("--out", help="run directory (checkpoints last.pt, best.pt)")
-    ap.add_argument("--data", default=None, help="Human3.6M directory or a cache from --write-cache")
+    ap.add_argument("--data", default=None, help="Human3.6M directory or a cache from --write-cache; HumanEva-I "
+                    "directory or .npz for a \"dataset\": \"humaneva\" config (default ../shared/data/<dataset>)")
     ap.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
     ap.add_argument("--max-minutes", type=float, default=None, help="stop (resumably) after this many minutes")
     ap.add_argument("--stop-at", type=float, default=None, metavar="UNIX_SECONDS",
