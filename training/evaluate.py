@@ -14,6 +14,15 @@ computed and stored; ``--select`` picks the one printed first and stored under "
     python -m training.evaluate --baseline zero-velocity --data ../shared/data/h36m --json out.json
     python -m training.evaluate --model models/h36m --samples 5 --windows-per-action 8 --mask random_leg_arm
     python -m training.evaluate --protocol humaneva --baseline zero-velocity --data ../shared/data/humaneva
+    python -m training.evaluate --protocol humaneva --model models/humaneva --engine tcd --samples 50
+    python -m training.evaluate --protocol humaneva --prior models/humaneva     # the prior's point forecast
+
+HumanEva-I (stochastic, the DLow / GSPS protocol of ``training.data.humaneva``): the 188 windows of the
+Validate split, 15 observed frames -> 60 predicted at 60 Hz, ``--samples`` (50: the protocol) samples per
+window scored by ADE, FDE, MMADE, MMFDE and APD (``training.stochastic``: metres, the L2 norm of the flattened
+42-dim pose), beside Zero-Velocity, the model directory's prior (its deterministic point forecast, one sample)
+and the published numbers (``training.metrics.PUBLISHED_HUMANEVA``). ``--max-windows N`` scores N of the
+windows (evenly spaced; their multimodal futures still come from all 188): a quick look, not the protocol.
     python -m training.evaluate --prior python/tcd/weights --mask consecutive_frames   # the point forecast
 """
 from __future__ import annotations
@@ -67,17 +76,17 @@ def zero_velocity(obs: np.ndarray, jmask: np.ndarray, horizon: int = PRED) -> np
 
 
 def tcd_predict(models: dict, obs: np.ndarray, jmask: np.ndarray, *, samples: int, steps: int | None, sampler: str,
-                eta: float, spacing: str, seed: int, device: str, batch_size: int = 16) -> dict:
-    """Cascade forecast for windows obs (W, 50, J, 3) metres with joint mask (W, 50, J).
-    Returns samples (S, W, 25, J, 3) and the repaired observation (W, 50, J, 3) (mean of short-term samples)."""
+                eta: float, spacing: str, seed: int, device: str, batch_size: int = 16, horizon: int = PRED) -> dict:
+    """Cascade forecast for windows obs (W, O, J, 3) metres (Human3.6M: O = 50) with joint mask (W, O, J).
+    Returns samples (S, W, horizon, J, 3) and the repaired observation (W, O, J, 3) (mean of short-term samples)."""
     from .diffusion import cascade
     short_m, short_s, short_cfg = models["short"]
     long_m, long_s, long_cfg = models["long"]
     short_len, long_len = short_cfg["window"]["seq_len"], long_cfg["window"]["seq_len"]
     O = obs.shape[1]
-    if short_cfg["window"]["obs_len"] != O or long_len - O != PRED:
+    if short_cfg["window"]["obs_len"] != O or long_len - O != horizon:
         raise ValueError(f"models expect {short_cfg['window']['obs_len']} observed frames and {long_len} in all; "
-                         f"the protocol has {O} + {PRED}")
+                         f"the protocol has {O} + {horizon}")
     obs = obs * joint_to_coord_mask(jmask)  # missing values are zero in the model input
     outs, reps = [], []
     for b0 in range(0, len(obs), batch_size):
@@ -222,23 +231,139 @@ def evaluate_h36m(args, models: dict | None = None, data: H36M | None = None, on
     return out
 
 
+HE_OBS, HE_PRED = 15, 60   # HumanEva-I: 15 observed -> 60 predicted frames at 60 Hz
+
+
+def _check_humaneva_model(where: str, obs_len: int, horizon: int, num_joints: int) -> None:
+    if (obs_len, horizon, num_joints) != (HE_OBS, HE_PRED, 14):
+        raise SystemExit(f"{where}: the model reads {obs_len} frames and forecasts {horizon} of {num_joints} joints; "
+                         f"the HumanEva-I protocol needs {HE_OBS} -> {HE_PRED} frames of 14 joints (a model trained "
+                         "with training/configs/humaneva_*.json)")
+
+
+def humaneva_model_samples(args, obs: np.ndarray, log=lambda m: None) -> np.ndarray:
+    """``args.samples`` samples (S, W, 60, 14, 3) metres of the model directory ``args.model`` from the windows'
+    observations obs (W, 15, 14, 3): through the Rust engine (``--engine tcd``: ``tcd.load(DIR).forecast``, the
+    cascade with the directory's prior where the models are conditioned on it) or the PyTorch reference
+    (``--engine torch``). ``args.batch_size`` windows per call, seeded by (``args.seed``, first window)."""
+    W = len(obs)
+    outs = []
+    t0 = time.time()
+    if args.engine == "tcd":
+        import tcd
+        model = tcd.load(args.model)
+        _check_humaneva_model(args.model, model.obs_len, model.horizon, model.num_joints)
+    else:
+        from .export import load_model_dir
+        models = load_model_dir(args.model, args.device)
+        w = models["short"][2]["window"]
+        _check_humaneva_model(args.model, w["obs_len"], models["long"][2]["window"]["seq_len"] - w["obs_len"],
+                              models["short"][0].cfg.num_joints)
+    for b0 in range(0, W, args.batch_size):
+        x = obs[b0:b0 + args.batch_size]
+        seed = args.seed * 1_000_003 + b0
+        if args.engine == "tcd":
+            f = model.forecast(x, num_samples=args.samples, num_inference_steps=args.steps, sampler=args.sampler,
+                               eta=args.eta, timestep_spacing=args.timestep_spacing, seed=seed)
+            outs.append(np.asarray(f.samples, np.float64))
+        else:
+            res = tcd_predict(models, x, np.ones(x.shape[:3], np.float32), samples=args.samples, steps=args.steps,
+                              sampler=args.sampler, eta=args.eta, spacing=args.timestep_spacing, seed=seed,
+                              device=args.device, batch_size=len(x), horizon=HE_PRED)
+            outs.append(res["samples"])
+        log(f"[{min(b0 + args.batch_size, W)}/{W} windows] {args.samples} samples each, {time.time() - t0:.0f} s")
+    return np.concatenate(outs, axis=1)
+
+
+def humaneva_prior_forecast(path: str | Path, obs: np.ndarray) -> np.ndarray:
+    """The prior's deterministic forecast (W, 60, 14, 3) from obs (W, 15, 14, 3): ``path`` a directory holding
+    ``prior.safetensors`` or that file (the engine, ``tcd.Prior``), or a ``training.prior`` checkpoint (PyTorch)."""
+    path = Path(path)
+    W, O, J, _ = obs.shape
+    x = np.ascontiguousarray(obs.reshape(W, O, J * 3), dtype=np.float32)
+    if path.is_dir() or path.suffix == ".safetensors":
+        import tcd
+        prior = tcd.Prior.load(path / "prior.safetensors" if path.is_dir() else path)
+        if prior.num_features != J * 3 or prior.obs_len > O:
+            raise SystemExit(f"{path}: the prior reads {prior.obs_len} frames of {prior.num_joints} joints; the "
+                             f"HumanEva-I protocol gives {O} frames of {J}")
+        out = prior.predict(x, HE_PRED)
+    else:
+        from .prior import load
+        net = load(path)
+        with torch.no_grad():
+            out = net.rollout(torch.from_numpy(x), HE_PRED).numpy()
+    return np.asarray(out, np.float64).reshape(W, HE_PRED, J, 3)
+
+
 def evaluate_humaneva(args) -> dict:
-    from .data.humaneva import humaneva_test_windows, load_humaneva, multimodal_gt
+    """The stochastic HumanEva-I protocol for ``args`` (the options of :func:`main`); see the module docstring."""
+    from .data.humaneva import humaneva_file, humaneva_test_windows, load_humaneva, multimodal_gt
+    from .metrics import PUBLISHED_HUMANEVA, PUBLISHED_HUMANEVA_SOURCES
     from .stochastic import evaluate_stochastic
-    path = Path(args.data)
-    data = load_humaneva(path / "humaneva_i_15j_60hz.npz" if path.is_dir() else path, split="Validate")
+    data = load_humaneva(humaneva_file(args.data), split="Validate")
     wins = humaneva_test_windows(data)                                   # (N, 75, 14, 3) metres
-    t_his = 15
     D = wins.shape[2] * 3
-    gts = [w[t_his:].reshape(-1, D) for w in wins]
-    gt_multi = multimodal_gt(wins, t_his)
+    gt_multi_all = multimodal_gt(wins, HE_OBS)                           # from every window, as DLow does
+    rows = np.arange(len(wins))
+    if getattr(args, "max_windows", None):
+        rows = np.unique(np.linspace(0, len(wins) - 1, min(args.max_windows, len(wins))).round().astype(int))
+    obs = wins[rows, :HE_OBS].astype(np.float64)
+    gts = [wins[i, HE_OBS:].reshape(-1, D) for i in rows]
+    gt_multi = [gt_multi_all[i] for i in rows]
+    say = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
+
+    def score(pred: np.ndarray) -> dict:                                 # (S, W, 60, 14, 3)
+        return evaluate_stochastic([pred[:, w].reshape(pred.shape[0], HE_PRED, D) for w in range(len(rows))],
+                                   gts, gt_multi)
+
+    results = {"zero_velocity": score(np.repeat(obs[None, :, -1:], HE_PRED, axis=2))}
+    prior_path = args.prior or (args.model if args.model and (Path(args.model) / "prior.safetensors").is_file()
+                                else None)
+    if prior_path:
+        results["prior"] = score(humaneva_prior_forecast(prior_path, obs)[None])
+    t0 = time.time()
     if args.model:
-        raise SystemExit("--protocol humaneva evaluates baselines only until a HumanEva model exists")
-    preds = [np.repeat(w[t_his - 1].reshape(1, 1, D), len(g), axis=1) for w, g in zip(wins, gts)]
-    res = evaluate_stochastic(preds, gts, gt_multi)
-    return {"protocol": {"dataset": "humaneva-i", "split": "Validate", "t_his": t_his, "t_pred": 60, "fps": 60,
-                         "windows": len(wins), "units": "m (DLow/GSPS: L2 norm of the flattened 42-dim pose)"},
-            "method": "zero-velocity", "seeds": {}, "stochastic": res}
+        results["model"] = score(humaneva_model_samples(args, obs, log=say))
+    out = {"protocol": {"dataset": "humaneva-i", "split": "Validate", "t_his": HE_OBS, "t_pred": HE_PRED, "fps": 60,
+                        "windows": len(rows), "windows_in_protocol": len(wins),
+                        "units": "m (DLow/GSPS: L2 norm of the flattened 42-dim pose)"},
+           "seeds": {"sampling": args.seed} if args.model else {}, **results,
+           "published": {k: v for k, v in PUBLISHED_HUMANEVA.items()}, "published_sources": PUBLISHED_HUMANEVA_SOURCES}
+    if args.model:
+        out.update(method=f"tcd {args.model}", stochastic=results["model"], seconds=time.time() - t0,
+                   sampling={"engine": args.engine, "samples": args.samples, "steps": args.steps,
+                             "sampler": args.sampler, "eta": args.eta, "timestep_spacing": args.timestep_spacing})
+    elif args.prior:
+        out.update(method=f"prior {args.prior}", stochastic=results["prior"])
+    else:
+        out.update(method="zero-velocity", stochastic=results["zero_velocity"])
+    if prior_path:
+        out["prior_source"] = str(prior_path)
+    return out
+
+
+def print_humaneva_table(out: dict) -> None:
+    keys = ("ADE", "FDE", "MMADE", "MMFDE", "APD")
+    p = out["protocol"]
+    print(f"\nHumanEva-I, {p['windows']} of {p['windows_in_protocol']} Validate windows, {p['t_his']} -> {p['t_pred']} "
+          f"frames at {p['fps']} Hz; metres (L2 norm of the flattened 42-dim pose; lower is better but APD, the "
+          "diversity)")
+    print(f"{'method':<44}" + "".join(f"{k:>8}" for k in keys))
+
+    def row(name: str, d: dict | None) -> None:
+        cells = "".join(f"{d[k]:>8.3f}" if d and d.get(k) is not None else f"{'-':>8}" for k in keys)
+        print(f"{name:<44}{cells}")
+
+    if "model" in out:
+        s = out["sampling"]
+        row(f"tcd ({s['samples']} samples, {s['engine']}, {s['sampler']} {s['steps'] or 'all'} steps)", out["model"])
+    if "prior" in out:
+        row("prior (deterministic point forecast)", out["prior"])
+    row("Zero-Velocity", out["zero_velocity"])
+    print("published (50 samples; - : not given by the spec)")
+    for name, d in out["published"].items():
+        row(f"  {name}", d)
 
 
 def print_table(out: dict) -> None:
@@ -272,14 +397,16 @@ def main(argv=None) -> int:
     who.add_argument("--baseline", choices=["zero-velocity"])
     who.add_argument("--model", help="model directory (short.safetensors + long.safetensors)")
     who.add_argument("--prior", help="the deterministic prior: a model directory with prior.safetensors (the public "
-                                     "API, tcd.load(DIR).predict) or a training checkpoint last.pt (PyTorch)")
+                                     "API, tcd.load(DIR).predict; --protocol humaneva: tcd.Prior, so the directory "
+                                     "may hold the prior alone) or a training checkpoint last.pt (PyTorch)")
     ap.add_argument("--fill", choices=["auto", "model", "spline", "linear"], default="auto",
                     help="--prior: how missing observation entries are filled before predicting (auto: the "
                          "repair model where one is loaded, else the natural cubic spline)")
     ap.add_argument("--protocol", choices=["h36m", "humaneva"], default="h36m")
     ap.add_argument("--data", default=None, help="data directory (default ../shared/data/<dataset>)")
     ap.add_argument("--json", help="write the results here")
-    ap.add_argument("--samples", type=int, default=5)
+    ap.add_argument("--samples", type=int, default=None,
+                    help="samples per window (default 5; --protocol humaneva: 50, the protocol's)")
     ap.add_argument("--steps", type=int, default=None, help="inference steps (default: all training steps)")
     ap.add_argument("--sampler", choices=["ddpm", "ddim", "dpmpp2m"], default="ddpm")
     ap.add_argument("--eta", type=float, default=0.0, help="DDIM eta")
@@ -290,6 +417,8 @@ def main(argv=None) -> int:
     ap.add_argument("--mask-seed", type=int, default=0)
     ap.add_argument("--seed", type=int, default=0, help="sampling seed")
     ap.add_argument("--windows-per-action", type=int, default=256)
+    ap.add_argument("--max-windows", type=int, default=None,
+                    help="--protocol humaneva: score this many of the 188 windows, evenly spaced (a quick look)")
     ap.add_argument("--batch-size", type=int, default=16, help="windows per sampling batch")
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--engine", choices=["torch", "tcd"], default="torch",
@@ -300,8 +429,12 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if not 1 <= args.windows_per_action <= 256:
         ap.error("--windows-per-action must be in 1..256")
+    if args.samples is None:
+        args.samples = 50 if args.protocol == "humaneva" else 5
     if args.samples < 1:
         ap.error("--samples must be >= 1")
+    if args.max_windows is not None and args.max_windows < 1:
+        ap.error("--max-windows must be >= 1")
     if args.threads:
         torch.set_num_threads(args.threads)
     if args.data is None:
@@ -311,7 +444,7 @@ def main(argv=None) -> int:
     if args.protocol == "h36m":
         print_table(out)
     else:
-        print(json.dumps(out["stochastic"], indent=2))
+        print_humaneva_table(out)
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=2) + "\n")
     return 0

@@ -20,6 +20,25 @@ PUBLISHED_H36M = {
 }
 
 
+# Published stochastic results on HumanEva-I (DLow / GSPS protocol: 15 observed -> 60 predicted frames at 60 Hz, 50
+# samples, the L2 norm of the flattened 42-dim pose in metres; training.stochastic). Only the numbers the project's
+# spec gives (../shared/spec/TCD_REFERENCE.md, section 6, "Reported TCD numbers"): TCD's ADE and FDE from the TCD
+# poster's Table I (Saadatnejad et al., ICRA 2023), printed there x1000 (199, 215). The spec names MotionDiff, DLow,
+# GSPS, BeLFusion and HumanMAC as the peers of this protocol but gives none of their HumanEva-I numbers: they are
+# listed with no numbers (None) until a cited source is added, never filled from memory.
+PUBLISHED_HUMANEVA: dict[str, dict[str, float] | None] = {
+    "TCD": {"ADE": 0.199, "FDE": 0.215},
+    "MotionDiff": None,
+    "DLow": None,
+    "GSPS": None,
+    "BeLFusion": None,
+    "HumanMAC": None,
+}
+PUBLISHED_HUMANEVA_SOURCES = {
+    "TCD": "TCD poster, Table I (spec TCD_REFERENCE.md section 6); APD, MMADE and MMFDE not given",
+}
+
+
 def horizon_frame(ms: int, fps: float = 25.0) -> int:
     """1-based index of the future frame at ``ms`` milliseconds."""
     return int(round(ms * fps / 1000.0))
