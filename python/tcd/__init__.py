@@ -2,6 +2,7 @@
 
     >>> import tcd
     >>> model = tcd.load("models/h36m")          # short.safetensors + long.safetensors
+    >>> tcd.load("humaneva")                     # the bundled HumanEva-I model, where installed
     >>> f = model.forecast(obs, seed=0)          # obs: (50, 22, 3) metres, NaN = missing
     >>> f.mean.shape, f.samples.shape            # (25, 22, 3), (5, 25, 22, 3)
 
@@ -18,9 +19,9 @@ from __future__ import annotations
 from . import exceptions
 from ._native import __version__
 from .denoiser import STAGE_LONG, STAGE_SHORT, Denoiser, cascade_raw, repair_raw, seeded_noise, supported_kernels
-from .exceptions import InvalidInputError, TcdError, WeightsError
+from .exceptions import InvalidInputError, ModelNotBundledError, TcdError, WeightsError
 from .interpolation import interpolate
-from .model import TCD, Forecast, default_model_dir, forecast, load, predict, repair
+from .model import BUNDLED_MODELS, TCD, Forecast, default_model_dir, forecast, humaneva_model_dir, load, predict, repair
 from .options import SamplerOptions
 from .prior import Prior
 from .batch_repair import repair_file  # `tcd repair` / offline repair of files of any length (issue 6)
@@ -37,6 +38,8 @@ __all__ = [
     "Forecast",
     "SamplerOptions",
     "default_model_dir",
+    "humaneva_model_dir",
+    "BUNDLED_MODELS",
     "Denoiser",
     "Prior",
     "cascade_raw",
@@ -49,4 +52,5 @@ __all__ = [
     "TcdError",
     "InvalidInputError",
     "WeightsError",
+    "ModelNotBundledError",
 ]

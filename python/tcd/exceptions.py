@@ -10,11 +10,28 @@ model file or directory:
 * :class:`WeightsError` — a weight file is corrupt, truncated, lacks or has extra tensors, or its
   configuration disagrees with its tensors (or a model directory's files disagree with each other).
   Also a ``ValueError``. ``.path`` names the file.
+* :class:`ModelNotBundledError` — :func:`tcd.load` was given the name of a bundled model (``"humaneva"``)
+  that this installation does not hold yet. Also a ``FileNotFoundError``. ``.model`` is the name, ``.path``
+  the directory where it would be.
 """
+from typing import Optional
+
 from ._native import InvalidInputError, TcdError, WeightsError
 
 # The classes are created in the native module (crates/tcd-py/src/error.rs), so the engine raises them
 # without importing this module; they are defined there once and re-exported here. Construct them as
 # ``InvalidInputError(message, argument)`` and ``WeightsError(message, path)``.
 
-__all__ = ["TcdError", "InvalidInputError", "WeightsError"]
+__all__ = ["TcdError", "InvalidInputError", "WeightsError", "ModelNotBundledError"]
+
+
+class ModelNotBundledError(TcdError, FileNotFoundError):
+    """A bundled model that this installation does not hold (see :func:`tcd.load`): its message says how to
+    get it. A ``FileNotFoundError`` too, so code that handles a missing model directory handles this."""
+
+    def __init__(self, message: str, model: Optional[str] = None, path: Optional[str] = None) -> None:
+        super().__init__(message)
+        #: the bundled model's name (``"humaneva"``, ``"h36m"``)
+        self.model = model
+        #: the directory where the model would be
+        self.path = path

@@ -7,15 +7,22 @@ is *carried* (the model has no such joint: it is put back on output rigidly atta
 model; a model joint a layout has only as a combination (COCO's neck: the mid-point of the shoulders) is
 listed in ``combined``.
 
-=========  ======  ==========================================================================================
-layout     joints  model joints it lacks (in-painted)
-=========  ======  ==========================================================================================
-h36m22     22      none: the model's own layout (root-relative, heading removed, +x left, +y up, +z forward)
-h36m32     32      none
-h36m17     17      toes and toe sites, thumbs and hands, head site (VideoPose3D / MotionBERT order)
-smpl24     24      toe sites, head site, thumbs (SMPL / AMASS / 3DPW joint order)
-coco17     17      toes and toe sites, thorax, head site, thumbs and hands (COCO keypoints lifted to 3D)
-=========  ======  ==========================================================================================
+==========  ======  ==========================================================================================
+layout      joints  model joints it lacks (in-painted)
+==========  ======  ==========================================================================================
+h36m22      22      none: the model's own layout (root-relative, heading removed, +x left, +y up, +z forward)
+h36m32      32      none
+h36m17      17      toes and toe sites, thumbs and hands, head site (VideoPose3D / MotionBERT order)
+smpl24      24      toe sites, head site, thumbs (SMPL / AMASS / 3DPW joint order)
+coco17      17      toes and toe sites, thorax, head site, thumbs and hands (COCO keypoints lifted to 3D)
+humaneva15  15      toes and toe sites, thorax, head (its head is the head site), thumbs and hands (HumanEva-I)
+==========  ======  ==========================================================================================
+
+``humaneva15`` is HumanEva-I's 15-joint layout (VideoPose3D's ``humaneva15``, the stochastic benchmark's data:
+pelvis, thorax, left shoulder / elbow / wrist, right shoulder / elbow / wrist, left hip / knee / ankle, right
+hip / knee / ankle, head), mapped here onto the Human3.6M skeleton like the others so that a Human3.6M model
+forecasts it. A model trained on HumanEva-I itself (``tcd.load("humaneva")``) works in that layout directly:
+its joints are joints 1..14 of ``humaneva15`` relative to the pelvis (``TCD.joint_names``).
 """
 from __future__ import annotations
 
@@ -129,7 +136,17 @@ COCO17 = Layout(
     anchors={face: 14 for face in range(5)},                 # nose, eyes and ears ride on the head
 )
 
-LAYOUTS: Dict[str, Layout] = {lay.name: lay for lay in (_h36m22(), _h36m32(), H36M17, SMPL24, COCO17)}
+HUMANEVA15 = Layout(
+    "humaneva15",
+    ("pelvis", "thorax", "left_shoulder", "left_elbow", "left_wrist", "right_shoulder", "right_elbow", "right_wrist",
+     "left_hip", "left_knee", "left_ankle", "right_hip", "right_knee", "right_ankle", "head"),
+    (-1, 0, 1, 2, 3, 1, 5, 6, 0, 8, 9, 0, 11, 12, 1),
+    # the thorax is where the shoulders meet (the 32-skeleton's 13, as h36m17's thorax); the head is the top of
+    # the head (15, as h36m17's head)
+    (0, 13, 17, 18, 19, 25, 26, 27, 6, 7, 8, 1, 2, 3, 15),
+)
+
+LAYOUTS: Dict[str, Layout] = {lay.name: lay for lay in (_h36m22(), _h36m32(), H36M17, SMPL24, COCO17, HUMANEVA15)}
 
 
 def get_layout(name: object) -> Layout:

@@ -20,11 +20,12 @@ from . import _checks, wild_calls
 from .poses import UNIT_SCALE, check_units, validate_poses
 from .denoiser import Denoiser, cascade_raw, repair_raw
 from . import _native
-from .exceptions import InvalidInputError, WeightsError
+from .exceptions import InvalidInputError, ModelNotBundledError, WeightsError
 from .options import SamplerOptions
 from .prior import Prior
 
-__all__ = ["TCD", "Forecast", "load", "forecast", "predict", "repair", "default_model_dir"]
+__all__ = ["TCD", "Forecast", "load", "forecast", "predict", "repair", "default_model_dir", "humaneva_model_dir",
+           "BUNDLED_MODELS"]
 
 PathLike = Union[str, "os.PathLike[str]"]
 
@@ -36,6 +37,37 @@ FILLS = ("auto", "model", "spline", "linear")
 def default_model_dir() -> Path:
     """Where the bundled default model lives (``tcd/weights/``)."""
     return Path(__file__).resolve().parent / "weights"
+
+
+def humaneva_model_dir() -> Path:
+    """Where the bundled HumanEva-I model lives (``tcd/weights_humaneva/``), once one is trained and bundled
+    (docs/training.md, "HumanEva-I"): ``tcd.load("humaneva")``."""
+    return Path(__file__).resolve().parent / "weights_humaneva"
+
+
+#: the names :func:`load` takes for the bundled model directories: ``"h36m"`` the default (Human3.6M, 50 -> 25
+#: frames at 25 fps), ``"humaneva"`` the HumanEva-I model (15 -> 60 frames at 60 Hz), when the installation has it
+BUNDLED_MODELS = ("h36m", "humaneva")
+
+
+def _bundled_dir(name: str) -> Path:
+    """The directory of the bundled model ``name``; :class:`ModelNotBundledError` when it is not installed."""
+    if name == "h36m":
+        d = default_model_dir()
+        if not (d / "short.safetensors").is_file():
+            raise ModelNotBundledError(
+                "No default model is bundled with tcd yet: pass a model directory, e.g. "
+                "tcd.load('path/to/model') or `--model DIR` on the command line (a directory holding "
+                "short.safetensors and long.safetensors, as written by `python -m training.export`).", name, str(d))
+        return d
+    d = humaneva_model_dir()
+    if not (d / "short.safetensors").is_file():
+        raise ModelNotBundledError(
+            f"The HumanEva-I model is not bundled with this installation of tcd yet ({d} holds no "
+            "short.safetensors). Train and export it as docs/training.md (section \"HumanEva-I\") says, then "
+            "pass its directory, e.g. tcd.load('models/humaneva') or `--model models/humaneva`; a release that "
+            "bundles it opens it with tcd.load('humaneva').", name, str(d))
+    return d
 
 
 @dataclass(frozen=True, eq=False)
@@ -340,18 +372,18 @@ class TCD:
 
 def load(path: Optional[PathLike] = None, *, threads: Optional[int] = None) -> TCD:
     """Loads a model directory: ``short.safetensors`` + ``long.safetensors`` (+ ``repair.safetensors``), as
-    written by ``python -m training.export``. ``path=None`` loads the bundled default model.
+    written by ``python -m training.export``. ``path=None`` loads the bundled default model; a bundled
+    model's name (:data:`BUNDLED_MODELS`: ``"h36m"``, the default, or ``"humaneva"``, the HumanEva-I model)
+    loads that one: a string equal to a name is the bundled model, so pass a local directory of that name
+    as ``"./humaneva"`` or a ``Path``.
 
-    Raises ``FileNotFoundError`` when a file is missing, :class:`tcd.exceptions.WeightsError` when a file
+    Raises ``FileNotFoundError`` when a file is missing (:class:`tcd.exceptions.ModelNotBundledError`, one,
+    for a bundled model this installation does not hold), :class:`tcd.exceptions.WeightsError` when a file
     is invalid or the files do not fit together."""
     threads = _checks.threads(threads)
-    if path is None:
-        d = default_model_dir()
-        if not (d / "short.safetensors").is_file():
-            raise FileNotFoundError(
-                "No default model is bundled with tcd yet: pass a model directory, e.g. "
-                "tcd.load('path/to/model') or `--model DIR` on the command line (a directory holding "
-                "short.safetensors and long.safetensors, as written by `python -m training.export`).")
+    bundled = path is None or (isinstance(path, str) and path in BUNDLED_MODELS)
+    if bundled:
+        d = _bundled_dir("h36m" if path is None else str(path))
     else:
         if not isinstance(path, (str, os.PathLike)):
             raise _checks.fail("path", "a model directory (str or os.PathLike) or None", repr(path))
@@ -368,7 +400,7 @@ def load(path: Optional[PathLike] = None, *, threads: Optional[int] = None) -> T
     names = [f"{r}.safetensors" for r in ROLES if (d / f"{r}.safetensors").is_file()]
     blobs = {n: (d / n).read_bytes() for n in names}
     digests = {n: hashlib.sha256(b).hexdigest() for n, b in blobs.items()}
-    _verify_checksums(d, digests, bundled=path is None)
+    _verify_checksums(d, digests, bundled=bundled)
     short = Denoiser.from_bytes(blobs["short.safetensors"], str(d / "short.safetensors"))
     long = Denoiser.from_bytes(blobs["long.safetensors"], str(d / "long.safetensors"))
     rp = "repair.safetensors"

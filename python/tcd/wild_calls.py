@@ -1,6 +1,16 @@
 """:meth:`tcd.TCD.forecast` and :meth:`tcd.TCD.repair` on poses from the wild (``layout``, ``fps``, world
 coordinates): the checks, the conversions of :mod:`tcd.wild` around the engine, and the frame-rate
-interpolation of the outputs."""
+interpolation of the outputs.
+
+A model trained in another layout than Human3.6M's names it in its data block (``data.layout``, with
+``data.root_joint`` and ``data.up``: the HumanEva-I model, ``"humaneva15"``, root ``"pelvis"``, +z up). It
+takes poses of that layout only, converted without :mod:`tcd.wild`'s retargeting (the model's skeleton is
+the caller's): the observation is rotated so that ``up`` is the model's up axis (the model keeps the global
+rotation, as its protocol does: the poses are not turned to a heading), resampled to the model's frame rate,
+and made relative to the root joint of each frame (a frame without it: the root interpolated in time from
+the frames that have it; one is needed). The forecast's root continues the velocity of the last 0.2 s,
+decaying with ``tcd.wild.ROOT_DAMPING_S``, and everything comes back in the caller's axes, units and rate.
+"""
 from __future__ import annotations
 
 import math
@@ -70,13 +80,119 @@ def _repaired(p: Any, rep_w: np.ndarray, times: np.ndarray, scale: float) -> np.
     return out if p.batched else out[0]
 
 
+def own_layout(model: Any) -> Optional[str]:
+    """The layout a model was trained in when it is not Human3.6M's (``data.layout``: the HumanEva-I model's
+    ``"humaneva15"``), else None (the conversions of :mod:`tcd.wild`)."""
+    name = model.data.get("layout")
+    return None if name in (None, "h36m22") else str(name)
+
+
+def _rotation_onto(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The rotation (3, 3) that turns unit vector ``a`` onto unit vector ``b`` by the smallest angle."""
+    v, c = np.cross(a, b), float(np.dot(a, b))
+    if c > 1.0 - 1e-12:
+        return np.eye(3)
+    if c < -1.0 + 1e-12:                                   # opposite: half a turn about an axis normal to a
+        axis = np.cross(a, np.eye(3)[int(np.argmin(np.abs(a)))])
+        axis /= np.linalg.norm(axis)
+        return 2.0 * np.outer(axis, axis) - np.eye(3)
+    vx = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+    return np.eye(3) + vx + vx @ vx / (1.0 + c)
+
+
+def _own_prepare(model: Any, own: str, obs: Any, mask: Any, layout: Any, fps: Any, up: Any, units: str, frames: int):
+    """:func:`_prepare` for a model in its own layout (see the module docstring)."""
+    lay = get_layout(layout)
+    if lay.name != own:
+        raise _checks.fail("layout", f"'{own}' (the layout this model was trained in; its poses without a layout "
+                                     f"are {own}'s joints but the root, relative to it)", repr(layout))
+    if model.fps is None:
+        raise _checks.fail("fps", "None: the model does not record its frame rate, so poses cannot be resampled",
+                           repr(fps))
+    src_fps = _fps(fps, float(model.fps))
+    rot = _rotation_onto(wild.up_vector(up), wild.up_vector(model.data.get("up", "y")))   # caller -> model axes
+    root_j = lay.joint_names.index(model.data.get("root_joint", lay.joint_names[0]))
+    p = validate_poses(obs, mask, num_joints=lay.num_joints, units=units)
+    seen_frames = p.observed.reshape(p.observed.shape[0], p.observed.shape[1], -1).any(-1).sum(-1)
+    if (seen_frames < 2).any():
+        raise _checks.fail("obs", "an observation with at least 2 observed frames per sequence (to measure motion)",
+                           f"{int(seen_frames.min())} observed frame(s)")
+    joint_seen = p.observed.all(-1, keepdims=True)
+    x = np.where(joint_seen, p.values, np.nan).astype(np.float64) / UNIT_SCALE[units] @ rot.T
+    xm, times = wild.resample_to_model(x, src_fps, float(model.fps), frames)            # (B, O, J, 3)
+    b, t = xm.shape[:2]
+    root = xm[:, :, root_j]
+    have = np.isfinite(root).all(-1)
+    if not have.any(-1).all():
+        raise InvalidInputError(f"Argument `obs` never shows the {lay.joint_names[root_j]} (joint {root_j} of {own}) "
+                                "inside the model's window: the model's poses are relative to it.", "obs")
+    f = np.arange(t, dtype=np.float64)
+    root = np.stack([np.stack([np.interp(f, f[have[i]], root[i, have[i], c]) for c in range(3)], -1)
+                     for i in range(b)])                                                # (B, O, 3), held at the ends
+    others = [j for j in range(lay.num_joints) if j != root_j]
+    y = xm[:, :, others] - root[:, :, None]
+    seen = np.isfinite(y).all(-1, keepdims=True)
+    flat = lambda a: np.ascontiguousarray(a.reshape(b, t, -1).transpose(0, 2, 1), dtype=np.float32)  # noqa: E731
+
+    def world(bkl: np.ndarray, roots: np.ndarray) -> np.ndarray:
+        """(..., B, K, L) model output and roots (B, L, 3) -> (..., B, L, J, 3) in the caller's axes (metres)."""
+        rel = _model_poses(bkl)
+        out = np.zeros(rel.shape[:-2] + (lay.num_joints, 3))
+        out[..., others, :] = rel
+        return (out + roots[:, :, None, :]) @ rot
+
+    return p, src_fps, times, root, world, flat(np.where(seen, y, 0.0)), flat(np.broadcast_to(seen, y.shape))
+
+
+def _own_future_root(root: np.ndarray, count: int, fps: float) -> np.ndarray:
+    """(B, count, 3): the root's velocity over the last 0.2 s (``tcd.wild``'s rule 5, no turn: the poses carry
+    the rotation), decaying with ``wild.ROOT_DAMPING_S``."""
+    k = min(max(1, int(round(wild.EXTRAPOLATION_FRAMES / 25.0 * fps))), root.shape[1] - 1)
+    f = np.arange(1, count + 1, dtype=np.float64)
+    tau = wild.ROOT_DAMPING_S
+    if k < 1 or tau == 0:
+        return np.repeat(root[:, -1:], count, 1)
+    travel = f if tau is None else tau * fps * -np.expm1(-f / (tau * fps))
+    velocity = (root[:, -1] - root[:, -1 - k]) / k
+    return root[:, -1:] + velocity[:, None, :] * travel[None, :, None]
+
+
+def _to_caller(p: Any, future_w: np.ndarray, last: np.ndarray, h: int, model_fps: float, src_fps: float,
+               scale: float) -> Tuple[np.ndarray, np.ndarray]:
+    """Forecast frames (..., B, h, J, 3) at the model's rate, after the repaired last frame ``last``
+    (B, 1, J, 3), at the caller's rate, units and dtype (and batch axis); with the times of its frames."""
+    model_t = np.arange(h + 1) / model_fps
+    n = int(math.floor(h / model_fps * src_fps + 1e-9))
+    at = np.arange(1, n + 1) / src_fps
+    last = np.broadcast_to(last, future_w.shape[:-3] + (1,) + future_w.shape[-2:])
+    y = (_at_times(np.concatenate([last, future_w], axis=-3), model_t, at) * scale).astype(p.dtype)
+    return (y if p.batched else y[..., 0, :, :, :]), at
+
+
+def _own_forecast(model: Any, own: str, obs: Any, mask: Any, *, layout: Any, fps: Any, up: Any, units: str,
+                  run: Callable[[np.ndarray, np.ndarray], Dict[str, Any]]) -> Tuple[Any, ...]:
+    p, src_fps, times, root, world, observed, seen = _own_prepare(model, own, obs, mask, layout, fps, up, units,
+                                                                  model.obs_len)
+    out = run(observed, seen)
+    h, model_fps, scale = model.horizon, float(model.fps), UNIT_SCALE[units]
+    root_f = _own_future_root(root, h, model_fps)
+    rep_w = world(out["repaired"], root)
+    mean, at = _to_caller(p, world(out["mean"], root_f), rep_w[:, -1:], h, model_fps, src_fps, scale)
+    samples = (None if out["samples"] is None else
+               _to_caller(p, world(out["samples"], root_f), rep_w[:, -1:], h, model_fps, src_fps, scale)[0])
+    return mean, samples, _repaired(p, rep_w, times, scale), at
+
+
 def forecast(model: Any, obs: Any, mask: Any, *, layout: Any, fps: Any, up: Any, units: str,
              run: Callable[[np.ndarray, np.ndarray], Dict[str, Any]]) -> Tuple[Any, ...]:
     """(mean, samples, repaired, times): the forecast in the caller's layout, coordinates, units and frame
     rate, ``times`` the seconds of each forecast frame after the last observed one. ``run(observed, seen)``
     forecasts in the model's space and layout ((B, K, T) in, a dict of ``mean`` (B, K, H), ``samples``
     (S, B, K, H) or None and ``repaired`` (B, K, T) out): the cascade (:meth:`TCD.forecast`) or the prior
-    (:meth:`TCD.predict`)."""
+    (:meth:`TCD.predict`). A model in its own layout (:func:`own_layout`) converts as the module docstring says."""
+    own = own_layout(model)
+    if own is not None:
+        return _own_forecast(model, own, obs, mask, layout=layout, fps=fps, up=up, units=units, run=run)
     p, src_fps, scene, times, observed, seen = _prepare(model, obs, mask, layout, fps, up, units, model.obs_len)
     out = run(observed, seen)
     h = model.horizon
@@ -106,7 +222,12 @@ def repair(model: Any, den: Any, obs: Any, mask: Any, *, layout: Any, fps: Any, 
            options: Any, seed: int, units: str, threads: Optional[int], progress: Any) -> np.ndarray:
     """The observation with its missing entries filled by ``den``, in the caller's layout, coordinates,
     units and frame rate; at most the model's window (longer files: :func:`tcd.repair_file`)."""
-    p, src_fps, scene, times, observed, seen = _prepare(model, obs, mask, layout, fps, up, units, den.obs_len)
+    own = own_layout(model)
+    if own is not None:
+        p, src_fps, times, root, world, observed, seen = _own_prepare(model, own, obs, mask, layout, fps, up, units,
+                                                                      den.obs_len)
+    else:
+        p, src_fps, scene, times, observed, seen = _prepare(model, obs, mask, layout, fps, up, units, den.obs_len)
     if times[0] > 1e-9:
         raise InvalidInputError(
             f"Argument `obs` must span at most the model's window ({model.obs_len} frames at {model.fps:g} fps) "
@@ -114,5 +235,7 @@ def repair(model: Any, den: Any, obs: Any, mask: Any, *, layout: Any, fps: Any, 
             "longer sequences with tcd.repair_file (overlapping windows).", "obs")
     out = repair_raw(den, observed, seen, num_samples=num_samples, options=options, seed=seed, threads=threads,
                      progress=progress)
+    if own is not None:
+        return _repaired(p, world(out["mean"], root), times, UNIT_SCALE[units])
     rep_w = wild.from_model(_model_poses(out["mean"]), scene, scene.root, scene.rot, own_frames=True)
     return _repaired(p, rep_w, times, UNIT_SCALE[units])

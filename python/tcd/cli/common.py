@@ -76,7 +76,8 @@ def flag_message(e: InvalidInputError, flags: Dict[str, str] = OPTION_FLAGS) -> 
 
 
 def add_model_flag(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--model", metavar="DIR", help="model directory (default: the bundled model)")
+    p.add_argument("--model", metavar="DIR", help="model directory, or a bundled model's name: h36m (the default) "
+                   "or humaneva (the HumanEva-I model, where this installation bundles it)")
 
 
 def add_sampler_flags(p: argparse.ArgumentParser, *, tuning: bool = True) -> None:
