@@ -129,8 +129,11 @@ def read_config(path: str | Path) -> dict:
     return json.loads(meta[CONFIG_KEY])
 
 
-def load_model_file(path: str | Path, device: str = "cpu") -> tuple[TCDModel, Schedule, dict]:
-    """Load a safetensors model file strictly into the reference classes (eval mode)."""
+def load_model_file(path: str | Path, device: str = "cpu", prior=None) -> tuple[TCDModel, Schedule, dict]:
+    """Load a safetensors model file strictly into the reference classes (eval mode). The config's
+    ``cond_fill`` / ``target`` and ``diffusion.prediction_type`` come back with it; ``prior`` (a
+    ``training.prior.PriorNet``, e.g. from :func:`load_prior_file`) is attached to a ``cond_fill="prior"``
+    model (the file holds the denoiser only; :func:`load_model_dir` attaches the directory's prior)."""
     from safetensors.torch import load_file
     cfg = read_config(path)
     if cfg.get("format_version") != FORMAT_VERSION:
@@ -139,16 +142,27 @@ def load_model_file(path: str | Path, device: str = "cpu") -> tuple[TCDModel, Sc
     diff_cfg = DiffusionConfig.from_dict(cfg["diffusion"])
     model = TCDModel(model_cfg, diff_cfg.num_train_timesteps)
     model.load_state_dict(load_file(str(path)), strict=True)
+    if prior is not None and model_cfg.cond_fill == "prior":
+        model.attach_prior(prior.to(device))
     return model.to(device).eval(), Schedule(diff_cfg), cfg
 
 
 def load_model_dir(path: str | Path, device: str = "cpu") -> dict[str, tuple[TCDModel, Schedule, dict]]:
+    """Every denoiser of a model directory (:func:`load_model_file`); where one is conditioned on the prior
+    forecaster (``cond_fill="prior"``) the directory's ``prior.safetensors`` is loaded
+    (:func:`load_prior_file`) and attached to it (a missing one is a ``FileNotFoundError``)."""
     d = Path(path)
-    out = {role: load_model_file(d / f"{role}.safetensors", device) for role in ROLES
-           if (d / f"{role}.safetensors").is_file()}
-    if "short" not in out or "long" not in out:
+    files = {role: d / f"{role}.safetensors" for role in ROLES if (d / f"{role}.safetensors").is_file()}
+    if "short" not in files or "long" not in files:
         raise FileNotFoundError(f"{d} must hold short.safetensors and long.safetensors")
-    return out
+    needs = [role for role, f in files.items() if read_config(f)["model"].get("cond_fill") == "prior"]
+    prior = None
+    if needs:
+        if not (d / PRIOR_FILE).is_file():
+            raise FileNotFoundError(f"{d}: the {', '.join(needs)} model(s) are conditioned on the prior forecaster "
+                                    f"(cond_fill 'prior'), but the directory has no {PRIOR_FILE}")
+        prior = load_prior_file(d / PRIOR_FILE)[0]
+    return {role: load_model_file(f, device, prior=prior) for role, f in files.items()}
 
 
 def write_model_json(d: Path) -> None:
@@ -166,11 +180,16 @@ def write_model_json(d: Path) -> None:
 
 
 def random_init_dir(out: str | Path, preset: str = "tiny", seed: int = 0,
-                    diff_cfg: DiffusionConfig | None = None, repair: dict | None = None) -> Path:
+                    diff_cfg: DiffusionConfig | None = None, repair: dict | None = None,
+                    model: dict | None = None, prior_blocks: int = 0) -> Path:
     """Seeded random-init short and long models (the last conv gets a small random weight, so that
     outputs are non-trivial): fixtures for parity tests and benchmarks. With ``repair`` (model-config
     overrides, e.g. ``{"cond_fill": "linear"}``; ``{}`` for the preset as it is) a repair model
-    (50 + 0 frames) is written too."""
+    (50 + 0 frames) is written too. ``model``: model-config overrides of the short and long models (e.g.
+    ``{"cond_fill": "prior", "target": "prior_residual", "target_scale": 10.0}``); ``prior_blocks`` > 0
+    writes a random prior forecaster of that many blocks (:func:`random_prior`) as ``prior.safetensors``.
+    The weights depend on the seed and the sizes only, not on the overrides of fill, target or
+    ``diff_cfg.prediction_type``."""
     d = Path(out)
     diff_cfg = diff_cfg or DiffusionConfig()
     roles = ("short", "long") + (("repair",) if repair is not None else ())
@@ -179,12 +198,16 @@ def random_init_dir(out: str | Path, preset: str = "tiny", seed: int = 0,
         mcfg = PRESETS[preset]
         if role == "repair":
             mcfg = ModelConfig.from_dict({**mcfg.to_dict(), **repair})
-        model = TCDModel(mcfg, diff_cfg.num_train_timesteps)
-        randomize_output_layer(model, seed=seed * 1000 + i)
+        elif model:
+            mcfg = ModelConfig.from_dict({**mcfg.to_dict(), **model})
+        net = TCDModel(mcfg, diff_cfg.num_train_timesteps)
+        randomize_output_layer(net, seed=seed * 1000 + i)
         obs, pred = WINDOWS[role]
-        cfg = build_config(role, model.cfg, diff_cfg, obs, pred, h36m_data_meta(training_data="none (random init)"),
+        cfg = build_config(role, net.cfg, diff_cfg, obs, pred, h36m_data_meta(training_data="none (random init)"),
                            {"random_init": True, "preset": preset, "seed": seed})
-        save_model_file(d / f"{role}.safetensors", model.eval(), cfg)
+        save_model_file(d / f"{role}.safetensors", net.eval(), cfg)
+    if prior_blocks > 0:
+        save_prior(d / PRIOR_FILE, random_prior(blocks=prior_blocks, seed=seed))
     write_model_json(d)
     return d
 

@@ -19,6 +19,7 @@ import numpy as np
 
 from . import _checks, _native
 from .options import SamplerOptions
+from .prior import Prior
 from .progress import reporter
 
 __all__ = ["Denoiser", "cascade_raw", "repair_raw", "seeded_noise", "supported_kernels", "STAGE_SHORT", "STAGE_LONG"]
@@ -137,9 +138,11 @@ class Denoiser:
 
     def forward(self, noisy: Any, observed: Any, mask: Any, step: int, *,
                 threads: Optional[int] = None) -> np.ndarray:
-        """ε̂ = net(noisy, observed, mask, step): arrays (B, K, L) float32, ``step`` in
-        0..num_train_timesteps-1. Returns (B, K, L) float32. ``threads`` (default: all cores) split
-        each sequence's forward across that many threads."""
+        """ε̂ = net(noisy, observed, mask, step) (x̂₀ for a model whose ``diffusion.prediction_type`` is
+        ``"sample"``): arrays (B, K, L) float32, ``step`` in 0..num_train_timesteps-1. Returns (B, K, L)
+        float32. ``threads`` (default: all cores) split each sequence's forward across that many threads.
+        A model with ``cond_fill`` ``"prior"`` reads the prior forecaster's fill from the mask-0 entries of
+        ``observed`` (the caller puts it there; :func:`cascade_raw` does, given the prior)."""
         step = _checks.machine_int("step", step)
         return self._native.forward(_checks.float32_array("noisy", noisy),
                                     _checks.float32_array("observed", observed),
@@ -171,7 +174,7 @@ def cascade_raw(short: Denoiser, long: Denoiser, observed: Any, mask: Any, *, nu
                 noise_short: Any = None, noise_long: Any = None, seed: Optional[int] = None,
                 first_sequence: int = 0, sequences: Optional[Sequence[int]] = None,
                 options: Optional[SamplerOptions] = None, threads: Optional[int] = None, progress: Any = None,
-                **sampler: Any) -> Dict[str, np.ndarray]:
+                prior: Optional[Prior] = None, **sampler: Any) -> Dict[str, np.ndarray]:
     """The short-term -> long-term cascade in the engine's layout (``training.diffusion.cascade``).
 
     observed, mask: (B, K, O) with O = ``short.obs_len``. Noise: ``noise_short`` (S, n + 1, B, K, L_s)
@@ -180,10 +183,17 @@ def cascade_raw(short: Denoiser, long: Denoiser, observed: Any, mask: Any, *, nu
     keywords (:class:`tcd.SamplerOptions`). Returns
     ``mean`` (B, K, P), ``samples`` (S, B, K, P) (P = L_l - O forecast frames), ``repaired`` (B, K, O) and
     ``short_mean`` (B, K, L_s).
+
+    ``prior``: the prior forecaster (:class:`tcd.Prior`), required where a model is conditioned on it
+    (``cond_fill`` ``"prior"``): before each such stage the engine fills the stage's masked entries once
+    with ``training.model.prior_fill`` (the spline over the prior's observed frames, its rollout after
+    them). Models with other fills ignore it.
     """
     for name, m in (("short", short), ("long", long)):
         if not isinstance(m, Denoiser):
             raise _checks.fail(name, "a tcd.Denoiser", type(m).__name__)
+    if prior is not None and not isinstance(prior, Prior):
+        raise _checks.fail("prior", "a tcd.Prior or None", type(prior).__name__)
     num_samples = _checks.machine_int("num_samples", num_samples)
     o = SamplerOptions.build(options, **sampler)
     with reporter(progress, "tcd forecast") as callback:
@@ -194,7 +204,7 @@ def cascade_raw(short: Denoiser, long: Denoiser, observed: Any, mask: Any, *, nu
             seed=_checks.optional_machine_int("seed", seed, 128),
             first_sequence=_checks.machine_int("first_sequence", first_sequence, 128),
             sequences=_stream_ids(sequences), threads=_checks.optional_machine_int("threads", threads),
-            progress=callback))
+            progress=callback, prior=None if prior is None else prior._native))
 
 
 def repair_raw(model: Denoiser, observed: Any, mask: Any, *, num_samples: int = 5, noise: Any = None,

@@ -29,6 +29,9 @@ __all__ = ["TCD", "Forecast", "load", "forecast", "predict", "repair", "default_
 
 PathLike = Union[str, "os.PathLike[str]"]
 
+#: the prior forecaster's file in a model directory (:attr:`TCD.prior`)
+PRIOR_FILE = "prior.safetensors"
+
 #: how :meth:`TCD.predict` fills missing observation entries before the prior forecasts
 FILLS = ("auto", "model", "spline", "linear")
 
@@ -176,6 +179,14 @@ class TCD:
         if long.obs_len != short.seq_len or long.seq_len <= short.obs_len:
             raise WeightsError(f"{where}: the long-term model's obs_len ({long.obs_len}) must equal the short-term "
                                f"model's seq_len ({short.seq_len}).", long.path)
+        #: the roles whose model is conditioned on the prior forecaster (``cond_fill`` ``"prior"``)
+        self._prior_roles = tuple(role for role, m in (("short", short), ("long", long)) if _uses_prior(m))
+        if self._prior_roles and prior is None:
+            missing = str(Path(path) / PRIOR_FILE) if path is not None else PRIOR_FILE
+            roles = " and ".join(f"{r}-term" for r in self._prior_roles)
+            raise WeightsError(f"{where}: the {roles} model is conditioned on the prior forecaster (cond_fill "
+                               f"\"prior\"), but {missing} is missing: the model directory must hold the prior "
+                               f"it was trained with.", missing)
         if prior is not None and (prior.num_features != k or prior.obs_len > short.obs_len):
             raise WeightsError(f"{where}: the prior (num_features = {prior.num_features}, obs_len = {prior.obs_len}) "
                                f"must match the short-term model (num_features = {k}) and read at most its "
@@ -272,9 +283,10 @@ class TCD:
         """
         num_samples, o, units, threads = self._common(num_samples, options, sampler, units, threads)
         seed = _seed(seed)
+        prior = self.prior if self._prior_roles else None
         run = lambda observed, seen: cascade_raw(self.short, self.long, observed, seen,  # noqa: E731
                                                  num_samples=num_samples, options=o, seed=seed, threads=threads,
-                                                 progress=progress)
+                                                 progress=progress, prior=prior)
         if layout is not None or fps is not None:
             mean, samples, repaired, times = wild_calls.forecast(
                 self, obs, mask, layout="h36m22" if layout is None else layout, fps=fps, up=up, units=units, run=run)
@@ -405,9 +417,14 @@ def load(path: Optional[PathLike] = None, *, threads: Optional[int] = None) -> T
     long = Denoiser.from_bytes(blobs["long.safetensors"], str(d / "long.safetensors"))
     rp = "repair.safetensors"
     repair_model = Denoiser.from_bytes(blobs[rp], str(d / rp)) if rp in blobs else None
-    pp = "prior.safetensors"
+    pp = PRIOR_FILE
     prior = Prior.from_bytes(blobs[pp], str(d / pp)) if pp in blobs else None
     return TCD(short, long, repair_model, path=d, threads=threads, file_sha256=digests, prior=prior)
+
+
+def _uses_prior(model: Denoiser) -> bool:
+    """Whether a denoiser is conditioned on the prior forecaster (``model.cond_fill`` ``"prior"``)."""
+    return (model.config.get("model") or {}).get("cond_fill", "zero") == "prior"
 
 
 CHECKSUM_FILE = "SHA256SUMS"
