@@ -181,7 +181,7 @@ def write_model_json(d: Path) -> None:
 
 def random_init_dir(out: str | Path, preset: str = "tiny", seed: int = 0,
                     diff_cfg: DiffusionConfig | None = None, repair: dict | None = None,
-                    model: dict | None = None, prior_blocks: int = 0) -> Path:
+                    model: dict | None = None, prior_blocks: int = 0, dataset: str = "h36m") -> Path:
     """Seeded random-init short and long models (the last conv gets a small random weight, so that
     outputs are non-trivial): fixtures for parity tests and benchmarks. With ``repair`` (model-config
     overrides, e.g. ``{"cond_fill": "linear"}``; ``{}`` for the preset as it is) a repair model
@@ -189,25 +189,33 @@ def random_init_dir(out: str | Path, preset: str = "tiny", seed: int = 0,
     ``{"cond_fill": "prior", "target": "prior_residual", "target_scale": 10.0}``); ``prior_blocks`` > 0
     writes a random prior forecaster of that many blocks (:func:`random_prior`) as ``prior.safetensors``.
     The weights depend on the seed and the sizes only, not on the overrides of fill, target or
-    ``diff_cfg.prediction_type``."""
+    ``diff_cfg.prediction_type``. ``dataset`` ``"humaneva"``: HumanEva-I's 14 joints, its windows
+    (:data:`HUMANEVA_WINDOWS`) and data block, and a prior of its 15 observed frames."""
+    if dataset not in DATASET_WINDOWS:
+        raise ValueError(f"unknown dataset {dataset!r}: one of {sorted(DATASET_WINDOWS)}")
     d = Path(out)
     diff_cfg = diff_cfg or DiffusionConfig()
     roles = ("short", "long") + (("repair",) if repair is not None else ())
+    windows, joints = DATASET_WINDOWS[dataset], DATASET_JOINTS[dataset]
     for i, role in enumerate(roles):
         torch.manual_seed(seed * 1000 + i)
         mcfg = PRESETS[preset]
+        if joints != mcfg.num_joints:
+            sizes = {k: v for k, v in mcfg.to_dict().items() if k not in ("num_features", "side_dim")}
+            mcfg = ModelConfig.from_dict({**sizes, "num_joints": joints})
         if role == "repair":
             mcfg = ModelConfig.from_dict({**mcfg.to_dict(), **repair})
         elif model:
             mcfg = ModelConfig.from_dict({**mcfg.to_dict(), **model})
         net = TCDModel(mcfg, diff_cfg.num_train_timesteps)
         randomize_output_layer(net, seed=seed * 1000 + i)
-        obs, pred = WINDOWS[role]
-        cfg = build_config(role, net.cfg, diff_cfg, obs, pred, h36m_data_meta(training_data="none (random init)"),
+        obs, pred = windows[role]
+        cfg = build_config(role, net.cfg, diff_cfg, obs, pred, data_meta(dataset, "none (random init)"),
                            {"random_init": True, "preset": preset, "seed": seed})
         save_model_file(d / f"{role}.safetensors", net.eval(), cfg)
     if prior_blocks > 0:
-        save_prior(d / PRIOR_FILE, random_prior(blocks=prior_blocks, seed=seed))
+        prior = random_prior(blocks=prior_blocks, seed=seed, obs_len=windows["short"][0], joints=joints)
+        save_model_file(d / PRIOR_FILE, prior, build_prior_config(prior, data_meta(dataset, "none (random init)")))
     write_model_json(d)
     return d
 
@@ -373,6 +381,8 @@ def main(argv=None) -> int:
     ap.add_argument("--prior", metavar="CKPT", help="a training.prior checkpoint (last.pt): writes prior.safetensors "
                     "(the deterministic prior forecaster) into --out beside the denoisers")
     ap.add_argument("--preset", choices=sorted(PRESETS), default="tiny", help="model size for --random-init")
+    ap.add_argument("--dataset", choices=sorted(DATASET_WINDOWS), default="h36m",
+                    help="--random-init: the dataset's joints and windows (humaneva: 14 joints, 15 -> 1 -> 60 frames)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", required=True, help="model directory to write")
     ap.add_argument("--description", help="free text recorded in each file's training metadata "
@@ -382,7 +392,7 @@ def main(argv=None) -> int:
         ap.error("give exactly one of --checkpoint, --random-init, --files or --prior")
     out = Path(args.out)
     if args.random_init:
-        random_init_dir(out, args.preset, args.seed)
+        random_init_dir(out, args.preset, args.seed, dataset=args.dataset)
     elif args.files:
         copy_model_files([Path(f) for f in args.files], out)
         write_model_json(out)
