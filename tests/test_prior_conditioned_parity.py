@@ -41,7 +41,7 @@ from training.model import prior_fill
 
 CHAIN_ATOL = 1e-4      # model units (metres), the cascade criterion of tests/test_parity.py
 CONTRIBUTION = 1e2     # what a feature changes, at least, over CHAIN_ATOL
-O, LS, LL = 50, 55, 75
+OBS, LS, LL = 50, 55, 75
 PREDICTIONS = ("epsilon", "sample")
 SAMPLERS = [  # sampler, num_inference_steps, eta, num_samples
     ("ddpm", 10, 0.0, 2),
@@ -65,12 +65,12 @@ def dirs(tmp_path_factory):
 
 
 def observation(seed: int, batch: int = 2, k: int = 66, missing: float = 0.3):
-    """(engine observed with NaN at missing entries, reference observed with 0 there, mask), (B, K, O)."""
+    """(engine observed with NaN at missing entries, reference observed with 0 there, mask), (B, K, OBS)."""
     rng = np.random.default_rng(seed)
-    mask = (rng.random((batch, k, O)) >= missing).astype(np.float32)
+    mask = (rng.random((batch, k, OBS)) >= missing).astype(np.float32)
     mask[0, :5, -3:] = 0            # a few coordinates missing over the last frames (the prior reads them)
     mask[-1, 6:9, :] = 0             # one joint never observed: its spline fill is 0
-    values = rng.normal(scale=0.3, size=(batch, k, O)).astype(np.float32)
+    values = rng.normal(scale=0.3, size=(batch, k, OBS)).astype(np.float32)
     ref = (values * mask).astype(np.float32)
     eng = np.where(mask == 1, values, np.nan).astype(np.float32)
     return eng, ref, mask
@@ -128,9 +128,9 @@ def test_cascade_matches_pytorch(dirs, prediction, sampler, steps, eta, s, kerne
     got = tcd.cascade_raw(short, long, eng, mask, num_samples=s, noise_short=ns, noise_long=nl, prior=prior, **kw)
     what = f"prior-conditioned cascade {prediction} {sampler} n={steps} eta={eta} S={s} kernel={kernel}"
     assert max_diff(got["short_mean"], want["short_mean"], what + " short_mean") <= CHAIN_ATOL
-    assert max_diff(got["samples"], want["samples"][..., O:], what + " samples") <= CHAIN_ATOL
-    assert max_diff(got["mean"], want["samples"][..., O:].mean(axis=0), what + " mean") <= CHAIN_ATOL
-    assert max_diff(got["repaired"], want["short_mean"][..., :O], what + " repaired") <= CHAIN_ATOL
+    assert max_diff(got["samples"], want["samples"][..., OBS:], what + " samples") <= CHAIN_ATOL
+    assert max_diff(got["mean"], want["samples"][..., OBS:].mean(axis=0), what + " mean") <= CHAIN_ATOL
+    assert max_diff(got["repaired"], want["short_mean"][..., :OBS], what + " repaired") <= CHAIN_ATOL
     sel = mask == 1
     assert np.array_equal(got["repaired"][sel], eng[sel])        # observed entries bit for bit
     assert np.isfinite(got["samples"]).all() and np.isfinite(got["repaired"]).all()
@@ -169,14 +169,14 @@ def test_tcd_load_passes_the_prior_and_matches_pytorch_on_the_seeded_streams(dir
     assert model.prior is not None
     eng, ref, mask = observation(11, batch=1)
     kw = dict(sampler="ddim", num_inference_steps=5, eta=1.0, timestep_spacing="trailing")
-    poses = np.ascontiguousarray(eng[0].T.reshape(O, 22, 3))
+    poses = np.ascontiguousarray(eng[0].T.reshape(OBS, 22, 3))
     f = model.forecast(poses, num_samples=2, seed=21, **kw)
     raw = tcd.cascade_raw(model.short, model.long, eng, mask, num_samples=2, seed=21, prior=model.prior, **kw)
     assert np.array_equal(f.mean, raw["mean"][0].T.reshape(-1, 22, 3))
     ns = tcd.seeded_noise(21, tcd.STAGE_SHORT, 2, 6, 1, 66, LS)
     nl = tcd.seeded_noise(21, tcd.STAGE_LONG, 2, 6, 1, 66, LL)
     want = torch_cascade(d, ref, mask, 2, ns, nl, **kw)
-    assert max_diff(raw["samples"], want["samples"][..., O:], "seeded prior-conditioned x0 cascade") <= CHAIN_ATOL
+    assert max_diff(raw["samples"], want["samples"][..., OBS:], "seeded prior-conditioned x0 cascade") <= CHAIN_ATOL
 
 
 def test_errors_name_the_prior_and_the_missing_file(dirs, tmp_path):
@@ -197,8 +197,8 @@ def test_errors_name_the_prior_and_the_missing_file(dirs, tmp_path):
     e = bad("model", tcd.repair_raw, short, eng, mask, num_samples=1, seed=0, sampler="ddim", num_inference_steps=2)
     assert "prior" in str(e)
     # the low-level calls read the fill from `observed`: NaN there is refused
-    m = np.concatenate([mask, np.zeros((1, 66, LS - O), np.float32)], -1)
-    x = np.concatenate([eng, np.zeros((1, 66, LS - O), np.float32)], -1)
+    m = np.concatenate([mask, np.zeros((1, 66, LS - OBS), np.float32)], -1)
+    x = np.concatenate([eng, np.zeros((1, 66, LS - OBS), np.float32)], -1)
     bad("observed", short.sample, x, m, 1, seed=0, sampler="ddim", num_inference_steps=2)
     assert short.sample(np.nan_to_num(x), m, 1, seed=0, sampler="ddim", num_inference_steps=2).shape == (1, 1, 66, LS)
     assert tcd.cascade_raw(short, long, eng, mask, prior=prior, **kw)["mean"].shape == (1, 66, 25)
@@ -215,7 +215,7 @@ def test_errors_name_the_prior_and_the_missing_file(dirs, tmp_path):
         export.load_model_dir(bare)
     # the user-facing repair of a directory without a repair model uses the short model: refused too
     with pytest.raises(InvalidInputError, match="prior"):
-        tcd.load(d).repair(np.nan_to_num(eng[0].T.reshape(O, 22, 3)), seed=0, num_samples=1,
+        tcd.load(d).repair(np.nan_to_num(eng[0].T.reshape(OBS, 22, 3)), seed=0, num_samples=1,
                            sampler="ddim", num_inference_steps=2)
 
 

@@ -37,13 +37,13 @@ def test_prior_fill_is_spline_then_rollout_and_keeps_observed():
     x0, mask = window()
     observed = torch.where(mask > 0.5, x0, torch.full_like(x0, float("nan")))
     fill = prior_fill(prior, observed, mask)
-    O = prior.cfg.obs_len
+    n_obs = prior.cfg.obs_len
     assert torch.equal(fill[mask > 0.5], x0[mask > 0.5])
-    assert torch.equal(fill[..., :O], spline_fill(observed[..., :O], mask[..., :O]))
+    assert torch.equal(fill[..., :n_obs], spline_fill(observed[..., :n_obs], mask[..., :n_obs]))
     with torch.no_grad():
-        future = prior.rollout(fill[..., :O].transpose(1, 2), 25).transpose(1, 2)
-    free = mask[..., O:] < 0.5
-    assert torch.equal(fill[..., O:][free], future[..., :fill.shape[-1] - O][free])
+        future = prior.rollout(fill[..., :n_obs].transpose(1, 2), 25).transpose(1, 2)
+    free = mask[..., n_obs:] < 0.5
+    assert torch.equal(fill[..., n_obs:][free], future[..., :fill.shape[-1] - n_obs][free])
     assert torch.isfinite(fill).all()
 
 
