@@ -29,7 +29,8 @@ import tcd
 from fixtures_util import ALL_KERNELS, load_kernel
 from tcd.demo import load_clip, occlusion_mask
 from training import diffusion as D
-from training.export import load_model_file
+from training.export import load_model_file, load_prior_file
+from training.model import prior_fill
 
 RTOL = 2e-5           # of the output's scale
 CONTRIBUTION = 1e3    # the network's contribution over the tolerance, at least
@@ -44,11 +45,22 @@ def bundled():
     """role -> (path, torch model, schedule, torch model with the network silenced)."""
     d = tcd.default_model_dir()
     out = {}
+    prior = load_prior_file(d / "prior.safetensors")[0]
     for role in ("short", "long", "repair"):
         path = d / f"{role}.safetensors"
         model, sched, _ = load_model_file(path)
+        if model.cfg.cond_fill == "prior":     # the bundled forecasting models diffuse around the prior
+            model.attach_prior(prior)
         out[role] = (path, model, sched, silenced(model))
     return out
+
+
+def engine_observed(model, observed, mask):
+    """What a single engine stage is given: the observation itself, or for a prior-conditioned model the
+    observation with the prior's fill in its mask-0 entries (as tcd.cascade_raw puts it there)."""
+    if model.cfg.cond_fill != "prior":
+        return observed
+    return prior_fill(model.prior, torch.from_numpy(observed), torch.from_numpy(mask)).numpy()
 
 
 @pytest.fixture(scope="module")
@@ -124,7 +136,7 @@ def test_chain_on_trained_weights(bundled, clip, role, sampler, steps, eta):
     truth, observed, mask = window(clip, 20, den.seq_len, obs_len)
     noise = noise_for(den, sampler, steps, 2, np.random.default_rng(CHAINS.index((sampler, steps, eta))))
     kw = dict(sampler=sampler, num_inference_steps=steps, eta=eta, timestep_spacing="trailing")
-    got = den.sample(observed, mask, 2, noise=noise, **kw)
+    got = den.sample(engine_observed(model, observed, mask), mask, 2, noise=noise, **kw)
     args = (sched, torch.from_numpy(observed), torch.from_numpy(mask), 2)
     want = D.sample_many(model, *args, noise=torch.from_numpy(noise), **kw).numpy()
     silent = D.sample_many(silent_model, *args, noise=torch.from_numpy(noise), **kw).numpy()
@@ -139,7 +151,7 @@ def test_chain_on_trained_weights_every_kernel(bundled, clip, kernel, monkeypatc
     truth, observed, mask = window(clip, 40, den.seq_len, den.config["window"]["obs_len"])
     noise = noise_for(den, "ddim", 10, 1, np.random.default_rng(7))
     kw = dict(sampler="ddim", num_inference_steps=10, eta=0.0, timestep_spacing="trailing")
-    got = den.sample(observed, mask, 1, noise=noise, **kw)
+    got = den.sample(engine_observed(model, observed, mask), mask, 1, noise=noise, **kw)
     args = (sched, torch.from_numpy(observed), torch.from_numpy(mask), 1)
     want = D.sample_many(model, *args, noise=torch.from_numpy(noise), **kw).numpy()
     silent = D.sample_many(silent_model, *args, noise=torch.from_numpy(noise), **kw).numpy()
@@ -159,8 +171,9 @@ def test_cascade_on_trained_weights(bundled, clip):
     rng = np.random.default_rng(11)
     kw = dict(sampler="ddpm", num_inference_steps=10, timestep_spacing="trailing")
     noise_short, noise_long = noise_for(short, "ddpm", 10, 2, rng), noise_for(long, "ddpm", 10, 2, rng)
+    prior = tcd.Prior.load(tcd.default_model_dir() / "prior.safetensors")
     got = tcd.cascade_raw(short, long, observed, mask, num_samples=2, noise_short=noise_short,
-                          noise_long=noise_long, **kw)
+                          noise_long=noise_long, prior=prior, **kw)
 
     def reference(short_model, long_model):
         return D.cascade(short_model, ss, long_model, ls, torch.from_numpy(observed), torch.from_numpy(mask),
