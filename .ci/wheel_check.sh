@@ -32,6 +32,29 @@ p = tcd.load().forecast(obs, num_samples=2, seed=0, sampler="ddim", num_inferenc
 assert np.allclose(p.mean, f.mean, rtol=1e-4, atol=1e-5), np.abs(p.mean - f.mean).max()
 print("wheel check: smoke test passed,", tcd.__version__, tcd.supported_kernels())
 PY
+# the HumanEva-I model, where this tree bundles it (python/tcd/weights_humaneva/); without it, tcd.load("humaneva")
+# says it is not bundled
+if [ -f "$root/python/tcd/weights_humaneva/short.safetensors" ]; then
+    PATH="$nort_path" python - <<'PY'
+import numpy as np, tcd
+m = tcd.load("humaneva")
+assert "/venv/" in str(m.path), m.path
+f = m.forecast(np.zeros((15, 14, 3), np.float32), num_samples=50, seed=0, sampler="ddim", num_inference_steps=2)
+assert f.samples.shape == (50, 60, 14, 3) and np.isfinite(f.samples).all()
+print("wheel check: the bundled HumanEva-I model forecasts 50 samples")
+PY
+    PATH="$nort_path" tcd demo --model humaneva -o "$work/demo_humaneva.npz" --steps 2 --quiet | tail -n 1
+else
+    PATH="$nort_path" python -c "
+import tcd
+try:
+    tcd.load('humaneva')
+except tcd.ModelNotBundledError as e:
+    print('wheel check: no HumanEva-I model bundled:', str(e)[:60], '...')
+else:
+    raise SystemExit('tcd.load(\"humaneva\") loaded a model the tree does not bundle')
+"
+fi
 # the oldest CPython the abi3 wheel claims, where this machine has it (on the PATH or under pyenv)
 py39=""
 for candidate in python3.9 "$HOME"/.pyenv/versions/3.9*/bin/python3.9; do
@@ -50,5 +73,12 @@ python3 - "$work"/from_sdist/*.whl <<'PY'
 import sys, zipfile
 names = zipfile.ZipFile(sys.argv[1]).namelist()
 assert "tcd/weights/short.safetensors" in names and "tcd/weights/prior.safetensors" in names and "tcd/data/demo_walking.npz" in names, names
+assert "tcd/data/demo_walking_humaneva.npz" in names, names
+import os
+bundled = sorted(f for f in os.listdir("python/tcd/weights_humaneva")) if os.path.isdir("python/tcd/weights_humaneva") else []
+if "short.safetensors" in bundled:
+    missing = [f for f in bundled if not f.startswith(".") and "tcd/weights_humaneva/" + f not in names]
+    assert not missing, missing
+    print("wheel check: ... and the HumanEva-I model,", ", ".join(bundled))
 print("wheel check: the sdist builds a wheel with the weights and the demo clip")
 PY

@@ -1,6 +1,8 @@
-"""Builds the demo clip bundled with the package (``python/tcd/data/demo_walking.npz``).
+"""Builds the demo clips bundled with the package (``python/tcd/data/demo_walking.npz`` and, for the HumanEva-I
+model, ``python/tcd/data/demo_walking_humaneva.npz``).
 
     python -m training.make_demo_clip [--cmu ../shared/data/cmu/cmu_expmap_train.npz] [--key walking/walking_2]
+    python -m training.make_demo_clip --layout humaneva [--humaneva ../shared/data/humaneva]
 
 Source: the CMU Graphics Lab Motion Capture Database (mocap.cs.cmu.edu; free for research and for use in
 products, with attribution), exp-map release of the LTD / ConvSeq2Seq CMU benchmark.
@@ -16,6 +18,12 @@ Conversion to the model's 22-joint Human3.6M layout:
    +z forward), and every other Human3.6M bone takes the **direction** of the matching CMU bone and
    the **length** of the Human3.6M bone (``skeleton32.json``);
 4. the 22 model joints in metres (``xyz32_to_model``).
+
+The HumanEva-I clip (``--layout humaneva``) is the same CMU clip resampled to 60 Hz (every second frame) and
+rebuilt the same way on the Human3.6M skeleton, then on HumanEva-I's 15 joints: each joint takes the direction
+from its HumanEva parent of the Human3.6M joint it stands for (``tcd.layouts`` ``humaneva15``) and HumanEva-I's
+bone length (the median over the Train split's frames: 14 numbers, no motion of the licensed data); +z up, as
+HumanEva-I; the model's 14 joints relative to the pelvis, metres.
 """
 from __future__ import annotations
 
@@ -82,6 +90,56 @@ def cmu_to_h36m32(cmu_mm: np.ndarray) -> np.ndarray:
     return out
 
 
+HUMANEVA_FPS = 60.0
+HUMANEVA_OUT = OUT.with_name("demo_walking_humaneva.npz")
+# HumanEva-I's 15 joints -> the Human3.6M 32-skeleton joint each stands for (tcd.layouts.HUMANEVA15.to32)
+HUMANEVA_FROM_H36M32 = (0, 13, 17, 18, 19, 25, 26, 27, 6, 7, 8, 1, 2, 3, 15)
+# the model's +y up (Human3.6M) -> HumanEva-I's +z up: a quarter turn about +x
+Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+
+
+def humaneva_bone_lengths(path=None) -> np.ndarray:
+    """(15,) metres: each HumanEva-I joint's distance from its parent, the median over every frame of the Train
+    split (0 for the pelvis)."""
+    from training.data.humaneva import HUMANEVA_PARENTS, humaneva_file, load_humaneva
+    frames = np.concatenate(list(load_humaneva(humaneva_file(path), "Train").values()))
+    parents = np.asarray(HUMANEVA_PARENTS)
+    out = np.zeros(len(parents))
+    out[1:] = np.median(np.linalg.norm(frames[:, 1:] - frames[:, parents[1:]], axis=-1), axis=0)
+    return out
+
+
+def build_humaneva(cmu_path: str, key: str, humaneva_path=None) -> dict:
+    from training.data.humaneva import HUMANEVA_MODEL_JOINT_NAMES, HUMANEVA_PARENTS
+    seqs = load_cmu_npz(cmu_path)
+    if key not in seqs:
+        raise KeyError(f"{key} not in {cmu_path}")
+    # the release's first frame is not part of the motion (the Human3.6M clip's first step is 0.76 m): dropped
+    cmu = resample(expmap_to_positions_cmu(seqs[key], sample_rate=1)[1:], CMU_FPS, HUMANEVA_FPS)
+    h32 = cmu_to_h36m32(cmu) / 1000.0 @ Y_UP_TO_Z_UP.T                        # metres, +z up
+    src = h32[:, HUMANEVA_FROM_H36M32]
+    lengths = humaneva_bone_lengths(humaneva_path)
+    out = np.zeros_like(src)
+    for j, p in enumerate(HUMANEVA_PARENTS):
+        if p >= 0:
+            d = src[:, j] - src[:, p]
+            out[:, j] = out[:, p] + lengths[j] * d / np.linalg.norm(d, axis=-1, keepdims=True)
+    return {
+        "poses": (out[:, 1:] - out[:, :1]).astype(np.float32),
+        "fps": np.float32(HUMANEVA_FPS),
+        "joint_names": np.array(HUMANEVA_MODEL_JOINT_NAMES),
+        "source": np.array(json.dumps({
+            "dataset": "CMU Graphics Lab Motion Capture Database (mocap.cs.cmu.edu)",
+            "attribution": "The data used in this project was obtained from mocap.cs.cmu.edu. "
+                           "The database was created with funding from NSF EIA-0196217.",
+            "clip": key, "capture_fps": CMU_FPS,
+            "conversion": "python -m training.make_demo_clip --layout humaneva (CMU bone directions through the "
+                          "Human3.6M skeleton, HumanEva-I median bone lengths, joints 1..14 of humaneva15 relative "
+                          "to the pelvis, metres, +z up, 60 fps)",
+        })),
+    }
+
+
 def build(cmu_path: str, key: str) -> dict:
     seqs = load_cmu_npz(cmu_path)
     if key not in seqs:
@@ -109,12 +167,18 @@ def main(argv=None) -> int:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--cmu", default="../shared/data/cmu/cmu_expmap_train.npz")
     ap.add_argument("--key", default="walking/walking_2")
-    ap.add_argument("--out", default=str(OUT))
+    ap.add_argument("--layout", choices=["h36m", "humaneva"], default="h36m",
+                    help="the model the clip is for: the Human3.6M 22-joint model or the HumanEva-I model")
+    ap.add_argument("--humaneva", default=None, help="HumanEva-I data (bone lengths; default ../shared/data/humaneva)")
+    ap.add_argument("--out", default=None, help="default: python/tcd/data/demo_walking[_humaneva].npz")
     args = ap.parse_args(argv)
-    clip = build(args.cmu, args.key)
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    np.savez_compressed(args.out, **clip)
-    print(f"wrote {args.out}: {clip['poses'].shape[0]} frames at {MODEL_FPS:g} fps, {clip['poses'].shape[1]} joints")
+    if args.layout == "humaneva":
+        clip, out = build_humaneva(args.cmu, args.key, args.humaneva), args.out or str(HUMANEVA_OUT)
+    else:
+        clip, out = build(args.cmu, args.key), args.out or str(OUT)
+    Path(out).parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(out, **clip)
+    print(f"wrote {out}: {clip['poses'].shape[0]} frames at {float(clip['fps']):g} fps, {clip['poses'].shape[1]} joints")
     return 0
 
 

@@ -15,6 +15,13 @@ What it does, with its default settings:
 3. **repair**: the occluded observation's missing entries filled by the model, scored against the true
    values (ADE over the occluded entries) beside linear interpolation in time.
 
+With more than one sample, the demo also prints how diverse the samples are (APD, the stochastic benchmarks'
+diversity) and the error of the best one (an oracle: chosen against the truth).
+
+The HumanEva-I model (``tcd demo --model humaneva``) gets the same clip converted to its layout
+(``tcd/data/demo_walking_humaneva.npz``: 60 Hz, +z up, HumanEva-I's bone lengths; ``python -m
+training.make_demo_clip --layout humaneva``): 15 observed frames, 60 forecast (1 s).
+
 It writes ``demo.npz`` (every array, the joint names and the timings) and, with ``--plot demo.gif`` and
 matplotlib installed (``pip install "tcd-forecast[plot]"``), an animation of observed, repaired, forecast
 and true skeletons.
@@ -36,6 +43,8 @@ from .model import TCD
 from .options import SamplerOptions
 
 CLIP_PATH = Path(__file__).resolve().parent / "data" / "demo_walking.npz"
+#: the same walk for the HumanEva-I model (its 14 joints, 60 Hz, +z up)
+HUMANEVA_CLIP_PATH = CLIP_PATH.with_name("demo_walking_humaneva.npz")
 HORIZONS_MS = (80, 160, 320, 400, 560, 720, 880, 1000)
 
 # Demo defaults: the paper's sampler (SamplerOptions' defaults: DDPM over all 50 training steps), 5 samples.
@@ -57,6 +66,18 @@ BONES = (
     ("neck", "right_shoulder"), ("right_shoulder", "right_elbow"), ("right_elbow", "right_wrist"),
     ("right_wrist", "right_thumb"), ("right_wrist", "right_hand"),
 )
+
+
+def clip_for(model: TCD) -> Path:
+    """The bundled clip in the model's layout: the HumanEva-I clip for a HumanEva-I model, else the Human3.6M one."""
+    return HUMANEVA_CLIP_PATH if model.data.get("dataset") == "humaneva" else CLIP_PATH
+
+
+def apd(samples: np.ndarray) -> float:
+    """Average pairwise distance (m) between samples (S, H, J, 3), each flattened: DLow's diversity (APD)."""
+    flat = np.asarray(samples, np.float64).reshape(len(samples), -1)
+    d = [np.linalg.norm(flat[a + 1:] - flat[a], axis=1) for a in range(len(flat) - 1)]
+    return float(np.concatenate(d).mean()) if d else 0.0
 
 
 def load_clip(path: Path = CLIP_PATH) -> Dict[str, Any]:
@@ -104,15 +125,16 @@ def _say(msg: str, quiet: bool) -> None:
 
 def run(model: TCD, *, samples: int = DEFAULT_SAMPLES, options: Optional[SamplerOptions] = None,
         seed: int = DEFAULT_SEED, threads: Optional[int] = None, quiet: bool = False,
-        clip_path: Path = CLIP_PATH) -> Dict[str, Any]:
-    """Runs the demo; returns every array and number (what ``tcd demo`` prints and saves)."""
+        clip_path: Optional[Path] = None) -> Dict[str, Any]:
+    """Runs the demo; returns every array and number (what ``tcd demo`` prints and saves). ``clip_path``:
+    by default the bundled clip in the model's layout (:func:`clip_for`)."""
     options = SamplerOptions.build(options)
     steps, sampler = options.num_inference_steps, options.sampler
-    clip = load_clip(clip_path)
+    clip = load_clip(clip_for(model) if clip_path is None else clip_path)
     poses, fps, names = clip["poses"], clip["fps"], clip["joint_names"]
     if model.joint_names is not None and list(model.joint_names) != names:
         raise ValueError("the demo clip's joints do not match the model's: the demo needs a 22-joint "
-                         "Human3.6M-layout model")
+                         "Human3.6M-layout model or the HumanEva-I model")
     if model.fps is not None and abs(float(model.fps) - fps) > 1e-6:
         raise ValueError(f"the demo clip is at {fps:g} fps, the model at {model.fps:g} fps")
     n_obs, h = model.obs_len, model.horizon
@@ -134,6 +156,10 @@ def run(model: TCD, *, samples: int = DEFAULT_SAMPLES, options: Optional[Sampler
     res["timings_s"]["forecast"] = time.perf_counter() - t0
     res["forecast_mean"], res["forecast_samples"] = f.mean, f.samples
     res["forecast_mm"] = horizon_row(mpjpe_mm(f.mean, future), fps)
+    if samples > 1:
+        errs = mpjpe_mm(f.samples, future)                                   # (S, H)
+        res["best_sample_mm"] = horizon_row(errs[int(errs.mean(axis=1).argmin())], fps)
+        res["samples_apd_m"] = apd(f.samples)
     _say(f"      done in {res['timings_s']['forecast']:.1f} s", quiet)
 
     mask = occlusion_mask(n_obs, names, seed)
@@ -161,6 +187,11 @@ def run(model: TCD, *, samples: int = DEFAULT_SAMPLES, options: Optional[Sampler
         res["occluded_point_mm"] = horizon_row(mpjpe_mm(po.mean, future), fps)
         _say(f"      done in {res['timings_s']['point_forecast'] * 1000:.1f} ms (clean)", quiet)
 
+    if not can_repair(model):
+        res["repair_skipped"] = ("this model has no repair model, and its short-term model is conditioned on the "
+                                 "prior forecaster, which a repair does not run")
+        _say(f"[{stages}/{stages}] repair skipped: {res['repair_skipped']}", quiet)
+        return res
     _say(f"[{stages}/{stages}] repairing the occluded observation...", quiet)
     t0 = time.perf_counter()
     rep = model.repair(occluded, **kw)
@@ -175,18 +206,27 @@ def run(model: TCD, *, samples: int = DEFAULT_SAMPLES, options: Optional[Sampler
     return res
 
 
+def can_repair(model: TCD) -> bool:
+    """Whether :meth:`TCD.repair` runs on this model: it has a repair model, or its short-term model (which
+    repairs without one) is not conditioned on the prior forecaster (a repair never runs the prior)."""
+    return model.repair_model is not None or \
+        (model.short.config.get("model") or {}).get("cond_fill", "zero") != "prior"
+
+
 def summary(res: Dict[str, Any], model: TCD) -> str:
     """The short text ``tcd demo`` prints."""
     ms = [m for m in HORIZONS_MS if m in res["forecast_mm"]]
     blocks = ("forecast_mm", "occluded_forecast_mm", "zero_velocity_mm") + (
-        ("point_mm", "occluded_point_mm") if "point_mm" in res else ())
+        ("point_mm", "occluded_point_mm") if "point_mm" in res else ()) + (
+        ("best_sample_mm",) if "best_sample_mm" in res else ())
     # wide enough for every number (an untrained model's errors reach metres), one space between columns
     w = 1 + max(7, *(len(f"{res[b][m]:.1f}") for b in blocks for m in ms))
     head = "".join(f"{m:>{w}}" for m in ms)
     row = lambda name, d: f"  {name:<32}" + "".join(f"{d[m]:>{w}.1f}" for m in ms)  # noqa: E731
     s = res["settings"]
     lines = [
-        f"tcd demo: model {model.path} (sha256 {str(model.sha256)[:12]}), clip: CMU walking, "
+        f"tcd demo: model {model.path} (sha256 {str(model.sha256)[:12]}), clip: CMU walking "
+        f"({'HumanEva-I layout' if model.data.get('dataset') == 'humaneva' else 'Human3.6M layout'}), "
         f"{len(res['observed'])} observed frames at {res['fps']:g} fps",
         f"sampler {s['sampler']}, {s['steps'] or model.num_train_timesteps} steps, {s['samples']} samples, seed {s['seed']}",
         "",
@@ -197,18 +237,23 @@ def summary(res: Dict[str, Any], model: TCD) -> str:
         *([row("prior point forecast, clean", res["point_mm"]),
            row("prior, occluded (repair+predict)", res["occluded_point_mm"])] if "point_mm" in res else []),
         row("zero-velocity (clean)", res["zero_velocity_mm"]),
+        *([row(f"best of the {s['samples']} samples (oracle)", res["best_sample_mm"]), "",
+           f"the {s['samples']} samples of the clean forecast differ by {res['samples_apd_m']:.3f} m on average (APD: "
+           "the flattened poses' mean pairwise distance, the stochastic benchmarks' diversity)"]
+          if "best_sample_mm" in res else []),
         "",
-        f"repair of the occluded observation ({100 * res['occluded_fraction']:.0f} % hidden): "
-        f"ADE {res['repair_ade_mm']:.1f} mm over the hidden entries "
-        f"(linear interpolation: {res['linear_interpolation_ade_mm']:.1f} mm); observed entries unchanged: "
-        f"{'yes' if res['repaired_observed_unchanged'] else 'NO'}",
+        (f"repair of the occluded observation ({100 * res['occluded_fraction']:.0f} % hidden): "
+         f"ADE {res['repair_ade_mm']:.1f} mm over the hidden entries "
+         f"(linear interpolation: {res['linear_interpolation_ade_mm']:.1f} mm); observed entries unchanged: "
+         f"{'yes' if res['repaired_observed_unchanged'] else 'NO'}") if "repair_ade_mm" in res else
+        f"repair skipped: {res['repair_skipped']}",
         "",
         "time: " + ", ".join(f"{k.replace('_', ' ')} {v:.2f} s" for k, v in res["timings_s"].items()),
         "",
         "The table is the forecast error in mm at each horizon (lower is better) from a clean and from an occluded "
         "observation, beside Zero-Velocity (the last observed pose held) and, where the model has one, the "
-        "deterministic prior's point forecast; the repair line compares the model's filling of hidden joints "
-        "with linear interpolation.",
+        "deterministic prior's point forecast" + ("; the repair line compares the model's filling of hidden joints "
+                                                  "with linear interpolation." if "repair_ade_mm" in res else "."),
         verdict(res, model),
     ]
     return "\n".join(lines)
@@ -261,8 +306,9 @@ def save(res: Dict[str, Any], path: Path, model: TCD, overwrite: bool = True,
     """Writes the demo's arrays and numbers to ``path`` (.npz) atomically (``FileExistsError`` when it exists
     and not ``overwrite``); ``plot_sha256``: that of the GIF written beside it, recorded in the summary."""
     meta = {k: res[k] for k in ("settings", "timings_s", "forecast_mm", "occluded_forecast_mm", "zero_velocity_mm",
-                                "repair_ade_mm", "linear_interpolation_ade_mm", "occluded_fraction", "fps")}
-    meta.update({k: res[k] for k in ("point_mm", "occluded_point_mm") if k in res})
+                                "occluded_fraction", "fps")}
+    meta.update({k: res[k] for k in ("point_mm", "occluded_point_mm", "best_sample_mm", "samples_apd_m",
+                                     "repair_ade_mm", "linear_interpolation_ade_mm", "repair_skipped") if k in res})
     meta["model_sha256"] = model.sha256
     meta["tool"] = DEMO_TOOL
     meta["plot_sha256"] = plot_sha256
@@ -284,9 +330,11 @@ def plot(res: Dict[str, Any], path: Path, fps: float, overwrite: bool = True) ->
     except ImportError as e:  # pragma: no cover - depends on the environment
         raise ImportError("--plot needs matplotlib: pip install 'tcd-forecast[plot]'") from e
     names = list(res["joint_names"])
+    humaneva = "pelvis" not in names and "right_hip" in names               # the HumanEva-I model's joints
     # the pelvis and hips are not model joints (root-relative, rotation removed: they are fixed); add them
-    # at their Human3.6M positions for drawing
-    fixed = {"pelvis": (0.0, 0.0, 0.0), "right_hip": (-0.1329, 0.0, 0.0), "left_hip": (0.1329, 0.0, 0.0)}
+    # at their Human3.6M positions for drawing (the HumanEva-I model: the pelvis, at the origin)
+    fixed = ({"pelvis": (0.0, 0.0, 0.0)} if humaneva else
+             {"pelvis": (0.0, 0.0, 0.0), "right_hip": (-0.1329, 0.0, 0.0), "left_hip": (0.1329, 0.0, 0.0)})
     extra = np.array(list(fixed.values()), dtype=np.float32)
 
     def with_hips(p):
@@ -297,8 +345,16 @@ def plot(res: Dict[str, Any], path: Path, fps: float, overwrite: bool = True) ->
     hip_bones = (("pelvis", "right_hip"), ("right_hip", "right_knee"), ("pelvis", "left_hip"),
                  ("left_hip", "left_knee"), ("pelvis", "thorax"))
     bones = [(idx[a], idx[b]) for a, b in BONES + hip_bones if a in idx and b in idx]
-    obs, rep = with_hips(res["observed"]), with_hips(res["repaired"])
+    if humaneva:                                                            # its own tree (tcd.layouts humaneva15)
+        from .layouts import LAYOUTS
+        lay = LAYOUTS["humaneva15"]
+        bones = [(idx[lay.joint_names[p]], idx[n]) for n, p in zip(lay.joint_names, lay.parents) if p >= 0]
+    up, depth = (2, 1) if humaneva else (1, 2)                              # +z up (HumanEva-I) or +y up
+    # without a repair (skipped: demo.can_repair) the left panel shows the occluded observation's known joints
+    obs, rep = with_hips(res["observed"]), with_hips(res.get("repaired", res["observed"]))
     fut, fc = with_hips(res["future"]), with_hips(res["forecast_mean"])
+    smp = res.get("forecast_samples")
+    smp = with_hips(smp[:5]) if smp is not None and len(smp) > 1 else None     # a few samples, drawn faintly
     mask = np.concatenate([res["occlusion_mask"], np.ones((len(obs), len(fixed)), np.float32)], axis=1)
     n_obs, h = len(obs), len(fut)
     fig = plt.figure(figsize=(9, 4.5))
@@ -309,29 +365,34 @@ def plot(res: Dict[str, Any], path: Path, fps: float, overwrite: bool = True) ->
     def draw(ax, pose, color, style="-"):
         for a, b in bones:
             # model axes: x left, y up, z forward -> plot x, z, y so that up is up
-            ax.plot([pose[a, 0], pose[b, 0]], [pose[a, 2], pose[b, 2]], [pose[a, 1], pose[b, 1]], style, color=color, lw=2)
+            ax.plot([pose[a, 0], pose[b, 0]], [pose[a, depth], pose[b, depth]], [pose[a, up], pose[b, up]], style,
+                    color=color, lw=2)
 
     def frame(i):
         for ax in axes:
             ax.cla()
-            ax.set_xlim(lo[0], hi[0]); ax.set_ylim(lo[2], hi[2]); ax.set_zlim(lo[1], hi[1])  # noqa: E702
+            ax.set_xlim(lo[0], hi[0]); ax.set_ylim(lo[depth], hi[depth]); ax.set_zlim(lo[up], hi[up])  # noqa: E702
             ax.set_xticks([]); ax.set_yticks([]); ax.set_zticks([])  # noqa: E702
         if i < n_obs:
             draw(axes[0], obs[i], "0.6", "--")
             draw(axes[0], rep[i], "tab:blue")
             hid = mask[i] == 0
             if hid.any():
-                axes[0].scatter(rep[i, hid, 0], rep[i, hid, 2], rep[i, hid, 1], color="tab:red", s=12)
-            axes[0].set_title(f"repair: frame {i + 1}/{n_obs}\nblue repaired, red = was hidden, grey truth", fontsize=8)
+                axes[0].scatter(rep[i, hid, 0], rep[i, hid, depth], rep[i, hid, up], color="tab:red", s=12)
+            axes[0].set_title(f"repair: frame {i + 1}/{n_obs}\nblue repaired, red = was hidden, grey truth" if "repaired"
+                              in res else f"observation: frame {i + 1}/{n_obs}\nred = hidden (no repair)", fontsize=8)
             draw(axes[1], obs[i], "0.3")
             axes[1].set_title("clean observation (ground truth)", fontsize=8)
         else:
             k = i - n_obs
             draw(axes[1], fut[k], "0.6", "--")
+            for sample in () if smp is None else smp:
+                draw(axes[1], sample[k], "#a6dba0")
             draw(axes[1], fc[k], "tab:green")
-            axes[1].set_title(f"forecast +{1000 * (k + 1) / fps:.0f} ms\ngreen tcd, grey truth", fontsize=8)
+            axes[1].set_title(f"forecast +{1000 * (k + 1) / fps:.0f} ms\ngreen tcd (light: samples), grey truth",
+                              fontsize=8)
             draw(axes[0], rep[-1], "tab:blue")
-            axes[0].set_title("last repaired frame", fontsize=8)
+            axes[0].set_title("last repaired frame" if "repaired" in res else "last observed frame", fontsize=8)
         return []
 
     anim = FuncAnimation(fig, frame, frames=n_obs + h, interval=1000 / fps)

@@ -1,0 +1,389 @@
+"""HumanEva-I end to end but for the long training (issue 31): the training data and its windows, the prior on
+HumanEva's 14 joints, training configs and a few training steps, the stochastic evaluation through the engine
+on a tiny random model directory, the ``humaneva15`` layout and ``tcd.load("humaneva")``.
+
+Tests on the real data skip cleanly where ``../shared/data/humaneva`` (``$TCD_DATA_DIR``) is absent; the rest
+use small synthetic data made here."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+import tcd
+from conftest import DATA, ROOT, needs_data
+from training import evaluate
+from training.batches import Windows
+from training.data.humaneva import (HUMANEVA_JOINT_NAMES, HUMANEVA_MODEL_JOINT_NAMES, humaneva_test_windows,
+                                    load_humaneva, training_sequences)
+from training.export import (HUMANEVA_WINDOWS, export_checkpoint, export_prior, load_prior_file, random_init_dir,
+                             read_config)
+from training.prior import PriorConfig, PriorNet, load as load_prior_checkpoint, training_frames
+from training.prior import train as train_prior
+from training.train import TrainConfig, train
+
+needs_humaneva = needs_data("humaneva/humaneva_i_15j_60hz.npz")
+HUMANEVA_FILE = DATA / "humaneva" / "humaneva_i_15j_60hz.npz"
+CONFIGS = ROOT / "training" / "configs"
+PRIOR_MODEL = {"cond_fill": "prior", "target": "prior_residual", "target_scale": 10.0}
+TINY = {"num_joints": 14, "channels": 16, "num_layers": 1, "num_heads": 2, "ffn_dim": 16, "dropout": 0.0}
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)          # a busy 2-core machine: PyTorch's threads only thrash
+    yield
+    torch.set_num_threads(n)
+
+
+def walking(T: int, seed: int, J: int = 15) -> np.ndarray:
+    """Smooth synthetic motion (T, J, 3) metres: a body of joints around a drifting, turning root."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(T)[:, None, None] / 60.0
+    body = rng.normal(scale=0.3, size=(1, J, 3)) + 0.05 * np.sin(2 * np.pi * rng.uniform(0.5, 2, (1, J, 3)) * t
+                                                                  + rng.uniform(0, 6, (1, J, 3)))
+    root = np.concatenate([0.8 * t[..., 0], 0.1 * np.sin(t[..., 0]), 0.9 + 0 * t[..., 0]], axis=-1)[:, None]
+    body[:, :1] = 0.0
+    return (body + root).astype(np.float32)
+
+
+@pytest.fixture(scope="module")
+def synthetic_file(tmp_path_factory) -> Path:
+    """A HumanEva-I-shaped file: Train and Validate chunks of S1..S3 (one of them a take DLow drops)."""
+    chunks = {"Train/S1/Walking 1 chunk0": 140, "Train/S2/Jog 1 chunk0": 100, "Train/S3/Box 1 chunk0": 90,
+              "Train/S3/Walking 1 chunk0": 120, "Validate/S1/Walking 1 chunk0": 130,
+              "Validate/S2/Box 1 chunk2": 105, "Validate/S3/Jog 1 chunk0": 80}
+    path = tmp_path_factory.mktemp("humaneva") / "humaneva_i_15j_60hz.npz"
+    np.savez(path, **{k: walking(n, i) for i, (k, n) in enumerate(chunks.items())})
+    return path
+
+
+# ------------------------------------------------------------------------------------------ the data
+
+def test_training_sequences_are_the_train_split_root_relative(synthetic_file):
+    seqs = training_sequences(synthetic_file)
+    assert list(seqs) == ["Train/S1/Walking 1 chunk0", "Train/S2/Jog 1 chunk0", "Train/S3/Box 1 chunk0"]
+    raw = load_humaneva(synthetic_file, "Train")
+    for k, v in seqs.items():
+        assert v.shape == (raw[k].shape[0], 14, 3) and v.dtype == np.float32
+        np.testing.assert_allclose(v, raw[k][:, 1:] - raw[k][:, :1], atol=1e-6)
+    assert list(training_sequences(synthetic_file.parent, subjects=[2])) == ["Train/S2/Jog 1 chunk0"]
+    with pytest.raises(ValueError, match="S1..S3"):
+        training_sequences(synthetic_file, subjects=[1, 5])
+    assert HUMANEVA_MODEL_JOINT_NAMES == HUMANEVA_JOINT_NAMES[1:] and HUMANEVA_JOINT_NAMES[0] == "pelvis"
+
+
+@needs_humaneva
+def test_real_training_windows_and_split():
+    seqs = training_sequences(HUMANEVA_FILE)
+    assert all(k.startswith("Train/") for k in seqs) and len(seqs) == 33
+    assert "Train/S3/Walking 1 chunk0" not in seqs and "Train/S3/Walking 1 chunk2" not in seqs
+    assert sum(len(v) for v in seqs.values()) == 4251
+    # the cascade's windows, stride 1 inside a chunk: the long model's 75 frames, the short model's 16
+    assert len(Windows(list(seqs.values()), 75, 1)) == 2612
+    assert len(Windows(list(seqs.values()), 16, 1)) == 3797
+    test = humaneva_test_windows(load_humaneva(HUMANEVA_FILE, "Validate"))
+    assert test.shape == (188, 75, 14, 3)
+    # no test window appears in the training data
+    train_starts = {np.round(v[i], 5).tobytes() for v in seqs.values() for i in range(len(v))}
+    assert not any(np.round(w[0], 5).tobytes() in train_starts for w in test)
+
+
+# ------------------------------------------------------------------------------------------ the prior
+
+def test_prior_config_and_network_on_humaneva():
+    cfg = PriorConfig.load(CONFIGS / "humaneva_prior.json")
+    assert (cfg.dataset, cfg.num_joints, cfg.obs_len) == ("humaneva", 14, 15) and cfg.chunk <= cfg.obs_len
+    assert cfg.subjects == (1, 2, 3)
+    net = PriorNet(cfg)
+    assert net.fc_in.in_features == 42
+    x = torch.randn(2, 15, 42)
+    assert net(x).shape == (2, cfg.chunk, 42)
+    assert net.rollout(x, 60).shape == (2, 60, 42)
+    with pytest.raises(ValueError, match="chunk"):
+        PriorConfig(dataset="humaneva", obs_len=15, chunk=60, subjects=(1, 2, 3))
+    with pytest.raises(ValueError, match="subjects"):
+        PriorConfig(dataset="humaneva", obs_len=15)                 # Human3.6M's subjects by default
+    with pytest.raises(ValueError, match="dataset"):
+        PriorConfig(dataset="amass")
+    # a checkpoint's config written before `dataset` existed is a Human3.6M one, and compares equal to it
+    old = PriorConfig().to_dict()
+    del old["dataset"]
+    assert PriorConfig.from_dict(old) == PriorConfig()
+
+
+def test_prior_trains_exports_and_runs_in_the_engine(tmp_path):
+    cfg = PriorConfig(dataset="humaneva", obs_len=15, chunk=10, blocks=2, batch_size=16, iterations=3,
+                      subjects=(1, 2, 3))
+    seqs = [walking(90, s)[:, 1:] - walking(90, s)[:, :1] for s in range(3)]
+    frames = training_frames(cfg, seqs=[q.astype(np.float32) for q in seqs])
+    assert frames[0].shape == (270, 42) and len(frames[1]) == 3 * (90 - 25 + 1)
+    res = train_prior(cfg, tmp_path / "run", frames=frames, log=lambda *a: None)
+    assert res["done"]
+    net = load_prior_checkpoint(tmp_path / "run" / "last.pt")
+    assert net.fc_in.in_features == 42
+    path = export_prior(tmp_path / "run" / "last.pt", tmp_path / "model")
+    meta = read_config(path)
+    assert meta["model"]["num_joints"] == 14 and meta["model"]["obs_len"] == 15
+    assert meta["data"]["dataset"] == "humaneva" and meta["data"]["joint_names"] == list(HUMANEVA_MODEL_JOINT_NAMES)
+    assert meta["data"]["fps"] == 60.0
+    with torch.no_grad():
+        for p in net.parameters():                  # make every weight count before comparing with the engine
+            p.add_(0.01 * torch.randn(p.shape, generator=torch.Generator().manual_seed(p.numel())))
+    from training.export import save_prior
+    save_prior(path, net)
+    obs = np.stack(seqs)[:, :15].astype(np.float32).reshape(3, 15, 42)
+    engine = tcd.Prior.load(path).predict(obs, 60)
+    with torch.no_grad():
+        ref = load_prior_file(path)[0].rollout(torch.from_numpy(obs), 60).numpy()
+    assert engine.shape == (3, 60, 42)
+    np.testing.assert_allclose(engine, ref, rtol=1e-4, atol=1e-5)
+
+
+@needs_humaneva
+def test_prior_training_frames_on_the_real_data():
+    cfg = PriorConfig.load(CONFIGS / "humaneva_prior.json")
+    frames, starts = training_frames(cfg)
+    assert frames.shape == (4251, 42)
+    assert len(starts) == 3566                           # windows of 15 + 10 frames inside a chunk
+
+
+# ------------------------------------------------------------------------------------------ training
+
+def test_humaneva_train_configs_chain_into_the_cascade():
+    short = TrainConfig.load(CONFIGS / "humaneva_short.json")
+    long = TrainConfig.load(CONFIGS / "humaneva_long.json")
+    for cfg in (short, long):
+        assert cfg.dataset == "humaneva" and cfg.model["num_joints"] == 14
+        assert cfg.model["cond_fill"] == "prior" and cfg.diffusion["prediction_type"] == "sample"
+        assert (cfg.model["num_layers"], cfg.model["channels"], cfg.model["num_heads"]) == (3, 32, 4)
+    assert short.obs_len == 15 and long.obs_len == short.obs_len + short.pred_len   # the engine's cascade
+    assert long.obs_len + long.pred_len == 75 and long.role == "long" and short.role == "short"
+    assert (short.obs_len, short.pred_len) == HUMANEVA_WINDOWS["short"]
+    assert (long.obs_len, long.pred_len) == HUMANEVA_WINDOWS["long"]
+    with pytest.raises(ValueError, match="dataset"):
+        TrainConfig(dataset="amass")
+
+
+@pytest.mark.slow
+def test_a_few_training_steps_on_humaneva_shaped_windows(tmp_path):
+    from training.export import random_prior, save_model_file, build_prior_config, data_meta
+    prior = random_prior(blocks=2, seed=0, obs_len=15, joints=14)
+    prior_path = tmp_path / "prior.safetensors"
+    save_model_file(prior_path, prior, build_prior_config(prior, data_meta("humaneva")))
+    seqs = {"train": [walking(90, s)[:, 1:] for s in range(3)], "val": [walking(80, 9)[:, 1:]]}
+    cfg = TrainConfig(role="long", dataset="humaneva", obs_len=16, pred_len=59, model={**TINY, **PRIOR_MODEL},
+                      diffusion={"prediction_type": "sample"}, prior=str(prior_path), batch_size=4, epochs=1,
+                      steps_per_epoch=2, val_every=1, val_timesteps=2, val_max_windows=4, train_stride=5,
+                      val_stride=5)
+    res = train(cfg, tmp_path / "run", sequences=seqs, log=lambda *a: None)
+    assert np.isfinite(res["best_val"])
+    ck = torch.load(tmp_path / "run" / "last.pt", weights_only=False)
+    assert ck["data"]["dataset"] == "humaneva" and ck["window"] == {"obs_len": 16, "pred_len": 59, "seq_len": 75}
+    out = export_checkpoint(tmp_path / "run" / "best.pt", tmp_path / "model")
+    meta = read_config(out)
+    assert meta["data"]["joint_names"] == list(HUMANEVA_MODEL_JOINT_NAMES) and meta["model"]["num_joints"] == 14
+    # a model of the wrong joint count is refused before any step
+    with pytest.raises(ValueError, match="joints"):
+        train(TrainConfig(**{**cfg.__dict__, "model": {**cfg.model, "num_joints": 22}}), tmp_path / "bad",
+              sequences=seqs, log=lambda *a: None)
+
+
+# ------------------------------------------------------------------------------------------ evaluation
+
+@pytest.fixture(scope="module")
+def humaneva_model_dir(tmp_path_factory) -> Path:
+    """A tiny random HumanEva-I model directory around a random prior (the issue-29 recipe's conditioning)."""
+    from training.diffusion import DiffusionConfig
+    d = tmp_path_factory.mktemp("he_model") / "m"
+    random_init_dir(d, preset="tiny", seed=2, dataset="humaneva", model=PRIOR_MODEL, prior_blocks=2,
+                    diff_cfg=DiffusionConfig(prediction_type="sample"))
+    return d
+
+
+def test_evaluate_humaneva_through_the_engine(humaneva_model_dir, synthetic_file, tmp_path):
+    out = tmp_path / "he.json"
+    assert evaluate.main(["--protocol", "humaneva", "--model", str(humaneva_model_dir), "--engine", "tcd",
+                          "--samples", "4", "--steps", "2", "--sampler", "ddim", "--data", str(synthetic_file),
+                          "--json", str(out), "--quiet"]) == 0
+    r = json.loads(out.read_text())
+    n = len(humaneva_test_windows(load_humaneva(synthetic_file, "Validate")))
+    assert r["protocol"]["windows"] == r["protocol"]["windows_in_protocol"] == n > 0
+    for block in ("model", "prior", "zero_velocity"):
+        assert set(r[block]) == {"APD", "ADE", "FDE", "MMADE", "MMFDE"}
+        assert all(np.isfinite(v) and v >= 0 for v in r[block].values())
+    assert r["model"]["APD"] > 0 and r["prior"]["APD"] == r["zero_velocity"]["APD"] == 0.0
+    assert r["stochastic"] == r["model"] and r["sampling"]["samples"] == 4
+    assert r["published"]["TCD"] == {"ADE": 0.199, "FDE": 0.215} and r["published"]["HumanMAC"] is None
+    # the prior alone (a directory with nothing else in it) and the default sample count
+    only_prior = tmp_path / "prior_only"
+    only_prior.mkdir()
+    (only_prior / "prior.safetensors").write_bytes((humaneva_model_dir / "prior.safetensors").read_bytes())
+    assert evaluate.main(["--protocol", "humaneva", "--prior", str(only_prior), "--data", str(synthetic_file),
+                          "--json", str(out), "--quiet", "--max-windows", "2"]) == 0
+    r2 = json.loads(out.read_text())
+    assert r2["protocol"]["windows"] == 2 and r2["method"].startswith("prior")
+
+
+def test_humaneva_model_samples_any_number(humaneva_model_dir):
+    m = tcd.load(humaneva_model_dir)
+    assert (m.obs_len, m.horizon, m.num_joints, m.fps) == (15, 60, 14, 60.0)
+    assert m.joint_names == list(HUMANEVA_MODEL_JOINT_NAMES)
+    obs = walking(15, 3)[:, 1:] - walking(15, 3)[:, :1]
+    f = m.forecast(obs, num_samples=9, seed=1, sampler="ddim", num_inference_steps=2)
+    assert f.samples.shape == (9, 60, 14, 3) and f.mean.shape == (60, 14, 3)
+    assert np.isfinite(f.samples).all() and np.ptp(f.samples, axis=0).max() > 0
+    p = m.predict(obs)
+    assert p.mean.shape == (60, 14, 3)
+
+
+# ------------------------------------------------------------------------------------------ the package
+
+def test_humaneva15_layout():
+    from tcd.layouts import LAYOUTS, NAMES32
+    lay = LAYOUTS["humaneva15"]
+    assert lay.joint_names == HUMANEVA_JOINT_NAMES and lay.num_joints == 15
+    assert lay.parents == (-1, 0, 1, 2, 3, 1, 5, 6, 0, 8, 9, 0, 11, 12, 1)
+    named = {n: NAMES32[j] for n, j in zip(lay.joint_names, lay.to32)}
+    for side in ("left", "right"):
+        for part in ("shoulder", "elbow", "wrist", "hip", "knee", "ankle"):
+            assert named[f"{side}_{part}"] == f"{side}_{part}"
+    assert named["pelvis"] == "pelvis" and named["head"] == "head_site" and named["thorax"] == "neck"
+
+
+def test_humaneva15_forecast_with_a_human36m_model(tiny_model):
+    """World coordinates of HumanEva-I (+z up, 60 Hz) through the Human3.6M model: 1 s back at 60 Hz."""
+    obs = walking(40, 5)
+    f = tiny_model.forecast(obs, layout="humaneva15", fps=60, up="z", num_samples=3, seed=0, sampler="ddim",
+                            num_inference_steps=2)
+    assert f.mean.shape == (60, 15, 3) and f.samples.shape == (3, 60, 15, 3)
+    assert np.isfinite(f.mean).all() and np.allclose(f.times[[0, -1]], [1 / 60, 1.0])
+
+
+def test_load_humaneva_when_not_bundled(tmp_path, monkeypatch, capsys):
+    import tcd.model
+    monkeypatch.setattr(tcd.model, "humaneva_model_dir", lambda: tmp_path / "weights_humaneva")
+    with pytest.raises(tcd.ModelNotBundledError, match="not bundled") as e:
+        tcd.load("humaneva")
+    assert isinstance(e.value, FileNotFoundError) and isinstance(e.value, tcd.TcdError)
+    assert e.value.model == "humaneva" and "docs/training.md" in str(e.value)
+    from tcd.cli import main
+    assert main(["demo", "--model", "humaneva", "-o", str(tmp_path / "d.npz"), "--quiet"]) == 2
+    assert main(["info", "--model", "humaneva"]) == 2
+    assert "not bundled" in capsys.readouterr().err
+
+
+def test_load_humaneva_when_bundled(humaneva_model_dir, tmp_path, monkeypatch):
+    import shutil
+    import tcd.model
+    d = tmp_path / "weights_humaneva"
+    shutil.copytree(humaneva_model_dir, d)
+    monkeypatch.setattr(tcd.model, "humaneva_model_dir", lambda: d)
+    with pytest.raises(tcd.WeightsError, match="SHA256SUMS"):          # a bundled model is always checksummed
+        tcd.load("humaneva")
+    tcd.model.write_checksums(d)
+    m = tcd.load("humaneva")
+    assert m.path == d and m.num_joints == 14 and m.sha256 is not None
+    from tcd.cli import main
+    assert main(["demo", "--model", "humaneva", "-o", str(tmp_path / "demo.npz"), "--samples", "2", "--steps", "2",
+                 "--sampler", "ddim", "--quiet"]) == 0
+    with np.load(tmp_path / "demo.npz") as z:
+        assert z["forecast_samples"].shape == (2, 60, 14, 3)
+    # a local directory of the same name is a path, not the bundled name
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "humaneva").mkdir()
+    with pytest.raises(FileNotFoundError, match="short.safetensors"):
+        tcd.load("./humaneva")
+
+
+def test_a_humaneva_model_forecasts_world_poses_in_its_own_layout(humaneva_model_dir):
+    """A model trained in humaneva15 takes that layout's world poses directly: the root (pelvis) removed per
+    frame and put back, the caller's up axis turned onto the model's (+z), any frame rate."""
+    m = tcd.load(humaneva_model_dir)
+    world = walking(40, 6)                                               # +z up, 60 Hz, moving along +x
+    kw = dict(num_samples=3, seed=4, sampler="ddim", num_inference_steps=2)
+    f = m.forecast(world, layout="humaneva15", fps=60, up="z", **kw)
+    assert f.mean.shape == (60, 15, 3) and f.samples.shape == (3, 60, 15, 3) and f.repaired.shape == world.shape
+    np.testing.assert_allclose(f.times[[0, -1]], [1 / 60, 1.0])
+    np.testing.assert_array_equal(f.repaired, world)                     # nothing was missing
+    # the model's own output, put back around the pelvis: the same as forecasting the root-relative poses
+    own = m.forecast(world[-15:, 1:] - world[-15:, :1], **kw)
+    np.testing.assert_allclose(f.samples[..., 1:, :] - f.samples[..., :1, :], own.samples, atol=1e-5)
+    step = world[-1, 0] - world[-2, 0]
+    assert 0 < f.mean[0, 0, 0] - world[-1, 0, 0] <= 1.01 * step[0]      # the pelvis walks on, slowing down
+    # the same poses with +y up give the same forecast, turned the same way
+    turn = np.array([[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]])           # z -> y
+    g = m.forecast(world @ turn.T, layout="humaneva15", fps=60, up="y", **kw)
+    np.testing.assert_allclose(g.samples, f.samples @ turn.T, atol=1e-5)
+    # another frame rate: 30 fps in, 30 fps out
+    h = m.forecast(world[::2], layout="humaneva15", fps=30, up="z", **kw)
+    assert h.mean.shape == (30, 15, 3) and np.isfinite(h.mean).all()
+    # a missing pelvis frame is interpolated; a pelvis never shown is refused
+    gap = world.copy()
+    gap[-5, 0] = np.nan
+    assert np.isfinite(m.forecast(gap, layout="humaneva15", fps=60, up="z", **kw).mean).all()
+    gone = world.copy()
+    gone[:, 0] = np.nan
+    with pytest.raises(tcd.InvalidInputError, match="pelvis"):
+        m.forecast(gone, layout="humaneva15", fps=60, up="z", **kw)
+    with pytest.raises(tcd.InvalidInputError, match="layout"):
+        m.forecast(np.zeros((20, 17, 3)), layout="coco17", fps=60, **kw)
+
+
+
+def test_a_humaneva_model_repairs_world_poses_in_its_own_layout(tmp_path):
+    d = random_init_dir(tmp_path / "m", preset="tiny", seed=5, dataset="humaneva")   # repair: no prior fill
+    m = tcd.load(d)
+    world = walking(15, 7)
+    gap = world.copy()
+    gap[5:9, 3] = np.nan                                                  # a wrist hidden for 4 frames
+    gap[-5, 0] = np.nan                                                   # and the pelvis once
+    rep = m.repair(gap, layout="humaneva15", fps=60, up="z", num_samples=2, seed=0, sampler="ddim",
+                   num_inference_steps=2)
+    assert rep.shape == (15, 15, 3) and np.isfinite(rep).all()
+    seen = np.isfinite(gap)
+    np.testing.assert_array_equal(rep[seen], gap[seen])
+    np.testing.assert_allclose(rep[-5, 0], world[-5, 0], atol=1e-4)     # the pelvis: interpolated
+
+
+def test_humaneva_demo_clip():
+    from tcd import demo
+    clip = demo.load_clip(demo.HUMANEVA_CLIP_PATH)
+    p = clip["poses"]
+    assert p.shape[1:] == (14, 3) and p.shape[0] >= 75 and clip["fps"] == 60.0 and np.isfinite(p).all()
+    assert clip["joint_names"] == list(HUMANEVA_MODEL_JOINT_NAMES) and "mocap.cs.cmu.edu" in clip["source"]["dataset"]
+    i = {n: k for k, n in enumerate(clip["joint_names"])}
+    assert (p[:, i["head"], 2] > 0.5).all() and (p[:, i["left_ankle"], 2] < -0.6).all()      # +z up
+    np.testing.assert_allclose(np.linalg.norm(p[:, i["left_hip"]], axis=-1), np.linalg.norm(p[0, i["left_hip"]]),
+                               atol=1e-5)                                                       # fixed bone lengths
+    assert np.linalg.norm(np.diff(p, axis=0), axis=-1).max() < 0.1                             # no jump at 60 Hz
+
+
+def test_demo_runs_the_humaneva_model(humaneva_model_dir, tmp_path, capsys):
+    from tcd import demo
+    m = tcd.load(humaneva_model_dir)
+    res = demo.run(m, samples=3, options=tcd.SamplerOptions("ddim", 2), seed=0, quiet=True)
+    assert res["forecast_samples"].shape == (3, 60, 14, 3) and res["fps"] == 60.0
+    assert res["samples_apd_m"] > 0 and set(res["best_sample_mm"]) == set(res["forecast_mm"])
+    assert "repair_skipped" in res and "repaired" not in res      # a prior-conditioned model without a repair model
+    text = demo.summary(res, m)
+    assert "HumanEva-I layout" in text and "APD" in text and "repair skipped" in text
+    demo.save(res, tmp_path / "d.npz", m)
+    with np.load(tmp_path / "d.npz") as z:
+        summary = json.loads(str(z["summary"]))
+        assert "repaired" not in z.files and summary["samples_apd_m"] == res["samples_apd_m"]
+
+
+def test_demo_plot_draws_the_humaneva_skeleton(tmp_path):
+    pytest.importorskip("matplotlib")
+    from tcd import demo
+    clip = demo.load_clip(demo.HUMANEVA_CLIP_PATH)
+    p = clip["poses"]
+    res = {"joint_names": clip["joint_names"], "observed": p[:2], "future": p[2:4], "forecast_mean": p[2:4],
+           "forecast_samples": np.stack([p[2:4], p[3:5]]), "occlusion_mask": np.ones((2, 14), np.float32)}
+    demo.plot(res, tmp_path / "d.gif", clip["fps"])
+    assert (tmp_path / "d.gif").stat().st_size > 0
