@@ -149,7 +149,7 @@ def test_prior_training_frames_on_the_real_data():
     cfg = PriorConfig.load(CONFIGS / "humaneva_prior.json")
     frames, starts = training_frames(cfg)
     assert frames.shape == (4251, 42)
-    assert len(starts) == 3566                           # windows of 15 + 10 frames inside a chunk
+    assert len(starts) == 3454                           # windows of 15 + 15 frames inside a chunk
 
 
 # ------------------------------------------------------------------------------------------ training
