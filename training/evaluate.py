@@ -279,14 +279,14 @@ def humaneva_prior_forecast(path: str | Path, obs: np.ndarray) -> np.ndarray:
     """The prior's deterministic forecast (W, 60, 14, 3) from obs (W, 15, 14, 3): ``path`` a directory holding
     ``prior.safetensors`` or that file (the engine, ``tcd.Prior``), or a ``training.prior`` checkpoint (PyTorch)."""
     path = Path(path)
-    W, O, J, _ = obs.shape
-    x = np.ascontiguousarray(obs.reshape(W, O, J * 3), dtype=np.float32)
+    W, T, J, _ = obs.shape
+    x = np.ascontiguousarray(obs.reshape(W, T, J * 3), dtype=np.float32)
     if path.is_dir() or path.suffix == ".safetensors":
         import tcd
         prior = tcd.Prior.load(path / "prior.safetensors" if path.is_dir() else path)
-        if prior.num_features != J * 3 or prior.obs_len > O:
+        if prior.num_features != J * 3 or prior.obs_len > T:
             raise SystemExit(f"{path}: the prior reads {prior.obs_len} frames of {prior.num_joints} joints; the "
-                             f"HumanEva-I protocol gives {O} frames of {J}")
+                             f"HumanEva-I protocol gives {T} frames of {J}")
         out = prior.predict(x, HE_PRED)
     else:
         from .prior import load
