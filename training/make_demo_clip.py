@@ -109,6 +109,16 @@ def humaneva_bone_lengths(path=None) -> np.ndarray:
     return out
 
 
+def cmu_source(key: str, extra: dict) -> np.ndarray:
+    """The ``source`` entry of a clip converted from CMU: the database's attribution, the clip, then ``extra``."""
+    return np.array(json.dumps({
+        "dataset": "CMU Graphics Lab Motion Capture Database (mocap.cs.cmu.edu)",
+        "attribution": "The data used in this project was obtained from mocap.cs.cmu.edu. "
+                       "The database was created with funding from NSF EIA-0196217.",
+        "clip": key, "capture_fps": CMU_FPS, **extra,
+    }))
+
+
 def build_humaneva(cmu_path: str, key: str, humaneva_path=None) -> dict:
     from training.data.humaneva import HUMANEVA_MODEL_JOINT_NAMES, HUMANEVA_PARENTS
     seqs = load_cmu_npz(cmu_path)
@@ -128,15 +138,11 @@ def build_humaneva(cmu_path: str, key: str, humaneva_path=None) -> dict:
         "poses": (out[:, 1:] - out[:, :1]).astype(np.float32),
         "fps": np.float32(HUMANEVA_FPS),
         "joint_names": np.array(HUMANEVA_MODEL_JOINT_NAMES),
-        "source": np.array(json.dumps({
-            "dataset": "CMU Graphics Lab Motion Capture Database (mocap.cs.cmu.edu)",
-            "attribution": "The data used in this project was obtained from mocap.cs.cmu.edu. "
-                           "The database was created with funding from NSF EIA-0196217.",
-            "clip": key, "capture_fps": CMU_FPS,
+        "source": cmu_source(key, {
             "conversion": "python -m training.make_demo_clip --layout humaneva (CMU bone directions through the "
                           "Human3.6M skeleton, HumanEva-I median bone lengths, joints 1..14 of humaneva15 relative "
                           "to the pelvis, metres, +z up, 60 fps)",
-        })),
+        }),
     }
 
 
@@ -151,14 +157,10 @@ def build(cmu_path: str, key: str) -> dict:
         "poses": poses.astype(np.float32),
         "fps": np.float32(MODEL_FPS),
         "joint_names": np.array(joint_names_22()),
-        "source": np.array(json.dumps({
-            "dataset": "CMU Graphics Lab Motion Capture Database (mocap.cs.cmu.edu)",
-            "attribution": "The data used in this project was obtained from mocap.cs.cmu.edu. "
-                           "The database was created with funding from NSF EIA-0196217.",
-            "clip": key, "capture_fps": CMU_FPS,
+        "source": cmu_source(key, {
             "conversion": "python -m training.make_demo_clip (CMU bone directions, Human3.6M bone lengths, "
                           "22-joint model layout, metres, root-relative, 25 fps)",
-        })),
+        }),
     }
 
 

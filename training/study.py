@@ -53,16 +53,13 @@ def evaluate_run(run: Path, prior_path: str, *, windows_per_action: int, samples
                  data: str | None = None, batch_size: int = 32) -> dict:
     from .channels_last import ChannelsLast
     from .diffusion import sample_many
-    from .prior import load as load_prior_ckpt
+    from .train import load_prior
     model, sched, tc, ck = load_run(run)
     forward = ChannelsLast(model)    # the same network (within 1e-5), about 2x faster on the CPU
     if tc["obs_len"] != GIVEN or tc["obs_len"] + tc["pred_len"] != OBS + PRED:
         raise ValueError(f"{run}: a study candidate is a long-term model ({GIVEN} + {OBS + PRED - GIVEN} frames), "
                          f"got {tc['obs_len']} + {tc['pred_len']}")
-    prior = load_prior_ckpt(prior_path) if prior_path.endswith(".pt") else None
-    if prior is None:
-        from .export import load_prior_file
-        prior = load_prior_file(prior_path)[0]
+    prior = load_prior(prior_path)
     h = H36M(data or DEFAULT_DATA_ROOT / "h36m")
     best, mean, point, zv = {}, {}, {}, {}
     t0 = time.time()
