@@ -99,7 +99,7 @@ def evaluate_run(run: Path, prior_path: str, *, windows_per_action: int, samples
 def table(paths: list[str]) -> str:
     rows = [json.loads(Path(p).read_text()) for p in paths]
     hz = list(rows[0]["zero_velocity"])
-    head = "| candidate | windows seen | CPU min | " + " | ".join(f"{h} ms mean / best" for h in hz[-3:]) + " |"
+    head = "| candidate | windows seen | wall min | " + " | ".join(f"{h} ms mean / best" for h in hz[-3:]) + " |"
     lines = [head, "|" + "---|" * (3 + 3)]
     for r in rows:
         cells = " | ".join(f"{r['mean_of_n'][h]:.1f} / {r['best_of_n'][h]:.1f}" for h in hz[-3:])
