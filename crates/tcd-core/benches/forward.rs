@@ -15,7 +15,14 @@ mod common;
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use tcd_core::{Denoiser, Kernel, Role, TcdConfig, Workspace};
 
-fn config(channels: usize, heads: usize, ffn: usize, layers: usize, obs: usize, pred: usize) -> TcdConfig {
+fn config(
+    channels: usize,
+    heads: usize,
+    ffn: usize,
+    layers: usize,
+    obs: usize,
+    pred: usize,
+) -> TcdConfig {
     let mut cfg = common::tiny_config(Role::Long, obs, pred);
     let m = &mut cfg.model;
     m.num_joints = 22;
@@ -32,7 +39,10 @@ fn config(channels: usize, heads: usize, ffn: usize, layers: usize, obs: usize, 
 }
 
 fn bench_forward(c: &mut Criterion) {
-    let sizes = [("reduced_3x32", 32, 4, 32, 3), ("paper_12x64", 64, 8, 64, 12)];
+    let sizes = [
+        ("reduced_3x32", 32, 4, 32, 3),
+        ("paper_12x64", 64, 8, 64, 12),
+    ];
     for (name, ch, heads, ffn, layers) in sizes {
         let mut group = c.benchmark_group(format!("forward_{name}"));
         group.sample_size(10);
@@ -54,13 +64,18 @@ fn bench_forward(c: &mut Criterion) {
                 for threads in [1usize, 2] {
                     let mut out = vec![0.0f32; n];
                     let id = BenchmarkId::new(format!("{kernel}/{threads}t"), format!("L{l}"));
-                    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+                    let pool = rayon::ThreadPoolBuilder::new()
+                        .num_threads(threads)
+                        .build()
+                        .unwrap();
                     let mut ws = Workspace::with_threads(&den, l, threads);
                     group.bench_function(id, |b| {
                         b.iter(|| {
                             pool.install(|| {
-                                den.forward_with_workspace(&prepared, &mut ws, &noisy, &observed, 5, &mut out)
-                                    .unwrap()
+                                den.forward_with_workspace(
+                                    &prepared, &mut ws, &noisy, &observed, 5, &mut out,
+                                )
+                                .unwrap()
                             })
                         })
                     });

@@ -22,8 +22,19 @@ use tcd_core::{Denoiser, Kernel, Role, Workspace};
 fn paper_model(obs: usize, pred: usize, heads: usize) -> Result<Denoiser, Box<dyn Error>> {
     let mut cfg = common::tiny_config(Role::Long, obs, pred);
     let m = &mut cfg.model;
-    (m.num_joints, m.num_features, m.channels, m.num_heads, m.ffn_dim, m.num_layers) = (22, 66, 64, heads, 64, 12);
-    (m.diffusion_embedding_dim, m.time_embedding_dim, m.feature_embedding_dim) = (128, 128, 16);
+    (
+        m.num_joints,
+        m.num_features,
+        m.channels,
+        m.num_heads,
+        m.ffn_dim,
+        m.num_layers,
+    ) = (22, 66, 64, heads, 64, 12);
+    (
+        m.diffusion_embedding_dim,
+        m.time_embedding_dim,
+        m.feature_embedding_dim,
+    ) = (128, 128, 16);
     m.side_dim = 128 + 16 + 1;
     let bytes = common::serialize(&common::random_tensors(&cfg, 1), Some(cfg.to_json()));
     Ok(Denoiser::from_bytes(&bytes, "paper.safetensors")?)
@@ -31,10 +42,15 @@ fn paper_model(obs: usize, pred: usize, heads: usize) -> Result<Denoiser, Box<dy
 
 fn main() -> Result<(), Box<dyn Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let path = args.first().ok_or("usage: bench_forward WEIGHTS [REPS] [KERNEL ...]")?;
+    let path = args
+        .first()
+        .ok_or("usage: bench_forward WEIGHTS [REPS] [KERNEL ...]")?;
     let reps: usize = args.get(1).map(|s| s.parse()).transpose()?.unwrap_or(15);
     let kernels: Vec<Kernel> = if args.len() > 2 {
-        args[2..].iter().map(|s| s.parse()).collect::<Result<_, _>>()?
+        args[2..]
+            .iter()
+            .map(|s| s.parse())
+            .collect::<Result<_, _>>()?
     } else {
         Kernel::supported()
     };
@@ -48,24 +64,40 @@ fn main() -> Result<(), Box<dyn Error>> {
         Some((75, heads)) => paper_model(55, 20, heads)?,
         _ => Denoiser::load(path)?,
     };
-    let threads: usize = std::env::var("TCD_BENCH_THREADS").ok().and_then(|v| v.parse().ok()).unwrap_or(1);
-    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build()?;
+    let threads: usize = std::env::var("TCD_BENCH_THREADS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(1);
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()?;
     let (k, l) = (base.num_features(), base.seq_len());
     let step = 25.min(base.num_train_timesteps() - 1);
     let n = k * l;
-    let noisy: Vec<f32> = (0..n).map(|i| ((i * 37 % 101) as f32 / 50.0) - 1.0).collect();
-    let observed: Vec<f32> = (0..n).map(|i| ((i * 53 % 89) as f32 / 89.0) - 0.5).collect();
-    let mask: Vec<f32> = (0..n).map(|i| if i % l < base.obs_len() { 1.0 } else { 0.0 }).collect();
+    let noisy: Vec<f32> = (0..n)
+        .map(|i| ((i * 37 % 101) as f32 / 50.0) - 1.0)
+        .collect();
+    let observed: Vec<f32> = (0..n)
+        .map(|i| ((i * 53 % 89) as f32 / 89.0) - 0.5)
+        .collect();
+    let mask: Vec<f32> = (0..n)
+        .map(|i| if i % l < base.obs_len() { 1.0 } else { 0.0 })
+        .collect();
     let mut reference: Option<Vec<f32>> = None;
     for kernel in kernels {
         let d = base.clone().with_kernel(kernel)?;
         let prepared = d.prepare(&mask, 1, l)?;
         let mut ws = Workspace::with_threads(&d, l, threads);
         let mut out = vec![0.0f32; n];
-        pool.install(|| d.forward_with_workspace(&prepared, &mut ws, &noisy, &observed, step, &mut out))?;
-        let diff = reference
-            .as_ref()
-            .map(|r| r.iter().zip(&out).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max));
+        pool.install(|| {
+            d.forward_with_workspace(&prepared, &mut ws, &noisy, &observed, step, &mut out)
+        })?;
+        let diff = reference.as_ref().map(|r| {
+            r.iter()
+                .zip(&out)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0f32, f32::max)
+        });
         if reference.is_none() {
             reference = Some(out.clone());
         }
@@ -73,10 +105,14 @@ fn main() -> Result<(), Box<dyn Error>> {
         let cpu0 = thread_cpu_ns();
         for _ in 0..reps {
             let t0 = Instant::now();
-            pool.install(|| d.forward_with_workspace(&prepared, &mut ws, &noisy, &observed, step, &mut out))?;
+            pool.install(|| {
+                d.forward_with_workspace(&prepared, &mut ws, &noisy, &observed, step, &mut out)
+            })?;
             times.push(t0.elapsed().as_secs_f64() * 1e3);
         }
-        let cpu_ms = thread_cpu_ns().zip(cpu0).map(|(b, a)| (b - a) as f64 / 1e6 / reps as f64);
+        let cpu_ms = thread_cpu_ns()
+            .zip(cpu0)
+            .map(|(b, a)| (b - a) as f64 / 1e6 / reps as f64);
         times.sort_by(|a, b| a.total_cmp(b));
         println!(
             "L={l} K={k} kernel={kernel}: median {:.2} ms, min {:.2} ms, this thread's CPU time {:.2} ms/forward, threads {}{}",

@@ -16,8 +16,8 @@ use std::path::Path;
 
 use tcd_core::rng::seeded_noise;
 use tcd_core::{
-    cascade, sample, CascadeNoise, Control, Denoiser, ForecastOptions, Noise, Observed, SamplerConfig,
-    SamplerKind, Sequences,
+    cascade, sample, CascadeNoise, Control, Denoiser, ForecastOptions, Noise, Observed,
+    SamplerConfig, SamplerKind, Sequences,
 };
 
 type R<T> = Result<T, Box<dyn Error>>;
@@ -121,7 +121,14 @@ fn main() -> R<()> {
                     Noise::Injected(&data)
                 }
             };
-            let out = sample(&d, Observed::new(&observed, &mask, b, l), s, &cfg, noise, &Control::default())?;
+            let out = sample(
+                &d,
+                Observed::new(&observed, &mask, b, l),
+                s,
+                &cfg,
+                noise,
+                &Control::default(),
+            )?;
             write_f32(arg(&args, 12, "OUT")?, &out)?;
         }
         Some("cascade") => {
@@ -131,7 +138,11 @@ fn main() -> R<()> {
             let mask = read_f32(arg(&args, 4, "MASK")?)?;
             let (b, s): (usize, usize) = (num(&args, 5, "B")?, num(&args, 6, "S")?);
             if observed.len() != b * short.num_features() * short.obs_len() {
-                return Err(format!("OBSERVED holds {} values, not B = {b} sequences (B, K, O)", observed.len()).into());
+                return Err(format!(
+                    "OBSERVED holds {} values, not B = {b} sequences (B, K, O)",
+                    observed.len()
+                )
+                .into());
             }
             let cfg = sampler(
                 arg(&args, 7, "SAMPLER")?,

@@ -329,13 +329,19 @@ impl TcdConfig {
         if m.diffusion_embedding_dim < 4 || !m.diffusion_embedding_dim.is_multiple_of(2) {
             return Err(bad(
                 "model.diffusion_embedding_dim",
-                format!("must be even and at least 4, but is {}", m.diffusion_embedding_dim),
+                format!(
+                    "must be even and at least 4, but is {}",
+                    m.diffusion_embedding_dim
+                ),
             ));
         }
         if m.time_embedding_dim < 2 || !m.time_embedding_dim.is_multiple_of(2) {
             return Err(bad(
                 "model.time_embedding_dim",
-                format!("must be even and at least 2, but is {}", m.time_embedding_dim),
+                format!(
+                    "must be even and at least 2, but is {}",
+                    m.time_embedding_dim
+                ),
             ));
         }
         let side = m.time_embedding_dim + m.feature_embedding_dim + 1;
@@ -351,7 +357,10 @@ impl TcdConfig {
         if !(m.layer_norm_eps.is_finite() && m.layer_norm_eps > 0.0) {
             return Err(bad(
                 "model.layer_norm_eps",
-                format!("must be a positive finite number, but is {}", m.layer_norm_eps),
+                format!(
+                    "must be a positive finite number, but is {}",
+                    m.layer_norm_eps
+                ),
             ));
         }
         let w = &self.window;
@@ -400,12 +409,8 @@ impl TcdConfig {
                     format!("must lie in (0, 1], but is {}", d.max_beta),
                 ));
             }
-            let recomputed = schedule.betas(
-                d.num_train_timesteps,
-                d.beta_start,
-                d.beta_end,
-                d.max_beta,
-            );
+            let recomputed =
+                schedule.betas(d.num_train_timesteps, d.beta_start, d.beta_end, d.max_beta);
             for (index, (&stored, &rec)) in d.betas.iter().zip(&recomputed).enumerate() {
                 let diff = (stored - rec).abs();
                 // A NaN recomputation (absurd beta_start) is a mismatch too.

@@ -150,7 +150,12 @@ impl Error {
 }
 
 /// Checks that a flat buffer has `expected` elements; `shape` names the layout for the message.
-pub(crate) fn check_len(argument: &str, data_len: usize, expected: usize, shape: &str) -> Result<()> {
+pub(crate) fn check_len(
+    argument: &str,
+    data_len: usize,
+    expected: usize,
+    shape: &str,
+) -> Result<()> {
     if data_len == expected {
         Ok(())
     } else {
@@ -167,6 +172,10 @@ pub(crate) fn check_positive(argument: &str, value: usize) -> Result<()> {
     if value >= 1 {
         Ok(())
     } else {
-        Err(Error::invalid_input(argument, "at least 1", value.to_string()))
+        Err(Error::invalid_input(
+            argument,
+            "at least 1",
+            value.to_string(),
+        ))
     }
 }

@@ -151,7 +151,11 @@ fn zero_unobserved(observed: &[f32], mask: &[f32]) -> Vec<f32> {
 /// The prior a model of the `which` stage (`"short-term"`, `"long-term"`) runs with: `None` for a model
 /// not conditioned on it; for a [`CondFill::Prior`] model `prior`, which must be given, have the model's
 /// `num_features` and read fewer frames (`obs_len`) than the model's window.
-fn stage_prior<'p>(model: &Denoiser, prior: Option<&'p Prior>, which: &str) -> Result<Option<&'p Prior>> {
+fn stage_prior<'p>(
+    model: &Denoiser,
+    prior: Option<&'p Prior>,
+    which: &str,
+) -> Result<Option<&'p Prior>> {
     if model.config().model.cond_fill != CondFill::Prior {
         return Ok(None);
     }
@@ -252,7 +256,10 @@ fn check_observation(model: &Denoiser, observed: &[f32], mask: &[f32], batch: us
 /// model's `obs_len` (B is their length over K·O); `long` must have `obs_len` equal to the short
 /// model's `seq_len`. `prior`: the prior forecaster, required where either model is conditioned on
 /// it (`cond_fill` [`CondFill::Prior`]; see the module's notes), unused otherwise.
-#[expect(clippy::too_many_arguments, reason = "the cascade's inputs: two models, the prior, data, options, noise, control")]
+#[expect(
+    clippy::too_many_arguments,
+    reason = "the cascade's inputs: two models, the prior, data, options, noise, control"
+)]
 pub fn cascade(
     short: &Denoiser,
     long: &Denoiser,

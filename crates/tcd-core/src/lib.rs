@@ -39,15 +39,24 @@ pub mod threads;
 mod validate;
 pub mod weights;
 
+pub use config::{
+    CondFill, DataConfig, DiffusionConfig, ModelConfig, PredictionType, Role, Target, TcdConfig,
+    WindowConfig,
+};
 pub use control::Control;
-pub use config::{CondFill, DataConfig, DiffusionConfig, ModelConfig, PredictionType, Role, Target, TcdConfig, WindowConfig};
-pub use denoiser::{fill_linear, fill_rows, fill_spline, CondTables, Denoiser, Prepared, Workspace};
+pub use denoiser::{
+    fill_linear, fill_rows, fill_spline, CondTables, Denoiser, Prepared, Workspace,
+};
 pub use error::{Error, Result};
+pub use forecast::{
+    cascade, prior_fill, repair, CascadeNoise, CascadeOutput, ForecastOptions, RepairOutput,
+};
 pub use kernels::{Kernel, KERNEL_ENV};
 pub use prior::{dct_matrix, prior_expected_tensors, Prior, PriorConfig, PriorModelConfig};
-pub use forecast::{cascade, prior_fill, repair, CascadeNoise, CascadeOutput, ForecastOptions, RepairOutput};
 pub use rng::{chain_rng, seeded_noise, Noise, Sequences};
-pub use sampler::{sample, timesteps, Observed, Plan, SamplerConfig, SamplerKind, TimestepSpacing, VarianceType};
+pub use sampler::{
+    sample, timesteps, Observed, Plan, SamplerConfig, SamplerKind, TimestepSpacing, VarianceType,
+};
 pub use schedule::{BetaSchedule, NoiseSchedule};
 pub use threads::with_threads;
 pub use weights::{expected_tensors, Tensor, WeightFile, CONFIG_KEY};

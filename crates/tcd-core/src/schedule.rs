@@ -26,7 +26,13 @@ impl BetaSchedule {
     }
 
     /// The T betas of this schedule (`max_beta` is used by `Cosine` only; `beta_*` by the others).
-    pub fn betas(self, num_train_timesteps: usize, beta_start: f64, beta_end: f64, max_beta: f64) -> Vec<f64> {
+    pub fn betas(
+        self,
+        num_train_timesteps: usize,
+        beta_start: f64,
+        beta_end: f64,
+        max_beta: f64,
+    ) -> Vec<f64> {
         match self {
             BetaSchedule::Cosine => cosine_betas(num_train_timesteps, max_beta),
             BetaSchedule::Linear => linspace(beta_start, beta_end, num_train_timesteps),
@@ -90,7 +96,10 @@ impl NoiseSchedule {
                 acc
             })
             .collect();
-        NoiseSchedule { betas, alphas_cumprod }
+        NoiseSchedule {
+            betas,
+            alphas_cumprod,
+        }
     }
 
     /// T.
@@ -136,8 +145,16 @@ mod tests {
         assert_eq!(&betas[47..], &[0.5, 0.5, 0.5]);
         assert!(betas[46] < 0.5);
         let s = NoiseSchedule::from_betas(betas.clone());
-        assert!(close(s.alphas_cumprod()[0], 0.99825, 5e-6), "{}", s.alphas_cumprod()[0]);
-        assert!(close(s.alphas_cumprod()[49], 1.09e-3, 5e-6), "{}", s.alphas_cumprod()[49]);
+        assert!(
+            close(s.alphas_cumprod()[0], 0.99825, 5e-6),
+            "{}",
+            s.alphas_cumprod()[0]
+        );
+        assert!(
+            close(s.alphas_cumprod()[49], 1.09e-3, 5e-6),
+            "{}",
+            s.alphas_cumprod()[49]
+        );
         // increasing betas, decreasing alpha bars
         assert!(betas.windows(2).all(|w| w[0] <= w[1]));
         assert!(s.alphas_cumprod().windows(2).all(|w| w[0] > w[1]));
@@ -163,9 +180,15 @@ mod tests {
 
     #[test]
     fn schedule_names() {
-        assert_eq!(BetaSchedule::from_name("cosine"), Some(BetaSchedule::Cosine));
+        assert_eq!(
+            BetaSchedule::from_name("cosine"),
+            Some(BetaSchedule::Cosine)
+        );
         assert_eq!(BetaSchedule::from_name("quad"), Some(BetaSchedule::Quad));
-        assert_eq!(BetaSchedule::from_name("linear"), Some(BetaSchedule::Linear));
+        assert_eq!(
+            BetaSchedule::from_name("linear"),
+            Some(BetaSchedule::Linear)
+        );
         assert_eq!(BetaSchedule::from_name("custom"), None);
     }
 }

@@ -33,7 +33,9 @@ fn idle() -> MutexGuard<'static, HashMap<usize, Vec<ThreadPool>>> {
     static IDLE: OnceLock<Mutex<HashMap<usize, Vec<ThreadPool>>>> = OnceLock::new();
     // The map is consistent whenever the lock is released (one push or pop at most happens under
     // it), so a lock poisoned by a panic elsewhere is still usable.
-    IDLE.get_or_init(Default::default).lock().unwrap_or_else(PoisonError::into_inner)
+    IDLE.get_or_init(Default::default)
+        .lock()
+        .unwrap_or_else(PoisonError::into_inner)
 }
 
 /// A pool of `threads` threads taken from the idle ones, given back when dropped (also when `f`
@@ -47,7 +49,11 @@ struct Lease {
 impl Lease {
     fn take(threads: usize) -> Result<Lease> {
         if threads == 0 {
-            return Err(Error::invalid_input("threads", "at least 1 (or None for all cores)", "0"));
+            return Err(Error::invalid_input(
+                "threads",
+                "at least 1 (or None for all cores)",
+                "0",
+            ));
         }
         let reused = idle().get_mut(&threads).and_then(Vec::pop);
         let pool = match reused {
@@ -68,7 +74,9 @@ impl Lease {
 
     fn pool(&self) -> &ThreadPool {
         // `pool` is only taken out in `drop`.
-        self.pool.as_ref().unwrap_or_else(|| unreachable!("a lease holds its pool until dropped"))
+        self.pool
+            .as_ref()
+            .unwrap_or_else(|| unreachable!("a lease holds its pool until dropped"))
     }
 }
 
@@ -88,7 +96,10 @@ mod tests {
 
     #[test]
     fn pools() {
-        assert_eq!(with_threads(Some(2), rayon::current_num_threads).unwrap(), 2);
+        assert_eq!(
+            with_threads(Some(2), rayon::current_num_threads).unwrap(),
+            2
+        );
         assert_eq!(with_threads(None, || 7).unwrap(), 7);
         assert!(with_threads(Some(0), || ()).is_err());
     }
@@ -109,10 +120,16 @@ mod tests {
         }
         // A call inside a call gets another pool (not queued on the busy one); afterwards both
         // are idle and reused.
-        let (outer, inner) = with_threads(Some(1), || (worker(), with_threads(Some(1), worker).unwrap())).unwrap();
+        let (outer, inner) = with_threads(Some(1), || {
+            (worker(), with_threads(Some(1), worker).unwrap())
+        })
+        .unwrap();
         assert_eq!(outer, first);
         assert_ne!(inner, first);
         assert_eq!(with_threads(Some(1), worker).unwrap(), first);
-        assert_eq!(with_threads(Some(3), rayon::current_num_threads).unwrap(), 3);
+        assert_eq!(
+            with_threads(Some(3), rayon::current_num_threads).unwrap(),
+            3
+        );
     }
 }

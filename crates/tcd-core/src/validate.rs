@@ -5,7 +5,11 @@ use crate::error::{check_len, Error, Result};
 /// `mask` has `expected` elements, each exactly 0.0 or 1.0.
 pub(crate) fn mask(argument: &str, mask: &[f32], expected: usize, shape: &str) -> Result<()> {
     check_len(argument, mask.len(), expected, shape)?;
-    if let Some((i, v)) = mask.iter().enumerate().find(|(_, v)| **v != 0.0 && **v != 1.0) {
+    if let Some((i, v)) = mask
+        .iter()
+        .enumerate()
+        .find(|(_, v)| **v != 0.0 && **v != 1.0)
+    {
         return Err(Error::invalid_input(
             argument,
             "a mask of 0.0 (generate) and 1.0 (observed) values",
@@ -33,7 +37,11 @@ pub(crate) fn finite_where(
         .find(|(_, (v, m))| **m == keep && !v.is_finite())
         .map(|(i, (v, _))| (i, v))
     {
-        let place = if keep == 1.0 { "observed (mask 1)" } else { "generated (mask 0)" };
+        let place = if keep == 1.0 {
+            "observed (mask 1)"
+        } else {
+            "generated (mask 0)"
+        };
         return Err(Error::invalid_input(
             argument,
             format!("finite at every {place} entry"),
@@ -44,7 +52,12 @@ pub(crate) fn finite_where(
 }
 
 /// Every value finite.
-pub(crate) fn all_finite(argument: &str, values: &[f32], expected: usize, shape: &str) -> Result<()> {
+pub(crate) fn all_finite(
+    argument: &str,
+    values: &[f32],
+    expected: usize,
+    shape: &str,
+) -> Result<()> {
     check_len(argument, values.len(), expected, shape)?;
     if let Some((i, v)) = values.iter().enumerate().find(|(_, v)| !v.is_finite()) {
         return Err(Error::invalid_input(

@@ -37,10 +37,22 @@ pub fn expected_tensors(model: &ModelConfig) -> Vec<(String, Vec<usize>)> {
     );
     let mut v: Vec<(String, Vec<usize>)> = vec![
         ("embed_layer.weight".into(), vec![k, e]),
-        ("diffmodel.diffusion_embedding.projection1.weight".into(), vec![d, d]),
-        ("diffmodel.diffusion_embedding.projection1.bias".into(), vec![d]),
-        ("diffmodel.diffusion_embedding.projection2.weight".into(), vec![d, d]),
-        ("diffmodel.diffusion_embedding.projection2.bias".into(), vec![d]),
+        (
+            "diffmodel.diffusion_embedding.projection1.weight".into(),
+            vec![d, d],
+        ),
+        (
+            "diffmodel.diffusion_embedding.projection1.bias".into(),
+            vec![d],
+        ),
+        (
+            "diffmodel.diffusion_embedding.projection2.weight".into(),
+            vec![d, d],
+        ),
+        (
+            "diffmodel.diffusion_embedding.projection2.bias".into(),
+            vec![d],
+        ),
         ("diffmodel.input_projection.weight".into(), vec![c, 2, 1]),
         ("diffmodel.input_projection.bias".into(), vec![c]),
         ("diffmodel.output_projection1.weight".into(), vec![c, c, 1]),
@@ -136,11 +148,13 @@ impl WeightFile {
 
     /// Removes and returns a tensor (used while building the model; present after validation).
     pub(crate) fn take(&mut self, name: &str) -> Result<Tensor> {
-        self.tensors.remove(name).ok_or_else(|| Error::MissingTensor {
-            path: self.path.clone(),
-            name: name.to_string(),
-            expected: Vec::new(),
-        })
+        self.tensors
+            .remove(name)
+            .ok_or_else(|| Error::MissingTensor {
+                path: self.path.clone(),
+                name: name.to_string(),
+                expected: Vec::new(),
+            })
     }
 }
 

@@ -6,8 +6,8 @@ mod common;
 use common::*;
 use tcd_core::rng::{seeded_noise, stage};
 use tcd_core::{
-    cascade, repair, sample, CascadeNoise, Control, Denoiser, Error, ForecastOptions, Noise, Observed, Role,
-    SamplerConfig, Sequences,
+    cascade, repair, sample, CascadeNoise, Control, Denoiser, Error, ForecastOptions, Noise,
+    Observed, Role, SamplerConfig, Sequences,
 };
 
 fn models() -> (Denoiser, Denoiser) {
@@ -42,7 +42,17 @@ fn cascade_shapes_and_invariants() {
         seed: 4,
         sequences: Sequences::From(0),
     };
-    let out = cascade(&short, &long, None, &observed_nan, &mask, &opts, noise, &Control::default()).unwrap();
+    let out = cascade(
+        &short,
+        &long,
+        None,
+        &observed_nan,
+        &mask,
+        &opts,
+        noise,
+        &Control::default(),
+    )
+    .unwrap();
     assert_eq!((out.obs_len, out.short_len, out.future_len), (6, 8, 6));
     assert_eq!(out.mean.len(), b * k * 6);
     assert_eq!(out.samples.len(), s * b * k * 6);
@@ -146,10 +156,30 @@ fn cascade_thread_independent_and_injected_equals_seeded() {
         sequences: Sequences::From(0),
     };
     let one = in_pool(1, || {
-        cascade(&short, &long, None, &observed, &mask, &opts, seeded, &Control::default()).unwrap()
+        cascade(
+            &short,
+            &long,
+            None,
+            &observed,
+            &mask,
+            &opts,
+            seeded,
+            &Control::default(),
+        )
+        .unwrap()
     });
     let two = in_pool(2, || {
-        cascade(&short, &long, None, &observed, &mask, &opts, seeded, &Control::default()).unwrap()
+        cascade(
+            &short,
+            &long,
+            None,
+            &observed,
+            &mask,
+            &opts,
+            seeded,
+            &Control::default(),
+        )
+        .unwrap()
     });
     assert_eq!(one, two);
     let ns = seeded_noise(12, Sequences::From(0), stage::SHORT, s, 4, b, k * 8);
@@ -196,7 +226,16 @@ fn repair_imputes_only_missing_entries() {
         num_samples: s,
         sampler: SamplerConfig::ddim(5, 0.0),
     };
-    let r = repair(&short, &observed, &mask, b, &opts, Noise::seeded(1), &Control::default()).unwrap();
+    let r = repair(
+        &short,
+        &observed,
+        &mask,
+        b,
+        &opts,
+        Noise::seeded(1),
+        &Control::default(),
+    )
+    .unwrap();
     assert_eq!(r.mean.len(), b * k * o);
     assert_eq!(r.samples.len(), s * b * k * o);
     for i in 0..b * k * o {
@@ -213,7 +252,16 @@ fn repair_imputes_only_missing_entries() {
         }
     }
     let again = in_pool(1, || {
-        repair(&short, &observed, &mask, b, &opts, Noise::seeded(1), &Control::default()).unwrap()
+        repair(
+            &short,
+            &observed,
+            &mask,
+            b,
+            &opts,
+            Noise::seeded(1),
+            &Control::default(),
+        )
+        .unwrap()
     });
     assert_eq!(r, again);
 }
@@ -246,7 +294,17 @@ fn cascade_errors() {
     .unwrap_err();
     assert!(e.to_string().contains("`long`"), "{e}");
     // wrong observation length
-    let e = cascade(&short, &long, None, &observed[1..], &mask, &opts, seeded, &Control::default()).unwrap_err();
+    let e = cascade(
+        &short,
+        &long,
+        None,
+        &observed[1..],
+        &mask,
+        &opts,
+        seeded,
+        &Control::default(),
+    )
+    .unwrap_err();
     assert!(e.to_string().contains("`observed`"), "{e}");
     // injected long noise of the wrong size is caught before anything runs
     let ns = vec![0.0f32; 3 * k * 8];
@@ -270,17 +328,36 @@ fn cascade_errors() {
         num_samples: 0,
         ..opts
     };
-    assert!(cascade(&short, &long, None, &observed, &mask, &zero, seeded, &Control::default())
-        .unwrap_err()
-        .to_string()
-        .contains("num_samples"));
+    assert!(cascade(
+        &short,
+        &long,
+        None,
+        &observed,
+        &mask,
+        &zero,
+        seeded,
+        &Control::default()
+    )
+    .unwrap_err()
+    .to_string()
+    .contains("num_samples"));
     // a model with different K
     let mut cfg = tiny_config(Role::Long, 8, 4);
     cfg.model.num_joints = 1;
     cfg.model.num_features = 3;
     let t = random_tensors(&cfg, 1);
     let other = Denoiser::from_bytes(&serialize(&t, Some(cfg.to_json())), "k3").unwrap();
-    let e = cascade(&short, &other, None, &observed, &mask, &opts, seeded, &Control::default()).unwrap_err();
+    let e = cascade(
+        &short,
+        &other,
+        None,
+        &observed,
+        &mask,
+        &opts,
+        seeded,
+        &Control::default(),
+    )
+    .unwrap_err();
     assert!(e.to_string().contains("num_features"), "{e}");
 }
 
@@ -296,7 +373,10 @@ fn prior_models(prediction: tcd_core::PredictionType) -> (Denoiser, Denoiser) {
         cfg.diffusion.prediction_type = prediction;
         model_of(&cfg, seed)
     };
-    (conditioned(Role::Short, 6, 2, 31), conditioned(Role::Long, 8, 4, 32))
+    (
+        conditioned(Role::Short, 6, 2, 31),
+        conditioned(Role::Long, 8, 4, 32),
+    )
 }
 
 #[test]
@@ -311,19 +391,29 @@ fn prior_fill_is_the_spline_then_the_rollout_and_keeps_observed_entries() {
         row[7..].fill(0.0);
     }
     let given = values(b * k * l, 42, 1.0);
-    let mut x: Vec<f32> = given.iter().zip(&mask).map(|(&v, &m)| if m == 1.0 { v } else { f32::NAN }).collect();
+    let mut x: Vec<f32> = given
+        .iter()
+        .zip(&mask)
+        .map(|(&v, &m)| if m == 1.0 { v } else { f32::NAN })
+        .collect();
     tcd_core::prior_fill(&prior, &mut x, &mask, b, l, &Control::default()).unwrap();
     // head: the spline over the first O frames of each row
     let mut head = vec![0.0f32; b * o * k];
     for r in 0..b * k {
         let (m, v) = (&mask[r * l..r * l + o], &given[r * l..r * l + o]);
-        let mut filled: Vec<f32> = v.iter().zip(m).map(|(&v, &m)| if m == 1.0 { v } else { 0.0 }).collect();
+        let mut filled: Vec<f32> = v
+            .iter()
+            .zip(m)
+            .map(|(&v, &m)| if m == 1.0 { v } else { 0.0 })
+            .collect();
         tcd_core::fill_spline(m, v, |ll, val| filled[ll] = val);
         for t in 0..o {
             head[((r / k) * o + t) * k + r % k] = filled[t];
         }
     }
-    let future = prior.predict(&head, b, o, l - o, &Control::default()).unwrap();
+    let future = prior
+        .predict(&head, b, o, l - o, &Control::default())
+        .unwrap();
     for r in 0..b * k {
         let (bb, kk) = (r / k, r % k);
         for ll in 0..l {
@@ -343,7 +433,8 @@ fn prior_fill_is_the_spline_then_the_rollout_and_keeps_observed_entries() {
     // errors name the argument
     let e = tcd_core::prior_fill(&prior, &mut x, &mask, b, 5, &Control::default()).unwrap_err();
     assert!(e.to_string().contains("`length`"), "{e}");
-    let e = tcd_core::prior_fill(&prior, &mut x[1..], &mask, b, l, &Control::default()).unwrap_err();
+    let e =
+        tcd_core::prior_fill(&prior, &mut x[1..], &mask, b, l, &Control::default()).unwrap_err();
     assert!(e.to_string().contains("`values`"), "{e}");
 }
 
@@ -359,26 +450,64 @@ fn cascade_with_a_prior_conditioned_pair_fills_each_stage_once() {
     let prior = tiny_prior(6, 5, 2, 53);
     for prediction in [PredictionType::Epsilon, PredictionType::Sample] {
         let (short, long) = prior_models(prediction);
-        for sampler in [SamplerConfig::ddpm(), SamplerConfig::ddim(4, 1.0), SamplerConfig::dpmpp2m(4)] {
-            let opts = ForecastOptions { num_samples: s, sampler };
-            let plan = sampler.plan(short.schedule(), tcd_core::VarianceType::FixedSmall).unwrap();
+        for sampler in [
+            SamplerConfig::ddpm(),
+            SamplerConfig::ddim(4, 1.0),
+            SamplerConfig::dpmpp2m(4),
+        ] {
+            let opts = ForecastOptions {
+                num_samples: s,
+                sampler,
+            };
+            let plan = sampler
+                .plan(short.schedule(), tcd_core::VarianceType::FixedSmall)
+                .unwrap();
             let blocks = plan.num_noise_blocks();
             let ns = values(s * blocks * b * k * 8, 54, 1.5);
             let nl = values(s * blocks * b * k * 12, 55, 1.5);
-            let noise = CascadeNoise::Injected { short: &ns, long: &nl };
-            let out = cascade(&short, &long, Some(&prior), &observed_nan, &mask, &opts, noise, &Control::default())
-                .unwrap();
-            assert!(out.samples.iter().chain(&out.short_mean).all(|v| v.is_finite()));
+            let noise = CascadeNoise::Injected {
+                short: &ns,
+                long: &nl,
+            };
+            let out = cascade(
+                &short,
+                &long,
+                Some(&prior),
+                &observed_nan,
+                &mask,
+                &opts,
+                noise,
+                &Control::default(),
+            )
+            .unwrap();
+            assert!(out
+                .samples
+                .iter()
+                .chain(&out.short_mean)
+                .all(|v| v.is_finite()));
             // The same from the public pieces: each stage's observation filled by prior_fill, then sample.
             let pad = |src: &[f32], len: usize, new: usize, v: f32| -> Vec<f32> {
-                src.chunks_exact(len).flat_map(|r| r.iter().copied().chain(std::iter::repeat_n(v, new - len))).collect()
+                src.chunks_exact(len)
+                    .flat_map(|r| r.iter().copied().chain(std::iter::repeat_n(v, new - len)))
+                    .collect()
             };
-            let zeroed: Vec<f32> = observed.iter().zip(&mask).map(|(&v, &m)| if m == 1.0 { v } else { 0.0 }).collect();
+            let zeroed: Vec<f32> = observed
+                .iter()
+                .zip(&mask)
+                .map(|(&v, &m)| if m == 1.0 { v } else { 0.0 })
+                .collect();
             let mut xs = pad(&zeroed, o, 8, 0.0);
             let ms = pad(&mask, o, 8, 0.0);
             tcd_core::prior_fill(&prior, &mut xs, &ms, b, 8, &Control::default()).unwrap();
-            let ss = sample(&short, Observed::new(&xs, &ms, b, 8), s, &sampler, Noise::Injected(&ns), &Control::default())
-                .unwrap();
+            let ss = sample(
+                &short,
+                Observed::new(&xs, &ms, b, 8),
+                s,
+                &sampler,
+                Noise::Injected(&ns),
+                &Control::default(),
+            )
+            .unwrap();
             let n = b * k * 8;
             let mut mean = vec![0.0f32; n];
             for chunk in ss.chunks_exact(n) {
@@ -394,22 +523,67 @@ fn cascade_with_a_prior_conditioned_pair_fills_each_stage_once() {
             let ml = pad(&vec![1.0; b * k * 8], 8, 12, 0.0);
             let mut xl = pad(&mean, 8, 12, 0.0);
             tcd_core::prior_fill(&prior, &mut xl, &ml, b, 12, &Control::default()).unwrap();
-            let ls = sample(&long, Observed::new(&xl, &ml, b, 12), s, &sampler, Noise::Injected(&nl), &Control::default())
-                .unwrap();
-            let future: Vec<f32> = ls.chunks_exact(12).flat_map(|r| r[o..].iter().copied()).collect();
+            let ls = sample(
+                &long,
+                Observed::new(&xl, &ml, b, 12),
+                s,
+                &sampler,
+                Noise::Injected(&nl),
+                &Control::default(),
+            )
+            .unwrap();
+            let future: Vec<f32> = ls
+                .chunks_exact(12)
+                .flat_map(|r| r[o..].iter().copied())
+                .collect();
             assert_eq!(out.samples, future, "{prediction:?} {sampler:?}");
         }
         // Another prior gives another forecast: the fill reaches the network.
-        let opts = ForecastOptions { num_samples: 1, sampler: SamplerConfig::ddim(3, 0.0) };
-        let seeded = CascadeNoise::Seeded { seed: 5, sequences: Sequences::From(0) };
-        let one = cascade(&short, &long, Some(&prior), &observed, &mask, &opts, seeded, &Control::default()).unwrap();
+        let opts = ForecastOptions {
+            num_samples: 1,
+            sampler: SamplerConfig::ddim(3, 0.0),
+        };
+        let seeded = CascadeNoise::Seeded {
+            seed: 5,
+            sequences: Sequences::From(0),
+        };
+        let one = cascade(
+            &short,
+            &long,
+            Some(&prior),
+            &observed,
+            &mask,
+            &opts,
+            seeded,
+            &Control::default(),
+        )
+        .unwrap();
         let other_prior = tiny_prior(6, 5, 2, 99);
-        let two = cascade(&short, &long, Some(&other_prior), &observed, &mask, &opts, seeded, &Control::default())
-            .unwrap();
+        let two = cascade(
+            &short,
+            &long,
+            Some(&other_prior),
+            &observed,
+            &mask,
+            &opts,
+            seeded,
+            &Control::default(),
+        )
+        .unwrap();
         assert_ne!(one.mean, two.mean);
         // seeded results do not depend on the thread count
         let again = in_pool(1, || {
-            cascade(&short, &long, Some(&prior), &observed, &mask, &opts, seeded, &Control::default()).unwrap()
+            cascade(
+                &short,
+                &long,
+                Some(&prior),
+                &observed,
+                &mask,
+                &opts,
+                seeded,
+                &Control::default(),
+            )
+            .unwrap()
         });
         assert_eq!(one, again);
     }
@@ -422,21 +596,48 @@ fn prior_conditioned_models_need_a_fitting_prior_and_never_repair() {
     let (k, o) = (6usize, 6usize);
     let observed = values(k * o, 61, 1.0);
     let mask = vec![1.0f32; k * o];
-    let opts = ForecastOptions { num_samples: 1, sampler: SamplerConfig::ddim(2, 0.0) };
-    let seeded = CascadeNoise::Seeded { seed: 0, sequences: Sequences::From(0) };
+    let opts = ForecastOptions {
+        num_samples: 1,
+        sampler: SamplerConfig::ddim(2, 0.0),
+    };
+    let seeded = CascadeNoise::Seeded {
+        seed: 0,
+        sequences: Sequences::From(0),
+    };
     let run = |s: &Denoiser, l: &Denoiser, p: Option<&tcd_core::Prior>| {
-        cascade(s, l, p, &observed, &mask, &opts, seeded, &Control::default())
+        cascade(
+            s,
+            l,
+            p,
+            &observed,
+            &mask,
+            &opts,
+            seeded,
+            &Control::default(),
+        )
     };
     // no prior: refused, naming `prior` and the stage that needs it
-    for (s, l, which) in [(&short, &long, "short-term"), (&plain_short, &long, "long-term")] {
+    for (s, l, which) in [
+        (&short, &long, "short-term"),
+        (&plain_short, &long, "long-term"),
+    ] {
         let e = run(s, l, None).unwrap_err();
-        assert!(matches!(&e, Error::InvalidInput { argument, .. } if argument == "prior"), "{e:?}");
-        assert!(e.to_string().contains(which) && e.to_string().contains("cond_fill \"prior\""), "{e}");
+        assert!(
+            matches!(&e, Error::InvalidInput { argument, .. } if argument == "prior"),
+            "{e:?}"
+        );
+        assert!(
+            e.to_string().contains(which) && e.to_string().contains("cond_fill \"prior\""),
+            "{e}"
+        );
     }
     // a prior of another K, or one that reads the whole window
     for p in [tiny_prior(3, 5, 2, 1), tiny_prior(6, 8, 2, 1)] {
         let e = run(&short, &long, Some(&p)).unwrap_err();
-        assert!(matches!(&e, Error::InvalidInput { argument, .. } if argument == "prior"), "{e:?}");
+        assert!(
+            matches!(&e, Error::InvalidInput { argument, .. } if argument == "prior"),
+            "{e:?}"
+        );
         assert!(e.to_string().contains("num_features = 6"), "{e}");
     }
     // a prior reading 8 frames fits the long model (12) but not the short one (8)
@@ -444,21 +645,48 @@ fn prior_conditioned_models_need_a_fitting_prior_and_never_repair() {
     assert!(e.mean.iter().all(|v| v.is_finite()));
     // unused by models not conditioned on it
     let p = tiny_prior(6, 5, 2, 1);
-    assert_eq!(run(&plain_short, &plain_long, Some(&p)).unwrap(), run(&plain_short, &plain_long, None).unwrap());
+    assert_eq!(
+        run(&plain_short, &plain_long, Some(&p)).unwrap(),
+        run(&plain_short, &plain_long, None).unwrap()
+    );
     // repair never uses the prior: a prior-conditioned model is refused
-    let e = repair(&short, &observed, &mask, 1, &ForecastOptions::default(), Noise::seeded(1), &Control::default())
-        .unwrap_err();
-    assert!(matches!(&e, Error::InvalidInput { argument, .. } if argument == "model"), "{e:?}");
+    let e = repair(
+        &short,
+        &observed,
+        &mask,
+        1,
+        &ForecastOptions::default(),
+        Noise::seeded(1),
+        &Control::default(),
+    )
+    .unwrap_err();
+    assert!(
+        matches!(&e, Error::InvalidInput { argument, .. } if argument == "model"),
+        "{e:?}"
+    );
     assert!(e.to_string().contains("prior"), "{e}");
     // the low-level calls read the fill from `observed`: it must be finite there
     let mut nan = values(k * 8, 62, 1.0);
-    let m8: Vec<f32> = (0..k * 8).map(|i| if i % 8 < 6 { 1.0 } else { 0.0 }).collect();
+    let m8: Vec<f32> = (0..k * 8)
+        .map(|i| if i % 8 < 6 { 1.0 } else { 0.0 })
+        .collect();
     nan[7] = f32::NAN;
-    let e = sample(&short, Observed::new(&nan, &m8, 1, 8), 1, &SamplerConfig::ddim(2, 0.0), Noise::seeded(0),
-                   &Control::default())
-        .unwrap_err();
-    assert!(e.to_string().contains("`observed`") && e.to_string().contains("finite everywhere"), "{e}");
+    let e = sample(
+        &short,
+        Observed::new(&nan, &m8, 1, 8),
+        1,
+        &SamplerConfig::ddim(2, 0.0),
+        Noise::seeded(0),
+        &Control::default(),
+    )
+    .unwrap_err();
+    assert!(
+        e.to_string().contains("`observed`") && e.to_string().contains("finite everywhere"),
+        "{e}"
+    );
     let mut out = vec![0.0f32; k * 8];
-    let e = short.forward(&values(k * 8, 63, 1.0), &nan, &m8, (1, 8), 0, &mut out).unwrap_err();
+    let e = short
+        .forward(&values(k * 8, 63, 1.0), &nan, &m8, (1, 8), 0, &mut out)
+        .unwrap_err();
     assert!(e.to_string().contains("`observed`"), "{e}");
 }

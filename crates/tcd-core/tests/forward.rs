@@ -17,13 +17,26 @@ fn matches_naive_reference() {
         let mask = binary_mask(n, 3, 0.5);
         for step in [0usize, 4, 9] {
             let mut out = vec![0.0f32; n];
-            model.forward(&noisy, &observed, &mask, (b, l), step, &mut out).unwrap();
-            let want = naive_forward(model.config(), &tensors, &noisy, &observed, &mask, (b, l), step);
+            model
+                .forward(&noisy, &observed, &mask, (b, l), step, &mut out)
+                .unwrap();
+            let want = naive_forward(
+                model.config(),
+                &tensors,
+                &noisy,
+                &observed,
+                &mask,
+                (b, l),
+                step,
+            );
             let scale = want.iter().fold(0.0f64, |a, v| a.max(v.abs()));
             let err = max_abs_diff(&out, &want);
             eprintln!("L={l} step={step}: err {err:e} scale {scale}");
             assert!(scale > 1e-2, "output is trivially small: {scale}");
-            assert!(err < 1e-5 * scale.max(1.0), "L={l} step={step}: max abs err {err} (scale {scale})");
+            assert!(
+                err < 1e-5 * scale.max(1.0),
+                "L={l} step={step}: max abs err {err} (scale {scale})"
+            );
         }
     }
 }
@@ -35,8 +48,18 @@ fn length_one_skips_the_time_transformer() {
     let n = 6;
     let (noisy, observed, mask) = (values(n, 1, 1.0), values(n, 2, 1.0), binary_mask(n, 3, 0.5));
     let mut out = vec![0.0f32; n];
-    model.forward(&noisy, &observed, &mask, (b, l), 3, &mut out).unwrap();
-    let want = naive_forward(model.config(), &tensors, &noisy, &observed, &mask, (b, l), 3);
+    model
+        .forward(&noisy, &observed, &mask, (b, l), 3, &mut out)
+        .unwrap();
+    let want = naive_forward(
+        model.config(),
+        &tensors,
+        &noisy,
+        &observed,
+        &mask,
+        (b, l),
+        3,
+    );
     assert!(max_abs_diff(&out, &want) < 1e-5);
 }
 
@@ -50,15 +73,28 @@ fn finite_deterministic_and_batch_independent() {
     let mask = binary_mask(b * n, 6, 0.3);
     let mut out1 = vec![0.0f32; b * n];
     let mut out2 = vec![0.0f32; b * n];
-    model.forward(&noisy, &observed, &mask, (b, l), 7, &mut out1).unwrap();
-    model.forward(&noisy, &observed, &mask, (b, l), 7, &mut out2).unwrap();
+    model
+        .forward(&noisy, &observed, &mask, (b, l), 7, &mut out1)
+        .unwrap();
+    model
+        .forward(&noisy, &observed, &mask, (b, l), 7, &mut out2)
+        .unwrap();
     assert!(out1.iter().all(|v| v.is_finite()));
     assert_eq!(out1, out2);
     // each sequence alone gives the same bits
     for i in 0..b {
         let r = i * n..(i + 1) * n;
         let mut one = vec![0.0f32; n];
-        model.forward(&noisy[r.clone()], &observed[r.clone()], &mask[r.clone()], (1, l), 7, &mut one).unwrap();
+        model
+            .forward(
+                &noisy[r.clone()],
+                &observed[r.clone()],
+                &mask[r.clone()],
+                (1, l),
+                7,
+                &mut one,
+            )
+            .unwrap();
         assert_eq!(&out1[r], one.as_slice());
     }
     // prepared + workspace reuse across steps give the same bits as the plain forward
@@ -67,17 +103,25 @@ fn finite_deterministic_and_batch_independent() {
     for step in [7usize, 0, 7] {
         let mut a = vec![0.0f32; b * n];
         let mut c = vec![0.0f32; b * n];
-        model.forward_with_workspace(&prepared, &mut ws, &noisy, &observed, step, &mut a).unwrap();
-        model.forward(&noisy, &observed, &mask, (b, l), step, &mut c).unwrap();
+        model
+            .forward_with_workspace(&prepared, &mut ws, &noisy, &observed, step, &mut a)
+            .unwrap();
+        model
+            .forward(&noisy, &observed, &mask, (b, l), step, &mut c)
+            .unwrap();
         assert_eq!(a, c);
         let mut d = vec![0.0f32; b * n];
-        model.forward_prepared(&prepared, &noisy, &observed, step, &mut d).unwrap();
+        model
+            .forward_prepared(&prepared, &noisy, &observed, step, &mut d)
+            .unwrap();
         assert_eq!(a, d);
     }
     assert_eq!(ws.length(), l);
     // different steps give different outputs
     let mut o0 = vec![0.0f32; b * n];
-    model.forward(&noisy, &observed, &mask, (b, l), 0, &mut o0).unwrap();
+    model
+        .forward(&noisy, &observed, &mask, (b, l), 0, &mut o0)
+        .unwrap();
     assert_ne!(o0, out1);
 }
 
@@ -89,7 +133,9 @@ fn ignored_entries_may_be_nan() {
     let mut observed = values(n, 2, 1.0);
     let mask = binary_mask(n, 3, 0.5);
     let mut base = vec![0.0f32; n];
-    model.forward(&noisy, &observed, &mask, (1, 10), 2, &mut base).unwrap();
+    model
+        .forward(&noisy, &observed, &mask, (1, 10), 2, &mut base)
+        .unwrap();
     for i in 0..n {
         if mask[i] == 1.0 {
             noisy[i] = f32::NAN;
@@ -98,7 +144,9 @@ fn ignored_entries_may_be_nan() {
         }
     }
     let mut out = vec![0.0f32; n];
-    model.forward(&noisy, &observed, &mask, (1, 10), 2, &mut out).unwrap();
+    model
+        .forward(&noisy, &observed, &mask, (1, 10), 2, &mut out)
+        .unwrap();
     assert_eq!(base, out);
 }
 
@@ -113,22 +161,66 @@ fn input_errors_name_the_argument() {
         Error::InvalidInput { argument, .. } => argument,
         other => panic!("{other:?}"),
     };
-    assert_eq!(arg(model.forward(&ok[1..], &ok, &mask, (1, 10), 0, &mut out).unwrap_err()), "noisy");
-    assert_eq!(arg(model.forward(&ok, &ok[1..], &mask, (1, 10), 0, &mut out).unwrap_err()), "observed");
-    assert_eq!(arg(model.forward(&ok, &ok, &mask[1..], (1, 10), 0, &mut out).unwrap_err()), "mask");
-    assert_eq!(arg(model.forward(&ok, &ok, &mask, (1, 10), 0, &mut out[1..]).unwrap_err()), "out");
-    assert_eq!(arg(model.forward(&ok, &ok, &mask, (1, 10), 10, &mut out).unwrap_err()), "step");
-    assert_eq!(arg(model.forward(&ok, &ok, &mask, (0, 10), 0, &mut out).unwrap_err()), "batch");
-    assert_eq!(arg(model.forward(&ok, &ok, &mask, (1, 0), 0, &mut out).unwrap_err()), "length");
+    assert_eq!(
+        arg(model
+            .forward(&ok[1..], &ok, &mask, (1, 10), 0, &mut out)
+            .unwrap_err()),
+        "noisy"
+    );
+    assert_eq!(
+        arg(model
+            .forward(&ok, &ok[1..], &mask, (1, 10), 0, &mut out)
+            .unwrap_err()),
+        "observed"
+    );
+    assert_eq!(
+        arg(model
+            .forward(&ok, &ok, &mask[1..], (1, 10), 0, &mut out)
+            .unwrap_err()),
+        "mask"
+    );
+    assert_eq!(
+        arg(model
+            .forward(&ok, &ok, &mask, (1, 10), 0, &mut out[1..])
+            .unwrap_err()),
+        "out"
+    );
+    assert_eq!(
+        arg(model
+            .forward(&ok, &ok, &mask, (1, 10), 10, &mut out)
+            .unwrap_err()),
+        "step"
+    );
+    assert_eq!(
+        arg(model
+            .forward(&ok, &ok, &mask, (0, 10), 0, &mut out)
+            .unwrap_err()),
+        "batch"
+    );
+    assert_eq!(
+        arg(model
+            .forward(&ok, &ok, &mask, (1, 0), 0, &mut out)
+            .unwrap_err()),
+        "length"
+    );
     let mut soft = mask.clone();
     soft[4] = 0.5;
-    let e = model.forward(&ok, &ok, &soft, (1, 10), 0, &mut out).unwrap_err();
+    let e = model
+        .forward(&ok, &ok, &soft, (1, 10), 0, &mut out)
+        .unwrap_err();
     assert!(e.to_string().contains("0.5 at flat index 4"), "{e}");
     let mut bad = ok.clone();
     let i = mask.iter().position(|&m| m == 1.0).unwrap();
     bad[i] = f32::INFINITY;
-    assert_eq!(arg(model.forward(&ok, &bad, &mask, (1, 10), 0, &mut out).unwrap_err()), "observed");
-    let e = model.forward(&ok, &ok, &mask, (1, 10), 12, &mut out).unwrap_err();
+    assert_eq!(
+        arg(model
+            .forward(&ok, &bad, &mask, (1, 10), 0, &mut out)
+            .unwrap_err()),
+        "observed"
+    );
+    let e = model
+        .forward(&ok, &ok, &mask, (1, 10), 12, &mut out)
+        .unwrap_err();
     assert_eq!(
         e.to_string(),
         "Argument `step` must be a diffusion step in 0..10 (num_train_timesteps = 10), but received 12."
@@ -148,11 +240,15 @@ fn prepared_and_workspace_from_another_model() {
     let mut out = vec![0.0f32; n];
     let pa = a.prepare(&mask, 1, 10).unwrap();
     let e = b.forward_prepared(&pa, &x, &x, 0, &mut out).unwrap_err();
-    assert!(matches!(&e, Error::InvalidInput { argument, .. } if argument == "prepared"), "{e:?}");
+    assert!(
+        matches!(&e, Error::InvalidInput { argument, .. } if argument == "prepared"),
+        "{e:?}"
+    );
     // a workspace made for another model is rebuilt, not misused
     let mut ws = Workspace::new(&a, 10);
     let pb = b.prepare(&mask, 1, 10).unwrap();
-    b.forward_with_workspace(&pb, &mut ws, &x, &x, 0, &mut out).unwrap();
+    b.forward_with_workspace(&pb, &mut ws, &x, &x, 0, &mut out)
+        .unwrap();
     let mut want = vec![0.0f32; n];
     b.forward(&x, &x, &mask, (1, 10), 0, &mut want).unwrap();
     assert_eq!(out, want);

@@ -8,7 +8,15 @@ use common::*;
 use tcd_core::{Denoiser, Kernel, Role, TcdConfig, Workspace};
 
 /// A config with the given sizes (K = joints·3).
-fn config(joints: usize, channels: usize, heads: usize, ffn: usize, layers: usize, obs: usize, pred: usize) -> TcdConfig {
+fn config(
+    joints: usize,
+    channels: usize,
+    heads: usize,
+    ffn: usize,
+    layers: usize,
+    obs: usize,
+    pred: usize,
+) -> TcdConfig {
     let mut cfg = tiny_config(Role::Long, obs, pred);
     let m = &mut cfg.model;
     m.num_joints = joints;
@@ -45,7 +53,9 @@ fn compare_all(cfg: &TcdConfig, seed: u64, tol: f64) {
         .iter()
         .map(|&s| {
             let mut o = vec![0.0f32; n];
-            portable.forward(&noisy, &observed, &mask, (b, l), s, &mut o).unwrap();
+            portable
+                .forward(&noisy, &observed, &mask, (b, l), s, &mut o)
+                .unwrap();
             o
         })
         .collect();
@@ -56,9 +66,14 @@ fn compare_all(cfg: &TcdConfig, seed: u64, tol: f64) {
         let mut ws = Workspace::new(&fast, l);
         for (&s, w) in steps.iter().zip(&want) {
             let mut o = vec![0.0f32; n];
-            fast.forward_with_workspace(&prepared, &mut ws, &noisy, &observed, s, &mut o).unwrap();
+            fast.forward_with_workspace(&prepared, &mut ws, &noisy, &observed, s, &mut o)
+                .unwrap();
             assert!(o.iter().all(|v| v.is_finite()));
-            let err = o.iter().zip(w).map(|(a, b)| (a - b).abs() as f64).fold(0.0, f64::max);
+            let err = o
+                .iter()
+                .zip(w)
+                .map(|(a, b)| (a - b).abs() as f64)
+                .fold(0.0, f64::max);
             let scale = w.iter().fold(0.0f32, |a, v| a.max(v.abs()));
             eprintln!(
                 "{kernel}: K={k} L={l} C={} heads={} F={} step {s}: max |diff| {err:e} (scale {scale})",
@@ -124,7 +139,8 @@ fn every_kernel_matches_the_naive_reference() {
         let d = base.clone().with_kernel(kernel).unwrap();
         for step in [0usize, 9] {
             let mut out = vec![0.0f32; n];
-            d.forward(&noisy, &observed, &mask, (b, l), step, &mut out).unwrap();
+            d.forward(&noisy, &observed, &mask, (b, l), step, &mut out)
+                .unwrap();
             let want = naive_forward(d.config(), &tensors, &noisy, &observed, &mask, (b, l), step);
             let scale = want.iter().fold(0.0f64, |a, v| a.max(v.abs()));
             let err = max_abs_diff(&out, &want);
@@ -155,7 +171,8 @@ fn forcing_portable_and_unsupported_kernels() {
     let prepared = auto.prepare(&mask, 1, 10).unwrap();
     let mut a = vec![0.0f32; n];
     let mut b = vec![0.0f32; n];
-    auto.forward_with_workspace(&prepared, &mut ws, &x, &x, 3, &mut a).unwrap();
+    auto.forward_with_workspace(&prepared, &mut ws, &x, &x, 3, &mut a)
+        .unwrap();
     auto.forward(&x, &x, &mask, (1, 10), 3, &mut b).unwrap();
     assert_eq!(a, b);
 }
@@ -173,7 +190,8 @@ fn splitting_one_forward_over_threads_gives_the_same_bits() {
         let mut ws = Workspace::with_threads(&d, l, threads);
         let mut o = vec![0.0f32; n];
         tcd_core::with_threads(Some(threads.min(4)), || {
-            d.forward_with_workspace(&prepared, &mut ws, &x, &obs, 4, &mut o).unwrap()
+            d.forward_with_workspace(&prepared, &mut ws, &x, &obs, 4, &mut o)
+                .unwrap()
         })
         .unwrap();
         outs.push(o);

@@ -10,8 +10,8 @@ use common::*;
 use proptest::prelude::*;
 use tcd_core::rng::{seeded_noise, stage};
 use tcd_core::{
-    sample, Control, Denoiser, Error, Noise, Observed, PredictionType, Role, SamplerConfig, SamplerKind, Sequences,
-    TimestepSpacing, VarianceType,
+    sample, Control, Denoiser, Error, Noise, Observed, PredictionType, Role, SamplerConfig,
+    SamplerKind, Sequences, TimestepSpacing, VarianceType,
 };
 
 fn model() -> &'static Denoiser {
@@ -290,8 +290,9 @@ fn ddpm_all_steps_is_the_reference_chain() {
                 Observed::new(&observed, &mask, 1, 7),
                 1,
                 &cfg,
-                Noise::seeded(3)
-            , &Control::default())
+                Noise::seeded(3),
+                &Control::default()
+            )
             .unwrap(),
             reference
         );
@@ -304,7 +305,8 @@ fn ddpm_all_steps_is_the_reference_chain() {
     let mut x = noise[..n].to_vec();
     let mut eps = vec![0.0f32; n];
     for (i, t) in (0..10usize).rev().enumerate() {
-        m.forward(&x, &observed, &mask, (1, 7), t, &mut eps).unwrap();
+        m.forward(&x, &observed, &mask, (1, 7), t, &mut eps)
+            .unwrap();
         let (a_t, a_next) = (abar(t as i64), abar(t as i64 - 1));
         let beta = 1.0 - a_t / a_next;
         let c1 = (1.0 / (1.0 - beta).sqrt()) as f32;
@@ -354,8 +356,9 @@ fn dpmpp2m_is_deterministic_with_one_noise_block_and_matches_a_hand_loop() {
             Observed::new(&observed, &mask, 1, l),
             s,
             &cfg,
-            Noise::Injected(&noise)
-        , &Control::default())
+            Noise::Injected(&noise),
+            &Control::default()
+        )
         .unwrap(),
         seeded
     );
@@ -380,7 +383,8 @@ fn dpmpp2m_is_deterministic_with_one_noise_block_and_matches_a_hand_loop() {
     let mut prev: Vec<f32> = Vec::new();
     let mut h_prev = 0.0f64;
     for (i, &t) in ts.iter().enumerate() {
-        m.forward(&x, &observed, &mask, (1, l), t, &mut eps).unwrap();
+        m.forward(&x, &observed, &mask, (1, l), t, &mut eps)
+            .unwrap();
         let (a, b) = ((1.0 - ab[t]).sqrt() as f32, ab[t].sqrt() as f32);
         let x0: Vec<f32> = x
             .iter()
@@ -432,8 +436,9 @@ fn sampling_errors() {
             Observed::new(&observed, &mask, 1, 7),
             1,
             &ddim(11, 0.0),
-            Noise::seeded(0)
-        , &Control::default())
+            Noise::seeded(0),
+            &Control::default()
+        )
         .unwrap_err()),
         "num_inference_steps"
     );
@@ -443,8 +448,9 @@ fn sampling_errors() {
             Observed::new(&observed, &mask, 1, 7),
             1,
             &ddim(0, 0.0),
-            Noise::seeded(0)
-        , &Control::default())
+            Noise::seeded(0),
+            &Control::default()
+        )
         .unwrap_err()),
         "num_inference_steps"
     );
@@ -454,8 +460,9 @@ fn sampling_errors() {
             Observed::new(&observed, &mask, 1, 7),
             1,
             &ddim(3, 1.5),
-            Noise::seeded(0)
-        , &Control::default())
+            Noise::seeded(0),
+            &Control::default()
+        )
         .unwrap_err()),
         "eta"
     );
@@ -465,8 +472,9 @@ fn sampling_errors() {
             Observed::new(&observed, &mask, 1, 7),
             0,
             &ddim(3, 0.0),
-            Noise::seeded(0)
-        , &Control::default())
+            Noise::seeded(0),
+            &Control::default()
+        )
         .unwrap_err()),
         "num_samples"
     );
@@ -489,8 +497,9 @@ fn sampling_errors() {
             Observed::new(&observed, &mask, 1, 7),
             1,
             &ddim(3, 0.0),
-            Noise::Injected(&nan)
-        , &Control::default())
+            Noise::Injected(&nan),
+            &Control::default()
+        )
         .unwrap_err()),
         "noise"
     );
@@ -503,11 +512,23 @@ fn control_counts_forwards_and_stops_the_call() {
     let observed = values(n, 1, 1.0);
     let mask = binary_mask(n, 2, 0.5);
     let cfg = SamplerConfig::ddpm(); // 10 training steps in the tiny model
-    let run = |control: &Control| sample(m, Observed::new(&observed, &mask, 2, 7), 3, &cfg, Noise::seeded(5), control);
+    let run = |control: &Control| {
+        sample(
+            m,
+            Observed::new(&observed, &mask, 2, 7),
+            3,
+            &cfg,
+            Noise::seeded(5),
+            control,
+        )
+    };
     // counted: 3 samples x 2 sequences x 10 steps, all of them done
     let counted = Control::default();
     let a = run(&counted).unwrap();
-    assert_eq!((counted.forwards_done(), counted.forwards_total()), (60, 60));
+    assert_eq!(
+        (counted.forwards_done(), counted.forwards_total()),
+        (60, 60)
+    );
     // cancelled before it starts: no forward runs
     let stopped = Control::default();
     stopped.cancel();
@@ -518,14 +539,28 @@ fn control_counts_forwards_and_stops_the_call() {
     let (observed, mask) = (values(big, 3, 1.0), binary_mask(big, 4, 0.5));
     let control = Control::default();
     std::thread::scope(|s| {
-        let h = s.spawn(|| sample(m, Observed::new(&observed, &mask, 80, 7), 50, &cfg, Noise::seeded(1), &control));
+        let h = s.spawn(|| {
+            sample(
+                m,
+                Observed::new(&observed, &mask, 80, 7),
+                50,
+                &cfg,
+                Noise::seeded(1),
+                &control,
+            )
+        });
         while control.forwards_done() == 0 {
             std::thread::yield_now();
         }
         control.cancel();
         assert!(matches!(h.join().unwrap(), Err(Error::Cancelled)));
     });
-    assert!(control.forwards_done() < control.forwards_total(), "{} of {}", control.forwards_done(), control.forwards_total());
+    assert!(
+        control.forwards_done() < control.forwards_total(),
+        "{} of {}",
+        control.forwards_done(),
+        control.forwards_total()
+    );
     // a control that was only read does not change results
     assert_eq!(a, run(&Control::default()).unwrap());
 }
@@ -539,27 +574,54 @@ fn x0_prediction_turns_the_output_into_the_noise_in_every_sampler() {
     let (l, n) = (7usize, 6 * 7);
     let observed = values(n, 31, 1.0);
     let mask = binary_mask(n, 32, 0.4);
-    for sc in [SamplerConfig::ddpm(), SamplerConfig::ddim(4, 1.0), SamplerConfig::dpmpp2m(4)] {
+    for sc in [
+        SamplerConfig::ddpm(),
+        SamplerConfig::ddim(4, 1.0),
+        SamplerConfig::dpmpp2m(4),
+    ] {
         let plan = sc.plan(m.schedule(), VarianceType::FixedSmall).unwrap();
         assert!(plan.steps.iter().all(|st| st.to_noise.is_none()));
-        let x0_plan = plan.clone().for_prediction(PredictionType::Sample, m.schedule());
+        let x0_plan = plan
+            .clone()
+            .for_prediction(PredictionType::Sample, m.schedule());
         assert!(x0_plan.steps.iter().all(|st| st.to_noise.is_some()));
-        assert_eq!(plan.clone().for_prediction(PredictionType::Epsilon, m.schedule()), plan);
+        assert_eq!(
+            plan.clone()
+                .for_prediction(PredictionType::Epsilon, m.schedule()),
+            plan
+        );
         let blocks = plan.num_noise_blocks();
         let noise = values(blocks * n, 33, 1.5);
         let obs = Observed::new(&observed, &mask, 1, l);
-        let got = sample(&m, obs, 1, &sc, Noise::Injected(&noise), &Control::default()).unwrap();
+        let got = sample(
+            &m,
+            obs,
+            1,
+            &sc,
+            Noise::Injected(&noise),
+            &Control::default(),
+        )
+        .unwrap();
         // A hand loop over the public forward: eps = (x - a * out) * inv_s with a = sqrt(abar_t),
         // inv_s = 1 / sqrt(1 - abar_t) rounded from f64 (training.diffusion.predicted_noise), then the step.
         let mut x = noise[..n].to_vec();
         let mut out = vec![0.0f32; n];
         let mut prev = vec![0.0f32; n];
         for (i, st) in plan.steps.iter().enumerate() {
-            m.forward(&x, &observed, &mask, (1, l), st.t, &mut out).unwrap();
+            m.forward(&x, &observed, &mask, (1, l), st.t, &mut out)
+                .unwrap();
             let ab = m.schedule().alpha_bar(Some(st.t));
             let (a, inv_s) = (ab.sqrt() as f32, (1.0 / (1.0 - ab).sqrt()) as f32);
-            let eps: Vec<f32> = x.iter().zip(&out).map(|(xv, ov)| (xv - a * ov) * inv_s).collect();
-            let z = if blocks > 1 { &noise[(i + 1) * n..(i + 2) * n] } else { &noise[..0] };
+            let eps: Vec<f32> = x
+                .iter()
+                .zip(&out)
+                .map(|(xv, ov)| (xv - a * ov) * inv_s)
+                .collect();
+            let z = if blocks > 1 {
+                &noise[(i + 1) * n..(i + 2) * n]
+            } else {
+                &noise[..0]
+            };
             st.apply(&mut x, &eps, z, &mut prev);
         }
         for j in 0..n {
@@ -569,7 +631,15 @@ fn x0_prediction_turns_the_output_into_the_noise_in_every_sampler() {
         }
         assert_eq!(got, x, "{sc:?}");
         // the epsilon reading of the same weights gives another chain: the conversion ran
-        let eps_chain = sample(model(), obs, 1, &sc, Noise::Injected(&noise), &Control::default()).unwrap();
+        let eps_chain = sample(
+            model(),
+            obs,
+            1,
+            &sc,
+            Noise::Injected(&noise),
+            &Control::default(),
+        )
+        .unwrap();
         assert_ne!(eps_chain, got, "{sc:?}");
     }
 }

@@ -7,7 +7,10 @@ use common::*;
 use safetensors::Dtype;
 use tcd_core::{Denoiser, Error, Role, WeightFile};
 
-fn good() -> (tcd_core::TcdConfig, std::collections::BTreeMap<String, RawTensor>) {
+fn good() -> (
+    tcd_core::TcdConfig,
+    std::collections::BTreeMap<String, RawTensor>,
+) {
     let cfg = tiny_config(Role::Short, 8, 2);
     let t = random_tensors(&cfg, 1);
     (cfg, t)
@@ -67,7 +70,10 @@ fn directory_is_not_a_file() {
     let dir = tempfile::tempdir().unwrap();
     let e = Denoiser::load(dir.path()).unwrap_err();
     assert!(matches!(e, Error::NotAFile { .. }), "{e:?}");
-    assert!(e.is_weights_error() && e.to_string().contains("is a directory"), "{e}");
+    assert!(
+        e.is_weights_error() && e.to_string().contains("is a directory"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -81,10 +87,15 @@ fn non_finite_weight_names_the_tensor() {
         t.insert(name.clone(), RawTensor::f32(t[&name].shape.clone(), &v));
         let e = load_bytes(&serialize(&t, Some(cfg.to_json()))).unwrap_err();
         match &e {
-            Error::NonFiniteTensor { name: n, index, .. } => assert_eq!((n.as_str(), *index), (name.as_str(), 1)),
+            Error::NonFiniteTensor { name: n, index, .. } => {
+                assert_eq!((n.as_str(), *index), (name.as_str(), 1))
+            }
             other => panic!("{other:?}"),
         }
-        assert!(e.is_weights_error() && e.to_string().contains(&format!("`{name}`")), "{e}");
+        assert!(
+            e.is_weights_error() && e.to_string().contains(&format!("`{name}`")),
+            "{e}"
+        );
     }
 }
 
@@ -98,7 +109,10 @@ fn fuzzed_weight_files_load_or_fail_cleanly() {
     let (cfg, t) = good();
     let valid = serialize(&t, Some(cfg.to_json()));
     let header_len = u64::from_le_bytes(valid[..8].try_into().unwrap()) as usize;
-    let cases: usize = std::env::var("TCD_FUZZ_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(3000);
+    let cases: usize = std::env::var("TCD_FUZZ_CASES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(3000);
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(17);
     let (mut loaded, mut refused) = (0usize, 0usize);
     for case in 0..cases {
@@ -131,7 +145,10 @@ fn fuzzed_weight_files_load_or_fail_cleanly() {
                 for (name, shape) in tcd_core::expected_tensors(&w.config().model) {
                     let tensor = w.tensor(&name).unwrap();
                     assert_eq!(tensor.shape, shape, "case {case}: {name}");
-                    assert!(tensor.data.iter().all(|v| v.is_finite()), "case {case}: {name} not finite");
+                    assert!(
+                        tensor.data.iter().all(|v| v.is_finite()),
+                        "case {case}: {name} not finite"
+                    );
                 }
             }
             Ok(Err(e)) => {
@@ -141,7 +158,10 @@ fn fuzzed_weight_files_load_or_fail_cleanly() {
         }
     }
     assert_eq!(loaded + refused, cases);
-    assert!(refused > cases / 2, "most mutants must be refused ({refused} of {cases})");
+    assert!(
+        refused > cases / 2,
+        "most mutants must be refused ({refused} of {cases})"
+    );
 }
 
 #[test]
@@ -190,7 +210,10 @@ fn missing_tensor() {
     let e = load_bytes(&serialize(&t, Some(cfg.to_json()))).unwrap_err();
     match &e {
         Error::MissingTensor { name, expected, .. } => {
-            assert_eq!(name, "diffmodel.residual_layers.1.time_layer.layers.0.norm2.bias");
+            assert_eq!(
+                name,
+                "diffmodel.residual_layers.1.time_layer.layers.0.norm2.bias"
+            );
             assert_eq!(expected, &vec![16]);
         }
         other => panic!("{other:?}"),
@@ -200,7 +223,10 @@ fn missing_tensor() {
 #[test]
 fn extra_tensor() {
     let (cfg, mut t) = good();
-    t.insert("diffmodel.diffusion_embedding.embedding".into(), RawTensor::f32(vec![2], &[0.0, 1.0]));
+    t.insert(
+        "diffmodel.diffusion_embedding.embedding".into(),
+        RawTensor::f32(vec![2], &[0.0, 1.0]),
+    );
     let e = load_bytes(&serialize(&t, Some(cfg.to_json()))).unwrap_err();
     assert!(
         matches!(&e, Error::UnexpectedTensor { name, .. } if name == "diffmodel.diffusion_embedding.embedding"),
@@ -211,10 +237,18 @@ fn extra_tensor() {
 #[test]
 fn wrong_shape() {
     let (cfg, mut t) = good();
-    t.insert("diffmodel.input_projection.weight".into(), RawTensor::f32(vec![16, 2], &[0.0; 32]));
+    t.insert(
+        "diffmodel.input_projection.weight".into(),
+        RawTensor::f32(vec![16, 2], &[0.0; 32]),
+    );
     let e = load_bytes(&serialize(&t, Some(cfg.to_json()))).unwrap_err();
     match &e {
-        Error::TensorShape { name, expected, received, .. } => {
+        Error::TensorShape {
+            name,
+            expected,
+            received,
+            ..
+        } => {
             assert_eq!(name, "diffmodel.input_projection.weight");
             assert_eq!(expected, &vec![16, 2, 1]);
             assert_eq!(received, &vec![16, 2]);
@@ -228,10 +262,24 @@ fn wrong_shape() {
 fn wrong_dtype() {
     let (cfg, mut t) = good();
     let w = t["embed_layer.weight"].clone();
-    let f64_bytes: Vec<u8> = w.values().iter().flat_map(|v| (*v as f64).to_le_bytes()).collect();
-    t.insert("embed_layer.weight".into(), RawTensor { dtype: Dtype::F64, shape: w.shape.clone(), bytes: f64_bytes });
+    let f64_bytes: Vec<u8> = w
+        .values()
+        .iter()
+        .flat_map(|v| (*v as f64).to_le_bytes())
+        .collect();
+    t.insert(
+        "embed_layer.weight".into(),
+        RawTensor {
+            dtype: Dtype::F64,
+            shape: w.shape.clone(),
+            bytes: f64_bytes,
+        },
+    );
     let e = load_bytes(&serialize(&t, Some(cfg.to_json()))).unwrap_err();
-    assert!(matches!(&e, Error::TensorDtype { name, received, .. } if name == "embed_layer.weight" && received == "F64"), "{e:?}");
+    assert!(
+        matches!(&e, Error::TensorDtype { name, received, .. } if name == "embed_layer.weight" && received == "F64"),
+        "{e:?}"
+    );
 }
 
 #[test]
@@ -245,7 +293,10 @@ fn betas_disagreeing_with_schedule() {
     assert!(load_bytes(&serialize(&t, Some(cfg.to_json()))).is_ok());
     cfg.diffusion.betas[0] = 1.0;
     let e = load_bytes(&serialize(&t, Some(cfg.to_json()))).unwrap_err();
-    assert!(matches!(&e, Error::InvalidConfig { field, .. } if field == "diffusion.betas"), "{e:?}");
+    assert!(
+        matches!(&e, Error::InvalidConfig { field, .. } if field == "diffusion.betas"),
+        "{e:?}"
+    );
 }
 
 #[test]
@@ -267,18 +318,35 @@ fn inconsistent_configs() {
         ("model.side_dim", Box::new(|c| c.model.side_dim = 36)),
         ("model.num_features", Box::new(|c| c.model.num_features = 7)),
         ("model.channels", Box::new(|c| c.model.num_heads = 3)),
-        ("diffusion.betas", Box::new(|c| { c.diffusion.betas.pop(); })),
+        (
+            "diffusion.betas",
+            Box::new(|c| {
+                c.diffusion.betas.pop();
+            }),
+        ),
         ("window.seq_len", Box::new(|c| c.window.seq_len = 11)),
         ("format_version", Box::new(|c| c.format_version = 2)),
-        ("model.layer_norm_eps", Box::new(|c| c.model.layer_norm_eps = 0.0)),
-        ("model.target_scale", Box::new(|c| c.model.target_scale = 0.0)),
-        ("model.target_scale", Box::new(|c| c.model.target_scale = -5.0)),
+        (
+            "model.layer_norm_eps",
+            Box::new(|c| c.model.layer_norm_eps = 0.0),
+        ),
+        (
+            "model.target_scale",
+            Box::new(|c| c.model.target_scale = 0.0),
+        ),
+        (
+            "model.target_scale",
+            Box::new(|c| c.model.target_scale = -5.0),
+        ),
     ];
     for (field, edit) in cases {
         let mut c = cfg.clone();
         edit(&mut c);
         let e = load_bytes(&serialize(&t, Some(c.to_json()))).unwrap_err();
-        assert!(matches!(&e, Error::InvalidConfig { field: f, .. } if f == field), "{field}: {e:?}");
+        assert!(
+            matches!(&e, Error::InvalidConfig { field: f, .. } if f == field),
+            "{field}: {e:?}"
+        );
         assert!(e.to_string().contains(field), "{e}");
     }
 }
@@ -286,7 +354,10 @@ fn inconsistent_configs() {
 #[test]
 fn unsupported_prediction_and_variance_types_are_refused_by_name() {
     let (cfg, t) = good();
-    for (field, value) in [("prediction_type", "v_prediction"), ("variance_type", "learned")] {
+    for (field, value) in [
+        ("prediction_type", "v_prediction"),
+        ("variance_type", "learned"),
+    ] {
         let mut v: serde_json::Value = serde_json::from_str(&cfg.to_json()).unwrap();
         v["diffusion"][field] = serde_json::json!(value);
         let e = load_bytes(&serialize(&t, Some(v.to_string()))).unwrap_err();
@@ -296,7 +367,10 @@ fn unsupported_prediction_and_variance_types_are_refused_by_name() {
     let mut v: serde_json::Value = serde_json::from_str(&cfg.to_json()).unwrap();
     v["diffusion"]["variance_type"] = serde_json::json!("fixed_large");
     let d = load_bytes(&serialize(&t, Some(v.to_string()))).unwrap();
-    assert_eq!(d.config().diffusion.variance_type, tcd_core::VarianceType::FixedLarge);
+    assert_eq!(
+        d.config().diffusion.variance_type,
+        tcd_core::VarianceType::FixedLarge
+    );
 }
 
 #[test]
@@ -364,7 +438,10 @@ fn prior_fill_and_prior_residual_parse_together_and_not_alone() {
     let d = load_bytes(&serialize(&t, Some(v.to_string()))).unwrap();
     assert_eq!(d.config().model.cond_fill, CondFill::Prior);
     assert_eq!(d.config().model.target, Target::PriorResidual);
-    assert_eq!(d.config().model.target.residual_fill(), Some(CondFill::Prior));
+    assert_eq!(
+        d.config().model.target.residual_fill(),
+        Some(CondFill::Prior)
+    );
     // round trip: the names written back are the ones read
     let back: serde_json::Value = serde_json::from_str(&d.config().to_json()).unwrap();
     assert_eq!(back["model"]["cond_fill"], "prior");
@@ -372,17 +449,38 @@ fn prior_fill_and_prior_residual_parse_together_and_not_alone() {
     // one without the other: refused, naming the field that is set and the one it needs
     for (fill, target, field, other) in [
         ("prior", "absolute", "model.cond_fill", "prior_residual"),
-        ("prior", "spline_residual", "model.cond_fill", "prior_residual"),
-        ("zero", "prior_residual", "model.target", "cond_fill \"prior\""),
-        ("spline", "prior_residual", "model.target", "cond_fill \"prior\""),
+        (
+            "prior",
+            "spline_residual",
+            "model.cond_fill",
+            "prior_residual",
+        ),
+        (
+            "zero",
+            "prior_residual",
+            "model.target",
+            "cond_fill \"prior\"",
+        ),
+        (
+            "spline",
+            "prior_residual",
+            "model.target",
+            "cond_fill \"prior\"",
+        ),
     ] {
         v["model"]["cond_fill"] = serde_json::json!(fill);
         v["model"]["target"] = serde_json::json!(target);
         let e = load_bytes(&serialize(&t, Some(v.to_string()))).unwrap_err();
-        assert!(matches!(&e, Error::InvalidConfig { field: f, .. } if f == field), "{fill}/{target}: {e:?}");
+        assert!(
+            matches!(&e, Error::InvalidConfig { field: f, .. } if f == field),
+            "{fill}/{target}: {e:?}"
+        );
         assert!(e.is_weights_error());
         let msg = e.to_string();
-        assert!(msg.contains(field) && msg.contains(other) && msg.contains("go together"), "{msg}");
+        assert!(
+            msg.contains(field) && msg.contains(other) && msg.contains("go together"),
+            "{msg}"
+        );
     }
     // a Target without the Prior fill in code too (config built directly, then validated)
     let mut c = cfg.clone();
@@ -403,9 +501,15 @@ fn prediction_type_sample_parses() {
     assert_eq!(back["diffusion"]["prediction_type"], "sample");
     v["diffusion"]["prediction_type"] = serde_json::json!("epsilon");
     let d = load_bytes(&serialize(&t, Some(v.to_string()))).unwrap();
-    assert_eq!(d.config().diffusion.prediction_type, PredictionType::Epsilon);
+    assert_eq!(
+        d.config().diffusion.prediction_type,
+        PredictionType::Epsilon
+    );
     // a required field: absent is an error, as before
-    v["diffusion"].as_object_mut().unwrap().remove("prediction_type");
+    v["diffusion"]
+        .as_object_mut()
+        .unwrap()
+        .remove("prediction_type");
     let e = load_bytes(&serialize(&t, Some(v.to_string()))).unwrap_err();
     assert!(e.to_string().contains("prediction_type"), "{e}");
 }

@@ -89,7 +89,12 @@ impl SamplerOptions {
             .num_inference_steps
             .map(|n| positive("num_inference_steps", n))
             .transpose()?;
-        SamplerConfig::from_names(&self.sampler, num_inference_steps, self.eta, &self.timestep_spacing)
+        SamplerConfig::from_names(
+            &self.sampler,
+            num_inference_steps,
+            self.eta,
+            &self.timestep_spacing,
+        )
     }
 }
 

@@ -8,8 +8,8 @@ use pyo3::prelude::*;
 use tcd_core::{sample as core_sample, with_threads, Denoiser, Observed};
 
 use crate::convert::*;
-use crate::run::interruptible;
 use crate::error::{invalid, PyTcdError};
+use crate::run::interruptible;
 
 /// A loaded TCD denoiser (one safetensors file). Immutable; safe to share between threads.
 #[pyclass(frozen, module = "tcd._native", name = "Denoiser")]
@@ -165,7 +165,10 @@ impl PyDenoiser {
     /// numbered from `first_sequence`, or one stream id per sequence in `sequences`).
     #[pyo3(signature = (observed, mask, num_samples, options, *, noise=None, seed=None, first_sequence=0, sequences=None,
                         threads=None, progress=None))]
-    #[expect(clippy::too_many_arguments, reason = "a Python signature: pyo3 maps each keyword argument to one parameter")]
+    #[expect(
+        clippy::too_many_arguments,
+        reason = "a Python signature: pyo3 maps each keyword argument to one parameter"
+    )]
     fn sample<'py>(
         &self,
         py: Python<'py>,

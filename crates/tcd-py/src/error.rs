@@ -18,7 +18,9 @@
 //! `.argument` / `.path` read `args[1]`, and they pickle as they are
 //! (e.g. across Ray or multiprocessing workers). The message is always the engine's full sentence.
 
-use pyo3::exceptions::{PyException, PyFileNotFoundError, PyKeyboardInterrupt, PyOSError, PyValueError};
+use pyo3::exceptions::{
+    PyException, PyFileNotFoundError, PyKeyboardInterrupt, PyOSError, PyValueError,
+};
 use pyo3::prelude::*;
 use pyo3::sync::PyOnceLock;
 use pyo3::types::{PyCFunction, PyDict, PyTuple, PyType};
@@ -78,19 +80,23 @@ fn value_error_class<'py>(
     doc: &str,
     attribute: &str,
 ) -> PyResult<Py<PyType>> {
-    let second_arg = PyCFunction::new_closure(py, None, None, |args, _kwargs| -> PyResult<Py<PyAny>> {
-        let py = args.py();
-        let exc_args = args.get_item(0)?.getattr("args")?.cast_into::<PyTuple>()?;
-        Ok(match exc_args.len() {
-            0 | 1 => py.None(),
-            _ => exc_args.get_item(1)?.unbind(),
-        })
-    })?;
+    let second_arg =
+        PyCFunction::new_closure(py, None, None, |args, _kwargs| -> PyResult<Py<PyAny>> {
+            let py = args.py();
+            let exc_args = args.get_item(0)?.getattr("args")?.cast_into::<PyTuple>()?;
+            Ok(match exc_args.len() {
+                0 | 1 => py.None(),
+                _ => exc_args.get_item(1)?.unbind(),
+            })
+        })?;
     let builtins = py.import("builtins")?;
     let namespace = PyDict::new(py);
     namespace.set_item("__doc__", doc)?;
     namespace.set_item("__module__", "tcd.exceptions")?;
-    namespace.set_item(attribute, builtins.getattr("property")?.call1((second_arg,))?)?;
+    namespace.set_item(
+        attribute,
+        builtins.getattr("property")?.call1((second_arg,))?,
+    )?;
     let bases = (tcd_error(py)?.clone(), py.get_type::<PyValueError>());
     Ok(builtins
         .getattr("type")?
@@ -137,7 +143,10 @@ pub fn add_exceptions(m: &Bound<'_, PyModule>) -> PyResult<()> {
 }
 
 /// An exception of class `ty` (or, should the class be unavailable, that failure itself).
-fn raise<A: pyo3::PyErrArguments + Send + Sync + 'static>(ty: PyResult<&Bound<'_, PyType>>, args: A) -> PyErr {
+fn raise<A: pyo3::PyErrArguments + Send + Sync + 'static>(
+    ty: PyResult<&Bound<'_, PyType>>,
+    args: A,
+) -> PyErr {
     match ty {
         Ok(ty) => PyErr::from_type(ty.clone(), args),
         Err(e) => e,

@@ -27,10 +27,11 @@ use pyo3::prelude::*;
 use tcd_core::rng::stage;
 
 use crate::denoiser::PyDenoiser;
-use crate::prior::PyPrior;
 use crate::pipeline::{
-    cascade, check_call_settings, check_sampler_options, interpolate, repair, seeded_noise, supported_kernels,
+    cascade, check_call_settings, check_sampler_options, interpolate, repair, seeded_noise,
+    supported_kernels,
 };
+use crate::prior::PyPrior;
 
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -49,6 +50,9 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(check_call_settings, m)?)?;
     m.add("SAMPLERS", tcd_core::SamplerKind::NAMES.to_vec())?;
     m.add("SPACINGS", tcd_core::TimestepSpacing::NAMES.to_vec())?;
-    m.add("INTERPOLATIONS", tcd_core::CondFill::INTERPOLATIONS.to_vec())?;
+    m.add(
+        "INTERPOLATIONS",
+        tcd_core::CondFill::INTERPOLATIONS.to_vec(),
+    )?;
     Ok(())
 }

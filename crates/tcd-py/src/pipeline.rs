@@ -8,8 +8,8 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use tcd_core::rng::seeded_noise as core_seeded_noise;
 use tcd_core::{
-    cascade as core_cascade, fill_rows, repair as core_repair, with_threads, CascadeNoise, CondFill,
-    ForecastOptions, Sequences,
+    cascade as core_cascade, fill_rows, repair as core_repair, with_threads, CascadeNoise,
+    CondFill, ForecastOptions, Sequences,
 };
 
 use crate::convert::*;
@@ -26,7 +26,10 @@ use crate::run::interruptible;
 #[pyfunction]
 #[pyo3(signature = (short, long, observed, mask, num_samples, options, *, noise_short=None, noise_long=None,
                     seed=None, first_sequence=0, sequences=None, threads=None, progress=None, prior=None))]
-#[expect(clippy::too_many_arguments, reason = "a Python signature: pyo3 maps each keyword argument to one parameter")]
+#[expect(
+    clippy::too_many_arguments,
+    reason = "a Python signature: pyo3 maps each keyword argument to one parameter"
+)]
 pub(crate) fn cascade<'py>(
     py: Python<'py>,
     short: &Bound<'py, PyDenoiser>,
@@ -86,33 +89,34 @@ pub(crate) fn cascade<'py>(
     .map_err(PyTcdError)?;
     let (s, b, cfg, src_short, src_long, threads) = prepared;
     let out = interruptible(py, progress.as_ref(), move |control| {
-            let noise = match (&src_short, &src_long) {
-                (NoiseSource::Injected(a), NoiseSource::Injected(c)) => {
-                    CascadeNoise::Injected { short: a, long: c }
-                }
-                (NoiseSource::Seeded(seed, streams), _)
-                | (_, NoiseSource::Seeded(seed, streams)) => CascadeNoise::Seeded {
+        let noise = match (&src_short, &src_long) {
+            (NoiseSource::Injected(a), NoiseSource::Injected(c)) => {
+                CascadeNoise::Injected { short: a, long: c }
+            }
+            (NoiseSource::Seeded(seed, streams), _) | (_, NoiseSource::Seeded(seed, streams)) => {
+                CascadeNoise::Seeded {
                     seed: *seed,
                     sequences: streams.as_sequences(),
-                },
-            };
-            let options = ForecastOptions {
-                num_samples: s,
-                sampler: cfg,
-            };
-            with_threads(threads, || {
-                core_cascade(
-                    &short,
-                    &long,
-                    prior.as_deref(),
-                    &observed.data,
-                    &mask.data,
-                    &options,
-                    noise,
-                    control,
-                )
-            })?
-        })?;
+                }
+            }
+        };
+        let options = ForecastOptions {
+            num_samples: s,
+            sampler: cfg,
+        };
+        with_threads(threads, || {
+            core_cascade(
+                &short,
+                &long,
+                prior.as_deref(),
+                &observed.data,
+                &mask.data,
+                &options,
+                noise,
+                control,
+            )
+        })?
+    })?;
     let d = PyDict::new(py);
     let kf = out.num_features;
     d.set_item("mean", to_numpy(py, &[b, kf, out.future_len], out.mean)?)?;
@@ -136,7 +140,10 @@ pub(crate) fn cascade<'py>(
 #[pyfunction]
 #[pyo3(signature = (model, observed, mask, num_samples, options, *, noise=None, seed=None, first_sequence=0,
                     sequences=None, threads=None, progress=None))]
-#[expect(clippy::too_many_arguments, reason = "a Python signature: pyo3 maps each keyword argument to one parameter")]
+#[expect(
+    clippy::too_many_arguments,
+    reason = "a Python signature: pyo3 maps each keyword argument to one parameter"
+)]
 pub(crate) fn repair<'py>(
     py: Python<'py>,
     model: &Bound<'py, PyDenoiser>,
@@ -176,22 +183,22 @@ pub(crate) fn repair<'py>(
     .map_err(PyTcdError)?;
     let (s, b, o, cfg, src, threads) = prepared;
     let out = interruptible(py, progress.as_ref(), move |control| {
-            let options = ForecastOptions {
-                num_samples: s,
-                sampler: cfg,
-            };
-            with_threads(threads, || {
-                core_repair(
-                    &model,
-                    &observed.data,
-                    &mask.data,
-                    b,
-                    &options,
-                    src.as_noise(),
-                    control,
-                )
-            })?
-        })?;
+        let options = ForecastOptions {
+            num_samples: s,
+            sampler: cfg,
+        };
+        with_threads(threads, || {
+            core_repair(
+                &model,
+                &observed.data,
+                &mask.data,
+                b,
+                &options,
+                src.as_noise(),
+                control,
+            )
+        })?
+    })?;
     let d = PyDict::new(py);
     d.set_item("mean", to_numpy(py, &[b, k, o], out.mean)?)?;
     d.set_item("samples", to_numpy(py, &[s, b, k, o], out.samples)?)?;
@@ -224,7 +231,10 @@ pub(crate) fn interpolate<'py>(
 /// ChaCha8 keyed by (seed, first_sequence + b, sample, stage), standard normals in block order.
 #[pyfunction]
 #[pyo3(signature = (seed, stage, num_samples, num_blocks, batch, num_features, length, first_sequence=0))]
-#[expect(clippy::too_many_arguments, reason = "a Python signature: pyo3 maps each keyword argument to one parameter")]
+#[expect(
+    clippy::too_many_arguments,
+    reason = "a Python signature: pyo3 maps each keyword argument to one parameter"
+)]
 pub(crate) fn seeded_noise<'py>(
     py: Python<'py>,
     seed: i128,

@@ -29,7 +29,11 @@ const POLL: Duration = Duration::from_millis(100);
 
 /// Runs `work` interruptibly; `progress`, a Python callable, gets `(forwards_done, forwards_total)` at
 /// every poll and once at the end.
-pub(crate) fn interruptible<T, F>(py: Python<'_>, progress: Option<&Bound<'_, PyAny>>, work: F) -> PyResult<T>
+pub(crate) fn interruptible<T, F>(
+    py: Python<'_>,
+    progress: Option<&Bound<'_, PyAny>>,
+    work: F,
+) -> PyResult<T>
 where
     T: Send,
     F: FnOnce(&Control) -> CoreResult<T> + Send,
@@ -70,7 +74,10 @@ where
                     }
                 }
                 Err(RecvTimeoutError::Disconnected) => {
-                    return Err(internal(py, "the engine's worker thread ended without a result"));
+                    return Err(internal(
+                        py,
+                        "the engine's worker thread ended without a result",
+                    ));
                 }
             }
         }

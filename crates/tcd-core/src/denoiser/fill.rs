@@ -9,7 +9,14 @@ use crate::error::{Error, Result};
 /// the observed channel (`m · x₀`, or with [`CondFill::Linear`] / [`CondFill::Spline`] the masked entries
 /// filled along time from the observed ones, with [`CondFill::Prior`] the values `observed` holds there:
 /// [`CondFill::fill_row`]), channel 1 is `(1 − m) · x_t`.
-pub(super) fn build_input(fill: CondFill, length: usize, mask: &[f32], observed: &[f32], noisy: &[f32], inp: &mut [f32]) {
+pub(super) fn build_input(
+    fill: CondFill,
+    length: usize,
+    mask: &[f32],
+    observed: &[f32],
+    noisy: &[f32],
+    inp: &mut [f32],
+) {
     for (((pair, &mv), &ov), &nv) in inp.chunks_exact_mut(2).zip(mask).zip(observed).zip(noisy) {
         pair[0] = if mv == 0.0 { 0.0 } else { mv * ov };
         pair[1] = if mv == 1.0 { 0.0 } else { (1.0 - mv) * nv };
@@ -54,7 +61,11 @@ impl CondFill {
         match method {
             "linear" => Ok(CondFill::Linear),
             "spline" => Ok(CondFill::Spline),
-            other => Err(Error::invalid_input("method", "\"linear\" or \"spline\"", format!("{other:?}"))),
+            other => Err(Error::invalid_input(
+                "method",
+                "\"linear\" or \"spline\"",
+                format!("{other:?}"),
+            )),
         }
     }
 }
@@ -63,7 +74,12 @@ impl CondFill {
 /// along the row by `fill`, its observed entries copied: exactly what a model with this conditioning fill
 /// sees in its observed channel (`tcd.interpolate`). Masked entries of `observed` are never read; a row
 /// with nothing observed is all 0 ([`fill_linear`]'s rule).
-pub fn fill_rows(fill: CondFill, length: usize, mask: &[f32], observed: &[f32]) -> Result<Vec<f32>> {
+pub fn fill_rows(
+    fill: CondFill,
+    length: usize,
+    mask: &[f32],
+    observed: &[f32],
+) -> Result<Vec<f32>> {
     if length == 0 || !observed.len().is_multiple_of(length) {
         return Err(Error::invalid_input(
             "observed",
@@ -78,8 +94,16 @@ pub fn fill_rows(fill: CondFill, length: usize, mask: &[f32], observed: &[f32]) 
             format!("{} values", mask.len()),
         ));
     }
-    let mut out: Vec<f32> = observed.iter().zip(mask).map(|(&o, &m)| if m > 0.5 { o } else { 0.0 }).collect();
-    for ((row, m), o) in out.chunks_exact_mut(length).zip(mask.chunks_exact(length)).zip(observed.chunks_exact(length)) {
+    let mut out: Vec<f32> = observed
+        .iter()
+        .zip(mask)
+        .map(|(&o, &m)| if m > 0.5 { o } else { 0.0 })
+        .collect();
+    for ((row, m), o) in out
+        .chunks_exact_mut(length)
+        .zip(mask.chunks_exact(length))
+        .zip(observed.chunks_exact(length))
+    {
         fill.fill_row(m, o, |ll, v| row[ll] = v);
     }
     Ok(out)
@@ -136,7 +160,9 @@ pub fn fill_spline(mask: &[f32], observed: &[f32], mut set: impl FnMut(usize, f3
         let hh = x1 - x0;
         let (a, b) = (x1 - t, t - x0);
         let (m0, m1) = (m[j], m[j + 1]);
-        let v = m0 * a * a * a / (6.0 * hh) + m1 * b * b * b / (6.0 * hh) + (y(j) / hh - m0 * hh / 6.0) * a
+        let v = m0 * a * a * a / (6.0 * hh)
+            + m1 * b * b * b / (6.0 * hh)
+            + (y(j) / hh - m0 * hh / 6.0) * a
             + (y(j + 1) / hh - m1 * hh / 6.0) * b;
         set(ll, v as f32);
     }
@@ -182,7 +208,16 @@ mod tests {
         // knots (1, 0), (3, 1), (5, 0): natural spline, M at the middle knot = -6 / 8 = -0.75, so at
         // distance 1 from a knot the value is -0.75 / 12 + 0.5 + 0.25 = 0.6875; held outside the knots.
         let mask = [0.0, 1.0, 0.0, 1.0, 0.0, 1.0, 0.0, 0.0];
-        let obs = [f32::NAN, 0.0, f32::NAN, 1.0, f32::NAN, 0.0, f32::NAN, f32::NAN];
+        let obs = [
+            f32::NAN,
+            0.0,
+            f32::NAN,
+            1.0,
+            f32::NAN,
+            0.0,
+            f32::NAN,
+            f32::NAN,
+        ];
         let mut out = [f32::NAN; 8];
         let mut calls = 0;
         fill_spline(&mask, &obs, |l, v| {
@@ -196,9 +231,13 @@ mod tests {
         assert_eq!(out[6], 0.0);
         assert_eq!(out[7], 0.0);
         assert!(out[1].is_nan() && out[3].is_nan() && out[5].is_nan()); // observed entries untouched
-        // two knots: the straight line; none: zero
+                                                                        // two knots: the straight line; none: zero
         let mut two = [f32::NAN; 5];
-        fill_spline(&[1.0, 0.0, 0.0, 0.0, 1.0], &[0.0, 9.0, 9.0, 9.0, 2.0], |l, v| two[l] = v);
+        fill_spline(
+            &[1.0, 0.0, 0.0, 0.0, 1.0],
+            &[0.0, 9.0, 9.0, 9.0, 2.0],
+            |l, v| two[l] = v,
+        );
         assert_eq!(&two[1..4], &[0.5, 1.0, 1.5]);
         let mut none = [f32::NAN; 3];
         fill_spline(&[0.0; 3], &[f32::NAN; 3], |l, v| none[l] = v);

@@ -60,16 +60,23 @@ impl Denoiser {
         let mut layers = Vec::with_capacity(num_layers);
         for i in 0..num_layers {
             let p = format!("diffmodel.residual_layers.{i}");
-            let diffusion_projection = Linear::load(&mut w, &format!("{p}.diffusion_projection"), c, d)?;
+            let diffusion_projection =
+                Linear::load(&mut w, &format!("{p}.diffusion_projection"), c, d)?;
             for t in 0..num_steps {
                 let off = (t * num_layers + i) * c;
-                diffusion_projection.forward(&step_embedding[t * d..(t + 1) * d], &mut step_bias[off..off + c]);
+                diffusion_projection.forward(
+                    &step_embedding[t * d..(t + 1) * d],
+                    &mut step_bias[off..off + c],
+                );
             }
             // cond_projection (2C, S, 1): columns [time (te) | feature (E) | mask (1)].
             let cw = w.take(&format!("{p}.cond_projection.weight"))?.data;
             let cb = w.take(&format!("{p}.cond_projection.bias"))?.data;
             let s = m.side_dim;
-            let time_cols: Vec<f32> = cw.chunks_exact(s).flat_map(|row| row[..te].iter().copied()).collect();
+            let time_cols: Vec<f32> = cw
+                .chunks_exact(s)
+                .flat_map(|row| row[..te].iter().copied())
+                .collect();
             let cond_time = Linear::from_torch(2 * c, te, &time_cols, &cb)?;
             let cond_mask: Vec<f32> = cw.chunks_exact(s).map(|row| row[te + e]).collect();
             let mut cond_feature = vec![0.0f32; k * 2 * c];
@@ -81,9 +88,18 @@ impl Denoiser {
             }
             layers.push(ResidualLayer {
                 time_layer: EncoderLayer::load(&mut w, &format!("{p}.time_layer.layers.0"), m)?,
-                feature_layer: EncoderLayer::load(&mut w, &format!("{p}.feature_layer.layers.0"), m)?,
+                feature_layer: EncoderLayer::load(
+                    &mut w,
+                    &format!("{p}.feature_layer.layers.0"),
+                    m,
+                )?,
                 mid_projection: Linear::load(&mut w, &format!("{p}.mid_projection"), 2 * c, c)?,
-                output_projection: Linear::load(&mut w, &format!("{p}.output_projection"), 2 * c, c)?,
+                output_projection: Linear::load(
+                    &mut w,
+                    &format!("{p}.output_projection"),
+                    2 * c,
+                    c,
+                )?,
                 cond_time,
                 cond_feature,
                 cond_mask,

@@ -8,7 +8,8 @@ use super::forward::SequenceInputs;
 use super::workspace::Workspace;
 use super::Denoiser;
 use crate::kernels::{
-    self, Epilogue, FastEncoder, FastLinear, Isa, Matrix, MatrixMut, SeqLayout, TailInputs, TailStreams,
+    self, Epilogue, FastEncoder, FastLinear, Isa, Matrix, MatrixMut, SeqLayout, TailInputs,
+    TailStreams,
 };
 use crate::nn::activation::map_inplace;
 
@@ -83,7 +84,13 @@ impl Denoiser {
 
         let inp = &mut z[..2 * n];
         build_input(m.cond_fill, l, mask, observed, noisy, inp);
-        kernels::gemm(isa, Matrix::dense(inp, n, 2), &fast.input, MatrixMut::dense(h, n, c), Epilogue::Relu);
+        kernels::gemm(
+            isa,
+            Matrix::dense(inp, n, 2),
+            &fast.input,
+            MatrixMut::dense(h, n, c),
+            Epilogue::Relu,
+        );
         skip.fill(0.0);
         let bias = |i: usize| {
             let off = (step * num_layers + i) * c;
@@ -138,20 +145,40 @@ impl Denoiser {
                     .zip(scratch.par_iter_mut())
                     .enumerate()
                     .for_each(|(p, (((y, h), skip), sc))| {
-                        kernels::block_tail(isa, &inputs, p * (per / (l * c)), TailStreams { y, h, skip }, sc);
+                        kernels::block_tail(
+                            isa,
+                            &inputs,
+                            p * (per / (l * c)),
+                            TailStreams { y, h, skip },
+                            sc,
+                        );
                     });
             }
         }
         let sqrt_layers = (num_layers as f64).sqrt() as f32;
         map_inplace(skip, |v| v / sqrt_layers);
         if parts <= 1 {
-            kernels::gemm(isa, Matrix::dense(skip, n, c), &fast.out1, MatrixMut::dense(y, n, c), Epilogue::Relu);
+            kernels::gemm(
+                isa,
+                Matrix::dense(skip, n, c),
+                &fast.out1,
+                MatrixMut::dense(y, n, c),
+                Epilogue::Relu,
+            );
         } else {
             let per = k.div_ceil(parts) * l * c;
-            skip.par_chunks(per).zip(y.par_chunks_mut(per)).for_each(|(s, yc)| {
-                let rows = s.len() / c;
-                kernels::gemm(isa, Matrix::dense(s, rows, c), &fast.out1, MatrixMut::dense(yc, rows, c), Epilogue::Relu);
-            });
+            skip.par_chunks(per)
+                .zip(y.par_chunks_mut(per))
+                .for_each(|(s, yc)| {
+                    let rows = s.len() / c;
+                    kernels::gemm(
+                        isa,
+                        Matrix::dense(s, rows, c),
+                        &fast.out1,
+                        MatrixMut::dense(yc, rows, c),
+                        Epilogue::Relu,
+                    );
+                });
         }
         self.output_projection2.forward(y, &mut out[..n]);
     }

@@ -9,7 +9,12 @@ use crate::nn::activation::{map_inplace, relu, sigmoid};
 
 impl Denoiser {
     /// [`Denoiser::forward_one`] on the portable layers.
-    pub(super) fn forward_sequence_portable(&self, seq: SequenceInputs<'_>, out: &mut [f32], ws: &mut Workspace) {
+    pub(super) fn forward_sequence_portable(
+        &self,
+        seq: SequenceInputs<'_>,
+        out: &mut [f32],
+        ws: &mut Workspace,
+    ) {
         let SequenceInputs {
             tables,
             mask,
@@ -68,7 +73,8 @@ impl Denoiser {
                 for (ll, zr) in zk.chunks_exact_mut(c2).enumerate() {
                     let tt = &time_tab[ll * c2..(ll + 1) * c2];
                     let mv = mask[kk * l + ll];
-                    for (((zv, tv), fv), wv) in zr.iter_mut().zip(tt).zip(ft).zip(&layer.cond_mask) {
+                    for (((zv, tv), fv), wv) in zr.iter_mut().zip(tt).zip(ft).zip(&layer.cond_mask)
+                    {
                         *zv += tv + fv + mv * wv;
                     }
                 }
@@ -82,7 +88,11 @@ impl Denoiser {
             }
             // [residual | skip] = output_projection(g); h = (h + residual)/√2; Σskip += skip.
             layer.output_projection.forward(g, z);
-            for ((hr, sr), zr) in h.chunks_exact_mut(c).zip(skip.chunks_exact_mut(c)).zip(z.chunks_exact(c2)) {
+            for ((hr, sr), zr) in h
+                .chunks_exact_mut(c)
+                .zip(skip.chunks_exact_mut(c))
+                .zip(z.chunks_exact(c2))
+            {
                 let (res, sk) = zr.split_at(c);
                 for (hv, rv) in hr.iter_mut().zip(res) {
                     *hv = (*hv + rv) / sqrt2;

@@ -141,7 +141,12 @@ impl Denoiser {
         check_positive("batch", batch)?;
         check_positive("length", length)?;
         let k = self.num_features();
-        validate::mask("mask", mask, batch * k * length, &format!("({batch}, {k}, {length})"))?;
+        validate::mask(
+            "mask",
+            mask,
+            batch * k * length,
+            &format!("({batch}, {k}, {length})"),
+        )?;
         Ok(Prepared {
             batch,
             length,

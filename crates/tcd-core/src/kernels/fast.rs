@@ -229,7 +229,10 @@ fn span(rows: usize, ld: usize, width: usize) -> usize {
 /// `y = epilogue(x · W + b)`, row by row: x is (rows × in), y (rows × out) of the layer `w`.
 pub(crate) fn gemm(isa: Isa, x: Matrix<'_>, w: &FastLinear, y: MatrixMut<'_>, epi: Epilogue) {
     let p = &w.0;
-    assert!(x.cols == p.in_dim && y.cols == p.out_dim && x.rows == y.rows, "gemm shapes");
+    assert!(
+        x.cols == p.in_dim && y.cols == p.out_dim && x.rows == y.rows,
+        "gemm shapes"
+    );
     assert!(x.ld >= x.cols && y.ld >= y.cols, "gemm strides");
     assert!(
         x.data.len() >= span(x.rows, x.ld, x.cols) && y.data.len() >= span(y.rows, y.ld, y.cols),
@@ -258,10 +261,22 @@ pub(crate) struct ColumnNorm<'a> {
 /// `state += LN(y)·weight + bias` for every (K × L) sequence of `state` and `y`, the layer norm of
 /// each column over its K rows (biased variance), in the order `state + ((y − mean)·rstd)·w + b`;
 /// `stats` is 2·L floats of scratch.
-pub(crate) fn column_norm_residual(isa: Isa, p: &ColumnNorm<'_>, state: &mut [f32], y: &[f32], stats: &mut [f32]) {
+pub(crate) fn column_norm_residual(
+    isa: Isa,
+    p: &ColumnNorm<'_>,
+    state: &mut [f32],
+    y: &[f32],
+    stats: &mut [f32],
+) {
     let size = p.k * p.l;
-    assert!(size > 0 && state.len().is_multiple_of(size) && y.len() == state.len(), "column norm sizes");
-    assert!(p.weight.len() == p.k && p.bias.len() == p.k && stats.len() >= 2 * p.l, "column norm parameters");
+    assert!(
+        size > 0 && state.len().is_multiple_of(size) && y.len() == state.len(),
+        "column norm sizes"
+    );
+    assert!(
+        p.weight.len() == p.k && p.bias.len() == p.k && stats.len() >= 2 * p.l,
+        "column norm parameters"
+    );
     match isa.0 {
         #[cfg(target_arch = "x86_64")]
         IsaKind::Avx2 => x86::column_norm_residual_avx2(p, state, y, stats),
@@ -297,13 +312,29 @@ fn check_encoder(enc: &FastEncoder, x: &[f32], layout: SeqLayout, scratch: &Fast
             && scratch.portable.fits(c, seq_len),
         "encoder scratch"
     );
-    assert!(enc.ln1.0.len() == c && enc.ln1.1.len() == c && enc.ln2.0.len() == c && enc.ln2.1.len() == c);
-    assert!(enc.qkv.out_dim == 3 * c && enc.out.in_dim == c && enc.ff1.in_dim == c && enc.ff2.out_dim == c);
+    assert!(
+        enc.ln1.0.len() == c
+            && enc.ln1.1.len() == c
+            && enc.ln2.0.len() == c
+            && enc.ln2.1.len() == c
+    );
+    assert!(
+        enc.qkv.out_dim == 3 * c
+            && enc.out.in_dim == c
+            && enc.ff1.in_dim == c
+            && enc.ff2.out_dim == c
+    );
     true
 }
 
 /// Runs one encoder layer in place on the sequences of `x` described by `layout`.
-pub(crate) fn encoder(isa: Isa, enc: &FastEncoder, x: &mut [f32], layout: SeqLayout, scratch: &mut FastScratch) {
+pub(crate) fn encoder(
+    isa: Isa,
+    enc: &FastEncoder,
+    x: &mut [f32],
+    layout: SeqLayout,
+    scratch: &mut FastScratch,
+) {
     if !check_encoder(enc, x, layout, scratch) {
         return;
     }
@@ -316,7 +347,13 @@ pub(crate) fn encoder(isa: Isa, enc: &FastEncoder, x: &mut [f32], layout: SeqLay
 }
 
 /// [`encoder`] with the sequences split over `scratch.len()` rayon workers (one scratch each).
-pub(crate) fn encoder_par(isa: Isa, enc: &FastEncoder, x: &mut [f32], layout: SeqLayout, scratch: &mut [FastScratch]) {
+pub(crate) fn encoder_par(
+    isa: Isa,
+    enc: &FastEncoder,
+    x: &mut [f32],
+    layout: SeqLayout,
+    scratch: &mut [FastScratch],
+) {
     if scratch.len() <= 1 || layout.num_seq <= 1 {
         if let Some(sc) = scratch.first_mut() {
             encoder(isa, enc, x, layout, sc);
@@ -337,19 +374,36 @@ pub(crate) fn encoder_par(isa: Isa, enc: &FastEncoder, x: &mut [f32], layout: Se
 /// The residual-block tail for the tokens of coordinates `k0..k0 + h.len() / (L·C)` (K × L
 /// token-major, L = `inp.frames`): `z = mid(y) + cond`, `g = σ(z_gate)·tanh(z_filter)`,
 /// `[r | s] = out(g)`, `h = (h + r)/√2`, `skip += s`, and `y = h + next_bias` if asked.
-pub(crate) fn block_tail(isa: Isa, inp: &TailInputs<'_>, k0: usize, streams: TailStreams<'_>, scratch: &mut FastScratch) {
+pub(crate) fn block_tail(
+    isa: Isa,
+    inp: &TailInputs<'_>,
+    k0: usize,
+    streams: TailStreams<'_>,
+    scratch: &mut FastScratch,
+) {
     let (frames, c) = (inp.frames, inp.channels);
     let TailStreams { y, h, skip } = &streams;
     let n = h.len();
     let rows = frames * c;
-    assert!(rows > 0 && n.is_multiple_of(rows) && y.len() == n && skip.len() == n, "tail sizes");
+    assert!(
+        rows > 0 && n.is_multiple_of(rows) && y.len() == n && skip.len() == n,
+        "tail sizes"
+    );
     let nk = n / rows;
     let c2 = 2 * c;
-    assert!(inp.mid.0.in_dim == c && inp.mid.0.out_dim == c2 && inp.out.0.in_dim == c && inp.out.0.out_dim == c2);
+    assert!(
+        inp.mid.0.in_dim == c
+            && inp.mid.0.out_dim == c2
+            && inp.out.0.in_dim == c
+            && inp.out.0.out_dim == c2
+    );
     assert!(inp.mask.len() >= (k0 + nk) * frames && inp.time_tab.len() >= frames * c2);
     assert!(inp.cond_feature.len() >= (k0 + nk) * c2 && inp.cond_mask.len() >= c2);
     assert!(inp.next_bias.is_none_or(|b| b.len() >= c));
-    assert!(scratch.zt.len() >= frames * c2 && scratch.gt.len() >= frames * c, "tail scratch");
+    assert!(
+        scratch.zt.len() >= frames * c2 && scratch.gt.len() >= frames * c,
+        "tail scratch"
+    );
     match isa.0 {
         #[cfg(target_arch = "x86_64")]
         IsaKind::Avx2 => x86::tail_avx2(inp, k0, streams, scratch),

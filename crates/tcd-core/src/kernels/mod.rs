@@ -32,8 +32,8 @@ mod fast;
 mod x86;
 
 pub(crate) use fast::{
-    block_tail, column_norm_residual, encoder_par, gemm, ColumnNorm, Epilogue, FastEncoder, FastLinear, FastScratch,
-    Matrix, MatrixMut, Packed, SeqLayout, TailInputs, TailStreams,
+    block_tail, column_norm_residual, encoder_par, gemm, ColumnNorm, Epilogue, FastEncoder,
+    FastLinear, FastScratch, Matrix, MatrixMut, Packed, SeqLayout, TailInputs, TailStreams,
 };
 
 /// The environment variable read at load time to choose the kernel.
@@ -90,7 +90,11 @@ impl Kernel {
                 "kernel",
                 format!(
                     "a kernel this CPU supports ({})",
-                    Self::supported().iter().map(|k| k.name()).collect::<Vec<_>>().join(", ")
+                    Self::supported()
+                        .iter()
+                        .map(|k| k.name())
+                        .collect::<Vec<_>>()
+                        .join(", ")
                 ),
                 format!("{:?}", k.name()),
             )),
@@ -153,7 +157,9 @@ impl Isa {
     fn avx2() -> Option<Isa> {
         #[cfg(target_arch = "x86_64")]
         {
-            if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+            if std::arch::is_x86_feature_detected!("avx2")
+                && std::arch::is_x86_feature_detected!("fma")
+            {
                 return Some(Isa(IsaKind::Avx2));
             }
         }
@@ -163,7 +169,9 @@ impl Isa {
     fn avx512() -> Option<Isa> {
         #[cfg(target_arch = "x86_64")]
         {
-            if std::arch::is_x86_feature_detected!("avx512f") && std::arch::is_x86_feature_detected!("fma") {
+            if std::arch::is_x86_feature_detected!("avx512f")
+                && std::arch::is_x86_feature_detected!("fma")
+            {
                 return Some(Isa(IsaKind::Avx512));
             }
         }

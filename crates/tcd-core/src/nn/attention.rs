@@ -30,7 +30,10 @@ impl MultiHeadAttention {
         if in_proj.in_dim() != c || in_proj.out_dim() != 3 * c || out_proj.in_dim() != c {
             return Err(Error::invalid_input(
                 "in_proj",
-                format!("a ({c} -> {}) projection matching out_proj ({c} -> {c})", 3 * c),
+                format!(
+                    "a ({c} -> {}) projection matching out_proj ({c} -> {c})",
+                    3 * c
+                ),
                 format!(
                     "in_proj ({} -> {}), out_proj ({} -> {c})",
                     in_proj.in_dim(),
@@ -82,7 +85,8 @@ impl MultiHeadAttention {
         let c = self.channels();
         let len = len.min(x.len() / c).min(y.len() / c);
         scratch.ensure(c, len);
-        self.in_proj.forward(&x[..len * c], &mut scratch.qkv[..len * 3 * c]);
+        self.in_proj
+            .forward(&x[..len * c], &mut scratch.qkv[..len * 3 * c]);
         let AttentionScratch { qkv, heads, head } = scratch;
         scaled_dot_product_attention(qkv, len, c, self.num_heads, heads, head);
         self.out_proj.forward(&heads[..len * c], &mut y[..len * c]);
@@ -146,7 +150,9 @@ impl HeadScratch {
 
     /// Whether the buffers hold sequences of `len` tokens of `channels`.
     pub(crate) fn fits(&self, channels: usize, len: usize) -> bool {
-        self.scores.len() >= len && self.kt.len() >= len * channels && self.v.len() >= len * channels
+        self.scores.len() >= len
+            && self.kt.len() >= len * channels
+            && self.v.len() >= len * channels
     }
 }
 
@@ -230,7 +236,14 @@ fn softmax_scores(q: &[f32], kt: &[f32], len: usize, scale: f32, scores: &mut [f
 
 /// One head with a compile-time head dimension (the output accumulator lives in registers).
 #[inline]
-fn attend_fixed<const HD: usize>(qkv: &[f32], head: Head, out: &mut [f32], scores: &mut [f32], kt: &[f32], v: &[f32]) {
+fn attend_fixed<const HD: usize>(
+    qkv: &[f32],
+    head: Head,
+    out: &mut [f32],
+    scores: &mut [f32],
+    kt: &[f32],
+    v: &[f32],
+) {
     debug_assert_eq!(head.dim, HD);
     let Head {
         len,
@@ -255,7 +268,14 @@ fn attend_fixed<const HD: usize>(qkv: &[f32], head: Head, out: &mut [f32], score
 }
 
 /// One head, any head dimension.
-fn attend_dynamic(qkv: &[f32], head: Head, out: &mut [f32], scores: &mut [f32], kt: &[f32], v: &[f32]) {
+fn attend_dynamic(
+    qkv: &[f32],
+    head: Head,
+    out: &mut [f32],
+    scores: &mut [f32],
+    kt: &[f32],
+    v: &[f32],
+) {
     let Head {
         len,
         channels,
@@ -282,9 +302,18 @@ mod tests {
     use super::*;
 
     /// Naive f64 softmax attention with one head.
-    fn naive_one_head(x: &[f64], len: usize, c: usize, wq: &[f64], wk: &[f64], wv: &[f64]) -> Vec<f64> {
+    fn naive_one_head(
+        x: &[f64],
+        len: usize,
+        c: usize,
+        wq: &[f64],
+        wk: &[f64],
+        wv: &[f64],
+    ) -> Vec<f64> {
         let proj = |w: &[f64], i: usize| -> Vec<f64> {
-            (0..c).map(|o| (0..c).map(|j| w[o * c + j] * x[i * c + j]).sum()).collect()
+            (0..c)
+                .map(|o| (0..c).map(|j| w[o * c + j] * x[i * c + j]).sum())
+                .collect()
         };
         let q: Vec<Vec<f64>> = (0..len).map(|i| proj(wq, i)).collect();
         let k: Vec<Vec<f64>> = (0..len).map(|i| proj(wk, i)).collect();
@@ -292,7 +321,9 @@ mod tests {
         let mut out = vec![0.0; len * c];
         for i in 0..len {
             let s: Vec<f64> = (0..len)
-                .map(|j| q[i].iter().zip(&k[j]).map(|(a, b)| a * b).sum::<f64>() / (c as f64).sqrt())
+                .map(|j| {
+                    q[i].iter().zip(&k[j]).map(|(a, b)| a * b).sum::<f64>() / (c as f64).sqrt()
+                })
                 .collect();
             let m = s.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
             let e: Vec<f64> = s.iter().map(|v| (v - m).exp()).collect();
@@ -314,7 +345,9 @@ mod tests {
         let wq: Vec<f64> = (0..c * c).map(|i| val(i, 1.0)).collect();
         let wk: Vec<f64> = (0..c * c).map(|i| val(i, 2.0)).collect();
         let wv: Vec<f64> = (0..c * c).map(|i| val(i, 3.0)).collect();
-        let eye: Vec<f32> = (0..c * c).map(|i| if i / c == i % c { 1.0 } else { 0.0 }).collect();
+        let eye: Vec<f32> = (0..c * c)
+            .map(|i| if i / c == i % c { 1.0 } else { 0.0 })
+            .collect();
         let w_in: Vec<f32> = wq.iter().chain(&wk).chain(&wv).map(|&v| v as f32).collect();
         let mha = MultiHeadAttention::new(
             Linear::from_torch(3 * c, c, &w_in, &vec![0.0; 3 * c]).unwrap(),
@@ -336,7 +369,9 @@ mod tests {
     fn heads_are_independent_blocks() {
         // With 2 heads, head h only sees its own channel block: compare with two 1-head runs.
         let (len, c) = (3usize, 4usize);
-        let qkv: Vec<f32> = (0..len * 3 * c).map(|i| ((i as f32) * 0.77).cos()).collect();
+        let qkv: Vec<f32> = (0..len * 3 * c)
+            .map(|i| ((i as f32) * 0.77).cos())
+            .collect();
         let mut out = vec![0.0; len * c];
         let mut scratch = HeadScratch::new(c, len);
         scaled_dot_product_attention(&qkv, len, c, 2, &mut out, &mut scratch);

@@ -175,9 +175,13 @@ mod tests {
     fn tiles_and_tails_match_naive() {
         // rows not a multiple of MR, outputs not a multiple of NR
         for (rows, n_in, n_out) in [(7usize, 5usize, 19usize), (4, 3, 8), (1, 1, 1), (9, 16, 24)] {
-            let w: Vec<f32> = (0..n_out * n_in).map(|i| ((i * 7 % 13) as f32 - 6.0) * 0.1).collect();
+            let w: Vec<f32> = (0..n_out * n_in)
+                .map(|i| ((i * 7 % 13) as f32 - 6.0) * 0.1)
+                .collect();
             let b: Vec<f32> = (0..n_out).map(|i| i as f32 * 0.01).collect();
-            let x: Vec<f32> = (0..rows * n_in).map(|i| ((i * 5 % 11) as f32 - 5.0) * 0.2).collect();
+            let x: Vec<f32> = (0..rows * n_in)
+                .map(|i| ((i * 5 % 11) as f32 - 5.0) * 0.2)
+                .collect();
             let lin = Linear::from_torch(n_out, n_in, &w, &b).unwrap();
             let mut y = vec![f32::NAN; rows * n_out];
             lin.forward(&x, &mut y);
@@ -187,7 +191,11 @@ mod tests {
                     for i in 0..n_in {
                         want += x[r * n_in + i] * w[o * n_in + i];
                     }
-                    assert_eq!(y[r * n_out + o], want, "rows={rows} in={n_in} out={n_out} r={r} o={o}");
+                    assert_eq!(
+                        y[r * n_out + o],
+                        want,
+                        "rows={rows} in={n_in} out={n_out} r={r} o={o}"
+                    );
                 }
             }
         }

@@ -114,7 +114,8 @@ impl EncoderLayer {
         let n = seq_len * c;
         for seq in x.chunks_exact_mut(n) {
             // x = norm1(x + SelfAttn(x))
-            self.self_attn.forward(seq, seq_len, &mut scratch.attention, &mut scratch.attn);
+            self.self_attn
+                .forward(seq, seq_len, &mut scratch.attention, &mut scratch.attn);
             for (v, a) in seq.iter_mut().zip(&scratch.attn[..n]) {
                 *v += a;
             }

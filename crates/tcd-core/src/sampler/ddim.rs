@@ -32,7 +32,11 @@ pub fn check_eta(eta: f64) -> Result<()> {
     if (0.0..=1.0).contains(&eta) {
         Ok(())
     } else {
-        Err(Error::invalid_input("eta", "a number in [0, 1]", eta.to_string()))
+        Err(Error::invalid_input(
+            "eta",
+            "a number in [0, 1]",
+            eta.to_string(),
+        ))
     }
 }
 

@@ -38,7 +38,12 @@ pub struct DdpmStep {
 
 impl DdpmStep {
     /// The step from `t` to `prev` (`None`: the end of the chain).
-    pub fn new(schedule: &NoiseSchedule, t: usize, prev: Option<usize>, variance: VarianceType) -> Self {
+    pub fn new(
+        schedule: &NoiseSchedule,
+        t: usize,
+        prev: Option<usize>,
+        variance: VarianceType,
+    ) -> Self {
         let alpha_bar_t = schedule.alpha_bar(Some(t));
         let alpha_bar_prev = schedule.alpha_bar(prev);
         // Step 1: the (generalised) beta of this transition.
@@ -49,7 +54,9 @@ impl DdpmStep {
         // Step 3: the noise scale.
         let sigma = match (prev, variance) {
             (None, _) => 0.0,
-            (Some(_), VarianceType::FixedSmall) => (beta * (1.0 - alpha_bar_prev) / (1.0 - alpha_bar_t)).sqrt(),
+            (Some(_), VarianceType::FixedSmall) => {
+                (beta * (1.0 - alpha_bar_prev) / (1.0 - alpha_bar_t)).sqrt()
+            }
             (Some(_), VarianceType::FixedLarge) => beta.sqrt(),
         };
         DdpmStep { c1, c2, sigma }

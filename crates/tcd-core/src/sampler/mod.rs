@@ -168,7 +168,11 @@ impl SamplerConfig {
             }
         };
         if num_inference_steps == Some(0) {
-            return Err(Error::invalid_input("num_inference_steps", "at least 1 (or None for every training step)", "0"));
+            return Err(Error::invalid_input(
+                "num_inference_steps",
+                "at least 1 (or None for every training step)",
+                "0",
+            ));
         }
         Ok(SamplerConfig {
             kind,
@@ -210,17 +214,15 @@ impl SamplerConfig {
         let n = self.num_inference_steps.unwrap_or(t_total);
         let ts = timesteps(t_total, n, self.timestep_spacing)?;
         let steps = match self.kind {
-            SamplerKind::Ddpm => {
-                step_pairs(&ts)
-                    .into_iter()
-                    .map(|(t, prev)| PlanStep {
-                        t,
-                        prev,
-                        update: Update::Ddpm(DdpmStep::new(schedule, t, prev, variance)),
-                        to_noise: None,
-                    })
-                    .collect()
-            }
+            SamplerKind::Ddpm => step_pairs(&ts)
+                .into_iter()
+                .map(|(t, prev)| PlanStep {
+                    t,
+                    prev,
+                    update: Update::Ddpm(DdpmStep::new(schedule, t, prev, variance)),
+                    to_noise: None,
+                })
+                .collect(),
             SamplerKind::Ddim { eta } => {
                 ddim::check_eta(eta)?;
                 step_pairs(&ts)
@@ -385,7 +387,11 @@ pub(crate) fn run_chain(
     ws: &mut Workspace,
     control: &Control,
 ) -> Result<Vec<f32>> {
-    let ChainInputs { tables, mask, observed } = chain;
+    let ChainInputs {
+        tables,
+        mask,
+        observed,
+    } = chain;
     let n = mask.len();
     let mut x = vec![0.0f32; n];
     let mut eps = vec![0.0f32; n];
@@ -538,7 +544,11 @@ impl SampleJob<'_> {
 
 /// Runs every chain of a validated job in parallel; returns (S, B, K, L), or `Err(Cancelled)` when
 /// `control` is cancelled while it runs.
-pub(crate) fn run_job(denoiser: &Denoiser, job: &SampleJob<'_>, control: &Control) -> Result<Vec<f32>> {
+pub(crate) fn run_job(
+    denoiser: &Denoiser,
+    job: &SampleJob<'_>,
+    control: &Control,
+) -> Result<Vec<f32>> {
     let Observed {
         values,
         mask,
@@ -569,14 +579,7 @@ pub(crate) fn run_job(denoiser: &Denoiser, job: &SampleJob<'_>, control: &Contro
                         mask: &mask[b * n..(b + 1) * n],
                         observed: &values[b * n..(b + 1) * n],
                     };
-                    run_chain(
-                        denoiser,
-                        chain,
-                        &job.plan,
-                        &mut noise,
-                        ws,
-                        control,
-                    )
+                    run_chain(denoiser, chain, &job.plan, &mut noise, ws, control)
                 },
             )
             .collect()
@@ -674,12 +677,19 @@ mod tests {
             assert_eq!(c.a, ab.sqrt() as f32);
             assert_eq!(c.inv_s, (1.0 / (1.0 - ab).sqrt()) as f32);
             let (x0, eps) = ([0.3f64, -1.2, 2.5], [0.7f64, -0.4, 1.9]);
-            let x: Vec<f32> = x0.iter().zip(&eps).map(|(a, e)| (ab.sqrt() * a + (1.0 - ab).sqrt() * e) as f32).collect();
+            let x: Vec<f32> = x0
+                .iter()
+                .zip(&eps)
+                .map(|(a, e)| (ab.sqrt() * a + (1.0 - ab).sqrt() * e) as f32)
+                .collect();
             let mut out: Vec<f32> = x0.iter().map(|&v| v as f32).collect();
             c.apply(&x, &mut out);
             for (got, want) in out.iter().zip(&eps) {
                 // f32 rounding of x amplified by inv_s (up to 1 / sqrt(1 - abar_0), about 1e2 at t = 0)
-                assert!((*got as f64 - want).abs() < 1e-6 * c.inv_s as f64 * 4.0, "t={t}: {got} vs {want}");
+                assert!(
+                    (*got as f64 - want).abs() < 1e-6 * c.inv_s as f64 * 4.0,
+                    "t={t}: {got} vs {want}"
+                );
             }
         }
     }

@@ -72,7 +72,10 @@ impl RawTensor {
         }
     }
     pub fn values(&self) -> Vec<f32> {
-        self.bytes.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect()
+        self.bytes
+            .chunks_exact(4)
+            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            .collect()
     }
 }
 
@@ -82,10 +85,16 @@ pub fn random_tensors(cfg: &TcdConfig, seed: u64) -> BTreeMap<String, RawTensor>
     let mut out = BTreeMap::new();
     for (name, shape) in expected_tensors(&cfg.model) {
         let n: usize = shape.iter().product();
-        let fan_in = if shape.len() >= 2 { shape[1..].iter().product::<usize>() } else { 1 };
+        let fan_in = if shape.len() >= 2 {
+            shape[1..].iter().product::<usize>()
+        } else {
+            1
+        };
         let scale = (3.0 / fan_in as f32).sqrt();
         let data: Vec<f32> = if name.contains("norm") && name.ends_with("weight") {
-            (0..n).map(|_| 1.0 + rng.random_range(-0.2f32..0.2)).collect()
+            (0..n)
+                .map(|_| 1.0 + rng.random_range(-0.2f32..0.2))
+                .collect()
         } else if name.ends_with("bias") || name.ends_with("in_proj_bias") {
             (0..n).map(|_| rng.random_range(-0.1f32..0.1)).collect()
         } else if name == "embed_layer.weight" {
@@ -102,7 +111,12 @@ pub fn random_tensors(cfg: &TcdConfig, seed: u64) -> BTreeMap<String, RawTensor>
 pub fn serialize(tensors: &BTreeMap<String, RawTensor>, config_json: Option<String>) -> Vec<u8> {
     let views: Vec<(String, TensorView<'_>)> = tensors
         .iter()
-        .map(|(k, t)| (k.clone(), TensorView::new(t.dtype, t.shape.clone(), &t.bytes).unwrap()))
+        .map(|(k, t)| {
+            (
+                k.clone(),
+                TensorView::new(t.dtype, t.shape.clone(), &t.bytes).unwrap(),
+            )
+        })
         .collect();
     let meta = config_json.map(|j| HashMap::from([(CONFIG_KEY.to_string(), j)]));
     safetensors::serialize(views, meta).unwrap()
@@ -115,11 +129,19 @@ pub fn write(dir: &Path, name: &str, bytes: &[u8]) -> PathBuf {
 }
 
 /// A tiny model straight from bytes.
-pub fn tiny_model(role: Role, obs_len: usize, pred_len: usize, seed: u64) -> (Denoiser, BTreeMap<String, RawTensor>) {
+pub fn tiny_model(
+    role: Role,
+    obs_len: usize,
+    pred_len: usize,
+    seed: u64,
+) -> (Denoiser, BTreeMap<String, RawTensor>) {
     let cfg = tiny_config(role, obs_len, pred_len);
     let tensors = random_tensors(&cfg, seed);
     let bytes = serialize(&tensors, Some(cfg.to_json()));
-    (Denoiser::from_bytes(&bytes, format!("tiny-{}.safetensors", role.as_str())).unwrap(), tensors)
+    (
+        Denoiser::from_bytes(&bytes, format!("tiny-{}.safetensors", role.as_str())).unwrap(),
+        tensors,
+    )
 }
 
 /// Deterministic pseudo-random f32 values in [-a, a].
@@ -131,12 +153,17 @@ pub fn values(n: usize, seed: u64, a: f32) -> Vec<f32> {
 /// A random binary mask.
 pub fn binary_mask(n: usize, seed: u64, p_one: f64) -> Vec<f32> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    (0..n).map(|_| if rng.random_bool(p_one) { 1.0 } else { 0.0 }).collect()
+    (0..n)
+        .map(|_| if rng.random_bool(p_one) { 1.0 } else { 0.0 })
+        .collect()
 }
 
 pub fn max_abs_diff(a: &[f32], b: &[f64]) -> f64 {
     assert_eq!(a.len(), b.len());
-    a.iter().zip(b).map(|(x, y)| (*x as f64 - y).abs()).fold(0.0, f64::max)
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (*x as f64 - y).abs())
+        .fold(0.0, f64::max)
 }
 
 // ------------------------------------------------------------------ naive f64 reference
@@ -149,7 +176,9 @@ fn get(t: &BTreeMap<String, RawTensor>, name: &str) -> Vec<f64> {
 fn matvec(w: &[f64], b: &[f64], x: &[f64]) -> Vec<f64> {
     let out = b.len();
     let inp = x.len();
-    (0..out).map(|o| b[o] + (0..inp).map(|i| w[o * inp + i] * x[i]).sum::<f64>()).collect()
+    (0..out)
+        .map(|o| b[o] + (0..inp).map(|i| w[o * inp + i] * x[i]).sum::<f64>())
+        .collect()
 }
 
 fn silu(x: f64) -> f64 {
@@ -186,7 +215,12 @@ fn encoder(t: &BTreeMap<String, RawTensor>, prefix: &str, cfg: &ModelConfig, seq
     for h in 0..heads {
         for i in 0..len {
             let s: Vec<f64> = (0..len)
-                .map(|j| (0..hd).map(|d| qkv[i][h * hd + d] * qkv[j][c + h * hd + d]).sum::<f64>() / (hd as f64).sqrt())
+                .map(|j| {
+                    (0..hd)
+                        .map(|d| qkv[i][h * hd + d] * qkv[j][c + h * hd + d])
+                        .sum::<f64>()
+                        / (hd as f64).sqrt()
+                })
                 .collect();
             let m = s.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
             let e: Vec<f64> = s.iter().map(|v| (v - m).exp()).collect();
@@ -199,10 +233,22 @@ fn encoder(t: &BTreeMap<String, RawTensor>, prefix: &str, cfg: &ModelConfig, seq
         }
     }
     let eps = cfg.layer_norm_eps;
-    let (n1w, n1b) = (get(t, &format!("{prefix}.norm1.weight")), get(t, &format!("{prefix}.norm1.bias")));
-    let (n2w, n2b) = (get(t, &format!("{prefix}.norm2.weight")), get(t, &format!("{prefix}.norm2.bias")));
-    let (l1w, l1b) = (get(t, &format!("{prefix}.linear1.weight")), get(t, &format!("{prefix}.linear1.bias")));
-    let (l2w, l2b) = (get(t, &format!("{prefix}.linear2.weight")), get(t, &format!("{prefix}.linear2.bias")));
+    let (n1w, n1b) = (
+        get(t, &format!("{prefix}.norm1.weight")),
+        get(t, &format!("{prefix}.norm1.bias")),
+    );
+    let (n2w, n2b) = (
+        get(t, &format!("{prefix}.norm2.weight")),
+        get(t, &format!("{prefix}.norm2.bias")),
+    );
+    let (l1w, l1b) = (
+        get(t, &format!("{prefix}.linear1.weight")),
+        get(t, &format!("{prefix}.linear1.bias")),
+    );
+    let (l2w, l2b) = (
+        get(t, &format!("{prefix}.linear2.weight")),
+        get(t, &format!("{prefix}.linear2.bias")),
+    );
     for (x, a) in seq.iter_mut().zip(&att) {
         let sa = matvec(&w_out, &b_out, a);
         for (v, s) in x.iter_mut().zip(&sa) {
@@ -241,7 +287,10 @@ pub fn naive_forward(
     let n = k * l;
     let s_dim = m.side_dim;
     let pe: Vec<f64> = frame_embedding(l, te).iter().map(|&v| v as f64).collect();
-    let table: Vec<f64> = step_embedding_table(cfg.diffusion.num_train_timesteps, d).iter().map(|&v| v as f64).collect();
+    let table: Vec<f64> = step_embedding_table(cfg.diffusion.num_train_timesteps, d)
+        .iter()
+        .map(|&v| v as f64)
+        .collect();
     let emb = get(t, "embed_layer.weight");
     // step embedding
     let e1 = matvec(
@@ -272,7 +321,8 @@ pub fn naive_forward(
                 let in0 = mv * observed[i] as f64;
                 let in1 = (1.0 - mv) * noisy[i] as f64;
                 for ch in 0..c {
-                    h[ch][kk * l + ll] = (w_inp[ch * 2] * in0 + w_inp[ch * 2 + 1] * in1 + b_inp[ch]).max(0.0);
+                    h[ch][kk * l + ll] =
+                        (w_inp[ch * 2] * in0 + w_inp[ch * 2 + 1] * in1 + b_inp[ch]).max(0.0);
                 }
                 for s in 0..te {
                     side[s][kk * l + ll] = pe[ll * te + s];
@@ -291,10 +341,14 @@ pub fn naive_forward(
                 &get(t, &format!("{p}.diffusion_projection.bias")),
                 &demb,
             );
-            let mut y: Vec<Vec<f64>> = (0..c).map(|ch| h[ch].iter().map(|v| v + dp[ch]).collect()).collect();
+            let mut y: Vec<Vec<f64>> = (0..c)
+                .map(|ch| h[ch].iter().map(|v| v + dp[ch]).collect())
+                .collect();
             if l > 1 {
                 for kk in 0..k {
-                    let mut seq: Vec<Vec<f64>> = (0..l).map(|ll| (0..c).map(|ch| y[ch][kk * l + ll]).collect()).collect();
+                    let mut seq: Vec<Vec<f64>> = (0..l)
+                        .map(|ll| (0..c).map(|ch| y[ch][kk * l + ll]).collect())
+                        .collect();
                     encoder(t, &format!("{p}.time_layer.layers.0"), m, &mut seq);
                     for ll in 0..l {
                         for ch in 0..c {
@@ -305,7 +359,9 @@ pub fn naive_forward(
             }
             if k > 1 {
                 for ll in 0..l {
-                    let mut seq: Vec<Vec<f64>> = (0..k).map(|kk| (0..c).map(|ch| y[ch][kk * l + ll]).collect()).collect();
+                    let mut seq: Vec<Vec<f64>> = (0..k)
+                        .map(|kk| (0..c).map(|ch| y[ch][kk * l + ll]).collect())
+                        .collect();
                     encoder(t, &format!("{p}.feature_layer.layers.0"), m, &mut seq);
                     for kk in 0..k {
                         for ch in 0..c {
@@ -339,8 +395,13 @@ pub fn naive_forward(
         let w2 = get(t, "diffmodel.output_projection2.weight");
         let b2 = get(t, "diffmodel.output_projection2.bias");
         for tok in 0..n {
-            let sv: Vec<f64> = (0..c).map(|ch| skip[ch][tok] / (m.num_layers as f64).sqrt()).collect();
-            let r: Vec<f64> = matvec(&w1, &b1, &sv).into_iter().map(|v| v.max(0.0)).collect();
+            let sv: Vec<f64> = (0..c)
+                .map(|ch| skip[ch][tok] / (m.num_layers as f64).sqrt())
+                .collect();
+            let r: Vec<f64> = matvec(&w1, &b1, &sv)
+                .into_iter()
+                .map(|v| v.max(0.0))
+                .collect();
             out[b * n + tok] = matvec(&w2, &b2, &r)[0];
         }
     }
@@ -350,8 +411,11 @@ pub fn naive_forward(
 /// A tiny model of `cfg` (edited by the caller: its fill, target, prediction type) straight from bytes.
 pub fn model_of(cfg: &TcdConfig, seed: u64) -> Denoiser {
     let tensors = random_tensors(cfg, seed);
-    Denoiser::from_bytes(&serialize(&tensors, Some(cfg.to_json())), format!("tiny-{}.safetensors", cfg.role.as_str()))
-        .unwrap()
+    Denoiser::from_bytes(
+        &serialize(&tensors, Some(cfg.to_json())),
+        format!("tiny-{}.safetensors", cfg.role.as_str()),
+    )
+    .unwrap()
 }
 
 /// A small random prior forecaster: K = `num_features`, `obs_len` frames in, `chunk` out, 2 blocks,
@@ -376,11 +440,23 @@ pub fn tiny_prior(num_features: usize, obs_len: usize, chunk: usize, seed: u64) 
         .into_iter()
         .map(|(name, shape)| {
             let n: usize = shape.iter().product();
-            let a = if shape.len() == 2 { (3.0 / shape[1] as f32).sqrt() } else { 0.3 };
-            let centre = if name.ends_with("norm_weight") { 1.0 } else { 0.0 };
+            let a = if shape.len() == 2 {
+                (3.0 / shape[1] as f32).sqrt()
+            } else {
+                0.3
+            };
+            let centre = if name.ends_with("norm_weight") {
+                1.0
+            } else {
+                0.0
+            };
             let data: Vec<f32> = (0..n).map(|_| centre + rng.random_range(-a..a)).collect();
             (name, RawTensor::f32(shape, &data))
         })
         .collect();
-    Prior::from_bytes(&serialize(&tensors, Some(cfg.to_json())), "prior.safetensors").unwrap()
+    Prior::from_bytes(
+        &serialize(&tensors, Some(cfg.to_json())),
+        "prior.safetensors",
+    )
+    .unwrap()
 }

@@ -64,8 +64,11 @@ pub(super) unsafe fn attention<S: Simd, const HD: usize>(
                 let nq = w.min(len - q0);
                 for d in 0..HD {
                     for lane in 0..w {
-                        *tp.add(d * w + lane) =
-                            if lane < nq { *qkv.add((q0 + lane) * stride + qo + d) * scale } else { 0.0 };
+                        *tp.add(d * w + lane) = if lane < nq {
+                            *qkv.add((q0 + lane) * stride + qo + d) * scale
+                        } else {
+                            0.0
+                        };
                     }
                 }
                 let q: [S::V; HD] = std::array::from_fn(|d| S::load(tp.add(d * w)));

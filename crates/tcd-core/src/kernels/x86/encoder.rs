@@ -42,14 +42,22 @@ unsafe fn layer_norm_row<S: Simd>(x: *mut f32, c: usize, g: &[f32], b: &[f32], e
         let mut i = 0;
         while i < c {
             let d = S::mul(S::sub(S::load(x.add(i)), mean), rstd);
-            S::store(x.add(i), S::fma(d, S::load(g.as_ptr().add(i)), S::load(b.as_ptr().add(i))));
+            S::store(
+                x.add(i),
+                S::fma(d, S::load(g.as_ptr().add(i)), S::load(b.as_ptr().add(i))),
+            );
             i += S::W;
         }
     }
 }
 
 #[inline(always)]
-pub(super) unsafe fn encoder<S: Simd>(e: &FastEncoder, x: *mut f32, layout: SeqLayout, sc: &mut FastScratch) {
+pub(super) unsafe fn encoder<S: Simd>(
+    e: &FastEncoder,
+    x: *mut f32,
+    layout: SeqLayout,
+    sc: &mut FastScratch,
+) {
     let SeqLayout {
         num_seq,
         seq_len,
@@ -63,11 +71,40 @@ pub(super) unsafe fn encoder<S: Simd>(e: &FastEncoder, x: *mut f32, layout: SeqL
     unsafe {
         for s in 0..num_seq {
             let xs = x.add(s * seq_stride);
-            gemm::<S>(xs, tok_stride, seq_len, &e.qkv, sc.qkv.as_mut_ptr(), 3 * c, Epilogue::Store);
+            gemm::<S>(
+                xs,
+                tok_stride,
+                seq_len,
+                &e.qkv,
+                sc.qkv.as_mut_ptr(),
+                3 * c,
+                Epilogue::Store,
+            );
             match hd {
-                8 => attention::<S, 8>(sc.qkv.as_ptr(), seq_len, c, e.heads, sc.heads.as_mut_ptr(), sc.scores.as_mut_ptr()),
-                4 => attention::<S, 4>(sc.qkv.as_ptr(), seq_len, c, e.heads, sc.heads.as_mut_ptr(), sc.scores.as_mut_ptr()),
-                16 => attention::<S, 16>(sc.qkv.as_ptr(), seq_len, c, e.heads, sc.heads.as_mut_ptr(), sc.scores.as_mut_ptr()),
+                8 => attention::<S, 8>(
+                    sc.qkv.as_ptr(),
+                    seq_len,
+                    c,
+                    e.heads,
+                    sc.heads.as_mut_ptr(),
+                    sc.scores.as_mut_ptr(),
+                ),
+                4 => attention::<S, 4>(
+                    sc.qkv.as_ptr(),
+                    seq_len,
+                    c,
+                    e.heads,
+                    sc.heads.as_mut_ptr(),
+                    sc.scores.as_mut_ptr(),
+                ),
+                16 => attention::<S, 16>(
+                    sc.qkv.as_ptr(),
+                    seq_len,
+                    c,
+                    e.heads,
+                    sc.heads.as_mut_ptr(),
+                    sc.scores.as_mut_ptr(),
+                ),
                 _ => crate::nn::attention::scaled_dot_product_attention(
                     &sc.qkv[..seq_len * 3 * c],
                     seq_len,
@@ -77,12 +114,36 @@ pub(super) unsafe fn encoder<S: Simd>(e: &FastEncoder, x: *mut f32, layout: SeqL
                     &mut sc.portable,
                 ),
             }
-            gemm::<S>(sc.heads.as_ptr(), c, seq_len, &e.out, xs, tok_stride, Epilogue::AddTo);
+            gemm::<S>(
+                sc.heads.as_ptr(),
+                c,
+                seq_len,
+                &e.out,
+                xs,
+                tok_stride,
+                Epilogue::AddTo,
+            );
             for t in 0..seq_len {
                 layer_norm_row::<S>(xs.add(t * tok_stride), c, &e.ln1.0, &e.ln1.1, e.ln1.2);
             }
-            gemm::<S>(xs, tok_stride, seq_len, &e.ff1, sc.ffn.as_mut_ptr(), f, Epilogue::Gelu);
-            gemm::<S>(sc.ffn.as_ptr(), f, seq_len, &e.ff2, xs, tok_stride, Epilogue::AddTo);
+            gemm::<S>(
+                xs,
+                tok_stride,
+                seq_len,
+                &e.ff1,
+                sc.ffn.as_mut_ptr(),
+                f,
+                Epilogue::Gelu,
+            );
+            gemm::<S>(
+                sc.ffn.as_ptr(),
+                f,
+                seq_len,
+                &e.ff2,
+                xs,
+                tok_stride,
+                Epilogue::AddTo,
+            );
             for t in 0..seq_len {
                 layer_norm_row::<S>(xs.add(t * tok_stride), c, &e.ln2.0, &e.ln2.1, e.ln2.2);
             }

@@ -64,7 +64,11 @@ unsafe fn tile<S: Simd, const NV: usize, const M: usize>(
                 };
                 let yp = y.add(m * ldy + col);
                 if col + S::W <= width {
-                    let out = if epi == Epilogue::AddTo { S::add(S::load(yp), val) } else { val };
+                    let out = if epi == Epilogue::AddTo {
+                        S::add(S::load(yp), val)
+                    } else {
+                        val
+                    };
                     S::store(yp, out);
                 } else {
                     let mut tmp = [0.0f32; 16];
@@ -122,7 +126,15 @@ unsafe fn gemm_nv<S: Simd, const NV: usize>(
 }
 
 #[inline(always)]
-pub(super) unsafe fn gemm<S: Simd>(x: *const f32, ldx: usize, rows: usize, w: &Packed, y: *mut f32, ldy: usize, epi: Epilogue) {
+pub(super) unsafe fn gemm<S: Simd>(
+    x: *const f32,
+    ldx: usize,
+    rows: usize,
+    w: &Packed,
+    y: *mut f32,
+    ldy: usize,
+    epi: Epilogue,
+) {
     // SAFETY: forwarded contract of `gemm_nv`; the panel width selects the instantiation.
     unsafe {
         match w.pw / S::W {

@@ -130,11 +130,18 @@ pub(super) unsafe fn gated<S: Simd>(a: S::V, f: S::V) -> S::V {
             let a = S::max(a, S::splat(-60.0));
             let f = S::min(S::max(f, S::splat(-9.0)), S::splat(9.0));
             let e2f = exp::<S>(S::add(f, f));
-            let den = S::mul(S::add(one, exp::<S>(S::sub(S::zero(), a))), S::add(one, e2f));
+            let den = S::mul(
+                S::add(one, exp::<S>(S::sub(S::zero(), a))),
+                S::add(one, e2f),
+            );
             S::div(S::sub(e2f, one), den)
         } else {
             let sig = S::recip(S::add(one, exp::<S>(S::sub(S::zero(), a))));
-            let th = S::fma(S::splat(-2.0), S::recip(S::add(one, exp::<S>(S::add(f, f)))), one);
+            let th = S::fma(
+                S::splat(-2.0),
+                S::recip(S::add(one, exp::<S>(S::add(f, f)))),
+                one,
+            );
             S::mul(sig, th)
         }
     }
@@ -184,7 +191,9 @@ mod tests {
     }
 
     fn grid(lo: f32, hi: f32, n: usize) -> Vec<f32> {
-        (0..n).map(|i| lo + (hi - lo) * i as f32 / (n - 1) as f32).collect()
+        (0..n)
+            .map(|i| lo + (hi - lo) * i as f32 / (n - 1) as f32)
+            .collect()
     }
 
     /// Every function on both ISAs: (name, avx512 fn, avx2 fn, f64 reference, tolerance kind).
@@ -196,12 +205,18 @@ mod tests {
         tol: impl Fn(f64) -> f64,
         name: &str,
     ) {
-        for got in [map_avx512(xs, f512), map_avx2(xs, f256)].into_iter().flatten() {
+        for got in [map_avx512(xs, f512), map_avx2(xs, f256)]
+            .into_iter()
+            .flatten()
+        {
             let mut worst = 0.0f64;
             for (&x, &g) in xs.iter().zip(&got) {
                 let want = reference(x as f64);
                 let err = (g as f64 - want).abs();
-                assert!(err <= tol(want), "{name}({x}) = {g}, want {want}, err {err:e}");
+                assert!(
+                    err <= tol(want),
+                    "{name}({x}) = {g}, want {want}, err {err:e}"
+                );
                 worst = worst.max(err);
             }
             eprintln!("{name}: worst abs err {worst:e}");
@@ -211,7 +226,14 @@ mod tests {
     #[test]
     fn vector_exp_is_accurate() {
         let xs = grid(-87.0, 88.0, 160_000);
-        check(&xs, exp::<Avx512>, exp::<Avx2>, f64::exp, |w| 3e-7 * w, "exp");
+        check(
+            &xs,
+            exp::<Avx512>,
+            exp::<Avx2>,
+            f64::exp,
+            |w| 3e-7 * w,
+            "exp",
+        );
     }
 
     #[test]
@@ -220,11 +242,21 @@ mod tests {
         let erf_ref = |x: f64| libm::erf(x);
         check(&xs, erf::<Avx512>, erf::<Avx2>, erf_ref, |_| 2e-7, "erf");
         let gelu_ref = |x: f64| x * 0.5 * (1.0 + libm::erf(x / std::f64::consts::SQRT_2));
-        check(&xs, gelu::<Avx512>, gelu::<Avx2>, gelu_ref, |w| 2e-7 * w.abs().max(1.0), "gelu");
+        check(
+            &xs,
+            gelu::<Avx512>,
+            gelu::<Avx2>,
+            gelu_ref,
+            |w| 2e-7 * w.abs().max(1.0),
+            "gelu",
+        );
         // and against the portable f32 GELU
         if let Some(got) = map_avx512(&xs, gelu::<Avx512>) {
             for (&x, &g) in xs.iter().zip(&got) {
-                assert!((g - gelu_erf(x)).abs() <= 4e-7 * x.abs().max(1.0), "gelu({x})");
+                assert!(
+                    (g - gelu_erf(x)).abs() <= 4e-7 * x.abs().max(1.0),
+                    "gelu({x})"
+                );
             }
         }
     }
@@ -234,11 +266,21 @@ mod tests {
         // σ(a)·tanh(a/2 − 1) over a grid (both arguments varying).
         fn g512(a: __m512) -> __m512 {
             // SAFETY: only called under the avx512 target feature by `map_avx512`.
-            unsafe { gated::<Avx512>(a, Avx512::sub(Avx512::mul(a, Avx512::splat(0.5)), Avx512::splat(1.0))) }
+            unsafe {
+                gated::<Avx512>(
+                    a,
+                    Avx512::sub(Avx512::mul(a, Avx512::splat(0.5)), Avx512::splat(1.0)),
+                )
+            }
         }
         fn g256(a: __m256) -> __m256 {
             // SAFETY: only called under the avx2 target feature by `map_avx2`.
-            unsafe { gated::<Avx2>(a, Avx2::sub(Avx2::mul(a, Avx2::splat(0.5)), Avx2::splat(1.0))) }
+            unsafe {
+                gated::<Avx2>(
+                    a,
+                    Avx2::sub(Avx2::mul(a, Avx2::splat(0.5)), Avx2::splat(1.0)),
+                )
+            }
         }
         let xs = grid(-100.0, 100.0, 80_000);
         let reference = |a: f64| (1.0 / (1.0 + (-a).exp())) * (a / 2.0 - 1.0).tanh();

@@ -18,7 +18,10 @@
 
 use rayon::prelude::*;
 
-use super::{Epilogue, FastEncoder, FastScratch, Matrix, MatrixMut, Packed, SeqLayout, TailInputs, TailStreams};
+use super::{
+    Epilogue, FastEncoder, FastScratch, Matrix, MatrixMut, Packed, SeqLayout, TailInputs,
+    TailStreams,
+};
 use encoder::encoder;
 use gemm::gemm;
 use simd::{Avx2, Avx512};
@@ -56,7 +59,12 @@ macro_rules! entries {
     ($simd:ty, $features:literal, $gemm:ident, $encoder:ident, $encoder_par:ident, $tail:ident) => {
         /// Encoder-layer entry point splitting the sequences over `scratch.len()` rayon workers
         /// (layout checked injective and in bounds by [`super::encoder_par`]).
-        pub(super) fn $encoder_par(e: &FastEncoder, x: &mut [f32], layout: SeqLayout, scratch: &mut [FastScratch]) {
+        pub(super) fn $encoder_par(
+            e: &FastEncoder,
+            x: &mut [f32],
+            layout: SeqLayout,
+            scratch: &mut [FastScratch],
+        ) {
             #[target_feature(enable = $features)]
             unsafe fn inner(e: &FastEncoder, x: *mut f32, layout: SeqLayout, sc: &mut FastScratch) {
                 // SAFETY: forwarded from the caller.
@@ -86,16 +94,36 @@ macro_rules! entries {
             #[target_feature(enable = $features)]
             unsafe fn inner(x: Matrix<'_>, w: &Packed, y: MatrixMut<'_>, epi: Epilogue) {
                 // SAFETY: shapes, strides and sizes checked by the dispatcher.
-                unsafe { gemm::<$simd>(x.data.as_ptr(), x.ld, x.rows, w, y.data.as_mut_ptr(), y.ld, epi) }
+                unsafe {
+                    gemm::<$simd>(
+                        x.data.as_ptr(),
+                        x.ld,
+                        x.rows,
+                        w,
+                        y.data.as_mut_ptr(),
+                        y.ld,
+                        epi,
+                    )
+                }
             }
             // SAFETY: reachable only through an `Isa` built after detecting these features.
             unsafe { inner(x, w, y, epi) }
         }
 
         /// Encoder-layer entry point (sizes checked by [`super::fast::encoder`]).
-        pub(super) fn $encoder(e: &FastEncoder, x: &mut [f32], layout: SeqLayout, sc: &mut FastScratch) {
+        pub(super) fn $encoder(
+            e: &FastEncoder,
+            x: &mut [f32],
+            layout: SeqLayout,
+            sc: &mut FastScratch,
+        ) {
             #[target_feature(enable = $features)]
-            unsafe fn inner(e: &FastEncoder, x: &mut [f32], layout: SeqLayout, sc: &mut FastScratch) {
+            unsafe fn inner(
+                e: &FastEncoder,
+                x: &mut [f32],
+                layout: SeqLayout,
+                sc: &mut FastScratch,
+            ) {
                 // SAFETY: sizes and strides checked by the dispatcher.
                 unsafe { encoder::<$simd>(e, x.as_mut_ptr(), layout, sc) }
             }
@@ -104,9 +132,19 @@ macro_rules! entries {
         }
 
         /// Residual-block tail entry point (sizes checked by [`super::block_tail`]).
-        pub(super) fn $tail(inp: &TailInputs<'_>, k0: usize, streams: TailStreams<'_>, sc: &mut FastScratch) {
+        pub(super) fn $tail(
+            inp: &TailInputs<'_>,
+            k0: usize,
+            streams: TailStreams<'_>,
+            sc: &mut FastScratch,
+        ) {
             #[target_feature(enable = $features)]
-            unsafe fn inner(inp: &TailInputs<'_>, k0: usize, streams: TailStreams<'_>, sc: &mut FastScratch) {
+            unsafe fn inner(
+                inp: &TailInputs<'_>,
+                k0: usize,
+                streams: TailStreams<'_>,
+                sc: &mut FastScratch,
+            ) {
                 // SAFETY: sizes checked by the dispatcher.
                 unsafe { tail::<$simd>(inp, k0, streams, sc) }
             }
@@ -116,8 +154,22 @@ macro_rules! entries {
     };
 }
 
-entries!(Avx512, "avx512f,fma", gemm_avx512, encoder_avx512, encoder_par_avx512, tail_avx512);
-entries!(Avx2, "avx2,fma", gemm_avx2, encoder_avx2, encoder_par_avx2, tail_avx2);
+entries!(
+    Avx512,
+    "avx512f,fma",
+    gemm_avx512,
+    encoder_avx512,
+    encoder_par_avx512,
+    tail_avx512
+);
+entries!(
+    Avx2,
+    "avx2,fma",
+    gemm_avx2,
+    encoder_avx2,
+    encoder_par_avx2,
+    tail_avx2
+);
 
 #[cfg(test)]
 mod tests {
@@ -155,7 +207,10 @@ mod tests {
         let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
         let mut files = Vec::new();
         rust_sources(&src, &mut files);
-        assert!(files.iter().any(|f| f.ends_with("kernels/x86/simd.rs")), "the scan missed simd.rs");
+        assert!(
+            files.iter().any(|f| f.ends_with("kernels/x86/simd.rs")),
+            "the scan missed simd.rs"
+        );
         let names = implementation_defined();
         let mut found = Vec::new();
         for f in &files {
@@ -171,6 +226,9 @@ mod tests {
                 }
             }
         }
-        assert!(found.is_empty(), "implementation-defined estimates in the kernels: {found:?}");
+        assert!(
+            found.is_empty(),
+            "implementation-defined estimates in the kernels: {found:?}"
+        );
     }
 }

@@ -11,23 +11,48 @@ use crate::nn::activation::sigmoid;
 /// z + (time table + feature table + m · mask column) at column `i` (a function, not a closure:
 /// see [`super::attention::score_key`]).
 #[inline(always)]
-unsafe fn zc<S: Simd>(z: *const f32, tt: *const f32, ft: *const f32, cm: *const f32, mv: S::V, i: usize) -> S::V {
+unsafe fn zc<S: Simd>(
+    z: *const f32,
+    tt: *const f32,
+    ft: *const f32,
+    cm: *const f32,
+    mv: S::V,
+    i: usize,
+) -> S::V {
     // SAFETY: each pointer is valid for i + W floats (caller).
-    unsafe { S::add(S::load(z.add(i)), S::fma(mv, S::load(cm.add(i)), S::add(S::load(tt.add(i)), S::load(ft.add(i))))) }
+    unsafe {
+        S::add(
+            S::load(z.add(i)),
+            S::fma(
+                mv,
+                S::load(cm.add(i)),
+                S::add(S::load(tt.add(i)), S::load(ft.add(i))),
+            ),
+        )
+    }
 }
 
 /// [`crate::kernels::block_tail`] on the coordinates `k0..` whose streams are given.
 #[inline(always)]
-pub(super) unsafe fn tail<S: Simd>(inp: &TailInputs<'_>, k0: usize, streams: TailStreams<'_>, sc: &mut FastScratch) {
+pub(super) unsafe fn tail<S: Simd>(
+    inp: &TailInputs<'_>,
+    k0: usize,
+    streams: TailStreams<'_>,
+    sc: &mut FastScratch,
+) {
     let (frames, c) = (inp.frames, inp.channels);
     let nk = streams.h.len() / (frames * c);
-    let (y, h, skip) = (streams.y.as_mut_ptr(), streams.h.as_mut_ptr(), streams.skip.as_mut_ptr());
+    let (y, h, skip) = (
+        streams.y.as_mut_ptr(),
+        streams.h.as_mut_ptr(),
+        streams.skip.as_mut_ptr(),
+    );
     let c2 = 2 * c;
     let w = S::W;
     let inv_sqrt2 = S::splat(std::f32::consts::FRAC_1_SQRT_2); // ≤ 1 ulp from PyTorch's division by √2
-    // SAFETY (whole body): y, h, skip hold nk × frames × c floats; the tables, mask and
-    // scratch sizes were checked by the dispatcher; vector accesses stay below c (resp. 2c)
-    // per row, the scalar loops finish the rows.
+                                                               // SAFETY (whole body): y, h, skip hold nk × frames × c floats; the tables, mask and
+                                                               // scratch sizes were checked by the dispatcher; vector accesses stay below c (resp. 2c)
+                                                               // per row, the scalar loops finish the rows.
     unsafe {
         let zt = sc.zt.as_mut_ptr();
         let gt = sc.gt.as_mut_ptr();
@@ -46,15 +71,27 @@ pub(super) unsafe fn tail<S: Simd>(inp: &TailInputs<'_>, k0: usize, streams: Tai
                 let mut i = 0;
                 // Two vectors per iteration: independent exp chains for the core to overlap.
                 while i + 2 * w <= c {
-                    let (a0, f0) = (zc::<S>(z, tt, ft, cm, mv, i), zc::<S>(z, tt, ft, cm, mv, c + i));
-                    let (a1, f1) = (zc::<S>(z, tt, ft, cm, mv, i + w), zc::<S>(z, tt, ft, cm, mv, c + i + w));
+                    let (a0, f0) = (
+                        zc::<S>(z, tt, ft, cm, mv, i),
+                        zc::<S>(z, tt, ft, cm, mv, c + i),
+                    );
+                    let (a1, f1) = (
+                        zc::<S>(z, tt, ft, cm, mv, i + w),
+                        zc::<S>(z, tt, ft, cm, mv, c + i + w),
+                    );
                     let (g0, g1) = (gated::<S>(a0, f0), gated::<S>(a1, f1));
                     S::store(g.add(i), g0);
                     S::store(g.add(i + w), g1);
                     i += 2 * w;
                 }
                 while i + w <= c {
-                    S::store(g.add(i), gated::<S>(zc::<S>(z, tt, ft, cm, mv, i), zc::<S>(z, tt, ft, cm, mv, c + i)));
+                    S::store(
+                        g.add(i),
+                        gated::<S>(
+                            zc::<S>(z, tt, ft, cm, mv, i),
+                            zc::<S>(z, tt, ft, cm, mv, c + i),
+                        ),
+                    );
                     i += w;
                 }
                 while i < c {
