@@ -7,12 +7,34 @@ noise (S, n + 1, B, K, L) ((S, 1, B, K, L) for ``sampler="dpmpp2m"``). The sampl
 ``OSError`` (unreadable file), ``tcd.exceptions.TcdError`` (anything else).
 """
 import os
-from typing import Any, Callable, Dict, List, Optional, Tuple, Union
+from typing import Any, Callable, Dict, List, Optional, Tuple, Union, final
 
 import numpy as np
 import numpy.typing as npt
 
 from .options import SamplerOptions
+
+# The module's __all__ (PyO3 fills it with every name crates/tcd-py/src/lib.rs adds), checked by `python -m mypy.stubtest tcd._native` in CI.
+__all__ = [
+    "__version__",
+    "TcdError",
+    "InvalidInputError",
+    "WeightsError",
+    "STAGE_SHORT",
+    "STAGE_LONG",
+    "Denoiser",
+    "Prior",
+    "cascade",
+    "repair",
+    "seeded_noise",
+    "interpolate",
+    "supported_kernels",
+    "check_sampler_options",
+    "check_call_settings",
+    "SAMPLERS",
+    "SPACINGS",
+    "INTERPOLATIONS",
+]
 
 __version__: str
 STAGE_SHORT: int
@@ -35,6 +57,8 @@ class WeightsError(TcdError, ValueError):
     @property
     def path(self) -> Optional[str]: ...
 
+# PyO3 classes cannot be subclassed (no #[pyclass(subclass)]).
+@final
 class Denoiser:
     @staticmethod
     def load(path: Union[str, os.PathLike[str]]) -> Denoiser: ...
@@ -64,7 +88,9 @@ class Denoiser:
     def num_train_timesteps(self) -> int: ...
     def timesteps(self, options: SamplerOptions) -> List[int]: ...
     def num_noise_blocks(self, options: SamplerOptions) -> int: ...
-    def forward(self, noisy: _F32, observed: _F32, mask: _F32, step: int, threads: Optional[int] = None) -> _F32: ...
+    def forward(
+        self, noisy: _F32, observed: _F32, mask: _F32, step: int, *, threads: Optional[int] = None
+    ) -> _F32: ...
     def sample(
         self,
         observed: _F32,
@@ -80,6 +106,7 @@ class Denoiser:
         progress: Optional[Callable[[int, int], Any]] = None,
     ) -> _F32: ...
 
+@final
 class Prior:
     """The deterministic prior forecaster; arrays (B, T, K) float32, frame-major."""
     @staticmethod
