@@ -30,18 +30,6 @@ def needs_data(*files: str):
 needs_h36m = needs_data("h36m/h36m_expmap_50fps.npz")
 
 
-def gpu_machine_env(tmp_path: Path, **env) -> dict:
-    """The environment of a dry run of ``training/gpu_period.sh`` on this CPU, as the GPU machine has it:
-    the device tool copies the source tree but nothing installed here, so ``import tcd`` (the built
-    package) must fail there. A stub package first on PYTHONPATH makes it fail here too, so that a GPU
-    path that came to import the package fails its dry run instead of a GPU call."""
-    stub = tmp_path / "no_tcd_package" / "tcd"
-    stub.mkdir(parents=True, exist_ok=True)
-    (stub / "__init__.py").write_text('raise ImportError("tcd (the built package) is not on the GPU machine")\n')
-    path = [str(stub.parent), str(ROOT)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]
-    return dict(os.environ, GPU_DEVICE="cpu", PYTHONPATH=os.pathsep.join(path), **env)
-
-
 def pytest_collection_modifyitems(config, items):
     for item in items:
         if ROOT / "benches" in Path(item.fspath).parents:

@@ -142,26 +142,6 @@ def test_repair_dataset_runs_tcd_repair_on_a_directory(tiny_model_dir, tmp_path)
         p.name for p in (tmp_path / "w" / "in").iterdir())
 
 
-@pytest.mark.slow
-def test_train_throughput_smoke(tmp_path):
-    """benches/train_throughput.py on the CPU at the tiny size: every requested combination is timed (bf16 is
-    recorded as skipped off CUDA), the JSON holds windows/s, and the reference peer runs beside the
-    channels-last step. Timings are not asserted."""
-    bench = load_bench("train_throughput")
-    out = tmp_path / "tp.json"
-    rc = bench.main(["--device", "cpu", "--preset", "tiny", "--batch", "4", "--steps", "2", "--reps", "1",
-                     "--warmup", "1", "--roles", "short", "repair", "--modes", "eager", "--json", str(out)])
-    assert rc == 0
-    res = json.loads(out.read_text())
-    timed = [r for r in res["results"] if "windows_per_s" in r]
-    assert {(r["role"], r["impl"], r["seq_len"]) for r in timed} == {
-        ("short", "channels_last", 55), ("short", "reference", 55), ("repair", "channels_last", 50), ("repair", "reference", 50)}
-    assert all(r["windows_per_s"] > 0 and r["precision"] == "fp32" for r in timed)
-    assert {r["skipped"] for r in res["results"] if "windows_per_s" not in r} == {
-        "bf16 autocast is used on CUDA only (TrainConfig.amp)"}
-    assert res["meta"]["preset"] == "tiny" and res["meta"]["data"] == "synthetic"
-
-
 @needs_h36m
 def test_in_the_wild_smoke(tiny_model_dir, tmp_path):
     """benches/in_the_wild.py runs every input path through the public API and writes its table."""
@@ -191,42 +171,6 @@ def test_repair_scaling_smoke(tmp_path):
     assert all(row["frames_per_s"] > 0 for row in r["rows"]) and "overhead_per_file_ms" in r["small_files"]
 
 
-def test_train_step_floor_counts_a_training_step():
-    """benches/train_step_floor.py at the tiny size: the per-window FLOPs of a training step are about three
-    forwards' (forward, and the backward's two products per forward product), measured apart here; a fused
-    step moves fewer bytes than an unfused one; bf16 raises no floor below fp32's."""
-    import torch
-    from torch.utils.flop_counter import FlopCounterMode
-    from training.channels_last import ChannelsLast
-    from training.export import PRESETS
-    from training.model import TCDModel
-    floor = load_bench("train_step_floor")
-    r = floor.floor("long", 3, "tiny")
-    per = r["per_window"]
-    model = TCDModel(PRESETS["tiny"], 50)
-    x = torch.randn(1, model.cfg.num_features, r["seq_len"])
-    with FlopCounterMode(display=False) as fc:
-        ChannelsLast(model)(x, x, (x > 0).float(), torch.tensor([3]))
-    assert 2.5 < per["flops"] / fc.get_total_flops() < 3.5
-    assert 0 < per["bytes_fused"] < per["bytes_unfused"]
-    assert per["bytes_matmul_attention"] <= per["bytes_fused"]
-    for kind in ("unfused", "fused"):
-        assert r["floors"][f"bf16_{kind}"]["windows_per_s"] >= r["floors"][f"fp32_{kind}"]["windows_per_s"] > 0
-    assert r["floors"]["fp32_fused"]["windows_per_s"] > r["floors"]["fp32_unfused"]["windows_per_s"]
-
-
-def test_train_throughput_times_the_goal_and_todays_step_first():
-    """A GPU period's time budget may cut the list: the two numbers the issue compares come first."""
-    import argparse
-    bench = load_bench("train_throughput")
-    every = argparse.Namespace(roles=list(bench.ROLES), impls=list(bench.IMPLS), modes=list(bench.MODES),
-                               precisions=list(bench.PRECISIONS))
-    order = bench.combinations(every)
-    assert order[:2] == list(bench.FIRST) and len(order) == len(set(order)) == 24
-    only_short = argparse.Namespace(roles=["short"], impls=["channels_last"], modes=["eager"], precisions=["fp32"])
-    assert bench.combinations(only_short) == [("short", "channels_last", "eager", "fp32")]
-
-
 def test_root_extrapolation_reads_the_root_at_the_callers_frames():
     """benches/root_extrapolation.py's root path: a walker at 50 fps (a fixed pose sliding 1 cm a frame) is
     continued at its speed by the constant-velocity rule, held by the 0 rule, and in between by a decay,
@@ -243,41 +187,6 @@ def test_root_extrapolation_reads_the_root_at_the_callers_frames():
                                atol=1e-9)
     damped = bench.root_forecast(x, "h36m32", 50.0, "y", 0.4)[0, :, 0] - last[0]
     assert np.all(np.diff(damped) > 0) and 0 < damped[-1] < ahead[-1, 0]
-
-
-def test_train_throughput_halves_the_batch_that_runs_out_of_memory(monkeypatch, tmp_path):
-    """A combination whose batch does not fit the device is measured at the largest halved batch that does,
-    and says which batches did not fit; the next combination starts again at --batch."""
-    import torch
-    bench = load_bench("train_throughput")
-    tried = []
-
-    def fake(cfg, seqs, device, **kw):
-        tried.append(cfg.batch_size)
-        if cfg.batch_size > 64 and not kw["reference"]:
-            raise torch.cuda.OutOfMemoryError("CUDA out of memory (simulated)")
-        return {"batch": cfg.batch_size, "windows_per_s": 100.0, "ms_per_step": 1.0, "warmup_s": 0.0}
-
-    monkeypatch.setattr(bench, "time_training_steps", fake)
-    out = tmp_path / "tp.json"
-    assert bench.main(["--device", "cpu", "--roles", "long", "--modes", "eager", "--precisions", "fp32",
-                       "--json", str(out)]) == 0
-    res = {r["impl"]: r for r in json.loads(out.read_text())["results"]}
-    assert tried == [256, 256, 128, 64]                     # today's step (the peer) is timed first
-    assert res["channels_last"]["batch"] == 64 and res["channels_last"]["out_of_memory_at"] == [256, 128]
-    assert res["reference"]["batch"] == 256 and "out_of_memory_at" not in res["reference"]
-
-
-def test_train_step_floor_counts_the_saved_activations():
-    """The activations a step saves grow with the batch; bf16 autocast saves fewer bytes per window than fp32;
-    the largest batch that fits follows from them."""
-    floor = load_bench("train_step_floor")
-    one, three = floor.saved_bytes("repair", 1, "tiny"), floor.saved_bytes("repair", 3, "tiny")
-    assert 0 < one < three
-    r = floor.floor("repair", 3, "tiny")
-    assert 0 < r["saved_per_window"]["bf16"] < r["saved_per_window"]["fp32"]
-    assert r["largest_batch_h100"]["fp32"] == int(floor.MEMORY_SHARE * floor.H100["memory_bytes"]
-                                                  // r["saved_per_window"]["fp32"])
 
 
 def test_prior_speed_smoke(tmp_path):

@@ -1,5 +1,5 @@
-"""training.protocol: the whole evaluation in one resumable process (what a GPU period runs), on the CPU
-with a tiny model and a few windows."""
+"""training.protocol: the whole evaluation in one resumable process, on the CPU with a tiny model and a few
+windows."""
 import json
 
 import numpy as np
@@ -7,7 +7,7 @@ import pytest
 import torch
 
 import tcd
-from conftest import H36M_DIR, gpu_machine_env, needs_h36m
+from conftest import H36M_DIR, needs_h36m
 from fixtures_util import make_model_dir
 from training import evaluate as E
 from training import protocol
@@ -179,36 +179,3 @@ def test_bf16_autocast_forward_stays_close_and_float32():
     rel = float((got - want).norm() / want.norm())
     assert 0 < rel < 3e-2      # bf16 operands: ~1e-2, never the fp32 result itself
 
-
-@needs_h36m
-def test_gpu_period_eval_call_dry_run_on_the_cpu(model_dir, tmp_path):
-    """`gpu_period.sh eval` as a GPU period runs it (its CPU dry run): the carried S5 subset, results under
-    $OUT/protocol/NAME, and the next call resumes from the parts carried back in gpu_carry/protocol/."""
-    import shutil
-    import subprocess
-    from pathlib import Path
-    from training import gpu_carry
-    root = Path(__file__).resolve().parents[1]
-    carry = tmp_path / "carry"
-    assert gpu_carry.write_eval_subset(H36M_DIR, carry / "h36m" / "h36m_expmap_50fps.npz") > 0
-    shutil.copytree(model_dir, carry / "candidate")
-    env = gpu_machine_env(tmp_path, GPU_CARRY=str(carry), OUT=str(tmp_path / "out1"),
-                          PROTOCOL_ARGS="--windows-per-action 1 --samples 2 --steps 2 --patterns none,noisy_25 --quiet")
-
-    def call(out):
-        env["OUT"] = str(out)
-        r = subprocess.run(["bash", "training/gpu_period.sh", "eval", "5"], cwd=root, env=env,
-                           capture_output=True, text=True)
-        assert r.returncode == 0, r.stderr + r.stdout
-        return r.stdout
-
-    first = call(tmp_path / "out1")
-    got = tmp_path / "out1" / "protocol" / "candidate"
-    assert {p.name for p in got.glob("*_*") if len(list(p.glob("*.json"))) == 13} == {
-        "forecast_none", "forecast_noisy_25", "repair_noisy_25"}
-    assert "| noisy_25 |" in first
-    # what came back is carried into the next call, which computes nothing again
-    shutil.copytree(tmp_path / "out1" / "protocol", carry / "protocol")
-    second = call(tmp_path / "out2")
-    assert "13 of 13 actions done before" in second and json.loads((tmp_path / "out2" / "protocol" / "candidate" / "summary.json")
-                                               .read_text()) == json.loads((got / "summary.json").read_text())

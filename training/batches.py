@@ -2,15 +2,9 @@
 and is a pure function of (seed, epoch, batch index), so a resumed run continues with exactly the batches
 it would have drawn.
 
-* :class:`BatchSource` (host): windows gathered with numpy, occlusion masks drawn per window by
-  ``training.masks`` (the reference patterns), t and eps by a CPU ``torch.Generator``; optionally in
-  DataLoader worker processes (the same bits).
-* :class:`DeviceBatchSource` (device): the whole training set lives on the device (float16 frames plus
-  the window starts) and everything is drawn there from a seeded device generator: window rows, masks
-  (``training.device_masks``, the same distributions as ``training.masks``, tied by
-  tests/test_device_masks.py), t and eps. No host work and no host-device copy per step: what a GPU
-  needs so that it never waits for Python. Its batches are not the host source's bits, only the same
-  distributions.
+:class:`BatchSource`: windows gathered with numpy, occlusion masks drawn per window by ``training.masks``
+(the reference patterns), t and eps by a CPU ``torch.Generator``; optionally in DataLoader worker
+processes (the same bits).
 """
 from __future__ import annotations
 
@@ -19,7 +13,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
-from .device_masks import MaskMix, corrupt_batch
 from .masks import corrupt, mix_entry
 
 if TYPE_CHECKING:
@@ -105,44 +98,3 @@ class _EpochBatches(torch.utils.data.Dataset):
     def __getitem__(self, i: int):
         return self.source.batch(self.epoch, self.start + i)
 
-
-class DeviceBatchSource:
-    """The training batches of an epoch drawn on ``device`` (see the module docstring): rows of a seeded
-    permutation of all windows per epoch, masks by :class:`training.device_masks.MaskMix`, t and eps, all
-    from one device generator reseeded from (seed, epoch, batch index)."""
-
-    def __init__(self, cfg: "TrainConfig", windows: Windows, T: int, steps_per_epoch: int, device: str | torch.device):
-        self.cfg, self.T, self.steps_per_epoch = cfg, T, steps_per_epoch
-        self.device = torch.device(device)
-        seqs = windows.seqs
-        offsets = np.concatenate([[0], np.cumsum([len(q) for q in seqs])[:-1]]).astype(np.int64)
-        # float16 holds Human3.6M in metres to 0.5 mm at 1 m: the cache carried to a GPU is float16 already.
-        self.frames = torch.from_numpy(np.concatenate(seqs).astype(np.float16)).to(self.device)
-        self.starts = torch.from_numpy(offsets[windows.index[:, 0]] + windows.index[:, 1]).to(self.device)
-        self.frame_offsets = torch.arange(windows.length, device=self.device)
-        self.mix = MaskMix(cfg.mask_mix, cfg.obs_len, windows.length)
-        self.gen = torch.Generator(device=self.device)
-        self._perm_epoch, self._perm = None, None
-
-    def batch(self, epoch: int, batch_i: int):
-        cfg, g, dev = self.cfg, self.gen, self.device
-        if self._perm_epoch != epoch:
-            g.manual_seed((cfg.seed * 1_000_003 + epoch) % (1 << 62))
-            self._perm = torch.randperm(len(self.starts), generator=g, device=dev)
-            self._perm_epoch = epoch
-        g.manual_seed((((cfg.seed * 1_000_003 + epoch) * 1_000_003 + batch_i) * 7 + 1) % (1 << 62))
-        rows = self._perm[(torch.arange(cfg.batch_size, device=dev) + batch_i * cfg.batch_size) % len(self._perm)]
-        wins = self.frames[self.starts[rows, None] + self.frame_offsets].float()      # (B, L, J, 3)
-        observed, jmask = corrupt_batch(wins, self.mix, g)
-        B, L = wins.shape[:2]
-        def bkl(a):                                                            # (B, L, J, 3) -> (B, K, L)
-            return a.reshape(B, L, -1).transpose(1, 2).contiguous()
-        mask = jmask.repeat_interleave(3, dim=-1).transpose(1, 2).contiguous()
-        t = torch.randint(0, self.T, (B,), generator=g, device=dev)
-        eps = torch.randn(mask.shape, generator=g, device=dev)
-        return bkl(wins), bkl(observed), mask, t, eps
-
-    def iterate(self, epoch: int, start: int, workers: int = 0):
-        """Batches start..steps_per_epoch-1 of an epoch, in order (``workers`` is ignored: nothing to offload)."""
-        for i in range(start, self.steps_per_epoch):
-            yield self.batch(epoch, i)

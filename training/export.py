@@ -228,9 +228,10 @@ def write_checksums(d: str | Path) -> Path:
 
 
 def named_checkpoint_weights(ck: dict) -> tuple[str, dict]:
-    """(name, weights) a training checkpoint stands for: the ones chosen by validation where the run chose
-    (``choose_average``: a probe's average, e.g. ``ema_0.99``, or ``raw``), else its moving average when the
-    run kept one (``ema``, the weights that were validated), else the trained weights (``raw``)."""
+    """(name, weights) a training checkpoint stands for: its moving average when the run kept one (``ema``,
+    the weights that were validated), else the trained weights (``raw``). A ``chosen`` entry (the weights a
+    run chose by validation with the option removed at git tag gpu-workflow-before-removal, named e.g.
+    ``ema_0.99``) still comes first, so that such a checkpoint exports what it was validated as."""
     if ck.get("chosen") is not None:
         return ck["chosen"]["name"], ck["chosen"]["weights"]
     return ("ema", ck["ema"]) if ck.get("ema") is not None else ("raw", ck["model"])

@@ -316,8 +316,7 @@ def corrupt(
 def mix_entry(entry) -> tuple[str, float, object]:
     """One entry of a training config's ``mask_mix``, ``[pattern, weight]`` or ``[pattern, weight, rate]``,
     checked -> (pattern, weight, resolved rate: a float, a (low, high) pair, or None). The one parser of
-    the entries, for the host batches (``training.batches.make_batch``) and the device batches
-    (``training.device_masks.MaskMix``)."""
+    the entries (``training.batches.make_batch``)."""
     if not isinstance(entry, (list, tuple)) or len(entry) not in (2, 3):
         raise ValueError(f"mask_mix entry {entry!r}: expected [pattern, weight] or [pattern, weight, rate]")
     rate = None if len(entry) == 2 else (tuple(entry[2]) if isinstance(entry[2], (list, tuple)) else entry[2])

@@ -16,11 +16,11 @@ steps, 5 samples unless told otherwise):
   bit the engine's fills), on the same corrupted observations.
 
 Each unit (one action of one part) is written atomically as soon as it is done and skipped when its file
-exists, so the evaluation can span several device calls of at most 10 minutes and a call cut short loses
-one action at most; ``--max-minutes`` starts no unit that the slowest unit so far would carry past the
-budget. ``summary.json`` and the table printed last pool the units that exist over actions (the mean
-over actions of each action's errors, as the whole protocol averages them; repair ADE pooled over hidden
-entries) and say how many actions each pattern has so far; a pattern counts as done with all of them.
+exists, so an evaluation can be stopped and resumed, a run cut short losing one action at most;
+``--max-minutes`` starts no unit that the slowest unit so far would carry past the budget. ``summary.json``
+and the table printed last pool the units that exist over actions (the mean over actions of each action's
+errors, as the whole protocol averages them; repair ADE pooled over hidden entries) and say how many
+actions each pattern has so far; a pattern counts as done with all of them.
 
 Speed: the samplers run the model through its channels-last forward (``training.channels_last``, equal to
 the reference within 1e-5; ``--forward reference`` for the reference itself), with TF32 matrix products

@@ -30,12 +30,28 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .batches import BatchSource, DeviceBatchSource, Windows, make_batch
+from .batches import BatchSource, Windows, make_batch
 from .diffusion import DiffusionConfig, Schedule, training_loss
 from .model import ModelConfig, TCDModel, count_parameters
 
 
 DATASETS = ("h36m", "humaneva")
+
+# Keys that configs and checkpoints' stored train_config had until the GPU-call tooling was removed (git tag
+# gpu-workflow-before-removal): batches drawn on the device, EMA probes and choose_average. At these values
+# they did nothing, so they are dropped where they are read back (a config file, a checkpoint to resume);
+# any other value asked for what this code no longer does, and is refused rather than ignored.
+REMOVED_KEYS = {"batches": "host", "ema_probe_decays": [], "choose_average": False}
+
+
+def without_removed_keys(d: dict, where) -> dict:
+    """``d`` (a train config as a dict) without ``REMOVED_KEYS`` at their inert values; ValueError where one
+    holds another value."""
+    active = {k: d[k] for k in REMOVED_KEYS if k in d and d[k] != REMOVED_KEYS[k]}
+    if active:
+        raise ValueError(f"{where}: {active} asks for what was removed with the GPU-call tooling (batches on the "
+                         "device, EMA probes, choose_average); it is at git tag gpu-workflow-before-removal")
+    return {k: v for k, v in d.items() if k not in REMOVED_KEYS}
 
 
 @dataclass
@@ -61,18 +77,15 @@ class TrainConfig:
     mask_mix: list = field(default_factory=lambda: [["none", 1.0]])  # [[pattern, weight(, rate)], ...] per window
     seed: int = 0
     amp: bool = True                 # bf16 autocast on CUDA
-    batches: str = "host"            # host: numpy masks per window (BatchSource); device: all drawn on the device
     compile: bool = False            # torch.compile the training forward (eager where compiling fails)
     ema_decay: float = 0.0           # > 0: exponential moving average of the weights, validated and exported
-    ema_probe_decays: list = field(default_factory=list)  # more averages, validated beside (and the raw weights)
-    choose_average: bool = False     # where probes are validated, best.pt keeps the lowest of all (see train)
     warmup_steps: int = 0            # linear learning-rate warm-up over the first optimizer steps
     init_from: str = ""              # warm start: a checkpoint (.pt) or exported .safetensors whose weights start this run
     prior: str = ""                  # a cond_fill="prior" model's prior forecaster: prior.safetensors or a training.prior last.pt
 
     @classmethod
     def load(cls, path: str | Path) -> "TrainConfig":
-        d = json.loads(Path(path).read_text())
+        d = without_removed_keys(json.loads(Path(path).read_text()), path)
         known = set(cls.__dataclass_fields__)
         unknown = set(d) - known - {"comment"}
         if unknown:
@@ -82,15 +95,10 @@ class TrainConfig:
     def __post_init__(self):
         if self.dataset not in DATASETS:
             raise ValueError(f"train config: dataset must be one of {DATASETS}, got {self.dataset!r}")
-        if self.batches not in ("host", "device"):
-            raise ValueError(f"train config: batches must be 'host' or 'device', got {self.batches!r}")
         if not 0.0 <= self.ema_decay < 1.0:
             raise ValueError(f"train config: ema_decay must be in [0, 1), got {self.ema_decay!r}")
         if self.warmup_steps < 0:
             raise ValueError(f"train config: warmup_steps must be >= 0, got {self.warmup_steps!r}")
-        probes = list(self.ema_probe_decays)
-        if any(not isinstance(d, (int, float)) or not 0.0 < d < 1.0 for d in probes) or len(set(probes)) < len(probes):
-            raise ValueError(f"train config: ema_probe_decays must be distinct numbers in (0, 1), got {probes!r}")
 
 
 # ------------------------------------------------------------------------------------------ data
@@ -111,7 +119,7 @@ def load_sequences(cfg: TrainConfig, data: str | None, split: str) -> list[np.nd
 
 
 def write_cache(data: str | None, out: str | Path) -> None:
-    """A compact float16 cache of the model-space train/val sequences (to carry to a GPU machine)."""
+    """A compact float16 cache of the model-space train/val sequences (quicker to load than the raw data)."""
     from .data.h36m import DEFAULT_H36M_DIR, H36M
     h = H36M(data or DEFAULT_H36M_DIR)
     arrays = {f"{split}/{key}": seq.astype(np.float16) for split in ("train", "val") for key, seq in h.sequences(split)}
@@ -145,22 +153,8 @@ def learning_rate(cfg: TrainConfig, step: int, steps_per_epoch: int) -> float:
 
 def validates_after(cfg: TrainConfig, epoch: int) -> bool:
     """Whether training validates after ``epoch`` (1-based count of finished epochs): every ``val_every``
-    epochs and after the last one (where the probes are validated too)."""
+    epochs and after the last one."""
     return epoch % cfg.val_every == 0 or epoch == cfg.epochs
-
-
-def probe_names(cfg: TrainConfig) -> list[str]:
-    """The weights validated beside the exported ones where probes are: each probe average (``ema_0.99``)
-    and, when the exported weights are an average, the raw weights (``raw``)."""
-    if not cfg.ema_probe_decays:
-        return []
-    return [f"ema_{d:g}" for d in cfg.ema_probe_decays] + (["raw"] if cfg.ema_decay else [])
-
-
-def validations_per_schedule(cfg: TrainConfig) -> int:
-    """validation_loss calls of a schedule run to its end: the exported weights' at each validation, and
-    at the last one each of ``probe_names``."""
-    return sum(validates_after(cfg, e) for e in range(1, cfg.epochs + 1)) + len(probe_names(cfg))
 
 
 def training_forward(model: TCDModel, cfg: TrainConfig, batch_shape: tuple, device: str, log=print):
@@ -274,7 +268,7 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
     arrays in metres) replaces the dataset, for tests on synthetic motion. ``workers`` > 0 draws the
     host batches in that many DataLoader processes (the same batches, bit for bit, as ``workers`` = 0).
     Training stops resumably after ``max_minutes`` of training (counted once the forward is compiled) or
-    at ``deadline`` (a ``time.time()`` value: a GPU call's wall clock, whatever set-up and compiling took),
+    at ``deadline`` (a ``time.time()`` value: a wall-clock stop, whatever set-up and compiling took),
     whichever comes first.
 
     Checkpoints hold the raw weights (``model``), the optimizer, and with ``ema_decay`` the averaged
@@ -314,7 +308,7 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
     ck = None
     if resume and last.is_file():
         ck = torch.load(last, map_location=device, weights_only=False)
-        if ck["train_config"] != asdict(cfg):
+        if without_removed_keys(ck["train_config"], last) != asdict(cfg):
             raise ValueError(f"{last} was trained with another config; start a new --out or use the same config")
         model.load_state_dict(ck["model"])
         opt.load_state_dict(ck["optimizer"])
@@ -339,30 +333,20 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
         ema.module.load_state_dict(ck["ema"])
         ema.n_averaged = ck["ema_n"]
     evaluated = model if ema is None else ema.module    # the weights validated and exported
-    # Probes: other decays (and the raw weights) validated beside the exported average, so that a run
-    # measures the decay to choose at the cost of a few validations and one foreach lerp per probe and step.
-    probes = [EMA(model, d) for d in cfg.ema_probe_decays]
-    for probe, saved in zip(probes, ck.get("ema_probes", []) if ck is not None else []):
-        probe.module.load_state_dict(saved["weights"])
-        probe.n_averaged = saved["n"]
     log(f"{cfg.role}: {count_parameters(model):,} parameters, {len(train_w):,} training windows, "
-        f"{len(val_w):,} validation windows, {steps_per_epoch} steps/epoch x {cfg.epochs} epochs, device {device}, "
-        f"{cfg.batches} batches" + (f", EMA {cfg.ema_decay}" if ema is not None else ""))
+        f"{len(val_w):,} validation windows, {steps_per_epoch} steps/epoch x {cfg.epochs} epochs, device {device}"
+        + (f", EMA {cfg.ema_decay}" if ema is not None else ""))
     amp = amp_enabled(cfg, device)
     model.train()
     forward = training_forward(model, cfg, (cfg.batch_size, model_cfg.num_features, L), device, log)
-    if cfg.batches == "device":
-        source = DeviceBatchSource(cfg, train_w, sched.T, steps_per_epoch, device)
-    else:
-        source = BatchSource(cfg, train_w, sched.T, steps_per_epoch)
+    source = BatchSource(cfg, train_w, sched.T, steps_per_epoch)
     t_start = time.time()
     last_ck = t_start
     ends = [t for t in (None if max_minutes is None else t_start + 60 * max_minutes, deadline) if t is not None]
     stop_at = min(ends) if ends else None
 
     def state(best=None):
-        # best.pt holds the weights only (it is exported or warm-started from, never resumed): a full-size
-        # model's optimizer state would take it past what a GPU call can hand back in one file
+        # best.pt holds the weights only: it is exported or warm-started from, never resumed
         s = dict(meta, model=model.state_dict(), epoch=epoch, batch=batch_i, step=epoch * steps_per_epoch + batch_i,
                  best_val=best_val if best is None else best, elapsed_s=elapsed0 + time.time() - t_start,
                  history=history)
@@ -370,37 +354,17 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
             s["optimizer"] = opt.state_dict()
         if ema is not None:
             s.update(ema=ema.module.state_dict(), ema_n=ema.n_averaged)
-        if probes and best is None:
-            s["ema_probes"] = [{"decay": p.decay, "weights": p.module.state_dict(), "n": p.n_averaged} for p in probes]
         return s
 
-    def validate(entry: dict, with_probes: bool) -> float:
-        """The exported weights' validation loss (returned and in ``entry``), and with ``with_probes`` the
-        probes' beside it (at the end of the schedule or of the call only: each probe costs a validation);
-        best.pt is written when the loss is the lowest so far. With ``choose_average``, a probe (or the raw
-        weights) whose loss is below the exported average's is what best.pt keeps (``chosen``, exported
-        under its name): the probes' weights live in last.pt only, which is too large to bring back from a
-        GPU call, so the measurement can choose the decay only where it is made."""
+    def validate(entry: dict) -> float:
+        """The exported weights' validation loss (returned and in ``entry``); best.pt is written when it is
+        the lowest so far."""
         nonlocal best_val
         v = validation_loss(evaluated, sched, cfg, val_w, device)
         entry["val_loss"] = v
-        chosen = None
-        if probes and with_probes:
-            modules = [p.module for p in probes] + ([model] if ema is not None else [])
-            weights = dict(zip(probe_names(cfg), modules, strict=True))
-            others = {name: validation_loss(w, sched, cfg, val_w, device) for name, w in weights.items()}
-            entry["val_loss_probes"] = others
-            log("  probes: " + ", ".join(f"{k} {x:.4f}" for k, x in others.items()) + f" (exported: {v:.4f})")
-            name = min(others, key=others.get)
-            if cfg.choose_average and others[name] < v:
-                chosen = {"name": name, "weights": weights[name].state_dict()}
-                entry["chosen"] = name
-        lowest = v if chosen is None else others[chosen["name"]]
-        if lowest < best_val:
-            best_val = lowest
-            save_checkpoint(out / "best.pt", dict(state(best=lowest), **({"chosen": chosen} if chosen else {})))
-            if chosen:
-                log(f"  best.pt keeps {chosen['name']} ({lowest:.4f} against the exported average's {v:.4f})")
+        if v < best_val:
+            best_val = v
+            save_checkpoint(out / "best.pt", state(best=v))
         return v
 
     stopped = False
@@ -414,8 +378,6 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
             loss = train_step(forward, opt, sched, batch, amp)
             if ema is not None:
                 ema.update(model)
-            for probe in probes:
-                probe.update(model)
             run_loss, run_n = run_loss + loss.float(), run_n + 1
             batch_i += 1
             now = time.time()
@@ -433,7 +395,7 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
         history.append({"epoch": epoch, "train_loss": float(run_loss) / max(run_n, 1)})
         epoch, batch_i = epoch + 1, 0
         if validates_after(cfg, epoch):
-            v = validate(history[-1], with_probes=epoch == cfg.epochs)
+            v = validate(history[-1])
             log(f"epoch {epoch}: train loss {history[-1]['train_loss']:.4f} val loss {v:.4f}")
         save_checkpoint(last, state())
         last_ck = time.time()
@@ -441,7 +403,7 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
         # time budget reached: validate what we have so that best.pt always exists
         trained = (time.time() - t_start) / 60
         history.append({"epoch": epoch, "batch": batch_i, "stopped": "max-minutes"})
-        v = validate(history[-1], with_probes=True)
+        v = validate(history[-1])
         log(f"stopped after {trained:.2f} min of training at epoch {epoch} batch {batch_i}: val loss {v:.4f}")
         save_checkpoint(last, state())
     return {"epoch": epoch, "batch": batch_i, "best_val": best_val, "history": history}

@@ -3,14 +3,35 @@
 The exp-map kinematics (``expmap_to_rotmat``, ``fk_expmap``; Human3.6M and CMU) are the package's
 (``python/tcd/fk.py``), one copy for inference and training; the SMPL-style ``fk_axis_angle`` (AMASS,
 3DPW) is training's own. All vectorised numpy, float64 internally.
+
+``fk.py`` is loaded from this repository's source tree rather than by ``import tcd``: the package's
+``__init__`` loads the compiled engine, and training must use this checkout's skeleton and kinematics
+whichever ``tcd`` is installed (``fk.py`` imports nothing from the package).
 """
 from __future__ import annotations
 
+import importlib.util
+import sys
+from pathlib import Path
+
 import numpy as np
 
-from training.package_source import package_module
 
-_fk = package_module("fk")
+def _load_package_fk():
+    """``python/tcd/fk.py`` of this checkout as the module ``training._tcd_fk`` (loaded once)."""
+    key = "training._tcd_fk"
+    if key not in sys.modules:
+        path = Path(__file__).resolve().parents[2] / "python" / "tcd" / "fk.py"
+        spec = importlib.util.spec_from_file_location(key, path)
+        if spec is None or spec.loader is None:
+            raise ImportError(f"cannot load {path}")
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[key] = module
+        spec.loader.exec_module(module)
+    return sys.modules[key]
+
+
+_fk = _load_package_fk()
 expmap_to_rotmat = _fk.expmap_to_rotmat
 fk_expmap = _fk.fk_expmap
 #: The Human3.6M 32-joint skeleton (parents, offsets in mm, the 22 model joints), packaged with tcd.
