@@ -289,3 +289,27 @@ def test_a_joint_never_shown_does_not_carry_the_bones_below_it():
     back = wild.from_model(filled, scene, scene.root, scene.rot, own_frames=True)[0]
     np.testing.assert_allclose(back[:, list(SOMOF13)], x[:, list(SOMOF13)], rtol=0, atol=1e-12)
 
+
+
+def test_a_joint_the_last_frame_lacks_starts_where_it_was_last_seen(monkeypatch):
+    """Issue 27, part 4, occluded rows: a joint hidden in the last frames starts the forecast from its last
+    sighting (in that frame's root frame), as Zero-Velocity holds it, and reaches the model's at JOIN_FRAMES."""
+    rng = np.random.default_rng(1)
+    x = world(h36m32() + rng.normal(0.0, 0.003, (50, 32, 3)))
+    wrist = 27                                                           # h36m32's right wrist
+    x[-3:, wrist] = np.nan                                               # hidden in the last 3 frames
+    y, scene = wild.to_model(x[None], layouts.get_layout("h36m32"), wild.up_vector("z"))
+    root, rot = scene.root[:, -1:], scene.rot[:, -1:]
+    sighting = (x[-4, wrist] - scene.root[0, -4]) @ scene.rot[0, -4]     # in frame -4's root frame
+    np.testing.assert_allclose(scene.last[0, wrist], sighting, atol=1e-12)
+    pose = np.where(np.isnan(y[:, -1:]), y[:, -4:-3], y[:, -1:])         # a model that in-paints the wrist
+    held = np.repeat(pose, 25, axis=1)
+    root, rot = np.repeat(root, 25, axis=1), np.repeat(rot, 25, axis=1)
+    out = wild.from_model(held, scene, root, rot, own_frames=False)[0]
+    assert np.isfinite(out).all()
+    monkeypatch.setattr(wild, "JOIN_FRAMES", 0)
+    unjoined = wild.from_model(held, scene, root, rot, own_frames=False)[0]
+    start = sighting @ rot[0, 0].T + root[0, 0]                          # the sighting, put on the last root
+    w = np.minimum(np.arange(1, 26) / 5, 1.0)[:, None]
+    np.testing.assert_allclose(out[:, wrist], start + (unjoined[:, wrist] - start) * w, atol=1e-9)
+    assert np.linalg.norm(unjoined[0, wrist] - start) > 1e-3                # the join has something to do
