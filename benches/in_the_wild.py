@@ -198,7 +198,8 @@ def main(argv=None) -> int:
     ap.add_argument("--steps", type=int, default=10)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--cmu", default=str(DEFAULT_CMU), help="the CMU exp-map takes (skipped when absent)")
-    ap.add_argument("--amass", default=str(DEFAULT_AMASS), help="AMASS takes and smpl_skeleton.npz (skipped when absent)")
+    ap.add_argument("--amass", default=str(DEFAULT_AMASS),
+                    help="AMASS takes and smpl_skeleton.npz (skipped when absent)")
     ap.add_argument("--first-window", type=int, default=0,
                     help="skip the first N windows of each action (Human3.6M, CMU) and AMASS take: windows the "
                          "default run does not report, to choose a rule on")

@@ -163,7 +163,7 @@ def whole_forecast(model_dir: Path, reps: int) -> dict:
 def cpu_simd_flags() -> list:
     """The SIMD flags of /proc/cpuinfo that decide the kernel (empty where it cannot be read)."""
     try:
-        flags = next(l for l in open("/proc/cpuinfo") if l.startswith("flags")).split(":", 1)[1].split()
+        flags = next(line for line in open("/proc/cpuinfo") if line.startswith("flags")).split(":", 1)[1].split()
     except (OSError, StopIteration):
         return []
     return sorted(f for f in flags if f in {"avx", "avx2", "fma", "avx512f", "avx512_bf16", "avx512bw", "avx512vl"})
@@ -213,7 +213,8 @@ def markdown(result: dict) -> str:
                          + " |" * len(d.get("peers_estimated_seconds", {})))
         lines.append("")
         lines.append("Peak resident memory of a forecast (fresh process): "
-                     + ", ".join(f"{k} {v['peak_rss_mib']:.0f} MiB" for k, v in wf.items() if "peak_rss_mib" in v) + ".")
+                     + ", ".join(f"{k} {v['peak_rss_mib']:.0f} MiB" for k, v in wf.items() if "peak_rss_mib" in v)
+                     + ".")
     return "\n".join(lines)
 
 
@@ -242,7 +243,8 @@ def main(argv=None) -> int:
             try:
                 __import__({"ort": "onnxruntime", "openvino": "openvino"}[p])
             except ImportError:
-                ap.error(f"peer {p!r} is not installed: python3 -m pip install \".[peers]\" (or leave it out of --peers)")
+                ap.error(f"peer {p!r} is not installed: python3 -m pip install \".[peers]\" "
+                         "(or leave it out of --peers)")
     tmp = Path(tempfile.mkdtemp(prefix="tcd_peers_"))
     d = random_init_dir(tmp / "model", preset=args.preset, seed=0)
     rows = []

@@ -59,7 +59,7 @@ def cpu_model() -> str:
 
 def cpu_simd_flags() -> list:
     try:
-        flags = next(l for l in open("/proc/cpuinfo") if l.startswith("flags")).split(":", 1)[1].split()
+        flags = next(line for line in open("/proc/cpuinfo") if line.startswith("flags")).split(":", 1)[1].split()
     except (OSError, StopIteration):
         return []
     return sorted(f for f in flags if f in {"avx", "avx2", "fma", "avx512f", "avx512bw", "avx512vl"})
@@ -136,7 +136,8 @@ def markdown(result: dict) -> str:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--model", help="a model directory with prior.safetensors, or the file (default: the bundled prior)")
+    ap.add_argument("--model",
+                    help="a model directory with prior.safetensors, or the file (default: the bundled prior)")
     ap.add_argument("--random", action="store_true", help="time a seeded random prior even where one is bundled")
     ap.add_argument("--blocks", type=int, default=24, help="blocks of the random prior")
     ap.add_argument("--reps", type=int, default=21, help="timed repetitions of each job (the batch job: a third)")

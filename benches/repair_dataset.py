@@ -104,8 +104,9 @@ def main(argv=None) -> int:
     indir.mkdir(parents=True, exist_ok=True)
     try:
         gts, ms = build_inputs(Path(args.data_dir), indir, args.files, args.max_frames, args.seed, args.fps)
-        cmd = [sys.executable, "-m", "tcd", "repair", str(indir), "-o", str(outdir), "--units", "mm", "--fps", str(args.fps),
-               "--report", str(report), "--quiet", "--samples", str(args.samples), "--seed", str(args.seed)]
+        cmd = [sys.executable, "-m", "tcd", "repair", str(indir), "-o", str(outdir), "--units", "mm",
+               "--fps", str(args.fps), "--report", str(report), "--quiet", "--samples", str(args.samples),
+               "--seed", str(args.seed)]
         for flag, value in (("--steps", args.steps), ("--jobs", args.jobs), ("--model", args.model)):
             if value is not None:
                 cmd += [flag, str(value)]
@@ -125,13 +126,15 @@ def main(argv=None) -> int:
             obs = np.where(m[..., None], gt, np.nan)
             if not np.array_equal(out[m], gt[m]):
                 raise SystemExit(f"{name}: observed values changed")
-            fills = {"tcd": out, "linear": linear_fill(obs[None], m[None])[0], "spline": spline_fill(obs[None], m[None])[0]}
+            fills = {"tcd": out, "linear": linear_fill(obs[None], m[None])[0],
+                     "spline": spline_fill(obs[None], m[None])[0]}
             for k, f in fills.items():
                 err[k].append(np.linalg.norm(f.astype(np.float64) - gt, axis=-1)[~m])
         ade = {k: float(np.concatenate(v).mean()) for k, v in err.items()}
         frames = sum(len(g) for g in gts.values())
         res = {
-            "command": " ".join(["tcd"] + cmd[3:]).replace(str(work), "WORK"), "files": len(gts), "fps": args.fps, "frames": frames,
+            "command": " ".join(["tcd"] + cmd[3:]).replace(str(work), "WORK"), "files": len(gts), "fps": args.fps,
+            "frames": frames,
             "hidden_entries": int(sum((~m).sum() for m in ms.values())),
             "hidden_fraction": float(np.mean(np.concatenate([(~m).ravel() for m in ms.values()]))),
             "seconds": seconds, "frames_per_second": frames / seconds, "cores": os.cpu_count(),
@@ -144,8 +147,10 @@ def main(argv=None) -> int:
 
     steps = prov.get("steps")
     print(f"`{res['command']}`: {res['files']} files, {frames} frames at {args.fps} fps "
-          f"({res['hidden_fraction']:.0%} of the joint-frames hidden), {seconds:.1f} s wall on {os.cpu_count()} cores\n")
-    print(f"| steps | frames/s ({args.fps} fps source) | tcd ADE (mm) | linear interp. | natural cubic spline | tcd / linear | tcd / spline |")
+          f"({res['hidden_fraction']:.0%} of the joint-frames hidden), {seconds:.1f} s wall "
+          f"on {os.cpu_count()} cores\n")
+    print(f"| steps | frames/s ({args.fps} fps source) | tcd ADE (mm) | linear interp. | natural cubic spline "
+          "| tcd / linear | tcd / spline |")
     print("|---|---|---|---|---|---|---|")
     print(f"| {prov.get('sampler', 'ddpm').upper()}-{steps} x {args.samples} | {res['frames_per_second']:.0f} | "
           f"{ade['tcd']:.1f} | {ade['linear']:.1f} | {ade['spline']:.1f} | {res['tcd_over_linear']:.2f} | "

@@ -121,7 +121,8 @@ def main(argv=None) -> int:
         for rule, tau in RULES.items():
             e = held if tau == 0.0 else evaluate(items, tau)
             rows.append({"source": name, "windows": windows, "rule": rule, "damping_s": tau,
-                         "root_mm": {"0.5s": round(float(e[int(round(0.5 * fps)) - 1]), 1), "1s": round(float(e[-1]), 1)},
+                         "root_mm": {"0.5s": round(float(e[int(round(0.5 * fps)) - 1]), 1),
+                                     "1s": round(float(e[-1]), 1)},
                          "over_held_1s": round(float(e[-1] / held[-1]), 3)})
     w = max(len(r["source"]) for r in rows)
     print(f"{'source':<{w}}  windows  {'rule':<18}  root mm 0.5 s / 1 s   over held at 1 s")
@@ -129,8 +130,8 @@ def main(argv=None) -> int:
         print(f"{r['source']:<{w}}  {r['windows']:>7}  {r['rule']:<18}  {r['root_mm']['0.5s']:7.1f} / "
               f"{r['root_mm']['1s']:7.1f}      {r['over_held_1s']:.3f}")
     if args.json:
-        args.json.write_text(json.dumps({"command": " ".join(["python3 benches/root_extrapolation.py"] + (argv or sys.argv[1:])),
-                                         "rows": rows}, indent=1) + "\n")
+        command = " ".join(["python3 benches/root_extrapolation.py"] + (argv or sys.argv[1:]))
+        args.json.write_text(json.dumps({"command": command, "rows": rows}, indent=1) + "\n")
     return 0
 
 

@@ -104,7 +104,8 @@ def test_repair_quality_baselines_fill_only_hidden_entries():
     np.testing.assert_array_equal(spl[keep], curve[keep])
     np.testing.assert_allclose(spl[0, 45:, 1], np.repeat(curve[0, 44:45, 1], 5, 0), rtol=0, atol=1e-8)
     ref = spline_fill(torch.from_numpy(x.transpose(0, 2, 3, 1).copy()),
-                      torch.from_numpy(keep.transpose(0, 2, 3, 1).astype(np.float64).copy())).numpy().transpose(0, 3, 1, 2)
+                      torch.from_numpy(keep.transpose(0, 2, 3, 1).astype(np.float64).copy()))
+    ref = ref.numpy().transpose(0, 3, 1, 2)
     np.testing.assert_allclose(spl, ref, rtol=0, atol=1e-8)   # values ~0.1: float32 rounding ~1e-8
     assert np.abs(spl[0, 10:14, 0] - lin[0, 10:14, 0]).max() > 1e-4    # the spline is not the linear fill
     line = 0.01 * t[None, :, None, None] * np.ones((1, 50, 2, 3))
@@ -132,8 +133,9 @@ def test_repair_dataset_runs_tcd_repair_on_a_directory(tiny_model_dir, tmp_path)
     directory, checks the observed values came back unchanged and reports ADE against the baselines."""
     rd = load_bench("repair_dataset")
     out = tmp_path / "r.json"
-    assert rd.main(["--model", str(tiny_model_dir), "--files", "2", "--max-frames", "120", "--steps", "2", "--samples", "1",
-                    "--data-dir", str(H36M_DIR), "--work", str(tmp_path / "w"), "--json", str(out)]) == 0
+    assert rd.main(["--model", str(tiny_model_dir), "--files", "2", "--max-frames", "120", "--steps", "2",
+                    "--samples", "1", "--data-dir", str(H36M_DIR), "--work", str(tmp_path / "w"),
+                    "--json", str(out)]) == 0
     r = json.loads(out.read_text())
     assert r["files"] == 2 and r["fps"] == 50 and r["frames"] == 240 and 0 < r["hidden_fraction"] < 1
     assert r["provenance"]["units"] == "mm" and r["provenance"]["fps"] == 50.0 and r["provenance"]["steps"] == 2

@@ -63,7 +63,8 @@ def test_read_bvh_and_match_names(tmp_path):
     assert pos.shape == (FRAMES, len(JOINTS), 3) and fps == pytest.approx(FPS)
     assert names == [n for n, _, _ in JOINTS] or set(names) == {n for n, _, _ in JOINTS}
     hips = names.index("Hips")
-    np.testing.assert_allclose(pos[:, hips], np.stack([np.zeros(FRAMES), np.full(FRAMES, 95.0), 3.0 * np.arange(FRAMES)], 1),
+    np.testing.assert_allclose(pos[:, hips],
+                               np.stack([np.zeros(FRAMES), np.full(FRAMES, 95.0), 3.0 * np.arange(FRAMES)], 1),
                                atol=1e-4)
     x32 = bvh.to_h36m32(pos, names, parents)
     for id32, name in {0: "Hips", 1: "RightUpLeg", 6: "LeftUpLeg", 11: "Spine", 12: "Spine1", 13: "Neck",

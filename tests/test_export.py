@@ -71,7 +71,8 @@ def test_files_replace_roles_only_when_they_load(tmp_path):
     """`--files`: how exported weights become the bundled ones; a file that does not load strictly, or
     is not named after a role, replaces nothing."""
     import tcd
-    src, bundle = random_init_dir(tmp_path / "new", "tiny", seed=4), random_init_dir(tmp_path / "bundle", "tiny", seed=5)
+    src = random_init_dir(tmp_path / "new", "tiny", seed=4)
+    bundle = random_init_dir(tmp_path / "bundle", "tiny", seed=5)
     before = (bundle / "short.safetensors").read_bytes()
     assert main(["--files", str(src / "long.safetensors"), "--out", str(bundle)]) == 0
     assert (bundle / "long.safetensors").read_bytes() == (src / "long.safetensors").read_bytes()

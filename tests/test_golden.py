@@ -89,7 +89,8 @@ def test_golden_outputs_per_kernel(tmp_path, monkeypatch):
     missing = sorted(set(tcd.supported_kernels()) - set(recorded))
     assert checked >= 1, f"no recorded kernel path among {tcd.supported_kernels()}"
     if missing:
-        pytest.skip(f"no golden checksums recorded for {missing}: TCD_KERNEL=<kernel> python3 tests/test_golden.py --record")
+        pytest.skip(f"no golden checksums recorded for {missing}: "
+                    "TCD_KERNEL=<kernel> python3 tests/test_golden.py --record")
 
 
 def test_golden_model_is_the_fixture_copy():

@@ -37,7 +37,8 @@ def test_bone_lengths_preserved_on_random_poses():
     pos = fk_expmap(e, sk["parents"], sk["offsets_mm"])
     for j in range(1, 32):
         p = sk["parents"][j]
-        assert np.allclose(np.linalg.norm(pos[:, j] - pos[:, p], axis=-1), np.linalg.norm(sk["offsets_mm"][j]), atol=1e-9)
+        assert np.allclose(np.linalg.norm(pos[:, j] - pos[:, p], axis=-1), np.linalg.norm(sk["offsets_mm"][j]),
+                           atol=1e-9)
 
 
 def test_model_joint_mapping_round_trip():

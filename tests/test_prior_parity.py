@@ -20,8 +20,9 @@ Criteria (stated once, used throughout):
 Observed on this AVX2 EPYC (portable and avx2 paths; ``pytest -s`` prints them): random weights max abs
 difference 1.9e-6 at outputs up to 2.7 m (contributions 1.05 m and more); trained on synthetic motion
 3.0e-7 (contributions 0.065 m and more); a copy of runs/prior/last.pt at the end of the bundled run (24
-blocks, 9,000 iterations; the same inputs) 4.3e-6 at horizon 25 and 1.0e-6 at 10 (contribution 0.69 m). Against a float64 forward the
-engine is off by 0.8-1.1e-6 in one forward (PyTorch: 3.6e-7; the engine's GEMMs add their terms in order),
+blocks, 9,000 iterations; the same inputs) 4.3e-6 at horizon 25 and 1.0e-6 at 10 (contribution 0.69 m).
+Against a float64 forward the engine is off by 0.8-1.1e-6 in one forward (PyTorch: 3.6e-7; the engine's
+GEMMs add their terms in order),
 and the rollout compounds it (5.5e-6 at 25 frames; PyTorch 1.3e-6). The DCT matrix the engine computes
 equals PyTorch's float32 matrix bit for bit.
 """
@@ -158,7 +159,8 @@ def test_dct_matrix_is_pytorchs_bit_for_bit(obs_len, chunk, tmp_path, monkeypatc
         assert np.array_equal(model.dct.numpy(), want)
         obs = np.random.default_rng(0).normal(scale=0.3, size=(4, obs_len + 3, 6)).astype(np.float32)
         for horizon in (chunk, 3 * chunk + 1):
-            np.testing.assert_allclose(prior.predict(obs, horizon), reference(model, obs, horizon), rtol=RTOL, atol=ATOL)
+            np.testing.assert_allclose(prior.predict(obs, horizon), reference(model, obs, horizon),
+                                       rtol=RTOL, atol=ATOL)
 
 
 # ------------------------------------------------------------------------------- the interface

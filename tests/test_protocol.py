@@ -162,7 +162,8 @@ def test_compare_is_a_paired_test_over_actions(tmp_path):
     assert protocol.compare(c, d, margin=0.05)["better"]["forecast"] is None
     # a pattern one set has not finished is left out of both
     e = results(tmp_path / "e", np.full(13, 0.5), np.full(13, 1.0), forecast_actions=7)
-    assert protocol.compare(c, e)["a"]["forecast_patterns"] == [] and protocol.compare(c, e)["better"]["forecast"] is None
+    assert (protocol.compare(c, e)["a"]["forecast_patterns"] == []
+            and protocol.compare(c, e)["better"]["forecast"] is None)
 
 
 def test_bf16_autocast_forward_stays_close_and_float32():

@@ -65,7 +65,8 @@ def test_short_cpu_training_lowers_the_loss(tmp_path):
     # validation loss of the same seeded model before any update
     torch.manual_seed(cfg.seed)
     untrained = TCDModel(ModelConfig.from_dict(cfg.model))
-    before = validation_loss(untrained, Schedule(DiffusionConfig()), cfg, Windows(seqs["val"], 14, cfg.val_stride), "cpu")
+    before = validation_loss(untrained, Schedule(DiffusionConfig()), cfg, Windows(seqs["val"], 14, cfg.val_stride),
+                             "cpu")
     res = train(cfg, tmp_path, sequences=seqs, log=lambda *a: None)
     after = [h["val_loss"] for h in res["history"] if "val_loss" in h]
     assert len(after) == 1
@@ -109,7 +110,8 @@ def test_resume_refuses_another_config(tmp_path):
     seqs = {"train": synthetic_motion(4, seed=0), "val": synthetic_motion(2, seed=1)}
     train(tiny_cfg(epochs=1, steps_per_epoch=2), tmp_path, sequences=seqs, log=lambda *a: None)
     with pytest.raises(ValueError, match="another config"):
-        train(tiny_cfg(epochs=1, steps_per_epoch=2, lr=1e-4), tmp_path, sequences=seqs, resume=True, log=lambda *a: None)
+        train(tiny_cfg(epochs=1, steps_per_epoch=2, lr=1e-4), tmp_path, sequences=seqs, resume=True,
+              log=lambda *a: None)
 
 
 REMOVED_AT_DEFAULTS = {"batches": "host", "ema_probe_decays": [], "choose_average": False}
@@ -180,7 +182,8 @@ def test_sequences_load_from_a_data_cache(tmp_path):
     from training.train import load_sequences
     seqs = {"train": synthetic_motion(3, seed=0), "val": synthetic_motion(2, seed=1)}
     cache = tmp_path / "h36m_model_cache_test.npz"
-    np.savez(cache, **{f"{split}/{i:02d}": q.astype(np.float16) for split, qs in seqs.items() for i, q in enumerate(qs)})
+    np.savez(cache, **{f"{split}/{i:02d}": q.astype(np.float16)
+                       for split, qs in seqs.items() for i, q in enumerate(qs)})
     for split, qs in seqs.items():
         got = load_sequences(tiny_cfg(), str(cache), split)
         assert len(got) == len(qs) and all(g.dtype == np.float32 for g in got)
@@ -249,7 +252,8 @@ def test_compile_failure_falls_back_to_eager_training(tmp_path, monkeypatch):
     lines = []
     res = train(tiny_cfg(epochs=1, steps_per_epoch=3, compile=True), tmp_path, sequences=seqs, log=lines.append)
     assert res["epoch"] == 1
-    assert any("torch.compile failed (RuntimeError: no compiler here); training eagerly" in l for l in lines), lines
+    message = "torch.compile failed (RuntimeError: no compiler here); training eagerly"
+    assert any(message in line for line in lines), lines
 
 
 def test_training_stops_at_the_deadline(tmp_path):

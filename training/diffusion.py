@@ -42,7 +42,8 @@ class DiffusionConfig:
 
     def __post_init__(self):
         if self.prediction_type not in PREDICTION_TYPES:
-            raise ValueError(f"diffusion config: prediction_type must be one of {PREDICTION_TYPES}, got {self.prediction_type!r}")
+            raise ValueError(f"diffusion config: prediction_type must be one of {PREDICTION_TYPES}, "
+                             f"got {self.prediction_type!r}")
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -54,7 +55,8 @@ class DiffusionConfig:
     def from_dict(cls, d: dict) -> "DiffusionConfig":
         cfg = cls(**{k: d[k] for k in ("num_train_timesteps", "beta_schedule", "beta_start", "beta_end", "max_beta",
                                        "prediction_type") if k in d})
-        if "betas" in d and not np.allclose(np.asarray(d["betas"], dtype=np.float64), make_betas(cfg), rtol=0, atol=1e-12):
+        if "betas" in d and not np.allclose(np.asarray(d["betas"], dtype=np.float64), make_betas(cfg),
+                                            rtol=0, atol=1e-12):
             raise ValueError("diffusion config: the stored betas disagree with the schedule they name")
         return cfg
 
@@ -322,7 +324,8 @@ def sample_many(model, sched: Schedule, observed: torch.Tensor, mask: torch.Tens
     if S < 1:
         raise ValueError(f"num_samples must be >= 1, got {S}")
     sampler = kw.get("sampler", "ddpm")
-    n = len(step_pairs(sched.T, sampler, kw.get("num_inference_steps") or sched.T, kw.get("timestep_spacing", "trailing")))
+    n = len(step_pairs(sched.T, sampler, kw.get("num_inference_steps") or sched.T,
+                       kw.get("timestep_spacing", "trailing")))
     blocks = num_noise_blocks(sampler, n)
     if noise is None:
         noise = torch.stack([draw_noise(blocks - 1, tuple(observed.shape), generator) for _ in range(S)])
@@ -358,12 +361,12 @@ def cascade(short_model, short_sched: Schedule, long_model, long_sched: Schedule
     observed, mask: (B, K, O) observation (mask 0 = occluded). Returns dict with
     ``short_samples`` (S, B, K, short_len), ``short_mean`` (B, K, short_len) and ``samples`` (S, B, K, long_len).
     """
-    O = observed.shape[2]
+    obs_len = observed.shape[2]
     x_s, m_s = pad_frames(observed, short_len), pad_frames(mask, short_len)
     short = sample_many(short_model, short_sched, x_s, m_s, num_samples, noise=noise_short, generator=generator, **kw)
     mean = short.mean(dim=0)
-    if O > short_len:
-        raise ValueError(f"observation has {O} frames, more than the short-term window {short_len}")
+    if obs_len > short_len:
+        raise ValueError(f"observation has {obs_len} frames, more than the short-term window {short_len}")
     x_l = pad_frames(mean, long_len)
     m_l = pad_frames(torch.ones_like(mean), long_len)
     long = sample_many(long_model, long_sched, x_l, m_l, num_samples, noise=noise_long, generator=generator, **kw)
@@ -379,8 +382,8 @@ def repair(model, sched: Schedule, observed: torch.Tensor, mask: torch.Tensor, *
     The observation is padded to the model's window with masked frames; observed entries are returned
     unchanged.
     """
-    O = observed.shape[2]
+    obs_len = observed.shape[2]
     out = sample_many(model, sched, pad_frames(observed, seq_len), pad_frames(mask, seq_len), num_samples,
                       noise=noise, generator=generator, **kw)
-    rep = out.mean(dim=0)[:, :, :O]
+    rep = out.mean(dim=0)[:, :, :obs_len]
     return rep * (1 - mask) + observed * mask

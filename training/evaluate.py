@@ -47,7 +47,8 @@ OBS, PRED = 50, 25
 def to_bkl(x: np.ndarray) -> torch.Tensor:
     """(B, L, J, 3) -> (B, K, L) float32 tensor, K = 3 J in joint-major order."""
     B, L, J, _ = x.shape
-    return torch.from_numpy(np.ascontiguousarray(x, dtype=np.float32)).reshape(B, L, J * 3).permute(0, 2, 1).contiguous()
+    t = torch.from_numpy(np.ascontiguousarray(x, dtype=np.float32))
+    return t.reshape(B, L, J * 3).permute(0, 2, 1).contiguous()
 
 
 def from_bkl(x: torch.Tensor) -> np.ndarray:
@@ -67,9 +68,9 @@ def joint_to_coord_mask(jmask: np.ndarray) -> np.ndarray:
 def zero_velocity(obs: np.ndarray, jmask: np.ndarray, horizon: int = PRED) -> np.ndarray:
     """Repeat the last visible value of every joint: (W, O, J, 3), (W, O, J) -> (W, horizon, J, 3).
     A joint never visible stays at 0."""
-    W, O, J, _ = obs.shape
+    W, obs_len, J, _ = obs.shape
     last = np.zeros((W, J, 3))
-    for f in range(O):
+    for f in range(obs_len):
         vis = jmask[:, f] > 0.5
         last[vis] = obs[:, f][vis]
     return np.repeat(last[:, None], horizon, axis=1)
@@ -83,10 +84,10 @@ def tcd_predict(models: dict, obs: np.ndarray, jmask: np.ndarray, *, samples: in
     short_m, short_s, short_cfg = models["short"]
     long_m, long_s, long_cfg = models["long"]
     short_len, long_len = short_cfg["window"]["seq_len"], long_cfg["window"]["seq_len"]
-    O = obs.shape[1]
-    if short_cfg["window"]["obs_len"] != O or long_len - O != horizon:
+    obs_len = obs.shape[1]
+    if short_cfg["window"]["obs_len"] != obs_len or long_len - obs_len != horizon:
         raise ValueError(f"models expect {short_cfg['window']['obs_len']} observed frames and {long_len} in all; "
-                         f"the protocol has {O} + {horizon}")
+                         f"the protocol has {obs_len} + {horizon}")
     obs = obs * joint_to_coord_mask(jmask)  # missing values are zero in the model input
     outs, reps = [], []
     for b0 in range(0, len(obs), batch_size):
@@ -96,8 +97,8 @@ def tcd_predict(models: dict, obs: np.ndarray, jmask: np.ndarray, *, samples: in
         res = cascade(short_m, short_s, long_m, long_s, x, m, short_len=short_len, long_len=long_len,
                       num_samples=samples, generator=gen, sampler=sampler, num_inference_steps=steps, eta=eta,
                       timestep_spacing=spacing)
-        outs.append(from_bkl(res["samples"][..., O:]))
-        reps.append(from_bkl(res["short_mean"][..., :O]))
+        outs.append(from_bkl(res["samples"][..., obs_len:]))
+        reps.append(from_bkl(res["short_mean"][..., :obs_len]))
     return {"samples": np.concatenate(outs, axis=1), "repaired": np.concatenate(reps, axis=0)}
 
 
@@ -134,9 +135,9 @@ def prior_predict(args, obs: np.ndarray, jmask: np.ndarray, seed: int) -> np.nda
         else:   # "auto" / "model": the bundled repair model, as the public API does without a directory
             x = tcd.load().repair(x, seed=seed)
     net = load(path)
-    W, O, J, _ = x.shape
+    W, obs_len, J, _ = x.shape
     with torch.no_grad():
-        out = net.rollout(torch.from_numpy(x.reshape(W, O, J * 3).astype(np.float32)), PRED)
+        out = net.rollout(torch.from_numpy(x.reshape(W, obs_len, J * 3).astype(np.float32)), PRED)
     return out.double().numpy().reshape(W, PRED, J, 3)
 
 
@@ -205,7 +206,8 @@ def evaluate_h36m(args, models: dict | None = None, data: H36M | None = None, on
         if not args.quiet:
             print(f"[{ai + 1}/{len(actions)}] {action}: {len(obs)} windows, {time.time() - t0:.0f} s", file=sys.stderr)
     evaluated = [a for a in actions if only is None or a in only]
-    out = {"protocol": {"dataset": "h36m", "subject": "S5", "actions": evaluated, "windows_per_action": args.windows_per_action,
+    out = {"protocol": {"dataset": "h36m", "subject": "S5", "actions": evaluated,
+                        "windows_per_action": args.windows_per_action,
                         "observed_frames": OBS, "predicted_frames": PRED, "fps": 25, "units": "mm",
                         "error": "mean over 32 joints (22 predicted pasted into GT, 6 duplicates copied)",
                         "mask": args.mask, "data": str(data.source.origin)},
@@ -217,8 +219,8 @@ def evaluate_h36m(args, models: dict | None = None, data: H36M | None = None, on
         out.update(method="zero-velocity", **summarize(zv))
     else:
         out["method"] = f"tcd {args.model}"
-        out["sampling"] = {"engine": args.engine, "samples": args.samples, "steps": args.steps or models['short'][1].T, "sampler": args.sampler,
-                           "eta": args.eta, "timestep_spacing": args.timestep_spacing}
+        out["sampling"] = {"engine": args.engine, "samples": args.samples, "steps": args.steps or models['short'][1].T,
+                           "sampler": args.sampler, "eta": args.eta, "timestep_spacing": args.timestep_spacing}
         out["best_of_n"] = dict(summarize(best), label=f"oracle best-of-{args.samples} (selected against ground truth)")
         out["mean_of_n"] = dict(summarize(mean), label=f"mean of {args.samples} samples (deployable)")
         chosen = out["best_of_n" if args.select == "best" else "mean_of_n"]
@@ -376,7 +378,8 @@ def print_table(out: dict) -> None:
     if "best_of_n" in out:
         blocks = [(out["best_of_n"]["label"], out["best_of_n"]), (out["mean_of_n"]["label"], out["mean_of_n"])] + blocks
     for label, block in blocks:
-        print(f"\n{label}  (mm; S5, {out['protocol']['windows_per_action']} windows/action, mask={out['protocol']['mask']})")
+        print(f"\n{label}  (mm; S5, {out['protocol']['windows_per_action']} windows/action, "
+              f"mask={out['protocol']['mask']})")
         print(f"{'action':<18}" + "".join(f"{c + 'ms':>8}" for c in cols))
         for a, d in block["per_action"].items():
             print(row(a, d))
@@ -386,7 +389,8 @@ def print_table(out: dict) -> None:
         for name, d in PUBLISHED_H36M.items():
             print(row(name, d))
     if "repair" in out:
-        print(f"\nrepair ADE over occluded entries: {out['repair']['ade_mm']:.2f} mm ({out['repair']['occluded_entries']} entries)")
+        print(f"\nrepair ADE over occluded entries: {out['repair']['ade_mm']:.2f} mm "
+              f"({out['repair']['occluded_entries']} entries)")
 
 
 def main(argv=None) -> int:

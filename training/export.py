@@ -256,7 +256,8 @@ def export_checkpoint(ckpt_path: str | Path, out_dir: str | Path, description: s
         training["best_val"] = None  # no validation yet (an early last.pt): JSON has no Infinity
     if description:
         training["description"] = description
-    cfg = build_config(role, model_cfg, diff_cfg, ck["window"]["obs_len"], ck["window"]["pred_len"], ck["data"], training)
+    cfg = build_config(role, model_cfg, diff_cfg, ck["window"]["obs_len"], ck["window"]["pred_len"], ck["data"],
+                       training)
     path = Path(out_dir) / f"{role}.safetensors"
     save_model_file(path, model.eval(), cfg)
     return path

@@ -180,7 +180,8 @@ def main(argv=None) -> int:
         clip, out = build(args.cmu, args.key), args.out or str(OUT)
     Path(out).parent.mkdir(parents=True, exist_ok=True)
     np.savez_compressed(out, **clip)
-    print(f"wrote {out}: {clip['poses'].shape[0]} frames at {float(clip['fps']):g} fps, {clip['poses'].shape[1]} joints")
+    print(f"wrote {out}: {clip['poses'].shape[0]} frames at {float(clip['fps']):g} fps, "
+          f"{clip['poses'].shape[1]} joints")
     return 0
 
 

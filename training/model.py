@@ -64,7 +64,8 @@ class ModelConfig:
         cfg = cls(**{k: v for k, v in d.items() if k in names})
         for derived in ("num_features", "side_dim"):
             if derived in d and d[derived] != getattr(cfg, derived):
-                raise ValueError(f"model config: {derived}={d[derived]} disagrees with the sizes ({getattr(cfg, derived)})")
+                raise ValueError(f"model config: {derived}={d[derived]} disagrees with the sizes "
+                                 f"({getattr(cfg, derived)})")
         if cfg.cond_fill not in COND_FILLS:
             raise ValueError(f"model config: cond_fill must be one of {COND_FILLS}, got {cfg.cond_fill!r}")
         if cfg.target not in TARGETS:
@@ -72,7 +73,8 @@ class ModelConfig:
         if (cfg.target == "prior_residual") != (cfg.cond_fill == "prior"):
             raise ValueError("model config: target 'prior_residual' and cond_fill 'prior' go together "
                              f"(got target {cfg.target!r}, cond_fill {cfg.cond_fill!r})")
-        if not (isinstance(cfg.target_scale, (int, float)) and math.isfinite(cfg.target_scale) and cfg.target_scale > 0):
+        if not (isinstance(cfg.target_scale, (int, float)) and math.isfinite(cfg.target_scale)
+                and cfg.target_scale > 0):
             raise ValueError(f"model config: target_scale must be a finite number > 0, got {cfg.target_scale!r}")
         if cfg.channels % cfg.num_heads:
             raise ValueError(f"model config: channels={cfg.channels} is not divisible by num_heads={cfg.num_heads}")
@@ -263,7 +265,8 @@ def linear_fill(observed: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     span = (nxt - prev).clamp(min=1).to(x.dtype)
     w = (idx - prev).to(x.dtype) / span
     between = a + (b - a) * w
-    out = torch.where(has_prev & has_next, between, torch.where(has_prev, a, torch.where(has_next, b, torch.zeros_like(x))))
+    out = torch.where(has_prev & has_next, between,
+                      torch.where(has_prev, a, torch.where(has_next, b, torch.zeros_like(x))))
     return torch.where(obs, x, out)
 
 
@@ -338,18 +341,19 @@ def prior_fill(prior: nn.Module, observed: torch.Tensor, mask: torch.Tensor) -> 
     observation in the short and the long model."""
     if prior is None:
         raise ValueError("a cond_fill='prior' model needs its prior forecaster (TCDModel.attach_prior)")
-    O = prior.cfg.obs_len
+    obs_len = prior.cfg.obs_len
     L = observed.shape[-1]
-    if L <= O:
-        raise ValueError(f"prior_fill: the window has {L} frames, not more than the prior's {O} observed ones")
-    head = spline_fill(observed[..., :O], mask[..., :O])                           # (B, K, O)
+    if L <= obs_len:
+        raise ValueError(f"prior_fill: the window has {L} frames, not more than the prior's {obs_len} observed ones")
+    head = spline_fill(observed[..., :obs_len], mask[..., :obs_len])               # (B, K, O)
     with torch.no_grad():
-        future = prior.rollout(head.float().transpose(1, 2), L - O).transpose(1, 2).to(observed.dtype)
+        future = prior.rollout(head.float().transpose(1, 2), L - obs_len).transpose(1, 2).to(observed.dtype)
     fill = torch.cat([head, future], dim=-1)
     return torch.where(mask > 0.5, observed, fill)
 
 
-def condition(cfg: ModelConfig, observed: torch.Tensor, mask: torch.Tensor, prior: nn.Module | None = None) -> torch.Tensor:
+def condition(cfg: ModelConfig, observed: torch.Tensor, mask: torch.Tensor,
+              prior: nn.Module | None = None) -> torch.Tensor:
     """What the observed channel of the network holds (``cfg.cond_fill``): ``mask * observed`` (CSDI/TCD),
     or the observation with its masked entries filled (linear, spline, prior)."""
     if cfg.cond_fill == "zero":
@@ -359,7 +363,8 @@ def condition(cfg: ModelConfig, observed: torch.Tensor, mask: torch.Tensor, prio
     return FILLS[cfg.cond_fill](observed, mask)
 
 
-def residual_base(cfg: ModelConfig, observed: torch.Tensor, mask: torch.Tensor, prior: nn.Module | None = None) -> torch.Tensor:
+def residual_base(cfg: ModelConfig, observed: torch.Tensor, mask: torch.Tensor,
+                  prior: nn.Module | None = None) -> torch.Tensor:
     """What a residual target is taken over: the fill its name says (``"spline_residual"``: spline_fill, ...)."""
     name = cfg.target.removesuffix("_residual")
     return prior_fill(prior, observed, mask) if name == "prior" else FILLS[name](observed, mask)

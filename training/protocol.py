@@ -283,7 +283,8 @@ def unit_scores(d: Path, key: str, pattern: str) -> dict[str, float]:
         u = json.loads(path.read_text())
         if key == "forecast":
             action = next(iter(u["mean_of_n"]["per_action"]))
-            out[action] = u["mean_of_n"]["per_action"][action][HORIZON] / u["zero_velocity"]["per_action"][action][HORIZON]
+            out[action] = (u["mean_of_n"]["per_action"][action][HORIZON]
+                           / u["zero_velocity"]["per_action"][action][HORIZON])
         else:
             out[u["action"]] = u["sum_mm"]["tcd"] / u["sum_mm"]["spline"]
     return out

@@ -25,8 +25,8 @@ def _row(name: str, avg: dict, zv1000: float | None) -> str:
 def table(d: dict, per_frame: bool = False) -> str:
     p = d["protocol"]
     zv = d["zero_velocity"]["average"]
-    title = (f"**{d.get('method', 'baseline')}**, mask `{p.get('mask', 'none')}`, {p['windows_per_action']} windows/action"
-             f" × {len(p['actions'])} actions")
+    title = (f"**{d.get('method', 'baseline')}**, mask `{p.get('mask', 'none')}`, "
+             f"{p['windows_per_action']} windows/action × {len(p['actions'])} actions")
     if "sampling" in d:
         s = d["sampling"]
         title += f"; {s['sampler']} {s['steps']} steps, {s['samples']} samples, engine {s['engine']}"

@@ -80,8 +80,10 @@ class TrainConfig:
     compile: bool = False            # torch.compile the training forward (eager where compiling fails)
     ema_decay: float = 0.0           # > 0: exponential moving average of the weights, validated and exported
     warmup_steps: int = 0            # linear learning-rate warm-up over the first optimizer steps
-    init_from: str = ""              # warm start: a checkpoint (.pt) or exported .safetensors whose weights start this run
-    prior: str = ""                  # a cond_fill="prior" model's prior forecaster: prior.safetensors or a training.prior last.pt
+    init_from: str = ""              # warm start: a checkpoint (.pt) or exported .safetensors whose weights
+                                     # start this run
+    prior: str = ""                  # a cond_fill="prior" model's prior forecaster: prior.safetensors or
+                                     # a training.prior last.pt
 
     @classmethod
     def load(cls, path: str | Path) -> "TrainConfig":
@@ -170,14 +172,16 @@ def training_forward(model: TCDModel, cfg: TrainConfig, batch_shape: tuple, devi
         compiled = torch.compile(fast)
         z = torch.zeros(batch_shape, device=device)
         t = torch.zeros(batch_shape[0], dtype=torch.long, device=device)
-        with torch.autocast(device_type=torch.device(device).type, dtype=torch.bfloat16, enabled=amp_enabled(cfg, device)):
+        with torch.autocast(device_type=torch.device(device).type, dtype=torch.bfloat16,
+                            enabled=amp_enabled(cfg, device)):
             out = compiled(z, z, z, t)
         out.float().sum().backward()
         model.zero_grad(set_to_none=True)
         return compiled
     except Exception as exc:  # noqa: BLE001 - any compiler failure means: train eagerly
         model.zero_grad(set_to_none=True)
-        log(f"torch.compile failed ({type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}); training eagerly")
+        first_line = str(exc).splitlines()[0] if str(exc) else ""
+        log(f"torch.compile failed ({type(exc).__name__}: {first_line}); training eagerly")
         return fast
 
 
@@ -423,7 +427,8 @@ def main(argv=None) -> int:
     ap.add_argument("--device", default="cpu", help="cpu | cuda")
     ap.add_argument("--threads", type=int, default=None, help="torch CPU threads")
     ap.add_argument("--workers", type=int, default=0,
-                    help="DataLoader processes drawing the batches (0: in the training process; same batches either way)")
+                    help="DataLoader processes drawing the batches "
+                         "(0: in the training process; same batches either way)")
     ap.add_argument("--write-cache", metavar="NPZ", help="write a compact model-space data cache and exit")
     args = ap.parse_args(argv)
     if args.write_cache:

@@ -153,7 +153,8 @@ class H36M:
                 for key in sorted(self.source.keys):
                     subj, rest = key.split("/")
                     action, sub = rest.rsplit("_", 1)
-                    self._xyz[key] = expmap_to_xyz32(self.source.raw(int(subj[1:]), action, int(sub))).astype(np.float32)
+                    expmap = self.source.raw(int(subj[1:]), action, int(sub))
+                    self._xyz[key] = expmap_to_xyz32(expmap).astype(np.float32)
                 try:
                     self.cache_path.parent.mkdir(parents=True, exist_ok=True)
                     tmp = self.cache_path.with_suffix(".tmp.npz")
