@@ -27,7 +27,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import tcd  # noqa: E402
-from tcd.batch_repair import RepairOptions, collect_tasks, distributed, run_tasks  # noqa: E402
+from tcd.batch_repair import RepairOptions, distributed  # noqa: E402
+from tcd.batch_repair.runner import collect_tasks, run_tasks  # noqa: E402
 from tcd.demo import load_clip  # noqa: E402
 
 
@@ -73,8 +74,8 @@ def main(argv=None) -> int:
         total = args.files * args.frames
 
         def opts(threads):
-            return RepairOptions.make(model, options=tcd.SamplerOptions("ddpm", args.steps), num_samples=args.samples,
-                                      threads=threads)
+            return RepairOptions.make(model, sampler={"sampler": "ddpm", "num_inference_steps": args.steps},
+                                      num_samples=args.samples, threads=threads)
 
         def local(src, out, threads):
             tasks, _ = collect_tasks([src], out)

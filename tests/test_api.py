@@ -2,6 +2,9 @@
 errors. Forecasts run DDIM with 1-3 steps on a tiny random-init model to stay fast."""
 from __future__ import annotations
 
+import dataclasses
+import pydoc
+import re
 
 import numpy as np
 import pytest
@@ -199,8 +202,9 @@ def test_dpmpp2m_forecast_and_repair(tiny_model, obs):
     r = tiny_model.repair(obs, **kw)
     seen = ~np.isnan(obs)
     assert np.array_equal(r[seen], obs[seen]) and np.isfinite(r).all()
-    assert tiny_model.short.num_noise_blocks("dpmpp2m", 3) == 1
-    assert tiny_model.short.timesteps("dpmpp2m", 3) == tiny_model.short.timesteps("ddim", 3)
+    assert tiny_model.short.num_noise_blocks(sampler="dpmpp2m", num_inference_steps=3) == 1
+    assert (tiny_model.short.timesteps(sampler="dpmpp2m", num_inference_steps=3)
+            == tiny_model.short.timesteps(sampler="ddim", num_inference_steps=3))
 
 
 # ------------------------------------------------------------------------------------ low level
@@ -218,9 +222,10 @@ def test_denoiser_forward_and_seeded_noise(tiny_model_dir):
     assert np.array_equal(eps, d.forward(x.astype(np.float64), np.asfortranarray(x), m, 10))
     obs, mask = x[:1] * m[:1], m[:1]
     kw = dict(sampler="ddim", num_inference_steps=4, eta=1.0)
-    noise = tcd.seeded_noise(5, tcd.STAGE_SHORT, 3, d.num_noise_blocks("ddim", 4), 1, 66, 55)
+    noise = tcd.seeded_noise(5, tcd.STAGE_SHORT, 3, d.num_noise_blocks(**kw), 1, 66, 55)
     assert np.array_equal(d.sample(obs, mask, 3, seed=5, **kw), d.sample(obs, mask, 3, noise=noise, **kw))
-    assert d.timesteps("ddim", 4, "trailing") == [49, 37, 24, 11]
+    assert d.timesteps(**kw) == d.timesteps(sampler="ddim", num_inference_steps=4, timestep_spacing="trailing") \
+        == [49, 37, 24, 11]
     assert d.timesteps() == list(range(49, -1, -1))
 
 
@@ -326,25 +331,86 @@ def test_bundled_repair_model():
     assert np.isfinite(err_mm) and err_mm <= 0.75 * lin_mm, (err_mm, lin_mm)
 
 
-def test_sampler_options_one_type_for_every_layer(tiny_model, obs):
-    """SamplerOptions (defaults written once) and its fields as keywords give the same call at every layer;
-    a bad field is an InvalidInputError naming it, an unknown keyword a TypeError."""
-    o = tcd.SamplerOptions(sampler="ddim", num_inference_steps=3, eta=1.0)
-    a = tiny_model.forecast(obs, options=o, num_samples=2, seed=4)
-    b = tiny_model.forecast(obs, sampler="ddim", num_inference_steps=3, eta=1.0, num_samples=2, seed=4)
-    c = tiny_model.forecast(obs, options=tcd.SamplerOptions(sampler="ddim"), num_inference_steps=3, eta=1.0,
-                       num_samples=2, seed=4)                      # keywords override the options' fields
-    assert np.array_equal(a.samples, b.samples) and np.array_equal(a.samples, c.samples)
-    assert tcd.SamplerOptions() == tcd.SamplerOptions(sampler="ddpm", num_inference_steps=None, eta=0.0,
-                                                      timestep_spacing="trailing")
-    assert tiny_model.short.timesteps(options=o) == tiny_model.short.timesteps("ddim", 3) == [49, 32, 16]
-    assert tiny_model.short.num_noise_blocks(options=o) == 4
+SAMPLER_SETTINGS = "eta, num_inference_steps, sampler, timestep_spacing"
+
+
+def test_sampler_keywords_and_their_defaults(tiny_model, obs):
+    """The sampler is given as keywords; a setting left out takes SamplerOptions' default (no layer has
+    defaults of its own); timesteps and num_noise_blocks read the same keywords."""
+    defaults = dataclasses.asdict(tcd.SamplerOptions())
+    assert defaults == {"sampler": "ddpm", "num_inference_steps": None, "eta": 0.0, "timestep_spacing": "trailing"}
+    short = tiny_model.short
+    assert short.timesteps() == short.timesteps(**defaults) == list(range(49, -1, -1))
+    assert short.num_noise_blocks() == 51
+    kw = dict(sampler="ddim", num_inference_steps=3, eta=1.0)
+    assert short.timesteps(**kw) == [49, 32, 16] and short.num_noise_blocks(**kw) == 4
+    a = tiny_model.forecast(obs, num_samples=1, seed=4, num_inference_steps=3)
+    b = tiny_model.forecast(obs, num_samples=1, seed=4, **dict(defaults, num_inference_steps=3))
+    assert np.array_equal(a.samples, b.samples)
+
+
+def test_sampler_settings_have_one_form(tiny_model, obs, tmp_path):
+    """No second way in: an ``options=`` object, or any other keyword that is not a sampler setting, is a
+    TypeError naming the four settings at every layer, before any work; timesteps and num_noise_blocks take no
+    positional settings; a bad value is an InvalidInputError naming its field."""
+    from tcd import demo
+    from tcd.batch_repair import RepairOptions
+    d, long = tiny_model.short, tiny_model.long
+    x, m = np.zeros((1, 66, 50), np.float32), np.ones((1, 66, 50), np.float32)
+    calls = {
+        "TCD.forecast": lambda **k: tiny_model.forecast(obs, **k),
+        "TCD.repair": lambda **k: tiny_model.repair(obs, **k),
+        "Denoiser.sample": lambda **k: d.sample(np.zeros((1, 66, 55)), np.ones((1, 66, 55)), 1, seed=0, **k),
+        "Denoiser.timesteps": d.timesteps,
+        "Denoiser.num_noise_blocks": d.num_noise_blocks,
+        "cascade_raw": lambda **k: tcd.cascade_raw(d, long, x, m, seed=0, **k),
+        "repair_raw": lambda **k: tcd.repair_raw(d, x, m, seed=0, **k),
+        "repair_file": lambda **k: tcd.repair_file(tmp_path / "in.npz", tmp_path / "out.npz", tiny_model, **k),
+        "demo.run": lambda **k: demo.run(tiny_model, quiet=True, **k),
+    }
+    for name, call in calls.items():
+        for key, value in (("options", tcd.SamplerOptions()), ("num_steps", 3)):
+            with pytest.raises(TypeError, match=re.escape(f"{key!r} (sampler settings: {SAMPLER_SETTINGS})")):
+                call(**{key: value})
+    assert not (tmp_path / "out.npz").exists()
+    for method in (d.timesteps, d.num_noise_blocks):
+        with pytest.raises(TypeError, match="positional"):
+            method("ddim", 3)
+    for key in ("options", "num_inference_steps"):       # RepairOptions.make: the sampler only as `sampler`
+        with pytest.raises(TypeError, match=repr(key)):
+            RepairOptions.make(tiny_model, **{key: None})
+    assert RepairOptions.make(tiny_model, sampler={"num_inference_steps": 3}).sampling.num_inference_steps == 3
     for kw, argument in (({"sampler": "euler"}, "sampler"), ({"eta": 2.0}, "eta"),
                          ({"num_inference_steps": 0}, "num_inference_steps"), ({"timestep_spacing": "x"}, "timestep_spacing")):
         bad(argument, tcd.SamplerOptions, **kw)
-    bad("num_inference_steps", tiny_model.forecast, obs, options=tcd.SamplerOptions(num_inference_steps=51))
-    bad("options", tiny_model.forecast, obs, options={"sampler": "ddim"})
-    with pytest.raises(TypeError, match="num_steps"):
-        tiny_model.forecast(obs, num_steps=3)
-    with pytest.raises(TypeError, match="multiple values"):
-        tiny_model.short.timesteps("ddim", sampler="ddpm")
+        bad(argument, d.timesteps, **kw)
+    bad("num_inference_steps", d.timesteps, num_inference_steps=51)   # more steps than the model was trained with
+
+
+def test_native_attributes_read_only_and_documented(tiny_model):
+    """Denoiser's and Prior's attributes from the engine's model: the native values, read-only, each listed by
+    help() with its type and text."""
+    d = tiny_model.short
+    names = ("path", "role", "num_features", "num_joints", "obs_len", "pred_len", "seq_len", "kernel",
+             "num_train_timesteps")
+    text = pydoc.render_doc(tcd.Denoiser, renderer=pydoc.plaintext)
+    for name in names:
+        assert getattr(d, name) == getattr(d._native, name)
+        assert f"\n |  {name}\n |      {type(getattr(d, name)).__name__}: " in text, name
+        with pytest.raises(AttributeError, match="read-only"):
+            setattr(d, name, getattr(d, name))
+    assert "int: Observed (conditioning) frames of the training window." in text
+    text = pydoc.render_doc(tcd.Prior, renderer=pydoc.plaintext)
+    for name in ("path", "num_features", "num_joints", "obs_len", "chunk", "blocks", "kernel", "dct_matrix"):
+        assert f"\n |  {name}\n |      " in text, name
+
+
+def test_batch_repair_package_holds_its_api_only():
+    """tcd.batch_repair's namespace is its __all__ (and its modules): no names kept under old homes."""
+    import types
+
+    import tcd.batch_repair as br
+    names = {n for n, v in vars(br).items() if not n.startswith("_") and not isinstance(v, types.ModuleType)}
+    assert names - {"annotations"} == set(br.__all__)
+    for old in ("cli", "CLI_USAGE", "add_subparser", "window_starts", "write_npz_atomic"):
+        assert not hasattr(br, old), old

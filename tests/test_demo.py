@@ -137,7 +137,7 @@ def test_summary_columns_stay_apart_for_any_error(tiny_model_dir):
     """An untrained model's errors reach metres (six digits in mm): the table widens instead of running
     numbers together."""
     model = tcd.load(tiny_model_dir)
-    res = demo.run(model, samples=1, options=tcd.SamplerOptions(num_inference_steps=2), quiet=True)
+    res = demo.run(model, samples=1, num_inference_steps=2, quiet=True)
     res["forecast_mm"] = {m: 123456.7 for m in res["forecast_mm"]}       # as the full-size random model gives
     rows = [line for line in demo.summary(res, model).splitlines()
             if line.startswith(("  tcd, ", "  zero-velocity", "  horizon"))]

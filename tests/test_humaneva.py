@@ -366,7 +366,7 @@ def test_humaneva_demo_clip():
 def test_demo_runs_the_humaneva_model(humaneva_model_dir, tmp_path, capsys):
     from tcd import demo
     m = tcd.load(humaneva_model_dir)
-    res = demo.run(m, samples=3, options=tcd.SamplerOptions("ddim", 2), seed=0, quiet=True)
+    res = demo.run(m, samples=3, sampler="ddim", num_inference_steps=2, seed=0, quiet=True)
     assert res["forecast_samples"].shape == (3, 60, 14, 3) and res["fps"] == 60.0
     assert res["samples_apd_m"] > 0 and set(res["best_sample_mm"]) == set(res["forecast_mm"])
     assert "repair_skipped" in res and "repaired" not in res      # a prior-conditioned model without a repair model

@@ -216,8 +216,8 @@ def test_chain_injected_noise(tiny, sampler, steps, eta, spacing, num_samples):
     b, k, length = 1, den.num_features, den.seq_len
     observed, mask = observation(rng, b, k, length, O)
     kw = dict(sampler=sampler, num_inference_steps=steps, eta=eta, timestep_spacing=spacing)
-    assert den.timesteps(sampler, steps, spacing) == [t for t, _ in D.step_pairs(50, sampler, steps, spacing)]
-    blocks = den.num_noise_blocks(sampler, steps, spacing)
+    assert den.timesteps(**kw) == [t for t, _ in D.step_pairs(50, sampler, steps, spacing)]
+    blocks = den.num_noise_blocks(**kw)
     noise = rng.standard_normal((num_samples, blocks, b, k, length)).astype(np.float32)
     got = den.sample(observed, mask, num_samples, noise=noise, **kw)
     want = D.sample_many(model, sched, torch.from_numpy(observed), torch.from_numpy(mask), num_samples,
@@ -237,7 +237,7 @@ def test_seeded_noise_matches_torch_fed_the_same_streams(tiny):
     b, k, length, s = 2, den.num_features, den.seq_len, 2
     observed, mask = observation(rng, b, k, length, O)
     kw = dict(sampler="ddim", num_inference_steps=8, eta=1.0, timestep_spacing="trailing")
-    blocks = den.num_noise_blocks("ddim", 8, "trailing")
+    blocks = den.num_noise_blocks(**kw)
     noise = tcd.seeded_noise(1234, tcd.STAGE_SHORT, s, blocks, b, k, length)
     assert noise.shape == (s, blocks, b, k, length) and noise.dtype == np.float32
     assert abs(float(noise.mean())) < 0.05 and abs(float(noise.std()) - 1) < 0.05
@@ -265,8 +265,7 @@ def test_cascade_injected_noise(tiny, sampler, steps, eta, s):
     b, k = 1, short.num_features
     observed, mask = observation(rng, b, k, O, O, missing=0.3)
     kw = dict(sampler=sampler, num_inference_steps=steps, eta=eta, timestep_spacing="trailing")
-    n_s = short.num_noise_blocks(sampler, steps)
-    n_l = long.num_noise_blocks(sampler, steps)
+    n_s, n_l = short.num_noise_blocks(**kw), long.num_noise_blocks(**kw)
     noise_short = rng.standard_normal((s, n_s, b, k, short.seq_len)).astype(np.float32)
     noise_long = rng.standard_normal((s, n_l, b, k, long.seq_len)).astype(np.float32)
     got = tcd.cascade_raw(short, long, observed, mask, num_samples=s, noise_short=noise_short,
@@ -291,7 +290,7 @@ def test_cascade_seeded_matches_torch_fed_the_same_streams(tiny):
     b, k, s = 2, short.num_features, 1
     observed, mask = observation(rng, b, k, O, O)
     kw = dict(sampler="ddim", num_inference_steps=5, eta=1.0, timestep_spacing="trailing")
-    n = short.num_noise_blocks("ddim", 5)
+    n = short.num_noise_blocks(**kw)
     noise_short = tcd.seeded_noise(99, tcd.STAGE_SHORT, s, n, b, k, short.seq_len)
     noise_long = tcd.seeded_noise(99, tcd.STAGE_LONG, s, n, b, k, long.seq_len)
     got = tcd.cascade_raw(short, long, observed, mask, num_samples=s, seed=99, **kw)
@@ -319,7 +318,8 @@ def test_dpmpp2m_noise_blocks_seeded_and_repair(tiny):
     """dpmpp2m consumes x_T only: one noise block; the seeded path equals `seeded_noise` with one block
     and PyTorch fed it; repair agrees with the reference."""
     den, model, sched = tiny["short"]
-    assert den.num_noise_blocks("dpmpp2m", 10) == 1 and den.num_noise_blocks("ddim", 10) == 11
+    assert den.num_noise_blocks(sampler="dpmpp2m", num_inference_steps=10) == 1
+    assert den.num_noise_blocks(sampler="ddim", num_inference_steps=10) == 11
     rng = np.random.default_rng(61)
     b, k, s = 2, den.num_features, 2
     observed, mask = observation(rng, b, k, den.seq_len, O)

@@ -117,7 +117,7 @@ def check(got, want, silent, truth, mask, what):
 
 
 def noise_for(den, sampler, steps, samples, rng):
-    blocks = den.num_noise_blocks(sampler, steps)
+    blocks = den.num_noise_blocks(sampler=sampler, num_inference_steps=steps)
     return rng.standard_normal((samples, blocks, 1, den.num_features, den.seq_len)).astype(np.float32)
 
 

@@ -19,15 +19,17 @@ import pytest
 import tcd
 from conftest import ROOT
 from repair_util import FAST, FAST_KW, W, gappy, load_npz, run, same_tree, tree
-from tcd import batch_repair
+from tcd.files import write_npz_atomic
+from tcd.batch_repair import options as repair_options
 from tcd.batch_repair import runner as repair_runner
+from tcd.batch_repair.windows import window_starts
 from tcd.cli import repair as repair_command
 
 # ---------------------------------------------------------------------------------------------- windows
 @pytest.mark.parametrize("frames", [50, 51, 89, 90, 91, 313, 1000])
 @pytest.mark.parametrize("overlap,lookahead", [(1, 0), (10, 0), (25, 0), (49, 0), (5, 10), (1, 48), (20, 20)])
 def test_window_starts_cover_with_overlap(frames, overlap, lookahead):
-    starts = batch_repair.window_starts(frames, W, overlap, lookahead)
+    starts = window_starts(frames, W, overlap, lookahead)
     assert starts[0] == 0 and starts[-1] + W == frames
     for a, b in zip(starts, starts[1:]):
         assert a < b and a + W - b >= overlap + lookahead  # consecutive windows share >= overlap + lookahead frames
@@ -37,7 +39,7 @@ def test_window_starts_cover_with_overlap(frames, overlap, lookahead):
 @pytest.mark.parametrize("overlap,lookahead", [(0, 0), (5, 45), (10, -1)])
 def test_window_starts_refuse_no_progress(overlap, lookahead):
     with pytest.raises(ValueError, match="overlap"):
-        batch_repair.window_starts(200, W, overlap, lookahead)
+        window_starts(200, W, overlap, lookahead)
 
 
 # ---------------------------------------------------------------------------------------------- round trips
@@ -60,8 +62,8 @@ def test_round_trip_lengths(tiny_model, tmp_path, frames):
     assert prov["sampler"] == "ddim" and prov["steps"] == 2 and prov["seed"] == 5 and prov["num_samples"] == 2
     assert prov["tcd_version"] == tcd.__version__
     assert info["status"] == "repaired" and info["frames"] == frames
-    assert info["windows"] == len(batch_repair.window_starts(max(frames, W), W, batch_repair.DEFAULT_OVERLAP,
-                                                             batch_repair.DEFAULT_LOOKAHEAD))
+    assert info["windows"] == len(window_starts(max(frames, W), W, repair_options.DEFAULT_OVERLAP,
+                                                repair_options.DEFAULT_LOOKAHEAD))
     assert info["missing_values"] == int((~seen).sum())
 
 
@@ -110,7 +112,7 @@ def test_later_windows_condition_on_repaired_frames(tiny_model, tmp_path, monkey
     x = gappy(rng, 130, missing=0.3, block=(35, 48))  # the overlap of windows 0 and 1 (frames 40..49) has gaps
     np.savez(tmp_path / "in.npz", poses=x)
     tcd.repair_file(tmp_path / "in.npz", tmp_path / "out.npz", tiny_model, overlap=10, lookahead=0, **FAST_KW)
-    starts = batch_repair.window_starts(130, W, 10)
+    starts = window_starts(130, W, 10)
     assert starts == [0, 40, 80] and len(calls) == 3
     out = load_npz(tmp_path / "out.npz")["poses"]
     for k in (1, 2):
@@ -142,7 +144,7 @@ def test_lookahead_frames_are_generated_again_by_the_next_window(tiny_model, tmp
     x = gappy(rng, 130, missing=0.3, block=(36, 47))  # a gap across window 0's uncommitted tail (40..49)
     np.savez(tmp_path / "in.npz", poses=x)
     info = tcd.repair_file(tmp_path / "in.npz", tmp_path / "out.npz", tiny_model, overlap=5, lookahead=10, **FAST_KW)
-    starts = batch_repair.window_starts(130, W, 5, 10)
+    starts = window_starts(130, W, 5, 10)
     assert starts == [0, 35, 70, 80] and len(calls) == 4 and info["windows"] == 4
     done = [40, 75, 110, 130]  # committed up to (exclusive) after each window
     prov = json.loads(str(load_npz(tmp_path / "out.npz")["provenance"]))
@@ -383,7 +385,7 @@ def test_atomic_write_leaves_nothing_on_failure(tmp_path, monkeypatch):
 
     monkeypatch.setattr(np, "savez", boom)
     with pytest.raises(OSError):
-        batch_repair.write_npz_atomic(dst, False, poses=np.zeros(3))
+        write_npz_atomic(dst, False, poses=np.zeros(3))
     assert list(tmp_path.iterdir()) == []
 
 

@@ -11,7 +11,8 @@ import pytest
 import tcd
 from conftest import H36M_DIR, needs_h36m
 from repair_util import FAST, FAST_KW, gappy, load_npz, run
-from tcd import batch_repair, fk
+from tcd import fk
+from tcd.batch_repair import windows
 from tcd.resample import resample_backward, resample_forward
 
 
@@ -58,13 +59,13 @@ def test_resampling_mask_is_conservative():
 
 def test_fps_resampled_and_back(tiny_model, tmp_path, monkeypatch):
     seen_frames = []
-    real = batch_repair.FileJob.__init__
+    real = windows.FileJob.__init__
 
     def init(self, *a, **kw):
         real(self, *a, **kw)
         seen_frames.append(self.model_frames)
 
-    monkeypatch.setattr(batch_repair.FileJob, "__init__", init)
+    monkeypatch.setattr(windows.FileJob, "__init__", init)
     rng = np.random.default_rng(10)
     t = np.arange(201)[:, None, None] / 50.0
     x = (np.sin(2 * np.pi * t + rng.normal(size=(1, 22, 3))) * 0.3).astype(np.float32)

@@ -8,8 +8,9 @@
 
 High level: :func:`load`, :class:`TCD` (``forecast``, ``predict``: the prior's point forecast, ``repair``),
 :class:`Forecast`, :func:`forecast`, :func:`predict`;
-the sampler of every call: :class:`SamplerOptions` (or its fields as keywords); the engine's fills of
-missing values along time (linear, natural cubic spline): :func:`interpolate`.
+the sampler of every call: the keyword arguments ``sampler``, ``num_inference_steps``, ``eta`` and
+``timestep_spacing`` (their defaults and checks: :class:`SamplerOptions`); the engine's fills of missing
+values along time (linear, natural cubic spline): :func:`interpolate`.
 Low level, in the engine's (B, K, L) layout: :class:`Denoiser`, :func:`cascade_raw`, :func:`repair_raw`,
 :func:`seeded_noise`. The deterministic prior forecaster on (B, T, K) frames: :class:`Prior`.
 Errors: :mod:`tcd.exceptions`. Inference runs in a Rust engine (no torch).

@@ -28,6 +28,7 @@ and true skeletons.
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import sys
@@ -123,13 +124,13 @@ def _say(msg: str, quiet: bool) -> None:
         print(msg, file=sys.stderr, flush=True)
 
 
-def run(model: TCD, *, samples: int = DEFAULT_SAMPLES, options: Optional[SamplerOptions] = None,
-        seed: int = DEFAULT_SEED, threads: Optional[int] = None, quiet: bool = False,
-        clip_path: Optional[Path] = None) -> Dict[str, Any]:
+def run(model: TCD, *, samples: int = DEFAULT_SAMPLES, seed: int = DEFAULT_SEED, threads: Optional[int] = None,
+        quiet: bool = False, clip_path: Optional[Path] = None, **sampler: Any) -> Dict[str, Any]:
     """Runs the demo; returns every array and number (what ``tcd demo`` prints and saves). ``clip_path``:
-    by default the bundled clip in the model's layout (:func:`clip_for`)."""
-    options = SamplerOptions.build(options)
-    steps, sampler = options.num_inference_steps, options.sampler
+    by default the bundled clip in the model's layout (:func:`clip_for`). ``**sampler``: the sampler keywords
+    of :meth:`TCD.forecast` (default: the paper's DDPM over every training step)."""
+    o = SamplerOptions.build(**sampler)
+    steps, sampler_name = o.num_inference_steps, o.sampler
     clip = load_clip(clip_for(model) if clip_path is None else clip_path)
     poses, fps, names = clip["poses"], clip["fps"], clip["joint_names"]
     if model.joint_names is not None and list(model.joint_names) != names:
@@ -141,15 +142,15 @@ def run(model: TCD, *, samples: int = DEFAULT_SAMPLES, options: Optional[Sampler
     if poses.shape[0] < n_obs + h:
         raise ValueError(f"the demo clip has {poses.shape[0]} frames; the model needs {n_obs + h}")
     obs, future = poses[:n_obs], poses[n_obs:n_obs + h]
-    kw = dict(num_samples=samples, options=options, seed=seed, threads=threads)
+    kw = dict(num_samples=samples, seed=seed, threads=threads, **dataclasses.asdict(o))
     res: Dict[str, Any] = {"fps": fps, "joint_names": names, "observed": obs, "future": future,
-                           "settings": {"samples": samples, "steps": steps, "sampler": sampler, "seed": seed},
+                           "settings": {"samples": samples, "steps": steps, "sampler": sampler_name, "seed": seed},
                            "timings_s": {}}
     zv = np.repeat(obs[-1:], h, axis=0)
     res["zero_velocity_mm"] = horizon_row(mpjpe_mm(zv, future), fps)
 
     stages = 4 if model.prior is not None else 3
-    _say(f"[1/{stages}] forecasting {h} frames from {n_obs} observed ({samples} samples, {sampler} "
+    _say(f"[1/{stages}] forecasting {h} frames from {n_obs} observed ({samples} samples, {sampler_name} "
          f"{steps or model.num_train_timesteps} steps)...", quiet)
     t0 = time.perf_counter()
     f = model.forecast(obs, **kw)

@@ -7,7 +7,9 @@ the z of step i — with S = 1 the ``(num_steps + 1, B, K, L)`` array of ``train
 The deterministic ``sampler="dpmpp2m"`` (DPM-Solver++(2M)) draws no per-step noise: its noise is
 (S, 1, B, K, L), x_T only (:meth:`Denoiser.num_noise_blocks`).
 Pass ``noise`` for bit-exact parity tests, or a ``seed`` for the engine's seeded ChaCha8 streams
-(:func:`seeded_noise` materialises them).
+(:func:`seeded_noise` materialises them). The sampler of every call: the keyword arguments ``sampler``,
+``num_inference_steps``, ``eta`` and ``timestep_spacing`` (:class:`tcd.SamplerOptions` has their defaults
+and checks).
 """
 from __future__ import annotations
 
@@ -18,6 +20,7 @@ from typing import Any, Dict, List, Optional, Sequence, Union
 import numpy as np
 
 from . import _checks, _native
+from ._attributes import NativeAttribute
 from .options import SamplerOptions
 from .prior import Prior
 from .progress import reporter
@@ -30,18 +33,6 @@ PathLike = Union[str, "os.PathLike[str]"]
 STAGE_SHORT: int = _native.STAGE_SHORT
 #: Stream stage of the cascade's long-term stage.
 STAGE_LONG: int = _native.STAGE_LONG
-
-
-def _positional_options(positional: tuple, options: Optional[SamplerOptions], sampler: Dict[str, Any]) -> SamplerOptions:
-    """``timesteps`` / ``num_noise_blocks`` take (sampler, num_inference_steps, timestep_spacing) positionally."""
-    names = ("sampler", "num_inference_steps", "timestep_spacing")
-    if len(positional) > len(names):
-        raise TypeError(f"at most {len(names)} positional arguments ({', '.join(names)}), got {len(positional)}")
-    for name, value in zip(names, positional):
-        if name in sampler:
-            raise TypeError(f"got multiple values for argument {name!r}")
-        sampler[name] = value
-    return SamplerOptions.build(options, **sampler)
 
 
 def _noise(argument: str, value: Any) -> Optional[np.ndarray]:
@@ -76,65 +67,34 @@ class Denoiser:
         """The ``tcd_config`` JSON of the file, parsed (a fresh copy)."""
         return json.loads(json.dumps(self._config))
 
-    @property
-    def path(self) -> str:
-        return self._native.path
-
-    @property
-    def role(self) -> str:
-        """``short``, ``long`` or ``repair``."""
-        return self._native.role
-
-    @property
-    def num_features(self) -> int:
-        """K = num_joints * 3."""
-        return self._native.num_features
-
-    @property
-    def num_joints(self) -> int:
-        return self._native.num_joints
-
-    @property
-    def obs_len(self) -> int:
-        """Observed (conditioning) frames of the training window."""
-        return self._native.obs_len
-
-    @property
-    def pred_len(self) -> int:
-        """Predicted frames of the training window."""
-        return self._native.pred_len
-
-    @property
-    def seq_len(self) -> int:
-        """L = obs_len + pred_len."""
-        return self._native.seq_len
-
-    @property
-    def kernel(self) -> str:
-        """The compute kernels in use: ``"portable"``, ``"avx2"`` or ``"avx512"`` (chosen when the file is
-        loaded: ``$TCD_KERNEL``, default the best this CPU supports, see :func:`supported_kernels`)."""
-        return self._native.kernel
-
-    @property
-    def num_train_timesteps(self) -> int:
-        return self._native.num_train_timesteps
+    # The file's settings, read from the engine's model (each read-only).
+    path = NativeAttribute(str, "The weight file's path (or the name given to :meth:`from_bytes`).")
+    role = NativeAttribute(str, "``short``, ``long`` or ``repair``.")
+    num_features = NativeAttribute(int, "K = num_joints * 3.")
+    num_joints = NativeAttribute(int, "Joints of the model (its config's ``model.num_joints``).")
+    obs_len = NativeAttribute(int, "Observed (conditioning) frames of the training window.")
+    pred_len = NativeAttribute(int, "Predicted frames of the training window.")
+    seq_len = NativeAttribute(int, "L = obs_len + pred_len.")
+    kernel = NativeAttribute(str, 'The compute kernels in use: ``"portable"``, ``"avx2"`` or ``"avx512"`` (chosen '
+                             "when the file is loaded: ``$TCD_KERNEL``, default the best this CPU supports, see "
+                             ":func:`supported_kernels`).")
+    num_train_timesteps = NativeAttribute(int, "Diffusion steps the model was trained with.")
 
     def __repr__(self) -> str:
         return repr(self._native)
 
     # ------------------------------------------------------------------ compute
-    def timesteps(self, *positional: Any, options: Optional[SamplerOptions] = None, **sampler: Any) -> List[int]:
-        """The descending training steps the sampler visits: ``timesteps(sampler, num_inference_steps,
-        timestep_spacing)`` (positional, as before), the same as keywords, or ``options=``
-        (:class:`tcd.SamplerOptions`); ``num_inference_steps=None`` visits all of them."""
-        o = _positional_options(positional, options, sampler)
-        return list(self._native.timesteps(o))
+    def timesteps(self, **sampler: Any) -> List[int]:
+        """The descending training steps the sampler visits, e.g. ``timesteps(sampler="ddim",
+        num_inference_steps=10)``: the sampler keywords (``sampler``, ``num_inference_steps``, ``eta``,
+        ``timestep_spacing``; :class:`tcd.SamplerOptions`); ``num_inference_steps=None`` (the default)
+        visits all of them."""
+        return list(self._native.timesteps(SamplerOptions.build(**sampler)))
 
-    def num_noise_blocks(self, *positional: Any, options: Optional[SamplerOptions] = None, **sampler: Any) -> int:
+    def num_noise_blocks(self, **sampler: Any) -> int:
         """The second axis of injected noise: n + 1 (x_T, then one z per step) for ddpm / ddim, 1 (x_T
-        only) for the deterministic dpmpp2m. Arguments as :meth:`timesteps`."""
-        o = _positional_options(positional, options, sampler)
-        return int(self._native.num_noise_blocks(o))
+        only) for the deterministic dpmpp2m. The sampler keywords, as :meth:`timesteps`."""
+        return int(self._native.num_noise_blocks(SamplerOptions.build(**sampler)))
 
     def forward(self, noisy: Any, observed: Any, mask: Any, step: int, *,
                 threads: Optional[int] = None) -> np.ndarray:
@@ -150,17 +110,16 @@ class Denoiser:
 
     def sample(self, observed: Any, mask: Any, num_samples: int = 1, *, noise: Any = None,
                seed: Optional[int] = None, first_sequence: int = 0, sequences: Optional[Sequence[int]] = None,
-               options: Optional[SamplerOptions] = None, threads: Optional[int] = None, progress: Any = None,
-               **sampler: Any) -> np.ndarray:
+               threads: Optional[int] = None, progress: Any = None, **sampler: Any) -> np.ndarray:
         """``num_samples`` merged samples per sequence: observed, mask (B, K, L) -> (S, B, K, L).
 
         Exactly one of ``noise`` (S, n + 1, B, K, L) — (S, 1, B, K, L) for ``sampler="dpmpp2m"`` — and
         ``seed`` must be given; seeded sequence b draws stream ``first_sequence + b``, or ``sequences[b]``
-        (one id per sequence). The sampler: ``options`` (:class:`tcd.SamplerOptions`) or its fields as
-        keywords (``sampler``, ``num_inference_steps``, ``eta``, ``timestep_spacing``). ``progress``: see
+        (one id per sequence). The sampler: the keywords ``sampler``, ``num_inference_steps``, ``eta``,
+        ``timestep_spacing`` (:class:`tcd.SamplerOptions`). ``progress``: see
         :mod:`tcd.progress`. Ctrl-C stops the call within about 0.1 s plus one forward (KeyboardInterrupt)."""
         num_samples = _checks.machine_int("num_samples", num_samples)
-        o = SamplerOptions.build(options, **sampler)
+        o = SamplerOptions.build(**sampler)
         with reporter(progress, "tcd sample") as callback:
             return self._native.sample(
                 _checks.float32_array("observed", observed), _checks.float32_array("mask", mask), num_samples, o,
@@ -172,15 +131,14 @@ class Denoiser:
 
 def cascade_raw(short: Denoiser, long: Denoiser, observed: Any, mask: Any, *, num_samples: int = 5,
                 noise_short: Any = None, noise_long: Any = None, seed: Optional[int] = None,
-                first_sequence: int = 0, sequences: Optional[Sequence[int]] = None,
-                options: Optional[SamplerOptions] = None, threads: Optional[int] = None, progress: Any = None,
-                prior: Optional[Prior] = None, **sampler: Any) -> Dict[str, np.ndarray]:
+                first_sequence: int = 0, sequences: Optional[Sequence[int]] = None, threads: Optional[int] = None,
+                progress: Any = None, prior: Optional[Prior] = None, **sampler: Any) -> Dict[str, np.ndarray]:
     """The short-term -> long-term cascade in the engine's layout (``training.diffusion.cascade``).
 
     observed, mask: (B, K, O) with O = ``short.obs_len``. Noise: ``noise_short`` (S, n + 1, B, K, L_s)
     and ``noise_long`` (S, n + 1, B, K, L_l) (one block instead of n + 1 for ``sampler="dpmpp2m"``), or a
-    ``seed`` (streams numbered as in :meth:`Denoiser.sample`). The sampler: ``options`` or its fields as
-    keywords (:class:`tcd.SamplerOptions`). Returns
+    ``seed`` (streams numbered as in :meth:`Denoiser.sample`). The sampler: its keywords, as in
+    :meth:`Denoiser.sample`. Returns
     ``mean`` (B, K, P), ``samples`` (S, B, K, P) (P = L_l - O forecast frames), ``repaired`` (B, K, O) and
     ``short_mean`` (B, K, L_s).
 
@@ -195,7 +153,7 @@ def cascade_raw(short: Denoiser, long: Denoiser, observed: Any, mask: Any, *, nu
     if prior is not None and not isinstance(prior, Prior):
         raise _checks.fail("prior", "a tcd.Prior or None", type(prior).__name__)
     num_samples = _checks.machine_int("num_samples", num_samples)
-    o = SamplerOptions.build(options, **sampler)
+    o = SamplerOptions.build(**sampler)
     with reporter(progress, "tcd forecast") as callback:
         return dict(_native.cascade(
             short._native, long._native, _checks.float32_array("observed", observed),
@@ -209,17 +167,16 @@ def cascade_raw(short: Denoiser, long: Denoiser, observed: Any, mask: Any, *, nu
 
 def repair_raw(model: Denoiser, observed: Any, mask: Any, *, num_samples: int = 5, noise: Any = None,
                seed: Optional[int] = None, first_sequence: int = 0, sequences: Optional[Sequence[int]] = None,
-               options: Optional[SamplerOptions] = None, threads: Optional[int] = None, progress: Any = None,
-               **sampler: Any) -> Dict[str, np.ndarray]:
+               threads: Optional[int] = None, progress: Any = None, **sampler: Any) -> Dict[str, np.ndarray]:
     """Fills the mask-0 entries of an observation (B, K, O), O = ``model.obs_len``
     (``training.diffusion.repair``). Returns ``mean`` (B, K, O; observed entries exact) and ``samples``
     (S, B, K, O). Noise: ``noise`` (S, n + 1, B, K, model.seq_len) ((S, 1, ...) for ``sampler="dpmpp2m"``)
-    or a ``seed`` (streams numbered as in :meth:`Denoiser.sample`). The sampler: ``options`` or its fields as
-    keywords (:class:`tcd.SamplerOptions`)."""
+    or a ``seed`` (streams numbered as in :meth:`Denoiser.sample`). The sampler: its keywords, as in
+    :meth:`Denoiser.sample`."""
     if not isinstance(model, Denoiser):
         raise _checks.fail("model", "a tcd.Denoiser", type(model).__name__)
     num_samples = _checks.machine_int("num_samples", num_samples)
-    o = SamplerOptions.build(options, **sampler)
+    o = SamplerOptions.build(**sampler)
     with reporter(progress, "tcd repair") as callback:
         return dict(_native.repair(
             model._native, _checks.float32_array("observed", observed), _checks.float32_array("mask", mask),

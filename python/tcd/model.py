@@ -7,6 +7,7 @@ back in the caller's units, with the caller's batch axis (present or not).
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import os
 import threading
@@ -245,18 +246,20 @@ class TCD:
                 f"prior={self.prior is not None})")
 
     # ------------------------------------------------------------------ inference
-    def _common(self, num_samples: Any, options: Optional[SamplerOptions], sampler: Dict[str, Any], units: Any,
-                threads: Any) -> Tuple[int, SamplerOptions, str, Optional[int]]:
+    def _common(self, num_samples: Any, sampler: Dict[str, Any], units: Any,
+                threads: Any) -> Tuple[int, Dict[str, Any], str, Optional[int]]:
+        """The arguments every call checks before any work; the sampler keywords come back checked, all four
+        given (the defaults filled in), for the low-level calls."""
         num_samples = _checks.machine_int("num_samples", num_samples)   # ranges: the engine's
-        o = SamplerOptions.build(options, **sampler)
+        sampling = dataclasses.asdict(SamplerOptions.build(**sampler))
         units = check_units(units)
         threads = _checks.optional_machine_int("threads", threads)
-        return num_samples, o, units, self.threads if threads is None else threads
+        return num_samples, sampling, units, self.threads if threads is None else threads
 
-    def forecast(self, obs: Any, mask: Any = None, *, num_samples: int = 5, options: Optional[SamplerOptions] = None,
-                 seed: Optional[int] = None, units: str = "m", threads: Optional[int] = None,
-                 progress: Any = False, layout: Optional[str] = None, fps: Optional[float] = None,
-                 up: Any = "y", **sampler: Any) -> Forecast:
+    def forecast(self, obs: Any, mask: Any = None, *, num_samples: int = 5, seed: Optional[int] = None,
+                 units: str = "m", threads: Optional[int] = None, progress: Any = False,
+                 layout: Optional[str] = None, fps: Optional[float] = None, up: Any = "y",
+                 **sampler: Any) -> Forecast:
         """Forecasts the next :attr:`horizon` frames of ``obs``.
 
         Args:
@@ -265,9 +268,6 @@ class TCD:
             mask: optional, 1 = observed / 0 = missing, shape ``obs.shape`` or ``obs.shape[:-1]`` (per joint).
                 Entries with mask 0 are ignored (NaN or not); NaN where mask is 1 is an error.
             num_samples: S, samples per sequence (and per cascade stage). TCD: 5.
-            options: the sampler, a :class:`tcd.SamplerOptions` (default: the paper's DDPM over every
-                training step); or its fields as keywords: ``sampler`` (``"ddpm"``, ``"ddim"``,
-                ``"dpmpp2m"``), ``num_inference_steps``, ``eta``, ``timestep_spacing``.
             seed: the noise seed (an integer in [0, 2**64)); ``None`` draws one from ``os.urandom``
                 (recorded in ``Forecast.seed``). Results do not depend on the thread count or the batch.
             units: ``"m"`` (default), ``"cm"`` or ``"mm"``: the units of ``obs`` and of every output.
@@ -280,13 +280,17 @@ class TCD:
                 joints) in world or camera coordinates with ``up`` the vertical axis (``"y"``, ``"z"``, ...
                 or a unit vector), at ``fps`` frames per second and of any length >= 2 observed frames.
                 The forecast comes back in the same layout, coordinates and frame rate (``Forecast.times``).
+            **sampler: the sampler (default: the paper's DDPM over every training step): ``sampler``
+                (``"ddpm"``, ``"ddim"``, ``"dpmpp2m"``), ``num_inference_steps``, ``eta``,
+                ``timestep_spacing``, as :class:`tcd.SamplerOptions` defines and checks them. Any other
+                keyword is a ``TypeError``.
         """
-        num_samples, o, units, threads = self._common(num_samples, options, sampler, units, threads)
+        num_samples, sampling, units, threads = self._common(num_samples, sampler, units, threads)
         seed = _seed(seed)
         prior = self.prior if self._prior_roles else None
         run = lambda observed, seen: cascade_raw(self.short, self.long, observed, seen,  # noqa: E731
-                                                 num_samples=num_samples, options=o, seed=seed, threads=threads,
-                                                 progress=progress, prior=prior)
+                                                 num_samples=num_samples, seed=seed, threads=threads,
+                                                 progress=progress, prior=prior, **sampling)
         if layout is not None or fps is not None:
             mean, samples, repaired, times = wild_calls.forecast(
                 self, obs, mask, layout="h36m22" if layout is None else layout, fps=fps, up=up, units=units, run=run)
@@ -297,38 +301,39 @@ class TCD:
                         repaired=p.repaired(out["repaired"]), seed=seed,
                         times=None if self.fps is None else np.arange(1, self.horizon + 1) / float(self.fps))
 
-    def repair(self, obs: Any, mask: Any = None, *, num_samples: int = 5, options: Optional[SamplerOptions] = None,
-               seed: Optional[int] = None, units: str = "m", threads: Optional[int] = None,
-               progress: Any = False, layout: Optional[str] = None, fps: Optional[float] = None,
-               up: Any = "y", **sampler: Any) -> np.ndarray:
+    def repair(self, obs: Any, mask: Any = None, *, num_samples: int = 5, seed: Optional[int] = None,
+               units: str = "m", threads: Optional[int] = None, progress: Any = False,
+               layout: Optional[str] = None, fps: Optional[float] = None, up: Any = "y",
+               **sampler: Any) -> np.ndarray:
         """Fills the missing entries of ``obs`` (same arguments as :meth:`forecast`) with the mean of
         ``num_samples`` samples of the repair model (the short-term model when the directory has no
-        ``repair.safetensors``). Returns an array of the shape of ``obs``; observed entries unchanged.
-        Pass ``seed`` for a reproducible result. ``layout``, ``fps``, ``up``: as in :meth:`forecast`, for an
-        observation of at most the model's window (longer ones: :func:`tcd.repair_file`)."""
-        num_samples, o, units, threads = self._common(num_samples, options, sampler, units, threads)
+        ``repair.safetensors``), sampled as the sampler keywords say. Returns an array of the shape of
+        ``obs``; observed entries unchanged. Pass ``seed`` for a reproducible result. ``layout``, ``fps``,
+        ``up``: as in :meth:`forecast`, for an observation of at most the model's window (longer ones:
+        :func:`tcd.repair_file`)."""
+        num_samples, sampling, units, threads = self._common(num_samples, sampler, units, threads)
         model = self.repair_model if self.repair_model is not None else self.short
         if layout is not None or fps is not None:
             return wild_calls.repair(self, model, obs, mask, layout="h36m22" if layout is None else layout, fps=fps,
-                                     up=up, num_samples=num_samples, options=o, seed=_seed(seed), units=units,
-                                     threads=threads, progress=progress)
+                                     up=up, num_samples=num_samples, sampling=sampling, seed=_seed(seed),
+                                     units=units, threads=threads, progress=progress)
         p = _poses(obs, mask, self.num_joints, self.obs_len, units)
-        out = repair_raw(model, p.observed, p.mask, num_samples=num_samples, options=o, seed=_seed(seed),
-                         threads=threads, progress=progress)
+        out = repair_raw(model, p.observed, p.mask, num_samples=num_samples, seed=_seed(seed), threads=threads,
+                         progress=progress, **sampling)
         return p.repaired(out["mean"])
 
     def predict(self, obs: Any, mask: Any = None, *, fill: str = "auto", num_samples: int = 5,
-                options: Optional[SamplerOptions] = None, seed: Optional[int] = None, units: str = "m",
-                threads: Optional[int] = None, progress: Any = False, layout: Optional[str] = None,
-                fps: Optional[float] = None, up: Any = "y", **sampler: Any) -> Forecast:
+                seed: Optional[int] = None, units: str = "m", threads: Optional[int] = None, progress: Any = False,
+                layout: Optional[str] = None, fps: Optional[float] = None, up: Any = "y",
+                **sampler: Any) -> Forecast:
         """The deterministic point forecast of the next :attr:`horizon` frames by the prior
         (``prior.safetensors``: a siMLPe-class network, one forward per 10 frames, no sampling), with the
         inputs and conventions of :meth:`forecast` (mask/NaN, units, batches, ``layout``/``fps``/``up``).
 
         An observation with missing entries is repaired first, the paper's repair-then-predict pipeline:
         ``fill="auto"`` (default) uses the repair model where the directory has one (its sampler: the
-        ``num_samples``/``options``/``seed`` arguments, as in :meth:`repair`) and the natural cubic spline
-        otherwise; ``"model"`` the repair model (the short-term model without one); ``"spline"`` or
+        ``num_samples`` and ``seed`` arguments and the sampler keywords, as in :meth:`repair`) and the natural
+        cubic spline otherwise; ``"model"`` the repair model (the short-term model without one); ``"spline"`` or
         ``"linear"`` the fills of :func:`tcd.interpolate` (a joint never observed in the window cannot be
         filled that way: an error). A complete observation goes to the prior as given.
 
@@ -340,10 +345,10 @@ class TCD:
                                     "the prior forecaster (the bundled model has one; see MODEL_CARD.md).")
         if _checks.text("fill", fill, FILLS) not in FILLS:
             raise _checks.fail("fill", "one of " + ", ".join(repr(f) for f in FILLS), repr(fill))
-        num_samples, o, units, threads = self._common(num_samples, options, sampler, units, threads)
+        num_samples, sampling, units, threads = self._common(num_samples, sampler, units, threads)
         seed = _seed(seed)
         run = lambda observed, seen: self._predict_raw(observed, seen, fill=fill, num_samples=num_samples,  # noqa: E731
-                                                       options=o, seed=seed, threads=threads, progress=progress)
+                                                       sampling=sampling, seed=seed, threads=threads, progress=progress)
         if layout is not None or fps is not None:
             mean, _, repaired, times = wild_calls.forecast(self, obs, mask, layout="h36m22" if layout is None else layout,
                                                            fps=fps, up=up, units=units, run=run)
@@ -354,7 +359,7 @@ class TCD:
                         times=None if self.fps is None else np.arange(1, self.horizon + 1) / float(self.fps))
 
     def _predict_raw(self, observed: np.ndarray, seen: np.ndarray, *, fill: str, num_samples: int,
-                     options: SamplerOptions, seed: int, threads: Optional[int], progress: Any) -> Dict[str, Any]:
+                     sampling: Dict[str, Any], seed: int, threads: Optional[int], progress: Any) -> Dict[str, Any]:
         """Repair-then-predict in the engine's layout: observed, seen (B, K, T) float32 (0 where missing) ->
         {"mean": (B, K, H) point forecast, "repaired": (B, K, T), "samples": None}."""
         repaired = observed
@@ -364,8 +369,8 @@ class TCD:
                 fill = "model" if self.repair_model is not None else "spline"
             if fill == "model":
                 den = self.repair_model if self.repair_model is not None else self.short
-                out = repair_raw(den, observed, seen, num_samples=num_samples, options=options, seed=seed,
-                                 threads=threads, progress=progress)
+                out = repair_raw(den, observed, seen, num_samples=num_samples, seed=seed, threads=threads,
+                                 progress=progress, **sampling)
                 repaired = np.where(missing, out["mean"], observed).astype(np.float32)
             else:
                 never = missing.all(axis=-1)

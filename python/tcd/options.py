@@ -1,15 +1,16 @@
-"""How each chain is sampled: the one home of the sampler settings and their defaults.
+"""How each chain is sampled: the one home of the sampler settings, their defaults and their checks.
 
-Every layer that samples (``TCD.forecast`` / ``TCD.repair``, :class:`tcd.Denoiser`, :func:`tcd.cascade_raw`,
-:func:`tcd.repair_raw`, ``tcd repair``, the command line) takes a :class:`SamplerOptions` or builds one from
-the same keyword arguments with :meth:`SamplerOptions.build`; the binding converts it into the engine's
+Every layer that samples (``TCD.forecast`` / ``TCD.repair`` / ``TCD.predict``, :class:`tcd.Denoiser`,
+:func:`tcd.cascade_raw`, :func:`tcd.repair_raw`, :func:`tcd.repair_file`, the command line) takes the settings
+as keyword arguments (``sampler``, ``num_inference_steps``, ``eta``, ``timestep_spacing``) and reads them with
+:meth:`SamplerOptions.build`; the binding converts the resulting :class:`SamplerOptions` into the engine's
 ``SamplerConfig`` in one place (``SamplerOptions`` in crates/tcd-py/src/convert.rs, a ``FromPyObject``).
 The values are checked by the engine's rules (``SamplerConfig::from_names``), when an options object is
 made and again when it is used; Python checks only that each field has the Python type the binding reads.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, fields
 from typing import Any, Optional
 
 from . import _checks, _native
@@ -23,7 +24,9 @@ SPACINGS = tuple(_native.SPACINGS)
 class SamplerOptions:
     """The sampler of every chain. Checked when made (each bad value an
     :class:`~tcd.exceptions.InvalidInputError` naming the field); the number of steps is checked against a
-    model's training steps when the model samples.
+    model's training steps when the model samples. Calls take these fields as keyword arguments, never the
+    object; it is the record of a run's settings (``tcd.batch_repair.RepairOptions.sampling``) and what the
+    binding reads.
 
     Attributes:
         sampler: ``"ddpm"`` (ancestral, the paper's), ``"ddim"`` (``eta``) or ``"dpmpp2m"``
@@ -51,14 +54,13 @@ class SamplerOptions:
         _native.check_sampler_options(self)  # the values, by the engine's rules
 
     @classmethod
-    def build(cls, options: Optional["SamplerOptions"] = None, **overrides: Any) -> "SamplerOptions":
-        """``options`` (default: the defaults) with the fields named in ``overrides`` replaced; an unknown
-        name is a ``TypeError`` as for any function."""
-        if options is not None and not isinstance(options, SamplerOptions):
-            raise _checks.fail("options", "a tcd.SamplerOptions or None", f"{options!r} ({type(options).__name__})")
+    def build(cls, **sampler: Any) -> "SamplerOptions":
+        """The settings named in ``sampler`` (the sampler keywords of a call), the defaults for the rest. An
+        unknown name is a ``TypeError`` naming the valid ones; a bad value an
+        :class:`~tcd.exceptions.InvalidInputError` naming its field."""
         names = {f.name for f in fields(cls)}
-        unknown = sorted(set(overrides) - names)
+        unknown = sorted(set(sampler) - names)
         if unknown:
-            raise TypeError(f"unexpected keyword argument {unknown[0]!r} (sampler settings: {', '.join(sorted(names))})")
-        base = options if options is not None else cls()
-        return replace(base, **overrides) if overrides else base
+            raise TypeError(f"unexpected keyword argument {unknown[0]!r} "
+                            f"(sampler settings: {', '.join(sorted(names))})")
+        return cls(**sampler)

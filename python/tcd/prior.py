@@ -18,6 +18,7 @@ from typing import Any, Dict, Optional, Union
 import numpy as np
 
 from . import _checks, _native
+from ._attributes import NativeAttribute
 
 __all__ = ["Prior"]
 
@@ -53,45 +54,19 @@ class Prior:
         """The ``tcd_config`` JSON of the file, parsed (a fresh copy)."""
         return json.loads(json.dumps(self._config))
 
-    @property
-    def path(self) -> str:
-        return self._native.path
-
-    @property
-    def num_features(self) -> int:
-        """K = num_joints * 3."""
-        return self._native.num_features
-
-    @property
-    def num_joints(self) -> int:
-        return self._native.num_joints
-
-    @property
-    def obs_len(self) -> int:
-        """Frames one forward reads: the last ``obs_len`` frames of the input."""
-        return self._native.obs_len
-
-    @property
-    def chunk(self) -> int:
-        """Frames one forward predicts; :meth:`predict` rolls out longer horizons."""
-        return self._native.chunk
-
-    @property
-    def blocks(self) -> int:
-        """Temporal FC + layer-norm blocks."""
-        return self._native.blocks
-
-    @property
-    def kernel(self) -> str:
-        """The compute kernels in use: ``"portable"``, ``"avx2"`` or ``"avx512"`` (chosen when the file is
-        loaded: ``$TCD_KERNEL``, default the best this CPU supports, see :func:`tcd.supported_kernels`)."""
-        return self._native.kernel
-
-    @property
-    def dct_matrix(self) -> np.ndarray:
-        """The (obs_len, obs_len) float32 DCT-II matrix the engine computes (row f the f-th cosine); it
-        equals ``training.prior.dct_matrix(obs_len)`` rounded to float32."""
-        return self._native.dct_matrix
+    # The file's settings, read from the engine's model (each read-only).
+    path = NativeAttribute(str, "The weight file's path (or the name given to :meth:`from_bytes`).")
+    num_features = NativeAttribute(int, "K = num_joints * 3.")
+    num_joints = NativeAttribute(int, "Joints of the model (its config's ``model.num_joints``).")
+    obs_len = NativeAttribute(int, "Frames one forward reads: the last ``obs_len`` frames of the input.")
+    chunk = NativeAttribute(int, "Frames one forward predicts; :meth:`predict` rolls out longer horizons.")
+    blocks = NativeAttribute(int, "Temporal FC + layer-norm blocks.")
+    kernel = NativeAttribute(str, 'The compute kernels in use: ``"portable"``, ``"avx2"`` or ``"avx512"`` (chosen '
+                             "when the file is loaded: ``$TCD_KERNEL``, default the best this CPU supports, see "
+                             ":func:`tcd.supported_kernels`).")
+    dct_matrix = NativeAttribute(np.ndarray, "The (obs_len, obs_len) float32 DCT-II matrix the engine computes "
+                                 "(row f the f-th cosine); it equals ``training.prior.dct_matrix(obs_len)`` rounded "
+                                 "to float32.")
 
     def __repr__(self) -> str:
         return repr(self._native)

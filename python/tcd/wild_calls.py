@@ -219,9 +219,10 @@ def forecast(model: Any, obs: Any, mask: Any, *, layout: Any, fps: Any, up: Any,
 
 
 def repair(model: Any, den: Any, obs: Any, mask: Any, *, layout: Any, fps: Any, up: Any, num_samples: int,
-           options: Any, seed: int, units: str, threads: Optional[int], progress: Any) -> np.ndarray:
+           sampling: Dict[str, Any], seed: int, units: str, threads: Optional[int], progress: Any) -> np.ndarray:
     """The observation with its missing entries filled by ``den``, in the caller's layout, coordinates,
-    units and frame rate; at most the model's window (longer files: :func:`tcd.repair_file`)."""
+    units and frame rate; at most the model's window (longer files: :func:`tcd.repair_file`). ``sampling``:
+    the sampler keywords of :func:`tcd.repair_raw`."""
     own = own_layout(model)
     if own is not None:
         p, src_fps, times, root, world, observed, seen = _own_prepare(model, own, obs, mask, layout, fps, up, units,
@@ -233,8 +234,8 @@ def repair(model: Any, den: Any, obs: Any, mask: Any, *, layout: Any, fps: Any, 
             f"Argument `obs` must span at most the model's window ({model.obs_len} frames at {model.fps:g} fps) "
             f"to be repaired in one call, but received {p.values.shape[1]} frames at {src_fps:g} fps: repair "
             "longer sequences with tcd.repair_file (overlapping windows).", "obs")
-    out = repair_raw(den, observed, seen, num_samples=num_samples, options=options, seed=seed, threads=threads,
-                     progress=progress)
+    out = repair_raw(den, observed, seen, num_samples=num_samples, seed=seed, threads=threads, progress=progress,
+                     **sampling)
     if own is not None:
         return _repaired(p, world(out["mean"], root), times, UNIT_SCALE[units])
     rep_w = wild.from_model(_model_poses(out["mean"]), scene, scene.root, scene.rot, own_frames=True)

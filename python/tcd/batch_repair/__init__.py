@@ -43,28 +43,11 @@ Outputs
 """
 from __future__ import annotations
 
-from typing import Any
-
 # The package's modules, in the order of the work: options (settings, provenance), inputs (reading one
-# file), windows (resampling and the windows of one file), runner (the engine loop, repair_file, planning).
-# Their names are re-exported here, as before the split, and so are those of the atomic writes (tcd.files)
-# and of the `tcd repair` command (tcd.cli.repair), which moved out to serve every command.
-from ..files import write_npz_atomic, write_text_atomic  # noqa: F401
-from .inputs import Loaded, is_expmap_txt, load_input, peek_frames  # noqa: F401
-from .options import (DEFAULT_FILES_PER_BATCH, DEFAULT_LOOKAHEAD, DEFAULT_OVERLAP, DEFAULT_SEED,  # noqa: F401
-                      INPUT_SUFFIXES, BadFile, RepairOptions, provenance)
-from .runner import Outcome, Task, collect_tasks, repair_file, run_tasks, same_path  # noqa: F401
-from .windows import FileJob, window_starts  # noqa: F401
+# file), windows (resampling and the windows of one file), runner (the engine loop, repair_file, planning),
+# distributed (tcd repair --ray). The command line is tcd.cli.repair, the atomic writes tcd.files. Only the
+# names of __all__ are imported here; everything else from the module that defines it.
+from .options import DEFAULT_OVERLAP, DEFAULT_SEED, INPUT_SUFFIXES, RepairOptions
+from .runner import repair_file
 
 __all__ = ["repair_file", "RepairOptions", "DEFAULT_OVERLAP", "DEFAULT_SEED", "INPUT_SUFFIXES"]
-
-# tcd.cli.repair's names under their old names: looked up on first use, as importing the command line here
-# would import it with `import tcd`, and tcd.cli.repair imports this package.
-_COMMAND_NAMES = {"CLI_USAGE": "CLI_USAGE", "add_subparser": "add_parser", "cli": "run"}
-
-
-def __getattr__(name: str) -> Any:
-    if name in _COMMAND_NAMES:
-        from ..cli import repair as command
-        return getattr(command, _COMMAND_NAMES[name])
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -2,6 +2,7 @@
 the provenance recorded in every output."""
 from __future__ import annotations
 
+import dataclasses
 import os
 from dataclasses import dataclass
 from typing import Any, Dict, Optional, Union
@@ -22,6 +23,10 @@ DEFAULT_LOOKAHEAD = 10
 DEFAULT_SEED = 0
 DEFAULT_FILES_PER_BATCH = 4
 INPUT_SUFFIXES = (".npz", ".txt", ".bvh")
+
+
+#: the keywords of :meth:`RepairOptions.make` besides ``sampler`` (those of :func:`repair_file` it reads)
+_MAKE_KEYWORDS = frozenset({"num_samples", "seed", "units", "fps", "overlap", "lookahead", "threads", "layout", "up"})
 
 
 class BadFile(Exception):
@@ -45,13 +50,16 @@ class RepairOptions:
     up: str = "y"                   # the inputs' vertical axis, for layouts other than the model's
 
     @staticmethod
-    def make(model: Any, *, options: Optional[SamplerOptions] = None, sampler: Optional[Dict[str, Any]] = None,
-             **kw: Any) -> "RepairOptions":
-        """Checked settings: ``options`` / ``sampler`` (its fields) as :meth:`SamplerOptions.build`, the rest
-        as the keywords of :func:`repair_file`."""
-        sampling = SamplerOptions.build(options, **(sampler or {}))
+    def make(model: Any, *, sampler: Optional[Dict[str, Any]] = None, **kw: Any) -> "RepairOptions":
+        """Checked settings: ``sampler``, the sampler keywords of :func:`repair_file` as a dict (read by
+        :meth:`SamplerOptions.build`); the rest as the other keywords of :func:`repair_file`."""
+        unknown = sorted(set(kw) - _MAKE_KEYWORDS)
+        if unknown:
+            raise TypeError(f"unexpected keyword argument {unknown[0]!r} (settings: sampler, "
+                            f"{', '.join(sorted(_MAKE_KEYWORDS))})")
+        sampling = SamplerOptions.build(**(sampler or {}))
         den = _denoiser(model)
-        den.timesteps(options=sampling)  # the step count against the model, before any file is read
+        den.timesteps(**dataclasses.asdict(sampling))  # the step count against the model, before any file is read
         seed = kw.get("seed", DEFAULT_SEED)
         fps = kw.get("fps")
         if fps is not None:
@@ -88,7 +96,7 @@ def _denoiser(model: Any) -> Denoiser:
 
 def provenance(model: Any, opts: RepairOptions, fps: float) -> Dict[str, Any]:
     den = _denoiser(model)
-    steps = len(den.timesteps(options=opts.sampling))
+    steps = len(den.timesteps(**dataclasses.asdict(opts.sampling)))
     return {
         "tool": "tcd repair",
         "tcd_version": __version__,

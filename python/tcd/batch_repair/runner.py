@@ -2,6 +2,7 @@
 and :func:`repair_file` for one file."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -16,7 +17,6 @@ import numpy as np
 from ..denoiser import repair_raw
 from ..exceptions import InvalidInputError
 from ..files import write_npz_atomic
-from ..options import SamplerOptions
 from .inputs import load_input, peek_frames
 from .options import BadFile, DEFAULT_FILES_PER_BATCH, DEFAULT_LOOKAHEAD, DEFAULT_OVERLAP, DEFAULT_SEED, INPUT_SUFFIXES, PathLike, RepairOptions, _denoiser, provenance
 from .windows import FileJob
@@ -119,6 +119,7 @@ def run_tasks(model: Any, tasks: Iterable[Task], opts: RepairOptions, *, overwri
                 continue
             active.append(Active(i, task, FileJob(loaded, w, opts.overlap, model.fps, opts.units, opts.lookahead), t0))
 
+    sampler = dataclasses.asdict(opts.sampling)   # repair_raw's sampler keywords
     refill()
     while active:
         obs, msk = [], []
@@ -128,7 +129,7 @@ def run_tasks(model: Any, tasks: Iterable[Task], opts: RepairOptions, *, overwri
             msk.append(m)
         # Window k of a file draws the engine's stream k, whichever files share the batch.
         out = repair_raw(den, np.stack(obs), np.stack(msk), num_samples=opts.num_samples, seed=opts.seed,
-                         sequences=[a.job.k for a in active], options=opts.sampling, threads=opts.threads)
+                         sequences=[a.job.k for a in active], threads=opts.threads, **sampler)
         still: List[Active] = []
         for a, mean in zip(active, out["mean"]):
             a.job.accept(mean)
@@ -157,10 +158,10 @@ def run_tasks(model: Any, tasks: Iterable[Task], opts: RepairOptions, *, overwri
 
 # ---------------------------------------------------------------------------------------------- public API
 def repair_file(src: PathLike, dst: PathLike, model: Any = None, *, num_samples: int = 5,
-                options: Optional[SamplerOptions] = None, seed: Optional[int] = DEFAULT_SEED, units: str = "m",
-                fps: Optional[float] = None, overlap: int = DEFAULT_OVERLAP, lookahead: int = DEFAULT_LOOKAHEAD,
-                threads: Optional[int] = None, overwrite: bool = False, layout: Optional[str] = None,
-                up: str = "y", **sampler: Any) -> Dict[str, Any]:
+                seed: Optional[int] = DEFAULT_SEED, units: str = "m", fps: Optional[float] = None,
+                overlap: int = DEFAULT_OVERLAP, lookahead: int = DEFAULT_LOOKAHEAD, threads: Optional[int] = None,
+                overwrite: bool = False, layout: Optional[str] = None, up: str = "y",
+                **sampler: Any) -> Dict[str, Any]:
     """Repairs the pose sequence in ``src`` (an ``.npz`` with ``poses`` (T, J, 3), NaN = missing, and an
     optional ``mask``; or a Human3.6M exp-map ``.txt``) of any length T, and writes ``dst`` (an ``.npz``
     with ``poses``, ``mask`` and ``provenance``) atomically. See :mod:`tcd.batch_repair` for the windowing,
@@ -177,7 +178,8 @@ def repair_file(src: PathLike, dst: PathLike, model: Any = None, *, num_samples:
         units: ``"m"``, ``"cm"`` or ``"mm"``, the units of the poses (and of the output).
         layout, up: poses in another joint layout (:mod:`tcd.layouts`), in world or camera coordinates with
             ``up`` the vertical axis: converted to the model's convention and back (:mod:`tcd.wild`).
-        options, ``**sampler``: the sampler (:class:`tcd.SamplerOptions`, or its fields as keywords).
+        ``**sampler``: the sampler keywords (``sampler``, ``num_inference_steps``, ``eta``,
+            ``timestep_spacing``; :class:`tcd.SamplerOptions`).
         Others: as :meth:`tcd.TCD.repair`.
 
     Returns a summary dict (``status``, ``frames``, ``missing_values``, ``windows``, ...). Raises
@@ -187,9 +189,8 @@ def repair_file(src: PathLike, dst: PathLike, model: Any = None, *, num_samples:
     from ..model import TCD, load
 
     m = model if isinstance(model, TCD) else load(model)
-    opts = RepairOptions.make(m, options=options, sampler=sampler, num_samples=num_samples, seed=seed,
-                              units=units, fps=fps, overlap=overlap, lookahead=lookahead, threads=threads,
-                              layout=layout, up=up)
+    opts = RepairOptions.make(m, sampler=sampler, num_samples=num_samples, seed=seed, units=units, fps=fps,
+                              overlap=overlap, lookahead=lookahead, threads=threads, layout=layout, up=up)
     s, d = Path(src), Path(dst)
     if same_path(s, d):
         raise InvalidInputError(f"The output {d} is the input {s}: an input is never overwritten in place.", "dst")

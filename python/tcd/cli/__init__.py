@@ -40,10 +40,10 @@ from .._native import __version__
 from ..exceptions import TcdError
 from . import demo, forecast, info, repair
 from .common import (EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK, EXIT_TERMINATED, OPTION_FLAGS,
-                     SAMPLER_FLAGS, _BadInput, add_sampler_flags, flag_message, sampler_options, stop_signals, stopped)
+                     SAMPLER_FLAGS, _BadInput, add_sampler_flags, flag_message, sampler_keywords, stop_signals, stopped)
 
 __all__ = ["main", "EXIT_OK", "EXIT_FAILURE", "EXIT_BAD_INPUT", "EXIT_INTERRUPTED", "EXIT_TERMINATED", "OPTION_FLAGS",
-           "SAMPLER_FLAGS", "flag_message", "add_sampler_flags", "sampler_options"]
+           "SAMPLER_FLAGS", "flag_message", "add_sampler_flags", "sampler_keywords"]
 
 COMMANDS = {"info": info, "forecast": forecast, "demo": demo, "repair": repair}  # in the order of --help
 

@@ -3,6 +3,7 @@ sampler flags and loading the model."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import signal
 import threading
 from contextlib import contextmanager
@@ -94,11 +95,12 @@ def add_sampler_flags(p: argparse.ArgumentParser, *, tuning: bool = True) -> Non
                        help=f"timestep spacing (default {d.timestep_spacing})")
 
 
-def sampler_options(args: argparse.Namespace) -> SamplerOptions:
-    """The SamplerOptions of the sampler flags given; a bad value is an error naming its flag."""
+def sampler_keywords(args: argparse.Namespace) -> Dict[str, Any]:
+    """The sampler keywords of the API (all four) from the sampler flags given, checked by
+    :meth:`SamplerOptions.build` before any file is read; a bad value is an error naming its flag."""
     given = {f: getattr(args, f) for f in SAMPLER_FLAGS if getattr(args, f, None) is not None}
     try:
-        return SamplerOptions.build(**given)
+        return dataclasses.asdict(SamplerOptions.build(**given))
     except InvalidInputError as e:
         raise _BadInput(flag_message(e)) from None
 

@@ -8,7 +8,7 @@ from typing import Any
 from .. import demo
 from ..exceptions import InvalidInputError
 from .common import (EXIT_OK, _BadInput, add_model_flag, add_sampler_flags, flag_message, load_model, output_exists,
-                     sampler_options, writing)
+                     sampler_keywords, writing)
 
 
 def add_parser(sub: Any) -> argparse.ArgumentParser:
@@ -47,8 +47,8 @@ def run(args: argparse.Namespace) -> int:
     model = load_model(args.model)
     samples = demo.DEFAULT_SAMPLES if args.samples is None else args.samples
     try:
-        res = demo.run(model, samples=samples, options=sampler_options(args), seed=args.seed, threads=args.threads,
-                       quiet=args.quiet)
+        res = demo.run(model, samples=samples, seed=args.seed, threads=args.threads, quiet=args.quiet,
+                       **sampler_keywords(args))
     except InvalidInputError as e:
         raise _BadInput(flag_message(e)) from None
     except ValueError as e:

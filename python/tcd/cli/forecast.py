@@ -13,7 +13,7 @@ from ..files import UnreadableFile, read_pose_npz, write_npz_atomic
 from ..layouts import LAYOUTS
 from ..poses import UNIT_SCALE
 from .common import (EXIT_OK, OPTION_FLAGS, _BadInput, add_model_flag, add_sampler_flags, flag_message, load_model,
-                     output_exists, sampler_options, writing)
+                     output_exists, sampler_keywords, writing)
 
 # The arguments the input file sets, for the error messages.
 FLAGS = {**OPTION_FLAGS, "obs": "the `poses` array of the input file", "mask": "the `mask` array of the input file",
@@ -92,16 +92,16 @@ def run(args: argparse.Namespace) -> int:
         layout, fps = "h36m32", fps if fps is not None else file_fps
     else:
         data = _read_npz(Path(args.input))
-    options = sampler_options(args)
+    sampler = sampler_keywords(args)
     model = load_model(args.model)
     if args.point and model.prior is None:
         raise _BadInput(f"--point: the model directory {model.path} has no prior.safetensors.")
     call = model.predict if args.point else model.forecast
     extra = {"fill": args.fill} if args.point else {}
     try:
-        f = call(data["poses"], data.get("mask"), num_samples=args.samples, options=options, seed=args.seed,
-                 units=args.units, threads=args.threads, progress=not args.quiet and sys.stderr.isatty(),
-                 layout=layout, fps=fps, up=args.up, **extra)
+        f = call(data["poses"], data.get("mask"), num_samples=args.samples, seed=args.seed, units=args.units,
+                 threads=args.threads, progress=not args.quiet and sys.stderr.isatty(), layout=layout, fps=fps,
+                 up=args.up, **extra, **sampler)
     except InvalidInputError as e:
         raise _BadInput(flag_message(e, FLAGS)) from None
     arrays = {"mean": f.mean, "repaired": f.repaired, "seed": np.uint64(f.seed)}

@@ -17,7 +17,7 @@ from ..batch_repair.runner import Outcome, collect_tasks, run_tasks, same_path
 from ..exceptions import InvalidInputError
 from ..files import write_text_atomic
 from .common import (EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_OK, OPTION_FLAGS, _BadInput, add_model_flag, add_sampler_flags,
-                     flag_message, load_model, sampler_options, stopped)
+                     flag_message, load_model, sampler_keywords, stopped)
 
 # RepairOptions.make's arguments by the flag that sets each, for the error messages (--jobs sets threads).
 FLAGS = {**OPTION_FLAGS, "threads": "--jobs", "fps": "--fps", "overlap": "--overlap", "lookahead": "--lookahead",
@@ -99,7 +99,7 @@ def run(args: Any) -> int:
         return bad(f"the report {args.report} would overwrite an input.")
     try:
         model = load_model(args.model)
-        opts = RepairOptions.make(model, options=sampler_options(args), num_samples=args.samples, seed=args.seed,
+        opts = RepairOptions.make(model, sampler=sampler_keywords(args), num_samples=args.samples, seed=args.seed,
                                   units=args.units, fps=args.fps, overlap=args.overlap, lookahead=args.lookahead,
                                   threads=args.jobs, layout=args.layout, up=args.up)
     except _BadInput as e:
