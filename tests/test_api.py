@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 
 import tcd
-from tcd import _native
 
 from fixtures_util import bad, config_of, copy_dir, poses, read_weights, with_config, write_weights
 from hypothesis import HealthCheck, given, settings
@@ -324,7 +323,8 @@ def test_bundled_repair_model():
     np.testing.assert_array_equal(out[mask], clip[mask])
     err_mm = np.linalg.norm(out - clip, axis=-1)[~mask].mean() * 1000
     # Against linear interpolation on the same gaps: the bundled (spline-conditioned, two stages) model measured
-    # 25.6 vs 46.6 mm (0.55x; its first stage 25.3 mm); the GPU-trained linear-residual model 32.8 mm (0.70x); the first CPU repair model 47.7 mm
+    # 25.6 vs 46.6 mm (0.55x; its first stage 25.3 mm); the GPU-trained linear-residual model 32.8 mm (0.70x);
+    # the first CPU repair model 47.7 mm
     # (1.02x, with DDIM-10 x 2); the short-term model's in-painting, before there was a repair model, 128.8 mm.
     lin = tcd.interpolate(clip, mask, method="linear")
     lin_mm = np.linalg.norm(lin - clip, axis=-1)[~mask].mean() * 1000
@@ -381,7 +381,8 @@ def test_sampler_settings_have_one_form(tiny_model, obs, tmp_path):
             RepairOptions.make(tiny_model, **{key: None})
     assert RepairOptions.make(tiny_model, sampler={"num_inference_steps": 3}).sampling.num_inference_steps == 3
     for kw, argument in (({"sampler": "euler"}, "sampler"), ({"eta": 2.0}, "eta"),
-                         ({"num_inference_steps": 0}, "num_inference_steps"), ({"timestep_spacing": "x"}, "timestep_spacing")):
+                         ({"num_inference_steps": 0}, "num_inference_steps"),
+                         ({"timestep_spacing": "x"}, "timestep_spacing")):
         bad(argument, tcd.SamplerOptions, **kw)
         bad(argument, d.timesteps, **kw)
     bad("num_inference_steps", d.timesteps, num_inference_steps=51)   # more steps than the model was trained with

@@ -21,11 +21,11 @@ def tiny():
     return m.eval()
 
 
-def window(B=2, L=12, O=8, seed=0):
+def window(B=2, L=12, obs_len=8, seed=0):
     g = torch.Generator().manual_seed(seed)
     x0 = torch.randn(B, K, L, generator=g)
     mask = torch.zeros(B, K, L)
-    mask[..., :O] = 1
+    mask[..., :obs_len] = 1
     return x0, mask
 
 
@@ -77,9 +77,9 @@ def test_q_sample_formula():
     assert q_sample(SCHED, x0, t, eps).item() == pytest.approx(math.sqrt(a) + 2 * math.sqrt(1 - a), rel=1e-6)
 
 
-@pytest.mark.parametrize("sampler,steps,eta", [("ddpm", None, 0.0), ("ddim", 50, 0.0), ("ddim", 10, 0.0), ("ddim", 10, 1.0),
-                                               ("ddpm", 10, 0.0), ("dpmpp2m", 5, 0.0), ("dpmpp2m", 10, 0.0),
-                                               ("dpmpp2m", 20, 0.0), ("dpmpp2m", 50, 0.0)])
+@pytest.mark.parametrize("sampler,steps,eta", [("ddpm", None, 0.0), ("ddim", 50, 0.0), ("ddim", 10, 0.0),
+                                               ("ddim", 10, 1.0), ("ddpm", 10, 0.0), ("dpmpp2m", 5, 0.0),
+                                               ("dpmpp2m", 10, 0.0), ("dpmpp2m", 20, 0.0), ("dpmpp2m", 50, 0.0)])
 def test_samplers_with_oracle_eps_recover_x0(sampler, steps, eta):
     x0, mask = window(B=3)
     obs = x0.clone()
@@ -142,7 +142,7 @@ def test_batched_chains_equal_sequential(tiny):
 
 
 def test_cascade_structure(tiny):
-    obs, mask = window(B=2, L=8, O=8)
+    obs, mask = window(B=2, L=8, obs_len=8)
     mask[0, :9, 2:5] = 0                                       # occlusion inside the observation
     g = torch.Generator().manual_seed(0)
     res = cascade(tiny, SCHED, tiny, SCHED, obs, mask, short_len=10, long_len=14, num_samples=3, generator=g,
@@ -158,7 +158,7 @@ def test_cascade_structure(tiny):
 
 
 def test_repair_keeps_observed_and_fills_hidden(tiny):
-    obs, mask = window(B=2, L=8, O=8)
+    obs, mask = window(B=2, L=8, obs_len=8)
     mask[:, :6, 3:6] = 0
     out = repair(tiny, SCHED, obs * mask, mask, seq_len=10, num_samples=2, sampler="ddim", num_inference_steps=5,
                  generator=torch.Generator().manual_seed(0))
@@ -250,7 +250,7 @@ def test_dpmpp2m_deterministic_and_one_noise_block(tiny):
 
 
 def test_dpmpp2m_cascade_and_repair(tiny):
-    obs, mask = window(B=2, L=8, O=8)
+    obs, mask = window(B=2, L=8, obs_len=8)
     mask[:, :6, 3:6] = 0
     g = torch.Generator().manual_seed(0)
     res = cascade(tiny, SCHED, tiny, SCHED, obs, mask, short_len=10, long_len=14, num_samples=2, generator=g,

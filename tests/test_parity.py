@@ -20,7 +20,7 @@ from training import diffusion as D
 from training.export import load_model_file
 
 CHAIN_ATOL = 1e-4   # model units (metres)
-O = 50  # observed frames of the cascade
+OBS_LEN = 50  # observed frames of the cascade
 
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -74,7 +74,7 @@ MASKS = ["forecast", "random", "none_observed", "all_observed"]
 def make_mask(kind, rng, b, k, length):
     if kind == "forecast":
         m = np.zeros((b, k, length), np.float32)
-        m[:, :, :O] = 1
+        m[:, :, :OBS_LEN] = 1
         return m
     if kind == "random":
         return (rng.random((b, k, length)) < 0.5).astype(np.float32)
@@ -177,7 +177,7 @@ def test_cascade_every_kernel(reduced_dir, kernel, monkeypatch):
     ml, sl, _ = load_model_file(reduced_dir / "long.safetensors")
     rng = np.random.default_rng(200 + ALL_KERNELS.index(kernel))
     k, s = short.num_features, 2
-    observed, mask = observation(rng, 1, k, O, O)
+    observed, mask = observation(rng, 1, k, OBS_LEN, OBS_LEN)
     kw = dict(sampler="ddpm", num_inference_steps=10, timestep_spacing="trailing")
     ns = rng.standard_normal((s, 11, 1, k, short.seq_len)).astype(np.float32)
     nl = rng.standard_normal((s, 11, 1, k, long.seq_len)).astype(np.float32)
@@ -187,7 +187,7 @@ def test_cascade_every_kernel(reduced_dir, kernel, monkeypatch):
                      noise_long=torch.from_numpy(nl), **kw)
     what = f"cascade reduced kernel={kernel}"
     assert chain_close(got["short_mean"], want["short_mean"].numpy(), what + " short_mean")
-    assert chain_close(got["samples"], want["samples"].numpy()[..., O:], what + " samples")
+    assert chain_close(got["samples"], want["samples"].numpy()[..., OBS_LEN:], what + " samples")
 
 
 # ------------------------------------------------------------------------------------ chains
@@ -214,7 +214,7 @@ def test_chain_injected_noise(tiny, sampler, steps, eta, spacing, num_samples):
     den, model, sched = tiny["short"]
     rng = np.random.default_rng(100 + CHAINS.index((sampler, steps, eta, spacing, num_samples)))
     b, k, length = 1, den.num_features, den.seq_len
-    observed, mask = observation(rng, b, k, length, O)
+    observed, mask = observation(rng, b, k, length, OBS_LEN)
     kw = dict(sampler=sampler, num_inference_steps=steps, eta=eta, timestep_spacing=spacing)
     assert den.timesteps(**kw) == [t for t, _ in D.step_pairs(50, sampler, steps, spacing)]
     blocks = den.num_noise_blocks(**kw)
@@ -235,7 +235,7 @@ def test_seeded_noise_matches_torch_fed_the_same_streams(tiny):
     den, model, sched = tiny["short"]
     rng = np.random.default_rng(21)
     b, k, length, s = 2, den.num_features, den.seq_len, 2
-    observed, mask = observation(rng, b, k, length, O)
+    observed, mask = observation(rng, b, k, length, OBS_LEN)
     kw = dict(sampler="ddim", num_inference_steps=8, eta=1.0, timestep_spacing="trailing")
     blocks = den.num_noise_blocks(**kw)
     noise = tcd.seeded_noise(1234, tcd.STAGE_SHORT, s, blocks, b, k, length)
@@ -263,7 +263,7 @@ def test_cascade_injected_noise(tiny, sampler, steps, eta, s):
     short, long = tiny["short"][0], tiny["long"][0]
     rng = np.random.default_rng(31)
     b, k = 1, short.num_features
-    observed, mask = observation(rng, b, k, O, O, missing=0.3)
+    observed, mask = observation(rng, b, k, OBS_LEN, OBS_LEN, missing=0.3)
     kw = dict(sampler=sampler, num_inference_steps=steps, eta=eta, timestep_spacing="trailing")
     n_s, n_l = short.num_noise_blocks(**kw), long.num_noise_blocks(**kw)
     noise_short = rng.standard_normal((s, n_s, b, k, short.seq_len)).astype(np.float32)
@@ -273,12 +273,12 @@ def test_cascade_injected_noise(tiny, sampler, steps, eta, s):
     want = torch_cascade(tiny, observed, mask, s, noise_short, noise_long, **kw)
     samples = want["samples"].numpy()
     assert got["samples"].shape == (s, b, k, 25) and got["mean"].shape == (b, k, 25)
-    assert got["repaired"].shape == (b, k, O) and got["short_mean"].shape == (b, k, 55)
+    assert got["repaired"].shape == (b, k, OBS_LEN) and got["short_mean"].shape == (b, k, 55)
     what = f"cascade {sampler} n={steps} eta={eta} S={s}"
     assert chain_close(got["short_mean"], want["short_mean"], what + " short_mean")
-    assert chain_close(got["samples"], samples[..., O:], what + " samples")
-    assert chain_close(got["mean"], samples[..., O:].mean(axis=0), what + " mean")
-    assert chain_close(got["repaired"], want["short_mean"].numpy()[..., :O], what + " repaired")
+    assert chain_close(got["samples"], samples[..., OBS_LEN:], what + " samples")
+    assert chain_close(got["mean"], samples[..., OBS_LEN:].mean(axis=0), what + " mean")
+    assert chain_close(got["repaired"], want["short_mean"].numpy()[..., :OBS_LEN], what + " repaired")
     assert np.abs(samples).max() > 1.0
     sel = mask == 1
     assert np.array_equal(got["repaired"][sel], observed[sel])
@@ -288,21 +288,21 @@ def test_cascade_seeded_matches_torch_fed_the_same_streams(tiny):
     short, long = tiny["short"][0], tiny["long"][0]
     rng = np.random.default_rng(41)
     b, k, s = 2, short.num_features, 1
-    observed, mask = observation(rng, b, k, O, O)
+    observed, mask = observation(rng, b, k, OBS_LEN, OBS_LEN)
     kw = dict(sampler="ddim", num_inference_steps=5, eta=1.0, timestep_spacing="trailing")
     n = short.num_noise_blocks(**kw)
     noise_short = tcd.seeded_noise(99, tcd.STAGE_SHORT, s, n, b, k, short.seq_len)
     noise_long = tcd.seeded_noise(99, tcd.STAGE_LONG, s, n, b, k, long.seq_len)
     got = tcd.cascade_raw(short, long, observed, mask, num_samples=s, seed=99, **kw)
     want = torch_cascade(tiny, observed, mask, s, noise_short, noise_long, **kw)
-    assert chain_close(got["samples"], want["samples"].numpy()[..., O:], "seeded cascade ddim n=5 eta=1")
+    assert chain_close(got["samples"], want["samples"].numpy()[..., OBS_LEN:], "seeded cascade ddim n=5 eta=1")
 
 
 def test_repair_injected_noise(tiny):
     den, model, sched = tiny["short"]
     rng = np.random.default_rng(51)
     b, k, s = 1, den.num_features, 2
-    observed, mask = observation(rng, b, k, O, O, missing=0.4)
+    observed, mask = observation(rng, b, k, OBS_LEN, OBS_LEN, missing=0.4)
     kw = dict(sampler="ddim", num_inference_steps=10, eta=0.0, timestep_spacing="trailing")
     noise = rng.standard_normal((s, 11, b, k, den.seq_len)).astype(np.float32)
     got = tcd.repair_raw(den, observed, mask, num_samples=s, noise=noise, **kw)
@@ -322,7 +322,7 @@ def test_dpmpp2m_noise_blocks_seeded_and_repair(tiny):
     assert den.num_noise_blocks(sampler="ddim", num_inference_steps=10) == 11
     rng = np.random.default_rng(61)
     b, k, s = 2, den.num_features, 2
-    observed, mask = observation(rng, b, k, den.seq_len, O)
+    observed, mask = observation(rng, b, k, den.seq_len, OBS_LEN)
     kw = dict(sampler="dpmpp2m", num_inference_steps=10, timestep_spacing="trailing")
     noise = tcd.seeded_noise(77, tcd.STAGE_SHORT, s, 1, b, k, den.seq_len)
     seeded = den.sample(observed, mask, s, seed=77, **kw)
@@ -332,7 +332,7 @@ def test_dpmpp2m_noise_blocks_seeded_and_repair(tiny):
     assert chain_close(seeded, want, "seeded chain dpmpp2m n=10")
     with pytest.raises(tcd.InvalidInputError, match="noise"):
         den.sample(observed, mask, s, noise=np.zeros((s, 11, b, k, den.seq_len), np.float32), **kw)
-    obs, m = observation(rng, 1, k, O, O, missing=0.4)
+    obs, m = observation(rng, 1, k, OBS_LEN, OBS_LEN, missing=0.4)
     rnoise = rng.standard_normal((s, 1, 1, k, den.seq_len)).astype(np.float32)
     got = tcd.repair_raw(den, obs, m, num_samples=s, noise=rnoise, **kw)
     want = D.repair(model, sched, torch.from_numpy(obs), torch.from_numpy(m), seq_len=den.seq_len, num_samples=s,
@@ -392,7 +392,7 @@ def test_repair_cond_fill_linear_injected_noise(tiny_linear):
     den, model, sched = tiny_linear
     rng = np.random.default_rng(81)
     b, k, s = 2, den.num_features, 2
-    observed, mask = observation(rng, b, k, O, O, missing=0.4)
+    observed, mask = observation(rng, b, k, OBS_LEN, OBS_LEN, missing=0.4)
     kw = dict(sampler="ddpm", num_inference_steps=10, timestep_spacing="trailing")
     noise = rng.standard_normal((s, 11, b, k, den.seq_len)).astype(np.float32)
     got = tcd.repair_raw(den, observed, mask, num_samples=s, noise=noise, **kw)
@@ -428,7 +428,7 @@ def test_repair_residual_injected_noise(request, fill, sampler, steps):
     seed, atol = {"linear": (91, 1e-3), "spline": (191, 1e-4)}[fill]
     rng = np.random.default_rng(seed + steps)
     b, k, s = 2, den.num_features, 2
-    observed, mask = observation(rng, b, k, O, O, missing=0.4)
+    observed, mask = observation(rng, b, k, OBS_LEN, OBS_LEN, missing=0.4)
     mask[0, :, 10:25] = 0          # a long gap, all joints
     kw = dict(sampler=sampler, num_inference_steps=steps, timestep_spacing="trailing")
     blocks = 1 if sampler == "dpmpp2m" else steps + 1

@@ -221,7 +221,8 @@ def test_directory_with_bad_files(tiny_model_dir, tmp_path, capsys):
     assert rep["model_sha256"] == tcd.load(tiny_model_dir).sha256
     reasons = {
         "corrupt.npz": "unreadable", "garbage.npz": "unreadable", "wrong_shape.npz": "17 joints",
-        "all_missing.npz": "every value is missing", "inf.npz": "finite, with NaN marking missing", "no_poses.npz": "without a `poses` array",
+        "all_missing.npz": "every value is missing", "inf.npz": "finite, with NaN marking missing",
+        "no_poses.npz": "without a `poses` array",
     }
     for name, why in reasons.items():
         assert by[name]["status"] == "failed" and why in by[name]["reason"], by[name]

@@ -14,7 +14,8 @@ import numpy.typing as npt
 
 from .options import SamplerOptions
 
-# The module's __all__ (PyO3 fills it with every name crates/tcd-py/src/lib.rs adds), checked by `python -m mypy.stubtest tcd._native` in CI.
+# The module's __all__ (PyO3 fills it with every name crates/tcd-py/src/lib.rs adds), checked by
+# `python -m mypy.stubtest tcd._native` (tests/test_api.py).
 __all__ = [
     "__version__",
     "TcdError",

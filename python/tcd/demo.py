@@ -229,7 +229,8 @@ def summary(res: Dict[str, Any], model: TCD) -> str:
         f"tcd demo: model {model.path} (sha256 {str(model.sha256)[:12]}), clip: CMU walking "
         f"({'HumanEva-I layout' if model.data.get('dataset') == 'humaneva' else 'Human3.6M layout'}), "
         f"{len(res['observed'])} observed frames at {res['fps']:g} fps",
-        f"sampler {s['sampler']}, {s['steps'] or model.num_train_timesteps} steps, {s['samples']} samples, seed {s['seed']}",
+        f"sampler {s['sampler']}, {s['steps'] or model.num_train_timesteps} steps, {s['samples']} samples, "
+        f"seed {s['seed']}",
         "",
         "forecast error, mm (mean per-joint position error of the mean of the samples):",
         f"  {'horizon (ms)':<32}" + head,
@@ -272,7 +273,8 @@ def verdict(res: Dict[str, Any], model: TCD) -> str:
     wins = sum(res["forecast_mm"][m] < res["zero_velocity_mm"][m] for m in ms)
     full = size >= PAPER_SIZE
     kind = (f"a full-size model ({size[0]} layers x {size[1]} channels, the paper's size)" if full else
-            f"a reduced model ({size[0]} layers x {size[1]} channels, the paper's is {PAPER_SIZE[0]} x {PAPER_SIZE[1]})")
+            f"a reduced model ({size[0]} layers x {size[1]} channels, "
+            f"the paper's is {PAPER_SIZE[0]} x {PAPER_SIZE[1]})")
     caveat = ("one clip is not a benchmark (docs/reference.md has the evaluation protocol)" if full else
               "its forecasts show how the package works, not the paper's accuracy")
     return f"This is {kind}: on this clip it beats Zero-Velocity at {wins} of {len(ms)} horizons; {caveat}."
@@ -380,8 +382,9 @@ def plot(res: Dict[str, Any], path: Path, fps: float, overwrite: bool = True) ->
             hid = mask[i] == 0
             if hid.any():
                 axes[0].scatter(rep[i, hid, 0], rep[i, hid, depth], rep[i, hid, up], color="tab:red", s=12)
-            axes[0].set_title(f"repair: frame {i + 1}/{n_obs}\nblue repaired, red = was hidden, grey truth" if "repaired"
-                              in res else f"observation: frame {i + 1}/{n_obs}\nred = hidden (no repair)", fontsize=8)
+            title = (f"repair: frame {i + 1}/{n_obs}\nblue repaired, red = was hidden, grey truth" if "repaired" in res
+                     else f"observation: frame {i + 1}/{n_obs}\nred = hidden (no repair)")
+            axes[0].set_title(title, fontsize=8)
             draw(axes[1], obs[i], "0.3")
             axes[1].set_title("clean observation (ground truth)", fontsize=8)
         else:

@@ -106,7 +106,8 @@ class Denoiser:
         step = _checks.machine_int("step", step)
         return self._native.forward(_checks.float32_array("noisy", noisy),
                                     _checks.float32_array("observed", observed),
-                                    _checks.float32_array("mask", mask), step, threads=_checks.optional_machine_int("threads", threads))
+                                    _checks.float32_array("mask", mask), step,
+                                    threads=_checks.optional_machine_int("threads", threads))
 
     def sample(self, observed: Any, mask: Any, num_samples: int = 1, *, noise: Any = None,
                seed: Optional[int] = None, first_sequence: int = 0, sequences: Optional[Sequence[int]] = None,

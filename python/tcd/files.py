@@ -61,7 +61,8 @@ def read_pose_npz(path: Path) -> Dict[str, np.ndarray]:
     parameters under the same name) or an archive without ``poses`` is an :class:`UnreadableFile` saying so."""
     data = read_npz(path)
     if "poses" not in data:
-        raise UnreadableFile(f"an .npz archive without a `poses` array (it holds: {', '.join(sorted(data)) or 'nothing'})")
+        held = ", ".join(sorted(data)) or "nothing"
+        raise UnreadableFile(f"an .npz archive without a `poses` array (it holds: {held})")
     if data["poses"].ndim == 2 and {"trans", "mocap_framerate"} <= set(data):
         raise UnreadableFile(
             "an AMASS file: its `poses` are SMPL-H joint rotations (axis-angle), not joint positions; compute the "

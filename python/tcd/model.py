@@ -350,7 +350,8 @@ class TCD:
         run = lambda observed, seen: self._predict_raw(observed, seen, fill=fill, num_samples=num_samples,  # noqa: E731
                                                        sampling=sampling, seed=seed, threads=threads, progress=progress)
         if layout is not None or fps is not None:
-            mean, _, repaired, times = wild_calls.forecast(self, obs, mask, layout="h36m22" if layout is None else layout,
+            mean, _, repaired, times = wild_calls.forecast(self, obs, mask,
+                                                           layout="h36m22" if layout is None else layout,
                                                            fps=fps, up=up, units=units, run=run)
             return Forecast(mean=mean, samples=None, repaired=repaired, seed=seed, times=times)
         p = _poses(obs, mask, self.num_joints, self.obs_len, units)

@@ -30,7 +30,8 @@ Frame rates
 
 Noise and determinism
     Window k of a file draws the engine's seeded noise stream k of ``seed`` (0 by default; the engine
-    takes one stream id per batched window), so a file's result depends only on the file, the model and the settings: not on the
+    takes one stream id per batched window), so a file's result depends only on the file, the model and the
+    settings: not on the
     other files, the batching, the thread count, nor on whether an earlier run was interrupted. Windows
     of several files are batched into one engine call (``files_per_batch`` files in lock step).
 

@@ -18,7 +18,8 @@ from ..denoiser import repair_raw
 from ..exceptions import InvalidInputError
 from ..files import write_npz_atomic
 from .inputs import load_input, peek_frames
-from .options import BadFile, DEFAULT_FILES_PER_BATCH, DEFAULT_LOOKAHEAD, DEFAULT_OVERLAP, DEFAULT_SEED, INPUT_SUFFIXES, PathLike, RepairOptions, _denoiser, provenance
+from .options import (DEFAULT_FILES_PER_BATCH, DEFAULT_LOOKAHEAD, DEFAULT_OVERLAP, DEFAULT_SEED, INPUT_SUFFIXES,
+                      BadFile, PathLike, RepairOptions, _denoiser, provenance)
 from .windows import FileJob
 
 # ---------------------------------------------------------------------------------------------- the engine loop

@@ -6,7 +6,8 @@
     tcd forecast IN.npz -o OUT.npz [--model DIR] [--samples N] [--steps S] [--sampler ddpm|ddim|dpmpp2m]
                  [--eta E] [--spacing trailing|leading|linspace] [--seed S] [--units m|cm|mm]
                  [--layout L] [--fps F] [--up AXIS] [--threads N] [--overwrite] [--quiet]
-    tcd repair INPUT... -o OUTDIR [--model DIR] [--units m|cm|mm] [--fps F] [--layout L] [--up AXIS] [--steps N] [--sampler ddpm|ddim|dpmpp2m]
+    tcd repair INPUT... -o OUTDIR [--model DIR] [--units m|cm|mm] [--fps F] [--layout L] [--up AXIS] [--steps N]
+               [--sampler ddpm|ddim|dpmpp2m]
                [--samples N] [--seed S] [--overlap C] [--lookahead L] [--jobs N] [--overwrite] [--report FILE] [--quiet]
 
 IN.npz holds ``poses``, (T, J, 3) or (B, T, J, 3) with NaN = missing, and optionally ``mask``

@@ -23,8 +23,9 @@ from .common import (EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_OK, OPTION_FLAGS, _BadIn
 FLAGS = {**OPTION_FLAGS, "threads": "--jobs", "fps": "--fps", "overlap": "--overlap", "lookahead": "--lookahead",
          "layout": "--layout", "up": "--up"}
 
-CLI_USAGE = ("tcd repair INPUT... -o OUTDIR [--model DIR] [--units m|cm|mm] [--fps F] [--steps N] [--sampler ddpm|ddim|dpmpp2m] "
-             "[--samples N] [--seed S] [--overlap C] [--lookahead L] [--jobs N] [--overwrite] [--report report.json] [--quiet]")
+CLI_USAGE = ("tcd repair INPUT... -o OUTDIR [--model DIR] [--units m|cm|mm] [--fps F] [--steps N] "
+             "[--sampler ddpm|ddim|dpmpp2m] [--samples N] [--seed S] [--overlap C] [--lookahead L] [--jobs N] "
+             "[--overwrite] [--report report.json] [--quiet]")
 
 
 def add_parser(sub: Any) -> Any:
@@ -164,8 +165,9 @@ def run(args: Any) -> int:
     if args.report:
         report = {"tool": "tcd repair", "tcd_version": __version__, "model": str(model.path),
                   "model_sha256": model.sha256, "output": str(out),
-                  "settings": {"sampler": opts.sampling.sampler, "steps": opts.sampling.num_inference_steps, "samples": opts.num_samples,
-                               "seed": opts.seed, "units": opts.units, "fps": opts.fps, "overlap": opts.overlap,
+                  "settings": {"sampler": opts.sampling.sampler, "steps": opts.sampling.num_inference_steps,
+                               "samples": opts.num_samples, "seed": opts.seed, "units": opts.units, "fps": opts.fps,
+                               "overlap": opts.overlap,
                                "lookahead": opts.lookahead, "jobs": opts.threads, "overwrite": bool(args.overwrite)},
                   "summary": summary, "files": [o.as_dict() for o in outcomes]}
         try:
