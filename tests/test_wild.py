@@ -313,3 +313,24 @@ def test_a_joint_the_last_frame_lacks_starts_where_it_was_last_seen(monkeypatch)
     w = np.minimum(np.arange(1, 26) / 5, 1.0)[:, None]
     np.testing.assert_allclose(out[:, wrist], start + (unjoined[:, wrist] - start) * w, atol=1e-9)
     assert np.linalg.norm(unjoined[0, wrist] - start) > 1e-3                # the join has something to do
+
+
+def test_the_last_sighting_is_taken_at_the_callers_frame_rate():
+    """At 120 fps a wrist hidden in the last 2 input frames is missing from the last model frame (25 fps:
+    a model frame shows a joint only where both input frames around it do); ``sightings`` takes where it was
+    last seen from the input frames (2 frames, 17 ms, before the end), not from the model frames (40 ms)."""
+    rng = np.random.default_rng(2)
+    t = np.arange(120) / 120.0                                          # the clip's frames as 1 s at 120 fps
+    x = world(h36m32(120) + 0.2 * np.sin(2 * np.pi * t)[:, None, None] + rng.normal(0.0, 0.002, (120, 32, 3)))
+    wrist = 27
+    x[-2:, wrist] = np.nan
+    lay, up = layouts.get_layout("h36m32"), wild.up_vector("z")
+    xm, _ = wild.resample_to_model(x[None], 120.0, 25.0, 25)
+    assert np.isnan(xm[0, -1, wrist]).all()
+    _, own_rate = wild.to_model(xm, lay, up)
+    _, caller_rate = wild.to_model(xm, lay, up, sightings=x[None])
+    root, rot, canon = wild._canonical(x[None], lay, up, "obs")
+    np.testing.assert_allclose(caller_rate.last[0, wrist], canon[0, -3, wrist], atol=1e-12)
+    assert np.linalg.norm(own_rate.last[0, wrist] - canon[0, -3, wrist]) > 1e-3     # a model frame further back
+    start = wild.start_pose(caller_rate)[0]
+    np.testing.assert_allclose(start[wrist], canon[0, -3, wrist] @ caller_rate.rot[0, -1].T + caller_rate.root[0, -1])

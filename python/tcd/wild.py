@@ -278,11 +278,21 @@ def _anchor32(layout: Layout, i: int) -> int:
     return 0
 
 
-def to_model(x: np.ndarray, layout: Layout, up: np.ndarray, arg: str = "obs") -> Tuple[np.ndarray, Scene]:
-    """(B, T, J, 3) caller poses (NaN = missing, metres) -> (B, T, 22, 3) model poses (NaN = missing)."""
-    rest, _ = _rest()
+def _canonical(x: np.ndarray, layout: Layout, up: np.ndarray, arg: str) -> Tuple[np.ndarray, ...]:
+    """(B, T, J, 3) caller poses -> (root, rot, the poses along their root frame's axes, root subtracted)."""
     root, rot = _frames(x, layout, up, arg)
-    canon = np.einsum("btjc,btck->btjk", x - root[:, :, None, :], rot)   # along the root frame's axes
+    return root, rot, np.einsum("btjc,btck->btjk", x - root[:, :, None, :], rot)
+
+
+def to_model(x: np.ndarray, layout: Layout, up: np.ndarray, arg: str = "obs",
+             sightings: Optional[np.ndarray] = None) -> Tuple[np.ndarray, Scene]:
+    """(B, T, J, 3) caller poses (NaN = missing, metres) -> (B, T, 22, 3) model poses (NaN = missing).
+    ``sightings``: the caller's poses at their own frame rate, ending at ``x``'s last frame (``x`` resampled
+    from them), from which ``Scene.last`` takes where each joint was last seen (default: ``x``). At the
+    model's rate a frame shows a joint only where both input frames around it do, so at 120 fps a joint hidden
+    for a few input frames is missing for a whole model frame or two."""
+    rest, _ = _rest()
+    root, rot, canon = _canonical(x, layout, up, arg)
     placed = set(FIXED_IDS) | set(MODEL_IDS)
     src = {j: _mean_of(canon, layout.source_of(j)) for j in placed}
     pelvis_seen = np.isfinite(src[0]).all(-1, keepdims=True)
@@ -322,7 +332,8 @@ def to_model(x: np.ndarray, layout: Layout, up: np.ndarray, arg: str = "obs") ->
         if t is None or t not in placed:
             a = _anchor32(layout, i)
             carried[i] = (a, canon[:, :, i] - src[a])
-    scene = Scene(layout, up, root, rot, lengths, ancestor, fixed, carried, last_seen(canon))
+    last = last_seen(canon if sightings is None else _canonical(sightings, layout, up, arg)[2])
+    scene = Scene(layout, up, root, rot, lengths, ancestor, fixed, carried, last)
     return np.stack([model[j] for j in MODEL_IDS], axis=2), scene
 
 
@@ -388,6 +399,14 @@ def last_seen(canon: np.ndarray) -> np.ndarray:
     idx = canon.shape[1] - 1 - np.argmax(seen[:, ::-1], axis=1)         # the last frame showing each joint
     out = np.take_along_axis(canon, idx[:, None, :, None], axis=1)[:, 0]
     return np.where(seen.any(axis=1)[..., None], out, np.nan)
+
+
+def start_pose(scene: Scene) -> np.ndarray:
+    """(B, J, 3) where a forecast starts (time 0), in the caller's coordinates: each joint where it was last
+    seen (``scene.last``) put on the last observed frame's root; NaN for a joint never seen. The forecast's
+    frames before the first model frame are interpolated from here, and :func:`join` starts from the same
+    pose, so a joint the last frame lacks is not started at the model's repair of it."""
+    return np.einsum("bjk,bck->bjc", scene.last, scene.rot[:, -1]) + scene.root[:, -1, None, :]
 
 
 def join(canon: np.ndarray, last: np.ndarray, frames: Optional[int] = None) -> np.ndarray:

@@ -47,7 +47,7 @@ def _prepare(model: Any, obs: Any, mask: Any, layout: Any, fps: Any, up: Any, un
     joint_seen = p.observed.all(-1, keepdims=True)           # a joint is observed when all 3 coordinates are
     x = np.where(joint_seen, p.values, np.nan).astype(np.float64) / UNIT_SCALE[units]
     xm, times = wild.resample_to_model(x, src_fps, float(model.fps), frames)
-    y, scene = wild.to_model(xm, lay, up_v)
+    y, scene = wild.to_model(xm, lay, up_v, sightings=x)
     b, t = y.shape[:2]
     seen = np.isfinite(y).all(-1, keepdims=True)
     flat = lambda a: np.ascontiguousarray(a.reshape(b, t, -1).transpose(0, 2, 1), dtype=np.float32)  # noqa: E731
@@ -208,8 +208,12 @@ def forecast(model: Any, obs: Any, mask: Any, *, layout: Any, fps: Any, up: Any,
     at = np.arange(1, n + 1) / src_fps
     scale = UNIT_SCALE[units]
 
+    # time 0: where each joint was last seen (wild.start_pose), the repaired last frame for joints never seen
+    start = wild.start_pose(scene)[:, None]
+    start = np.where(np.isfinite(start), start, rep_w[:, -1:])
+
     def caller(future_w: np.ndarray) -> np.ndarray:
-        last = np.broadcast_to(rep_w[:, -1:], future_w.shape[:-3] + (1,) + future_w.shape[-2:])
+        last = np.broadcast_to(start, future_w.shape[:-3] + (1,) + future_w.shape[-2:])
         y = _at_times(np.concatenate([last, future_w], axis=-3), model_t, at) * scale
         y = y.astype(p.dtype)
         return y if p.batched else y[..., 0, :, :, :]
