@@ -242,6 +242,7 @@ class Scene:
     fixed: Dict[int, np.ndarray]      # fixed 32-id -> (B, T, 3) caller position in the root frame
     carried: Dict[int, Tuple[int, np.ndarray]]   # layout joint -> (anchor 32-id, (B, T, 3) offset)
     last: np.ndarray                  # (B, J, 3) each joint where last seen, in that frame's root frame (last_seen)
+    start: np.ndarray                 # (B, J, 3) each joint where last seen, caller coordinates: a forecast's time 0
 
     def value(self, per_frame: np.ndarray, frames: bool) -> np.ndarray:
         """``per_frame`` on the observation's own frames where finite (``frames``), else (and for other
@@ -333,7 +334,8 @@ def to_model(x: np.ndarray, layout: Layout, up: np.ndarray, arg: str = "obs",
             a = _anchor32(layout, i)
             carried[i] = (a, canon[:, :, i] - src[a])
     last = last_seen(canon if sightings is None else _canonical(sightings, layout, up, arg)[2])
-    scene = Scene(layout, up, root, rot, lengths, ancestor, fixed, carried, last)
+    start = last_seen(x if sightings is None else sightings)
+    scene = Scene(layout, up, root, rot, lengths, ancestor, fixed, carried, last, start)
     return np.stack([model[j] for j in MODEL_IDS], axis=2), scene
 
 
@@ -399,14 +401,6 @@ def last_seen(canon: np.ndarray) -> np.ndarray:
     idx = canon.shape[1] - 1 - np.argmax(seen[:, ::-1], axis=1)         # the last frame showing each joint
     out = np.take_along_axis(canon, idx[:, None, :, None], axis=1)[:, 0]
     return np.where(seen.any(axis=1)[..., None], out, np.nan)
-
-
-def start_pose(scene: Scene) -> np.ndarray:
-    """(B, J, 3) where a forecast starts (time 0), in the caller's coordinates: each joint where it was last
-    seen (``scene.last``) put on the last observed frame's root; NaN for a joint never seen. The forecast's
-    frames before the first model frame are interpolated from here, and :func:`join` starts from the same
-    pose, so a joint the last frame lacks is not started at the model's repair of it."""
-    return np.einsum("bjk,bck->bjc", scene.last, scene.rot[:, -1]) + scene.root[:, -1, None, :]
 
 
 def join(canon: np.ndarray, last: np.ndarray, frames: Optional[int] = None) -> np.ndarray:

@@ -208,9 +208,11 @@ def forecast(model: Any, obs: Any, mask: Any, *, layout: Any, fps: Any, up: Any,
     at = np.arange(1, n + 1) / src_fps
     scale = UNIT_SCALE[units]
 
-    # time 0: where each joint was last seen (wild.start_pose), the repaired last frame for joints never seen
-    start = wild.start_pose(scene)[:, None]
-    start = np.where(np.isfinite(start), start, rep_w[:, -1:])
+    # time 0, where the caller frames before the first model frame are interpolated from: each joint where it
+    # was last seen, in the caller's coordinates (Zero-Velocity's start; where the last frame hides a joint or
+    # a hip, neither the model's repair nor a root estimated without the hips is as close), the repaired last
+    # frame for a joint never seen
+    start = np.where(np.isfinite(scene.start[:, None]), scene.start[:, None], rep_w[:, -1:])
 
     def caller(future_w: np.ndarray) -> np.ndarray:
         last = np.broadcast_to(start, future_w.shape[:-3] + (1,) + future_w.shape[-2:])
