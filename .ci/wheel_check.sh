@@ -30,7 +30,7 @@ import os
 os.environ["TCD_KERNEL"] = "portable"
 p = tcd.load().forecast(obs, num_samples=2, seed=0, sampler="ddim", num_inference_steps=5)
 assert np.allclose(p.mean, f.mean, rtol=1e-4, atol=1e-5), np.abs(p.mean - f.mean).max()
-print("wheel check: smoke test passed,", tcd.__version__, tcd.supported_kernels())
+print("wheel check: smoke test passed,", tcd.__version__, tcd.engine.supported_kernels())
 PY
 # the HumanEva-I model, where this tree bundles it (python/tcd/weights_humaneva/); without it, tcd.load("humaneva")
 # says it is not bundled

@@ -174,7 +174,7 @@ def versions() -> dict:
          "cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
          "tcd_kernel": os.environ.get("TCD_KERNEL", "auto"),
          # what auto resolves to here, and the CPU's SIMD flags (a VM may hide AVX-512)
-         "tcd_supported_kernels": tcd.supported_kernels(), "cpu_simd_flags": cpu_simd_flags()}
+         "tcd_supported_kernels": tcd.engine.supported_kernels(), "cpu_simd_flags": cpu_simd_flags()}
     for mod in ("onnxruntime", "openvino"):
         try:
             v[mod] = __import__(mod).__version__
@@ -256,7 +256,7 @@ def main(argv=None) -> int:
         arrays = inputs(K, L)
         onnx_path = export_onnx(model, arrays, tmp / f"denoiser_L{L}.onnx")
         compiled = torch.compile(model) if args.compile else None
-        den = tcd.Denoiser.load(path)
+        den = tcd.engine.Denoiser.load(path)
         for threads in args.threads:
             fns = make_peers(args.peers, model, onnx_path, den, arrays, threads, compiled)
             ref = fns["torch"]() if "torch" in fns else None

@@ -1,4 +1,4 @@
-"""Speed of the prior forecaster (issue 28): ``tcd.Prior.predict`` against the same model in PyTorch eager
+"""Speed of the prior forecaster (issue 28): ``tcd.engine.Prior.predict`` against the same model in PyTorch eager
 (``training.prior.PriorNet.rollout``), in one run.
 
     python3 benches/prior_speed.py [--model DIR_OR_FILE | --random] [--reps 21] [--batch 1000] \
@@ -152,7 +152,7 @@ def main(argv=None) -> int:
     torch_threads = torch.get_num_threads()
     with tempfile.TemporaryDirectory() as tmp:
         path, what = model_file(args, Path(tmp))
-        prior = tcd.Prior.load(path)
+        prior = tcd.engine.Prior.load(path)
         model, _ = export.load_prior_file(path)
         rows = []
         for batch, reps in ((1, args.reps), (args.batch, max(1, args.reps // 3))):
@@ -170,7 +170,7 @@ def main(argv=None) -> int:
         "model": {"weights": what, "blocks": prior.blocks, "obs_len": prior.obs_len, "chunk": prior.chunk,
                   "num_features": prior.num_features},
         "machine": {"cpu": cpu_model(), "cores": os.cpu_count(), "cpu_simd_flags": cpu_simd_flags(),
-                    "tcd_kernel": prior.kernel, "tcd_supported_kernels": tcd.supported_kernels(),
+                    "tcd_kernel": prior.kernel, "tcd_supported_kernels": tcd.engine.supported_kernels(),
                     "python": platform.python_version(), "torch": torch.__version__, "tcd": tcd.__version__,
                     # 1-minute load averages before and after: other processes share the cores
                     "load_average": [load_before[0], os.getloadavg()[0]]},

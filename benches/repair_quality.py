@@ -119,7 +119,7 @@ def main(argv=None) -> int:
                "hidden_fraction": float((~m).mean())}
         t0 = time.perf_counter()
         pred = model.repair(obs, num_samples=args.samples, num_inference_steps=args.steps, sampler=args.sampler,
-                            seed=args.seed, threads=args.jobs)
+                            seed=args.seed, threads=args.jobs).poses
         dt = time.perf_counter() - t0
         res["tcd"] = {"ade_mm": ade_mm(pred, gt, m), "fps": frames / dt, "seconds": dt}
         for name, fn in (("linear", linear_fill), ("savgol", savgol_fill), ("spline", spline_fill)):

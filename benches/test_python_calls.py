@@ -70,7 +70,7 @@ def test_forecast(benchmark, model, clip, samples, steps, sampler):
 
 def test_repair_window(benchmark, model, clip):
     obs, mask = _occluded(clip[:model.obs_len], 0.4, seed=1)
-    out = benchmark(model.repair, obs, mask, seed=0)
+    out = benchmark(model.repair, obs, mask, seed=0).poses
     assert out.shape == obs.shape and np.isfinite(out).all()
     np.testing.assert_array_equal(out[mask], obs[mask])
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 CONFIG_KEY = "tcd_config"
-ALL_KERNELS = ["portable", "avx2", "avx512"]   # the engine's kernel paths, in tcd.supported_kernels() order
+ALL_KERNELS = ["portable", "avx2", "avx512"]   # the engine's kernel paths, in tcd.engine.supported_kernels() order
 
 
 def make_model_dir(out: Path, preset: str = "tiny", seed: int = 0, repair: dict | None = None) -> Path:
@@ -80,13 +80,13 @@ def bad(argument: str, fn, *args, **kwargs):
 
 
 def load_kernel(path, kernel: str, monkeypatch, cls=None):
-    """The model at ``path`` (a ``cls``: ``tcd.Denoiser`` by default, or ``tcd.Prior``) on one kernel path
+    """The model at ``path`` (a ``cls``: ``tcd.engine.Denoiser`` by default, or ``tcd.engine.Prior``) on one kernel path
     (``TCD_KERNEL`` is read at load); skips paths this CPU lacks."""
     import tcd
-    if kernel not in tcd.supported_kernels():
+    if kernel not in tcd.engine.supported_kernels():
         pytest.skip(f"this CPU cannot run the {kernel} kernels")
     monkeypatch.setenv("TCD_KERNEL", kernel)
-    model = (cls or tcd.Denoiser).load(path)
+    model = (cls or tcd.engine.Denoiser).load(path)
     monkeypatch.delenv("TCD_KERNEL")
     assert model.kernel == kernel
     return model

@@ -32,7 +32,7 @@ def test_load_and_describe(tiny_model, tiny_model_dir):
     assert tiny_model.repair_model is None
     cfg = tiny_model.short.config
     assert cfg["role"] == "short" and cfg["window"] == {"obs_len": 50, "pred_len": 5, "seq_len": 55}
-    d = tcd.Denoiser.load(tiny_model_dir / "long.safetensors")
+    d = tcd.engine.Denoiser.load(tiny_model_dir / "long.safetensors")
     assert (d.obs_len, d.seq_len, d.num_features, d.num_joints, d.role) == (55, 75, 66, 22, "long")
     assert d.config["model"]["channels"] == 16 and d.num_train_timesteps == 50
     d.config["model"]["channels"] = 0  # a copy: the model's config is not mutable from outside
@@ -53,6 +53,69 @@ def test_forecast_shapes_unbatched_and_batched(tiny_model, obs):
     # noise streams are per sequence: sequence 0 of a batch == the same sequence alone
     assert np.array_equal(fb.samples[:, 0], f.samples)
     assert np.array_equal(fb.repaired[0], f.repaired)
+
+
+def test_one_length_rule(tiny_model, obs):
+    """Without layout / fps as with them (tests/test_wild.py): a forecast conditions on the last obs_len frames,
+    a shorter observation padded at the start with missing frames; ``repaired`` has the input's frames, those
+    before the window as given. A repair takes at most one window, padded the same way."""
+    kw = dict(FAST, seed=4)
+    f = tiny_model.forecast(obs, **kw)
+    longer = np.concatenate([poses(np.random.default_rng(5))[:9], obs])
+    g = tiny_model.forecast(longer, **kw)
+    assert np.array_equal(g.samples, f.samples) and np.array_equal(g.mean, f.mean)
+    assert g.repaired.shape == (59, 22, 3) and np.array_equal(g.repaired[9:], f.repaired)
+    assert np.array_equal(g.repaired[:9], longer[:9], equal_nan=True)
+    padded = obs.copy()
+    padded[:30] = np.nan
+    for batch in (False, True):
+        x, p = (obs[30:][None], padded[None]) if batch else (obs[30:], padded)
+        short, full = tiny_model.forecast(x, **kw), tiny_model.forecast(p, **kw)
+        assert short.mean.shape == full.mean.shape and np.array_equal(short.samples, full.samples)
+        assert short.repaired.shape == x.shape and np.array_equal(short.repaired, full.repaired[..., 30:, :, :])
+        r, rp = tiny_model.repair(x, **kw), tiny_model.repair(p, **kw)
+        assert r.poses.shape == x.shape and np.array_equal(r.poses, rp.poses[..., 30:, :, :])
+    one = tiny_model.forecast(obs[-1:], **kw)                              # one frame: the rest is in-painted
+    assert one.mean.shape == (25, 22, 3) and one.repaired.shape == (1, 22, 3)
+
+
+def test_argument_types_match_their_checks():
+    """The Literal types of the signatures list what the runtime checks accept."""
+    import typing
+
+    from numpy.typing import ArrayLike
+
+    from tcd._interpolation import INTERPOLATIONS, Interpolation
+    from tcd._poses import UNIT_SCALE, Units
+    from tcd.model import FILLS, Fill
+    assert typing.get_args(Units) == tuple(UNIT_SCALE)
+    assert typing.get_args(Interpolation) == INTERPOLATIONS
+    assert typing.get_args(Fill) == FILLS
+    for call in (tcd.TCD.forecast, tcd.TCD.repair, tcd.TCD.predict):
+        hints = typing.get_type_hints(call)
+        assert hints["obs"] == ArrayLike and hints["mask"] == typing.Optional[ArrayLike] and hints["units"] == Units
+    assert typing.get_type_hints(tcd.TCD.repair)["return"] is tcd.Repair
+    assert typing.get_type_hints(tcd.repair)["return"] is tcd.Repair
+    assert typing.get_type_hints(tcd.interpolate)["method"] == Interpolation
+    assert typing.get_type_hints(tcd.engine.cascade_raw)["observed"] == ArrayLike
+    assert typing.get_type_hints(tcd.engine.Prior.predict)["obs"] == ArrayLike
+
+
+def test_engine_names_live_in_tcd_engine_only():
+    """One home per name: the engine-level API in tcd.engine, not in tcd; the modules no document presents
+    are private by name."""
+    import importlib
+
+    engine = {"Denoiser", "Prior", "cascade_raw", "repair_raw", "seeded_noise", "supported_kernels", "STAGE_SHORT",
+              "STAGE_LONG"}
+    assert set(tcd.engine.__all__) == engine and all(hasattr(tcd.engine, n) for n in engine)
+    for name in engine:
+        assert not hasattr(tcd, name), name
+    assert {"engine", "Repair"} <= set(tcd.__all__) and all(hasattr(tcd, n) for n in tcd.__all__)
+    for old in ("denoiser", "prior", "wild_calls", "poses", "resample", "progress", "files", "interpolation"):
+        assert not hasattr(tcd, old), old
+        with pytest.raises(ModuleNotFoundError):
+            importlib.import_module(f"tcd.{old}")
 
 
 def test_forecast_times_follow_the_models_frame_rate(tiny_model, tiny_model_dir, tmp_path, obs):
@@ -164,14 +227,22 @@ def test_nan_equals_mask(tiny_model, obs):
 
 
 def test_repair(tiny_model, obs):
-    r = tiny_model.repair(obs, seed=1, num_samples=2, sampler="ddim", num_inference_steps=3)
+    kw = dict(num_samples=2, sampler="ddim", num_inference_steps=3)
+    out = tiny_model.repair(obs, seed=1, **kw)
+    assert isinstance(out, tcd.Repair) and out.seed == 1
+    assert repr(out) == "Repair(poses=(50, 22, 3), seed=1)"
+    r = out.poses
     seen = ~np.isnan(obs)
     assert r.shape == obs.shape and np.isfinite(r).all()
     assert np.array_equal(r[seen], obs[seen])
-    again = tiny_model.repair(obs, seed=1, num_samples=2, sampler="ddim", num_inference_steps=3)
+    again = tiny_model.repair(obs, seed=1, **kw).poses
     assert np.array_equal(r, again)
-    batch = tiny_model.repair(obs[None], seed=1, num_samples=2, sampler="ddim", num_inference_steps=3)
+    batch = tiny_model.repair(obs[None], seed=1, **kw).poses
     assert batch.shape == (1, 50, 22, 3) and np.array_equal(batch[0], r)
+    # seed=None draws one, recorded as Forecast.seed is: passing it back reproduces the result
+    drawn = tiny_model.repair(obs, **kw)
+    assert isinstance(drawn.seed, int) and 0 <= drawn.seed < 2 ** 64
+    assert np.array_equal(tiny_model.repair(obs, seed=drawn.seed, **kw).poses, drawn.poses)
 
 
 def test_repair_uses_repair_model_when_present(tiny_model_dir, tmp_path, obs):
@@ -184,8 +255,8 @@ def test_repair_uses_repair_model_when_present(tiny_model_dir, tmp_path, obs):
     m = tcd.load(d)
     assert m.repair_model is not None and m.repair_model.role == "repair"
     kw = dict(seed=1, num_samples=1, sampler="ddim", num_inference_steps=2)
-    with_repair = m.repair(obs, **kw)
-    without = tcd.load(tiny_model_dir).repair(obs, **kw)
+    with_repair = m.repair(obs, **kw).poses
+    without = tcd.load(tiny_model_dir).repair(obs, **kw).poses
     seen = ~np.isnan(obs)
     assert np.array_equal(with_repair[seen], without[seen])
     assert not np.array_equal(with_repair[~seen], without[~seen])
@@ -198,7 +269,7 @@ def test_dpmpp2m_forecast_and_repair(tiny_model, obs):
     assert f.samples.shape == (2, 25, 22, 3) and np.isfinite(f.samples).all()
     assert np.array_equal(f.samples, tiny_model.forecast(obs, **kw).samples)
     assert not np.array_equal(f.samples, tiny_model.forecast(obs, **dict(kw, seed=4)).samples)
-    r = tiny_model.repair(obs, **kw)
+    r = tiny_model.repair(obs, **kw).poses
     seen = ~np.isnan(obs)
     assert np.array_equal(r[seen], obs[seen]) and np.isfinite(r).all()
     assert tiny_model.short.num_noise_blocks(sampler="dpmpp2m", num_inference_steps=3) == 1
@@ -209,7 +280,7 @@ def test_dpmpp2m_forecast_and_repair(tiny_model, obs):
 # ------------------------------------------------------------------------------------ low level
 
 def test_denoiser_forward_and_seeded_noise(tiny_model_dir):
-    d = tcd.Denoiser.load(tiny_model_dir / "short.safetensors")
+    d = tcd.engine.Denoiser.load(tiny_model_dir / "short.safetensors")
     rng = np.random.default_rng(0)
     x = rng.standard_normal((2, 66, 55)).astype(np.float32)
     m = (rng.random((2, 66, 55)) < 0.5).astype(np.float32)
@@ -221,7 +292,7 @@ def test_denoiser_forward_and_seeded_noise(tiny_model_dir):
     assert np.array_equal(eps, d.forward(x.astype(np.float64), np.asfortranarray(x), m, 10))
     obs, mask = x[:1] * m[:1], m[:1]
     kw = dict(sampler="ddim", num_inference_steps=4, eta=1.0)
-    noise = tcd.seeded_noise(5, tcd.STAGE_SHORT, 3, d.num_noise_blocks(**kw), 1, 66, 55)
+    noise = tcd.engine.seeded_noise(5, tcd.engine.STAGE_SHORT, 3, d.num_noise_blocks(**kw), 1, 66, 55)
     assert np.array_equal(d.sample(obs, mask, 3, seed=5, **kw), d.sample(obs, mask, 3, noise=noise, **kw))
     assert d.timesteps(**kw) == d.timesteps(sampler="ddim", num_inference_steps=4, timestep_spacing="trailing") \
         == [49, 37, 24, 11]
@@ -231,7 +302,7 @@ def test_denoiser_forward_and_seeded_noise(tiny_model_dir):
 def test_stream_ids_per_sequence(tiny_model_dir):
     """``sequences`` gives each sequence its own stream: a batch numbered [7, 2] equals sequence 0 alone
     on stream 7 and sequence 1 alone on stream 2, and the engine checks one id per sequence."""
-    d = tcd.Denoiser.load(tiny_model_dir / "short.safetensors")
+    d = tcd.engine.Denoiser.load(tiny_model_dir / "short.safetensors")
     rng = np.random.default_rng(1)
     m = (rng.random((2, 66, 55)) < 0.5).astype(np.float32)
     x = rng.standard_normal((2, 66, 55)).astype(np.float32) * m
@@ -242,10 +313,11 @@ def test_stream_ids_per_sequence(tiny_model_dir):
     assert not np.array_equal(both, d.sample(x, m, 2, **kw))
     o = x[:, :, :50]
     mo = m[:, :, :50]
-    rep = tcd.repair_raw(d, o, mo, num_samples=2, sequences=[1, 0], **kw)
-    assert np.array_equal(rep["samples"][:, :1], tcd.repair_raw(d, o[:1], mo[:1], num_samples=2, first_sequence=1,
-                                                                **kw)["samples"])
-    assert np.array_equal(rep["samples"][:, 1:], tcd.repair_raw(d, o[1:], mo[1:], num_samples=2, **kw)["samples"])
+    rep = tcd.engine.repair_raw(d, o, mo, num_samples=2, sequences=[1, 0], **kw)
+    assert np.array_equal(rep["samples"][:, :1], tcd.engine.repair_raw(d, o[:1], mo[:1], num_samples=2,
+                                                                       first_sequence=1, **kw)["samples"])
+    assert np.array_equal(rep["samples"][:, 1:],
+                          tcd.engine.repair_raw(d, o[1:], mo[1:], num_samples=2, **kw)["samples"])
     bad("sequences", d.sample, x, m, 1, sequences=[1], **kw)  # one id for two sequences: the engine says so
     bad("sequences", d.sample, x, m, 1, sequences=[1, -2], **kw)
     bad("sequences", d.sample, x, m, 1, sequences=[[1, 2]], **kw)
@@ -319,7 +391,7 @@ def test_bundled_repair_model():
     rng = np.random.default_rng(0)
     mask = rng.random(clip.shape[:2]) >= 0.3
     mask[20:30] = False                                        # 10 dropped frames
-    out = m.repair(clip, mask, num_samples=5, num_inference_steps=10, sampler="ddpm", seed=0)
+    out = m.repair(clip, mask, num_samples=5, num_inference_steps=10, sampler="ddpm", seed=0).poses
     np.testing.assert_array_equal(out[mask], clip[mask])
     err_mm = np.linalg.norm(out - clip, axis=-1)[~mask].mean() * 1000
     # Against linear interpolation on the same gaps: the bundled (spline-conditioned, two stages) model measured
@@ -363,8 +435,8 @@ def test_sampler_settings_have_one_form(tiny_model, obs, tmp_path):
         "Denoiser.sample": lambda **k: d.sample(np.zeros((1, 66, 55)), np.ones((1, 66, 55)), 1, seed=0, **k),
         "Denoiser.timesteps": d.timesteps,
         "Denoiser.num_noise_blocks": d.num_noise_blocks,
-        "cascade_raw": lambda **k: tcd.cascade_raw(d, long, x, m, seed=0, **k),
-        "repair_raw": lambda **k: tcd.repair_raw(d, x, m, seed=0, **k),
+        "cascade_raw": lambda **k: tcd.engine.cascade_raw(d, long, x, m, seed=0, **k),
+        "repair_raw": lambda **k: tcd.engine.repair_raw(d, x, m, seed=0, **k),
         "repair_file": lambda **k: tcd.repair_file(tmp_path / "in.npz", tmp_path / "out.npz", tiny_model, **k),
         "demo.run": lambda **k: demo.run(tiny_model, quiet=True, **k),
     }
@@ -394,14 +466,14 @@ def test_native_attributes_read_only_and_documented(tiny_model):
     d = tiny_model.short
     names = ("path", "role", "num_features", "num_joints", "obs_len", "pred_len", "seq_len", "kernel",
              "num_train_timesteps")
-    text = pydoc.render_doc(tcd.Denoiser, renderer=pydoc.plaintext)
+    text = pydoc.render_doc(tcd.engine.Denoiser, renderer=pydoc.plaintext)
     for name in names:
         assert getattr(d, name) == getattr(d._native, name)
         assert f"\n |  {name}\n |      {type(getattr(d, name)).__name__}: " in text, name
         with pytest.raises(AttributeError, match="read-only"):
             setattr(d, name, getattr(d, name))
     assert "int: Observed (conditioning) frames of the training window." in text
-    text = pydoc.render_doc(tcd.Prior, renderer=pydoc.plaintext)
+    text = pydoc.render_doc(tcd.engine.Prior, renderer=pydoc.plaintext)
     for name in ("path", "num_features", "num_joints", "obs_len", "chunk", "blocks", "kernel", "dct_matrix"):
         assert f"\n |  {name}\n |      " in text, name
 

@@ -192,7 +192,7 @@ def test_root_extrapolation_reads_the_root_at_the_callers_frames():
 
 
 def test_prior_speed_smoke(tmp_path):
-    """benches/prior_speed.py times tcd.Prior and PyTorch eager on the same model and inputs (outputs compared
+    """benches/prior_speed.py times tcd.engine.Prior and PyTorch eager on the same model and inputs (outputs compared
     first) for one forecast and a batch, at each thread count, and writes its table and JSON. Timings are not
     asserted."""
     import tcd
@@ -206,7 +206,7 @@ def test_prior_speed_smoke(tmp_path):
     for row in r["rows"]:
         assert row["median_s"]["tcd"] > 0 and row["median_s"]["torch"] > 0 and row["max_abs_diff"] < 1e-4
     assert r["model"] == {"weights": "random, 2 blocks", "blocks": 2, "obs_len": 50, "chunk": 10, "num_features": 66}
-    assert r["machine"]["cpu"] and r["machine"]["tcd_kernel"] in tcd.supported_kernels()
+    assert r["machine"]["cpu"] and r["machine"]["tcd_kernel"] in tcd.engine.supported_kernels()
     assert r["goals"]["batch_met"] is None                      # only a batch of 1,000 is judged
     md = bench.markdown(r)
     assert md.splitlines()[0] == ("| median | 1 forecast, 1 thr. | 1 forecast, 2 thr. | batch of 5, 1 thr. | "

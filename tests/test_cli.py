@@ -57,7 +57,7 @@ def test_info_bundled_model(capsys):
     code, out, err = run(["info"], capsys)
     assert code == 0, err
     assert "layers 3" in out and "channels 32" in out
-    assert f"kernels: {tcd.supported_kernels()[-1]}" in out
+    assert f"kernels: {tcd.engine.supported_kernels()[-1]}" in out
 
 
 def test_forecast_round_trip(tiny_model_dir, npz, tmp_path, capsys):
@@ -76,6 +76,18 @@ def test_forecast_round_trip(tiny_model_dir, npz, tmp_path, capsys):
     assert np.array_equal(got["samples"], want.samples) and np.array_equal(got["repaired"], want.repaired)
     seen = ~np.isnan(poses_in)
     assert np.array_equal(got["repaired"][seen], poses_in[seen])
+
+
+def test_forecast_any_length(tiny_model_dir, npz, tmp_path, capsys):
+    """The API's length rule: 40 frames are padded with missing frames, as TCD.forecast does."""
+    short = np.load(npz)["poses"][10:]
+    out_path = tmp_path / "out.npz"
+    code, _, err = run(["forecast", save(tmp_path / "short.npz", poses=short), "-o", out_path, "--model",
+                        tiny_model_dir, "--seed", "3", *FAST], capsys)
+    assert code == 0, err
+    want = tcd.load(tiny_model_dir).forecast(short, seed=3, num_samples=2, num_inference_steps=2, sampler="ddim")
+    with np.load(out_path) as f:
+        assert f["repaired"].shape == (40, 22, 3) and np.array_equal(f["samples"], want.samples)
 
 
 def test_forecast_dpmpp2m(tiny_model_dir, npz, tmp_path, capsys):
@@ -161,14 +173,14 @@ def save(path, **arrays):
 
 
 @pytest.mark.parametrize("case", [
-    "short_poses", "wrong_joints", "no_poses", "missing_input", "not_npz", "bad_mask", "all_missing",
+    "empty_window", "wrong_joints", "no_poses", "missing_input", "not_npz", "bad_mask", "all_missing",
     "bad_samples", "bad_steps", "bad_eta", "missing_model", "negative_seed",
 ])
 def test_bad_input_exit_code_2(tiny_model_dir, npz, tmp_path, capsys, case):
     good = np.load(npz)["poses"]
     inp, extra, model = npz, [], tiny_model_dir
-    if case == "short_poses":
-        inp = save(tmp_path / "x.npz", poses=good[:40])
+    if case == "empty_window":   # any length is forecast from its last obs_len frames: here all missing
+        inp = save(tmp_path / "x.npz", poses=np.concatenate([good, np.full_like(good, np.nan)]))
     elif case == "wrong_joints":
         inp = save(tmp_path / "x.npz", poses=good[:, :17])
     elif case == "no_poses":

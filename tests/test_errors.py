@@ -28,10 +28,14 @@ def test_bad_obs(tiny_model, obs):
     e = bad("obs", tiny_model.forecast, obs[:, :21])                       # joints
     assert "21 joints" in str(e) and "J = 22" in str(e)
     bad("obs", tiny_model.forecast, obs[..., :2])                          # coordinates
-    e = bad("obs", tiny_model.forecast, obs[:49])                          # too few frames
-    assert "50" in str(e) and "49 frames" in str(e) and "obs_len" in str(e)
-    e = bad("obs", tiny_model.forecast, np.concatenate([obs, obs[:1]]))   # too many frames
-    assert "51 frames" in str(e)
+    e = bad("obs", tiny_model.repair, np.concatenate([obs, obs[:1]]))      # a repair: one window at most
+    assert "at most the model's window (50 frames)" in str(e) and "51 frames" in str(e)
+    assert "tcd.repair_file" in str(e)
+    e = bad("obs", tiny_model.forecast, np.concatenate([obs, np.full_like(obs, np.nan)]))   # nothing in its window
+    assert "last 50 frames" in str(e) and "every value missing there" in str(e)
+    e = bad("obs", tiny_model.forecast, np.stack([np.concatenate([obs[:25], obs]),
+                                                  np.concatenate([obs[:25], np.full_like(obs, np.nan)])]))
+    assert "sequence 1 of `obs`" in str(e)
     x = obs.copy()
     x[3, 4, 1] = np.inf
     e = bad("obs", tiny_model.forecast, x)
@@ -55,7 +59,7 @@ def test_poses_not_in_the_declared_units(tiny_model, obs):
         assert "pass units='m'" in str(e)
         e = bad("units", call, obs * 1e30)
         assert "no supported unit fits" in str(e)
-    spread = tcd.poses.spread_m(obs[None], ~np.isnan(obs[None]), "m")
+    spread = tcd._poses.spread_m(obs[None], ~np.isnan(obs[None]), "m")
     assert 0.1 < spread < 1.0                                              # the test poses: a person's size
     tiny_model.forecast(obs + 250.0, num_samples=1, num_inference_steps=1, sampler="ddim", seed=0)  # far away: fine
     tiny_model.forecast(np.zeros((50, 22, 3)), num_samples=1, num_inference_steps=1, sampler="ddim", seed=0)
@@ -133,7 +137,7 @@ def test_settings_kept_for_later_are_checked_when_given(tiny_model_dir):
 
 
 def test_bad_low_level_arguments(tiny_model_dir):
-    d = tcd.Denoiser.load(tiny_model_dir / "short.safetensors")
+    d = tcd.engine.Denoiser.load(tiny_model_dir / "short.safetensors")
     x = np.zeros((1, 66, 55), np.float32)
     m = np.ones_like(x)
     bad("noisy", d.forward, np.zeros((66, 55), np.float32), x[0], m[0], 0)
@@ -153,9 +157,9 @@ def test_bad_low_level_arguments(tiny_model_dir):
     bad("seed", d.sample, x, m, 1)
     bad("num_samples", d.sample, x, m, 0, seed=1)
     bad("num_samples", d.sample, x, m, 10**9, seed=1)  # refused up front, not a failed allocation
-    bad("noise_short", tcd.cascade_raw, d, d, x[:, :, :50], m[:, :, :50], seed=1, noise_short=np.zeros(3))
-    bad("observed", tcd.cascade_raw, d, d, x[:, :, :49], m[:, :, :49], seed=1)
-    bad("long", tcd.cascade_raw, d, d, x[:, :, :50], m[:, :, :50], seed=1)  # short model as long model
+    bad("noise_short", tcd.engine.cascade_raw, d, d, x[:, :, :50], m[:, :, :50], seed=1, noise_short=np.zeros(3))
+    bad("observed", tcd.engine.cascade_raw, d, d, x[:, :, :49], m[:, :, :49], seed=1)
+    bad("long", tcd.engine.cascade_raw, d, d, x[:, :, :50], m[:, :, :50], seed=1)  # short model as long model
 
 
 @pytest.mark.parametrize("argument,kwargs", [
@@ -234,9 +238,9 @@ def test_load_missing_paths(tmp_path, tiny_model_dir):
     with pytest.raises(FileNotFoundError, match="long.safetensors"):
         tcd.load(d)
     with pytest.raises(FileNotFoundError):
-        tcd.Denoiser.load(tmp_path / "missing.safetensors")
+        tcd.engine.Denoiser.load(tmp_path / "missing.safetensors")
     with pytest.raises(WeightsError, match="is a directory"):   # a directory is not a weight file
-        tcd.Denoiser.load(tmp_path)
+        tcd.engine.Denoiser.load(tmp_path)
     bad("path", tcd.load, 42)
 
 
@@ -330,7 +334,7 @@ def inf_weight(path):
 def test_weights_errors(tiny_model_dir, tmp_path, edit, needle):
     d = broken_dir(tiny_model_dir, tmp_path, edit.__name__, edit)
     with pytest.raises(WeightsError, match=needle) as ei:
-        tcd.Denoiser.load(d / "short.safetensors")
+        tcd.engine.Denoiser.load(d / "short.safetensors")
     assert isinstance(ei.value, ValueError) and isinstance(ei.value, TcdError)
     assert ei.value.path is not None and ei.value.path.endswith("short.safetensors")
     with pytest.raises(WeightsError):

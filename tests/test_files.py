@@ -1,4 +1,4 @@
-"""tcd.files, the atomic writes of every output: complete or absent, never replacing a file without
+"""tcd._files, the atomic writes of every output: complete or absent, never replacing a file without
 overwrite, no temporary file left behind."""
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import stat
 import numpy as np
 import pytest
 
-from tcd import files
+from tcd import _files as files
 
 
 def names(d):

@@ -63,7 +63,7 @@ def outputs(tmp: Path) -> dict[str, str]:
     out["forecast_ddim5_mm_samples"] = sha(f.samples)
     f = model.forecast(obs, num_samples=1, seed=4, sampler="dpmpp2m", num_inference_steps=5)
     out["forecast_dpmpp2m5_samples"] = sha(f.samples)
-    out["repair_ddpm10"] = sha(model.repair(obs, num_samples=2, seed=5, num_inference_steps=10))
+    out["repair_ddpm10"] = sha(model.repair(obs, num_samples=2, seed=5, num_inference_steps=10).poses)
     seq = np.concatenate([obs, observation()[::-1]])                       # 100 frames: two windows and more
     (tmp / "in").mkdir(parents=True, exist_ok=True)
     np.savez(tmp / "in" / "take.npz", poses=seq)
@@ -79,15 +79,15 @@ def test_golden_outputs_per_kernel(tmp_path, monkeypatch):
     import tcd
     recorded = json.loads(CHECKSUMS.read_text())
     checked = 0
-    for kernel in tcd.supported_kernels():
+    for kernel in tcd.engine.supported_kernels():
         if kernel not in recorded:
             continue
         monkeypatch.setenv("TCD_KERNEL", kernel)
         got = outputs(tmp_path / kernel)
         assert got == recorded[kernel], f"kernel {kernel}: outputs changed"
         checked += 1
-    missing = sorted(set(tcd.supported_kernels()) - set(recorded))
-    assert checked >= 1, f"no recorded kernel path among {tcd.supported_kernels()}"
+    missing = sorted(set(tcd.engine.supported_kernels()) - set(recorded))
+    assert checked >= 1, f"no recorded kernel path among {tcd.engine.supported_kernels()}"
     if missing:
         pytest.skip(f"no golden checksums recorded for {missing}: "
                     "TCD_KERNEL=<kernel> python3 tests/test_golden.py --record")

@@ -137,7 +137,7 @@ def test_prior_trains_exports_and_runs_in_the_engine(tmp_path):
     from training.export import save_prior
     save_prior(path, net)
     obs = np.stack(seqs)[:, :15].astype(np.float32).reshape(3, 15, 42)
-    engine = tcd.Prior.load(path).predict(obs, 60)
+    engine = tcd.engine.Prior.load(path).predict(obs, 60)
     with torch.no_grad():
         ref = load_prior_file(path)[0].rollout(torch.from_numpy(obs), 60).numpy()
     assert engine.shape == (3, 60, 42)
@@ -343,7 +343,7 @@ def test_a_humaneva_model_repairs_world_poses_in_its_own_layout(tmp_path):
     gap[5:9, 3] = np.nan                                                  # a wrist hidden for 4 frames
     gap[-5, 0] = np.nan                                                   # and the pelvis once
     rep = m.repair(gap, layout="humaneva15", fps=60, up="z", num_samples=2, seed=0, sampler="ddim",
-                   num_inference_steps=2)
+                   num_inference_steps=2).poses
     assert rep.shape == (15, 15, 3) and np.isfinite(rep).all()
     seen = np.isfinite(gap)
     np.testing.assert_array_equal(rep[seen], gap[seen])

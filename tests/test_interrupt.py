@@ -185,7 +185,7 @@ LAUNCH = ("import os, signal, sys; signal.signal(signal.SIGINT, getattr(signal, 
 # the signal has come.
 CHILD = """
 import sys
-import tcd.denoiser
+import tcd.engine
 from tcd.cli import main
 
 def say(word):
@@ -211,7 +211,7 @@ threading.Thread(target=watch, daemon=True).start()
 @contextmanager
 def reporter(progress, desc):
     yield reports.put
-tcd.denoiser.reporter = reporter
+tcd.engine.reporter = reporter
 def forwards():
     while not reports.empty():
         seen.append(reports.get())
@@ -222,12 +222,12 @@ atexit.register(forwards)
 # 'loading' from inside the model's loading, which then waits on stdin: the signal arrives there (a read,
 # outside Python, as in the engine's loading of the weights), before anything else is loaded.
 LOADING = """
-from_bytes = tcd.denoiser.Denoiser.from_bytes.__func__
+from_bytes = tcd.engine.Denoiser.from_bytes.__func__
 def loading(cls, *args):
     say('loading')
     sys.stdin.readline()
     return from_bytes(cls, *args)
-tcd.denoiser.Denoiser.from_bytes = classmethod(loading)
+tcd.engine.Denoiser.from_bytes = classmethod(loading)
 """
 
 

@@ -33,7 +33,7 @@ def tiny(tiny_model_dir):
     for role in ("short", "long"):
         path = tiny_model_dir / f"{role}.safetensors"
         model, sched, _ = load_model_file(path)
-        out[role] = (tcd.Denoiser.load(path), model, sched)
+        out[role] = (tcd.engine.Denoiser.load(path), model, sched)
     return out
 
 
@@ -117,7 +117,7 @@ def test_forward_full_size(tmp_path_factory):
     """One forward of the paper-size denoiser (C = 64, 12 blocks, 8 heads) at K = 66, L = 75."""
     d = make_model_dir(tmp_path_factory.mktemp("parity_full"), "full", seed=1)
     path = d / "long.safetensors"
-    den = tcd.Denoiser.load(path)
+    den = tcd.engine.Denoiser.load(path)
     model, _, cfg = load_model_file(path)
     assert cfg["model"]["channels"] == 64 and cfg["model"]["num_layers"] == 12
     rng = np.random.default_rng(5)
@@ -137,7 +137,7 @@ def test_forward_full_size(tmp_path_factory):
 
 
 def test_supported_kernels_and_default():
-    ks = tcd.supported_kernels()
+    ks = tcd.engine.supported_kernels()
     assert ks[0] == "portable" and set(ks) <= set(ALL_KERNELS)
     assert ks == [k for k in ALL_KERNELS if k in ks]
 
@@ -181,7 +181,7 @@ def test_cascade_every_kernel(reduced_dir, kernel, monkeypatch):
     kw = dict(sampler="ddpm", num_inference_steps=10, timestep_spacing="trailing")
     ns = rng.standard_normal((s, 11, 1, k, short.seq_len)).astype(np.float32)
     nl = rng.standard_normal((s, 11, 1, k, long.seq_len)).astype(np.float32)
-    got = tcd.cascade_raw(short, long, observed, mask, num_samples=s, noise_short=ns, noise_long=nl, **kw)
+    got = tcd.engine.cascade_raw(short, long, observed, mask, num_samples=s, noise_short=ns, noise_long=nl, **kw)
     want = D.cascade(ms, ss, ml, sl, torch.from_numpy(observed), torch.from_numpy(mask), short_len=short.seq_len,
                      long_len=long.seq_len, num_samples=s, noise_short=torch.from_numpy(ns),
                      noise_long=torch.from_numpy(nl), **kw)
@@ -231,14 +231,14 @@ def test_chain_injected_noise(tiny, sampler, steps, eta, spacing, num_samples):
 
 
 def test_seeded_noise_matches_torch_fed_the_same_streams(tiny):
-    """The seeded path consumes exactly `tcd.seeded_noise`: PyTorch fed that array agrees."""
+    """The seeded path consumes exactly `tcd.engine.seeded_noise`: PyTorch fed that array agrees."""
     den, model, sched = tiny["short"]
     rng = np.random.default_rng(21)
     b, k, length, s = 2, den.num_features, den.seq_len, 2
     observed, mask = observation(rng, b, k, length, OBS_LEN)
     kw = dict(sampler="ddim", num_inference_steps=8, eta=1.0, timestep_spacing="trailing")
     blocks = den.num_noise_blocks(**kw)
-    noise = tcd.seeded_noise(1234, tcd.STAGE_SHORT, s, blocks, b, k, length)
+    noise = tcd.engine.seeded_noise(1234, tcd.engine.STAGE_SHORT, s, blocks, b, k, length)
     assert noise.shape == (s, blocks, b, k, length) and noise.dtype == np.float32
     assert abs(float(noise.mean())) < 0.05 and abs(float(noise.std()) - 1) < 0.05
     seeded = den.sample(observed, mask, s, seed=1234, **kw)
@@ -268,7 +268,7 @@ def test_cascade_injected_noise(tiny, sampler, steps, eta, s):
     n_s, n_l = short.num_noise_blocks(**kw), long.num_noise_blocks(**kw)
     noise_short = rng.standard_normal((s, n_s, b, k, short.seq_len)).astype(np.float32)
     noise_long = rng.standard_normal((s, n_l, b, k, long.seq_len)).astype(np.float32)
-    got = tcd.cascade_raw(short, long, observed, mask, num_samples=s, noise_short=noise_short,
+    got = tcd.engine.cascade_raw(short, long, observed, mask, num_samples=s, noise_short=noise_short,
                           noise_long=noise_long, **kw)
     want = torch_cascade(tiny, observed, mask, s, noise_short, noise_long, **kw)
     samples = want["samples"].numpy()
@@ -291,9 +291,9 @@ def test_cascade_seeded_matches_torch_fed_the_same_streams(tiny):
     observed, mask = observation(rng, b, k, OBS_LEN, OBS_LEN)
     kw = dict(sampler="ddim", num_inference_steps=5, eta=1.0, timestep_spacing="trailing")
     n = short.num_noise_blocks(**kw)
-    noise_short = tcd.seeded_noise(99, tcd.STAGE_SHORT, s, n, b, k, short.seq_len)
-    noise_long = tcd.seeded_noise(99, tcd.STAGE_LONG, s, n, b, k, long.seq_len)
-    got = tcd.cascade_raw(short, long, observed, mask, num_samples=s, seed=99, **kw)
+    noise_short = tcd.engine.seeded_noise(99, tcd.engine.STAGE_SHORT, s, n, b, k, short.seq_len)
+    noise_long = tcd.engine.seeded_noise(99, tcd.engine.STAGE_LONG, s, n, b, k, long.seq_len)
+    got = tcd.engine.cascade_raw(short, long, observed, mask, num_samples=s, seed=99, **kw)
     want = torch_cascade(tiny, observed, mask, s, noise_short, noise_long, **kw)
     assert chain_close(got["samples"], want["samples"].numpy()[..., OBS_LEN:], "seeded cascade ddim n=5 eta=1")
 
@@ -305,7 +305,7 @@ def test_repair_injected_noise(tiny):
     observed, mask = observation(rng, b, k, OBS_LEN, OBS_LEN, missing=0.4)
     kw = dict(sampler="ddim", num_inference_steps=10, eta=0.0, timestep_spacing="trailing")
     noise = rng.standard_normal((s, 11, b, k, den.seq_len)).astype(np.float32)
-    got = tcd.repair_raw(den, observed, mask, num_samples=s, noise=noise, **kw)
+    got = tcd.engine.repair_raw(den, observed, mask, num_samples=s, noise=noise, **kw)
     want = D.repair(model, sched, torch.from_numpy(observed), torch.from_numpy(mask), seq_len=den.seq_len,
                     num_samples=s, noise=torch.from_numpy(noise), **kw).numpy()
     assert chain_close(got["mean"], want, "repair ddim n=10")
@@ -324,7 +324,7 @@ def test_dpmpp2m_noise_blocks_seeded_and_repair(tiny):
     b, k, s = 2, den.num_features, 2
     observed, mask = observation(rng, b, k, den.seq_len, OBS_LEN)
     kw = dict(sampler="dpmpp2m", num_inference_steps=10, timestep_spacing="trailing")
-    noise = tcd.seeded_noise(77, tcd.STAGE_SHORT, s, 1, b, k, den.seq_len)
+    noise = tcd.engine.seeded_noise(77, tcd.engine.STAGE_SHORT, s, 1, b, k, den.seq_len)
     seeded = den.sample(observed, mask, s, seed=77, **kw)
     assert np.array_equal(seeded, den.sample(observed, mask, s, noise=noise, **kw))
     want = D.sample_many(model, sched, torch.from_numpy(observed), torch.from_numpy(mask), s,
@@ -334,7 +334,7 @@ def test_dpmpp2m_noise_blocks_seeded_and_repair(tiny):
         den.sample(observed, mask, s, noise=np.zeros((s, 11, b, k, den.seq_len), np.float32), **kw)
     obs, m = observation(rng, 1, k, OBS_LEN, OBS_LEN, missing=0.4)
     rnoise = rng.standard_normal((s, 1, 1, k, den.seq_len)).astype(np.float32)
-    got = tcd.repair_raw(den, obs, m, num_samples=s, noise=rnoise, **kw)
+    got = tcd.engine.repair_raw(den, obs, m, num_samples=s, noise=rnoise, **kw)
     want = D.repair(model, sched, torch.from_numpy(obs), torch.from_numpy(m), seq_len=den.seq_len, num_samples=s,
                     noise=torch.from_numpy(rnoise), **kw).numpy()
     assert chain_close(got["mean"], want, "repair dpmpp2m n=10")
@@ -350,7 +350,7 @@ def tiny_repair(tmp_path_factory, name: str, seed: int, over: dict):
     d = make_model_dir(tmp_path_factory.mktemp(name), "tiny", seed=seed, repair=over)
     path = d / "repair.safetensors"
     model, sched, _ = load_model_file(path)
-    den = tcd.Denoiser.load(path)
+    den = tcd.engine.Denoiser.load(path)
     for key, value in over.items():
         assert getattr(model.cfg, key) == value and den.config["model"][key] == value, key
     return den, model, sched
@@ -395,7 +395,7 @@ def test_repair_cond_fill_linear_injected_noise(tiny_linear):
     observed, mask = observation(rng, b, k, OBS_LEN, OBS_LEN, missing=0.4)
     kw = dict(sampler="ddpm", num_inference_steps=10, timestep_spacing="trailing")
     noise = rng.standard_normal((s, 11, b, k, den.seq_len)).astype(np.float32)
-    got = tcd.repair_raw(den, observed, mask, num_samples=s, noise=noise, **kw)
+    got = tcd.engine.repair_raw(den, observed, mask, num_samples=s, noise=noise, **kw)
     want = D.repair(model, sched, torch.from_numpy(observed), torch.from_numpy(mask), seq_len=den.seq_len,
                     num_samples=s, noise=torch.from_numpy(noise), **kw).numpy()
     assert chain_close(got["mean"], want, "repair cond_fill=linear ddpm n=10")
@@ -433,7 +433,7 @@ def test_repair_residual_injected_noise(request, fill, sampler, steps):
     kw = dict(sampler=sampler, num_inference_steps=steps, timestep_spacing="trailing")
     blocks = 1 if sampler == "dpmpp2m" else steps + 1
     noise = rng.standard_normal((s, blocks, b, k, den.seq_len)).astype(np.float32)
-    got = tcd.repair_raw(den, observed, mask, num_samples=s, noise=noise, **kw)
+    got = tcd.engine.repair_raw(den, observed, mask, num_samples=s, noise=noise, **kw)
     want = D.repair(model, sched, torch.from_numpy(observed), torch.from_numpy(mask), seq_len=den.seq_len,
                     num_samples=s, noise=torch.from_numpy(noise), **kw).numpy()
     assert chain_close(got["mean"], want, f"repair target={fill}_residual {sampler} n={steps}")

@@ -57,7 +57,7 @@ def bundled():
 
 def engine_observed(model, observed, mask):
     """What a single engine stage is given: the observation itself, or for a prior-conditioned model the
-    observation with the prior's fill in its mask-0 entries (as tcd.cascade_raw puts it there)."""
+    observation with the prior's fill in its mask-0 entries (as tcd.engine.cascade_raw puts it there)."""
     if model.cfg.cond_fill != "prior":
         return observed
     return prior_fill(model.prior, torch.from_numpy(observed), torch.from_numpy(mask)).numpy()
@@ -82,7 +82,7 @@ def silenced(model):
 
 
 def load(path, kernel=None, monkeypatch=None):
-    return tcd.Denoiser.load(path) if kernel is None else load_kernel(path, kernel, monkeypatch)
+    return tcd.engine.Denoiser.load(path) if kernel is None else load_kernel(path, kernel, monkeypatch)
 
 
 def window(clip, start, length, observed_frames, occlude=False):
@@ -171,8 +171,8 @@ def test_cascade_on_trained_weights(bundled, clip):
     rng = np.random.default_rng(11)
     kw = dict(sampler="ddpm", num_inference_steps=10, timestep_spacing="trailing")
     noise_short, noise_long = noise_for(short, "ddpm", 10, 2, rng), noise_for(long, "ddpm", 10, 2, rng)
-    prior = tcd.Prior.load(tcd.default_model_dir() / "prior.safetensors")
-    got = tcd.cascade_raw(short, long, observed, mask, num_samples=2, noise_short=noise_short,
+    prior = tcd.engine.Prior.load(tcd.default_model_dir() / "prior.safetensors")
+    got = tcd.engine.cascade_raw(short, long, observed, mask, num_samples=2, noise_short=noise_short,
                           noise_long=noise_long, prior=prior, **kw)
 
     def reference(short_model, long_model):
@@ -198,7 +198,7 @@ def test_repair_on_trained_weights(bundled, clip, sampler):
     observed = (truth * mask).astype(np.float32)
     noise = noise_for(den, sampler, 10, 2, np.random.default_rng(13))
     kw = dict(sampler=sampler, num_inference_steps=10, eta=0.0, timestep_spacing="trailing")
-    got = tcd.repair_raw(den, observed, mask, num_samples=2, noise=noise, **kw)["mean"]
+    got = tcd.engine.repair_raw(den, observed, mask, num_samples=2, noise=noise, **kw)["mean"]
 
     def reference(m):
         return D.repair(m, sched, torch.from_numpy(observed), torch.from_numpy(mask), seq_len=den.seq_len,

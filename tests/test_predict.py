@@ -75,6 +75,21 @@ def test_missing_entries_are_filled_before_the_prior(model):
     assert not np.allclose(a.repaired, spline.repaired)
 
 
+def test_the_length_rule_of_forecast(model):
+    """Any length, as TCD.forecast: the last obs_len frames, a shorter observation padded with missing frames."""
+    obs = clip()
+    longer = np.concatenate([clip(batch=2)[1][:7], obs])
+    f, g = model.predict(obs), model.predict(longer)
+    np.testing.assert_array_equal(g.mean, f.mean)
+    np.testing.assert_array_equal(g.repaired, np.concatenate([longer[:7], f.repaired]))
+    padded = obs.copy()
+    padded[:20] = np.nan
+    for fill in ("spline", "model"):
+        short, full = model.predict(obs[20:], fill=fill, seed=2), model.predict(padded, fill=fill, seed=2)
+        np.testing.assert_array_equal(short.mean, full.mean)
+        np.testing.assert_array_equal(short.repaired, full.repaired[20:])
+
+
 def test_bad_fill_and_unfillable_joints(model):
     with pytest.raises(InvalidInputError) as e:
         model.predict(clip(), fill="cubic")

@@ -122,10 +122,11 @@ def test_cascade_matches_pytorch(dirs, prediction, sampler, steps, eta, s, kerne
     d = dirs[prediction]
     short = load_kernel(d / "short.safetensors", kernel, monkeypatch)
     long = load_kernel(d / "long.safetensors", kernel, monkeypatch)
-    prior = load_kernel(d / export.PRIOR_FILE, kernel, monkeypatch, cls=tcd.Prior)
+    prior = load_kernel(d / export.PRIOR_FILE, kernel, monkeypatch, cls=tcd.engine.Prior)
     assert short.config["diffusion"]["prediction_type"] == prediction
     eng, ref, mask, ns, nl, kw, want = reference(d, prediction, sampler, steps, eta, s)
-    got = tcd.cascade_raw(short, long, eng, mask, num_samples=s, noise_short=ns, noise_long=nl, prior=prior, **kw)
+    got = tcd.engine.cascade_raw(short, long, eng, mask, num_samples=s, noise_short=ns, noise_long=nl, prior=prior,
+                                 **kw)
     what = f"prior-conditioned cascade {prediction} {sampler} n={steps} eta={eta} S={s} kernel={kernel}"
     assert max_diff(got["short_mean"], want["short_mean"], what + " short_mean") <= CHAIN_ATOL
     assert max_diff(got["samples"], want["samples"][..., OBS:], what + " samples") <= CHAIN_ATOL
@@ -171,37 +172,38 @@ def test_tcd_load_passes_the_prior_and_matches_pytorch_on_the_seeded_streams(dir
     kw = dict(sampler="ddim", num_inference_steps=5, eta=1.0, timestep_spacing="trailing")
     poses = np.ascontiguousarray(eng[0].T.reshape(OBS, 22, 3))
     f = model.forecast(poses, num_samples=2, seed=21, **kw)
-    raw = tcd.cascade_raw(model.short, model.long, eng, mask, num_samples=2, seed=21, prior=model.prior, **kw)
+    raw = tcd.engine.cascade_raw(model.short, model.long, eng, mask, num_samples=2, seed=21, prior=model.prior, **kw)
     assert np.array_equal(f.mean, raw["mean"][0].T.reshape(-1, 22, 3))
-    ns = tcd.seeded_noise(21, tcd.STAGE_SHORT, 2, 6, 1, 66, LS)
-    nl = tcd.seeded_noise(21, tcd.STAGE_LONG, 2, 6, 1, 66, LL)
+    ns = tcd.engine.seeded_noise(21, tcd.engine.STAGE_SHORT, 2, 6, 1, 66, LS)
+    nl = tcd.engine.seeded_noise(21, tcd.engine.STAGE_LONG, 2, 6, 1, 66, LL)
     want = torch_cascade(d, ref, mask, 2, ns, nl, **kw)
     assert max_diff(raw["samples"], want["samples"][..., OBS:], "seeded prior-conditioned x0 cascade") <= CHAIN_ATOL
 
 
 def test_errors_name_the_prior_and_the_missing_file(dirs, tmp_path):
     d = dirs["epsilon"]
-    short, long = tcd.Denoiser.load(d / "short.safetensors"), tcd.Denoiser.load(d / "long.safetensors")
-    prior = tcd.Prior.load(d / export.PRIOR_FILE)
+    short, long = tcd.engine.Denoiser.load(d / "short.safetensors"), tcd.engine.Denoiser.load(d / "long.safetensors")
+    prior = tcd.engine.Prior.load(d / export.PRIOR_FILE)
     eng, _, mask = observation(5, batch=1)
     kw = dict(num_samples=1, seed=0, sampler="ddim", num_inference_steps=2)
-    e = bad("prior", tcd.cascade_raw, short, long, eng, mask, **kw)
+    e = bad("prior", tcd.engine.cascade_raw, short, long, eng, mask, **kw)
     assert "cond_fill" in str(e) and "short-term" in str(e)
-    bad("prior", tcd.cascade_raw, short, long, eng, mask, prior="prior.safetensors", **kw)
+    bad("prior", tcd.engine.cascade_raw, short, long, eng, mask, prior="prior.safetensors", **kw)
     # a prior that reads the whole short window
     other = tmp_path / "p55.safetensors"
     export.save_prior(other, export.random_prior(blocks=1, obs_len=55, chunk=5))
-    e = bad("prior", tcd.cascade_raw, short, long, eng, mask, prior=tcd.Prior.load(other), **kw)
+    e = bad("prior", tcd.engine.cascade_raw, short, long, eng, mask, prior=tcd.engine.Prior.load(other), **kw)
     assert "obs_len = 55" in str(e)
     # repair never runs the prior
-    e = bad("model", tcd.repair_raw, short, eng, mask, num_samples=1, seed=0, sampler="ddim", num_inference_steps=2)
+    e = bad("model", tcd.engine.repair_raw, short, eng, mask, num_samples=1, seed=0, sampler="ddim",
+            num_inference_steps=2)
     assert "prior" in str(e)
     # the low-level calls read the fill from `observed`: NaN there is refused
     m = np.concatenate([mask, np.zeros((1, 66, LS - OBS), np.float32)], -1)
     x = np.concatenate([eng, np.zeros((1, 66, LS - OBS), np.float32)], -1)
     bad("observed", short.sample, x, m, 1, seed=0, sampler="ddim", num_inference_steps=2)
     assert short.sample(np.nan_to_num(x), m, 1, seed=0, sampler="ddim", num_inference_steps=2).shape == (1, 1, 66, LS)
-    assert tcd.cascade_raw(short, long, eng, mask, prior=prior, **kw)["mean"].shape == (1, 66, 25)
+    assert tcd.engine.cascade_raw(short, long, eng, mask, prior=prior, **kw)["mean"].shape == (1, 66, 25)
     # a model directory without its prior: the weights error names the missing file
     bare = tmp_path / "bare"
     bare.mkdir()
@@ -257,7 +259,7 @@ def test_export_writes_and_restores_prior_conditioning_and_x0_prediction(tmp_pat
     kw = dict(sampler="dpmpp2m", num_inference_steps=5, timestep_spacing="trailing")
     ns = np.random.default_rng(1).standard_normal((1, 1, 1, 66, 14)).astype(np.float32)
     nl = np.random.default_rng(2).standard_normal((1, 1, 1, 66, 20)).astype(np.float32)
-    got = tcd.cascade_raw(model.short, model.long, eng, mask, num_samples=1, noise_short=ns, noise_long=nl,
+    got = tcd.engine.cascade_raw(model.short, model.long, eng, mask, num_samples=1, noise_short=ns, noise_long=nl,
                           prior=model.prior, **kw)
     (ms, ss, _), (ml, sl, _) = models["short"], models["long"]
     want = D.cascade(ms, ss, ml, sl, torch.from_numpy(ref), torch.from_numpy(mask), short_len=14, long_len=20,

@@ -1,4 +1,4 @@
-"""Parity of the prior forecaster in the Rust engine (``tcd.Prior``) with the PyTorch reference
+"""Parity of the prior forecaster in the Rust engine (``tcd.engine.Prior``) with the PyTorch reference
 (``training.prior.PriorNet.rollout``), on every kernel path this CPU supports, and the binding's interface.
 
 Weights (the same file on both sides: the reference is loaded back from it with ``load_prior_file``):
@@ -98,9 +98,9 @@ def weights(request):
     return path, model, request.param
 
 
-def load_kernel(path, kernel: str, monkeypatch) -> tcd.Prior:
+def load_kernel(path, kernel: str, monkeypatch) -> tcd.engine.Prior:
     """The prior at ``path`` on one kernel path (fixtures_util.load_kernel)."""
-    return fixtures_util.load_kernel(path, kernel, monkeypatch, cls=tcd.Prior)
+    return fixtures_util.load_kernel(path, kernel, monkeypatch, cls=tcd.engine.Prior)
 
 
 def observations(batch: int, frames: int = 60) -> np.ndarray:
@@ -139,7 +139,7 @@ def test_predict_matches_pytorch(weights, kernel, batch, monkeypatch):
 def test_the_criterion_sees_a_small_change_of_one_weight(random_file, tmp_path):
     tensors, meta = read_weights(random_file)
     tensors["blocks.11.norm_weight"] = tensors["blocks.11.norm_weight"] * np.float32(1.001)
-    prior = tcd.Prior.load(write_weights(tmp_path / "prior.safetensors", tensors, meta))
+    prior = tcd.engine.Prior.load(write_weights(tmp_path / "prior.safetensors", tensors, meta))
     model, _ = export.load_prior_file(random_file)
     obs = observations(3)
     with pytest.raises(AssertionError):
@@ -152,7 +152,7 @@ def test_dct_matrix_is_pytorchs_bit_for_bit(obs_len, chunk, tmp_path, monkeypatc
     and a prior of another shape (K = 6, other obs_len and chunk) agrees with PyTorch too."""
     model = export.random_prior(blocks=3, seed=obs_len, obs_len=obs_len, chunk=chunk, joints=2)
     path = export.save_prior(tmp_path / "prior.safetensors", model)
-    for kernel in tcd.supported_kernels():
+    for kernel in tcd.engine.supported_kernels():
         prior = load_kernel(path, kernel, monkeypatch)
         want = torch.from_numpy(dct_matrix(obs_len)).float().numpy()
         assert prior.dct_matrix.dtype == np.float32 and np.array_equal(prior.dct_matrix, want)
@@ -167,16 +167,16 @@ def test_dct_matrix_is_pytorchs_bit_for_bit(obs_len, chunk, tmp_path, monkeypatc
 
 @pytest.fixture(scope="module")
 def prior(random_file):
-    return tcd.Prior.load(random_file)
+    return tcd.engine.Prior.load(random_file)
 
 
 def test_description(prior, random_file):
     cfg = prior.config
     assert cfg["role"] == "prior" and cfg["model"]["blocks"] == prior.blocks == 24
     assert (prior.num_features, prior.num_joints, prior.obs_len, prior.chunk) == (66, 22, 50, 10)
-    assert prior.path == str(random_file) and prior.kernel in tcd.supported_kernels()
+    assert prior.path == str(random_file) and prior.kernel in tcd.engine.supported_kernels()
     assert "Prior(" in repr(prior) and "blocks=24" in repr(prior)
-    assert tcd.Prior.from_bytes(random_file.read_bytes()).predict(observations(1), 3).shape == (1, 3, 66)
+    assert tcd.engine.Prior.from_bytes(random_file.read_bytes()).predict(observations(1), 3).shape == (1, 3, 66)
 
 
 def test_results_do_not_depend_on_threads_batch_or_caller_thread(prior):
@@ -229,24 +229,24 @@ def test_bad_arguments(prior):
 
 def test_bad_files(prior, random_file, tmp_path):
     with pytest.raises(FileNotFoundError):
-        tcd.Prior.load(tmp_path / "none.safetensors")
+        tcd.engine.Prior.load(tmp_path / "none.safetensors")
     with pytest.raises(WeightsError):
-        tcd.Prior.load(tmp_path)
+        tcd.engine.Prior.load(tmp_path)
     (tmp_path / "cut.safetensors").write_bytes(random_file.read_bytes()[:1000])
     with pytest.raises(WeightsError) as e:
-        tcd.Prior.load(tmp_path / "cut.safetensors")
+        tcd.engine.Prior.load(tmp_path / "cut.safetensors")
     assert e.value.path == str(tmp_path / "cut.safetensors")
     tensors, meta = read_weights(random_file)
     tensors["fc_in.weight"] = tensors["fc_in.weight"].copy()
     tensors["fc_in.weight"][3, 4] = np.inf
     with pytest.raises(WeightsError, match="fc_in.weight"):
-        tcd.Prior.load(write_weights(tmp_path / "inf.safetensors", tensors, meta))
+        tcd.engine.Prior.load(write_weights(tmp_path / "inf.safetensors", tensors, meta))
     tensors, meta = read_weights(random_file)
     tensors["blocks.0.fc.weight"] = tensors["blocks.0.fc.weight"][:, :40]
     with pytest.raises(WeightsError, match=r"blocks\.0\.fc\.weight.*\[50, 40\].*\[50, 50\]"):
-        tcd.Prior.load(write_weights(tmp_path / "shape.safetensors", tensors, meta))
+        tcd.engine.Prior.load(write_weights(tmp_path / "shape.safetensors", tensors, meta))
     with pytest.raises(TypeError):
-        tcd.Prior(object())
+        tcd.engine.Prior(object())
     assert isinstance(InvalidInputError("m", "a"), ValueError)
 
 

@@ -13,7 +13,7 @@ from conftest import H36M_DIR, needs_h36m
 from repair_util import FAST, FAST_KW, gappy, load_npz, run
 from tcd import fk
 from tcd.batch_repair import windows
-from tcd.resample import resample_backward, resample_forward
+from tcd._resample import resample_backward, resample_forward
 
 
 # ---------------------------------------------------------------------------------------------- units and rates

@@ -98,7 +98,7 @@ def test_golden_config_is_what_the_exporter_writes_and_the_engine_reads(tmp_path
     assert golden_config() == golden, ("the exporter's output changed: if on purpose, update "
                                        "docs/tcd_config.schema.json, docs/weights.md and this fixture together")
     jsonschema.validate(golden, SCHEMA)
-    d = tcd.Denoiser.load(write(tmp_path / "golden.safetensors", golden))
+    d = tcd.engine.Denoiser.load(write(tmp_path / "golden.safetensors", golden))
     assert d.config == golden
     assert (d.role, d.num_features, d.obs_len, d.pred_len, d.seq_len, d.num_train_timesteps) == (
         "short", 66, 50, 5, 55, 50)
@@ -111,15 +111,15 @@ def test_engine_requires_what_the_schema_requires_and_defaults_the_rest(tmp_path
     for name in required:
         path = write(tmp_path / f"no_{name}.safetensors", drop(golden, name))
         with pytest.raises(WeightsError) as e:
-            tcd.Denoiser.load(path)
+            tcd.engine.Denoiser.load(path)
         assert name.split(".")[-1] in str(e.value), (name, str(e.value))
     # optional fields: the engine runs with the schema's default
-    base = tcd.Denoiser.load(write(tmp_path / "base.safetensors", golden))
+    base = tcd.engine.Denoiser.load(write(tmp_path / "base.safetensors", golden))
     x = base.sample(*_zeros(), 1, seed=0, sampler="ddim", num_inference_steps=2)
     for name, sub, req in schema_fields():
         if req or "default" not in sub or name.count(".") != 1 or name.split(".")[-1] not in golden[name.split(".")[0]]:
             continue
-        d = tcd.Denoiser.load(write(tmp_path / f"default_{name}.safetensors", drop(golden, name)))
+        d = tcd.engine.Denoiser.load(write(tmp_path / f"default_{name}.safetensors", drop(golden, name)))
         assert (d.sample(*_zeros(), 1, seed=0, sampler="ddim", num_inference_steps=2) == x).all(), name
 
 
@@ -164,7 +164,7 @@ def test_prior_golden_config_is_what_the_exporter_writes_and_the_engine_reads(tm
                                              "docs/tcd_config.schema.json, docs/weights.md and this fixture together")
     jsonschema.validate(golden, SCHEMA)
     assert golden["data"]["training_data"] == "Human3.6M S1,S6,S7,S8,S9,S11 (exp-map, 25 fps)"
-    p = tcd.Prior.load(write_prior(tmp_path / "prior.safetensors", golden))
+    p = tcd.engine.Prior.load(write_prior(tmp_path / "prior.safetensors", golden))
     assert p.config == golden
     assert (p.num_features, p.num_joints, p.obs_len, p.chunk, p.blocks) == (66, 22, 50, 10, 2)
 
@@ -177,7 +177,7 @@ def test_engine_requires_what_the_schema_requires_of_a_prior(tmp_path):
     for name in required:
         path = write_prior(tmp_path / f"no_{name}.safetensors", drop(golden, name))
         with pytest.raises(WeightsError) as e:
-            tcd.Prior.load(path)
+            tcd.engine.Prior.load(path)
         assert name.split(".")[-1] in str(e.value), (name, str(e.value))
     assert not [name for name, sub, req in schema_fields("prior") if not req and "default" in sub]  # none to default
 
@@ -198,8 +198,8 @@ def test_a_file_of_one_kind_does_not_load_as_the_other(tmp_path):
     prior = write_prior(tmp_path / "prior.safetensors", json.loads(PRIOR_GOLDEN.read_text()))
     short = write(tmp_path / "short.safetensors", json.loads(GOLDEN.read_text()))
     with pytest.raises(WeightsError, match="prior forecaster") as e:
-        tcd.Denoiser.load(prior)
+        tcd.engine.Denoiser.load(prior)
     assert e.value.path == str(prior)
     with pytest.raises(WeightsError, match="Denoiser") as e:
-        tcd.Prior.load(short)
+        tcd.engine.Prior.load(short)
     assert e.value.path == str(short)

@@ -92,14 +92,14 @@ def test_world_coordinates_move_with_the_input(tiny_model, name):
     np.testing.assert_allclose(np.einsum("ij,...j->...i", turn, fa.mean) + [5.0, 7.0, -1.0], fb.mean, atol=1e-9)
     gappy = b.copy()
     gappy[10:20, 3:6] = np.nan
-    r = tiny_model.repair(gappy, layout=name, up="z", **FAST)
+    r = tiny_model.repair(gappy, layout=name, up="z", **FAST).poses
     seen = ~np.isnan(gappy)
     assert np.array_equal(r[seen], gappy[seen]) and np.isfinite(r[10:20, 3:6]).all()
 
 
 def test_any_frame_rate_and_length(tiny_model):
     x25 = h36m32()
-    from tcd.resample import resample_backward
+    from tcd._resample import resample_backward
     x50 = resample_backward(x25.reshape(50, -1), 99, 50.0, 25.0).reshape(99, 32, 3)   # the same motion at 50 fps
     f25 = tiny_model.forecast(x25, layout="h36m32", **FAST)
     f50 = tiny_model.forecast(x50, layout="h36m32", fps=50, **FAST)
@@ -111,6 +111,10 @@ def test_any_frame_rate_and_length(tiny_model):
     long = tiny_model.forecast(np.concatenate([x25, x25]), layout="h36m32", **FAST)  # 4 s: the last 2 s are used
     np.testing.assert_allclose(long.mean, f25.mean, atol=1e-9)
     bad("obs", tiny_model.repair, np.concatenate([x25, x25]), layout="h36m32")       # repair: one window at most
+    gone = np.concatenate([x25, np.full_like(x25, np.nan)])              # the last 2 s missing: the window is empty
+    bad("obs", tiny_model.forecast, gone, layout="h36m32")               # (here: no hips in it to place the body)
+    e = bad("obs", tiny_model.forecast, gone[:, list(layouts.MODEL_IDS)], layout="h36m22")
+    assert "last 50 frames" in str(e)                                    # the rule without layout / fps
 
 
 @pytest.mark.parametrize("damping_s", [None, 0.4, 0.0])
@@ -189,7 +193,7 @@ def tcd_load(d):
 def test_repair_file_and_tcd_repair_with_a_layout(tiny_model_dir, tmp_path, capsys):
     """A long world-coordinate h36m17 file at 50 fps, repaired through the windows and back: observed values
     bit for bit, gaps filled, the provenance records the layout; tcd repair gives the same file."""
-    from tcd.resample import resample_backward
+    from tcd._resample import resample_backward
     from tcd.cli import main
     x = in_layout(world(h36m32(75)), "h36m17")
     x50 = resample_backward(x.reshape(75, -1), 149, 50.0, 25.0).reshape(149, 17, 3)
@@ -246,7 +250,7 @@ def test_a_pelvis_missing_in_some_frames_is_placed_by_the_hips(tiny_model, name)
     seen = in_layout(world(x), name)
     hidden = seen.copy()
     hidden[30:, 0] = np.nan
-    r = tiny_model.repair(hidden, layout=name, up="z", **FAST)
+    r = tiny_model.repair(hidden, layout=name, up="z", **FAST).poses
     np.testing.assert_allclose(r[30:, 0], seen[30:, 0], atol=1e-9)
     a = tiny_model.forecast(hidden, layout=name, up="z", **FAST)
     b = tiny_model.forecast(seen, layout=name, up="z", **FAST)

@@ -133,7 +133,7 @@ def prior_predict(args, obs: np.ndarray, jmask: np.ndarray, seed: int) -> np.nda
         if args.fill in ("spline", "linear"):
             x = tcd.interpolate(x, method=args.fill)
         else:   # "auto" / "model": the bundled repair model, as the public API does without a directory
-            x = tcd.load().repair(x, seed=seed)
+            x = tcd.load().repair(x, seed=seed).poses
     net = load(path)
     W, obs_len, J, _ = x.shape
     with torch.no_grad():
@@ -279,13 +279,14 @@ def humaneva_model_samples(args, obs: np.ndarray, log=lambda m: None) -> np.ndar
 
 def humaneva_prior_forecast(path: str | Path, obs: np.ndarray) -> np.ndarray:
     """The prior's deterministic forecast (W, 60, 14, 3) from obs (W, 15, 14, 3): ``path`` a directory holding
-    ``prior.safetensors`` or that file (the engine, ``tcd.Prior``), or a ``training.prior`` checkpoint (PyTorch)."""
+    ``prior.safetensors`` or that file (the engine, ``tcd.engine.Prior``), or a ``training.prior`` checkpoint
+    (PyTorch)."""
     path = Path(path)
     W, T, J, _ = obs.shape
     x = np.ascontiguousarray(obs.reshape(W, T, J * 3), dtype=np.float32)
     if path.is_dir() or path.suffix == ".safetensors":
         import tcd
-        prior = tcd.Prior.load(path / "prior.safetensors" if path.is_dir() else path)
+        prior = tcd.engine.Prior.load(path / "prior.safetensors" if path.is_dir() else path)
         if prior.num_features != J * 3 or prior.obs_len > T:
             raise SystemExit(f"{path}: the prior reads {prior.obs_len} frames of {prior.num_joints} joints; the "
                              f"HumanEva-I protocol gives {T} frames of {J}")
@@ -401,8 +402,8 @@ def main(argv=None) -> int:
     who.add_argument("--baseline", choices=["zero-velocity"])
     who.add_argument("--model", help="model directory (short.safetensors + long.safetensors)")
     who.add_argument("--prior", help="the deterministic prior: a model directory with prior.safetensors (the public "
-                                     "API, tcd.load(DIR).predict; --protocol humaneva: tcd.Prior, so the directory "
-                                     "may hold the prior alone) or a training checkpoint last.pt (PyTorch)")
+                                     "API, tcd.load(DIR).predict; --protocol humaneva: tcd.engine.Prior, so the "
+                                     "directory may hold the prior alone) or a training checkpoint last.pt (PyTorch)")
     ap.add_argument("--fill", choices=["auto", "model", "spline", "linear"], default="auto",
                     help="--prior: how missing observation entries are filled before predicting (auto: the "
                          "repair model where one is loaded, else the natural cubic spline)")

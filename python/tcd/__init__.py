@@ -7,24 +7,25 @@
     >>> f.mean.shape, f.samples.shape            # (25, 22, 3), (5, 25, 22, 3)
 
 High level: :func:`load`, :class:`TCD` (``forecast``, ``predict``: the prior's point forecast, ``repair``),
-:class:`Forecast`, :func:`forecast`, :func:`predict`;
+:class:`Forecast`, :class:`Repair`, :func:`forecast`, :func:`predict`, :func:`repair`, :func:`repair_file`;
 the sampler of every call: the keyword arguments ``sampler``, ``num_inference_steps``, ``eta`` and
 ``timestep_spacing`` (their defaults and checks: :class:`SamplerOptions`); the engine's fills of missing
 values along time (linear, natural cubic spline): :func:`interpolate`.
-Low level, in the engine's (B, K, L) layout: :class:`Denoiser`, :func:`cascade_raw`, :func:`repair_raw`,
-:func:`seeded_noise`. The deterministic prior forecaster on (B, T, K) frames: :class:`Prior`.
-Errors: :mod:`tcd.exceptions`. Inference runs in a Rust engine (no torch).
+Engine level, in the engine's (B, K, L) layout: :mod:`tcd.engine` (``Denoiser``, ``cascade_raw``,
+``repair_raw``, ``seeded_noise``, ``supported_kernels``, ``STAGE_SHORT``, ``STAGE_LONG``, and ``Prior``, the
+deterministic prior forecaster on (B, T, K) frames). Poses from the wild: :mod:`tcd.wild`, :mod:`tcd.layouts`.
+Errors: :mod:`tcd.exceptions`. Inference runs in a Rust engine (no torch). Modules whose name starts with an
+underscore are internal.
 """
 from __future__ import annotations
 
-from . import exceptions
+from . import engine, exceptions
 from ._native import __version__
-from .denoiser import STAGE_LONG, STAGE_SHORT, Denoiser, cascade_raw, repair_raw, seeded_noise, supported_kernels
 from .exceptions import InvalidInputError, ModelNotBundledError, TcdError, WeightsError
-from .interpolation import interpolate
-from .model import BUNDLED_MODELS, TCD, Forecast, default_model_dir, forecast, humaneva_model_dir, load, predict, repair
+from ._interpolation import interpolate
+from .model import (BUNDLED_MODELS, TCD, Forecast, Repair, default_model_dir, forecast, humaneva_model_dir, load,
+                    predict, repair)
 from .options import SamplerOptions
-from .prior import Prior
 from .batch_repair import repair_file  # `tcd repair` / offline repair of files of any length (issue 6)
 
 __all__ = [
@@ -37,18 +38,12 @@ __all__ = [
     "interpolate",
     "TCD",
     "Forecast",
+    "Repair",
     "SamplerOptions",
     "default_model_dir",
     "humaneva_model_dir",
     "BUNDLED_MODELS",
-    "Denoiser",
-    "Prior",
-    "cascade_raw",
-    "repair_raw",
-    "seeded_noise",
-    "supported_kernels",
-    "STAGE_SHORT",
-    "STAGE_LONG",
+    "engine",
     "exceptions",
     "TcdError",
     "InvalidInputError",

@@ -1,4 +1,5 @@
-"""The read-only attributes that :class:`tcd.Denoiser` and :class:`tcd.Prior` take from their native object.
+"""The read-only attributes that :class:`tcd.engine.Denoiser` and :class:`tcd.engine.Prior` take from their
+native object.
 
 ``num_features = NativeAttribute(int, "K = num_joints * 3.")`` in a class body is the attribute
 ``self._native.num_features``, read-only (assigning it raises ``AttributeError``), typed ``int`` for type

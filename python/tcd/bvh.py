@@ -16,7 +16,7 @@ from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 
-from .files import UnreadableFile
+from ._files import UnreadableFile
 
 __all__ = ["read_bvh", "to_h36m32", "read_bvh_h36m32"]
 

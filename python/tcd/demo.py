@@ -38,8 +38,8 @@ from typing import Any, Dict, List, Optional
 
 import numpy as np
 
-from .files import write_named_atomic, write_npz_atomic
-from .interpolation import interpolate
+from ._files import write_named_atomic, write_npz_atomic
+from ._interpolation import interpolate
 from .model import TCD
 from .options import SamplerOptions
 
@@ -195,7 +195,7 @@ def run(model: TCD, *, samples: int = DEFAULT_SAMPLES, seed: int = DEFAULT_SEED,
         return res
     _say(f"[{stages}/{stages}] repairing the occluded observation...", quiet)
     t0 = time.perf_counter()
-    rep = model.repair(occluded, **kw)
+    rep = model.repair(occluded, **kw).poses
     res["timings_s"]["repair"] = time.perf_counter() - t0
     res["repaired"] = rep
     hidden = mask == 0

@@ -4,6 +4,12 @@ Poses are ``(T, J, 3)`` or ``(B, T, J, 3)`` float arrays in the model's joint la
 (``TCD.joint_names``), root-relative, in metres by default (``units="mm"`` for millimetres). NaN marks
 a missing value; an explicit ``mask`` (1 = observed) may be given instead or as well. Outputs come
 back in the caller's units, with the caller's batch axis (present or not).
+
+One length rule, with or without ``layout`` / ``fps`` (then counted in frames at the model's frame rate):
+the model sees a window of :attr:`TCD.obs_len` frames ending at the last input frame. A longer observation
+is forecast from its last ``obs_len`` frames (:meth:`TCD.repair` refuses it: :func:`tcd.repair_file`
+repairs any length); a shorter one is padded at the start with missing frames, which the model in-paints
+like any missing value. ``repaired`` always has the input's frames: those before the window as given.
 """
 from __future__ import annotations
 
@@ -13,20 +19,22 @@ import os
 import threading
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Tuple, Union
+from typing import Any, Dict, List, Literal, Optional, Tuple, Union, get_args
 
 import numpy as np
+from numpy.typing import ArrayLike
 
-from . import _checks, wild_calls
-from .poses import UNIT_SCALE, check_units, validate_poses
-from .denoiser import Denoiser, cascade_raw, repair_raw
+from . import _checks, _wild_calls
+from ._poses import UNIT_SCALE, Units, check_units, check_window, validate_poses
+from ._progress import Progress
+from .engine import Denoiser, Prior, cascade_raw, repair_raw
 from . import _native
 from .exceptions import InvalidInputError, ModelNotBundledError, WeightsError
 from .options import SamplerOptions
-from .prior import Prior
+from .wild import Up
 
-__all__ = ["TCD", "Forecast", "load", "forecast", "predict", "repair", "default_model_dir", "humaneva_model_dir",
-           "BUNDLED_MODELS"]
+__all__ = ["TCD", "Forecast", "Repair", "load", "forecast", "predict", "repair", "default_model_dir",
+           "humaneva_model_dir", "BUNDLED_MODELS"]
 
 PathLike = Union[str, "os.PathLike[str]"]
 
@@ -34,8 +42,8 @@ PathLike = Union[str, "os.PathLike[str]"]
 PRIOR_FILE = "prior.safetensors"
 
 #: how :meth:`TCD.predict` fills missing observation entries before the prior forecasts
-FILLS = ("auto", "model", "spline", "linear")
-
+Fill = Literal["auto", "model", "spline", "linear"]
+FILLS: Tuple[str, ...] = get_args(Fill)
 
 
 def default_model_dir() -> Path:
@@ -82,7 +90,7 @@ class Forecast:
       the deterministic point forecast);
     * ``samples``: ``(S, B?, H, J, 3)``; ``None`` from :meth:`TCD.predict`, which draws no samples;
     * ``repaired``: the observation with its missing entries filled (same shape as the input; observed
-      entries are returned unchanged);
+      entries are returned unchanged, and frames before the model's window as given);
     * ``seed``: the seed used (drawn from ``os.urandom`` when none was given): pass it back to reproduce;
     * ``times``: ``(H,)`` seconds of each forecast frame after the last observed one (None when the model
       does not record its frame rate).
@@ -101,18 +109,35 @@ class Forecast:
                 f"repaired={_checks.shape_str(self.repaired.shape)}, seed={self.seed})")
 
 
+@dataclass(frozen=True, eq=False)
+class Repair:
+    """The result of :meth:`TCD.repair` (in the caller's units, dtype and batch axis).
+
+    * ``poses``: the observation with its missing entries filled, the shape of the input (observed entries
+      are returned unchanged);
+    * ``seed``: the seed used (drawn from ``os.urandom`` when none was given): pass it back to reproduce.
+    """
+
+    poses: np.ndarray
+    seed: int
+
+    def __repr__(self) -> str:
+        return f"Repair(poses={_checks.shape_str(self.poses.shape)}, seed={self.seed})"
+
+
 class _Poses:
-    """A validated pose input in the engine's layout."""
+    """A validated pose input and the model's window of it, in the engine's layout."""
 
     def __init__(self, observed: np.ndarray, mask: np.ndarray, original: np.ndarray, full_mask: np.ndarray,
-                 batched: bool, scale: float, dtype: np.dtype) -> None:
-        self.observed = observed      # (B, K, T) float32, model units, 0 where missing
-        self.mask = mask              # (B, K, T) float32 0/1
+                 batched: bool, scale: float, dtype: np.dtype, start: int) -> None:
+        self.observed = observed      # (B, K, W) float32, model units, 0 where missing: the window
+        self.mask = mask              # (B, K, W) float32 0/1
         self.original = original      # (B, T, J, 3) the caller's values
         self.full_mask = full_mask    # (B, T, J, 3) bool
         self.batched = batched
         self.scale = scale
         self.dtype = dtype
+        self.start = start            # the caller's frame at the window's first frame (< 0: padded)
 
     def poses(self, bkl: np.ndarray) -> np.ndarray:
         """(..., B, K, L) float32 model units -> (..., B?, L, J, 3) in the caller's units and dtype."""
@@ -124,29 +149,49 @@ class _Poses:
         return out if self.batched else out[..., 0, :, :, :]
 
     def repaired(self, bkt: np.ndarray) -> np.ndarray:
+        """The window's repair (B, K, W) -> the caller's observation filled (its shape, units and dtype)."""
         out = self.poses(bkt)
         original = self.original if self.batched else self.original[0]
         full_mask = self.full_mask if self.batched else self.full_mask[0]
+        if self.start < 0:                                     # the padded frames dropped
+            out = out[..., -self.start:, :, :]
+        elif self.start > 0:                                   # the frames before the window as given
+            out = np.concatenate([original[..., :self.start, :, :].astype(self.dtype, copy=False), out], axis=-3)
         # Observed entries bit for bit as given (also when units or dtype needed a conversion).
         return np.where(full_mask, original.astype(self.dtype, copy=False), out)
 
 
-def _poses(obs: Any, mask: Any, num_joints: int, obs_len: int, units: str) -> _Poses:
-    """Checks ``obs`` / ``mask`` (see :meth:`TCD.forecast`) and converts them to (B, K, T) float32."""
-    p = validate_poses(obs, mask, num_joints=num_joints, frames=obs_len, units=units)
+def _poses(obs: ArrayLike, mask: Optional[ArrayLike], num_joints: int, window: int, units: Units, *,
+           repair: bool = False) -> _Poses:
+    """Checks ``obs`` / ``mask`` (see :meth:`TCD.forecast`) and converts the model's window of them (the
+    module docstring's length rule: its last ``window`` frames, padded at the start with missing frames when
+    shorter) to (B, K, window) float32. ``repair``: more than ``window`` frames is an error."""
+    p = validate_poses(obs, mask, num_joints=num_joints, units=units)
     a4, full, dtype = p.values, p.observed, p.dtype
     b, t = a4.shape[:2]
+    if repair and t > window:
+        raise InvalidInputError(
+            f"Argument `obs` must span at most the model's window ({window} frames) to be repaired in one call, "
+            f"but received {t} frames: repair longer sequences with tcd.repair_file (overlapping windows).", "obs")
+    start = t - window
+    if start < 0:
+        pad = (b, -start) + a4.shape[2:]
+        a4w = np.concatenate([np.zeros(pad, a4.dtype), a4], axis=1)
+        full_w = np.concatenate([np.zeros(pad, bool), full], axis=1)
+    else:
+        a4w, full_w = a4[:, start:], full[:, start:]
+    check_window(full_w, window, p.batched)
     scale = UNIT_SCALE[units]
-    x = np.where(full, a4, 0.0)
+    x = np.where(full_w, a4w, 0.0)
     if scale != 1.0:
         x = x / scale
     k = num_joints * 3
-    observed = np.ascontiguousarray(x.astype(np.float32).reshape(b, t, k).transpose(0, 2, 1))
-    mask_bkt = np.ascontiguousarray(full.astype(np.float32).reshape(b, t, k).transpose(0, 2, 1))
-    return _Poses(observed, mask_bkt, a4, full, p.batched, scale, dtype)
+    observed = np.ascontiguousarray(x.astype(np.float32).reshape(b, window, k).transpose(0, 2, 1))
+    mask_bkt = np.ascontiguousarray(full_w.astype(np.float32).reshape(b, window, k).transpose(0, 2, 1))
+    return _Poses(observed, mask_bkt, a4, full, p.batched, scale, dtype, start)
 
 
-def _seed(seed: Any) -> int:
+def _seed(seed: Optional[int]) -> int:
     s = _checks.optional_machine_int("seed", seed, 128)   # its range (0..2**64 - 1) is the engine's to check
     return int.from_bytes(os.urandom(8), "little") if s is None else s
 
@@ -246,8 +291,8 @@ class TCD:
                 f"prior={self.prior is not None})")
 
     # ------------------------------------------------------------------ inference
-    def _common(self, num_samples: Any, sampler: Dict[str, Any], units: Any,
-                threads: Any) -> Tuple[int, Dict[str, Any], str, Optional[int]]:
+    def _common(self, num_samples: int, sampler: Dict[str, Any], units: Units,
+                threads: Optional[int]) -> Tuple[int, Dict[str, Any], Units, Optional[int]]:
         """The arguments every call checks before any work; the sampler keywords come back checked, all four
         given (the defaults filled in), for the low-level calls."""
         num_samples = _checks.machine_int("num_samples", num_samples)   # ranges: the engine's
@@ -256,15 +301,17 @@ class TCD:
         threads = _checks.optional_machine_int("threads", threads)
         return num_samples, sampling, units, self.threads if threads is None else threads
 
-    def forecast(self, obs: Any, mask: Any = None, *, num_samples: int = 5, seed: Optional[int] = None,
-                 units: str = "m", threads: Optional[int] = None, progress: Any = False,
-                 layout: Optional[str] = None, fps: Optional[float] = None, up: Any = "y",
-                 **sampler: Any) -> Forecast:
+    def forecast(self, obs: ArrayLike, mask: Optional[ArrayLike] = None, *, num_samples: int = 5,
+                 seed: Optional[int] = None, units: Units = "m", threads: Optional[int] = None,
+                 progress: Progress = False, layout: Optional[str] = None, fps: Optional[float] = None,
+                 up: Up = "y", **sampler: Any) -> Forecast:
         """Forecasts the next :attr:`horizon` frames of ``obs``.
 
         Args:
-            obs: ``(T, J, 3)`` or ``(B, T, J, 3)`` with T = :attr:`obs_len` (50), J = :attr:`num_joints`, in the
-                model's joint order, root-relative; NaN marks a missing value.
+            obs: ``(T, J, 3)`` or ``(B, T, J, 3)``, J = :attr:`num_joints`, in the model's joint order,
+                root-relative; NaN marks a missing value. Any T >= 1: the forecast conditions on the last
+                :attr:`obs_len` (50) frames, a shorter observation padded at the start with missing frames
+                (the length rule of :mod:`tcd.model`; a forecast from fewer frames knows less).
             mask: optional, 1 = observed / 0 = missing, shape ``obs.shape`` or ``obs.shape[:-1]`` (per joint).
                 Entries with mask 0 are ignored (NaN or not); NaN where mask is 1 is an error.
             num_samples: S, samples per sequence (and per cascade stage). TCD: 5.
@@ -273,13 +320,14 @@ class TCD:
             units: ``"m"`` (default), ``"cm"`` or ``"mm"``: the units of ``obs`` and of every output.
             threads: worker threads (``None``: the value given to :func:`tcd.load`, else all cores).
             progress: ``True`` shows a tqdm bar on stderr; a callable ``f(done, total)`` gets the count of
-                denoiser forwards (:mod:`tcd.progress`). Ctrl-C stops the call (KeyboardInterrupt) within
-                about 0.1 s plus one forward, whatever ``progress`` is.
+                denoiser forwards, about ten times a second (raising in it stops the call). Ctrl-C stops the
+                call (KeyboardInterrupt) within about 0.1 s plus one forward, whatever ``progress`` is.
             layout, fps, up: poses from the wild (:mod:`tcd.wild`): ``layout`` one of
                 :data:`tcd.layouts.LAYOUTS` (``"h36m32"``, ``"h36m17"``, ``"smpl24"``, ``"coco17"``; J its
                 joints) in world or camera coordinates with ``up`` the vertical axis (``"y"``, ``"z"``, ...
-                or a unit vector), at ``fps`` frames per second and of any length >= 2 observed frames.
-                The forecast comes back in the same layout, coordinates and frame rate (``Forecast.times``).
+                or a unit vector), at ``fps`` frames per second, of any length, the same rule counted at the
+                model's frame rate (and at least 2 observed frames, to measure the root's motion). The
+                forecast comes back in the same layout, coordinates and frame rate (``Forecast.times``).
             **sampler: the sampler (default: the paper's DDPM over every training step): ``sampler``
                 (``"ddpm"``, ``"ddim"``, ``"dpmpp2m"``), ``num_inference_steps``, ``eta``,
                 ``timestep_spacing``, as :class:`tcd.SamplerOptions` defines and checks them. Any other
@@ -292,7 +340,7 @@ class TCD:
                                                  num_samples=num_samples, seed=seed, threads=threads,
                                                  progress=progress, prior=prior, **sampling)
         if layout is not None or fps is not None:
-            mean, samples, repaired, times = wild_calls.forecast(
+            mean, samples, repaired, times = _wild_calls.forecast(
                 self, obs, mask, layout="h36m22" if layout is None else layout, fps=fps, up=up, units=units, run=run)
             return Forecast(mean=mean, samples=samples, repaired=repaired, seed=seed, times=times)
         p = _poses(obs, mask, self.num_joints, self.obs_len, units)
@@ -301,34 +349,39 @@ class TCD:
                         repaired=p.repaired(out["repaired"]), seed=seed,
                         times=None if self.fps is None else np.arange(1, self.horizon + 1) / float(self.fps))
 
-    def repair(self, obs: Any, mask: Any = None, *, num_samples: int = 5, seed: Optional[int] = None,
-               units: str = "m", threads: Optional[int] = None, progress: Any = False,
-               layout: Optional[str] = None, fps: Optional[float] = None, up: Any = "y",
-               **sampler: Any) -> np.ndarray:
+    def repair(self, obs: ArrayLike, mask: Optional[ArrayLike] = None, *, num_samples: int = 5,
+               seed: Optional[int] = None, units: Units = "m", threads: Optional[int] = None,
+               progress: Progress = False, layout: Optional[str] = None, fps: Optional[float] = None,
+               up: Up = "y", **sampler: Any) -> Repair:
         """Fills the missing entries of ``obs`` (same arguments as :meth:`forecast`) with the mean of
         ``num_samples`` samples of the repair model (the short-term model when the directory has no
-        ``repair.safetensors``), sampled as the sampler keywords say. Returns an array of the shape of
-        ``obs``; observed entries unchanged. Pass ``seed`` for a reproducible result. ``layout``, ``fps``,
-        ``up``: as in :meth:`forecast`, for an observation of at most the model's window (longer ones:
-        :func:`tcd.repair_file`)."""
+        ``repair.safetensors``), sampled as the sampler keywords say. ``obs`` spans at most the model's
+        window (:attr:`obs_len` frames, at the model's frame rate with ``layout`` / ``fps``; a shorter one is
+        padded at the start with missing frames; longer ones: :func:`tcd.repair_file`).
+
+        Returns a :class:`Repair`: ``poses`` of the shape of ``obs`` (observed entries unchanged) and the
+        ``seed`` used (drawn from ``os.urandom`` when ``seed`` is None): pass it back to reproduce."""
         num_samples, sampling, units, threads = self._common(num_samples, sampler, units, threads)
+        seed = _seed(seed)
         model = self.repair_model if self.repair_model is not None else self.short
         if layout is not None or fps is not None:
-            return wild_calls.repair(self, model, obs, mask, layout="h36m22" if layout is None else layout, fps=fps,
-                                     up=up, num_samples=num_samples, sampling=sampling, seed=_seed(seed),
-                                     units=units, threads=threads, progress=progress)
-        p = _poses(obs, mask, self.num_joints, self.obs_len, units)
-        out = repair_raw(model, p.observed, p.mask, num_samples=num_samples, seed=_seed(seed), threads=threads,
+            poses = _wild_calls.repair(self, model, obs, mask, layout="h36m22" if layout is None else layout,
+                                       fps=fps, up=up, num_samples=num_samples, sampling=sampling, seed=seed,
+                                       units=units, threads=threads, progress=progress)
+            return Repair(poses=poses, seed=seed)
+        p = _poses(obs, mask, self.num_joints, self.obs_len, units, repair=True)
+        out = repair_raw(model, p.observed, p.mask, num_samples=num_samples, seed=seed, threads=threads,
                          progress=progress, **sampling)
-        return p.repaired(out["mean"])
+        return Repair(poses=p.repaired(out["mean"]), seed=seed)
 
-    def predict(self, obs: Any, mask: Any = None, *, fill: str = "auto", num_samples: int = 5,
-                seed: Optional[int] = None, units: str = "m", threads: Optional[int] = None, progress: Any = False,
-                layout: Optional[str] = None, fps: Optional[float] = None, up: Any = "y",
-                **sampler: Any) -> Forecast:
+    def predict(self, obs: ArrayLike, mask: Optional[ArrayLike] = None, *, fill: Fill = "auto",
+                num_samples: int = 5, seed: Optional[int] = None, units: Units = "m", threads: Optional[int] = None,
+                progress: Progress = False, layout: Optional[str] = None, fps: Optional[float] = None,
+                up: Up = "y", **sampler: Any) -> Forecast:
         """The deterministic point forecast of the next :attr:`horizon` frames by the prior
         (``prior.safetensors``: a siMLPe-class network, one forward per 10 frames, no sampling), with the
-        inputs and conventions of :meth:`forecast` (mask/NaN, units, batches, ``layout``/``fps``/``up``).
+        inputs and conventions of :meth:`forecast` (mask/NaN, units, batches, the length rule,
+        ``layout``/``fps``/``up``).
 
         An observation with missing entries is repaired first, the paper's repair-then-predict pipeline:
         ``fill="auto"`` (default) uses the repair model where the directory has one (its sampler: the
@@ -350,7 +403,7 @@ class TCD:
         run = lambda observed, seen: self._predict_raw(observed, seen, fill=fill, num_samples=num_samples,  # noqa: E731
                                                        sampling=sampling, seed=seed, threads=threads, progress=progress)
         if layout is not None or fps is not None:
-            mean, _, repaired, times = wild_calls.forecast(self, obs, mask,
+            mean, _, repaired, times = _wild_calls.forecast(self, obs, mask,
                                                            layout="h36m22" if layout is None else layout,
                                                            fps=fps, up=up, units=units, run=run)
             return Forecast(mean=mean, samples=None, repaired=repaired, seed=seed, times=times)
@@ -360,7 +413,8 @@ class TCD:
                         times=None if self.fps is None else np.arange(1, self.horizon + 1) / float(self.fps))
 
     def _predict_raw(self, observed: np.ndarray, seen: np.ndarray, *, fill: str, num_samples: int,
-                     sampling: Dict[str, Any], seed: int, threads: Optional[int], progress: Any) -> Dict[str, Any]:
+                     sampling: Dict[str, Any], seed: int, threads: Optional[int],
+                     progress: Progress) -> Dict[str, Any]:
         """Repair-then-predict in the engine's layout: observed, seen (B, K, T) float32 (0 where missing) ->
         {"mean": (B, K, H) point forecast, "repaired": (B, K, T), "samples": None}."""
         repaired = observed
@@ -492,16 +546,16 @@ def _default_model() -> TCD:
         return _default
 
 
-def forecast(obs: Any, mask: Any = None, **kwargs: Any) -> Forecast:
+def forecast(obs: ArrayLike, mask: Optional[ArrayLike] = None, **kwargs: Any) -> Forecast:
     """:meth:`TCD.forecast` with the bundled default model (see :func:`load`)."""
     return _default_model().forecast(obs, mask, **kwargs)
 
 
-def predict(obs: Any, mask: Any = None, **kwargs: Any) -> Forecast:
+def predict(obs: ArrayLike, mask: Optional[ArrayLike] = None, **kwargs: Any) -> Forecast:
     """:meth:`TCD.predict` with the bundled default model (see :func:`load`)."""
     return _default_model().predict(obs, mask, **kwargs)
 
 
-def repair(obs: Any, mask: Any = None, **kwargs: Any) -> np.ndarray:
+def repair(obs: ArrayLike, mask: Optional[ArrayLike] = None, **kwargs: Any) -> Repair:
     """:meth:`TCD.repair` with the bundled default model (see :func:`load`)."""
     return _default_model().repair(obs, mask, **kwargs)

@@ -1,9 +1,9 @@
 """How each chain is sampled: the one home of the sampler settings, their defaults and their checks.
 
-Every layer that samples (``TCD.forecast`` / ``TCD.repair`` / ``TCD.predict``, :class:`tcd.Denoiser`,
-:func:`tcd.cascade_raw`, :func:`tcd.repair_raw`, :func:`tcd.repair_file`, the command line) takes the settings
-as keyword arguments (``sampler``, ``num_inference_steps``, ``eta``, ``timestep_spacing``) and reads them with
-:meth:`SamplerOptions.build`; the binding converts the resulting :class:`SamplerOptions` into the engine's
+Every layer that samples (``TCD.forecast`` / ``TCD.repair`` / ``TCD.predict``, :class:`tcd.engine.Denoiser`,
+:func:`tcd.engine.cascade_raw`, :func:`tcd.engine.repair_raw`, :func:`tcd.repair_file`, the command line) takes
+the settings as keyword arguments (``sampler``, ``num_inference_steps``, ``eta``, ``timestep_spacing``) and reads
+them with :meth:`SamplerOptions.build`; the binding converts the resulting :class:`SamplerOptions` into the engine's
 ``SamplerConfig`` in one place (``SamplerOptions`` in crates/tcd-py/src/convert.rs, a ``FromPyObject``).
 The values are checked by the engine's rules (``SamplerConfig::from_names``), when an options object is
 made and again when it is used; Python checks only that each field has the Python type the binding reads.

@@ -50,18 +50,22 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import Dict, List, Optional, Tuple
+from typing import Dict, List, Optional, Tuple, Union
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from . import _checks, fk
 from .exceptions import InvalidInputError
 from .layouts import FIXED_IDS, MODEL_IDS, Layout
-from .resample import resample_forward
+from ._resample import resample_forward
 
-__all__ = ["UP_AXES", "up_vector", "Scene", "to_model", "from_model", "join", "future_frames", "resample_to_model"]
+__all__ = ["UP_AXES", "Up", "up_vector", "Scene", "to_model", "from_model", "join", "future_frames",
+           "resample_to_model"]
 
 UP_AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
+#: The ``up`` argument: an axis of :data:`UP_AXES`, optionally signed (``"-z"``), or a unit 3-vector.
+Up = Union[str, ArrayLike]
 #: How far back the root's velocity and turn rate are measured (model frames: 0.2 s at 25 fps).
 EXTRAPOLATION_FRAMES = 5
 #: Time constant (s) of the decay of the future root's velocity and turn rate (None: held constant, 0: the
@@ -77,7 +81,7 @@ ROOT_DAMPING_S: Optional[float] = 0.4
 JOIN_FRAMES = 5
 
 
-def up_vector(up: object) -> np.ndarray:
+def up_vector(up: Up) -> np.ndarray:
     """``"x"``, ``"y"``, ``"z"`` (optionally signed, ``"-z"``) or a 3-vector of unit length."""
     if isinstance(up, str):
         sign = -1.0 if up.startswith("-") else 1.0

@@ -46,7 +46,7 @@ from __future__ import annotations
 
 # The package's modules, in the order of the work: options (settings, provenance), inputs (reading one
 # file), windows (resampling and the windows of one file), runner (the engine loop, repair_file, planning),
-# distributed (tcd repair --ray). The command line is tcd.cli.repair, the atomic writes tcd.files. Only the
+# distributed (tcd repair --ray). The command line is tcd.cli.repair, the atomic writes tcd._files. Only the
 # names of __all__ are imported here; everything else from the module that defines it.
 from .options import DEFAULT_OVERLAP, DEFAULT_SEED, INPUT_SUFFIXES, RepairOptions
 from .runner import repair_file

@@ -10,9 +10,9 @@ import numpy as np
 
 from .. import fk, wild
 from ..exceptions import InvalidInputError
-from ..files import UnreadableFile, read_pose_npz
+from .._files import UnreadableFile, read_pose_npz
 from ..layouts import get_layout
-from ..poses import UNIT_SCALE, validate_poses
+from .._poses import UNIT_SCALE, validate_poses
 from .options import BadFile, PathLike
 
 # ---------------------------------------------------------------------------------------------- inputs
@@ -55,7 +55,7 @@ def _read_npz(path: Path) -> Dict[str, np.ndarray]:
 
 def _checked_poses(data: Dict[str, np.ndarray], num_joints: int, units: str) -> Tuple[np.ndarray, np.ndarray]:
     """``poses`` (T, J, 3) in a float dtype and the observed entries (T, J, 3) bool, checked by the API's
-    :func:`tcd.poses.validate_poses`; a problem is a :class:`BadFile` naming the array."""
+    :func:`tcd._poses.validate_poses`; a problem is a :class:`BadFile` naming the array."""
     try:
         p = validate_poses(data["poses"], data.get("mask"), num_joints=num_joints, batched_ok=False,
                            names=("poses", "mask"), owner="The file's", units=units)

@@ -9,9 +9,9 @@ from typing import Any, Dict, Optional, Union
 
 
 from .. import _checks
-from ..poses import check_units
+from .._poses import check_units
 from .._native import __version__
-from ..denoiser import Denoiser
+from ..engine import Denoiser
 from ..layouts import get_layout
 from ..options import SamplerOptions
 from ..wild import up_vector

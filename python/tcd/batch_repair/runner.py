@@ -14,9 +14,9 @@ from typing import Any, Callable, Dict, Iterable, Iterator, List, Optional, Sequ
 
 import numpy as np
 
-from ..denoiser import repair_raw
+from ..engine import repair_raw
 from ..exceptions import InvalidInputError
-from ..files import write_npz_atomic
+from .._files import write_npz_atomic
 from .inputs import load_input, peek_frames
 from .options import (DEFAULT_FILES_PER_BATCH, DEFAULT_LOOKAHEAD, DEFAULT_OVERLAP, DEFAULT_SEED, INPUT_SUFFIXES,
                       BadFile, PathLike, RepairOptions, _denoiser, provenance)

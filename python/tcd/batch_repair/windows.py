@@ -8,8 +8,8 @@ from typing import List, Optional, Tuple
 import numpy as np
 
 from .inputs import Loaded
-from ..poses import UNIT_SCALE
-from ..resample import resample_backward, resample_forward
+from .._poses import UNIT_SCALE
+from .._resample import resample_backward, resample_forward
 
 def window_starts(frames: int, window: int, overlap: int, lookahead: int = 0) -> List[int]:
     """Start frames of the windows covering ``frames`` (>= ``window``) frames; consecutive windows share

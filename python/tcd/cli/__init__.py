@@ -13,7 +13,7 @@
 IN.npz holds ``poses``, (T, J, 3) or (B, T, J, 3) with NaN = missing, and optionally ``mask``
 (1 = observed). OUT.npz receives ``mean``, ``samples``, ``repaired``, ``seed`` and ``times``. An existing OUT is
 never replaced without ``--overwrite``; every output is written under a temporary name and renamed into
-place (:mod:`tcd.files`), so it is complete or absent.
+place (:mod:`tcd._files`), so it is complete or absent.
 
 Exit codes: 0 success; 2 bad input (arguments, input file, model directory, existing output);
 1 any other failure; 130 interrupted (Ctrl-C: one line, no traceback, nothing half-written); 143 terminated

@@ -120,7 +120,7 @@ def output_exists(path: Path) -> _BadInput:
 @contextmanager
 def writing(path: Path) -> Iterator[None]:
     """Around the write of an output checked beforehand: one that appeared since (``FileExistsError`` from
-    :mod:`tcd.files` without overwrite) is the same error as one there from the start."""
+    :mod:`tcd._files` without overwrite) is the same error as one there from the start."""
     try:
         yield
     except FileExistsError:

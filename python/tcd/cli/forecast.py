@@ -9,9 +9,9 @@ from typing import Any, Dict
 import numpy as np
 
 from ..exceptions import InvalidInputError
-from ..files import UnreadableFile, read_pose_npz, write_npz_atomic
+from .._files import UnreadableFile, read_pose_npz, write_npz_atomic
 from ..layouts import LAYOUTS
-from ..poses import UNIT_SCALE
+from .._poses import UNIT_SCALE
 from .common import (EXIT_OK, OPTION_FLAGS, _BadInput, add_model_flag, add_sampler_flags, flag_message, load_model,
                      output_exists, sampler_keywords, writing)
 
@@ -23,8 +23,9 @@ FLAGS = {**OPTION_FLAGS, "obs": "the `poses` array of the input file", "mask": "
 def add_parser(sub: Any) -> argparse.ArgumentParser:
     p = sub.add_parser("forecast", help="forecast the poses of an .npz file",
                        description="Forecast the frames after the observed poses of IN.npz.")
-    p.add_argument("input", metavar="IN.npz", help="input: `poses` (T, J, 3) or (B, T, J, 3), NaN = missing; "
-                   "optional `mask` (1 = observed); or a .bvh file (read as h36m32 joints, at its frame rate)")
+    p.add_argument("input", metavar="IN.npz", help="input: `poses` (T, J, 3) or (B, T, J, 3), NaN = missing, any T "
+                   "(the model reads the last obs_len frames; fewer are padded with missing frames); optional "
+                   "`mask` (1 = observed); or a .bvh file (read as h36m32 joints, at its frame rate)")
     p.add_argument("-o", "--output", metavar="OUT.npz", required=True,
                    help="output: mean, samples (not with --point), repaired, seed, times (s after the last observed "
                    "frame)")
@@ -44,7 +45,7 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
                    help="joint layout of the poses (default: the model's own, root-relative); with another "
                    "layout, world or camera coordinates are accepted (see --up)")
     p.add_argument("--fps", type=float, default=None, metavar="F",
-                   help="frame rate of the poses (default: the model's); any length is accepted")
+                   help="frame rate of the poses (default: the model's)")
     p.add_argument("--up", default="y", choices=("x", "y", "z", "-x", "-y", "-z"),
                    help="the vertical axis of the poses' coordinates (default y)")
     p.add_argument("--threads", type=int, default=None, metavar="N", help="worker threads (default: all cores)")

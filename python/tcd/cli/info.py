@@ -5,7 +5,7 @@ import argparse
 import json
 from typing import Any, List
 
-from ..denoiser import supported_kernels
+from ..engine import supported_kernels
 from .common import EXIT_OK, add_model_flag, load_model
 
 

@@ -8,14 +8,14 @@ from pathlib import Path
 from typing import Any
 
 from ..layouts import LAYOUTS
-from ..poses import UNIT_SCALE
+from .._poses import UNIT_SCALE
 from .._native import __version__
 from ..batch_repair.inputs import peek_frames
 from ..batch_repair.options import (DEFAULT_FILES_PER_BATCH, DEFAULT_LOOKAHEAD, DEFAULT_OVERLAP, DEFAULT_SEED,
                                     RepairOptions)
 from ..batch_repair.runner import Outcome, collect_tasks, run_tasks, same_path
 from ..exceptions import InvalidInputError
-from ..files import write_text_atomic
+from .._files import write_text_atomic
 from .common import (EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_OK, OPTION_FLAGS, _BadInput, add_model_flag, add_sampler_flags,
                      flag_message, load_model, sampler_keywords, stopped)
 

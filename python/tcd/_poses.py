@@ -10,22 +10,27 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Optional, Tuple
+from typing import Any, Dict, Literal, Optional, Tuple, cast
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from . import _checks
 from .exceptions import InvalidInputError
 
-__all__ = ["PLAUSIBLE_SPREAD_M", "Poses", "UNIT_SCALE", "check_units", "spread_m", "validate_poses"]
+__all__ = ["PLAUSIBLE_SPREAD_M", "Poses", "UNIT_SCALE", "Units", "check_units", "check_window", "spread_m",
+           "validate_poses"]
 
-#: The units a pose array may be in, each with what divides it into metres (the models' unit).
-UNIT_SCALE = {"m": 1.0, "cm": 100.0, "mm": 1000.0}
+#: The units a pose array may be in (the ``units`` argument of every call that takes poses).
+Units = Literal["m", "cm", "mm"]
+
+#: Each of :data:`Units` with what divides it into metres (the models' unit).
+UNIT_SCALE: Dict[str, float] = {"m": 1.0, "cm": 100.0, "mm": 1000.0}
 
 
-def check_units(value: Any) -> str:
+def check_units(value: Any) -> Units:
     """``value`` if it names one of :data:`UNIT_SCALE`'s units, else an InvalidInputError naming ``units``."""
-    return _checks.choice("units", value, tuple(UNIT_SCALE))
+    return cast(Units, _checks.choice("units", value, tuple(UNIT_SCALE)))
 
 
 @dataclass(frozen=True)
@@ -87,16 +92,16 @@ def _fail(names: Tuple[str, str], which: int, expected: str, received: str, owne
     return InvalidInputError(str(e).replace("Argument ", f"{owner} ", 1), names[which])
 
 
-def validate_poses(obs: Any, mask: Any = None, *, num_joints: Optional[int], frames: Optional[int] = None,
+def validate_poses(obs: ArrayLike, mask: Optional[ArrayLike] = None, *, num_joints: Optional[int],
                    batched_ok: bool = True, names: Tuple[str, str] = ("obs", "mask"),
                    owner: str = "Argument", units: Optional[str] = None) -> Poses:
     """Checks poses (T, J, 3) (or (B, T, J, 3) when ``batched_ok``) with NaN = missing, and an optional
     ``mask`` of the same shape or without the last axis (1 = observed).
 
-    ``num_joints``: the exact J required (None: any J >= 1). ``frames``: the exact T required (None: any
-    T >= 1). ``names``: what the two arrays are called in
-    the messages (and :attr:`InvalidInputError.argument`); ``owner`` how a message introduces them
-    ("Argument" for function arguments, e.g. "The file's" for arrays read from a file). ``units``: when
+    ``num_joints``: the exact J required (None: any J >= 1); any T >= 1 (the callers apply their own length
+    rule to the checked poses). ``names``: what the two arrays are called in the messages (and
+    :attr:`InvalidInputError.argument`); ``owner`` how a message introduces them ("Argument" for function
+    arguments, e.g. "The file's" for arrays read from a file). ``units``: when
     given, the values must be plausible poses in that unit (:data:`PLAUSIBLE_SPREAD_M`), else an
     InvalidInputError naming ``units`` and the unit that fits.
     Raises :class:`tcd.exceptions.InvalidInputError` naming the array at fault."""
@@ -110,7 +115,7 @@ def validate_poses(obs: Any, mask: Any = None, *, num_joints: Optional[int], fra
         raise fail(0, f"an array of shape {layouts}", f"an object numpy cannot convert ({e})") from None
     if a.dtype.kind not in "iuf":   # booleans are not coordinates
         raise fail(0, f"a float array of shape {layouts}", f"an array of dtype {a.dtype}")
-    t_rule = f"T = {frames} frames" if frames is not None else "T >= 1 frames"
+    t_rule = "T >= 1 frames"
     j_rule = f"J = {num_joints} joints" if num_joints is not None else "J >= 1 joints"
     want = f"{layouts} with {t_rule} and {j_rule}"
     shape = _checks.shape_str(a.shape)
@@ -126,9 +131,6 @@ def validate_poses(obs: Any, mask: Any = None, *, num_joints: Optional[int], fra
         raise fail(0, f"an array of shape {want} (the model's joint layout)", f"shape {shape} with {j} joints")
     if j < 1:
         raise fail(0, f"an array of shape {want}", f"shape {shape} with no joints")
-    if frames is not None and t != frames:
-        raise fail(0, f"an array of shape {want}: exactly {frames} observed frames (the model's obs_len)",
-                   f"shape {shape} with {t} frames")
     if t < 1:
         raise fail(0, f"an array of shape {want}", f"shape {shape} with no frames")
     if b < 1:
@@ -173,6 +175,18 @@ def validate_poses(obs: Any, mask: Any = None, *, num_joints: Optional[int], fra
     if units is not None:
         _check_plausible(a4, full, units, names[0], owner)
     return Poses(values=a4, observed=full, batched=batched)
+
+
+def check_window(seen: np.ndarray, window: int, batched: bool) -> None:
+    """The length rule's one requirement on content (:mod:`tcd.model`): ``seen`` (B, ...) bool, the observed
+    entries of the model's window of each sequence, has one per sequence, else an InvalidInputError naming
+    ``obs`` (a longer observation whose last ``window`` frames are all missing)."""
+    empty = ~seen.reshape(seen.shape[0], -1).any(axis=1)
+    if empty.any():
+        which = f"sequence {int(np.argmax(empty))} of `obs`" if batched else "`obs`"
+        raise _checks.fail("obs", f"an observation with at least one observed value per sequence in the model's "
+                                  f"window (its last {window} frames, at the model's frame rate)",
+                           f"{which} with every value missing there")
 
 
 def _index(idx: np.ndarray, batched: bool) -> Tuple[int, ...]:

@@ -10,19 +10,29 @@ rotation, as its protocol does: the poses are not turned to a heading), resample
 and made relative to the root joint of each frame (a frame without it: the root interpolated in time from
 the frames that have it; one is needed). The forecast's root continues the velocity of the last 0.2 s,
 decaying with ``tcd.wild.ROOT_DAMPING_S``, and everything comes back in the caller's axes, units and rate.
+
+Length, either way: the length rule of :mod:`tcd.model` counted in model frames (``wild.resample_to_model``:
+the last ``obs_len`` of them, a shorter observation padded at the start with missing frames), and at least
+2 observed frames per sequence (the root's motion is measured on them).
 """
 from __future__ import annotations
 
 import math
-from typing import Any, Callable, Dict, Optional, Tuple
+from typing import TYPE_CHECKING, Any, Callable, Dict, Optional, Tuple, cast
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from . import _checks, wild
-from .denoiser import repair_raw
+from ._poses import UNIT_SCALE, Units, check_window, validate_poses
+from ._progress import Progress
+from .engine import Denoiser, repair_raw
 from .exceptions import InvalidInputError
 from .layouts import get_layout
-from .poses import UNIT_SCALE, validate_poses
+from .wild import Up
+
+if TYPE_CHECKING:
+    from .model import TCD
 
 __all__ = ["forecast", "repair"]
 
@@ -50,6 +60,7 @@ def _prepare(model: Any, obs: Any, mask: Any, layout: Any, fps: Any, up: Any, un
     y, scene = wild.to_model(xm, lay, up_v, sightings=x)
     b, t = y.shape[:2]
     seen = np.isfinite(y).all(-1, keepdims=True)
+    check_window(seen, frames, p.batched)
     flat = lambda a: np.ascontiguousarray(a.reshape(b, t, -1).transpose(0, 2, 1), dtype=np.float32)  # noqa: E731
     return p, src_fps, scene, times, flat(np.where(seen, y, 0.0)), flat(np.broadcast_to(seen, y.shape))
 
@@ -132,6 +143,7 @@ def _own_prepare(model: Any, own: str, obs: Any, mask: Any, layout: Any, fps: An
     others = [j for j in range(lay.num_joints) if j != root_j]
     y = xm[:, :, others] - root[:, :, None]
     seen = np.isfinite(y).all(-1, keepdims=True)
+    check_window(seen, frames, p.batched)
     flat = lambda a: np.ascontiguousarray(a.reshape(b, t, -1).transpose(0, 2, 1), dtype=np.float32)  # noqa: E731
 
     def world(bkl: np.ndarray, roots: np.ndarray) -> np.ndarray:
@@ -183,7 +195,8 @@ def _own_forecast(model: Any, own: str, obs: Any, mask: Any, *, layout: Any, fps
     return mean, samples, _repaired(p, rep_w, times, scale), at
 
 
-def forecast(model: Any, obs: Any, mask: Any, *, layout: Any, fps: Any, up: Any, units: str,
+def forecast(model: "TCD", obs: ArrayLike, mask: Optional[ArrayLike], *, layout: str, fps: Optional[float],
+             up: Up, units: Units,
              run: Callable[[np.ndarray, np.ndarray], Dict[str, Any]]) -> Tuple[Any, ...]:
     """(mean, samples, repaired, times): the forecast in the caller's layout, coordinates, units and frame
     rate, ``times`` the seconds of each forecast frame after the last observed one. ``run(observed, seen)``
@@ -195,16 +208,16 @@ def forecast(model: Any, obs: Any, mask: Any, *, layout: Any, fps: Any, up: Any,
         return _own_forecast(model, own, obs, mask, layout=layout, fps=fps, up=up, units=units, run=run)
     p, src_fps, scene, times, observed, seen = _prepare(model, obs, mask, layout, fps, up, units, model.obs_len)
     out = run(observed, seen)
-    h = model.horizon
-    root_f, rot_f = wild.future_frames(scene, h, float(model.fps), wild.ROOT_DAMPING_S)
+    h, model_fps = model.horizon, float(cast(float, model.fps))             # not None: _prepare checked it
+    root_f, rot_f = wild.future_frames(scene, h, model_fps, wild.ROOT_DAMPING_S)
     mean_w = wild.from_model(_model_poses(out["mean"]), scene, root_f, rot_f, own_frames=False)
     samples_w = (None if out["samples"] is None else
                  wild.from_model(_model_poses(out["samples"]), scene, root_f, rot_f, own_frames=False))
     rep_w = wild.from_model(_model_poses(out["repaired"]), scene, scene.root, scene.rot, own_frames=True)
     # future frames at the caller's rate: model frame k is (k + 1) / model_fps s after the last observed
     # frame, which is time 0 (the repaired last frame)
-    model_t = np.arange(h + 1) / float(model.fps)
-    n = int(math.floor(h / float(model.fps) * src_fps + 1e-9))
+    model_t = np.arange(h + 1) / model_fps
+    n = int(math.floor(h / model_fps * src_fps + 1e-9))
     at = np.arange(1, n + 1) / src_fps
     scale = UNIT_SCALE[units]
 
@@ -224,11 +237,13 @@ def forecast(model: Any, obs: Any, mask: Any, *, layout: Any, fps: Any, up: Any,
     return caller(mean_w), samples, _repaired(p, rep_w, times, scale), at
 
 
-def repair(model: Any, den: Any, obs: Any, mask: Any, *, layout: Any, fps: Any, up: Any, num_samples: int,
-           sampling: Dict[str, Any], seed: int, units: str, threads: Optional[int], progress: Any) -> np.ndarray:
+def repair(model: "TCD", den: Denoiser, obs: ArrayLike, mask: Optional[ArrayLike], *, layout: str,
+           fps: Optional[float], up: Up, num_samples: int, sampling: Dict[str, Any], seed: int, units: Units,
+           threads: Optional[int], progress: Progress) -> np.ndarray:
     """The observation with its missing entries filled by ``den``, in the caller's layout, coordinates,
-    units and frame rate; at most the model's window (longer files: :func:`tcd.repair_file`). ``sampling``:
-    the sampler keywords of :func:`tcd.repair_raw`."""
+    units and frame rate; at most the model's window (longer files: :func:`tcd.repair_file`; a shorter one
+    is padded at the start with missing frames). ``sampling``: the sampler keywords of
+    :func:`tcd.engine.repair_raw`."""
     own = own_layout(model)
     if own is not None:
         p, src_fps, times, root, world, observed, seen = _own_prepare(model, own, obs, mask, layout, fps, up, units,

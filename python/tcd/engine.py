@@ -1,4 +1,11 @@
-"""The low-level API: one denoiser, the samplers and the cascade in the engine's layout.
+"""The engine-level API, ``tcd.engine``: one denoiser, the samplers and the cascade in the engine's layout,
+and the deterministic prior forecaster.
+
+:class:`Denoiser` (one weight file), :func:`cascade_raw` (short-term -> long-term), :func:`repair_raw`
+(observation-only inference), :func:`seeded_noise` (the seeded streams, :data:`STAGE_SHORT` /
+:data:`STAGE_LONG`), :func:`supported_kernels`, and :class:`Prior` (the prior forecaster, frame-major
+(B, T, K): see its docstring). :mod:`tcd` itself holds the high-level API (:func:`tcd.load`,
+:class:`tcd.TCD`) built on these.
 
 Arrays here are float32 **(B, K, L)**: B sequences, K = joints x 3 coordinates (index
 ``joint * 3 + axis``), L frames (frame axis last). Masks are 1 (observed) / 0 (to generate).
@@ -18,14 +25,16 @@ import os
 from typing import Any, Dict, List, Optional, Sequence, Union
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from . import _checks, _native
 from ._attributes import NativeAttribute
 from .options import SamplerOptions
-from .prior import Prior
-from .progress import reporter
+from ._prior import Prior
+from ._progress import Progress, reporter
 
-__all__ = ["Denoiser", "cascade_raw", "repair_raw", "seeded_noise", "supported_kernels", "STAGE_SHORT", "STAGE_LONG"]
+__all__ = ["Denoiser", "Prior", "cascade_raw", "repair_raw", "seeded_noise", "supported_kernels", "STAGE_SHORT",
+           "STAGE_LONG"]
 
 PathLike = Union[str, "os.PathLike[str]"]
 
@@ -35,7 +44,7 @@ STAGE_SHORT: int = _native.STAGE_SHORT
 STAGE_LONG: int = _native.STAGE_LONG
 
 
-def _noise(argument: str, value: Any) -> Optional[np.ndarray]:
+def _noise(argument: str, value: Optional[ArrayLike]) -> Optional[np.ndarray]:
     return None if value is None else _checks.float32_array(argument, value)
 
 
@@ -96,7 +105,7 @@ class Denoiser:
         only) for the deterministic dpmpp2m. The sampler keywords, as :meth:`timesteps`."""
         return int(self._native.num_noise_blocks(SamplerOptions.build(**sampler)))
 
-    def forward(self, noisy: Any, observed: Any, mask: Any, step: int, *,
+    def forward(self, noisy: ArrayLike, observed: ArrayLike, mask: ArrayLike, step: int, *,
                 threads: Optional[int] = None) -> np.ndarray:
         """ε̂ = net(noisy, observed, mask, step) (x̂₀ for a model whose ``diffusion.prediction_type`` is
         ``"sample"``): arrays (B, K, L) float32, ``step`` in 0..num_train_timesteps-1. Returns (B, K, L)
@@ -109,16 +118,18 @@ class Denoiser:
                                     _checks.float32_array("mask", mask), step,
                                     threads=_checks.optional_machine_int("threads", threads))
 
-    def sample(self, observed: Any, mask: Any, num_samples: int = 1, *, noise: Any = None,
-               seed: Optional[int] = None, first_sequence: int = 0, sequences: Optional[Sequence[int]] = None,
-               threads: Optional[int] = None, progress: Any = None, **sampler: Any) -> np.ndarray:
+    def sample(self, observed: ArrayLike, mask: ArrayLike, num_samples: int = 1, *,
+               noise: Optional[ArrayLike] = None, seed: Optional[int] = None, first_sequence: int = 0,
+               sequences: Optional[Sequence[int]] = None, threads: Optional[int] = None,
+               progress: Progress = None, **sampler: Any) -> np.ndarray:
         """``num_samples`` merged samples per sequence: observed, mask (B, K, L) -> (S, B, K, L).
 
         Exactly one of ``noise`` (S, n + 1, B, K, L) — (S, 1, B, K, L) for ``sampler="dpmpp2m"`` — and
         ``seed`` must be given; seeded sequence b draws stream ``first_sequence + b``, or ``sequences[b]``
         (one id per sequence). The sampler: the keywords ``sampler``, ``num_inference_steps``, ``eta``,
-        ``timestep_spacing`` (:class:`tcd.SamplerOptions`). ``progress``: see
-        :mod:`tcd.progress`. Ctrl-C stops the call within about 0.1 s plus one forward (KeyboardInterrupt)."""
+        ``timestep_spacing`` (:class:`tcd.SamplerOptions`). ``progress``: ``True`` a tqdm bar on stderr, a
+        callable ``f(done, total)`` the count of denoiser forwards about ten times a second (raising in it
+        stops the call). Ctrl-C stops the call within about 0.1 s plus one forward (KeyboardInterrupt)."""
         num_samples = _checks.machine_int("num_samples", num_samples)
         o = SamplerOptions.build(**sampler)
         with reporter(progress, "tcd sample") as callback:
@@ -130,10 +141,11 @@ class Denoiser:
                 progress=callback)
 
 
-def cascade_raw(short: Denoiser, long: Denoiser, observed: Any, mask: Any, *, num_samples: int = 5,
-                noise_short: Any = None, noise_long: Any = None, seed: Optional[int] = None,
-                first_sequence: int = 0, sequences: Optional[Sequence[int]] = None, threads: Optional[int] = None,
-                progress: Any = None, prior: Optional[Prior] = None, **sampler: Any) -> Dict[str, np.ndarray]:
+def cascade_raw(short: Denoiser, long: Denoiser, observed: ArrayLike, mask: ArrayLike, *, num_samples: int = 5,
+                noise_short: Optional[ArrayLike] = None, noise_long: Optional[ArrayLike] = None,
+                seed: Optional[int] = None, first_sequence: int = 0, sequences: Optional[Sequence[int]] = None,
+                threads: Optional[int] = None, progress: Progress = None, prior: Optional[Prior] = None,
+                **sampler: Any) -> Dict[str, np.ndarray]:
     """The short-term -> long-term cascade in the engine's layout (``training.diffusion.cascade``).
 
     observed, mask: (B, K, O) with O = ``short.obs_len``. Noise: ``noise_short`` (S, n + 1, B, K, L_s)
@@ -143,16 +155,16 @@ def cascade_raw(short: Denoiser, long: Denoiser, observed: Any, mask: Any, *, nu
     ``mean`` (B, K, P), ``samples`` (S, B, K, P) (P = L_l - O forecast frames), ``repaired`` (B, K, O) and
     ``short_mean`` (B, K, L_s).
 
-    ``prior``: the prior forecaster (:class:`tcd.Prior`), required where a model is conditioned on it
+    ``prior``: the prior forecaster (:class:`Prior`), required where a model is conditioned on it
     (``cond_fill`` ``"prior"``): before each such stage the engine fills the stage's masked entries once
     with ``training.model.prior_fill`` (the spline over the prior's observed frames, its rollout after
     them). Models with other fills ignore it.
     """
     for name, m in (("short", short), ("long", long)):
         if not isinstance(m, Denoiser):
-            raise _checks.fail(name, "a tcd.Denoiser", type(m).__name__)
+            raise _checks.fail(name, "a tcd.engine.Denoiser", type(m).__name__)
     if prior is not None and not isinstance(prior, Prior):
-        raise _checks.fail("prior", "a tcd.Prior or None", type(prior).__name__)
+        raise _checks.fail("prior", "a tcd.engine.Prior or None", type(prior).__name__)
     num_samples = _checks.machine_int("num_samples", num_samples)
     o = SamplerOptions.build(**sampler)
     with reporter(progress, "tcd forecast") as callback:
@@ -166,16 +178,17 @@ def cascade_raw(short: Denoiser, long: Denoiser, observed: Any, mask: Any, *, nu
             progress=callback, prior=None if prior is None else prior._native))
 
 
-def repair_raw(model: Denoiser, observed: Any, mask: Any, *, num_samples: int = 5, noise: Any = None,
-               seed: Optional[int] = None, first_sequence: int = 0, sequences: Optional[Sequence[int]] = None,
-               threads: Optional[int] = None, progress: Any = None, **sampler: Any) -> Dict[str, np.ndarray]:
+def repair_raw(model: Denoiser, observed: ArrayLike, mask: ArrayLike, *, num_samples: int = 5,
+               noise: Optional[ArrayLike] = None, seed: Optional[int] = None, first_sequence: int = 0,
+               sequences: Optional[Sequence[int]] = None, threads: Optional[int] = None, progress: Progress = None,
+               **sampler: Any) -> Dict[str, np.ndarray]:
     """Fills the mask-0 entries of an observation (B, K, O), O = ``model.obs_len``
     (``training.diffusion.repair``). Returns ``mean`` (B, K, O; observed entries exact) and ``samples``
     (S, B, K, O). Noise: ``noise`` (S, n + 1, B, K, model.seq_len) ((S, 1, ...) for ``sampler="dpmpp2m"``)
     or a ``seed`` (streams numbered as in :meth:`Denoiser.sample`). The sampler: its keywords, as in
     :meth:`Denoiser.sample`."""
     if not isinstance(model, Denoiser):
-        raise _checks.fail("model", "a tcd.Denoiser", type(model).__name__)
+        raise _checks.fail("model", "a tcd.engine.Denoiser", type(model).__name__)
     num_samples = _checks.machine_int("num_samples", num_samples)
     o = SamplerOptions.build(**sampler)
     with reporter(progress, "tcd repair") as callback:
@@ -187,7 +200,7 @@ def repair_raw(model: Denoiser, observed: Any, mask: Any, *, num_samples: int = 
             progress=callback))
 
 
-def _stream_ids(value: Any) -> Optional[List[int]]:
+def _stream_ids(value: Optional[Sequence[int]]) -> Optional[List[int]]:
     """``sequences`` as Python ints; the engine checks their range and that there is one per sequence."""
     if value is None:
         return None

@@ -13,17 +13,20 @@ from __future__ import annotations
 
 import sys
 from contextlib import contextmanager
-from typing import Any, Callable, Iterator, Optional
+from typing import Any, Callable, Iterator, Optional, Union
 
 from . import _checks
 
-__all__ = ["reporter"]
+__all__ = ["Progress", "reporter"]
 
 Callback = Callable[[int, int], Any]
 
+#: What ``progress=`` takes: None / False (nothing), True (a tqdm bar on stderr) or a callable ``f(done, total)``.
+Progress = Union[None, bool, Callback]
+
 
 @contextmanager
-def reporter(progress: Any, desc: str) -> Iterator[Optional[Callback]]:
+def reporter(progress: Progress, desc: str) -> Iterator[Optional[Callback]]:
     """The callback to hand to the binding for ``progress`` (None for none); a bar is closed on exit."""
     if progress is None or progress is False:
         yield None

@@ -6,8 +6,9 @@ spatial FC -> inverse DCT -> the next ``chunk`` frames, added to the last observ
 rolled out chunk by chunk, each prediction appended to the history. No sampling: the same input gives the
 same output.
 
-Arrays are float32 **(B, T, K)**, frame-major (unlike :class:`tcd.Denoiser`'s (B, K, L)): B sequences, T
-frames, K coordinates (index ``joint * 3 + axis``).
+Arrays are float32 **(B, T, K)**, frame-major (unlike :class:`tcd.engine.Denoiser`'s (B, K, L)): B
+sequences, T frames, K coordinates (index ``joint * 3 + axis``). Its public home is :mod:`tcd.engine`
+(``tcd.engine.Prior``).
 """
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ import os
 from typing import Any, Dict, Optional, Union
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from . import _checks, _native
 from ._attributes import NativeAttribute
@@ -63,7 +65,7 @@ class Prior:
     blocks = NativeAttribute(int, "Temporal FC + layer-norm blocks.")
     kernel = NativeAttribute(str, 'The compute kernels in use: ``"portable"``, ``"avx2"`` or ``"avx512"`` (chosen '
                              "when the file is loaded: ``$TCD_KERNEL``, default the best this CPU supports, see "
-                             ":func:`tcd.supported_kernels`).")
+                             ":func:`tcd.engine.supported_kernels`).")
     dct_matrix = NativeAttribute(np.ndarray, "The (obs_len, obs_len) float32 DCT-II matrix the engine computes "
                                  "(row f the f-th cosine); it equals ``training.prior.dct_matrix(obs_len)`` rounded "
                                  "to float32.")
@@ -72,7 +74,7 @@ class Prior:
         return repr(self._native)
 
     # ------------------------------------------------------------------ compute
-    def predict(self, obs: Any, horizon: int, *, threads: Optional[int] = None) -> np.ndarray:
+    def predict(self, obs: ArrayLike, horizon: int, *, threads: Optional[int] = None) -> np.ndarray:
         """The next ``horizon`` frames of each sequence: ``obs`` (B, T, K) float32 with T >= ``obs_len`` (the
         last ``obs_len`` frames are read and must be finite) -> (B, horizon, K) float32. ``threads`` (default:
         all cores) share the batch; results do not depend on it. Ctrl-C stops the call within about 0.1 s."""
