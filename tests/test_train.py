@@ -147,18 +147,18 @@ def test_removed_keys_at_their_inert_values_are_dropped_and_otherwise_refused(tm
 
 
 def test_committed_checkpoints_resume_under_their_configs():
-    """training/checkpoints/tcdp_*_installment1.pt were written with the removed keys at their inert values:
-    their stored config is still the one their config file loads as, which is what --resume checks."""
+    """The committed checkpoints of training/checkpoints/ were written with the removed keys at their inert
+    values: their stored config is still the one their config file loads as, which is what --resume checks."""
     from dataclasses import asdict
     from pathlib import Path
     from training.train import without_removed_keys
     root = Path(__file__).parents[1]
-    for role in ("short", "long"):
-        ck = torch.load(root / "training" / "checkpoints" / f"tcdp_{role}_installment1.pt", map_location="cpu",
-                        weights_only=False)
+    for checkpoint, config in (("tcdp_short_installment1.pt", "tcdp_short.json"),
+                               ("tcdp_long_installment2.pt", "tcdp_long_2.json")):
+        ck = torch.load(root / "training" / "checkpoints" / checkpoint, map_location="cpu", weights_only=False)
         assert set(REMOVED_AT_DEFAULTS) <= set(ck["train_config"])
-        stored = without_removed_keys(ck["train_config"], role)
-        assert stored == asdict(TrainConfig.load(root / "training" / "configs" / f"tcdp_{role}.json"))
+        stored = without_removed_keys(ck["train_config"], checkpoint)
+        assert stored == asdict(TrainConfig.load(root / "training" / "configs" / config))
 
 
 def test_config_files_load(tmp_path):
