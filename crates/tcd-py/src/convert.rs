@@ -1,14 +1,15 @@
 //! Python values into the engine's: argument checks that name the argument, the sampler options, numpy
-//! arrays copied out (so the GIL can be released), numpy arrays out, and the noise source of a call.
+//! arrays copied out (so the GIL can be released), and numpy arrays out.
 
 use numpy::ndarray::{ArrayD, IxDyn};
 use numpy::{IntoPyArray, PyArrayDyn, PyReadonlyArrayDyn, PyUntypedArrayMethods};
 use pyo3::prelude::*;
-use tcd_core::{Denoiser, Error, Noise, SamplerConfig, Sequences};
+use pyo3::types::PyDict;
+use tcd_core::{Denoiser, Error, SamplerConfig};
 
-use crate::error::{internal, invalid};
+use crate::error::{internal, invalid, Result};
 
-pub(crate) type CoreResult<T> = Result<T, Error>;
+pub(crate) type CoreResult<T> = std::result::Result<T, Error>;
 
 /// An integer argument that must be at least 1 (taken as i64 so that negatives become a typed
 /// `InvalidInputError` naming the argument, not an `OverflowError`).
@@ -49,22 +50,27 @@ pub(crate) fn u64_arg(argument: &str, value: i128) -> CoreResult<u64> {
 /// (or batch) up front instead of aborting on a failed allocation.
 pub(crate) const MAX_VALUES: usize = 1 << 31;
 
+/// Whether an array of shape `dims` holds at most [`MAX_VALUES`] values.
+pub(crate) fn within_limit(dims: &[usize]) -> bool {
+    dims.iter()
+        .try_fold(1usize, |acc, d| acc.checked_mul(*d))
+        .is_some_and(|total| total <= MAX_VALUES)
+}
+
 pub(crate) fn check_work(
     num_samples: usize,
     batch: usize,
     k: usize,
     length: usize,
 ) -> CoreResult<()> {
-    let total = [batch, k, length]
-        .iter()
-        .try_fold(num_samples, |acc, d| acc.checked_mul(*d));
-    match total {
-        Some(t) if t <= MAX_VALUES => Ok(()),
-        _ => Err(invalid(
+    if within_limit(&[num_samples, batch, k, length]) {
+        Ok(())
+    } else {
+        Err(invalid(
             "num_samples",
             format!("small enough that num_samples x B x K x L = {num_samples} x {batch} x {k} x {length} is at most 2^31 values"),
             num_samples.to_string(),
-        )),
+        ))
     }
 }
 
@@ -164,11 +170,12 @@ impl Array {
     }
 }
 
+/// `data` as a numpy array of `shape` (the engine's output, moved, not copied).
 pub(crate) fn to_numpy<'py>(
     py: Python<'py>,
     shape: &[usize],
     data: Vec<f32>,
-) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
+) -> Result<Bound<'py, PyArrayDyn<f32>>> {
     let arr = ArrayD::from_shape_vec(IxDyn(shape), data).map_err(|e| {
         internal(
             py,
@@ -178,121 +185,14 @@ pub(crate) fn to_numpy<'py>(
     Ok(arr.into_pyarray(py))
 }
 
-/// The stream numbering of a seeded call, owned: sequence b draws stream `first_sequence + b`, or
-/// `sequences[b]` when the caller numbers every sequence (the engine checks one id per sequence).
-#[derive(Clone)]
-pub(crate) enum StreamIds {
-    From(u64),
-    Ids(Vec<u64>),
-}
-
-impl StreamIds {
-    pub(crate) fn as_sequences(&self) -> Sequences<'_> {
-        match self {
-            StreamIds::From(first) => Sequences::From(*first),
-            StreamIds::Ids(ids) => Sequences::Ids(ids),
-        }
+/// A dict of numpy arrays, `(key, shape, data)` in order (a call's outputs).
+pub(crate) fn arrays<'py, const N: usize>(
+    py: Python<'py>,
+    entries: [(&str, &[usize], Vec<f32>); N],
+) -> Result<Bound<'py, PyDict>> {
+    let dict = PyDict::new(py);
+    for (key, shape, data) in entries {
+        dict.set_item(key, to_numpy(py, shape, data)?)?;
     }
-}
-
-/// `seed`, and `first_sequence` xor `sequences`, as the engine takes them.
-pub(crate) fn seed_args(
-    seed: Option<i128>,
-    first_sequence: i128,
-    sequences: Option<Vec<i128>>,
-) -> CoreResult<(Option<u64>, StreamIds)> {
-    let seed = seed.map(|v| u64_arg("seed", v)).transpose()?;
-    let first = u64_arg("first_sequence", first_sequence)?;
-    let ids = match sequences {
-        None => StreamIds::From(first),
-        Some(_) if seed.is_none() => {
-            return Err(invalid(
-                "sequences",
-                "None unless a `seed` is given",
-                "a list of stream ids",
-            ))
-        }
-        Some(_) if first != 0 => {
-            return Err(invalid(
-                "sequences",
-                "None when `first_sequence` is given (number the streams one way)",
-                "a list of stream ids",
-            ))
-        }
-        Some(v) => StreamIds::Ids(
-            v.into_iter()
-                .map(|id| u64_arg("sequences", id))
-                .collect::<CoreResult<_>>()?,
-        ),
-    };
-    Ok((seed, ids))
-}
-
-/// Where a sampling call's noise comes from: `noise` (injected) xor `seed`.
-pub(crate) enum NoiseSource {
-    Injected(Vec<f32>),
-    Seeded(u64, StreamIds),
-}
-
-/// Checks an observation (B, K, O) with O = `obs_len` and its mask of the same shape; returns B.
-/// `whose` names the model in the message ("the model's", "the short-term model's").
-pub(crate) fn observation_batch(
-    observed: &Array,
-    mask: &Array,
-    k: usize,
-    obs_len: usize,
-    whose: &str,
-) -> CoreResult<usize> {
-    let (b, o) = observed.bkl("observed", k)?;
-    if o != obs_len {
-        return Err(invalid(
-            "observed",
-            format!("{obs_len} frames ({whose} obs_len)"),
-            format!("{o} frames"),
-        ));
-    }
-    mask.expect_shape("mask", &[b, k, o], "(the shape of `observed`)")?;
-    Ok(b)
-}
-
-pub(crate) fn noise_source(
-    argument: &str,
-    noise: Option<&Array>,
-    seed: Option<u64>,
-    streams: StreamIds,
-    expected_shape: &[usize],
-) -> CoreResult<NoiseSource> {
-    match (noise, seed) {
-        (Some(_), Some(_)) => Err(invalid(
-            argument,
-            format!("None when `seed` is given (pass either injected `{argument}` or a `seed`)"),
-            "both",
-        )),
-        (None, None) => Err(invalid(
-            "seed",
-            format!("an integer seed when no injected `{argument}` is given"),
-            "None",
-        )),
-        (Some(n), None) => {
-            n.expect_shape(
-                argument,
-                expected_shape,
-                "= (num_samples, num_noise_blocks, B, K, L); num_noise_blocks = num_inference_steps + 1 (1 for dpmpp2m)",
-            )?;
-            Ok(NoiseSource::Injected(n.data.clone()))
-        }
-        (None, Some(s)) => Ok(NoiseSource::Seeded(s, streams)),
-    }
-}
-
-impl NoiseSource {
-    pub(crate) fn as_noise(&self) -> Noise<'_> {
-        match self {
-            NoiseSource::Injected(v) => Noise::Injected(v),
-            NoiseSource::Seeded(seed, streams) => Noise::Seeded {
-                seed: *seed,
-                sequences: streams.as_sequences(),
-            },
-        }
-    }
+    Ok(dict)
 }

@@ -7,9 +7,9 @@ use numpy::{PyArrayDyn, PyReadonlyArrayDyn};
 use pyo3::prelude::*;
 use tcd_core::{sample as core_sample, with_threads, Denoiser, Observed};
 
+use crate::call::{SamplingArgs, Window};
 use crate::convert::*;
-use crate::error::{invalid, PyTcdError};
-use crate::run::interruptible;
+use crate::error::{invalid, Result};
 
 /// A loaded TCD denoiser (one safetensors file). Immutable; safe to share between threads.
 #[pyclass(frozen, module = "tcd._native", name = "Denoiser")]
@@ -21,20 +21,20 @@ pub(crate) struct PyDenoiser {
 impl PyDenoiser {
     /// Loads and validates a weight file.
     #[staticmethod]
-    fn load(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
-        let d = py
-            .detach(move || Denoiser::load(&path))
-            .map_err(PyTcdError)?;
-        Ok(PyDenoiser { inner: Arc::new(d) })
+    fn load(py: Python<'_>, path: PathBuf) -> Result<Self> {
+        let inner = py.detach(move || Denoiser::load(&path))?;
+        Ok(PyDenoiser {
+            inner: Arc::new(inner),
+        })
     }
 
     /// Loads and validates the bytes of a weight file; `name` names it in error messages.
     #[staticmethod]
-    fn from_bytes(py: Python<'_>, data: Vec<u8>, name: PathBuf) -> PyResult<Self> {
-        let d = py
-            .detach(move || Denoiser::from_bytes(&data, &name))
-            .map_err(PyTcdError)?;
-        Ok(PyDenoiser { inner: Arc::new(d) })
+    fn from_bytes(py: Python<'_>, data: Vec<u8>, name: PathBuf) -> Result<Self> {
+        let inner = py.detach(move || Denoiser::from_bytes(&data, &name))?;
+        Ok(PyDenoiser {
+            inner: Arc::new(inner),
+        })
     }
 
     #[getter]
@@ -86,22 +86,16 @@ impl PyDenoiser {
     }
 
     /// The descending training steps a sampler visits.
-    fn timesteps(&self, options: SamplerOptions) -> PyResult<Vec<usize>> {
-        let cfg = options.config().map_err(PyTcdError)?;
-        let plan = cfg
-            .plan(
-                self.inner.schedule(),
-                self.inner.config().diffusion.variance_type,
-            )
-            .map_err(PyTcdError)?;
+    fn timesteps(&self, options: SamplerOptions) -> Result<Vec<usize>> {
+        let variance = self.inner.config().diffusion.variance_type;
+        let plan = options.config()?.plan(self.inner.schedule(), variance)?;
         Ok(plan.timesteps())
     }
 
     /// Noise blocks per chain, the second axis of injected noise: n + 1 (x_T, then one z per
     /// step), or 1 for the deterministic `dpmpp2m`.
-    fn num_noise_blocks(&self, options: SamplerOptions) -> PyResult<usize> {
-        let cfg = options.config().map_err(PyTcdError)?;
-        Ok(noise_blocks(&self.inner, &cfg).map_err(PyTcdError)?)
+    fn num_noise_blocks(&self, options: SamplerOptions) -> Result<usize> {
+        Ok(noise_blocks(&self.inner, &options.config()?)?)
     }
 
     /// ε̂ = net(noisy, observed, mask, step); all arrays (B, K, L) float32.
@@ -114,49 +108,38 @@ impl PyDenoiser {
         mask: PyReadonlyArrayDyn<'py, f32>,
         step: i64,
         threads: Option<i64>,
-    ) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
-        let threads = threads_arg(threads).map_err(PyTcdError)?;
+    ) -> Result<Bound<'py, PyArrayDyn<f32>>> {
+        let threads = threads_arg(threads)?;
         let k = self.inner.num_features();
         let (noisy, observed, mask) = (
             Array::from_numpy(&noisy),
             Array::from_numpy(&observed),
             Array::from_numpy(&mask),
         );
-        let (b, l) = noisy.bkl("noisy", k).map_err(PyTcdError)?;
+        let (b, l) = noisy.bkl("noisy", k)?;
         let shape = [b, k, l];
-        observed
-            .expect_shape("observed", &shape, "(the shape of `noisy`)")
-            .map_err(PyTcdError)?;
-        mask.expect_shape("mask", &shape, "(the shape of `noisy`)")
-            .map_err(PyTcdError)?;
+        observed.expect_shape("observed", &shape, "(the shape of `noisy`)")?;
+        mask.expect_shape("mask", &shape, "(the shape of `noisy`)")?;
         let t = self.inner.num_train_timesteps();
-        let step = usize::try_from(step)
-            .ok()
-            .filter(|s| *s < t)
-            .ok_or_else(|| {
-                PyTcdError(invalid(
-                    "step",
-                    format!("a diffusion step in 0..{t}"),
-                    step.to_string(),
-                ))
-            })?;
-        let model = Arc::clone(&self.inner);
-        let out = py
-            .detach(move || -> CoreResult<Vec<f32>> {
-                with_threads(threads, || {
-                    let mut out = vec![0.0f32; noisy.data.len()];
-                    model.forward(
-                        &noisy.data,
-                        &observed.data,
-                        &mask.data,
-                        (b, l),
-                        step,
-                        &mut out,
-                    )?;
-                    Ok(out)
-                })?
-            })
-            .map_err(PyTcdError)?;
+        let Some(step) = usize::try_from(step).ok().filter(|s| *s < t) else {
+            let expected = format!("a diffusion step in 0..{t}");
+            return Err(invalid("step", expected, step.to_string()).into());
+        };
+        let model = &self.inner;
+        let out = py.detach(|| -> CoreResult<Vec<f32>> {
+            with_threads(threads, || {
+                let mut out = vec![0.0f32; noisy.data.len()];
+                model.forward(
+                    &noisy.data,
+                    &observed.data,
+                    &mask.data,
+                    (b, l),
+                    step,
+                    &mut out,
+                )?;
+                Ok(out)
+            })?
+        })?;
         to_numpy(py, &shape, out)
     }
 
@@ -182,44 +165,32 @@ impl PyDenoiser {
         sequences: Option<Vec<i128>>,
         threads: Option<i64>,
         progress: Option<Bound<'py, PyAny>>,
-    ) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
-        let k = self.inner.num_features();
-        let observed = Array::from_numpy(&observed);
-        let mask = Array::from_numpy(&mask);
-        let noise = noise.as_ref().map(Array::from_numpy);
-        let prepared = (|| -> CoreResult<_> {
-            let s = positive("num_samples", num_samples)?;
-            let (b, l) = observed.bkl("observed", k)?;
-            mask.expect_shape("mask", &[b, k, l], "(the shape of `observed`)")?;
-            check_work(s, b, k, l)?;
-            let cfg = options.config()?;
-            let blocks = noise_blocks(&self.inner, &cfg)?;
-            let (seed, streams) = seed_args(seed, first_sequence, sequences)?;
-            let src = noise_source(
-                "noise",
-                noise.as_ref(),
-                seed,
-                streams,
-                &[s, blocks, b, k, l],
-            )?;
-            Ok((s, b, l, cfg, src, threads_arg(threads)?))
-        })()
-        .map_err(PyTcdError)?;
-        let (s, b, l, cfg, src, threads) = prepared;
-        let model = Arc::clone(&self.inner);
-        let out = interruptible(py, progress.as_ref(), move |control| {
-            with_threads(threads, || {
-                core_sample(
-                    &model,
-                    Observed::new(&observed.data, &mask.data, b, l),
-                    s,
-                    &cfg,
-                    src.as_noise(),
-                    control,
-                )
-            })?
+    ) -> Result<Bound<'py, PyArrayDyn<f32>>> {
+        let model = &self.inner;
+        let args = SamplingArgs {
+            observed,
+            mask,
+            num_samples,
+            options,
+            seed,
+            first_sequence,
+            sequences,
+            threads,
+            progress,
+        };
+        let call = args.prepare(Window::Any, [(model, "noise", noise)])?;
+        let out = call.run(py, |job, control| {
+            let [noise] = &job.noise;
+            core_sample(
+                model,
+                Observed::new(&job.observed, &job.mask, job.batch, job.frames),
+                job.options.num_samples,
+                &job.options.sampler,
+                noise.as_noise(),
+                control,
+            )
         })?;
-        to_numpy(py, &[s, b, k, l], out)
+        to_numpy(py, &call.job.samples_shape(model.num_features()), out)
     }
 
     fn __repr__(&self) -> String {

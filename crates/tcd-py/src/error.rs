@@ -1,4 +1,6 @@
-//! The one place where engine errors cross into Python.
+//! The one place where engine errors cross into Python, and the binding's error type [`PyTcdError`]:
+//! an engine error or a Python exception, converted both ways, so that every function returns
+//! [`Result`] and uses `?` on either.
 //!
 //! | `tcd_core::Error` variant | Python exception |
 //! |---|---|
@@ -26,13 +28,27 @@ use pyo3::sync::PyOnceLock;
 use pyo3::types::{PyCFunction, PyDict, PyTuple, PyType};
 use tcd_core::Error;
 
-/// An engine error on its way to Python (`?` converts it into a `PyErr`).
+/// The binding's error: an engine error on its way to Python, or a Python exception already raised
+/// (polars' `PyPolarsErr`). `From` both ways, so `?` takes either kind of error in a function returning
+/// [`Result`], and PyO3 raises it as a Python exception (`From<PyTcdError> for PyErr`).
 #[derive(Debug)]
-pub struct PyTcdError(pub Error);
+pub(crate) enum PyTcdError {
+    Engine(Error),
+    Python(PyErr),
+}
+
+/// What every function of the binding returns.
+pub(crate) type Result<T, E = PyTcdError> = std::result::Result<T, E>;
 
 impl From<Error> for PyTcdError {
     fn from(e: Error) -> Self {
-        PyTcdError(e)
+        PyTcdError::Engine(e)
+    }
+}
+
+impl From<PyErr> for PyTcdError {
+    fn from(e: PyErr) -> Self {
+        PyTcdError::Python(e)
     }
 }
 
@@ -189,6 +205,9 @@ fn to_pyerr(py: Python<'_>, e: Error) -> PyErr {
 
 impl From<PyTcdError> for PyErr {
     fn from(e: PyTcdError) -> PyErr {
-        Python::attach(|py| to_pyerr(py, e.0))
+        match e {
+            PyTcdError::Engine(e) => Python::attach(|py| to_pyerr(py, e)),
+            PyTcdError::Python(e) => e,
+        }
     }
 }

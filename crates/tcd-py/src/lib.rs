@@ -10,12 +10,14 @@
 //!
 //! Inputs are copied out of numpy before the GIL is released, so another Python thread mutating
 //! an input array cannot race the engine.
-
 //!
-//! Files: [`convert`] (arguments and arrays in and out), [`denoiser`] (the `Denoiser` class), [`prior`]
-//! (the `Prior` class: the deterministic forecaster, arrays (B, T, K)),
-//! [`pipeline`] (the module's functions), [`error`] (engine errors into Python exceptions).
+//! Files: [`convert`] (arguments and arrays in and out), [`call`] (the arguments `Denoiser.sample`,
+//! `cascade` and `repair` share, checked once, and their run), [`run`] (a long call run interruptibly),
+//! [`denoiser`] (the `Denoiser` class), [`prior`] (the `Prior` class: the deterministic forecaster,
+//! arrays (B, T, K)), [`pipeline`] (the module's functions), [`error`] (the binding's error type: engine
+//! errors into Python exceptions).
 
+mod call;
 mod convert;
 mod denoiser;
 mod error;

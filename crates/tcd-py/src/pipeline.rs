@@ -1,22 +1,19 @@
 //! The module's functions: the cascade and repair over several denoisers and chains, the seeded noise
 //! streams materialised, the kernel paths of this CPU.
 
-use std::sync::Arc;
-
 use numpy::{PyArrayDyn, PyReadonlyArrayDyn};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use tcd_core::rng::seeded_noise as core_seeded_noise;
 use tcd_core::{
-    cascade as core_cascade, fill_rows, repair as core_repair, with_threads, CascadeNoise,
-    CondFill, ForecastOptions, Sequences,
+    cascade as core_cascade, fill_rows, repair as core_repair, CascadeNoise, CondFill, Sequences,
 };
 
+use crate::call::{NoiseSource, SamplingArgs, Window};
 use crate::convert::*;
 use crate::denoiser::PyDenoiser;
-use crate::error::{invalid, PyTcdError};
+use crate::error::{invalid, Result};
 use crate::prior::PyPrior;
-use crate::run::interruptible;
 
 /// The short-term → long-term cascade on an observation (B, K, O), O = the short model's obs_len.
 /// Returns a dict: `mean` (B, K, P), `samples` (S, B, K, P), `repaired` (B, K, O), `short_mean`
@@ -46,93 +43,59 @@ pub(crate) fn cascade<'py>(
     threads: Option<i64>,
     progress: Option<Bound<'py, PyAny>>,
     prior: Option<&Bound<'py, PyPrior>>,
-) -> PyResult<Bound<'py, PyDict>> {
-    let short = Arc::clone(&short.get().inner);
-    let long = Arc::clone(&long.get().inner);
-    let prior = prior.map(|p| Arc::clone(&p.get().inner));
-    let k = short.num_features();
-    let observed = Array::from_numpy(&observed);
-    let mask = Array::from_numpy(&mask);
-    let noise_short = noise_short.as_ref().map(Array::from_numpy);
-    let noise_long = noise_long.as_ref().map(Array::from_numpy);
-    let prepared = (|| -> CoreResult<_> {
-        let s = positive("num_samples", num_samples)?;
-        let b = observation_batch(
-            &observed,
-            &mask,
-            k,
-            short.obs_len(),
-            "the short-term model's",
-        )?;
-        check_work(s, b, k, short.seq_len().max(long.seq_len()))?;
-        let cfg = options.config()?;
-        let (seed, streams) = seed_args(seed, first_sequence, sequences)?;
-        let bs = noise_blocks(&short, &cfg)?;
-        let bl = noise_blocks(&long, &cfg)?;
-        let lk = long.num_features();
-        let src_short = noise_source(
-            "noise_short",
-            noise_short.as_ref(),
-            seed,
-            streams.clone(),
-            &[s, bs, b, k, short.seq_len()],
-        )?;
-        let src_long = noise_source(
-            "noise_long",
-            noise_long.as_ref(),
-            seed,
-            streams,
-            &[s, bl, b, lk, long.seq_len()],
-        )?;
-        Ok((s, b, cfg, src_short, src_long, threads_arg(threads)?))
-    })()
-    .map_err(PyTcdError)?;
-    let (s, b, cfg, src_short, src_long, threads) = prepared;
-    let out = interruptible(py, progress.as_ref(), move |control| {
-        let noise = match (&src_short, &src_long) {
-            (NoiseSource::Injected(a), NoiseSource::Injected(c)) => {
+) -> Result<Bound<'py, PyDict>> {
+    let (short, long) = (&*short.get().inner, &*long.get().inner);
+    let prior = prior.map(|p| &*p.get().inner);
+    let args = SamplingArgs {
+        observed,
+        mask,
+        num_samples,
+        options,
+        seed,
+        first_sequence,
+        sequences,
+        threads,
+        progress,
+    };
+    let stages = [
+        (short, "noise_short", noise_short),
+        (long, "noise_long", noise_long),
+    ];
+    let call = args.prepare(Window::ObsLen("the short-term model's"), stages)?;
+    let out = call.run(py, |job, control| {
+        let noise = match &job.noise {
+            [NoiseSource::Injected(a), NoiseSource::Injected(c)] => {
                 CascadeNoise::Injected { short: a, long: c }
             }
-            (NoiseSource::Seeded(seed, streams), _) | (_, NoiseSource::Seeded(seed, streams)) => {
+            [NoiseSource::Seeded(seed, streams), _] | [_, NoiseSource::Seeded(seed, streams)] => {
                 CascadeNoise::Seeded {
                     seed: *seed,
                     sequences: streams.as_sequences(),
                 }
             }
         };
-        let options = ForecastOptions {
-            num_samples: s,
-            sampler: cfg,
-        };
-        with_threads(threads, || {
-            core_cascade(
-                &short,
-                &long,
-                prior.as_deref(),
-                &observed.data,
-                &mask.data,
-                &options,
-                noise,
-                control,
-            )
-        })?
+        core_cascade(
+            short,
+            long,
+            prior,
+            &job.observed,
+            &job.mask,
+            &job.options,
+            noise,
+            control,
+        )
     })?;
-    let d = PyDict::new(py);
-    let kf = out.num_features;
-    d.set_item("mean", to_numpy(py, &[b, kf, out.future_len], out.mean)?)?;
-    d.set_item(
-        "samples",
-        to_numpy(py, &[s, b, kf, out.future_len], out.samples)?,
-    )?;
-    d.set_item(
-        "repaired",
-        to_numpy(py, &[b, kf, out.obs_len], out.repaired)?,
-    )?;
-    d.set_item(
-        "short_mean",
-        to_numpy(py, &[b, kf, out.short_len], out.short_mean)?,
-    )?;
-    Ok(d)
+    let job = &call.job;
+    let (s, b, kf) = (job.options.num_samples, job.batch, out.num_features);
+    arrays(
+        py,
+        [
+            ("mean", &[b, kf, out.future_len], out.mean),
+            ("samples", &[s, b, kf, out.future_len], out.samples),
+            ("repaired", &[b, kf, out.obs_len], out.repaired),
+            ("short_mean", &[b, kf, out.short_len], out.short_mean),
+        ],
+    )
 }
 
 /// Repairs the mask-0 entries of an observation (B, K, O), O = the model's obs_len. Returns a
@@ -157,52 +120,41 @@ pub(crate) fn repair<'py>(
     sequences: Option<Vec<i128>>,
     threads: Option<i64>,
     progress: Option<Bound<'py, PyAny>>,
-) -> PyResult<Bound<'py, PyDict>> {
-    let model = Arc::clone(&model.get().inner);
-    let k = model.num_features();
-    let observed = Array::from_numpy(&observed);
-    let mask = Array::from_numpy(&mask);
-    let noise = noise.as_ref().map(Array::from_numpy);
-    let prepared = (|| -> CoreResult<_> {
-        let s = positive("num_samples", num_samples)?;
-        let b = observation_batch(&observed, &mask, k, model.obs_len(), "the model's")?;
-        let o = model.obs_len();
-        check_work(s, b, k, model.seq_len())?;
-        let cfg = options.config()?;
-        let (seed, streams) = seed_args(seed, first_sequence, sequences)?;
-        let blocks = noise_blocks(&model, &cfg)?;
-        let src = noise_source(
-            "noise",
-            noise.as_ref(),
-            seed,
-            streams,
-            &[s, blocks, b, k, model.seq_len()],
-        )?;
-        Ok((s, b, o, cfg, src, threads_arg(threads)?))
-    })()
-    .map_err(PyTcdError)?;
-    let (s, b, o, cfg, src, threads) = prepared;
-    let out = interruptible(py, progress.as_ref(), move |control| {
-        let options = ForecastOptions {
-            num_samples: s,
-            sampler: cfg,
-        };
-        with_threads(threads, || {
-            core_repair(
-                &model,
-                &observed.data,
-                &mask.data,
-                b,
-                &options,
-                src.as_noise(),
-                control,
-            )
-        })?
+) -> Result<Bound<'py, PyDict>> {
+    let model = &model.get().inner;
+    let args = SamplingArgs {
+        observed,
+        mask,
+        num_samples,
+        options,
+        seed,
+        first_sequence,
+        sequences,
+        threads,
+        progress,
+    };
+    let call = args.prepare(Window::ObsLen("the model's"), [(model, "noise", noise)])?;
+    let out = call.run(py, |job, control| {
+        let [noise] = &job.noise;
+        core_repair(
+            model,
+            &job.observed,
+            &job.mask,
+            job.batch,
+            &job.options,
+            noise.as_noise(),
+            control,
+        )
     })?;
-    let d = PyDict::new(py);
-    d.set_item("mean", to_numpy(py, &[b, k, o], out.mean)?)?;
-    d.set_item("samples", to_numpy(py, &[s, b, k, o], out.samples)?)?;
-    Ok(d)
+    let job = &call.job;
+    let k = model.num_features();
+    arrays(
+        py,
+        [
+            ("mean", &[job.batch, k, job.frames], out.mean),
+            ("samples", &job.samples_shape(k), out.samples),
+        ],
+    )
 }
 
 /// `observed` (..., L) with its mask-0 entries filled along the last axis by the interpolating fill
@@ -214,16 +166,13 @@ pub(crate) fn interpolate<'py>(
     observed: PyReadonlyArrayDyn<'py, f32>,
     mask: PyReadonlyArrayDyn<'py, f32>,
     method: &str,
-) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
+) -> Result<Bound<'py, PyArrayDyn<f32>>> {
     let observed = Array::from_numpy(&observed);
     let mask = Array::from_numpy(&mask);
-    let fill = CondFill::interpolation(method).map_err(PyTcdError)?;
-    mask.expect_shape("mask", &observed.shape, "(the shape of `observed`)")
-        .map_err(PyTcdError)?;
+    let fill = CondFill::interpolation(method)?;
+    mask.expect_shape("mask", &observed.shape, "(the shape of `observed`)")?;
     let length = observed.shape.last().copied().unwrap_or(0);
-    let out = py
-        .detach(|| fill_rows(fill, length, &mask.data, &observed.data))
-        .map_err(PyTcdError)?;
+    let out = py.detach(|| fill_rows(fill, length, &mask.data, &observed.data))?;
     to_numpy(py, &observed.shape, out)
 }
 
@@ -245,35 +194,26 @@ pub(crate) fn seeded_noise<'py>(
     num_features: i64,
     length: i64,
     first_sequence: i128,
-) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
-    let (seed, stage, first_sequence) = (|| -> CoreResult<_> {
-        Ok((
-            u64_arg("seed", seed)?,
-            u64_arg("stage", stage)?,
-            u64_arg("first_sequence", first_sequence)?,
-        ))
-    })()
-    .map_err(PyTcdError)?;
-    let dims = (|| -> CoreResult<[usize; 5]> {
-        let dims = [
-            positive("num_samples", num_samples)?,
-            positive("num_blocks", num_blocks)?,
-            positive("batch", batch)?,
-            positive("num_features", num_features)?,
-            positive("length", length)?,
-        ];
-        // Refuse absurd sizes rather than abort on allocation failure (2^31 values = 8 GiB).
-        let total = dims.iter().try_fold(1usize, |acc, d| acc.checked_mul(*d));
-        match total {
-            Some(t) if t <= MAX_VALUES => Ok(dims),
-            _ => Err(invalid(
-                "num_samples",
-                "sizes whose product is at most 2^31 values",
-                format!("{dims:?}"),
-            )),
-        }
-    })()
-    .map_err(PyTcdError)?;
+) -> Result<Bound<'py, PyArrayDyn<f32>>> {
+    let seed = u64_arg("seed", seed)?;
+    let stage = u64_arg("stage", stage)?;
+    let first_sequence = u64_arg("first_sequence", first_sequence)?;
+    let dims = [
+        positive("num_samples", num_samples)?,
+        positive("num_blocks", num_blocks)?,
+        positive("batch", batch)?,
+        positive("num_features", num_features)?,
+        positive("length", length)?,
+    ];
+    // Refuse absurd sizes rather than abort on allocation failure (2^31 values = 8 GiB).
+    if !within_limit(&dims) {
+        return Err(invalid(
+            "num_samples",
+            "sizes whose product is at most 2^31 values",
+            format!("{dims:?}"),
+        )
+        .into());
+    }
     let [s, blocks, b, k, l] = dims;
     let data = py.detach(move || {
         core_seeded_noise(
@@ -291,8 +231,8 @@ pub(crate) fn seeded_noise<'py>(
 
 /// Checks a `tcd.SamplerOptions`'s values with the engine's rules (raises `InvalidInputError`).
 #[pyfunction]
-pub(crate) fn check_sampler_options(options: SamplerOptions) -> PyResult<()> {
-    options.config().map_err(PyTcdError)?;
+pub(crate) fn check_sampler_options(options: SamplerOptions) -> Result<()> {
+    options.config()?;
     Ok(())
 }
 
@@ -307,19 +247,15 @@ pub(crate) fn check_call_settings(
     seed: Option<i128>,
     threads: Option<i64>,
     window: Option<(usize, usize)>,
-) -> PyResult<()> {
-    (|| -> CoreResult<()> {
-        if let Some(n) = num_samples {
-            let s = positive("num_samples", n)?;
-            if let Some((k, l)) = window {
-                check_work(s, 1, k, l)?;
-            }
+) -> Result<()> {
+    if let Some(n) = num_samples {
+        let s = positive("num_samples", n)?;
+        if let Some((k, l)) = window {
+            check_work(s, 1, k, l)?;
         }
-        seed.map(|s| u64_arg("seed", s)).transpose()?;
-        threads_arg(threads)?;
-        Ok(())
-    })()
-    .map_err(PyTcdError)?;
+    }
+    seed.map(|s| u64_arg("seed", s)).transpose()?;
+    threads_arg(threads)?;
     Ok(())
 }
 

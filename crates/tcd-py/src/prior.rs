@@ -6,10 +6,10 @@ use std::sync::Arc;
 
 use numpy::{PyArray2, PyArrayDyn, PyReadonlyArrayDyn};
 use pyo3::prelude::*;
-use tcd_core::{with_threads, Control, Prior};
+use tcd_core::{Control, Prior};
 
 use crate::convert::*;
-use crate::error::{invalid, PyTcdError};
+use crate::error::{internal, invalid, Result};
 use crate::run::interruptible;
 
 /// A call on one sequence of at most this many chunks (forwards of about 0.2 ms at the bundled size) runs
@@ -28,18 +28,20 @@ pub(crate) struct PyPrior {
 impl PyPrior {
     /// Loads and validates a prior weight file.
     #[staticmethod]
-    fn load(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
-        let p = py.detach(move || Prior::load(&path)).map_err(PyTcdError)?;
-        Ok(PyPrior { inner: Arc::new(p) })
+    fn load(py: Python<'_>, path: PathBuf) -> Result<Self> {
+        let inner = py.detach(move || Prior::load(&path))?;
+        Ok(PyPrior {
+            inner: Arc::new(inner),
+        })
     }
 
     /// Loads and validates the bytes of a prior weight file; `name` names it in error messages.
     #[staticmethod]
-    fn from_bytes(py: Python<'_>, data: Vec<u8>, name: PathBuf) -> PyResult<Self> {
-        let p = py
-            .detach(move || Prior::from_bytes(&data, &name))
-            .map_err(PyTcdError)?;
-        Ok(PyPrior { inner: Arc::new(p) })
+    fn from_bytes(py: Python<'_>, data: Vec<u8>, name: PathBuf) -> Result<Self> {
+        let inner = py.detach(move || Prior::from_bytes(&data, &name))?;
+        Ok(PyPrior {
+            inner: Arc::new(inner),
+        })
     }
 
     #[getter]
@@ -91,9 +93,8 @@ impl PyPrior {
             .chunks_exact(l)
             .map(<[f32]>::to_vec)
             .collect();
-        PyArray2::from_vec2(py, &rows).map_err(|e| {
-            crate::error::internal(py, &format!("the DCT matrix has a bad shape ({e})"))
-        })
+        PyArray2::from_vec2(py, &rows)
+            .map_err(|e| internal(py, &format!("the DCT matrix has a bad shape ({e})")))
     }
 
     /// The next `horizon` frames of each sequence of `obs` (B, T, K) float32, T >= obs_len (the last
@@ -105,42 +106,39 @@ impl PyPrior {
         obs: PyReadonlyArrayDyn<'py, f32>,
         horizon: i64,
         threads: Option<i64>,
-    ) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
+    ) -> Result<Bound<'py, PyArrayDyn<f32>>> {
         let k = self.inner.num_features();
         let l = self.inner.obs_len();
         let obs = Array::from_numpy(&obs);
-        let (b, t, horizon, threads) = (|| -> CoreResult<_> {
-            let (b, t) = match obs.shape.as_slice() {
-                &[b, t, kk] if kk == k && b >= 1 && t >= l => (b, t),
-                _ => {
-                    return Err(invalid(
-                        "obs",
-                        format!("a float32 array of shape (B, T, K) with K = {k}, B >= 1 and T >= obs_len = {l}"),
-                        format!("shape {}", Array::shape_str(&obs.shape)),
-                    ))
-                }
-            };
-            let horizon = positive("horizon", horizon)?;
-            // the output's size, refused up front like a sampler's (num_samples = 1, L = horizon)
-            check_work(1, b, k, horizon).map_err(|_| {
-                invalid(
-                    "horizon",
-                    format!("small enough that B x horizon x K = {b} x {horizon} x {k} is at most 2^31 values"),
-                    horizon.to_string(),
+        let (b, t) = match obs.shape.as_slice() {
+            &[b, t, kk] if kk == k && b >= 1 && t >= l => (b, t),
+            _ => {
+                return Err(invalid(
+                    "obs",
+                    format!("a float32 array of shape (B, T, K) with K = {k}, B >= 1 and T >= obs_len = {l}"),
+                    format!("shape {}", Array::shape_str(&obs.shape)),
                 )
-            })?;
-            Ok((b, t, horizon, threads_arg(threads)?))
-        })()
-        .map_err(PyTcdError)?;
-        let model = Arc::clone(&self.inner);
+                .into())
+            }
+        };
+        let horizon = positive("horizon", horizon)?;
+        // the output's size, refused up front like a sampler's
+        if !within_limit(&[b, k, horizon]) {
+            return Err(invalid(
+                "horizon",
+                format!("small enough that B x horizon x K = {b} x {horizon} x {k} is at most 2^31 values"),
+                horizon.to_string(),
+            )
+            .into());
+        }
+        let threads = threads_arg(threads)?;
+        let model = &self.inner;
+        let predict = |control: &Control| model.predict(&obs.data, b, t, horizon, control);
         let out = if b == 1 && horizon.div_ceil(model.chunk()) <= INLINE_CHUNKS {
             // one sequence is never split over threads: `threads` changes nothing
-            py.detach(move || model.predict(&obs.data, b, t, horizon, &Control::default()))
-                .map_err(PyTcdError)?
+            py.detach(|| predict(&Control::default()))?
         } else {
-            interruptible(py, None, move |control| {
-                with_threads(threads, || model.predict(&obs.data, b, t, horizon, control))?
-            })?
+            interruptible(py, None, threads, predict)?
         };
         to_numpy(py, &[b, horizon, k], out)
     }

@@ -19,21 +19,22 @@ use std::sync::mpsc::{channel, RecvTimeoutError};
 use std::time::Duration;
 
 use pyo3::prelude::*;
-use tcd_core::Control;
+use tcd_core::{with_threads, Control};
 
 use crate::convert::CoreResult;
-use crate::error::{internal, PyTcdError};
+use crate::error::{internal, Result};
 
 /// How often the waiting thread looks at signals and progress: the bound on how late Ctrl-C is seen.
 const POLL: Duration = Duration::from_millis(100);
 
-/// Runs `work` interruptibly; `progress`, a Python callable, gets `(forwards_done, forwards_total)` at
-/// every poll and once at the end.
+/// Runs `work` interruptibly on `threads` threads (`None`: all cores); `progress`, a Python callable,
+/// gets `(forwards_done, forwards_total)` at every poll and once at the end.
 pub(crate) fn interruptible<T, F>(
     py: Python<'_>,
     progress: Option<&Bound<'_, PyAny>>,
+    threads: Option<usize>,
     work: F,
-) -> PyResult<T>
+) -> Result<T>
 where
     T: Send,
     F: FnOnce(&Control) -> CoreResult<T> + Send,
@@ -53,7 +54,7 @@ where
         let ctl = &control;
         scope.spawn(move || {
             // the receiver outlives the thread unless the caller is already gone: nothing to report then
-            let _ = tx.send(work(ctl));
+            let _ = tx.send(with_threads(threads, || work(ctl)).and_then(|out| out));
         });
         let mut rx = rx;
         loop {
@@ -62,7 +63,7 @@ where
             rx = back;
             match got {
                 Ok(result) => {
-                    let out = result.map_err(PyTcdError)?;
+                    let out = result?;
                     report(ctl)?;
                     return Ok(out);
                 }
@@ -70,14 +71,13 @@ where
                     if let Err(e) = py.check_signals().and_then(|()| report(ctl)) {
                         ctl.cancel();
                         let _ = py.detach(move || rx.recv());
-                        return Err(e);
+                        return Err(e.into());
                     }
                 }
                 Err(RecvTimeoutError::Disconnected) => {
-                    return Err(internal(
-                        py,
-                        "the engine's worker thread ended without a result",
-                    ));
+                    return Err(
+                        internal(py, "the engine's worker thread ended without a result").into(),
+                    );
                 }
             }
         }
