@@ -10,7 +10,7 @@ import sys
 import numpy as np
 import pytest
 
-from conftest import H36M_DIR, ROOT, needs_h36m
+from conftest import H36M_DIR, ROOT, needs_data, needs_h36m
 from fixtures_util import make_model_dir
 
 
@@ -212,3 +212,19 @@ def test_prior_speed_smoke(tmp_path):
     assert md.splitlines()[0] == ("| median | 1 forecast, 1 thr. | 1 forecast, 2 thr. | batch of 5, 1 thr. | "
                                   "batch of 5, 2 thr. |")
     assert md.splitlines()[2].startswith("| tcd (Rust) | ") and "×) |" in md.splitlines()[3]
+
+
+@needs_data("humaneva/humaneva_i_15j_60hz.npz")
+def test_train_speed_smoke(tmp_path):
+    """benches/train_speed.py times the real training step of a config (here HumanEva-I's long model around its
+    bundled prior) and writes one row per cell; the speed itself is never asserted."""
+    bench = load_bench("train_speed")
+    prior = ROOT / "python" / "tcd" / "weights_humaneva" / "prior.safetensors"
+    if not prior.is_file():
+        pytest.skip("no bundled HumanEva-I prior in this build")
+    out = tmp_path / "speed.json"
+    assert bench.main(["--config", str(ROOT / "training/configs/humaneva_long_2.json"), "--prior", str(prior),
+                       "--batch", "2", "--variants", "eager", "--seconds", "0.5", "--json", str(out)]) == 0
+    d = json.loads(out.read_text())
+    assert [(r["batch"], r["variant"], r["threads"]) for r in d["rows"]] == [(2, "eager", 1)]
+    assert d["rows"][0]["windows_per_s"] > 0 and len(d["rows"][0]["blocks"]) == 5

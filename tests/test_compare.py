@@ -38,3 +38,26 @@ def test_exit_status_gates(tmp_path):
     b.write_text(json.dumps(result([100.0, 104.0, 110.0])))
     assert main([str(a), str(b)]) == 0
     assert main([str(b), str(a)]) == 1
+
+
+def humaneva_result(ade, seed=0):
+    scores = {"ADE": float(sum(ade) / len(ade)), "per_window": {k: list(ade) for k in ("ADE", "FDE", "MMADE", "MMFDE")}}
+    return {"protocol": {"dataset": "humaneva-i", "windows": len(ade)}, "seeds": {"sampling": seed},
+            "model": scores}
+
+
+def test_humaneva_results_are_paired_over_windows():
+    rng = __import__("numpy").random.default_rng(0)
+    old = list(0.3 + 0.1 * rng.random(40))
+    res = compare(humaneva_result([e - 0.01 for e in old]), humaneva_result(old))
+    assert res["verdict"] == "new is better" and res["windows"] == 40 and res["key"] == "average"
+    assert compare(humaneva_result(old), humaneva_result([e - 0.01 for e in old]), key="FDE")["verdict"] == \
+        "bundled is better"
+    noisy = [e + d for e, d in zip(old, rng.normal(0, 0.05, 40))]
+    assert compare(humaneva_result(noisy), humaneva_result(old))["verdict"] == "within noise"
+    with pytest.raises(ValueError, match="one of"):
+        compare(humaneva_result(old), humaneva_result(old), key="best_of_n")
+    without = humaneva_result(old)
+    del without["model"]["per_window"]
+    with pytest.raises(ValueError, match="per-window"):
+        compare(without, humaneva_result(old))

@@ -9,6 +9,10 @@ per-action errors at ``--horizon`` ms (``--key``: ``average`` = what each run re
 ``--margin`` (relative) AND the mean paired difference is below zero by more than two standard errors;
 BUNDLED is better in the mirror case; otherwise the difference is within sampling noise (keep what is
 bundled). Exit status 0 when NEW is better, 1 otherwise, so a script can gate on it.
+
+Results of the HumanEva-I protocol (``--protocol humaneva``) are paired over its windows instead: ``--key`` is
+one of ADE (default for them), FDE, MMADE, MMFDE (lower is better), of the ``model`` each run scored,
+``--horizon`` does not apply.
 """
 from __future__ import annotations
 
@@ -20,7 +24,26 @@ from pathlib import Path
 import numpy as np
 
 
+HUMANEVA_KEYS = ("ADE", "FDE", "MMADE", "MMFDE")
+
+
+def is_humaneva(result: dict) -> bool:
+    return result.get("protocol", {}).get("dataset") == "humaneva-i"
+
+
+def per_window(result: dict, key: str) -> dict[str, float]:
+    """A HumanEva-I result's model metric on each window, keyed by the window's position."""
+    if key not in HUMANEVA_KEYS:
+        raise ValueError(f"--key for a HumanEva-I result is one of {HUMANEVA_KEYS}, got {key!r}")
+    if "per_window" not in result.get("model", {}):
+        raise ValueError("the HumanEva-I result has no per-window values of a model (run training.evaluate "
+                         "--protocol humaneva --model DIR: it records them)")
+    return {str(i): float(v) for i, v in enumerate(result["model"]["per_window"][key])}
+
+
 def per_action(result: dict, key: str, horizon: str) -> dict[str, float]:
+    if is_humaneva(result):
+        return per_window(result, "ADE" if key == "average" else key)
     if key == "average":
         table = result["per_action"]
     elif key in result:
@@ -39,15 +62,16 @@ def compare(new: dict, old: dict, *, key: str = "average", horizon: str = "1000"
     pa, pb = per_action(new, key, horizon), per_action(old, key, horizon)
     actions = sorted(set(pa) & set(pb))
     if len(actions) < 2:
-        raise ValueError(f"a paired test needs at least 2 actions in common, got {actions}")
+        raise ValueError(f"a paired test needs at least 2 actions (or windows) in common, got {actions}")
     d = np.array([pa[a] - pb[a] for a in actions])
     se = float(d.std(ddof=1) / np.sqrt(len(d)))
     xa, xb = float(np.mean([pa[a] for a in actions])), float(np.mean([pb[a] for a in actions]))
     verdict = "within noise"
     if abs(xa - xb) > margin * max(xa, xb) and abs(d.mean()) > 2 * se:
         verdict = "new is better" if d.mean() < 0 else "bundled is better"
-    return {"horizon_ms": horizon, "key": key, "actions": len(actions), "new": xa, "bundled": xb,
-            "mean_difference": float(d.mean()), "standard_error": se,
+    unit = "windows" if is_humaneva(new) else "actions"
+    return {"horizon_ms": None if unit == "windows" else horizon, "key": key, unit: len(actions),
+            "new": xa, "bundled": xb, "mean_difference": float(d.mean()), "standard_error": se,
             "new_better_on": int((d < 0).sum()), "margin": margin, "verdict": verdict}
 
 
@@ -56,7 +80,8 @@ def main(argv=None) -> int:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("new")
     ap.add_argument("bundled")
-    ap.add_argument("--key", default="average", help="average (default), mean_of_n or best_of_n")
+    ap.add_argument("--key", default="average",
+                    help="average (default), mean_of_n or best_of_n; HumanEva-I: ADE (= average), FDE, MMADE, MMFDE")
     ap.add_argument("--horizon", default="1000", help="ms (default 1000)")
     ap.add_argument("--margin", type=float, default=0.01, help="relative difference that counts (default 0.01)")
     args = ap.parse_args(argv)

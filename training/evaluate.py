@@ -318,7 +318,7 @@ def evaluate_humaneva(args) -> dict:
 
     def score(pred: np.ndarray) -> dict:                                 # (S, W, 60, 14, 3)
         return evaluate_stochastic([pred[:, w].reshape(pred.shape[0], HE_PRED, D) for w in range(len(rows))],
-                                   gts, gt_multi)
+                                   gts, gt_multi, per_window=True)
 
     results = {"zero_velocity": score(np.repeat(obs[None, :, -1:], HE_PRED, axis=2))}
     prior_path = args.prior or (args.model if args.model and (Path(args.model) / "prior.safetensors").is_file()

@@ -101,29 +101,33 @@ def mmfde(pred, gt_multi) -> float:
 
 
 def evaluate_stochastic(preds: Sequence[np.ndarray], gts: Sequence[np.ndarray],
-                        gt_multis: Sequence[np.ndarray], include_apd_top50: bool = False) -> dict[str, float]:
+                        gt_multis: Sequence[np.ndarray], include_apd_top50: bool = False,
+                        per_window: bool = False) -> dict:
     """Average each metric over the test windows (each window weighs 1, as DLow's ``AverageMeter``).
 
     ``preds[i]`` (S, t_pred, D), ``gts[i]`` (t_pred, D), ``gt_multis[i]`` (M_i, t_pred, D).
     Returns ``{"APD", "ADE", "FDE", "MMADE", "MMFDE"}`` (plus ``"APD_top50_nonstandard"`` if asked), in
-    the data's units (metres).
+    the data's units (metres); with ``per_window`` also ``"per_window"``: each metric's value on every window,
+    in order (what ``training.compare`` pairs two models on).
     """
     if not (len(preds) == len(gts) == len(gt_multis)):
         raise ValueError(f"got {len(preds)} predictions, {len(gts)} ground truths, {len(gt_multis)} multimodal sets")
     if len(preds) == 0:
         raise ValueError("no windows to evaluate")
-    sums = {k: 0.0 for k in METRIC_KEYS}
+    values: dict[str, list[float]] = {k: [] for k in METRIC_KEYS}
     top50 = 0.0
     for pred, gt, gt_multi in zip(preds, gts, gt_multis):
-        sums["APD"] += apd(pred)
-        sums["ADE"] += ade(pred, gt)
-        sums["FDE"] += fde(pred, gt)
-        sums["MMADE"] += mmade(pred, gt_multi)
-        sums["MMFDE"] += mmfde(pred, gt_multi)
+        values["APD"].append(apd(pred))
+        values["ADE"].append(ade(pred, gt))
+        values["FDE"].append(fde(pred, gt))
+        values["MMADE"].append(mmade(pred, gt_multi))
+        values["MMFDE"].append(mmfde(pred, gt_multi))
         if include_apd_top50:
             top50 += apd_top50(pred)
     n = len(preds)
-    out = {k: v / n for k, v in sums.items()}
+    out: dict = {k: sum(v) / n for k, v in values.items()}
     if include_apd_top50:
         out["APD_top50_nonstandard"] = top50 / n
+    if per_window:
+        out["per_window"] = values
     return out
