@@ -295,6 +295,24 @@ def test_a_joint_never_shown_does_not_carry_the_bones_below_it():
 
 
 
+def test_a_joint_whose_ancestor_a_frame_hides_is_missing_there():
+    """random_leg_arm on h36m32 hides the left shoulder, elbow and wrist but not the hand: in those frames the
+    model's hand is missing (in-painted), not put along the thorax-to-hand direction at the rest pose's
+    distance from the thorax; in the other frames every joint is where it is with the arm in view."""
+    full = world(h36m32())
+    x = full.copy()
+    hidden = np.arange(0, 50, 3)
+    for t in hidden:
+        x[t, [17, 18, 19, 20]] = np.nan                                  # 20: the wrist's duplicate
+    lay, up = layouts.get_layout("h36m32"), wild.up_vector("z")
+    y = wild.to_model(x[None], lay, up)[0][0]
+    y_full = wild.to_model(full[None], lay, up)[0][0]
+    hand = list(layouts.MODEL_IDS).index(21)
+    assert np.isnan(y[hidden, hand]).all()
+    shown = np.setdiff1d(np.arange(50), hidden)
+    np.testing.assert_allclose(y[shown], y_full[shown], rtol=0, atol=1e-12)
+
+
 def test_a_joint_the_last_frame_lacks_starts_where_it_was_last_seen(monkeypatch):
     """Issue 27, part 4, occluded rows: a joint hidden in the last frames starts the forecast from its last
     sighting (in that frame's root frame), as Zero-Velocity holds it, and reaches the model's at JOIN_FRAMES."""
