@@ -71,8 +71,9 @@ def test_strict_loading_rejects_missing_and_extra_tensors(tmp_path):
 
 
 def test_cli_requires_one_source(tmp_path, capsys):
-    with pytest.raises(SystemExit):
+    with pytest.raises(SystemExit) as e:
         main(["--out", str(tmp_path)])
+    assert e.value.code == 2 and "give exactly one of --checkpoint, --random-init" in capsys.readouterr().err
 
 
 def test_files_replace_roles_only_when_they_load(tmp_path):
