@@ -11,7 +11,8 @@ import pytest
 
 import tcd
 
-from fixtures_util import bad, config_of, copy_dir, poses, read_weights, with_config, write_weights
+from conftest import import_torch
+from fixtures_util import ALL_KERNELS, bad, config_of, copy_dir, poses, read_weights, with_config, write_weights
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -118,6 +119,12 @@ def test_engine_names_live_in_tcd_engine_only():
             importlib.import_module(f"tcd.{old}")
 
 
+def test_supported_kernels_and_default():
+    ks = tcd.engine.supported_kernels()
+    assert ks[0] == "portable" and set(ks) <= set(ALL_KERNELS)
+    assert ks == [k for k in ALL_KERNELS if k in ks]
+
+
 def test_forecast_times_follow_the_models_frame_rate(tiny_model, tiny_model_dir, tmp_path, obs):
     """Forecast.times are (k + 1) / fps; a model that records no frame rate gets None, not a made-up rate."""
     f = tiny_model.forecast(obs, seed=1, **FAST)
@@ -161,6 +168,7 @@ def test_one_thread_equals_two_threads(tiny_model, obs):
 def test_ddpm_default_runs_all_steps(tmp_path, obs):
     """The default sampler is DDPM over every training step (a T = 10 model keeps this fast):
     num_inference_steps=T is the same thing, fewer steps are respaced DDPM, more are an error."""
+    import_torch("writing a T = 10 model (training/export.py)")
     from training.diffusion import DiffusionConfig
     from training.export import random_init_dir
 

@@ -10,7 +10,7 @@ import sys
 import numpy as np
 import pytest
 
-from conftest import H36M_DIR, ROOT, needs_data, needs_h36m
+from conftest import H36M_DIR, ROOT, import_torch, needs_data, needs_h36m
 from fixtures_util import make_model_dir
 
 
@@ -26,6 +26,7 @@ def load_bench(name: str):
 def test_steps_two_phases_merge(tiny_model_dir, tmp_path):
     """--latency-reps 0 writes accuracy only (latency NaN); --accuracy-from copies those rows unchanged and
     adds the latency; a JSON of another model, other samples or missing configurations is refused."""
+    import_torch("benches/steps.py (it reads the data through training/evaluate.py)")
     steps = load_bench("steps")
     common = ["--model", str(tiny_model_dir), "--data", str(H36M_DIR), "--actions", "walking", "--only", "DDIM-5",
               "--windows-per-action", "1", "--samples", "2"]
@@ -61,6 +62,7 @@ def test_steps_two_phases_merge(tiny_model_dir, tmp_path):
 def test_peers_markdown_tables():
     """The README tables come from a saved result: one column per (L, threads), ratio peer / tcd in brackets,
     the whole-forecast rows and the peak memory line."""
+    import_torch("benches/peers.py (PyTorch is one of its peers)")
     peers = load_bench("peers")
     result = {"rows": [
         {"L": 75, "threads": 2, "ms": {"tcd": 50.0, "torch": 200.0, "openvino": 100.0},
@@ -88,9 +90,6 @@ def test_repair_quality_baselines_fill_only_hidden_entries():
     tcd.interpolate, equal to training.model.spline_fill up to float32 rounding); both keep observed entries
     and hold the ends."""
     pytest.importorskip("scipy")
-    import numpy as np
-    import torch
-    from training.model import spline_fill
     rq = load_bench("repair_quality")
     t = np.arange(50, dtype=np.float64)
     curve = (1e-5 * (t - 20) ** 3 + 0.002 * t + 0.01 * np.sin(t / 3))[None, :, None, None] * np.ones((1, 50, 2, 3))
@@ -103,14 +102,17 @@ def test_repair_quality_baselines_fill_only_hidden_entries():
     lin, spl = rq.linear_fill(x, m), rq.spline_fill(x, m)
     np.testing.assert_array_equal(spl[keep], curve[keep])
     np.testing.assert_allclose(spl[0, 45:, 1], np.repeat(curve[0, 44:45, 1], 5, 0), rtol=0, atol=1e-8)
-    ref = spline_fill(torch.from_numpy(x.transpose(0, 2, 3, 1).copy()),
-                      torch.from_numpy(keep.transpose(0, 2, 3, 1).astype(np.float64).copy()))
-    ref = ref.numpy().transpose(0, 3, 1, 2)
-    np.testing.assert_allclose(spl, ref, rtol=0, atol=1e-8)   # values ~0.1: float32 rounding ~1e-8
     assert np.abs(spl[0, 10:14, 0] - lin[0, 10:14, 0]).max() > 1e-4    # the spline is not the linear fill
     line = 0.01 * t[None, :, None, None] * np.ones((1, 50, 2, 3))
     np.testing.assert_allclose(rq.linear_fill(np.where(keep, line, np.nan), m)[0, 10:14, 0], line[0, 10:14, 0],
                                atol=1e-8)
+    # the training fill, last: it needs torch
+    torch = import_torch("the comparison with training.model.spline_fill")
+    from training.model import spline_fill
+    ref = spline_fill(torch.from_numpy(x.transpose(0, 2, 3, 1).copy()),
+                      torch.from_numpy(keep.transpose(0, 2, 3, 1).astype(np.float64).copy()))
+    ref = ref.numpy().transpose(0, 3, 1, 2)
+    np.testing.assert_allclose(spl, ref, rtol=0, atol=1e-8)   # values ~0.1: float32 rounding ~1e-8
 
 
 def test_repair_dataset_occlusion_blocks_cycle_the_patterns():
@@ -195,6 +197,7 @@ def test_prior_speed_smoke(tmp_path):
     """benches/prior_speed.py times tcd.engine.Prior and PyTorch eager on the same model and inputs (outputs compared
     first) for one forecast and a batch, at each thread count, and writes its table and JSON. Timings are not
     asserted."""
+    import_torch("benches/prior_speed.py (it times PyTorch beside the engine)")
     import tcd
     bench = load_bench("prior_speed")
     out = tmp_path / "prior_speed.json"
@@ -218,6 +221,7 @@ def test_prior_speed_smoke(tmp_path):
 def test_train_speed_smoke(tmp_path):
     """benches/train_speed.py times the real training step of a config (here HumanEva-I's long model around its
     bundled prior) and writes one row per cell; the speed itself is never asserted."""
+    import_torch("benches/train_speed.py (it times the PyTorch training step)")
     bench = load_bench("train_speed")
     prior = ROOT / "python" / "tcd" / "weights_humaneva" / "prior.safetensors"
     if not prior.is_file():

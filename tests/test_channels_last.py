@@ -1,12 +1,15 @@
 """The channels-last training forward (training/channels_last.py) computes the reference forward
 (training/model.py, which the Rust engine is checked against) on the same parameters."""
 import pytest
-import torch
 
-from training.channels_last import ChannelsLast
-from training.export import PRESETS
-from training.model import TCDModel, randomize_output_layer
-from dataclasses import replace
+from conftest import import_torch
+
+torch = import_torch("the channels-last training forward (training/channels_last.py)")
+
+from training.channels_last import ChannelsLast  # noqa: E402
+from training.export import PRESETS  # noqa: E402
+from training.model import TCDModel, randomize_output_layer  # noqa: E402
+from dataclasses import replace  # noqa: E402
 
 
 def inputs(B, K, L, seed=0):

@@ -2,12 +2,15 @@ import math
 
 import numpy as np
 import pytest
-import torch
 
-from training.diffusion import (DiffusionConfig, Schedule, cascade, dpmpp2m_coefficients, draw_noise, make_betas,
+from conftest import import_torch
+
+torch = import_torch("the PyTorch reference's diffusion (training/diffusion.py)")
+
+from training.diffusion import (DiffusionConfig, Schedule, cascade, dpmpp2m_coefficients, draw_noise, make_betas,  # noqa: E402
                                 masked_eps_loss, num_noise_blocks, q_sample, repair, sample, sample_many, step_pairs,
                                 training_loss)
-from training.model import ModelConfig, TCDModel, randomize_output_layer
+from training.model import ModelConfig, TCDModel, randomize_output_layer  # noqa: E402
 
 SCHED = Schedule(DiffusionConfig())
 K = 66

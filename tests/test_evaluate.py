@@ -3,10 +3,13 @@ import json
 import numpy as np
 import pytest
 
-from conftest import DATA, H36M_DIR, needs_data, needs_h36m
-from training import evaluate
-from training.data.h36m import find_indices_256
-from training.export import random_init_dir
+from conftest import DATA, H36M_DIR, import_torch, needs_data, needs_h36m
+
+torch = import_torch("the evaluation (training/evaluate.py)")
+
+from training import evaluate  # noqa: E402
+from training.data.h36m import find_indices_256  # noqa: E402
+from training.export import random_init_dir  # noqa: E402
 
 
 def test_find_indices_256_draws_alternate_from_one_rng():

@@ -1,12 +1,20 @@
+"""The exporter (training/export.py): random-init model directories, checkpoints to weight files, strict
+loading, ``--files``; and the committed model fixtures are what it writes (tests/fixtures/README.md)."""
+import importlib.util
 import json
 
 import pytest
-import torch
-from safetensors.torch import load_file, save_file
 
-from training.export import CONFIG_KEY, load_model_dir, load_model_file, main, random_init_dir, read_config
-from training.train import train
-from test_train import synthetic_motion, tiny_cfg
+from conftest import FIXTURES, import_torch
+
+torch = import_torch("the exporter (training/export.py)")
+
+from safetensors.torch import load_file, save_file  # noqa: E402
+
+from training import export  # noqa: E402
+from training.export import CONFIG_KEY, load_model_dir, load_model_file, main, random_init_dir, read_config  # noqa: E402
+from training.train import train  # noqa: E402
+from test_train import synthetic_motion, tiny_cfg  # noqa: E402
 
 
 def test_random_init_dir_is_complete_and_non_trivial(tmp_path):
@@ -63,8 +71,9 @@ def test_strict_loading_rejects_missing_and_extra_tensors(tmp_path):
 
 
 def test_cli_requires_one_source(tmp_path, capsys):
-    with pytest.raises(SystemExit):
+    with pytest.raises(SystemExit) as e:
         main(["--out", str(tmp_path)])
+    assert e.value.code == 2 and "give exactly one of --checkpoint, --random-init" in capsys.readouterr().err
 
 
 def test_files_replace_roles_only_when_they_load(tmp_path):
@@ -87,3 +96,22 @@ def test_files_replace_roles_only_when_they_load(tmp_path):
     assert (bundle / "long.safetensors").read_bytes() == (src / "long.safetensors").read_bytes()
     with pytest.raises(SystemExit, match="file name"):
         main(["--files", str(src / "model.json"), "--out", str(bundle)])
+
+
+def test_committed_fixtures_are_what_make_fixtures_writes(tmp_path, monkeypatch):
+    """``python3 tests/fixtures/make_fixtures.py`` writes the committed model fixtures byte for byte. The one
+    thing that differs between commits, the source revision in each file's metadata (and in model.json), is
+    pinned to the one the committed files record; everything else (tensors, config, header) must match."""
+    spec = importlib.util.spec_from_file_location("make_fixtures", FIXTURES / "make_fixtures.py")
+    make_fixtures = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(make_fixtures)
+    recorded = json.loads((FIXTURES / "tiny_model" / "model.json").read_text())["short"]["source_revision"]
+    monkeypatch.setattr(export, "source_revision", lambda: recorded)
+    out = make_fixtures.write(tmp_path / "fixtures")
+    written = sorted(str(p.relative_to(out)) for p in out.rglob("*") if p.is_file())
+    assert written == sorted(str((out / d / n).relative_to(out)) for d, names in make_fixtures.FILES.items()
+                             for n in names)
+    for name in written:
+        assert (out / name).read_bytes() == (FIXTURES / name).read_bytes(), (
+            f"tests/fixtures/{name} is not what tests/fixtures/make_fixtures.py writes: if the exporter or the "
+            "random init changed on purpose, run it and commit the new fixtures")

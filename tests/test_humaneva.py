@@ -1,43 +1,27 @@
-"""HumanEva-I end to end but for the long training (issue 31): the training data and its windows, the prior on
-HumanEva's 14 joints, training configs and a few training steps, the stochastic evaluation through the engine
-on a tiny random model directory, the ``humaneva15`` layout and ``tcd.load("humaneva")``.
+"""HumanEva-I in the package (issue 31): the training data's reader, the ``humaneva15`` layout, a HumanEva-I
+model (the committed tiny random one, tests/fixtures/tiny_humaneva_model: 14 joints around a 2-block prior)
+forecasting and repairing in its own layout, the demo, and ``tcd.load("humaneva")``. No torch: the prior's and
+the denoisers' training and the evaluation through the engine are tests/test_humaneva_training.py.
 
 Tests on the real data skip cleanly where ``../shared/data/humaneva`` (``$TCD_DATA_DIR``) is absent; the rest
 use small synthetic data made here."""
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 
 import tcd
-from conftest import DATA, ROOT, needs_data
-from training import evaluate
-from training.batches import Windows
+from conftest import DATA, FIXTURES, needs_data
+from fixtures_util import config_of, read_weights, with_config, write_weights
 from training.data.humaneva import (HUMANEVA_JOINT_NAMES, HUMANEVA_MODEL_JOINT_NAMES, humaneva_test_windows,
                                     load_humaneva, training_sequences)
-from training.export import (HUMANEVA_WINDOWS, export_checkpoint, export_prior, load_prior_file, random_init_dir,
-                             read_config)
-from training.prior import PriorConfig, PriorNet, load as load_prior_checkpoint, training_frames
-from training.prior import train as train_prior
-from training.train import TrainConfig, train
 
 needs_humaneva = needs_data("humaneva/humaneva_i_15j_60hz.npz")
 HUMANEVA_FILE = DATA / "humaneva" / "humaneva_i_15j_60hz.npz"
-CONFIGS = ROOT / "training" / "configs"
-PRIOR_MODEL = {"cond_fill": "prior", "target": "prior_residual", "target_scale": 10.0}
-TINY = {"num_joints": 14, "channels": 16, "num_layers": 1, "num_heads": 2, "ffn_dim": 16, "dropout": 0.0}
-
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)          # a busy 2-core machine: PyTorch's threads only thrash
-    yield
-    torch.set_num_threads(n)
 
 
 def walking(T: int, seed: int, J: int = 15) -> np.ndarray:
@@ -51,15 +35,19 @@ def walking(T: int, seed: int, J: int = 15) -> np.ndarray:
     return (body + root).astype(np.float32)
 
 
-@pytest.fixture(scope="module")
-def synthetic_file(tmp_path_factory) -> Path:
+def write_synthetic_file(directory: Path) -> Path:
     """A HumanEva-I-shaped file: Train and Validate chunks of S1..S3 (one of them a take DLow drops)."""
     chunks = {"Train/S1/Walking 1 chunk0": 140, "Train/S2/Jog 1 chunk0": 100, "Train/S3/Box 1 chunk0": 90,
               "Train/S3/Walking 1 chunk0": 120, "Validate/S1/Walking 1 chunk0": 130,
               "Validate/S2/Box 1 chunk2": 105, "Validate/S3/Jog 1 chunk0": 80}
-    path = tmp_path_factory.mktemp("humaneva") / "humaneva_i_15j_60hz.npz"
+    path = directory / "humaneva_i_15j_60hz.npz"
     np.savez(path, **{k: walking(n, i) for i, (k, n) in enumerate(chunks.items())})
     return path
+
+
+@pytest.fixture(scope="module")
+def synthetic_file(tmp_path_factory) -> Path:
+    return write_synthetic_file(tmp_path_factory.mktemp("humaneva"))
 
 
 # ------------------------------------------------------------------------------------------ the data
@@ -77,156 +65,28 @@ def test_training_sequences_are_the_train_split_root_relative(synthetic_file):
     assert HUMANEVA_MODEL_JOINT_NAMES == HUMANEVA_JOINT_NAMES[1:] and HUMANEVA_JOINT_NAMES[0] == "pelvis"
 
 
-@needs_humaneva
-def test_real_training_windows_and_split():
-    seqs = training_sequences(HUMANEVA_FILE)
-    assert all(k.startswith("Train/") for k in seqs) and len(seqs) == 33
-    assert "Train/S3/Walking 1 chunk0" not in seqs and "Train/S3/Walking 1 chunk2" not in seqs
-    assert sum(len(v) for v in seqs.values()) == 4251
-    # the cascade's windows, stride 1 inside a chunk: the long model's 75 frames, the short model's 16
-    assert len(Windows(list(seqs.values()), 75, 1)) == 2612
-    assert len(Windows(list(seqs.values()), 16, 1)) == 3797
-    test = humaneva_test_windows(load_humaneva(HUMANEVA_FILE, "Validate"))
-    assert test.shape == (188, 75, 14, 3)
-    # no test window appears in the training data
-    train_starts = {np.round(v[i], 5).tobytes() for v in seqs.values() for i in range(len(v))}
-    assert not any(np.round(w[0], 5).tobytes() in train_starts for w in test)
-
-
-# ------------------------------------------------------------------------------------------ the prior
-
-def test_prior_config_and_network_on_humaneva():
-    cfg = PriorConfig.load(CONFIGS / "humaneva_prior.json")
-    assert (cfg.dataset, cfg.num_joints, cfg.obs_len) == ("humaneva", 14, 15) and cfg.chunk <= cfg.obs_len
-    assert cfg.subjects == (1, 2, 3)
-    net = PriorNet(cfg)
-    assert net.fc_in.in_features == 42
-    x = torch.randn(2, 15, 42)
-    assert net(x).shape == (2, cfg.chunk, 42)
-    assert net.rollout(x, 60).shape == (2, 60, 42)
-    with pytest.raises(ValueError, match="chunk"):
-        PriorConfig(dataset="humaneva", obs_len=15, chunk=60, subjects=(1, 2, 3))
-    with pytest.raises(ValueError, match="subjects"):
-        PriorConfig(dataset="humaneva", obs_len=15)                 # Human3.6M's subjects by default
-    with pytest.raises(ValueError, match="dataset"):
-        PriorConfig(dataset="amass")
-    # a checkpoint's config written before `dataset` existed is a Human3.6M one, and compares equal to it
-    old = PriorConfig().to_dict()
-    del old["dataset"]
-    assert PriorConfig.from_dict(old) == PriorConfig()
-
-
-def test_prior_trains_exports_and_runs_in_the_engine(tmp_path):
-    cfg = PriorConfig(dataset="humaneva", obs_len=15, chunk=10, blocks=2, batch_size=16, iterations=3,
-                      subjects=(1, 2, 3))
-    seqs = [walking(90, s)[:, 1:] - walking(90, s)[:, :1] for s in range(3)]
-    frames = training_frames(cfg, seqs=[q.astype(np.float32) for q in seqs])
-    assert frames[0].shape == (270, 42) and len(frames[1]) == 3 * (90 - 25 + 1)
-    res = train_prior(cfg, tmp_path / "run", frames=frames, log=lambda *a: None)
-    assert res["done"]
-    net = load_prior_checkpoint(tmp_path / "run" / "last.pt")
-    assert net.fc_in.in_features == 42
-    path = export_prior(tmp_path / "run" / "last.pt", tmp_path / "model")
-    meta = read_config(path)
-    assert meta["model"]["num_joints"] == 14 and meta["model"]["obs_len"] == 15
-    assert meta["data"]["dataset"] == "humaneva" and meta["data"]["joint_names"] == list(HUMANEVA_MODEL_JOINT_NAMES)
-    assert meta["data"]["fps"] == 60.0
-    with torch.no_grad():
-        for p in net.parameters():                  # make every weight count before comparing with the engine
-            p.add_(0.01 * torch.randn(p.shape, generator=torch.Generator().manual_seed(p.numel())))
-    from training.export import save_prior
-    save_prior(path, net)
-    obs = np.stack(seqs)[:, :15].astype(np.float32).reshape(3, 15, 42)
-    engine = tcd.engine.Prior.load(path).predict(obs, 60)
-    with torch.no_grad():
-        ref = load_prior_file(path)[0].rollout(torch.from_numpy(obs), 60).numpy()
-    assert engine.shape == (3, 60, 42)
-    np.testing.assert_allclose(engine, ref, rtol=1e-4, atol=1e-5)
-
-
-@needs_humaneva
-def test_prior_training_frames_on_the_real_data():
-    cfg = PriorConfig.load(CONFIGS / "humaneva_prior.json")
-    frames, starts = training_frames(cfg)
-    assert frames.shape == (4251, 42)
-    assert len(starts) == 3454                           # windows of 15 + 15 frames inside a chunk
-
-
-# ------------------------------------------------------------------------------------------ training
-
-def test_humaneva_train_configs_chain_into_the_cascade():
-    short = TrainConfig.load(CONFIGS / "humaneva_short.json")
-    long = TrainConfig.load(CONFIGS / "humaneva_long.json")
-    for cfg in (short, long):
-        assert cfg.dataset == "humaneva" and cfg.model["num_joints"] == 14
-        assert cfg.model["cond_fill"] == "prior" and cfg.diffusion["prediction_type"] == "sample"
-        assert (cfg.model["num_layers"], cfg.model["channels"], cfg.model["num_heads"]) == (3, 32, 4)
-    assert short.obs_len == 15 and long.obs_len == short.obs_len + short.pred_len   # the engine's cascade
-    assert long.obs_len + long.pred_len == 75 and long.role == "long" and short.role == "short"
-    assert (short.obs_len, short.pred_len) == HUMANEVA_WINDOWS["short"]
-    assert (long.obs_len, long.pred_len) == HUMANEVA_WINDOWS["long"]
-    with pytest.raises(ValueError, match="dataset"):
-        TrainConfig(dataset="amass")
-
-
-@pytest.mark.slow
-def test_a_few_training_steps_on_humaneva_shaped_windows(tmp_path):
-    from training.export import random_prior, save_model_file, build_prior_config, data_meta
-    prior = random_prior(blocks=2, seed=0, obs_len=15, joints=14)
-    prior_path = tmp_path / "prior.safetensors"
-    save_model_file(prior_path, prior, build_prior_config(prior, data_meta("humaneva")))
-    seqs = {"train": [walking(90, s)[:, 1:] for s in range(3)], "val": [walking(80, 9)[:, 1:]]}
-    cfg = TrainConfig(role="long", dataset="humaneva", obs_len=16, pred_len=59, model={**TINY, **PRIOR_MODEL},
-                      diffusion={"prediction_type": "sample"}, prior=str(prior_path), batch_size=4, epochs=1,
-                      steps_per_epoch=2, val_every=1, val_timesteps=2, val_max_windows=4, train_stride=5,
-                      val_stride=5)
-    res = train(cfg, tmp_path / "run", sequences=seqs, log=lambda *a: None)
-    assert np.isfinite(res["best_val"])
-    ck = torch.load(tmp_path / "run" / "last.pt", weights_only=False)
-    assert ck["data"]["dataset"] == "humaneva" and ck["window"] == {"obs_len": 16, "pred_len": 59, "seq_len": 75}
-    out = export_checkpoint(tmp_path / "run" / "best.pt", tmp_path / "model")
-    meta = read_config(out)
-    assert meta["data"]["joint_names"] == list(HUMANEVA_MODEL_JOINT_NAMES) and meta["model"]["num_joints"] == 14
-    # a model of the wrong joint count is refused before any step
-    with pytest.raises(ValueError, match="joints"):
-        train(TrainConfig(**{**cfg.__dict__, "model": {**cfg.model, "num_joints": 22}}), tmp_path / "bad",
-              sequences=seqs, log=lambda *a: None)
-
-
-# ------------------------------------------------------------------------------------------ evaluation
+# ------------------------------------------------------------------------------------------ a HumanEva-I model
 
 @pytest.fixture(scope="module")
 def humaneva_model_dir(tmp_path_factory) -> Path:
-    """A tiny random HumanEva-I model directory around a random prior (the issue-29 recipe's conditioning)."""
-    from training.diffusion import DiffusionConfig
-    d = tmp_path_factory.mktemp("he_model") / "m"
-    random_init_dir(d, preset="tiny", seed=2, dataset="humaneva", model=PRIOR_MODEL, prior_blocks=2,
-                    diff_cfg=DiffusionConfig(prediction_type="sample"))
-    return d
+    """A tiny random HumanEva-I model directory around a random prior (the issue-29 recipe's conditioning): a
+    copy of the committed tests/fixtures/tiny_humaneva_model (tests/fixtures/make_fixtures.py writes it)."""
+    return Path(shutil.copytree(FIXTURES / "tiny_humaneva_model", tmp_path_factory.mktemp("he_model") / "m"))
 
 
-def test_evaluate_humaneva_through_the_engine(humaneva_model_dir, synthetic_file, tmp_path):
-    out = tmp_path / "he.json"
-    assert evaluate.main(["--protocol", "humaneva", "--model", str(humaneva_model_dir), "--engine", "tcd",
-                          "--samples", "4", "--steps", "2", "--sampler", "ddim", "--data", str(synthetic_file),
-                          "--json", str(out), "--quiet"]) == 0
-    r = json.loads(out.read_text())
-    n = len(humaneva_test_windows(load_humaneva(synthetic_file, "Validate")))
-    assert r["protocol"]["windows"] == r["protocol"]["windows_in_protocol"] == n > 0
-    for block in ("model", "prior", "zero_velocity"):
-        assert set(r[block]) == {"APD", "ADE", "FDE", "MMADE", "MMFDE"}
-        assert all(np.isfinite(v) and v >= 0 for v in r[block].values())
-    assert r["model"]["APD"] > 0 and r["prior"]["APD"] == r["zero_velocity"]["APD"] == 0.0
-    assert r["stochastic"] == r["model"] and r["sampling"]["samples"] == 4
-    assert r["published"]["TCD"] == {"ADE": 0.199, "FDE": 0.215} and r["published"]["HumanMAC"] is None
-    # the prior alone (a directory with nothing else in it) and the default sample count
-    only_prior = tmp_path / "prior_only"
-    only_prior.mkdir()
-    (only_prior / "prior.safetensors").write_bytes((humaneva_model_dir / "prior.safetensors").read_bytes())
-    assert evaluate.main(["--protocol", "humaneva", "--prior", str(only_prior), "--data", str(synthetic_file),
-                          "--json", str(out), "--quiet", "--max-windows", "2"]) == 0
-    r2 = json.loads(out.read_text())
-    assert r2["protocol"]["windows"] == 2 and r2["method"].startswith("prior")
+def without_prior(src: Path, out: Path) -> Path:
+    """The short and long models of ``src`` without the prior: its weights with the fill, target and prediction
+    type of the tiny Human3.6M fixture (the defaults ``random_init_dir`` writes). ``random_init_dir``'s weights
+    do not depend on those settings, so these are the weights it writes for the same seed without them."""
+    plain = json.loads((FIXTURES / "tiny_model" / "model.json").read_text())["short"]
+    out.mkdir()
+    for role in ("short", "long"):
+        tensors, meta = read_weights(src / f"{role}.safetensors")
+        cfg = config_of(meta)
+        cfg["model"].update({k: plain["model"][k] for k in ("cond_fill", "target", "target_scale")})
+        cfg["diffusion"]["prediction_type"] = plain["diffusion"]["prediction_type"]
+        write_weights(out / f"{role}.safetensors", tensors, with_config(meta, cfg))
+    return out
 
 
 def test_humaneva_model_samples_any_number(humaneva_model_dir):
@@ -278,7 +138,6 @@ def test_load_humaneva_when_not_bundled(tmp_path, monkeypatch, capsys):
 
 
 def test_load_humaneva_when_bundled(humaneva_model_dir, tmp_path, monkeypatch):
-    import shutil
     import tcd.model
     d = tmp_path / "weights_humaneva"
     shutil.copytree(humaneva_model_dir, d)
@@ -335,9 +194,9 @@ def test_a_humaneva_model_forecasts_world_poses_in_its_own_layout(humaneva_model
 
 
 
-def test_a_humaneva_model_repairs_world_poses_in_its_own_layout(tmp_path):
-    d = random_init_dir(tmp_path / "m", preset="tiny", seed=5, dataset="humaneva")   # repair: no prior fill
-    m = tcd.load(d)
+def test_a_humaneva_model_repairs_world_poses_in_its_own_layout(humaneva_model_dir, tmp_path):
+    m = tcd.load(without_prior(humaneva_model_dir, tmp_path / "m"))              # repair: no prior fill
+    assert m.prior is None and m.short.config["model"]["cond_fill"] == "zero"
     world = walking(15, 7)
     gap = world.copy()
     gap[5:9, 3] = np.nan                                                  # a wrist hidden for 4 frames

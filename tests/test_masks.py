@@ -8,7 +8,6 @@ import pytest
 
 from conftest import H36M_DIR, needs_data
 from training.masks import (
-    DEFAULT_RATES,
     JOINTS32_H36M_22,
     PATTERNS,
     coord_mask,
@@ -41,19 +40,7 @@ def others(cols):
 
 
 # ----------------------------------------------------------------------------------------------
-# constants
-
-
-def test_constants():
-    assert PATTERNS == (
-        "none", "random_leg_arm", "structured_leg", "consecutive_frames", "random_frames",
-        "noisy_25", "noisy_50", "random_joints", "random",
-    )
-    assert DEFAULT_RATES == {
-        "random_leg_arm": 0.4, "structured_leg": 0.2, "consecutive_frames": 0.2,
-        "random_frames": 0.2, "random_joints": 0.2,
-    }
-    assert JOINTS32_H36M_22 == (2, 3, 4, 5, 7, 8, 9, 10, 12, 13, 14, 15, 17, 18, 19, 21, 22, 25, 26, 27, 29, 30)
+# the joint layout
 
 
 @needs_data("h36m/skeleton32.json")

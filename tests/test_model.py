@@ -2,10 +2,14 @@ import math
 
 import numpy as np
 import pytest
-import torch
-from torch import nn
 
-from training.model import ModelConfig, TCDModel, count_parameters, frame_embedding, step_embedding_table
+from conftest import import_torch
+
+torch = import_torch("the PyTorch reference model (training/model.py)")
+
+from torch import nn  # noqa: E402
+
+from training.model import ModelConfig, TCDModel, count_parameters, frame_embedding, step_embedding_table  # noqa: E402
 
 
 def expected_keys(n_layers):

@@ -23,14 +23,17 @@ import copy
 
 import numpy as np
 import pytest
-import torch
 
-import tcd
-from fixtures_util import ALL_KERNELS, load_kernel
-from tcd.demo import load_clip, occlusion_mask
-from training import diffusion as D
-from training.export import load_model_file, load_prior_file
-from training.model import prior_fill
+from conftest import import_torch
+
+torch = import_torch("parity with the PyTorch reference")
+
+import tcd  # noqa: E402
+from fixtures_util import ALL_KERNELS, load_kernel  # noqa: E402
+from tcd.demo import load_clip, occlusion_mask  # noqa: E402
+from training import diffusion as D  # noqa: E402
+from training.export import load_model_file, load_prior_file  # noqa: E402
+from training.model import prior_fill  # noqa: E402
 
 RTOL = 2e-5           # of the output's scale
 CONTRIBUTION = 1e3    # the network's contribution over the tolerance, at least

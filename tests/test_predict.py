@@ -9,16 +9,17 @@ import pytest
 
 import tcd
 from tcd.cli import main as cli
+from conftest import FIXTURES
 from tcd.exceptions import InvalidInputError
-from training import export
 
 
 @pytest.fixture(scope="module")
 def model_dir(tiny_model_dir, tmp_path_factory):
-    """The tiny cascade plus a prior with random (non-trivial) weights."""
+    """The tiny cascade plus a prior with random (non-trivial) weights: the committed
+    tests/fixtures/tiny_prior.safetensors (``training.export.random_prior(blocks=2, seed=0)``)."""
     d = tmp_path_factory.mktemp("with_prior") / "m"
     shutil.copytree(tiny_model_dir, d)
-    export.save_prior(d / export.PRIOR_FILE, export.random_prior(blocks=2, seed=0))
+    shutil.copyfile(FIXTURES / "tiny_prior.safetensors", d / "prior.safetensors")
     return d
 
 

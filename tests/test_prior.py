@@ -5,9 +5,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import torch
 
-from training.prior import PriorConfig, PriorNet, batch, dct_matrix, load, loss_fn, train
+from conftest import import_torch
+
+torch = import_torch("the prior forecaster's PyTorch reference (training/prior.py)")
+
+from training.prior import PriorConfig, PriorNet, batch, dct_matrix, load, loss_fn, train  # noqa: E402
 
 
 def synthetic_frames(n_frames: int = 400, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:

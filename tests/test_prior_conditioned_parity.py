@@ -29,15 +29,18 @@ import json
 
 import numpy as np
 import pytest
-import torch
 
-import tcd
-from fixtures_util import ALL_KERNELS, bad, load_kernel, read_weights
-from tcd.exceptions import InvalidInputError, WeightsError
-from training import diffusion as D
-from training import export
-from training.diffusion import DiffusionConfig
-from training.model import prior_fill
+from conftest import import_torch
+
+torch = import_torch("parity with the PyTorch reference")
+
+import tcd  # noqa: E402
+from fixtures_util import ALL_KERNELS, bad, load_kernel, read_weights  # noqa: E402
+from tcd.exceptions import InvalidInputError, WeightsError  # noqa: E402
+from training import diffusion as D  # noqa: E402
+from training import export  # noqa: E402
+from training.diffusion import DiffusionConfig  # noqa: E402
+from training.model import prior_fill  # noqa: E402
 
 CHAIN_ATOL = 1e-4      # model units (metres), the cascade criterion of tests/test_parity.py
 CONTRIBUTION = 1e2     # what a feature changes, at least, over CHAIN_ATOL

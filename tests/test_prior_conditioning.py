@@ -7,7 +7,9 @@ import math
 
 import pytest
 
-torch = pytest.importorskip("torch")
+from conftest import import_torch
+
+torch = import_torch("training around the prior forecaster (training/)")
 
 from training.diffusion import (DiffusionConfig, Schedule, predicted_noise, q_sample, sample_many,  # noqa: E402
                                 training_loss)

@@ -1,5 +1,6 @@
 """Parity of the prior forecaster in the Rust engine (``tcd.engine.Prior``) with the PyTorch reference
-(``training.prior.PriorNet.rollout``), on every kernel path this CPU supports, and the binding's interface.
+(``training.prior.PriorNet.rollout``), on every kernel path this CPU supports, and the prior's export. The
+binding's interface, which needs no torch, is tests/test_prior_engine.py.
 
 Weights (the same file on both sides: the reference is loaded back from it with ``load_prior_file``):
 * ``random``: 24 blocks (the bundled size), every weight a seeded normal of unit-gain scale
@@ -28,18 +29,19 @@ equals PyTorch's float32 matrix bit for bit.
 """
 from __future__ import annotations
 
-import threading
-
 import numpy as np
 import pytest
-import torch
 
-import tcd
-import fixtures_util
-from fixtures_util import ALL_KERNELS, bad, read_weights, write_weights
-from tcd.exceptions import InvalidInputError, WeightsError
-from training import export
-from training.prior import PriorConfig, dct_matrix, train
+from conftest import import_torch
+
+torch = import_torch("parity with the PyTorch reference")
+
+import tcd  # noqa: E402
+import fixtures_util  # noqa: E402
+from fixtures_util import ALL_KERNELS, read_weights, write_weights  # noqa: E402
+from test_prior_engine import observations, synthetic_motion  # noqa: E402
+from training import export  # noqa: E402
+from training.prior import PriorConfig, dct_matrix, train  # noqa: E402
 
 RTOL, ATOL = 1e-4, 1e-5
 CONTRIBUTION = 1e3     # the network's contribution over ATOL, at least
@@ -47,17 +49,6 @@ HORIZONS = (10, 25, 17)
 
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
-
-
-def synthetic_motion(seed: int, sequences: int = 12, frames: int = 160, k: int = 66) -> np.ndarray:
-    """(S, T, K) float32: smooth motion, metres: per coordinate a sum of two sinusoids around an offset."""
-    rng = np.random.default_rng(seed)
-    t = np.arange(frames)[None, :, None] / 25.0
-    f = rng.uniform(0.2, 1.5, (sequences, 2, 1, k))
-    ph = rng.uniform(0, 2 * np.pi, (sequences, 2, 1, k))
-    amp = rng.uniform(0.02, 0.2, (sequences, 2, 1, k))
-    x = rng.normal(scale=0.3, size=(sequences, 1, k)) + (amp * np.sin(2 * np.pi * f * t[:, None] + ph)).sum(1)
-    return x.astype(np.float32)
 
 
 @pytest.fixture(scope="module")
@@ -101,16 +92,6 @@ def weights(request):
 def load_kernel(path, kernel: str, monkeypatch) -> tcd.engine.Prior:
     """The prior at ``path`` on one kernel path (fixtures_util.load_kernel)."""
     return fixtures_util.load_kernel(path, kernel, monkeypatch, cls=tcd.engine.Prior)
-
-
-def observations(batch: int, frames: int = 60) -> np.ndarray:
-    """(B, T, K) float32 metres: real motion (the bundled demo clip) for the first windows, synthetic after."""
-    from tcd.demo import load_clip
-    clip = load_clip()["poses"]
-    clip = clip.reshape(len(clip), -1).astype(np.float32)
-    wins = [clip[s:s + frames] for s in range(0, len(clip) - frames + 1, 23)][:batch]
-    wins += list(synthetic_motion(2, sequences=batch - len(wins), frames=frames)) if batch > len(wins) else []
-    return np.ascontiguousarray(np.stack(wins))
 
 
 def reference(model, obs: np.ndarray, horizon: int) -> np.ndarray:
@@ -161,93 +142,6 @@ def test_dct_matrix_is_pytorchs_bit_for_bit(obs_len, chunk, tmp_path, monkeypatc
         for horizon in (chunk, 3 * chunk + 1):
             np.testing.assert_allclose(prior.predict(obs, horizon), reference(model, obs, horizon),
                                        rtol=RTOL, atol=ATOL)
-
-
-# ------------------------------------------------------------------------------- the interface
-
-@pytest.fixture(scope="module")
-def prior(random_file):
-    return tcd.engine.Prior.load(random_file)
-
-
-def test_description(prior, random_file):
-    cfg = prior.config
-    assert cfg["role"] == "prior" and cfg["model"]["blocks"] == prior.blocks == 24
-    assert (prior.num_features, prior.num_joints, prior.obs_len, prior.chunk) == (66, 22, 50, 10)
-    assert prior.path == str(random_file) and prior.kernel in tcd.engine.supported_kernels()
-    assert "Prior(" in repr(prior) and "blocks=24" in repr(prior)
-    assert tcd.engine.Prior.from_bytes(random_file.read_bytes()).predict(observations(1), 3).shape == (1, 3, 66)
-
-
-def test_results_do_not_depend_on_threads_batch_or_caller_thread(prior):
-    obs = observations(9)
-    one = prior.predict(obs, 25, threads=1)
-    assert np.array_equal(one, prior.predict(obs, 25, threads=2))
-    assert np.array_equal(one, prior.predict(obs, 25))
-    assert np.array_equal(one[4:5], prior.predict(obs[4:5], 25, threads=2))
-    assert np.array_equal(one, prior.predict(obs.astype(np.float64), 25))            # converted to float32
-    assert np.array_equal(one, prior.predict(np.asfortranarray(obs), 25))              # any memory order
-    results = [None] * 4
-
-    def run(i):
-        results[i] = prior.predict(obs, 25, threads=1)
-
-    threads = [threading.Thread(target=run, args=(i,)) for i in range(4)]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join()
-    assert all(np.array_equal(r, one) for r in results)
-
-
-def test_only_the_last_obs_len_frames_are_read(prior):
-    obs = observations(2, frames=80)
-    want = prior.predict(obs[:, -50:], 12)
-    early = obs.copy()
-    early[:, :30] = np.nan
-    assert np.array_equal(prior.predict(early, 12), want)
-
-
-def test_bad_arguments(prior):
-    obs = observations(2)
-    bad("obs", prior.predict, obs[0], 10)                              # not (B, T, K)
-    bad("obs", prior.predict, obs[:, :49], 10)                         # fewer than obs_len frames
-    bad("obs", prior.predict, obs[..., :60], 10)                       # K
-    bad("obs", prior.predict, obs[:0], 10)                             # B = 0
-    bad("obs", prior.predict, np.array([["a"]]), 10)
-    for h in (0, -3):
-        bad("horizon", prior.predict, obs, h)
-    bad("horizon", prior.predict, obs, 2**40)                          # the output would not fit
-    bad("horizon", prior.predict, obs, 2.5)
-    bad("horizon", prior.predict, obs, True)
-    bad("threads", prior.predict, obs, 10, threads=0)
-    nan = obs.copy()
-    nan[1, -1, 5] = np.nan
-    e = bad("obs", prior.predict, nan, 10)
-    assert "finite" in str(e) and str(1 * 60 * 66 + 59 * 66 + 5) in str(e)
-
-
-def test_bad_files(prior, random_file, tmp_path):
-    with pytest.raises(FileNotFoundError):
-        tcd.engine.Prior.load(tmp_path / "none.safetensors")
-    with pytest.raises(WeightsError):
-        tcd.engine.Prior.load(tmp_path)
-    (tmp_path / "cut.safetensors").write_bytes(random_file.read_bytes()[:1000])
-    with pytest.raises(WeightsError) as e:
-        tcd.engine.Prior.load(tmp_path / "cut.safetensors")
-    assert e.value.path == str(tmp_path / "cut.safetensors")
-    tensors, meta = read_weights(random_file)
-    tensors["fc_in.weight"] = tensors["fc_in.weight"].copy()
-    tensors["fc_in.weight"][3, 4] = np.inf
-    with pytest.raises(WeightsError, match="fc_in.weight"):
-        tcd.engine.Prior.load(write_weights(tmp_path / "inf.safetensors", tensors, meta))
-    tensors, meta = read_weights(random_file)
-    tensors["blocks.0.fc.weight"] = tensors["blocks.0.fc.weight"][:, :40]
-    with pytest.raises(WeightsError, match=r"blocks\.0\.fc\.weight.*\[50, 40\].*\[50, 50\]"):
-        tcd.engine.Prior.load(write_weights(tmp_path / "shape.safetensors", tensors, meta))
-    with pytest.raises(TypeError):
-        tcd.engine.Prior(object())
-    assert isinstance(InvalidInputError("m", "a"), ValueError)
 
 
 def test_export_cli_writes_the_directory_as_for_the_denoisers(trained_file):

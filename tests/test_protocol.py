@@ -4,15 +4,17 @@ import json
 
 import numpy as np
 import pytest
-import torch
 
-import tcd
-from conftest import H36M_DIR, needs_h36m
-from fixtures_util import make_model_dir
-from training import evaluate as E
-from training import protocol
-from training.data.h36m import H36M
-from training.export import load_model_dir
+from conftest import H36M_DIR, import_torch, needs_h36m
+
+torch = import_torch("the evaluation protocol (training/protocol.py)")
+
+import tcd  # noqa: E402
+from fixtures_util import make_model_dir  # noqa: E402
+from training import evaluate as E  # noqa: E402
+from training import protocol  # noqa: E402
+from training.data.h36m import H36M  # noqa: E402
+from training.export import load_model_dir  # noqa: E402
 
 FEW = ["--windows-per-action", "1", "--samples", "2", "--steps", "2", "--quiet", "--threads", "1"]
 

@@ -1,7 +1,11 @@
 import numpy as np
 import pytest
 
-from training.diffusion import DiffusionConfig, Schedule, make_betas, step_pairs, timesteps
+from conftest import import_torch
+
+torch = import_torch("the training code's noise schedule (training/diffusion.py)")
+
+from training.diffusion import DiffusionConfig, Schedule, make_betas, step_pairs, timesteps  # noqa: E402
 
 
 def test_cosine_betas_match_spec_section_1_6():

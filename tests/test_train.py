@@ -2,12 +2,15 @@ import json
 
 import numpy as np
 import pytest
-import torch
 
-from training.diffusion import DiffusionConfig, Schedule
-from training.model import ModelConfig, TCDModel
-from training.batches import Windows, make_batch
-from training.train import TrainConfig, learning_rate, train, validation_loss
+from conftest import import_torch
+
+torch = import_torch("training (training/train.py)")
+
+from training.diffusion import DiffusionConfig, Schedule  # noqa: E402
+from training.model import ModelConfig, TCDModel  # noqa: E402
+from training.batches import Windows, make_batch  # noqa: E402
+from training.train import TrainConfig, learning_rate, train, validation_loss  # noqa: E402
 
 
 def synthetic_motion(n_seq=6, T=60, J=22, seed=0):

@@ -1,5 +1,6 @@
 """The weight-file format has one schema, docs/tcd_config.schema.json: the exporter writes it, the engine
-reads it, docs/weights.md describes it (see that page)."""
+reads it, docs/weights.md describes it (see that page). The engine's side runs on the committed tiny weights
+(tests/fixtures) without torch; that the exporter writes the golden configs needs torch (the training code)."""
 import copy
 import json
 import re
@@ -7,23 +8,22 @@ from pathlib import Path
 
 import jsonschema
 import pytest
-import torch
 
 import tcd
+from conftest import FIXTURES, import_torch
+from fixtures_util import CONFIG_KEY, config_of, read_weights, write_weights
 from tcd.exceptions import WeightsError
-
-from training.diffusion import DiffusionConfig
-from training.export import (PRESETS, ROLES, WINDOWS, build_config, h36m_data_meta, read_config,
-                             save_model_file)
-from training.model import ModelConfig, TCDModel
 
 ROOT = Path(__file__).resolve().parents[1]
 SCHEMA = json.loads((ROOT / "docs" / "tcd_config.schema.json").read_text())
-GOLDEN = ROOT / "tests" / "fixtures" / "tcd_config_golden.json"
+GOLDEN = FIXTURES / "tcd_config_golden.json"
+EXPORTER = "the exporter (training/export.py)"
 
 
 def golden_config() -> dict:
     """What the exporter writes for the tiny preset's short-term model (without the source revision)."""
+    from training.diffusion import DiffusionConfig
+    from training.export import PRESETS, WINDOWS, build_config, h36m_data_meta
     cfg = build_config("short", PRESETS["tiny"], DiffusionConfig(), *WINDOWS["short"],
                        h36m_data_meta(training_data="none (random init)"), {"random_init": True, "preset": "tiny"})
     cfg.pop("source_revision")
@@ -31,10 +31,10 @@ def golden_config() -> dict:
 
 
 def write(path: Path, cfg: dict) -> Path:
-    """A weight file with the tiny preset's tensors (the same for every call) and ``cfg`` as given."""
-    torch.manual_seed(0)
-    save_model_file(path, TCDModel(PRESETS["tiny"], 50).eval(), cfg)
-    return path
+    """A weight file with the tiny preset's short-term tensors (tests/fixtures/tiny_model, the same for every
+    call) and ``cfg`` as given."""
+    tensors, _ = read_weights(FIXTURES / "tiny_model" / "short.safetensors")
+    return write_weights(path, tensors, {CONFIG_KEY: json.dumps(cfg)})
 
 
 def role_schema(role: str) -> dict:
@@ -74,29 +74,38 @@ def test_schema_is_a_valid_json_schema():
     jsonschema.Draft202012Validator.check_schema(SCHEMA)
 
 
-@pytest.mark.parametrize("role", ROLES)
-@pytest.mark.parametrize("preset", sorted(PRESETS))
-def test_every_exported_config_follows_the_schema(role, preset):
-    overrides = [{}] if role != "repair" else [{}, {"cond_fill": "spline", "target": "spline_residual",
-                                                    "target_scale": 4.0}]
-    for o in overrides:
-        mcfg = ModelConfig.from_dict({**PRESETS[preset].to_dict(), **o})
-        cfg = build_config(role, mcfg, DiffusionConfig(), *WINDOWS[role], h36m_data_meta(), {"epochs": 1})
-        jsonschema.validate(cfg, SCHEMA)
+def test_every_exported_config_follows_the_schema():
+    import_torch(EXPORTER)
+    from training.diffusion import DiffusionConfig
+    from training.export import PRESETS, ROLES, WINDOWS, build_config, h36m_data_meta
+    from training.model import ModelConfig
+    for role in ROLES:
+        overrides = [{}] if role != "repair" else [{}, {"cond_fill": "spline", "target": "spline_residual",
+                                                        "target_scale": 4.0}]
+        for preset in sorted(PRESETS):
+            for o in overrides:
+                mcfg = ModelConfig.from_dict({**PRESETS[preset].to_dict(), **o})
+                cfg = build_config(role, mcfg, DiffusionConfig(), *WINDOWS[role], h36m_data_meta(), {"epochs": 1})
+                jsonschema.validate(cfg, SCHEMA)
 
 
 def test_fixture_and_bundled_files_follow_the_schema():
-    files = sorted((ROOT / "tests" / "fixtures" / "golden_model").glob("*.safetensors"))
+    files = sorted(FIXTURES.glob("*/*.safetensors")) + sorted(FIXTURES.glob("*.safetensors"))
     files += sorted(tcd.default_model_dir().glob("*.safetensors")) if tcd.default_model_dir().is_dir() else []
-    assert files
+    assert {f.parent.name for f in files} >= {"golden_model", "tiny_model", "tiny_humaneva_model", "fixtures"}
     for f in files:
-        jsonschema.validate(read_config(f), SCHEMA)
+        jsonschema.validate(config_of(read_weights(f)[1]), SCHEMA)
 
 
-def test_golden_config_is_what_the_exporter_writes_and_the_engine_reads(tmp_path):
+def test_golden_config_is_what_the_exporter_writes():
+    import_torch(EXPORTER)
+    assert golden_config() == json.loads(GOLDEN.read_text()), (
+        "the exporter's output changed: if on purpose, update docs/tcd_config.schema.json, docs/weights.md and "
+        "this fixture together")
+
+
+def test_the_engine_reads_the_golden_config(tmp_path):
     golden = json.loads(GOLDEN.read_text())
-    assert golden_config() == golden, ("the exporter's output changed: if on purpose, update "
-                                       "docs/tcd_config.schema.json, docs/weights.md and this fixture together")
     jsonschema.validate(golden, SCHEMA)
     d = tcd.engine.Denoiser.load(write(tmp_path / "golden.safetensors", golden))
     assert d.config == golden
@@ -139,7 +148,7 @@ def test_the_docs_name_every_field():
 
 # ------------------------------------------------------------------------------- the prior (role "prior")
 
-PRIOR_GOLDEN = ROOT / "tests" / "fixtures" / "tcd_config_prior_golden.json"
+PRIOR_GOLDEN = FIXTURES / "tcd_config_prior_golden.json"
 
 
 def prior_golden_config() -> dict:
@@ -152,16 +161,20 @@ def prior_golden_config() -> dict:
 
 
 def write_prior(path: Path, cfg: dict) -> Path:
-    """A prior file with a 2-block prior's tensors and ``cfg`` as given."""
-    from training.export import random_prior, save_model_file
-    save_model_file(path, random_prior(blocks=2), cfg)
-    return path
+    """A prior file with a 2-block prior's tensors (tests/fixtures/tiny_prior.safetensors) and ``cfg`` as given."""
+    tensors, _ = read_weights(FIXTURES / "tiny_prior.safetensors")
+    return write_weights(path, tensors, {CONFIG_KEY: json.dumps(cfg)})
 
 
-def test_prior_golden_config_is_what_the_exporter_writes_and_the_engine_reads(tmp_path):
+def test_prior_golden_config_is_what_the_exporter_writes():
+    import_torch(EXPORTER)
+    assert prior_golden_config() == json.loads(PRIOR_GOLDEN.read_text()), (
+        "the exporter's prior config changed: if on purpose, update docs/tcd_config.schema.json, docs/weights.md "
+        "and this fixture together")
+
+
+def test_the_engine_reads_the_prior_golden_config(tmp_path):
     golden = json.loads(PRIOR_GOLDEN.read_text())
-    assert prior_golden_config() == golden, ("the exporter's prior config changed: if on purpose, update "
-                                             "docs/tcd_config.schema.json, docs/weights.md and this fixture together")
     jsonschema.validate(golden, SCHEMA)
     assert golden["data"]["training_data"] == "Human3.6M S1,S6,S7,S8,S9,S11 (exp-map, 25 fps)"
     p = tcd.engine.Prior.load(write_prior(tmp_path / "prior.safetensors", golden))

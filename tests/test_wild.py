@@ -140,13 +140,6 @@ def test_the_future_root_continues_its_velocity_and_turn_rate(tiny_model, dampin
     np.testing.assert_allclose(heading, rate * (49 + travel), atol=1e-9)
 
 
-def test_the_default_root_rule_is_the_measured_one():
-    """benches/root_extrapolation.py chose 0.4 s (the least summed root error at 1 s over Human3.6M's
-    training subjects, CMU and AMASS); change both together."""
-    from tcd import wild
-    assert wild.ROOT_DAMPING_S == 0.4
-
-
 def world_y(pose: np.ndarray, angle: float) -> np.ndarray:
     c, s = np.cos(angle), np.sin(angle)
     return pose @ np.array([[c, 0, -s], [0, 1, 0], [s, 0, c]])
