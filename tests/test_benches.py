@@ -175,12 +175,15 @@ def test_repair_scaling_smoke(tmp_path):
     assert all(row["frames_per_s"] > 0 for row in r["rows"]) and "overhead_per_file_ms" in r["small_files"]
 
 
-def test_root_extrapolation_reads_the_root_at_the_callers_frames():
+def test_root_extrapolation_reads_the_root_at_the_callers_frames(monkeypatch):
     """benches/root_extrapolation.py's root path: a walker at 50 fps (a fixed pose sliding 1 cm a frame) is
-    continued at its speed by the constant-velocity rule, held by the 0 rule, and in between by a decay,
-    read at every one of the caller's 50 future frames."""
+    continued at its speed by the constant-velocity rule (without a dead zone; with 0.2 m/s, at 0.3 of its
+    0.5 m/s), held by the 0 rule, and in between by a decay, read at every one of the caller's 50 future
+    frames."""
     from test_wild import h36m32
+    from tcd import wild
     bench = load_bench("root_extrapolation")
+    monkeypatch.setattr(wild, "ROOT_DEAD_ZONE_MPS", 0.0)
     pose = h36m32(1)[0]
     t = np.arange(100)[:, None, None]
     x = (pose[None] + t * np.array([0.01, 0.0, 0.0]))[None]                 # (1, 100, 32, 3) at 50 fps
@@ -191,6 +194,11 @@ def test_root_extrapolation_reads_the_root_at_the_callers_frames():
                                atol=1e-9)
     damped = bench.root_forecast(x, "h36m32", 50.0, "y", 0.4)[0, :, 0] - last[0]
     assert np.all(np.diff(damped) > 0) and 0 < damped[-1] < ahead[-1, 0]
+    monkeypatch.setattr(wild, "ROOT_DEAD_ZONE_MPS", 0.2)
+    np.testing.assert_allclose(bench.root_forecast(x, "h36m32", 50.0, "y", None)[0], last + 0.6 * ahead, atol=1e-9)
+    slow = (pose[None] + t * np.array([0.003, 0.0, 0.0]))[None]             # 0.15 m/s: inside the dead zone
+    np.testing.assert_allclose(bench.root_forecast(slow, "h36m32", 50.0, "y", None)[0],
+                               np.repeat(slow[0, -1, :1], 50, 0), atol=1e-9)
 
 
 def test_prior_speed_smoke(tmp_path):

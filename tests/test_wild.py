@@ -121,9 +121,11 @@ def test_any_frame_rate_and_length(tiny_model):
 def test_the_future_root_continues_its_velocity_and_turn_rate(tiny_model, damping_s, monkeypatch):
     """The root's velocity and turn rate of the last 0.2 s, held (None) or decaying with time constant
     ``damping_s`` (the default, tcd.wild.ROOT_DAMPING_S), or the root held (0): future frame f is ``travel(f)``
-    frames of the last velocity away, ``f`` or ``tau (1 - exp(-f / tau))``."""
+    frames of the last velocity, its speed less the dead zone (tcd.wild.ROOT_DEAD_ZONE_MPS, here 0.2 m/s: 1.05 of
+    this walker's 1.25 m/s), away, ``f`` or ``tau (1 - exp(-f / tau))``."""
     from tcd import wild
     monkeypatch.setattr(wild, "ROOT_DAMPING_S", damping_s)
+    monkeypatch.setattr(wild, "ROOT_DEAD_ZONE_MPS", 0.2)
     f = np.arange(1, 26, dtype=np.float64)
     tau = None if damping_s is None else damping_s * 25.0
     travel = f if tau is None else (np.zeros_like(f) if tau == 0 else tau * (1 - np.exp(-f / tau)))
@@ -131,7 +133,8 @@ def test_the_future_root_continues_its_velocity_and_turn_rate(tiny_model, dampin
     t = np.arange(50)[:, None, None]
     walking = x + t * np.array([0.0, 0.0, 0.05])                         # 0.05 m per frame forward (1.25 m/s)
     out = tiny_model.forecast(walking, layout="h36m32", **FAST)
-    np.testing.assert_allclose(out.mean[:, 0], (49 + travel)[:, None] * [0.0, 0.0, 0.05], atol=1e-9)
+    np.testing.assert_allclose(out.mean[:, 0], (49 * 0.05 + travel * 0.05 * 1.05 / 1.25)[:, None] * [0.0, 0.0, 1.0],
+                               atol=1e-9)
     rate = 0.02                                                          # radians per frame about +y
     turning = np.stack([world_y(x[i], rate * i) for i in range(50)])
     out = tiny_model.forecast(turning, layout="h36m32", **FAST)

@@ -35,8 +35,9 @@ The rules, in the order they are applied:
    medians would not start at the last observed pose where the caller's hips tilt or its bones vary from
    frame to frame (``last_pose_conversion_mm`` in benches/in_the_wild.py), which rule 6 takes care of.
 5. **Future root.** The forecast's root starts at the velocity and turn rate (about ``up``) of the last
-   0.2 s of the observation, both decaying with a time constant of ``ROOT_DAMPING_S`` (0.4 s): a walker
-   keeps walking, a turn or a stop is not carried on for a whole second. Future frames come at the
+   0.2 s of the observation, the speed less ``ROOT_DEAD_ZONE_MPS`` (0.2 m/s, never below 0), both decaying
+   with a time constant of ``ROOT_DAMPING_S`` (0.4 s): a walker keeps walking, a person shifting in place or
+   a jittering root is held, a turn or a stop is not carried on for a whole second. Future frames come at the
    caller's frame rate, with their times in seconds after the last observed frame.
 6. **Joining the observation.** In the root frame, forecast frame ``f`` (1, 2, ... model frames after the
    last observed one) is the last observed pose moved ``min(f / JOIN_FRAMES, 1)`` of the way to the
@@ -73,6 +74,12 @@ EXTRAPOLATION_FRAMES = 5
 #: root held). 0.4 s: the least summed root error at 1 s over Human3.6M's training subjects, CMU and the
 #: AMASS samples of the rules benches/root_extrapolation.py compares (results/root_extrapolation.json).
 ROOT_DAMPING_S: Optional[float] = 0.4
+#: Root speed (m/s) taken off the measured velocity before it is carried on (a soft threshold): a person
+#: shifting in place, or the jitter of a noisy root, is held; a walker keeps walking at a little less. 0.2:
+#: the least summed root error at 1 s over the same sources, clean and with 10 mm of noise on every observed
+#: coordinate, of 0 / 0.05 / 0.1 / 0.2 / 0.3 (benches/root_extrapolation.py; 0 m/s carried 10 mm of noise into
+#: 55 mm of root error at 1 s on Human3.6M, where holding the root gives 17.5).
+ROOT_DEAD_ZONE_MPS = 0.2
 #: Model frames (0.2 s at 25 fps) over which a forecast passes from the last observed pose to the model's
 #: (0: the model's frames unchanged). The bundled model's first frame does not start where the person is
 #: (DDIM-10, one sample, Human3.6M S5 windows 8-15 as h36m32: 25.8 mm from the truth at 40 ms against
@@ -424,8 +431,9 @@ def join(canon: np.ndarray, last: np.ndarray, frames: Optional[int] = None) -> n
 def future_frames(scene: Scene, count: int, fps: float,
                   damping_s: Optional[float] = None) -> Tuple[np.ndarray, np.ndarray]:
     """Root (B, count, 3) and root frames (B, count, 3, 3) of the ``count`` model frames (at ``fps``) after
-    the last observed one: the velocity and turn rate of the last EXTRAPOLATION_FRAMES frames, held
-    (``damping_s`` None) or decaying exponentially with that time constant in seconds (0 holds the root)."""
+    the last observed one: the velocity (its speed less ROOT_DEAD_ZONE_MPS) and turn rate of the last
+    EXTRAPOLATION_FRAMES frames, held (``damping_s`` None) or decaying exponentially with that time constant in
+    seconds (0 holds the root)."""
     root, rot, up = scene.root, scene.rot, scene.up
     t = root.shape[1]
     k = min(EXTRAPOLATION_FRAMES, t - 1)
@@ -435,6 +443,9 @@ def future_frames(scene: Scene, count: int, fps: float,
     # frames travelled at the last velocity: f itself, or tau (1 - exp(-f / tau)) as the velocity decays
     travel = f if damping_s is None else damping_s * fps * -np.expm1(-f / (damping_s * fps))
     velocity = (root[:, -1] - root[:, -1 - k]) / k
+    if ROOT_DEAD_ZONE_MPS > 0:          # soft threshold: the speed less the dead zone, never below 0
+        speed = np.linalg.norm(velocity, axis=-1, keepdims=True) * fps
+        velocity = velocity * np.clip(1.0 - ROOT_DEAD_ZONE_MPS / np.maximum(speed, 1e-12), 0.0, None)
     heading = _heading(rot, up)
     rate = (heading[:, -1] - heading[:, -1 - k]) / k
     return (root[:, -1:, :] + velocity[:, None, :] * travel[None, :, None],
