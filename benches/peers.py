@@ -43,8 +43,10 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import tcd  # noqa: E402
+from machine import cpu_model, cpu_simd_flags  # noqa: E402
 from training.export import load_model_file, random_init_dir  # noqa: E402
 
 STEP = 25
@@ -160,18 +162,9 @@ def whole_forecast(model_dir: Path, reps: int) -> dict:
     return out
 
 
-def cpu_simd_flags() -> list:
-    """The SIMD flags of /proc/cpuinfo that decide the kernel (empty where it cannot be read)."""
-    try:
-        flags = next(line for line in open("/proc/cpuinfo") if line.startswith("flags")).split(":", 1)[1].split()
-    except (OSError, StopIteration):
-        return []
-    return sorted(f for f in flags if f in {"avx", "avx2", "fma", "avx512f", "avx512_bf16", "avx512bw", "avx512vl"})
-
-
 def versions() -> dict:
     v = {"python": platform.python_version(), "torch": torch.__version__, "tcd": tcd.__version__,
-         "cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
+         "cpu": cpu_model(), "cores": os.cpu_count(),
          "tcd_kernel": os.environ.get("TCD_KERNEL", "auto"),
          # what auto resolves to here, and the CPU's SIMD flags (a VM may hide AVX-512)
          "tcd_supported_kernels": tcd.engine.supported_kernels(), "cpu_simd_flags": cpu_simd_flags()}

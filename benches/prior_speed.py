@@ -35,34 +35,18 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benches"))
 
 import torch  # noqa: E402
 
 import tcd  # noqa: E402
+from machine import cpu_model, cpu_simd_flags  # noqa: E402
 from training import export  # noqa: E402
 
 GOALS_S = {"one": 1e-3, "batch": 0.1}   # the goals, at 2 threads for the batch
 # After a block of torch calls: its OpenMP workers keep spinning after each call and take the cores (tcd's
 # next call at 2 threads measured 10x slower right after a torch call, 6x slower 50 ms after, here).
 PAUSE_S = 1.0   # --pause
-
-
-def cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
-
-
-def cpu_simd_flags() -> list:
-    try:
-        flags = next(line for line in open("/proc/cpuinfo") if line.startswith("flags")).split(":", 1)[1].split()
-    except (OSError, StopIteration):
-        return []
-    return sorted(f for f in flags if f in {"avx", "avx2", "fma", "avx512f", "avx512bw", "avx512vl"})
 
 
 def model_file(args, tmp: Path) -> tuple[Path, str]:

@@ -19,7 +19,6 @@ import argparse
 import dataclasses
 import json
 import os
-import platform
 import statistics
 import sys
 import time
@@ -27,33 +26,16 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benches"))
 
 import torch  # noqa: E402
 
+from machine import cpu_model, cpu_simd_flags  # noqa: E402
 from training.batches import BatchSource, Windows  # noqa: E402
 from training.diffusion import DiffusionConfig, Schedule  # noqa: E402
 from training.model import ModelConfig, TCDModel  # noqa: E402
 from training.train import (TrainConfig, load_prior, load_sequences, make_ema, make_optimizer,  # noqa: E402
                             train_step, training_forward)
-
-
-def cpu_flags() -> list[str]:
-    try:
-        text = Path("/proc/cpuinfo").read_text()
-    except OSError:
-        return []
-    flags = next((line.split(":", 1)[1].split() for line in text.splitlines() if line.startswith("flags")), [])
-    return sorted(f for f in flags if f.startswith(("avx512", "amx", "avx2", "fma")))
-
-
-def cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor()
 
 
 def measure(cfg: TrainConfig, windows: Windows, variant: str, seconds: float, log) -> dict:
@@ -129,7 +111,8 @@ def main(argv=None) -> int:
                 if args.json:   # after every cell: a run cut short keeps what it measured
                     Path(args.json).write_text(json.dumps({
                         "command": "python3 benches/train_speed.py " + " ".join(sys.argv[1:] if argv is None else argv),
-                        "config": args.config, "cpu": cpu_model(), "cores": os.cpu_count(), "flags": cpu_flags(),
+                        "config": args.config, "cpu": cpu_model(), "cores": os.cpu_count(),
+                        "cpu_simd_flags": cpu_simd_flags(),
                         "torch": torch.__version__, "load_avg": os.getloadavg(), "rows": rows}, indent=1) + "\n")
     torch.set_num_threads(threads_before)
     return 0
