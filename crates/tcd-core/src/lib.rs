@@ -41,7 +41,7 @@ pub mod weights;
 
 pub use config::{
     CondFill, DataConfig, DiffusionConfig, ModelConfig, PredictionType, Role, Target, TcdConfig,
-    WindowConfig,
+    VarianceType, WindowConfig,
 };
 pub use control::Control;
 pub use denoiser::{
@@ -54,9 +54,7 @@ pub use forecast::{
 pub use kernels::{Kernel, KERNEL_ENV};
 pub use prior::{dct_matrix, prior_expected_tensors, Prior, PriorConfig, PriorModelConfig};
 pub use rng::{chain_rng, seeded_noise, Noise, Sequences};
-pub use sampler::{
-    sample, timesteps, Observed, Plan, SamplerConfig, SamplerKind, TimestepSpacing, VarianceType,
-};
+pub use sampler::{sample, timesteps, Observed, Plan, SamplerConfig, SamplerKind, TimestepSpacing};
 pub use schedule::{BetaSchedule, NoiseSchedule};
 pub use threads::with_threads;
 pub use weights::{expected_tensors, Tensor, WeightFile, CONFIG_KEY};

@@ -17,7 +17,7 @@ use std::str::FromStr;
 
 use rayon::prelude::*;
 
-use crate::config::{CondFill, PredictionType};
+use crate::config::{CondFill, PredictionType, VarianceType};
 use crate::control::Control;
 use crate::denoiser::{CondTables, Denoiser, SequenceInputs, Workspace};
 use crate::error::{check_len, check_positive, Error, Result};
@@ -26,7 +26,7 @@ use crate::schedule::NoiseSchedule;
 use crate::validate;
 
 pub use ddim::DdimStep;
-pub use ddpm::{DdpmStep, VarianceType};
+pub use ddpm::DdpmStep;
 pub use dpmpp::DpmPp2mStep;
 
 /// How `num_inference_steps` steps are placed among the T training steps (diffusers semantics).
