@@ -54,7 +54,9 @@ pub use forecast::{
 pub use kernels::{Kernel, KERNEL_ENV};
 pub use prior::{dct_matrix, prior_expected_tensors, Prior, PriorConfig, PriorModelConfig};
 pub use rng::{chain_rng, seeded_noise, Noise, Sequences};
-pub use sampler::{sample, timesteps, Observed, Plan, SamplerConfig, SamplerKind, TimestepSpacing};
+pub use sampler::{
+    sample, timesteps, Observed, Plan, Sampler, SamplerConfig, SamplerKind, TimestepSpacing,
+};
 pub use schedule::{BetaSchedule, NoiseSchedule};
 pub use threads::with_threads;
 pub use weights::{expected_tensors, Tensor, WeightFile, CONFIG_KEY};

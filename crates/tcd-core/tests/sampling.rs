@@ -10,8 +10,8 @@ use common::*;
 use proptest::prelude::*;
 use tcd_core::rng::{seeded_noise, stage};
 use tcd_core::{
-    sample, Control, Denoiser, Error, Noise, Observed, PredictionType, Role, SamplerConfig,
-    SamplerKind, Sequences, TimestepSpacing, VarianceType,
+    sample, Control, Denoiser, Error, Noise, Observed, PredictionType, Role, Sampler,
+    SamplerConfig, SamplerKind, Sequences, TimestepSpacing, VarianceType,
 };
 
 fn model() -> &'static Denoiser {
@@ -604,26 +604,29 @@ fn x0_prediction_turns_the_output_into_the_noise_in_every_sampler() {
         .unwrap();
         // A hand loop over the public forward: eps = (x - a * out) * inv_s with a = sqrt(abar_t),
         // inv_s = 1 / sqrt(1 - abar_t) rounded from f64 (training.diffusion.predicted_noise), then the step.
+        // The epsilon plan's sampler steps with the hand-converted noise (it converts nothing itself).
         let mut x = noise[..n].to_vec();
         let mut out = vec![0.0f32; n];
-        let mut prev = vec![0.0f32; n];
-        for (i, st) in plan.steps.iter().enumerate() {
-            m.forward(&x, &observed, &mask, (1, l), st.t, &mut out)
+        let mut sampler = Sampler::new(&plan, n);
+        while let Some(t) = sampler.timestep() {
+            m.forward(&x, &observed, &mask, (1, l), t, &mut out)
                 .unwrap();
-            let ab = m.schedule().alpha_bar(Some(st.t));
+            let ab = m.schedule().alpha_bar(Some(t));
             let (a, inv_s) = (ab.sqrt() as f32, (1.0 / (1.0 - ab).sqrt()) as f32);
-            let eps: Vec<f32> = x
+            let mut eps: Vec<f32> = x
                 .iter()
                 .zip(&out)
                 .map(|(xv, ov)| (xv - a * ov) * inv_s)
                 .collect();
+            let i = sampler.index();
             let z = if blocks > 1 {
                 &noise[(i + 1) * n..(i + 2) * n]
             } else {
                 &noise[..0]
             };
-            st.apply(&mut x, &eps, z, &mut prev);
+            sampler.step(&mut x, &mut eps, z).unwrap();
         }
+        assert!(sampler.step(&mut x, &mut out, &[]).is_err()); // past the last step
         for j in 0..n {
             if mask[j] == 1.0 {
                 x[j] = observed[j];

@@ -307,9 +307,10 @@ pub struct PlanStep {
 
 impl PlanStep {
     /// Applies the update to x given ε̂, z (read only by steps that [`use noise`](Self::uses_noise))
-    /// and the per-chain multistep state `prev_x0` (the previous x̂₀; read and written only by
-    /// multistep updates, see [`Plan::is_multistep`]; may be empty otherwise).
-    pub fn apply(&self, x: &mut [f32], eps: &[f32], z: &[f32], prev_x0: &mut [f32]) {
+    /// and the chain's multistep state `prev_x0` (the previous x̂₀; read and written only by
+    /// multistep updates, see [`Plan::is_multistep`]; may be empty otherwise), which the
+    /// [`Sampler`] of the chain owns.
+    fn apply(&self, x: &mut [f32], eps: &[f32], z: &[f32], prev_x0: &mut [f32]) {
         match &self.update {
             Update::Ddpm(s) => s.apply(x, eps, z),
             Update::Ddim(s) => s.apply(x, eps, z),
@@ -370,6 +371,79 @@ impl Plan {
     }
 }
 
+/// A [`Plan`] run on one chain: the sampler's state between steps, kept here as diffusers' schedulers
+/// keep theirs (`DPMSolverMultistepScheduler.model_outputs`): the index of the next step and, for the
+/// multistep DPM-Solver++(2M), the previous x̂₀. The caller runs the network at [`Sampler::timestep`]
+/// and hands its output (and the step's noise block, for ddpm / ddim) to [`Sampler::step`]; it manages
+/// no state of the sampler. One per chain, or [`Sampler::reset`] before the next chain.
+#[derive(Clone, Debug)]
+pub struct Sampler<'p> {
+    plan: &'p Plan,
+    /// The values of a chain (K·L).
+    len: usize,
+    /// The index in `plan.steps` of the next step.
+    next: usize,
+    /// DPM-Solver++(2M): the previous step's x̂₀ (empty for the one-step updates).
+    prev_x0: Vec<f32>,
+}
+
+impl<'p> Sampler<'p> {
+    /// A chain of `len` values (K·L) run with `plan`, at its first step.
+    pub fn new(plan: &'p Plan, len: usize) -> Self {
+        Sampler {
+            plan,
+            len,
+            next: 0,
+            prev_x0: vec![0.0; if plan.is_multistep() { len } else { 0 }],
+        }
+    }
+
+    /// Back to the first step, the multistep state cleared: a new chain.
+    pub fn reset(&mut self) {
+        self.next = 0;
+        self.prev_x0.fill(0.0);
+    }
+
+    /// The index of the next step in the plan (the steps taken so far); its noise block is block
+    /// `index + 1` of the chain (block 0 is x_T).
+    pub fn index(&self) -> usize {
+        self.next
+    }
+
+    /// The training step at which the network runs for the next step; `None` once every step is taken.
+    pub fn timestep(&self) -> Option<usize> {
+        self.plan.steps.get(self.next).map(|s| s.t)
+    }
+
+    /// Takes the next step: `x` (x_t on entry) becomes x at the next training step (x̂₀ after the last).
+    /// `output` is the network's output at [`Sampler::timestep`] for `x`; for an x₀-predicting plan
+    /// ([`Plan::for_prediction`]) it is turned into the noise in place. `z` is the step's noise block,
+    /// read only by the stochastic samplers (ddpm, ddim: [`Plan::num_noise_blocks`] > 1; may be empty
+    /// otherwise). Errors past the last step or when a buffer does not have the chain's `len` values.
+    pub fn step(&mut self, x: &mut [f32], output: &mut [f32], z: &[f32]) -> Result<()> {
+        let num_steps = self.plan.num_steps();
+        let Some(step) = self.plan.steps.get(self.next) else {
+            return Err(Error::invalid_input(
+                "step",
+                format!("one of the plan's {num_steps} steps (reset the sampler for a new chain)"),
+                format!("step {} of {num_steps}", self.next + 1),
+            ));
+        };
+        let shape = format!("({},) = (K·L,)", self.len);
+        check_len("x", x.len(), self.len, &shape)?;
+        check_len("output", output.len(), self.len, &shape)?;
+        if step.uses_noise() {
+            check_len("z", z.len(), self.len, &shape)?;
+        }
+        if let Some(to_noise) = &step.to_noise {
+            to_noise.apply(x, output);
+        }
+        step.apply(x, output, z, &mut self.prev_x0);
+        self.next += 1;
+        Ok(())
+    }
+}
+
 /// One chain's sequence: its conditioning tables, mask and observed values (K·L each).
 pub(crate) struct ChainInputs<'a> {
     pub tables: &'a CondTables,
@@ -398,26 +472,23 @@ pub(crate) fn run_chain(
     // Buffers a sampler does not use stay empty; nothing is allocated inside the step loop.
     let uses_noise = plan.num_noise_blocks() > 1;
     let mut z = vec![0.0f32; if uses_noise { n } else { 0 }];
-    let mut prev_x0 = vec![0.0f32; if plan.is_multistep() { n } else { 0 }];
+    let mut sampler = Sampler::new(plan, n);
     noise.fill(0, &mut x);
-    for (i, step) in plan.steps.iter().enumerate() {
+    while let Some(t) = sampler.timestep() {
         control.check()?;
         let seq = SequenceInputs {
             tables,
             mask,
             noisy: &x,
             observed,
-            step: step.t,
+            step: t,
         };
         denoiser.forward_one(seq, &mut eps, ws);
         control.forward_done();
-        if let Some(to_noise) = &step.to_noise {
-            to_noise.apply(&x, &mut eps);
-        }
         if uses_noise {
-            noise.fill(i + 1, &mut z);
+            noise.fill(sampler.index() + 1, &mut z);
         }
-        step.apply(&mut x, &eps, &z, &mut prev_x0);
+        sampler.step(&mut x, &mut eps, &z)?;
     }
     let m = &denoiser.config().model;
     if let Some(fill) = m.target.residual_fill() {
@@ -692,6 +763,44 @@ mod tests {
                 );
             }
         }
+    }
+
+    #[test]
+    fn a_sampler_keeps_its_multistep_state_and_resets_for_a_new_chain() {
+        // A stand-in network (ε̂ a fixed function of x): a reset sampler repeats a fresh one's chain bit
+        // for bit, and the second-order steps do read the state (a sampler whose state is cleared before
+        // every step takes another chain).
+        let s = NoiseSchedule::from_betas(crate::schedule::cosine_betas(50, 0.5));
+        let plan = SamplerConfig::dpmpp2m(6)
+            .plan(&s, VarianceType::FixedSmall)
+            .unwrap();
+        let net = |x: &[f32]| -> Vec<f32> { x.iter().map(|v| 0.5 * v.sin() - 0.1).collect() };
+        let run = |sampler: &mut Sampler<'_>, forget: bool| {
+            let mut x = vec![0.3f32, -1.1, 2.0, 0.7];
+            while sampler.timestep().is_some() {
+                let mut eps = net(&x);
+                if forget {
+                    let next = sampler.index();
+                    sampler.reset();
+                    sampler.next = next;
+                }
+                sampler.step(&mut x, &mut eps, &[]).unwrap();
+            }
+            x
+        };
+        let mut sampler = Sampler::new(&plan, 4);
+        let first = run(&mut sampler, false);
+        assert!(sampler.step(&mut [0.0; 4], &mut [0.0; 4], &[]).is_err());
+        sampler.reset();
+        assert_eq!(sampler.timestep(), Some(plan.steps[0].t));
+        assert_eq!(run(&mut sampler, false), first);
+        assert_eq!(run(&mut Sampler::new(&plan, 4), false), first);
+        assert_ne!(run(&mut Sampler::new(&plan, 4), true), first);
+        // a buffer of the wrong size is refused, naming it
+        let mut fresh = Sampler::new(&plan, 4);
+        let e = fresh.step(&mut [0.0; 3], &mut [0.0; 4], &[]).unwrap_err();
+        assert!(e.to_string().contains("`x`"), "{e}");
+        assert_eq!(fresh.index(), 0);
     }
 
     #[test]
