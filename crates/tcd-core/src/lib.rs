@@ -6,21 +6,23 @@
 //! nothing of Python; the binding crate wraps this API.
 //!
 //! ```no_run
-//! use tcd_core::{cascade, CascadeNoise, Control, Denoiser, ForecastOptions, Sequences};
+//! use tcd_core::{cascade, CascadeNoise, Control, Denoiser, ForecastOptions, Observation, Sequences};
 //! # fn main() -> tcd_core::Result<()> {
 //! let short = Denoiser::load("short.safetensors")?;
 //! let long = Denoiser::load("long.safetensors")?;
 //! let (b, k, o) = (1, short.num_features(), short.obs_len());
-//! let observed = vec![0.0f32; b * k * o]; // (B, K, O), model units
-//! let mask = vec![1.0f32; b * k * o];     // 1 = observed
-//! let out = cascade(&short, &long, None, &observed, &mask, &ForecastOptions::default(),
+//! let values = vec![0.0f32; b * k * o]; // (B, K, O), model units
+//! let mask = vec![1.0f32; b * k * o];   // 1 = observed
+//! let observed = Observation::new(&values, &mask, [b, k, o])?; // checked here, once
+//! let out = cascade(&short, &long, None, &observed, &ForecastOptions::default(),
 //!                   CascadeNoise::Seeded { seed: 0, sequences: Sequences::From(0) }, &Control::default())?;
 //! assert_eq!(out.mean.len(), b * k * out.future_len);
 //! # Ok(()) }
 //! ```
 //!
 //! Conventions: every array is a flat row-major f32 buffer; sequences are **(B, K, L)** (frame
-//! fastest), samples lead with S. Masks are 1 (observed) / 0 (to generate).
+//! fastest), samples lead with S. Observations are one type, [`Observation`]: the values and their
+//! mask, 1 (observed) / 0 (to generate), with their shape, checked once when made.
 
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used, clippy::panic))]
 
@@ -31,6 +33,7 @@ pub mod error;
 pub mod forecast;
 pub mod kernels;
 pub mod nn;
+mod observation;
 pub mod prior;
 pub mod rng;
 pub mod sampler;
@@ -52,11 +55,10 @@ pub use forecast::{
     cascade, prior_fill, repair, CascadeNoise, CascadeOutput, ForecastOptions, RepairOutput,
 };
 pub use kernels::{Kernel, KERNEL_ENV};
+pub use observation::Observation;
 pub use prior::{dct_matrix, prior_expected_tensors, Prior, PriorConfig, PriorModelConfig};
 pub use rng::{chain_rng, seeded_noise, Noise, Sequences};
-pub use sampler::{
-    sample, timesteps, Observed, Plan, Sampler, SamplerConfig, SamplerKind, TimestepSpacing,
-};
+pub use sampler::{sample, timesteps, Plan, Sampler, SamplerConfig, SamplerKind, TimestepSpacing};
 pub use schedule::{BetaSchedule, NoiseSchedule};
 pub use threads::with_threads;
 pub use weights::{expected_tensors, Tensor, WeightFile, CONFIG_KEY};

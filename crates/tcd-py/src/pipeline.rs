@@ -78,8 +78,7 @@ pub(crate) fn cascade<'py>(
             short,
             long,
             prior,
-            &job.observed,
-            &job.mask,
+            &job.observation(short.num_features())?,
             &job.options,
             noise,
             control,
@@ -138,9 +137,7 @@ pub(crate) fn repair<'py>(
         let [noise] = &job.noise;
         core_repair(
             model,
-            &job.observed,
-            &job.mask,
-            job.batch,
+            &job.observation(model.num_features())?,
             &job.options,
             noise.as_noise(),
             control,

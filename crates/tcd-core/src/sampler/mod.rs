@@ -21,6 +21,7 @@ use crate::config::{CondFill, PredictionType, VarianceType};
 use crate::control::Control;
 use crate::denoiser::{CondTables, Denoiser, SequenceInputs, Workspace};
 use crate::error::{check_len, check_positive, Error, Result};
+use crate::observation::Observation;
 use crate::rng::{stage, ChainNoise, Noise};
 use crate::schedule::NoiseSchedule;
 use crate::validate;
@@ -515,63 +516,36 @@ pub fn merge_observed(x: &mut [f32], observed: &[f32], mask: &[f32]) {
     }
 }
 
-/// The observations of a sampling call: `values` and `mask`, both (B, K, L) with B = `batch`,
-/// L = `length` and K the model's `num_features`; mask 1 = given, 0 = to generate (`values` may
-/// hold NaN there).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Observed<'a> {
-    pub values: &'a [f32],
-    pub mask: &'a [f32],
-    pub batch: usize,
-    pub length: usize,
-}
-
-impl<'a> Observed<'a> {
-    pub fn new(values: &'a [f32], mask: &'a [f32], batch: usize, length: usize) -> Self {
-        Observed {
-            values,
-            mask,
-            batch,
-            length,
-        }
-    }
-}
-
 /// Validated inputs of a sampling call.
 pub(crate) struct SampleJob<'a> {
-    pub observed: Observed<'a>,
+    pub observed: Observation<'a>,
     pub num_samples: usize,
     pub plan: Plan,
     pub noise: Noise<'a>,
     pub stage: u64,
 }
 
-/// Checks sizes, mask, observed values and noise (named `noise_argument` in errors); builds the plan.
+/// Checks what a sampling call adds to its (checked) observation: that it fits the model, and for a model
+/// conditioned on the prior that the fill it reads is finite; `num_samples`; the sampler (it builds the
+/// plan); the noise (named `noise_argument` in errors).
 pub(crate) fn validate_job<'a>(
     denoiser: &Denoiser,
-    observed: Observed<'a>,
+    observed: Observation<'a>,
     num_samples: usize,
     sampler: &SamplerConfig,
     noise: Noise<'a>,
     noise_argument: &str,
     stage: u64,
 ) -> Result<SampleJob<'a>> {
-    let Observed {
-        values,
-        mask,
-        batch,
-        length,
-    } = observed;
-    check_positive("batch", batch)?;
-    check_positive("length", length)?;
-    check_positive("num_samples", num_samples)?;
     let k = denoiser.num_features();
+    observed.expect(k, "the model's", None)?;
+    let [batch, _, length] = observed.shape();
+    check_positive("num_samples", num_samples)?;
     let shape = format!("({batch}, {k}, {length})");
-    validate::mask("mask", mask, batch * k * length, &shape)?;
-    validate::finite_where("observed", values, mask, 1.0, batch * k * length, &shape)?;
     if denoiser.config().model.cond_fill == CondFill::Prior {
         // The masked entries hold the prior's fill, which the network reads (CondFill::Prior).
-        validate::all_finite("observed", values, batch * k * length, &shape)?;
+        let values = observed.values();
+        validate::all_finite("observed", values, values.len(), &shape)?;
     }
     let diffusion = &denoiser.config().diffusion;
     let plan = sampler
@@ -609,7 +583,7 @@ pub(crate) fn validate_job<'a>(
 impl SampleJob<'_> {
     /// The per-sequence forwards this job runs (for [`Control::expect`]).
     pub(crate) fn forwards(&self) -> usize {
-        self.num_samples * self.observed.batch * self.plan.num_steps()
+        self.num_samples * self.observed.batch() * self.plan.num_steps()
     }
 }
 
@@ -620,12 +594,8 @@ pub(crate) fn run_job(
     job: &SampleJob<'_>,
     control: &Control,
 ) -> Result<Vec<f32>> {
-    let Observed {
-        values,
-        mask,
-        batch,
-        length,
-    } = job.observed;
+    let (values, mask) = (job.observed.values(), job.observed.mask());
+    let [batch, _, length] = job.observed.shape();
     let n = denoiser.num_features() * length;
     let tables = denoiser.cond_tables(length);
     let blocks = job.plan.num_noise_blocks();
@@ -662,16 +632,17 @@ pub(crate) fn run_job(
     Ok(chains.concat())
 }
 
-/// Draws `num_samples` samples for each sequence of `observed`.
+/// Draws `num_samples` samples for each sequence of `observed`, whose K must be the model's
+/// `num_features` (any L).
 ///
 /// * `noise`: [`Noise::Injected`] with shape (S, blocks, B, K, L) (blocks = n + 1, or 1 for
 ///   dpmpp2m: [`Plan::num_noise_blocks`]), or [`Noise::Seeded`] (stage [`stage::SHORT`]).
 ///
-/// Returns the merged samples, (S, B, K, L): observed entries are `observed.values`, bit for bit.
+/// Returns the merged samples, (S, B, K, L): observed entries are `observed.values()`, bit for bit.
 /// `control` counts the forwards and can stop the call ([`Control`]; `&Control::default()` if unused).
 pub fn sample(
     denoiser: &Denoiser,
-    observed: Observed<'_>,
+    observed: &Observation<'_>,
     num_samples: usize,
     sampler: &SamplerConfig,
     noise: Noise<'_>,
@@ -679,7 +650,7 @@ pub fn sample(
 ) -> Result<Vec<f32>> {
     let job = validate_job(
         denoiser,
-        observed,
+        *observed,
         num_samples,
         sampler,
         noise,
