@@ -14,7 +14,7 @@
 use std::error::Error;
 use std::path::Path;
 
-use tcd_core::rng::seeded_noise;
+use tcd_core::seeded_noise;
 use tcd_core::{
     cascade, sample, CascadeNoise, Control, Denoiser, ForecastOptions, Noise, Observation,
     SamplerConfig, SamplerKind, Sequences,

@@ -231,7 +231,7 @@ pub enum PredictionType {
     /// ε, the noise added (TCD, CSDI).
     Epsilon,
     /// x₀, the clean diffusion variable (the residual, for a residual target): every sampler first turns
-    /// it into the noise, `ε̂ = (x_t − √ᾱ_t · out) · (1/√(1 − ᾱ_t))` ([`crate::sampler::SampleToNoise`]).
+    /// it into the noise, `ε̂ = (x_t − √ᾱ_t · out) · (1/√(1 − ᾱ_t))` ([`crate::Plan::for_prediction`]).
     Sample,
 }
 

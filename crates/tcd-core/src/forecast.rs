@@ -59,7 +59,7 @@ impl Default for ForecastOptions {
 pub enum CascadeNoise<'a> {
     /// Standard normals per stage: `short` (S, n + 1, B, K, L_s), `long` (S, n + 1, B, K, L_l).
     Injected { short: &'a [f32], long: &'a [f32] },
-    /// Seeded ChaCha8 streams (see [`crate::rng`]); both stages number sequences alike.
+    /// Seeded ChaCha8 streams (see [`Noise`]); both stages number sequences alike.
     Seeded { seed: u64, sequences: Sequences<'a> },
 }
 

@@ -26,39 +26,44 @@
 
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used, clippy::panic))]
 
-pub mod config;
-pub mod control;
-pub mod denoiser;
-pub mod error;
-pub mod forecast;
-pub mod kernels;
-pub mod nn;
+// Every module is private: the public API is the items re-exported below, each under one path,
+// `tcd_core::Item`.
+mod config;
+mod control;
+mod denoiser;
+mod error;
+mod forecast;
+mod kernels;
+mod nn;
 mod observation;
-pub mod prior;
-pub mod rng;
-pub mod sampler;
-pub mod schedule;
-pub mod threads;
+mod prior;
+mod rng;
+mod sampler;
+mod schedule;
+mod threads;
 mod validate;
-pub mod weights;
+mod weights;
 
+// Models and their files.
 pub use config::{
     CondFill, DataConfig, DiffusionConfig, ModelConfig, PredictionType, Role, Target, TcdConfig,
-    VarianceType, WindowConfig,
+    VarianceType, WindowConfig, FORMAT_VERSION,
 };
-pub use control::Control;
-pub use denoiser::{
-    fill_linear, fill_rows, fill_spline, CondTables, Denoiser, Prepared, Workspace,
-};
-pub use error::{Error, Result};
+pub use denoiser::{Denoiser, Prepared, Workspace};
+pub use prior::{dct_matrix, prior_expected_tensors, Prior, PriorConfig, PriorModelConfig};
+pub use weights::{expected_tensors, Tensor, WeightFile, CONFIG_KEY};
+// Observations and what runs on them.
+pub use denoiser::{fill_linear, fill_rows, fill_spline};
 pub use forecast::{
     cascade, prior_fill, repair, CascadeNoise, CascadeOutput, ForecastOptions, RepairOutput,
 };
-pub use kernels::{Kernel, KERNEL_ENV};
 pub use observation::Observation;
-pub use prior::{dct_matrix, prior_expected_tensors, Prior, PriorConfig, PriorModelConfig};
-pub use rng::{chain_rng, seeded_noise, Noise, Sequences};
-pub use sampler::{sample, timesteps, Plan, Sampler, SamplerConfig, SamplerKind, TimestepSpacing};
+// Samplers and their noise.
+pub use rng::{seeded_noise, stage, Noise, Sequences};
+pub use sampler::{sample, Plan, Sampler, SamplerConfig, SamplerKind, TimestepSpacing};
 pub use schedule::{BetaSchedule, NoiseSchedule};
+// Kernels, threads, control, errors.
+pub use control::Control;
+pub use error::{Error, Result};
+pub use kernels::{Kernel, KERNEL_ENV};
 pub use threads::with_threads;
-pub use weights::{expected_tensors, Tensor, WeightFile, CONFIG_KEY};

@@ -4,11 +4,11 @@
 mod common;
 
 use common::*;
-use tcd_core::rng::{seeded_noise, stage};
 use tcd_core::{
     cascade, repair, sample, CascadeNoise, Control, Denoiser, Error, ForecastOptions, Noise,
     Observation, Role, SamplerConfig, Sequences,
 };
+use tcd_core::{seeded_noise, stage};
 
 fn models() -> (Denoiser, Denoiser) {
     (

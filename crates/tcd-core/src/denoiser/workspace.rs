@@ -11,18 +11,12 @@ use crate::validate;
 
 /// The length-dependent cond tables: for every block, `W_t · pe(l) + b` (L × 2C).
 #[derive(Clone, Debug)]
-pub struct CondTables {
+pub(crate) struct CondTables {
+    /// The frame count L the tables were built for.
     pub(super) length: usize,
     /// 2C of the model that built the tables.
     pub(super) width: usize,
     pub(super) time: Vec<Vec<f32>>,
-}
-
-impl CondTables {
-    /// The frame count L the tables were built for.
-    pub fn length(&self) -> usize {
-        self.length
-    }
 }
 
 /// Everything about a batch of sequences that does not change across diffusion steps and samples:
@@ -122,7 +116,7 @@ impl Workspace {
 
 impl Denoiser {
     /// The cond tables for sequences of `length` frames (independent of mask and step).
-    pub fn cond_tables(&self, length: usize) -> CondTables {
+    pub(crate) fn cond_tables(&self, length: usize) -> CondTables {
         let te = self.config.model.time_embedding_dim;
         let c2 = 2 * self.config.model.channels;
         let pe = frame_embedding(length, te);

@@ -36,7 +36,7 @@ pub struct PriorModelConfig {
 pub struct PriorConfig {
     /// Must be [`FORMAT_VERSION`].
     pub format_version: u32,
-    /// Must be [`ROLE`].
+    /// Must be `"prior"`.
     pub role: String,
     pub model: PriorModelConfig,
     #[serde(default)]

@@ -9,9 +9,9 @@
 //! turned into ε̂ right after each forward ([`SampleToNoise`], set per step by [`Plan::for_prediction`]),
 //! so ddpm, ddim and dpmpp2m serve both.
 
-pub mod ddim;
-pub mod ddpm;
-pub mod dpmpp;
+mod ddim;
+mod ddpm;
+mod dpmpp;
 
 use std::str::FromStr;
 
@@ -26,9 +26,9 @@ use crate::rng::{stage, ChainNoise, Noise};
 use crate::schedule::NoiseSchedule;
 use crate::validate;
 
-pub use ddim::DdimStep;
-pub use ddpm::DdpmStep;
-pub use dpmpp::DpmPp2mStep;
+use ddim::DdimStep;
+use ddpm::DdpmStep;
+use dpmpp::DpmPp2mStep;
 
 /// How `num_inference_steps` steps are placed among the T training steps (diffusers semantics).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -73,7 +73,7 @@ impl FromStr for TimestepSpacing {
 
 /// The descending training steps visited by a sampler with `num_inference_steps` steps.
 /// Rounding is numpy's (half to even).
-pub fn timesteps(
+pub(crate) fn timesteps(
     num_train_timesteps: usize,
     num_inference_steps: usize,
     spacing: TimestepSpacing,
@@ -110,7 +110,7 @@ pub fn timesteps(
 }
 
 /// (t_i, t_{i+1}) pairs; `None` after the last step (ᾱ = 1).
-pub fn step_pairs(timesteps: &[usize]) -> Vec<(usize, Option<usize>)> {
+fn step_pairs(timesteps: &[usize]) -> Vec<(usize, Option<usize>)> {
     timesteps
         .iter()
         .enumerate()
@@ -259,7 +259,7 @@ impl Default for SamplerConfig {
 
 /// The update of one step.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Update {
+pub(crate) enum Update {
     Ddpm(DdpmStep),
     Ddim(DdimStep),
     DpmPp2m(DpmPp2mStep),
@@ -269,16 +269,16 @@ pub enum Update {
 /// `ε̂ = (x_t − a · out) · inv_s` in f32, with `a = √ᾱ_t` and `inv_s = 1/√(1 − ᾱ_t)` computed in f64 and
 /// rounded once, the reference's operations in its order.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct SampleToNoise {
+pub(crate) struct SampleToNoise {
     /// √ᾱ_t, rounded to f32.
-    pub a: f32,
+    pub(crate) a: f32,
     /// 1/√(1 − ᾱ_t), rounded to f32.
-    pub inv_s: f32,
+    pub(crate) inv_s: f32,
 }
 
 impl SampleToNoise {
     /// The conversion at training step `t`.
-    pub fn new(schedule: &NoiseSchedule, t: usize) -> Self {
+    pub(crate) fn new(schedule: &NoiseSchedule, t: usize) -> Self {
         let alpha_bar = schedule.alpha_bar(Some(t));
         SampleToNoise {
             a: alpha_bar.sqrt() as f32,
@@ -287,7 +287,7 @@ impl SampleToNoise {
     }
 
     /// `out` (the network's x̂₀ on entry) ← (x − a · out) · inv_s, element-wise.
-    pub fn apply(&self, x: &[f32], out: &mut [f32]) {
+    pub(crate) fn apply(&self, x: &[f32], out: &mut [f32]) {
         let (a, inv_s) = (self.a, self.inv_s);
         for (ov, &xv) in out.iter_mut().zip(x) {
             *ov = (xv - a * *ov) * inv_s;
@@ -297,13 +297,13 @@ impl SampleToNoise {
 
 /// One planned step: network at `t`, then the update towards `prev`.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct PlanStep {
-    pub t: usize,
-    pub prev: Option<usize>,
-    pub update: Update,
+pub(crate) struct PlanStep {
+    pub(crate) t: usize,
+    pub(crate) prev: Option<usize>,
+    pub(crate) update: Update,
     /// For an x₀-predicting model, how its output becomes the noise before the update
     /// ([`Plan::for_prediction`]); `None`: the output is the noise.
-    pub to_noise: Option<SampleToNoise>,
+    pub(crate) to_noise: Option<SampleToNoise>,
 }
 
 impl PlanStep {
@@ -320,7 +320,7 @@ impl PlanStep {
     }
 
     /// Whether the step consumes a noise block z (ddpm, ddim; not dpmpp2m).
-    pub fn uses_noise(&self) -> bool {
+    pub(crate) fn uses_noise(&self) -> bool {
         !matches!(self.update, Update::DpmPp2m(_))
     }
 }
@@ -328,7 +328,7 @@ impl PlanStep {
 /// The steps of a sampler for one model.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Plan {
-    pub steps: Vec<PlanStep>,
+    pub(crate) steps: Vec<PlanStep>,
 }
 
 impl Plan {
@@ -360,7 +360,8 @@ impl Plan {
     }
 
     /// The plan for a model that predicts `prediction` on `schedule`: with [`PredictionType::Sample`]
-    /// every step first turns the output into the noise ([`SampleToNoise`] at its `t`).
+    /// every step first turns the output into the noise, `ε̂ = (x_t − √ᾱ_t · out) · (1/√(1 − ᾱ_t))` at
+    /// its `t` (`training.diffusion.predicted_noise`; [`Sampler::step`] applies it).
     pub fn for_prediction(mut self, prediction: PredictionType, schedule: &NoiseSchedule) -> Self {
         for step in &mut self.steps {
             step.to_noise = match prediction {
@@ -772,6 +773,28 @@ mod tests {
         let e = fresh.step(&mut [0.0; 3], &mut [0.0; 4], &[]).unwrap_err();
         assert!(e.to_string().contains("`x`"), "{e}");
         assert_eq!(fresh.index(), 0);
+    }
+
+    #[test]
+    fn an_x0_plan_converts_the_output_at_every_step_and_an_epsilon_plan_at_none() {
+        let s = NoiseSchedule::from_betas(crate::schedule::cosine_betas(10, 0.5));
+        for sc in [
+            SamplerConfig::ddpm(),
+            SamplerConfig::ddim(4, 1.0),
+            SamplerConfig::dpmpp2m(4),
+        ] {
+            let plan = sc.plan(&s, VarianceType::FixedSmall).unwrap();
+            assert!(plan.steps.iter().all(|st| st.to_noise.is_none()));
+            let x0_plan = plan.clone().for_prediction(PredictionType::Sample, &s);
+            assert!(x0_plan
+                .steps
+                .iter()
+                .all(|st| st.to_noise == Some(SampleToNoise::new(&s, st.t))));
+            assert_eq!(
+                plan.clone().for_prediction(PredictionType::Epsilon, &s),
+                plan
+            );
+        }
     }
 
     #[test]
