@@ -254,7 +254,7 @@ impl TcdConfig {
                 path: path.to_path_buf(),
                 field: "role".into(),
                 reason: "is \"prior\": the file holds the deterministic prior forecaster, which loads with \
-                         `Prior::load` (Python: `tcd.Prior.load`), not as a denoiser"
+                         `Prior::load` (Python: `tcd.engine.Prior.load`), not as a denoiser"
                     .into(),
             });
         }
