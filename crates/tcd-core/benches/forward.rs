@@ -13,7 +13,7 @@
 mod common;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
-use tcd_core::{Denoiser, Kernel, Role, TcdConfig, Workspace};
+use tcd_core::{Denoiser, Kernel, Observation, Role, TcdConfig, Workspace};
 
 fn config(
     channels: usize,
@@ -60,7 +60,9 @@ fn bench_forward(c: &mut Criterion) {
             }
             for kernel in Kernel::supported() {
                 let den = base.clone().with_kernel(kernel).unwrap();
-                let prepared = den.prepare(&mask, 1, l).unwrap();
+                let prepared = den
+                    .prepare(&Observation::new(&observed, &mask, [1, k, l]).unwrap())
+                    .unwrap();
                 for threads in [1usize, 2] {
                     let mut out = vec![0.0f32; n];
                     let id = BenchmarkId::new(format!("{kernel}/{threads}t"), format!("L{l}"));
@@ -72,10 +74,8 @@ fn bench_forward(c: &mut Criterion) {
                     group.bench_function(id, |b| {
                         b.iter(|| {
                             pool.install(|| {
-                                den.forward_with_workspace(
-                                    &prepared, &mut ws, &noisy, &observed, 5, &mut out,
-                                )
-                                .unwrap()
+                                den.forward_with_workspace(&prepared, &mut ws, &noisy, 5, &mut out)
+                                    .unwrap()
                             })
                         })
                     });

@@ -15,7 +15,7 @@ mod common;
 use std::error::Error;
 use std::time::Instant;
 
-use tcd_core::{Denoiser, Kernel, Role, Workspace};
+use tcd_core::{Denoiser, Kernel, Observation, Role, Workspace};
 
 /// Random-init weights of the paper's size (with `heads` attention heads) for windows of `obs` +
 /// `pred` frames.
@@ -86,12 +86,10 @@ fn main() -> Result<(), Box<dyn Error>> {
     let mut reference: Option<Vec<f32>> = None;
     for kernel in kernels {
         let d = base.clone().with_kernel(kernel)?;
-        let prepared = d.prepare(&mask, 1, l)?;
+        let prepared = d.prepare(&Observation::new(&observed, &mask, [1, k, l])?)?;
         let mut ws = Workspace::with_threads(&d, l, threads);
         let mut out = vec![0.0f32; n];
-        pool.install(|| {
-            d.forward_with_workspace(&prepared, &mut ws, &noisy, &observed, step, &mut out)
-        })?;
+        pool.install(|| d.forward_with_workspace(&prepared, &mut ws, &noisy, step, &mut out))?;
         let diff = reference.as_ref().map(|r| {
             r.iter()
                 .zip(&out)
@@ -105,9 +103,7 @@ fn main() -> Result<(), Box<dyn Error>> {
         let cpu0 = thread_cpu_ns();
         for _ in 0..reps {
             let t0 = Instant::now();
-            pool.install(|| {
-                d.forward_with_workspace(&prepared, &mut ws, &noisy, &observed, step, &mut out)
-            })?;
+            pool.install(|| d.forward_with_workspace(&prepared, &mut ws, &noisy, step, &mut out))?;
             times.push(t0.elapsed().as_secs_f64() * 1e3);
         }
         let cpu_ms = thread_cpu_ns()

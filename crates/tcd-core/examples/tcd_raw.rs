@@ -14,9 +14,9 @@
 use std::error::Error;
 use std::path::Path;
 
-use tcd_core::rng::seeded_noise;
+use tcd_core::seeded_noise;
 use tcd_core::{
-    cascade, sample, CascadeNoise, Control, Denoiser, ForecastOptions, Noise, Observed,
+    cascade, sample, CascadeNoise, Control, Denoiser, ForecastOptions, Noise, Observation,
     SamplerConfig, SamplerKind, Sequences,
 };
 
@@ -94,7 +94,8 @@ fn main() -> R<()> {
                 num(&args, 7, "STEP")?,
             );
             let mut out = vec![0.0f32; noisy.len()];
-            d.forward(&noisy, &observed, &mask, (b, l), step, &mut out)?;
+            let observed = Observation::new(&observed, &mask, [b, d.num_features(), l])?;
+            d.forward(&noisy, &observed, step, &mut out)?;
             write_f32(arg(&args, 8, "OUT")?, &out)?;
         }
         Some("sample") => {
@@ -123,7 +124,7 @@ fn main() -> R<()> {
             };
             let out = sample(
                 &d,
-                Observed::new(&observed, &mask, b, l),
+                &Observation::new(&observed, &mask, [b, d.num_features(), l])?,
                 s,
                 &cfg,
                 noise,
@@ -137,13 +138,6 @@ fn main() -> R<()> {
             let observed = read_f32(arg(&args, 3, "OBSERVED")?)?;
             let mask = read_f32(arg(&args, 4, "MASK")?)?;
             let (b, s): (usize, usize) = (num(&args, 5, "B")?, num(&args, 6, "S")?);
-            if observed.len() != b * short.num_features() * short.obs_len() {
-                return Err(format!(
-                    "OBSERVED holds {} values, not B = {b} sequences (B, K, O)",
-                    observed.len()
-                )
-                .into());
-            }
             let cfg = sampler(
                 arg(&args, 7, "SAMPLER")?,
                 arg(&args, 8, "N")?,
@@ -159,8 +153,7 @@ fn main() -> R<()> {
                 &short,
                 &long,
                 None,
-                &observed,
-                &mask,
+                &Observation::new(&observed, &mask, [b, short.num_features(), short.obs_len()])?,
                 &opts,
                 CascadeNoise::Seeded {
                     seed,

@@ -10,7 +10,6 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
-use crate::sampler::VarianceType;
 use crate::schedule::{BetaSchedule, NoiseSchedule};
 
 /// The weight-file format version this engine reads.
@@ -232,8 +231,18 @@ pub enum PredictionType {
     /// ε, the noise added (TCD, CSDI).
     Epsilon,
     /// x₀, the clean diffusion variable (the residual, for a residual target): every sampler first turns
-    /// it into the noise, `ε̂ = (x_t − √ᾱ_t · out) · (1/√(1 − ᾱ_t))` ([`crate::sampler::SampleToNoise`]).
+    /// it into the noise, `ε̂ = (x_t − √ᾱ_t · out) · (1/√(1 − ᾱ_t))` ([`crate::Plan::for_prediction`]).
     Sample,
+}
+
+/// How the DDPM sampler chooses σ (`variance_type`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum VarianceType {
+    /// σ² = β̃ = β'(1 − ᾱ_prev)/(1 − ᾱ_t): the reference.
+    FixedSmall,
+    /// σ² = β'.
+    FixedLarge,
 }
 
 impl TcdConfig {
@@ -245,7 +254,7 @@ impl TcdConfig {
                 path: path.to_path_buf(),
                 field: "role".into(),
                 reason: "is \"prior\": the file holds the deterministic prior forecaster, which loads with \
-                         `Prior::load` (Python: `tcd.Prior.load`), not as a denoiser"
+                         `Prior::load` (Python: `tcd.engine.Prior.load`), not as a denoiser"
                     .into(),
             });
         }

@@ -30,11 +30,11 @@
 use crate::config::CondFill;
 use crate::control::Control;
 use crate::denoiser::{fill_spline, Denoiser};
-use crate::error::{check_len, check_positive, Error, Result};
+use crate::error::{Error, Result};
+use crate::observation::Observation;
 use crate::prior::Prior;
 use crate::rng::{stage, Noise, Sequences};
-use crate::sampler::{run_job, validate_job, Observed, SamplerConfig};
-use crate::validate;
+use crate::sampler::{run_job, validate_job, SamplerConfig};
 
 /// Sampling options shared by both stages.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -59,7 +59,7 @@ impl Default for ForecastOptions {
 pub enum CascadeNoise<'a> {
     /// Standard normals per stage: `short` (S, n + 1, B, K, L_s), `long` (S, n + 1, B, K, L_l).
     Injected { short: &'a [f32], long: &'a [f32] },
-    /// Seeded ChaCha8 streams (see [`crate::rng`]); both stages number sequences alike.
+    /// Seeded ChaCha8 streams (see [`Noise`]); both stages number sequences alike.
     Seeded { seed: u64, sequences: Sequences<'a> },
 }
 
@@ -181,13 +181,35 @@ fn stage_prior<'p>(
     Ok(Some(p))
 }
 
-/// Replaces the mask-0 entries of `values`, (B, K, L) with B = `batch` and L = `length`, by the prior's
-/// fill (`training.model.prior_fill`): over the first O = `prior.obs_len()` frames of every row the
-/// natural cubic spline through that row's observed entries among them ([`fill_spline`], the reference's
-/// bits), after them the prior's rollout ([`Prior::predict`]) from those O filled frames (frame O + i is
-/// its i-th forecast frame). Mask-1 entries are kept (a long-term window's given frames after O too);
-/// mask-0 entries of `values` are never read. Needs O < L; `control` can stop the rollout.
+/// `observed` with its mask-0 entries replaced by the prior's fill (`training.model.prior_fill`), (B, K, L)
+/// like it: over the first O = `prior.obs_len()` frames of every row the natural cubic spline through
+/// that row's observed entries among them ([`fill_spline`], the reference's bits), after them the prior's
+/// rollout ([`Prior::predict`]) from those O filled frames (frame O + i is its i-th forecast frame).
+/// Mask-1 entries are kept (a long-term window's given frames after O too); mask-0 entries of `observed`
+/// are never read. Needs the prior's K and L > O; `control` can stop the rollout.
 pub fn prior_fill(
+    prior: &Prior,
+    observed: &Observation<'_>,
+    control: &Control,
+) -> Result<Vec<f32>> {
+    let (k, o) = (prior.num_features(), prior.obs_len());
+    observed.expect(k, "the prior's", None)?;
+    let [batch, _, length] = observed.shape();
+    if length <= o {
+        return Err(Error::invalid_input(
+            "length",
+            format!("more frames than the prior reads (obs_len = {o})"),
+            length.to_string(),
+        ));
+    }
+    let mut values = observed.values().to_vec();
+    fill_with_prior(prior, &mut values, observed.mask(), batch, length, control)?;
+    Ok(values)
+}
+
+/// [`prior_fill`] in place on `values` with `mask`, (B, K, L) of a checked observation with the prior's K
+/// and L > its obs_len.
+fn fill_with_prior(
     prior: &Prior,
     values: &mut [f32],
     mask: &[f32],
@@ -196,17 +218,6 @@ pub fn prior_fill(
     control: &Control,
 ) -> Result<()> {
     let (k, o) = (prior.num_features(), prior.obs_len());
-    check_positive("batch", batch)?;
-    if length <= o {
-        return Err(Error::invalid_input(
-            "length",
-            format!("more frames than the prior reads (obs_len = {o})"),
-            length.to_string(),
-        ));
-    }
-    let shape = format!("({batch}, {k}, {length})");
-    check_len("values", values.len(), batch * k * length, &shape)?;
-    check_len("mask", mask.len(), batch * k * length, &shape)?;
     let horizon = length - o;
     // The filled first O frames, frame-major (B, O, K) as the prior reads them.
     let mut head = vec![0.0f32; batch * o * k];
@@ -244,28 +255,15 @@ pub fn prior_fill(
     Ok(())
 }
 
-fn check_observation(model: &Denoiser, observed: &[f32], mask: &[f32], batch: usize) -> Result<()> {
-    check_positive("batch", batch)?;
-    let (k, o) = (model.num_features(), model.obs_len());
-    let shape = format!("({batch}, {k}, {o}) = (B, K, obs_len)");
-    validate::mask("mask", mask, batch * k * o, &shape)?;
-    validate::finite_where("observed", observed, mask, 1.0, batch * k * o, &shape)
-}
-
-/// Runs the short-term → long-term cascade on `observed` / `mask`, (B, K, O) with O the short
-/// model's `obs_len` (B is their length over K·O); `long` must have `obs_len` equal to the short
-/// model's `seq_len`. `prior`: the prior forecaster, required where either model is conditioned on
-/// it (`cond_fill` [`CondFill::Prior`]; see the module's notes), unused otherwise.
-#[expect(
-    clippy::too_many_arguments,
-    reason = "the cascade's inputs: two models, the prior, data, options, noise, control"
-)]
+/// Runs the short-term → long-term cascade on `observed`, (B, K, O) with K the models' `num_features` and
+/// O the short model's `obs_len`; `long` must have `obs_len` equal to the short model's `seq_len`.
+/// `prior`: the prior forecaster, required where either model is conditioned on it (`cond_fill`
+/// [`CondFill::Prior`]; see the module's notes), unused otherwise.
 pub fn cascade(
     short: &Denoiser,
     long: &Denoiser,
     prior: Option<&Prior>,
-    observed: &[f32],
-    mask: &[f32],
+    observed: &Observation<'_>,
     options: &ForecastOptions,
     noise: CascadeNoise<'_>,
     control: &Control,
@@ -286,16 +284,8 @@ pub fn cascade(
             format!("obs_len = {}, seq_len = {ll}", long.obs_len()),
         ));
     }
-    let per_sequence = k * o;
-    if observed.is_empty() || !observed.len().is_multiple_of(per_sequence) {
-        return Err(Error::invalid_input(
-            "observed",
-            format!("a (B, K, O) buffer with B >= 1, K = {k}, O = {o}: a multiple of {per_sequence} values"),
-            format!("{} values", observed.len()),
-        ));
-    }
-    let batch = observed.len() / per_sequence;
-    check_observation(short, observed, mask, batch)?;
+    observed.expect(k, "the short-term model's", Some((o, "obs_len")))?;
+    let batch = observed.batch();
     let short_prior = stage_prior(short, prior, "short-term")?;
     let long_prior = stage_prior(long, prior, "long-term")?;
     let s = options.num_samples;
@@ -303,27 +293,24 @@ pub fn cascade(
 
     // Stage 1: short-term model on the padded observation (its masked entries the prior's fill, for a
     // model conditioned on it).
-    let mut x_short = pad_frames(&zero_unobserved(observed, mask), o, ls, 0.0);
-    let m_short = pad_frames(mask, o, ls, 0.0);
+    let mut x_short = pad_frames(
+        &zero_unobserved(observed.values(), observed.mask()),
+        o,
+        ls,
+        0.0,
+    );
+    let m_short = pad_frames(observed.mask(), o, ls, 0.0);
     if let Some(p) = short_prior {
-        prior_fill(p, &mut x_short, &m_short, batch, ls, control)?;
+        fill_with_prior(p, &mut x_short, &m_short, batch, ls, control)?;
     }
     let m_long = pad_frames(&vec![1.0f32; rows * ls], ls, ll, 0.0);
     // Validate the long stage (sizes, plan, noise) before the expensive short stage runs.
     let x_long_placeholder = vec![0.0f32; rows * ll];
     let long_noise_name = "noise.long";
-    let long_shape = Observed {
-        values: &[],
-        mask: &m_long,
-        batch,
-        length: ll,
-    };
+    let long_shape = [batch, k, ll];
     let long_forwards = validate_job(
         long,
-        Observed {
-            values: &x_long_placeholder,
-            ..long_shape
-        },
+        Observation::checked_by_construction(&x_long_placeholder, &m_long, long_shape),
         s,
         &options.sampler,
         noise.stage(true),
@@ -334,12 +321,7 @@ pub fn cascade(
     drop(x_long_placeholder);
     let job = validate_job(
         short,
-        Observed {
-            values: &x_short,
-            mask: &m_short,
-            batch,
-            length: ls,
-        },
+        Observation::checked_by_construction(&x_short, &m_short, [batch, k, ls]),
         s,
         &options.sampler,
         noise.stage(false),
@@ -355,14 +337,11 @@ pub fn cascade(
     // them the prior's fill from the first obs_len frames, for a model conditioned on it.
     let mut x_long = pad_frames(&short_mean, ls, ll, 0.0);
     if let Some(p) = long_prior {
-        prior_fill(p, &mut x_long, &m_long, batch, ll, control)?;
+        fill_with_prior(p, &mut x_long, &m_long, batch, ll, control)?;
     }
     let job = validate_job(
         long,
-        Observed {
-            values: &x_long,
-            ..long_shape
-        },
+        Observation::checked_by_construction(&x_long, &m_long, long_shape),
         s,
         &options.sampler,
         noise.stage(true),
@@ -388,15 +367,13 @@ pub fn cascade(
     })
 }
 
-/// Repairs (imputes) the mask-0 entries of an observation: runs `model` on `observed` / `mask`,
-/// (B, K, O) with O the model's `obs_len`, padded to its `seq_len` with mask-0 frames, and returns
+/// Repairs (imputes) the mask-0 entries of an observation: runs `model` on `observed`, (B, K, O) with K
+/// the model's `num_features` and O its `obs_len`, padded to its `seq_len` with mask-0 frames, and returns
 /// the samples and their mean over the observed frames 0..O (mask-1 entries exact). A model conditioned
 /// on the prior forecaster (`cond_fill` [`CondFill::Prior`]) is refused: repair never uses the prior.
 pub fn repair(
     model: &Denoiser,
-    observed: &[f32],
-    mask: &[f32],
-    batch: usize,
+    observed: &Observation<'_>,
     options: &ForecastOptions,
     noise: Noise<'_>,
     control: &Control,
@@ -408,20 +385,20 @@ pub fn repair(
             "a model with cond_fill \"prior\"",
         ));
     }
-    check_observation(model, observed, mask, batch)?;
     let (k, o, l) = (model.num_features(), model.obs_len(), model.seq_len());
+    observed.expect(k, "the model's", Some((o, "obs_len")))?;
+    let batch = observed.batch();
     let s = options.num_samples;
-    let x = pad_frames(&zero_unobserved(observed, mask), o, l, 0.0);
-    let m = pad_frames(mask, o, l, 0.0);
-    let observed = Observed {
-        values: &x,
-        mask: &m,
-        batch,
-        length: l,
-    };
+    let x = pad_frames(
+        &zero_unobserved(observed.values(), observed.mask()),
+        o,
+        l,
+        0.0,
+    );
+    let m = pad_frames(observed.mask(), o, l, 0.0);
     let job = validate_job(
         model,
-        observed,
+        Observation::checked_by_construction(&x, &m, [batch, k, l]),
         s,
         &options.sampler,
         noise,
@@ -432,7 +409,7 @@ pub fn repair(
     let all = run_job(model, &job, control)?;
     let samples = take_frames(&all, l, 0, o);
     let mut mean = mean_over_samples(&samples, s, batch * k * o);
-    crate::sampler::merge_observed(&mut mean, &take_frames(&x, l, 0, o), mask);
+    crate::sampler::merge_observed(&mut mean, &take_frames(&x, l, 0, o), observed.mask());
     Ok(RepairOutput {
         batch,
         num_features: k,

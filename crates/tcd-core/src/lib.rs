@@ -6,57 +6,64 @@
 //! nothing of Python; the binding crate wraps this API.
 //!
 //! ```no_run
-//! use tcd_core::{cascade, CascadeNoise, Control, Denoiser, ForecastOptions, Sequences};
+//! use tcd_core::{cascade, CascadeNoise, Control, Denoiser, ForecastOptions, Observation, Sequences};
 //! # fn main() -> tcd_core::Result<()> {
 //! let short = Denoiser::load("short.safetensors")?;
 //! let long = Denoiser::load("long.safetensors")?;
 //! let (b, k, o) = (1, short.num_features(), short.obs_len());
-//! let observed = vec![0.0f32; b * k * o]; // (B, K, O), model units
-//! let mask = vec![1.0f32; b * k * o];     // 1 = observed
-//! let out = cascade(&short, &long, None, &observed, &mask, &ForecastOptions::default(),
+//! let values = vec![0.0f32; b * k * o]; // (B, K, O), model units
+//! let mask = vec![1.0f32; b * k * o];   // 1 = observed
+//! let observed = Observation::new(&values, &mask, [b, k, o])?; // checked here, once
+//! let out = cascade(&short, &long, None, &observed, &ForecastOptions::default(),
 //!                   CascadeNoise::Seeded { seed: 0, sequences: Sequences::From(0) }, &Control::default())?;
 //! assert_eq!(out.mean.len(), b * k * out.future_len);
 //! # Ok(()) }
 //! ```
 //!
 //! Conventions: every array is a flat row-major f32 buffer; sequences are **(B, K, L)** (frame
-//! fastest), samples lead with S. Masks are 1 (observed) / 0 (to generate).
+//! fastest), samples lead with S. Observations are one type, [`Observation`]: the values and their
+//! mask, 1 (observed) / 0 (to generate), with their shape, checked once when made.
 
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used, clippy::panic))]
 
-pub mod config;
-pub mod control;
-pub mod denoiser;
-pub mod error;
-pub mod forecast;
-pub mod kernels;
-pub mod nn;
-pub mod prior;
-pub mod rng;
-pub mod sampler;
-pub mod schedule;
-pub mod threads;
+// Every module is private: the public API is the items re-exported below, each under one path,
+// `tcd_core::Item`.
+mod config;
+mod control;
+mod denoiser;
+mod error;
+mod forecast;
+mod kernels;
+mod nn;
+mod observation;
+mod prior;
+mod rng;
+mod sampler;
+mod schedule;
+mod threads;
 mod validate;
-pub mod weights;
+mod weights;
 
+// Models and their files.
 pub use config::{
     CondFill, DataConfig, DiffusionConfig, ModelConfig, PredictionType, Role, Target, TcdConfig,
-    WindowConfig,
+    VarianceType, WindowConfig, FORMAT_VERSION,
 };
-pub use control::Control;
-pub use denoiser::{
-    fill_linear, fill_rows, fill_spline, CondTables, Denoiser, Prepared, Workspace,
-};
-pub use error::{Error, Result};
+pub use denoiser::{Denoiser, Prepared, Workspace};
+pub use prior::{dct_matrix, prior_expected_tensors, Prior, PriorConfig, PriorModelConfig};
+pub use weights::{expected_tensors, Tensor, WeightFile, CONFIG_KEY};
+// Observations and what runs on them.
+pub use denoiser::{fill_linear, fill_rows, fill_spline};
 pub use forecast::{
     cascade, prior_fill, repair, CascadeNoise, CascadeOutput, ForecastOptions, RepairOutput,
 };
-pub use kernels::{Kernel, KERNEL_ENV};
-pub use prior::{dct_matrix, prior_expected_tensors, Prior, PriorConfig, PriorModelConfig};
-pub use rng::{chain_rng, seeded_noise, Noise, Sequences};
-pub use sampler::{
-    sample, timesteps, Observed, Plan, SamplerConfig, SamplerKind, TimestepSpacing, VarianceType,
-};
+pub use observation::Observation;
+// Samplers and their noise.
+pub use rng::{seeded_noise, stage, Noise, Sequences};
+pub use sampler::{sample, Plan, Sampler, SamplerConfig, SamplerKind, TimestepSpacing};
 pub use schedule::{BetaSchedule, NoiseSchedule};
+// Kernels, threads, control, errors.
+pub use control::Control;
+pub use error::{Error, Result};
+pub use kernels::{Kernel, KERNEL_ENV};
 pub use threads::with_threads;
-pub use weights::{expected_tensors, Tensor, WeightFile, CONFIG_KEY};

@@ -1,22 +1,5 @@
 //! Noise for the samplers: injected by the caller, or drawn from a named portable generator.
-//!
-//! # Layout
-//! The noise of one call is one f32 array of shape **(S, n + 1, B, K, L)** (S samples, n sampler
-//! steps): block 0 of a chain is x_T, block i + 1 the z used at step i (drawn but unused where
-//! σ = 0). With S = 1 this is the (n + 1, B, K, L) array of the PyTorch side. The deterministic
-//! DPM-Solver++(2M) (`dpmpp2m`) draws no per-step noise: its chains have one block, x_T
-//! ([`crate::Plan::num_noise_blocks`]).
-//!
-//! # Generator
-//! Seeded noise is **ChaCha8** (`rand_chacha::ChaCha8Rng`, rand_chacha 0.9, stream 0) with the
-//! 32-byte key `seed ‖ sequence ‖ sample ‖ stage`, each a little-endian u64, and standard normals
-//! from **`rand_distr::StandardNormal`** (rand_distr 0.5 ziggurat on f64 with its libm maths,
-//! rounded to f32). One generator per chain (sequence × sample × stage), drawn in block order
-//! x_T, z_0, z_1, ..., so results depend neither on the thread count nor on which other
-//! sequences are in the batch: [`Sequences`] numbers them (from a first id, to continue a
-//! numbering across calls, or one id per sequence, to give each window of a long recording its own
-//! stream whatever batch it lands in).
-//! [`seeded_noise`] materialises exactly what the seeded path consumes, for parity tests.
+//! The layout and the generator are documented on [`Noise`], which the public API shows.
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -24,14 +7,32 @@ use rand_distr::StandardNormal;
 
 /// Stage numbers (the last key word): which model of a cascade a chain belongs to.
 pub mod stage {
-    /// Plain [`crate::sampler::sample`], [`crate::forecast::repair`] and the short-term stage of
-    /// [`crate::forecast::cascade`].
+    /// Plain [`crate::sample`], [`crate::repair`] and the short-term stage of
+    /// [`crate::cascade`].
     pub const SHORT: u64 = 0;
-    /// The long-term stage of [`crate::forecast::cascade`].
+    /// The long-term stage of [`crate::cascade`].
     pub const LONG: u64 = 1;
 }
 
 /// Where a sampling call gets its noise.
+///
+/// # Layout
+/// The noise of one call is one f32 array of shape **(S, n + 1, B, K, L)** (S samples, n sampler
+/// steps): block 0 of a chain is x_T, block i + 1 the z used at step i (drawn but unused where
+/// σ = 0). With S = 1 this is the (n + 1, B, K, L) array of the PyTorch side. The deterministic
+/// DPM-Solver++(2M) (`dpmpp2m`) draws no per-step noise: its chains have one block, x_T
+/// ([`crate::Plan::num_noise_blocks`]).
+///
+/// # Generator
+/// Seeded noise is **ChaCha8** (`rand_chacha::ChaCha8Rng`, rand_chacha 0.9, stream 0) with the
+/// 32-byte key `seed ‖ sequence ‖ sample ‖ stage`, each a little-endian u64, and standard normals
+/// from **`rand_distr::StandardNormal`** (rand_distr 0.5 ziggurat on f64 with its libm maths,
+/// rounded to f32). One generator per chain (sequence × sample × stage), drawn in block order
+/// x_T, z_0, z_1, ..., so results depend neither on the thread count nor on which other
+/// sequences are in the batch: [`Sequences`] numbers them (from a first id, to continue a
+/// numbering across calls, or one id per sequence, to give each window of a long recording its own
+/// stream whatever batch it lands in).
+/// [`seeded_noise`] materialises exactly what the seeded path consumes, for parity tests.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Noise<'a> {
     /// Caller-supplied standard normals, shape (S, n + 1, B, K, L).

@@ -4,11 +4,11 @@
 mod common;
 
 use common::*;
-use tcd_core::rng::{seeded_noise, stage};
 use tcd_core::{
     cascade, repair, sample, CascadeNoise, Control, Denoiser, Error, ForecastOptions, Noise,
-    Observed, Role, SamplerConfig, Sequences,
+    Observation, Role, SamplerConfig, Sequences,
 };
+use tcd_core::{seeded_noise, stage};
 
 fn models() -> (Denoiser, Denoiser) {
     (
@@ -46,8 +46,7 @@ fn cascade_shapes_and_invariants() {
         &short,
         &long,
         None,
-        &observed_nan,
-        &mask,
+        &Observation::new(&observed_nan, &mask, [b, k, o]).unwrap(),
         &opts,
         noise,
         &Control::default(),
@@ -105,8 +104,7 @@ fn cascade_short_stage_is_plain_sampling() {
         &short,
         &long,
         None,
-        &observed,
-        &mask,
+        &Observation::new(&observed, &mask, [b, k, o]).unwrap(),
         &opts,
         CascadeNoise::Seeded {
             seed: 8,
@@ -124,7 +122,7 @@ fn cascade_short_stage_is_plain_sampling() {
     }
     let samples = sample(
         &short,
-        Observed::new(&x, &m, 1, 8),
+        &Observation::new(&x, &m, [1, k, 8]).unwrap(),
         s,
         &opts.sampler,
         Noise::seeded(8),
@@ -160,8 +158,7 @@ fn cascade_thread_independent_and_injected_equals_seeded() {
             &short,
             &long,
             None,
-            &observed,
-            &mask,
+            &Observation::new(&observed, &mask, [b, k, o]).unwrap(),
             &opts,
             seeded,
             &Control::default(),
@@ -173,8 +170,7 @@ fn cascade_thread_independent_and_injected_equals_seeded() {
             &short,
             &long,
             None,
-            &observed,
-            &mask,
+            &Observation::new(&observed, &mask, [b, k, o]).unwrap(),
             &opts,
             seeded,
             &Control::default(),
@@ -188,8 +184,7 @@ fn cascade_thread_independent_and_injected_equals_seeded() {
         &short,
         &long,
         None,
-        &observed,
-        &mask,
+        &Observation::new(&observed, &mask, [b, k, o]).unwrap(),
         &opts,
         CascadeNoise::Injected {
             short: &ns,
@@ -203,8 +198,7 @@ fn cascade_thread_independent_and_injected_equals_seeded() {
         &short,
         &long,
         None,
-        &observed,
-        &mask,
+        &Observation::new(&observed, &mask, [b, k, o]).unwrap(),
         &opts,
         CascadeNoise::Seeded {
             seed: 13,
@@ -228,9 +222,7 @@ fn repair_imputes_only_missing_entries() {
     };
     let r = repair(
         &short,
-        &observed,
-        &mask,
-        b,
+        &Observation::new(&observed, &mask, [b, k, o]).unwrap(),
         &opts,
         Noise::seeded(1),
         &Control::default(),
@@ -254,9 +246,7 @@ fn repair_imputes_only_missing_entries() {
     let again = in_pool(1, || {
         repair(
             &short,
-            &observed,
-            &mask,
-            b,
+            &Observation::new(&observed, &mask, [b, k, o]).unwrap(),
             &opts,
             Noise::seeded(1),
             &Control::default(),
@@ -285,26 +275,31 @@ fn cascade_errors() {
         &long,
         &short,
         None,
-        &vec![0.0; k * 8],
-        &vec![1.0; k * 8],
+        &Observation::new(&vec![0.0; k * 8], &vec![1.0; k * 8], [1, k, 8]).unwrap(),
         &opts,
         seeded,
         &Control::default(),
     )
     .unwrap_err();
     assert!(e.to_string().contains("`long`"), "{e}");
-    // wrong observation length
+    // an observation of 5 frames, not the short model's obs_len = 6
+    let five = Observation::new(&observed[..k * 5], &mask[..k * 5], [1, k, 5]).unwrap();
     let e = cascade(
         &short,
         &long,
         None,
-        &observed[1..],
-        &mask,
+        &five,
         &opts,
         seeded,
         &Control::default(),
     )
     .unwrap_err();
+    assert!(
+        e.to_string().contains("`observed`") && e.to_string().contains("obs_len"),
+        "{e}"
+    );
+    // a buffer that does not hold the shape it claims is refused when the observation is made
+    let e = Observation::new(&observed[1..], &mask, [1, k, 6]).unwrap_err();
     assert!(e.to_string().contains("`observed`"), "{e}");
     // injected long noise of the wrong size is caught before anything runs
     let ns = vec![0.0f32; 3 * k * 8];
@@ -313,8 +308,7 @@ fn cascade_errors() {
         &short,
         &long,
         None,
-        &observed,
-        &mask,
+        &Observation::new(&observed, &mask, [1, k, 6]).unwrap(),
         &opts,
         CascadeNoise::Injected {
             short: &ns,
@@ -332,8 +326,7 @@ fn cascade_errors() {
         &short,
         &long,
         None,
-        &observed,
-        &mask,
+        &Observation::new(&observed, &mask, [1, k, 6]).unwrap(),
         &zero,
         seeded,
         &Control::default()
@@ -351,8 +344,7 @@ fn cascade_errors() {
         &short,
         &other,
         None,
-        &observed,
-        &mask,
+        &Observation::new(&observed, &mask, [1, k, 6]).unwrap(),
         &opts,
         seeded,
         &Control::default(),
@@ -391,12 +383,13 @@ fn prior_fill_is_the_spline_then_the_rollout_and_keeps_observed_entries() {
         row[7..].fill(0.0);
     }
     let given = values(b * k * l, 42, 1.0);
-    let mut x: Vec<f32> = given
+    let holes: Vec<f32> = given
         .iter()
         .zip(&mask)
         .map(|(&v, &m)| if m == 1.0 { v } else { f32::NAN })
         .collect();
-    tcd_core::prior_fill(&prior, &mut x, &mask, b, l, &Control::default()).unwrap();
+    let observed = Observation::new(&holes, &mask, [b, k, l]).unwrap();
+    let x = tcd_core::prior_fill(&prior, &observed, &Control::default()).unwrap();
     // head: the spline over the first O frames of each row
     let mut head = vec![0.0f32; b * o * k];
     for r in 0..b * k {
@@ -431,11 +424,16 @@ fn prior_fill_is_the_spline_then_the_rollout_and_keeps_observed_entries() {
     // the prior moved the masked future away from the last given value
     assert!((7..l).any(|ll| (x[ll] - x[6]).abs() > 1e-2));
     // errors name the argument
-    let e = tcd_core::prior_fill(&prior, &mut x, &mask, b, 5, &Control::default()).unwrap_err();
+    let n5 = b * k * 5;
+    let five = Observation::new(&x[..n5], &mask[..n5], [b, k, 5]).unwrap();
+    let e = tcd_core::prior_fill(&prior, &five, &Control::default()).unwrap_err();
     assert!(e.to_string().contains("`length`"), "{e}");
-    let e =
-        tcd_core::prior_fill(&prior, &mut x[1..], &mask, b, l, &Control::default()).unwrap_err();
-    assert!(e.to_string().contains("`values`"), "{e}");
+    let other_k = Observation::new(&x, &mask, [2 * b, 3, l]).unwrap();
+    let e = tcd_core::prior_fill(&prior, &other_k, &Control::default()).unwrap_err();
+    assert!(
+        e.to_string().contains("`observed`") && e.to_string().contains("K = 6"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -473,8 +471,7 @@ fn cascade_with_a_prior_conditioned_pair_fills_each_stage_once() {
                 &short,
                 &long,
                 Some(&prior),
-                &observed_nan,
-                &mask,
+                &Observation::new(&observed_nan, &mask, [b, k, o]).unwrap(),
                 &opts,
                 noise,
                 &Control::default(),
@@ -496,12 +493,16 @@ fn cascade_with_a_prior_conditioned_pair_fills_each_stage_once() {
                 .zip(&mask)
                 .map(|(&v, &m)| if m == 1.0 { v } else { 0.0 })
                 .collect();
-            let mut xs = pad(&zeroed, o, 8, 0.0);
             let ms = pad(&mask, o, 8, 0.0);
-            tcd_core::prior_fill(&prior, &mut xs, &ms, b, 8, &Control::default()).unwrap();
+            let xs = tcd_core::prior_fill(
+                &prior,
+                &Observation::new(&pad(&zeroed, o, 8, 0.0), &ms, [b, k, 8]).unwrap(),
+                &Control::default(),
+            )
+            .unwrap();
             let ss = sample(
                 &short,
-                Observed::new(&xs, &ms, b, 8),
+                &Observation::new(&xs, &ms, [b, k, 8]).unwrap(),
                 s,
                 &sampler,
                 Noise::Injected(&ns),
@@ -521,11 +522,15 @@ fn cascade_with_a_prior_conditioned_pair_fills_each_stage_once() {
             }
             assert_eq!(out.short_mean, mean, "{prediction:?} {sampler:?}");
             let ml = pad(&vec![1.0; b * k * 8], 8, 12, 0.0);
-            let mut xl = pad(&mean, 8, 12, 0.0);
-            tcd_core::prior_fill(&prior, &mut xl, &ml, b, 12, &Control::default()).unwrap();
+            let xl = tcd_core::prior_fill(
+                &prior,
+                &Observation::new(&pad(&mean, 8, 12, 0.0), &ml, [b, k, 12]).unwrap(),
+                &Control::default(),
+            )
+            .unwrap();
             let ls = sample(
                 &long,
-                Observed::new(&xl, &ml, b, 12),
+                &Observation::new(&xl, &ml, [b, k, 12]).unwrap(),
                 s,
                 &sampler,
                 Noise::Injected(&nl),
@@ -551,8 +556,7 @@ fn cascade_with_a_prior_conditioned_pair_fills_each_stage_once() {
             &short,
             &long,
             Some(&prior),
-            &observed,
-            &mask,
+            &Observation::new(&observed, &mask, [b, k, o]).unwrap(),
             &opts,
             seeded,
             &Control::default(),
@@ -563,8 +567,7 @@ fn cascade_with_a_prior_conditioned_pair_fills_each_stage_once() {
             &short,
             &long,
             Some(&other_prior),
-            &observed,
-            &mask,
+            &Observation::new(&observed, &mask, [b, k, o]).unwrap(),
             &opts,
             seeded,
             &Control::default(),
@@ -577,8 +580,7 @@ fn cascade_with_a_prior_conditioned_pair_fills_each_stage_once() {
                 &short,
                 &long,
                 Some(&prior),
-                &observed,
-                &mask,
+                &Observation::new(&observed, &mask, [b, k, o]).unwrap(),
                 &opts,
                 seeded,
                 &Control::default(),
@@ -609,8 +611,7 @@ fn prior_conditioned_models_need_a_fitting_prior_and_never_repair() {
             s,
             l,
             p,
-            &observed,
-            &mask,
+            &Observation::new(&observed, &mask, [1, k, o]).unwrap(),
             &opts,
             seeded,
             &Control::default(),
@@ -652,9 +653,7 @@ fn prior_conditioned_models_need_a_fitting_prior_and_never_repair() {
     // repair never uses the prior: a prior-conditioned model is refused
     let e = repair(
         &short,
-        &observed,
-        &mask,
-        1,
+        &Observation::new(&observed, &mask, [1, k, o]).unwrap(),
         &ForecastOptions::default(),
         Noise::seeded(1),
         &Control::default(),
@@ -673,7 +672,7 @@ fn prior_conditioned_models_need_a_fitting_prior_and_never_repair() {
     nan[7] = f32::NAN;
     let e = sample(
         &short,
-        Observed::new(&nan, &m8, 1, 8),
+        &Observation::new(&nan, &m8, [1, k, 8]).unwrap(),
         1,
         &SamplerConfig::ddim(2, 0.0),
         Noise::seeded(0),
@@ -686,7 +685,12 @@ fn prior_conditioned_models_need_a_fitting_prior_and_never_repair() {
     );
     let mut out = vec![0.0f32; k * 8];
     let e = short
-        .forward(&values(k * 8, 63, 1.0), &nan, &m8, (1, 8), 0, &mut out)
+        .forward(
+            &values(k * 8, 63, 1.0),
+            &Observation::new(&nan, &m8, [1, k, 8]).unwrap(),
+            0,
+            &mut out,
+        )
         .unwrap_err();
     assert!(e.to_string().contains("`observed`"), "{e}");
 }

@@ -4,7 +4,7 @@
 mod common;
 
 use common::*;
-use tcd_core::{Error, Role, Workspace};
+use tcd_core::{Error, Observation, Role, Workspace};
 
 #[test]
 fn matches_naive_reference() {
@@ -18,7 +18,12 @@ fn matches_naive_reference() {
         for step in [0usize, 4, 9] {
             let mut out = vec![0.0f32; n];
             model
-                .forward(&noisy, &observed, &mask, (b, l), step, &mut out)
+                .forward(
+                    &noisy,
+                    &Observation::new(&observed, &mask, [b, 6, l]).unwrap(),
+                    step,
+                    &mut out,
+                )
                 .unwrap();
             let want = naive_forward(
                 model.config(),
@@ -49,7 +54,12 @@ fn length_one_skips_the_time_transformer() {
     let (noisy, observed, mask) = (values(n, 1, 1.0), values(n, 2, 1.0), binary_mask(n, 3, 0.5));
     let mut out = vec![0.0f32; n];
     model
-        .forward(&noisy, &observed, &mask, (b, l), 3, &mut out)
+        .forward(
+            &noisy,
+            &Observation::new(&observed, &mask, [b, 6, l]).unwrap(),
+            3,
+            &mut out,
+        )
         .unwrap();
     let want = naive_forward(
         model.config(),
@@ -74,10 +84,20 @@ fn finite_deterministic_and_batch_independent() {
     let mut out1 = vec![0.0f32; b * n];
     let mut out2 = vec![0.0f32; b * n];
     model
-        .forward(&noisy, &observed, &mask, (b, l), 7, &mut out1)
+        .forward(
+            &noisy,
+            &Observation::new(&observed, &mask, [b, 6, l]).unwrap(),
+            7,
+            &mut out1,
+        )
         .unwrap();
     model
-        .forward(&noisy, &observed, &mask, (b, l), 7, &mut out2)
+        .forward(
+            &noisy,
+            &Observation::new(&observed, &mask, [b, 6, l]).unwrap(),
+            7,
+            &mut out2,
+        )
         .unwrap();
     assert!(out1.iter().all(|v| v.is_finite()));
     assert_eq!(out1, out2);
@@ -88,9 +108,7 @@ fn finite_deterministic_and_batch_independent() {
         model
             .forward(
                 &noisy[r.clone()],
-                &observed[r.clone()],
-                &mask[r.clone()],
-                (1, l),
+                &Observation::new(&observed[r.clone()], &mask[r.clone()], [1, k, l]).unwrap(),
                 7,
                 &mut one,
             )
@@ -98,21 +116,20 @@ fn finite_deterministic_and_batch_independent() {
         assert_eq!(&out1[r], one.as_slice());
     }
     // prepared + workspace reuse across steps give the same bits as the plain forward
-    let prepared = model.prepare(&mask, b, l).unwrap();
+    let obs = Observation::new(&observed, &mask, [b, k, l]).unwrap();
+    let prepared = model.prepare(&obs).unwrap();
     let mut ws = Workspace::new(&model, 5); // wrong length: gets rebuilt
     for step in [7usize, 0, 7] {
         let mut a = vec![0.0f32; b * n];
         let mut c = vec![0.0f32; b * n];
         model
-            .forward_with_workspace(&prepared, &mut ws, &noisy, &observed, step, &mut a)
+            .forward_with_workspace(&prepared, &mut ws, &noisy, step, &mut a)
             .unwrap();
-        model
-            .forward(&noisy, &observed, &mask, (b, l), step, &mut c)
-            .unwrap();
+        model.forward(&noisy, &obs, step, &mut c).unwrap();
         assert_eq!(a, c);
         let mut d = vec![0.0f32; b * n];
         model
-            .forward_prepared(&prepared, &noisy, &observed, step, &mut d)
+            .forward_prepared(&prepared, &noisy, step, &mut d)
             .unwrap();
         assert_eq!(a, d);
     }
@@ -120,7 +137,12 @@ fn finite_deterministic_and_batch_independent() {
     // different steps give different outputs
     let mut o0 = vec![0.0f32; b * n];
     model
-        .forward(&noisy, &observed, &mask, (b, l), 0, &mut o0)
+        .forward(
+            &noisy,
+            &Observation::new(&observed, &mask, [b, 6, l]).unwrap(),
+            0,
+            &mut o0,
+        )
         .unwrap();
     assert_ne!(o0, out1);
 }
@@ -134,7 +156,12 @@ fn ignored_entries_may_be_nan() {
     let mask = binary_mask(n, 3, 0.5);
     let mut base = vec![0.0f32; n];
     model
-        .forward(&noisy, &observed, &mask, (1, 10), 2, &mut base)
+        .forward(
+            &noisy,
+            &Observation::new(&observed, &mask, [1, 6, 10]).unwrap(),
+            2,
+            &mut base,
+        )
         .unwrap();
     for i in 0..n {
         if mask[i] == 1.0 {
@@ -145,7 +172,12 @@ fn ignored_entries_may_be_nan() {
     }
     let mut out = vec![0.0f32; n];
     model
-        .forward(&noisy, &observed, &mask, (1, 10), 2, &mut out)
+        .forward(
+            &noisy,
+            &Observation::new(&observed, &mask, [1, 6, 10]).unwrap(),
+            2,
+            &mut out,
+        )
         .unwrap();
     assert_eq!(base, out);
 }
@@ -161,66 +193,53 @@ fn input_errors_name_the_argument() {
         Error::InvalidInput { argument, .. } => argument,
         other => panic!("{other:?}"),
     };
+    // the observation's own errors, when it is made
+    let observation =
+        |v: &[f32], m: &[f32], shape| Observation::new(v, m, shape).map(drop).map_err(arg);
     assert_eq!(
-        arg(model
-            .forward(&ok[1..], &ok, &mask, (1, 10), 0, &mut out)
-            .unwrap_err()),
-        "noisy"
-    );
-    assert_eq!(
-        arg(model
-            .forward(&ok, &ok[1..], &mask, (1, 10), 0, &mut out)
-            .unwrap_err()),
+        observation(&ok[1..], &mask, [1, 6, 10]).unwrap_err(),
         "observed"
     );
     assert_eq!(
-        arg(model
-            .forward(&ok, &ok, &mask[1..], (1, 10), 0, &mut out)
-            .unwrap_err()),
+        observation(&ok, &mask[1..], [1, 6, 10]).unwrap_err(),
         "mask"
     );
-    assert_eq!(
-        arg(model
-            .forward(&ok, &ok, &mask, (1, 10), 0, &mut out[1..])
-            .unwrap_err()),
-        "out"
-    );
-    assert_eq!(
-        arg(model
-            .forward(&ok, &ok, &mask, (1, 10), 10, &mut out)
-            .unwrap_err()),
-        "step"
-    );
-    assert_eq!(
-        arg(model
-            .forward(&ok, &ok, &mask, (0, 10), 0, &mut out)
-            .unwrap_err()),
-        "batch"
-    );
-    assert_eq!(
-        arg(model
-            .forward(&ok, &ok, &mask, (1, 0), 0, &mut out)
-            .unwrap_err()),
-        "length"
-    );
+    assert_eq!(observation(&ok, &mask, [0, 6, 10]).unwrap_err(), "batch");
+    assert_eq!(observation(&ok, &mask, [1, 6, 0]).unwrap_err(), "length");
     let mut soft = mask.clone();
     soft[4] = 0.5;
-    let e = model
-        .forward(&ok, &ok, &soft, (1, 10), 0, &mut out)
-        .unwrap_err();
+    let e = Observation::new(&ok, &soft, [1, 6, 10]).unwrap_err();
     assert!(e.to_string().contains("0.5 at flat index 4"), "{e}");
     let mut bad = ok.clone();
     let i = mask.iter().position(|&m| m == 1.0).unwrap();
     bad[i] = f32::INFINITY;
     assert_eq!(
-        arg(model
-            .forward(&ok, &bad, &mask, (1, 10), 0, &mut out)
-            .unwrap_err()),
+        observation(&bad, &mask, [1, 6, 10]).unwrap_err(),
         "observed"
     );
-    let e = model
-        .forward(&ok, &ok, &mask, (1, 10), 12, &mut out)
-        .unwrap_err();
+    // the forward's
+    let obs = Observation::new(&ok, &mask, [1, 6, 10]).unwrap();
+    assert_eq!(
+        arg(model.forward(&ok[1..], &obs, 0, &mut out).unwrap_err()),
+        "noisy"
+    );
+    assert_eq!(
+        arg(model.forward(&ok, &obs, 0, &mut out[1..]).unwrap_err()),
+        "out"
+    );
+    assert_eq!(
+        arg(model.forward(&ok, &obs, 10, &mut out).unwrap_err()),
+        "step"
+    );
+    // an observation of another K
+    let other_k = Observation::new(&ok, &mask, [2, 3, 10]).unwrap();
+    let e = model.forward(&ok, &other_k, 0, &mut out).unwrap_err();
+    assert!(
+        e.to_string().contains("K = 6 (the model's num_features)"),
+        "{e}"
+    );
+    assert_eq!(arg(e), "observed");
+    let e = model.forward(&ok, &obs, 12, &mut out).unwrap_err();
     assert_eq!(
         e.to_string(),
         "Argument `step` must be a diffusion step in 0..10 (num_train_timesteps = 10), but received 12."
@@ -238,19 +257,20 @@ fn prepared_and_workspace_from_another_model() {
     let n = 6 * 10;
     let (x, mask) = (values(n, 1, 1.0), binary_mask(n, 2, 0.5));
     let mut out = vec![0.0f32; n];
-    let pa = a.prepare(&mask, 1, 10).unwrap();
-    let e = b.forward_prepared(&pa, &x, &x, 0, &mut out).unwrap_err();
+    let obs = Observation::new(&x, &mask, [1, 6, 10]).unwrap();
+    let pa = a.prepare(&obs).unwrap();
+    let e = b.forward_prepared(&pa, &x, 0, &mut out).unwrap_err();
     assert!(
         matches!(&e, Error::InvalidInput { argument, .. } if argument == "prepared"),
         "{e:?}"
     );
     // a workspace made for another model is rebuilt, not misused
     let mut ws = Workspace::new(&a, 10);
-    let pb = b.prepare(&mask, 1, 10).unwrap();
-    b.forward_with_workspace(&pb, &mut ws, &x, &x, 0, &mut out)
+    let pb = b.prepare(&obs).unwrap();
+    b.forward_with_workspace(&pb, &mut ws, &x, 0, &mut out)
         .unwrap();
     let mut want = vec![0.0f32; n];
-    b.forward(&x, &x, &mask, (1, 10), 0, &mut want).unwrap();
+    b.forward(&x, &obs, 0, &mut want).unwrap();
     assert_eq!(out, want);
 }
 

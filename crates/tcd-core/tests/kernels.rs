@@ -5,7 +5,7 @@
 mod common;
 
 use common::*;
-use tcd_core::{Denoiser, Kernel, Role, TcdConfig, Workspace};
+use tcd_core::{Denoiser, Kernel, Observation, Role, TcdConfig, Workspace};
 
 /// A config with the given sizes (K = joints·3).
 fn config(
@@ -54,7 +54,12 @@ fn compare_all(cfg: &TcdConfig, seed: u64, tol: f64) {
         .map(|&s| {
             let mut o = vec![0.0f32; n];
             portable
-                .forward(&noisy, &observed, &mask, (b, l), s, &mut o)
+                .forward(
+                    &noisy,
+                    &Observation::new(&observed, &mask, [b, k, l]).unwrap(),
+                    s,
+                    &mut o,
+                )
                 .unwrap();
             o
         })
@@ -62,11 +67,13 @@ fn compare_all(cfg: &TcdConfig, seed: u64, tol: f64) {
     for kernel in Kernel::supported() {
         let fast = base.clone().with_kernel(kernel).unwrap();
         assert_eq!(fast.kernel(), kernel);
-        let prepared = fast.prepare(&mask, b, l).unwrap();
+        let prepared = fast
+            .prepare(&Observation::new(&observed, &mask, [b, k, l]).unwrap())
+            .unwrap();
         let mut ws = Workspace::new(&fast, l);
         for (&s, w) in steps.iter().zip(&want) {
             let mut o = vec![0.0f32; n];
-            fast.forward_with_workspace(&prepared, &mut ws, &noisy, &observed, s, &mut o)
+            fast.forward_with_workspace(&prepared, &mut ws, &noisy, s, &mut o)
                 .unwrap();
             assert!(o.iter().all(|v| v.is_finite()));
             let err = o
@@ -139,8 +146,13 @@ fn every_kernel_matches_the_naive_reference() {
         let d = base.clone().with_kernel(kernel).unwrap();
         for step in [0usize, 9] {
             let mut out = vec![0.0f32; n];
-            d.forward(&noisy, &observed, &mask, (b, l), step, &mut out)
-                .unwrap();
+            d.forward(
+                &noisy,
+                &Observation::new(&observed, &mask, [b, k, l]).unwrap(),
+                step,
+                &mut out,
+            )
+            .unwrap();
             let want = naive_forward(d.config(), &tensors, &noisy, &observed, &mask, (b, l), step);
             let scale = want.iter().fold(0.0f64, |a, v| a.max(v.abs()));
             let err = max_abs_diff(&out, &want);
@@ -168,12 +180,13 @@ fn forcing_portable_and_unsupported_kernels() {
     let n = 6 * 10;
     let (x, mask) = (values(n, 1, 1.0), binary_mask(n, 2, 0.5));
     let mut ws = Workspace::new(&p, 10);
-    let prepared = auto.prepare(&mask, 1, 10).unwrap();
+    let observed = Observation::new(&x, &mask, [1, 6, 10]).unwrap();
+    let prepared = auto.prepare(&observed).unwrap();
     let mut a = vec![0.0f32; n];
     let mut b = vec![0.0f32; n];
-    auto.forward_with_workspace(&prepared, &mut ws, &x, &x, 3, &mut a)
+    auto.forward_with_workspace(&prepared, &mut ws, &x, 3, &mut a)
         .unwrap();
-    auto.forward(&x, &x, &mask, (1, 10), 3, &mut b).unwrap();
+    auto.forward(&x, &observed, 3, &mut b).unwrap();
     assert_eq!(a, b);
 }
 
@@ -184,13 +197,15 @@ fn splitting_one_forward_over_threads_gives_the_same_bits() {
     let (k, l) = (15usize, 13usize);
     let n = k * l;
     let (x, obs, mask) = (values(n, 1, 1.0), values(n, 2, 1.0), binary_mask(n, 3, 0.5));
-    let prepared = d.prepare(&mask, 1, l).unwrap();
+    let prepared = d
+        .prepare(&Observation::new(&obs, &mask, [1, k, l]).unwrap())
+        .unwrap();
     let mut outs = Vec::new();
     for threads in [1usize, 2, 3, 7, 40] {
         let mut ws = Workspace::with_threads(&d, l, threads);
         let mut o = vec![0.0f32; n];
         tcd_core::with_threads(Some(threads.min(4)), || {
-            d.forward_with_workspace(&prepared, &mut ws, &x, &obs, 4, &mut o)
+            d.forward_with_workspace(&prepared, &mut ws, &x, 4, &mut o)
                 .unwrap()
         })
         .unwrap();

@@ -155,7 +155,11 @@ fn config_errors_name_the_field() {
         matches!(&e, Error::InvalidConfig { field, .. } if field == "role"),
         "{e:?}"
     );
-    assert!(e.to_string().contains("Denoiser"), "{e}");
+    assert!(
+        e.to_string().contains("`Denoiser::load`")
+            && e.to_string().contains("`tcd.engine.Denoiser.load`"),
+        "{e}"
+    );
     // a missing or mistyped field: the parser's message names it
     for (name, json) in [
         (
@@ -282,7 +286,11 @@ fn a_prior_file_is_no_denoiser() {
         matches!(&e, Error::InvalidConfig { field, .. } if field == "role"),
         "{e:?}"
     );
-    assert!(e.to_string().contains("Prior::load"), "{e}");
+    assert!(
+        e.to_string().contains("`Prior::load`")
+            && e.to_string().contains("`tcd.engine.Prior.load`"),
+        "{e}"
+    );
 }
 
 // ------------------------------------------------------------------------------- the DCT

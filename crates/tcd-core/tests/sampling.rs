@@ -8,11 +8,11 @@ use std::sync::OnceLock;
 
 use common::*;
 use proptest::prelude::*;
-use tcd_core::rng::{seeded_noise, stage};
 use tcd_core::{
-    sample, Control, Denoiser, Error, Noise, Observed, PredictionType, Role, SamplerConfig,
-    SamplerKind, Sequences, TimestepSpacing, VarianceType,
+    sample, Control, Denoiser, Error, Noise, Observation, PredictionType, Role, Sampler,
+    SamplerConfig, SamplerKind, Sequences, TimestepSpacing, VarianceType,
 };
+use tcd_core::{seeded_noise, stage};
 
 fn model() -> &'static Denoiser {
     static M: OnceLock<Denoiser> = OnceLock::new();
@@ -61,7 +61,7 @@ proptest! {
         let observed = values(n, seed ^ 1, 3.0);
         let mask = binary_mask(n, seed ^ 2, p_obs);
         let run = |threads| in_pool(threads, || {
-            sample(m, Observed::new(&observed, &mask, batch, length), num_samples, &sampler, Noise::seeded(seed), &Control::default()).unwrap()
+            sample(m, &Observation::new(&observed, &mask, [batch, 6, length]).unwrap(), num_samples, &sampler, Noise::seeded(seed), &Control::default()).unwrap()
         });
         let one = run(1);
         let two = run(2);
@@ -92,7 +92,7 @@ fn leftover_chains_split_over_threads_same_bits() {
             in_pool(threads, || {
                 sample(
                     m,
-                    Observed::new(&observed, &mask, batch, 9),
+                    &Observation::new(&observed, &mask, [batch, 6, 9]).unwrap(),
                     num_samples,
                     &SamplerConfig::ddpm(),
                     Noise::seeded(3),
@@ -122,7 +122,7 @@ fn same_seed_same_output_different_seed_differs() {
     let cfg = SamplerConfig::ddpm();
     let a = sample(
         m,
-        Observed::new(&observed, &mask, 2, 7),
+        &Observation::new(&observed, &mask, [2, 6, 7]).unwrap(),
         2,
         &cfg,
         Noise::seeded(5),
@@ -131,7 +131,7 @@ fn same_seed_same_output_different_seed_differs() {
     .unwrap();
     let b = sample(
         m,
-        Observed::new(&observed, &mask, 2, 7),
+        &Observation::new(&observed, &mask, [2, 6, 7]).unwrap(),
         2,
         &cfg,
         Noise::seeded(5),
@@ -140,7 +140,7 @@ fn same_seed_same_output_different_seed_differs() {
     .unwrap();
     let c = sample(
         m,
-        Observed::new(&observed, &mask, 2, 7),
+        &Observation::new(&observed, &mask, [2, 6, 7]).unwrap(),
         2,
         &cfg,
         Noise::seeded(6),
@@ -163,7 +163,7 @@ fn seeded_equals_injected_seeded_noise_and_batch_composition_is_irrelevant() {
     let cfg = SamplerConfig::ddim(4, 0.7);
     let seeded = sample(
         m,
-        Observed::new(&observed, &mask, b, l),
+        &Observation::new(&observed, &mask, [b, 6, l]).unwrap(),
         s,
         &cfg,
         Noise::seeded(9),
@@ -173,7 +173,7 @@ fn seeded_equals_injected_seeded_noise_and_batch_composition_is_irrelevant() {
     let noise = seeded_noise(9, Sequences::From(0), stage::SHORT, s, 5, b, 6 * l);
     let injected = sample(
         m,
-        Observed::new(&observed, &mask, b, l),
+        &Observation::new(&observed, &mask, [b, 6, l]).unwrap(),
         s,
         &cfg,
         Noise::Injected(&noise),
@@ -185,7 +185,7 @@ fn seeded_equals_injected_seeded_noise_and_batch_composition_is_irrelevant() {
     let q = 6 * l;
     let alone = sample(
         m,
-        Observed::new(&observed[2 * q..], &mask[2 * q..], 1, l),
+        &Observation::new(&observed[2 * q..], &mask[2 * q..], [1, 6, l]).unwrap(),
         s,
         &cfg,
         Noise::Seeded {
@@ -214,7 +214,7 @@ fn ddim_eta_zero_ignores_the_step_noise() {
     let mut noise = seeded_noise(1, Sequences::From(0), 0, s, 6, 1, n);
     let a = sample(
         m,
-        Observed::new(&observed, &mask, 1, l),
+        &Observation::new(&observed, &mask, [1, 6, l]).unwrap(),
         s,
         &cfg,
         Noise::Injected(&noise),
@@ -226,7 +226,7 @@ fn ddim_eta_zero_ignores_the_step_noise() {
     }
     let b = sample(
         m,
-        Observed::new(&observed, &mask, 1, l),
+        &Observation::new(&observed, &mask, [1, 6, l]).unwrap(),
         s,
         &cfg,
         Noise::Injected(&noise),
@@ -242,7 +242,7 @@ fn ddim_eta_zero_ignores_the_step_noise() {
     };
     let c = sample(
         m,
-        Observed::new(&observed, &mask, 1, l),
+        &Observation::new(&observed, &mask, [1, 6, l]).unwrap(),
         s,
         &cfg,
         Noise::Injected(&noise),
@@ -252,7 +252,7 @@ fn ddim_eta_zero_ignores_the_step_noise() {
     noise[n + 3] += 1.0;
     let d = sample(
         m,
-        Observed::new(&observed, &mask, 1, l),
+        &Observation::new(&observed, &mask, [1, 6, l]).unwrap(),
         s,
         &cfg,
         Noise::Injected(&noise),
@@ -271,7 +271,7 @@ fn ddpm_all_steps_is_the_reference_chain() {
     let mask = binary_mask(n, 4, 0.4);
     let reference = sample(
         m,
-        Observed::new(&observed, &mask, 1, 7),
+        &Observation::new(&observed, &mask, [1, 6, 7]).unwrap(),
         1,
         &SamplerConfig::ddpm(),
         Noise::seeded(3),
@@ -287,7 +287,7 @@ fn ddpm_all_steps_is_the_reference_chain() {
         assert_eq!(
             sample(
                 m,
-                Observed::new(&observed, &mask, 1, 7),
+                &Observation::new(&observed, &mask, [1, 6, 7]).unwrap(),
                 1,
                 &cfg,
                 Noise::seeded(3),
@@ -305,8 +305,13 @@ fn ddpm_all_steps_is_the_reference_chain() {
     let mut x = noise[..n].to_vec();
     let mut eps = vec![0.0f32; n];
     for (i, t) in (0..10usize).rev().enumerate() {
-        m.forward(&x, &observed, &mask, (1, 7), t, &mut eps)
-            .unwrap();
+        m.forward(
+            &x,
+            &Observation::new(&observed, &mask, [1, 6, 7]).unwrap(),
+            t,
+            &mut eps,
+        )
+        .unwrap();
         let (a_t, a_next) = (abar(t as i64), abar(t as i64 - 1));
         let beta = 1.0 - a_t / a_next;
         let c1 = (1.0 / (1.0 - beta).sqrt()) as f32;
@@ -342,7 +347,7 @@ fn dpmpp2m_is_deterministic_with_one_noise_block_and_matches_a_hand_loop() {
     assert!(plan.is_multistep());
     let seeded = sample(
         m,
-        Observed::new(&observed, &mask, 1, l),
+        &Observation::new(&observed, &mask, [1, 6, l]).unwrap(),
         s,
         &cfg,
         Noise::seeded(5),
@@ -353,7 +358,7 @@ fn dpmpp2m_is_deterministic_with_one_noise_block_and_matches_a_hand_loop() {
     assert_eq!(
         sample(
             m,
-            Observed::new(&observed, &mask, 1, l),
+            &Observation::new(&observed, &mask, [1, 6, l]).unwrap(),
             s,
             &cfg,
             Noise::Injected(&noise),
@@ -366,7 +371,7 @@ fn dpmpp2m_is_deterministic_with_one_noise_block_and_matches_a_hand_loop() {
     let long = seeded_noise(5, Sequences::From(0), stage::SHORT, s, 5, 1, n);
     let e = sample(
         m,
-        Observed::new(&observed, &mask, 1, l),
+        &Observation::new(&observed, &mask, [1, 6, l]).unwrap(),
         s,
         &cfg,
         Noise::Injected(&long),
@@ -383,8 +388,13 @@ fn dpmpp2m_is_deterministic_with_one_noise_block_and_matches_a_hand_loop() {
     let mut prev: Vec<f32> = Vec::new();
     let mut h_prev = 0.0f64;
     for (i, &t) in ts.iter().enumerate() {
-        m.forward(&x, &observed, &mask, (1, l), t, &mut eps)
-            .unwrap();
+        m.forward(
+            &x,
+            &Observation::new(&observed, &mask, [1, 6, l]).unwrap(),
+            t,
+            &mut eps,
+        )
+        .unwrap();
         let (a, b) = ((1.0 - ab[t]).sqrt() as f32, ab[t].sqrt() as f32);
         let x0: Vec<f32> = x
             .iter()
@@ -433,7 +443,7 @@ fn sampling_errors() {
     assert_eq!(
         arg(sample(
             m,
-            Observed::new(&observed, &mask, 1, 7),
+            &Observation::new(&observed, &mask, [1, 6, 7]).unwrap(),
             1,
             &ddim(11, 0.0),
             Noise::seeded(0),
@@ -445,7 +455,7 @@ fn sampling_errors() {
     assert_eq!(
         arg(sample(
             m,
-            Observed::new(&observed, &mask, 1, 7),
+            &Observation::new(&observed, &mask, [1, 6, 7]).unwrap(),
             1,
             &ddim(0, 0.0),
             Noise::seeded(0),
@@ -457,7 +467,7 @@ fn sampling_errors() {
     assert_eq!(
         arg(sample(
             m,
-            Observed::new(&observed, &mask, 1, 7),
+            &Observation::new(&observed, &mask, [1, 6, 7]).unwrap(),
             1,
             &ddim(3, 1.5),
             Noise::seeded(0),
@@ -469,7 +479,7 @@ fn sampling_errors() {
     assert_eq!(
         arg(sample(
             m,
-            Observed::new(&observed, &mask, 1, 7),
+            &Observation::new(&observed, &mask, [1, 6, 7]).unwrap(),
             0,
             &ddim(3, 0.0),
             Noise::seeded(0),
@@ -481,7 +491,7 @@ fn sampling_errors() {
     let short = vec![0.0f32; 4 * n - 1];
     let e = sample(
         m,
-        Observed::new(&observed, &mask, 1, 7),
+        &Observation::new(&observed, &mask, [1, 6, 7]).unwrap(),
         1,
         &ddim(3, 0.0),
         Noise::Injected(&short),
@@ -494,7 +504,7 @@ fn sampling_errors() {
     assert_eq!(
         arg(sample(
             m,
-            Observed::new(&observed, &mask, 1, 7),
+            &Observation::new(&observed, &mask, [1, 6, 7]).unwrap(),
             1,
             &ddim(3, 0.0),
             Noise::Injected(&nan),
@@ -515,7 +525,7 @@ fn control_counts_forwards_and_stops_the_call() {
     let run = |control: &Control| {
         sample(
             m,
-            Observed::new(&observed, &mask, 2, 7),
+            &Observation::new(&observed, &mask, [2, 6, 7]).unwrap(),
             3,
             &cfg,
             Noise::seeded(5),
@@ -542,7 +552,7 @@ fn control_counts_forwards_and_stops_the_call() {
         let h = s.spawn(|| {
             sample(
                 m,
-                Observed::new(&observed, &mask, 80, 7),
+                &Observation::new(&observed, &mask, [80, 6, 7]).unwrap(),
                 50,
                 &cfg,
                 Noise::seeded(1),
@@ -579,12 +589,12 @@ fn x0_prediction_turns_the_output_into_the_noise_in_every_sampler() {
         SamplerConfig::ddim(4, 1.0),
         SamplerConfig::dpmpp2m(4),
     ] {
+        // (that an x0 plan converts at every step and an epsilon plan at none is a unit test of the sampler)
         let plan = sc.plan(m.schedule(), VarianceType::FixedSmall).unwrap();
-        assert!(plan.steps.iter().all(|st| st.to_noise.is_none()));
         let x0_plan = plan
             .clone()
             .for_prediction(PredictionType::Sample, m.schedule());
-        assert!(x0_plan.steps.iter().all(|st| st.to_noise.is_some()));
+        assert_ne!(x0_plan, plan);
         assert_eq!(
             plan.clone()
                 .for_prediction(PredictionType::Epsilon, m.schedule()),
@@ -592,7 +602,7 @@ fn x0_prediction_turns_the_output_into_the_noise_in_every_sampler() {
         );
         let blocks = plan.num_noise_blocks();
         let noise = values(blocks * n, 33, 1.5);
-        let obs = Observed::new(&observed, &mask, 1, l);
+        let obs = &Observation::new(&observed, &mask, [1, 6, l]).unwrap();
         let got = sample(
             &m,
             obs,
@@ -604,26 +614,34 @@ fn x0_prediction_turns_the_output_into_the_noise_in_every_sampler() {
         .unwrap();
         // A hand loop over the public forward: eps = (x - a * out) * inv_s with a = sqrt(abar_t),
         // inv_s = 1 / sqrt(1 - abar_t) rounded from f64 (training.diffusion.predicted_noise), then the step.
+        // The epsilon plan's sampler steps with the hand-converted noise (it converts nothing itself).
         let mut x = noise[..n].to_vec();
         let mut out = vec![0.0f32; n];
-        let mut prev = vec![0.0f32; n];
-        for (i, st) in plan.steps.iter().enumerate() {
-            m.forward(&x, &observed, &mask, (1, l), st.t, &mut out)
-                .unwrap();
-            let ab = m.schedule().alpha_bar(Some(st.t));
+        let mut sampler = Sampler::new(&plan, n);
+        while let Some(t) = sampler.timestep() {
+            m.forward(
+                &x,
+                &Observation::new(&observed, &mask, [1, 6, l]).unwrap(),
+                t,
+                &mut out,
+            )
+            .unwrap();
+            let ab = m.schedule().alpha_bar(Some(t));
             let (a, inv_s) = (ab.sqrt() as f32, (1.0 / (1.0 - ab).sqrt()) as f32);
-            let eps: Vec<f32> = x
+            let mut eps: Vec<f32> = x
                 .iter()
                 .zip(&out)
                 .map(|(xv, ov)| (xv - a * ov) * inv_s)
                 .collect();
+            let i = sampler.index();
             let z = if blocks > 1 {
                 &noise[(i + 1) * n..(i + 2) * n]
             } else {
                 &noise[..0]
             };
-            st.apply(&mut x, &eps, z, &mut prev);
+            sampler.step(&mut x, &mut eps, z).unwrap();
         }
+        assert!(sampler.step(&mut x, &mut out, &[]).is_err()); // past the last step
         for j in 0..n {
             if mask[j] == 1.0 {
                 x[j] = observed[j];

@@ -10,7 +10,7 @@
 
 use numpy::PyReadonlyArrayDyn;
 use pyo3::prelude::*;
-use tcd_core::{Control, Denoiser, ForecastOptions, Noise, Sequences};
+use tcd_core::{Control, Denoiser, ForecastOptions, Noise, Observation, Sequences};
 
 use crate::convert::*;
 use crate::error::{internal, invalid, Result};
@@ -60,6 +60,12 @@ impl<const N: usize> Job<N> {
     /// The shape of the samples of a model with `k` features: (S, B, K, frames).
     pub(crate) fn samples_shape(&self, k: usize) -> [usize; 4] {
         [self.options.num_samples, self.batch, k, self.frames]
+    }
+
+    /// The observation as the engine takes it, (B, K, frames) with K = `k` (the first model's); the
+    /// engine checks its values here.
+    pub(crate) fn observation(&self, k: usize) -> CoreResult<Observation<'_>> {
+        Observation::new(&self.observed, &self.mask, [self.batch, k, self.frames])
     }
 }
 

@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use numpy::{PyArrayDyn, PyReadonlyArrayDyn};
 use pyo3::prelude::*;
-use tcd_core::{sample as core_sample, with_threads, Denoiser, Observed};
+use tcd_core::{sample as core_sample, with_threads, Denoiser, Observation};
 
 use crate::call::{SamplingArgs, Window};
 use crate::convert::*;
@@ -128,15 +128,9 @@ impl PyDenoiser {
         let model = &self.inner;
         let out = py.detach(|| -> CoreResult<Vec<f32>> {
             with_threads(threads, || {
+                let observed = Observation::new(&observed.data, &mask.data, shape)?;
                 let mut out = vec![0.0f32; noisy.data.len()];
-                model.forward(
-                    &noisy.data,
-                    &observed.data,
-                    &mask.data,
-                    (b, l),
-                    step,
-                    &mut out,
-                )?;
+                model.forward(&noisy.data, &observed, step, &mut out)?;
                 Ok(out)
             })?
         })?;
@@ -183,7 +177,7 @@ impl PyDenoiser {
             let [noise] = &job.noise;
             core_sample(
                 model,
-                Observed::new(&job.observed, &job.mask, job.batch, job.frames),
+                &job.observation(model.num_features())?,
                 job.options.num_samples,
                 &job.options.sampler,
                 noise.as_noise(),

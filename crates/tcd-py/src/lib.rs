@@ -26,7 +26,7 @@ mod prior;
 mod run;
 
 use pyo3::prelude::*;
-use tcd_core::rng::stage;
+use tcd_core::stage;
 
 use crate::denoiser::PyDenoiser;
 use crate::pipeline::{

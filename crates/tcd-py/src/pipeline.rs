@@ -4,7 +4,7 @@
 use numpy::{PyArrayDyn, PyReadonlyArrayDyn};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
-use tcd_core::rng::seeded_noise as core_seeded_noise;
+use tcd_core::seeded_noise as core_seeded_noise;
 use tcd_core::{
     cascade as core_cascade, fill_rows, repair as core_repair, CascadeNoise, CondFill, Sequences,
 };
@@ -78,8 +78,7 @@ pub(crate) fn cascade<'py>(
             short,
             long,
             prior,
-            &job.observed,
-            &job.mask,
+            &job.observation(short.num_features())?,
             &job.options,
             noise,
             control,
@@ -138,9 +137,7 @@ pub(crate) fn repair<'py>(
         let [noise] = &job.noise;
         core_repair(
             model,
-            &job.observed,
-            &job.mask,
-            job.batch,
+            &job.observation(model.num_features())?,
             &job.options,
             noise.as_noise(),
             control,

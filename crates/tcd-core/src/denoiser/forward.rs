@@ -4,6 +4,7 @@
 use super::workspace::{CondTables, Prepared, Workspace};
 use super::Denoiser;
 use crate::error::{Error, Result};
+use crate::observation::Observation;
 use crate::validate;
 
 /// The inputs of one sequence's forward: its mask, noisy sample x_t and observation x₀ (K × L
@@ -18,23 +19,20 @@ pub(crate) struct SequenceInputs<'a> {
 }
 
 impl Denoiser {
-    /// The network's output for a batch (ε̂, or x̂₀ for `prediction_type` `sample`): `noisy`,
-    /// `observed`, `mask`, `out` all (B, K, L), `shape` = (B, L); `step` in 0..T. Entries of `observed`
-    /// where mask = 0 and of `noisy` where mask = 1 are ignored (may be NaN), except that a
-    /// [`crate::CondFill::Prior`] model reads the prior's fill from `observed` where mask = 0 (it must be
-    /// finite there).
+    /// The network's output for a batch (ε̂, or x̂₀ for `prediction_type` `sample`): `noisy` and `out`
+    /// (B, K, L) like `observed` (whose K must be the model's `num_features`); `step` in 0..T. Entries of
+    /// `noisy` where mask = 1 are ignored (may be NaN), and so are those of `observed` where mask = 0,
+    /// except that a [`crate::CondFill::Prior`] model reads the prior's fill from them (it must be finite
+    /// there).
     pub fn forward(
         &self,
         noisy: &[f32],
-        observed: &[f32],
-        mask: &[f32],
-        shape: (usize, usize),
+        observed: &Observation<'_>,
         step: usize,
         out: &mut [f32],
     ) -> Result<()> {
-        let (batch, length) = shape;
-        let prepared = self.prepare(mask, batch, length)?;
-        self.forward_prepared(&prepared, noisy, observed, step, out)
+        let prepared = self.prepare(observed)?;
+        self.forward_prepared(&prepared, noisy, step, out)
     }
 
     /// [`Denoiser::forward`] with the step-independent work done once by [`Denoiser::prepare`].
@@ -42,12 +40,11 @@ impl Denoiser {
         &self,
         prepared: &Prepared,
         noisy: &[f32],
-        observed: &[f32],
         step: usize,
         out: &mut [f32],
     ) -> Result<()> {
         let mut ws = Workspace::new(self, prepared.length);
-        self.forward_with_workspace(prepared, &mut ws, noisy, observed, step, out)
+        self.forward_with_workspace(prepared, &mut ws, noisy, step, out)
     }
 
     /// [`Denoiser::forward_prepared`] using caller-owned buffers (no allocation when `workspace`
@@ -57,7 +54,6 @@ impl Denoiser {
         prepared: &Prepared,
         workspace: &mut Workspace,
         noisy: &[f32],
-        observed: &[f32],
         step: usize,
         out: &mut [f32],
     ) -> Result<()> {
@@ -82,11 +78,6 @@ impl Denoiser {
             ));
         }
         validate::finite_where("noisy", noisy, &prepared.mask, 0.0, b * n, &shape)?;
-        validate::finite_where("observed", observed, &prepared.mask, 1.0, b * n, &shape)?;
-        if self.config.model.cond_fill == crate::config::CondFill::Prior {
-            // The masked entries hold the prior's fill, which the network reads (CondFill::Prior).
-            validate::all_finite("observed", observed, b * n, &shape)?;
-        }
         crate::error::check_len("out", out.len(), b * n, &shape)?;
         self.check_step(step)?;
         if workspace.length != l
@@ -97,7 +88,7 @@ impl Denoiser {
         }
         for (((nz, ob), m), o) in noisy
             .chunks_exact(n)
-            .zip(observed.chunks_exact(n))
+            .zip(prepared.observed.chunks_exact(n))
             .zip(prepared.mask.chunks_exact(n))
             .zip(out.chunks_exact_mut(n))
         {

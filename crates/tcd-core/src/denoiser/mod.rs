@@ -38,7 +38,8 @@ mod workspace;
 
 pub use fill::{fill_linear, fill_rows, fill_spline};
 pub(crate) use forward::SequenceInputs;
-pub use workspace::{CondTables, Prepared, Workspace};
+pub(crate) use workspace::CondTables;
+pub use workspace::{Prepared, Workspace};
 
 use packed::FastModel;
 

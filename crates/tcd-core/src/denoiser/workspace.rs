@@ -2,34 +2,31 @@
 //! [`Prepared`] batch (mask + tables) and the activation buffers of a [`Workspace`].
 
 use super::Denoiser;
-use crate::error::{check_positive, Result};
+use crate::error::Result;
 use crate::kernels::FastScratch;
 use crate::nn::embedding::frame_embedding;
 use crate::nn::EncoderScratch;
+use crate::observation::Observation;
 use crate::validate;
 
 /// The length-dependent cond tables: for every block, `W_t · pe(l) + b` (L × 2C).
 #[derive(Clone, Debug)]
-pub struct CondTables {
+pub(crate) struct CondTables {
+    /// The frame count L the tables were built for.
     pub(super) length: usize,
     /// 2C of the model that built the tables.
     pub(super) width: usize,
     pub(super) time: Vec<Vec<f32>>,
 }
 
-impl CondTables {
-    /// The frame count L the tables were built for.
-    pub fn length(&self) -> usize {
-        self.length
-    }
-}
-
 /// Everything about a batch of sequences that does not change across diffusion steps and samples:
-/// the mask (B, K, L) and the cond tables. Built by [`Denoiser::prepare`].
+/// the observation (its values and mask, (B, K, L), copied) and the cond tables. Built by
+/// [`Denoiser::prepare`].
 #[derive(Clone, Debug)]
 pub struct Prepared {
     pub(super) batch: usize,
     pub(super) length: usize,
+    pub(super) observed: Vec<f32>,
     pub(super) mask: Vec<f32>,
     pub(super) tables: CondTables,
 }
@@ -42,6 +39,10 @@ impl Prepared {
     /// L.
     pub fn length(&self) -> usize {
         self.length
+    }
+    /// The observed values, (B, K, L).
+    pub fn observed(&self) -> &[f32] {
+        &self.observed
     }
     /// The mask, (B, K, L).
     pub fn mask(&self) -> &[f32] {
@@ -115,7 +116,7 @@ impl Workspace {
 
 impl Denoiser {
     /// The cond tables for sequences of `length` frames (independent of mask and step).
-    pub fn cond_tables(&self, length: usize) -> CondTables {
+    pub(crate) fn cond_tables(&self, length: usize) -> CondTables {
         let te = self.config.model.time_embedding_dim;
         let c2 = 2 * self.config.model.channels;
         let pe = frame_embedding(length, te);
@@ -135,22 +136,24 @@ impl Denoiser {
         }
     }
 
-    /// Validates `mask` (B, K, L) and builds what every step of every sample of these sequences
-    /// shares.
-    pub fn prepare(&self, mask: &[f32], batch: usize, length: usize) -> Result<Prepared> {
-        check_positive("batch", batch)?;
-        check_positive("length", length)?;
+    /// What every step of every sample of the sequences of `observed` shares (its K must be the model's
+    /// `num_features`). A [`crate::CondFill::Prior`] model reads the prior's fill from the mask-0 entries
+    /// of `observed`: they must be finite.
+    pub fn prepare(&self, observed: &Observation<'_>) -> Result<Prepared> {
         let k = self.num_features();
-        validate::mask(
-            "mask",
-            mask,
-            batch * k * length,
-            &format!("({batch}, {k}, {length})"),
-        )?;
+        observed.expect(k, "the model's", None)?;
+        let [batch, _, length] = observed.shape();
+        let values = observed.values();
+        if self.config.model.cond_fill == crate::config::CondFill::Prior {
+            // The masked entries hold the prior's fill, which the network reads (CondFill::Prior).
+            let shape = format!("({batch}, {k}, {length})");
+            validate::all_finite("observed", values, values.len(), &shape)?;
+        }
         Ok(Prepared {
             batch,
             length,
-            mask: mask.to_vec(),
+            observed: values.to_vec(),
+            mask: observed.mask().to_vec(),
             tables: self.cond_tables(length),
         })
     }

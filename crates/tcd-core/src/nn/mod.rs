@@ -13,7 +13,5 @@ pub mod layer_norm;
 pub mod linear;
 pub mod transformer;
 
-pub use attention::{AttentionScratch, MultiHeadAttention};
-pub use layer_norm::LayerNorm;
 pub use linear::Linear;
 pub use transformer::{EncoderLayer, EncoderScratch};

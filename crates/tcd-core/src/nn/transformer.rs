@@ -52,23 +52,6 @@ impl EncoderScratch {
 }
 
 impl EncoderLayer {
-    /// From its parts.
-    pub fn new(
-        self_attn: MultiHeadAttention,
-        linear1: Linear,
-        linear2: Linear,
-        norm1: LayerNorm,
-        norm2: LayerNorm,
-    ) -> Self {
-        EncoderLayer {
-            self_attn,
-            linear1,
-            linear2,
-            norm1,
-            norm2,
-        }
-    }
-
     /// Loads `{prefix}.self_attn.*`, `{prefix}.linear{1,2}.*`, `{prefix}.norm{1,2}.*`
     /// (prefix e.g. `diffmodel.residual_layers.0.time_layer.layers.0`).
     pub fn load(w: &mut WeightFile, prefix: &str, cfg: &ModelConfig) -> Result<Self> {

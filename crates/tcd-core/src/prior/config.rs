@@ -36,7 +36,7 @@ pub struct PriorModelConfig {
 pub struct PriorConfig {
     /// Must be [`FORMAT_VERSION`].
     pub format_version: u32,
-    /// Must be [`ROLE`].
+    /// Must be `"prior"`.
     pub role: String,
     pub model: PriorModelConfig,
     #[serde(default)]
@@ -63,7 +63,7 @@ impl PriorConfig {
                 field: "role".into(),
                 reason: format!(
                     "must be \"{ROLE}\" for the prior forecaster, but is {role:?} (a denoiser: it loads with \
-                     `Denoiser::load`, in Python `tcd.Denoiser.load` or a model directory with `tcd.load`)"
+                     `Denoiser::load`, in Python `tcd.engine.Denoiser.load` or a model directory with `tcd.load`)"
                 ),
             });
         }

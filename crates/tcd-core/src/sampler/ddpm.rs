@@ -11,19 +11,8 @@
 //! `training/diffusion.py::sample`, and cast to f32 when applied (as PyTorch multiplies Python
 //! floats into float32 tensors): `x = c1 * (x - c2 * eps)`, then `x = x + sigma * z`.
 
-use serde::{Deserialize, Serialize};
-
+use crate::config::VarianceType;
 use crate::schedule::NoiseSchedule;
-
-/// How σ is chosen (`variance_type` in the weight file's `diffusion`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum VarianceType {
-    /// σ² = β̃ = β'(1 − ᾱ_prev)/(1 − ᾱ_t): the reference.
-    FixedSmall,
-    /// σ² = β'.
-    FixedLarge,
-}
 
 /// The coefficients of one DDPM step.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -13,7 +13,7 @@
 //! `lower_order_final=True`; k-diffusion's `sample_dpmpp_2m` does the same).
 //!
 //! The multistep update needs the previous x̂₀: [`DpmPp2mStep::apply`] reads it from and writes the
-//! current one to a per-chain buffer. Coefficients are f64 (the operations of
+//! current one to a per-chain buffer, which the chain's [`super::Sampler`] owns. Coefficients are f64 (the operations of
 //! `training/diffusion.py::dpmpp2m_coefficients`), cast to f32 when applied.
 //! The sampler draws no per-step noise: a chain consumes one noise block, x_T.
 
@@ -80,7 +80,7 @@ impl DpmPp2mStep {
     /// Element-wise in f32: x̂₀ = (x − a ε̂)/b; D = x̂₀ (first order) or w_cur x̂₀ + w_prev p;
     /// x ← ratio·x + c0·D (x ← x̂₀ at the last step); p ← x̂₀. `prev_x0` (p) holds the previous
     /// step's x̂₀ on entry (unread at the first step) and this step's on return.
-    pub fn apply(&self, x: &mut [f32], eps: &[f32], prev_x0: &mut [f32]) {
+    pub(super) fn apply(&self, x: &mut [f32], eps: &[f32], prev_x0: &mut [f32]) {
         let a = self.sqrt_one_minus_alpha_bar as f32;
         let b = self.sqrt_alpha_bar as f32;
         let (ratio, c0) = (self.ratio as f32, self.c0 as f32);

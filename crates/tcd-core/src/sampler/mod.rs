@@ -9,25 +9,26 @@
 //! turned into ε̂ right after each forward ([`SampleToNoise`], set per step by [`Plan::for_prediction`]),
 //! so ddpm, ddim and dpmpp2m serve both.
 
-pub mod ddim;
-pub mod ddpm;
-pub mod dpmpp;
+mod ddim;
+mod ddpm;
+mod dpmpp;
 
 use std::str::FromStr;
 
 use rayon::prelude::*;
 
-use crate::config::{CondFill, PredictionType};
+use crate::config::{CondFill, PredictionType, VarianceType};
 use crate::control::Control;
 use crate::denoiser::{CondTables, Denoiser, SequenceInputs, Workspace};
 use crate::error::{check_len, check_positive, Error, Result};
+use crate::observation::Observation;
 use crate::rng::{stage, ChainNoise, Noise};
 use crate::schedule::NoiseSchedule;
 use crate::validate;
 
-pub use ddim::DdimStep;
-pub use ddpm::{DdpmStep, VarianceType};
-pub use dpmpp::DpmPp2mStep;
+use ddim::DdimStep;
+use ddpm::DdpmStep;
+use dpmpp::DpmPp2mStep;
 
 /// How `num_inference_steps` steps are placed among the T training steps (diffusers semantics).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -72,7 +73,7 @@ impl FromStr for TimestepSpacing {
 
 /// The descending training steps visited by a sampler with `num_inference_steps` steps.
 /// Rounding is numpy's (half to even).
-pub fn timesteps(
+pub(crate) fn timesteps(
     num_train_timesteps: usize,
     num_inference_steps: usize,
     spacing: TimestepSpacing,
@@ -109,7 +110,7 @@ pub fn timesteps(
 }
 
 /// (t_i, t_{i+1}) pairs; `None` after the last step (ᾱ = 1).
-pub fn step_pairs(timesteps: &[usize]) -> Vec<(usize, Option<usize>)> {
+fn step_pairs(timesteps: &[usize]) -> Vec<(usize, Option<usize>)> {
     timesteps
         .iter()
         .enumerate()
@@ -258,7 +259,7 @@ impl Default for SamplerConfig {
 
 /// The update of one step.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Update {
+pub(crate) enum Update {
     Ddpm(DdpmStep),
     Ddim(DdimStep),
     DpmPp2m(DpmPp2mStep),
@@ -268,16 +269,16 @@ pub enum Update {
 /// `ε̂ = (x_t − a · out) · inv_s` in f32, with `a = √ᾱ_t` and `inv_s = 1/√(1 − ᾱ_t)` computed in f64 and
 /// rounded once, the reference's operations in its order.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct SampleToNoise {
+pub(crate) struct SampleToNoise {
     /// √ᾱ_t, rounded to f32.
-    pub a: f32,
+    pub(crate) a: f32,
     /// 1/√(1 − ᾱ_t), rounded to f32.
-    pub inv_s: f32,
+    pub(crate) inv_s: f32,
 }
 
 impl SampleToNoise {
     /// The conversion at training step `t`.
-    pub fn new(schedule: &NoiseSchedule, t: usize) -> Self {
+    pub(crate) fn new(schedule: &NoiseSchedule, t: usize) -> Self {
         let alpha_bar = schedule.alpha_bar(Some(t));
         SampleToNoise {
             a: alpha_bar.sqrt() as f32,
@@ -286,7 +287,7 @@ impl SampleToNoise {
     }
 
     /// `out` (the network's x̂₀ on entry) ← (x − a · out) · inv_s, element-wise.
-    pub fn apply(&self, x: &[f32], out: &mut [f32]) {
+    pub(crate) fn apply(&self, x: &[f32], out: &mut [f32]) {
         let (a, inv_s) = (self.a, self.inv_s);
         for (ov, &xv) in out.iter_mut().zip(x) {
             *ov = (xv - a * *ov) * inv_s;
@@ -296,20 +297,21 @@ impl SampleToNoise {
 
 /// One planned step: network at `t`, then the update towards `prev`.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct PlanStep {
-    pub t: usize,
-    pub prev: Option<usize>,
-    pub update: Update,
+pub(crate) struct PlanStep {
+    pub(crate) t: usize,
+    pub(crate) prev: Option<usize>,
+    pub(crate) update: Update,
     /// For an x₀-predicting model, how its output becomes the noise before the update
     /// ([`Plan::for_prediction`]); `None`: the output is the noise.
-    pub to_noise: Option<SampleToNoise>,
+    pub(crate) to_noise: Option<SampleToNoise>,
 }
 
 impl PlanStep {
     /// Applies the update to x given ε̂, z (read only by steps that [`use noise`](Self::uses_noise))
-    /// and the per-chain multistep state `prev_x0` (the previous x̂₀; read and written only by
-    /// multistep updates, see [`Plan::is_multistep`]; may be empty otherwise).
-    pub fn apply(&self, x: &mut [f32], eps: &[f32], z: &[f32], prev_x0: &mut [f32]) {
+    /// and the chain's multistep state `prev_x0` (the previous x̂₀; read and written only by
+    /// multistep updates, see [`Plan::is_multistep`]; may be empty otherwise), which the
+    /// [`Sampler`] of the chain owns.
+    fn apply(&self, x: &mut [f32], eps: &[f32], z: &[f32], prev_x0: &mut [f32]) {
         match &self.update {
             Update::Ddpm(s) => s.apply(x, eps, z),
             Update::Ddim(s) => s.apply(x, eps, z),
@@ -318,7 +320,7 @@ impl PlanStep {
     }
 
     /// Whether the step consumes a noise block z (ddpm, ddim; not dpmpp2m).
-    pub fn uses_noise(&self) -> bool {
+    pub(crate) fn uses_noise(&self) -> bool {
         !matches!(self.update, Update::DpmPp2m(_))
     }
 }
@@ -326,7 +328,7 @@ impl PlanStep {
 /// The steps of a sampler for one model.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Plan {
-    pub steps: Vec<PlanStep>,
+    pub(crate) steps: Vec<PlanStep>,
 }
 
 impl Plan {
@@ -358,7 +360,8 @@ impl Plan {
     }
 
     /// The plan for a model that predicts `prediction` on `schedule`: with [`PredictionType::Sample`]
-    /// every step first turns the output into the noise ([`SampleToNoise`] at its `t`).
+    /// every step first turns the output into the noise, `ε̂ = (x_t − √ᾱ_t · out) · (1/√(1 − ᾱ_t))` at
+    /// its `t` (`training.diffusion.predicted_noise`; [`Sampler::step`] applies it).
     pub fn for_prediction(mut self, prediction: PredictionType, schedule: &NoiseSchedule) -> Self {
         for step in &mut self.steps {
             step.to_noise = match prediction {
@@ -367,6 +370,79 @@ impl Plan {
             };
         }
         self
+    }
+}
+
+/// A [`Plan`] run on one chain: the sampler's state between steps, kept here as diffusers' schedulers
+/// keep theirs (`DPMSolverMultistepScheduler.model_outputs`): the index of the next step and, for the
+/// multistep DPM-Solver++(2M), the previous x̂₀. The caller runs the network at [`Sampler::timestep`]
+/// and hands its output (and the step's noise block, for ddpm / ddim) to [`Sampler::step`]; it manages
+/// no state of the sampler. One per chain, or [`Sampler::reset`] before the next chain.
+#[derive(Clone, Debug)]
+pub struct Sampler<'p> {
+    plan: &'p Plan,
+    /// The values of a chain (K·L).
+    len: usize,
+    /// The index in `plan.steps` of the next step.
+    next: usize,
+    /// DPM-Solver++(2M): the previous step's x̂₀ (empty for the one-step updates).
+    prev_x0: Vec<f32>,
+}
+
+impl<'p> Sampler<'p> {
+    /// A chain of `len` values (K·L) run with `plan`, at its first step.
+    pub fn new(plan: &'p Plan, len: usize) -> Self {
+        Sampler {
+            plan,
+            len,
+            next: 0,
+            prev_x0: vec![0.0; if plan.is_multistep() { len } else { 0 }],
+        }
+    }
+
+    /// Back to the first step, the multistep state cleared: a new chain.
+    pub fn reset(&mut self) {
+        self.next = 0;
+        self.prev_x0.fill(0.0);
+    }
+
+    /// The index of the next step in the plan (the steps taken so far); its noise block is block
+    /// `index + 1` of the chain (block 0 is x_T).
+    pub fn index(&self) -> usize {
+        self.next
+    }
+
+    /// The training step at which the network runs for the next step; `None` once every step is taken.
+    pub fn timestep(&self) -> Option<usize> {
+        self.plan.steps.get(self.next).map(|s| s.t)
+    }
+
+    /// Takes the next step: `x` (x_t on entry) becomes x at the next training step (x̂₀ after the last).
+    /// `output` is the network's output at [`Sampler::timestep`] for `x`; for an x₀-predicting plan
+    /// ([`Plan::for_prediction`]) it is turned into the noise in place. `z` is the step's noise block,
+    /// read only by the stochastic samplers (ddpm, ddim: [`Plan::num_noise_blocks`] > 1; may be empty
+    /// otherwise). Errors past the last step or when a buffer does not have the chain's `len` values.
+    pub fn step(&mut self, x: &mut [f32], output: &mut [f32], z: &[f32]) -> Result<()> {
+        let num_steps = self.plan.num_steps();
+        let Some(step) = self.plan.steps.get(self.next) else {
+            return Err(Error::invalid_input(
+                "step",
+                format!("one of the plan's {num_steps} steps (reset the sampler for a new chain)"),
+                format!("step {} of {num_steps}", self.next + 1),
+            ));
+        };
+        let shape = format!("({},) = (K·L,)", self.len);
+        check_len("x", x.len(), self.len, &shape)?;
+        check_len("output", output.len(), self.len, &shape)?;
+        if step.uses_noise() {
+            check_len("z", z.len(), self.len, &shape)?;
+        }
+        if let Some(to_noise) = &step.to_noise {
+            to_noise.apply(x, output);
+        }
+        step.apply(x, output, z, &mut self.prev_x0);
+        self.next += 1;
+        Ok(())
     }
 }
 
@@ -398,26 +474,23 @@ pub(crate) fn run_chain(
     // Buffers a sampler does not use stay empty; nothing is allocated inside the step loop.
     let uses_noise = plan.num_noise_blocks() > 1;
     let mut z = vec![0.0f32; if uses_noise { n } else { 0 }];
-    let mut prev_x0 = vec![0.0f32; if plan.is_multistep() { n } else { 0 }];
+    let mut sampler = Sampler::new(plan, n);
     noise.fill(0, &mut x);
-    for (i, step) in plan.steps.iter().enumerate() {
+    while let Some(t) = sampler.timestep() {
         control.check()?;
         let seq = SequenceInputs {
             tables,
             mask,
             noisy: &x,
             observed,
-            step: step.t,
+            step: t,
         };
         denoiser.forward_one(seq, &mut eps, ws);
         control.forward_done();
-        if let Some(to_noise) = &step.to_noise {
-            to_noise.apply(&x, &mut eps);
-        }
         if uses_noise {
-            noise.fill(i + 1, &mut z);
+            noise.fill(sampler.index() + 1, &mut z);
         }
-        step.apply(&mut x, &eps, &z, &mut prev_x0);
+        sampler.step(&mut x, &mut eps, &z)?;
     }
     let m = &denoiser.config().model;
     if let Some(fill) = m.target.residual_fill() {
@@ -444,63 +517,36 @@ pub fn merge_observed(x: &mut [f32], observed: &[f32], mask: &[f32]) {
     }
 }
 
-/// The observations of a sampling call: `values` and `mask`, both (B, K, L) with B = `batch`,
-/// L = `length` and K the model's `num_features`; mask 1 = given, 0 = to generate (`values` may
-/// hold NaN there).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Observed<'a> {
-    pub values: &'a [f32],
-    pub mask: &'a [f32],
-    pub batch: usize,
-    pub length: usize,
-}
-
-impl<'a> Observed<'a> {
-    pub fn new(values: &'a [f32], mask: &'a [f32], batch: usize, length: usize) -> Self {
-        Observed {
-            values,
-            mask,
-            batch,
-            length,
-        }
-    }
-}
-
 /// Validated inputs of a sampling call.
 pub(crate) struct SampleJob<'a> {
-    pub observed: Observed<'a>,
+    pub observed: Observation<'a>,
     pub num_samples: usize,
     pub plan: Plan,
     pub noise: Noise<'a>,
     pub stage: u64,
 }
 
-/// Checks sizes, mask, observed values and noise (named `noise_argument` in errors); builds the plan.
+/// Checks what a sampling call adds to its (checked) observation: that it fits the model, and for a model
+/// conditioned on the prior that the fill it reads is finite; `num_samples`; the sampler (it builds the
+/// plan); the noise (named `noise_argument` in errors).
 pub(crate) fn validate_job<'a>(
     denoiser: &Denoiser,
-    observed: Observed<'a>,
+    observed: Observation<'a>,
     num_samples: usize,
     sampler: &SamplerConfig,
     noise: Noise<'a>,
     noise_argument: &str,
     stage: u64,
 ) -> Result<SampleJob<'a>> {
-    let Observed {
-        values,
-        mask,
-        batch,
-        length,
-    } = observed;
-    check_positive("batch", batch)?;
-    check_positive("length", length)?;
-    check_positive("num_samples", num_samples)?;
     let k = denoiser.num_features();
+    observed.expect(k, "the model's", None)?;
+    let [batch, _, length] = observed.shape();
+    check_positive("num_samples", num_samples)?;
     let shape = format!("({batch}, {k}, {length})");
-    validate::mask("mask", mask, batch * k * length, &shape)?;
-    validate::finite_where("observed", values, mask, 1.0, batch * k * length, &shape)?;
     if denoiser.config().model.cond_fill == CondFill::Prior {
         // The masked entries hold the prior's fill, which the network reads (CondFill::Prior).
-        validate::all_finite("observed", values, batch * k * length, &shape)?;
+        let values = observed.values();
+        validate::all_finite("observed", values, values.len(), &shape)?;
     }
     let diffusion = &denoiser.config().diffusion;
     let plan = sampler
@@ -538,7 +584,7 @@ pub(crate) fn validate_job<'a>(
 impl SampleJob<'_> {
     /// The per-sequence forwards this job runs (for [`Control::expect`]).
     pub(crate) fn forwards(&self) -> usize {
-        self.num_samples * self.observed.batch * self.plan.num_steps()
+        self.num_samples * self.observed.batch() * self.plan.num_steps()
     }
 }
 
@@ -549,12 +595,8 @@ pub(crate) fn run_job(
     job: &SampleJob<'_>,
     control: &Control,
 ) -> Result<Vec<f32>> {
-    let Observed {
-        values,
-        mask,
-        batch,
-        length,
-    } = job.observed;
+    let (values, mask) = (job.observed.values(), job.observed.mask());
+    let [batch, _, length] = job.observed.shape();
     let n = denoiser.num_features() * length;
     let tables = denoiser.cond_tables(length);
     let blocks = job.plan.num_noise_blocks();
@@ -591,16 +633,17 @@ pub(crate) fn run_job(
     Ok(chains.concat())
 }
 
-/// Draws `num_samples` samples for each sequence of `observed`.
+/// Draws `num_samples` samples for each sequence of `observed`, whose K must be the model's
+/// `num_features` (any L).
 ///
 /// * `noise`: [`Noise::Injected`] with shape (S, blocks, B, K, L) (blocks = n + 1, or 1 for
 ///   dpmpp2m: [`Plan::num_noise_blocks`]), or [`Noise::Seeded`] (stage [`stage::SHORT`]).
 ///
-/// Returns the merged samples, (S, B, K, L): observed entries are `observed.values`, bit for bit.
+/// Returns the merged samples, (S, B, K, L): observed entries are `observed.values()`, bit for bit.
 /// `control` counts the forwards and can stop the call ([`Control`]; `&Control::default()` if unused).
 pub fn sample(
     denoiser: &Denoiser,
-    observed: Observed<'_>,
+    observed: &Observation<'_>,
     num_samples: usize,
     sampler: &SamplerConfig,
     noise: Noise<'_>,
@@ -608,7 +651,7 @@ pub fn sample(
 ) -> Result<Vec<f32>> {
     let job = validate_job(
         denoiser,
-        observed,
+        *observed,
         num_samples,
         sampler,
         noise,
@@ -691,6 +734,66 @@ mod tests {
                     "t={t}: {got} vs {want}"
                 );
             }
+        }
+    }
+
+    #[test]
+    fn a_sampler_keeps_its_multistep_state_and_resets_for_a_new_chain() {
+        // A stand-in network (ε̂ a fixed function of x): a reset sampler repeats a fresh one's chain bit
+        // for bit, and the second-order steps do read the state (a sampler whose state is cleared before
+        // every step takes another chain).
+        let s = NoiseSchedule::from_betas(crate::schedule::cosine_betas(50, 0.5));
+        let plan = SamplerConfig::dpmpp2m(6)
+            .plan(&s, VarianceType::FixedSmall)
+            .unwrap();
+        let net = |x: &[f32]| -> Vec<f32> { x.iter().map(|v| 0.5 * v.sin() - 0.1).collect() };
+        let run = |sampler: &mut Sampler<'_>, forget: bool| {
+            let mut x = vec![0.3f32, -1.1, 2.0, 0.7];
+            while sampler.timestep().is_some() {
+                let mut eps = net(&x);
+                if forget {
+                    let next = sampler.index();
+                    sampler.reset();
+                    sampler.next = next;
+                }
+                sampler.step(&mut x, &mut eps, &[]).unwrap();
+            }
+            x
+        };
+        let mut sampler = Sampler::new(&plan, 4);
+        let first = run(&mut sampler, false);
+        assert!(sampler.step(&mut [0.0; 4], &mut [0.0; 4], &[]).is_err());
+        sampler.reset();
+        assert_eq!(sampler.timestep(), Some(plan.steps[0].t));
+        assert_eq!(run(&mut sampler, false), first);
+        assert_eq!(run(&mut Sampler::new(&plan, 4), false), first);
+        assert_ne!(run(&mut Sampler::new(&plan, 4), true), first);
+        // a buffer of the wrong size is refused, naming it
+        let mut fresh = Sampler::new(&plan, 4);
+        let e = fresh.step(&mut [0.0; 3], &mut [0.0; 4], &[]).unwrap_err();
+        assert!(e.to_string().contains("`x`"), "{e}");
+        assert_eq!(fresh.index(), 0);
+    }
+
+    #[test]
+    fn an_x0_plan_converts_the_output_at_every_step_and_an_epsilon_plan_at_none() {
+        let s = NoiseSchedule::from_betas(crate::schedule::cosine_betas(10, 0.5));
+        for sc in [
+            SamplerConfig::ddpm(),
+            SamplerConfig::ddim(4, 1.0),
+            SamplerConfig::dpmpp2m(4),
+        ] {
+            let plan = sc.plan(&s, VarianceType::FixedSmall).unwrap();
+            assert!(plan.steps.iter().all(|st| st.to_noise.is_none()));
+            let x0_plan = plan.clone().for_prediction(PredictionType::Sample, &s);
+            assert!(x0_plan
+                .steps
+                .iter()
+                .all(|st| st.to_noise == Some(SampleToNoise::new(&s, st.t))));
+            assert_eq!(
+                plan.clone().for_prediction(PredictionType::Epsilon, &s),
+                plan
+            );
         }
     }
 

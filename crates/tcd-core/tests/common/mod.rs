@@ -9,8 +9,6 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use safetensors::tensor::TensorView;
 use safetensors::Dtype;
-use tcd_core::nn::embedding::{frame_embedding, step_embedding_table};
-use tcd_core::schedule::cosine_betas;
 use tcd_core::*;
 
 /// K = 6 (2 joints x 3), C = 16, 2 layers, 2 heads, FFN 16, D = 32, time emb 32, E = 4, T = 10.
@@ -47,7 +45,7 @@ pub fn tiny_config(role: Role, obs_len: usize, pred_len: usize) -> TcdConfig {
             beta_start: 1e-4,
             beta_end: 0.5,
             max_beta: 0.5,
-            betas: cosine_betas(t, 0.5),
+            betas: BetaSchedule::Cosine.betas(t, 1e-4, 0.5, 0.5),
             prediction_type: tcd_core::PredictionType::Epsilon,
             variance_type: tcd_core::VarianceType::FixedSmall,
         },
@@ -167,6 +165,43 @@ pub fn max_abs_diff(a: &[f32], b: &[f64]) -> f64 {
 }
 
 // ------------------------------------------------------------------ naive f64 reference
+
+/// The diffusion-step table as `training/model.py` builds it, (num_steps × dim): row t =
+/// `[sin(t·f_j)]_j ++ [cos(t·f_j)]_j`, f_j = 10^(4·j / (dim/2 − 1)), with PyTorch's f32 products.
+fn step_embedding_table(num_steps: usize, dim: usize) -> Vec<f32> {
+    let half = dim / 2;
+    let denom = half.saturating_sub(1).max(1) as f32;
+    let freqs: Vec<f32> = (0..half)
+        .map(|j| 10f64.powf((j as f32 / denom * 4.0f32) as f64) as f32)
+        .collect();
+    let mut table = vec![0.0f32; num_steps * dim];
+    for (t, row) in table.chunks_exact_mut(dim.max(1)).enumerate() {
+        for (j, &f) in freqs.iter().enumerate() {
+            let arg = t as f32 * f;
+            row[j] = (arg as f64).sin() as f32;
+            row[half + j] = (arg as f64).cos() as f32;
+        }
+    }
+    table
+}
+
+/// The frame-position embedding as `training/model.py` builds it, (length × dim): `pe[pos, 2i] =
+/// sin(pos·div_i)`, `pe[pos, 2i+1] = cos(pos·div_i)`, `div_i = exp(2i · (−ln(10000)/dim))` in f32.
+fn frame_embedding(length: usize, dim: usize) -> Vec<f32> {
+    let coef = (-(10000f64.ln() / dim as f64)) as f32;
+    let div: Vec<f32> = (0..dim / 2)
+        .map(|i| (((2 * i) as f32 * coef) as f64).exp() as f32)
+        .collect();
+    let mut pe = vec![0.0f32; length * dim];
+    for (pos, row) in pe.chunks_exact_mut(dim.max(1)).enumerate() {
+        for (i, &d) in div.iter().enumerate() {
+            let arg = pos as f32 * d;
+            row[2 * i] = (arg as f64).sin() as f32;
+            row[2 * i + 1] = (arg as f64).cos() as f32;
+        }
+    }
+    pe
+}
 
 fn get(t: &BTreeMap<String, RawTensor>, name: &str) -> Vec<f64> {
     t[name].values().iter().map(|&v| v as f64).collect()
