@@ -3,7 +3,7 @@ real training step of a config, per batch size, thread count and forward variant
 
     python3 benches/train_speed.py --config training/configs/humaneva_long_2.json \
         [--prior python/tcd/weights_humaneva/prior.safetensors] [--batch 8 32 128] [--threads 1 2] \
-        [--variants eager compile bf16] [--seconds 20] [--json benches/results/train_speed_humaneva.json]
+        [--variants eager compile bf16] [--seconds 20] [--profile STEPS] [--json benches/results/train_speed.json]
 
 A step is what ``training.train`` runs: the batch drawn by ``training.batches.BatchSource`` from the config's
 real training windows (the dataset must be present), ``training.train.train_step`` through the channels-last
@@ -38,7 +38,7 @@ from training.train import (TrainConfig, load_prior, load_sequences, make_ema, m
                             train_step, training_forward)
 
 
-def measure(cfg: TrainConfig, windows: Windows, variant: str, seconds: float, log) -> dict:
+def measure(cfg: TrainConfig, windows: Windows, variant: str, seconds: float, log, profile: int = 0) -> dict:
     torch.manual_seed(cfg.seed)
     model_cfg = ModelConfig.from_dict(cfg.model)
     sched = Schedule(DiffusionConfig.from_dict(cfg.diffusion))
@@ -64,6 +64,12 @@ def measure(cfg: TrainConfig, windows: Windows, variant: str, seconds: float, lo
 
     for _ in range(3):
         step()
+    if profile:     # where a step's time goes: torch.profiler over a few steps, ops by their own CPU time
+        from torch.profiler import ProfilerActivity
+        with torch.profiler.profile(activities=[ProfilerActivity.CPU]) as prof:
+            for _ in range(profile):
+                step()
+        print(prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=12), flush=True)
     blocks = []
     per_block = seconds / 5
     for _ in range(5):
@@ -89,6 +95,8 @@ def main(argv=None) -> int:
     ap.add_argument("--variants", nargs="+", default=["eager", "compile", "bf16"],
                     choices=["eager", "compile", "bf16"])
     ap.add_argument("--seconds", type=float, default=20.0, help="timed seconds per cell (after the warm-up)")
+    ap.add_argument("--profile", type=int, default=0, metavar="STEPS",
+                    help="before each cell's timing, profile this many steps and print the ops' CPU time")
     ap.add_argument("--json", help="write the table here")
     args = ap.parse_args(argv)
 
@@ -103,7 +111,8 @@ def main(argv=None) -> int:
         torch.set_num_threads(threads)
         for batch in args.batch:
             for variant in args.variants:
-                cell = measure(dataclasses.replace(cfg, batch_size=batch), windows, variant, args.seconds, print)
+                cell = measure(dataclasses.replace(cfg, batch_size=batch), windows, variant, args.seconds, print,
+                               args.profile)
                 cell.update(threads=threads, batch=batch, variant=variant)
                 rows.append(cell)
                 print(f"threads {threads} batch {batch:4d} {variant:8s} {cell['windows_per_s']:8.1f} windows/s "
