@@ -157,8 +157,7 @@ def test_committed_checkpoints_resume_under_their_configs():
     from training.train import without_removed_keys
     root = Path(__file__).parents[1]
     for checkpoint, config in (("tcdp_short_installment1.pt", "tcdp_short.json"),
-                               ("tcdp_long_installment2.pt", "tcdp_long_2.json"),
-                               ("humaneva_long_installment2.pt", "humaneva_long_2.json")):
+                               ("tcdp_long_installment2.pt", "tcdp_long_2.json")):
         ck = torch.load(root / "training" / "checkpoints" / checkpoint, map_location="cpu", weights_only=False)
         assert set(REMOVED_AT_DEFAULTS) <= set(ck["train_config"])
         stored = without_removed_keys(ck["train_config"], checkpoint)

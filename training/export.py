@@ -378,8 +378,8 @@ def main(argv=None) -> int:
     ap.add_argument("--checkpoint", nargs="+", help="training checkpoint(s) (.pt); each records its role")
     ap.add_argument("--random-init", action="store_true", help="write seeded random-init short and long models")
     ap.add_argument("--files", nargs="+", metavar="ROLE.safetensors",
-                    help="exported model files to copy into --out, each checked to load strictly first (how the "
-                         "weights a GPU period exported replace the bundled ones of their roles)")
+                    help="exported model files to copy into --out, each checked to load strictly first (how a "
+                         "candidate's files replace the bundled ones of their roles)")
     ap.add_argument("--prior", metavar="CKPT", help="a training.prior checkpoint (last.pt): writes prior.safetensors "
                     "(the deterministic prior forecaster) into --out beside the denoisers")
     ap.add_argument("--preset", choices=sorted(PRESETS), default="tiny", help="model size for --random-init")
