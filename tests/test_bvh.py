@@ -82,11 +82,13 @@ def test_forecast_and_repair_a_bvh_file(tiny_model_dir, tmp_path, capsys):
     with np.load(out) as z:
         assert z["mean"].shape == (30, 32, 3) and z["repaired"].shape == (FRAMES, 32, 3)   # 1 s at 30 fps
         np.testing.assert_allclose(z["times"], np.arange(1, 31) / FPS, atol=1e-6)
-        # the root walks on along +z from 3 cm per frame (3.6 per 25 fps model frame), slowing with the
-        # time constant of tcd.wild.ROOT_DAMPING_S; read at the file's 30 fps from the model frames
+        # the root walks on along +z from 3 cm per frame (0.9 m/s: 3.6 cm per 25 fps model frame), its speed
+        # less tcd.wild.ROOT_DEAD_ZONE_MPS, slowing with the time constant of tcd.wild.ROOT_DAMPING_S; read at
+        # the file's 30 fps from the model frames
         tau = wild.ROOT_DAMPING_S * 25.0
         model_frames = np.arange(26)
-        travel = 3.6 * tau * (1 - np.exp(-model_frames / tau))
+        kept = (0.9 - wild.ROOT_DEAD_ZONE_MPS) / 0.9
+        travel = 3.6 * kept * tau * (1 - np.exp(-model_frames / tau))
         want = 3.0 * (FRAMES - 1) + np.interp(np.arange(1, 31) * 25.0 / FPS, model_frames, travel)
         np.testing.assert_allclose(z["mean"][:, 0, 2], want, atol=1e-6)
     assert main(["repair", str(tmp_path / "in"), "-o", str(tmp_path / "rep"), "--model", str(tiny_model_dir),
