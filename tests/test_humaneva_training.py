@@ -175,8 +175,13 @@ def test_evaluate_humaneva_through_the_engine(humaneva_model_dir, synthetic_file
     n = len(humaneva_test_windows(load_humaneva(synthetic_file, "Validate")))
     assert r["protocol"]["windows"] == r["protocol"]["windows_in_protocol"] == n > 0
     for block in ("model", "prior", "zero_velocity"):
-        assert set(r[block]) == {"APD", "ADE", "FDE", "MMADE", "MMFDE"}
-        assert all(np.isfinite(v) and v >= 0 for v in r[block].values())
+        metrics = {"APD", "ADE", "FDE", "MMADE", "MMFDE"}
+        assert set(r[block]) == metrics | {"per_window"}          # each window's values: training.compare pairs them
+        assert all(np.isfinite(r[block][k]) and r[block][k] >= 0 for k in metrics)
+        assert set(r[block]["per_window"]) == metrics
+        for k in metrics:
+            assert len(r[block]["per_window"][k]) == n
+            assert r[block]["per_window"][k] and np.isclose(np.mean(r[block]["per_window"][k]), r[block][k])
     assert r["model"]["APD"] > 0 and r["prior"]["APD"] == r["zero_velocity"]["APD"] == 0.0
     assert r["stochastic"] == r["model"] and r["sampling"]["samples"] == 4
     assert r["published"]["TCD"] == {"ADE": 0.199, "FDE": 0.215} and r["published"]["HumanMAC"] is None
