@@ -319,23 +319,21 @@ impl TcdConfig {
                 ),
             ));
         }
-        if m.diffusion_embedding_dim < 4 || !m.diffusion_embedding_dim.is_multiple_of(2) {
-            return Err(bad(
+        // the sizes of the two sinusoidal embeddings
+        for (field, dim, min) in [
+            (
                 "model.diffusion_embedding_dim",
-                format!(
-                    "must be even and at least 4, but is {}",
-                    m.diffusion_embedding_dim
-                ),
-            ));
-        }
-        if m.time_embedding_dim < 2 || !m.time_embedding_dim.is_multiple_of(2) {
-            return Err(bad(
-                "model.time_embedding_dim",
-                format!(
-                    "must be even and at least 2, but is {}",
-                    m.time_embedding_dim
-                ),
-            ));
+                m.diffusion_embedding_dim,
+                4,
+            ),
+            ("model.time_embedding_dim", m.time_embedding_dim, 2),
+        ] {
+            if dim < min || !dim.is_multiple_of(2) {
+                return Err(bad(
+                    field,
+                    format!("must be even and at least {min}, but is {dim}"),
+                ));
+            }
         }
         let side = m.time_embedding_dim + m.feature_embedding_dim + 1;
         if m.side_dim != side {
