@@ -109,7 +109,13 @@ impl WeightFile {
     /// Validates the bytes of a safetensors file; `path` only names it in errors.
     pub fn from_bytes(bytes: &[u8], path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref().to_path_buf();
-        let (config, config_json, tensors) = read_weights::<TcdConfig>(bytes, &path)?;
+        let (config, config_json, tensors) = read_weights(
+            bytes,
+            &path,
+            TcdConfig::from_json,
+            TcdConfig::validate,
+            |c| expected_tensors(&c.model),
+        )?;
         Ok(WeightFile {
             path,
             config,
@@ -155,40 +161,21 @@ impl WeightFile {
     }
 }
 
-/// The `tcd_config` of one kind of weight file (a denoiser's [`TcdConfig`], the prior's
-/// [`crate::PriorConfig`]): what [`read_weights`] parses, checks and reads the tensors of.
-pub(crate) trait FileConfig: Sized {
-    /// Parses the stored JSON; `path` names the file in errors.
-    fn parse(json: &str, path: &Path) -> Result<Self>;
-    /// Checks the parsed values; `path` names the file in errors.
-    fn check(&self, path: &Path) -> Result<()>;
-    /// The tensors (name, shape) a file with this configuration holds.
-    fn tensors(&self) -> Vec<(String, Vec<usize>)>;
-}
-
-impl FileConfig for TcdConfig {
-    fn parse(json: &str, path: &Path) -> Result<Self> {
-        Self::from_json(json, path)
-    }
-    fn check(&self, path: &Path) -> Result<()> {
-        self.validate(path)
-    }
-    fn tensors(&self) -> Vec<(String, Vec<usize>)> {
-        expected_tensors(&self.model)
-    }
-}
-
 /// The validated content of a weight file's bytes (`path` names it in errors): its configuration,
-/// parsed and checked, the [`CONFIG_KEY`] JSON exactly as stored, and exactly the tensors the
-/// configuration implies. Shared by every model type's `from_bytes`.
-pub(crate) fn read_weights<C: FileConfig>(
+/// parsed by `parse` and checked by `check`, the [`CONFIG_KEY`] JSON exactly as stored, and exactly
+/// the tensors (name, shape) that `tensors` says the configuration implies. Shared by every model
+/// type's `from_bytes`.
+pub(crate) fn read_weights<C>(
     bytes: &[u8],
     path: &Path,
+    parse: impl FnOnce(&str, &Path) -> Result<C>,
+    check: impl FnOnce(&C, &Path) -> Result<()>,
+    tensors: impl FnOnce(&C) -> Vec<(String, Vec<usize>)>,
 ) -> Result<(C, String, BTreeMap<String, Tensor>)> {
     let config_json = read_config_json(bytes, path)?;
-    let config = C::parse(&config_json, path)?;
-    config.check(path)?;
-    let tensors = read_tensors(bytes, path, &config.tensors())?;
+    let config = parse(&config_json, path)?;
+    check(&config, path)?;
+    let tensors = read_tensors(bytes, path, &tensors(&config))?;
     Ok((config, config_json, tensors))
 }
 

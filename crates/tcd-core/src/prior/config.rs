@@ -8,7 +8,6 @@ use serde::{Deserialize, Serialize};
 
 use crate::config::{parse_json, role_of, to_json, Checks, DataConfig, PRIOR_ROLE as ROLE};
 use crate::error::Result;
-use crate::weights::FileConfig;
 
 /// Sizes of the prior network (`training/prior.py`, `PriorNet`).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -101,18 +100,6 @@ impl PriorConfig {
     /// Serialises back to the JSON stored under `tcd_config`.
     pub fn to_json(&self) -> String {
         to_json(self)
-    }
-}
-
-impl FileConfig for PriorConfig {
-    fn parse(json: &str, path: &Path) -> Result<Self> {
-        Self::from_json(json, path)
-    }
-    fn check(&self, path: &Path) -> Result<()> {
-        self.validate(path)
-    }
-    fn tensors(&self) -> Vec<(String, Vec<usize>)> {
-        prior_expected_tensors(&self.model)
     }
 }
 

@@ -105,7 +105,13 @@ impl Prior {
     /// From the bytes of a prior weight file; `name` names it in errors.
     pub fn from_bytes(bytes: &[u8], name: impl AsRef<Path>) -> Result<Self> {
         let path = name.as_ref().to_path_buf();
-        let (config, config_json, mut tensors) = read_weights::<PriorConfig>(bytes, &path)?;
+        let (config, config_json, mut tensors) = read_weights(
+            bytes,
+            &path,
+            PriorConfig::from_json,
+            PriorConfig::validate,
+            |c| prior_expected_tensors(&c.model),
+        )?;
         let m = &config.model;
         let (k, l, chunk) = (m.num_features, m.obs_len, m.chunk);
         // Present with their shapes: read_tensors checked exactly the expected set.
