@@ -1,5 +1,5 @@
 """The read-only attributes that :class:`tcd.engine.Denoiser` and :class:`tcd.engine.Prior` take from their
-native object.
+native object, and :class:`NativeModel`, what else the two classes share.
 
 ``num_features = NativeAttribute(int, "K = num_joints * 3.")`` in a class body is the attribute
 ``self._native.num_features``, read-only (assigning it raises ``AttributeError``), typed ``int`` for type
@@ -8,9 +8,15 @@ descriptors". One declaration per attribute instead of a hand-written property t
 """
 from __future__ import annotations
 
-from typing import Any, Generic, Optional, Type, TypeVar, overload
+import json
+import os
+from typing import Any, ClassVar, Dict, Generic, Optional, Type, TypeVar, Union, overload
 
 T = TypeVar("T")
+N = TypeVar("N")
+M = TypeVar("M", bound="NativeModel[Any]")
+
+PathLike = Union[str, "os.PathLike[str]"]
 
 
 class NativeAttribute(Generic[T]):
@@ -38,3 +44,46 @@ class NativeAttribute(Generic[T]):
     def __set__(self, obj: Any, value: Any) -> None:
         # defined (raising) so that the attribute is a data descriptor: read-only, and documented by help()
         raise AttributeError(f"{type(obj).__name__}.{self.name} is read-only")
+
+
+class NativeModel(Generic[N]):
+    """A loaded weight file: the engine's object ``_native`` (of the class ``_NATIVE``: ``N``) and its parsed
+    ``tcd_config``; the base of :class:`tcd.engine.Denoiser` and :class:`tcd.engine.Prior`, with what they
+    have alike (each has its own ``load``, documented for its kind of file)."""
+
+    __slots__ = ("_native", "_config")
+    #: The engine's class of the file (``_native.Denoiser``, ``_native.Prior``).
+    _NATIVE: ClassVar[Any]
+
+    def __init__(self, native: N) -> None:
+        if not isinstance(native, self._NATIVE):
+            name = type(self).__name__
+            raise TypeError(f"use {name}.load(path) or {name}.from_bytes(data)")
+        self._native: N = native
+        self._config: Dict[str, Any] = json.loads(getattr(native, "config_json"))
+
+    @classmethod
+    def _load(cls: Type[M], path: PathLike) -> M:
+        return cls(cls._NATIVE.load(os.fspath(path)))
+
+    @classmethod
+    def from_bytes(cls: Type[M], data: bytes, name: str = "<bytes>") -> M:
+        """Like :meth:`load`, from the bytes of a weight file; ``name`` appears in error messages."""
+        return cls(cls._NATIVE.from_bytes(bytes(data), name))
+
+    # ------------------------------------------------------------------ configuration
+    @property
+    def config(self) -> Dict[str, Any]:
+        """The ``tcd_config`` JSON of the file, parsed (a fresh copy)."""
+        return json.loads(json.dumps(self._config))
+
+    # The file's settings, read from the engine's model (each read-only); each class adds its own.
+    path = NativeAttribute(str, "The weight file's path (or the name given to :meth:`from_bytes`).")
+    num_features = NativeAttribute(int, "K = num_joints * 3.")
+    num_joints = NativeAttribute(int, "Joints of the model (its config's ``model.num_joints``).")
+    kernel = NativeAttribute(str, 'The compute kernels in use: ``"portable"``, ``"avx2"`` or ``"avx512"`` (chosen '
+                             "when the file is loaded: ``$TCD_KERNEL``, default the best this CPU supports, see "
+                             ":func:`tcd.engine.supported_kernels`).")
+
+    def __repr__(self) -> str:
+        return repr(self._native)

@@ -20,23 +20,19 @@ and checks).
 """
 from __future__ import annotations
 
-import json
-import os
-from typing import Any, Dict, List, Optional, Sequence, Union
+from typing import Any, Dict, List, Optional, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from . import _checks, _native
-from ._attributes import NativeAttribute
+from ._attributes import NativeAttribute, NativeModel, PathLike
 from .options import SamplerOptions
 from ._prior import Prior
 from ._progress import Progress, reporter
 
 __all__ = ["Denoiser", "Prior", "cascade_raw", "repair_raw", "seeded_noise", "supported_kernels", "STAGE_SHORT",
            "STAGE_LONG"]
-
-PathLike = Union[str, "os.PathLike[str]"]
 
 #: Stream stage of :meth:`Denoiser.sample`, :func:`repair_raw` and the cascade's short-term stage.
 STAGE_SHORT: int = _native.STAGE_SHORT
@@ -48,49 +44,24 @@ def _noise(argument: str, value: Optional[ArrayLike]) -> Optional[np.ndarray]:
     return None if value is None else _checks.float32_array(argument, value)
 
 
-class Denoiser:
+class Denoiser(NativeModel[_native.Denoiser]):
     """A loaded TCD denoiser (one ``.safetensors`` file). Immutable and thread-safe."""
 
-    __slots__ = ("_native", "_config")
-
-    def __init__(self, native: _native.Denoiser) -> None:
-        if not isinstance(native, _native.Denoiser):
-            raise TypeError("use Denoiser.load(path) or Denoiser.from_bytes(data)")
-        self._native = native
-        self._config: Dict[str, Any] = json.loads(native.config_json)
+    __slots__ = ()
+    _NATIVE = _native.Denoiser
 
     @classmethod
     def load(cls, path: PathLike) -> "Denoiser":
         """Loads and validates a weight file. Missing file: ``FileNotFoundError``; invalid content:
         :class:`tcd.exceptions.WeightsError`."""
-        return cls(_native.Denoiser.load(os.fspath(path)))
+        return cls._load(path)
 
-    @classmethod
-    def from_bytes(cls, data: bytes, name: str = "<bytes>") -> "Denoiser":
-        """Like :meth:`load`, from the bytes of a weight file; ``name`` appears in error messages."""
-        return cls(_native.Denoiser.from_bytes(bytes(data), name))
-
-    # ------------------------------------------------------------------ configuration
-    @property
-    def config(self) -> Dict[str, Any]:
-        """The ``tcd_config`` JSON of the file, parsed (a fresh copy)."""
-        return json.loads(json.dumps(self._config))
-
-    # The file's settings, read from the engine's model (each read-only).
-    path = NativeAttribute(str, "The weight file's path (or the name given to :meth:`from_bytes`).")
+    # The file's settings beyond NativeModel's, read from the engine's model (each read-only).
     role = NativeAttribute(str, "``short``, ``long`` or ``repair``.")
-    num_features = NativeAttribute(int, "K = num_joints * 3.")
-    num_joints = NativeAttribute(int, "Joints of the model (its config's ``model.num_joints``).")
     obs_len = NativeAttribute(int, "Observed (conditioning) frames of the training window.")
     pred_len = NativeAttribute(int, "Predicted frames of the training window.")
     seq_len = NativeAttribute(int, "L = obs_len + pred_len.")
-    kernel = NativeAttribute(str, 'The compute kernels in use: ``"portable"``, ``"avx2"`` or ``"avx512"`` (chosen '
-                             "when the file is loaded: ``$TCD_KERNEL``, default the best this CPU supports, see "
-                             ":func:`supported_kernels`).")
     num_train_timesteps = NativeAttribute(int, "Diffusion steps the model was trained with.")
-
-    def __repr__(self) -> str:
-        return repr(self._native)
 
     # ------------------------------------------------------------------ compute
     def timesteps(self, **sampler: Any) -> List[int]:

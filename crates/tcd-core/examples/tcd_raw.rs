@@ -53,6 +53,24 @@ fn arg<'a>(args: &'a [String], i: usize, what: &str) -> R<&'a str> {
         .as_str())
 }
 
+/// The arrays OBSERVED and MASK, read from the files named by `args[i]` and `args[i + 1]`.
+fn observation_args(args: &[String], i: usize) -> R<(Vec<f32>, Vec<f32>)> {
+    Ok((
+        read_f32(arg(args, i, "OBSERVED")?)?,
+        read_f32(arg(args, i + 1, "MASK")?)?,
+    ))
+}
+
+/// The sampler of SAMPLER N ETA SPACING, `args[i..i + 4]`.
+fn sampler_args(args: &[String], i: usize) -> R<SamplerConfig> {
+    sampler(
+        arg(args, i, "SAMPLER")?,
+        arg(args, i + 1, "N")?,
+        num(args, i + 2, "ETA")?,
+        arg(args, i + 3, "SPACING")?,
+    )
+}
+
 fn sampler(kind: &str, steps: &str, eta: f64, spacing: &str) -> R<SamplerConfig> {
     let kind = match kind {
         "ddpm" => SamplerKind::Ddpm,
@@ -86,8 +104,7 @@ fn main() -> R<()> {
         Some("forward") => {
             let d = Denoiser::load(arg(&args, 1, "WEIGHTS")?)?;
             let noisy = read_f32(arg(&args, 2, "NOISY")?)?;
-            let observed = read_f32(arg(&args, 3, "OBSERVED")?)?;
-            let mask = read_f32(arg(&args, 4, "MASK")?)?;
+            let (observed, mask) = observation_args(&args, 3)?;
             let (b, l, step): (usize, usize, usize) = (
                 num(&args, 5, "B")?,
                 num(&args, 6, "L")?,
@@ -100,19 +117,13 @@ fn main() -> R<()> {
         }
         Some("sample") => {
             let d = Denoiser::load(arg(&args, 1, "WEIGHTS")?)?;
-            let observed = read_f32(arg(&args, 2, "OBSERVED")?)?;
-            let mask = read_f32(arg(&args, 3, "MASK")?)?;
+            let (observed, mask) = observation_args(&args, 2)?;
             let (b, l, s): (usize, usize, usize) = (
                 num(&args, 4, "B")?,
                 num(&args, 5, "L")?,
                 num(&args, 6, "S")?,
             );
-            let cfg = sampler(
-                arg(&args, 7, "SAMPLER")?,
-                arg(&args, 8, "N")?,
-                num(&args, 9, "ETA")?,
-                arg(&args, 10, "SPACING")?,
-            )?;
+            let cfg = sampler_args(&args, 7)?;
             let src = arg(&args, 11, "NOISE")?;
             let data;
             let noise = match seed_of(src) {
@@ -135,15 +146,9 @@ fn main() -> R<()> {
         Some("cascade") => {
             let short = Denoiser::load(arg(&args, 1, "SHORT")?)?;
             let long = Denoiser::load(arg(&args, 2, "LONG")?)?;
-            let observed = read_f32(arg(&args, 3, "OBSERVED")?)?;
-            let mask = read_f32(arg(&args, 4, "MASK")?)?;
+            let (observed, mask) = observation_args(&args, 3)?;
             let (b, s): (usize, usize) = (num(&args, 5, "B")?, num(&args, 6, "S")?);
-            let cfg = sampler(
-                arg(&args, 7, "SAMPLER")?,
-                arg(&args, 8, "N")?,
-                num(&args, 9, "ETA")?,
-                arg(&args, 10, "SPACING")?,
-            )?;
+            let cfg = sampler_args(&args, 7)?;
             let seed = seed_of(arg(&args, 11, "seed:N")?).ok_or("the cascade takes seed:N")?;
             let opts = ForecastOptions {
                 num_samples: s,

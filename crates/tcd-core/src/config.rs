@@ -7,6 +7,7 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
+use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
@@ -249,37 +250,24 @@ impl TcdConfig {
     /// Parses the JSON string stored under `tcd_config`; `path` names the file in errors.
     pub fn from_json(json: &str, path: &Path) -> Result<Self> {
         // A prior file given to the denoiser's loader: say what it holds, not that its role is unknown.
-        if crate::prior::config::role_of(json).as_deref() == Some(crate::prior::config::ROLE) {
-            return Err(Error::InvalidConfig {
-                path: path.to_path_buf(),
-                field: "role".into(),
-                reason: "is \"prior\": the file holds the deterministic prior forecaster, which loads with \
-                         `Prior::load` (Python: `tcd.engine.Prior.load`), not as a denoiser"
+        if role_of(json).as_deref() == Some(PRIOR_ROLE) {
+            return Err(Checks(path).bad(
+                "role",
+                "is \"prior\": the file holds the deterministic prior forecaster, which loads with \
+                 `Prior::load` (Python: `tcd.engine.Prior.load`), not as a denoiser"
                     .into(),
-            });
+            ));
         }
-        let cfg: TcdConfig = serde_json::from_str(json).map_err(|e| Error::BadMetadata {
-            path: path.to_path_buf(),
-            reason: e.to_string(),
-        })?;
-        Ok(cfg)
+        parse_json(json, path)
     }
 
     /// Checks sizes, window and schedule for consistency; `path` names the file in errors.
     pub fn validate(&self, path: &Path) -> Result<()> {
-        let bad = |field: &str, reason: String| Error::InvalidConfig {
-            path: path.to_path_buf(),
-            field: field.to_string(),
-            reason,
-        };
-        if self.format_version != FORMAT_VERSION {
-            return Err(bad(
-                "format_version",
-                format!("must be {FORMAT_VERSION}, but is {}", self.format_version),
-            ));
-        }
+        let checks = Checks(path);
+        let bad = |field: &str, reason: String| checks.bad(field, reason);
+        checks.format_version(self.format_version)?;
         let m = &self.model;
-        for (name, value) in [
+        checks.at_least_one(&[
             ("model.num_joints", m.num_joints),
             ("model.coords", m.coords),
             ("model.channels", m.channels),
@@ -287,11 +275,7 @@ impl TcdConfig {
             ("model.num_heads", m.num_heads),
             ("model.ffn_dim", m.ffn_dim),
             ("model.feature_embedding_dim", m.feature_embedding_dim),
-        ] {
-            if value == 0 {
-                return Err(bad(name, "must be at least 1, but is 0".into()));
-            }
-        }
+        ])?;
         if m.num_features != m.num_joints * m.coords {
             return Err(bad(
                 "model.num_features",
@@ -335,23 +319,21 @@ impl TcdConfig {
                 ),
             ));
         }
-        if m.diffusion_embedding_dim < 4 || !m.diffusion_embedding_dim.is_multiple_of(2) {
-            return Err(bad(
+        // the sizes of the two sinusoidal embeddings
+        for (field, dim, min) in [
+            (
                 "model.diffusion_embedding_dim",
-                format!(
-                    "must be even and at least 4, but is {}",
-                    m.diffusion_embedding_dim
-                ),
-            ));
-        }
-        if m.time_embedding_dim < 2 || !m.time_embedding_dim.is_multiple_of(2) {
-            return Err(bad(
-                "model.time_embedding_dim",
-                format!(
-                    "must be even and at least 2, but is {}",
-                    m.time_embedding_dim
-                ),
-            ));
+                m.diffusion_embedding_dim,
+                4,
+            ),
+            ("model.time_embedding_dim", m.time_embedding_dim, 2),
+        ] {
+            if dim < min || !dim.is_multiple_of(2) {
+                return Err(bad(
+                    field,
+                    format!("must be even and at least {min}, but is {dim}"),
+                ));
+            }
         }
         let side = m.time_embedding_dim + m.feature_embedding_dim + 1;
         if m.side_dim != side {
@@ -363,15 +345,7 @@ impl TcdConfig {
                 ),
             ));
         }
-        if !(m.layer_norm_eps.is_finite() && m.layer_norm_eps > 0.0) {
-            return Err(bad(
-                "model.layer_norm_eps",
-                format!(
-                    "must be a positive finite number, but is {}",
-                    m.layer_norm_eps
-                ),
-            ));
-        }
+        checks.layer_norm_eps(m.layer_norm_eps)?;
         let w = &self.window;
         if w.seq_len == 0 || w.seq_len != w.obs_len + w.pred_len {
             return Err(bad(
@@ -444,7 +418,80 @@ impl TcdConfig {
 
     /// Serialises back to the JSON stored under `tcd_config`.
     pub fn to_json(&self) -> String {
-        // Serialising plain structs of numbers and strings cannot fail; fall back to "{}" anyway.
-        serde_json::to_string(self).unwrap_or_else(|_| "{}".to_string())
+        to_json(self)
+    }
+}
+
+// What the denoiser's config and the prior's (`crate::prior::PriorConfig`, the same format, metadata
+// key and `data` block) share: the prior's role, parsing, serialising and the checks alike in both.
+
+/// The `role` of a prior file.
+pub(crate) const PRIOR_ROLE: &str = "prior";
+
+/// The `role` of a `tcd_config` JSON, where it parses and has a string role (to tell a file of the
+/// other kind apart before parsing it fully).
+pub(crate) fn role_of(json: &str) -> Option<String> {
+    #[derive(Deserialize)]
+    struct RoleOnly {
+        role: Option<String>,
+    }
+    serde_json::from_str::<RoleOnly>(json).ok()?.role
+}
+
+/// Parses the JSON stored under `tcd_config`; `path` names the file in errors.
+pub(crate) fn parse_json<T: DeserializeOwned>(json: &str, path: &Path) -> Result<T> {
+    serde_json::from_str(json).map_err(|e| Error::BadMetadata {
+        path: path.to_path_buf(),
+        reason: e.to_string(),
+    })
+}
+
+/// Serialises a config back to the JSON stored under `tcd_config`.
+pub(crate) fn to_json<T: Serialize>(config: &T) -> String {
+    // Serialising plain structs of numbers and strings cannot fail; fall back to "{}" anyway.
+    serde_json::to_string(config).unwrap_or_else(|_| "{}".to_string())
+}
+
+/// The checks of a config read from the file at this path.
+pub(crate) struct Checks<'a>(pub(crate) &'a Path);
+
+impl Checks<'_> {
+    /// The error for a bad `field`.
+    pub(crate) fn bad(&self, field: &str, reason: String) -> Error {
+        Error::InvalidConfig {
+            path: self.0.to_path_buf(),
+            field: field.to_string(),
+            reason,
+        }
+    }
+
+    /// `format_version` is the one this engine reads.
+    pub(crate) fn format_version(&self, version: u32) -> Result<()> {
+        if version != FORMAT_VERSION {
+            return Err(self.bad(
+                "format_version",
+                format!("must be {FORMAT_VERSION}, but is {version}"),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Each of these sizes (field, value) is at least 1.
+    pub(crate) fn at_least_one(&self, sizes: &[(&str, usize)]) -> Result<()> {
+        match sizes.iter().find(|(_, value)| *value == 0) {
+            Some((field, _)) => Err(self.bad(field, "must be at least 1, but is 0".into())),
+            None => Ok(()),
+        }
+    }
+
+    /// `model.layer_norm_eps` is a positive finite number.
+    pub(crate) fn layer_norm_eps(&self, eps: f64) -> Result<()> {
+        if !(eps.is_finite() && eps > 0.0) {
+            return Err(self.bad(
+                "model.layer_norm_eps",
+                format!("must be a positive finite number, but is {eps}"),
+            ));
+        }
+        Ok(())
     }
 }

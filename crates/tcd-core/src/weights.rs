@@ -109,10 +109,13 @@ impl WeightFile {
     /// Validates the bytes of a safetensors file; `path` only names it in errors.
     pub fn from_bytes(bytes: &[u8], path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref().to_path_buf();
-        let config_json = read_config_json(bytes, &path)?;
-        let config = TcdConfig::from_json(&config_json, &path)?;
-        config.validate(&path)?;
-        let tensors = read_tensors(bytes, &path, &expected_tensors(&config.model))?;
+        let (config, config_json, tensors) = read_weights(
+            bytes,
+            &path,
+            TcdConfig::from_json,
+            TcdConfig::validate,
+            |c| expected_tensors(&c.model),
+        )?;
         Ok(WeightFile {
             path,
             config,
@@ -156,6 +159,24 @@ impl WeightFile {
                 expected: Vec::new(),
             })
     }
+}
+
+/// The validated content of a weight file's bytes (`path` names it in errors): its configuration,
+/// parsed by `parse` and checked by `check`, the [`CONFIG_KEY`] JSON exactly as stored, and exactly
+/// the tensors (name, shape) that `tensors` says the configuration implies. Shared by every model
+/// type's `from_bytes`.
+pub(crate) fn read_weights<C>(
+    bytes: &[u8],
+    path: &Path,
+    parse: impl FnOnce(&str, &Path) -> Result<C>,
+    check: impl FnOnce(&C, &Path) -> Result<()>,
+    tensors: impl FnOnce(&C) -> Vec<(String, Vec<usize>)>,
+) -> Result<(C, String, BTreeMap<String, Tensor>)> {
+    let config_json = read_config_json(bytes, path)?;
+    let config = parse(&config_json, path)?;
+    check(&config, path)?;
+    let tensors = read_tensors(bytes, path, &tensors(&config))?;
+    Ok((config, config_json, tensors))
 }
 
 /// Reads a file into memory: a missing file is [`Error::NotFound`], a directory [`Error::NotAFile`],

@@ -1,6 +1,5 @@
 //! `tcd._native.Denoiser`: one loaded weight file, its description, one forward and one sampled chain.
 
-use std::path::PathBuf;
 use std::sync::Arc;
 
 use numpy::{PyArrayDyn, PyReadonlyArrayDyn};
@@ -10,6 +9,7 @@ use tcd_core::{sample as core_sample, with_threads, Denoiser, Observation};
 use crate::call::{SamplingArgs, Window};
 use crate::convert::*;
 use crate::error::{invalid, Result};
+use crate::model::model_methods;
 
 /// A loaded TCD denoiser (one safetensors file). Immutable; safe to share between threads.
 #[pyclass(frozen, module = "tcd._native", name = "Denoiser")]
@@ -17,185 +17,137 @@ pub(crate) struct PyDenoiser {
     pub(crate) inner: Arc<Denoiser>,
 }
 
-#[pymethods]
-impl PyDenoiser {
-    /// Loads and validates a weight file.
-    #[staticmethod]
-    fn load(py: Python<'_>, path: PathBuf) -> Result<Self> {
-        let inner = py.detach(move || Denoiser::load(&path))?;
-        Ok(PyDenoiser {
-            inner: Arc::new(inner),
-        })
-    }
+model_methods! {
+    PyDenoiser(Denoiser, "weight file") {
+        #[getter]
+        fn role(&self) -> &'static str {
+            self.inner.role().as_str()
+        }
+        #[getter]
+        fn pred_len(&self) -> usize {
+            self.inner.pred_len()
+        }
+        #[getter]
+        fn seq_len(&self) -> usize {
+            self.inner.seq_len()
+        }
+        #[getter]
+        fn num_train_timesteps(&self) -> usize {
+            self.inner.num_train_timesteps()
+        }
 
-    /// Loads and validates the bytes of a weight file; `name` names it in error messages.
-    #[staticmethod]
-    fn from_bytes(py: Python<'_>, data: Vec<u8>, name: PathBuf) -> Result<Self> {
-        let inner = py.detach(move || Denoiser::from_bytes(&data, &name))?;
-        Ok(PyDenoiser {
-            inner: Arc::new(inner),
-        })
-    }
+        /// The descending training steps a sampler visits.
+        fn timesteps(&self, options: SamplerOptions) -> Result<Vec<usize>> {
+            let variance = self.inner.config().diffusion.variance_type;
+            let plan = options.config()?.plan(self.inner.schedule(), variance)?;
+            Ok(plan.timesteps())
+        }
 
-    #[getter]
-    fn path(&self) -> String {
-        self.inner.path().display().to_string()
-    }
-    /// The `tcd_config` JSON exactly as stored in the file.
-    #[getter]
-    fn config_json(&self) -> String {
-        self.inner.config_json().to_string()
-    }
-    /// The compute kernels this model runs (`portable`, `avx2` or `avx512`; chosen at load from
-    /// `TCD_KERNEL`, default the best the CPU supports).
-    #[getter]
-    fn kernel(&self) -> &'static str {
-        self.inner.kernel().name()
-    }
-    #[getter]
-    fn role(&self) -> &'static str {
-        self.inner.role().as_str()
-    }
-    #[getter]
-    fn num_features(&self) -> usize {
-        self.inner.num_features()
-    }
-    #[getter]
-    fn num_joints(&self) -> usize {
-        self.inner.config().model.num_joints
-    }
-    #[getter]
-    fn coords(&self) -> usize {
-        self.inner.config().model.coords
-    }
-    #[getter]
-    fn obs_len(&self) -> usize {
-        self.inner.obs_len()
-    }
-    #[getter]
-    fn pred_len(&self) -> usize {
-        self.inner.pred_len()
-    }
-    #[getter]
-    fn seq_len(&self) -> usize {
-        self.inner.seq_len()
-    }
-    #[getter]
-    fn num_train_timesteps(&self) -> usize {
-        self.inner.num_train_timesteps()
-    }
+        /// Noise blocks per chain, the second axis of injected noise: n + 1 (x_T, then one z per
+        /// step), or 1 for the deterministic `dpmpp2m`.
+        fn num_noise_blocks(&self, options: SamplerOptions) -> Result<usize> {
+            Ok(noise_blocks(&self.inner, &options.config()?)?)
+        }
 
-    /// The descending training steps a sampler visits.
-    fn timesteps(&self, options: SamplerOptions) -> Result<Vec<usize>> {
-        let variance = self.inner.config().diffusion.variance_type;
-        let plan = options.config()?.plan(self.inner.schedule(), variance)?;
-        Ok(plan.timesteps())
-    }
+        /// ε̂ = net(noisy, observed, mask, step); all arrays (B, K, L) float32.
+        #[pyo3(signature = (noisy, observed, mask, step, *, threads=None))]
+        fn forward<'py>(
+            &self,
+            py: Python<'py>,
+            noisy: PyReadonlyArrayDyn<'py, f32>,
+            observed: PyReadonlyArrayDyn<'py, f32>,
+            mask: PyReadonlyArrayDyn<'py, f32>,
+            step: i64,
+            threads: Option<i64>,
+        ) -> Result<Bound<'py, PyArrayDyn<f32>>> {
+            let threads = threads_arg(threads)?;
+            let k = self.inner.num_features();
+            let (noisy, observed, mask) = (
+                Array::from_numpy(&noisy),
+                Array::from_numpy(&observed),
+                Array::from_numpy(&mask),
+            );
+            let (b, l) = noisy.bkl("noisy", k)?;
+            let shape = [b, k, l];
+            observed.expect_shape("observed", &shape, "(the shape of `noisy`)")?;
+            mask.expect_shape("mask", &shape, "(the shape of `noisy`)")?;
+            let t = self.inner.num_train_timesteps();
+            let Some(step) = usize::try_from(step).ok().filter(|s| *s < t) else {
+                let expected = format!("a diffusion step in 0..{t}");
+                return Err(invalid("step", expected, step.to_string()).into());
+            };
+            let model = &self.inner;
+            let out = py.detach(|| -> CoreResult<Vec<f32>> {
+                with_threads(threads, || {
+                    let observed = Observation::new(&observed.data, &mask.data, shape)?;
+                    let mut out = vec![0.0f32; noisy.data.len()];
+                    model.forward(&noisy.data, &observed, step, &mut out)?;
+                    Ok(out)
+                })?
+            })?;
+            to_numpy(py, &shape, out)
+        }
 
-    /// Noise blocks per chain, the second axis of injected noise: n + 1 (x_T, then one z per
-    /// step), or 1 for the deterministic `dpmpp2m`.
-    fn num_noise_blocks(&self, options: SamplerOptions) -> Result<usize> {
-        Ok(noise_blocks(&self.inner, &options.config()?)?)
-    }
+        /// `num_samples` merged samples per sequence, (S, B, K, L). Noise: injected `noise`
+        /// (S, n + 1, B, K, L) ((S, 1, B, K, L) for dpmpp2m) or a `seed` (stream stage 0, sequences
+        /// numbered from `first_sequence`, or one stream id per sequence in `sequences`).
+        #[pyo3(signature = (observed, mask, num_samples, options, *, noise=None, seed=None, first_sequence=0, sequences=None,
+                            threads=None, progress=None))]
+        #[expect(
+            clippy::too_many_arguments,
+            reason = "a Python signature: pyo3 maps each keyword argument to one parameter"
+        )]
+        fn sample<'py>(
+            &self,
+            py: Python<'py>,
+            observed: PyReadonlyArrayDyn<'py, f32>,
+            mask: PyReadonlyArrayDyn<'py, f32>,
+            num_samples: i64,
+            options: SamplerOptions,
+            noise: Option<PyReadonlyArrayDyn<'py, f32>>,
+            seed: Option<i128>,
+            first_sequence: i128,
+            sequences: Option<Vec<i128>>,
+            threads: Option<i64>,
+            progress: Option<Bound<'py, PyAny>>,
+        ) -> Result<Bound<'py, PyArrayDyn<f32>>> {
+            let model = &self.inner;
+            let args = SamplingArgs {
+                observed,
+                mask,
+                num_samples,
+                options,
+                seed,
+                first_sequence,
+                sequences,
+                threads,
+                progress,
+            };
+            let call = args.prepare(Window::Any, [(model, "noise", noise)])?;
+            let out = call.run(py, |job, control| {
+                let [noise] = &job.noise;
+                core_sample(
+                    model,
+                    &job.observation(model.num_features())?,
+                    job.options.num_samples,
+                    &job.options.sampler,
+                    noise.as_noise(),
+                    control,
+                )
+            })?;
+            to_numpy(py, &call.job.samples_shape(model.num_features()), out)
+        }
 
-    /// ε̂ = net(noisy, observed, mask, step); all arrays (B, K, L) float32.
-    #[pyo3(signature = (noisy, observed, mask, step, *, threads=None))]
-    fn forward<'py>(
-        &self,
-        py: Python<'py>,
-        noisy: PyReadonlyArrayDyn<'py, f32>,
-        observed: PyReadonlyArrayDyn<'py, f32>,
-        mask: PyReadonlyArrayDyn<'py, f32>,
-        step: i64,
-        threads: Option<i64>,
-    ) -> Result<Bound<'py, PyArrayDyn<f32>>> {
-        let threads = threads_arg(threads)?;
-        let k = self.inner.num_features();
-        let (noisy, observed, mask) = (
-            Array::from_numpy(&noisy),
-            Array::from_numpy(&observed),
-            Array::from_numpy(&mask),
-        );
-        let (b, l) = noisy.bkl("noisy", k)?;
-        let shape = [b, k, l];
-        observed.expect_shape("observed", &shape, "(the shape of `noisy`)")?;
-        mask.expect_shape("mask", &shape, "(the shape of `noisy`)")?;
-        let t = self.inner.num_train_timesteps();
-        let Some(step) = usize::try_from(step).ok().filter(|s| *s < t) else {
-            let expected = format!("a diffusion step in 0..{t}");
-            return Err(invalid("step", expected, step.to_string()).into());
-        };
-        let model = &self.inner;
-        let out = py.detach(|| -> CoreResult<Vec<f32>> {
-            with_threads(threads, || {
-                let observed = Observation::new(&observed.data, &mask.data, shape)?;
-                let mut out = vec![0.0f32; noisy.data.len()];
-                model.forward(&noisy.data, &observed, step, &mut out)?;
-                Ok(out)
-            })?
-        })?;
-        to_numpy(py, &shape, out)
-    }
-
-    /// `num_samples` merged samples per sequence, (S, B, K, L). Noise: injected `noise`
-    /// (S, n + 1, B, K, L) ((S, 1, B, K, L) for dpmpp2m) or a `seed` (stream stage 0, sequences
-    /// numbered from `first_sequence`, or one stream id per sequence in `sequences`).
-    #[pyo3(signature = (observed, mask, num_samples, options, *, noise=None, seed=None, first_sequence=0, sequences=None,
-                        threads=None, progress=None))]
-    #[expect(
-        clippy::too_many_arguments,
-        reason = "a Python signature: pyo3 maps each keyword argument to one parameter"
-    )]
-    fn sample<'py>(
-        &self,
-        py: Python<'py>,
-        observed: PyReadonlyArrayDyn<'py, f32>,
-        mask: PyReadonlyArrayDyn<'py, f32>,
-        num_samples: i64,
-        options: SamplerOptions,
-        noise: Option<PyReadonlyArrayDyn<'py, f32>>,
-        seed: Option<i128>,
-        first_sequence: i128,
-        sequences: Option<Vec<i128>>,
-        threads: Option<i64>,
-        progress: Option<Bound<'py, PyAny>>,
-    ) -> Result<Bound<'py, PyArrayDyn<f32>>> {
-        let model = &self.inner;
-        let args = SamplingArgs {
-            observed,
-            mask,
-            num_samples,
-            options,
-            seed,
-            first_sequence,
-            sequences,
-            threads,
-            progress,
-        };
-        let call = args.prepare(Window::Any, [(model, "noise", noise)])?;
-        let out = call.run(py, |job, control| {
-            let [noise] = &job.noise;
-            core_sample(
-                model,
-                &job.observation(model.num_features())?,
-                job.options.num_samples,
-                &job.options.sampler,
-                noise.as_noise(),
-                control,
+        fn __repr__(&self) -> String {
+            format!(
+                "Denoiser(path={:?}, role={:?}, num_features={}, obs_len={}, seq_len={}, num_train_timesteps={})",
+                self.path(),
+                self.role(),
+                self.num_features(),
+                self.obs_len(),
+                self.seq_len(),
+                self.num_train_timesteps()
             )
-        })?;
-        to_numpy(py, &call.job.samples_shape(model.num_features()), out)
-    }
-
-    fn __repr__(&self) -> String {
-        format!(
-            "Denoiser(path={:?}, role={:?}, num_features={}, obs_len={}, seq_len={}, num_train_timesteps={})",
-            self.path(),
-            self.role(),
-            self.num_features(),
-            self.obs_len(),
-            self.seq_len(),
-            self.num_train_timesteps()
-        )
+        }
     }
 }

@@ -14,13 +14,14 @@
 //! Files: [`convert`] (arguments and arrays in and out), [`call`] (the arguments `Denoiser.sample`,
 //! `cascade` and `repair` share, checked once, and their run), [`run`] (a long call run interruptibly),
 //! [`denoiser`] (the `Denoiser` class), [`prior`] (the `Prior` class: the deterministic forecaster,
-//! arrays (B, T, K)), [`pipeline`] (the module's functions), [`error`] (the binding's error type: engine
-//! errors into Python exceptions).
+//! arrays (B, T, K)), [`model`] (the loaders and getters both classes have), [`pipeline`] (the module's
+//! functions), [`error`] (the binding's error type: engine errors into Python exceptions).
 
 mod call;
 mod convert;
 mod denoiser;
 mod error;
+mod model;
 mod pipeline;
 mod prior;
 mod run;

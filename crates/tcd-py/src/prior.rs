@@ -1,7 +1,6 @@
 //! `tcd._native.Prior`: the deterministic prior forecaster (one `prior.safetensors` file) and its
 //! rollout. Unlike the denoiser's (B, K, L), its arrays are frame-major (B, T, K), as the engine's.
 
-use std::path::PathBuf;
 use std::sync::Arc;
 
 use numpy::{PyArray2, PyArrayDyn, PyReadonlyArrayDyn};
@@ -10,6 +9,7 @@ use tcd_core::{Control, Prior};
 
 use crate::convert::*;
 use crate::error::{internal, invalid, Result};
+use crate::model::model_methods;
 use crate::run::interruptible;
 
 /// A call on one sequence of at most this many chunks (forwards of about 0.2 ms at the bundled size) runs
@@ -24,134 +24,86 @@ pub(crate) struct PyPrior {
     pub(crate) inner: Arc<Prior>,
 }
 
-#[pymethods]
-impl PyPrior {
-    /// Loads and validates a prior weight file.
-    #[staticmethod]
-    fn load(py: Python<'_>, path: PathBuf) -> Result<Self> {
-        let inner = py.detach(move || Prior::load(&path))?;
-        Ok(PyPrior {
-            inner: Arc::new(inner),
-        })
-    }
-
-    /// Loads and validates the bytes of a prior weight file; `name` names it in error messages.
-    #[staticmethod]
-    fn from_bytes(py: Python<'_>, data: Vec<u8>, name: PathBuf) -> Result<Self> {
-        let inner = py.detach(move || Prior::from_bytes(&data, &name))?;
-        Ok(PyPrior {
-            inner: Arc::new(inner),
-        })
-    }
-
-    #[getter]
-    fn path(&self) -> String {
-        self.inner.path().display().to_string()
-    }
-    /// The `tcd_config` JSON exactly as stored in the file.
-    #[getter]
-    fn config_json(&self) -> String {
-        self.inner.config_json().to_string()
-    }
-    /// The compute kernels this model runs (`portable`, `avx2` or `avx512`; chosen at load from
-    /// `TCD_KERNEL`, default the best the CPU supports).
-    #[getter]
-    fn kernel(&self) -> &'static str {
-        self.inner.kernel().name()
-    }
-    #[getter]
-    fn num_features(&self) -> usize {
-        self.inner.num_features()
-    }
-    #[getter]
-    fn num_joints(&self) -> usize {
-        self.inner.config().model.num_joints
-    }
-    #[getter]
-    fn coords(&self) -> usize {
-        self.inner.config().model.coords
-    }
-    #[getter]
-    fn obs_len(&self) -> usize {
-        self.inner.obs_len()
-    }
-    #[getter]
-    fn chunk(&self) -> usize {
-        self.inner.chunk()
-    }
-    #[getter]
-    fn blocks(&self) -> usize {
-        self.inner.config().model.blocks
-    }
-    /// The DCT matrix the engine computed (obs_len, obs_len) float32, row f the f-th cosine.
-    #[getter]
-    fn dct_matrix<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f32>>> {
-        let l = self.inner.obs_len();
-        let rows: Vec<Vec<f32>> = self
-            .inner
-            .dct()
-            .chunks_exact(l)
-            .map(<[f32]>::to_vec)
-            .collect();
-        PyArray2::from_vec2(py, &rows)
-            .map_err(|e| internal(py, &format!("the DCT matrix has a bad shape ({e})")))
-    }
-
-    /// The next `horizon` frames of each sequence of `obs` (B, T, K) float32, T >= obs_len (the last
-    /// obs_len frames are read): (B, horizon, K), chunks rolled out.
-    #[pyo3(signature = (obs, horizon, *, threads=None))]
-    fn predict<'py>(
-        &self,
-        py: Python<'py>,
-        obs: PyReadonlyArrayDyn<'py, f32>,
-        horizon: i64,
-        threads: Option<i64>,
-    ) -> Result<Bound<'py, PyArrayDyn<f32>>> {
-        let k = self.inner.num_features();
-        let l = self.inner.obs_len();
-        let obs = Array::from_numpy(&obs);
-        let (b, t) = match obs.shape.as_slice() {
-            &[b, t, kk] if kk == k && b >= 1 && t >= l => (b, t),
-            _ => {
-                return Err(invalid(
-                    "obs",
-                    format!("a float32 array of shape (B, T, K) with K = {k}, B >= 1 and T >= obs_len = {l}"),
-                    format!("shape {}", Array::shape_str(&obs.shape)),
-                )
-                .into())
-            }
-        };
-        let horizon = positive("horizon", horizon)?;
-        // the output's size, refused up front like a sampler's
-        if !within_limit(&[b, k, horizon]) {
-            return Err(invalid(
-                "horizon",
-                format!("small enough that B x horizon x K = {b} x {horizon} x {k} is at most 2^31 values"),
-                horizon.to_string(),
-            )
-            .into());
+model_methods! {
+    PyPrior(Prior, "prior weight file") {
+        #[getter]
+        fn chunk(&self) -> usize {
+            self.inner.chunk()
         }
-        let threads = threads_arg(threads)?;
-        let model = &self.inner;
-        let predict = |control: &Control| model.predict(&obs.data, b, t, horizon, control);
-        let out = if b == 1 && horizon.div_ceil(model.chunk()) <= INLINE_CHUNKS {
-            // one sequence is never split over threads: `threads` changes nothing
-            py.detach(|| predict(&Control::default()))?
-        } else {
-            interruptible(py, None, threads, predict)?
-        };
-        to_numpy(py, &[b, horizon, k], out)
-    }
+        #[getter]
+        fn blocks(&self) -> usize {
+            self.inner.config().model.blocks
+        }
+        /// The DCT matrix the engine computed (obs_len, obs_len) float32, row f the f-th cosine.
+        #[getter]
+        fn dct_matrix<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f32>>> {
+            let l = self.inner.obs_len();
+            let rows: Vec<Vec<f32>> = self
+                .inner
+                .dct()
+                .chunks_exact(l)
+                .map(<[f32]>::to_vec)
+                .collect();
+            PyArray2::from_vec2(py, &rows)
+                .map_err(|e| internal(py, &format!("the DCT matrix has a bad shape ({e})")))
+        }
 
-    fn __repr__(&self) -> String {
-        format!(
-            "Prior(path={:?}, num_features={}, obs_len={}, chunk={}, blocks={}, kernel={:?})",
-            self.path(),
-            self.num_features(),
-            self.obs_len(),
-            self.chunk(),
-            self.blocks(),
-            self.kernel()
-        )
+        /// The next `horizon` frames of each sequence of `obs` (B, T, K) float32, T >= obs_len (the last
+        /// obs_len frames are read): (B, horizon, K), chunks rolled out.
+        #[pyo3(signature = (obs, horizon, *, threads=None))]
+        fn predict<'py>(
+            &self,
+            py: Python<'py>,
+            obs: PyReadonlyArrayDyn<'py, f32>,
+            horizon: i64,
+            threads: Option<i64>,
+        ) -> Result<Bound<'py, PyArrayDyn<f32>>> {
+            let k = self.inner.num_features();
+            let l = self.inner.obs_len();
+            let obs = Array::from_numpy(&obs);
+            let (b, t) = match obs.shape.as_slice() {
+                &[b, t, kk] if kk == k && b >= 1 && t >= l => (b, t),
+                _ => {
+                    return Err(invalid(
+                        "obs",
+                        format!("a float32 array of shape (B, T, K) with K = {k}, B >= 1 and T >= obs_len = {l}"),
+                        format!("shape {}", Array::shape_str(&obs.shape)),
+                    )
+                    .into())
+                }
+            };
+            let horizon = positive("horizon", horizon)?;
+            // the output's size, refused up front like a sampler's
+            if !within_limit(&[b, k, horizon]) {
+                return Err(invalid(
+                    "horizon",
+                    format!("small enough that B x horizon x K = {b} x {horizon} x {k} is at most 2^31 values"),
+                    horizon.to_string(),
+                )
+                .into());
+            }
+            let threads = threads_arg(threads)?;
+            let model = &self.inner;
+            let predict = |control: &Control| model.predict(&obs.data, b, t, horizon, control);
+            let out = if b == 1 && horizon.div_ceil(model.chunk()) <= INLINE_CHUNKS {
+                // one sequence is never split over threads: `threads` changes nothing
+                py.detach(|| predict(&Control::default()))?
+            } else {
+                interruptible(py, None, threads, predict)?
+            };
+            to_numpy(py, &[b, horizon, k], out)
+        }
+
+        fn __repr__(&self) -> String {
+            format!(
+                "Prior(path={:?}, num_features={}, obs_len={}, chunk={}, blocks={}, kernel={:?})",
+                self.path(),
+                self.num_features(),
+                self.obs_len(),
+                self.chunk(),
+                self.blocks(),
+                self.kernel()
+            )
+        }
     }
 }

@@ -157,28 +157,24 @@ impl Denoiser {
         }
         let sqrt_layers = (num_layers as f64).sqrt() as f32;
         map_inplace(skip, |v| v / sqrt_layers);
-        if parts <= 1 {
+        // y = ReLU(skip · out1) over the rows of `s`, those of `yc`.
+        let out1 = |s: &[f32], yc: &mut [f32]| {
+            let rows = s.len() / c;
             kernels::gemm(
                 isa,
-                Matrix::dense(skip, n, c),
+                Matrix::dense(s, rows, c),
                 &fast.out1,
-                MatrixMut::dense(y, n, c),
+                MatrixMut::dense(yc, rows, c),
                 Epilogue::Relu,
             );
+        };
+        if parts <= 1 {
+            out1(&skip[..n * c], y);
         } else {
             let per = k.div_ceil(parts) * l * c;
             skip.par_chunks(per)
                 .zip(y.par_chunks_mut(per))
-                .for_each(|(s, yc)| {
-                    let rows = s.len() / c;
-                    kernels::gemm(
-                        isa,
-                        Matrix::dense(s, rows, c),
-                        &fast.out1,
-                        MatrixMut::dense(yc, rows, c),
-                        Epilogue::Relu,
-                    );
-                });
+                .for_each(|(s, yc)| out1(s, yc));
         }
         self.output_projection2.forward(y, &mut out[..n]);
     }

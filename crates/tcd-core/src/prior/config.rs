@@ -6,11 +6,8 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use crate::config::{DataConfig, FORMAT_VERSION};
-use crate::error::{Error, Result};
-
-/// The `role` of a prior file.
-pub const ROLE: &str = "prior";
+use crate::config::{parse_json, role_of, to_json, Checks, DataConfig, PRIOR_ROLE as ROLE};
+use crate::error::Result;
 
 /// Sizes of the prior network (`training/prior.py`, `PriorNet`).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -34,7 +31,7 @@ pub struct PriorModelConfig {
 /// The whole `tcd_config` object of a prior file.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct PriorConfig {
-    /// Must be [`FORMAT_VERSION`].
+    /// Must be [`FORMAT_VERSION`](crate::FORMAT_VERSION).
     pub format_version: u32,
     /// Must be `"prior"`.
     pub role: String,
@@ -43,49 +40,27 @@ pub struct PriorConfig {
     pub data: DataConfig,
 }
 
-/// The `role` of a `tcd_config` JSON, where it parses and has a string role (to tell a file of the
-/// other kind apart before parsing it fully).
-pub(crate) fn role_of(json: &str) -> Option<String> {
-    #[derive(Deserialize)]
-    struct RoleOnly {
-        role: Option<String>,
-    }
-    serde_json::from_str::<RoleOnly>(json).ok()?.role
-}
-
 impl PriorConfig {
     /// Parses the JSON stored under `tcd_config`; `path` names the file in errors. A denoiser's file
     /// is refused by its role before its fields are read.
     pub fn from_json(json: &str, path: &Path) -> Result<Self> {
         if let Some(role) = role_of(json).filter(|r| r != ROLE) {
-            return Err(Error::InvalidConfig {
-                path: path.to_path_buf(),
-                field: "role".into(),
-                reason: format!(
+            return Err(Checks(path).bad(
+                "role",
+                format!(
                     "must be \"{ROLE}\" for the prior forecaster, but is {role:?} (a denoiser: it loads with \
                      `Denoiser::load`, in Python `tcd.engine.Denoiser.load` or a model directory with `tcd.load`)"
                 ),
-            });
+            ));
         }
-        serde_json::from_str(json).map_err(|e| Error::BadMetadata {
-            path: path.to_path_buf(),
-            reason: e.to_string(),
-        })
+        parse_json(json, path)
     }
 
     /// Checks sizes for consistency; `path` names the file in errors.
     pub fn validate(&self, path: &Path) -> Result<()> {
-        let bad = |field: &str, reason: String| Error::InvalidConfig {
-            path: path.to_path_buf(),
-            field: field.to_string(),
-            reason,
-        };
-        if self.format_version != FORMAT_VERSION {
-            return Err(bad(
-                "format_version",
-                format!("must be {FORMAT_VERSION}, but is {}", self.format_version),
-            ));
-        }
+        let checks = Checks(path);
+        let bad = |field: &str, reason: String| checks.bad(field, reason);
+        checks.format_version(self.format_version)?;
         if self.role != ROLE {
             return Err(bad(
                 "role",
@@ -93,17 +68,13 @@ impl PriorConfig {
             ));
         }
         let m = &self.model;
-        for (name, value) in [
+        checks.at_least_one(&[
             ("model.num_joints", m.num_joints),
             ("model.coords", m.coords),
             ("model.obs_len", m.obs_len),
             ("model.chunk", m.chunk),
             ("model.blocks", m.blocks),
-        ] {
-            if value == 0 {
-                return Err(bad(name, "must be at least 1, but is 0".into()));
-            }
-        }
+        ])?;
         if Some(m.num_features) != m.num_joints.checked_mul(m.coords) {
             return Err(bad(
                 "model.num_features",
@@ -122,22 +93,13 @@ impl PriorConfig {
                 ),
             ));
         }
-        if !(m.layer_norm_eps.is_finite() && m.layer_norm_eps > 0.0) {
-            return Err(bad(
-                "model.layer_norm_eps",
-                format!(
-                    "must be a positive finite number, but is {}",
-                    m.layer_norm_eps
-                ),
-            ));
-        }
+        checks.layer_norm_eps(m.layer_norm_eps)?;
         Ok(())
     }
 
     /// Serialises back to the JSON stored under `tcd_config`.
     pub fn to_json(&self) -> String {
-        // Serialising plain structs of numbers and strings cannot fail; fall back to "{}" anyway.
-        serde_json::to_string(self).unwrap_or_else(|_| "{}".to_string())
+        to_json(self)
     }
 }
 

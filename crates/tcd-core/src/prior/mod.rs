@@ -36,7 +36,7 @@ use std::path::{Path, PathBuf};
 use crate::error::Result;
 use crate::kernels::{Isa, Kernel};
 use crate::nn::Linear;
-use crate::weights::{read_config_json, read_file, read_tensors, Tensor};
+use crate::weights::{read_file, read_weights, Tensor};
 
 pub mod config;
 mod forward;
@@ -105,12 +105,15 @@ impl Prior {
     /// From the bytes of a prior weight file; `name` names it in errors.
     pub fn from_bytes(bytes: &[u8], name: impl AsRef<Path>) -> Result<Self> {
         let path = name.as_ref().to_path_buf();
-        let config_json = read_config_json(bytes, &path)?;
-        let config = PriorConfig::from_json(&config_json, &path)?;
-        config.validate(&path)?;
+        let (config, config_json, mut tensors) = read_weights(
+            bytes,
+            &path,
+            PriorConfig::from_json,
+            PriorConfig::validate,
+            |c| prior_expected_tensors(&c.model),
+        )?;
         let m = &config.model;
         let (k, l, chunk) = (m.num_features, m.obs_len, m.chunk);
-        let mut tensors = read_tensors(bytes, &path, &prior_expected_tensors(m))?;
         // Present with their shapes: read_tensors checked exactly the expected set.
         let mut take = |name: &str| -> Vec<f32> {
             tensors

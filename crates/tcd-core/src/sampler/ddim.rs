@@ -67,12 +67,7 @@ impl DdimStep {
             let x0 = (*xv - a * ev) / b;
             *xv = c * x0 + d * ev;
         }
-        if self.sigma > 0.0 {
-            let s = self.sigma as f32;
-            for (xv, zv) in x.iter_mut().zip(z) {
-                *xv += s * zv;
-            }
-        }
+        super::add_noise(x, z, self.sigma);
     }
 }
 

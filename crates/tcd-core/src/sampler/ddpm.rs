@@ -53,15 +53,11 @@ impl DdpmStep {
 
     /// x ← c1 (x − c2 ε̂) + σ z, element-wise in f32.
     pub fn apply(&self, x: &mut [f32], eps: &[f32], z: &[f32]) {
-        let (c1, c2, sigma) = (self.c1 as f32, self.c2 as f32, self.sigma as f32);
+        let (c1, c2) = (self.c1 as f32, self.c2 as f32);
         for (xv, ev) in x.iter_mut().zip(eps) {
             *xv = c1 * (*xv - c2 * ev);
         }
-        if self.sigma > 0.0 {
-            for (xv, zv) in x.iter_mut().zip(z) {
-                *xv += sigma * zv;
-            }
-        }
+        super::add_noise(x, z, self.sigma);
     }
 }
 

@@ -109,6 +109,17 @@ pub(crate) fn timesteps(
     Ok(ts)
 }
 
+/// The stochastic part of a DDPM / DDIM step: x ← x + σ z, element-wise in f32, where σ > 0 (a
+/// deterministic step, σ = 0, reads no noise).
+fn add_noise(x: &mut [f32], z: &[f32], sigma: f64) {
+    if sigma > 0.0 {
+        let s = sigma as f32;
+        for (xv, zv) in x.iter_mut().zip(z) {
+            *xv += s * zv;
+        }
+    }
+}
+
 /// (t_i, t_{i+1}) pairs; `None` after the last step (ᾱ = 1).
 fn step_pairs(timesteps: &[usize]) -> Vec<(usize, Option<usize>)> {
     timesteps
