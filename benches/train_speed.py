@@ -32,24 +32,17 @@ import torch  # noqa: E402
 
 from machine import cpu_model, cpu_simd_flags  # noqa: E402
 from training.batches import BatchSource, Windows  # noqa: E402
-from training.diffusion import DiffusionConfig, Schedule  # noqa: E402
-from training.model import ModelConfig, TCDModel  # noqa: E402
-from training.train import (TrainConfig, load_prior, load_sequences, make_ema, make_optimizer,  # noqa: E402
+from training.train import (TrainConfig, build_model, load_sequences, make_ema, make_optimizer,  # noqa: E402
                             train_step, training_forward)
 
 
 def measure(cfg: TrainConfig, windows: Windows, variant: str, seconds: float, log, profile: int = 0) -> dict:
-    torch.manual_seed(cfg.seed)
-    model_cfg = ModelConfig.from_dict(cfg.model)
-    sched = Schedule(DiffusionConfig.from_dict(cfg.diffusion))
-    model = TCDModel(model_cfg, sched.T)
-    if model_cfg.cond_fill == "prior":
-        model.attach_prior(load_prior(cfg.prior))
+    model, sched = build_model(cfg, "cpu")
     opt = make_optimizer(model, cfg, "cpu")
     ema = make_ema(model, cfg)
     L = cfg.obs_len + cfg.pred_len
     run_cfg = dataclasses.replace(cfg, compile=variant == "compile")
-    forward = training_forward(model, run_cfg, (cfg.batch_size, model_cfg.num_features, L), "cpu", log)
+    forward = training_forward(model, run_cfg, (cfg.batch_size, model.cfg.num_features, L), "cpu", log)
     source = BatchSource(cfg, windows, sched.T, 1 << 30)
     amp = variant == "bf16"
     i = 0

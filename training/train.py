@@ -265,6 +265,17 @@ def save_checkpoint(path: Path, state: dict) -> None:
     tmp.replace(path)
 
 
+def build_model(cfg: TrainConfig, device: str) -> tuple[TCDModel, Schedule]:
+    """A run's freshly initialised model (seeded with ``cfg.seed``; around its prior when the config says so) and
+    its noise schedule: what ``train`` starts from, and what benches/train_speed.py times."""
+    diff_cfg = DiffusionConfig.from_dict(cfg.diffusion)
+    torch.manual_seed(cfg.seed)
+    model = TCDModel(ModelConfig.from_dict(cfg.model), diff_cfg.num_train_timesteps).to(device)
+    if model.cfg.cond_fill == "prior":
+        model.attach_prior(load_prior(cfg.prior).to(device))
+    return model, Schedule(diff_cfg)
+
+
 def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume: bool = False,
           max_minutes: float | None = None, device: str = "cpu", checkpoint_minutes: float = 5.0,
           sequences: dict | None = None, workers: int = 0, deadline: float | None = None, log=print) -> dict:
@@ -279,16 +290,11 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
     weights (``ema``), which are the ones validated, kept in ``best.pt`` and exported."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    model_cfg = ModelConfig.from_dict(cfg.model)
-    diff_cfg = DiffusionConfig.from_dict(cfg.diffusion)
-    sched = Schedule(diff_cfg)
     L = cfg.obs_len + cfg.pred_len
     if torch.device(device).type == "cuda":
         torch.set_float32_matmul_precision("high")      # TF32 for what autocast leaves in float32
-    torch.manual_seed(cfg.seed)
-    model = TCDModel(model_cfg, diff_cfg.num_train_timesteps).to(device)
-    if model_cfg.cond_fill == "prior":
-        model.attach_prior(load_prior(cfg.prior).to(device))
+    model, sched = build_model(cfg, device)
+    model_cfg, diff_cfg = model.cfg, sched.cfg
     opt = make_optimizer(model, cfg, device)
     seqs = sequences or {split: load_sequences(cfg, data, split) for split in ("train", "val")}
     joints = {int(q.shape[1]) for split in seqs.values() for q in split}
