@@ -162,6 +162,27 @@ def test_in_the_wild_smoke(tiny_model_dir, tmp_path):
     assert all(r["tcd_mm"]["1s"] > 0 and r["zero_velocity_mm"]["1s"] > 0 for r in rows)
 
 
+@needs_h36m
+def test_samples_n_rows_are_nested_prefixes(tiny_model_dir, tmp_path):
+    """benches/samples_n.py: one forecast call per action, the n rows from the first n samples, the prior and
+    Zero-Velocity beside, on the validation subject S11."""
+    import shutil
+    from conftest import FIXTURES
+    bench = load_bench("samples_n")
+    assert bench.sample_counts(5) == [1, 2, 5] and bench.sample_counts(7) == [1, 2, 5, 7]
+    d = tmp_path / "m"
+    shutil.copytree(tiny_model_dir, d)
+    shutil.copyfile(FIXTURES / "tiny_prior.safetensors", d / "prior.safetensors")
+    out = tmp_path / "n.json"
+    assert bench.main(["--model", str(d), "--data", str(H36M_DIR), "--windows-per-action", "1", "--samples", "3",
+                       "--steps", "2", "--json", str(out)]) == 0
+    r = json.loads(out.read_text())
+    assert list(r["mean_of_n"]) == ["1", "2", "3"] and r["protocol"]["subject"] == "S11"
+    assert r["best_of_n"]["1"] == r["mean_of_n"]["1"]          # one sample: its mean and the oracle's pick
+    assert r["mean_of_n"]["2"] != r["mean_of_n"]["1"]
+    assert all(v > 0 for v in (r["prior"]["1000"], r["zero_velocity"]["1000"]))
+
+
 @pytest.mark.slow
 def test_repair_scaling_smoke(tmp_path):
     """benches/repair_scaling.py runs the local and the Ray paths on the same files and reports the overhead."""

@@ -41,6 +41,8 @@ import numpy as np
 import torch
 from torch import nn
 
+from .augment import check_axis, rotate_about
+
 NUM_JOINTS = 22
 #: the model joints of each dataset the prior trains on (Human3.6M: 22; HumanEva-I: joints 1..14 of 15)
 DATASET_JOINTS = {"h36m": 22, "humaneva": 14}
@@ -58,6 +60,7 @@ class PriorConfig:
     batch_size: int = 256
     iterations: int = 40_000
     flip_prob: float = 0.5           # temporal-flip augmentation
+    rotate_axis: str = ""            # "" or the data's vertical axis: each window turned about it (training.augment)
     velocity_weight: float = 1.0     # weight of the velocity term of the loss
     subjects: tuple = (1, 6, 7, 8, 9, 11)   # siMLPe's training subjects (S5 is the test subject); HumanEva: 1..3
     seed: int = 0
@@ -83,6 +86,7 @@ class PriorConfig:
             raise ValueError(f"prior config: chunk ({self.chunk}) must not exceed obs_len ({self.obs_len})")
         if not 0.0 <= self.flip_prob <= 1.0:
             raise ValueError(f"prior config: flip_prob must be in [0, 1], got {self.flip_prob!r}")
+        check_axis(self.rotate_axis, "prior config")
         if self.dataset not in DATASET_JOINTS:
             raise ValueError(f"prior config: dataset must be one of {sorted(DATASET_JOINTS)}, got {self.dataset!r}")
         if self.dataset == "humaneva" and not set(self.subjects) <= {1, 2, 3}:
@@ -211,12 +215,16 @@ def training_frames(cfg: PriorConfig, data: str | None = None,
 
 def batch(cfg: PriorConfig, frames: np.ndarray, starts: np.ndarray, iteration: int) -> torch.Tensor:
     """Iteration ``iteration``'s windows (B, obs_len + chunk, K): uniform window starts, each reversed
-    in time with probability ``flip_prob``; a pure function of (seed, iteration)."""
+    in time with probability ``flip_prob``, turned about ``rotate_axis`` when set; a pure function of (seed,
+    iteration)."""
     rng = np.random.default_rng([cfg.seed, iteration])
     rows = starts[rng.integers(0, len(starts), cfg.batch_size)]
     wins = frames[rows[:, None] + np.arange(cfg.obs_len + cfg.chunk)]
     flip = rng.random(cfg.batch_size) < cfg.flip_prob
     wins[flip] = wins[flip, ::-1]
+    if cfg.rotate_axis:     # drawn after the flips: configs without it keep their batches bit for bit
+        B, T, K = wins.shape
+        wins = rotate_about(wins.reshape(B, T, K // 3, 3), cfg.rotate_axis, rng).reshape(B, T, K)
     return torch.from_numpy(np.ascontiguousarray(wins))
 
 

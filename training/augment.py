@@ -1,0 +1,31 @@
+"""Data augmentation shared by the prior's and the diffusion models' training batches.
+
+``rotate_about``: each window turned by its own uniform random angle about the vertical axis. Motion is
+the same motion whichever way the subject faces, but a small dataset shows few headings: HumanEva-I's
+prior, trained without it, forecast its own training windows 35 % worse once they were turned (ADE 0.252
+-> 0.340 m; issue 31), i.e. it had learned the room's headings along with the motion.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+AXES = {"x": 0, "y": 1, "z": 2}
+
+
+def check_axis(axis: str, where: str) -> None:
+    if axis not in ("", *AXES):
+        raise ValueError(f"{where}: rotate_axis must be '' (no rotation) or one of {sorted(AXES)}, got {axis!r}")
+
+
+def rotate_about(wins: np.ndarray, axis: str, rng: np.random.Generator) -> np.ndarray:
+    """(B, ..., 3) windows of root-relative (or world) coordinates, each turned about ``axis`` ("x", "y" or
+    "z": the data's vertical) by an angle drawn uniformly from [0, 2 pi) with ``rng`` (B draws)."""
+    a = AXES[axis]
+    u, v = [i for i in range(3) if i != a]
+    theta = rng.uniform(0.0, 2.0 * np.pi, len(wins)).astype(wins.dtype)
+    shape = (len(wins),) + (1,) * (wins.ndim - 2)
+    c, s = np.cos(theta).reshape(shape), np.sin(theta).reshape(shape)
+    out = wins.copy()
+    out[..., u] = c * wins[..., u] - s * wins[..., v]
+    out[..., v] = s * wins[..., u] + c * wins[..., v]
+    return out
