@@ -2,9 +2,9 @@
 and is a pure function of (seed, epoch, batch index), so a resumed run continues with exactly the batches
 it would have drawn.
 
-:class:`BatchSource`: windows gathered with numpy, occlusion masks drawn per window by ``training.masks``
-(the reference patterns), t and eps by a CPU ``torch.Generator``; optionally in DataLoader worker
-processes (the same bits).
+:class:`BatchSource`: windows gathered with numpy (turned about the vertical when the config's ``rotate_axis``
+says so, ``training.augment``), occlusion masks drawn per window by ``training.masks`` (the reference
+patterns), t and eps by a CPU ``torch.Generator``; optionally in DataLoader worker processes (the same bits).
 """
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
+from .augment import rotate_about
 from .masks import corrupt, mix_entry
 
 if TYPE_CHECKING:
@@ -70,7 +71,10 @@ class BatchSource:
             self._perm = np.random.default_rng([cfg.seed, epoch]).permutation(len(self.windows))
             self._perm_epoch = epoch
         rows = self._perm[(np.arange(cfg.batch_size) + batch_i * cfg.batch_size) % len(self._perm)]
-        x0, obs, mask = make_batch(cfg, self.windows.gather(rows), np.random.default_rng([cfg.seed, epoch, batch_i]))
+        wins = self.windows.gather(rows)
+        if cfg.rotate_axis:     # its own stream: the masks, t and eps stay those of the same run without it
+            wins = rotate_about(wins, cfg.rotate_axis, np.random.default_rng([cfg.seed, epoch, batch_i, 1]))
+        x0, obs, mask = make_batch(cfg, wins, np.random.default_rng([cfg.seed, epoch, batch_i]))
         g = torch.Generator().manual_seed(((cfg.seed * 1_000_003 + epoch) * 1_000_003 + batch_i) % (1 << 62))
         t = torch.randint(0, self.T, (x0.shape[0],), generator=g)   # the draw order of training_loss
         eps = torch.randn(x0.shape, generator=g)

@@ -31,6 +31,7 @@ import numpy as np
 import torch
 
 from .batches import BatchSource, Windows, make_batch
+from .augment import check_axis
 from .diffusion import DiffusionConfig, Schedule, training_loss
 from .model import ModelConfig, TCDModel, count_parameters
 
@@ -84,6 +85,8 @@ class TrainConfig:
                                      # start this run
     prior: str = ""                  # a cond_fill="prior" model's prior forecaster: prior.safetensors or
                                      # a training.prior last.pt
+    rotate_axis: str = ""            # "" or the data's vertical axis: each training window turned about it
+                                     # (training.augment; validation windows are not)
 
     @classmethod
     def load(cls, path: str | Path) -> "TrainConfig":
@@ -101,6 +104,7 @@ class TrainConfig:
             raise ValueError(f"train config: ema_decay must be in [0, 1), got {self.ema_decay!r}")
         if self.warmup_steps < 0:
             raise ValueError(f"train config: warmup_steps must be >= 0, got {self.warmup_steps!r}")
+        check_axis(self.rotate_axis, "train config")
 
 
 # ------------------------------------------------------------------------------------------ data
