@@ -1,7 +1,7 @@
 """How the number of samples decides a TCD forecast's error: the mean of n samples and the oracle best of n,
 against n, beside the prior's point forecast, through the public API (issue 29).
 
-    python3 benches/samples_n.py [--model DIR] [--subject 11] [--windows-per-action 4] [--samples 40]
+    python3 benches/samples_n.py [--model DIR] [--subject 5] [--windows-per-action 4] [--samples 40]
                                  [--sampler ddim] [--steps 10] [--json benches/results/samples_n_bundled.json]
 
 Why: the mean of n samples from a model whose samples spread like the data's futures has, in squared error,
@@ -10,9 +10,10 @@ variance term dominates: the mean of 5 can be worse than a point forecast (the p
 conditional mean is not. This measures both terms' effect on real windows: one call of ``TCD.forecast`` with
 ``--samples`` samples per window; the first n of them give the "n" row (prefixes, so the rows are nested).
 
-Windows: Human3.6M subject ``--subject`` (default S11, the training runs' validation subject, never trained
-on; S5 is the test protocol's), every action it has, the first ``--windows-per-action`` windows drawn as the
-protocol draws S5's (RandomState(1234567890)), 50 observed frames -> 25 (1 s at 25 fps), clean input. Error
+Windows: Human3.6M subject ``--subject`` (default S5, the test protocol's: nothing is chosen on these numbers;
+S11 is the diffusion runs' validation subject but one the prior trains on), every action it has, the first
+``--windows-per-action`` windows of the protocol's draw (RandomState(1234567890)), 50 observed frames -> 25
+(1 s at 25 fps), clean input. Error
 per future frame: ``training.evaluate``'s (mean over 32 joints, mm), averaged over windows then actions, at
 560 ms and 1 s. Sampling seed of action a: ``seed * 1000 + a``; the prior (``TCD.predict``) on the same windows.
 """
@@ -92,7 +93,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--model", default=None, help="model directory (default: the bundled models)")
     ap.add_argument("--data", default=str(DEFAULT_DATA_ROOT / "h36m"))
-    ap.add_argument("--subject", type=int, default=11)
+    ap.add_argument("--subject", type=int, default=5)
     ap.add_argument("--windows-per-action", type=int, default=4)
     ap.add_argument("--samples", type=int, default=40, help="samples per window (the largest n)")
     ap.add_argument("--sampler", default="ddim", choices=("ddpm", "ddim", "dpmpp2m"))

@@ -165,7 +165,7 @@ def test_in_the_wild_smoke(tiny_model_dir, tmp_path):
 @needs_h36m
 def test_samples_n_rows_are_nested_prefixes(tiny_model_dir, tmp_path):
     """benches/samples_n.py: one forecast call per action, the n rows from the first n samples, the prior and
-    Zero-Velocity beside, on the validation subject S11."""
+    Zero-Velocity beside, on the protocol's subject S5."""
     import shutil
     from conftest import FIXTURES
     bench = load_bench("samples_n")
@@ -177,7 +177,7 @@ def test_samples_n_rows_are_nested_prefixes(tiny_model_dir, tmp_path):
     assert bench.main(["--model", str(d), "--data", str(H36M_DIR), "--windows-per-action", "1", "--samples", "3",
                        "--steps", "2", "--json", str(out)]) == 0
     r = json.loads(out.read_text())
-    assert list(r["mean_of_n"]) == ["1", "2", "3"] and r["protocol"]["subject"] == "S11"
+    assert list(r["mean_of_n"]) == ["1", "2", "3"] and r["protocol"]["subject"] == "S5"
     assert r["best_of_n"]["1"] == r["mean_of_n"]["1"]          # one sample: its mean and the oracle's pick
     assert r["mean_of_n"]["2"] != r["mean_of_n"]["1"]
     assert all(v > 0 for v in (r["prior"]["1000"], r["zero_velocity"]["1000"]))
