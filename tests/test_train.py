@@ -155,14 +155,14 @@ def test_committed_checkpoints_resume_under_their_configs():
     its keys at their inert values, which loading drops)."""
     from dataclasses import asdict
     from pathlib import Path
-    from training.train import without_removed_keys
+    from training.train import stored_config
     root = Path(__file__).parents[1]
     for checkpoint, config in (("tcdp_short_installment1.pt", "tcdp_short.json"),
                                ("tcdp_long_installment3.pt", "tcdp_long_3.json")):
         ck = torch.load(root / "training" / "checkpoints" / checkpoint, map_location="cpu", weights_only=False)
         removed = set(REMOVED_AT_DEFAULTS) & set(ck["train_config"])
         assert removed in (set(), set(REMOVED_AT_DEFAULTS))
-        stored = without_removed_keys(ck["train_config"], checkpoint)
+        stored = stored_config(ck["train_config"], checkpoint)
         assert stored == asdict(TrainConfig.load(root / "training" / "configs" / config))
 
 
@@ -170,7 +170,7 @@ def test_config_files_load(tmp_path):
     from pathlib import Path
     from training.prior import PriorConfig
     for p in sorted((Path(__file__).parents[1] / "training" / "configs").glob("*.json")):
-        if p.name.startswith("prior") or p.name.endswith("_prior.json"):   # the prior forecaster's (training.prior)
+        if p.stem.startswith(("prior", "humaneva_prior")):   # the prior forecaster's (training.prior)
             assert PriorConfig.load(p).blocks >= 1
             continue
         cfg = TrainConfig.load(p)

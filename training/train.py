@@ -55,6 +55,17 @@ def without_removed_keys(d: dict, where) -> dict:
     return {k: v for k, v in d.items() if k not in REMOVED_KEYS}
 
 
+# Keys added to TrainConfig after checkpoints were committed, at the value that does what the code did before
+# them: a checkpoint whose stored train_config lacks one was trained that way.
+ADDED_KEYS = {"rotate_axis": ""}
+
+
+def stored_config(d: dict, where) -> dict:
+    """A checkpoint's stored train_config as today's ``asdict(TrainConfig)`` has it: removed keys dropped
+    (:func:`without_removed_keys`), keys added since at the values that mean the old behaviour."""
+    return {**ADDED_KEYS, **without_removed_keys(d, where)}
+
+
 @dataclass
 class TrainConfig:
     role: str = "short"              # short (50 -> 5), long (55 -> 20, teacher-forced), repair (50 -> 0)
@@ -322,7 +333,7 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
     ck = None
     if resume and last.is_file():
         ck = torch.load(last, map_location=device, weights_only=False)
-        if without_removed_keys(ck["train_config"], last) != asdict(cfg):
+        if stored_config(ck["train_config"], last) != asdict(cfg):
             raise ValueError(f"{last} was trained with another config; start a new --out or use the same config")
         model.load_state_dict(ck["model"])
         opt.load_state_dict(ck["optimizer"])
