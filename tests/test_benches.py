@@ -183,6 +183,26 @@ def test_samples_n_rows_are_nested_prefixes(tiny_model_dir, tmp_path):
     assert all(v > 0 for v in (r["prior"]["1000"], r["zero_velocity"]["1000"]))
 
 
+@needs_h36m
+@needs_data("humaneva/humaneva_i_15j_60hz.npz")
+def test_heading_turns_windows_with_their_ground_truth(tmp_path):
+    """benches/heading.py: a forecast that rotates with its input (Zero-Velocity) scores the same turned as
+    recorded, so turning moves the ground truth with the observation; the prior's rows come out."""
+    import_torch("benches/heading.py reads the data through training/")
+    from conftest import FIXTURES
+    bench = load_bench("heading")
+    w = np.random.default_rng(0).normal(size=(4, 75, 14, 3))
+    turned = bench.rotate_about(w, "z", np.random.default_rng(0))
+    zv = lambda x: np.linalg.norm((np.repeat(x[:, 14:15], 60, 1) - x[:, 15:]).reshape(4, 60, -1), axis=-1)  # noqa: E731
+    np.testing.assert_allclose(zv(turned), zv(w), atol=1e-9)
+    out = tmp_path / "h.json"
+    assert bench.main(["--humaneva-model", str(FIXTURES / "tiny_humaneva_model"), "--skip", "h36m",
+                       "--json", str(out)]) == 0
+    r = json.loads(out.read_text())["humaneva"]
+    assert r["Train"]["windows"] > 0 and r["Validate"]["windows"] == 188
+    assert set(r["Validate"]["m"]) == {"as recorded", "turned"}
+
+
 @pytest.mark.slow
 def test_repair_scaling_smoke(tmp_path):
     """benches/repair_scaling.py runs the local and the Ray paths on the same files and reports the overhead."""
