@@ -38,7 +38,8 @@ def h36m(model_dir, data_dir, windows_per_action: int, seed: int) -> dict:
     w = np.concatenate([data.test_windows(a, 75, 50, windows_per_action) for a in data.test_actions()])  # mm
     model = tcd.load(model_dir) if model_dir else tcd.load()
     out = {}
-    for name, win in (("as recorded", w), ("turned", rotate_about(w.astype(np.float64), "y", np.random.default_rng(seed)))):
+    turned = rotate_about(w.astype(np.float64), "y", np.random.default_rng(seed))
+    for name, win in (("as recorded", w), ("turned", turned)):
         x = xyz32_to_model(win[:, :50]).astype(np.float64)
         pred = np.asarray(model.predict(x).mean, np.float64)
         e = per_frame_error(model_to_xyz32(pred, win[:, 50:]), win[:, 50:]).mean(axis=0)
@@ -70,7 +71,8 @@ def main(argv=None) -> int:
     ap.add_argument("--skip", choices=("h36m", "humaneva"), default=None)
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
-    out = {"seed": args.seed, "command": "python3 benches/heading.py " + " ".join(sys.argv[1:] if argv is None else argv)}
+    given = sys.argv[1:] if argv is None else argv
+    out = {"seed": args.seed, "command": "python3 benches/heading.py " + " ".join(given)}
     if args.skip != "h36m":
         out["h36m"] = r = h36m(args.h36m_model, args.data, args.windows_per_action, args.seed)
         for name, v in r["mm"].items():
@@ -79,7 +81,8 @@ def main(argv=None) -> int:
         out["humaneva"] = r = humaneva(args.humaneva_model, args.humaneva_data, args.seed)
         for split in ("Train", "Validate"):
             for name, v in r[split]["m"].items():
-                print(f"HumanEva-I {split:8s} ({r[split]['windows']} windows) {name:12s} ADE {v['ADE']:.3f}  FDE {v['FDE']:.3f} m")
+                print(f"HumanEva-I {split:8s} ({r[split]['windows']} windows) {name:12s} "
+                      f"ADE {v['ADE']:.3f}  FDE {v['FDE']:.3f} m")
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=1) + "\n")
     return 0
