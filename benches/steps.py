@@ -28,7 +28,7 @@ Protocol (reusing ``training.evaluate``, ``training.data.h36m``, ``training.mask
 
 Run time: proportional to windows x samples x steps. Each window is forecast twice per configuration
 (clean and occluded), each forecast is a cascade of two stages, so one configuration costs
-2 x 2 x samples x steps forwards per window; over the 13 configurations the steps add up to 290 (DDPM-50 and
+2 x 2 x samples x steps forwards per window; over the 18 configurations the steps add up to 302 (DDPM-50 and
 the two DDIM-50 rows are 150 of them). Measured on the busy 2-core development machine with the reduced
 cpu40 model (batch of one window, 2 samples): ~21 s for a DDIM-5 forecast, ~280 s for a DDPM-50 one, so
 ``--windows-per-action 1 --samples 2`` over all 13 actions and configurations takes hours there; use
@@ -70,12 +70,15 @@ MASK_PATTERN = "random_leg_arm"
 def configurations() -> list[dict]:
     """name, sampler, num_inference_steps (None = all), eta; trailing spacing."""
     out = [dict(name="DDPM-50", sampler="ddpm", steps=None, eta=0.0, reference=True)]
-    for n in (50, 25, 10, 5):
+    for n in (50, 25, 10, 5, 2):
         for eta in (0.0, 1.0):
             out.append(dict(name=f"DDIM-{n} eta={eta:g}", sampler="ddim", steps=n, eta=eta))
+    # One step from pure noise to the network's x0 estimate: no noise is added after it, so eta plays no part.
+    # With an x0-predicting model it is the model's conditional-mean estimate, the far end of the step axis.
+    out.append(dict(name="DDIM-1", sampler="ddim", steps=1, eta=0.0))
     for n in (20, 10):
         out.append(dict(name=f"DDPM-{n} (respaced)", sampler="ddpm", steps=n, eta=0.0))
-    for n in (20, 10):
+    for n in (20, 10, 5, 2):
         out.append(dict(name=f"DPM++2M-{n}", sampler="dpmpp2m", steps=n, eta=0.0))
     for c in out:
         c.setdefault("reference", False)
