@@ -2,7 +2,7 @@
 protocol windows as recorded and turned about the vertical by a random angle per window (issue 31's finding:
 a prior trained on one room's headings forecasts turned windows far worse; ``training.augment``).
 
-    python3 benches/heading.py [--h36m-model DIR] [--humaneva-model DIR] [--json benches/results/heading.json]
+    python3 benches/heading.py [--h36m-model DIR] [--humaneva-model DIR] [--json benches/results/heading_bundled.json]
 
 * Human3.6M: S5, the first 8 windows per action of the protocol's draw, 50 -> 25 frames; the model directory's
   ``TCD.predict``; mm at 560 ms and 1 s (``training.evaluate``'s error: 32 joints). Vertical: y.
