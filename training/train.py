@@ -30,8 +30,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .batches import BatchSource, Windows, make_batch
 from .augment import check_axis
+from .batches import BatchSource, Windows, make_batch
 from .diffusion import DiffusionConfig, Schedule, training_loss
 from .model import ModelConfig, TCDModel, count_parameters
 
