@@ -11,7 +11,9 @@ What is timed (2 threads unless stated; the bundled reduced model, 3 layers x 32
 
 * ``tcd.load()`` of the bundled model (reads and checks the weight files);
 * one denoiser forward at L = 75 (the long-term model, batch 1);
-* ``forecast``: the paper's setting (5 samples x DDPM-50, both stages) and the fast one (1 sample, DDIM-10);
+* ``forecast``: the paper's setting (5 samples x DDPM-50, both stages), the fast one (1 sample, DDIM-10) and
+  5 samples with the model's default sampler (``sampling.json``: one DDIM step for the bundled model; issue 29's
+  goal: under 0.3 s on 2 cores);
 * ``repair`` of one 50-frame window with 40 % of the joint-frames occluded (DDPM-50, 5 samples);
 * ``tcd.repair_file`` of a 500-frame sequence (20 s at 25 fps) with gaps, DDIM-10, 1 sample.
 """
@@ -66,6 +68,12 @@ def test_forecast(benchmark, model, clip, samples, steps, sampler):
     obs = clip[:model.obs_len]
     fc = benchmark(model.forecast, obs, num_samples=samples, num_inference_steps=steps, sampler=sampler, seed=0)
     assert fc.mean.shape == (model.horizon, model.num_joints, 3) and np.isfinite(fc.mean).all()
+
+
+def test_forecast_default_sampler(benchmark, model, clip):
+    obs = clip[:model.obs_len]
+    fc = benchmark(model.forecast, obs, num_samples=5, seed=0)
+    assert fc.samples.shape == (5, model.horizon, model.num_joints, 3) and np.isfinite(fc.samples).all()
 
 
 def test_repair_window(benchmark, model, clip):

@@ -48,9 +48,8 @@ CLIP_PATH = Path(__file__).resolve().parent / "data" / "demo_walking.npz"
 HUMANEVA_CLIP_PATH = CLIP_PATH.with_name("demo_walking_humaneva.npz")
 HORIZONS_MS = (80, 160, 320, 400, 560, 720, 880, 1000)
 
-# Demo defaults: the paper's sampler (SamplerOptions' defaults: DDPM over all 50 training steps), 5 samples.
-# With the bundled reduced model the whole demo took 21 s on a 2-core machine (MODEL_CARD.md); fewer steps trade
-# accuracy for time (docs/samplers.md).
+# Demo defaults: 5 samples; each task samples with the model's own defaults (TCD.sampling: the bundled
+# Human3.6M model forecasts with one DDIM step and repairs with DDPM over all 50 steps; docs/samplers.md).
 DEFAULT_SAMPLES = 5
 DEFAULT_SEED = 0
 
@@ -128,8 +127,8 @@ def run(model: TCD, *, samples: int = DEFAULT_SAMPLES, seed: int = DEFAULT_SEED,
         quiet: bool = False, clip_path: Optional[Path] = None, **sampler: Any) -> Dict[str, Any]:
     """Runs the demo; returns every array and number (what ``tcd demo`` prints and saves). ``clip_path``:
     by default the bundled clip in the model's layout (:func:`clip_for`). ``**sampler``: the sampler keywords
-    of :meth:`TCD.forecast` (default: the paper's DDPM over every training step)."""
-    o = SamplerOptions.build(**sampler)
+    of :meth:`TCD.forecast`, given to every call (those not given: each task's default, :attr:`TCD.sampling`)."""
+    o = model.sampler_options("forecast", **sampler)        # checked before any work; shown and recorded
     steps, sampler_name = o.num_inference_steps, o.sampler
     clip = load_clip(clip_for(model) if clip_path is None else clip_path)
     poses, fps, names = clip["poses"], clip["fps"], clip["joint_names"]
@@ -142,16 +141,18 @@ def run(model: TCD, *, samples: int = DEFAULT_SAMPLES, seed: int = DEFAULT_SEED,
     if poses.shape[0] < n_obs + h:
         raise ValueError(f"the demo clip has {poses.shape[0]} frames; the model needs {n_obs + h}")
     obs, future = poses[:n_obs], poses[n_obs:n_obs + h]
-    kw = dict(num_samples=samples, seed=seed, threads=threads, **dataclasses.asdict(o))
+    kw = dict(num_samples=samples, seed=seed, threads=threads, **sampler)
     res: Dict[str, Any] = {"fps": fps, "joint_names": names, "observed": obs, "future": future,
-                           "settings": {"samples": samples, "steps": steps, "sampler": sampler_name, "seed": seed},
+                           "settings": {"samples": samples, "steps": steps, "sampler": sampler_name, "seed": seed,
+                                        "sampling": {t: dataclasses.asdict(model.sampler_options(t, **sampler))
+                                                     for t in model.sampling}},
                            "timings_s": {}}
     zv = np.repeat(obs[-1:], h, axis=0)
     res["zero_velocity_mm"] = horizon_row(mpjpe_mm(zv, future), fps)
 
     stages = 4 if model.prior is not None else 3
-    _say(f"[1/{stages}] forecasting {h} frames from {n_obs} observed ({samples} samples, {sampler_name} "
-         f"{steps or model.num_train_timesteps} steps)...", quiet)
+    _say(f"[1/{stages}] forecasting {h} frames from {n_obs} observed ({samples} samples, "
+         f"{o.describe(model.num_train_timesteps)})...", quiet)
     t0 = time.perf_counter()
     f = model.forecast(obs, **kw)
     res["timings_s"]["forecast"] = time.perf_counter() - t0
@@ -229,8 +230,8 @@ def summary(res: Dict[str, Any], model: TCD) -> str:
         f"tcd demo: model {model.path} (sha256 {str(model.sha256)[:12]}), clip: CMU walking "
         f"({'HumanEva-I layout' if model.data.get('dataset') == 'humaneva' else 'Human3.6M layout'}), "
         f"{len(res['observed'])} observed frames at {res['fps']:g} fps",
-        f"sampler {s['sampler']}, {s['steps'] or model.num_train_timesteps} steps, {s['samples']} samples, "
-        f"seed {s['seed']}",
+        f"forecast sampler {SamplerOptions(**s['sampling']['forecast']).describe(model.num_train_timesteps)}, "
+        f"{s['samples']} samples, seed {s['seed']}",
         "",
         "forecast error, mm (mean per-joint position error of the mean of the samples):",
         f"  {'horizon (ms)':<32}" + head,

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import json
 import os
 import threading
 from dataclasses import dataclass
@@ -40,6 +41,14 @@ PathLike = Union[str, "os.PathLike[str]"]
 
 #: the prior forecaster's file in a model directory (:attr:`TCD.prior`)
 PRIOR_FILE = "prior.safetensors"
+
+#: a model directory's own sampler defaults (:attr:`TCD.sampling`), optional: ``{"forecast": {...}, "repair":
+#: {...}, "why": "..."}``, each task's object holding :class:`SamplerOptions` fields; a task or field left out takes
+#: :class:`SamplerOptions`' defaults (the paper's DDPM over every training step)
+SAMPLING_FILE = "sampling.json"
+#: the tasks a model directory may set sampler defaults for: ``"forecast"`` the cascade (:meth:`TCD.forecast`),
+#: ``"repair"`` the repair model (:meth:`TCD.repair`, the model fill of :meth:`TCD.predict`, :func:`tcd.repair_file`)
+SAMPLING_TASKS = ("forecast", "repair")
 
 #: how :meth:`TCD.predict` fills missing observation entries before the prior forecasts
 Fill = Literal["auto", "model", "spline", "linear"]
@@ -202,7 +211,8 @@ class TCD:
 
     def __init__(self, short: Denoiser, long: Denoiser, repair: Optional[Denoiser] = None,
                  path: Optional[PathLike] = None, threads: Optional[int] = None,
-                 file_sha256: Optional[Dict[str, str]] = None, prior: Optional[Prior] = None) -> None:
+                 file_sha256: Optional[Dict[str, str]] = None, prior: Optional[Prior] = None,
+                 sampling: Optional[Dict[str, SamplerOptions]] = None) -> None:
         self.short = short
         self.long = long
         self.repair_model = repair
@@ -210,6 +220,14 @@ class TCD:
         self.prior = prior
         self.path = None if path is None else Path(path)
         self.threads = _checks.threads(threads)
+        unknown = sorted(set(sampling or {}) - set(SAMPLING_TASKS))
+        if unknown:
+            raise ValueError(f"sampling: unknown task {unknown[0]!r} (tasks: {', '.join(SAMPLING_TASKS)})")
+        #: the sampler each task uses when a call names none, by task (``"forecast"``, ``"repair"``): the model
+        #: directory's ``sampling.json`` (chosen from measurements: docs/samplers.md), else
+        #: :class:`SamplerOptions`' defaults. A call's sampler keywords override it (see :meth:`sampler_options`).
+        self.sampling: Dict[str, SamplerOptions] = {t: (sampling or {}).get(t) or SamplerOptions()
+                                                    for t in SAMPLING_TASKS}
         #: SHA-256 (hex) of each weight file, by file name; empty when built from Denoisers directly.
         self.file_sha256: Dict[str, str] = dict(file_sha256 or {})
         #: SHA-256 (hex) identifying the model: the digest of its ``SHA256SUMS`` text (None without files).
@@ -291,12 +309,20 @@ class TCD:
                 f"prior={self.prior is not None})")
 
     # ------------------------------------------------------------------ inference
-    def _common(self, num_samples: int, sampler: Dict[str, Any], units: Units,
+    def sampler_options(self, task: str, **sampler: Any) -> SamplerOptions:
+        """The sampler a call of ``task`` (``"forecast"`` or ``"repair"``) runs: the keywords it names over the
+        model's defaults for the task (:attr:`sampling`; a different ``sampler`` drops the defaults' other
+        fields, :meth:`SamplerOptions.build`)."""
+        if task not in SAMPLING_TASKS:
+            raise ValueError(f"task must be one of {', '.join(SAMPLING_TASKS)}, got {task!r}")
+        return SamplerOptions.build(self.sampling[task], **sampler)
+
+    def _common(self, task: str, num_samples: int, sampler: Dict[str, Any], units: Units,
                 threads: Optional[int]) -> Tuple[int, Dict[str, Any], Units, Optional[int]]:
         """The arguments every call checks before any work; the sampler keywords come back checked, all four
-        given (the defaults filled in), for the low-level calls."""
+        given (the model's defaults for ``task`` filled in), for the low-level calls."""
         num_samples = _checks.machine_int("num_samples", num_samples)   # ranges: the engine's
-        sampling = dataclasses.asdict(SamplerOptions.build(**sampler))
+        sampling = dataclasses.asdict(self.sampler_options(task, **sampler))
         units = check_units(units)
         threads = _checks.optional_machine_int("threads", threads)
         return num_samples, sampling, units, self.threads if threads is None else threads
@@ -328,12 +354,14 @@ class TCD:
                 or a unit vector), at ``fps`` frames per second, of any length, the same rule counted at the
                 model's frame rate (and at least 2 observed frames, to measure the root's motion). The
                 forecast comes back in the same layout, coordinates and frame rate (``Forecast.times``).
-            **sampler: the sampler (default: the paper's DDPM over every training step): ``sampler``
-                (``"ddpm"``, ``"ddim"``, ``"dpmpp2m"``), ``num_inference_steps``, ``eta``,
-                ``timestep_spacing``, as :class:`tcd.SamplerOptions` defines and checks them. Any other
-                keyword is a ``TypeError``.
+            **sampler: the sampler: ``sampler`` (``"ddpm"``, ``"ddim"``, ``"dpmpp2m"``),
+                ``num_inference_steps``, ``eta``, ``timestep_spacing``, as :class:`tcd.SamplerOptions` defines
+                and checks them; those not given are the model's defaults (``sampling["forecast"]``: the bundled
+                Human3.6M model one DDIM step, the HumanEva-I model DDPM over 10 steps, chosen from
+                docs/samplers.md; a directory without ``sampling.json`` the paper's DDPM over every training
+                step). Any other keyword is a ``TypeError``.
         """
-        num_samples, sampling, units, threads = self._common(num_samples, sampler, units, threads)
+        num_samples, sampling, units, threads = self._common("forecast", num_samples, sampler, units, threads)
         seed = _seed(seed)
         prior = self.prior if self._prior_roles else None
         run = lambda observed, seen: cascade_raw(self.short, self.long, observed, seen,  # noqa: E731
@@ -355,13 +383,14 @@ class TCD:
                up: Up = "y", **sampler: Any) -> Repair:
         """Fills the missing entries of ``obs`` (same arguments as :meth:`forecast`) with the mean of
         ``num_samples`` samples of the repair model (the short-term model when the directory has no
-        ``repair.safetensors``), sampled as the sampler keywords say. ``obs`` spans at most the model's
-        window (:attr:`obs_len` frames, at the model's frame rate with ``layout`` / ``fps``; a shorter one is
-        padded at the start with missing frames; longer ones: :func:`tcd.repair_file`).
+        ``repair.safetensors``), sampled as the sampler keywords say (those not given: the model's
+        ``sampling["repair"]``, the paper's DDPM over every training step for the bundled models). ``obs`` spans
+        at most the model's window (:attr:`obs_len` frames, at the model's frame rate with ``layout`` / ``fps``; a
+        shorter one is padded at the start with missing frames; longer ones: :func:`tcd.repair_file`).
 
         Returns a :class:`Repair`: ``poses`` of the shape of ``obs`` (observed entries unchanged) and the
         ``seed`` used (drawn from ``os.urandom`` when ``seed`` is None): pass it back to reproduce."""
-        num_samples, sampling, units, threads = self._common(num_samples, sampler, units, threads)
+        num_samples, sampling, units, threads = self._common("repair", num_samples, sampler, units, threads)
         seed = _seed(seed)
         model = self.repair_model if self.repair_model is not None else self.short
         if layout is not None or fps is not None:
@@ -398,7 +427,7 @@ class TCD:
                                     "the prior forecaster (the bundled model has one; see MODEL_CARD.md).")
         if _checks.text("fill", fill, FILLS) not in FILLS:
             raise _checks.fail("fill", "one of " + ", ".join(repr(f) for f in FILLS), repr(fill))
-        num_samples, sampling, units, threads = self._common(num_samples, sampler, units, threads)
+        num_samples, sampling, units, threads = self._common("repair", num_samples, sampler, units, threads)
         seed = _seed(seed)
         run = lambda observed, seen: self._predict_raw(observed, seen, fill=fill, num_samples=num_samples,  # noqa: E731
                                                        sampling=sampling, seed=seed, threads=threads, progress=progress)
@@ -479,7 +508,33 @@ def load(path: Optional[PathLike] = None, *, threads: Optional[int] = None) -> T
     repair_model = Denoiser.from_bytes(blobs[rp], str(d / rp)) if rp in blobs else None
     pp = PRIOR_FILE
     prior = Prior.from_bytes(blobs[pp], str(d / pp)) if pp in blobs else None
-    return TCD(short, long, repair_model, path=d, threads=threads, file_sha256=digests, prior=prior)
+    return TCD(short, long, repair_model, path=d, threads=threads, file_sha256=digests, prior=prior,
+               sampling=_read_sampling(d / SAMPLING_FILE))
+
+
+def _read_sampling(f: Path) -> Dict[str, SamplerOptions]:
+    """A model directory's ``sampling.json`` (:data:`SAMPLING_FILE`), checked: ``{}`` when there is none, a
+    :class:`WeightsError` naming the file and the key for anything that is not a task of sampler settings."""
+    if not f.is_file():
+        return {}
+    try:
+        doc = json.loads(f.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise WeightsError(f"{f}: not a readable JSON file ({e}).", str(f)) from None
+    if not isinstance(doc, dict):
+        raise WeightsError(f"{f}: expected an object of tasks ({', '.join(SAMPLING_TASKS)}), got {doc!r}.", str(f))
+    out: Dict[str, SamplerOptions] = {}
+    for key, value in doc.items():
+        if key == "why":            # the reason for the choice, for the reader
+            continue
+        if key not in SAMPLING_TASKS:
+            raise WeightsError(f"{f}: unknown key {key!r} (the tasks: {', '.join(SAMPLING_TASKS)}; and \"why\").",
+                               str(f))
+        try:
+            out[key] = SamplerOptions.from_config(value, f"{f}, {key!r}")
+        except ValueError as e:
+            raise WeightsError(str(e), str(f)) from None
+    return out
 
 
 def _uses_prior(model: Denoiser) -> bool:

@@ -10,10 +10,11 @@ made and again when it is used; Python checks only that each field has the Pytho
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import asdict, dataclass, fields
 from typing import Any, Optional
 
 from . import _checks, _native
+from .exceptions import InvalidInputError
 
 #: The samplers and the timestep spacings the engine knows, its default first.
 SAMPLERS = tuple(_native.SAMPLERS)
@@ -54,13 +55,36 @@ class SamplerOptions:
         _native.check_sampler_options(self)  # the values, by the engine's rules
 
     @classmethod
-    def build(cls, **sampler: Any) -> "SamplerOptions":
-        """The settings named in ``sampler`` (the sampler keywords of a call), the defaults for the rest. An
-        unknown name is a ``TypeError`` naming the valid ones; a bad value an
+    def build(cls, defaults: Optional["SamplerOptions"] = None, **sampler: Any) -> "SamplerOptions":
+        """The settings named in ``sampler`` (the sampler keywords of a call), ``defaults`` for the rest (a
+        model's own defaults, :attr:`tcd.TCD.sampling`; ``None``: this class's). Naming a ``sampler`` other
+        than the default's drops the default's other fields too (its step count and ``eta`` belong to it):
+        ``sampler="ddpm"`` alone is the paper's DDPM over every step whatever the model's default. An unknown
+        name is a ``TypeError`` naming the valid ones; a bad value an
         :class:`~tcd.exceptions.InvalidInputError` naming its field."""
         names = {f.name for f in fields(cls)}
         unknown = sorted(set(sampler) - names)
         if unknown:
             raise TypeError(f"unexpected keyword argument {unknown[0]!r} "
                             f"(sampler settings: {', '.join(sorted(names))})")
-        return cls(**sampler)
+        if defaults is None or sampler.get("sampler", defaults.sampler) != defaults.sampler:
+            return cls(**sampler)
+        return cls(**{**asdict(defaults), **sampler})
+
+    def describe(self, num_train_timesteps: int) -> str:
+        """One line for people: ``"ddim, 1 step (eta 0, trailing spacing)"`` (``None`` steps: every training step)."""
+        n = num_train_timesteps if self.num_inference_steps is None else self.num_inference_steps
+        extra = f"eta {self.eta:g}, " if self.sampler == "ddim" else ""
+        return f"{self.sampler}, {n} step{'' if n == 1 else 's'} ({extra}{self.timestep_spacing} spacing)"
+
+    @classmethod
+    def from_config(cls, settings: Any, where: str) -> "SamplerOptions":
+        """The options a model directory's ``sampling.json`` gives one task (see :func:`tcd.load`): a dict of
+        these fields, the class's defaults for those it leaves out. ``ValueError`` naming ``where`` and the
+        field when a key is unknown or a value bad."""
+        if not isinstance(settings, dict):
+            raise ValueError(f"{where}: expected an object of sampler settings, got {settings!r}")
+        try:
+            return cls.build(**settings)
+        except (TypeError, InvalidInputError) as e:
+            raise ValueError(f"{where}: {e}") from None

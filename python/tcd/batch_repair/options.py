@@ -57,7 +57,7 @@ class RepairOptions:
         if unknown:
             raise TypeError(f"unexpected keyword argument {unknown[0]!r} (settings: sampler, "
                             f"{', '.join(sorted(_MAKE_KEYWORDS))})")
-        sampling = SamplerOptions.build(**(sampler or {}))
+        sampling = model.sampler_options("repair", **(sampler or {}))   # over the model's own defaults
         den = _denoiser(model)
         den.timesteps(**dataclasses.asdict(sampling))  # the step count against the model, before any file is read
         seed = kw.get("seed", DEFAULT_SEED)

@@ -83,26 +83,30 @@ def add_model_flag(p: argparse.ArgumentParser) -> None:
 
 def add_sampler_flags(p: argparse.ArgumentParser, *, tuning: bool = True) -> None:
     """--steps and --sampler (and with ``tuning`` --eta and --spacing). Each defaults to None, so that a
-    flag not given leaves SamplerOptions' default; argparse refuses a choice not in SAMPLERS or SPACINGS."""
+    flag not given leaves the model's default (its ``sampling.json``, else SamplerOptions'); argparse refuses a
+    choice not in SAMPLERS or SPACINGS."""
     d = SamplerOptions()
     p.add_argument("--steps", dest="num_inference_steps", type=int, default=None, metavar="S",
-                   help="inference steps (default: every training step, the paper's DDPM)")
+                   help="inference steps (default: the model's; `tcd info` shows them)")
     p.add_argument("--sampler", default=None, choices=SAMPLERS,
-                   help=f"sampler (default {d.sampler}; dpmpp2m is DPM-Solver++(2M))")
+                   help="sampler (default: the model's, `tcd info`; dpmpp2m is DPM-Solver++(2M))")
     if tuning:
-        p.add_argument("--eta", type=float, default=None, help=f"DDIM eta in [0, 1] (default {d.eta:g})")
+        p.add_argument("--eta", type=float, default=None,
+                       help=f"DDIM eta in [0, 1] (default: the model's, else {d.eta:g})")
         p.add_argument("--spacing", dest="timestep_spacing", default=None, choices=SPACINGS,
-                       help=f"timestep spacing (default {d.timestep_spacing})")
+                       help=f"timestep spacing (default: the model's, else {d.timestep_spacing})")
 
 
 def sampler_keywords(args: argparse.Namespace) -> Dict[str, Any]:
-    """The sampler keywords of the API (all four) from the sampler flags given, checked by
-    :meth:`SamplerOptions.build` before any file is read; a bad value is an error naming its flag."""
+    """The sampler keywords of the API for the sampler flags given (only those: the model's own defaults,
+    :attr:`tcd.TCD.sampling`, fill the rest), checked by :meth:`SamplerOptions.build` before any file is
+    read; a bad value is an error naming its flag."""
     given = {f: getattr(args, f) for f in SAMPLER_FLAGS if getattr(args, f, None) is not None}
     try:
-        return dataclasses.asdict(SamplerOptions.build(**given))
+        checked = dataclasses.asdict(SamplerOptions.build(**given))
     except InvalidInputError as e:
         raise _BadInput(flag_message(e)) from None
+    return {f: checked[f] for f in given}
 
 
 def load_model(model: Optional[str]) -> TCD:

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 from typing import Any, List
 
@@ -20,7 +21,9 @@ def run(args: argparse.Namespace) -> int:
     m = load_model(args.model)
     if args.json:
         print(json.dumps({"path": str(m.path), "obs_len": m.obs_len, "horizon": m.horizon,
-                          "num_joints": m.num_joints, "config": m.config}, indent=2))
+                          "num_joints": m.num_joints,
+                          "sampling": {t: dataclasses.asdict(o) for t, o in m.sampling.items()},
+                          "config": m.config}, indent=2))
         return EXIT_OK
     data = m.data
     lines: List[str] = [
@@ -44,6 +47,8 @@ def run(args: argparse.Namespace) -> int:
                      + ("" if mc.get("cond_fill", "zero") == "zero" else f", conditioning {mc['cond_fill']}-filled")
                      + ("" if mc.get("target", "absolute") == "absolute"
                         else f", target {mc['target']} (scale {mc.get('target_scale', 1.0):g})"))
+    for task, o in m.sampling.items():
+        lines.append(f"default sampler, {task}: {o.describe(m.num_train_timesteps)}")
     lines.append(f"kernels: {m.short.kernel} (this CPU supports: {', '.join(supported_kernels())})")
     print("\n".join(lines))
     return EXIT_OK
