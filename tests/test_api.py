@@ -166,7 +166,7 @@ def test_one_thread_equals_two_threads(tiny_model, obs):
 
 
 def test_ddpm_default_runs_all_steps(tmp_path, obs):
-    """The default sampler is DDPM over every training step (a T = 10 model keeps this fast):
+    """The default sampler (no ``sampling.json``) is DDPM over every training step (a T = 10 model keeps this fast):
     num_inference_steps=T is the same thing, fewer steps are respaced DDPM, more are an error."""
     import_torch("writing a T = 10 model (training/export.py)")
     from training.diffusion import DiffusionConfig
@@ -415,8 +415,9 @@ SAMPLER_SETTINGS = "eta, num_inference_steps, sampler, timestep_spacing"
 
 
 def test_sampler_keywords_and_their_defaults(tiny_model, obs):
-    """The sampler is given as keywords; a setting left out takes SamplerOptions' default (no layer has
-    defaults of its own); timesteps and num_noise_blocks read the same keywords."""
+    """The sampler is given as keywords; a setting left out takes SamplerOptions' default (in a directory without
+    ``sampling.json``, as here: tests/test_sampling_defaults.py has the directories' own defaults); timesteps and
+    num_noise_blocks read the same keywords."""
     defaults = dataclasses.asdict(tcd.SamplerOptions())
     assert defaults == {"sampler": "ddpm", "num_inference_steps": None, "eta": 0.0, "timestep_spacing": "trailing"}
     short = tiny_model.short

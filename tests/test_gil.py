@@ -44,7 +44,7 @@ def _wakeups_while(workers: list[threading.Thread]) -> int:
 
 @pytest.mark.slow
 def test_other_python_threads_run_during_a_forecast(model, obs):
-    kw = dict(num_samples=2, seed=3, threads=1)            # DDPM-50, both stages: ~200 forwards
+    kw = dict(num_samples=2, seed=3, threads=1, sampler="ddpm")   # DDPM-50, both stages: ~200 forwards
     out = {}
     started = threading.Event()
 

@@ -79,7 +79,7 @@ LONG = dict(batch=16, num_samples=5)      # DDPM over every training step, both 
 def long_call(model, progress):
     """Runs a forecast of LONG's size on one thread."""
     obs = poses(np.random.default_rng(1), batch=LONG["batch"], missing=0.0)
-    model.forecast(obs, num_samples=LONG["num_samples"], seed=0, threads=1, progress=progress)
+    model.forecast(obs, num_samples=LONG["num_samples"], seed=0, threads=1, progress=progress, sampler="ddpm")
 
 
 def long_call_total(model) -> int:
