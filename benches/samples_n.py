@@ -32,7 +32,7 @@ sys.path.insert(0, str(ROOT))
 
 import tcd  # noqa: E402
 from training.data.h36m import DEFAULT_DATA_ROOT, H36M, model_to_xyz32, xyz32_to_model  # noqa: E402
-from training.metrics import per_frame_error  # noqa: E402
+from training.metrics import oracle_best, per_frame_error  # noqa: E402
 
 OBS, PRED = 50, 25
 AT = {"560": 13, "1000": 24}      # future frame index of each reported horizon (ms)
@@ -66,8 +66,7 @@ def run(args) -> dict:
         per_sample = np.stack([errors(s, gt32) for s in samples])                        # (S, W, 25)
         for n in ns:
             mean_n[n].append(errors(samples[:n].mean(axis=0), gt32).mean(axis=0))
-            pick = per_sample[:n].mean(axis=2).argmin(axis=0)                            # oracle, per window
-            best_n[n].append(per_sample[pick, np.arange(per_sample.shape[1])].mean(axis=0))
+            best_n[n].append(oracle_best(per_sample[:n]).mean(axis=0))
         prior.append(errors(np.asarray(model.predict(obs).mean, np.float64), gt32).mean(axis=0))
         zv.append(errors(np.repeat(obs[:, -1:], PRED, axis=1), gt32).mean(axis=0))
         print(f"[{ai + 1}/{len(actions)}] {action}: {time.time() - t0:.0f} s", file=sys.stderr)

@@ -62,7 +62,7 @@ import tcd  # noqa: E402
 from training.data.h36m import DEFAULT_H36M_DIR, H36M, model_to_xyz32, xyz32_to_model  # noqa: E402
 from training.evaluate import OBS, PRED, summarize, tcd_engine_predict  # noqa: E402
 from training.masks import corrupt  # noqa: E402
-from training.metrics import HORIZONS_MS, per_frame_error, repair_ade  # noqa: E402
+from training.metrics import HORIZONS_MS, oracle_best, per_frame_error, repair_ade  # noqa: E402
 
 MASK_PATTERN = "random_leg_arm"
 
@@ -116,7 +116,7 @@ def accuracy(model_arg, cfg: dict, windows: list[dict], samples: int, seed: int)
         gt32 = w["gt32"]
         clean = tcd_engine_predict(model_arg, w["obs"], np.ones(w["obs"].shape[:3], np.float32), **kw)
         errs = np.stack([per_frame_error(model_to_xyz32(s, gt32), gt32) for s in clean["samples"]])   # (S, W, 25)
-        best_err[w["action"]] = errs[errs.mean(axis=2).argmin(axis=0), np.arange(errs.shape[1])].mean(axis=0)
+        best_err[w["action"]] = oracle_best(errs).mean(axis=0)
         mean_err[w["action"]] = per_frame_error(model_to_xyz32(clean["samples"].mean(axis=0), gt32), gt32).mean(axis=0)
         occ = tcd_engine_predict(model_arg, w["occ"], w["jmask"], **kw)
         occ_err[w["action"]] = per_frame_error(model_to_xyz32(occ["samples"].mean(axis=0), gt32), gt32).mean(axis=0)

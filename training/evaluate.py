@@ -37,7 +37,7 @@ import numpy as np
 import torch
 
 from .data.h36m import DEFAULT_DATA_ROOT, H36M, model_to_xyz32, xyz32_to_model
-from .metrics import HORIZONS_MS, PUBLISHED_H36M, at_horizons, per_frame_error, repair_ade
+from .metrics import HORIZONS_MS, PUBLISHED_H36M, at_horizons, oracle_best, per_frame_error, repair_ade
 
 OBS, PRED = 50, 25
 
@@ -195,8 +195,7 @@ def evaluate_h36m(args, models: dict | None = None, data: H36M | None = None, on
             else:
                 res = tcd_predict(models, obs, jmask, device=args.device, batch_size=args.batch_size, **kw)
             errs = np.stack([per_frame_error(model_to_xyz32(s, gt32), gt32) for s in res["samples"]])  # (S, W, 25)
-            pick = errs.mean(axis=2).argmin(axis=0)                                                   # oracle
-            best[action] = errs[pick, np.arange(errs.shape[1])].mean(axis=0)
+            best[action] = oracle_best(errs).mean(axis=0)
             mean[action] = per_frame_error(model_to_xyz32(res["samples"].mean(axis=0), gt32), gt32).mean(axis=0)
             if args.mask != "none":
                 s, c = repair_ade(res["repaired"], obs_clean, jmask)

@@ -49,6 +49,14 @@ def per_frame_error(pred32_mm: np.ndarray, gt32_mm: np.ndarray) -> np.ndarray:
     return np.linalg.norm(np.asarray(pred32_mm) - np.asarray(gt32_mm), axis=-1).mean(axis=-1)
 
 
+def oracle_best(errs: np.ndarray) -> np.ndarray:
+    """The oracle best of n (the paper's figure, chosen against the truth: not deployable): errs (S, W, F), each
+    sample's error per window and frame -> (W, F), each window's frames from its sample of lowest mean error."""
+    errs = np.asarray(errs)
+    pick = errs.mean(axis=2).argmin(axis=0)
+    return errs[pick, np.arange(errs.shape[1])]
+
+
 def at_horizons(per_frame: np.ndarray, fps: float = 25.0, horizons=HORIZONS_MS) -> dict[str, float]:
     """per_frame: (H,) errors of future frames 1..H -> {"80": err, ...} for horizons within H."""
     out = {}

@@ -28,7 +28,7 @@ import torch
 
 from .data.h36m import DEFAULT_DATA_ROOT, H36M, model_to_xyz32
 from .evaluate import OBS, PRED, from_bkl, protocol_windows, summarize, to_bkl, zero_velocity
-from .metrics import per_frame_error
+from .metrics import oracle_best, per_frame_error
 
 GIVEN = 55   # frames the long-term model is conditioned on: 50 observed + 5 from the stage before
 
@@ -83,8 +83,7 @@ def evaluate_run(run: Path, prior_path: str, *, windows_per_action: int, samples
             outs.append(from_bkl(s[..., OBS:]))
         smp = np.concatenate(outs, axis=1)                                                      # (S, W, 25, J, 3)
         errs = np.stack([per_frame_error(model_to_xyz32(s, gt32), gt32) for s in smp])          # (S, W, 25)
-        pick = errs.mean(axis=2).argmin(axis=0)
-        best[action] = errs[pick, np.arange(W)].mean(axis=0)
+        best[action] = oracle_best(errs).mean(axis=0)
         mean[action] = per_frame_error(model_to_xyz32(smp.mean(axis=0), gt32), gt32).mean(axis=0)
         print(f"[{ai + 1}] {action}: {time.time() - t0:.0f} s", file=sys.stderr)
     hist = ck.get("history", [])
