@@ -81,7 +81,23 @@ def test_batch_is_a_pure_function_and_flips():
     assert fwd + rev == 64 and fwd > 10 and rev > 10
 
 
-@pytest.mark.parametrize("field,value", [("chunk", 0), ("blocks", 0), ("flip_prob", 1.5), ("chunk", 60)])
+def test_batch_observation_noise():
+    """obs_noise_prob of the windows get N(0, obs_noise_mm^2) on their observed frames only; the others, and every
+    window's target frames, are the windows of the same config without noise, bit for bit."""
+    frames, starts = synthetic_frames()
+    clean_cfg = PriorConfig(batch_size=256, flip_prob=0.5)
+    cfg = PriorConfig(batch_size=256, flip_prob=0.5, obs_noise_mm=25.0, obs_noise_prob=0.5)
+    clean, noisy = batch(clean_cfg, frames, starts, 3), batch(cfg, frames, starts, 3)
+    assert torch.equal(noisy[:, 50:], clean[:, 50:])
+    d = (noisy[:, :50] - clean[:, :50]).double()
+    hit = d.abs().amax(dim=(1, 2)) > 0
+    assert 90 < int(hit.sum()) < 166                     # about half of 256
+    assert d[hit].std().item() == pytest.approx(0.025, rel=0.02)
+
+
+@pytest.mark.parametrize("field,value", [("chunk", 0), ("blocks", 0), ("flip_prob", 1.5), ("chunk", 60),
+                                         ("obs_noise_mm", -1.0), ("obs_noise_mm", float("nan")),
+                                         ("obs_noise_prob", 1.5)])
 def test_config_rejects_bad_values(field, value):
     with pytest.raises(ValueError, match=field):
         PriorConfig(**{field: value})

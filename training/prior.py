@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from dataclasses import asdict, dataclass
@@ -61,6 +62,8 @@ class PriorConfig:
     iterations: int = 40_000
     flip_prob: float = 0.5           # temporal-flip augmentation
     rotate_axis: str = ""            # "" or the data's vertical axis: each window turned about it (training.augment)
+    obs_noise_mm: float = 0.0        # sigma of the Gaussian noise put on every observed coordinate of a noisy window
+    obs_noise_prob: float = 0.0      # the fraction of windows made noisy (the target frames stay clean)
     velocity_weight: float = 1.0     # weight of the velocity term of the loss
     subjects: tuple = (1, 6, 7, 8, 9, 11)   # siMLPe's training subjects (S5 is the test subject); HumanEva: 1..3
     seed: int = 0
@@ -87,6 +90,10 @@ class PriorConfig:
         if not 0.0 <= self.flip_prob <= 1.0:
             raise ValueError(f"prior config: flip_prob must be in [0, 1], got {self.flip_prob!r}")
         check_axis(self.rotate_axis, "prior config")
+        if not (math.isfinite(self.obs_noise_mm) and self.obs_noise_mm >= 0.0):
+            raise ValueError(f"prior config: obs_noise_mm must be a finite number >= 0, got {self.obs_noise_mm!r}")
+        if not 0.0 <= self.obs_noise_prob <= 1.0:
+            raise ValueError(f"prior config: obs_noise_prob must be in [0, 1], got {self.obs_noise_prob!r}")
         if self.dataset not in DATASET_JOINTS:
             raise ValueError(f"prior config: dataset must be one of {sorted(DATASET_JOINTS)}, got {self.dataset!r}")
         if self.dataset == "humaneva" and not set(self.subjects) <= {1, 2, 3}:
@@ -215,8 +222,9 @@ def training_frames(cfg: PriorConfig, data: str | None = None,
 
 def batch(cfg: PriorConfig, frames: np.ndarray, starts: np.ndarray, iteration: int) -> torch.Tensor:
     """Iteration ``iteration``'s windows (B, obs_len + chunk, K): uniform window starts, each reversed
-    in time with probability ``flip_prob``, turned about ``rotate_axis`` when set; a pure function of (seed,
-    iteration)."""
+    in time with probability ``flip_prob``, turned about ``rotate_axis`` when set, and with probability
+    ``obs_noise_prob`` given N(0, obs_noise_mm^2) noise on its observed frames (metres: the data's units), so the
+    prior learns to forecast from noisy keypoints (the protocol's noisy_25); a pure function of (seed, iteration)."""
     rng = np.random.default_rng([cfg.seed, iteration])
     rows = starts[rng.integers(0, len(starts), cfg.batch_size)]
     wins = frames[rows[:, None] + np.arange(cfg.obs_len + cfg.chunk)]
@@ -225,6 +233,10 @@ def batch(cfg: PriorConfig, frames: np.ndarray, starts: np.ndarray, iteration: i
     if cfg.rotate_axis:     # drawn after the flips: configs without it keep their batches bit for bit
         B, T, K = wins.shape
         wins = rotate_about(wins.reshape(B, T, K // 3, 3), cfg.rotate_axis, rng).reshape(B, T, K)
+    if cfg.obs_noise_prob > 0.0:     # drawn last, for the same reason
+        noisy = rng.random(cfg.batch_size) < cfg.obs_noise_prob
+        noise = rng.normal(0.0, cfg.obs_noise_mm * 1e-3, (cfg.batch_size, cfg.obs_len, wins.shape[2]))
+        wins[noisy, :cfg.obs_len] += noise[noisy].astype(wins.dtype)
     return torch.from_numpy(np.ascontiguousarray(wins))
 
 
