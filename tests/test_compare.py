@@ -61,3 +61,16 @@ def test_humaneva_results_are_paired_over_windows():
     del without["model"]["per_window"]
     with pytest.raises(ValueError, match="per-window"):
         compare(without, humaneva_result(old))
+
+
+def test_bundled_key_pairs_a_tcd_run_with_a_prior_run():
+    """--bundled-key: a TCD run's mean_of_n against a prior run's average (a prior run has no mean_of_n)."""
+    tcd_run = result([100.0, 110.0, 120.0])
+    tcd_run["mean_of_n"] = {"per_action": {f"a{i}": {"1000": e} for i, e in enumerate([95.0, 104.0, 116.0])}}
+    prior_run = result([100.0, 110.0, 120.0])
+    del prior_run["mean_of_n"]
+    with pytest.raises(ValueError, match="mean_of_n"):
+        compare(tcd_run, prior_run, key="mean_of_n")
+    r = compare(tcd_run, prior_run, key="mean_of_n", old_key="average")
+    assert r["verdict"] == "new is better" and r["bundled_key"] == "average" and r["mean_difference"] == -5.0
+    assert compare(tcd_run, prior_run)["verdict"] == "within noise"          # average against average: equal

@@ -1,11 +1,13 @@
 """The paired comparison that decides whether new weights replace the bundled ones.
 
-    python -m training.compare NEW.json BUNDLED.json [--key average] [--horizon 1000] [--margin 0.01]
+    python -m training.compare NEW.json BUNDLED.json [--key average] [--bundled-key KEY] [--horizon 1000]
+        [--margin 0.01]
 
 Both files are ``training.evaluate --json`` results of the same protocol (same windows, patterns and seeds:
 checked). The test is paired over actions: for every action both evaluated, the difference of the two
 per-action errors at ``--horizon`` ms (``--key``: ``average`` = what each run reported first, or
-``mean_of_n`` / ``best_of_n`` for a TCD run). NEW is better when its mean error is lower by more than
+``mean_of_n`` / ``best_of_n`` for a TCD run; ``--bundled-key`` reads BUNDLED's under another key, e.g. a TCD run's
+``mean_of_n`` against a prior's ``average``). NEW is better when its mean error is lower by more than
 ``--margin`` (relative) AND the mean paired difference is below zero by more than two standard errors;
 BUNDLED is better in the mirror case; otherwise the difference is within sampling noise (keep what is
 bundled). Exit status 0 when NEW is better, 1 otherwise, so a script can gate on it.
@@ -53,13 +55,14 @@ def per_action(result: dict, key: str, horizon: str) -> dict[str, float]:
     return {a: float(v[horizon]) for a, v in table.items()}
 
 
-def compare(new: dict, old: dict, *, key: str = "average", horizon: str = "1000", margin: float = 0.01) -> dict:
+def compare(new: dict, old: dict, *, key: str = "average", horizon: str = "1000", margin: float = 0.01,
+            old_key: str | None = None) -> dict:
     for what in ("protocol", "seeds"):
         a = {k: v for k, v in new[what].items() if k != "data"}
         b = {k: v for k, v in old[what].items() if k != "data"}
         if a != b:
             raise ValueError(f"the two results were not measured on the same {what}: {a} against {b}")
-    pa, pb = per_action(new, key, horizon), per_action(old, key, horizon)
+    pa, pb = per_action(new, key, horizon), per_action(old, key if old_key is None else old_key, horizon)
     actions = sorted(set(pa) & set(pb))
     if len(actions) < 2:
         raise ValueError(f"a paired test needs at least 2 actions (or windows) in common, got {actions}")
@@ -70,7 +73,8 @@ def compare(new: dict, old: dict, *, key: str = "average", horizon: str = "1000"
     if abs(xa - xb) > margin * max(xa, xb) and abs(d.mean()) > 2 * se:
         verdict = "new is better" if d.mean() < 0 else "bundled is better"
     unit = "windows" if is_humaneva(new) else "actions"
-    return {"horizon_ms": None if unit == "windows" else horizon, "key": key, unit: len(actions),
+    return {"horizon_ms": None if unit == "windows" else horizon, "key": key,
+            **({} if old_key is None else {"bundled_key": old_key}), unit: len(actions),
             "new": xa, "bundled": xb, "mean_difference": float(d.mean()), "standard_error": se,
             "new_better_on": int((d < 0).sum()), "margin": margin, "verdict": verdict}
 
@@ -82,11 +86,12 @@ def main(argv=None) -> int:
     ap.add_argument("bundled")
     ap.add_argument("--key", default="average",
                     help="average (default), mean_of_n or best_of_n; HumanEva-I: ADE (= average), FDE, MMADE, MMFDE")
+    ap.add_argument("--bundled-key", default=None, help="BUNDLED's key, when not --key's")
     ap.add_argument("--horizon", default="1000", help="ms (default 1000)")
     ap.add_argument("--margin", type=float, default=0.01, help="relative difference that counts (default 0.01)")
     args = ap.parse_args(argv)
     res = compare(*(json.loads(Path(p).read_text()) for p in (args.new, args.bundled)), key=args.key,
-                  horizon=args.horizon, margin=args.margin)
+                  horizon=args.horizon, margin=args.margin, old_key=args.bundled_key)
     print(json.dumps(res, indent=1))
     return 0 if res["verdict"] == "new is better" else 1
 
