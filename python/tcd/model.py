@@ -530,10 +530,12 @@ def _read_sampling(f: Path) -> Dict[str, SamplerOptions]:
         if key not in SAMPLING_TASKS:
             raise WeightsError(f"{f}: unknown key {key!r} (the tasks: {', '.join(SAMPLING_TASKS)}; and \"why\").",
                                str(f))
+        if not isinstance(value, dict):
+            raise WeightsError(f"{f}, {key!r}: expected an object of sampler settings, got {value!r}", str(f))
         try:
-            out[key] = SamplerOptions.from_config(value, f"{f}, {key!r}")
-        except ValueError as e:
-            raise WeightsError(str(e), str(f)) from None
+            out[key] = SamplerOptions.build(**value)       # the fields it leaves out: SamplerOptions' defaults
+        except (TypeError, InvalidInputError) as e:
+            raise WeightsError(f"{f}, {key!r}: {e}", str(f)) from None
     return out
 
 

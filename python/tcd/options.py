@@ -14,7 +14,6 @@ from dataclasses import asdict, dataclass, fields
 from typing import Any, Optional
 
 from . import _checks, _native
-from .exceptions import InvalidInputError
 
 #: The samplers and the timestep spacings the engine knows, its default first.
 SAMPLERS = tuple(_native.SAMPLERS)
@@ -76,15 +75,3 @@ class SamplerOptions:
         n = num_train_timesteps if self.num_inference_steps is None else self.num_inference_steps
         extra = f"eta {self.eta:g}, " if self.sampler == "ddim" else ""
         return f"{self.sampler}, {n} step{'' if n == 1 else 's'} ({extra}{self.timestep_spacing} spacing)"
-
-    @classmethod
-    def from_config(cls, settings: Any, where: str) -> "SamplerOptions":
-        """The options a model directory's ``sampling.json`` gives one task (see :func:`tcd.load`): a dict of
-        these fields, the class's defaults for those it leaves out. ``ValueError`` naming ``where`` and the
-        field when a key is unknown or a value bad."""
-        if not isinstance(settings, dict):
-            raise ValueError(f"{where}: expected an object of sampler settings, got {settings!r}")
-        try:
-            return cls.build(**settings)
-        except (TypeError, InvalidInputError) as e:
-            raise ValueError(f"{where}: {e}") from None
