@@ -167,3 +167,23 @@ def test_schedule_may_change_only_where_the_run_so_far_is_the_same(tmp_path):
     train(long, tmp_path / "six", frames=frames, log=lambda m: None)
     with pytest.raises(ValueError, match="another config"):
         train(short, tmp_path / "six", frames=frames, resume=True, log=lambda m: None)
+
+
+def test_committed_prior_checkpoints_start_the_configs_that_name_them():
+    """Every prior checkpoint committed under training/checkpoints/ loads, strictly, into the network of each
+    prior config whose init_from names it (what a next installment does first); a config naming a checkpoint
+    that is no longer in the tree is one whose start is in git history (its comment says where)."""
+    import json
+    from pathlib import Path
+    root = Path(__file__).parents[1]
+    committed = {p.name for p in (root / "training" / "checkpoints").glob("prior_installment*.pt")}
+    assert committed, "the bundled prior's checkpoint is carried in training/checkpoints/"
+    started = set()
+    for path in sorted((root / "training" / "configs").glob("prior*.json")):
+        init = json.loads(path.read_text()).get("init_from", "")
+        if Path(init).name not in committed:
+            continue
+        ck = torch.load(root / init, map_location="cpu", weights_only=False)
+        PriorNet(PriorConfig.load(path)).load_state_dict(ck["model"])      # strict
+        started.add(Path(init).name)
+    assert started == committed, f"checkpoints no config starts from: {sorted(committed - started)}"
