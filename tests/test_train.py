@@ -220,6 +220,28 @@ def test_bad_train_config_values_are_refused():
             tiny_cfg(**kw)
 
 
+def test_reset_output_head_restarts_only_the_last_layer_of_a_warm_start(tmp_path):
+    """reset_output_head (a warm start whose prediction_type changes): every weight as the warm start's but the
+    last 1x1 conv, which restarts at zero as a fresh model's; refused without init_from."""
+    seqs = {"train": synthetic_motion(4, seed=0), "val": synthetic_motion(2, seed=1)}
+    train(tiny_cfg(epochs=1, steps_per_epoch=4), tmp_path / "eps", sequences=seqs, log=lambda *a: None)
+    start = torch.load(tmp_path / "eps" / "last.pt", weights_only=False)["model"]
+    head = "diffmodel.output_projection2.weight"
+    assert start[head].abs().sum() > 0                                   # trained away from its zero init
+    for reset in (False, True):                                          # lr 0: the weights stay where they start
+        cfg = tiny_cfg(epochs=1, steps_per_epoch=1, lr=0.0, init_from=str(tmp_path / "eps" / "last.pt"),
+                       diffusion={"prediction_type": "sample"}, reset_output_head=reset)
+        train(cfg, tmp_path / f"x0_{reset}", sequences=seqs, log=lambda *a: None)
+        got = torch.load(tmp_path / f"x0_{reset}" / "last.pt", weights_only=False)["model"]
+        for k in start:
+            if reset and k.startswith("diffmodel.output_projection2."):
+                assert not got[k].any(), k
+            else:
+                assert torch.equal(got[k], start[k]), k
+    with pytest.raises(ValueError, match="reset_output_head.*init_from"):
+        tiny_cfg(reset_output_head=True)
+
+
 @pytest.mark.slow
 def test_ema_weights_are_validated_resumed_and_exported(tmp_path):
     from training.export import export_checkpoint, load_model_file

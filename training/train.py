@@ -57,7 +57,7 @@ def without_removed_keys(d: dict, where) -> dict:
 
 # Keys added to TrainConfig after checkpoints were committed, at the value that does what the code did before
 # them: a checkpoint whose stored train_config lacks one was trained that way.
-ADDED_KEYS = {"rotate_axis": ""}
+ADDED_KEYS = {"rotate_axis": "", "reset_output_head": False}
 
 
 def stored_config(d: dict, where) -> dict:
@@ -98,6 +98,9 @@ class TrainConfig:
                                      # a training.prior last.pt
     rotate_axis: str = ""            # "" or the data's vertical axis: each training window turned about it
                                      # (training.augment; validation windows are not)
+    reset_output_head: bool = False  # with init_from: the last 1x1 conv restarts at zero, as a fresh model's does;
+                                     # for a warm start whose prediction_type changes (epsilon -> sample), so the
+                                     # run starts at "no residual over the fill" instead of from noise estimates
 
     @classmethod
     def load(cls, path: str | Path) -> "TrainConfig":
@@ -116,6 +119,8 @@ class TrainConfig:
         if self.warmup_steps < 0:
             raise ValueError(f"train config: warmup_steps must be >= 0, got {self.warmup_steps!r}")
         check_axis(self.rotate_axis, "train config")
+        if self.reset_output_head and not self.init_from:
+            raise ValueError("train config: reset_output_head resets a warm start's last layer; it needs init_from")
 
 
 # ------------------------------------------------------------------------------------------ data
@@ -353,6 +358,11 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
             from .export import checkpoint_weights
             model.load_state_dict(checkpoint_weights(init_ck))  # strict: the architecture must match
             log(f"warm start from {init} (its best validation loss {init_ck.get('best_val', float('nan')):.4f})")
+        if cfg.reset_output_head:
+            head = model.diffmodel.output_projection2
+            torch.nn.init.zeros_(head.weight)
+            torch.nn.init.zeros_(head.bias)
+            log("the output head restarts at zero (reset_output_head)")
     ema = make_ema(model, cfg)
     if ema is not None and ck is not None:
         ema.module.load_state_dict(ck["ema"])
