@@ -222,7 +222,7 @@ def test_bad_train_config_values_are_refused():
 
 def test_reset_output_head_restarts_only_the_last_layer_of_a_warm_start(tmp_path):
     """reset_output_head (a warm start whose prediction_type changes): every weight as the warm start's but the
-    last 1x1 conv, which restarts at zero as a fresh model's; refused without init_from."""
+    last 1x1 conv, whose weight and bias restart at zero; refused without init_from."""
     seqs = {"train": synthetic_motion(4, seed=0), "val": synthetic_motion(2, seed=1)}
     train(tiny_cfg(epochs=1, steps_per_epoch=4), tmp_path / "eps", sequences=seqs, log=lambda *a: None)
     start = torch.load(tmp_path / "eps" / "last.pt", weights_only=False)["model"]

@@ -98,9 +98,9 @@ class TrainConfig:
                                      # a training.prior last.pt
     rotate_axis: str = ""            # "" or the data's vertical axis: each training window turned about it
                                      # (training.augment; validation windows are not)
-    reset_output_head: bool = False  # with init_from: the last 1x1 conv restarts at zero, as a fresh model's does;
-                                     # for a warm start whose prediction_type changes (epsilon -> sample), so the
-                                     # run starts at "no residual over the fill" instead of from noise estimates
+    reset_output_head: bool = False  # with init_from: the last 1x1 conv's weight and bias restart at zero; for a
+                                     # warm start whose prediction_type changes (epsilon -> sample), so the run
+                                     # starts at "no residual over the fill" instead of from noise estimates
 
     @classmethod
     def load(cls, path: str | Path) -> "TrainConfig":
