@@ -97,7 +97,7 @@ def test_batch_observation_noise():
 
 @pytest.mark.parametrize("field,value", [("chunk", 0), ("blocks", 0), ("flip_prob", 1.5), ("chunk", 60),
                                          ("obs_noise_mm", -1.0), ("obs_noise_mm", float("nan")),
-                                         ("obs_noise_prob", 1.5)])
+                                         ("obs_noise_prob", 1.5), ("loss_frames", -1)])
 def test_config_rejects_bad_values(field, value):
     with pytest.raises(ValueError, match=field):
         PriorConfig(**{field: value})
@@ -145,6 +145,34 @@ def test_training_lowers_the_loss(tmp_path):
     train(cfg, tmp_path, frames=frames, log=lambda m: None)
     after = loss_of(load(tmp_path / "last.pt"))
     assert after < 0.7 * before, (before, after)
+
+
+def test_loss_frames_trains_on_the_rolled_out_horizon(tmp_path):
+    """loss_frames = 20 with chunks of 10: windows of obs_len + 20 frames, and training is Adam on the loss of the
+    two chunks rolled out (the second predicted from the first), computed here by hand; not the one-chunk loss."""
+    torch.set_num_threads(1)
+    frames, starts = synthetic_frames()
+    starts = starts[:-10]                                 # every window of 70 frames
+    cfg = PriorConfig(blocks=2, batch_size=8, iterations=3, lr=1e-2, lr_decay_at=1.0, loss_frames=20)
+    assert batch(cfg, frames, starts, 0).shape == (8, 70, 66)
+    train(cfg, tmp_path, frames=(frames, starts), log=lambda m: None)
+    got = torch.load(tmp_path / "last.pt", weights_only=False)["model"]
+
+    def by_hand(horizon: int) -> dict:
+        torch.manual_seed(cfg.seed)
+        net = PriorNet(cfg)
+        opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+        for it in range(cfg.iterations):
+            wins = batch(cfg, frames, starts, it)
+            loss_fn(net.rollout(wins[:, :50], horizon), wins[:, 50:50 + horizon], cfg.velocity_weight).backward()
+            opt.step()
+            opt.zero_grad(set_to_none=True)
+        return net.state_dict()
+
+    for k, v in by_hand(20).items():
+        torch.testing.assert_close(got[k], v, rtol=1e-5, atol=1e-6, msg=k)
+    one_chunk = by_hand(10)
+    assert any(not torch.allclose(got[k], v, rtol=1e-5, atol=1e-6) for k, v in one_chunk.items())
 
 
 def test_schedule_may_change_only_where_the_run_so_far_is_the_same(tmp_path):

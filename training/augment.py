@@ -4,6 +4,10 @@
 the same motion whichever way the subject faces, but a small dataset shows few headings: HumanEva-I's
 prior, trained without it, forecast its own training windows 35 % worse once they were turned (ADE 0.252
 -> 0.340 m; issue 31), i.e. it had learned the room's headings along with the motion.
+
+``mirror``: windows reflected through a vertical plane, the subject's left and right joints swapped: a left-handed
+boxer's motion is as human as a right-handed one's, and a small dataset (HumanEva-I: three subjects) shows each
+motion with one handedness.
 """
 from __future__ import annotations
 
@@ -28,4 +32,33 @@ def rotate_about(wins: np.ndarray, axis: str, rng: np.random.Generator) -> np.nd
     out = wins.copy()
     out[..., u] = c * wins[..., u] - s * wins[..., v]
     out[..., v] = s * wins[..., u] + c * wins[..., v]
+    return out
+
+
+def mirror_permutation(names) -> np.ndarray:
+    """The joint order of a mirrored pose: each ``left_*`` joint takes its ``right_*`` twin's place and back;
+    the others (pelvis, spine, head) keep theirs. A left joint without its twin is an error."""
+    names = list(names)
+    index = {n: i for i, n in enumerate(names)}
+    perm = np.arange(len(names))
+    for i, n in enumerate(names):
+        for a, b in (("left_", "right_"), ("right_", "left_")):
+            if n.startswith(a):
+                twin = b + n[len(a):]
+                if twin not in index:
+                    raise ValueError(f"mirror: joint {n!r} has no {twin!r}")
+                perm[i] = index[twin]
+    return perm
+
+
+def mirror(wins: np.ndarray, vertical: str, perm: np.ndarray, which: np.ndarray) -> np.ndarray:
+    """(B, T, J, 3) windows; those where ``which`` (B bools) is set are reflected through the vertical plane that
+    holds ``vertical`` and the first other axis (the second other axis negated) and have their joints reordered by
+    ``perm`` (:func:`mirror_permutation`): the same motion with the other handedness. The others are unchanged."""
+    a = AXES[vertical]
+    flip_axis = [i for i in range(3) if i != a][1]
+    out = wins.copy()
+    m = out[which][:, :, perm]
+    m[..., flip_axis] *= -1
+    out[which] = m
     return out

@@ -16,10 +16,11 @@ No non-linearity anywhere: each block is linear but for its layer norm. fc_out a
 at (almost) zero, so the untrained network is Zero-Velocity. Longer horizons are rolled out: the
 prediction is appended to the observation and the last ``obs_len`` frames predict the next chunk.
 
-Training (``python -m training.prior``): random windows of ``obs_len + chunk`` frames from the training
-subjects of ``dataset`` (``"h36m"``: Human3.6M, the 22 model joints at 25 fps; ``"humaneva"``: HumanEva-I's
-Train split, 14 root-relative joints at 60 Hz, ``training.data.humaneva.training_sequences``), reversed in
-time with probability ``flip_prob``; loss = mean per-joint L2 distance of the chunk plus the same on its
+Training (``python -m training.prior``): random windows of ``obs_len + chunk`` frames (``obs_len +
+loss_frames`` when set) from the training subjects of ``dataset`` (``"h36m"``: Human3.6M, the 22 model joints
+at 25 fps; ``"humaneva"``: HumanEva-I's Train split, 14 root-relative joints at 60 Hz,
+``training.data.humaneva.training_sequences``), reversed in time with probability ``flip_prob``; loss = mean
+per-joint L2 distance of the chunk (of the ``loss_frames`` frames rolled out, when set) plus the same on its
 frame-to-frame velocities; Adam with weight decay; the learning rate decays once at ``lr_decay_at`` of the
 iterations (``lr`` -> ``lr_final``). Every draw is a pure function of (seed, iteration), so a resumed run
 continues exactly where it stopped.
@@ -42,7 +43,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from .augment import check_axis, rotate_about
+from .augment import check_axis, mirror, mirror_permutation, rotate_about
 
 NUM_JOINTS = 22
 #: the model joints of each dataset the prior trains on (Human3.6M: 22; HumanEva-I: joints 1..14 of 15)
@@ -62,9 +63,11 @@ class PriorConfig:
     iterations: int = 40_000
     flip_prob: float = 0.5           # temporal-flip augmentation
     rotate_axis: str = ""            # "" or the data's vertical axis: each window turned about it (training.augment)
+    mirror_prob: float = 0.0         # the fraction of windows mirrored (left and right swapped; needs rotate_axis)
     obs_noise_mm: float = 0.0        # sigma of the Gaussian noise put on every observed coordinate of a noisy window
     obs_noise_prob: float = 0.0      # the fraction of windows made noisy (the target frames stay clean)
     velocity_weight: float = 1.0     # weight of the velocity term of the loss
+    loss_frames: int = 0             # future frames the loss covers, rolled out chunk by chunk (0: one chunk)
     subjects: tuple = (1, 6, 7, 8, 9, 11)   # siMLPe's training subjects (S5 is the test subject); HumanEva: 1..3
     seed: int = 0
     init_from: str = ""              # a later installment: the last.pt whose weights start this run (fresh Adam)
@@ -87,9 +90,16 @@ class PriorConfig:
                 raise ValueError(f"prior config: {name} must be >= 1, got {getattr(self, name)!r}")
         if self.chunk > self.obs_len:
             raise ValueError(f"prior config: chunk ({self.chunk}) must not exceed obs_len ({self.obs_len})")
+        if int(self.loss_frames) < 0:
+            raise ValueError(f"prior config: loss_frames must be >= 0 (0: one chunk), got {self.loss_frames!r}")
         if not 0.0 <= self.flip_prob <= 1.0:
             raise ValueError(f"prior config: flip_prob must be in [0, 1], got {self.flip_prob!r}")
         check_axis(self.rotate_axis, "prior config")
+        if not 0.0 <= self.mirror_prob <= 1.0:
+            raise ValueError(f"prior config: mirror_prob must be in [0, 1], got {self.mirror_prob!r}")
+        if self.mirror_prob > 0.0 and not self.rotate_axis:
+            raise ValueError("prior config: mirror_prob needs rotate_axis (the data's vertical, which the mirror "
+                             "plane holds)")
         if not (math.isfinite(self.obs_noise_mm) and self.obs_noise_mm >= 0.0):
             raise ValueError(f"prior config: obs_noise_mm must be a finite number >= 0, got {self.obs_noise_mm!r}")
         if not 0.0 <= self.obs_noise_prob <= 1.0:
@@ -104,6 +114,11 @@ class PriorConfig:
     def num_joints(self) -> int:
         """The model joints of the dataset (22 for Human3.6M, 14 for HumanEva-I)."""
         return DATASET_JOINTS[self.dataset]
+
+    @property
+    def future(self) -> int:
+        """The future frames of a training window: ``loss_frames``, or one chunk when it is 0."""
+        return int(self.loss_frames) or self.chunk
 
     @classmethod
     def from_dict(cls, d: dict) -> "PriorConfig":
@@ -169,14 +184,16 @@ class PriorNet(nn.Module):
         x = nn.functional.linear(x, self.dct.t()[: self.cfg.chunk])          # inverse DCT, first chunk frames
         return x.transpose(1, 2) + obs[:, -1:]
 
-    def rollout(self, obs: torch.Tensor, horizon: int) -> torch.Tensor:
+    def rollout(self, obs: torch.Tensor, horizon: int, step=None) -> torch.Tensor:
         """obs (B, T >= obs_len, K) -> (B, horizon, K): chunks predicted from the last obs_len frames,
-        each appended to the history before the next."""
+        each appended to the history before the next. ``step``: the forward to call (a compiled one), else
+        the module itself."""
+        step = self if step is None else step
         hist = obs[:, -self.cfg.obs_len:]
         out = []
         n = 0
         while n < horizon:
-            nxt = self(hist)
+            nxt = step(hist)
             out.append(nxt)
             n += nxt.shape[1]
             hist = torch.cat([hist, nxt], dim=1)[:, -self.cfg.obs_len:]
@@ -188,6 +205,15 @@ def count_parameters(model: nn.Module) -> int:
 
 
 # ------------------------------------------------------------------------------------------ data
+
+def dataset_joint_names(dataset: str) -> tuple:
+    """The names of the model joints of ``dataset``, in the data's order (left/right are the subject's)."""
+    if dataset == "humaneva":
+        from .data.humaneva import HUMANEVA_MODEL_JOINT_NAMES
+        return HUMANEVA_MODEL_JOINT_NAMES
+    from tcd.layouts import get_layout
+    return get_layout("h36m22").joint_names
+
 
 def training_sequences(cfg: PriorConfig, data: str | None = None) -> list[np.ndarray]:
     """The training sequences of ``cfg.subjects`` in ``cfg.dataset``, (T, J, 3) float32 metres each."""
@@ -207,32 +233,37 @@ def training_sequences(cfg: PriorConfig, data: str | None = None) -> list[np.nda
 def training_frames(cfg: PriorConfig, data: str | None = None,
                     seqs: list[np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """All training sequences (``seqs``, else :func:`training_sequences`) concatenated, (N, K) float32
-    metres, and the start rows of every window of ``obs_len + chunk`` frames that lies inside one sequence."""
+    metres, and the start rows of every window of ``obs_len + future`` frames that lies inside one sequence."""
     seqs = training_sequences(cfg, data) if seqs is None else seqs
-    L = cfg.obs_len + cfg.chunk
+    L = cfg.obs_len + cfg.future
     frames, starts, offset = [], [], 0
     for seq in seqs:
         frames.append(seq.reshape(len(seq), -1))
         starts.extend(range(offset, offset + len(seq) - L + 1))
         offset += len(seq)
     if not starts:
-        raise ValueError(f"no training window of {L} frames (obs_len + chunk) in the {cfg.dataset} data")
+        raise ValueError(f"no training window of {L} frames (obs_len + future) in the {cfg.dataset} data")
     return np.concatenate(frames).astype(np.float32), np.asarray(starts, dtype=np.int64)
 
 
 def batch(cfg: PriorConfig, frames: np.ndarray, starts: np.ndarray, iteration: int) -> torch.Tensor:
-    """Iteration ``iteration``'s windows (B, obs_len + chunk, K): uniform window starts, each reversed
+    """Iteration ``iteration``'s windows (B, obs_len + future, K): uniform window starts, each reversed
     in time with probability ``flip_prob``, turned about ``rotate_axis`` when set, and with probability
     ``obs_noise_prob`` given N(0, obs_noise_mm^2) noise on its observed frames (metres: the data's units), so the
     prior learns to forecast from noisy keypoints (the protocol's noisy_25); a pure function of (seed, iteration)."""
     rng = np.random.default_rng([cfg.seed, iteration])
     rows = starts[rng.integers(0, len(starts), cfg.batch_size)]
-    wins = frames[rows[:, None] + np.arange(cfg.obs_len + cfg.chunk)]
+    wins = frames[rows[:, None] + np.arange(cfg.obs_len + cfg.future)]
     flip = rng.random(cfg.batch_size) < cfg.flip_prob
     wins[flip] = wins[flip, ::-1]
     if cfg.rotate_axis:     # drawn after the flips: configs without it keep their batches bit for bit
         B, T, K = wins.shape
         wins = rotate_about(wins.reshape(B, T, K // 3, 3), cfg.rotate_axis, rng).reshape(B, T, K)
+    if cfg.mirror_prob > 0.0:        # drawn after the rotation, for the same reason
+        B, T, K = wins.shape
+        which = rng.random(cfg.batch_size) < cfg.mirror_prob
+        perm = mirror_permutation(dataset_joint_names(cfg.dataset))
+        wins = mirror(wins.reshape(B, T, K // 3, 3), cfg.rotate_axis, perm, which).reshape(B, T, K)
     if cfg.obs_noise_prob > 0.0:     # drawn last, for the same reason
         noisy = rng.random(cfg.batch_size) < cfg.obs_noise_prob
         noise = rng.normal(0.0, cfg.obs_noise_mm * 1e-3, (cfg.batch_size, cfg.obs_len, wins.shape[2]))
@@ -322,7 +353,10 @@ def train(cfg: PriorConfig, out: str | Path, *, data: str | None = None, resume:
         for g in opt.param_groups:
             g["lr"] = learning_rate(cfg, it)
         wins = batch(cfg, fr, starts, it)
-        pred = forward(wins[:, :cfg.obs_len])
+        obs = wins[:, :cfg.obs_len]
+        # loss_frames > chunk: the loss covers the rolled-out horizon the prior is used at (HumanEva-I rolls 15
+        # frames out to 60), so the network learns to forecast from its own chunks, not only from the data's
+        pred = forward(obs) if cfg.future == cfg.chunk else model.rollout(obs, cfg.future, forward)
         loss = loss_fn(pred, wins[:, cfg.obs_len:], cfg.velocity_weight)
         opt.zero_grad(set_to_none=True)
         loss.backward()
