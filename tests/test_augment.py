@@ -7,7 +7,8 @@ import pytest
 from conftest import import_torch
 
 import_torch("training.augment is imported through the training package")
-from training.augment import check_axis, mirror, mirror_permutation, rotate_about  # noqa: E402
+from training.augment import (check_axis, mirror, mirror_permutation, resample, rotate_about,  # noqa: E402
+                              sequence_ends)
 
 
 def test_rotation_about_the_vertical_keeps_heights_and_shapes():
@@ -59,6 +60,38 @@ def test_prior_batches_mirror_and_need_the_vertical():
     from training.data.humaneva import HUMANEVA_MODEL_JOINT_NAMES
     perm = mirror_permutation(HUMANEVA_MODEL_JOINT_NAMES)
     np.testing.assert_array_equal(mirror(plain, "z", perm, ~same), mir)
+
+
+def test_resample_reads_each_window_at_its_speed_inside_its_sequence():
+    # frame r of the data is the number r: a window's values are the rows it read
+    frames = np.repeat(np.arange(30, dtype=np.float32)[:, None], 6, axis=1)
+    starts = np.r_[np.arange(0, 11), np.arange(20, 26)]          # sequences [0, 15) and [20, 30), windows of 5
+    ends = sequence_ends(starts, 5)
+    np.testing.assert_array_equal(ends, [15] * 11 + [30] * 6)
+    w = resample(frames, np.array([0, 2, 21, 20, 25]), ends[[0, 2, 12, 11, 16]], 5, np.array([1.0, 2.0, 0.5, 3.0, 1.2]))
+    np.testing.assert_allclose(w[..., 0], [[0, 1, 2, 3, 4],                 # speed 1: the plain window
+                                           [2, 4, 6, 8, 10],                # twice as fast
+                                           [21, 21.5, 22, 22.5, 23],        # half as fast: interpolated
+                                           [20, 22.25, 24.5, 26.75, 29],    # 3 would leave the sequence: 2.25
+                                           [25, 26, 27, 28, 29]])           # the last start: speed 1 at most
+    assert w.dtype == np.float32
+
+
+def test_prior_batches_play_windows_at_a_speed_in_range():
+    from training.prior import PriorConfig, batch
+    for bad in ([1.2], [1.2, 0.8], [0.0, 1.0], [0.8, float("inf")]):
+        with pytest.raises(ValueError, match="speed_range"):
+            PriorConfig(speed_range=tuple(bad))
+    frames = np.repeat(np.arange(400, dtype=np.float32)[:, None], 42, axis=1)     # frame r holds r
+    starts = np.r_[np.arange(0, 171), np.arange(200, 371)]                         # two sequences of 200
+    base = dict(dataset="humaneva", subjects=(1, 2, 3), obs_len=15, chunk=15, batch_size=256, flip_prob=0.0)
+    plain = batch(PriorConfig(**base), frames, starts, 3).numpy()[..., 0]
+    fast = batch(PriorConfig(**base, speed_range=(0.8, 1.25)), frames, starts, 3).numpy()[..., 0]
+    np.testing.assert_array_equal(fast[:, 0], plain[:, 0])                        # the same starts
+    steps = np.abs(np.diff(fast, axis=1)).mean(axis=1)                           # each window's speed
+    assert steps.min() >= 0.8 - 1e-5 and steps.max() <= 1.25 + 1e-5 and steps.std() > 0.1
+    assert np.all(np.abs(np.diff(plain, axis=1)) == 1)
+    assert PriorConfig.from_dict(PriorConfig(**base, speed_range=(0.8, 1.25)).to_dict()).speed_range == (0.8, 1.25)
 
 
 def test_rotation_axis_is_checked():

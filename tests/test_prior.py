@@ -215,3 +215,29 @@ def test_committed_prior_checkpoints_start_the_configs_that_name_them():
         PriorNet(PriorConfig.load(path)).load_state_dict(ck["model"])      # strict
         started.add(Path(init).name)
     assert started == committed, f"checkpoints no config starts from: {sorted(committed - started)}"
+
+
+def test_a_deeper_prior_grows_from_a_shallower_one(tmp_path):
+    """init_from a prior with fewer blocks: the extra blocks start as identities, so the grown network computes
+    the same forecast, and its first training step moves them; a shallower config is refused."""
+    torch.set_num_threads(1)
+    frames = synthetic_frames()
+    small = PriorConfig(blocks=2, batch_size=16, iterations=3)
+    train(small, tmp_path / "small", frames=frames, log=lambda m: None)
+    net2 = load(tmp_path / "small" / "last.pt")
+    ck = torch.load(tmp_path / "small" / "last.pt", weights_only=False)
+    from training.prior import load_grown
+    net4 = PriorNet(PriorConfig(blocks=4))
+    assert load_grown(net4, ck["model"]) == 2
+    obs = torch.from_numpy(np.stack([frames[0][i:i + 50] for i in (0, 77)]))
+    with torch.no_grad():
+        torch.testing.assert_close(net4.eval().rollout(obs, 25), net2.rollout(obs, 25), rtol=0, atol=1e-6)
+    big = PriorConfig(blocks=4, batch_size=16, iterations=1, init_from=str(tmp_path / "small" / "last.pt"))
+    train(big, tmp_path / "big", frames=frames, log=lambda m: None)
+    grown = torch.load(tmp_path / "big" / "last.pt", weights_only=False)["model"]
+    assert grown["blocks.3.norm_weight"].abs().max() > 0           # the new blocks learn
+    with pytest.raises(ValueError, match="grow, not shrink"):
+        load_grown(PriorNet(PriorConfig(blocks=1)), ck["model"])
+    with pytest.raises(ValueError, match="does not fit"):
+        load_grown(PriorNet(PriorConfig(blocks=4, dataset="humaneva", subjects=(1, 2, 3), obs_len=15, chunk=15)),
+                   ck["model"])

@@ -8,6 +8,10 @@ prior, trained without it, forecast its own training windows 35 % worse once the
 ``mirror``: windows reflected through a vertical plane, the subject's left and right joints swapped: a left-handed
 boxer's motion is as human as a right-handed one's, and a small dataset (HumanEva-I: three subjects) shows each
 motion with one handedness.
+
+``resample``: windows read at their own playback speed (linear interpolation between frames): the same motion
+done faster or slower. HumanEva-I's prior forecasts its training windows far better than the protocol's (ADE
+0.147 against 0.240 m after the rolled-out loss): it has learned these takes' timing along with the motion.
 """
 from __future__ import annotations
 
@@ -62,3 +66,28 @@ def mirror(wins: np.ndarray, vertical: str, perm: np.ndarray, which: np.ndarray)
     m[..., flip_axis] *= -1
     out[which] = m
     return out
+
+
+def sequence_ends(starts: np.ndarray, length: int) -> np.ndarray:
+    """For each window start of :func:`training.prior.training_frames` (runs of consecutive rows, one run per
+    sequence, every window of ``length`` frames inside its sequence), the row just past its sequence's end."""
+    starts = np.asarray(starts, dtype=np.int64)
+    run_last = np.r_[np.flatnonzero(np.diff(starts) != 1), len(starts) - 1]     # the last start of each run
+    run_of = np.searchsorted(run_last, np.arange(len(starts)))
+    return starts[run_last][run_of] + length
+
+
+def resample(frames: np.ndarray, rows: np.ndarray, ends: np.ndarray, length: int,
+             speeds: np.ndarray) -> np.ndarray:
+    """(B, length, K) windows of ``frames`` (N, K) starting at ``rows``, frame t read at row ``rows + s t``
+    (linear interpolation), s = ``speeds`` (B): above 1 faster, below 1 slower. A speed whose window would run
+    past its sequence's end (``ends``, :func:`sequence_ends`) is lowered to the fastest that fits (at least 1:
+    every start has ``length`` frames)."""
+    rows, ends = np.asarray(rows, np.int64), np.asarray(ends, np.int64)
+    fits = (ends - 1 - rows) / max(length - 1, 1)
+    s = np.minimum(np.asarray(speeds, np.float64), fits)
+    pos = rows[:, None] + s[:, None] * np.arange(length)                       # (B, length), rows of frames
+    i0 = np.minimum(np.floor(pos).astype(np.int64), ends[:, None] - 1)
+    i1 = np.minimum(i0 + 1, ends[:, None] - 1)
+    w = (pos - i0)[..., None].astype(frames.dtype)
+    return frames[i0] * (1 - w) + frames[i1] * w

@@ -43,7 +43,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from .augment import check_axis, mirror, mirror_permutation, rotate_about
+from .augment import check_axis, mirror, mirror_permutation, resample, rotate_about, sequence_ends
 
 NUM_JOINTS = 22
 #: the model joints of each dataset the prior trains on (Human3.6M: 22; HumanEva-I: joints 1..14 of 15)
@@ -66,11 +66,13 @@ class PriorConfig:
     mirror_prob: float = 0.0         # the fraction of windows mirrored (left and right swapped; needs rotate_axis)
     obs_noise_mm: float = 0.0        # sigma of the Gaussian noise put on every observed coordinate of a noisy window
     obs_noise_prob: float = 0.0      # the fraction of windows made noisy (the target frames stay clean)
+    speed_range: tuple = ()          # () or (lo, hi): each window played at a speed log-uniform in [lo, hi]
     velocity_weight: float = 1.0     # weight of the velocity term of the loss
     loss_frames: int = 0             # future frames the loss covers, rolled out chunk by chunk (0: one chunk)
     subjects: tuple = (1, 6, 7, 8, 9, 11)   # siMLPe's training subjects (S5 is the test subject); HumanEva: 1..3
     seed: int = 0
-    init_from: str = ""              # a later installment: the last.pt whose weights start this run (fresh Adam)
+    init_from: str = ""              # a later installment: the last.pt whose weights start this run (fresh Adam;
+                                     # a deeper config grows it: load_grown)
     dataset: str = "h36m"            # "h36m" (Human3.6M, 22 joints) or "humaneva" (HumanEva-I Train split, 14 joints)
 
     @classmethod
@@ -80,8 +82,9 @@ class PriorConfig:
         if unknown:
             raise ValueError(f"{path}: unknown prior config keys {sorted(unknown)}")
         d = {k: v for k, v in d.items() if k != "comment"}
-        if "subjects" in d:
-            d["subjects"] = tuple(d["subjects"])
+        for key in ("subjects", "speed_range"):
+            if key in d:
+                d[key] = tuple(d[key])
         return cls(**d)
 
     def __post_init__(self):
@@ -104,6 +107,11 @@ class PriorConfig:
             raise ValueError(f"prior config: obs_noise_mm must be a finite number >= 0, got {self.obs_noise_mm!r}")
         if not 0.0 <= self.obs_noise_prob <= 1.0:
             raise ValueError(f"prior config: obs_noise_prob must be in [0, 1], got {self.obs_noise_prob!r}")
+        if self.speed_range:
+            lo, hi = (tuple(self.speed_range) + (None, None))[:2] if len(self.speed_range) == 2 else (None, None)
+            if lo is None or not (0.0 < float(lo) <= float(hi) and math.isfinite(float(hi))):
+                raise ValueError(f"prior config: speed_range must be [] or [lo, hi] with 0 < lo <= hi, "
+                                 f"got {list(self.speed_range)!r}")
         if self.dataset not in DATASET_JOINTS:
             raise ValueError(f"prior config: dataset must be one of {sorted(DATASET_JOINTS)}, got {self.dataset!r}")
         if self.dataset == "humaneva" and not set(self.subjects) <= {1, 2, 3}:
@@ -123,11 +131,12 @@ class PriorConfig:
     @classmethod
     def from_dict(cls, d: dict) -> "PriorConfig":
         """The config of a checkpoint's dict (one written before ``dataset`` existed is a Human3.6M one)."""
-        return cls(**{**d, "subjects": tuple(d["subjects"])})
+        return cls(**{**d, "subjects": tuple(d["subjects"]), "speed_range": tuple(d.get("speed_range", ()))})
 
     def to_dict(self) -> dict:
         d = asdict(self)
         d["subjects"] = list(self.subjects)
+        d["speed_range"] = list(self.speed_range)
         return d
 
 
@@ -253,7 +262,13 @@ def batch(cfg: PriorConfig, frames: np.ndarray, starts: np.ndarray, iteration: i
     prior learns to forecast from noisy keypoints (the protocol's noisy_25); a pure function of (seed, iteration)."""
     rng = np.random.default_rng([cfg.seed, iteration])
     rows = starts[rng.integers(0, len(starts), cfg.batch_size)]
-    wins = frames[rows[:, None] + np.arange(cfg.obs_len + cfg.future)]
+    L = cfg.obs_len + cfg.future
+    if cfg.speed_range:     # its own stream: configs without it keep their batches bit for bit
+        lo, hi = np.log(cfg.speed_range)
+        speeds = np.exp(np.random.default_rng([cfg.seed, iteration, 1]).uniform(lo, hi, cfg.batch_size))
+        wins = resample(frames, rows, sequence_ends(starts, L)[np.searchsorted(starts, rows)], L, speeds)
+    else:
+        wins = frames[rows[:, None] + np.arange(L)]
     flip = rng.random(cfg.batch_size) < cfg.flip_prob
     wins[flip] = wins[flip, ::-1]
     if cfg.rotate_axis:     # drawn after the flips: configs without it keep their batches bit for bit
@@ -333,8 +348,9 @@ def train(cfg: PriorConfig, out: str | Path, *, data: str | None = None, resume:
         log(f"resumed from {last}: iteration {it}")
     elif cfg.init_from:
         init = torch.load(cfg.init_from, map_location="cpu", weights_only=False)
-        model.load_state_dict(init["model"])            # strict: the architecture must match
-        log(f"weights from {cfg.init_from} (iteration {init['iteration']} of its run)")
+        grown = load_grown(model, init["model"])
+        log(f"weights from {cfg.init_from} (iteration {init['iteration']} of its run)"
+            + (f"; blocks {cfg.blocks - grown + 1}..{cfg.blocks} added as identities" if grown else ""))
     fr, starts = frames if frames is not None else training_frames(cfg, data)
     if fr.shape[1] != 3 * cfg.num_joints:
         raise ValueError(f"the {cfg.dataset} prior has {cfg.num_joints} joints ({3 * cfg.num_joints} coordinates), "
@@ -377,6 +393,31 @@ def train(cfg: PriorConfig, out: str | Path, *, data: str | None = None, resume:
             break
     _save(last, state())
     return {"iteration": it, "history": history, "done": it >= cfg.iterations}
+
+
+def load_grown(model: PriorNet, state: dict) -> int:
+    """Load ``state`` (a prior's weights) into ``model``, which may have more blocks than it: the extra blocks
+    come last, each made the identity (layer-norm weight and bias zero: ``x + 0``), so the deeper network
+    starts as the function ``state`` computes and training adds depth from there. Anything else that differs
+    is an error. Returns the number of blocks added."""
+    have = 1 + max((int(k.split(".")[1]) for k in state if k.startswith("blocks.")), default=-1)
+    added = len(model.blocks) - have
+    if added < 0:
+        raise ValueError(f"init_from has {have} blocks, the config {len(model.blocks)}: a prior can grow, not shrink")
+    try:
+        missing, unexpected = model.load_state_dict(state, strict=False)
+    except RuntimeError as e:                  # shapes differ: another dataset, obs_len or joint count
+        raise ValueError(f"init_from does not fit the config: {e}") from None
+    new = {f"blocks.{i}.{name}" for i in range(have, len(model.blocks)) for name in ("fc.weight", "fc.bias",
+                                                                                     "norm_weight", "norm_bias")}
+    if unexpected or set(missing) != new:
+        raise ValueError(f"init_from does not fit the config: missing {sorted(set(missing) - new)}, "
+                         f"unexpected {sorted(unexpected)}")
+    with torch.no_grad():
+        for block in model.blocks[have:]:
+            block.norm_weight.zero_()
+            block.norm_bias.zero_()
+    return added
 
 
 def load(path: str | Path) -> PriorNet:
