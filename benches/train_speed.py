@@ -3,15 +3,16 @@ real training step of a config, per batch size, thread count and forward variant
 
     python3 benches/train_speed.py --config training/configs/humaneva_long_2.json \
         [--prior python/tcd/weights_humaneva/prior.safetensors] [--batch 8 32 128] [--threads 1 2] \
-        [--variants eager compile bf16] [--seconds 20] [--profile STEPS] [--json benches/results/train_speed.json]
+        [--variants eager sdpa compile bf16] [--seconds 20] [--profile STEPS] [--json benches/results/train_speed.json]
 
-A step is what ``training.train`` runs: the batch drawn by ``training.batches.BatchSource`` from the config's
-real training windows (the dataset must be present), ``training.train.train_step`` through the channels-last
-forward, and the EMA update when the config has one. Variants: ``eager``; ``compile`` (``torch.compile`` of the
-forward, as ``"compile": true`` does); ``bf16`` (eager under ``torch.autocast("cpu", torch.bfloat16)``, which
-only pays on a CPU with AVX512-BF16 or AMX). Each cell warms up, then times whole steps for ``--seconds``
-in 5 blocks and reports the median block's windows/s and the process's CPU seconds per 1,000 windows. Timings
-on a shared machine are noisy: compare cells of one run, never against a fixed threshold.
+A step is what ``training.train`` runs: the batch drawn by ``training.batches.BatchSource`` from the config's real
+training windows (the dataset must be present), ``training.train.train_step`` through the channels-last forward, and
+the EMA update when the config has one. Variants: ``eager``; ``sdpa`` (eager with PyTorch's fused attention kernel
+in place of the explicit product the CPU forward uses, ``training.channels_last``); ``compile`` (``torch.compile``
+of the forward, as ``"compile": true`` does); ``bf16`` (eager under ``torch.autocast("cpu", torch.bfloat16)``, which
+only pays on a CPU with AVX512-BF16 or AMX). Each cell warms up, then times whole steps for ``--seconds`` in 5
+blocks and reports the median block's windows/s and the process's CPU seconds per 1,000 windows. Timings on a shared
+machine are noisy: compare cells of one run, never against a fixed threshold.
 """
 from __future__ import annotations
 
@@ -31,6 +32,7 @@ sys.path.insert(0, str(ROOT / "benches"))
 import torch  # noqa: E402
 
 from machine import cpu_model, cpu_simd_flags  # noqa: E402
+from training import channels_last  # noqa: E402
 from training.batches import BatchSource, Windows  # noqa: E402
 from training.train import (TrainConfig, build_model, load_sequences, make_ema, make_optimizer,  # noqa: E402
                             train_step, training_forward)
@@ -45,6 +47,7 @@ def measure(cfg: TrainConfig, windows: Windows, variant: str, seconds: float, lo
     forward = training_forward(model, run_cfg, (cfg.batch_size, model.cfg.num_features, L), "cpu", log)
     source = BatchSource(cfg, windows, sched.T, 1 << 30)
     amp = variant == "bf16"
+    channels_last.EXPLICIT_CPU_ATTENTION = variant != "sdpa"
     i = 0
 
     def step():
@@ -85,8 +88,8 @@ def main(argv=None) -> int:
     ap.add_argument("--data", help="the dataset directory (default: the config's dataset at its default place)")
     ap.add_argument("--batch", type=int, nargs="+", default=[8, 32, 128])
     ap.add_argument("--threads", type=int, nargs="+", default=[1])
-    ap.add_argument("--variants", nargs="+", default=["eager", "compile", "bf16"],
-                    choices=["eager", "compile", "bf16"])
+    ap.add_argument("--variants", nargs="+", default=["eager", "sdpa", "compile", "bf16"],
+                    choices=["eager", "sdpa", "compile", "bf16"])
     ap.add_argument("--seconds", type=float, default=20.0, help="timed seconds per cell (after the warm-up)")
     ap.add_argument("--profile", type=int, default=0, metavar="STEPS",
                     help="before each cell's timing, profile this many steps and print the ops' CPU time")

@@ -13,7 +13,10 @@ are checked against that forward, so it stays as it is. This module computes the
   to (B, L, K, C); the rest of the block (mid and cond projections, gate, output projection) is
   pointwise in the channels and runs in that layout, and the residual is added back in (B, K, L, C)
   as a strided read inside the addition;
-* attention is ``F.scaled_dot_product_attention`` (flash / memory-efficient kernels on a GPU);
+* attention is ``F.scaled_dot_product_attention`` on a GPU (flash / memory-efficient kernels) and the explicit
+  softmax(q k^T / sqrt(d)) v on the CPU: the reduced models' heads have 8 channels, which PyTorch's CPU
+  flash kernel handles poorly (54 % of a HumanEva-I long model's step); the explicit form trains 1.00 to 1.12 x
+  the windows/s (batch 8 and 32, one Zen 4 core; docs/training.md, "The step's speed");
 * the conditioning projection of the 145 side channels is split by linearity: frame embedding (L, 128)
   and feature embedding (K, 16) are projected once per block (an (L, 2C) and a (K, 2C) table), and the
   mask channel is one column, so the (B, 145, K, L) side tensor is never built.
@@ -34,6 +37,19 @@ import torch.nn.functional as F
 from .model import TCDModel, condition, frame_embedding
 
 
+#: the CPU's attention: explicit (True) or PyTorch's fused kernel (False; benches/train_speed.py's ``sdpa`` variant)
+EXPLICIT_CPU_ATTENTION = True
+
+
+def attention(q: torch.Tensor, k: torch.Tensor, v: torch.Tensor, dropout_p: float) -> torch.Tensor:
+    """Scaled dot-product attention of (N, H, S, d) heads: PyTorch's fused kernels on a GPU, the explicit
+    product on the CPU (faster there for heads this small: the module docstring)."""
+    if q.device.type != "cpu" or not EXPLICIT_CPU_ATTENTION:
+        return F.scaled_dot_product_attention(q, k, v, dropout_p=dropout_p)
+    w = torch.softmax((q * q.shape[-1] ** -0.5) @ k.transpose(-2, -1), dim=-1)
+    return F.dropout(w, dropout_p) @ v if dropout_p > 0.0 else w @ v
+
+
 def encoder_layer(layer: nn.TransformerEncoderLayer, x: torch.Tensor) -> torch.Tensor:
     """``nn.TransformerEncoderLayer`` (post-norm, GELU, the layer's own dropouts) on batch-first
     sequences x (N, S, C), with the layer's parameters."""
@@ -42,7 +58,7 @@ def encoder_layer(layer: nn.TransformerEncoderLayer, x: torch.Tensor) -> torch.T
     H = attn.num_heads
     qkv = F.linear(x, attn.in_proj_weight, attn.in_proj_bias).view(N, S, 3, H, C // H)
     q, k, v = qkv.permute(2, 0, 3, 1, 4).unbind(0)                          # each (N, H, S, d)
-    o = F.scaled_dot_product_attention(q, k, v, dropout_p=attn.dropout if layer.training else 0.0)
+    o = attention(q, k, v, attn.dropout if layer.training else 0.0)
     o = F.linear(o.transpose(1, 2).reshape(N, S, C), attn.out_proj.weight, attn.out_proj.bias)
     x = layer.norm1(x + layer.dropout1(o))
     f = layer.linear2(layer.dropout(F.gelu(layer.linear1(x))))
