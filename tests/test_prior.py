@@ -10,7 +10,8 @@ from conftest import import_torch
 
 torch = import_torch("the prior forecaster's PyTorch reference (training/prior.py)")
 
-from training.prior import PriorConfig, PriorNet, batch, dct_matrix, load, loss_fn, train  # noqa: E402
+from training.prior import (PriorConfig, PriorNet, batch, dct_matrix, load, load_grown, loss_fn,  # noqa: E402
+                            train)
 
 
 def synthetic_frames(n_frames: int = 400, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -198,8 +199,9 @@ def test_schedule_may_change_only_where_the_run_so_far_is_the_same(tmp_path):
 
 
 def test_committed_prior_checkpoints_start_the_configs_that_name_them():
-    """Every prior checkpoint committed under training/checkpoints/ loads, strictly, into the network of each
-    prior config whose init_from names it (what a next installment does first); a config naming a checkpoint
+    """Every prior checkpoint committed under training/checkpoints/ loads into the network of each prior config
+    whose init_from names it, as training loads it (``load_grown``: the same blocks, or more; every other
+    parameter exactly; what a next installment does first); a config naming a checkpoint
     that is no longer in the tree is one whose start is in git history (its comment says where)."""
     import json
     from pathlib import Path
@@ -212,7 +214,7 @@ def test_committed_prior_checkpoints_start_the_configs_that_name_them():
         if Path(init).name not in committed:
             continue
         ck = torch.load(root / init, map_location="cpu", weights_only=False)
-        PriorNet(PriorConfig.load(path)).load_state_dict(ck["model"])      # strict
+        load_grown(PriorNet(PriorConfig.load(path)), ck["model"])      # as training does: equal, or grown deeper
         started.add(Path(init).name)
     assert started == committed, f"checkpoints no config starts from: {sorted(committed - started)}"
 
@@ -226,7 +228,6 @@ def test_a_deeper_prior_grows_from_a_shallower_one(tmp_path):
     train(small, tmp_path / "small", frames=frames, log=lambda m: None)
     net2 = load(tmp_path / "small" / "last.pt")
     ck = torch.load(tmp_path / "small" / "last.pt", weights_only=False)
-    from training.prior import load_grown
     net4 = PriorNet(PriorConfig(blocks=4))
     assert load_grown(net4, ck["model"]) == 2
     obs = torch.from_numpy(np.stack([frames[0][i:i + 50] for i in (0, 77)]))
