@@ -108,8 +108,8 @@ class PriorConfig:
         if not 0.0 <= self.obs_noise_prob <= 1.0:
             raise ValueError(f"prior config: obs_noise_prob must be in [0, 1], got {self.obs_noise_prob!r}")
         if self.speed_range:
-            lo, hi = (tuple(self.speed_range) + (None, None))[:2] if len(self.speed_range) == 2 else (None, None)
-            if lo is None or not (0.0 < float(lo) <= float(hi) and math.isfinite(float(hi))):
+            lo, hi = (tuple(map(float, self.speed_range)) + (math.nan,))[:2]
+            if len(self.speed_range) != 2 or not (0.0 < lo <= hi and math.isfinite(hi)):
                 raise ValueError(f"prior config: speed_range must be [] or [lo, hi] with 0 < lo <= hi, "
                                  f"got {list(self.speed_range)!r}")
         if self.dataset not in DATASET_JOINTS:
