@@ -282,6 +282,23 @@ def test_compile_failure_falls_back_to_eager_training(tmp_path, monkeypatch):
     assert any(message in line for line in lines), lines
 
 
+def test_the_compiled_forward_is_compiled_once(tmp_path, monkeypatch):
+    """With ``compile``, the warm-up call before training compiles the graph the training steps use: a
+    recompilation at the first step is an error here (Dynamo's eager backend, so no compiler is needed). The
+    warm-up once passed one tensor as x, observed and mask; Dynamo guards on aliasing, and the first real
+    step compiled everything again."""
+    import functools
+    monkeypatch.setattr(torch, "compile", functools.partial(torch.compile, backend="eager"))
+    monkeypatch.setattr(torch._dynamo.config, "error_on_recompile", True)
+    torch._dynamo.reset()
+    seqs = {"train": synthetic_motion(4, seed=0), "val": synthetic_motion(2, seed=1)}
+    lines = []
+    res = train(tiny_cfg(epochs=1, steps_per_epoch=3, compile=True), tmp_path, sequences=seqs, log=lines.append)
+    torch._dynamo.reset()
+    assert res["epoch"] == 1
+    assert not any("torch.compile failed" in line for line in lines), lines
+
+
 def test_training_stops_at_the_deadline(tmp_path):
     """train(deadline=) (--stop-at): a wall-clock stop, counted whatever set-up and compiling took: a
     deadline already past stops after the first batch, validated and resumable, like max_minutes=0."""

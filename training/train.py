@@ -190,11 +190,14 @@ def training_forward(model: TCDModel, cfg: TrainConfig, batch_shape: tuple, devi
         return fast
     try:
         compiled = torch.compile(fast)
-        z = torch.zeros(batch_shape, device=device)
+        # three distinct tensors, as a training step passes: Dynamo guards on aliasing, so one tensor passed
+        # three times compiled a graph that the first real step discarded and compiled again (on an H100 in
+        # 2026-11-26's seventh session that doubled the compile time and took a run's calibration)
+        x, observed, mask = (torch.zeros(batch_shape, device=device) for _ in range(3))
         t = torch.zeros(batch_shape[0], dtype=torch.long, device=device)
         with torch.autocast(device_type=torch.device(device).type, dtype=torch.bfloat16,
                             enabled=amp_enabled(cfg, device)):
-            out = compiled(z, z, z, t)
+            out = compiled(x, observed, mask, t)
         out.float().sum().backward()
         model.zero_grad(set_to_none=True)
         return compiled
