@@ -13,9 +13,9 @@ Criteria (stated once, used throughout):
   ``CONTRIBUTION`` x the tolerance: the comparison above measures the network, not the noise;
 * the chain ends near the real motion (``NEAR_MOTION_M``), which only a trained model does.
 
-Observed on an AVX-512 Zen 5 with the 3 x 32 bundled models, all three kernel paths: relative differences
-2.2e-7 .. 3.2e-6, output scale 0.9 .. 2.8 m, network contributions 9 .. 113 m, mean distance to the clip
-3 .. 10 cm (``pytest -s`` prints them).
+Observed on an AVX-512 Zen 4 with the bundled models (short and repair 3 x 32, long 4 x 64 since 2026-11-26), every
+kernel path: relative differences 6.2e-8 .. 1.2e-6, output scale 0.90 .. 1.0 m, network contributions 0.03 .. 9.2 m
+(0.03: the repaired observation of the cascade), mean distance to the clip 1.7 .. 4.9 cm (``pytest -s`` prints them).
 """
 from __future__ import annotations
 
