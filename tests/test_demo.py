@@ -145,3 +145,23 @@ def test_summary_columns_stay_apart_for_any_error(tiny_model_dir):
     for line in rows:
         assert len(line[30:].split()) == len(res["forecast_mm"]), line
     assert "123456.7" in rows[1]
+
+
+def test_verdict_names_each_stage_size_where_they_differ():
+    """The demo's closing sentence reads the size from the model's own metadata: one size where the stages agree,
+    each stage's where they differ (the bundled long-term model is larger than the short-term one), "full-size"
+    only where every stage is the paper's size."""
+    from types import SimpleNamespace
+
+    def model(short, long):
+        stage = lambda size: SimpleNamespace(config={"model": {"num_layers": size[0], "channels": size[1]}})  # noqa: E731
+        return SimpleNamespace(short=stage(short), long=stage(long))
+
+    res = {"forecast_mm": {80: 10.0, 1000: 150.0}, "zero_velocity_mm": {80: 20.0, 1000: 140.0}}
+    same = demo.verdict(res, model((3, 32), (3, 32)))
+    assert "a reduced model (3 layers x 32 channels; the paper's is 12 x 64)" in same
+    assert "beats Zero-Velocity at 1 of 2 horizons" in same
+    mixed = demo.verdict(res, model((3, 32), (4, 64)))
+    assert "short-term 3 layers x 32 channels, long-term 4 layers x 64 channels" in mixed and "reduced" in mixed
+    assert "a full-size model (12 layers x 64 channels" in demo.verdict(res, model((12, 64), (12, 64)))
+    assert "reduced" in demo.verdict(res, model((12, 64), (4, 64)))

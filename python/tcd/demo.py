@@ -267,15 +267,19 @@ PAPER_SIZE = (12, 64)
 
 
 def verdict(res: Dict[str, Any], model: TCD) -> str:
-    """One sentence on how good this model is, from its own metadata (size) and this run's numbers."""
-    cfg = model.short.config["model"]
-    size = (cfg["num_layers"], cfg["channels"])
+    """One sentence on how good this model is, from its own metadata (each stage's size) and this run's numbers."""
+    sizes = {role: (stage.config["model"]["num_layers"], stage.config["model"]["channels"])
+             for role, stage in (("short-term", model.short), ("long-term", model.long))}
     ms = [m for m in HORIZONS_MS if m in res["forecast_mm"]]
     wins = sum(res["forecast_mm"][m] < res["zero_velocity_mm"][m] for m in ms)
-    full = size >= PAPER_SIZE
-    kind = (f"a full-size model ({size[0]} layers x {size[1]} channels, the paper's size)" if full else
-            f"a reduced model ({size[0]} layers x {size[1]} channels, "
-            f"the paper's is {PAPER_SIZE[0]} x {PAPER_SIZE[1]})")
+    full = all(layers >= PAPER_SIZE[0] and channels >= PAPER_SIZE[1] for layers, channels in sizes.values())
+    if len(set(sizes.values())) == 1:
+        layers, channels = sizes["short-term"]
+        shape = f"{layers} layers x {channels} channels"
+    else:   # the stages may differ (the bundled long-term model is larger than the short-term one)
+        shape = ", ".join(f"{role} {layers} layers x {channels} channels" for role, (layers, channels) in sizes.items())
+    kind = (f"a full-size model ({shape}, the paper's size)" if full else
+            f"a reduced model ({shape}; the paper's is {PAPER_SIZE[0]} x {PAPER_SIZE[1]})")
     caveat = ("one clip is not a benchmark (docs/reference.md has the evaluation protocol)" if full else
               "its forecasts show how the package works, not the paper's accuracy")
     return f"This is {kind}: on this clip it beats Zero-Velocity at {wins} of {len(ms)} horizons; {caveat}."
