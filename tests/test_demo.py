@@ -153,8 +153,10 @@ def test_verdict_names_each_stage_size_where_they_differ():
     only where every stage is the paper's size."""
     from types import SimpleNamespace
 
+    def stage(size):
+        return SimpleNamespace(config={"model": {"num_layers": size[0], "channels": size[1]}})
+
     def model(short, long):
-        stage = lambda size: SimpleNamespace(config={"model": {"num_layers": size[0], "channels": size[1]}})  # noqa: E731
         return SimpleNamespace(short=stage(short), long=stage(long))
 
     res = {"forecast_mm": {80: 10.0, 1000: 150.0}, "zero_velocity_mm": {80: 20.0, 1000: 140.0}}
