@@ -86,7 +86,8 @@ def main(argv=None) -> int:
     ap.add_argument("--max-frames", type=int, default=1000, help="first frames (50 fps) of each (default 1000)")
     ap.add_argument("--fps", type=int, default=50, choices=(50, 25),
                     help="frame rate of the written recordings: the source's 50, or 25 (every other frame)")
-    ap.add_argument("--steps", type=int, default=None, help="tcd repair --steps (default: the model's, DDPM)")
+    ap.add_argument("--steps", type=int, default=None,
+                    help="tcd repair --steps (default: the model's; the bundled model's DDPM-10)")
     ap.add_argument("--samples", type=int, default=5)
     ap.add_argument("--jobs", type=int, default=None, help="tcd repair --jobs (default: all cores)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the masks and of tcd repair")

@@ -22,8 +22,10 @@ to the ground truth):
   the bundled repair model starts from (``tcd / spline`` < 1 means the diffusion improves on it).
 
 Frames per second = repaired window frames / wall-clock seconds of the method (all windows of a pattern).
-Prints a markdown table; ``--json`` writes every number and the settings. Needs scipy (``pip install
-'tcd-forecast[bench]'``) and the Human3.6M data.
+Prints a markdown table; ``--json`` writes every number and the settings, with each window's ADE per method
+(``per_window_mm``), which ``python -m training.compare NEW.json OLD.json --key PATTERN[:METHOD]`` pairs: two
+models or samplers on the same windows, or (``--bundled-key PATTERN:spline``) a model against the spline.
+Needs scipy (``pip install 'tcd-forecast[bench]'``) and the Human3.6M data.
 """
 from __future__ import annotations
 
@@ -93,6 +95,19 @@ def ade_mm(pred: np.ndarray, gt: np.ndarray, m: np.ndarray) -> float:
     return float(err[hidden].mean() * 1000.0)
 
 
+def per_window_mm(pred: np.ndarray, gt: np.ndarray, m: np.ndarray) -> list:
+    """Each window's ADE (mm) over its own hidden entries (None for a window with none): what
+    ``training.compare`` pairs between two runs, or two methods of one run."""
+    err = np.linalg.norm(pred.astype(np.float64) - gt.astype(np.float64), axis=-1) * 1000.0  # (B, T, J)
+    hidden = ~m
+    return [float(e[h].mean()) if h.any() else None for e, h in zip(err, hidden)]
+
+
+def scores(pred: np.ndarray, gt: np.ndarray, m: np.ndarray, frames: int, seconds: float) -> dict:
+    return {"ade_mm": ade_mm(pred, gt, m), "per_window_mm": per_window_mm(pred, gt, m), "fps": frames / seconds,
+            "seconds": seconds}
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--model", default=None, help="model directory (default: the bundled model)")
@@ -121,12 +136,12 @@ def main(argv=None) -> int:
         pred = model.repair(obs, num_samples=args.samples, num_inference_steps=args.steps, sampler=args.sampler,
                             seed=args.seed, threads=args.jobs).poses
         dt = time.perf_counter() - t0
-        res["tcd"] = {"ade_mm": ade_mm(pred, gt, m), "fps": frames / dt, "seconds": dt}
+        res["tcd"] = scores(pred, gt, m, frames, dt)
         for name, fn in (("linear", linear_fill), ("savgol", savgol_fill), ("spline", spline_fill)):
             t0 = time.perf_counter()
             pred = fn(obs, m)
             dt = time.perf_counter() - t0
-            res[name] = {"ade_mm": ade_mm(pred, gt, m), "fps": frames / dt, "seconds": dt}
+            res[name] = scores(pred, gt, m, frames, dt)
         res["tcd_over_linear"] = res["tcd"]["ade_mm"] / res["linear"]["ade_mm"]
         res["tcd_over_spline"] = res["tcd"]["ade_mm"] / res["spline"]["ade_mm"]
         rows.append(res)
@@ -145,7 +160,11 @@ def main(argv=None) -> int:
               f"{r['savgol']['ade_mm']:.1f} | {r['spline']['ade_mm']:.1f} | {r['tcd_over_linear']:.2f} | "
               f"{r['tcd_over_spline']:.2f} | {r['tcd']['fps']:.0f} | {r['spline']['fps']:.0f} |")
     if args.json:
-        out = {"model": str(model.path), "model_sha256": model.sha256, "tcd_version": tcd.__version__,
+        # protocol and seeds: what training.compare checks before it pairs two runs window by window
+        out = {"protocol": {"task": "repair", "dataset": "h36m", "subject": "S5", "windows": args.windows,
+                            "window_frames": w, "patterns": [[p, r] for _, p, r in PATTERNS]},
+               "seeds": {"windows_masks_sampling": args.seed},
+               "model": str(model.path), "model_sha256": model.sha256, "tcd_version": tcd.__version__,
                "windows": args.windows, "window_frames": w, "sampler": args.sampler, "steps": steps,
                "samples": args.samples, "seed": args.seed, "jobs": args.jobs, "cores": os.cpu_count(),
                "savgol": {"window": SAVGOL_WINDOW, "order": SAVGOL_ORDER}, "results": rows}

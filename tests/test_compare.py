@@ -74,3 +74,32 @@ def test_bundled_key_pairs_a_tcd_run_with_a_prior_run():
     r = compare(tcd_run, prior_run, key="mean_of_n", old_key="average")
     assert r["verdict"] == "new is better" and r["bundled_key"] == "average" and r["mean_difference"] == -5.0
     assert compare(tcd_run, prior_run)["verdict"] == "within noise"          # average against average: equal
+
+
+def repair_result(tcd_mm, spline_mm, seed=0):
+    """A benches/repair_quality.py --json result: two patterns, per-window ADE of the model and the spline."""
+    patterns = [["random_leg_arm", 0.4], ["random_joints", [0.1, 0.4]]]
+    row = {"tcd": {"ade_mm": 0.0, "per_window_mm": list(tcd_mm)},
+           "spline": {"ade_mm": 0.0, "per_window_mm": list(spline_mm)}}
+    return {"protocol": {"task": "repair", "windows": len(tcd_mm), "patterns": patterns},
+            "seeds": {"windows_masks_sampling": seed},
+            "results": [row, {**row, "tcd": {"per_window_mm": [9.0] * len(tcd_mm)}}]}
+
+
+def test_repair_results_are_paired_over_windows_per_pattern_and_method():
+    rng = __import__("numpy").random.default_rng(1)
+    spline = list(4.0 + rng.random(30))
+    better = [e - 0.3 for e in spline]
+    new, old = repair_result(better, spline), repair_result(spline, spline)
+    r = compare(new, old, key="random_leg_arm")
+    assert r["verdict"] == "new is better" and r["windows"] == 30 and abs(r["mean_difference"] + 0.3) < 1e-9
+    assert compare(new, old, key="random_joints")["verdict"] == "within noise"     # 9.0 on both sides
+    # one file, the model against the spline it is conditioned on
+    assert compare(new, new, key="random_leg_arm", old_key="random_leg_arm:spline")["verdict"] == "new is better"
+    assert compare(new, new, key="random_joints", old_key="random_joints:spline")["verdict"] == "bundled is better"
+    with pytest.raises(ValueError, match="PATTERN one of"):
+        compare(new, old)                                                         # the default key names no pattern
+    with pytest.raises(ValueError, match="method 'savgol'"):
+        compare(new, old, key="random_leg_arm:savgol")
+    with pytest.raises(ValueError, match="same seeds"):
+        compare(new, repair_result(spline, spline, seed=1), key="random_leg_arm")

@@ -15,6 +15,12 @@ bundled). Exit status 0 when NEW is better, 1 otherwise, so a script can gate on
 Results of the HumanEva-I protocol (``--protocol humaneva``) are paired over its windows instead: ``--key`` is
 one of ADE (default for them), FDE, MMADE, MMFDE (lower is better), of the ``model`` each run scored,
 ``--horizon`` does not apply.
+
+Results of ``benches/repair_quality.py --json`` are paired over its windows too: ``--key PATTERN[:METHOD]``, the
+pattern (``random_leg_arm``, ``consecutive_frames``, ``random_joints``) and the method (``tcd``, the default, or
+``linear``, ``savgol``, ``spline``), each window's ADE over its hidden entries; ``--bundled-key`` names BUNDLED's
+(``--key random_leg_arm --bundled-key random_leg_arm:spline`` with the same file twice: the model against the
+spline). ``new`` and ``bundled`` are then means over windows, not the table's mean over hidden entries.
 """
 from __future__ import annotations
 
@@ -43,7 +49,28 @@ def per_window(result: dict, key: str) -> dict[str, float]:
     return {str(i): float(v) for i, v in enumerate(result["model"]["per_window"][key])}
 
 
+def is_repair(result: dict) -> bool:
+    return result.get("protocol", {}).get("task") == "repair"
+
+
+def per_repair_window(result: dict, key: str) -> dict[str, float]:
+    """A repair benchmark's ADE on each window of one pattern, for one method: ``key`` is ``PATTERN[:METHOD]``."""
+    pattern, _, method = key.partition(":")
+    rows = {p: r for (p, _), r in zip(result["protocol"]["patterns"], result["results"])}
+    if pattern not in rows:
+        raise ValueError(f"--key for a repair result is PATTERN[:METHOD] with PATTERN one of {sorted(rows)}, "
+                         f"got {key!r}")
+    row = rows[pattern]
+    method = method or "tcd"
+    if "per_window_mm" not in row.get(method, {}):
+        known = sorted(k for k, v in row.items() if isinstance(v, dict) and "per_window_mm" in v)
+        raise ValueError(f"the repair result has no per-window values of method {method!r} (one of {known})")
+    return {str(i): float(v) for i, v in enumerate(row[method]["per_window_mm"]) if v is not None}
+
+
 def per_action(result: dict, key: str, horizon: str) -> dict[str, float]:
+    if is_repair(result):
+        return per_repair_window(result, key)
     if is_humaneva(result):
         return per_window(result, "ADE" if key == "average" else key)
     if key == "average":
@@ -72,7 +99,7 @@ def compare(new: dict, old: dict, *, key: str = "average", horizon: str = "1000"
     verdict = "within noise"
     if abs(xa - xb) > margin * max(xa, xb) and abs(d.mean()) > 2 * se:
         verdict = "new is better" if d.mean() < 0 else "bundled is better"
-    unit = "windows" if is_humaneva(new) else "actions"
+    unit = "windows" if is_humaneva(new) or is_repair(new) else "actions"
     return {"horizon_ms": None if unit == "windows" else horizon, "key": key,
             **({} if old_key is None else {"bundled_key": old_key}), unit: len(actions),
             "new": xa, "bundled": xb, "mean_difference": float(d.mean()), "standard_error": se,
@@ -85,7 +112,8 @@ def main(argv=None) -> int:
     ap.add_argument("new")
     ap.add_argument("bundled")
     ap.add_argument("--key", default="average",
-                    help="average (default), mean_of_n or best_of_n; HumanEva-I: ADE (= average), FDE, MMADE, MMFDE")
+                    help="average (default), mean_of_n or best_of_n; HumanEva-I: ADE (= average), FDE, MMADE, MMFDE; "
+                    "repair benchmark: PATTERN[:METHOD]")
     ap.add_argument("--bundled-key", default=None, help="BUNDLED's key, when not --key's")
     ap.add_argument("--horizon", default="1000", help="ms (default 1000)")
     ap.add_argument("--margin", type=float, default=0.01, help="relative difference that counts (default 0.01)")

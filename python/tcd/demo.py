@@ -49,7 +49,7 @@ HUMANEVA_CLIP_PATH = CLIP_PATH.with_name("demo_walking_humaneva.npz")
 HORIZONS_MS = (80, 160, 320, 400, 560, 720, 880, 1000)
 
 # Demo defaults: 5 samples; each task samples with the model's own defaults (TCD.sampling: the bundled
-# Human3.6M model forecasts with one DDIM step and repairs with DDPM over all 50 steps; docs/samplers.md).
+# Human3.6M model forecasts with one DDIM step and repairs with DDPM over 10 steps; docs/samplers.md).
 DEFAULT_SAMPLES = 5
 DEFAULT_SEED = 0
 

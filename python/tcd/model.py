@@ -384,7 +384,7 @@ class TCD:
         """Fills the missing entries of ``obs`` (same arguments as :meth:`forecast`) with the mean of
         ``num_samples`` samples of the repair model (the short-term model when the directory has no
         ``repair.safetensors``), sampled as the sampler keywords say (those not given: the model's
-        ``sampling["repair"]``, the paper's DDPM over every training step for the bundled models). ``obs`` spans
+        ``sampling["repair"]``: DDPM over 10 steps for the bundled Human3.6M model). ``obs`` spans
         at most the model's window (:attr:`obs_len` frames, at the model's frame rate with ``layout`` / ``fps``; a
         shorter one is padded at the start with missing frames; longer ones: :func:`tcd.repair_file`).
 
