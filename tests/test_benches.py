@@ -281,3 +281,30 @@ def test_train_speed_smoke(tmp_path):
     d = json.loads(out.read_text())
     assert [(r["batch"], r["variant"], r["threads"]) for r in d["rows"]] == [(2, "eager", 1)]
     assert d["rows"][0]["windows_per_s"] > 0 and len(d["rows"][0]["blocks"]) == 5
+
+
+def test_bidirectional_fill_bends_each_forecast_to_meet_the_far_side_of_the_gap():
+    """benches/repair_learned_fills.py: with a prior that holds the last frame, the forward forecast bent to meet
+    the frame after the gap and the backward one bent to meet the frame before it are both the straight line
+    between them, so a trajectory linear in time is filled exactly; frames outside the gap are the spline's. A
+    reversal or a correction on the wrong side would miss the line."""
+    pytest.importorskip("scipy")
+    lf = load_bench("repair_learned_fills")
+
+    class Hold:
+        def predict(self, hist, n):
+            return np.repeat(hist[:, -1:], n, axis=1)
+
+    t = np.arange(lf.L, dtype=np.float64)[:, None, None]
+    gt = (0.3 + 0.01 * t * np.linspace(-1, 1, lf.J)[None, :, None] * np.array([1.0, 2.0, -0.5])).astype(np.float32)
+    gt = np.stack([gt, gt + 0.1])
+    m = np.ones((2, lf.L, lf.J), dtype=bool)
+    m[0, 12:22] = False                                      # an interior gap
+    m[1, 0:10] = False                                       # a gap at the start: the backward forecast only
+    spline = np.zeros_like(gt)
+    blend = lf.bidirectional_fill(Hold(), gt, m, spline)["prior forward + backward"]
+    np.testing.assert_allclose(blend[0, 12:22], gt[0, 12:22], atol=1e-5)
+    np.testing.assert_array_equal(blend[0, :12], spline[0, :12])
+    np.testing.assert_allclose(blend[1, :10], np.repeat(gt[1, 10:11], 10, 0), atol=1e-6)   # held: nothing before
+    mixed = lf.bidirectional_fill(Hold(), gt, m, spline)["prior forward + backward, averaged with the spline"]
+    np.testing.assert_allclose(mixed[0, 12:22], 0.5 * gt[0, 12:22], atol=1e-5)
