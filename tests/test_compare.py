@@ -103,3 +103,6 @@ def test_repair_results_are_paired_over_windows_per_pattern_and_method():
         compare(new, old, key="random_leg_arm:savgol")
     with pytest.raises(ValueError, match="same seeds"):
         compare(new, repair_result(spline, spline, seed=1), key="random_leg_arm")
+    unpaired = {k: v for k, v in old.items() if k != "protocol"}     # a repair result from before the records
+    with pytest.raises(ValueError, match="BUNDLED has no 'protocol'"):
+        compare(new, unpaired, key="random_leg_arm")
