@@ -88,7 +88,8 @@ def compare(new: dict, old: dict, *, key: str = "average", horizon: str = "1000"
         for name, res in (("NEW", new), ("BUNDLED", old)):
             if not isinstance(res.get(what), dict):
                 raise ValueError(f"{name} has no {what!r}: not a result of training.evaluate --json or of "
-                                 f"benches/repair_quality.py --json (repair results written before 2026-11-26 have none)")
+                                 "benches/repair_quality.py --json (repair results written before 2026-11-26 have "
+                                 "none)")
         a = {k: v for k, v in new[what].items() if k != "data"}
         b = {k: v for k, v in old[what].items() if k != "data"}
         if a != b:
