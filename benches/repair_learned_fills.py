@@ -1,7 +1,7 @@
 """Two learned fills against the natural cubic spline, on benches/repair_quality.py's windows (issue 29, point 4).
 
-    python benches/repair_learned_fills.py [--minutes 12] [--blocks 24] [--lr 3e-4] [--windows 32] [--seed 0]
-                                           [--threads 1] [--json OUT]
+    python benches/repair_learned_fills.py [--minutes 12] [--blocks 24] [--lr 3e-4] [--lr-final LR] [--windows 32]
+                                           [--seed 0] [--threads 1] [--json OUT]
 
 The bundled repair model fills 5 to 7 % worse than the spline it is conditioned on (docs/repair.md), so before
 another diffusion repair model is trained this asks whether anything cheap learns a better fill than the spline
@@ -15,7 +15,8 @@ on this CPU:
   that blend averaged with the spline;
 * ``learned residual``: a siMLPe-class network (``training.prior``'s DCT, temporal-FC and layer-norm blocks)
   over the whole 50-frame window, spline-filled, that outputs a residual added to the spline, trained for
-  ``--minutes`` of wall clock on the training subjects' windows (batch 256, Adam, time flips) under the bundled
+  ``--minutes`` of wall clock on the training subjects' windows (batch 256, Adam at ``--lr``, dropped to
+  ``--lr-final`` for the last quarter of the minutes when given, as siMLPe does; time flips) under the bundled
   repair model's mask mix (``training/configs/cpu_repair_spline_ft.json``), with the loss the mean per-joint
   L2 distance over the hidden entries. It does not see the mask.
 
@@ -112,6 +113,9 @@ def learned_residual(args) -> tuple:
     opt = torch.optim.Adam(net.parameters(), lr=args.lr, weight_decay=1e-4)
     log, it, t0, run = [], 0, time.time(), []
     while time.time() - t0 < 60 * args.minutes:
+        if args.lr_final is not None and time.time() - t0 > 45 * args.minutes:     # the last quarter
+            for group in opt.param_groups:
+                group["lr"] = args.lr_final
         rng = np.random.default_rng([args.seed, it])
         wins = frames[starts[rng.integers(0, len(starts), 256)][:, None] + np.arange(L)]
         flip = rng.random(256) < 0.5
@@ -146,6 +150,8 @@ def main(argv=None) -> int:
     ap.add_argument("--minutes", type=float, default=12.0, help="training wall clock of the learned residual")
     ap.add_argument("--blocks", type=int, default=24)
     ap.add_argument("--lr", type=float, default=3e-4)
+    ap.add_argument("--lr-final", type=float, default=None,
+                    help="the learning rate of the last quarter of the minutes (default: --lr throughout)")
     ap.add_argument("--windows", type=int, default=32, help="benchmark windows per pattern (repair_quality's)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--threads", type=int, default=1)
