@@ -78,7 +78,7 @@ def learned_residual(args) -> tuple:
     from torch import nn
 
     from training.model import spline_fill
-    from training.prior import PriorConfig, TemporalBlock, dct_matrix, training_frames
+    from training.prior import PriorConfig, PriorNet, training_frames
 
     torch.manual_seed(args.seed)
     torch.set_num_threads(args.threads)
@@ -87,22 +87,15 @@ def learned_residual(args) -> tuple:
     weights = np.array([w for _, w, _ in mix]) / sum(w for _, w, _ in mix)
 
     class Residual(nn.Module):
+        """The prior's network over the whole window (chunk = obs_len = L), its output a residual over the spline
+        fill instead of over the last frame; it starts as the spline (the prior's output layer starts at zero)."""
+
         def __init__(self):
             super().__init__()
-            self.register_buffer("dct", torch.from_numpy(dct_matrix(L)).float(), persistent=False)
-            self.fc_in = nn.Linear(K, K)
-            self.blocks = nn.ModuleList([TemporalBlock(L, K) for _ in range(args.blocks)])
-            self.fc_out = nn.Linear(K, K)
-            nn.init.xavier_uniform_(self.fc_out.weight, gain=1e-8)      # starts as the spline
-            nn.init.zeros_(self.fc_out.bias)
+            self.net = PriorNet(PriorConfig(obs_len=L, chunk=L, blocks=args.blocks))
 
         def forward(self, fill):                                         # (B, L, K)
-            x = nn.functional.linear(fill.transpose(1, 2), self.dct)
-            x = torch.matmul(self.fc_in.weight, x) + self.fc_in.bias[:, None]
-            for block in self.blocks:
-                x = block(x)
-            x = torch.matmul(self.fc_out.weight, x) + self.fc_out.bias[:, None]
-            return fill + nn.functional.linear(x, self.dct.t()).transpose(1, 2)
+            return self.net(fill) - fill[:, -1:] + fill
 
     def filled(x, joint_mask):                                           # (B, L, K), (B, L, J) -> spline fill
         mc = joint_mask.repeat_interleave(3, -1).transpose(1, 2)
@@ -161,11 +154,7 @@ def main(argv=None) -> int:
     from tcd.engine import Prior
 
     gt = rq.draw_windows(args.windows, L, args.seed, Path(args.data_dir))
-    cases = []
-    for p_i, (label, pattern, rate) in enumerate(rq.PATTERNS):
-        rng = np.random.default_rng([args.seed, p_i])
-        m = np.stack([masks.make_mask(pattern, L, L, rng, rate=rate) for _ in range(len(gt))]).astype(bool)
-        cases.append((label, pattern, m, np.where(np.repeat(m[..., None], 3, -1), gt, np.nan).astype(np.float32)))
+    cases = list(rq.masked_cases(gt, args.seed))
     prior = Prior.load(Path(rq.tcd.default_model_dir()) / "prior.safetensors")
     fill, training = learned_residual(args)
     rows = []

@@ -89,23 +89,34 @@ def spline_fill(x: np.ndarray, m: np.ndarray) -> np.ndarray:
     return np.nan_to_num(tcd.interpolate(x.astype(np.float64), m, method="spline"), nan=0.0)
 
 
+def masked_cases(gt: np.ndarray, seed: int):
+    """Each pattern of :data:`PATTERNS` on the windows ``gt`` (B, T, J, 3): (label, pattern, mask (B, T, J) bool,
+    observation (B, T, J, 3) float32 with NaN at the hidden entries), the masks drawn from
+    ``default_rng([seed, pattern index])``: the benchmark's windows, for every method that is scored on them."""
+    t = gt.shape[1]
+    for p_i, (label, pattern, rate) in enumerate(PATTERNS):
+        rng = np.random.default_rng([seed, p_i])
+        m = np.stack([masks.make_mask(pattern, t, t, rng, rate=rate) for _ in range(len(gt))]).astype(bool)
+        yield label, pattern, m, np.where(np.repeat(m[..., None], 3, -1), gt, np.nan).astype(np.float32)
+
+
+def distances(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
+    """(B, T, J) Euclidean distances, in the data's units (metres)."""
+    return np.linalg.norm(pred.astype(np.float64) - gt.astype(np.float64), axis=-1)
+
+
 def ade_mm(pred: np.ndarray, gt: np.ndarray, m: np.ndarray) -> float:
-    hidden = ~m
-    err = np.linalg.norm(pred.astype(np.float64) - gt.astype(np.float64), axis=-1)  # (B, T, J)
-    return float(err[hidden].mean() * 1000.0)
-
-
-def per_window_mm(pred: np.ndarray, gt: np.ndarray, m: np.ndarray) -> list:
-    """Each window's ADE (mm) over its own hidden entries (None for a window with none): what
-    ``training.compare`` pairs between two runs, or two methods of one run."""
-    err = np.linalg.norm(pred.astype(np.float64) - gt.astype(np.float64), axis=-1) * 1000.0  # (B, T, J)
-    hidden = ~m
-    return [float(e[h].mean()) if h.any() else None for e, h in zip(err, hidden)]
+    return float(distances(pred, gt)[~m].mean() * 1000.0)
 
 
 def scores(pred: np.ndarray, gt: np.ndarray, m: np.ndarray, frames: int, seconds: float) -> dict:
-    return {"ade_mm": ade_mm(pred, gt, m), "per_window_mm": per_window_mm(pred, gt, m), "fps": frames / seconds,
-            "seconds": seconds}
+    """The ADE over all hidden entries, and each window's over its own (``per_window_mm``, None for a window with
+    none: what ``training.compare`` pairs between two runs, or two methods of one run)."""
+    err, hidden = distances(pred, gt), ~m
+    per_window = err * 1000.0
+    return {"ade_mm": float(err[hidden].mean() * 1000.0),
+            "per_window_mm": [float(e[h].mean()) if h.any() else None for e, h in zip(per_window, hidden)],
+            "fps": frames / seconds, "seconds": seconds}
 
 
 def main(argv=None) -> int:
@@ -125,10 +136,7 @@ def main(argv=None) -> int:
     w = model.obs_len
     gt = draw_windows(args.windows, w, args.seed, Path(args.data_dir))
     rows = []
-    for p_i, (label, pattern, rate) in enumerate(PATTERNS):
-        rng = np.random.default_rng([args.seed, p_i])
-        m = np.stack([masks.make_mask(pattern, w, w, rng, rate=rate) for _ in range(len(gt))]).astype(bool)
-        obs = np.where(np.repeat(m[..., None], 3, -1), gt, np.nan).astype(np.float32)
+    for label, _, m, obs in masked_cases(gt, args.seed):
         frames = gt.shape[0] * w
         res = {"pattern": label, "windows": int(gt.shape[0]), "hidden_entries": int((~m).sum()),
                "hidden_fraction": float((~m).mean())}
