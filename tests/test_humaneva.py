@@ -266,3 +266,76 @@ def test_bundled_humaneva_model_loads_and_beats_zero_velocity():
     best = err(f.samples).min(axis=0).mean()
     zv = err(np.repeat(w[:, 14:15], 60, axis=1)).mean()
     assert np.isfinite(f.samples).all() and best < 0.75 * zv, (best, zv)
+
+
+# ------------------------------------------------------------- Human3.6M retargeted to HumanEva-I's skeleton
+
+def test_resample_keeps_the_motion_and_its_span():
+    from training.data.humaneva import resample
+    t50 = np.arange(51) / 50.0                                  # one second at 50 Hz
+    seq = np.stack([np.sin(3 * t50), t50 ** 2], -1)[:, None, :]  # (51, 1, 2)
+    out = resample(seq, 50, 60)
+    assert out.shape == (61, 1, 2)                              # the same second at 60 Hz
+    t60 = np.arange(61) / 60.0
+    # linear interpolation: within h^2 / 8 max|f''| = 0.02^2 / 8 * 9 = 4.5e-4 of the motion between frames
+    np.testing.assert_allclose(out[:, 0, 0], np.sin(3 * t60), atol=4.5e-4)
+    np.testing.assert_allclose(out[::6, 0], seq[::5, 0], atol=1e-12)   # the frames both rates share
+    np.testing.assert_allclose(resample(seq, 50, 50), seq)
+
+
+def test_retarget_sets_every_bone_length_and_keeps_its_direction():
+    from training.data.humaneva import HUMANEVA_PARENTS, bone_lengths, retarget
+    seq = walking(40, 3).astype(np.float64)
+    lengths = np.linspace(0.1, 0.5, 14)
+    out = retarget(seq, lengths)
+    np.testing.assert_allclose(out[:, 0], seq[:, 0])
+    np.testing.assert_allclose(bone_lengths([out]), lengths, rtol=1e-12)
+    for j in range(1, 15):
+        p = HUMANEVA_PARENTS[j]
+        a, b = seq[:, j] - seq[:, p], out[:, j] - out[:, p]
+        np.testing.assert_allclose(np.sum(a * b, -1), np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1),
+                                   rtol=1e-9)
+
+
+@needs_humaneva
+@needs_data("h36m/h36m_expmap_50fps.npz")
+def test_human36m_retargeted_stands_upright_with_humaneva_proportions_and_sides():
+    from training.data.humaneva import bone_lengths, h36m_as_humaneva
+    seqs = h36m_as_humaneva((1,))
+    assert len(seqs) == 30 and all(k.startswith("S1/") for k in seqs)
+    src = np.load(DATA / "h36m" / "h36m_expmap_50fps.npz")
+    walk = seqs["S1/walking_1"]
+    assert walk.shape == (int((len(src["S1/walking_1"]) - 1) * 1.2) + 1, 14, 3) and walk.dtype == np.float32
+    full = {k: np.concatenate([np.zeros((len(v), 1, 3)), v], 1) for k, v in seqs.items()}
+    he = load_humaneva(HUMANEVA_FILE, "Train")
+    np.testing.assert_allclose(bone_lengths(full.values()), bone_lengths(he.values()), rtol=1e-5)
+    names = list(HUMANEVA_MODEL_JOINT_NAMES)
+    head, lhip, rhip, lknee, lankle = (walk[:, names.index(n)] for n in ("head", "left_hip", "right_hip",
+                                                                          "left_knee", "left_ankle"))
+    assert (head[:, 2] > 0.5).all()                       # +z up, as HumanEva-I
+    # the subject's left is up x forward (forward: where the knee bends; a straight knee says little, so on most
+    # frames), on HumanEva-I's Train split (78 % of its frames) and on the conversion (99 %)
+    for lh, rh, kn, an in ((lhip, rhip, lknee, lankle),
+                           *[(v[:, 8] - v[:, 0], v[:, 11] - v[:, 0], v[:, 9] - v[:, 0], v[:, 10] - v[:, 0])
+                             for v in [np.concatenate(list(he.values()))]]):
+        bend = kn - (lh + an) / 2
+        assert np.mean(np.sum((lh - rh) * np.cross([0.0, 0.0, 1.0], bend), -1) > 0) > 0.7
+
+
+@needs_humaneva
+@needs_data("h36m/h36m_expmap_50fps.npz")
+def test_training_mix_draws_the_asked_share_of_windows_from_human36m():
+    from training.data.humaneva import H36M_EXTRA_SUBJECTS, h36m_as_humaneva, training_mix
+    plain = training_mix(0.0, 75, HUMANEVA_FILE)
+    assert [a.shape for a in plain] == [a.shape for a in training_sequences(HUMANEVA_FILE).values()]
+    extra = h36m_as_humaneva(H36M_EXTRA_SUBJECTS, humaneva_path=HUMANEVA_FILE)
+    assert {k.split("/")[0] for k in extra} == {f"S{s}" for s in H36M_EXTRA_SUBJECTS}    # never S5
+    windows = lambda seqs: sum(max(len(s) - 74, 0) for s in seqs)   # noqa: E731
+    for share in (0.5, 0.8):
+        mix = training_mix(share, 75, HUMANEVA_FILE)
+        reps, rest = divmod(len(mix) - len(extra), len(plain))
+        assert rest == 0 and reps >= 1
+        assert all(np.array_equal(a, plain[i % len(plain)]) for i, a in enumerate(mix[:reps * len(plain)]))
+        assert abs(windows(mix[reps * len(plain):]) / windows(mix) - share) < 0.01
+    with pytest.raises(ValueError, match="h36m_share"):
+        training_mix(1.0, 75, HUMANEVA_FILE)

@@ -193,3 +193,38 @@ def test_evaluate_humaneva_through_the_engine(humaneva_model_dir, synthetic_file
                           "--json", str(out), "--quiet", "--max-windows", "2"]) == 0
     r2 = json.loads(out.read_text())
     assert r2["protocol"]["windows"] == 2 and r2["method"].startswith("prior")
+
+
+# ------------------------------------------------------------- Human3.6M in a HumanEva-I model's training
+
+def test_h36m_share_is_a_humaneva_option_and_the_weights_say_they_learnt_from_human36m():
+    from training.export import data_meta, prior_data_meta
+    for make in (lambda **kw: PriorConfig(obs_len=15, chunk=15, subjects=(1, 2, 3), **kw),
+                 lambda **kw: TrainConfig(role="long", obs_len=16, pred_len=59, **kw)):
+        make(dataset="humaneva", h36m_share=0.5)
+        for bad in ({"dataset": "h36m", "h36m_share": 0.5}, {"dataset": "humaneva", "h36m_share": 1.0},
+                    {"dataset": "humaneva", "h36m_share": -0.1}):
+            with pytest.raises(ValueError, match="h36m_share"):
+                make(**bad)
+    plain, mixed = data_meta("humaneva"), data_meta("humaneva", h36m_share=0.5)
+    assert "Human3.6M" not in plain["training_data"] + plain["licence"]
+    assert "Human3.6M S1,S6,S7,S8,S9,S11" in mixed["training_data"] and "0.5 of the windows" in mixed["training_data"]
+    assert "Human3.6M" in mixed["licence"]
+    prior = prior_data_meta(PriorConfig(obs_len=15, chunk=15, subjects=(1, 2, 3), dataset="humaneva", h36m_share=0.5))
+    assert prior["training_data"] == mixed["training_data"] and prior["licence"] == mixed["licence"]
+
+
+@needs_humaneva
+def test_a_prior_starts_from_an_exported_prior_file(tmp_path):
+    cfg = PriorConfig(obs_len=15, chunk=15, blocks=2, subjects=(1, 2, 3), dataset="humaneva", iterations=1,
+                      batch_size=4, seed=3)
+    first = tmp_path / "first"
+    train_prior(cfg, first, data=str(HUMANEVA_FILE), log=lambda *_: None)
+    export_prior(first / "last.pt", tmp_path / "exported")
+    # a step at learning rate 0 leaves the weights as they were loaded
+    cfg2 = PriorConfig(**{**cfg.to_dict(), "subjects": (1, 2, 3), "lr": 0.0, "lr_final": 0.0,
+                          "init_from": str(tmp_path / "exported" / "prior.safetensors")})
+    train_prior(cfg2, tmp_path / "second", data=str(HUMANEVA_FILE), log=lambda *_: None)
+    a = load_prior_checkpoint(first / "last.pt").state_dict()
+    b = load_prior_checkpoint(tmp_path / "second" / "last.pt").state_dict()
+    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)

@@ -85,7 +85,8 @@ def h36m_data_meta(training_data: str = "Human3.6M S1,S6,S7,S8,S9 (exp-map, 25 f
             "licence": "Human3.6M: academic non-commercial research use only"}
 
 
-def humaneva_data_meta(training_data: str = "HumanEva-I Train split, S1,S2,S3 (60 Hz)") -> dict:
+def humaneva_data_meta(training_data: str = "HumanEva-I Train split, S1,S2,S3 (60 Hz)",
+                       with_h36m: bool = False) -> dict:
     """The ``data`` block of a HumanEva-I model: 14 joints (joints 1..14 of the 15-joint VideoPose3D layout
     relative to the pelvis, the protocol's 42 dimensions), 60 Hz, metres, world axes with +z up (the global
     rotation is kept, as the DLow / GSPS protocol does; only the translation is removed)."""
@@ -93,12 +94,17 @@ def humaneva_data_meta(training_data: str = "HumanEva-I Train split, S1,S2,S3 (6
     return {"dataset": "humaneva", "fps": float(HUMANEVA_FPS), "units": "m", "root_relative": True,
             "joint_names": list(HUMANEVA_MODEL_JOINT_NAMES), "layout": "humaneva15", "root_joint": "pelvis",
             "up": "z", "training_data": training_data,
-            "licence": "HumanEva-I: research use only (registration required)"}
+            "licence": "HumanEva-I: research use only (registration required)"
+            + ("; Human3.6M: academic non-commercial use" if with_h36m else "")}
 
 
-def data_meta(dataset: str, training_data: str | None = None) -> dict:
-    """The ``data`` block of a model trained on ``dataset`` ("h36m" or "humaneva")."""
+def data_meta(dataset: str, training_data: str | None = None, h36m_share: float = 0.0) -> dict:
+    """The ``data`` block of a model trained on ``dataset`` ("h36m" or "humaneva"; a HumanEva-I model with
+    ``h36m_share`` > 0 learnt from Human3.6M too, and its block says so)."""
     if dataset == "humaneva":
+        if h36m_share:
+            from .data.humaneva import mix_description
+            return humaneva_data_meta(mix_description(h36m_share), with_h36m=True)
         return humaneva_data_meta() if training_data is None else humaneva_data_meta(training_data)
     if dataset == "h36m":
         return h36m_data_meta() if training_data is None else h36m_data_meta(training_data)
@@ -289,7 +295,9 @@ def prior_data_meta(cfg) -> dict:
     description of its dataset, naming the subjects the prior was trained on."""
     subjects = ",".join(f"S{s}" for s in cfg.subjects)
     if getattr(cfg, "dataset", "h36m") == "humaneva":
-        return humaneva_data_meta(training_data=f"HumanEva-I Train split, {subjects} (60 Hz)")
+        from .data.humaneva import mix_description
+        share = getattr(cfg, "h36m_share", 0.0)
+        return humaneva_data_meta(mix_description(share, cfg.subjects), with_h36m=bool(share))
     return h36m_data_meta(training_data=f"Human3.6M {subjects} (exp-map, 25 fps)")
 
 

@@ -71,9 +71,12 @@ class PriorConfig:
     loss_frames: int = 0             # future frames the loss covers, rolled out chunk by chunk (0: one chunk)
     subjects: tuple = (1, 6, 7, 8, 9, 11)   # siMLPe's training subjects (S5 is the test subject); HumanEva: 1..3
     seed: int = 0
-    init_from: str = ""              # a later installment: the last.pt whose weights start this run (fresh Adam;
+    init_from: str = ""              # a later installment: the last.pt (or exported prior.safetensors) whose weights
+                                     # start this run (fresh Adam;
                                      # a deeper config grows it: load_grown)
     dataset: str = "h36m"            # "h36m" (Human3.6M, 22 joints) or "humaneva" (HumanEva-I Train split, 14 joints)
+    h36m_share: float = 0.0          # HumanEva-I: the fraction of windows from Human3.6M retargeted to its skeleton
+                                     # (training.data.humaneva.training_mix)
 
     @classmethod
     def load(cls, path: str | Path) -> "PriorConfig":
@@ -117,6 +120,10 @@ class PriorConfig:
         if self.dataset == "humaneva" and not set(self.subjects) <= {1, 2, 3}:
             raise ValueError("prior config: a HumanEva-I prior trains on subjects among [1, 2, 3] (the Train split's "
                              f"S1..S3); set \"subjects\": [1, 2, 3], got {list(self.subjects)}")
+        if not 0.0 <= self.h36m_share < 1.0 or (self.h36m_share and self.dataset != "humaneva"):
+            raise ValueError("prior config: h36m_share (the fraction of a HumanEva-I prior's windows taken from "
+                             "Human3.6M) must be in [0, 1) and needs \"dataset\": \"humaneva\", "
+                             f"got {self.h36m_share!r}")
 
     @property
     def num_joints(self) -> int:
@@ -227,8 +234,8 @@ def dataset_joint_names(dataset: str) -> tuple:
 def training_sequences(cfg: PriorConfig, data: str | None = None) -> list[np.ndarray]:
     """The training sequences of ``cfg.subjects`` in ``cfg.dataset``, (T, J, 3) float32 metres each."""
     if cfg.dataset == "humaneva":
-        from .data.humaneva import training_sequences as humaneva_sequences
-        return list(humaneva_sequences(data, cfg.subjects).values())
+        from .data.humaneva import training_mix
+        return training_mix(cfg.h36m_share, cfg.obs_len + cfg.future, data, cfg.subjects)
     from .data.h36m import DEFAULT_H36M_DIR, H36M, SPLITS
     known = {s for subs in SPLITS.values() for s in subs}
     if set(cfg.subjects) - known or 5 in cfg.subjects:
@@ -347,7 +354,11 @@ def train(cfg: PriorConfig, out: str | Path, *, data: str | None = None, resume:
         it, elapsed0, history = ck["iteration"], ck["elapsed_s"], ck["history"]
         log(f"resumed from {last}: iteration {it}")
     elif cfg.init_from:
-        init = torch.load(cfg.init_from, map_location="cpu", weights_only=False)
+        if str(cfg.init_from).endswith(".safetensors"):      # an exported prior (a bundled one's run may be gone)
+            from .export import load_prior_file
+            init = {"model": load_prior_file(cfg.init_from)[0].state_dict(), "iteration": "exported"}
+        else:
+            init = torch.load(cfg.init_from, map_location="cpu", weights_only=False)
         grown = load_grown(model, init["model"])
         log(f"weights from {cfg.init_from} (iteration {init['iteration']} of its run)"
             + (f"; blocks {cfg.blocks - grown + 1}..{cfg.blocks} added as identities" if grown else ""))

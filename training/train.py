@@ -57,7 +57,7 @@ def without_removed_keys(d: dict, where) -> dict:
 
 # Keys added to TrainConfig after checkpoints were committed, at the value that does what the code did before
 # them: a checkpoint whose stored train_config lacks one was trained that way.
-ADDED_KEYS = {"rotate_axis": "", "reset_output_head": False}
+ADDED_KEYS = {"rotate_axis": "", "reset_output_head": False, "h36m_share": 0.0}
 
 
 def stored_config(d: dict, where) -> dict:
@@ -98,6 +98,8 @@ class TrainConfig:
                                      # a training.prior last.pt
     rotate_axis: str = ""            # "" or the data's vertical axis: each training window turned about it
                                      # (training.augment; validation windows are not)
+    h36m_share: float = 0.0          # HumanEva-I: the fraction of training windows from Human3.6M retargeted to
+                                     # its skeleton (training.data.humaneva.training_mix; validation stays HumanEva-I)
     reset_output_head: bool = False  # with init_from: the last 1x1 conv's weight and bias restart at zero; for a
                                      # warm start whose prediction_type changes (epsilon -> sample), so the run
                                      # starts at "no residual over the fill" instead of from noise estimates
@@ -114,6 +116,10 @@ class TrainConfig:
     def __post_init__(self):
         if self.dataset not in DATASETS:
             raise ValueError(f"train config: dataset must be one of {DATASETS}, got {self.dataset!r}")
+        if not 0.0 <= self.h36m_share < 1.0 or (self.h36m_share and self.dataset != "humaneva"):
+            raise ValueError("train config: h36m_share (the fraction of a HumanEva-I model's training windows taken "
+                             "from Human3.6M) must be in [0, 1) and needs \"dataset\": \"humaneva\", "
+                             f"got {self.h36m_share!r}")
         if not 0.0 <= self.ema_decay < 1.0:
             raise ValueError(f"train config: ema_decay must be in [0, 1), got {self.ema_decay!r}")
         if self.warmup_steps < 0:
@@ -130,7 +136,9 @@ def load_sequences(cfg: TrainConfig, data: str | None, split: str) -> list[np.nd
     written by ``--write-cache`` (an npz of ``{split}/{key}`` arrays); for HumanEva-I the data directory
     or its .npz, and both splits are the Train split's chunks (see the module docstring)."""
     if cfg.dataset == "humaneva":
-        from .data.humaneva import training_sequences
+        from .data.humaneva import training_mix, training_sequences
+        if split == "train":
+            return training_mix(cfg.h36m_share, cfg.obs_len + cfg.pred_len, data)
         return list(training_sequences(data).values())
     from .data.h36m import DEFAULT_H36M_DIR, H36M
     path = Path(data) if data else DEFAULT_H36M_DIR
@@ -332,7 +340,7 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
     from .export import data_meta
     meta = {"role": cfg.role, "model_config": model_cfg.to_dict(), "diffusion_config": diff_cfg.to_dict(),
             "window": {"obs_len": cfg.obs_len, "pred_len": cfg.pred_len, "seq_len": L},
-            "data": data_meta(cfg.dataset), "train_config": asdict(cfg)}
+            "data": data_meta(cfg.dataset, h36m_share=cfg.h36m_share), "train_config": asdict(cfg)}
     if model_cfg.cond_fill == "prior":    # which prior the model was trained around (a path can be overwritten)
         import hashlib
         meta["prior_sha256"] = hashlib.sha256(Path(cfg.prior).read_bytes()).hexdigest()

@@ -151,3 +151,101 @@ def multimodal_gt(windows: np.ndarray, t_his: int = HUMANEVA_T_HIS, threshold: f
         dist = np.linalg.norm(start - start[i], axis=1)
         out.append(futures[np.nonzero(dist < threshold)[0]])
     return out
+
+
+# ------------------------------------------------------------- Human3.6M retargeted to HumanEva-I's skeleton
+
+#: Human3.6M subjects a HumanEva-I model may also learn from (``h36m_share``): the Human3.6M training subjects
+#: of this project's own models; S5 stays out (it is Human3.6M's test subject).
+H36M_EXTRA_SUBJECTS = (1, 6, 7, 8, 9, 11)
+
+
+def bone_lengths(seqs) -> np.ndarray:
+    """(14,) the mean length of each bone (joint j to its parent, j = 1..14) over all frames of ``seqs``,
+    (T, 15, 3) arrays in HumanEva-I's 15-joint order."""
+    frames = np.concatenate([np.asarray(s, dtype=np.float64) for s in seqs])
+    parents = HUMANEVA_PARENTS[1:]
+    return np.linalg.norm(frames[:, 1:] - frames[:, parents], axis=-1).mean(axis=0)
+
+
+def retarget(seq: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """(T, 15, 3) -> (T, 15, 3): the pose rebuilt from the root outwards, each bone along its direction in
+    ``seq`` with the length ``lengths[j - 1]`` (HumanEva-I's joint order lists every parent before its child)."""
+    seq = np.asarray(seq, dtype=np.float64)
+    out = np.empty_like(seq)
+    out[:, 0] = seq[:, 0]
+    for j in range(1, HUMANEVA_NUM_JOINTS):
+        p = HUMANEVA_PARENTS[j]
+        bone = seq[:, j] - seq[:, p]
+        out[:, j] = out[:, p] + lengths[j - 1] * bone / np.linalg.norm(bone, axis=-1, keepdims=True)
+    return out
+
+
+def resample(seq: np.ndarray, src_fps: float, dst_fps: float) -> np.ndarray:
+    """(T, ...) sampled at ``src_fps`` -> the same motion at ``dst_fps`` (linear interpolation between frames),
+    over the same span: frames at 0, 1 / dst_fps, ... up to the last source frame."""
+    seq = np.asarray(seq)
+    t = np.arange(int(np.floor((len(seq) - 1) * dst_fps / src_fps + 1e-9)) + 1) * (src_fps / dst_fps)
+    i = np.minimum(np.floor(t).astype(np.int64), len(seq) - 2)
+    w = (t - i).reshape((-1,) + (1,) * (seq.ndim - 1))
+    return (1.0 - w) * seq[i] + w * seq[i + 1]
+
+
+def h36m_as_humaneva(subjects=H36M_EXTRA_SUBJECTS, h36m_data=None, humaneva_path=None) -> dict[str, np.ndarray]:
+    """Human3.6M's sequences of ``subjects`` in a HumanEva-I model's space: ``{"S1/walking_1": (T, 14, 3)
+    float32 metres at 60 Hz}``.
+
+    Forward kinematics of the exp-map data at its 50 Hz with the root's translation and rotation removed (as
+    Human3.6M's own pipeline does: the body's frame, so no turning), the 15 joints HumanEva-I's layout stands
+    for on the 32-joint skeleton (``tcd.layouts.HUMANEVA15``), Human3.6M's +y up turned to HumanEva-I's +z up
+    (a proper rotation: left stays left), resampled to 60 Hz, every bone set to the mean length of the Train
+    split's (Human3.6M's hips are twice as wide and its head a third shorter), then root-relative."""
+    from tcd.layouts import HUMANEVA15
+
+    from .h36m import DEFAULT_H36M_DIR, SOURCE_FPS, H36MSource, expmap_to_xyz32
+    subjects = tuple(int(s) for s in subjects)
+    if not subjects or set(subjects) - set(H36M_EXTRA_SUBJECTS):
+        raise ValueError(f"Human3.6M subjects for a HumanEva-I model must be among {list(H36M_EXTRA_SUBJECTS)}, "
+                         f"got {list(subjects)}")
+    lengths = bone_lengths(load_humaneva(humaneva_file(humaneva_path), "Train").values())
+    source = H36MSource(h36m_data or DEFAULT_H36M_DIR)
+    ids = list(HUMANEVA15.to32)
+    out = {}
+    for key in sorted(source.keys):
+        subj, rest = key.split("/")
+        if int(subj[1:]) not in subjects:
+            continue
+        action, sub = rest.rsplit("_", 1)
+        xyz = expmap_to_xyz32(source.raw(int(subj[1:]), action, int(sub)), sample_rate=1)[:, ids] / 1000.0
+        z_up = np.stack([xyz[..., 0], -xyz[..., 2], xyz[..., 1]], axis=-1)   # +90 degrees about x
+        out[key] = root_relative(retarget(resample(z_up, SOURCE_FPS, HUMANEVA_FPS), lengths)).astype(np.float32)
+    return out
+
+
+def training_mix(h36m_share: float, window: int, path=None, subjects=HUMANEVA_TRAIN_SUBJECTS,
+                 h36m_data=None) -> list[np.ndarray]:
+    """HumanEva-I's training chunks (:func:`training_sequences`) and, when ``h36m_share`` > 0, Human3.6M's
+    retargeted sequences (:func:`h36m_as_humaneva`), the chunks listed ``r`` times over so that a uniform draw
+    of the windows of ``window`` frames comes from Human3.6M with probability ``h36m_share`` (as near as a
+    whole ``r`` allows): the training loops draw windows uniformly and need no change."""
+    target = list(training_sequences(path, subjects).values())
+    if not 0.0 <= h36m_share < 1.0:
+        raise ValueError(f"h36m_share must be in [0, 1), got {h36m_share!r}")
+    if h36m_share == 0.0:
+        return target
+    extra = list(h36m_as_humaneva(H36M_EXTRA_SUBJECTS, h36m_data, path).values())
+    count = lambda seqs: sum(max(len(s) - window + 1, 0) for s in seqs)   # noqa: E731
+    n_target, n_extra = count(target), count(extra)
+    if not n_target:
+        raise ValueError(f"no HumanEva-I training window of {window} frames")
+    r = max(1, round((1.0 - h36m_share) / h36m_share * n_extra / n_target))
+    return target * r + extra
+
+
+def mix_description(h36m_share: float, subjects=HUMANEVA_TRAIN_SUBJECTS) -> str:
+    """The ``training_data`` line of a model's metadata for a HumanEva-I training mix."""
+    line = f"HumanEva-I Train split, {','.join(f'S{s}' for s in subjects)} (60 Hz)"
+    if h36m_share > 0.0:
+        line += (f" + Human3.6M {','.join(f'S{s}' for s in H36M_EXTRA_SUBJECTS)} retargeted to its skeleton "
+                 f"({h36m_share:g} of the windows)")
+    return line
