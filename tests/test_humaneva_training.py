@@ -185,6 +185,11 @@ def test_evaluate_humaneva_through_the_engine(humaneva_model_dir, synthetic_file
     assert r["model"]["APD"] > 0 and r["prior"]["APD"] == r["zero_velocity"]["APD"] == 0.0
     assert r["stochastic"] == r["model"] and r["sampling"]["samples"] == 4
     assert r["published"]["TCD"] == {"ADE": 0.199, "FDE": 0.215} and r["published"]["HumanMAC"] is None
+    # each action's windows (the synthetic file: Walking 130 frames -> 4 windows, Box 105 -> 2, Jog 80 -> 1)
+    assert {a: d["windows"] for a, d in r["per_action"].items()} == {"Box": 2, "Jog": 1, "Walking": 4}
+    walking = r["model"]["per_window"]["FDE"][:4]                  # the file's order: the Walking take first
+    assert np.isclose(r["per_action"]["Walking"]["FDE"], np.mean(walking))
+    assert np.isclose(sum(d["ADE"] * d["windows"] for d in r["per_action"].values()) / n, r["model"]["ADE"])
     # the prior alone (a directory with nothing else in it) and the default sample count
     only_prior = tmp_path / "prior_only"
     only_prior.mkdir()
@@ -193,6 +198,7 @@ def test_evaluate_humaneva_through_the_engine(humaneva_model_dir, synthetic_file
                           "--json", str(out), "--quiet", "--max-windows", "2"]) == 0
     r2 = json.loads(out.read_text())
     assert r2["protocol"]["windows"] == 2 and r2["method"].startswith("prior")
+    assert {a: d["windows"] for a, d in r2["per_action"].items()} == {"Walking": 1, "Jog": 1}
 
 
 # ------------------------------------------------------------- Human3.6M in a HumanEva-I model's training

@@ -133,6 +133,15 @@ def humaneva_test_windows(data: dict[str, np.ndarray], t_his: int = HUMANEVA_T_H
     return np.stack(windows)
 
 
+def humaneva_test_actions(data: dict[str, np.ndarray], t_his: int = HUMANEVA_T_HIS, t_pred: int = HUMANEVA_T_PRED,
+                          step: int | None = None) -> list[str]:
+    """The action of each window :func:`humaneva_test_windows` gives, in its order: ``"Box"`` for a window of
+    ``Validate/S1/Box 1 chunk0`` (Box, Gestures, Jog, ThrowCatch, Walking)."""
+    step = t_his if step is None else step
+    return [key.split("/")[-1].split(" ")[0] for key, seq in data.items()
+            for _ in window_starts(seq.shape[0], t_his + t_pred, step)]
+
+
 def multimodal_gt(windows: np.ndarray, t_his: int = HUMANEVA_T_HIS, threshold: float = 0.5) -> list[np.ndarray]:
     """DLow's ``get_multimodal_gt``: for each window i, ``(M_i, t_pred, D)`` futures of the windows whose
     last observed pose is within L2 distance ``< threshold`` of window i's (window i included).
