@@ -308,3 +308,19 @@ def test_bidirectional_fill_bends_each_forecast_to_meet_the_far_side_of_the_gap(
     np.testing.assert_allclose(blend[1, :10], np.repeat(gt[1, 10:11], 10, 0), atol=1e-6)   # held: nothing before
     mixed = lf.bidirectional_fill(Hold(), gt, m, spline)["prior forward + backward, averaged with the spline"]
     np.testing.assert_allclose(mixed[0, 12:22], 0.5 * gt[0, 12:22], atol=1e-5)
+
+
+def test_humaneva_lowpass_keeps_the_first_cosines_of_the_residual_over_the_prior():
+    import_torch("benches/humaneva_lowpass.py (it samples through training/evaluate.py)")
+    lowpass = load_bench("humaneva_lowpass").lowpass
+    rng = np.random.default_rng(0)
+    prior = rng.normal(size=(2, 60, 14, 3))
+    t = np.arange(60)[None, None, :, None, None]
+    slow, fast = (np.cos(np.pi * (2 * t + 1) * k / 120) for k in (2, 30))   # DCT-II cosines 2 and 30 of 60
+    a, b = rng.normal(size=(3, 2, 1, 14, 3)), rng.normal(size=(3, 2, 1, 14, 3))
+    samples = prior[None] + a * slow + b * fast
+    np.testing.assert_allclose(lowpass(samples, prior, 60), samples, atol=1e-12)          # all kept: unchanged
+    np.testing.assert_allclose(lowpass(samples, prior, 10), prior[None] + a * slow, atol=1e-12)   # cosine 30 gone
+    np.testing.assert_allclose(lowpass(samples, prior, 2), np.broadcast_to(prior, samples.shape), atol=1e-12)
+    with pytest.raises(ValueError, match="keep"):
+        lowpass(samples, prior, 0)

@@ -298,6 +298,13 @@ def humaneva_prior_forecast(path: str | Path, obs: np.ndarray) -> np.ndarray:
     return np.asarray(out, np.float64).reshape(W, HE_PRED, J, 3)
 
 
+def humaneva_protocol(windows: int, windows_in_protocol: int) -> dict:
+    """The ``protocol`` block of a HumanEva-I result: ``training.compare`` pairs two results only where it is equal."""
+    return {"dataset": "humaneva-i", "split": "Validate", "t_his": HE_OBS, "t_pred": HE_PRED, "fps": 60,
+            "windows": windows, "windows_in_protocol": windows_in_protocol,
+            "units": "m (DLow/GSPS: L2 norm of the flattened 42-dim pose)"}
+
+
 def evaluate_humaneva(args) -> dict:
     """The stochastic HumanEva-I protocol for ``args`` (the options of :func:`main`); see the module docstring."""
     from .data.humaneva import humaneva_file, humaneva_test_actions, humaneva_test_windows, load_humaneva, multimodal_gt
@@ -327,9 +334,7 @@ def evaluate_humaneva(args) -> dict:
     t0 = time.time()
     if args.model:
         results["model"] = score(humaneva_model_samples(args, obs, log=say))
-    out = {"protocol": {"dataset": "humaneva-i", "split": "Validate", "t_his": HE_OBS, "t_pred": HE_PRED, "fps": 60,
-                        "windows": len(rows), "windows_in_protocol": len(wins),
-                        "units": "m (DLow/GSPS: L2 norm of the flattened 42-dim pose)"},
+    out = {"protocol": humaneva_protocol(len(rows), len(wins)),
            "seeds": {"sampling": args.seed} if args.model else {}, **results,
            "published": {k: v for k, v in PUBLISHED_HUMANEVA.items()}, "published_sources": PUBLISHED_HUMANEVA_SOURCES}
     if args.model:

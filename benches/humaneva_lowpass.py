@@ -1,0 +1,110 @@
+"""Does the HumanEva-I model's spread carry information, or jitter? Its samples low-passed, scored.
+
+The bundled HumanEva-I model's samples spread about its prior's forecast, and on Jog the best of 50 is further
+from the truth than the prior alone (MODEL_CARD.md, "Ninth session"): over 60 frames of 42 coordinates a spread
+that does not follow the motion adds error. Motion is smooth, and forecasters that work in the DCT domain keep
+only its first coefficients (siMLPe, HumanMAC). This bench keeps the first K DCT coefficients, over the 60
+future frames, of each sample's residual over the prior (the prior's forecast itself is untouched), for several
+K, and scores each set of samples by the full stochastic protocol. The samples are drawn once, exactly as
+``training.evaluate --protocol humaneva --engine tcd`` draws them (same seeds and batches), so the unfiltered
+row equals that command's result and every row pairs with it window by window::
+
+    python benches/humaneva_lowpass.py --keep 5 10 20 --threads 2 --json-prefix benches/results/humaneva_lowpass/bundled
+    python -m training.compare benches/results/humaneva_lowpass/bundled_K10.json \\
+        benches/results/humaneva_lowpass/bundled_raw.json --key FDE
+
+A post-process measured here, not in the engine: where it pays, the engine is the place for it.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from argparse import Namespace
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from training.data.humaneva import (humaneva_file, humaneva_test_actions, humaneva_test_windows,  # noqa: E402
+                                    load_humaneva, multimodal_gt)
+from training.evaluate import (HE_OBS, HE_PRED, humaneva_model_samples, humaneva_prior_forecast,  # noqa: E402
+                               humaneva_protocol)
+from training.prior import dct_matrix  # noqa: E402
+from training.stochastic import evaluate_stochastic  # noqa: E402
+
+
+def lowpass(samples: np.ndarray, prior: np.ndarray, keep: int) -> np.ndarray:
+    """``samples`` (S, W, T, J, 3) with each sample's residual over ``prior`` (W, T, J, 3) reduced to its first
+    ``keep`` DCT coefficients over the T frames (orthonormal DCT-II: ``keep`` = T changes nothing)."""
+    T = samples.shape[2]
+    if not 1 <= keep <= T:
+        raise ValueError(f"keep must be in [1, {T}], got {keep}")
+    d = dct_matrix(T)
+    project = d[:keep].T @ d[:keep]                                   # (T, T): onto the first `keep` cosines
+    residual = samples - prior[None]
+    return prior[None] + np.einsum("ts,...sjc->...tjc", project, residual)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--model", default=str(ROOT / "python" / "tcd" / "weights_humaneva"))
+    ap.add_argument("--keep", type=int, nargs="+", default=[5, 10, 20], help="DCT coefficients kept (of 60)")
+    ap.add_argument("--samples", type=int, default=50)
+    ap.add_argument("--sampler", default="ddpm")
+    ap.add_argument("--steps", type=int, default=10)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--threads", type=int, default=1, help="torch CPU threads (the engine uses every core, as in "
+                    "training.evaluate)")
+    ap.add_argument("--max-windows", type=int, default=0, help="evenly spaced windows (0: all 188)")
+    ap.add_argument("--data", default=None, help="the HumanEva-I file or directory (default ../shared/data)")
+    ap.add_argument("--json-prefix", required=True, help="writes PREFIX_raw.json and PREFIX_K{k}.json")
+    args = ap.parse_args(argv)
+    import torch
+    torch.set_num_threads(args.threads)
+
+    data = load_humaneva(humaneva_file(args.data), split="Validate")
+    wins = humaneva_test_windows(data)
+    rows = np.arange(len(wins))
+    if args.max_windows:
+        rows = np.unique(np.linspace(0, len(wins) - 1, min(args.max_windows, len(wins))).round().astype(int))
+    D = wins.shape[2] * 3
+    gt_multi_all = multimodal_gt(wins, HE_OBS)
+    obs = wins[rows, :HE_OBS].astype(np.float64)
+    gts = [wins[i, HE_OBS:].reshape(-1, D) for i in rows]
+    gt_multi = [gt_multi_all[i] for i in rows]
+    actions = np.asarray(humaneva_test_actions(data))[rows]
+    sampling = Namespace(engine="tcd", model=args.model, samples=args.samples, steps=args.steps,
+                         sampler=args.sampler, eta=0.0, timestep_spacing="trailing", seed=args.seed, batch_size=16,
+                         device="cpu")
+    t0 = time.time()
+    samples = humaneva_model_samples(sampling, obs, log=lambda m: print(m, file=sys.stderr, flush=True))
+    prior = humaneva_prior_forecast(args.model, obs)
+    print(f"{args.samples} samples of {len(rows)} windows in {time.time() - t0:.0f} s", file=sys.stderr)
+
+    Path(args.json_prefix).parent.mkdir(parents=True, exist_ok=True)
+    print(f"{'samples':<16}{'ADE':>8}{'FDE':>8}{'MMADE':>8}{'MMFDE':>8}{'APD':>8}")
+    for keep in [None] + sorted(set(args.keep)):
+        pred = samples if keep is None else lowpass(samples, prior, keep)
+        m = evaluate_stochastic([pred[:, w].reshape(pred.shape[0], HE_PRED, D) for w in range(len(rows))],
+                                gts, gt_multi, per_window=True)
+        name = "raw" if keep is None else f"K{keep}"
+        out = {"protocol": humaneva_protocol(len(rows), len(wins)),
+               "method": f"tcd {args.model}" + ("" if keep is None else f", residual over the prior low-passed to "
+                                                                     f"its first {keep} DCT coefficients"),
+               "seeds": {"sampling": args.seed}, "model": m, "stochastic": m,
+               "sampling": {"engine": "tcd", "samples": args.samples, "steps": args.steps, "sampler": args.sampler},
+               "lowpass_keep": keep,
+               "per_action": {a: {k: float(np.mean(np.asarray(v)[actions == a])) for k, v in m["per_window"].items()}
+                              for a in sorted(set(actions))},
+               "command": "python benches/humaneva_lowpass.py " + " ".join(sys.argv[1:] if argv is None else argv)}
+        Path(f"{args.json_prefix}_{name}.json").write_text(json.dumps(out, indent=1))
+        print(f"{name:<16}" + "".join(f"{m[k]:>8.3f}" for k in ("ADE", "FDE", "MMADE", "MMFDE", "APD")))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
