@@ -21,7 +21,6 @@ import argparse
 import json
 import sys
 import time
-from argparse import Namespace
 from pathlib import Path
 
 import numpy as np
@@ -29,12 +28,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from training.data.humaneva import (humaneva_file, humaneva_test_actions, humaneva_test_windows,  # noqa: E402
-                                    load_humaneva, multimodal_gt)
-from training.evaluate import (HE_OBS, HE_PRED, humaneva_model_samples, humaneva_prior_forecast,  # noqa: E402
-                               humaneva_protocol)
+from training.evaluate import (HumanEvaCases, build_parser, humaneva_model_samples,  # noqa: E402
+                               humaneva_prior_forecast)
 from training.prior import dct_matrix  # noqa: E402
-from training.stochastic import evaluate_stochastic  # noqa: E402
 
 
 def lowpass(samples: np.ndarray, prior: np.ndarray, keep: int) -> np.ndarray:
@@ -66,40 +62,29 @@ def main(argv=None) -> int:
     import torch
     torch.set_num_threads(args.threads)
 
-    data = load_humaneva(humaneva_file(args.data), split="Validate")
-    wins = humaneva_test_windows(data)
-    rows = np.arange(len(wins))
-    if args.max_windows:
-        rows = np.unique(np.linspace(0, len(wins) - 1, min(args.max_windows, len(wins))).round().astype(int))
-    D = wins.shape[2] * 3
-    gt_multi_all = multimodal_gt(wins, HE_OBS)
-    obs = wins[rows, :HE_OBS].astype(np.float64)
-    gts = [wins[i, HE_OBS:].reshape(-1, D) for i in rows]
-    gt_multi = [gt_multi_all[i] for i in rows]
-    actions = np.asarray(humaneva_test_actions(data))[rows]
-    sampling = Namespace(engine="tcd", model=args.model, samples=args.samples, steps=args.steps,
-                         sampler=args.sampler, eta=0.0, timestep_spacing="trailing", seed=args.seed, batch_size=16,
-                         device="cpu")
+    cases = HumanEvaCases.load(args.data, args.max_windows)
+    # sampled as training.evaluate samples (its options and defaults: the same seeds and batches)
+    sampling = build_parser().parse_args(["--protocol", "humaneva", "--model", args.model, "--engine", "tcd",
+                                          "--samples", str(args.samples), "--sampler", args.sampler,
+                                          "--steps", str(args.steps), "--seed", str(args.seed)])
     t0 = time.time()
-    samples = humaneva_model_samples(sampling, obs, log=lambda m: print(m, file=sys.stderr, flush=True))
-    prior = humaneva_prior_forecast(args.model, obs)
-    print(f"{args.samples} samples of {len(rows)} windows in {time.time() - t0:.0f} s", file=sys.stderr)
+    samples = humaneva_model_samples(sampling, cases.obs, log=lambda m: print(m, file=sys.stderr, flush=True))
+    prior = humaneva_prior_forecast(args.model, cases.obs)
+    print(f"{args.samples} samples of {len(cases.rows)} windows in {time.time() - t0:.0f} s", file=sys.stderr)
 
     Path(args.json_prefix).parent.mkdir(parents=True, exist_ok=True)
     print(f"{'samples':<16}{'ADE':>8}{'FDE':>8}{'MMADE':>8}{'MMFDE':>8}{'APD':>8}")
     for keep in [None] + sorted(set(args.keep)):
         pred = samples if keep is None else lowpass(samples, prior, keep)
-        m = evaluate_stochastic([pred[:, w].reshape(pred.shape[0], HE_PRED, D) for w in range(len(rows))],
-                                gts, gt_multi, per_window=True)
+        m = cases.score(pred)
         name = "raw" if keep is None else f"K{keep}"
-        out = {"protocol": humaneva_protocol(len(rows), len(wins)),
+        out = {"protocol": cases.protocol(),
                "method": f"tcd {args.model}" + ("" if keep is None else f", residual over the prior low-passed to "
                                                                      f"its first {keep} DCT coefficients"),
                "seeds": {"sampling": args.seed}, "model": m, "stochastic": m,
                "sampling": {"engine": "tcd", "samples": args.samples, "steps": args.steps, "sampler": args.sampler},
                "lowpass_keep": keep,
-               "per_action": {a: {k: float(np.mean(np.asarray(v)[actions == a])) for k, v in m["per_window"].items()}
-                              for a in sorted(set(actions))},
+               "per_action": cases.per_action(m),
                "command": "python benches/humaneva_lowpass.py " + " ".join(sys.argv[1:] if argv is None else argv)}
         Path(f"{args.json_prefix}_{name}.json").write_text(json.dumps(out, indent=1))
         print(f"{name:<16}" + "".join(f"{m[k]:>8.3f}" for k in ("ADE", "FDE", "MMADE", "MMFDE", "APD")))

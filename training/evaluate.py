@@ -31,6 +31,7 @@ import argparse
 import json
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -305,26 +306,57 @@ def humaneva_protocol(windows: int, windows_in_protocol: int) -> dict:
             "units": "m (DLow/GSPS: L2 norm of the flattened 42-dim pose)"}
 
 
+@dataclass
+class HumanEvaCases:
+    """The protocol's windows a HumanEva-I evaluation scores (all 188, or ``max_windows`` evenly spaced) and how:
+    one place for the evaluator and the benches that rescore samples (``benches/humaneva_lowpass.py``)."""
+
+    rows: np.ndarray                 # which of the protocol's windows
+    windows_in_protocol: int
+    obs: np.ndarray                  # (W, 15, 14, 3) metres
+    gts: list                        # each window's future (60, 42)
+    gt_multi: list                   # each window's multimodal futures (M, 60, 42), from every window as DLow does
+    actions: np.ndarray              # each window's action ("Box", ...)
+
+    @classmethod
+    def load(cls, data=None, max_windows: int | None = None) -> "HumanEvaCases":
+        from .data.humaneva import (humaneva_file, humaneva_test_actions, humaneva_test_windows, load_humaneva,
+                                    multimodal_gt)
+        data = load_humaneva(humaneva_file(data), split="Validate")
+        wins = humaneva_test_windows(data)                               # (N, 75, 14, 3) metres
+        D = wins.shape[2] * 3
+        gt_multi_all = multimodal_gt(wins, HE_OBS)
+        rows = np.arange(len(wins))
+        if max_windows:
+            rows = np.unique(np.linspace(0, len(wins) - 1, min(max_windows, len(wins))).round().astype(int))
+        return cls(rows, len(wins), wins[rows, :HE_OBS].astype(np.float64),
+                   [wins[i, HE_OBS:].reshape(-1, D) for i in rows], [gt_multi_all[i] for i in rows],
+                   np.asarray(humaneva_test_actions(data))[rows])
+
+    def protocol(self) -> dict:
+        return humaneva_protocol(len(self.rows), self.windows_in_protocol)
+
+    def score(self, pred: np.ndarray) -> dict:
+        """The protocol's metrics, with each window's, of samples ``pred`` (S, W, 60, 14, 3)."""
+        from .stochastic import evaluate_stochastic
+        S, W = pred.shape[:2]
+        return evaluate_stochastic([pred[:, w].reshape(S, HE_PRED, -1) for w in range(W)], self.gts, self.gt_multi,
+                                   per_window=True)
+
+    def per_action(self, scores: dict) -> dict:
+        """Each action's windows and means of ``scores``' per-window values (Box has a fifth of the windows and
+        about twice the mean's error: where the error is)."""
+        return {a: {"windows": int((self.actions == a).sum()),
+                    **{k: float(np.mean(np.asarray(v)[self.actions == a])) for k, v in scores["per_window"].items()}}
+                for a in sorted(set(self.actions))}
+
+
 def evaluate_humaneva(args) -> dict:
     """The stochastic HumanEva-I protocol for ``args`` (the options of :func:`main`); see the module docstring."""
-    from .data.humaneva import humaneva_file, humaneva_test_actions, humaneva_test_windows, load_humaneva, multimodal_gt
     from .metrics import PUBLISHED_HUMANEVA, PUBLISHED_HUMANEVA_SOURCES
-    from .stochastic import evaluate_stochastic
-    data = load_humaneva(humaneva_file(args.data), split="Validate")
-    wins = humaneva_test_windows(data)                                   # (N, 75, 14, 3) metres
-    D = wins.shape[2] * 3
-    gt_multi_all = multimodal_gt(wins, HE_OBS)                           # from every window, as DLow does
-    rows = np.arange(len(wins))
-    if getattr(args, "max_windows", None):
-        rows = np.unique(np.linspace(0, len(wins) - 1, min(args.max_windows, len(wins))).round().astype(int))
-    obs = wins[rows, :HE_OBS].astype(np.float64)
-    gts = [wins[i, HE_OBS:].reshape(-1, D) for i in rows]
-    gt_multi = [gt_multi_all[i] for i in rows]
+    cases = HumanEvaCases.load(args.data, getattr(args, "max_windows", None))
+    obs, score = cases.obs, cases.score
     say = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
-
-    def score(pred: np.ndarray) -> dict:                                 # (S, W, 60, 14, 3)
-        return evaluate_stochastic([pred[:, w].reshape(pred.shape[0], HE_PRED, D) for w in range(len(rows))],
-                                   gts, gt_multi, per_window=True)
 
     results = {"zero_velocity": score(np.repeat(obs[None, :, -1:], HE_PRED, axis=2))}
     prior_path = args.prior or (args.model if args.model and (Path(args.model) / "prior.safetensors").is_file()
@@ -334,7 +366,7 @@ def evaluate_humaneva(args) -> dict:
     t0 = time.time()
     if args.model:
         results["model"] = score(humaneva_model_samples(args, obs, log=say))
-    out = {"protocol": humaneva_protocol(len(rows), len(wins)),
+    out = {"protocol": cases.protocol(),
            "seeds": {"sampling": args.seed} if args.model else {}, **results,
            "published": {k: v for k, v in PUBLISHED_HUMANEVA.items()}, "published_sources": PUBLISHED_HUMANEVA_SOURCES}
     if args.model:
@@ -347,13 +379,7 @@ def evaluate_humaneva(args) -> dict:
         out.update(method="zero-velocity", stochastic=results["zero_velocity"])
     if prior_path:
         out["prior_source"] = str(prior_path)
-    # where the error is: the scored method's means over each action's windows (Box has a fifth of the windows
-    # and about twice the mean's error)
-    actions = np.asarray(humaneva_test_actions(data))[rows]
-    per_window = out["stochastic"]["per_window"]
-    out["per_action"] = {a: {"windows": int((actions == a).sum()),
-                             **{k: float(np.mean(np.asarray(v)[actions == a])) for k, v in per_window.items()}}
-                         for a in sorted(set(actions))}
+    out["per_action"] = cases.per_action(out["stochastic"])
     return out
 
 
@@ -409,7 +435,8 @@ def print_table(out: dict) -> None:
               f"({out['repair']['occluded_entries']} entries)")
 
 
-def main(argv=None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of :func:`main` (its defaults are the protocol's; benches parse their sampling with it)."""
     from .masks import PATTERNS
     ap = argparse.ArgumentParser(prog="python -m training.evaluate", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -446,6 +473,11 @@ def main(argv=None) -> int:
                          "(same model, parity-tested; its own seeded noise streams)")
     ap.add_argument("--threads", type=int, default=None, help="torch CPU threads")
     ap.add_argument("--quiet", action="store_true")
+    return ap
+
+
+def main(argv=None) -> int:
+    ap = build_parser()
     args = ap.parse_args(argv)
     if not 1 <= args.windows_per_action <= 256:
         ap.error("--windows-per-action must be in 1..256")

@@ -120,10 +120,8 @@ class PriorConfig:
         if self.dataset == "humaneva" and not set(self.subjects) <= {1, 2, 3}:
             raise ValueError("prior config: a HumanEva-I prior trains on subjects among [1, 2, 3] (the Train split's "
                              f"S1..S3); set \"subjects\": [1, 2, 3], got {list(self.subjects)}")
-        if not 0.0 <= self.h36m_share < 1.0 or (self.h36m_share and self.dataset != "humaneva"):
-            raise ValueError("prior config: h36m_share (the fraction of a HumanEva-I prior's windows taken from "
-                             "Human3.6M) must be in [0, 1) and needs \"dataset\": \"humaneva\", "
-                             f"got {self.h36m_share!r}")
+        from .data.humaneva import check_h36m_share
+        check_h36m_share(self.h36m_share, self.dataset, "prior config")
 
     @property
     def num_joints(self) -> int:

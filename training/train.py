@@ -116,10 +116,8 @@ class TrainConfig:
     def __post_init__(self):
         if self.dataset not in DATASETS:
             raise ValueError(f"train config: dataset must be one of {DATASETS}, got {self.dataset!r}")
-        if not 0.0 <= self.h36m_share < 1.0 or (self.h36m_share and self.dataset != "humaneva"):
-            raise ValueError("train config: h36m_share (the fraction of a HumanEva-I model's training windows taken "
-                             "from Human3.6M) must be in [0, 1) and needs \"dataset\": \"humaneva\", "
-                             f"got {self.h36m_share!r}")
+        from .data.humaneva import check_h36m_share
+        check_h36m_share(self.h36m_share, self.dataset, "train config")
         if not 0.0 <= self.ema_decay < 1.0:
             raise ValueError(f"train config: ema_decay must be in [0, 1), got {self.ema_decay!r}")
         if self.warmup_steps < 0:

@@ -112,22 +112,22 @@ def window_starts(n_frames: int, t_total: int, step: int) -> range:
     return range(0, n_frames - t_total, step)
 
 
-def humaneva_test_windows(data: dict[str, np.ndarray], t_his: int = HUMANEVA_T_HIS,
-                          t_pred: int = HUMANEVA_T_PRED, step: int | None = None) -> np.ndarray:
-    """All test windows, root-relative: (N, t_his + t_pred, 14, 3), in ``data``'s order.
-
-    ``step`` defaults to ``t_his`` (DLow's ``iter_generator(step=t_his)``). Chunks with at most
-    ``t_his + t_pred`` frames give no window.
-    """
+def protocol_window_index(data: dict[str, np.ndarray], t_his: int = HUMANEVA_T_HIS, t_pred: int = HUMANEVA_T_PRED,
+                      step: int | None = None) -> list[tuple[str, int]]:
+    """(chunk key, first frame) of every test window, in ``data``'s order: DLow's ``iter_generator(step=t_his)``
+    (``step`` defaults to ``t_his``); chunks with at most ``t_his + t_pred`` frames give no window."""
     step = t_his if step is None else step
     if step <= 0:
         raise ValueError("step must be positive")
+    return [(key, start) for key, seq in data.items() for start in window_starts(seq.shape[0], t_his + t_pred, step)]
+
+
+def humaneva_test_windows(data: dict[str, np.ndarray], t_his: int = HUMANEVA_T_HIS,
+                          t_pred: int = HUMANEVA_T_PRED, step: int | None = None) -> np.ndarray:
+    """All test windows (:func:`protocol_window_index`), root-relative: (N, t_his + t_pred, 14, 3), in ``data``'s order."""
     t_total = t_his + t_pred
-    windows = []
-    for seq in data.values():
-        rel = root_relative(seq)
-        for start in window_starts(rel.shape[0], t_total, step):
-            windows.append(rel[start:start + t_total])
+    windows = [root_relative(data[key][start:start + t_total]) for key, start in
+               protocol_window_index(data, t_his, t_pred, step)]
     if not windows:
         return np.zeros((0, t_total, HUMANEVA_NUM_JOINTS - 1, 3), dtype=np.float32)
     return np.stack(windows)
@@ -137,9 +137,7 @@ def humaneva_test_actions(data: dict[str, np.ndarray], t_his: int = HUMANEVA_T_H
                           step: int | None = None) -> list[str]:
     """The action of each window :func:`humaneva_test_windows` gives, in its order: ``"Box"`` for a window of
     ``Validate/S1/Box 1 chunk0`` (Box, Gestures, Jog, ThrowCatch, Walking)."""
-    step = t_his if step is None else step
-    return [key.split("/")[-1].split(" ")[0] for key, seq in data.items()
-            for _ in window_starts(seq.shape[0], t_his + t_pred, step)]
+    return [key.split("/")[-1].split(" ")[0] for key, _ in protocol_window_index(data, t_his, t_pred, step)]
 
 
 def multimodal_gt(windows: np.ndarray, t_his: int = HUMANEVA_T_HIS, threshold: float = 0.5) -> list[np.ndarray]:
@@ -167,6 +165,15 @@ def multimodal_gt(windows: np.ndarray, t_his: int = HUMANEVA_T_HIS, threshold: f
 #: Human3.6M subjects a HumanEva-I model may also learn from (``h36m_share``): the Human3.6M training subjects
 #: of this project's own models; S5 stays out (it is Human3.6M's test subject).
 H36M_EXTRA_SUBJECTS = (1, 6, 7, 8, 9, 11)
+
+
+def check_h36m_share(share: float, dataset: str, where: str) -> None:
+    """ValueError (naming ``where``) unless ``share`` is a fraction in [0, 1) and, when above 0, ``dataset`` is
+    HumanEva-I: the one check of ``h36m_share`` for the prior's and the denoisers' configs and :func:`training_mix`."""
+    if not 0.0 <= share < 1.0 or (share and dataset != "humaneva"):
+        raise ValueError(f"{where}: h36m_share (the fraction of a HumanEva-I model's training windows taken from "
+                         f"Human3.6M) must be in [0, 1) and needs \"dataset\": \"humaneva\", got {share!r} "
+                         f"for {dataset!r}")
 
 
 def bone_lengths(seqs) -> np.ndarray:
@@ -238,8 +245,7 @@ def training_mix(h36m_share: float, window: int, path=None, subjects=HUMANEVA_TR
     of the windows of ``window`` frames comes from Human3.6M with probability ``h36m_share`` (as near as a
     whole ``r`` allows): the training loops draw windows uniformly and need no change."""
     target = list(training_sequences(path, subjects).values())
-    if not 0.0 <= h36m_share < 1.0:
-        raise ValueError(f"h36m_share must be in [0, 1), got {h36m_share!r}")
+    check_h36m_share(h36m_share, "humaneva", "training_mix")
     if h36m_share == 0.0:
         return target
     extra = list(h36m_as_humaneva(H36M_EXTRA_SUBJECTS, h36m_data, path).values())
