@@ -124,7 +124,8 @@ def protocol_window_index(data: dict[str, np.ndarray], t_his: int = HUMANEVA_T_H
 
 def humaneva_test_windows(data: dict[str, np.ndarray], t_his: int = HUMANEVA_T_HIS,
                           t_pred: int = HUMANEVA_T_PRED, step: int | None = None) -> np.ndarray:
-    """All test windows (:func:`protocol_window_index`), root-relative: (N, t_his + t_pred, 14, 3), in ``data``'s order."""
+    """All test windows (:func:`protocol_window_index`), root-relative: (N, t_his + t_pred, 14, 3), in ``data``'s
+    order."""
     t_total = t_his + t_pred
     windows = [root_relative(data[key][start:start + t_total]) for key, start in
                protocol_window_index(data, t_his, t_pred, step)]
