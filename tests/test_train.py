@@ -165,6 +165,31 @@ def test_committed_checkpoints_resume_under_their_configs():
         assert stored == asdict(TrainConfig.load(root / "training" / "configs" / config))
 
 
+def test_committed_warm_starts_load_into_the_configs_that_name_them():
+    """Every exported model committed under training/checkpoints/ (a lease's unfinished run, kept as its EMA
+    weights) loads, strictly, into the model of each train config whose init_from names it, as ``train`` loads
+    it: a next lease must not spend its device time finding a mismatch. (Configs that name the bundled weights
+    name what was bundled when they ran: those files change.)"""
+    from pathlib import Path
+    from safetensors.torch import load_file
+    from training.train import build_model
+    root = Path(__file__).parents[1]
+    committed = {p.name for p in (root / "training" / "checkpoints").glob("*.safetensors")}
+    started = set()
+    for path in sorted((root / "training" / "configs").glob("*.json")):
+        if path.stem.startswith(("prior", "humaneva_prior")):
+            continue
+        init = Path(json.loads(path.read_text()).get("init_from", ""))
+        if init.name not in committed or init.parent != Path("training/checkpoints"):
+            continue
+        cfg = TrainConfig.load(path)
+        cfg.prior = str(root / cfg.prior) if cfg.prior else ""
+        model, _ = build_model(cfg, "cpu")
+        model.load_state_dict(load_file(str(root / init)))       # strict, as train's warm start
+        started.add(init.name)
+    assert started == committed, f"committed warm starts no config names: {sorted(committed - started)}"
+
+
 def test_config_files_load(tmp_path):
     from pathlib import Path
     from training.prior import PriorConfig
