@@ -58,6 +58,20 @@ def test_model_evaluation_runs_end_to_end(tmp_path, engine):
     assert res["repair"]["occluded_entries"] > 0 and np.isfinite(res["repair"]["ade_mm"])
     assert "zero_velocity_on_repaired" in res and res["select"] == "best"
     assert res["sampling"]["engine"] == engine
+    assert res["sampling"]["tempo"] is None                 # the tiny model's directory sets none
+
+
+@needs_h36m
+def test_tempo_runs_through_the_engine_and_is_recorded(tmp_path):
+    d = random_init_dir(tmp_path / "m", preset="tiny")
+    args = ["--model", str(d), "--data", str(H36M_DIR), "--windows-per-action", "1", "--samples", "3", "--steps", "1",
+            "--sampler", "ddim", "--quiet"]
+    out = tmp_path / "t.json"
+    assert evaluate.main(args + ["--engine", "tcd", "--tempo", "0.8", "1.25", "--json", str(out)]) == 0
+    assert json.loads(out.read_text())["sampling"]["tempo"] == [0.8, 1.25]
+    with pytest.raises(SystemExit) as e:                   # the PyTorch reference has no tempo sampling
+        evaluate.main(args + ["--engine", "torch", "--tempo", "0.8", "1.25"])
+    assert e.value.code == 2
 
 
 @needs_h36m
@@ -84,6 +98,13 @@ def test_humaneva_zero_velocity_protocol(tmp_path):
     s = res["stochastic"]
     assert s["APD"] == 0.0                              # one deterministic sample has no diversity
     assert 0 < s["ADE"] < s["FDE"] and 0 < s["MMADE"] < s["MMFDE"]
+    # the same windows' rule on the training split: another set, named in the protocol block
+    out = tmp_path / "he_train.json"
+    assert evaluate.main(["--protocol", "humaneva", "--baseline", "zero-velocity", "--json", str(out), "--split",
+                          "Train", "--data", str(DATA / "humaneva"), "--quiet"]) == 0
+    train = json.loads(out.read_text())
+    assert train["protocol"]["split"] == "Train" and res["protocol"]["split"] == "Validate"
+    assert train["protocol"]["windows"] != 188 and train["stochastic"]["ADE"] != s["ADE"]
 
 
 @needs_h36m

@@ -104,15 +104,26 @@ def tcd_predict(models: dict, obs: np.ndarray, jmask: np.ndarray, *, samples: in
 
 
 def tcd_engine_predict(model_dir: str, obs: np.ndarray, jmask: np.ndarray, *, samples: int, steps: int | None,
-                       sampler: str, eta: float, spacing: str, seed: int) -> dict:
+                       sampler: str, eta: float, spacing: str, seed: int, tempo=None) -> dict:
     """The same cascade through the Rust engine (``tcd``): fast on the CPU, in parity with the reference.
     Missing entries are passed as NaN."""
     import tcd
     model = tcd.load(model_dir)
     x = np.where(joint_to_coord_mask(jmask) > 0.5, obs, np.nan)
     f = model.forecast(x, num_samples=samples, num_inference_steps=steps, sampler=sampler, eta=eta,
-                       timestep_spacing=spacing, seed=int(seed))
+                       timestep_spacing=spacing, seed=int(seed), tempo=tempo)
     return {"samples": np.asarray(f.samples, np.float64), "repaired": np.asarray(f.repaired, np.float64)}
+
+
+def tempo_run(args) -> list | None:
+    """The tempo range the samples ran with (``--tempo``, else the model directory's default; None: none)."""
+    if args.engine != "tcd":
+        return None
+    if args.tempo is not None:
+        return None if tuple(args.tempo) == (1.0, 1.0) else list(args.tempo)
+    import tcd
+    t = tcd.load(args.model).forecast_tempo
+    return None if t is None else list(t)
 
 
 def prior_predict(args, obs: np.ndarray, jmask: np.ndarray, seed: int) -> np.ndarray:
@@ -192,7 +203,7 @@ def evaluate_h36m(args, models: dict | None = None, data: H36M | None = None, on
             kw = dict(samples=args.samples, steps=args.steps, sampler=args.sampler, eta=args.eta,
                       spacing=args.timestep_spacing, seed=args.seed * 1000 + ai)
             if args.engine == "tcd":
-                res = tcd_engine_predict(args.model, obs, jmask, **kw)
+                res = tcd_engine_predict(args.model, obs, jmask, tempo=args.tempo, **kw)
             else:
                 res = tcd_predict(models, obs, jmask, device=args.device, batch_size=args.batch_size, **kw)
             errs = np.stack([per_frame_error(model_to_xyz32(s, gt32), gt32) for s in res["samples"]])  # (S, W, 25)
@@ -220,7 +231,8 @@ def evaluate_h36m(args, models: dict | None = None, data: H36M | None = None, on
     else:
         out["method"] = f"tcd {args.model}"
         out["sampling"] = {"engine": args.engine, "samples": args.samples, "steps": args.steps or models['short'][1].T,
-                           "sampler": args.sampler, "eta": args.eta, "timestep_spacing": args.timestep_spacing}
+                           "sampler": args.sampler, "eta": args.eta, "timestep_spacing": args.timestep_spacing,
+                           "tempo": tempo_run(args)}
         out["best_of_n"] = dict(summarize(best), label=f"oracle best-of-{args.samples} (selected against ground truth)")
         out["mean_of_n"] = dict(summarize(mean), label=f"mean of {args.samples} samples (deployable)")
         chosen = out["best_of_n" if args.select == "best" else "mean_of_n"]
@@ -266,7 +278,7 @@ def humaneva_model_samples(args, obs: np.ndarray, log=lambda m: None) -> np.ndar
         seed = args.seed * 1_000_003 + b0
         if args.engine == "tcd":
             f = model.forecast(x, num_samples=args.samples, num_inference_steps=args.steps, sampler=args.sampler,
-                               eta=args.eta, timestep_spacing=args.timestep_spacing, seed=seed)
+                               eta=args.eta, timestep_spacing=args.timestep_spacing, seed=seed, tempo=args.tempo)
             outs.append(np.asarray(f.samples, np.float64))
         else:
             res = tcd_predict(models, x, np.ones(x.shape[:3], np.float32), samples=args.samples, steps=args.steps,
@@ -299,9 +311,9 @@ def humaneva_prior_forecast(path: str | Path, obs: np.ndarray) -> np.ndarray:
     return np.asarray(out, np.float64).reshape(W, HE_PRED, J, 3)
 
 
-def humaneva_protocol(windows: int, windows_in_protocol: int) -> dict:
+def humaneva_protocol(windows: int, windows_in_protocol: int, split: str = "Validate") -> dict:
     """The ``protocol`` block of a HumanEva-I result: ``training.compare`` pairs two results only where it is equal."""
-    return {"dataset": "humaneva-i", "split": "Validate", "t_his": HE_OBS, "t_pred": HE_PRED, "fps": 60,
+    return {"dataset": "humaneva-i", "split": split, "t_his": HE_OBS, "t_pred": HE_PRED, "fps": 60,
             "windows": windows, "windows_in_protocol": windows_in_protocol,
             "units": "m (DLow/GSPS: L2 norm of the flattened 42-dim pose)"}
 
@@ -317,12 +329,13 @@ class HumanEvaCases:
     gts: list                        # each window's future (60, 42)
     gt_multi: list                   # each window's multimodal futures (M, 60, 42), from every window as DLow does
     actions: np.ndarray              # each window's action ("Box", ...)
+    split: str = "Validate"          # the protocol's; "Train" draws the same windows from the training split
 
     @classmethod
-    def load(cls, data=None, max_windows: int | None = None) -> "HumanEvaCases":
+    def load(cls, data=None, max_windows: int | None = None, split: str = "Validate") -> "HumanEvaCases":
         from .data.humaneva import (humaneva_file, humaneva_test_actions, humaneva_test_windows, load_humaneva,
                                     multimodal_gt)
-        data = load_humaneva(humaneva_file(data), split="Validate")
+        data = load_humaneva(humaneva_file(data), split=split)
         wins = humaneva_test_windows(data)                               # (N, 75, 14, 3) metres
         D = wins.shape[2] * 3
         gt_multi_all = multimodal_gt(wins, HE_OBS)
@@ -331,17 +344,23 @@ class HumanEvaCases:
             rows = np.unique(np.linspace(0, len(wins) - 1, min(max_windows, len(wins))).round().astype(int))
         return cls(rows, len(wins), wins[rows, :HE_OBS].astype(np.float64),
                    [wins[i, HE_OBS:].reshape(-1, D) for i in rows], [gt_multi_all[i] for i in rows],
-                   np.asarray(humaneva_test_actions(data))[rows])
+                   np.asarray(humaneva_test_actions(data))[rows], split)
 
     def protocol(self) -> dict:
-        return humaneva_protocol(len(self.rows), self.windows_in_protocol)
+        return humaneva_protocol(len(self.rows), self.windows_in_protocol, self.split)
 
     def score(self, pred: np.ndarray) -> dict:
-        """The protocol's metrics, with each window's, of samples ``pred`` (S, W, 60, 14, 3)."""
-        from .stochastic import evaluate_stochastic
+        """The protocol's metrics, with each window's, of samples ``pred`` (S, W, 60, 14, 3); and beside them
+        ``mean_ADE`` / ``mean_FDE``, the ADE / FDE of the samples' mean (what ``Forecast.mean`` returns: the
+        point forecast a user deploys, not a protocol metric)."""
+        from .stochastic import ade, evaluate_stochastic, fde
         S, W = pred.shape[:2]
-        return evaluate_stochastic([pred[:, w].reshape(S, HE_PRED, -1) for w in range(W)], self.gts, self.gt_multi,
-                                   per_window=True)
+        flat = [pred[:, w].reshape(S, HE_PRED, -1) for w in range(W)]
+        out = evaluate_stochastic(flat, self.gts, self.gt_multi, per_window=True)
+        for name, metric in (("mean_ADE", ade), ("mean_FDE", fde)):
+            out["per_window"][name] = [metric(f.mean(axis=0, keepdims=True), gt) for f, gt in zip(flat, self.gts)]
+            out[name] = float(np.mean(out["per_window"][name]))
+        return out
 
     def per_action(self, scores: dict) -> dict:
         """Each action's windows and means of ``scores``' per-window values (Box has a fifth of the windows and
@@ -354,7 +373,7 @@ class HumanEvaCases:
 def evaluate_humaneva(args) -> dict:
     """The stochastic HumanEva-I protocol for ``args`` (the options of :func:`main`); see the module docstring."""
     from .metrics import PUBLISHED_HUMANEVA, PUBLISHED_HUMANEVA_SOURCES
-    cases = HumanEvaCases.load(args.data, getattr(args, "max_windows", None))
+    cases = HumanEvaCases.load(args.data, getattr(args, "max_windows", None), getattr(args, "split", "Validate"))
     obs, score = cases.obs, cases.score
     say = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
 
@@ -372,7 +391,8 @@ def evaluate_humaneva(args) -> dict:
     if args.model:
         out.update(method=f"tcd {args.model}", stochastic=results["model"], seconds=time.time() - t0,
                    sampling={"engine": args.engine, "samples": args.samples, "steps": args.steps,
-                             "sampler": args.sampler, "eta": args.eta, "timestep_spacing": args.timestep_spacing})
+                             "sampler": args.sampler, "eta": args.eta, "timestep_spacing": args.timestep_spacing,
+                             "tempo": tempo_run(args)})
     elif args.prior:
         out.update(method=f"prior {args.prior}", stochastic=results["prior"])
     else:
@@ -458,12 +478,19 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--sampler", choices=["ddpm", "ddim", "dpmpp2m"], default="ddpm")
     ap.add_argument("--eta", type=float, default=0.0, help="DDIM eta")
     ap.add_argument("--timestep-spacing", choices=["leading", "trailing", "linspace"], default="trailing")
+    ap.add_argument("--tempo", type=float, nargs=2, metavar=("LO", "HI"), default=None,
+                    help="--engine tcd: each sample from the observation replayed at its own tempo, LO to HI "
+                         "(tcd.tempo; 1 1: none; default: the model directory's sampling.json)")
     ap.add_argument("--select", choices=["best", "mean"], default="best",
                     help="best = oracle best-of-n (paper), mean = mean of samples (deployable)")
     ap.add_argument("--mask", choices=list(PATTERNS), default="none", help="observation corruption pattern")
     ap.add_argument("--mask-seed", type=int, default=0)
     ap.add_argument("--seed", type=int, default=0, help="sampling seed")
     ap.add_argument("--windows-per-action", type=int, default=256)
+    ap.add_argument("--split", choices=["Validate", "Train"], default="Validate",
+                    help="--protocol humaneva: the split the windows come from (Validate: the protocol's test "
+                         "windows; Train: the same rule on the data the models learnt, to see what a choice does "
+                         "there)")
     ap.add_argument("--max-windows", type=int, default=None,
                     help="--protocol humaneva: score this many of the 188 windows, evenly spaced (a quick look)")
     ap.add_argument("--batch-size", type=int, default=16, help="windows per sampling batch")
@@ -487,6 +514,8 @@ def main(argv=None) -> int:
         ap.error("--samples must be >= 1")
     if args.max_windows is not None and args.max_windows < 1:
         ap.error("--max-windows must be >= 1")
+    if args.tempo is not None and (args.engine != "tcd" or not args.model):
+        ap.error("--tempo needs --model with --engine tcd (tcd.TCD.forecast samples the tempi)")
     if args.threads:
         torch.set_num_threads(args.threads)
     if args.data is None:

@@ -144,6 +144,7 @@ def run(model: TCD, *, samples: int = DEFAULT_SAMPLES, seed: int = DEFAULT_SEED,
     kw = dict(num_samples=samples, seed=seed, threads=threads, **sampler)
     res: Dict[str, Any] = {"fps": fps, "joint_names": names, "observed": obs, "future": future,
                            "settings": {"samples": samples, "steps": steps, "sampler": sampler_name, "seed": seed,
+                                        "tempo": None if model.forecast_tempo is None else list(model.forecast_tempo),
                                         "sampling": {t: dataclasses.asdict(model.sampler_options(t, **sampler))
                                                      for t in model.sampling}},
                            "timings_s": {}}
@@ -231,7 +232,8 @@ def summary(res: Dict[str, Any], model: TCD) -> str:
         f"({'HumanEva-I layout' if model.data.get('dataset') == 'humaneva' else 'Human3.6M layout'}), "
         f"{len(res['observed'])} observed frames at {res['fps']:g} fps",
         f"forecast sampler {SamplerOptions(**s['sampling']['forecast']).describe(model.num_train_timesteps)}, "
-        f"{s['samples']} samples, seed {s['seed']}",
+        + ("" if s["tempo"] is None else f"tempi {s['tempo'][0]:g} to {s['tempo'][1]:g} (tcd.tempo), ")
+        + f"{s['samples']} samples, seed {s['seed']}",
         "",
         "forecast error, mm (mean per-joint position error of the mean of the samples):",
         f"  {'horizon (ms)':<32}" + head,

@@ -32,6 +32,7 @@ from .engine import Denoiser, Prior, cascade_raw, repair_raw
 from . import _native
 from .exceptions import InvalidInputError, ModelNotBundledError, WeightsError
 from .options import SamplerOptions
+from .tempo import Tempo, check_tempo, tempo_forecast
 from .wild import Up
 
 __all__ = ["TCD", "Forecast", "Repair", "load", "forecast", "predict", "repair", "default_model_dir",
@@ -43,9 +44,12 @@ PathLike = Union[str, "os.PathLike[str]"]
 PRIOR_FILE = "prior.safetensors"
 
 #: a model directory's own sampler defaults (:attr:`TCD.sampling`), optional: ``{"forecast": {...}, "repair":
-#: {...}, "why": "..."}``, each task's object holding :class:`SamplerOptions` fields; a task or field left out takes
-#: :class:`SamplerOptions`' defaults (the paper's DDPM over every training step)
+#: {...}, "why": "...", "forecast_tempo": [lo, hi]}``, each task's object holding :class:`SamplerOptions` fields; a
+#: task or field left out takes :class:`SamplerOptions`' defaults (the paper's DDPM over every training step);
+#: ``"forecast_tempo"`` is :attr:`TCD.forecast_tempo` (:mod:`tcd.tempo`), optional
 SAMPLING_FILE = "sampling.json"
+#: the key of ``sampling.json`` holding :attr:`TCD.forecast_tempo`
+TEMPO_KEY = "forecast_tempo"
 #: the tasks a model directory may set sampler defaults for: ``"forecast"`` the cascade (:meth:`TCD.forecast`),
 #: ``"repair"`` the repair model (:meth:`TCD.repair`, the model fill of :meth:`TCD.predict`, :func:`tcd.repair_file`)
 SAMPLING_TASKS = ("forecast", "repair")
@@ -212,7 +216,7 @@ class TCD:
     def __init__(self, short: Denoiser, long: Denoiser, repair: Optional[Denoiser] = None,
                  path: Optional[PathLike] = None, threads: Optional[int] = None,
                  file_sha256: Optional[Dict[str, str]] = None, prior: Optional[Prior] = None,
-                 sampling: Optional[Dict[str, SamplerOptions]] = None) -> None:
+                 sampling: Optional[Dict[str, SamplerOptions]] = None, forecast_tempo: Tempo = None) -> None:
         self.short = short
         self.long = long
         self.repair_model = repair
@@ -228,6 +232,9 @@ class TCD:
         #: :class:`SamplerOptions`' defaults. A call's sampler keywords override it (see :meth:`sampler_options`).
         self.sampling: Dict[str, SamplerOptions] = {t: (sampling or {}).get(t) or SamplerOptions()
                                                     for t in SAMPLING_TASKS}
+        #: the tempo range :meth:`forecast` samples when a call names none (:mod:`tcd.tempo`): the model
+        #: directory's ``sampling.json`` ``"forecast_tempo"``, else None (every sample at the observed tempo)
+        self.forecast_tempo: Tempo = check_tempo(forecast_tempo, "forecast_tempo")
         #: SHA-256 (hex) of each weight file, by file name; empty when built from Denoisers directly.
         self.file_sha256: Dict[str, str] = dict(file_sha256 or {})
         #: SHA-256 (hex) identifying the model: the digest of its ``SHA256SUMS`` text (None without files).
@@ -330,7 +337,7 @@ class TCD:
     def forecast(self, obs: ArrayLike, mask: Optional[ArrayLike] = None, *, num_samples: int = 5,
                  seed: Optional[int] = None, units: Units = "m", threads: Optional[int] = None,
                  progress: Progress = False, layout: Optional[str] = None, fps: Optional[float] = None,
-                 up: Up = "y", **sampler: Any) -> Forecast:
+                 up: Up = "y", tempo: Tempo = None, **sampler: Any) -> Forecast:
         """Forecasts the next :attr:`horizon` frames of ``obs``.
 
         Args:
@@ -360,13 +367,26 @@ class TCD:
                 Human3.6M model one DDIM step, the HumanEva-I model DDPM over 10 steps, chosen from
                 docs/samplers.md; a directory without ``sampling.json`` the paper's DDPM over every training
                 step). Any other keyword is a ``TypeError``.
+            tempo: ``(lo, hi)`` with ``0 < lo <= 1 <= hi``: sample i of ``num_samples`` forecast from the
+                observation replayed at its own tempo, spaced geometrically from ``lo`` to ``hi``
+                (:mod:`tcd.tempo`: samples that differ in when a movement happens); ``(1, 1)`` every sample at
+                the observed tempo; ``None`` the model's default (:attr:`forecast_tempo`; the bundled models set
+                none: their samples' mean gets worse with it, MODEL_CARD.md "Tempo sampling").
         """
         num_samples, sampling, units, threads = self._common("forecast", num_samples, sampler, units, threads)
+        tempo = self.forecast_tempo if tempo is None else check_tempo(tempo)
         seed = _seed(seed)
         prior = self.prior if self._prior_roles else None
-        run = lambda observed, seen: cascade_raw(self.short, self.long, observed, seen,  # noqa: E731
-                                                 num_samples=num_samples, seed=seed, threads=threads,
-                                                 progress=progress, prior=prior, **sampling)
+
+        def cascade(observed: np.ndarray, seen: np.ndarray, n: int, streams=None) -> Dict[str, np.ndarray]:
+            return cascade_raw(self.short, self.long, observed, seen, num_samples=n, seed=seed, threads=threads,
+                               progress=progress, prior=prior, sequences=streams, **sampling)
+
+        if tempo is None or tempo == (1.0, 1.0):
+            run = lambda observed, seen: cascade(observed, seen, num_samples)  # noqa: E731
+        else:
+            run = lambda observed, seen: tempo_forecast(lambda o, m, ids: cascade(o, m, 1, ids),  # noqa: E731
+                                                        observed, seen, num_samples, tempo)
         if layout is not None or fps is not None:
             mean, samples, repaired, times = _wild_calls.forecast(
                 self, obs, mask, layout="h36m22" if layout is None else layout, fps=fps, up=up, units=units, run=run)
@@ -509,7 +529,7 @@ def load(path: Optional[PathLike] = None, *, threads: Optional[int] = None) -> T
     pp = PRIOR_FILE
     prior = Prior.from_bytes(blobs[pp], str(d / pp)) if pp in blobs else None
     return TCD(short, long, repair_model, path=d, threads=threads, file_sha256=digests, prior=prior,
-               sampling=_read_sampling(d / SAMPLING_FILE))
+               sampling=_read_sampling(d / SAMPLING_FILE), forecast_tempo=_read_forecast_tempo(d / SAMPLING_FILE))
 
 
 def _read_sampling(f: Path) -> Dict[str, SamplerOptions]:
@@ -525,10 +545,11 @@ def _read_sampling(f: Path) -> Dict[str, SamplerOptions]:
         raise WeightsError(f"{f}: expected an object of tasks ({', '.join(SAMPLING_TASKS)}), got {doc!r}.", str(f))
     out: Dict[str, SamplerOptions] = {}
     for key, value in doc.items():
-        if key == "why":            # the reason for the choice, for the reader
+        if key in ("why", TEMPO_KEY):  # the reason for the choice, for the reader; the tempo, read below
             continue
         if key not in SAMPLING_TASKS:
-            raise WeightsError(f"{f}: unknown key {key!r} (the tasks: {', '.join(SAMPLING_TASKS)}; and \"why\").",
+            raise WeightsError(f"{f}: unknown key {key!r} (the tasks: {', '.join(SAMPLING_TASKS)}; and \"why\", "
+                               f"\"{TEMPO_KEY}\").",
                                str(f))
         if not isinstance(value, dict):
             raise WeightsError(f"{f}, {key!r}: expected an object of sampler settings, got {value!r}", str(f))
@@ -537,6 +558,17 @@ def _read_sampling(f: Path) -> Dict[str, SamplerOptions]:
         except (TypeError, InvalidInputError) as e:
             raise WeightsError(f"{f}, {key!r}: {e}", str(f)) from None
     return out
+
+
+def _read_forecast_tempo(f: Path) -> Tempo:
+    """``sampling.json``'s ``"forecast_tempo"`` (``[lo, hi]``, :mod:`tcd.tempo`), checked; None when absent."""
+    if not f.is_file():
+        return None
+    value = json.loads(f.read_text()).get(TEMPO_KEY)   # readable: _read_sampling read it first
+    try:
+        return check_tempo(value, TEMPO_KEY)
+    except InvalidInputError as e:
+        raise WeightsError(f"{f}: {e}", str(f)) from None
 
 
 def _uses_prior(model: Denoiser) -> bool:

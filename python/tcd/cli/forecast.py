@@ -17,7 +17,7 @@ from .common import (EXIT_OK, OPTION_FLAGS, _BadInput, add_model_flag, add_sampl
 
 # The arguments the input file sets, for the error messages.
 FLAGS = {**OPTION_FLAGS, "obs": "the `poses` array of the input file", "mask": "the `mask` array of the input file",
-         "fps": "--fps", "layout": "--layout", "up": "--up", "fill": "--fill"}
+         "fps": "--fps", "layout": "--layout", "up": "--up", "fill": "--fill", "tempo": "--tempo"}
 
 
 def add_parser(sub: Any) -> argparse.ArgumentParser:
@@ -48,6 +48,9 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
                    help="frame rate of the poses (default: the model's)")
     p.add_argument("--up", default="y", choices=("x", "y", "z", "-x", "-y", "-z"),
                    help="the vertical axis of the poses' coordinates (default y)")
+    p.add_argument("--tempo", type=float, nargs=2, default=None, metavar=("LO", "HI"),
+                   help="each sample from the observation replayed at its own tempo, LO to HI (tcd.tempo; 1 1: "
+                        "none; default: the model's, `tcd info`)")
     p.add_argument("--threads", type=int, default=None, metavar="N", help="worker threads (default: all cores)")
     p.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
     p.add_argument("--quiet", action="store_true", help="no progress bar (shown on a terminal otherwise)")
@@ -97,8 +100,10 @@ def run(args: argparse.Namespace) -> int:
     model = load_model(args.model)
     if args.point and model.prior is None:
         raise _BadInput(f"--point: the model directory {model.path} has no prior.safetensors.")
+    if args.point and args.tempo is not None:
+        raise _BadInput("--tempo samples tempi of the diffusion forecast; --point forecasts one point forecast.")
     call = model.predict if args.point else model.forecast
-    extra = {"fill": args.fill} if args.point else {}
+    extra = {"fill": args.fill} if args.point else {"tempo": args.tempo}
     try:
         f = call(data["poses"], data.get("mask"), num_samples=args.samples, seed=args.seed, units=args.units,
                  threads=args.threads, progress=not args.quiet and sys.stderr.isatty(), layout=layout, fps=fps,

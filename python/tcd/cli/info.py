@@ -23,6 +23,7 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps({"path": str(m.path), "obs_len": m.obs_len, "horizon": m.horizon,
                           "num_joints": m.num_joints,
                           "sampling": {t: dataclasses.asdict(o) for t, o in m.sampling.items()},
+                          "forecast_tempo": None if m.forecast_tempo is None else list(m.forecast_tempo),
                           "config": m.config}, indent=2))
         return EXIT_OK
     data = m.data
@@ -49,6 +50,8 @@ def run(args: argparse.Namespace) -> int:
                         else f", target {mc['target']} (scale {mc.get('target_scale', 1.0):g})"))
     for task, o in m.sampling.items():
         lines.append(f"default sampler, {task}: {o.describe(m.num_train_timesteps)}")
+    t = m.forecast_tempo
+    lines.append("default tempo sampling, forecast: " + ("none" if t is None else f"tempi {t[0]:g} to {t[1]:g}"))
     lines.append(f"kernels: {m.short.kernel} (this CPU supports: {', '.join(supported_kernels())})")
     print("\n".join(lines))
     return EXIT_OK

@@ -1,0 +1,120 @@
+"""Tempo sampling: each sample of a forecast from the observation replayed at its own tempo.
+
+A stochastic forecaster is scored by how well its samples cover the futures a person may take (the best of 50 on
+HumanEva-I). The bundled HumanEva-I model's samples spread about its prior's forecast without covering *when* a
+movement happens: scaling the spread up or low-passing it changes nothing (MODEL_CARD.md), while forecasts from
+the observation played faster or slower land closer. ``tempo=(lo, hi)`` in :meth:`tcd.TCD.forecast` gives sample
+i of n the tempo ``s_i``, the n values spaced geometrically from ``lo`` to ``hi`` (both included; one sample gets
+1). For each sample:
+
+1. the observation is resampled on the clock of tempo ``s``, aligned at its last frame: warped frame ``tau``
+   is the original frame ``last + s * (tau - last)``, linearly interpolated; an entry is observed only where
+   both frames it reads are (an observed frame before the first one, for ``s > 1``, is missing: the model
+   repairs it as any gap);
+2. the cascade forecasts that observation (one sample);
+3. the forecast is read back on the original clock: forecast frame ``t`` (1-based, the last observed frame is
+   0) is warped frame ``t / s``, linearly interpolated. For ``s < 1`` the frames after ``s * horizon`` lie
+   beyond the forecast: they hold its last pose (the sample's Zero-Velocity continuation).
+
+The repaired observation is each sample's repair read back on the original clock, averaged over the samples
+whose warped window covers the frame (every sample with ``s >= 1`` covers all of it, and ``hi >= 1``); its
+observed entries are the observation's.
+"""
+from __future__ import annotations
+
+from typing import Callable, Dict, List, Optional, Sequence, Tuple
+
+import numpy as np
+
+from . import _checks
+
+Tempo = Optional[Tuple[float, float]]
+
+
+def check_tempo(tempo: object, name: str = "tempo") -> Tempo:
+    """``None`` or a ``(lo, hi)`` pair with ``0 < lo <= 1 <= hi`` (the observed tempo inside the range) and
+    ``hi / lo <= 4``; an :class:`InvalidInputError` naming ``name`` otherwise."""
+    if tempo is None:
+        return None
+    if isinstance(tempo, (str, bytes)) or not isinstance(tempo, Sequence) and not isinstance(tempo, np.ndarray):
+        raise _checks.fail(name, "None or a (lo, hi) pair of tempi", repr(tempo))
+    values = list(tempo)
+    if len(values) != 2:
+        raise _checks.fail(name, "None or a (lo, hi) pair of tempi", repr(tempo))
+    lo, hi = (_checks.real(name, v) for v in values)
+    if not (0.0 < lo <= 1.0 <= hi) or hi / lo > 4.0:
+        raise _checks.fail(name, "a (lo, hi) pair with 0 < lo <= 1 <= hi and hi / lo <= 4 (the observed tempo "
+                                 "inside the range)", repr((lo, hi)))
+    return (lo, hi)
+
+
+def tempi(tempo: Tuple[float, float], n: int) -> np.ndarray:
+    """The n samples' tempi: geometrically spaced from ``lo`` to ``hi`` (both included); ``[1.0]`` for n = 1."""
+    lo, hi = tempo
+    return np.ones(1) if n == 1 else np.geomspace(lo, hi, n)
+
+
+def _read(x: np.ndarray, at: np.ndarray) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Linear interpolation of ``x`` (..., T) at fractional frames ``at`` (clamped to [0, T - 1]): the values,
+    and the two frames and weights it read (i0, i1, w1) for the masks."""
+    t = np.clip(at, 0.0, x.shape[-1] - 1)
+    i0 = np.floor(t).astype(np.int64)
+    i1 = np.minimum(i0 + 1, x.shape[-1] - 1)
+    w1 = t - i0
+    return (1.0 - w1) * x[..., i0] + w1 * x[..., i1], i0, i1
+
+
+def warp(observed: np.ndarray, seen: np.ndarray, s: float) -> Tuple[np.ndarray, np.ndarray]:
+    """The observation (B, K, T) and its mask played at tempo ``s``, aligned at the last frame (step 1 of the
+    module docstring). Unobserved entries hold 0."""
+    T = observed.shape[-1]
+    at = (T - 1) + s * (np.arange(T) - (T - 1))
+    values, i0, i1 = _read(np.where(seen > 0, observed, 0.0), at)
+    w1 = np.clip(at, 0.0, T - 1) - i0
+    ok = (seen[..., i0] > 0) & ((w1 == 0.0) | (seen[..., i1] > 0)) & (at >= 0.0)
+    return np.where(ok, values, 0.0).astype(observed.dtype), ok.astype(seen.dtype)
+
+
+def unwarp_future(last: np.ndarray, future: np.ndarray, s: float) -> np.ndarray:
+    """A forecast (..., K, H) made on the clock of tempo ``s`` read back on the original clock, ``last``
+    (..., K, 1) the warped last observed frame (step 3 of the module docstring)."""
+    H = future.shape[-1]
+    full = np.concatenate([last, future], axis=-1)                 # frame 0: the last observed one
+    return _read(full, np.arange(1, H + 1) / s)[0]
+
+
+def unwarp_history(history: np.ndarray, s: float) -> Tuple[np.ndarray, np.ndarray]:
+    """A repaired observation (..., K, T) on the clock of tempo ``s`` read back on the original clock, and
+    where that is defined (the original frames the warped window covers: all of them for ``s >= 1``)."""
+    T = history.shape[-1]
+    at = (T - 1) + (np.arange(T) - (T - 1)) / s
+    return _read(history, at)[0], np.broadcast_to(at >= 0.0, (T,))
+
+
+def tempo_forecast(run_one: Callable[[np.ndarray, np.ndarray, List[int]], Dict[str, np.ndarray]],
+                   observed: np.ndarray, seen: np.ndarray, num_samples: int,
+                   tempo: Tuple[float, float]) -> Dict[str, np.ndarray]:
+    """The forecast of the module docstring in the engine's layout: ``observed``, ``seen`` (B, K, T);
+    ``run_one(observed, seen, streams)`` forecasts one sample of each of its sequences, sequence j from the noise
+    stream ``streams[j]`` (the cascade's ``sequences``). All samples run as one batch of n * B sequences, sample
+    i's the i-th B; sample i of sequence b draws stream ``b * n + i``, so a sequence's samples do not depend on
+    the others in the batch. Returns ``mean`` (B, K, H), ``samples`` (n, B, K, H) and ``repaired`` (B, K, T)."""
+    B = observed.shape[0]
+    ss = tempi(tempo, num_samples)
+    n = len(ss)
+    warped = [warp(observed, seen, float(s)) for s in ss]
+    out = run_one(np.concatenate([w[0] for w in warped]), np.concatenate([w[1] for w in warped]),
+                  [b * n + i for i in range(n) for b in range(B)])
+    one = np.asarray(out["samples"])[0]                             # (n * B, K, H)
+    rep = np.asarray(out["repaired"])                               # (n * B, K, T)
+    samples = np.stack([unwarp_future(rep[i * B:(i + 1) * B, :, -1:], one[i * B:(i + 1) * B], float(s))
+                        for i, s in enumerate(ss)])
+    total = np.zeros(rep.shape[1:], np.float64)[None].repeat(B, 0)
+    count = np.zeros(rep.shape[-1])
+    for i, s in enumerate(ss):
+        h, covered = unwarp_history(rep[i * B:(i + 1) * B], float(s))
+        total += np.where(covered, h, 0.0)
+        count += covered
+    repaired = np.where(seen > 0, observed, total / count).astype(rep.dtype)   # observed entries as given
+    return {"mean": samples.mean(axis=0).astype(one.dtype), "samples": samples.astype(one.dtype),
+            "repaired": repaired}
