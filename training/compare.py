@@ -13,8 +13,8 @@ BUNDLED is better in the mirror case; otherwise the difference is within samplin
 bundled). Exit status 0 when NEW is better, 1 otherwise, so a script can gate on it.
 
 Results of the HumanEva-I protocol (``--protocol humaneva``) are paired over its windows instead: ``--key`` is
-one of ADE (default for them), FDE, MMADE, MMFDE (lower is better), of the ``model`` each run scored,
-``--horizon`` does not apply.
+one of ADE (default for them), FDE, MMADE, MMFDE, or mean_ADE / mean_FDE (the samples' mean, where both runs
+recorded it; lower is better), of the ``model`` each run scored, ``--horizon`` does not apply.
 
 Results of ``benches/repair_quality.py --json`` are paired over its windows too: ``--key PATTERN[:METHOD]``, the
 pattern (``random_leg_arm``, ``consecutive_frames``, ``random_joints``) and the method (``tcd``, the default, or
@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 
-HUMANEVA_KEYS = ("ADE", "FDE", "MMADE", "MMFDE")
+HUMANEVA_KEYS = ("ADE", "FDE", "MMADE", "MMFDE", "mean_ADE", "mean_FDE")   # mean_*: the samples' mean
 
 
 def is_humaneva(result: dict) -> bool:
