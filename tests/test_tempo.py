@@ -166,3 +166,15 @@ def test_command_line_tempo(tiny_model_dir, tmp_path, capsys):
     assert "--tempo" in capsys.readouterr().err and not (tmp_path / "b.npz").exists()
     assert main(["info", "--model", str(tiny_model_dir)]) == 0
     assert "default tempo sampling, forecast: none" in capsys.readouterr().out
+
+
+def test_tempo_through_the_wild_path(tiny_model_dir):
+    """Poses from the wild (``layout``, ``fps``: resampled to the model's rate and back) take the same tempi: the
+    samples come back in the caller's rate and shape, the observed frames as given."""
+    m = tcd.load(tiny_model_dir)
+    x = np.random.default_rng(0).normal(scale=0.3, size=(2, 60, 22, 3)).astype(np.float32)
+    kw = dict(num_samples=3, seed=1, num_inference_steps=2, layout="h36m22", fps=50)
+    a, b = m.forecast(x, tempo=(0.7, 1.4), **kw), m.forecast(x, **kw)
+    assert a.samples.shape == b.samples.shape and np.isfinite(a.samples).all()
+    assert not np.allclose(a.samples, b.samples)
+    np.testing.assert_allclose(a.repaired, x, atol=1e-6)
