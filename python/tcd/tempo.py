@@ -27,6 +27,7 @@ from typing import Callable, Dict, List, Optional, Sequence, Tuple
 import numpy as np
 
 from . import _checks
+from ._resample import _EPS, resample_backward, resample_forward
 
 Tempo = Optional[Tuple[float, float]]
 
@@ -54,41 +55,47 @@ def tempi(tempo: Tuple[float, float], n: int) -> np.ndarray:
     return np.ones(1) if n == 1 else np.geomspace(lo, hi, n)
 
 
-def _read(x: np.ndarray, at: np.ndarray) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Linear interpolation of ``x`` (..., T) at fractional frames ``at`` (clamped to [0, T - 1]): the values,
-    and the two frames and weights it read (i0, i1, w1) for the masks."""
-    t = np.clip(at, 0.0, x.shape[-1] - 1)
-    i0 = np.floor(t).astype(np.int64)
-    i1 = np.minimum(i0 + 1, x.shape[-1] - 1)
-    w1 = t - i0
-    return (1.0 - w1) * x[..., i0] + w1 * x[..., i1], i0, i1
+def _frames_last(x: np.ndarray) -> np.ndarray:
+    """(B, K, T) -> (T, B * K) with the frames reversed: the layout :mod:`tcd._resample` reads, its frame 0 the
+    last observed frame, which every tempo keeps in place."""
+    return x.reshape(-1, x.shape[-1]).T[::-1]
+
+
+def _batched(y: np.ndarray, shape: Tuple[int, ...]) -> np.ndarray:
+    """The inverse of :func:`_frames_last`: (T, B * K) reversed frames -> (B, K, T) of ``shape``."""
+    return np.ascontiguousarray(y[::-1].T).reshape(shape)
 
 
 def warp(observed: np.ndarray, seen: np.ndarray, s: float) -> Tuple[np.ndarray, np.ndarray]:
     """The observation (B, K, T) and its mask played at tempo ``s``, aligned at the last frame (step 1 of the
-    module docstring). Unobserved entries hold 0."""
+    module docstring; :func:`tcd._resample.resample_forward`'s rule, counted back from the last frame: warped
+    frame ``last - k`` reads original frame ``last - s k``). Unobserved entries hold 0."""
     T = observed.shape[-1]
-    at = (T - 1) + s * (np.arange(T) - (T - 1))
-    values, i0, i1 = _read(np.where(seen > 0, observed, 0.0), at)
-    w1 = np.clip(at, 0.0, T - 1) - i0
-    ok = (seen[..., i0] > 0) & ((w1 == 0.0) | (seen[..., i1] > 0)) & (at >= 0.0)
-    return np.where(ok, values, 0.0).astype(observed.dtype), ok.astype(seen.dtype)
+    x, m = resample_forward(_frames_last(observed), _frames_last(seen > 0), 1.0, 1.0 / s)
+    if len(x) < T:       # s > 1: the first warped frames lie before the observation's first frame: missing
+        x = np.concatenate([x, np.zeros((T - len(x), x.shape[1]))])
+        m = np.concatenate([m, np.zeros((T - len(m), m.shape[1]), bool)])
+    return (_batched(x[:T], observed.shape).astype(observed.dtype),
+            _batched(m[:T], observed.shape).astype(seen.dtype))
 
 
 def unwarp_future(last: np.ndarray, future: np.ndarray, s: float) -> np.ndarray:
     """A forecast (..., K, H) made on the clock of tempo ``s`` read back on the original clock, ``last``
-    (..., K, 1) the warped last observed frame (step 3 of the module docstring)."""
-    H = future.shape[-1]
+    (..., K, 1) the warped last observed frame (step 3 of the module docstring): original frame t is warped
+    frame t / s, and :func:`tcd._resample.resample_backward` holds the last frame beyond the forecast."""
     full = np.concatenate([last, future], axis=-1)                 # frame 0: the last observed one
-    return _read(full, np.arange(1, H + 1) / s)[0]
+    H = future.shape[-1]
+    y = resample_backward(full.reshape(-1, H + 1).T, H + 1, 1.0, 1.0 / s)
+    return np.ascontiguousarray(y[1:].T).reshape(future.shape)
 
 
 def unwarp_history(history: np.ndarray, s: float) -> Tuple[np.ndarray, np.ndarray]:
     """A repaired observation (..., K, T) on the clock of tempo ``s`` read back on the original clock, and
     where that is defined (the original frames the warped window covers: all of them for ``s >= 1``)."""
     T = history.shape[-1]
-    at = (T - 1) + (np.arange(T) - (T - 1)) / s
-    return _read(history, at)[0], np.broadcast_to(at >= 0.0, (T,))
+    y = resample_backward(_frames_last(history), T, 1.0, 1.0 / s)  # original frame last - k: warped last - k / s
+    covered = (np.arange(T) / s <= T - 1 + _EPS)[::-1]
+    return _batched(y, history.shape), covered
 
 
 def tempo_forecast(run_one: Callable[[np.ndarray, np.ndarray, List[int]], Dict[str, np.ndarray]],
