@@ -175,7 +175,7 @@ def test_evaluate_humaneva_through_the_engine(humaneva_model_dir, synthetic_file
     n = len(humaneva_test_windows(load_humaneva(synthetic_file, "Validate")))
     assert r["protocol"]["windows"] == r["protocol"]["windows_in_protocol"] == n > 0
     for block in ("model", "prior", "zero_velocity"):
-        metrics = {"APD", "ADE", "FDE", "MMADE", "MMFDE"}
+        metrics = {"APD", "ADE", "FDE", "MMADE", "MMFDE", "mean_ADE", "mean_FDE"}   # mean_*: the samples' mean's
         assert set(r[block]) == metrics | {"per_window"}          # each window's values: training.compare pairs them
         assert all(np.isfinite(r[block][k]) and r[block][k] >= 0 for k in metrics)
         assert set(r[block]["per_window"]) == metrics
@@ -183,6 +183,8 @@ def test_evaluate_humaneva_through_the_engine(humaneva_model_dir, synthetic_file
             assert len(r[block]["per_window"][k]) == n
             assert r[block]["per_window"][k] and np.isclose(np.mean(r[block]["per_window"][k]), r[block][k])
     assert r["model"]["APD"] > 0 and r["prior"]["APD"] == r["zero_velocity"]["APD"] == 0.0
+    for block in ("prior", "zero_velocity"):                       # one forecast: its mean is itself
+        assert np.isclose(r[block]["mean_ADE"], r[block]["ADE"]) and np.isclose(r[block]["mean_FDE"], r[block]["FDE"])
     assert r["stochastic"] == r["model"] and r["sampling"]["samples"] == 4
     assert r["published"]["TCD"] == {"ADE": 0.199, "FDE": 0.215} and r["published"]["HumanMAC"] is None
     # each action's windows (the synthetic file: Walking 130 frames -> 4 windows, Box 105 -> 2, Jog 80 -> 1)
