@@ -42,6 +42,7 @@ from ._files import write_named_atomic, write_npz_atomic
 from ._interpolation import interpolate
 from .model import TCD
 from .options import SamplerOptions
+from .tempo import describe as describe_tempo
 
 CLIP_PATH = Path(__file__).resolve().parent / "data" / "demo_walking.npz"
 #: the same walk for the HumanEva-I model (its 14 joints, 60 Hz, +z up)
@@ -232,7 +233,7 @@ def summary(res: Dict[str, Any], model: TCD) -> str:
         f"({'HumanEva-I layout' if model.data.get('dataset') == 'humaneva' else 'Human3.6M layout'}), "
         f"{len(res['observed'])} observed frames at {res['fps']:g} fps",
         f"forecast sampler {SamplerOptions(**s['sampling']['forecast']).describe(model.num_train_timesteps)}, "
-        + ("" if s["tempo"] is None else f"tempi {s['tempo'][0]:g} to {s['tempo'][1]:g} (tcd.tempo), ")
+        + ("" if s["tempo"] is None else f"{describe_tempo(s['tempo'])} (tcd.tempo), ")
         + f"{s['samples']} samples, seed {s['seed']}",
         "",
         "forecast error, mm (mean per-joint position error of the mean of the samples):",

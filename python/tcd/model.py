@@ -528,15 +528,17 @@ def load(path: Optional[PathLike] = None, *, threads: Optional[int] = None) -> T
     repair_model = Denoiser.from_bytes(blobs[rp], str(d / rp)) if rp in blobs else None
     pp = PRIOR_FILE
     prior = Prior.from_bytes(blobs[pp], str(d / pp)) if pp in blobs else None
+    sampling, forecast_tempo = _read_sampling(d / SAMPLING_FILE)
     return TCD(short, long, repair_model, path=d, threads=threads, file_sha256=digests, prior=prior,
-               sampling=_read_sampling(d / SAMPLING_FILE), forecast_tempo=_read_forecast_tempo(d / SAMPLING_FILE))
+               sampling=sampling, forecast_tempo=forecast_tempo)
 
 
-def _read_sampling(f: Path) -> Dict[str, SamplerOptions]:
-    """A model directory's ``sampling.json`` (:data:`SAMPLING_FILE`), checked: ``{}`` when there is none, a
-    :class:`WeightsError` naming the file and the key for anything that is not a task of sampler settings."""
+def _read_sampling(f: Path) -> Tuple[Dict[str, SamplerOptions], Tempo]:
+    """A model directory's ``sampling.json`` (:data:`SAMPLING_FILE`), read once and checked: its sampler settings by
+    task and its ``"forecast_tempo"`` (``{}`` and None when there is no file); a :class:`WeightsError` naming the
+    file and the key for anything else."""
     if not f.is_file():
-        return {}
+        return {}, None
     try:
         doc = json.loads(f.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
@@ -545,7 +547,7 @@ def _read_sampling(f: Path) -> Dict[str, SamplerOptions]:
         raise WeightsError(f"{f}: expected an object of tasks ({', '.join(SAMPLING_TASKS)}), got {doc!r}.", str(f))
     out: Dict[str, SamplerOptions] = {}
     for key, value in doc.items():
-        if key in ("why", TEMPO_KEY):  # the reason for the choice, for the reader; the tempo, read below
+        if key in ("why", TEMPO_KEY):  # the reason for the choice, for the reader; the tempo, checked below
             continue
         if key not in SAMPLING_TASKS:
             raise WeightsError(f"{f}: unknown key {key!r} (the tasks: {', '.join(SAMPLING_TASKS)}; and \"why\", "
@@ -557,18 +559,11 @@ def _read_sampling(f: Path) -> Dict[str, SamplerOptions]:
             out[key] = SamplerOptions.build(**value)       # the fields it leaves out: SamplerOptions' defaults
         except (TypeError, InvalidInputError) as e:
             raise WeightsError(f"{f}, {key!r}: {e}", str(f)) from None
-    return out
-
-
-def _read_forecast_tempo(f: Path) -> Tempo:
-    """``sampling.json``'s ``"forecast_tempo"`` (``[lo, hi]``, :mod:`tcd.tempo`), checked; None when absent."""
-    if not f.is_file():
-        return None
-    value = json.loads(f.read_text()).get(TEMPO_KEY)   # readable: _read_sampling read it first
     try:
-        return check_tempo(value, TEMPO_KEY)
+        tempo = check_tempo(doc.get(TEMPO_KEY), TEMPO_KEY)
     except InvalidInputError as e:
         raise WeightsError(f"{f}: {e}", str(f)) from None
+    return out, tempo
 
 
 def _uses_prior(model: Denoiser) -> bool:

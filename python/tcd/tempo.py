@@ -49,6 +49,11 @@ def check_tempo(tempo: object, name: str = "tempo") -> Tempo:
     return (lo, hi)
 
 
+def describe(tempo: Tempo) -> str:
+    """One line for people: ``"none"`` or ``"tempi 0.6 to 1.6"`` (``tcd info``, ``tcd demo``)."""
+    return "none" if tempo is None else f"tempi {tempo[0]:g} to {tempo[1]:g}"
+
+
 def tempi(tempo: Tuple[float, float], n: int) -> np.ndarray:
     """The n samples' tempi: geometrically spaced from ``lo`` to ``hi`` (both included); ``[1.0]`` for n = 1."""
     lo, hi = tempo
@@ -112,16 +117,14 @@ def tempo_forecast(run_one: Callable[[np.ndarray, np.ndarray, List[int]], Dict[s
     warped = [warp(observed, seen, float(s)) for s in ss]
     out = run_one(np.concatenate([w[0] for w in warped]), np.concatenate([w[1] for w in warped]),
                   [b * n + i for i in range(n) for b in range(B)])
-    one = np.asarray(out["samples"])[0]                             # (n * B, K, H)
-    rep = np.asarray(out["repaired"])                               # (n * B, K, T)
-    samples = np.stack([unwarp_future(rep[i * B:(i + 1) * B, :, -1:], one[i * B:(i + 1) * B], float(s))
-                        for i, s in enumerate(ss)])
-    total = np.zeros(rep.shape[1:], np.float64)[None].repeat(B, 0)
-    count = np.zeros(rep.shape[-1])
-    for i, s in enumerate(ss):
-        h, covered = unwarp_history(rep[i * B:(i + 1) * B], float(s))
-        total += np.where(covered, h, 0.0)
-        count += covered
+    one = np.asarray(out["samples"])[0]
+    one = one.reshape(n, B, *one.shape[1:])                         # (n, B, K, H): sample i's sequences
+    rep = np.asarray(out["repaired"])
+    rep = rep.reshape(n, B, *rep.shape[1:])                         # (n, B, K, T)
+    samples = np.stack([unwarp_future(r[..., -1:], f, float(s)) for r, f, s in zip(rep, one, ss)])
+    histories = [unwarp_history(r, float(s)) for r, s in zip(rep, ss)]
+    total = sum(np.where(covered, h, 0.0) for h, covered in histories)
+    count = sum(covered.astype(np.float64) for _, covered in histories)
     repaired = np.where(seen > 0, observed, total / count).astype(rep.dtype)   # observed entries as given
     return {"mean": samples.mean(axis=0).astype(one.dtype), "samples": samples.astype(one.dtype),
             "repaired": repaired}

@@ -7,6 +7,7 @@ import json
 from typing import Any, List
 
 from ..engine import supported_kernels
+from ..tempo import describe as describe_tempo
 from .common import EXIT_OK, add_model_flag, load_model
 
 
@@ -50,8 +51,7 @@ def run(args: argparse.Namespace) -> int:
                         else f", target {mc['target']} (scale {mc.get('target_scale', 1.0):g})"))
     for task, o in m.sampling.items():
         lines.append(f"default sampler, {task}: {o.describe(m.num_train_timesteps)}")
-    t = m.forecast_tempo
-    lines.append("default tempo sampling, forecast: " + ("none" if t is None else f"tempi {t[0]:g} to {t[1]:g}"))
+    lines.append(f"default tempo sampling, forecast: {describe_tempo(m.forecast_tempo)}")
     lines.append(f"kernels: {m.short.kernel} (this CPU supports: {', '.join(supported_kernels())})")
     print("\n".join(lines))
     return EXIT_OK
