@@ -1,4 +1,4 @@
-"""training.augment: heading and mirror augmentation of training windows."""
+"""training.augment: heading, mirror, playback-speed and swapped-future augmentation of training windows."""
 from __future__ import annotations
 
 import numpy as np
@@ -7,8 +7,8 @@ import pytest
 from conftest import import_torch
 
 import_torch("training.augment is imported through the training package")
-from training.augment import (check_axis, mirror, mirror_permutation, resample, rotate_about,  # noqa: E402
-                              sequence_ends)
+from training.augment import (arrival_keys, check_axis, future_neighbours, mirror, mirror_permutation,  # noqa: E402
+                              resample, rotate_about, sequence_ends, swap_futures)
 
 
 def test_rotation_about_the_vertical_keeps_heights_and_shapes():
@@ -122,3 +122,83 @@ def test_training_batches_turn_the_windows_and_keep_every_other_draw():
     torch.testing.assert_close(xa[:, :, :2].norm(dim=2), xb[:, :, :2].norm(dim=2))
     with pytest.raises(ValueError, match="rotate_axis"):
         TrainConfig(rotate_axis="vertical")
+
+
+def test_arrival_keys_are_the_last_observed_pose_and_its_velocity():
+    wins = np.arange(2 * 6 * 2 * 3, dtype=np.float64).reshape(2, 6, 2, 3)
+    keys = arrival_keys(wins, 4, velocity_weight=5.0)
+    np.testing.assert_array_equal(keys[:, :6], wins[:, 3].reshape(2, 6))
+    np.testing.assert_array_equal(keys[:, 6:], 5.0 * (wins[:, 3] - wins[:, 1]).reshape(2, 6))
+
+
+def test_future_neighbours_are_the_nearest_outside_the_windows_own_stretch():
+    # one key coordinate: window i's key is keys[i]; windows 0-3 of sequence 0 (starts 0-3), 4-6 of sequence 1
+    keys = np.array([[0.0], [0.1], [0.2], [5.0], [0.05], [3.0], [0.3]])
+    seq = np.array([0, 0, 0, 0, 1, 1, 1])
+    start = np.array([0, 1, 2, 40, 0, 1, 2])
+    nn = future_neighbours(keys, seq, start, k=2, exclude_frames=30)
+    # window 0: its own sequence's windows 1 and 2 start within 30 frames: out; the nearest others are 4 (0.05) and 6
+    np.testing.assert_array_equal(nn[0], [4, 6])
+    np.testing.assert_array_equal(nn[3], [5, 6])          # window 3 starts 40 frames on: sequence 0's others are in
+    np.testing.assert_array_equal(future_neighbours(keys, seq, start, k=2, exclude_frames=1)[0], [4, 1])
+    for i, row in enumerate(nn):                          # never itself, never its own stretch
+        assert i not in row and not any(seq[j] == seq[i] and abs(start[j] - start[i]) < 30 for j in row)
+    with pytest.raises(ValueError, match="fewer than 5"):      # window 0 has 4 windows outside its stretch
+        future_neighbours(keys, seq, start, k=5, exclude_frames=30)
+    with pytest.raises(ValueError, match="k must be"):
+        future_neighbours(keys, seq, start, k=0, exclude_frames=30)
+
+
+def test_swapped_futures_join_the_window_and_take_the_donors_motion():
+    rng = np.random.default_rng(0)
+    wins, donors = rng.normal(size=(2, 3, 10, 4, 3)).astype(np.float32)
+    out = swap_futures(wins, donors, obs_len=4)
+    np.testing.assert_array_equal(out[:, :4], wins[:, :4])                     # the past is the window's own
+    np.testing.assert_array_equal(out[:, -1], donors[:, -1])                   # the offset is gone at the end
+    # the first future frame: the donor's, moved by 5/6 of the offset between the two last observed poses
+    np.testing.assert_allclose(out[:, 4], donors[:, 4] + 5 / 6 * (wins[:, 3] - donors[:, 3]), atol=1e-6)
+    # the donor's frame-to-frame motion, less a constant share of the offset per frame
+    step = (wins[:, 3] - donors[:, 3]) / 6
+    np.testing.assert_allclose(np.diff(out[:, 4:], axis=1), np.diff(donors[:, 4:], axis=1) - step[:, None],
+                               atol=1e-5)
+    assert out.dtype == np.float32
+
+
+def test_training_batches_swap_a_share_of_the_futures_and_keep_every_other_draw():
+    """future_swap replaces the future of about that share of the windows by a near window's, joined to its past;
+    the rest of the batch (masks, steps, noise) and the pasts are those of the run without it, and the batch is a
+    pure function of (seed, epoch, batch index)."""
+    import torch
+    from training.batches import BatchSource, Windows
+    from training.train import TrainConfig
+    rng = np.random.default_rng(0)
+    seqs = [np.cumsum(rng.normal(scale=0.01, size=(120, 22, 3)), axis=0).astype(np.float32) for _ in range(3)]
+    wins = Windows(seqs, 12, 1)
+    plain = TrainConfig(role="long", obs_len=8, pred_len=4, batch_size=64,
+                        mask_mix=[["none", 1.0], ["random_joints", 1.0]])
+    swapped = TrainConfig(**{**plain.__dict__, "future_swap": 0.5, "future_swap_k": 3})
+    a = BatchSource(plain, wins, 50, 10).batch(2, 3)
+    source = BatchSource(swapped, wins, 50, 10)
+    b = source.batch(2, 3)
+    for i in (1, 2, 3, 4):                                # observation, mask, t, eps
+        assert torch.equal(a[i], b[i])
+    assert torch.equal(a[0][..., :8], b[0][..., :8])
+    changed = (a[0][..., 8:] != b[0][..., 8:]).flatten(1).any(1)
+    assert 16 < int(changed.sum()) < 48                   # about half of 64
+    assert all(torch.equal(x, y) for x, y in zip(b, BatchSource(swapped, wins, 50, 10).batch(2, 3)))
+    # each swapped future is one of the window's neighbours' futures, joined (swap_futures)
+    k = int(np.flatnonzero(changed.numpy())[0])
+    window = a[0][k].T.reshape(12, 22, 3).numpy()
+    candidates = [swap_futures(window[None], wins.gather(np.array([j])), 8)[0] for j in source.neighbours[
+        _row_of(wins, window)]]
+    assert any(np.allclose(c, b[0][k].T.reshape(12, 22, 3).numpy(), atol=1e-6) for c in candidates)
+    with pytest.raises(ValueError, match="future_swap"):
+        TrainConfig(future_swap=1.5)
+    with pytest.raises(ValueError, match="future_swap_k"):
+        TrainConfig(future_swap=0.5, future_swap_k=0)
+
+
+def _row_of(wins, window: np.ndarray) -> int:
+    """The index of the window (L, J, 3) among ``wins``' windows."""
+    all_w = wins.gather(np.arange(len(wins)))
+    return int(np.flatnonzero(np.all(all_w == window, axis=(1, 2, 3)))[0])

@@ -5,6 +5,8 @@ it would have drawn.
 :class:`BatchSource`: windows gathered with numpy (turned about the vertical when the config's ``rotate_axis``
 says so, ``training.augment``), occlusion masks drawn per window by ``training.masks`` (the reference
 patterns), t and eps by a CPU ``torch.Generator``; optionally in DataLoader worker processes (the same bits).
+With the config's ``future_swap`` a share of the windows take another training window's future
+(``training.augment.swap_futures``) before they are turned.
 """
 from __future__ import annotations
 
@@ -13,7 +15,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
-from .augment import rotate_about
+from .augment import arrival_keys, future_neighbours, rotate_about, swap_futures
 from .masks import corrupt, mix_entry
 
 if TYPE_CHECKING:
@@ -32,8 +34,15 @@ class Windows:
     def __len__(self) -> int:
         return len(self.index)
 
-    def gather(self, rows: np.ndarray) -> np.ndarray:
-        return np.stack([self.seqs[i][s:s + self.length] for i, s in self.index[rows]]).astype(np.float32)
+    def gather(self, rows: np.ndarray, frames: slice = slice(None)) -> np.ndarray:
+        """(len(rows), length, J, 3) windows, or only their ``frames`` (a slice of the window's frames)."""
+        return np.stack([self.seqs[i][s:s + self.length][frames] for i, s in self.index[rows]]).astype(np.float32)
+
+    def future_neighbours(self, obs_len: int, k: int, exclude_frames: int) -> np.ndarray:
+        """(N, k): each window's ``k`` nearest windows by :func:`training.augment.arrival_keys` at ``obs_len``,
+        none of its own sequence within ``exclude_frames`` frames of it (:func:`training.augment.future_neighbours`)."""
+        ends = self.gather(np.arange(len(self)), slice(obs_len - 3, obs_len))
+        return future_neighbours(arrival_keys(ends, 3), self.index[:, 0], self.index[:, 1], k, exclude_frames)
 
 
 def make_batch(cfg: "TrainConfig", wins: np.ndarray, rng: np.random.Generator):
@@ -55,15 +64,22 @@ def make_batch(cfg: "TrainConfig", wins: np.ndarray, rng: np.random.Generator):
     return bkl(wins), bkl(observed), bkl(np.repeat(jmask[..., None], 3, axis=-1))
 
 
+#: ``future_swap``: a window's donors are never windows of its own sequence starting within this many frames of it
+#: (those are its own future shifted by a few frames)
+SWAP_EXCLUDE_FRAMES = 30
+
+
 class BatchSource:
     """The training batches of an epoch, each a pure function of (seed, epoch, batch index): the window
-    rows (a seeded permutation per epoch), the occlusion masks, the diffusion steps t and the noise eps.
-    So the batches are the same whether drawn here or in DataLoader worker processes, and a resumed run
-    continues with exactly the batches it would have drawn."""
+    rows (a seeded permutation per epoch), the swapped futures, the occlusion masks, the diffusion steps t and
+    the noise eps. So the batches are the same whether drawn here or in DataLoader worker processes, and a
+    resumed run continues with exactly the batches it would have drawn."""
 
     def __init__(self, cfg: "TrainConfig", windows: Windows, T: int, steps_per_epoch: int):
         self.cfg, self.windows, self.T, self.steps_per_epoch = cfg, windows, T, steps_per_epoch
         self._perm_epoch, self._perm = None, None
+        self.neighbours = (windows.future_neighbours(cfg.obs_len, cfg.future_swap_k, SWAP_EXCLUDE_FRAMES)
+                           if cfg.future_swap > 0 else None)
 
     def batch(self, epoch: int, batch_i: int):
         cfg = self.cfg
@@ -72,6 +88,12 @@ class BatchSource:
             self._perm_epoch = epoch
         rows = self._perm[(np.arange(cfg.batch_size) + batch_i * cfg.batch_size) % len(self._perm)]
         wins = self.windows.gather(rows)
+        if self.neighbours is not None:     # its own stream, like the rotation's
+            rng = np.random.default_rng([cfg.seed, epoch, batch_i, 2])
+            swap = rng.random(len(rows)) < cfg.future_swap
+            donor = self.neighbours[rows, rng.integers(0, cfg.future_swap_k, len(rows))]
+            if swap.any():
+                wins[swap] = swap_futures(wins[swap], self.windows.gather(donor[swap]), cfg.obs_len)
         if cfg.rotate_axis:     # its own stream: the masks, t and eps stay those of the same run without it
             wins = rotate_about(wins, cfg.rotate_axis, np.random.default_rng([cfg.seed, epoch, batch_i, 1]))
         x0, obs, mask = make_batch(cfg, wins, np.random.default_rng([cfg.seed, epoch, batch_i]))

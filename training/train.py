@@ -57,7 +57,8 @@ def without_removed_keys(d: dict, where) -> dict:
 
 # Keys added to TrainConfig after checkpoints were committed, at the value that does what the code did before
 # them: a checkpoint whose stored train_config lacks one was trained that way.
-ADDED_KEYS = {"rotate_axis": "", "reset_output_head": False, "h36m_share": 0.0}
+ADDED_KEYS = {"rotate_axis": "", "reset_output_head": False, "h36m_share": 0.0, "future_swap": 0.0,
+              "future_swap_k": 25}
 
 
 def stored_config(d: dict, where) -> dict:
@@ -100,6 +101,9 @@ class TrainConfig:
                                      # (training.augment; validation windows are not)
     h36m_share: float = 0.0          # HumanEva-I: the fraction of training windows from Human3.6M retargeted to
                                      # its skeleton (training.data.humaneva.training_mix; validation stays HumanEva-I)
+    future_swap: float = 0.0         # the share of training windows whose future is another training window's, one
+                                     # that arrives at the same pose and velocity (training.augment.swap_futures)
+    future_swap_k: int = 25          # ... drawn from each window's future_swap_k nearest such windows
     reset_output_head: bool = False  # with init_from: the last 1x1 conv's weight and bias restart at zero; for a
                                      # warm start whose prediction_type changes (epsilon -> sample), so the run
                                      # starts at "no residual over the fill" instead of from noise estimates
@@ -123,6 +127,13 @@ class TrainConfig:
         if self.warmup_steps < 0:
             raise ValueError(f"train config: warmup_steps must be >= 0, got {self.warmup_steps!r}")
         check_axis(self.rotate_axis, "train config")
+        if not 0.0 <= self.future_swap <= 1.0:
+            raise ValueError(f"train config: future_swap must be a share in [0, 1], got {self.future_swap!r}")
+        if self.future_swap_k < 1:
+            raise ValueError(f"train config: future_swap_k must be >= 1, got {self.future_swap_k!r}")
+        if self.future_swap > 0 and self.obs_len < 3:
+            raise ValueError("train config: future_swap matches windows on their last 3 observed frames; "
+                             f"obs_len is {self.obs_len}")
         if self.reset_output_head and not self.init_from:
             raise ValueError("train config: reset_output_head resets a warm start's last layer; it needs init_from")
 
