@@ -174,7 +174,7 @@ def test_evaluate_humaneva_through_the_engine(humaneva_model_dir, synthetic_file
     r = json.loads(out.read_text())
     n = len(humaneva_test_windows(load_humaneva(synthetic_file, "Validate")))
     assert r["protocol"]["windows"] == r["protocol"]["windows_in_protocol"] == n > 0
-    for block in ("model", "prior", "zero_velocity"):
+    for block in ("model", "prior", "zero_velocity", "neighbours"):
         metrics = {"APD", "ADE", "FDE", "MMADE", "MMFDE", "mean_ADE", "mean_FDE"}   # mean_*: the samples' mean's
         assert set(r[block]) == metrics | {"per_window"}          # each window's values: training.compare pairs them
         assert all(np.isfinite(r[block][k]) and r[block][k] >= 0 for k in metrics)
@@ -201,6 +201,31 @@ def test_evaluate_humaneva_through_the_engine(humaneva_model_dir, synthetic_file
     r2 = json.loads(out.read_text())
     assert r2["protocol"]["windows"] == 2 and r2["method"].startswith("prior")
     assert {a: d["windows"] for a, d in r2["per_action"].items()} == {"Walking": 1, "Jog": 1}
+
+
+def test_the_nearest_training_futures_baseline(synthetic_file, tmp_path):
+    """--baseline neighbours: the futures of the training windows that arrive nearest, joined to the observation.
+    An observation that is a training window's own past finds that window first, and its own future unchanged."""
+    train = [q for q in training_sequences(synthetic_file).values()]
+    windows = np.stack([train[0][5:80], train[2][3:78]]).astype(np.float64)          # (2, 75, 14, 3)
+    f = evaluate.humaneva_neighbour_forecast(windows[:, :15], 3, synthetic_file)
+    assert f.shape == (3, 2, 60, 14, 3)
+    np.testing.assert_allclose(f[0], windows[:, 15:], atol=1e-6)
+    assert not np.allclose(f[1], windows[:, 15:])                                    # the next nearest: another
+    # every sample starts from the observation: the join's offset is the largest at the first future frame
+    step = np.linalg.norm(f[:, :, 0] - windows[None, :, 14], axis=-1).max()
+    assert step < 0.2
+    out = tmp_path / "nb.json"
+    assert evaluate.main(["--protocol", "humaneva", "--baseline", "neighbours", "--samples", "3", "--data",
+                          str(synthetic_file), "--json", str(out), "--quiet"]) == 0
+    r = json.loads(out.read_text())
+    assert r["method"] == "nearest training futures" and r["stochastic"] == r["neighbours"]
+    assert r["neighbours"]["APD"] > 0
+    with pytest.raises(SystemExit, match="find itself"):
+        evaluate.main(["--protocol", "humaneva", "--baseline", "neighbours", "--split", "Train", "--samples", "3",
+                       "--data", str(synthetic_file), "--quiet"])
+    with pytest.raises(SystemExit):
+        evaluate.main(["--baseline", "neighbours"])                                  # Human3.6M: not a baseline there
 
 
 # ------------------------------------------------------------- Human3.6M in a HumanEva-I model's training

@@ -20,8 +20,10 @@ computed and stored; ``--select`` picks the one printed first and stored under "
 HumanEva-I (stochastic, the DLow / GSPS protocol of ``training.data.humaneva``): the 188 windows of the
 Validate split, 15 observed frames -> 60 predicted at 60 Hz, ``--samples`` (50: the protocol) samples per
 window scored by ADE, FDE, MMADE, MMFDE and APD (``training.stochastic``: metres, the L2 norm of the flattened
-42-dim pose), beside Zero-Velocity, the model directory's prior (its deterministic point forecast, one sample)
-and the published numbers (``training.metrics.PUBLISHED_HUMANEVA``). ``--max-windows N`` scores N of the
+42-dim pose), beside Zero-Velocity, the nearest training futures (``--samples`` futures of the Train split's
+windows that arrive at the observation's last pose and velocity, joined to it: a baseline that learns nothing,
+``--baseline neighbours``), the model directory's prior (its deterministic point forecast, one sample) and the
+published numbers (``training.metrics.PUBLISHED_HUMANEVA``). ``--max-windows N`` scores N of the
 windows (evenly spaced; their multimodal futures still come from all 188): a quick look, not the protocol.
     python -m training.evaluate --prior python/tcd/weights --mask consecutive_frames   # the point forecast
 """
@@ -311,6 +313,24 @@ def humaneva_prior_forecast(path: str | Path, obs: np.ndarray) -> np.ndarray:
     return np.asarray(out, np.float64).reshape(W, HE_PRED, J, 3)
 
 
+def humaneva_neighbour_forecast(obs: np.ndarray, n: int, data=None) -> np.ndarray:
+    """A baseline that learns nothing: for each observation (W, 15, 14, 3), the futures of the ``n`` windows of the
+    Train split (every window of 75 frames) that arrive nearest to its last pose and velocity
+    (``training.augment.arrival_keys``), each joined to the observation's last pose (``training.augment.swap_futures``,
+    the augmentation ``future_swap`` trains with): (n, W, 60, 14, 3). The futures similar pasts had, which is what
+    the samples of a stochastic forecaster should cover."""
+    from .augment import arrival_keys, swap_futures
+    from .data.humaneva import training_sequences
+    seqs = list(training_sequences(data).values())
+    train = np.stack([q[s:s + HE_OBS + HE_PRED] for q in seqs for s in range(len(q) - HE_OBS - HE_PRED + 1)])
+    k_train, k_obs = arrival_keys(train, HE_OBS), arrival_keys(obs, HE_OBS)
+    d = (k_obs ** 2).sum(1)[:, None] + (k_train ** 2).sum(1)[None] - 2.0 * k_obs @ k_train.T
+    nearest = np.argsort(d, axis=1, kind="stable")[:, :n]                            # (W, n)
+    past = np.concatenate([obs, np.zeros((len(obs), HE_PRED) + obs.shape[2:])], axis=1)
+    out = [swap_futures(past, train[nearest[:, i]].astype(np.float64), HE_OBS)[:, HE_OBS:] for i in range(n)]
+    return np.stack(out)
+
+
 def humaneva_protocol(windows: int, windows_in_protocol: int, split: str = "Validate") -> dict:
     """The ``protocol`` block of a HumanEva-I result: ``training.compare`` pairs two results only where it is equal."""
     return {"dataset": "humaneva-i", "split": split, "t_his": HE_OBS, "t_pred": HE_PRED, "fps": 60,
@@ -382,6 +402,8 @@ def evaluate_humaneva(args) -> dict:
                                 else None)
     if prior_path:
         results["prior"] = score(humaneva_prior_forecast(prior_path, obs)[None])
+    if cases.split == "Validate":   # on the Train split each window would find itself
+        results["neighbours"] = score(humaneva_neighbour_forecast(obs, args.samples, args.data))
     t0 = time.time()
     if args.model:
         results["model"] = score(humaneva_model_samples(args, obs, log=say))
@@ -395,6 +417,10 @@ def evaluate_humaneva(args) -> dict:
                              "tempo": tempo_run(args)})
     elif args.prior:
         out.update(method=f"prior {args.prior}", stochastic=results["prior"])
+    elif args.baseline == "neighbours":
+        if "neighbours" not in results:
+            raise SystemExit("--baseline neighbours: on the Train split each window would find itself")
+        out.update(method="nearest training futures", stochastic=results["neighbours"])
     else:
         out.update(method="zero-velocity", stochastic=results["zero_velocity"])
     if prior_path:
@@ -421,6 +447,8 @@ def print_humaneva_table(out: dict) -> None:
     if "prior" in out:
         row("prior (deterministic point forecast)", out["prior"])
     row("Zero-Velocity", out["zero_velocity"])
+    if "neighbours" in out:
+        row("nearest training futures, joined", out["neighbours"])
     print("published (50 samples; - : not given by the spec)")
     for name, d in out["published"].items():
         row(f"  {name}", d)
@@ -461,7 +489,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="python -m training.evaluate", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     who = ap.add_mutually_exclusive_group(required=True)
-    who.add_argument("--baseline", choices=["zero-velocity"])
+    who.add_argument("--baseline", choices=["zero-velocity", "neighbours"],
+                     help="neighbours (--protocol humaneva): the nearest training windows' futures")
     who.add_argument("--model", help="model directory (short.safetensors + long.safetensors)")
     who.add_argument("--prior", help="the deterministic prior: a model directory with prior.safetensors (the public "
                                      "API, tcd.load(DIR).predict; --protocol humaneva: tcd.engine.Prior, so the "
@@ -514,6 +543,8 @@ def main(argv=None) -> int:
         ap.error("--samples must be >= 1")
     if args.max_windows is not None and args.max_windows < 1:
         ap.error("--max-windows must be >= 1")
+    if args.baseline == "neighbours" and args.protocol != "humaneva":
+        ap.error("--baseline neighbours is a HumanEva-I baseline (--protocol humaneva)")
     if args.tempo is not None and (args.engine != "tcd" or not args.model):
         ap.error("--tempo needs --model with --engine tcd (tcd.TCD.forecast samples the tempi)")
     if args.threads:
