@@ -224,6 +224,8 @@ def test_the_nearest_training_futures_baseline(synthetic_file, tmp_path):
     with pytest.raises(SystemExit, match="find itself"):
         evaluate.main(["--protocol", "humaneva", "--baseline", "neighbours", "--split", "Train", "--samples", "3",
                        "--data", str(synthetic_file), "--quiet"])
+    with pytest.raises(SystemExit, match="--samples must be in 1..108"):           # more than there are: an error
+        evaluate.humaneva_neighbour_forecast(windows[:, :15], 109, synthetic_file)
     with pytest.raises(SystemExit):
         evaluate.main(["--baseline", "neighbours"])                                  # Human3.6M: not a baseline there
 

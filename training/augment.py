@@ -109,6 +109,12 @@ def arrival_keys(wins: np.ndarray, obs_len: int, velocity_weight: float = 5.0) -
     return np.concatenate([last, velocity_weight * (last - flat[:, obs_len - 3])], axis=1)
 
 
+def squared_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(len(a), len(b)) squared Euclidean distances between the rows of two key arrays (for ranking neighbours)."""
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    return (a ** 2).sum(1)[:, None] + (b ** 2).sum(1)[None] - 2.0 * a @ b.T
+
+
 def future_neighbours(keys: np.ndarray, seq_ids: np.ndarray, starts: np.ndarray, k: int,
                       exclude_frames: int) -> np.ndarray:
     """(N, k) indices: for each window, the ``k`` windows with the nearest :func:`arrival_keys` (Euclidean), leaving
@@ -120,11 +126,10 @@ def future_neighbours(keys: np.ndarray, seq_ids: np.ndarray, starts: np.ndarray,
     seq_ids, starts = np.asarray(seq_ids), np.asarray(starts, np.int64)
     if not 1 <= k < n:
         raise ValueError(f"future_neighbours: k must be in [1, {n - 1}] for {n} windows, got {k}")
-    sq = (keys ** 2).sum(1)
     out = np.empty((n, k), dtype=np.int64)
     for a in range(0, n, 512):
         b = min(a + 512, n)
-        d = sq[a:b, None] + sq[None] - 2.0 * keys[a:b] @ keys.T
+        d = squared_distances(keys[a:b], keys)
         near_self = (seq_ids[a:b, None] == seq_ids[None]) & (np.abs(starts[a:b, None] - starts[None]) < exclude_frames)
         d[near_self] = np.inf
         part = np.argpartition(d, k - 1, axis=1)[:, :k]

@@ -319,12 +319,14 @@ def humaneva_neighbour_forecast(obs: np.ndarray, n: int, data=None) -> np.ndarra
     (``training.augment.arrival_keys``), each joined to the observation's last pose (``training.augment.swap_futures``,
     the augmentation ``future_swap`` trains with): (n, W, 60, 14, 3). The futures similar pasts had, which is what
     the samples of a stochastic forecaster should cover."""
-    from .augment import arrival_keys, swap_futures
+    from .augment import arrival_keys, squared_distances, swap_futures
     from .data.humaneva import training_sequences
     seqs = list(training_sequences(data).values())
     train = np.stack([q[s:s + HE_OBS + HE_PRED] for q in seqs for s in range(len(q) - HE_OBS - HE_PRED + 1)])
-    k_train, k_obs = arrival_keys(train, HE_OBS), arrival_keys(obs, HE_OBS)
-    d = (k_obs ** 2).sum(1)[:, None] + (k_train ** 2).sum(1)[None] - 2.0 * k_obs @ k_train.T
+    if not 1 <= n <= len(train):
+        raise SystemExit(f"the nearest training futures: --samples must be in 1..{len(train)} (the training "
+                         f"windows), got {n}")
+    d = squared_distances(arrival_keys(obs, HE_OBS), arrival_keys(train, HE_OBS))
     nearest = np.argsort(d, axis=1, kind="stable")[:, :n]                            # (W, n)
     past = np.concatenate([obs, np.zeros((len(obs), HE_PRED) + obs.shape[2:])], axis=1)
     out = [swap_futures(past, train[nearest[:, i]].astype(np.float64), HE_OBS)[:, HE_OBS:] for i in range(n)]
