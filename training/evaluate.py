@@ -320,9 +320,10 @@ def humaneva_neighbour_forecast(obs: np.ndarray, n: int, data=None) -> np.ndarra
     the augmentation ``future_swap`` trains with): (n, W, 60, 14, 3). The futures similar pasts had, which is what
     the samples of a stochastic forecaster should cover."""
     from .augment import arrival_keys, squared_distances, swap_futures
+    from .batches import Windows
     from .data.humaneva import training_sequences
-    seqs = list(training_sequences(data).values())
-    train = np.stack([q[s:s + HE_OBS + HE_PRED] for q in seqs for s in range(len(q) - HE_OBS - HE_PRED + 1)])
+    windows = Windows(list(training_sequences(data).values()), HE_OBS + HE_PRED, 1)
+    train = windows.gather(np.arange(len(windows)))
     if not 1 <= n <= len(train):
         raise SystemExit(f"the nearest training futures: --samples must be in 1..{len(train)} (the training "
                          f"windows), got {n}")
