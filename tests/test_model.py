@@ -9,7 +9,8 @@ torch = import_torch("the PyTorch reference model (training/model.py)")
 
 from torch import nn  # noqa: E402
 
-from training.model import ModelConfig, TCDModel, count_parameters, frame_embedding, step_embedding_table  # noqa: E402
+from training.model import (ModelConfig, TCDModel, count_parameters, frame_embedding, load_grown,  # noqa: E402
+                            randomize_output_layer, step_embedding_table)
 
 
 def expected_keys(n_layers):
@@ -206,3 +207,37 @@ def test_linear_residual_target_round_trips_and_is_validated():
     for bad in ({"target": "residual"}, {"target_scale": 0.0}, {"target_scale": float("nan")}):
         with pytest.raises(ValueError, match="target"):
             ModelConfig.from_dict(bad)
+
+
+def test_a_grown_model_starts_as_the_function_of_the_smaller_one():
+    """training.model.load_grown: 2 layers -> 4, the new ones last; the same outputs to float rounding, the new
+    layers' output projections zero but trainable (their gradient is not zero), and every other mismatch refused."""
+    small_cfg = ModelConfig(num_joints=4, channels=16, num_layers=2, num_heads=2, ffn_dim=16)
+    torch.manual_seed(0)
+    small = TCDModel(small_cfg).eval()
+    randomize_output_layer(small, seed=1, std=0.5)
+    big = TCDModel(ModelConfig.from_dict({**small_cfg.to_dict(), "num_layers": 4})).eval()
+    assert load_grown(big, small.state_dict()) == 2
+    g = torch.Generator().manual_seed(2)
+    noisy, observed = torch.randn(3, 12, 9, generator=g), torch.randn(3, 12, 9, generator=g)
+    mask = (torch.rand(3, 12, 9, generator=g) < 0.5).float()
+    step = torch.tensor([3, 17, 40])
+    want = small(noisy, observed, mask, step)
+    assert want.abs().mean() > 1e-2                       # a non-trivial function
+    torch.testing.assert_close(big(noisy, observed, mask, step), want, rtol=1e-5, atol=1e-6)
+    assert all(torch.all(layer.output_projection.weight == 0) for layer in big.diffmodel.residual_layers[2:])
+    big(noisy, observed, mask, step).square().sum().backward()
+    assert big.diffmodel.residual_layers[3].output_projection.weight.grad.abs().sum() > 0
+    # the same depth loads unchanged (no rescaling)
+    same = TCDModel(small_cfg)
+    assert load_grown(same, small.state_dict()) == 0
+    torch.testing.assert_close(same.eval()(noisy, observed, mask, step), want)
+    with pytest.raises(ValueError, match="grow, not shrink"):
+        load_grown(TCDModel(ModelConfig.from_dict({**small_cfg.to_dict(), "num_layers": 1})), small.state_dict())
+    with pytest.raises(ValueError, match="does not fit"):
+        wider = ModelConfig.from_dict({**small_cfg.to_dict(), "channels": 32, "ffn_dim": 32})
+        load_grown(TCDModel(wider), small.state_dict())
+    state = dict(small.state_dict())
+    state.pop("embed_layer.weight")
+    with pytest.raises(ValueError, match="missing.*embed_layer"):
+        load_grown(TCDModel(small_cfg), state)

@@ -388,6 +388,37 @@ def from_target(cfg: ModelConfig, x: torch.Tensor, observed: torch.Tensor, mask:
     return residual_base(cfg, observed, mask, prior) + x * (1.0 / cfg.target_scale)
 
 
+def load_grown(model: TCDModel, state: dict) -> int:
+    """Load ``state`` (a TCD model's weights) into ``model``, which may have more residual layers than it: the
+    extra layers come last, each with its output projection zero (no residual, no skip), and the first output
+    conv is scaled by sqrt(new / old layers) to undo the wider skip normalisation (``DiffCSDI.forward`` divides
+    the skip sum by sqrt(layers)), so the deeper network starts as exactly the function ``state`` computes and
+    training adds depth from there (as ``training.prior.load_grown`` does for the prior). Anything else that
+    differs is an error. Returns the number of layers added."""
+    prefix = "diffmodel.residual_layers."
+    have = 1 + max((int(k[len(prefix):].split(".")[0]) for k in state if k.startswith(prefix)), default=-1)
+    layers = model.diffmodel.residual_layers
+    added = len(layers) - have
+    if added < 0:
+        raise ValueError(f"init_from has {have} residual layers, the config {len(layers)}: a model can grow, "
+                         "not shrink")
+    try:
+        missing, unexpected = model.load_state_dict(state, strict=False)
+    except RuntimeError as e:                  # shapes differ: another channel count, joint count or embedding
+        raise ValueError(f"init_from does not fit the config: {e}") from None
+    new = {k for k in model.state_dict() if k.startswith(prefix) and int(k[len(prefix):].split(".")[0]) >= have}
+    if unexpected or set(missing) != new:
+        raise ValueError(f"init_from does not fit the config: missing {sorted(set(missing) - new)}, "
+                         f"unexpected {sorted(unexpected)}")
+    if added:
+        with torch.no_grad():
+            for layer in layers[have:]:
+                nn.init.zeros_(layer.output_projection.weight)
+                nn.init.zeros_(layer.output_projection.bias)
+            model.diffmodel.output_projection1.weight.mul_(math.sqrt(len(layers) / have))
+    return added
+
+
 def randomize_output_layer(model: TCDModel, seed: int = 0, std: float = 0.02) -> None:
     """Give the zero-initialised last conv a small seeded random weight (for fixtures: non-trivial outputs)."""
     g = torch.Generator().manual_seed(seed)

@@ -33,7 +33,7 @@ import torch
 from .augment import check_axis
 from .batches import BatchSource, Windows, make_batch
 from .diffusion import DiffusionConfig, Schedule, training_loss
-from .model import ModelConfig, TCDModel, count_parameters
+from .model import ModelConfig, TCDModel, count_parameters, load_grown
 
 
 DATASETS = ("h36m", "humaneva")
@@ -371,13 +371,17 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
             raise FileNotFoundError(f"init_from: no checkpoint at {init}")
         if init.suffix == ".safetensors":  # an exported model (e.g. the bundled python/tcd/weights/short.safetensors)
             from safetensors.torch import load_file
-            model.load_state_dict(load_file(str(init), device=device))  # strict: the architecture must match
+            init_state = load_file(str(init), device=device)
             log(f"warm start from exported weights {init}")
         else:
             init_ck = torch.load(init, map_location=device, weights_only=False)
             from .export import checkpoint_weights
-            model.load_state_dict(checkpoint_weights(init_ck))  # strict: the architecture must match
+            init_state = checkpoint_weights(init_ck)
             log(f"warm start from {init} (its best validation loss {init_ck.get('best_val', float('nan')):.4f})")
+        # the architecture must match, except for more residual layers: those start as no-ops (load_grown)
+        added = load_grown(model, init_state)
+        if added:
+            log(f"{added} residual layers added after the warm start's, each starting as a no-op")
         if cfg.reset_output_head:
             head = model.diffmodel.output_projection2
             torch.nn.init.zeros_(head.weight)
