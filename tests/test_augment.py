@@ -202,3 +202,35 @@ def _row_of(wins, window: np.ndarray) -> int:
     """The index of the window (L, J, 3) among ``wins``' windows."""
     all_w = wins.gather(np.arange(len(wins)))
     return int(np.flatnonzero(np.all(all_w == window, axis=(1, 2, 3)))[0])
+
+
+def test_action_balance_draws_each_action_by_its_weight_and_stays_seeded():
+    """action_weights: n ** -balance per window, n its action's windows; BatchSource with weights draws an epoch's
+    rows with replacement by them (every action alike at 1), from the (seed, epoch) stream as the permutation did."""
+    from training.batches import BatchSource, Windows, action_weights
+    from training.train import TrainConfig
+    rng = np.random.default_rng(0)
+    seqs = [rng.normal(size=(200, 2, 3)).astype(np.float32), rng.normal(size=(30, 2, 3)).astype(np.float32)]
+    wins = Windows(seqs, 12, 1)                                      # 189 windows of "Walk", 19 of "Box"
+    actions = np.asarray(["Walk", "Box"])[wins.index[:, 0]]
+    np.testing.assert_allclose(action_weights(actions, 0.0), 1 / len(wins))
+    w = action_weights(actions, 1.0)
+    assert w[actions == "Box"].sum() == pytest.approx(0.5) and w.sum() == pytest.approx(1.0)
+    half = action_weights(actions, 0.5)
+    assert half[actions == "Box"].sum() == pytest.approx(19 ** 0.5 / (19 ** 0.5 + 189 ** 0.5))
+    cfg = TrainConfig(role="long", obs_len=8, pred_len=4, batch_size=len(wins))
+    plain, balanced = BatchSource(cfg, wins, 50, 1), BatchSource(cfg, wins, 50, 1, w)
+    plain.batch(0, 0)
+    assert sorted(plain._perm) == list(range(len(wins)))            # uniform: each window once per epoch
+    balanced.batch(0, 0)
+    drawn = balanced._perm
+    assert 0.35 < np.mean(actions[drawn] == "Box") < 0.65           # about half, against 19 of 208 uniform
+    again = BatchSource(cfg, wins, 50, 1, w)
+    again.batch(0, 0)
+    np.testing.assert_array_equal(again._perm, drawn)
+    with pytest.raises(ValueError, match="one per window"):
+        BatchSource(cfg, wins, 50, 1, w[:-1])
+    for bad in ({"action_balance": 1.5, "dataset": "humaneva"}, {"action_balance": 1.0},      # Human3.6M
+                {"action_balance": 1.0, "dataset": "humaneva", "h36m_share": 0.5}):
+        with pytest.raises(ValueError, match="action_balance"):
+            TrainConfig(role="long", obs_len=16, pred_len=59, **bad)

@@ -18,7 +18,7 @@ import tcd
 from conftest import DATA, FIXTURES, needs_data
 from fixtures_util import config_of, read_weights, with_config, write_weights
 from training.data.humaneva import (HUMANEVA_JOINT_NAMES, HUMANEVA_MODEL_JOINT_NAMES, humaneva_test_windows,
-                                    load_humaneva, training_sequences)
+                                    load_humaneva, training_actions, training_sequences)
 
 needs_humaneva = needs_data("humaneva/humaneva_i_15j_60hz.npz")
 HUMANEVA_FILE = DATA / "humaneva" / "humaneva_i_15j_60hz.npz"
@@ -60,6 +60,7 @@ def test_training_sequences_are_the_train_split_root_relative(synthetic_file):
         assert v.shape == (raw[k].shape[0], 14, 3) and v.dtype == np.float32
         np.testing.assert_allclose(v, raw[k][:, 1:] - raw[k][:, :1], atol=1e-6)
     assert list(training_sequences(synthetic_file.parent, subjects=[2])) == ["Train/S2/Jog 1 chunk0"]
+    assert training_actions(synthetic_file) == ["Walking", "Jog", "Box"]     # action_balance's labels, in order
     with pytest.raises(ValueError, match="S1..S3"):
         training_sequences(synthetic_file, subjects=[1, 5])
     assert HUMANEVA_MODEL_JOINT_NAMES == HUMANEVA_JOINT_NAMES[1:] and HUMANEVA_JOINT_NAMES[0] == "pelvis"

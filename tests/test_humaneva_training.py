@@ -164,6 +164,18 @@ def test_a_few_training_steps_on_humaneva_shaped_windows(tmp_path):
               sequences=seqs, log=lambda *a: None)
 
 
+def test_action_balance_trains_from_the_data_files_actions(synthetic_file, tmp_path):
+    """action_balance reads the actions from the HumanEva-I file (training_actions); given sequences carry none."""
+    cfg = TrainConfig(role="long", dataset="humaneva", obs_len=16, pred_len=59, model=TINY, batch_size=4, epochs=1,
+                      steps_per_epoch=2, val_every=1, val_timesteps=2, val_max_windows=4, train_stride=5,
+                      val_stride=5, action_balance=1.0)
+    res = train(cfg, tmp_path / "run", data=str(synthetic_file), log=lambda *a: None)
+    assert np.isfinite(res["best_val"])
+    seqs = {"train": [walking(90, s)[:, 1:] for s in range(3)], "val": [walking(80, 9)[:, 1:]]}
+    with pytest.raises(ValueError, match="action_balance"):
+        train(cfg, tmp_path / "given", sequences=seqs, log=lambda *a: None)
+
+
 # ------------------------------------------------------------------------------------------ evaluation
 
 def test_evaluate_humaneva_through_the_engine(humaneva_model_dir, synthetic_file, tmp_path):

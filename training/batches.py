@@ -69,14 +69,27 @@ def make_batch(cfg: "TrainConfig", wins: np.ndarray, rng: np.random.Generator):
 SWAP_EXCLUDE_FRAMES = 30
 
 
+def action_weights(actions: np.ndarray, balance: float) -> np.ndarray:
+    """Each window's probability of being drawn, from its action (one label per window): proportional to
+    n ** -balance, n the number of windows of that action (0: every window alike; 1: every action alike)."""
+    _, group, counts = np.unique(actions, return_inverse=True, return_counts=True)
+    w = counts[group].astype(np.float64) ** -float(balance)
+    return w / w.sum()
+
+
 class BatchSource:
     """The training batches of an epoch, each a pure function of (seed, epoch, batch index): the window
-    rows (a seeded permutation per epoch), the swapped futures, the occlusion masks, the diffusion steps t and
-    the noise eps. So the batches are the same whether drawn here or in DataLoader worker processes, and a
-    resumed run continues with exactly the batches it would have drawn."""
+    rows (a seeded permutation per epoch, or with ``weights`` as many rows drawn with replacement by them), the
+    swapped futures, the occlusion masks, the diffusion steps t and the noise eps. So the batches are the same
+    whether drawn here or in DataLoader worker processes, and a resumed run continues with exactly the batches it
+    would have drawn."""
 
-    def __init__(self, cfg: "TrainConfig", windows: Windows, T: int, steps_per_epoch: int):
+    def __init__(self, cfg: "TrainConfig", windows: Windows, T: int, steps_per_epoch: int,
+                 weights: np.ndarray | None = None):
         self.cfg, self.windows, self.T, self.steps_per_epoch = cfg, windows, T, steps_per_epoch
+        if weights is not None and np.shape(weights) != (len(windows),):
+            raise ValueError(f"weights: one per window ({len(windows)}), got shape {np.shape(weights)}")
+        self.weights = weights
         self._perm_epoch, self._perm = None, None
         self.neighbours = (windows.future_neighbours(cfg.obs_len, cfg.future_swap_k, SWAP_EXCLUDE_FRAMES)
                            if cfg.future_swap > 0 else None)
@@ -84,7 +97,9 @@ class BatchSource:
     def batch(self, epoch: int, batch_i: int):
         cfg = self.cfg
         if self._perm_epoch != epoch:
-            self._perm = np.random.default_rng([cfg.seed, epoch]).permutation(len(self.windows))
+            rng = np.random.default_rng([cfg.seed, epoch])
+            n = len(self.windows)
+            self._perm = rng.permutation(n) if self.weights is None else rng.choice(n, size=n, p=self.weights)
             self._perm_epoch = epoch
         rows = self._perm[(np.arange(cfg.batch_size) + batch_i * cfg.batch_size) % len(self._perm)]
         wins = self.windows.gather(rows)

@@ -31,7 +31,7 @@ import numpy as np
 import torch
 
 from .augment import check_axis
-from .batches import BatchSource, Windows, make_batch
+from .batches import BatchSource, Windows, action_weights, make_batch
 from .diffusion import DiffusionConfig, Schedule, training_loss
 from .model import ModelConfig, TCDModel, count_parameters, load_grown
 
@@ -58,7 +58,7 @@ def without_removed_keys(d: dict, where) -> dict:
 # Keys added to TrainConfig after checkpoints were committed, at the value that does what the code did before
 # them: a checkpoint whose stored train_config lacks one was trained that way.
 ADDED_KEYS = {"rotate_axis": "", "reset_output_head": False, "h36m_share": 0.0, "future_swap": 0.0,
-              "future_swap_k": 25}
+              "future_swap_k": 25, "action_balance": 0.0}
 
 
 def stored_config(d: dict, where) -> dict:
@@ -104,6 +104,8 @@ class TrainConfig:
     future_swap: float = 0.0         # the share of training windows whose future is another training window's, one
                                      # that arrives at the same pose and velocity (training.augment.swap_futures)
     future_swap_k: int = 25          # ... drawn from each window's future_swap_k nearest such windows
+    action_balance: float = 0.0      # HumanEva-I: a training window drawn with weight n^-action_balance, n the
+                                     # windows of its action (0: every window alike, 1: every action alike)
     reset_output_head: bool = False  # with init_from: the last 1x1 conv's weight and bias restart at zero; for a
                                      # warm start whose prediction_type changes (epsilon -> sample), so the run
                                      # starts at "no residual over the fill" instead of from noise estimates
@@ -129,6 +131,11 @@ class TrainConfig:
         check_axis(self.rotate_axis, "train config")
         if not 0.0 <= self.future_swap <= 1.0:
             raise ValueError(f"train config: future_swap must be a share in [0, 1], got {self.future_swap!r}")
+        if not 0.0 <= self.action_balance <= 1.0:
+            raise ValueError(f"train config: action_balance must be in [0, 1], got {self.action_balance!r}")
+        if self.action_balance > 0 and (self.dataset != "humaneva" or self.h36m_share > 0):
+            raise ValueError("train config: action_balance weighs HumanEva-I's actions; it needs dataset "
+                             "'humaneva' and h36m_share 0")
         if self.future_swap_k < 1:
             raise ValueError(f"train config: future_swap_k must be >= 1, got {self.future_swap_k!r}")
         if self.future_swap > 0 and self.obs_len < 3:
@@ -398,7 +405,13 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
     amp = amp_enabled(cfg, device)
     model.train()
     forward = training_forward(model, cfg, (cfg.batch_size, model_cfg.num_features, L), device, log)
-    source = BatchSource(cfg, train_w, sched.T, steps_per_epoch)
+    weights = None
+    if cfg.action_balance > 0:
+        if sequences is not None:
+            raise ValueError("action_balance needs the HumanEva-I data's actions, not given sequences")
+        from .data.humaneva import training_actions
+        weights = action_weights(np.asarray(training_actions(data))[train_w.index[:, 0]], cfg.action_balance)
+    source = BatchSource(cfg, train_w, sched.T, steps_per_epoch, weights)
     t_start = time.time()
     last_ck = t_start
     ends = [t for t in (None if max_minutes is None else t_start + 60 * max_minutes, deadline) if t is not None]

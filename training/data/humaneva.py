@@ -101,6 +101,11 @@ def training_sequences(path=None, subjects=HUMANEVA_TRAIN_SUBJECTS) -> dict[str,
             if k.split("/")[1] in wanted}
 
 
+def training_actions(path=None, subjects=HUMANEVA_TRAIN_SUBJECTS) -> list[str]:
+    """The action of each of :func:`training_sequences`' chunks, in its order ("Train/S1/Box 1 chunk1" -> "Box")."""
+    return [k.split("/")[2].split()[0] for k in training_sequences(path, subjects)]
+
+
 def root_relative(seq: np.ndarray) -> np.ndarray:
     """(..., 15, 3) -> (..., 14, 3): joints 1..14 minus joint 0; the root is dropped."""
     seq = np.asarray(seq)
