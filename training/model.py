@@ -396,7 +396,11 @@ def load_grown(model: TCDModel, state: dict) -> int:
     training adds depth from there (as ``training.prior.load_grown`` does for the prior). Anything else that
     differs is an error. Returns the number of layers added."""
     prefix = "diffmodel.residual_layers."
-    have = 1 + max((int(k[len(prefix):].split(".")[0]) for k in state if k.startswith(prefix)), default=-1)
+
+    def layer_of(key: str) -> int:           # "diffmodel.residual_layers.3.mid_projection.weight" -> 3
+        return int(key[len(prefix):].split(".")[0])
+
+    have = 1 + max((layer_of(k) for k in state if k.startswith(prefix)), default=-1)
     layers = model.diffmodel.residual_layers
     added = len(layers) - have
     if added < 0:
@@ -406,7 +410,7 @@ def load_grown(model: TCDModel, state: dict) -> int:
         missing, unexpected = model.load_state_dict(state, strict=False)
     except RuntimeError as e:                  # shapes differ: another channel count, joint count or embedding
         raise ValueError(f"init_from does not fit the config: {e}") from None
-    new = {k for k in model.state_dict() if k.startswith(prefix) and int(k[len(prefix):].split(".")[0]) >= have}
+    new = {k for k in model.state_dict() if k.startswith(prefix) and layer_of(k) >= have}
     if unexpected or set(missing) != new:
         raise ValueError(f"init_from does not fit the config: missing {sorted(set(missing) - new)}, "
                          f"unexpected {sorted(unexpected)}")

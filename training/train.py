@@ -353,6 +353,12 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
     if not len(train_w) or not len(val_w):
         raise ValueError(f"no training or validation window of {L} frames in the data")
     steps_per_epoch = cfg.steps_per_epoch or math.ceil(len(train_w) / cfg.batch_size)
+    weights = None                   # how BatchSource draws the windows: None is a uniform permutation per epoch
+    if cfg.action_balance > 0:       # here, before the warm start and the forward are set up: a bad call fails early
+        if sequences is not None:
+            raise ValueError("action_balance needs the HumanEva-I data's actions, not given sequences")
+        from .data.humaneva import training_actions
+        weights = action_weights(np.asarray(training_actions(data))[train_w.index[:, 0]], cfg.action_balance)
     from .export import data_meta
     meta = {"role": cfg.role, "model_config": model_cfg.to_dict(), "diffusion_config": diff_cfg.to_dict(),
             "window": {"obs_len": cfg.obs_len, "pred_len": cfg.pred_len, "seq_len": L},
@@ -405,12 +411,6 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
     amp = amp_enabled(cfg, device)
     model.train()
     forward = training_forward(model, cfg, (cfg.batch_size, model_cfg.num_features, L), device, log)
-    weights = None
-    if cfg.action_balance > 0:
-        if sequences is not None:
-            raise ValueError("action_balance needs the HumanEva-I data's actions, not given sequences")
-        from .data.humaneva import training_actions
-        weights = action_weights(np.asarray(training_actions(data))[train_w.index[:, 0]], cfg.action_balance)
     source = BatchSource(cfg, train_w, sched.T, steps_per_epoch, weights)
     t_start = time.time()
     last_ck = t_start
