@@ -19,7 +19,10 @@ to the ground truth):
   (window 9 frames, polynomial order 2, ``scipy.signal.savgol_filter``), observed entries kept;
 * ``cubic spline``: per joint and coordinate, the natural cubic spline in time through the observed frames
   (``scipy.interpolate.CubicSpline``), held constant outside them: a stronger classical peer, and the fill
-  the bundled repair model starts from (``tcd / spline`` < 1 means the diffusion improves on it).
+  a spline-conditioned repair model starts from (``tcd / spline`` < 1 means the diffusion improves on it);
+* ``repair fill`` (a model directory with ``repair_fill.safetensors`` only): the repair fill alone, its
+  correction of that spline (:attr:`tcd.TCD.repair_fill`, one forward), what a repair model conditioned on it
+  starts from.
 
 Frames per second = repaired window frames / wall-clock seconds of the method (all windows of a pattern).
 Prints a markdown table; ``--json`` writes every number and the settings, with each window's ADE per method
@@ -89,6 +92,20 @@ def spline_fill(x: np.ndarray, m: np.ndarray) -> np.ndarray:
     return np.nan_to_num(tcd.interpolate(x.astype(np.float64), m, method="spline"), nan=0.0)
 
 
+def learned_fill(model: "tcd.TCD"):
+    """The model directory's repair fill alone as a fill function (x, m) -> filled, or None without one: its
+    correction of :func:`spline_fill` over the whole window, observed entries kept."""
+    if model.repair_fill is None:
+        return None
+
+    def fill(x: np.ndarray, m: np.ndarray) -> np.ndarray:
+        b, t = x.shape[:2]
+        spline = spline_fill(x, m).astype(np.float32).reshape(b, t, -1)
+        out = model.repair_fill.predict(spline, t).reshape(x.shape)
+        return np.where(np.repeat(m[..., None], 3, -1), x, out)
+    return fill
+
+
 def masked_cases(gt: np.ndarray, seed: int):
     """Each pattern of :data:`PATTERNS` on the windows ``gt`` (B, T, J, 3): (label, pattern, mask (B, T, J) bool,
     observation (B, T, J, 3) float32 with NaN at the hidden entries), the masks drawn from
@@ -145,7 +162,8 @@ def main(argv=None) -> int:
                             seed=args.seed, threads=args.jobs).poses
         dt = time.perf_counter() - t0
         res["tcd"] = scores(pred, gt, m, frames, dt)
-        for name, fn in (("linear", linear_fill), ("savgol", savgol_fill), ("spline", spline_fill)):
+        fills = [("linear", linear_fill), ("savgol", savgol_fill), ("spline", spline_fill)]
+        for name, fn in fills + ([("fill", learned_fill(model))] if model.repair_fill is not None else []):
             t0 = time.perf_counter()
             pred = fn(obs, m)
             dt = time.perf_counter() - t0
@@ -154,7 +172,8 @@ def main(argv=None) -> int:
         res["tcd_over_spline"] = res["tcd"]["ade_mm"] / res["spline"]["ade_mm"]
         rows.append(res)
         print(f"{label}: tcd {res['tcd']['ade_mm']:.1f} mm, linear {res['linear']['ade_mm']:.1f} mm, "
-              f"savgol {res['savgol']['ade_mm']:.1f} mm, spline {res['spline']['ade_mm']:.1f} mm", file=sys.stderr)
+              f"savgol {res['savgol']['ade_mm']:.1f} mm, spline {res['spline']['ade_mm']:.1f} mm"
+              + (f", repair fill {res['fill']['ade_mm']:.1f} mm" if "fill" in res else ""), file=sys.stderr)
 
     steps = args.steps if args.steps is not None else model.num_train_timesteps
     print(f"\nRepair ADE (mm) over the hidden entries, {args.windows} S5 windows of {w} frames per pattern; "
@@ -167,6 +186,11 @@ def main(argv=None) -> int:
         print(f"| {r['pattern']} | {r['tcd']['ade_mm']:.1f} | {r['linear']['ade_mm']:.1f} | "
               f"{r['savgol']['ade_mm']:.1f} | {r['spline']['ade_mm']:.1f} | {r['tcd_over_linear']:.2f} | "
               f"{r['tcd_over_spline']:.2f} | {r['tcd']['fps']:.0f} | {r['spline']['fps']:.0f} |")
+    if model.repair_fill is not None:
+        print("\n| occlusion | repair fill alone | × linear | × spline |\n|---|---|---|---|")
+        for r in rows:
+            f = r["fill"]["ade_mm"]
+            print(f"| {r['pattern']} | {f:.1f} | {f / r['linear']['ade_mm']:.2f} | {f / r['spline']['ade_mm']:.2f} |")
     if args.json:
         # protocol and seeds: what training.compare checks before it pairs two runs window by window
         out = {"protocol": {"task": "repair", "dataset": "h36m", "subject": "S5", "windows": args.windows,

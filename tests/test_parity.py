@@ -438,3 +438,73 @@ def test_repair_residual_injected_noise(request, fill, sampler, steps):
     # the chain's residual is not negligible, so the comparison above exercises the mapping back
     base = FILLS[fill](torch.from_numpy(observed), torch.from_numpy(mask)).numpy()
     assert not np.allclose(got["mean"], base, atol=atol)
+
+
+# ------------------------------------------------------------------------- a repair model around its fill
+
+@pytest.fixture(scope="module")
+def fill_repair_dir(tmp_path_factory):
+    """A repair model conditioned on its repair fill (cond_fill "prior": a 4-block prior with anchor "window"
+    over the 50-frame window, random like the model) and diffusing 10 x the residual over it."""
+    return make_model_dir(tmp_path_factory.mktemp("parity_repair_fill"), "tiny", seed=9,
+                          repair={"cond_fill": "prior", "target": "prior_residual", "target_scale": 10.0})
+
+
+@pytest.mark.parametrize("kernel", ALL_KERNELS)
+@pytest.mark.parametrize("sampler,steps", [("ddpm", 10), ("ddim", 1)])
+def test_repair_around_a_repair_fill_every_kernel(fill_repair_dir, sampler, steps, kernel, monkeypatch):
+    """The engine fills the masked entries once with the repair fill's correction of the spline
+    (``training.model.prior_fill``) and runs the chain on the residual over it, as PyTorch does, on each
+    kernel path; observed entries come back bit for bit, and the fill is neither the spline nor ignored."""
+    from training.export import load_prior_file
+    from training.model import prior_fill, spline_fill
+    den = load_kernel(fill_repair_dir / "repair.safetensors", kernel, monkeypatch)
+    fill = load_kernel(fill_repair_dir / "repair_fill.safetensors", kernel, monkeypatch, cls=tcd.engine.Prior)
+    assert fill.anchor == "window" and fill.obs_len == fill.chunk == den.seq_len
+    model, sched, _ = load_model_file(fill_repair_dir / "repair.safetensors")
+    model.attach_prior(load_prior_file(fill_repair_dir / "repair_fill.safetensors")[0])
+    rng = np.random.default_rng(300 + steps + ALL_KERNELS.index(kernel))
+    b, k, s = 2, den.num_features, 2
+    observed, mask = observation(rng, b, k, OBS_LEN, OBS_LEN, missing=0.4)
+    mask[0, :, 10:25] = 0          # a long gap, all joints
+    kw = dict(sampler=sampler, num_inference_steps=steps, timestep_spacing="trailing")
+    noise = rng.standard_normal((s, steps + 1, b, k, den.seq_len)).astype(np.float32)
+    got = tcd.engine.repair_raw(den, observed, mask, num_samples=s, noise=noise, fill=fill, **kw)
+    want = D.repair(model, sched, torch.from_numpy(observed), torch.from_numpy(mask), seq_len=den.seq_len,
+                    num_samples=s, noise=torch.from_numpy(noise), **kw).numpy()
+    assert chain_close(got["mean"], want, f"repair around its fill, {sampler} n={steps}, {kernel}")
+    sel = mask == 1
+    assert np.array_equal(got["mean"][sel], observed[sel])
+    obs_t, mask_t = torch.from_numpy(observed), torch.from_numpy(mask)
+    base = prior_fill(model.prior, obs_t, mask_t).numpy()
+    assert not np.allclose(base, spline_fill(obs_t, mask_t).numpy(), atol=1e-3)     # the fill corrects the spline
+    assert not np.allclose(got["mean"], base, atol=1e-4)                            # and the chain adds to it
+    # without its fill the call is refused, naming it
+    with pytest.raises(tcd.exceptions.InvalidInputError, match="repair fill") as ei:
+        tcd.engine.repair_raw(den, observed, mask, num_samples=s, noise=noise, **kw)
+    assert ei.value.argument == "fill"
+
+
+def test_a_model_directory_repairs_with_its_repair_fill(fill_repair_dir, tmp_path):
+    """``tcd.load`` opens ``repair_fill.safetensors`` beside a repair model conditioned on it and every
+    repair of the directory runs with it (here ``TCD.repair`` against ``repair_raw`` with the fill); without
+    the file the directory is refused, the error naming it."""
+    import shutil
+    m = tcd.load(fill_repair_dir)
+    assert m.repair_fill is not None and m.repair_fill.anchor == "window"
+    assert "repair_fill.safetensors" in m.file_sha256
+    rng = np.random.default_rng(5)
+    poses = rng.normal(scale=0.3, size=(OBS_LEN, 22, 3)).astype(np.float32)
+    poses[10:20, 3:9] = np.nan
+    kw = dict(num_samples=2, seed=4, sampler="ddim", num_inference_steps=1)
+    got = m.repair(poses, **kw).poses
+    observed = np.nan_to_num(poses).reshape(1, OBS_LEN, 66).transpose(0, 2, 1).copy()
+    mask = (~np.isnan(poses)).reshape(1, OBS_LEN, 66).transpose(0, 2, 1).astype(np.float32).copy()
+    want = tcd.engine.repair_raw(m.repair_model, observed, mask, fill=m.repair_fill, **kw)["mean"]
+    np.testing.assert_array_equal(got.reshape(1, OBS_LEN, 66).transpose(0, 2, 1), want)
+    bare = tmp_path / "bare"
+    shutil.copytree(fill_repair_dir, bare)
+    (bare / "repair_fill.safetensors").unlink()
+    with pytest.raises(tcd.exceptions.WeightsError, match="repair_fill.safetensors") as ei:
+        tcd.load(bare)
+    assert ei.value.path == str(bare / "repair_fill.safetensors")

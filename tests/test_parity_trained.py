@@ -17,7 +17,9 @@ Observed on an AVX-512 Zen 4 with the bundled models (short and repair 3 x 32, l
 kernel path: relative differences 6.2e-8 .. 1.2e-6, output scale 0.90 .. 1.0 m, network contributions 0.03 .. 9.2 m
 (0.03: the repaired observation of the cascade), mean distance to the clip 1.7 .. 4.9 cm (``pytest -s`` prints them).
 The bundled HumanEva-I cascade (long model 5 x 32), every kernel path: 0.9e-6 .. 1.3e-6, scale 0.81 m, contribution
-0.11 m, 1.8 cm from the window.
+0.11 m, 1.8 cm from the window. The repair model around its repair fill (since the thirteenth session of 2026-11-27;
+the engine computes the fill, PyTorch's ``prior_fill`` the reference's): 2.8e-7 .. 3.3e-7, contributions 8.8 .. 9.2 m,
+4.1 .. 4.3 cm from the clip.
 """
 from __future__ import annotations
 
@@ -36,7 +38,7 @@ from tcd.demo import load_clip, occlusion_mask  # noqa: E402
 from test_humaneva import HUMANEVA_FILE, needs_humaneva  # noqa: E402
 from training import diffusion as D  # noqa: E402
 from training.data.humaneva import humaneva_test_windows, load_humaneva  # noqa: E402
-from training.export import load_model_file, load_prior_file  # noqa: E402
+from training.export import load_model_dir  # noqa: E402
 from training.model import prior_fill  # noqa: E402
 
 RTOL = 2e-5           # of the output's scale
@@ -62,15 +64,11 @@ def bundled_humaneva():
 
 
 def trained_models(d, roles):
-    out = {}
-    prior = load_prior_file(d / "prior.safetensors")[0]
-    for role in roles:
-        path = d / f"{role}.safetensors"
-        model, sched, _ = load_model_file(path)
-        if model.cfg.cond_fill == "prior":     # the bundled forecasting models diffuse around the prior
-            model.attach_prior(prior)
-        out[role] = (path, model, sched, silenced(model))
-    return out
+    # each model conditioned on a fill with its fill attached: the forecasting models the prior, the repair model
+    # its repair fill (training.export.load_model_dir)
+    models = load_model_dir(d)
+    return {role: (d / f"{role}.safetensors", models[role][0], models[role][1], silenced(models[role][0]))
+            for role in roles}
 
 
 def engine_observed(model, observed, mask):
@@ -233,15 +231,17 @@ def check_cascade(models, directory, truth, observed, mask, what, kernel=None, m
 
 @pytest.mark.parametrize("sampler", ["ddpm", "ddim"])
 def test_repair_on_trained_weights(bundled, clip, sampler):
-    """The repair model (spline-residual target) on the demo's leg and arm occlusion plus a 12-frame gap."""
+    """The repair model (the residual over its repair fill, which the engine computes) on the demo's leg and arm
+    occlusion plus a 12-frame gap."""
     path, model, sched, silent_model = bundled["repair"]
     den = load(path)
+    fill = tcd.engine.Prior.load(path.parent / "repair_fill.safetensors")
     truth, observed, mask = window(clip, 60, den.seq_len, den.seq_len, occlude=True)
     mask[..., 32:44] = 0
     observed = (truth * mask).astype(np.float32)
     noise = noise_for(den, sampler, 10, 2, np.random.default_rng(13))
     kw = dict(sampler=sampler, num_inference_steps=10, eta=0.0, timestep_spacing="trailing")
-    got = tcd.engine.repair_raw(den, observed, mask, num_samples=2, noise=noise, **kw)["mean"]
+    got = tcd.engine.repair_raw(den, observed, mask, num_samples=2, noise=noise, fill=fill, **kw)["mean"]
 
     def reference(m):
         return D.repair(m, sched, torch.from_numpy(observed), torch.from_numpy(mask), seq_len=den.seq_len,

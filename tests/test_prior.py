@@ -10,8 +10,8 @@ from conftest import import_torch
 
 torch = import_torch("the prior forecaster's PyTorch reference (training/prior.py)")
 
-from training.prior import (PriorConfig, PriorNet, batch, dct_matrix, load, load_grown, loss_fn,  # noqa: E402
-                            train)
+from training.prior import (PriorConfig, PriorNet, batch, dct_matrix, hidden_loss, load, load_grown,  # noqa: E402
+                            loss_fn, repair_batch, train, validation_windows, window_loss)
 
 
 def synthetic_frames(n_frames: int = 400, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -242,3 +242,103 @@ def test_a_deeper_prior_grows_from_a_shallower_one(tmp_path):
     with pytest.raises(ValueError, match="does not fit"):
         load_grown(PriorNet(PriorConfig(blocks=4, dataset="humaneva", subjects=(1, 2, 3), obs_len=15, chunk=15)),
                    ck["model"])
+
+
+REPAIR_MIX = (("random_joints", 1.0, 0.4), ("consecutive_frames", 1.0, 0.2))
+
+
+def repair_fill_config(**over) -> PriorConfig:
+    return PriorConfig(**{"obs_len": 50, "chunk": 50, "blocks": 2, "batch_size": 16, "anchor": "window",
+                          "mask_mix": REPAIR_MIX, "velocity_weight": 0.0, **over})
+
+
+@pytest.mark.parametrize("over,match", [({"chunk": 10}, "chunk must equal obs_len"),
+                                        ({"loss_frames": 20}, "loss_frames be 0"),
+                                        ({"mask_mix": (("no_such_mask", 1.0),)}, "no_such_mask"),
+                                        ({"obs_noise_prob": 0.5, "obs_noise_mm": 25.0}, "flips and rotations only"),
+                                        ({"anchor": "first"}, "anchor must be one of")])
+def test_repair_fill_config_rejects_what_it_cannot_train(over, match):
+    with pytest.raises(ValueError, match=match):
+        repair_fill_config(**over)
+    with pytest.raises(ValueError, match="mask_mix is for anchor"):
+        PriorConfig(mask_mix=REPAIR_MIX)
+
+
+def test_a_repair_fill_corrects_the_spline_of_its_masked_windows(tmp_path):
+    """anchor "window": the output is the input window plus the network's (the untrained network returns
+    the spline it is given); the training input is the spline through each window's observed entries under a
+    mask of the mix (observed entries exact), a pure function of (seed, iteration); the loss covers the hidden
+    joints only; training lowers it below the spline's on windows the run never draws; and the exported file
+    is ``repair_fill.safetensors``, a prior with anchor "window"."""
+    from training import export
+    from training.model import spline_fill
+    torch.set_num_threads(1)
+    frames, starts = synthetic_frames()
+    cfg = repair_fill_config()
+    wins = batch(cfg, frames, starts, 10_000)
+    assert wins.shape == (16, 50, 66)
+    filled, joint_mask = repair_batch(cfg, wins, 10_000)
+    again, mask_again = repair_batch(cfg, wins, 10_000)
+    assert torch.equal(filled, again) and torch.equal(joint_mask, mask_again)
+    assert 0.05 < float(1 - joint_mask.mean()) < 0.6                 # some joints hidden, most seen
+    mk = joint_mask.repeat_interleave(3, -1).transpose(1, 2)
+    torch.testing.assert_close(filled, spline_fill(wins.transpose(1, 2), mk).transpose(1, 2))
+    seen = mk.transpose(1, 2) > 0.5
+    assert torch.equal(filled[seen], wins[seen])
+    torch.manual_seed(cfg.seed)
+    fresh = PriorNet(cfg)
+    with torch.no_grad():
+        torch.testing.assert_close(fresh(filled), filled, atol=1e-6, rtol=0)   # fc_out ~ 0: the spline itself
+    # the loss is over the hidden joints: an error on seen joints only costs nothing
+    off = wins + 1.0 * seen
+    assert hidden_loss(off, wins, joint_mask).item() == 0.0
+    # learnable: 66 coordinates mixed from 3 sinusoids, so the seen joints of a frame say where the hidden
+    # ones are; 300 iterations at 1e-3 (3e-3 oscillates) take the hidden-joint error to about 0.67 x the spline's
+    rng = np.random.default_rng(1)
+    t = np.arange(400)[:, None] / 25.0
+    latent = np.sin(2 * np.pi * rng.uniform(0.2, 1.5, 3) * t + rng.uniform(0, 6, 3))
+    mixed = (0.3 * latent @ rng.normal(size=(3, 66)) / np.sqrt(3)).astype(np.float32), np.arange(400 - 50 + 1)
+    cfg = repair_fill_config(iterations=300, lr=1e-3, lr_final=1e-3, mask_mix=(("random_joints", 1.0, 0.4),))
+    wins = batch(cfg, *mixed, 10_000)
+    filled, joint_mask = repair_batch(cfg, wins, 10_000)
+    train(cfg, tmp_path / "run", frames=mixed, log=lambda m: None)
+    with torch.no_grad():
+        spline_loss = hidden_loss(filled, wins, joint_mask).item()
+        trained_loss = hidden_loss(load(tmp_path / "run" / "last.pt")(filled), wins, joint_mask).item()
+    assert trained_loss < 0.8 * spline_loss, (spline_loss, trained_loss)
+    assert export.main(["--prior", str(tmp_path / "run" / "last.pt"), "--out", str(tmp_path / "model")]) == 0
+    path = tmp_path / "model" / export.REPAIR_FILL_FILE
+    assert export.read_config(path)["model"]["anchor"] == "window"
+    assert not (tmp_path / "model" / export.PRIOR_FILE).exists()
+    model, _ = export.load_prior_file(path)
+    assert model.cfg.anchor == "window"
+    with pytest.raises(ValueError, match="does not forecast"):
+        model.rollout(wins, 10)
+
+
+def test_validation_keeps_the_best_weights(tmp_path):
+    """val_every: the loss on the held-out subjects' fixed windows every val_every iterations, in the history;
+    best.pt holds the weights (and iteration) of the lowest, which the exporter records; the held-out subjects
+    cannot be trained on."""
+    from training import export
+    torch.set_num_threads(1)
+    frames, held_out = synthetic_frames(), synthetic_frames(seed=1)
+    cfg = repair_fill_config(iterations=40, lr=1e-2, lr_final=1e-2, val_subjects=(11,), val_every=10, val_windows=32,
+                             subjects=(1, 6))
+    train(cfg, tmp_path, frames=frames, val_frames=held_out, log=lambda m: None)
+    history = torch.load(tmp_path / "last.pt", weights_only=False)["history"]
+    vals = {h["iteration"]: h["val"] for h in history if "val" in h}
+    assert sorted(vals) == [10, 20, 30, 40]
+    best = torch.load(tmp_path / "best.pt", weights_only=False)
+    assert best["iteration"] == min(vals, key=vals.get)
+    vcfg, val = validation_windows(cfg, frames=held_out)
+    net = load(tmp_path / "best.pt")
+    with torch.no_grad():
+        assert window_loss(vcfg, net, net, val, 0).item() == pytest.approx(vals[best["iteration"]], rel=1e-6)
+    export.export_prior(tmp_path / "best.pt", tmp_path / "model")
+    meta = export.read_config(tmp_path / "model" / export.REPAIR_FILL_FILE)["training"]
+    assert meta["iteration"] == best["iteration"] and meta["val"] == pytest.approx(vals[best["iteration"]])
+    with pytest.raises(ValueError, match="held out"):
+        repair_fill_config(val_subjects=(1,), subjects=(1, 6))
+    with pytest.raises(ValueError, match="needs val_subjects"):
+        repair_fill_config(val_every=10)

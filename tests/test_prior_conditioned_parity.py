@@ -197,10 +197,11 @@ def test_errors_name_the_prior_and_the_missing_file(dirs, tmp_path):
     export.save_prior(other, export.random_prior(blocks=1, obs_len=55, chunk=5))
     e = bad("prior", tcd.engine.cascade_raw, short, long, eng, mask, prior=tcd.engine.Prior.load(other), **kw)
     assert "obs_len = 55" in str(e)
-    # repair never runs the prior
-    e = bad("model", tcd.engine.repair_raw, short, eng, mask, num_samples=1, seed=0, sampler="ddim",
-            num_inference_steps=2)
-    assert "prior" in str(e)
+    # repair runs a prior-conditioned model only with a repair fill (anchor "window"), never the forecaster
+    for fill in (None, prior):
+        e = bad("fill", tcd.engine.repair_raw, short, eng, mask, num_samples=1, seed=0, sampler="ddim",
+                num_inference_steps=2, fill=fill)
+        assert "repair fill" in str(e)
     # the low-level calls read the fill from `observed`: NaN there is refused
     m = np.concatenate([mask, np.zeros((1, 66, LS - OBS), np.float32)], -1)
     x = np.concatenate([eng, np.zeros((1, 66, LS - OBS), np.float32)], -1)

@@ -172,3 +172,26 @@ def test_export_files_adopts_a_prior_file_after_loading_it(trained_file, random_
     with pytest.raises(RuntimeError, match="fc_out.bias"):
         export.main(["--files", str(broken), "--out", str(out)])
     assert (out / export.PRIOR_FILE).read_bytes() == trained_file.read_bytes()
+
+
+@pytest.mark.parametrize("kernel", ALL_KERNELS)
+def test_a_repair_fill_matches_pytorch(kernel, tmp_path, monkeypatch):
+    """A prior with anchor "window" (the repair fill: 24 blocks over the 50-frame window, random weights of
+    unit-gain scale) in the engine against ``PriorNet.forward``: its window corrected, within the criterion,
+    the correction (the network's contribution over its input) large against it. It corrects its window and
+    no other horizon."""
+    model = export.random_prior(blocks=24, seed=3, obs_len=50, chunk=50, anchor="window")
+    path = export.save_prior(tmp_path / export.REPAIR_FILL_FILE, model)
+    fill = load_kernel(path, kernel, monkeypatch)
+    assert fill.anchor == "window" and fill.chunk == fill.obs_len == 50
+    obs = observations(7)[:, -50:]
+    got = fill.predict(obs, 50)
+    with torch.no_grad():
+        want = model(torch.from_numpy(np.ascontiguousarray(obs))).numpy()
+    np.testing.assert_allclose(got, want, rtol=RTOL, atol=ATOL)
+    contribution = float(np.abs(want - obs).max())
+    print(f"repair fill parity {kernel}: max abs diff {np.abs(got - want).max():.3g}, contribution {contribution:.3g}")
+    assert contribution >= CONTRIBUTION * ATOL, contribution
+    with pytest.raises(tcd.exceptions.InvalidInputError, match="does not forecast") as ei:
+        fill.predict(obs, 10)
+    assert ei.value.argument == "horizon"

@@ -192,7 +192,15 @@ def test_engine_requires_what_the_schema_requires_of_a_prior(tmp_path):
         with pytest.raises(WeightsError) as e:
             tcd.engine.Prior.load(path)
         assert name.split(".")[-1] in str(e.value), (name, str(e.value))
-    assert not [name for name, sub, req in schema_fields("prior") if not req and "default" in sub]  # none to default
+    # one field defaults, and only to what every file before it was: anchor "last" (a forecaster); the golden file
+    # (a forecaster) leaves it out, and a value other than the two is refused naming it
+    assert [name for name, sub, req in schema_fields("prior") if not req and "default" in sub] == ["model.anchor"]
+    assert "anchor" not in golden["model"] and tcd.engine.Prior.load(write_prior(tmp_path / "p.safetensors",
+                                                                              golden)).anchor == "last"
+    bad = json.loads(json.dumps(golden))
+    bad["model"]["anchor"] = "first"
+    with pytest.raises(WeightsError, match="anchor"):
+        tcd.engine.Prior.load(write_prior(tmp_path / "bad_anchor.safetensors", bad))
 
 
 def test_the_schema_tells_the_roles_apart():

@@ -46,6 +46,7 @@ FORMAT_VERSION = 1
 ROLES = ("short", "long", "repair")       # the denoisers' roles
 PRIOR_ROLE = "prior"                       # the prior forecaster's role, in PRIOR_FILE
 PRIOR_FILE = "prior.safetensors"
+REPAIR_FILL_FILE = "repair_fill.safetensors"  # a prior with anchor "window": the repair model's fill (role "prior")
 CONFIG_KEY = "tcd_config"
 
 # Windows of the Human3.6M cascade (spec section 5) and the repair model.
@@ -162,13 +163,16 @@ def load_model_dir(path: str | Path, device: str = "cpu") -> dict[str, tuple[TCD
     if "short" not in files or "long" not in files:
         raise FileNotFoundError(f"{d} must hold short.safetensors and long.safetensors")
     needs = [role for role, f in files.items() if read_config(f)["model"].get("cond_fill") == "prior"]
-    prior = None
-    if needs:
-        if not (d / PRIOR_FILE).is_file():
-            raise FileNotFoundError(f"{d}: the {', '.join(needs)} model(s) are conditioned on the prior forecaster "
-                                    f"(cond_fill 'prior'), but the directory has no {PRIOR_FILE}")
-        prior = load_prior_file(d / PRIOR_FILE)[0]
-    return {role: load_model_file(f, device, prior=prior) for role, f in files.items()}
+    fills = {}              # what a cond_fill 'prior' model of each kind is conditioned on
+    for name, roles in ((PRIOR_FILE, [r for r in needs if r != "repair"]),
+                        (REPAIR_FILL_FILE, [r for r in needs if r == "repair"])):
+        if roles and not (d / name).is_file():
+            raise FileNotFoundError(f"{d}: the {', '.join(roles)} model(s) are conditioned on a fill (cond_fill "
+                                    f"'prior'), but the directory has no {name}")
+        if roles:
+            fills[name] = load_prior_file(d / name)[0]
+    return {role: load_model_file(f, device, prior=fills.get(REPAIR_FILL_FILE if role == "repair" else PRIOR_FILE))
+            for role, f in files.items()}
 
 
 def write_model_json(d: Path) -> None:
@@ -182,6 +186,8 @@ def write_model_json(d: Path) -> None:
             summary[role] = cfg
     if (d / PRIOR_FILE).is_file():
         summary[PRIOR_ROLE] = read_config(d / PRIOR_FILE)
+    if (d / REPAIR_FILL_FILE).is_file():
+        summary["repair_fill"] = read_config(d / REPAIR_FILL_FILE)
     (d / "model.json").write_text(json.dumps(summary, indent=2) + "\n")
 
 
@@ -193,7 +199,8 @@ def random_init_dir(out: str | Path, preset: str = "tiny", seed: int = 0,
     overrides, e.g. ``{"cond_fill": "linear"}``; ``{}`` for the preset as it is) a repair model
     (50 + 0 frames) is written too. ``model``: model-config overrides of the short and long models (e.g.
     ``{"cond_fill": "prior", "target": "prior_residual", "target_scale": 10.0}``); ``prior_blocks`` > 0
-    writes a random prior forecaster of that many blocks (:func:`random_prior`) as ``prior.safetensors``.
+    writes a random prior forecaster of that many blocks (:func:`random_prior`) as ``prior.safetensors``; a
+    repair model with ``cond_fill`` ``"prior"`` gets a random 4-block repair fill (``repair_fill.safetensors``).
     The weights depend on the seed and the sizes only, not on the overrides of fill, target or
     ``diff_cfg.prediction_type``. ``dataset`` ``"humaneva"``: HumanEva-I's 14 joints, its windows
     (:data:`HUMANEVA_WINDOWS`) and data block, and a prior of its 15 observed frames."""
@@ -222,6 +229,10 @@ def random_init_dir(out: str | Path, preset: str = "tiny", seed: int = 0,
     if prior_blocks > 0:
         prior = random_prior(blocks=prior_blocks, seed=seed, obs_len=windows["short"][0], joints=joints)
         save_model_file(d / PRIOR_FILE, prior, build_prior_config(prior, data_meta(dataset, "none (random init)")))
+    if repair is not None and repair.get("cond_fill") == "prior":      # the repair model's fill, random too
+        n = sum(windows["repair"])
+        fill = random_prior(blocks=4, seed=seed + 1, obs_len=n, chunk=n, joints=joints, anchor="window")
+        save_model_file(d / REPAIR_FILL_FILE, fill, build_prior_config(fill, data_meta(dataset, "none (random init)")))
     write_model_json(d)
     return d
 
@@ -270,13 +281,13 @@ def export_checkpoint(ckpt_path: str | Path, out_dir: str | Path, description: s
 
 
 def copy_model_files(files: list[Path], out: Path) -> None:
-    """Copies model files named ``ROLE.safetensors`` (or ``prior.safetensors``) into ``out`` after loading
-    each strictly (a file that does not load replaces nothing)."""
-    names = [r + ".safetensors" for r in ROLES] + [PRIOR_FILE]
+    """Copies model files named ``ROLE.safetensors`` (or ``prior.safetensors``, ``repair_fill.safetensors``) into
+    ``out`` after loading each strictly (a file that does not load replaces nothing)."""
+    names = [r + ".safetensors" for r in ROLES] + [PRIOR_FILE, REPAIR_FILL_FILE]
     for f in files:
         if f.name not in names:
             raise SystemExit(f"{f}: the file name must be one of {', '.join(names)}")
-        if f.name == PRIOR_FILE:
+        if f.name in (PRIOR_FILE, REPAIR_FILL_FILE):
             load_prior_file(f)
         else:
             load_model_file(f)
@@ -307,9 +318,11 @@ def build_prior_config(model, data: dict, training: dict | None = None) -> dict:
     eps = {float(b.eps) for b in model.blocks}
     if len(eps) != 1:
         raise ValueError(f"the prior's blocks must share one layer-norm epsilon, got {sorted(eps)}")
-    return {"format_version": FORMAT_VERSION, "role": PRIOR_ROLE,
-            "model": {"num_joints": k // 3, "coords": 3, "num_features": k, "obs_len": model.cfg.obs_len,
-                      "chunk": model.cfg.chunk, "blocks": len(model.blocks), "layer_norm_eps": eps.pop()},
+    m = {"num_joints": k // 3, "coords": 3, "num_features": k, "obs_len": model.cfg.obs_len,
+         "chunk": model.cfg.chunk, "blocks": len(model.blocks), "layer_norm_eps": eps.pop()}
+    if model.cfg.anchor != "last":      # a forecaster's file stays as before anchor existed (its default)
+        m["anchor"] = model.cfg.anchor
+    return {"format_version": FORMAT_VERSION, "role": PRIOR_ROLE, "model": m,
             "data": data, "training": training or {}, "source_revision": source_revision()}
 
 
@@ -325,7 +338,8 @@ def load_prior_file(path: str | Path):
     m = cfg["model"]
     if m["coords"] != 3 or m["num_features"] != 3 * m["num_joints"]:
         raise ValueError(f"{path}: PriorNet takes 3 coordinates per joint, got {m}")
-    model = PriorNet(PriorConfig(obs_len=m["obs_len"], chunk=m["chunk"], blocks=m["blocks"]), joints=m["num_joints"])
+    model = PriorNet(PriorConfig(obs_len=m["obs_len"], chunk=m["chunk"], blocks=m["blocks"],
+                                 anchor=m.get("anchor", "last")), joints=m["num_joints"])   # (files before anchor)
     for b in model.blocks:
         b.eps = float(m["layer_norm_eps"])
     model.load_state_dict(load_file(str(path)), strict=True)
@@ -340,7 +354,8 @@ def save_prior(path: str | Path, model, training: dict | None = None) -> Path:
 
 
 def export_prior(ckpt_path: str | Path, out_dir: str | Path, description: str | None = None) -> Path:
-    """``out_dir/prior.safetensors`` from a ``training.prior`` checkpoint (``last.pt``: its trained weights).
+    """``out_dir/prior.safetensors`` from a ``training.prior`` checkpoint (``last.pt``: its trained weights);
+    ``out_dir/repair_fill.safetensors`` for a repair fill (anchor ``"window"``).
     The checkpoint is read once into memory, so a training run that replaces it meanwhile cannot mix two
     versions."""
     import io
@@ -351,20 +366,26 @@ def export_prior(ckpt_path: str | Path, out_dir: str | Path, description: str | 
     model = prior.load(io.BytesIO(data))
     history = ck.get("history") or []
     training = {"train_config": ck["config"], "iteration": ck["iteration"], "elapsed_s": ck.get("elapsed_s"),
-                "loss": history[-1]["loss"] if history else None, "weights": "raw"}
+                "loss": next((h["loss"] for h in reversed(history) if "loss" in h), None), "weights": "raw"}
+    vals = [h["val"] for h in history if "val" in h and h["iteration"] <= ck["iteration"]]
+    if vals:                            # a run with validation (best.pt: the weights of the lowest)
+        training["val"] = vals[-1]
     if description:
         training["description"] = description
-    return save_prior(Path(out_dir) / PRIOR_FILE, model, training)
+    name = REPAIR_FILL_FILE if model.cfg.anchor == "window" else PRIOR_FILE
+    return save_prior(Path(out_dir) / name, model, training)
 
 
-def random_prior(blocks: int = 24, seed: int = 0, obs_len: int = 50, chunk: int = 10, joints: int = 22):
+def random_prior(blocks: int = 24, seed: int = 0, obs_len: int = 50, chunk: int = 10, joints: int = 22,
+                 anchor: str = "last"):
     """A ``training.prior.PriorNet`` with every weight drawn from a seeded normal of unit-gain scale (std
     1/sqrt(fan_in) for the matrices, 0.1 for the biases, 1 + 0.1 N(0, 1) for the norm weights), fc_out then
     scaled by 1/20 so that the forecast lies a few tenths of a metre (rms) from the last pose, the scale of
     real motion (unscaled: metres): unlike the trained init (fc_out ~ 1e-8, i.e. Zero-Velocity) every
-    weight shapes the output. A fixture for parity tests and benchmarks."""
+    weight shapes the output. ``anchor="window"`` (chunk = obs_len): a repair fill, its correction as far from
+    its input window. A fixture for parity tests and benchmarks."""
     from .prior import PriorConfig, PriorNet
-    model = PriorNet(PriorConfig(obs_len=obs_len, chunk=chunk, blocks=blocks), joints=joints)
+    model = PriorNet(PriorConfig(obs_len=obs_len, chunk=chunk, blocks=blocks, anchor=anchor), joints=joints)
     g = torch.Generator().manual_seed(seed)
     with torch.no_grad():
         for name, p in model.named_parameters():

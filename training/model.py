@@ -338,11 +338,19 @@ def prior_fill(prior: nn.Module, observed: torch.Tensor, mask: torch.Tensor) -> 
     after them by the prior's rollout from the filled frames (frame ``obs_len + i`` = the prior's i-th
     forecast frame). A long-term window's teacher-forced frames (mask 1 after ``obs_len``) stay as given;
     the prior still forecasts from the first ``obs_len`` frames, so the fill is the same function of the
-    observation in the short and the long model."""
+    observation in the short and the long model. A repair fill (``prior.cfg.anchor == "window"``, L =
+    ``obs_len``) fills the masked entries with its correction of the spline over the whole window instead."""
     if prior is None:
         raise ValueError("a cond_fill='prior' model needs its prior forecaster (TCDModel.attach_prior)")
     obs_len = prior.cfg.obs_len
     L = observed.shape[-1]
+    if prior.cfg.anchor == "window":     # a repair fill: its correction of the spline over the whole window
+        if L != obs_len:
+            raise ValueError(f"prior_fill: the repair fill corrects windows of {obs_len} frames, got {L}")
+        spline = spline_fill(observed, mask)
+        with torch.no_grad():
+            fill = prior(spline.float().transpose(1, 2)).transpose(1, 2).to(observed.dtype)
+        return torch.where(mask > 0.5, observed, fill)
     if L <= obs_len:
         raise ValueError(f"prior_fill: the window has {L} frames, not more than the prior's {obs_len} observed ones")
     head = spline_fill(observed[..., :obs_len], mask[..., :obs_len])               # (B, K, O)

@@ -46,6 +46,8 @@ from torch import nn
 from .augment import check_axis, mirror, mirror_permutation, resample, rotate_about, sequence_ends
 
 NUM_JOINTS = 22
+#: what a forward's output is added to (PriorConfig.anchor)
+ANCHORS = ("last", "window")
 #: the model joints of each dataset the prior trains on (Human3.6M: 22; HumanEva-I: joints 1..14 of 15)
 DATASET_JOINTS = {"h36m": 22, "humaneva": 14}
 
@@ -77,6 +79,14 @@ class PriorConfig:
     dataset: str = "h36m"            # "h36m" (Human3.6M, 22 joints) or "humaneva" (HumanEva-I Train split, 14 joints)
     h36m_share: float = 0.0          # HumanEva-I: the fraction of windows from Human3.6M retargeted to its skeleton
                                      # (training.data.humaneva.training_mix)
+    val_subjects: tuple = ()         # held out from training: with val_every, the loss on val_windows fixed windows
+    val_every: int = 0               # of theirs every val_every iterations, and best.pt keeps the weights with the
+    val_windows: int = 512           # lowest (0: no validation; the repair fill oscillates without it)
+    anchor: str = "last"             # "last": the next chunk, added to the last observed pose (the forecaster);
+                                     # "window": chunk = obs_len, a correction added to the input window itself
+                                     # (the repair fill: the spline-filled window of a masked observation in,
+                                     # the repaired window out; see repair_batch)
+    mask_mix: tuple = ()             # anchor "window": the masks trained on (training.masks.mix_entry entries)
 
     @classmethod
     def load(cls, path: str | Path) -> "PriorConfig":
@@ -85,7 +95,7 @@ class PriorConfig:
         if unknown:
             raise ValueError(f"{path}: unknown prior config keys {sorted(unknown)}")
         d = {k: v for k, v in d.items() if k != "comment"}
-        for key in ("subjects", "speed_range"):
+        for key in ("subjects", "speed_range", "mask_mix", "val_subjects"):
             if key in d:
                 d[key] = tuple(d[key])
         return cls(**d)
@@ -122,6 +132,29 @@ class PriorConfig:
                              f"S1..S3); set \"subjects\": [1, 2, 3], got {list(self.subjects)}")
         from .data.humaneva import check_h36m_share
         check_h36m_share(self.h36m_share, self.dataset, "prior config")
+        if int(self.val_every) < 0 or int(self.val_windows) < 1:
+            raise ValueError(f"prior config: val_every must be >= 0 and val_windows >= 1, got {self.val_every!r}, "
+                             f"{self.val_windows!r}")
+        if self.val_every and not self.val_subjects:
+            raise ValueError("prior config: val_every needs val_subjects (the held-out subjects it validates on)")
+        if set(self.val_subjects) & set(self.subjects):
+            raise ValueError(f"prior config: val_subjects {list(self.val_subjects)} must be held out of subjects "
+                             f"{list(self.subjects)}")
+        if self.anchor not in ANCHORS:
+            raise ValueError(f"prior config: anchor must be one of {list(ANCHORS)}, got {self.anchor!r}")
+        if self.anchor == "window":
+            if self.chunk != self.obs_len or int(self.loss_frames) != 0:
+                raise ValueError("prior config: anchor \"window\" corrects its whole input: chunk must equal obs_len "
+                                 f"and loss_frames be 0, got chunk {self.chunk}, obs_len {self.obs_len}, "
+                                 f"loss_frames {self.loss_frames}")
+            from .masks import mix_entry
+            for entry in self.mask_mix:
+                mix_entry(entry)
+            if self.obs_noise_prob > 0.0 or self.speed_range or self.mirror_prob > 0.0:
+                raise ValueError("prior config: anchor \"window\" supports flips and rotations only (no obs_noise, "
+                                 "speed_range or mirror)")
+        elif self.mask_mix:
+            raise ValueError("prior config: mask_mix is for anchor \"window\" (a forecaster sees whole frames)")
 
     @property
     def num_joints(self) -> int:
@@ -130,18 +163,24 @@ class PriorConfig:
 
     @property
     def future(self) -> int:
-        """The future frames of a training window: ``loss_frames``, or one chunk when it is 0."""
+        """The future frames of a training window: ``loss_frames``, or one chunk when it is 0; none for a
+        repair fill (anchor ``"window"``: its windows are its ``obs_len`` frames)."""
+        if self.anchor == "window":
+            return 0
         return int(self.loss_frames) or self.chunk
 
     @classmethod
     def from_dict(cls, d: dict) -> "PriorConfig":
         """The config of a checkpoint's dict (one written before ``dataset`` existed is a Human3.6M one)."""
-        return cls(**{**d, "subjects": tuple(d["subjects"]), "speed_range": tuple(d.get("speed_range", ()))})
+        return cls(**{**d, "subjects": tuple(d["subjects"]), "speed_range": tuple(d.get("speed_range", ())),
+                      "mask_mix": tuple(d.get("mask_mix", ())), "val_subjects": tuple(d.get("val_subjects", ()))})
 
     def to_dict(self) -> dict:
         d = asdict(self)
         d["subjects"] = list(self.subjects)
         d["speed_range"] = list(self.speed_range)
+        d["mask_mix"] = json.loads(json.dumps(self.mask_mix))      # nested lists, as the config file has them
+        d["val_subjects"] = list(self.val_subjects)
         return d
 
 
@@ -189,19 +228,22 @@ class PriorNet(nn.Module):
         nn.init.zeros_(self.fc_out.bias)
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        """obs (B, obs_len, K) -> the next ``chunk`` frames (B, chunk, K)."""
+        """obs (B, obs_len, K) -> the next ``chunk`` frames (B, chunk, K); for anchor ``"window"`` the input
+        window corrected (B, obs_len, K)."""
         x = nn.functional.linear(obs.transpose(1, 2), self.dct)              # (B, K, obs_len) DCT coefficients
         x = torch.matmul(self.fc_in.weight, x) + self.fc_in.bias[:, None]    # spatial FC, per coefficient
         for block in self.blocks:
             x = block(x)
         x = torch.matmul(self.fc_out.weight, x) + self.fc_out.bias[:, None]
         x = nn.functional.linear(x, self.dct.t()[: self.cfg.chunk])          # inverse DCT, first chunk frames
-        return x.transpose(1, 2) + obs[:, -1:]
+        return x.transpose(1, 2) + (obs if self.cfg.anchor == "window" else obs[:, -1:])
 
     def rollout(self, obs: torch.Tensor, horizon: int, step=None) -> torch.Tensor:
         """obs (B, T >= obs_len, K) -> (B, horizon, K): chunks predicted from the last obs_len frames,
         each appended to the history before the next. ``step``: the forward to call (a compiled one), else
         the module itself."""
+        if self.cfg.anchor != "last":
+            raise ValueError("rollout: a prior with anchor \"window\" corrects a window, it does not forecast")
         step = self if step is None else step
         hist = obs[:, -self.cfg.obs_len:]
         out = []
@@ -302,6 +344,58 @@ def loss_fn(pred: torch.Tensor, target: torch.Tensor, velocity_weight: float) ->
     return pos + velocity_weight * torch.linalg.vector_norm(dv.reshape(B, T - 1, K // 3, 3), dim=-1).mean()
 
 
+def repair_batch(cfg: PriorConfig, wins: torch.Tensor, iteration: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """A repair fill's training input for ``wins`` (B, obs_len, K), anchor ``"window"``: each window given one
+    mask of ``cfg.mask_mix`` (drawn by weight from the (seed, iteration, 2) stream, so the window draws of
+    :func:`batch` are those of a forecaster's config) -> (the window with its hidden entries filled by the
+    natural cubic spline through each coordinate's observed frames, the joint mask (B, obs_len, J): 1 observed).
+    The spline is what the engine computes before the fill's forward (``tcd-core`` ``fill_spline``)."""
+    from .masks import make_mask, mix_entry
+    from .model import spline_fill
+    mix = [mix_entry(e) for e in cfg.mask_mix]
+    p = np.array([w for _, w, _ in mix], dtype=np.float64)
+    rng = np.random.default_rng([cfg.seed, iteration, 2])
+    B, L, K = wins.shape
+    joint_mask = torch.from_numpy(np.stack([make_mask(mix[i][0], L, L, rng, rate=mix[i][2])
+                                            for i in rng.choice(len(mix), B, p=p / p.sum())]))
+    mk = joint_mask.repeat_interleave(3, -1).transpose(1, 2)                     # (B, K, L)
+    return spline_fill(wins.transpose(1, 2), mk).transpose(1, 2).contiguous(), joint_mask
+
+
+def hidden_loss(pred: torch.Tensor, target: torch.Tensor, joint_mask: torch.Tensor) -> torch.Tensor:
+    """The mean per-joint L2 distance over the hidden joints (joint_mask 0) of (B, L, K) windows: what
+    ``benches/repair_quality.py`` scores (the observed entries are given back exactly)."""
+    B, L, K = pred.shape
+    err = torch.linalg.vector_norm((pred - target).reshape(B, L, K // 3, 3), dim=-1)
+    hidden = 1.0 - joint_mask
+    return (err * hidden).sum() / hidden.sum().clamp(min=1.0)
+
+
+def window_loss(cfg: PriorConfig, model: nn.Module, forward, wins: torch.Tensor, draw: int) -> torch.Tensor:
+    """The training loss of the windows ``wins`` (:func:`batch`'s): a forecaster's (:func:`loss_fn` on its
+    chunk, or on ``loss_frames`` rolled out), or a repair fill's (:func:`hidden_loss` over the masks of
+    :func:`repair_batch`'s draw ``draw``). ``forward``: the forward to call (a compiled one), else ``model``."""
+    if cfg.anchor == "window":       # a repair fill: the spline-filled masked window in, the window out
+        filled, joint_mask = repair_batch(cfg, wins, draw)
+        return hidden_loss(forward(filled), wins, joint_mask)
+    obs = wins[:, :cfg.obs_len]
+    # loss_frames > chunk: the loss covers the rolled-out horizon the prior is used at (HumanEva-I rolls 15
+    # frames out to 60), so the network learns to forecast from its own chunks, not only from the data's
+    pred = forward(obs) if cfg.future == cfg.chunk else model.rollout(obs, cfg.future, forward)
+    return loss_fn(pred, wins[:, cfg.obs_len:], cfg.velocity_weight)
+
+
+def validation_windows(cfg: PriorConfig, data: str | None = None,
+                       frames: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[PriorConfig, torch.Tensor]:
+    """The held-out windows of ``cfg.val_subjects`` a run validates on: ``val_windows`` of them, drawn once
+    (draw 0 of a config of those subjects, without flips or turns), and that config (whose ``repair_batch``
+    draw 0 gives a repair fill's masks). ``frames`` replaces those subjects' frames (tests)."""
+    from dataclasses import replace
+    vcfg = replace(cfg, subjects=cfg.val_subjects, val_subjects=(), val_every=0, batch_size=cfg.val_windows,
+                   flip_prob=0.0, rotate_axis="", mirror_prob=0.0, h36m_share=0.0)
+    return vcfg, batch(vcfg, *(frames if frames is not None else training_frames(vcfg, data)), 0)
+
+
 def learning_rate(cfg: PriorConfig, iteration: int) -> float:
     return cfg.lr if iteration < int(cfg.lr_decay_at * cfg.iterations) else cfg.lr_final
 
@@ -328,11 +422,15 @@ def _save(path: Path, state: dict) -> None:
 
 def train(cfg: PriorConfig, out: str | Path, *, data: str | None = None, resume: bool = False,
           max_minutes: float | None = None, checkpoint_minutes: float = 5.0, compile: bool = False,
-          frames: tuple[np.ndarray, np.ndarray] | None = None, log=print) -> dict:
+          frames: tuple[np.ndarray, np.ndarray] | None = None,
+          val_frames: tuple[np.ndarray, np.ndarray] | None = None, log=print) -> dict:
     """Train (or resume) into ``out`` (``last.pt``: weights, optimizer, iteration, loss history, CPU
     seconds). Stops resumably after ``max_minutes``. ``compile``: ``torch.compile`` the forward (1.9x
     the windows/s of eager at 48 blocks on one Zen 5 core, after about 50 s of compiling; the weights are
-    the eager module's). ``frames`` replaces the dataset (tests)."""
+    the eager module's). ``frames`` replaces the dataset, ``val_frames`` the validation subjects' (tests).
+    With ``val_every``, ``best.pt`` (as ``last.pt``) holds the weights of the lowest validation loss."""
+    if cfg.anchor == "window" and not cfg.mask_mix:
+        raise ValueError("prior config: anchor \"window\" trains on a mask_mix (the occlusions it learns to fill)")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(cfg.seed)
@@ -368,6 +466,11 @@ def train(cfg: PriorConfig, out: str | Path, *, data: str | None = None, resume:
     log(f"prior: {count_parameters(model):,} parameters, {len(starts):,} training windows, "
         f"{torch.get_num_threads()} thread(s)")
 
+    if cfg.val_every:
+        vcfg, val = validation_windows(cfg, data, val_frames)
+        best_val = min((h["val"] for h in history if "val" in h), default=float("inf"))
+        log(f"validation: {len(val)} windows of subjects {list(cfg.val_subjects)} every {cfg.val_every} iterations")
+
     def state() -> dict:
         return {"config": cfg.to_dict(), "model": model.state_dict(), "optimizer": opt.state_dict(),
                 "iteration": it, "elapsed_s": elapsed0 + time.time() - t0, "history": history}
@@ -377,12 +480,7 @@ def train(cfg: PriorConfig, out: str | Path, *, data: str | None = None, resume:
     while it < cfg.iterations:
         for g in opt.param_groups:
             g["lr"] = learning_rate(cfg, it)
-        wins = batch(cfg, fr, starts, it)
-        obs = wins[:, :cfg.obs_len]
-        # loss_frames > chunk: the loss covers the rolled-out horizon the prior is used at (HumanEva-I rolls 15
-        # frames out to 60), so the network learns to forecast from its own chunks, not only from the data's
-        pred = forward(obs) if cfg.future == cfg.chunk else model.rollout(obs, cfg.future, forward)
-        loss = loss_fn(pred, wins[:, cfg.obs_len:], cfg.velocity_weight)
+        loss = window_loss(cfg, model, forward, batch(cfg, fr, starts, it), it)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
@@ -393,6 +491,14 @@ def train(cfg: PriorConfig, out: str | Path, *, data: str | None = None, resume:
             log(f"iteration {it}/{cfg.iterations}: loss {run_loss / run_n:.5f}, "
                 f"{(elapsed0 + time.time() - t0) / 60:.1f} min")
             run_loss, run_n = 0.0, 0
+        if cfg.val_every and (it % cfg.val_every == 0 or it == cfg.iterations):
+            with torch.no_grad():
+                v = window_loss(vcfg, model, model, val, 0).item()
+            history.append({"iteration": it, "val": v, "elapsed_s": elapsed0 + time.time() - t0})
+            if v < best_val:
+                best_val = v
+                _save(out / "best.pt", state())
+            log(f"iteration {it}: validation loss {v:.5f} (best {best_val:.5f})")
         now = time.time()
         if now - last_ck > 60 * checkpoint_minutes:
             _save(last, state())

@@ -133,6 +133,8 @@ class Prior:
     @property
     def blocks(self) -> int: ...
     @property
+    def anchor(self) -> str: ...
+    @property
     def dct_matrix(self) -> _F32: ...
     def predict(self, obs: _F32, horizon: int, *, threads: Optional[int] = None) -> _F32: ...
 
@@ -166,6 +168,7 @@ def repair(
     sequences: Optional[List[int]] = None,
     threads: Optional[int] = None,
     progress: Optional[Callable[[int, int], Any]] = None,
+    fill: Optional[Prior] = None,
 ) -> Dict[str, _F32]: ...
 def seeded_noise(
     seed: int,

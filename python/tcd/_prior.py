@@ -6,6 +6,11 @@ spatial FC -> inverse DCT -> the next ``chunk`` frames, added to the last observ
 rolled out chunk by chunk, each prediction appended to the history. No sampling: the same input gives the
 same output.
 
+A prior whose ``anchor`` is ``"window"`` is a **repair fill** instead: the same network over a whole window
+(``chunk`` = ``obs_len``), its output added to the input window frame by frame. Its input is the natural cubic
+spline through a masked window's observed entries; a repair model conditioned on it (``cond_fill`` ``"prior"``)
+sees its correction (``repair_fill.safetensors`` in a model directory).
+
 Arrays are float32 **(B, T, K)**, frame-major (unlike :class:`tcd.engine.Denoiser`'s (B, K, L)): B
 sequences, T frames, K coordinates (index ``joint * 3 + axis``). Its public home is :mod:`tcd.engine`
 (``tcd.engine.Prior``).
@@ -40,6 +45,10 @@ class Prior(NativeModel[_native.Prior]):
     obs_len = NativeAttribute(int, "Frames one forward reads: the last ``obs_len`` frames of the input.")
     chunk = NativeAttribute(int, "Frames one forward predicts; :meth:`predict` rolls out longer horizons.")
     blocks = NativeAttribute(int, "Temporal FC + layer-norm blocks.")
+    anchor = NativeAttribute(str, "What a forward's output is added to: ``\"last\"``, the last observed pose (a "
+                             "forecaster, rolled out by :meth:`predict`), or ``\"window\"``, its input window (a "
+                             "repair fill: ``chunk`` = ``obs_len``, :meth:`predict` only with ``horizon`` = "
+                             "``obs_len``; :func:`tcd.engine.repair_raw`'s ``fill``).")
     dct_matrix = NativeAttribute(np.ndarray, "The (obs_len, obs_len) float32 DCT-II matrix the engine computes "
                                  "(row f the f-th cosine); it equals ``training.prior.dct_matrix(obs_len)`` rounded "
                                  "to float32.")

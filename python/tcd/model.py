@@ -42,6 +42,8 @@ PathLike = Union[str, "os.PathLike[str]"]
 
 #: the prior forecaster's file in a model directory (:attr:`TCD.prior`)
 PRIOR_FILE = "prior.safetensors"
+#: the repair model's fill in a model directory (:attr:`TCD.repair_fill`), for a repair model conditioned on it
+REPAIR_FILL_FILE = "repair_fill.safetensors"
 
 #: a model directory's own sampler defaults (:attr:`TCD.sampling`), optional: ``{"forecast": {...}, "repair":
 #: {...}, "why": "...", "forecast_tempo": [lo, hi]}``, each task's object holding :class:`SamplerOptions` fields; a
@@ -216,12 +218,16 @@ class TCD:
     def __init__(self, short: Denoiser, long: Denoiser, repair: Optional[Denoiser] = None,
                  path: Optional[PathLike] = None, threads: Optional[int] = None,
                  file_sha256: Optional[Dict[str, str]] = None, prior: Optional[Prior] = None,
-                 sampling: Optional[Dict[str, SamplerOptions]] = None, forecast_tempo: Tempo = None) -> None:
+                 sampling: Optional[Dict[str, SamplerOptions]] = None, forecast_tempo: Tempo = None,
+                 repair_fill: Optional[Prior] = None) -> None:
         self.short = short
         self.long = long
         self.repair_model = repair
         #: the deterministic prior forecaster of :meth:`predict` (``prior.safetensors``), or None
         self.prior = prior
+        #: the repair model's fill (``repair_fill.safetensors``: a :class:`tcd.engine.Prior` with ``anchor``
+        #: ``"window"``, its correction of the spline), for a repair model conditioned on it; else None
+        self.repair_fill = repair_fill
         self.path = None if path is None else Path(path)
         self.threads = _checks.threads(threads)
         unknown = sorted(set(sampling or {}) - set(SAMPLING_TASKS))
@@ -262,10 +268,30 @@ class TCD:
             raise WeightsError(f"{where}: the prior (num_features = {prior.num_features}, obs_len = {prior.obs_len}) "
                                f"must match the short-term model (num_features = {k}) and read at most its "
                                f"{short.obs_len} observed frames.", prior.path)
+        if prior is not None and prior.anchor != "last":
+            raise WeightsError(f"{where}: {PRIOR_FILE} is a repair fill (anchor \"{prior.anchor}\"), not a forecaster "
+                               f"(anchor \"last\").", prior.path)
         if repair is not None and (repair.num_features != k or repair.obs_len != short.obs_len):
             raise WeightsError(f"{where}: the repair model (num_features = {repair.num_features}, obs_len = "
                                f"{repair.obs_len}) must match the short-term model (num_features = {k}, obs_len = "
                                f"{short.obs_len}).", repair.path)
+        if repair is not None and _uses_prior(repair) and repair_fill is None:
+            missing = str(Path(path) / REPAIR_FILL_FILE) if path is not None else REPAIR_FILL_FILE
+            raise WeightsError(f"{where}: the repair model is conditioned on its fill (cond_fill \"prior\"), but "
+                               f"{missing} is missing: the model directory must hold the fill it was trained with.",
+                               missing)
+        if repair_fill is not None and (repair is None or repair_fill.anchor != "window"
+                                        or repair_fill.num_features != k or repair_fill.obs_len != repair.seq_len):
+            raise WeightsError(f"{where}: the repair fill (anchor \"{repair_fill.anchor}\", num_features = "
+                               f"{repair_fill.num_features}, obs_len = {repair_fill.obs_len}) must be a repair fill "
+                               f"(anchor \"window\") over the repair model's window (num_features = {k}, "
+                               f"{'no repair model' if repair is None else f'seq_len = {repair.seq_len}'}).",
+                               repair_fill.path)
+
+    def _repair_fill_of(self, den: Denoiser) -> Optional[Prior]:
+        """The fill a repair by ``den`` runs with (:func:`tcd.engine.repair_raw`'s ``fill``): the directory's
+        repair fill for its repair model, None for another denoiser (the short-term model in-painting)."""
+        return self.repair_fill if den is self.repair_model else None
 
     # ------------------------------------------------------------------ description
     @property
@@ -420,7 +446,7 @@ class TCD:
             return Repair(poses=poses, seed=seed)
         p = _poses(obs, mask, self.num_joints, self.obs_len, units, repair=True)
         out = repair_raw(model, p.observed, p.mask, num_samples=num_samples, seed=seed, threads=threads,
-                         progress=progress, **sampling)
+                         progress=progress, fill=self._repair_fill_of(model), **sampling)
         return Repair(poses=p.repaired(out["mean"]), seed=seed)
 
     def predict(self, obs: ArrayLike, mask: Optional[ArrayLike] = None, *, fill: Fill = "auto",
@@ -474,7 +500,7 @@ class TCD:
             if fill == "model":
                 den = self.repair_model if self.repair_model is not None else self.short
                 out = repair_raw(den, observed, seen, num_samples=num_samples, seed=seed, threads=threads,
-                                 progress=progress, **sampling)
+                                 progress=progress, fill=self._repair_fill_of(den), **sampling)
                 repaired = np.where(missing, out["mean"], observed).astype(np.float32)
             else:
                 never = missing.all(axis=-1)
@@ -526,11 +552,10 @@ def load(path: Optional[PathLike] = None, *, threads: Optional[int] = None) -> T
     long = Denoiser.from_bytes(blobs["long.safetensors"], str(d / "long.safetensors"))
     rp = "repair.safetensors"
     repair_model = Denoiser.from_bytes(blobs[rp], str(d / rp)) if rp in blobs else None
-    pp = PRIOR_FILE
-    prior = Prior.from_bytes(blobs[pp], str(d / pp)) if pp in blobs else None
+    priors = {n: Prior.from_bytes(blobs[n], str(d / n)) if n in blobs else None for n in (PRIOR_FILE, REPAIR_FILL_FILE)}
     sampling, forecast_tempo = _read_sampling(d / SAMPLING_FILE)
-    return TCD(short, long, repair_model, path=d, threads=threads, file_sha256=digests, prior=prior,
-               sampling=sampling, forecast_tempo=forecast_tempo)
+    return TCD(short, long, repair_model, path=d, threads=threads, file_sha256=digests, prior=priors[PRIOR_FILE],
+               sampling=sampling, forecast_tempo=forecast_tempo, repair_fill=priors[REPAIR_FILL_FILE])
 
 
 def _read_sampling(f: Path) -> Tuple[Dict[str, SamplerOptions], Tempo]:
@@ -573,7 +598,7 @@ def _uses_prior(model: Denoiser) -> bool:
 
 CHECKSUM_FILE = "SHA256SUMS"
 #: the weight files of a model directory, by role, in checksum order
-ROLES = ("short", "long", "repair", "prior")
+ROLES = ("short", "long", "repair", "prior", "repair_fill")
 
 
 def _checksum_text(digests: Dict[str, str]) -> str:

@@ -32,7 +32,7 @@ use crate::control::Control;
 use crate::denoiser::{fill_spline, Denoiser};
 use crate::error::{Error, Result};
 use crate::observation::Observation;
-use crate::prior::Prior;
+use crate::prior::{Anchor, Prior};
 use crate::rng::{stage, Noise, Sequences};
 use crate::sampler::{run_job, validate_job, SamplerConfig};
 
@@ -169,6 +169,13 @@ fn stage_prior<'p>(
         ));
     };
     let (k, l) = (model.num_features(), model.seq_len());
+    if p.config().model.anchor != Anchor::Last {
+        return Err(Error::invalid_input(
+            "prior",
+            format!("the prior forecaster (anchor \"last\") the {which} model is conditioned on"),
+            "a repair fill (anchor \"window\")",
+        ));
+    }
     if p.num_features() != k || p.obs_len() >= l {
         return Err(Error::invalid_input(
             "prior",
@@ -185,8 +192,10 @@ fn stage_prior<'p>(
 /// like it: over the first O = `prior.obs_len()` frames of every row the natural cubic spline through
 /// that row's observed entries among them ([`fill_spline`], the reference's bits), after them the prior's
 /// rollout ([`Prior::predict`]) from those O filled frames (frame O + i is its i-th forecast frame).
-/// Mask-1 entries are kept (a long-term window's given frames after O too); mask-0 entries of `observed`
-/// are never read. Needs the prior's K and L > O; `control` can stop the rollout.
+/// A repair fill (anchor [`Anchor::Window`], L = O) corrects the spline-filled window instead: its
+/// output fills every mask-0 entry. Mask-1 entries are kept (a long-term window's given frames after O
+/// too); mask-0 entries of `observed` are never read. Needs the prior's K and L > O (L = O for a repair
+/// fill); `control` can stop the rollout.
 pub fn prior_fill(
     prior: &Prior,
     observed: &Observation<'_>,
@@ -195,7 +204,14 @@ pub fn prior_fill(
     let (k, o) = (prior.num_features(), prior.obs_len());
     observed.expect(k, "the prior's", None)?;
     let [batch, _, length] = observed.shape();
-    if length <= o {
+    if prior.config().model.anchor == Anchor::Window && length != o {
+        return Err(Error::invalid_input(
+            "length",
+            format!("the repair fill's window (obs_len = {o} frames)"),
+            length.to_string(),
+        ));
+    }
+    if prior.config().model.anchor == Anchor::Last && length <= o {
         return Err(Error::invalid_input(
             "length",
             format!("more frames than the prior reads (obs_len = {o})"),
@@ -208,7 +224,7 @@ pub fn prior_fill(
 }
 
 /// [`prior_fill`] in place on `values` with `mask`, (B, K, L) of a checked observation with the prior's K
-/// and L > its obs_len.
+/// and L > its obs_len (L = obs_len for a repair fill, anchor [`Anchor::Window`]).
 fn fill_with_prior(
     prior: &Prior,
     values: &mut [f32],
@@ -218,7 +234,9 @@ fn fill_with_prior(
     control: &Control,
 ) -> Result<()> {
     let (k, o) = (prior.num_features(), prior.obs_len());
-    let horizon = length - o;
+    let window = prior.config().model.anchor == Anchor::Window;
+    // A forecaster rolls out the frames after O; a repair fill corrects the O frames it reads.
+    let horizon = if window { o } else { length - o };
     // The filled first O frames, frame-major (B, O, K) as the prior reads them.
     let mut head = vec![0.0f32; batch * o * k];
     let mut row_head = vec![0.0f32; o];
@@ -245,7 +263,9 @@ fn fill_with_prior(
             if mv > 0.5 {
                 continue;
             }
-            *v = if ll < o {
+            *v = if window {
+                future[(b * o + ll) * k + kk]
+            } else if ll < o {
                 head[(b * o + ll) * k + kk]
             } else {
                 future[(b * horizon + ll - o) * k + kk]
@@ -370,32 +390,33 @@ pub fn cascade(
 /// Repairs (imputes) the mask-0 entries of an observation: runs `model` on `observed`, (B, K, O) with K
 /// the model's `num_features` and O its `obs_len`, padded to its `seq_len` with mask-0 frames, and returns
 /// the samples and their mean over the observed frames 0..O (mask-1 entries exact). A model conditioned
-/// on the prior forecaster (`cond_fill` [`CondFill::Prior`]) is refused: repair never uses the prior.
+/// on a fill (`cond_fill` [`CondFill::Prior`]) needs `fill`: a repair fill (anchor [`Anchor::Window`])
+/// with the model's K and `obs_len` = its `seq_len`, whose correction of the spline-filled window
+/// ([`prior_fill`]) the masked entries hold, computed once before the chains as the cascade does with
+/// the prior forecaster; `fill` is unused otherwise.
 pub fn repair(
     model: &Denoiser,
+    fill: Option<&Prior>,
     observed: &Observation<'_>,
     options: &ForecastOptions,
     noise: Noise<'_>,
     control: &Control,
 ) -> Result<RepairOutput> {
-    if model.config().model.cond_fill == CondFill::Prior {
-        return Err(Error::invalid_input(
-            "model",
-            "a repair model that is not conditioned on the prior forecaster (repair never runs the prior)",
-            "a model with cond_fill \"prior\"",
-        ));
-    }
     let (k, o, l) = (model.num_features(), model.obs_len(), model.seq_len());
+    let fill = repair_fill(model, fill)?;
     observed.expect(k, "the model's", Some((o, "obs_len")))?;
     let batch = observed.batch();
     let s = options.num_samples;
-    let x = pad_frames(
+    let mut x = pad_frames(
         &zero_unobserved(observed.values(), observed.mask()),
         o,
         l,
         0.0,
     );
     let m = pad_frames(observed.mask(), o, l, 0.0);
+    if let Some(f) = fill {
+        fill_with_prior(f, &mut x, &m, batch, l, control)?;
+    }
     let job = validate_job(
         model,
         Observation::checked_by_construction(&x, &m, [batch, k, l]),
@@ -418,6 +439,36 @@ pub fn repair(
         mean,
         samples,
     })
+}
+
+/// The repair fill a repair `model` runs with: `None` for a model not conditioned on a fill; for a
+/// [`CondFill::Prior`] model `fill`, which must be given, be a repair fill (anchor [`Anchor::Window`]) and
+/// have the model's `num_features` and `obs_len` = its `seq_len`.
+fn repair_fill<'p>(model: &Denoiser, fill: Option<&'p Prior>) -> Result<Option<&'p Prior>> {
+    if model.config().model.cond_fill != CondFill::Prior {
+        return Ok(None);
+    }
+    let (k, l) = (model.num_features(), model.seq_len());
+    let Some(f) = fill else {
+        return Err(Error::invalid_input(
+            "fill",
+            "the repair fill (repair_fill.safetensors): the repair model is conditioned on it (cond_fill \"prior\")",
+            "none",
+        ));
+    };
+    if f.config().model.anchor != Anchor::Window || f.num_features() != k || f.obs_len() != l {
+        return Err(Error::invalid_input(
+            "fill",
+            format!("a repair fill (anchor \"window\") with the repair model's num_features = {k} and obs_len = its seq_len = {l}"),
+            format!(
+                "anchor {:?}, num_features = {}, obs_len = {}",
+                f.config().model.anchor,
+                f.num_features(),
+                f.obs_len()
+            ),
+        ));
+    }
+    Ok(Some(f))
 }
 
 #[cfg(test)]

@@ -222,6 +222,7 @@ fn repair_imputes_only_missing_entries() {
     };
     let r = repair(
         &short,
+        None,
         &Observation::new(&observed, &mask, [b, k, o]).unwrap(),
         &opts,
         Noise::seeded(1),
@@ -246,6 +247,7 @@ fn repair_imputes_only_missing_entries() {
     let again = in_pool(1, || {
         repair(
             &short,
+            None,
             &Observation::new(&observed, &mask, [b, k, o]).unwrap(),
             &opts,
             Noise::seeded(1),
@@ -592,7 +594,7 @@ fn cascade_with_a_prior_conditioned_pair_fills_each_stage_once() {
 }
 
 #[test]
-fn prior_conditioned_models_need_a_fitting_prior_and_never_repair() {
+fn prior_conditioned_models_need_a_fitting_prior_and_repair_only_with_a_fill() {
     let (short, long) = prior_models(tcd_core::PredictionType::Epsilon);
     let (plain_short, plain_long) = models();
     let (k, o) = (6usize, 6usize);
@@ -650,20 +652,27 @@ fn prior_conditioned_models_need_a_fitting_prior_and_never_repair() {
         run(&plain_short, &plain_long, Some(&p)).unwrap(),
         run(&plain_short, &plain_long, None).unwrap()
     );
-    // repair never uses the prior: a prior-conditioned model is refused
-    let e = repair(
-        &short,
-        &Observation::new(&observed, &mask, [1, k, o]).unwrap(),
-        &ForecastOptions::default(),
-        Noise::seeded(1),
-        &Control::default(),
-    )
-    .unwrap_err();
-    assert!(
-        matches!(&e, Error::InvalidInput { argument, .. } if argument == "model"),
-        "{e:?}"
-    );
-    assert!(e.to_string().contains("prior"), "{e}");
+    // repair runs a prior-conditioned model only with a repair fill (anchor "window") of its window: none,
+    // or a forecaster, is refused naming `fill`
+    for f in [None, Some(&p)] {
+        let e = repair(
+            &short,
+            f,
+            &Observation::new(&observed, &mask, [1, k, o]).unwrap(),
+            &ForecastOptions::default(),
+            Noise::seeded(1),
+            &Control::default(),
+        )
+        .unwrap_err();
+        assert!(
+            matches!(&e, Error::InvalidInput { argument, .. } if argument == "fill"),
+            "{e:?}"
+        );
+        assert!(e.to_string().contains("repair fill"), "{e}");
+    }
+    // and a forecasting cascade refuses a repair fill as its prior
+    let e = run(&short, &long, Some(&tiny_repair_fill(6, 5, 1))).unwrap_err();
+    assert!(e.to_string().contains("anchor \"window\""), "{e}");
     // the low-level calls read the fill from `observed`: it must be finite there
     let mut nan = values(k * 8, 62, 1.0);
     let m8: Vec<f32> = (0..k * 8)
@@ -693,4 +702,53 @@ fn prior_conditioned_models_need_a_fitting_prior_and_never_repair() {
         )
         .unwrap_err();
     assert!(e.to_string().contains("`observed`"), "{e}");
+}
+
+#[test]
+fn repair_with_a_fill_samples_the_model_on_the_filled_window() {
+    // A repair model conditioned on a fill (cond_fill "prior", pred_len 0) and a repair fill of its window:
+    // the repair is the model's sampling of the observation whose masked entries hold prior_fill's
+    // correction of the spline (the same noise), observed entries exact.
+    let mut cfg = tiny_config(Role::Repair, 8, 0);
+    cfg.model.cond_fill = tcd_core::CondFill::Prior;
+    cfg.model.target = tcd_core::Target::PriorResidual;
+    cfg.model.target_scale = 10.0;
+    let model = model_of(&cfg, 71);
+    let fill = tiny_repair_fill(6, 8, 72);
+    let (b, k, l, s) = (2usize, 6usize, 8usize, 3usize);
+    let given = values(b * k * l, 73, 1.0);
+    let mask = binary_mask(b * k * l, 74, 0.6);
+    let observed = Observation::new(&given, &mask, [b, k, l]).unwrap();
+    let opts = ForecastOptions {
+        num_samples: s,
+        sampler: SamplerConfig::ddim(3, 1.0),
+    };
+    let r = repair(
+        &model,
+        Some(&fill),
+        &observed,
+        &opts,
+        Noise::seeded(5),
+        &Control::default(),
+    )
+    .unwrap();
+    let filled = tcd_core::prior_fill(&fill, &observed, &Control::default()).unwrap();
+    // the fill corrects the spline: it differs from it on masked entries, equals the observation elsewhere
+    let spline = tcd_core::fill_rows(tcd_core::CondFill::Spline, l, &mask, &given).unwrap();
+    assert!((0..b * k * l).any(|i| mask[i] == 0.0 && filled[i] != spline[i]));
+    let want = sample(
+        &model,
+        &Observation::new(&filled, &mask, [b, k, l]).unwrap(),
+        s,
+        &opts.sampler,
+        Noise::seeded(5),
+        &Control::default(),
+    )
+    .unwrap();
+    assert_eq!(r.samples, want);
+    for i in 0..b * k * l {
+        if mask[i] == 1.0 {
+            assert_eq!(r.mean[i].to_bits(), given[i].to_bits());
+        }
+    }
 }

@@ -11,8 +11,8 @@ use common::*;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use tcd_core::{
-    dct_matrix, prior_expected_tensors, with_threads, Control, DataConfig, Denoiser, Error, Kernel,
-    Prior, PriorConfig, PriorModelConfig,
+    dct_matrix, prior_expected_tensors, with_threads, Anchor, Control, DataConfig, Denoiser, Error,
+    Kernel, Prior, PriorConfig, PriorModelConfig,
 };
 
 /// K = 6 (2 joints × 3), L = 12, chunk 4, 3 blocks: small, and with a horizon that is no multiple of
@@ -29,6 +29,7 @@ fn config() -> PriorConfig {
             chunk: 4,
             blocks: 3,
             layer_norm_eps: 1e-5,
+            anchor: Anchor::Last,
         },
         data: DataConfig::default(),
     }
@@ -398,8 +399,13 @@ fn naive_rollout(
         x = spatial(&x, &g("fc_out.weight"), &g("fc_out.bias"));
         let mut out = vec![0.0; c * k];
         for tt in 0..c {
+            // the anchor: the last pose, or (a repair fill) the input frame itself
+            let base = match cfg.anchor {
+                Anchor::Last => l - 1,
+                Anchor::Window => tt,
+            };
             for kk in 0..k {
-                out[tt * k + kk] = hist[(l - 1) * k + kk]
+                out[tt * k + kk] = hist[base * k + kk]
                     + (0..l).map(|f| x[kk * l + f] * d[f * l + tt]).sum::<f64>();
             }
         }
@@ -455,6 +461,54 @@ fn predict_matches_the_f64_reference_on_every_kernel() {
                 "{kernel} horizon {horizon}: max abs diff {err}, scale {scale}"
             );
         }
+    }
+}
+
+#[test]
+fn a_repair_fill_corrects_its_window_on_every_kernel() {
+    // anchor "window": the output is the network's added to the input window itself, frame by frame
+    let mut cfg = config();
+    cfg.model.chunk = cfg.model.obs_len;
+    cfg.model.anchor = Anchor::Window;
+    let t = tensors(&cfg, 8);
+    let p = Prior::from_bytes(&bytes(&cfg.to_json(), &t), "repair_fill.safetensors").unwrap();
+    let (b, l, k) = (4, 12, 6);
+    let obs = motion(b, l, k, 10);
+    let want = naive_rollout(&cfg.model, &t, &obs, b, l, l);
+    let scale = want.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    for kernel in Kernel::supported() {
+        let got = p
+            .clone()
+            .with_kernel(kernel)
+            .unwrap()
+            .predict(&obs, b, l, l, &Control::default())
+            .unwrap();
+        let err = max_abs_diff(&got, &want);
+        assert!(err <= 1e-5 * scale.max(1.0), "{kernel}: max abs diff {err}");
+    }
+    // the same weights anchored on the last pose differ by exactly the anchor
+    let mut last = cfg.clone();
+    last.model.anchor = Anchor::Last;
+    let forecast = naive_rollout(&last.model, &t, &obs, b, l, l);
+    let (s, tt, kk) = (1, 3, 2);
+    let i = (s * l + tt) * k + kk;
+    let shift = obs[i] as f64 - obs[(s * l + l - 1) * k + kk] as f64;
+    assert!((want[i] - forecast[i] - shift).abs() < 1e-9 && shift.abs() > 1e-3);
+    // it corrects a window, it does not forecast: another horizon is refused naming it
+    let e = p.predict(&obs, b, l, 1, &Control::default()).unwrap_err();
+    assert!(
+        matches!(&e, Error::InvalidInput { argument, .. } if argument == "horizon"),
+        "{e:?}"
+    );
+    // and its chunk must be its obs_len
+    invalid_chunk_for_window(&cfg, &t);
+}
+
+fn invalid_chunk_for_window(cfg: &PriorConfig, t: &BTreeMap<String, RawTensor>) {
+    let json = with(cfg, |v| v["model"]["chunk"] = 4.into());
+    match Prior::from_bytes(&bytes(&json, t), "p.safetensors").unwrap_err() {
+        Error::InvalidConfig { field, .. } => assert_eq!(field, "model.chunk"),
+        e => panic!("{e:?}"),
     }
 }
 

@@ -34,6 +34,14 @@ model_methods! {
         fn blocks(&self) -> usize {
             self.inner.config().model.blocks
         }
+        /// What a forward's output is added to: "last" (a forecaster) or "window" (a repair fill).
+        #[getter]
+        fn anchor(&self) -> &'static str {
+            match self.inner.config().model.anchor {
+                tcd_core::Anchor::Last => "last",
+                tcd_core::Anchor::Window => "window",
+            }
+        }
         /// The DCT matrix the engine computed (obs_len, obs_len) float32, row f the f-th cosine.
         #[getter]
         fn dct_matrix<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f32>>> {
@@ -96,12 +104,13 @@ model_methods! {
 
         fn __repr__(&self) -> String {
             format!(
-                "Prior(path={:?}, num_features={}, obs_len={}, chunk={}, blocks={}, kernel={:?})",
+                "Prior(path={:?}, num_features={}, obs_len={}, chunk={}, blocks={}, anchor={:?}, kernel={:?})",
                 self.path(),
                 self.num_features(),
                 self.obs_len(),
                 self.chunk(),
                 self.blocks(),
+                self.anchor(),
                 self.kernel()
             )
         }

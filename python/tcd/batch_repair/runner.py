@@ -130,7 +130,8 @@ def run_tasks(model: Any, tasks: Iterable[Task], opts: RepairOptions, *, overwri
             msk.append(m)
         # Window k of a file draws the engine's stream k, whichever files share the batch.
         out = repair_raw(den, np.stack(obs), np.stack(msk), num_samples=opts.num_samples, seed=opts.seed,
-                         sequences=[a.job.k for a in active], threads=opts.threads, **sampler)
+                         sequences=[a.job.k for a in active], threads=opts.threads, fill=model._repair_fill_of(den),
+                         **sampler)
         still: List[Active] = []
         for a, mean in zip(active, out["mean"]):
             a.job.accept(mean)

@@ -26,6 +26,30 @@ pub struct PriorModelConfig {
     pub blocks: usize,
     /// Epsilon of the layer norm over the K coordinates of a frame.
     pub layer_norm_eps: f64,
+    /// What a forward's output is added to (`training/prior.py`, `PriorConfig.anchor`); absent in a
+    /// forecaster's file (written as before it existed), so only a repair fill's file names it.
+    #[serde(default, skip_serializing_if = "Anchor::is_last")]
+    pub anchor: Anchor,
+}
+
+/// What a prior's forward adds its network's output to.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Anchor {
+    /// The last observed pose: the output is the next `chunk` frames (the forecaster, rolled out).
+    #[default]
+    Last,
+    /// The input window itself (`chunk` = `obs_len`): the output is that window corrected. A repair
+    /// fill: its input is the natural cubic spline through a masked window's observed entries
+    /// ([`crate::forecast::repair`]).
+    Window,
+}
+
+impl Anchor {
+    /// Whether this is the default, [`Anchor::Last`] (not written to a file's config).
+    pub fn is_last(&self) -> bool {
+        *self == Anchor::Last
+    }
 }
 
 /// The whole `tcd_config` object of a prior file.
@@ -89,6 +113,15 @@ impl PriorConfig {
                 "model.chunk",
                 format!(
                     "must not exceed obs_len = {}, but is {}",
+                    m.obs_len, m.chunk
+                ),
+            ));
+        }
+        if m.anchor == Anchor::Window && m.chunk != m.obs_len {
+            return Err(bad(
+                "model.chunk",
+                format!(
+                    "must equal obs_len = {} for anchor \"window\" (the output corrects the whole input), but is {}",
                     m.obs_len, m.chunk
                 ),
             ));

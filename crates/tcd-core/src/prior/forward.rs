@@ -6,6 +6,7 @@
 
 use rayon::prelude::*;
 
+use super::config::Anchor;
 use super::Prior;
 use crate::control::Control;
 use crate::error::{check_len, check_positive, Error, Result};
@@ -184,14 +185,21 @@ impl Prior {
         self.idct_layer.forward(x, y, n * k);
         transpose(y, x, n, k, c);
         self.fc_out.forward(x, pred, n * c);
+        let window = self.config().model.anchor == Anchor::Window;
         for (p, h) in pred
             .chunks_exact_mut(c * k)
             .zip(hist.chunks_exact(l * k))
             .take(n)
         {
             let last = &h[(l - 1) * k..];
-            for (frame, bias) in p.chunks_exact_mut(k).zip(self.out_bias.chunks_exact(k)) {
-                for ((v, b), z) in frame.iter_mut().zip(bias).zip(last) {
+            for (t, (frame, bias)) in p
+                .chunks_exact_mut(k)
+                .zip(self.out_bias.chunks_exact(k))
+                .enumerate()
+            {
+                // The anchor: the last observed pose, or (a window's correction, c = l) frame t itself.
+                let base = if window { &h[t * k..(t + 1) * k] } else { last };
+                for ((v, b), z) in frame.iter_mut().zip(bias).zip(base) {
                     *v += b + z;
                 }
             }
@@ -258,6 +266,13 @@ impl Prior {
         let (k, l) = (self.num_features(), self.obs_len());
         check_positive("batch", batch)?;
         check_positive("horizon", horizon)?;
+        if self.config().model.anchor == Anchor::Window && horizon != l {
+            return Err(Error::invalid_input(
+                "horizon",
+                format!("obs_len = {l}: a prior with anchor \"window\" (a repair fill) corrects its window, it does not forecast"),
+                horizon.to_string(),
+            ));
+        }
         if frames < l {
             return Err(Error::invalid_input(
                 "obs",

@@ -11,6 +11,10 @@
 //! and [`Prior::predict`] rolls it out to any horizon: each predicted chunk is appended to the
 //! history and the last L frames predict the next (as `PriorNet.rollout`).
 //!
+//! A prior with `anchor` [`Anchor::Window`] (`chunk` = L) adds the output to its input window instead of
+//! the last pose: it corrects a window rather than forecasting one, and is the repair fill of
+//! [`crate::forecast::repair`] (its input the spline through a masked window's observed entries).
+//!
 //! # Layouts
 //! * Public arrays are **frame-major (B, T, K)** row-major f32, index `b·T·K + t·K + k` (unlike the
 //!   denoiser's (B, K, L)): the poses' own order, and what the Python API takes.
@@ -41,7 +45,7 @@ use crate::weights::{read_file, read_weights, Tensor};
 pub mod config;
 mod forward;
 
-pub use config::{prior_expected_tensors, PriorConfig, PriorModelConfig};
+pub use config::{prior_expected_tensors, Anchor, PriorConfig, PriorModelConfig};
 use forward::Dense;
 
 /// One temporal block: FC over the L frames (DCT coefficients) of each coordinate, layer norm over

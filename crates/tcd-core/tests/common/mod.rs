@@ -456,6 +456,21 @@ pub fn model_of(cfg: &TcdConfig, seed: u64) -> Denoiser {
 /// A small random prior forecaster: K = `num_features`, `obs_len` frames in, `chunk` out, 2 blocks,
 /// weights of unit-gain scale (its forecast moves well away from the last pose).
 pub fn tiny_prior(num_features: usize, obs_len: usize, chunk: usize, seed: u64) -> Prior {
+    tiny_prior_anchored(num_features, obs_len, chunk, Anchor::Last, seed)
+}
+
+/// A repair fill (anchor "window") of `len` frames with random weights, like [`tiny_prior`].
+pub fn tiny_repair_fill(num_features: usize, len: usize, seed: u64) -> Prior {
+    tiny_prior_anchored(num_features, len, len, Anchor::Window, seed)
+}
+
+pub fn tiny_prior_anchored(
+    num_features: usize,
+    obs_len: usize,
+    chunk: usize,
+    anchor: Anchor,
+    seed: u64,
+) -> Prior {
     let cfg = PriorConfig {
         format_version: 1,
         role: "prior".into(),
@@ -467,6 +482,7 @@ pub fn tiny_prior(num_features: usize, obs_len: usize, chunk: usize, seed: u64) 
             chunk,
             blocks: 2,
             layer_norm_eps: 1e-5,
+            anchor,
         },
         data: DataConfig::default(),
     };
