@@ -18,8 +18,8 @@ kernel path: relative differences 6.2e-8 .. 1.2e-6, output scale 0.90 .. 1.0 m, 
 (0.03: the repaired observation of the cascade), mean distance to the clip 1.7 .. 4.9 cm (``pytest -s`` prints them).
 The bundled HumanEva-I cascade (long model 5 x 32), every kernel path: 0.9e-6 .. 1.3e-6, scale 0.81 m, contribution
 0.11 m, 1.8 cm from the window. The repair model around its repair fill (since the thirteenth session of 2026-11-27;
-the engine computes the fill, PyTorch's ``prior_fill`` the reference's): 2.8e-7 .. 3.3e-7, contributions 8.8 .. 9.2 m,
-4.1 .. 4.3 cm from the clip.
+the engine computes the fill, PyTorch's ``prior_fill`` the reference's): 3.3e-7 .. 4.4e-7, contributions 8.8 .. 9.2 m,
+4.2 .. 4.4 cm from the clip.
 """
 from __future__ import annotations
 

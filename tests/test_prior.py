@@ -256,7 +256,8 @@ def repair_fill_config(**over) -> PriorConfig:
                                         ({"loss_frames": 20}, "loss_frames be 0"),
                                         ({"mask_mix": (("no_such_mask", 1.0),)}, "no_such_mask"),
                                         ({"obs_noise_prob": 0.5, "obs_noise_mm": 25.0}, "flips and rotations only"),
-                                        ({"anchor": "first"}, "anchor must be one of")])
+                                        ({"anchor": "first"}, "anchor must be one of"),
+                                        ({"dataset": "humaneva", "subjects": (1, 2, 3)}, "trains on Human3.6M")])
 def test_repair_fill_config_rejects_what_it_cannot_train(over, match):
     with pytest.raises(ValueError, match=match):
         repair_fill_config(**over)

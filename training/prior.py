@@ -25,6 +25,12 @@ frame-to-frame velocities; Adam with weight decay; the learning rate decays once
 iterations (``lr`` -> ``lr_final``). Every draw is a pure function of (seed, iteration), so a resumed run
 continues exactly where it stopped.
 
+A **repair fill** (``"anchor": "window"``, ``chunk`` = ``obs_len``; docs/repair.md) is the same network over a
+whole window, its output added to its input window instead of to the last pose: it trains on windows of
+``obs_len`` frames, each hidden by a mask of ``mask_mix`` and filled by the natural cubic spline
+(:func:`repair_batch`), with the loss over the hidden joints (:func:`hidden_loss`). Any run may validate on
+held-out subjects (``val_subjects``, every ``val_every`` iterations; ``best.pt`` keeps the lowest).
+
     python -m training.prior --config training/configs/prior.json --out runs/prior [--resume]
                              [--max-minutes M] [--threads 1]
     python -m training.prior --config training/configs/humaneva_prior.json --out runs/humaneva_prior
@@ -147,6 +153,9 @@ class PriorConfig:
                 raise ValueError("prior config: anchor \"window\" corrects its whole input: chunk must equal obs_len "
                                  f"and loss_frames be 0, got chunk {self.chunk}, obs_len {self.obs_len}, "
                                  f"loss_frames {self.loss_frames}")
+            if self.dataset != "h36m":      # training.masks draws masks over Human3.6M's 22 model joints
+                raise ValueError(f"prior config: anchor \"window\" (a repair fill) trains on Human3.6M, got "
+                                 f"dataset {self.dataset!r}")
             from .masks import mix_entry
             for entry in self.mask_mix:
                 mix_entry(entry)

@@ -252,7 +252,7 @@ fn fill_with_prior(
             head[(b * o + t) * k + kk] = v;
         }
     }
-    let future = prior.predict(&head, batch, o, horizon, control)?; // (B, horizon, K)
+    let out = prior.predict(&head, batch, o, horizon, control)?; // (B, horizon, K): the rollout, or the corrected window
     for (r, (row, m)) in values
         .chunks_exact_mut(length)
         .zip(mask.chunks_exact(length))
@@ -264,11 +264,11 @@ fn fill_with_prior(
                 continue;
             }
             *v = if window {
-                future[(b * o + ll) * k + kk]
+                out[(b * o + ll) * k + kk]
             } else if ll < o {
                 head[(b * o + ll) * k + kk]
             } else {
-                future[(b * horizon + ll - o) * k + kk]
+                out[(b * horizon + ll - o) * k + kk]
             };
         }
     }
