@@ -93,10 +93,8 @@ def spline_fill(x: np.ndarray, m: np.ndarray) -> np.ndarray:
 
 
 def learned_fill(model: "tcd.TCD"):
-    """The model directory's repair fill alone as a fill function (x, m) -> filled, or None without one: its
-    correction of :func:`spline_fill` over the whole window, observed entries kept."""
-    if model.repair_fill is None:
-        return None
+    """The model directory's repair fill (``model.repair_fill``, which it must have) alone as a fill function
+    (x, m) -> filled: its correction of :func:`spline_fill` over the whole window, observed entries kept."""
 
     def fill(x: np.ndarray, m: np.ndarray) -> np.ndarray:
         b, t = x.shape[:2]
