@@ -162,17 +162,18 @@ def load_model_dir(path: str | Path, device: str = "cpu") -> dict[str, tuple[TCD
     files = {role: d / f"{role}.safetensors" for role in ROLES if (d / f"{role}.safetensors").is_file()}
     if "short" not in files or "long" not in files:
         raise FileNotFoundError(f"{d} must hold short.safetensors and long.safetensors")
-    needs = [role for role, f in files.items() if read_config(f)["model"].get("cond_fill") == "prior"]
-    fills = {}              # what a cond_fill 'prior' model of each kind is conditioned on
-    for name, roles in ((PRIOR_FILE, [r for r in needs if r != "repair"]),
-                        (REPAIR_FILL_FILE, [r for r in needs if r == "repair"])):
-        if roles and not (d / name).is_file():
+    def fill_file(role: str) -> str:    # what a cond_fill 'prior' model of this role is conditioned on
+        return REPAIR_FILL_FILE if role == "repair" else PRIOR_FILE
+
+    needs = {role: fill_file(role) for role, f in files.items() if read_config(f)["model"].get("cond_fill") == "prior"}
+    fills = {}
+    for name in dict.fromkeys(needs.values()):
+        if not (d / name).is_file():
+            roles = [r for r, n in needs.items() if n == name]
             raise FileNotFoundError(f"{d}: the {', '.join(roles)} model(s) are conditioned on a fill (cond_fill "
                                     f"'prior'), but the directory has no {name}")
-        if roles:
-            fills[name] = load_prior_file(d / name)[0]
-    return {role: load_model_file(f, device, prior=fills.get(REPAIR_FILL_FILE if role == "repair" else PRIOR_FILE))
-            for role, f in files.items()}
+        fills[name] = load_prior_file(d / name)[0]
+    return {role: load_model_file(f, device, prior=fills.get(needs.get(role))) for role, f in files.items()}
 
 
 def write_model_json(d: Path) -> None:
