@@ -44,20 +44,16 @@ def main(argv=None) -> int:
     ap.add_argument("--data-dir", default=str(rq.h36m.DEFAULT_H36M_DIR))
     ap.add_argument("--json", default=None, metavar="OUT")
     args = ap.parse_args(argv)
-    from tcd.engine import Denoiser, Prior
-
     model_dir = Path(args.model) if args.model else Path(rq.tcd.default_model_dir())
     model = rq.tcd.load(model_dir)
-    if model.repair_fill is None:
-        ap.error(f"--model: {model_dir} has no repair fill (repair_fill.safetensors); this bench compares fills "
-                 "under a repair model conditioned on one")
+    if model.repair_fill is None or model.prior is None:
+        ap.error(f"--model: {model_dir} needs a repair model with its repair fill (repair_fill.safetensors) and the "
+                 "prior forecaster (prior.safetensors): this bench compares fills under that repair model")
     gt = rq.draw_windows(args.windows, L, args.seed, Path(args.data_dir))
     label, _, m, obs = next(c for c in rq.masked_cases(gt, args.seed) if c[1] == PATTERN)
-    denoiser = Denoiser.load(model_dir / "repair.safetensors")
-    prior = Prior.load(model_dir / "prior.safetensors")
     spline = rq.spline_fill(obs, m)
     fills = {"the repair fill (bundled)": rq.learned_fill(model)(obs, m),
-             **bidirectional_fill(prior, gt, m, spline), "spline": spline}
+             **bidirectional_fill(model.prior, gt, m, spline), "spline": spline}
     b, t, j = m.shape
     keep = np.repeat(m[..., None], 3, -1)
     to_bkl = lambda a: np.ascontiguousarray(a.reshape(b, t, j * 3).transpose(0, 2, 1), np.float32)  # noqa: E731
@@ -65,7 +61,7 @@ def main(argv=None) -> int:
     for name, fill in fills.items():
         fill = np.where(keep, gt, fill)
         start = time.perf_counter()
-        s = denoiser.sample(to_bkl(fill), to_bkl(keep), args.samples, seed=args.seed, sampler="ddpm",
+        s = model.repair_model.sample(to_bkl(fill), to_bkl(keep), args.samples, seed=args.seed, sampler="ddpm",
                             num_inference_steps=args.steps, threads=args.threads)
         seconds = time.perf_counter() - start
         repaired = np.where(keep, gt, s.mean(0).transpose(0, 2, 1).reshape(b, t, j, 3))
