@@ -94,13 +94,16 @@ def spline_fill(x: np.ndarray, m: np.ndarray) -> np.ndarray:
 
 def learned_fill(model: "tcd.TCD"):
     """The model directory's repair fill (``model.repair_fill``, which it must have) alone as a fill function
-    (x, m) -> filled: its correction of :func:`spline_fill` over the whole window, observed entries kept."""
+    (x, m) -> filled: what its repair model is given (``tcd.engine.Prior.fill``, the engine's): the fill's
+    correction of the natural cubic spline over the whole window, whole-frame gaps then filled from the prior
+    forecaster where the fill says so (``gap_fill``), observed entries kept."""
 
     def fill(x: np.ndarray, m: np.ndarray) -> np.ndarray:
         b, t = x.shape[:2]
-        spline = spline_fill(x, m).astype(np.float32).reshape(b, t, -1)
-        out = model.repair_fill.predict(spline, t).reshape(x.shape)
-        return np.where(np.repeat(m[..., None], 3, -1), x, out)
+        keep = np.repeat(m[..., None], 3, -1)
+        flat = lambda a: np.ascontiguousarray(a, np.float32).reshape(b, t, -1)  # noqa: E731
+        gaps = model.prior if model.repair_fill.gap_fill == "forecaster" else None
+        return model.repair_fill.fill(flat(np.where(keep, x, 0.0)), flat(keep), forecaster=gaps).reshape(x.shape)
     return fill
 
 

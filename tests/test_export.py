@@ -98,6 +98,33 @@ def test_files_replace_roles_only_when_they_load(tmp_path):
         main(["--files", str(src / "model.json"), "--out", str(bundle)])
 
 
+def test_gap_fill_rewrites_the_repair_fill_only(tmp_path):
+    """``--gap-fill``: the directory's repair fill gets ``gap_fill`` (its tensors as they were, the change
+    recorded in its training block) and loads with the forecaster beside it; ``none`` takes the key out again;
+    without ``prior.safetensors`` beside it nothing is replaced."""
+    import tcd
+    d = random_init_dir(tmp_path / "m", "tiny", seed=2, prior_blocks=2,
+                        repair={"cond_fill": "prior", "target": "prior_residual", "target_scale": 10.0})
+    fill = d / "repair_fill.safetensors"
+    before, tensors = fill.read_bytes(), load_file(str(fill))
+    assert main(["--gap-fill", "forecaster", "--out", str(d)]) == 0
+    cfg = read_config(fill)
+    assert cfg["model"]["gap_fill"] == "forecaster" and cfg["training"]["gap_fill_set"]["value"] == "forecaster"
+    after = load_file(str(fill))
+    assert all(torch.equal(after[k], tensors[k]) for k in tensors) and after.keys() == tensors.keys()
+    m = tcd.load(d)
+    assert m.repair_fill.gap_fill == "forecaster"
+    assert json.loads((d / "model.json").read_text())["repair_fill"]["model"]["gap_fill"] == "forecaster"
+    assert main(["--gap-fill", "none", "--out", str(d)]) == 0
+    assert "gap_fill" not in read_config(fill)["model"] and tcd.load(d).repair_fill.gap_fill == "none"
+    (d / "prior.safetensors").unlink()
+    now = fill.read_bytes()
+    with pytest.raises(ValueError, match="prior.safetensors"):
+        main(["--gap-fill", "forecaster", "--out", str(d)])
+    assert fill.read_bytes() == now and not (d / "repair_fill.safetensors.tmp").exists()
+    assert before != now                                         # (the training block records the change)
+
+
 def test_committed_fixtures_are_what_make_fixtures_writes(tmp_path, monkeypatch):
     """``python3 tests/fixtures/make_fixtures.py`` writes the committed model fixtures byte for byte. The one
     thing that differs between commits, the source revision in each file's metadata (and in model.json), is

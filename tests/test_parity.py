@@ -485,6 +485,109 @@ def test_repair_around_a_repair_fill_every_kernel(fill_repair_dir, sampler, step
     assert ei.value.argument == "fill"
 
 
+@pytest.fixture(scope="module")
+def gap_fill_repair_dir(fill_repair_dir, tmp_path_factory):
+    """``fill_repair_dir`` with a random prior forecaster (``prior.safetensors``, 4 blocks) and its repair fill
+    set to fill whole-frame gaps with it (``gap_fill: "forecaster"``; the same weights)."""
+    import shutil
+
+    from training.export import (PRIOR_FILE, REPAIR_FILL_FILE, build_prior_config, load_prior_file, random_prior,
+                                 save_model_file, write_model_json)
+    d = tmp_path_factory.mktemp("parity_gap_fill") / "model"
+    shutil.copytree(fill_repair_dir, d)
+    fill, cfg = load_prior_file(d / REPAIR_FILL_FILE)
+    fill.cfg.gap_fill = "forecaster"
+    save_model_file(d / REPAIR_FILL_FILE, fill, build_prior_config(fill, cfg["data"]))
+    forecaster = random_prior(blocks=4, seed=31)
+    save_model_file(d / PRIOR_FILE, forecaster, build_prior_config(forecaster, cfg["data"]))
+    write_model_json(d)
+    return d
+
+
+def gap_observation(rng, k):
+    """Three 50-frame observations with whole-frame gaps: frames 10-24 of the first, 0-5 of the second, 44-49
+    and 20 of the third (every other frame keeps 60 % of its entries)."""
+    observed, mask = observation(rng, 3, k, OBS_LEN, OBS_LEN, missing=0.4)
+    for b, frames in ((0, slice(10, 25)), (1, slice(0, 6)), (2, slice(44, 50)), (2, slice(20, 21))):
+        mask[b, :, frames] = 0
+        observed[b, :, frames] = 0
+    return observed, mask
+
+
+@pytest.mark.parametrize("kernel", ALL_KERNELS)
+@pytest.mark.parametrize("sampler,steps", [("ddpm", 10), ("ddim", 1)])
+def test_repair_around_a_gap_filling_repair_fill_every_kernel(gap_fill_repair_dir, sampler, steps, kernel,
+                                                             monkeypatch):
+    """A repair fill with ``gap_fill: "forecaster"``: the engine fills the window's whole-frame gaps from the
+    prior forecaster, forward and backward (``training.model.fill_gaps``), after the fill's correction of the
+    spline, as PyTorch does, on each kernel path; the gaps (and only they) differ from the plain fill, and the
+    repair around them from the plain fill's; without the forecaster the call is refused, naming it."""
+    from training.export import load_prior_file
+    from training.model import prior_fill, whole_frame_gaps
+    d = gap_fill_repair_dir
+    den = load_kernel(d / "repair.safetensors", kernel, monkeypatch)
+    fill = load_kernel(d / "repair_fill.safetensors", kernel, monkeypatch, cls=tcd.engine.Prior)
+    forecaster = load_kernel(d / "prior.safetensors", kernel, monkeypatch, cls=tcd.engine.Prior)
+    assert fill.gap_fill == "forecaster" and forecaster.gap_fill == "none"
+    model, sched, _ = load_model_file(d / "repair.safetensors")
+    gapped = load_prior_file(d / "repair_fill.safetensors")[0]          # its forecaster attached, from beside it
+    rng = np.random.default_rng(500 + steps + ALL_KERNELS.index(kernel))
+    observed, mask = gap_observation(rng, den.num_features)
+    obs_t, mask_t = torch.from_numpy(observed), torch.from_numpy(mask)
+    assert whole_frame_gaps(mask_t) == [(0, 10, 25), (1, 0, 6), (2, 20, 21), (2, 44, 50)]
+    s = 2
+    kw = dict(sampler=sampler, num_inference_steps=steps, timestep_spacing="trailing")
+    noise = rng.standard_normal((s, steps + 1, 3, den.num_features, den.seq_len)).astype(np.float32)
+    got = tcd.engine.repair_raw(den, observed, mask, num_samples=s, noise=noise, fill=fill, forecaster=forecaster,
+                                **kw)["mean"]
+    want = {}
+    for name, gap_fill in (("gaps", "forecaster"), ("plain", "none")):
+        gapped.cfg.gap_fill = gap_fill
+        model.attach_prior(gapped)
+        want[name] = D.repair(model, sched, obs_t, mask_t, seq_len=den.seq_len, num_samples=s,
+                              noise=torch.from_numpy(noise), **kw).numpy()
+        want[name + " fill"] = prior_fill(gapped, obs_t, mask_t).numpy()
+    assert chain_close(got, want["gaps"], f"repair around a gap-filling fill, {sampler} n={steps}, {kernel}")
+    in_gap = np.zeros(mask.shape, bool)
+    for b, start, end in whole_frame_gaps(mask_t):
+        in_gap[b, :, start:end] = True
+    fill_diff = np.abs(want["gaps fill"] - want["plain fill"])
+    assert fill_diff[in_gap].min() > 0 and np.array_equal(want["gaps fill"][~in_gap], want["plain fill"][~in_gap])
+    assert np.abs(got - want["plain"])[in_gap].mean() > 1e-3           # the gap fill changed the repair
+    # the fill itself as the engine gives it (tcd.engine.Prior.fill, frame-major), with and without the forecaster
+    btk = lambda a: np.ascontiguousarray(a.transpose(0, 2, 1))  # noqa: E731
+    np.testing.assert_allclose(fill.fill(btk(observed), btk(mask), forecaster=forecaster), btk(want["gaps fill"]),
+                               rtol=0, atol=1e-5)
+    with pytest.raises(tcd.exceptions.InvalidInputError, match="prior forecaster"):
+        fill.fill(btk(observed), btk(mask))
+    with pytest.raises(tcd.exceptions.InvalidInputError, match="prior forecaster") as ei:
+        tcd.engine.repair_raw(den, observed, mask, num_samples=s, noise=noise, fill=fill, **kw)
+    assert ei.value.argument == "forecaster"
+
+
+def test_a_model_directory_repairs_with_its_gap_filling_fill(gap_fill_repair_dir, tmp_path):
+    """``tcd.load`` gives a repair fill with ``gap_fill: "forecaster"`` the directory's prior forecaster in every
+    repair (``TCD.repair`` against ``repair_raw`` with both); a directory without ``prior.safetensors`` is
+    refused, the error naming it."""
+    import shutil
+    m = tcd.load(gap_fill_repair_dir)
+    assert m.repair_fill.gap_fill == "forecaster" and m.prior is not None
+    poses = np.random.default_rng(6).normal(scale=0.3, size=(OBS_LEN, 22, 3)).astype(np.float32)
+    poses[10:20] = np.nan
+    kw = dict(num_samples=2, seed=4, sampler="ddim", num_inference_steps=1)
+    got = m.repair(poses, **kw).poses
+    observed = np.nan_to_num(poses).reshape(1, OBS_LEN, 66).transpose(0, 2, 1).copy()
+    mask = (~np.isnan(poses)).reshape(1, OBS_LEN, 66).transpose(0, 2, 1).astype(np.float32).copy()
+    want = tcd.engine.repair_raw(m.repair_model, observed, mask, fill=m.repair_fill, forecaster=m.prior, **kw)
+    np.testing.assert_array_equal(got.reshape(1, OBS_LEN, 66).transpose(0, 2, 1), want["mean"])
+    bare = tmp_path / "bare"
+    shutil.copytree(gap_fill_repair_dir, bare)
+    (bare / "prior.safetensors").unlink()
+    with pytest.raises(tcd.exceptions.WeightsError, match="prior.safetensors") as ei:
+        tcd.load(bare)
+    assert ei.value.path == str(bare / "prior.safetensors")
+
+
 def test_a_model_directory_repairs_with_its_repair_fill(fill_repair_dir, tmp_path):
     """``tcd.load`` opens ``repair_fill.safetensors`` beside a repair model conditioned on it and every
     repair of the directory runs with it (here ``TCD.repair`` against ``repair_raw`` with the fill); without

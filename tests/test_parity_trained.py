@@ -231,17 +231,19 @@ def check_cascade(models, directory, truth, observed, mask, what, kernel=None, m
 
 @pytest.mark.parametrize("sampler", ["ddpm", "ddim"])
 def test_repair_on_trained_weights(bundled, clip, sampler):
-    """The repair model (the residual over its repair fill, which the engine computes) on the demo's leg and arm
-    occlusion plus a 12-frame gap."""
+    """The repair model (the residual over its repair fill, which the engine computes, the 12-frame gap filled
+    from the prior forecaster by the fill's gap fill) on the demo's leg and arm occlusion plus a 12-frame gap."""
     path, model, sched, silent_model = bundled["repair"]
     den = load(path)
     fill = tcd.engine.Prior.load(path.parent / "repair_fill.safetensors")
+    forecaster = tcd.engine.Prior.load(path.parent / "prior.safetensors")      # its gap fill's (gap_fill "forecaster")
     truth, observed, mask = window(clip, 60, den.seq_len, den.seq_len, occlude=True)
     mask[..., 32:44] = 0
     observed = (truth * mask).astype(np.float32)
     noise = noise_for(den, sampler, 10, 2, np.random.default_rng(13))
     kw = dict(sampler=sampler, num_inference_steps=10, eta=0.0, timestep_spacing="trailing")
-    got = tcd.engine.repair_raw(den, observed, mask, num_samples=2, noise=noise, fill=fill, **kw)["mean"]
+    got = tcd.engine.repair_raw(den, observed, mask, num_samples=2, noise=noise, fill=fill, forecaster=forecaster,
+                                **kw)["mean"]
 
     def reference(m):
         return D.repair(m, sched, torch.from_numpy(observed), torch.from_numpy(mask), seq_len=den.seq_len,

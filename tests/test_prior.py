@@ -257,12 +257,15 @@ def repair_fill_config(**over) -> PriorConfig:
                                         ({"mask_mix": (("no_such_mask", 1.0),)}, "no_such_mask"),
                                         ({"obs_noise_prob": 0.5, "obs_noise_mm": 25.0}, "flips and rotations only"),
                                         ({"anchor": "first"}, "anchor must be one of"),
+                                        ({"gap_fill": "linear"}, "gap_fill must be one of"),
                                         ({"dataset": "humaneva", "subjects": (1, 2, 3)}, "trains on Human3.6M")])
 def test_repair_fill_config_rejects_what_it_cannot_train(over, match):
     with pytest.raises(ValueError, match=match):
         repair_fill_config(**over)
     with pytest.raises(ValueError, match="mask_mix is for anchor"):
         PriorConfig(mask_mix=REPAIR_MIX)
+    with pytest.raises(ValueError, match="gap_fill is for a repair fill"):
+        PriorConfig(gap_fill="forecaster")
 
 
 def test_a_repair_fill_corrects_the_spline_of_its_masked_windows(tmp_path):

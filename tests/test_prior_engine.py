@@ -107,6 +107,34 @@ def test_bad_arguments(prior):
     assert "finite" in str(e) and str(1 * 60 * 66 + 59 * 66 + 5) in str(e)
 
 
+def test_fill_is_the_spline_then_the_rollout(prior):
+    """``Prior.fill`` of a forecaster (what a model conditioned on it sees): given entries back bit for bit, the
+    hidden ones of the first obs_len frames the engine's natural cubic spline through each row's given frames
+    (``tcd.interpolate``), the frames after them the rollout from those filled frames; never reading hidden
+    entries; bad arguments named."""
+    obs = observations(2, frames=60)
+    mask = np.ones_like(obs)
+    mask[0, 20:30] = 0
+    mask[1, 3:9, 7] = 0
+    mask[:, 50:] = 0
+    hidden = np.where(mask > 0, obs, np.nan).astype(np.float32)
+    got = prior.fill(np.nan_to_num(hidden), mask)
+    assert np.array_equal(got[mask > 0], obs[mask > 0])
+    spline = tcd.interpolate(hidden[:, :50].reshape(2, 50, 22, 3), method="spline").reshape(2, 50, 66)
+    np.testing.assert_array_equal(got[:, :50], spline)
+    np.testing.assert_array_equal(got[:, 50:], prior.predict(got[:, :50], 10))
+    assert np.array_equal(prior.fill(np.where(mask > 0, obs, 7.0).astype(np.float32), mask), got)
+    bad("observed", prior.fill, obs[..., :60], mask[..., :60])         # K
+    bad("observed", prior.fill, obs[0], mask[0])                       # not (B, T, K)
+    bad("mask", prior.fill, obs, mask[:, :59])
+    m2 = mask.copy()
+    m2[0, 0, 0] = 0.5
+    bad("mask", prior.fill, obs, m2)
+    bad("length", prior.fill, obs[:, :50], mask[:, :50])               # a forecaster rolls out after obs_len
+    bad("forecaster", prior.fill, obs, mask, forecaster=object())
+    bad("threads", prior.fill, obs, mask, threads=0)
+
+
 def test_bad_files(prior, random_file, tmp_path):
     with pytest.raises(FileNotFoundError):
         tcd.engine.Prior.load(tmp_path / "none.safetensors")

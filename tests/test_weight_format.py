@@ -192,15 +192,23 @@ def test_engine_requires_what_the_schema_requires_of_a_prior(tmp_path):
         with pytest.raises(WeightsError) as e:
             tcd.engine.Prior.load(path)
         assert name.split(".")[-1] in str(e.value), (name, str(e.value))
-    # one field defaults, and only to what every file before it was: anchor "last" (a forecaster); the golden file
-    # (a forecaster) leaves it out, and a value other than the two is refused naming it
-    assert [name for name, sub, req in schema_fields("prior") if not req and "default" in sub] == ["model.anchor"]
-    assert "anchor" not in golden["model"] and tcd.engine.Prior.load(write_prior(tmp_path / "p.safetensors",
-                                                                              golden)).anchor == "last"
+    # two fields default, and only to what every file before them was: anchor "last" (a forecaster) and gap_fill
+    # "none"; the golden file (a forecaster) leaves both out, and a value other than theirs is refused naming it
+    defaults = [name for name, sub, req in schema_fields("prior") if not req and "default" in sub]
+    assert defaults == ["model.anchor", "model.gap_fill"]
+    assert not {"anchor", "gap_fill"} & set(golden["model"])
+    p = tcd.engine.Prior.load(write_prior(tmp_path / "p.safetensors", golden))
+    assert (p.anchor, p.gap_fill) == ("last", "none")
+    for field, value in (("anchor", "first"), ("gap_fill", "linear")):
+        bad = json.loads(json.dumps(golden))
+        bad["model"][field] = value
+        with pytest.raises(WeightsError, match=f"model.{field}: unknown variant `{value}`"):
+            tcd.engine.Prior.load(write_prior(tmp_path / "bad.safetensors", bad))
+    # and gap_fill "forecaster" is a repair fill's only: on a forecaster it is refused naming the field
     bad = json.loads(json.dumps(golden))
-    bad["model"]["anchor"] = "first"
-    with pytest.raises(WeightsError, match="anchor"):
-        tcd.engine.Prior.load(write_prior(tmp_path / "bad_anchor.safetensors", bad))
+    bad["model"]["gap_fill"] = "forecaster"
+    with pytest.raises(WeightsError, match="model.gap_fill"):
+        tcd.engine.Prior.load(write_prior(tmp_path / "bad.safetensors", bad))
 
 
 def test_the_schema_tells_the_roles_apart():

@@ -323,6 +323,8 @@ def build_prior_config(model, data: dict, training: dict | None = None) -> dict:
          "chunk": model.cfg.chunk, "blocks": len(model.blocks), "layer_norm_eps": eps.pop()}
     if model.cfg.anchor != "last":      # a forecaster's file stays as before anchor existed (its default)
         m["anchor"] = model.cfg.anchor
+    if model.cfg.gap_fill != "none":    # likewise every file written before gap_fill existed
+        m["gap_fill"] = model.cfg.gap_fill
     return {"format_version": FORMAT_VERSION, "role": PRIOR_ROLE, "model": m,
             "data": data, "training": training or {}, "source_revision": source_revision()}
 
@@ -340,10 +342,18 @@ def load_prior_file(path: str | Path):
     if m["coords"] != 3 or m["num_features"] != 3 * m["num_joints"]:
         raise ValueError(f"{path}: PriorNet takes 3 coordinates per joint, got {m}")
     model = PriorNet(PriorConfig(obs_len=m["obs_len"], chunk=m["chunk"], blocks=m["blocks"],
-                                 anchor=m.get("anchor", "last")), joints=m["num_joints"])   # (files before anchor)
+                                 anchor=m.get("anchor", "last"), gap_fill=m.get("gap_fill", "none")),
+                     joints=m["num_joints"])                                   # (files before anchor, gap_fill)
     for b in model.blocks:
         b.eps = float(m["layer_norm_eps"])
     model.load_state_dict(load_file(str(path)), strict=True)
+    if model.cfg.gap_fill == "forecaster":      # its forecaster is the model directory's, beside it
+        forecaster = Path(path).parent / PRIOR_FILE
+        if not forecaster.is_file():
+            raise ValueError(f"{path}: the repair fill fills whole-frame gaps with the prior forecaster (gap_fill "
+                             f"\"forecaster\"), but {forecaster} is missing")
+        from .prior import attach_gap_forecaster
+        attach_gap_forecaster(model, load_prior_file(forecaster)[0])
     return model.eval(), cfg
 
 
@@ -375,6 +385,34 @@ def export_prior(ckpt_path: str | Path, out_dir: str | Path, description: str | 
         training["description"] = description
     name = REPAIR_FILL_FILE if model.cfg.anchor == "window" else PRIOR_FILE
     return save_prior(Path(out_dir) / name, model, training)
+
+
+def set_gap_fill(out_dir: str | Path, gap_fill: str) -> Path:
+    """Rewrites ``out_dir/repair_fill.safetensors`` with ``model.gap_fill`` set to ``gap_fill`` (``"none"``
+    removes the key, as in a file written before it existed); its weights and the rest of its config stay as
+    they are, and the run is recorded in its ``training`` block. The result is loaded strictly (with the
+    ``prior.safetensors`` beside it, for ``"forecaster"``) before it replaces the file."""
+    from .prior import GAP_FILLS
+    if gap_fill not in GAP_FILLS:
+        raise ValueError(f"gap_fill must be one of {list(GAP_FILLS)}, got {gap_fill!r}")
+    path = Path(out_dir) / REPAIR_FILL_FILE
+    from safetensors.torch import load_file
+    cfg, tensors = read_config(path), load_file(str(path))
+    if cfg["model"].get("anchor") != "window":
+        raise ValueError(f"{path}: not a repair fill (anchor \"window\")")
+    cfg["model"].pop("gap_fill", None)
+    if gap_fill != "none":
+        cfg["model"]["gap_fill"] = gap_fill
+    cfg.setdefault("training", {})["gap_fill_set"] = {"value": gap_fill, "source_revision": source_revision()}
+    tmp = path.with_name(path.name + ".tmp")
+    save_file(tensors, str(tmp), metadata={CONFIG_KEY: json.dumps(cfg)})
+    try:
+        load_prior_file(tmp)
+    except Exception:
+        tmp.unlink()
+        raise
+    os.replace(tmp, path)
+    return path
 
 
 def random_prior(blocks: int = 24, seed: int = 0, obs_len: int = 50, chunk: int = 10, joints: int = 22,
@@ -412,6 +450,9 @@ def main(argv=None) -> int:
                          "candidate's files replace the bundled ones of their roles)")
     ap.add_argument("--prior", metavar="CKPT", help="a training.prior checkpoint (last.pt): writes prior.safetensors "
                     "(the deterministic prior forecaster) into --out beside the denoisers")
+    ap.add_argument("--gap-fill", choices=("none", "forecaster"), help="rewrites --out's repair_fill.safetensors "
+                    "with this gap_fill (its weights as they are): \"forecaster\" fills whole-frame gaps from the "
+                    "prior.safetensors beside it (docs/repair.md)")
     ap.add_argument("--preset", choices=sorted(PRESETS), default="tiny", help="model size for --random-init")
     ap.add_argument("--dataset", choices=sorted(DATASET_WINDOWS), default="h36m",
                     help="--random-init: the dataset's joints and windows (humaneva: 14 joints, 15 -> 1 -> 60 frames)")
@@ -420,8 +461,8 @@ def main(argv=None) -> int:
     ap.add_argument("--description", help="free text recorded in each file's training metadata "
                     "(e.g. how the model was trained)")
     args = ap.parse_args(argv)
-    if sum(map(bool, (args.checkpoint, args.random_init, args.files, args.prior))) != 1:
-        ap.error("give exactly one of --checkpoint, --random-init, --files or --prior")
+    if sum(map(bool, (args.checkpoint, args.random_init, args.files, args.prior, args.gap_fill))) != 1:
+        ap.error("give exactly one of --checkpoint, --random-init, --files, --prior or --gap-fill")
     out = Path(args.out)
     if args.random_init:
         random_init_dir(out, args.preset, args.seed, dataset=args.dataset)
@@ -430,6 +471,9 @@ def main(argv=None) -> int:
         write_model_json(out)
     elif args.prior:
         print(f"exported {export_prior(args.prior, out, args.description)}")
+        write_model_json(out)
+    elif args.gap_fill:
+        print(f"rewrote {set_gap_fill(out, args.gap_fill)} with gap_fill {args.gap_fill!r}")
         write_model_json(out)
     else:
         for ck in args.checkpoint:

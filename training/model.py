@@ -339,7 +339,8 @@ def prior_fill(prior: nn.Module, observed: torch.Tensor, mask: torch.Tensor) -> 
     forecast frame). A long-term window's teacher-forced frames (mask 1 after ``obs_len``) stay as given;
     the prior still forecasts from the first ``obs_len`` frames, so the fill is the same function of the
     observation in the short and the long model. A repair fill (``prior.cfg.anchor == "window"``, L =
-    ``obs_len``) fills the masked entries with its correction of the spline over the whole window instead."""
+    ``obs_len``) fills the masked entries with its correction of the spline over the whole window instead, and
+    one with ``gap_fill == "forecaster"`` then the window's whole-frame gaps from its forecaster (:func:`fill_gaps`)."""
     if prior is None:
         raise ValueError("a cond_fill='prior' model needs its prior forecaster (TCDModel.attach_prior)")
     obs_len = prior.cfg.obs_len
@@ -350,7 +351,14 @@ def prior_fill(prior: nn.Module, observed: torch.Tensor, mask: torch.Tensor) -> 
         spline = spline_fill(observed, mask)
         with torch.no_grad():
             fill = prior(spline.float().transpose(1, 2)).transpose(1, 2).to(observed.dtype)
-        return torch.where(mask > 0.5, observed, fill)
+        fill = torch.where(mask > 0.5, observed, fill)
+        if prior.cfg.gap_fill == "forecaster":
+            forecaster = getattr(prior, "gap_forecaster", None)
+            if forecaster is None:
+                raise ValueError("prior_fill: the repair fill fills whole-frame gaps with a forecaster (gap_fill "
+                                 "\"forecaster\"): training.prior.attach_gap_forecaster")
+            fill = fill_gaps(forecaster, fill, mask)
+        return fill
     if L <= obs_len:
         raise ValueError(f"prior_fill: the window has {L} frames, not more than the prior's {obs_len} observed ones")
     head = spline_fill(observed[..., :obs_len], mask[..., :obs_len])               # (B, K, O)
@@ -358,6 +366,76 @@ def prior_fill(prior: nn.Module, observed: torch.Tensor, mask: torch.Tensor) -> 
         future = prior.rollout(head.float().transpose(1, 2), L - obs_len).transpose(1, 2).to(observed.dtype)
     fill = torch.cat([head, future], dim=-1)
     return torch.where(mask > 0.5, observed, fill)
+
+
+def whole_frame_gaps(mask: torch.Tensor) -> list:
+    """The runs of frames ``[start, end)`` of each sequence of a (B, K, L) mask with every entry 0, as
+    (sequence, start, end), except a run over the whole window (nothing to fill it from)."""
+    gaps = []
+    for b, row in enumerate((mask <= 0.5).all(dim=1).tolist()):
+        t, length = 0, len(row)
+        while t < length:
+            if not row[t]:
+                t += 1
+                continue
+            start = t
+            while t < length and row[t]:
+                t += 1
+            if start > 0 or t < length:
+                gaps.append((b, start, t))
+    return gaps
+
+
+def fill_gaps(forecaster: nn.Module, fill: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """A filled (B, K, L) window with its whole-frame gaps (:func:`whole_frame_gaps`) filled from the prior
+    ``forecaster`` (the engine's ``fill_gaps``, the same steps; benches/repair_learned_fills.py measured them).
+    For a gap of n frames [s, e) and w_i = (i + 1) / (n + 1): forward (s > 0), the forecaster's n + 1 frames
+    from the frames before the gap (its last ``obs_len``, the first repeated before them where fewer), frame
+    i plus w_i times its n-th frame's miss against frame e where the window goes on; backward (e < L), the
+    same on the time-reversed frames after the gap, reversed back, meeting frame s - 1; blended as (1 - w_i)
+    forward + w_i backward (one alone at a window's edge) and averaged with ``fill`` there. Every history
+    is read from ``fill`` as given; all are rolled out in one call."""
+    gaps = whole_frame_gaps(mask)
+    if not gaps:
+        return fill
+    o, length = forecaster.cfg.obs_len, fill.shape[-1]
+    x = fill.float().transpose(1, 2)                                             # (B, L, K)
+
+    def history(b: int, frames: list) -> torch.Tensor:      # the last o of ``frames``, the first repeated before
+        return x[b, [frames[max(0, len(frames) - o + j)] for j in range(o)]]
+
+    hist, sides = [], []
+    for b, s, e in gaps:
+        fwd = bwd = None
+        if s > 0:
+            fwd = len(hist)
+            hist.append(history(b, list(range(s))))
+        if e < length:
+            bwd = len(hist)
+            hist.append(history(b, list(range(length - 1, e - 1, -1))))
+        sides.append((fwd, bwd))
+    horizon = max(e - s for _, s, e in gaps) + 1
+    with torch.no_grad():
+        pred = forecaster.rollout(torch.stack(hist), horizon)                    # (N, horizon, K)
+    out = x.clone()
+    for (b, s, e), (fwd, bwd) in zip(gaps, sides):
+        n = e - s
+        w = ((torch.arange(n, dtype=torch.float32) + 1) / (n + 1))[:, None]
+        forward = backward = None
+        if fwd is not None:
+            miss = x[b, e] - pred[fwd, n] if e < length else torch.zeros_like(pred[fwd, n])
+            forward = pred[fwd, :n] + w * miss
+        if bwd is not None:
+            miss = x[b, s - 1] - pred[bwd, n] if s > 0 else torch.zeros_like(pred[bwd, n])
+            backward = pred[bwd, :n].flip(0) + (1 - w) * miss    # backward frame i: its forecast's n - 1 - i
+        if forward is None:
+            both = backward
+        elif backward is None:
+            both = forward
+        else:
+            both = (1 - w) * forward + w * backward
+        out[b, s:e] = 0.5 * (both + x[b, s:e])
+    return out.transpose(1, 2).to(fill.dtype)
 
 
 def condition(cfg: ModelConfig, observed: torch.Tensor, mask: torch.Tensor,

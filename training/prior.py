@@ -54,6 +54,8 @@ from .augment import check_axis, mirror, mirror_permutation, resample, rotate_ab
 NUM_JOINTS = 22
 #: what a forward's output is added to (PriorConfig.anchor)
 ANCHORS = ("last", "window")
+#: how a repair fill fills a window's whole-frame gaps (PriorConfig.gap_fill; training.model.fill_gaps)
+GAP_FILLS = ("none", "forecaster")
 #: the model joints of each dataset the prior trains on (Human3.6M: 22; HumanEva-I: joints 1..14 of 15)
 DATASET_JOINTS = {"h36m": 22, "humaneva": 14}
 
@@ -93,6 +95,8 @@ class PriorConfig:
                                      # (the repair fill: the spline-filled window of a masked observation in,
                                      # the repaired window out; see repair_batch)
     mask_mix: tuple = ()             # anchor "window": the masks trained on (training.masks.mix_entry entries)
+    gap_fill: str = "none"           # anchor "window": "forecaster" fills runs of wholly hidden frames from the
+                                     # prior forecaster beside it (training.model.fill_gaps, attach_gap_forecaster)
 
     @classmethod
     def load(cls, path: str | Path) -> "PriorConfig":
@@ -164,6 +168,11 @@ class PriorConfig:
                                  "speed_range or mirror)")
         elif self.mask_mix:
             raise ValueError("prior config: mask_mix is for anchor \"window\" (a forecaster sees whole frames)")
+        if self.gap_fill not in GAP_FILLS:
+            raise ValueError(f"prior config: gap_fill must be one of {list(GAP_FILLS)}, got {self.gap_fill!r}")
+        if self.gap_fill != "none" and self.anchor != "window":
+            raise ValueError("prior config: gap_fill is for a repair fill (anchor \"window\"); a forecaster fills "
+                             "no gaps")
 
     @property
     def num_joints(self) -> int:
@@ -263,6 +272,16 @@ class PriorNet(nn.Module):
             n += nxt.shape[1]
             hist = torch.cat([hist, nxt], dim=1)[:, -self.cfg.obs_len:]
         return torch.cat(out, dim=1)[:, :horizon]
+
+
+def attach_gap_forecaster(fill: nn.Module, forecaster: nn.Module) -> nn.Module:
+    """Gives a repair fill with ``gap_fill: "forecaster"`` the forecaster it fills whole-frame gaps with
+    (``training.model.fill_gaps``); returns ``fill``. Kept out of the module's children, so the fill's
+    ``state_dict`` (what its file holds) stays its own."""
+    if fill.cfg.anchor != "window" or forecaster.cfg.anchor != "last":
+        raise ValueError("attach_gap_forecaster: a repair fill (anchor \"window\") and a forecaster (anchor \"last\")")
+    vars(fill)["gap_forecaster"] = forecaster       # a plain attribute, not a registered submodule
+    return fill
 
 
 def count_parameters(model: nn.Module) -> int:

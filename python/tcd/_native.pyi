@@ -135,8 +135,13 @@ class Prior:
     @property
     def anchor(self) -> str: ...
     @property
+    def gap_fill(self) -> str: ...
+    @property
     def dct_matrix(self) -> _F32: ...
     def predict(self, obs: _F32, horizon: int, *, threads: Optional[int] = None) -> _F32: ...
+    def fill(
+        self, observed: _F32, mask: _F32, *, forecaster: Optional[Prior] = None, threads: Optional[int] = None
+    ) -> _F32: ...
 
 def cascade(
     short: Denoiser,
@@ -169,6 +174,7 @@ def repair(
     threads: Optional[int] = None,
     progress: Optional[Callable[[int, int], Any]] = None,
     fill: Optional[Prior] = None,
+    forecaster: Optional[Prior] = None,
 ) -> Dict[str, _F32]: ...
 def seeded_noise(
     seed: int,

@@ -256,7 +256,7 @@ def repair(model: "TCD", den: Denoiser, obs: ArrayLike, mask: Optional[ArrayLike
             f"to be repaired in one call, but received {p.values.shape[1]} frames at {src_fps:g} fps: repair "
             "longer sequences with tcd.repair_file (overlapping windows).", "obs")
     out = repair_raw(den, observed, seen, num_samples=num_samples, seed=seed, threads=threads, progress=progress,
-                     fill=model._repair_fill_of(den), **sampling)
+                     **model._repair_fills(den), **sampling)
     if own is not None:
         return _repaired(p, world(out["mean"], root), times, UNIT_SCALE[units])
     rep_w = wild.from_model(_model_poses(out["mean"]), scene, scene.root, scene.rot, own_frames=True)

@@ -152,7 +152,8 @@ def cascade_raw(short: Denoiser, long: Denoiser, observed: ArrayLike, mask: Arra
 def repair_raw(model: Denoiser, observed: ArrayLike, mask: ArrayLike, *, num_samples: int = 5,
                noise: Optional[ArrayLike] = None, seed: Optional[int] = None, first_sequence: int = 0,
                sequences: Optional[Sequence[int]] = None, threads: Optional[int] = None, progress: Progress = None,
-               fill: Optional[Prior] = None, **sampler: Any) -> Dict[str, np.ndarray]:
+               fill: Optional[Prior] = None, forecaster: Optional[Prior] = None,
+               **sampler: Any) -> Dict[str, np.ndarray]:
     """Fills the mask-0 entries of an observation (B, K, O), O = ``model.obs_len``
     (``training.diffusion.repair``). Returns ``mean`` (B, K, O; observed entries exact) and ``samples``
     (S, B, K, O). Noise: ``noise`` (S, n + 1, B, K, model.seq_len) ((S, 1, ...) for ``sampler="dpmpp2m"``)
@@ -162,11 +163,15 @@ def repair_raw(model: Denoiser, observed: ArrayLike, mask: ArrayLike, *, num_sam
     ``fill``: the repair fill (a :class:`Prior` with ``anchor`` ``"window"`` over the model's window),
     required where the model is conditioned on it (``cond_fill`` ``"prior"``): before the chains the engine
     fills the masked entries once with its correction of the natural cubic spline (``training.model.prior_fill``).
-    Models with other fills ignore it."""
+    Models with other fills ignore it. ``forecaster``: the prior forecaster (a :class:`Prior` with ``anchor``
+    ``"last"``), required where that fill has ``gap_fill`` ``"forecaster"``: the whole-frame gaps of the window
+    are then filled from its forecasts into the gap from both sides (``training.model.fill_gaps``); unused
+    otherwise."""
     if not isinstance(model, Denoiser):
         raise _checks.fail("model", "a tcd.engine.Denoiser", type(model).__name__)
-    if fill is not None and not isinstance(fill, Prior):
-        raise _checks.fail("fill", "a tcd.engine.Prior or None", type(fill).__name__)
+    for name, p in (("fill", fill), ("forecaster", forecaster)):
+        if p is not None and not isinstance(p, Prior):
+            raise _checks.fail(name, "a tcd.engine.Prior or None", type(p).__name__)
     num_samples = _checks.machine_int("num_samples", num_samples)
     o = SamplerOptions.build(**sampler)
     with reporter(progress, "tcd repair") as callback:
@@ -175,7 +180,8 @@ def repair_raw(model: Denoiser, observed: ArrayLike, mask: ArrayLike, *, num_sam
             num_samples, o, noise=_noise("noise", noise), seed=_checks.optional_machine_int("seed", seed, 128),
             first_sequence=_checks.machine_int("first_sequence", first_sequence, 128),
             sequences=_stream_ids(sequences), threads=_checks.optional_machine_int("threads", threads),
-            progress=callback, fill=None if fill is None else fill._native))
+            progress=callback, fill=None if fill is None else fill._native,
+            forecaster=None if forecaster is None else forecaster._native))
 
 
 def _stream_ids(value: Optional[Sequence[int]]) -> Optional[List[int]]:

@@ -287,11 +287,20 @@ class TCD:
                                f"(anchor \"window\") over the repair model's window (num_features = {k}, "
                                f"{'no repair model' if repair is None else f'seq_len = {repair.seq_len}'}).",
                                repair_fill.path)
+        if repair_fill is not None and repair_fill.gap_fill == "forecaster" and prior is None:
+            missing = str(Path(path) / PRIOR_FILE) if path is not None else PRIOR_FILE
+            raise WeightsError(f"{where}: the repair fill fills whole-frame gaps with the prior forecaster (gap_fill "
+                               f"\"forecaster\"), but {missing} is missing: the model directory must hold it.",
+                               missing)
 
-    def _repair_fill_of(self, den: Denoiser) -> Optional[Prior]:
-        """The fill a repair by ``den`` runs with (:func:`tcd.engine.repair_raw`'s ``fill``): the directory's
-        repair fill for its repair model, None for another denoiser (the short-term model in-painting)."""
-        return self.repair_fill if den is self.repair_model else None
+    def _repair_fills(self, den: Denoiser) -> Dict[str, Optional[Prior]]:
+        """What a repair by ``den`` runs with, as :func:`tcd.engine.repair_raw`'s keywords: ``fill``, the
+        directory's repair fill for its repair model (None for another denoiser: the short-term model
+        in-painting), and ``forecaster``, the prior forecaster where that fill fills whole-frame gaps with it
+        (``gap_fill`` ``"forecaster"``)."""
+        fill = self.repair_fill if den is self.repair_model else None
+        gaps = fill is not None and fill.gap_fill == "forecaster"
+        return {"fill": fill, "forecaster": self.prior if gaps else None}
 
     # ------------------------------------------------------------------ description
     @property
@@ -446,7 +455,7 @@ class TCD:
             return Repair(poses=poses, seed=seed)
         p = _poses(obs, mask, self.num_joints, self.obs_len, units, repair=True)
         out = repair_raw(model, p.observed, p.mask, num_samples=num_samples, seed=seed, threads=threads,
-                         progress=progress, fill=self._repair_fill_of(model), **sampling)
+                         progress=progress, **self._repair_fills(model), **sampling)
         return Repair(poses=p.repaired(out["mean"]), seed=seed)
 
     def predict(self, obs: ArrayLike, mask: Optional[ArrayLike] = None, *, fill: Fill = "auto",
@@ -500,7 +509,7 @@ class TCD:
             if fill == "model":
                 den = self.repair_model if self.repair_model is not None else self.short
                 out = repair_raw(den, observed, seen, num_samples=num_samples, seed=seed, threads=threads,
-                                 progress=progress, fill=self._repair_fill_of(den), **sampling)
+                                 progress=progress, **self._repair_fills(den), **sampling)
                 repaired = np.where(missing, out["mean"], observed).astype(np.float32)
             else:
                 never = missing.all(axis=-1)

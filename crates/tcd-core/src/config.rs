@@ -440,10 +440,20 @@ pub(crate) fn role_of(json: &str) -> Option<String> {
 
 /// Parses the JSON stored under `tcd_config`; `path` names the file in errors.
 pub(crate) fn parse_json<T: DeserializeOwned>(json: &str, path: &Path) -> Result<T> {
-    serde_json::from_str(json).map_err(|e| Error::BadMetadata {
+    let bad = |reason: String| Error::BadMetadata {
         path: path.to_path_buf(),
-        reason: e.to_string(),
-    })
+        reason,
+    };
+    let mut de = serde_json::Deserializer::from_str(json);
+    // serde_path_to_error: the error names the field a bad value is in (`model.anchor: unknown variant
+    // ...`), which serde_json alone gives as a line and column of the metadata string only.
+    let value =
+        serde_path_to_error::deserialize(&mut de).map_err(|e| match e.path().to_string() {
+            field if field == "." => bad(e.inner().to_string()),
+            field => bad(format!("{field}: {}", e.inner())),
+        })?;
+    de.end().map_err(|e| bad(e.to_string()))?; // nothing after the object (serde_json::from_str's check)
+    Ok(value)
 }
 
 /// Serialises a config back to the JSON stored under `tcd_config`.

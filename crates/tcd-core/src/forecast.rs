@@ -32,7 +32,7 @@ use crate::control::Control;
 use crate::denoiser::{fill_spline, Denoiser};
 use crate::error::{Error, Result};
 use crate::observation::Observation;
-use crate::prior::{Anchor, Prior};
+use crate::prior::{Anchor, GapFill, Prior};
 use crate::rng::{stage, Noise, Sequences};
 use crate::sampler::{run_job, validate_job, SamplerConfig};
 
@@ -193,11 +193,14 @@ fn stage_prior<'p>(
 /// that row's observed entries among them ([`fill_spline`], the reference's bits), after them the prior's
 /// rollout ([`Prior::predict`]) from those O filled frames (frame O + i is its i-th forecast frame).
 /// A repair fill (anchor [`Anchor::Window`], L = O) corrects the spline-filled window instead: its
-/// output fills every mask-0 entry. Mask-1 entries are kept (a long-term window's given frames after O
-/// too); mask-0 entries of `observed` are never read. Needs the prior's K and L > O (L = O for a repair
-/// fill); `control` can stop the rollout.
+/// output fills every mask-0 entry, and one with `gap_fill` [`GapFill::Forecaster`] then fills the
+/// window's whole-frame gaps from `forecaster` ([`fill_gaps`]; required for it, unused otherwise).
+/// Mask-1 entries are kept (a long-term window's given frames after O too); mask-0 entries of
+/// `observed` are never read. Needs the prior's K and L > O (L = O for a repair fill); `control` can
+/// stop the rollout.
 pub fn prior_fill(
     prior: &Prior,
+    forecaster: Option<&Prior>,
     observed: &Observation<'_>,
     control: &Control,
 ) -> Result<Vec<f32>> {
@@ -218,9 +221,151 @@ pub fn prior_fill(
             length.to_string(),
         ));
     }
+    let forecaster = gap_forecaster(prior, forecaster)?;
     let mut values = observed.values().to_vec();
     fill_with_prior(prior, &mut values, observed.mask(), batch, length, control)?;
+    if let Some(f) = forecaster {
+        fill_gaps(f, &mut values, observed.mask(), batch, length, control)?;
+    }
     Ok(values)
+}
+
+/// The forecaster a repair fill runs its gap fill with: `None` for a fill without one (`gap_fill`
+/// [`GapFill::None`]); for [`GapFill::Forecaster`] `forecaster`, which must be given, be a forecaster
+/// (anchor [`Anchor::Last`]) and have the fill's `num_features`.
+fn gap_forecaster<'p>(fill: &Prior, forecaster: Option<&'p Prior>) -> Result<Option<&'p Prior>> {
+    if fill.config().model.gap_fill == GapFill::None {
+        return Ok(None);
+    }
+    let k = fill.num_features();
+    match forecaster {
+        None => Err(Error::invalid_input(
+            "forecaster",
+            "the prior forecaster (prior.safetensors): the repair fill fills whole-frame gaps with it \
+             (gap_fill \"forecaster\")",
+            "none",
+        )),
+        Some(f) if f.config().model.anchor != Anchor::Last || f.num_features() != k => {
+            Err(Error::invalid_input(
+                "forecaster",
+                format!("a prior forecaster (anchor \"last\") with the repair fill's num_features = {k}"),
+                format!(
+                    "anchor {:?}, num_features = {}",
+                    f.config().model.anchor,
+                    f.num_features()
+                ),
+            ))
+        }
+        Some(f) => Ok(Some(f)),
+    }
+}
+
+/// The runs of frames `[start, end)` of each sequence of a (B, K, L) `mask` in which every entry is
+/// mask 0, as (sequence, start, end), except a run over the whole window (nothing to fill it from).
+fn whole_frame_gaps(mask: &[f32], batch: usize, length: usize) -> Vec<(usize, usize, usize)> {
+    let k = mask.len() / (batch * length);
+    let mut gaps = Vec::new();
+    for (b, m) in mask.chunks_exact(k * length).enumerate() {
+        let hidden = |t: usize| (0..k).all(|kk| m[kk * length + t] <= 0.5);
+        let mut t = 0;
+        while t < length {
+            if !hidden(t) {
+                t += 1;
+                continue;
+            }
+            let start = t;
+            while t < length && hidden(t) {
+                t += 1;
+            }
+            if start > 0 || t < length {
+                gaps.push((b, start, t));
+            }
+        }
+    }
+    gaps
+}
+
+/// Fills the whole-frame gaps ([`whole_frame_gaps`]) of a filled (B, K, L) window in place
+/// (`training.model.fill_gaps`, the same steps). For a gap of n frames [s, e), with weights
+/// w_i = (i + 1) / (n + 1):
+/// * forward (s > 0): `forecaster` predicts n + 1 frames from the frames before the gap (its last
+///   `obs_len`, the first repeated before them where fewer); frame s + i is its i-th frame, plus
+///   w_i times the miss of its n-th frame against frame e where the window goes on (so it arrives there);
+/// * backward (e < L): the same on the time-reversed frames after the gap (the prior trains with time
+///   flips), reversed back, meeting frame s - 1;
+/// * the two blended as (1 - w_i) forward + w_i backward (one alone at a window's edge), and that
+///   averaged with the fill already there (the repair fill's correction of the spline).
+///
+/// Every history is read from the fill as it was before any gap is filled, and all of them are
+/// predicted in one call. Measured on benches/repair_gap_fill.py before it was built in.
+fn fill_gaps(
+    forecaster: &Prior,
+    values: &mut [f32],
+    mask: &[f32],
+    batch: usize,
+    length: usize,
+    control: &Control,
+) -> Result<()> {
+    let gaps = whole_frame_gaps(mask, batch, length);
+    if gaps.is_empty() {
+        return Ok(());
+    }
+    let (k, o) = (forecaster.num_features(), forecaster.obs_len());
+    let at = |b: usize, kk: usize, t: usize| (b * k + kk) * length + t;
+    // One history (O, K) frame-major per side of each gap: frame `frame(j)` of the window at step j.
+    let mut histories = Vec::new();
+    let mut count = 0;
+    let mut push = |b: usize, frame: &dyn Fn(usize) -> usize| {
+        for j in 0..o {
+            let t = frame(j);
+            histories.extend((0..k).map(|kk| values[at(b, kk, t)]));
+        }
+        count += 1;
+        count - 1
+    };
+    let mut sides = Vec::with_capacity(gaps.len());
+    for &(b, s, e) in &gaps {
+        // The last O frames before s (forward), or of the frames after e read backwards, the first
+        // repeated before them where there are fewer.
+        let fwd = (s > 0).then(|| push(b, &|j| (s + j).saturating_sub(o)));
+        let bwd = (e < length).then(|| {
+            let after = length - e;
+            push(b, &|j| length - 1 - (after + j).saturating_sub(o))
+        });
+        sides.push((fwd, bwd));
+    }
+    let horizon = gaps.iter().map(|&(_, s, e)| e - s + 1).max().unwrap_or(1);
+    let out = forecaster.predict(&histories, count, o, horizon, control)?; // (count, horizon, K)
+    let pred = |row: usize, i: usize, kk: usize| out[(row * horizon + i) * k + kk];
+    for (&(b, s, e), &(fwd, bwd)) in gaps.iter().zip(&sides) {
+        let n = e - s;
+        for kk in 0..k {
+            // Each side's miss at the frame it should arrive at (0 at a window's edge).
+            let fwd_miss = match fwd {
+                Some(r) if e < length => values[at(b, kk, e)] - pred(r, n, kk),
+                _ => 0.0,
+            };
+            let bwd_miss = match bwd {
+                Some(r) if s > 0 => values[at(b, kk, s - 1)] - pred(r, n, kk),
+                _ => 0.0,
+            };
+            for i in 0..n {
+                let w = (i + 1) as f32 / (n + 1) as f32;
+                let forward = fwd.map(|r| pred(r, i, kk) + w * fwd_miss);
+                // Backward frame i is its forecast's frame n - 1 - i, whose weight is 1 - w.
+                let backward = bwd.map(|r| pred(r, n - 1 - i, kk) + (1.0 - w) * bwd_miss);
+                let both = match (forward, backward) {
+                    (Some(f), Some(g)) => (1.0 - w) * f + w * g,
+                    (Some(f), None) => f,
+                    (None, Some(g)) => g,
+                    (None, None) => unreachable!("a gap over the whole window is not filled"),
+                };
+                let v = &mut values[at(b, kk, s + i)];
+                *v = 0.5 * (both + *v);
+            }
+        }
+    }
+    Ok(())
 }
 
 /// [`prior_fill`] in place on `values` with `mask`, (B, K, L) of a checked observation with the prior's K
@@ -393,10 +538,12 @@ pub fn cascade(
 /// on a fill (`cond_fill` [`CondFill::Prior`]) needs `fill`: a repair fill (anchor [`Anchor::Window`])
 /// with the model's K and `obs_len` = its `seq_len`, whose correction of the spline-filled window
 /// ([`prior_fill`]) the masked entries hold, computed once before the chains as the cascade does with
-/// the prior forecaster; `fill` is unused otherwise.
+/// the prior forecaster; `fill` is unused otherwise. `forecaster`: the prior forecaster, required where
+/// the fill fills whole-frame gaps with it (`gap_fill` [`GapFill::Forecaster`]), unused otherwise.
 pub fn repair(
     model: &Denoiser,
     fill: Option<&Prior>,
+    forecaster: Option<&Prior>,
     observed: &Observation<'_>,
     options: &ForecastOptions,
     noise: Noise<'_>,
@@ -404,6 +551,10 @@ pub fn repair(
 ) -> Result<RepairOutput> {
     let (k, o, l) = (model.num_features(), model.obs_len(), model.seq_len());
     let fill = repair_fill(model, fill)?;
+    let forecaster = match fill {
+        Some(f) => gap_forecaster(f, forecaster)?,
+        None => None,
+    };
     observed.expect(k, "the model's", Some((o, "obs_len")))?;
     let batch = observed.batch();
     let s = options.num_samples;
@@ -416,6 +567,9 @@ pub fn repair(
     let m = pad_frames(observed.mask(), o, l, 0.0);
     if let Some(f) = fill {
         fill_with_prior(f, &mut x, &m, batch, l, control)?;
+    }
+    if let Some(f) = forecaster {
+        fill_gaps(f, &mut x, &m, batch, l, control)?;
     }
     let job = validate_job(
         model,

@@ -50,7 +50,9 @@ pub use config::{
     VarianceType, WindowConfig, FORMAT_VERSION,
 };
 pub use denoiser::{Denoiser, Prepared, Workspace};
-pub use prior::{dct_matrix, prior_expected_tensors, Anchor, Prior, PriorConfig, PriorModelConfig};
+pub use prior::{
+    dct_matrix, prior_expected_tensors, Anchor, GapFill, Prior, PriorConfig, PriorModelConfig,
+};
 pub use weights::{expected_tensors, Tensor, WeightFile, CONFIG_KEY};
 // Observations and what runs on them.
 pub use denoiser::{fill_linear, fill_rows, fill_spline};

@@ -223,6 +223,7 @@ fn repair_imputes_only_missing_entries() {
     let r = repair(
         &short,
         None,
+        None,
         &Observation::new(&observed, &mask, [b, k, o]).unwrap(),
         &opts,
         Noise::seeded(1),
@@ -247,6 +248,7 @@ fn repair_imputes_only_missing_entries() {
     let again = in_pool(1, || {
         repair(
             &short,
+            None,
             None,
             &Observation::new(&observed, &mask, [b, k, o]).unwrap(),
             &opts,
@@ -391,7 +393,7 @@ fn prior_fill_is_the_spline_then_the_rollout_and_keeps_observed_entries() {
         .map(|(&v, &m)| if m == 1.0 { v } else { f32::NAN })
         .collect();
     let observed = Observation::new(&holes, &mask, [b, k, l]).unwrap();
-    let x = tcd_core::prior_fill(&prior, &observed, &Control::default()).unwrap();
+    let x = tcd_core::prior_fill(&prior, None, &observed, &Control::default()).unwrap();
     // head: the spline over the first O frames of each row
     let mut head = vec![0.0f32; b * o * k];
     for r in 0..b * k {
@@ -428,10 +430,10 @@ fn prior_fill_is_the_spline_then_the_rollout_and_keeps_observed_entries() {
     // errors name the argument
     let n5 = b * k * 5;
     let five = Observation::new(&x[..n5], &mask[..n5], [b, k, 5]).unwrap();
-    let e = tcd_core::prior_fill(&prior, &five, &Control::default()).unwrap_err();
+    let e = tcd_core::prior_fill(&prior, None, &five, &Control::default()).unwrap_err();
     assert!(e.to_string().contains("`length`"), "{e}");
     let other_k = Observation::new(&x, &mask, [2 * b, 3, l]).unwrap();
-    let e = tcd_core::prior_fill(&prior, &other_k, &Control::default()).unwrap_err();
+    let e = tcd_core::prior_fill(&prior, None, &other_k, &Control::default()).unwrap_err();
     assert!(
         e.to_string().contains("`observed`") && e.to_string().contains("K = 6"),
         "{e}"
@@ -498,6 +500,7 @@ fn cascade_with_a_prior_conditioned_pair_fills_each_stage_once() {
             let ms = pad(&mask, o, 8, 0.0);
             let xs = tcd_core::prior_fill(
                 &prior,
+                None,
                 &Observation::new(&pad(&zeroed, o, 8, 0.0), &ms, [b, k, 8]).unwrap(),
                 &Control::default(),
             )
@@ -526,6 +529,7 @@ fn cascade_with_a_prior_conditioned_pair_fills_each_stage_once() {
             let ml = pad(&vec![1.0; b * k * 8], 8, 12, 0.0);
             let xl = tcd_core::prior_fill(
                 &prior,
+                None,
                 &Observation::new(&pad(&mean, 8, 12, 0.0), &ml, [b, k, 12]).unwrap(),
                 &Control::default(),
             )
@@ -658,6 +662,7 @@ fn prior_conditioned_models_need_a_fitting_prior_and_repair_only_with_a_fill() {
         let e = repair(
             &short,
             f,
+            None,
             &Observation::new(&observed, &mask, [1, k, o]).unwrap(),
             &ForecastOptions::default(),
             Noise::seeded(1),
@@ -726,13 +731,14 @@ fn repair_with_a_fill_samples_the_model_on_the_filled_window() {
     let r = repair(
         &model,
         Some(&fill),
+        None,
         &observed,
         &opts,
         Noise::seeded(5),
         &Control::default(),
     )
     .unwrap();
-    let filled = tcd_core::prior_fill(&fill, &observed, &Control::default()).unwrap();
+    let filled = tcd_core::prior_fill(&fill, None, &observed, &Control::default()).unwrap();
     // the fill corrects the spline: it differs from it on masked entries, equals the observation elsewhere
     let spline = tcd_core::fill_rows(tcd_core::CondFill::Spline, l, &mask, &given).unwrap();
     assert!((0..b * k * l).any(|i| mask[i] == 0.0 && filled[i] != spline[i]));
@@ -751,4 +757,176 @@ fn repair_with_a_fill_samples_the_model_on_the_filled_window() {
             assert_eq!(r.mean[i].to_bits(), given[i].to_bits());
         }
     }
+}
+
+/// The gap fill's steps written out once more, one gap and one side at a time (`benches/repair_learned_fills.py`'s
+/// `bidirectional_fill`): the history padded at its start, the forecast of n + 1 frames, its linear
+/// correction towards the far frame, the blend, the average with the fill there.
+fn gap_fill_reference(
+    forecaster: &tcd_core::Prior,
+    base: &[f32],
+    (b, s, e): (usize, usize, usize),
+    (k, l): (usize, usize),
+) -> Vec<Vec<f32>> {
+    let o = forecaster.obs_len();
+    let frame = |t: usize| -> Vec<f32> { (0..k).map(|kk| base[(b * k + kk) * l + t]).collect() };
+    let forecast = |frames: Vec<usize>, n: usize| -> Vec<Vec<f32>> {
+        // the prior's history: the last o frames, or the first repeated before them
+        let mut h: Vec<usize> = frames.iter().rev().take(o).rev().copied().collect();
+        while h.len() < o {
+            h.insert(0, h[0]);
+        }
+        let obs: Vec<f32> = h.iter().flat_map(|&t| frame(t)).collect();
+        let out = forecaster
+            .predict(&obs, 1, o, n + 1, &Control::default())
+            .unwrap();
+        out.chunks_exact(k).map(|c| c.to_vec()).collect()
+    };
+    let n = e - s;
+    let w = |i: usize| (i + 1) as f32 / (n + 1) as f32;
+    let fwd = (s > 0).then(|| {
+        let f = forecast((0..s).collect(), n);
+        (0..n)
+            .map(|i| {
+                (0..k)
+                    .map(|kk| match e < l {
+                        true => f[i][kk] + w(i) * (frame(e)[kk] - f[n][kk]),
+                        false => f[i][kk],
+                    })
+                    .collect::<Vec<f32>>()
+            })
+            .collect::<Vec<_>>()
+    });
+    let bwd = (e < l).then(|| {
+        let r = forecast((e..l).rev().collect(), n);
+        let mut v: Vec<Vec<f32>> = (0..n)
+            .map(|j| {
+                (0..k)
+                    .map(|kk| match s > 0 {
+                        true => r[j][kk] + w(j) * (frame(s - 1)[kk] - r[n][kk]),
+                        false => r[j][kk],
+                    })
+                    .collect()
+            })
+            .collect();
+        v.reverse();
+        v
+    });
+    (0..n)
+        .map(|i| {
+            (0..k)
+                .map(|kk| {
+                    let both = match (&fwd, &bwd) {
+                        (Some(f), Some(g)) => (1.0 - w(i)) * f[i][kk] + w(i) * g[i][kk],
+                        (Some(f), None) => f[i][kk],
+                        (None, Some(g)) => g[i][kk],
+                        (None, None) => unreachable!(),
+                    };
+                    0.5 * (both + frame(s + i)[kk])
+                })
+                .collect()
+        })
+        .collect()
+}
+
+#[test]
+fn a_gap_filling_repair_fill_fills_whole_frame_gaps_from_both_sides() {
+    // Four windows of 10 frames: a gap inside; one at the start (plus scattered hidden entries); one
+    // at the end and one single frame inside; everything hidden (no gap filled: nothing to fill from).
+    let (b, k, l) = (4usize, 6usize, 10usize);
+    let forecaster = tiny_prior(k, 6, 2, 81);
+    let plain = tiny_repair_fill(k, l, 82);
+    let gapped = tiny_gap_repair_fill(k, l, 82); // the same weights
+    let given = values(b * k * l, 83, 1.0);
+    let mut mask = binary_mask(b * k * l, 84, 0.8);
+    let gaps = [(0usize, 3usize, 6usize), (1, 0, 2), (2, 7, 10), (2, 2, 3)];
+    for &(bb, s, e) in &gaps {
+        for kk in 0..k {
+            for t in s..e {
+                mask[(bb * k + kk) * l + t] = 0.0;
+            }
+        }
+    }
+    // every other frame keeps an observed entry, so that the gaps are exactly these
+    for bb in 0..3 {
+        for t in 0..l {
+            if !gaps.iter().any(|&(g, s, e)| g == bb && (s..e).contains(&t)) {
+                mask[(bb * k) * l + t] = 1.0;
+            }
+        }
+    }
+    for v in &mut mask[3 * k * l..] {
+        *v = 0.0;
+    }
+    let observed = Observation::new(&given, &mask, [b, k, l]).unwrap();
+    let control = Control::default();
+    let base = tcd_core::prior_fill(&plain, None, &observed, &control).unwrap();
+    let got = tcd_core::prior_fill(&gapped, Some(&forecaster), &observed, &control).unwrap();
+    let mut in_gap = vec![false; b * k * l];
+    for &(bb, s, e) in &gaps {
+        let want = gap_fill_reference(&forecaster, &base, (bb, s, e), (k, l));
+        for (t, want_t) in (s..e).zip(&want) {
+            for (kk, &w) in want_t.iter().enumerate() {
+                let at = (bb * k + kk) * l + t;
+                in_gap[at] = true;
+                assert!(
+                    (got[at] - w).abs() <= 1e-5 * (1.0 + w.abs()),
+                    "sequence {bb}, frame {t}, feature {kk}: {} against {w}",
+                    got[at]
+                );
+                assert_ne!(got[at], base[at]);
+            }
+        }
+    }
+    // outside the gaps (the all-hidden window included) the repair fill's own values, bit for bit
+    for i in (0..b * k * l).filter(|&i| !in_gap[i]) {
+        assert_eq!(got[i].to_bits(), base[i].to_bits(), "entry {i}");
+    }
+
+    // The forecaster is required, a forecaster (anchor "last") with the fill's K; repair needs it too.
+    let named = |e: Error| assert!(e.to_string().contains("`forecaster`"), "{e}");
+    named(tcd_core::prior_fill(&gapped, None, &observed, &control).unwrap_err());
+    named(tcd_core::prior_fill(&gapped, Some(&plain), &observed, &control).unwrap_err());
+    named(
+        tcd_core::prior_fill(&gapped, Some(&tiny_prior(9, 6, 2, 1)), &observed, &control)
+            .unwrap_err(),
+    );
+    let mut cfg = tiny_config(Role::Repair, l, 0);
+    cfg.model.cond_fill = tcd_core::CondFill::Prior;
+    cfg.model.target = tcd_core::Target::PriorResidual;
+    cfg.model.target_scale = 10.0;
+    let model = model_of(&cfg, 85);
+    let opts = ForecastOptions {
+        num_samples: 2,
+        sampler: SamplerConfig::ddim(2, 1.0),
+    };
+    let run = |fill, forecaster| {
+        repair(
+            &model,
+            Some(fill),
+            forecaster,
+            &observed,
+            &opts,
+            Noise::seeded(3),
+            &control,
+        )
+    };
+    named(run(&gapped, None).unwrap_err());
+    // the repair samples the model on the gap-filled window
+    let r = run(&gapped, Some(&forecaster)).unwrap();
+    let want = sample(
+        &model,
+        &Observation::new(&got, &mask, [b, k, l]).unwrap(),
+        2,
+        &opts.sampler,
+        Noise::seeded(3),
+        &control,
+    )
+    .unwrap();
+    assert_eq!(r.samples, want);
+    // a fill without gap filling ignores a forecaster given to it
+    assert_eq!(
+        run(&plain, Some(&forecaster)).unwrap().samples,
+        run(&plain, None).unwrap().samples
+    );
 }

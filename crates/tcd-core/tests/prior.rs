@@ -12,7 +12,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use tcd_core::{
     dct_matrix, prior_expected_tensors, with_threads, Anchor, Control, DataConfig, Denoiser, Error,
-    Kernel, Prior, PriorConfig, PriorModelConfig,
+    GapFill, Kernel, Prior, PriorConfig, PriorModelConfig,
 };
 
 /// K = 6 (2 joints × 3), L = 12, chunk 4, 3 blocks: small, and with a horizon that is no multiple of
@@ -30,6 +30,7 @@ fn config() -> PriorConfig {
             blocks: 3,
             layer_norm_eps: 1e-5,
             anchor: Anchor::Last,
+            gap_fill: GapFill::None,
         },
         data: DataConfig::default(),
     }
@@ -502,6 +503,25 @@ fn a_repair_fill_corrects_its_window_on_every_kernel() {
     );
     // and its chunk must be its obs_len
     invalid_chunk_for_window(&cfg, &t);
+    // gap_fill: "forecaster" parses for it (and is written back), is refused for a forecaster, and an
+    // unknown value is refused naming the field
+    let gaps = with(&cfg, |v| v["model"]["gap_fill"] = "forecaster".into());
+    let g = Prior::from_bytes(&bytes(&gaps, &t), "repair_fill.safetensors").unwrap();
+    assert_eq!(g.config().model.gap_fill, GapFill::Forecaster);
+    assert!(g.config().to_json().contains("\"gap_fill\":\"forecaster\""));
+    assert!(!p.config().to_json().contains("gap_fill"));
+    let on_last = with(&last, |v| v["model"]["gap_fill"] = "forecaster".into());
+    match Prior::from_bytes(&bytes(&on_last, &t), "p.safetensors").unwrap_err() {
+        Error::InvalidConfig { field, .. } => assert_eq!(field, "model.gap_fill"),
+        e => panic!("{e:?}"),
+    }
+    let unknown = with(&cfg, |v| v["model"]["gap_fill"] = "linear".into());
+    let e = Prior::from_bytes(&bytes(&unknown, &t), "p.safetensors").unwrap_err();
+    assert!(
+        e.to_string()
+            .contains("model.gap_fill: unknown variant `linear`, expected `none` or `forecaster`"),
+        "{e}"
+    );
 }
 
 fn invalid_chunk_for_window(cfg: &PriorConfig, t: &BTreeMap<String, RawTensor>) {

@@ -100,10 +100,11 @@ pub(crate) fn cascade<'py>(
 /// Repairs the mask-0 entries of an observation (B, K, O), O = the model's obs_len. Returns a
 /// dict: `mean` (B, K, O; observed entries exact) and `samples` (S, B, K, O). `fill`: the repair fill
 /// (a `Prior` with anchor "window"), required where the model is conditioned on it (`cond_fill`
-/// "prior"), unused otherwise.
+/// "prior"), unused otherwise. `forecaster`: the prior forecaster, required where that fill fills
+/// whole-frame gaps with it (`gap_fill` "forecaster"), unused otherwise.
 #[pyfunction]
 #[pyo3(signature = (model, observed, mask, num_samples, options, *, noise=None, seed=None, first_sequence=0,
-                    sequences=None, threads=None, progress=None, fill=None))]
+                    sequences=None, threads=None, progress=None, fill=None, forecaster=None))]
 #[expect(
     clippy::too_many_arguments,
     reason = "a Python signature: pyo3 maps each keyword argument to one parameter"
@@ -122,9 +123,11 @@ pub(crate) fn repair<'py>(
     threads: Option<i64>,
     progress: Option<Bound<'py, PyAny>>,
     fill: Option<&Bound<'py, PyPrior>>,
+    forecaster: Option<&Bound<'py, PyPrior>>,
 ) -> Result<Bound<'py, PyDict>> {
     let model = &model.get().inner;
     let fill = fill.map(|p| &*p.get().inner);
+    let forecaster = forecaster.map(|p| &*p.get().inner);
     let args = SamplingArgs {
         observed,
         mask,
@@ -142,6 +145,7 @@ pub(crate) fn repair<'py>(
         core_repair(
             model,
             fill,
+            forecaster,
             &job.observation(model.num_features())?,
             &job.options,
             noise.as_noise(),

@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use numpy::{PyArray2, PyArrayDyn, PyReadonlyArrayDyn};
 use pyo3::prelude::*;
-use tcd_core::{Control, Prior};
+use tcd_core::{prior_fill, Control, Observation, Prior};
 
 use crate::convert::*;
 use crate::error::{internal, invalid, Result};
@@ -40,6 +40,15 @@ model_methods! {
             match self.inner.config().model.anchor {
                 tcd_core::Anchor::Last => "last",
                 tcd_core::Anchor::Window => "window",
+            }
+        }
+        /// How a repair fill fills whole-frame gaps: "none" (like every other hidden entry) or
+        /// "forecaster" (with the prior forecaster, which `repair` then needs).
+        #[getter]
+        fn gap_fill(&self) -> &'static str {
+            match self.inner.config().model.gap_fill {
+                tcd_core::GapFill::None => "none",
+                tcd_core::GapFill::Forecaster => "forecaster",
             }
         }
         /// The DCT matrix the engine computed (obs_len, obs_len) float32, row f the f-th cosine.
@@ -100,6 +109,59 @@ model_methods! {
                 interruptible(py, None, threads, predict)?
             };
             to_numpy(py, &[b, horizon, k], out)
+        }
+
+        /// What a model conditioned on this prior sees (`tcd_core::prior_fill`): `observed` (B, T, K) with
+        /// its `mask`-0 entries filled, (B, T, K) float32; `mask` of the same shape, 1 = given. A forecaster
+        /// fills the first obs_len frames with the spline and rolls out after them (T > obs_len); a repair
+        /// fill (T = obs_len) corrects the spline, and one with gap_fill "forecaster" fills whole-frame gaps
+        /// from `forecaster`.
+        #[pyo3(signature = (observed, mask, *, forecaster=None, threads=None))]
+        fn fill<'py>(
+            &self,
+            py: Python<'py>,
+            observed: PyReadonlyArrayDyn<'py, f32>,
+            mask: PyReadonlyArrayDyn<'py, f32>,
+            forecaster: Option<&Bound<'py, PyPrior>>,
+            threads: Option<i64>,
+        ) -> Result<Bound<'py, PyArrayDyn<f32>>> {
+            let k = self.inner.num_features();
+            let observed = Array::from_numpy(&observed);
+            let mask = Array::from_numpy(&mask);
+            let (b, t) = match observed.shape.as_slice() {
+                &[b, t, kk] if kk == k => (b, t),
+                _ => {
+                    return Err(invalid(
+                        "observed",
+                        format!("a float32 array of shape (B, T, K) with K = {k}"),
+                        format!("shape {}", Array::shape_str(&observed.shape)),
+                    )
+                    .into())
+                }
+            };
+            mask.expect_shape("mask", &observed.shape, "(the shape of `observed`)")?;
+            // the engine's layout, (B, K, T)
+            let to_bkt = |a: &[f32]| -> Vec<f32> {
+                let mut out = vec![0.0f32; a.len()];
+                for (i, v) in a.iter().enumerate() {
+                    let (bb, tt, kk) = (i / (t * k), i / k % t, i % k);
+                    out[(bb * k + kk) * t + tt] = *v;
+                }
+                out
+            };
+            let (values, m) = (to_bkt(&observed.data), to_bkt(&mask.data));
+            let threads = threads_arg(threads)?;
+            let (model, forecaster) = (&self.inner, forecaster.map(|p| Arc::clone(&p.get().inner)));
+            let out = interruptible(py, None, threads, |control: &Control| {
+                let obs = Observation::new(&values, &m, [b, k, t])?;
+                prior_fill(model, forecaster.as_deref(), &obs, control)
+            })?;
+            let mut frames = vec![0.0f32; out.len()];
+            for (i, v) in out.iter().enumerate() {
+                let (bb, kk, tt) = (i / (k * t), i / t % k, i % t);
+                frames[(bb * t + tt) * k + kk] = *v;
+            }
+            to_numpy(py, &[b, t, k], frames)
         }
 
         fn __repr__(&self) -> String {

@@ -61,7 +61,7 @@ def run_tasks(model: Any, tasks: Iterable[Task], opts: RepairOptions, *, overwri
     call. Bad inputs and failed writes become ``failed`` outcomes; the run goes on. Returns the outcomes
     in task order."""
     den = _denoiser(model)
-    fill = model._repair_fill_of(den)      # repair_raw's fill: the repair model's, if it is conditioned on one
+    fills = model._repair_fills(den)      # repair_raw's fill (and its forecaster) for the repair model
     w = model.obs_len
     joint_index = (model.data or {}).get("joint_index_32")
     outcomes: Dict[int, Outcome] = {}
@@ -131,7 +131,7 @@ def run_tasks(model: Any, tasks: Iterable[Task], opts: RepairOptions, *, overwri
             msk.append(m)
         # Window k of a file draws the engine's stream k, whichever files share the batch.
         out = repair_raw(den, np.stack(obs), np.stack(msk), num_samples=opts.num_samples, seed=opts.seed,
-                         sequences=[a.job.k for a in active], threads=opts.threads, fill=fill, **sampler)
+                         sequences=[a.job.k for a in active], threads=opts.threads, **fills, **sampler)
         still: List[Active] = []
         for a, mean in zip(active, out["mean"]):
             a.job.accept(mean)

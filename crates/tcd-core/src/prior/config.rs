@@ -30,6 +30,30 @@ pub struct PriorModelConfig {
     /// forecaster's file (written as before it existed), so only a repair fill's file names it.
     #[serde(default, skip_serializing_if = "Anchor::is_last")]
     pub anchor: Anchor,
+    /// What a repair fill (anchor [`Anchor::Window`]) does over its window's whole-frame gaps; absent
+    /// ([`GapFill::None`]) in every other file.
+    #[serde(default, skip_serializing_if = "GapFill::is_none")]
+    pub gap_fill: GapFill,
+}
+
+/// How a repair fill fills a window's whole-frame gaps: runs of frames with every entry hidden, where
+/// its network has no joint of the frame to correct the spline from.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum GapFill {
+    /// Like every other hidden entry: the network's correction of the spline.
+    #[default]
+    None,
+    /// With the prior forecaster (`prior.safetensors`) run forward into the gap and backward into it
+    /// (`crate::forecast`'s gap fill), averaged with the correction of the spline.
+    Forecaster,
+}
+
+impl GapFill {
+    /// Whether this is the default, [`GapFill::None`] (not written to a file's config).
+    pub fn is_none(&self) -> bool {
+        *self == GapFill::None
+    }
 }
 
 /// What a prior's forward adds its network's output to.
@@ -124,6 +148,12 @@ impl PriorConfig {
                     "must equal obs_len = {} for anchor \"window\" (the output corrects the whole input), but is {}",
                     m.obs_len, m.chunk
                 ),
+            ));
+        }
+        if m.gap_fill != GapFill::None && m.anchor != Anchor::Window {
+            return Err(bad(
+                "model.gap_fill",
+                "is for a repair fill (anchor \"window\"); a forecaster fills no gaps".to_string(),
             ));
         }
         checks.layer_norm_eps(m.layer_norm_eps)?;

@@ -45,7 +45,7 @@ use crate::weights::{read_file, read_weights, Tensor};
 pub mod config;
 mod forward;
 
-pub use config::{prior_expected_tensors, Anchor, PriorConfig, PriorModelConfig};
+pub use config::{prior_expected_tensors, Anchor, GapFill, PriorConfig, PriorModelConfig};
 use forward::Dense;
 
 /// One temporal block: FC over the L frames (DCT coefficients) of each coordinate, layer norm over

@@ -456,12 +456,31 @@ pub fn model_of(cfg: &TcdConfig, seed: u64) -> Denoiser {
 /// A small random prior forecaster: K = `num_features`, `obs_len` frames in, `chunk` out, 2 blocks,
 /// weights of unit-gain scale (its forecast moves well away from the last pose).
 pub fn tiny_prior(num_features: usize, obs_len: usize, chunk: usize, seed: u64) -> Prior {
-    tiny_prior_anchored(num_features, obs_len, chunk, Anchor::Last, seed)
+    tiny_prior_anchored(
+        num_features,
+        obs_len,
+        chunk,
+        Anchor::Last,
+        GapFill::None,
+        seed,
+    )
 }
 
 /// A repair fill (anchor "window") of `len` frames with random weights, like [`tiny_prior`].
 pub fn tiny_repair_fill(num_features: usize, len: usize, seed: u64) -> Prior {
-    tiny_prior_anchored(num_features, len, len, Anchor::Window, seed)
+    tiny_prior_anchored(num_features, len, len, Anchor::Window, GapFill::None, seed)
+}
+
+/// [`tiny_repair_fill`] that fills whole-frame gaps with the forecaster (`gap_fill: "forecaster"`).
+pub fn tiny_gap_repair_fill(num_features: usize, len: usize, seed: u64) -> Prior {
+    tiny_prior_anchored(
+        num_features,
+        len,
+        len,
+        Anchor::Window,
+        GapFill::Forecaster,
+        seed,
+    )
 }
 
 pub fn tiny_prior_anchored(
@@ -469,6 +488,7 @@ pub fn tiny_prior_anchored(
     obs_len: usize,
     chunk: usize,
     anchor: Anchor,
+    gap_fill: GapFill,
     seed: u64,
 ) -> Prior {
     let cfg = PriorConfig {
@@ -483,6 +503,7 @@ pub fn tiny_prior_anchored(
             blocks: 2,
             layer_norm_eps: 1e-5,
             anchor,
+            gap_fill,
         },
         data: DataConfig::default(),
     };
