@@ -324,23 +324,3 @@ def test_humaneva_lowpass_keeps_the_first_cosines_of_the_residual_over_the_prior
     np.testing.assert_allclose(lowpass(samples, prior, 2), np.broadcast_to(prior, samples.shape), atol=1e-12)
     with pytest.raises(ValueError, match="keep"):
         lowpass(samples, prior, 0)
-
-
-@needs_h36m
-def test_repair_gap_fill_bundled_row_is_the_repair_benchmarks_repair(tmp_path):
-    """benches/repair_gap_fill.py gives the engine each fill in the observation's hidden entries: with the
-    directory's own repair fill that must be exactly what ``TCD.repair`` does on the repair benchmark's windows,
-    masks and seed (what benches/repair_quality.py scores), so the other rows differ by their fill alone."""
-    pytest.importorskip("scipy")
-    rq, gf = load_bench("repair_quality"), load_bench("repair_gap_fill")
-    out = tmp_path / "gap.json"
-    assert gf.main(["--windows", "3", "--samples", "2", "--steps", "3", "--seed", "5", "--json", str(out)]) == 0
-    rows = json.loads(out.read_text())["results"]
-    gt = rq.draw_windows(3, gf.L, 5, rq.h36m.DEFAULT_H36M_DIR)
-    _, _, m, obs = next(c for c in rq.masked_cases(gt, 5) if c[1] == gf.PATTERN)
-    pred = rq.tcd.load().repair(obs, num_samples=2, num_inference_steps=3, sampler="ddpm", seed=5).poses
-    expect = rq.scores(pred, gt, m, 1, 1.0)["per_window_mm"]
-    np.testing.assert_allclose(rows["the repair fill (bundled)"]["tcd"]["per_window_mm"], expect, rtol=1e-6)
-    assert rows["the repair fill (bundled)"]["paired_mm"]["mean"] == 0.0
-    assert set(rows) == {"the repair fill (bundled)", "prior forward + backward",
-                         "prior forward + backward, averaged with the spline", "spline"}

@@ -565,49 +565,47 @@ def test_repair_around_a_gap_filling_repair_fill_every_kernel(gap_fill_repair_di
     assert ei.value.argument == "forecaster"
 
 
+def assert_repairs_as_the_engine(m, poses, **fills):
+    """``TCD.repair`` of ``poses`` (T, 22, 3, NaN hidden) is ``tcd.engine.repair_raw`` of the directory's repair
+    model given ``fills`` (its ``fill`` and ``forecaster`` keywords), bit for bit."""
+    kw = dict(num_samples=2, seed=4, sampler="ddim", num_inference_steps=1)
+    engine = lambda a: np.ascontiguousarray(a.reshape(1, OBS_LEN, 66).transpose(0, 2, 1))  # noqa: E731
+    want = tcd.engine.repair_raw(m.repair_model, engine(np.nan_to_num(poses)),
+                                 engine((~np.isnan(poses)).astype(np.float32)), **fills, **kw)["mean"]
+    np.testing.assert_array_equal(engine(m.repair(poses, **kw).poses), want)
+
+
+def assert_refused_without(d, tmp_path, name):
+    """A copy of the model directory ``d`` without the file ``name`` does not load; the error names the file."""
+    import shutil
+    bare = tmp_path / "bare"
+    shutil.copytree(d, bare)
+    (bare / name).unlink()
+    with pytest.raises(tcd.exceptions.WeightsError, match=name) as ei:
+        tcd.load(bare)
+    assert ei.value.path == str(bare / name)
+
+
 def test_a_model_directory_repairs_with_its_gap_filling_fill(gap_fill_repair_dir, tmp_path):
     """``tcd.load`` gives a repair fill with ``gap_fill: "forecaster"`` the directory's prior forecaster in every
     repair (``TCD.repair`` against ``repair_raw`` with both); a directory without ``prior.safetensors`` is
     refused, the error naming it."""
-    import shutil
     m = tcd.load(gap_fill_repair_dir)
     assert m.repair_fill.gap_fill == "forecaster" and m.prior is not None
     poses = np.random.default_rng(6).normal(scale=0.3, size=(OBS_LEN, 22, 3)).astype(np.float32)
     poses[10:20] = np.nan
-    kw = dict(num_samples=2, seed=4, sampler="ddim", num_inference_steps=1)
-    got = m.repair(poses, **kw).poses
-    observed = np.nan_to_num(poses).reshape(1, OBS_LEN, 66).transpose(0, 2, 1).copy()
-    mask = (~np.isnan(poses)).reshape(1, OBS_LEN, 66).transpose(0, 2, 1).astype(np.float32).copy()
-    want = tcd.engine.repair_raw(m.repair_model, observed, mask, fill=m.repair_fill, forecaster=m.prior, **kw)
-    np.testing.assert_array_equal(got.reshape(1, OBS_LEN, 66).transpose(0, 2, 1), want["mean"])
-    bare = tmp_path / "bare"
-    shutil.copytree(gap_fill_repair_dir, bare)
-    (bare / "prior.safetensors").unlink()
-    with pytest.raises(tcd.exceptions.WeightsError, match="prior.safetensors") as ei:
-        tcd.load(bare)
-    assert ei.value.path == str(bare / "prior.safetensors")
+    assert_repairs_as_the_engine(m, poses, fill=m.repair_fill, forecaster=m.prior)
+    assert_refused_without(gap_fill_repair_dir, tmp_path, "prior.safetensors")
 
 
 def test_a_model_directory_repairs_with_its_repair_fill(fill_repair_dir, tmp_path):
     """``tcd.load`` opens ``repair_fill.safetensors`` beside a repair model conditioned on it and every
     repair of the directory runs with it (here ``TCD.repair`` against ``repair_raw`` with the fill); without
     the file the directory is refused, the error naming it."""
-    import shutil
     m = tcd.load(fill_repair_dir)
     assert m.repair_fill is not None and m.repair_fill.anchor == "window"
     assert "repair_fill.safetensors" in m.file_sha256
-    rng = np.random.default_rng(5)
-    poses = rng.normal(scale=0.3, size=(OBS_LEN, 22, 3)).astype(np.float32)
+    poses = np.random.default_rng(5).normal(scale=0.3, size=(OBS_LEN, 22, 3)).astype(np.float32)
     poses[10:20, 3:9] = np.nan
-    kw = dict(num_samples=2, seed=4, sampler="ddim", num_inference_steps=1)
-    got = m.repair(poses, **kw).poses
-    observed = np.nan_to_num(poses).reshape(1, OBS_LEN, 66).transpose(0, 2, 1).copy()
-    mask = (~np.isnan(poses)).reshape(1, OBS_LEN, 66).transpose(0, 2, 1).astype(np.float32).copy()
-    want = tcd.engine.repair_raw(m.repair_model, observed, mask, fill=m.repair_fill, **kw)["mean"]
-    np.testing.assert_array_equal(got.reshape(1, OBS_LEN, 66).transpose(0, 2, 1), want)
-    bare = tmp_path / "bare"
-    shutil.copytree(fill_repair_dir, bare)
-    (bare / "repair_fill.safetensors").unlink()
-    with pytest.raises(tcd.exceptions.WeightsError, match="repair_fill.safetensors") as ei:
-        tcd.load(bare)
-    assert ei.value.path == str(bare / "repair_fill.safetensors")
+    assert_repairs_as_the_engine(m, poses, fill=m.repair_fill)
+    assert_refused_without(fill_repair_dir, tmp_path, "repair_fill.safetensors")

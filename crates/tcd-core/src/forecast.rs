@@ -297,7 +297,7 @@ fn whole_frame_gaps(mask: &[f32], batch: usize, length: usize) -> Vec<(usize, us
 ///   averaged with the fill already there (the repair fill's correction of the spline).
 ///
 /// Every history is read from the fill as it was before any gap is filled, and all of them are
-/// predicted in one call. Measured on benches/repair_gap_fill.py before it was built in.
+/// predicted in one call. What it gains: docs/repair.md, "Whole-frame gaps".
 fn fill_gaps(
     forecaster: &Prior,
     values: &mut [f32],
