@@ -403,8 +403,9 @@ def test_bundled_repair_model():
     out = m.repair(clip, mask, num_samples=5, num_inference_steps=10, sampler="ddpm", seed=0).poses
     np.testing.assert_array_equal(out[mask], clip[mask])
     err_mm = np.linalg.norm(out - clip, axis=-1)[~mask].mean() * 1000
-    # Against linear interpolation on the same gaps: the bundled model around its repair fill measured 23.6 vs
-    # 46.6 mm (0.51x; the natural cubic spline 25.1 mm; its first installment 23.6 too); the spline-conditioned
+    # Against linear interpolation on the same gaps: the bundled model around its repair fill, the 10 frames filled
+    # from the prior forecaster (gap_fill), measured 22.0 vs 46.6 mm (0.47x; the natural cubic spline 25.1 mm;
+    # without the gap fill 23.6, its first installment 23.6 too); the spline-conditioned
     # one before it 25.6 mm (0.55x; its first stage 25.3 mm); the GPU-trained linear-residual model 32.8 mm
     # (0.70x); the first CPU repair model 47.7 mm (1.02x, with DDIM-10 x 2); the short-term model's in-painting,
     # before there was a repair model, 128.8 mm.
