@@ -221,12 +221,17 @@ pub fn prior_fill(
             length.to_string(),
         ));
     }
-    let forecaster = gap_forecaster(prior, forecaster)?;
+    let gaps = gap_forecaster(prior, forecaster)?;
     let mut values = observed.values().to_vec();
-    fill_with_prior(prior, &mut values, observed.mask(), batch, length, control)?;
-    if let Some(f) = forecaster {
-        fill_gaps(f, &mut values, observed.mask(), batch, length, control)?;
-    }
+    fill_with_prior(
+        prior,
+        gaps,
+        &mut values,
+        observed.mask(),
+        batch,
+        length,
+        control,
+    )?;
     Ok(values)
 }
 
@@ -369,9 +374,11 @@ fn fill_gaps(
 }
 
 /// [`prior_fill`] in place on `values` with `mask`, (B, K, L) of a checked observation with the prior's K
-/// and L > its obs_len (L = obs_len for a repair fill, anchor [`Anchor::Window`]).
+/// and L > its obs_len (L = obs_len for a repair fill, anchor [`Anchor::Window`]); `gaps`: the repair
+/// fill's checked gap forecaster ([`gap_forecaster`]), whose [`fill_gaps`] then runs, `None` otherwise.
 fn fill_with_prior(
     prior: &Prior,
+    gaps: Option<&Prior>,
     values: &mut [f32],
     mask: &[f32],
     batch: usize,
@@ -417,7 +424,10 @@ fn fill_with_prior(
             };
         }
     }
-    Ok(())
+    match gaps {
+        Some(f) => fill_gaps(f, values, mask, batch, length, control),
+        None => Ok(()),
+    }
 }
 
 /// Runs the short-term → long-term cascade on `observed`, (B, K, O) with K the models' `num_features` and
@@ -466,7 +476,7 @@ pub fn cascade(
     );
     let m_short = pad_frames(observed.mask(), o, ls, 0.0);
     if let Some(p) = short_prior {
-        fill_with_prior(p, &mut x_short, &m_short, batch, ls, control)?;
+        fill_with_prior(p, None, &mut x_short, &m_short, batch, ls, control)?;
     }
     let m_long = pad_frames(&vec![1.0f32; rows * ls], ls, ll, 0.0);
     // Validate the long stage (sizes, plan, noise) before the expensive short stage runs.
@@ -502,7 +512,7 @@ pub fn cascade(
     // them the prior's fill from the first obs_len frames, for a model conditioned on it.
     let mut x_long = pad_frames(&short_mean, ls, ll, 0.0);
     if let Some(p) = long_prior {
-        fill_with_prior(p, &mut x_long, &m_long, batch, ll, control)?;
+        fill_with_prior(p, None, &mut x_long, &m_long, batch, ll, control)?;
     }
     let job = validate_job(
         long,
@@ -551,7 +561,7 @@ pub fn repair(
 ) -> Result<RepairOutput> {
     let (k, o, l) = (model.num_features(), model.obs_len(), model.seq_len());
     let fill = repair_fill(model, fill)?;
-    let forecaster = match fill {
+    let gaps = match fill {
         Some(f) => gap_forecaster(f, forecaster)?,
         None => None,
     };
@@ -566,10 +576,7 @@ pub fn repair(
     );
     let m = pad_frames(observed.mask(), o, l, 0.0);
     if let Some(f) = fill {
-        fill_with_prior(f, &mut x, &m, batch, l, control)?;
-    }
-    if let Some(f) = forecaster {
-        fill_gaps(f, &mut x, &m, batch, l, control)?;
+        fill_with_prior(f, gaps, &mut x, &m, batch, l, control)?;
     }
     let job = validate_job(
         model,
