@@ -102,8 +102,8 @@ def learned_fill(model: "tcd.TCD"):
         b, t = x.shape[:2]
         keep = np.repeat(m[..., None], 3, -1)
         flat = lambda a: np.ascontiguousarray(a, np.float32).reshape(b, t, -1)  # noqa: E731
-        gaps = model.prior if model.repair_fill.gap_fill == "forecaster" else None
-        return model.repair_fill.fill(flat(np.where(keep, x, 0.0)), flat(keep), forecaster=gaps).reshape(x.shape)
+        # the forecaster, which the engine uses where the fill's gap_fill says so and ignores otherwise
+        return model.repair_fill.fill(flat(np.where(keep, x, 0.0)), flat(keep), forecaster=model.prior).reshape(x.shape)
     return fill
 
 

@@ -296,11 +296,10 @@ class TCD:
     def _repair_fills(self, den: Denoiser) -> Dict[str, Optional[Prior]]:
         """What a repair by ``den`` runs with, as :func:`tcd.engine.repair_raw`'s keywords: ``fill``, the
         directory's repair fill for its repair model (None for another denoiser: the short-term model
-        in-painting), and ``forecaster``, the prior forecaster where that fill fills whole-frame gaps with it
-        (``gap_fill`` ``"forecaster"``)."""
+        in-painting), and ``forecaster``, the directory's prior forecaster beside that fill (the engine uses it
+        where the fill's ``gap_fill`` is ``"forecaster"`` and ignores it otherwise)."""
         fill = self.repair_fill if den is self.repair_model else None
-        gaps = fill is not None and fill.gap_fill == "forecaster"
-        return {"fill": fill, "forecaster": self.prior if gaps else None}
+        return {"fill": fill, "forecaster": self.prior if fill is not None else None}
 
     # ------------------------------------------------------------------ description
     @property
