@@ -3,6 +3,8 @@ Velocity), rollout, the loss, config checks, and resumable training (a stopped a
 uninterrupted one)."""
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -346,3 +348,55 @@ def test_validation_keeps_the_best_weights(tmp_path):
         repair_fill_config(val_subjects=(1,), subjects=(1, 6))
     with pytest.raises(ValueError, match="needs val_subjects"):
         repair_fill_config(val_every=10)
+
+
+def test_log_window_loss_weighs_every_window_alike():
+    """window_loss "log_window": the mean over the windows with a hidden joint of the log of each one's mean
+    hidden-joint distance (a window hiding nothing is left out); "pooled", the mean over every hidden joint. A
+    window ten times further off adds log 10 to its term, whatever its size."""
+    B, L, J = 3, 4, 2
+    target = torch.zeros(B, L, 3 * J)
+    joint_mask = torch.ones(B, L, J)
+    joint_mask[0, 0, 0] = 0.0                       # window 0: one hidden joint, 1 mm off
+    joint_mask[1, :2, :] = 0.0                      # window 1: four hidden joints, 10 mm off; window 2: none
+    pred = target.clone()
+    pred[0, 0, 0] = 0.001
+    pred[1, :2, 1::3] = 0.010
+    pred[2] += 5.0                                  # all seen: costs nothing
+    pooled = hidden_loss(pred, target, joint_mask).item()
+    assert pooled == pytest.approx((0.001 + 4 * 0.010) / 5, rel=1e-5)
+    logw = hidden_loss(pred, target, joint_mask, "log_window").item()
+    assert logw == pytest.approx((np.log(0.001 + 1e-6) + np.log(0.010 + 1e-6)) / 2, rel=1e-5)
+    with pytest.raises(ValueError, match="window_loss must be one of"):
+        repair_fill_config(window_loss="mean")
+    with pytest.raises(ValueError, match="for a repair fill"):
+        PriorConfig(window_loss="log_window")
+
+
+def test_validation_on_separate_patterns_is_their_geometric_mean(tmp_path):
+    """val_mask_mix: every validation window under each pattern in turn, scored by the geometric mean of the
+    patterns' pooled hidden-joint errors (so the few-mm occlusions count as much as a gap of many frames); what
+    best.pt is chosen on; the entries are checked like mask_mix's."""
+    from dataclasses import replace
+    from training.prior import validation_loss
+    torch.set_num_threads(1)
+    frames, held_out = synthetic_frames(), synthetic_frames(seed=1)
+    patterns = (("random_leg_arm", 1.0, 0.4), ("consecutive_frames", 1.0, 0.2))
+    cfg = repair_fill_config(iterations=20, lr=1e-2, lr_final=1e-2, val_subjects=(11,), val_every=10, val_windows=32,
+                             subjects=(1, 6), val_mask_mix=patterns, window_loss="log_window")
+    train(cfg, tmp_path, frames=frames, val_frames=held_out, log=lambda m: None)
+    history = torch.load(tmp_path / "last.pt", weights_only=False)["history"]
+    vals = {h["iteration"]: h["val"] for h in history if "val" in h}
+    vcfg, val = validation_windows(cfg, frames=held_out)
+    net = load(tmp_path / "last.pt")
+    with torch.no_grad():
+        each = [window_loss(replace(vcfg, mask_mix=(p,), window_loss="pooled"), net, net, val, 0).item()
+                for p in patterns]
+        assert validation_loss(vcfg, net, val) == pytest.approx(np.sqrt(each[0] * each[1]), rel=1e-6)
+    assert vals[20] == pytest.approx(np.sqrt(each[0] * each[1]), rel=1e-6)
+    assert each[1] > 2 * each[0]                    # the whole-frame gap is the larger error, not the larger say
+    assert json.loads(json.dumps(load(tmp_path / "last.pt").cfg.val_mask_mix)) == json.loads(json.dumps(patterns))
+    with pytest.raises(ValueError, match="no_such_mask"):
+        repair_fill_config(val_mask_mix=(("no_such_mask", 1.0),))
+    with pytest.raises(ValueError, match="for a repair fill"):
+        PriorConfig(val_mask_mix=patterns)

@@ -56,6 +56,7 @@ NUM_JOINTS = 22
 ANCHORS = ("last", "window")
 #: how a repair fill fills a window's whole-frame gaps (PriorConfig.gap_fill; training.model.fill_gaps)
 GAP_FILLS = ("none", "forecaster")
+WINDOW_LOSSES = ("pooled", "log_window")
 #: the model joints of each dataset the prior trains on (Human3.6M: 22; HumanEva-I: joints 1..14 of 15)
 DATASET_JOINTS = {"h36m": 22, "humaneva": 14}
 
@@ -97,6 +98,12 @@ class PriorConfig:
     mask_mix: tuple = ()             # anchor "window": the masks trained on (training.masks.mix_entry entries)
     gap_fill: str = "none"           # anchor "window": "forecaster" fills runs of wholly hidden frames from the
                                      # prior forecaster beside it (training.model.fill_gaps, attach_gap_forecaster)
+    window_loss: str = "pooled"      # anchor "window": "pooled", the mean error over every hidden joint of the
+                                     # batch; "log_window", the mean over windows of the log of each window's
+                                     # mean error (scale-free: a window hiding nearly everything, tens of mm
+                                     # off, no longer outweighs the few-mm occlusions; see docs/repair.md)
+    val_mask_mix: tuple = ()         # anchor "window": validate on each of these patterns (mask_mix entries)
+                                     # apart, scored by the geometric mean of their errors (() : mask_mix, pooled)
 
     @classmethod
     def load(cls, path: str | Path) -> "PriorConfig":
@@ -105,7 +112,7 @@ class PriorConfig:
         if unknown:
             raise ValueError(f"{path}: unknown prior config keys {sorted(unknown)}")
         d = {k: v for k, v in d.items() if k != "comment"}
-        for key in ("subjects", "speed_range", "mask_mix", "val_subjects"):
+        for key in ("subjects", "speed_range", "mask_mix", "val_subjects", "val_mask_mix"):
             if key in d:
                 d[key] = tuple(d[key])
         return cls(**d)
@@ -170,6 +177,14 @@ class PriorConfig:
             raise ValueError("prior config: mask_mix is for anchor \"window\" (a forecaster sees whole frames)")
         if self.gap_fill not in GAP_FILLS:
             raise ValueError(f"prior config: gap_fill must be one of {list(GAP_FILLS)}, got {self.gap_fill!r}")
+        if self.window_loss not in WINDOW_LOSSES:
+            raise ValueError(f"prior config: window_loss must be one of {list(WINDOW_LOSSES)}, "
+                             f"got {self.window_loss!r}")
+        if (self.window_loss != "pooled" or self.val_mask_mix) and self.anchor != "window":
+            raise ValueError("prior config: window_loss and val_mask_mix are for a repair fill (anchor \"window\")")
+        from .masks import mix_entry
+        for entry in self.val_mask_mix:
+            mix_entry(entry)
         if self.gap_fill != "none" and self.anchor != "window":
             raise ValueError("prior config: gap_fill is for a repair fill (anchor \"window\"); a forecaster fills "
                              "no gaps")
@@ -191,7 +206,8 @@ class PriorConfig:
     def from_dict(cls, d: dict) -> "PriorConfig":
         """The config of a checkpoint's dict (one written before ``dataset`` existed is a Human3.6M one)."""
         return cls(**{**d, "subjects": tuple(d["subjects"]), "speed_range": tuple(d.get("speed_range", ())),
-                      "mask_mix": tuple(d.get("mask_mix", ())), "val_subjects": tuple(d.get("val_subjects", ()))})
+                      "mask_mix": tuple(d.get("mask_mix", ())), "val_subjects": tuple(d.get("val_subjects", ())),
+                      "val_mask_mix": tuple(d.get("val_mask_mix", ()))})
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -199,6 +215,7 @@ class PriorConfig:
         d["speed_range"] = list(self.speed_range)
         d["mask_mix"] = json.loads(json.dumps(self.mask_mix))      # nested lists, as the config file has them
         d["val_subjects"] = list(self.val_subjects)
+        d["val_mask_mix"] = json.loads(json.dumps(self.val_mask_mix))
         return d
 
 
@@ -390,13 +407,19 @@ def repair_batch(cfg: PriorConfig, wins: torch.Tensor, iteration: int) -> tuple[
     return spline_fill(wins.transpose(1, 2), mk).transpose(1, 2).contiguous(), joint_mask
 
 
-def hidden_loss(pred: torch.Tensor, target: torch.Tensor, joint_mask: torch.Tensor) -> torch.Tensor:
+def hidden_loss(pred: torch.Tensor, target: torch.Tensor, joint_mask: torch.Tensor,
+                how: str = "pooled") -> torch.Tensor:
     """The mean per-joint L2 distance over the hidden joints (joint_mask 0) of (B, L, K) windows: what
-    ``benches/repair_quality.py`` scores (the observed entries are given back exactly)."""
+    ``benches/repair_quality.py`` scores (the observed entries are given back exactly). ``how="log_window"``:
+    the mean over the windows with a hidden joint of the log of each one's mean distance instead."""
     B, L, K = pred.shape
     err = torch.linalg.vector_norm((pred - target).reshape(B, L, K // 3, 3), dim=-1)
     hidden = 1.0 - joint_mask
-    return (err * hidden).sum() / hidden.sum().clamp(min=1.0)
+    if how == "pooled":
+        return (err * hidden).sum() / hidden.sum().clamp(min=1.0)
+    n = hidden.sum(dim=(1, 2))
+    per_window = (err * hidden).sum(dim=(1, 2))[n > 0] / n[n > 0]
+    return torch.log(per_window + 1e-6).mean()
 
 
 def window_loss(cfg: PriorConfig, model: nn.Module, forward, wins: torch.Tensor, draw: int) -> torch.Tensor:
@@ -405,7 +428,7 @@ def window_loss(cfg: PriorConfig, model: nn.Module, forward, wins: torch.Tensor,
     :func:`repair_batch`'s draw ``draw``). ``forward``: the forward to call (a compiled one), else ``model``."""
     if cfg.anchor == "window":       # a repair fill: the spline-filled masked window in, the window out
         filled, joint_mask = repair_batch(cfg, wins, draw)
-        return hidden_loss(forward(filled), wins, joint_mask)
+        return hidden_loss(forward(filled), wins, joint_mask, cfg.window_loss)
     obs = wins[:, :cfg.obs_len]
     # loss_frames > chunk: the loss covers the rolled-out horizon the prior is used at (HumanEva-I rolls 15
     # frames out to 60), so the network learns to forecast from its own chunks, not only from the data's
@@ -422,6 +445,18 @@ def validation_windows(cfg: PriorConfig, data: str | None = None,
     vcfg = replace(cfg, subjects=cfg.val_subjects, val_subjects=(), val_every=0, batch_size=cfg.val_windows,
                    flip_prob=0.0, rotate_axis="", mirror_prob=0.0, h36m_share=0.0)
     return vcfg, batch(vcfg, *(frames if frames is not None else training_frames(vcfg, data)), 0)
+
+
+def validation_loss(vcfg: PriorConfig, model: nn.Module, val: torch.Tensor) -> float:
+    """The validation score of ``model`` on the windows ``val`` (:func:`validation_windows`): its training
+    loss on them; for a repair fill with ``val_mask_mix``, the geometric mean over those patterns of the
+    pooled hidden error of each (every window masked by each pattern in turn: draw 0)."""
+    from dataclasses import replace
+    if not vcfg.val_mask_mix:
+        return window_loss(vcfg, model, model, val, 0).item()
+    logs = [math.log(window_loss(replace(vcfg, mask_mix=(entry,), window_loss="pooled"), model, model, val, 0).item())
+            for entry in vcfg.val_mask_mix]
+    return math.exp(sum(logs) / len(logs))
 
 
 def learning_rate(cfg: PriorConfig, iteration: int) -> float:
@@ -521,7 +556,7 @@ def train(cfg: PriorConfig, out: str | Path, *, data: str | None = None, resume:
             run_loss, run_n = 0.0, 0
         if cfg.val_every and (it % cfg.val_every == 0 or it == cfg.iterations):
             with torch.no_grad():
-                v = window_loss(vcfg, model, model, val, 0).item()
+                v = validation_loss(vcfg, model, val)
             history.append({"iteration": it, "val": v, "elapsed_s": elapsed0 + time.time() - t0})
             if v < best_val:
                 best_val = v
