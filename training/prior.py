@@ -42,7 +42,7 @@ import json
 import math
 import sys
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -56,6 +56,7 @@ NUM_JOINTS = 22
 ANCHORS = ("last", "window")
 #: how a repair fill fills a window's whole-frame gaps (PriorConfig.gap_fill; training.model.fill_gaps)
 GAP_FILLS = ("none", "forecaster")
+#: what a repair fill's training loss averages (PriorConfig.window_loss; hidden_loss)
 WINDOW_LOSSES = ("pooled", "log_window")
 #: the model joints of each dataset the prior trains on (Human3.6M: 22; HumanEva-I: joints 1..14 of 15)
 DATASET_JOINTS = {"h36m": 22, "humaneva": 14}
@@ -103,7 +104,8 @@ class PriorConfig:
                                      # mean error (scale-free: a window hiding nearly everything, tens of mm
                                      # off, no longer outweighs the few-mm occlusions; see docs/repair.md)
     val_mask_mix: tuple = ()         # anchor "window": validate on each of these patterns (mask_mix entries)
-                                     # apart, scored by the geometric mean of their errors (() : mask_mix, pooled)
+                                     # apart, scored by the geometric mean of their errors (empty: the mask_mix's
+                                     # pooled loss)
 
     @classmethod
     def load(cls, path: str | Path) -> "PriorConfig":
@@ -168,7 +170,7 @@ class PriorConfig:
                 raise ValueError(f"prior config: anchor \"window\" (a repair fill) trains on Human3.6M, got "
                                  f"dataset {self.dataset!r}")
             from .masks import mix_entry
-            for entry in self.mask_mix:
+            for entry in self.mask_mix + tuple(self.val_mask_mix):
                 mix_entry(entry)
             if self.obs_noise_prob > 0.0 or self.speed_range or self.mirror_prob > 0.0:
                 raise ValueError("prior config: anchor \"window\" supports flips and rotations only (no obs_noise, "
@@ -182,9 +184,6 @@ class PriorConfig:
                              f"got {self.window_loss!r}")
         if (self.window_loss != "pooled" or self.val_mask_mix) and self.anchor != "window":
             raise ValueError("prior config: window_loss and val_mask_mix are for a repair fill (anchor \"window\")")
-        from .masks import mix_entry
-        for entry in self.val_mask_mix:
-            mix_entry(entry)
         if self.gap_fill != "none" and self.anchor != "window":
             raise ValueError("prior config: gap_fill is for a repair fill (anchor \"window\"); a forecaster fills "
                              "no gaps")
@@ -441,7 +440,6 @@ def validation_windows(cfg: PriorConfig, data: str | None = None,
     """The held-out windows of ``cfg.val_subjects`` a run validates on: ``val_windows`` of them, drawn once
     (draw 0 of a config of those subjects, without flips or turns), and that config (whose ``repair_batch``
     draw 0 gives a repair fill's masks). ``frames`` replaces those subjects' frames (tests)."""
-    from dataclasses import replace
     vcfg = replace(cfg, subjects=cfg.val_subjects, val_subjects=(), val_every=0, batch_size=cfg.val_windows,
                    flip_prob=0.0, rotate_axis="", mirror_prob=0.0, h36m_share=0.0)
     return vcfg, batch(vcfg, *(frames if frames is not None else training_frames(vcfg, data)), 0)
@@ -451,7 +449,6 @@ def validation_loss(vcfg: PriorConfig, model: nn.Module, val: torch.Tensor) -> f
     """The validation score of ``model`` on the windows ``val`` (:func:`validation_windows`): its training
     loss on them; for a repair fill with ``val_mask_mix``, the geometric mean over those patterns of the
     pooled hidden error of each (every window masked by each pattern in turn: draw 0)."""
-    from dataclasses import replace
     if not vcfg.val_mask_mix:
         return window_loss(vcfg, model, model, val, 0).item()
     logs = [math.log(window_loss(replace(vcfg, mask_mix=(entry,), window_loss="pooled"), model, model, val, 0).item())
