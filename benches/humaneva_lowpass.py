@@ -13,6 +13,13 @@ row equals that command's result and every row pairs with it window by window::
     python -m training.compare benches/results/humaneva_lowpass/bundled_K10.json \\
         benches/results/humaneva_lowpass/bundled_raw.json --key FDE
 
+``--spread C ...`` scores the same samples with each one's deviation from the samples' mean scaled by C (the mean,
+``Forecast.mean``, untouched; C > 1 spreads them, C < 1 draws them in), PREFIX_S{C}.json: whether the samples are
+too close together or apart in the wrong directions (MODEL_CARD.md, "Spread about the mean")::
+
+    python benches/humaneva_lowpass.py --keep --spread 0.75 0.9 1.25 1.5 2 --threads 2 \\
+        --json-prefix benches/results/humaneva_lowpass/bundled
+
 A post-process measured here, not in the engine: where it pays, the engine is the place for it.
 """
 from __future__ import annotations
@@ -45,10 +52,21 @@ def lowpass(samples: np.ndarray, prior: np.ndarray, keep: int) -> np.ndarray:
     return prior[None] + np.einsum("ts,...sjc->...tjc", project, residual)
 
 
+def spread(samples: np.ndarray, c: float) -> np.ndarray:
+    """``samples`` (S, W, ...) with each one's deviation from the mean of the S scaled by ``c`` (the mean kept)."""
+    if not c > 0:
+        raise ValueError(f"spread must be > 0, got {c}")
+    mean = samples.mean(axis=0, keepdims=True)
+    return mean + c * (samples - mean)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--model", default=str(ROOT / "python" / "tcd" / "weights_humaneva"))
-    ap.add_argument("--keep", type=int, nargs="+", default=[5, 10, 20], help="DCT coefficients kept (of 60)")
+    ap.add_argument("--keep", type=int, nargs="*", default=[5, 10, 20],
+                    help="DCT coefficients kept (of 60); none after it: no low-passed rows")
+    ap.add_argument("--spread", type=float, nargs="*", default=[],
+                    help="also score the samples with their deviations from their mean scaled by each of these")
     ap.add_argument("--samples", type=int, default=50)
     ap.add_argument("--sampler", default="ddpm")
     ap.add_argument("--steps", type=int, default=10)
@@ -74,16 +92,20 @@ def main(argv=None) -> int:
 
     Path(args.json_prefix).parent.mkdir(parents=True, exist_ok=True)
     print(f"{'samples':<16}{'ADE':>8}{'FDE':>8}{'MMADE':>8}{'MMFDE':>8}{'APD':>8}")
-    for keep in [None] + sorted(set(args.keep)):
-        pred = samples if keep is None else lowpass(samples, prior, keep)
+    variants = ([("raw", samples, "")]
+                + [(f"K{k}", lowpass(samples, prior, k),
+                    f", residual over the prior low-passed to its first {k} DCT coefficients")
+                   for k in sorted(set(args.keep))]
+                + [(f"S{c:g}", spread(samples, c), f", each sample's deviation from the samples' mean x {c:g}")
+                   for c in sorted(set(args.spread))])
+    for name, pred, how in variants:
         m = cases.score(pred)
-        name = "raw" if keep is None else f"K{keep}"
         out = {"protocol": cases.protocol(),
-               "method": f"tcd {args.model}" + ("" if keep is None else f", residual over the prior low-passed to "
-                                                                     f"its first {keep} DCT coefficients"),
+               "method": f"tcd {args.model}{how}",
                "seeds": {"sampling": args.seed}, "model": m, "stochastic": m,
                "sampling": {"engine": "tcd", "samples": args.samples, "steps": args.steps, "sampler": args.sampler},
-               "lowpass_keep": keep,
+               "lowpass_keep": int(name[1:]) if name.startswith("K") else None,
+               "spread": float(name[1:]) if name.startswith("S") else None,
                "per_action": cases.per_action(m),
                "command": "python benches/humaneva_lowpass.py " + " ".join(sys.argv[1:] if argv is None else argv)}
         Path(f"{args.json_prefix}_{name}.json").write_text(json.dumps(out, indent=1))

@@ -324,3 +324,16 @@ def test_humaneva_lowpass_keeps_the_first_cosines_of_the_residual_over_the_prior
     np.testing.assert_allclose(lowpass(samples, prior, 2), np.broadcast_to(prior, samples.shape), atol=1e-12)
     with pytest.raises(ValueError, match="keep"):
         lowpass(samples, prior, 0)
+
+
+def test_humaneva_spread_scales_each_sample_about_the_samples_mean():
+    import_torch("benches/humaneva_lowpass.py (it samples through training/evaluate.py)")
+    spread = load_bench("humaneva_lowpass").spread
+    samples = np.random.default_rng(1).normal(size=(4, 2, 60, 14, 3))
+    mean = samples.mean(axis=0)
+    out = spread(samples, 1.5)
+    np.testing.assert_allclose(out.mean(axis=0), mean, atol=1e-12)                      # the mean kept
+    np.testing.assert_allclose(out - mean, 1.5 * (samples - mean), atol=1e-12)          # deviations x 1.5
+    np.testing.assert_allclose(spread(samples, 1.0), samples, atol=1e-12)
+    with pytest.raises(ValueError, match="spread"):
+        spread(samples, 0.0)
