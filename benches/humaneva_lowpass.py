@@ -17,8 +17,8 @@ row equals that command's result and every row pairs with it window by window::
 ``Forecast.mean``, untouched; C > 1 spreads them, C < 1 draws them in), PREFIX_S{C}.json: whether the samples are
 too close together or apart in the wrong directions (MODEL_CARD.md, "Spread about the mean")::
 
-    python benches/humaneva_lowpass.py --keep --spread 0.75 0.9 1.25 1.5 2 --threads 2 \\
-        --json-prefix benches/results/humaneva_lowpass/bundled
+    python benches/humaneva_lowpass.py --keep --spread 0.75 0.9 1.25 1.5 2 --threads 1 \\
+        --json-prefix benches/results/humaneva_lowpass/long20
 
 A post-process measured here, not in the engine: where it pays, the engine is the place for it.
 """
@@ -35,7 +35,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from training.evaluate import (HumanEvaCases, build_parser, humaneva_model_samples,  # noqa: E402
+from training.evaluate import (HE_PRED, HumanEvaCases, build_parser, humaneva_model_samples,  # noqa: E402
                                humaneva_prior_forecast)
 from training.prior import dct_matrix  # noqa: E402
 
@@ -77,6 +77,11 @@ def main(argv=None) -> int:
     ap.add_argument("--data", default=None, help="the HumanEva-I file or directory (default ../shared/data)")
     ap.add_argument("--json-prefix", required=True, help="writes PREFIX_raw.json and PREFIX_K{k}.json")
     args = ap.parse_args(argv)
+    # checked before the samples are drawn (minutes), not after
+    if any(not 1 <= k <= HE_PRED for k in args.keep):
+        ap.error(f"--keep: each must be in [1, {HE_PRED}], got {args.keep}")
+    if any(not c > 0 for c in args.spread):
+        ap.error(f"--spread: each must be > 0, got {args.spread}")
     import torch
     torch.set_num_threads(args.threads)
 
