@@ -40,12 +40,23 @@ from training.evaluate import (HE_PRED, HumanEvaCases, build_parser, humaneva_mo
 from training.prior import dct_matrix  # noqa: E402
 
 
+def check_keep(keep: int, frames: int) -> None:
+    """``keep`` DCT coefficients of ``frames``: in [1, frames] (:func:`lowpass`; ``main`` before it samples)."""
+    if not 1 <= keep <= frames:
+        raise ValueError(f"keep must be in [1, {frames}], got {keep}")
+
+
+def check_spread(c: float) -> None:
+    """A scale of the samples' deviations from their mean: > 0 (:func:`spread`; ``main`` before it samples)."""
+    if not c > 0:
+        raise ValueError(f"spread must be > 0, got {c}")
+
+
 def lowpass(samples: np.ndarray, prior: np.ndarray, keep: int) -> np.ndarray:
     """``samples`` (S, W, T, J, 3) with each sample's residual over ``prior`` (W, T, J, 3) reduced to its first
     ``keep`` DCT coefficients over the T frames (orthonormal DCT-II: ``keep`` = T changes nothing)."""
     T = samples.shape[2]
-    if not 1 <= keep <= T:
-        raise ValueError(f"keep must be in [1, {T}], got {keep}")
+    check_keep(keep, T)
     d = dct_matrix(T)
     project = d[:keep].T @ d[:keep]                                   # (T, T): onto the first `keep` cosines
     residual = samples - prior[None]
@@ -54,8 +65,7 @@ def lowpass(samples: np.ndarray, prior: np.ndarray, keep: int) -> np.ndarray:
 
 def spread(samples: np.ndarray, c: float) -> np.ndarray:
     """``samples`` (S, W, ...) with each one's deviation from the mean of the S scaled by ``c`` (the mean kept)."""
-    if not c > 0:
-        raise ValueError(f"spread must be > 0, got {c}")
+    check_spread(c)
     mean = samples.mean(axis=0, keepdims=True)
     return mean + c * (samples - mean)
 
@@ -75,13 +85,16 @@ def main(argv=None) -> int:
                     "training.evaluate)")
     ap.add_argument("--max-windows", type=int, default=0, help="evenly spaced windows (0: all 188)")
     ap.add_argument("--data", default=None, help="the HumanEva-I file or directory (default ../shared/data)")
-    ap.add_argument("--json-prefix", required=True, help="writes PREFIX_raw.json and PREFIX_K{k}.json")
+    ap.add_argument("--json-prefix", required=True,
+                    help="writes PREFIX_raw.json, PREFIX_K{k}.json and PREFIX_S{c}.json")
     args = ap.parse_args(argv)
-    # checked before the samples are drawn (minutes), not after
-    if any(not 1 <= k <= HE_PRED for k in args.keep):
-        ap.error(f"--keep: each must be in [1, {HE_PRED}], got {args.keep}")
-    if any(not c > 0 for c in args.spread):
-        ap.error(f"--spread: each must be > 0, got {args.spread}")
+    for option, values, check in (("--keep", args.keep, lambda k: check_keep(k, HE_PRED)),
+                                  ("--spread", args.spread, check_spread)):
+        try:                               # checked before the samples are drawn (minutes), not after
+            for v in values:
+                check(v)
+        except ValueError as e:
+            ap.error(f"{option}: {e}")
     import torch
     torch.set_num_threads(args.threads)
 
@@ -97,20 +110,21 @@ def main(argv=None) -> int:
 
     Path(args.json_prefix).parent.mkdir(parents=True, exist_ok=True)
     print(f"{'samples':<16}{'ADE':>8}{'FDE':>8}{'MMADE':>8}{'MMFDE':>8}{'APD':>8}")
-    variants = ([("raw", samples, "")]
+    # (file name, samples, what the method adds, lowpass_keep, spread)
+    variants = ([("raw", samples, "", None, None)]
                 + [(f"K{k}", lowpass(samples, prior, k),
-                    f", residual over the prior low-passed to its first {k} DCT coefficients")
+                    f", residual over the prior low-passed to its first {k} DCT coefficients", k, None)
                    for k in sorted(set(args.keep))]
-                + [(f"S{c:g}", spread(samples, c), f", each sample's deviation from the samples' mean x {c:g}")
+                + [(f"S{c:g}", spread(samples, c), f", each sample's deviation from the samples' mean x {c:g}", None, c)
                    for c in sorted(set(args.spread))])
-    for name, pred, how in variants:
+    for name, pred, how, keep, c in variants:
         m = cases.score(pred)
         out = {"protocol": cases.protocol(),
                "method": f"tcd {args.model}{how}",
                "seeds": {"sampling": args.seed}, "model": m, "stochastic": m,
                "sampling": {"engine": "tcd", "samples": args.samples, "steps": args.steps, "sampler": args.sampler},
-               "lowpass_keep": int(name[1:]) if name.startswith("K") else None,
-               "spread": float(name[1:]) if name.startswith("S") else None,
+               "lowpass_keep": keep,
+               "spread": c,
                "per_action": cases.per_action(m),
                "command": "python benches/humaneva_lowpass.py " + " ".join(sys.argv[1:] if argv is None else argv)}
         Path(f"{args.json_prefix}_{name}.json").write_text(json.dumps(out, indent=1))
