@@ -1,4 +1,5 @@
-"""Where training batches come from. A batch is (x0, observed, mask, t, eps), each (B, K, L) but t (B,),
+"""Where training batches come from. A batch is (x0, observed, mask, t, eps), each (B, K, L) but t (B,), with
+the config's ``imle_samples`` S also the one-step sampler's candidate noise (S, B, K, L) (training.diffusion.imle_loss),
 and is a pure function of (seed, epoch, batch index), so a resumed run continues with exactly the batches
 it would have drawn.
 
@@ -115,6 +116,8 @@ class BatchSource:
         g = torch.Generator().manual_seed(((cfg.seed * 1_000_003 + epoch) * 1_000_003 + batch_i) % (1 << 62))
         t = torch.randint(0, self.T, (x0.shape[0],), generator=g)   # the draw order of training_loss
         eps = torch.randn(x0.shape, generator=g)
+        if cfg.imle_samples:    # drawn after eps from the same stream: the batches before them are unchanged
+            return x0, obs, mask, t, eps, torch.randn((cfg.imle_samples, *x0.shape), generator=g)
         return x0, obs, mask, t, eps
 
     def iterate(self, epoch: int, start: int, workers: int):

@@ -33,6 +33,7 @@ import torch
 from .augment import check_axis
 from .batches import BatchSource, Windows, action_weights, make_batch
 from .diffusion import DiffusionConfig, Schedule, training_loss
+from .imle import EngineSearch, imle_loss
 from .model import ModelConfig, TCDModel, count_parameters, load_grown
 
 
@@ -58,7 +59,7 @@ def without_removed_keys(d: dict, where) -> dict:
 # Keys added to TrainConfig after checkpoints were committed, at the value that does what the code did before
 # them: a checkpoint whose stored train_config lacks one was trained that way.
 ADDED_KEYS = {"rotate_axis": "", "reset_output_head": False, "h36m_share": 0.0, "future_swap": 0.0,
-              "future_swap_k": 25, "action_balance": 0.0}
+              "future_swap_k": 25, "action_balance": 0.0, "imle_samples": 0, "imle_weight": 1.0}
 
 
 def stored_config(d: dict, where) -> dict:
@@ -106,6 +107,10 @@ class TrainConfig:
     future_swap_k: int = 25          # ... drawn from each window's future_swap_k nearest such windows
     action_balance: float = 0.0      # HumanEva-I: a training window drawn with weight n^-action_balance, n the
                                      # windows of its action (0: every window alike, 1: every action alike)
+    imle_samples: int = 0            # > 0: each window also trains the one-step sampler (DDIM-1) by IMLE, the
+                                     # nearest of this many one-step samples pulled to its future
+                                     # (training.diffusion.imle_loss; x0-prediction only)
+    imle_weight: float = 1.0         # ... that loss's weight beside the diffusion loss
     reset_output_head: bool = False  # with init_from: the last 1x1 conv's weight and bias restart at zero; for a
                                      # warm start whose prediction_type changes (epsilon -> sample), so the run
                                      # starts at "no residual over the fill" instead of from noise estimates
@@ -141,6 +146,12 @@ class TrainConfig:
         if self.future_swap > 0 and self.obs_len < 3:
             raise ValueError("train config: future_swap matches windows on their last 3 observed frames; "
                              f"obs_len is {self.obs_len}")
+        if self.imle_samples < 0 or self.imle_weight < 0:
+            raise ValueError(f"train config: imle_samples and imle_weight must be >= 0, got {self.imle_samples!r} "
+                             f"and {self.imle_weight!r}")
+        if self.imle_samples and self.diffusion.get("prediction_type", "epsilon") != "sample":
+            raise ValueError("train config: imle_samples trains the one-step sample of an x0-predicting model; "
+                             "set diffusion.prediction_type to 'sample'")
         if self.reset_output_head and not self.init_from:
             raise ValueError("train config: reset_output_head resets a warm start's last layer; it needs init_from")
 
@@ -236,11 +247,17 @@ def amp_enabled(cfg: TrainConfig, device: str) -> bool:
     return cfg.amp and torch.device(device).type == "cuda"
 
 
-def train_step(forward, opt: torch.optim.Optimizer, sched: Schedule, batch, amp: bool) -> torch.Tensor:
-    """One optimizer step on one batch (x0, observed, mask, t, eps); the loss (a device tensor: no sync)."""
-    x0, obs, mask, t, eps = batch
+def train_step(forward, opt: torch.optim.Optimizer, sched: Schedule, batch, amp: bool,
+               imle_weight: float = 1.0, imle_search=None) -> torch.Tensor:
+    """One optimizer step on one batch (x0, observed, mask, t, eps[, candidates]); the loss (a device tensor: no
+    sync). With the candidates (``imle_samples``) the loss adds ``imle_weight`` x the one-step sampler's IMLE loss
+    (``training.imle``; ``imle_search`` computes the candidates' samples, default the forward itself)."""
+    x0, obs, mask, t, eps, *candidates = batch
     with torch.autocast(device_type=x0.device.type, dtype=torch.bfloat16, enabled=amp):
         loss = training_loss(forward, sched, x0, mask, t=t, eps=eps, observed=obs)
+        if candidates:
+            loss = loss + imle_weight * imle_loss(forward, sched, x0, mask, candidates[0], observed=obs,
+                                                  search=imle_search)
     opt.zero_grad(set_to_none=True)
     loss.backward()
     opt.step()
@@ -412,6 +429,11 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
     model.train()
     forward = training_forward(model, cfg, (cfg.batch_size, model_cfg.num_features, L), device, log)
     source = BatchSource(cfg, train_w, sched.T, steps_per_epoch, weights)
+    imle_search = None
+    if cfg.imle_samples and torch.device(device).type == "cpu":    # the engine runs on the CPU only
+        from .export import build_config
+        imle_search = EngineSearch(model, build_config(cfg.role, model_cfg, diff_cfg, cfg.obs_len, cfg.pred_len,
+                                                       meta["data"]), threads=torch.get_num_threads())
     t_start = time.time()
     last_ck = t_start
     ends = [t for t in (None if max_minutes is None else t_start + 60 * max_minutes, deadline) if t is not None]
@@ -447,7 +469,7 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
             for group in opt.param_groups:
                 group["lr"] = lr
             batch = tuple(a.to(device, non_blocking=True) for a in batch)
-            loss = train_step(forward, opt, sched, batch, amp)
+            loss = train_step(forward, opt, sched, batch, amp, cfg.imle_weight, imle_search)
             if ema is not None:
                 ema.update(model)
             run_loss, run_n = run_loss + loss.float(), run_n + 1

@@ -1,0 +1,140 @@
+"""The one-step sampler's IMLE loss (training.imle): which candidate it trains, the engine's candidate forwards
+against PyTorch's, and the config's checks."""
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import pytest
+
+from conftest import import_torch
+
+torch = import_torch("IMLE training of the one-step sampler (training/)")
+
+from training.diffusion import DiffusionConfig, Schedule, masked_eps_loss, training_loss  # noqa: E402
+from training.export import build_config, random_prior  # noqa: E402
+from training.imle import EngineSearch, imle_loss, torch_search  # noqa: E402
+from training.model import ModelConfig, TCDModel, randomize_output_layer, to_target  # noqa: E402
+from training.train import TrainConfig, train_step  # noqa: E402
+
+CFG = dict(channels=16, num_layers=1, num_heads=4, ffn_dim=16, dropout=0.0, cond_fill="prior",
+           target="prior_residual", target_scale=10.0)
+SCHED = Schedule(DiffusionConfig(prediction_type="sample"))
+
+
+def model_and_window(B=3, L=75, given=55, seed=0):
+    torch.manual_seed(seed)
+    model = TCDModel(ModelConfig.from_dict(CFG), SCHED.T)
+    randomize_output_layer(model, seed, std=0.2)        # the zero-initialised head would ignore the noise
+    model.attach_prior(random_prior(blocks=2, seed=seed))
+    g = torch.Generator().manual_seed(seed)
+    x0 = torch.cumsum(torch.randn(B, 66, L, generator=g) * 0.01, dim=-1)
+    mask = torch.zeros(B, 66, L)
+    mask[..., :given] = 1.0
+    return model, x0, mask
+
+
+def test_imle_trains_each_windows_nearest_candidate():
+    model, x0, mask = model_and_window()
+    S, B = 4, x0.shape[0]
+    cand = torch.randn(S, *x0.shape, generator=torch.Generator().manual_seed(1))
+    last = torch.full((B,), SCHED.T - 1)
+    target = to_target(model.cfg, x0, x0, mask, model.prior)
+    with torch.no_grad():
+        outs = torch.stack([model(cand[s], x0, mask, last) for s in range(S)])        # (S, B, K, L)
+    dist = (((outs - target) * (1 - mask)) ** 2).sum((2, 3))
+    best = dist.argmin(0)
+    expected = masked_eps_loss(target, outs[best, torch.arange(B)], mask)
+    assert float(imle_loss(model, SCHED, x0, mask, cand).detach()) == pytest.approx(float(expected), rel=1e-5)
+    # the nearest is what counts: putting it first and the others after changes nothing
+    order = torch.stack([torch.cat([best[b:b + 1], torch.tensor([s for s in range(S) if s != best[b]])])
+                         for b in range(B)], 1)                                           # (S, B)
+    moved = cand[order, torch.arange(B)]
+    assert float(imle_loss(model, SCHED, x0, mask, moved).detach()) == pytest.approx(float(expected), rel=1e-5)
+    # and a worse candidate alone gives a larger loss than the nearest
+    worst = dist.argmax(0)
+    alone = cand[worst, torch.arange(B)].unsqueeze(0)
+    assert float(imle_loss(model, SCHED, x0, mask, alone).detach()) > float(expected)
+
+
+def test_imle_loss_gradient_reaches_the_weights_and_not_the_conditioned_outputs():
+    model, x0, mask = model_and_window()
+    cand = torch.randn(3, *x0.shape, generator=torch.Generator().manual_seed(2))
+    loss = imle_loss(model, SCHED, x0, mask, cand)
+    loss.backward()
+    grads = [p.grad for p in model.parameters() if p.requires_grad]
+    assert all(g is not None for g in grads) and any(float(g.abs().sum()) > 0 for g in grads)
+
+
+def test_engine_search_equals_torch_search():
+    pytest.importorskip("tcd")
+    model, x0, mask = model_and_window(B=2)
+    cand = torch.randn(6, *x0.shape, generator=torch.Generator().manual_seed(3)).reshape(12, *x0.shape[1:])
+    rows = torch.arange(12) % 2
+    config = build_config("long", model.cfg, SCHED.cfg, 55, 20, {"training_data": "synthetic"})
+    engine = EngineSearch(model, config, threads=1)(cand, x0[rows], mask[rows], SCHED.T - 1)
+    ref = torch_search(model, chunk=5)(cand, x0[rows], mask[rows], SCHED.T - 1)
+    hidden = (1 - mask[rows]).bool()
+    assert torch.allclose(engine[hidden], ref[hidden], atol=1e-5, rtol=1e-4)
+    # a changed weight reaches the engine on the next call (the weights are serialised per call)
+    with torch.no_grad():
+        model.diffmodel.output_projection2.bias += 0.5
+    again = EngineSearch(model, config, threads=1)(cand, x0[rows], mask[rows], SCHED.T - 1)
+    assert torch.allclose(again[hidden], engine[hidden] + 0.5, atol=1e-4)
+
+
+def test_imle_needs_x0_prediction_and_matching_candidates():
+    model, x0, mask = model_and_window()
+    with pytest.raises(ValueError, match="x0-predicting"):
+        imle_loss(model, Schedule(DiffusionConfig(prediction_type="epsilon")), x0, mask, torch.zeros(2, *x0.shape))
+    with pytest.raises(ValueError, match="candidates must be"):
+        imle_loss(model, SCHED, x0, mask, torch.zeros(2, 1, 66, 75))
+
+
+def test_config_checks_and_train_step_adds_the_imle_term(tmp_path):
+    base = json.loads(json.dumps({"role": "long", "obs_len": 55, "pred_len": 20, "model": CFG,
+                                  "diffusion": {"prediction_type": "sample"}}))
+    with pytest.raises(ValueError, match="x0-predicting"):
+        TrainConfig(**{**base, "diffusion": {}, "imle_samples": 4})
+    with pytest.raises(ValueError, match="imle_samples and imle_weight"):
+        TrainConfig(**{**base, "imle_samples": -1})
+    cfg = TrainConfig(**{**base, "imle_samples": 4})
+    assert replace(cfg, imle_weight=0.5).imle_weight == 0.5
+    model, x0, mask = model_and_window()
+    t = torch.full((x0.shape[0],), 7)
+    eps = torch.randn(x0.shape, generator=torch.Generator().manual_seed(4))
+    cand = torch.randn(4, *x0.shape, generator=torch.Generator().manual_seed(5))
+    plain = float(training_loss(model, SCHED, x0, mask, t=t, eps=eps, observed=x0).detach())
+    extra = float(imle_loss(model, SCHED, x0, mask, cand, observed=x0).detach())
+    opt = torch.optim.SGD(model.parameters(), lr=0.0)            # lr 0: the step reports the loss, weights stay
+    got = float(train_step(model, opt, SCHED, (x0, x0, mask, t, eps, cand), False, imle_weight=0.5))
+    assert got == pytest.approx(plain + 0.5 * extra, rel=1e-5)
+    assert float(train_step(model, opt, SCHED, (x0, x0, mask, t, eps), False)) == pytest.approx(plain, rel=1e-5)
+
+
+@pytest.mark.slow
+def test_training_with_imle_runs_through_the_engine_and_resumes_exactly(tmp_path):
+    """``imle_samples`` in a train config: the candidates drawn by the batch source (after the batch's own draws,
+    which stay those of the run without them), searched by the engine, and a resumed run lands on the same
+    weights as an uninterrupted one."""
+    pytest.importorskip("tcd")
+    from test_train import synthetic_motion, tiny_cfg
+    from training.batches import BatchSource, Windows
+    from training.train import train
+    seqs = {"train": synthetic_motion(4, seed=0), "val": synthetic_motion(2, seed=1)}
+    cfg = tiny_cfg(epochs=2, steps_per_epoch=4, diffusion={"prediction_type": "sample"}, imle_samples=3)
+    plain = tiny_cfg(epochs=2, steps_per_epoch=4, diffusion={"prediction_type": "sample"})
+    wins = Windows(seqs["train"], 14, cfg.train_stride)
+    a, b = BatchSource(cfg, wins, 50, 4).batch(1, 2), BatchSource(plain, wins, 50, 4).batch(1, 2)
+    assert len(a) == 6 and len(b) == 5 and all(torch.equal(x, y) for x, y in zip(a, b))
+    assert a[5].shape == (3, *a[0].shape)
+    train(cfg, tmp_path / "full", sequences=seqs, log=lambda *a: None)
+    train(cfg, tmp_path / "part", sequences=seqs, max_minutes=0.0, log=lambda *a: None)   # stops after one batch
+    train(cfg, tmp_path / "part", sequences=seqs, resume=True, log=lambda *a: None)
+    full = torch.load(tmp_path / "full" / "last.pt", weights_only=False)["model"]
+    part = torch.load(tmp_path / "part" / "last.pt", weights_only=False)["model"]
+    other = tmp_path / "plain"
+    train(plain, other, sequences=seqs, log=lambda *a: None)
+    without = torch.load(other / "last.pt", weights_only=False)["model"]
+    assert all(torch.allclose(full[k], part[k], atol=1e-6) for k in full)
+    assert any(not torch.allclose(full[k], without[k]) for k in full)     # the IMLE term changed the training

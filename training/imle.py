@@ -1,0 +1,91 @@
+"""Training the one-step sampler to cover the futures: implicit maximum likelihood estimation (IMLE; Li and
+Malik, "Implicit Maximum Likelihood Estimation", 2018) on an x0-predicting denoiser.
+
+DDIM over one step returns the network's estimate at the last training step from pure noise, ``net(x_T, observed,
+mask, T - 1)``. The diffusion loss trains that estimate towards the conditional mean whatever x_T is (x_T carries
+almost nothing of x0 there), so one-step samples hardly differ: on HumanEva-I the bundled model's 50 DDIM-1 samples
+spread a third as far as its DDPM-10 samples. IMLE instead draws S candidate x_T per training window, computes
+the S one-step samples without gradients, and trains only the one nearest to the window's own future towards it:
+every future seen in training gets a draw of x_T that lands near it, so S samples cover the futures (the best of
+S nearer the truth) instead of repeating their mean. The diffusion loss stays beside it (``imle_weight`` weighs the
+two), so the other steps keep their meaning.
+
+The candidates' forwards are most of the cost (S per window, against one forward and backward for the diffusion
+loss); :class:`EngineSearch` runs them in the Rust engine (the weights serialised for it every step), several
+times faster than PyTorch's CPU forward of this network.
+"""
+from __future__ import annotations
+
+import json
+from typing import Callable
+
+import torch
+
+from .diffusion import Schedule, _to_target, masked_eps_loss
+from .model import condition
+
+#: ``search(noisy, observed, mask, step) -> out``, all (N, K, L) but the int step: the network's output without
+#: gradients (``observed`` as the training loss passes it)
+Search = Callable[[torch.Tensor, torch.Tensor, torch.Tensor, int], torch.Tensor]
+
+
+def torch_search(model, chunk: int = 64) -> Search:
+    """The candidates' forwards in PyTorch, ``chunk`` sequences at a time (the reference for :class:`EngineSearch`)."""
+    def search(noisy, observed, mask, step):
+        outs = []
+        with torch.no_grad():
+            for r in range(0, noisy.shape[0], chunk):
+                s = slice(r, r + chunk)
+                outs.append(model(noisy[s], observed[s], mask[s],
+                                  torch.full((noisy[s].shape[0],), step, device=noisy.device)).float())
+        return torch.cat(outs)
+    return search
+
+
+class EngineSearch:
+    """The candidates' forwards in the Rust engine (``tcd.engine.Denoiser.forward``): each call serialises the
+    current weights of ``model`` (a ``training.model.TCDModel``; a few hundred kB) with ``config``, the weight
+    file's ``tcd_config`` (what ``training.export.build_config`` writes), loads them from the bytes, and writes
+    the conditioning fill of a ``cond_fill="prior"`` model into ``observed``'s masked entries, where the engine's
+    forward reads it (the engine's cascade does the same)."""
+
+    def __init__(self, model, config: dict, threads: int | None = None):
+        self.model, self.threads = model, threads
+        self.metadata = {"tcd_config": json.dumps(config)}
+
+    def __call__(self, noisy, observed, mask, step):
+        from safetensors.torch import save
+        from tcd.engine import Denoiser
+        tensors = {k: v.detach().to("cpu", torch.float32).contiguous() for k, v in self.model.state_dict().items()}
+        net = Denoiser.from_bytes(save(tensors, metadata=self.metadata), "imle candidates")
+        cond = condition(self.model.cfg, observed, mask, self.model.prior)
+        out = net.forward(noisy.cpu().numpy(), cond.cpu().numpy(), mask.cpu().numpy(), step, threads=self.threads)
+        return torch.from_numpy(out).to(noisy.device)
+
+
+def imle_loss(model, sched: Schedule, x0: torch.Tensor, mask: torch.Tensor, candidates: torch.Tensor,
+              observed: torch.Tensor | None = None, search: Search | None = None) -> torch.Tensor:
+    """The one-step sampler's IMLE loss for clean windows x0 (B, K, L) (module docstring): of the S one-step
+    samples from ``candidates`` (S, B, K, L) standard normals, each window's nearest to its target (squared
+    distance over the hidden entries, in target units) is recomputed with gradients and scored by the masked
+    mean square of the diffusion loss. ``search`` computes the candidates' samples (default: ``model`` itself,
+    :func:`torch_search`); ``observed`` as in ``training.diffusion.training_loss``."""
+    if sched.cfg.prediction_type != "sample":
+        raise ValueError("imle_loss trains the one-step sample of an x0-predicting model (prediction_type "
+                         f"'sample'); this one predicts {sched.cfg.prediction_type!r}")
+    if candidates.dim() != x0.dim() + 1 or tuple(candidates.shape[1:]) != tuple(x0.shape):
+        raise ValueError(f"candidates must be (S, *x0.shape) = (S, {tuple(x0.shape)}), got {tuple(candidates.shape)}")
+    S, B = candidates.shape[:2]
+    observed = x0 if observed is None else observed
+    target = _to_target(model, x0, observed, mask)
+    hidden = 1.0 - mask
+    last = sched.T - 1
+    with torch.no_grad():
+        rows = torch.arange(S * B, device=x0.device) % B                              # row s * B + b: window b
+        out = (search or torch_search(model))(candidates.reshape(S * B, *x0.shape[1:]), observed[rows], mask[rows],
+                                              last)
+        dist = (((out.view(S, B, *x0.shape[1:]) - target) * hidden) ** 2).sum((2, 3))   # (S, B)
+        best = dist.argmin(0)
+    x_t = candidates[best, torch.arange(B, device=x0.device)]
+    out = model(x_t, observed, mask, torch.full((B,), last, device=x0.device))
+    return masked_eps_loss(target, out, mask)
