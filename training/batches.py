@@ -1,5 +1,5 @@
 """Where training batches come from. A batch is (x0, observed, mask, t, eps), each (B, K, L) but t (B,), with
-the config's ``imle_samples`` S also the one-step sampler's candidate noise (S, B, K, L) (training.diffusion.imle_loss),
+the config's ``imle_samples`` S also the one-step sampler's candidate noise (S, B, K, L) (training.imle.imle_loss),
 and is a pure function of (seed, epoch, batch index), so a resumed run continues with exactly the batches
 it would have drawn.
 

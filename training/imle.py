@@ -22,6 +22,7 @@ from typing import Callable
 import torch
 
 from .diffusion import Schedule, _to_target, masked_eps_loss
+from .export import CONFIG_KEY
 from .model import condition
 
 #: ``search(noisy, observed, mask, step) -> out``, all (N, K, L) but the int step: the network's output without
@@ -44,14 +45,14 @@ def torch_search(model, chunk: int = 64) -> Search:
 
 class EngineSearch:
     """The candidates' forwards in the Rust engine (``tcd.engine.Denoiser.forward``): each call serialises the
-    current weights of ``model`` (a ``training.model.TCDModel``; a few hundred kB) with ``config``, the weight
-    file's ``tcd_config`` (what ``training.export.build_config`` writes), loads them from the bytes, and writes
-    the conditioning fill of a ``cond_fill="prior"`` model into ``observed``'s masked entries, where the engine's
-    forward reads it (the engine's cascade does the same)."""
+    current weights of ``model`` (a ``training.model.TCDModel``; a few hundred kB) with ``config``, a weight
+    file's configuration (what ``training.export.build_config`` writes, stored under ``training.export.CONFIG_KEY``),
+    loads them from the bytes, and writes the conditioning fill of a ``cond_fill="prior"`` model into
+    ``observed``'s masked entries, where the engine's forward reads it (the engine's cascade does the same)."""
 
     def __init__(self, model, config: dict, threads: int | None = None):
         self.model, self.threads = model, threads
-        self.metadata = {"tcd_config": json.dumps(config)}
+        self.metadata = {CONFIG_KEY: json.dumps(config)}
 
     def __call__(self, noisy, observed, mask, step):
         from safetensors.torch import save

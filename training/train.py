@@ -109,7 +109,7 @@ class TrainConfig:
                                      # windows of its action (0: every window alike, 1: every action alike)
     imle_samples: int = 0            # > 0: each window also trains the one-step sampler (DDIM-1) by IMLE, the
                                      # nearest of this many one-step samples pulled to its future
-                                     # (training.diffusion.imle_loss; x0-prediction only)
+                                     # (training.imle.imle_loss; x0-prediction only)
     imle_weight: float = 1.0         # ... that loss's weight beside the diffusion loss
     reset_output_head: bool = False  # with init_from: the last 1x1 conv's weight and bias restart at zero; for a
                                      # warm start whose prediction_type changes (epsilon -> sample), so the run
