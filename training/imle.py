@@ -25,20 +25,21 @@ from .diffusion import Schedule, _to_target, masked_eps_loss
 from .export import CONFIG_KEY
 from .model import condition
 
-#: ``search(noisy, observed, mask, step) -> out``, all (N, K, L) but the int step: the network's output without
-#: gradients (``observed`` as the training loss passes it)
-Search = Callable[[torch.Tensor, torch.Tensor, torch.Tensor, int], torch.Tensor]
+#: ``search(noisy, observed, mask, rows, step) -> out``: the network's output without gradients for each of the N
+#: sequences ``noisy`` (N, K, L), sequence n conditioned on window ``rows[n]`` of ``observed`` and ``mask`` (B, K, L;
+#: ``observed`` as the training loss passes it), at the int ``step``
+Search = Callable[[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, int], torch.Tensor]
 
 
 def torch_search(model, chunk: int = 64) -> Search:
     """The candidates' forwards in PyTorch, ``chunk`` sequences at a time (the reference for :class:`EngineSearch`)."""
-    def search(noisy, observed, mask, step):
+    def search(noisy, observed, mask, rows, step):
         outs = []
         with torch.no_grad():
             for r in range(0, noisy.shape[0], chunk):
-                s = slice(r, r + chunk)
-                outs.append(model(noisy[s], observed[s], mask[s],
-                                  torch.full((noisy[s].shape[0],), step, device=noisy.device)).float())
+                s, w = slice(r, r + chunk), rows[r:r + chunk]
+                outs.append(model(noisy[s], observed[w], mask[w],
+                                  torch.full((len(w),), step, device=noisy.device)).float())
         return torch.cat(outs)
     return search
 
@@ -54,13 +55,15 @@ class EngineSearch:
         self.model, self.threads = model, threads
         self.metadata = {CONFIG_KEY: json.dumps(config)}
 
-    def __call__(self, noisy, observed, mask, step):
+    def __call__(self, noisy, observed, mask, rows, step):
         from safetensors.torch import save
         from tcd.engine import Denoiser
         tensors = {k: v.detach().to("cpu", torch.float32).contiguous() for k, v in self.model.state_dict().items()}
         net = Denoiser.from_bytes(save(tensors, metadata=self.metadata), "imle candidates")
-        cond = condition(self.model.cfg, observed, mask, self.model.prior)
-        out = net.forward(noisy.cpu().numpy(), cond.cpu().numpy(), mask.cpu().numpy(), step, threads=self.threads)
+        with torch.no_grad():    # once per window, not per candidate: the fill depends on the window only
+            cond = condition(self.model.cfg, observed, mask, self.model.prior)
+        out = net.forward(noisy.cpu().numpy(), cond[rows].cpu().numpy(), mask[rows].cpu().numpy(), step,
+                          threads=self.threads)
         return torch.from_numpy(out).to(noisy.device)
 
 
@@ -83,8 +86,7 @@ def imle_loss(model, sched: Schedule, x0: torch.Tensor, mask: torch.Tensor, cand
     last = sched.T - 1
     with torch.no_grad():
         rows = torch.arange(S * B, device=x0.device) % B                              # row s * B + b: window b
-        out = (search or torch_search(model))(candidates.reshape(S * B, *x0.shape[1:]), observed[rows], mask[rows],
-                                              last)
+        out = (search or torch_search(model))(candidates.reshape(S * B, *x0.shape[1:]), observed, mask, rows, last)
         dist = (((out.view(S, B, *x0.shape[1:]) - target) * hidden) ** 2).sum((2, 3))   # (S, B)
         best = dist.argmin(0)
     x_t = candidates[best, torch.arange(B, device=x0.device)]

@@ -149,7 +149,7 @@ class TrainConfig:
         if self.imle_samples < 0 or self.imle_weight < 0:
             raise ValueError(f"train config: imle_samples and imle_weight must be >= 0, got {self.imle_samples!r} "
                              f"and {self.imle_weight!r}")
-        if self.imle_samples and self.diffusion.get("prediction_type", "epsilon") != "sample":
+        if self.imle_samples and DiffusionConfig.from_dict(self.diffusion).prediction_type != "sample":
             raise ValueError("train config: imle_samples trains the one-step sample of an x0-predicting model; "
                              "set diffusion.prediction_type to 'sample'")
         if self.reset_output_head and not self.init_from:
