@@ -55,6 +55,27 @@ def test_imle_trains_each_windows_nearest_candidate():
     assert float(imle_loss(model, SCHED, x0, mask, alone).detach()) > float(expected)
 
 
+@pytest.mark.parametrize("gap", [False, True])
+def test_final_weight_adds_the_candidate_nearest_on_the_last_hidden_frame(gap):
+    model, x0, mask = model_and_window()
+    if gap:                     # frames 55-64 hidden, the rest observed: the last hidden frame is 64, not 74
+        mask[..., 65:] = 1.0
+    S, B = 6, x0.shape[0]
+    final = 64 if gap else 74
+    cand = torch.randn(S, *x0.shape, generator=torch.Generator().manual_seed(7))
+    last = torch.full((B,), SCHED.T - 1)
+    target = to_target(model.cfg, x0, x0, mask, model.prior)
+    with torch.no_grad():
+        outs = torch.stack([model(cand[s], x0, mask, last) for s in range(S)])        # (S, B, K, L)
+    sq = ((outs - target) * (1 - mask)) ** 2
+    best, final_best = sq.sum((2, 3)).argmin(0), sq[..., final].sum(2).argmin(0)
+    assert (best != final_best).any()           # else the test could not tell the two terms apart
+    expected = (masked_eps_loss(target, outs[best, torch.arange(B)], mask)
+                + 0.5 * masked_eps_loss(target, outs[final_best, torch.arange(B)], mask))
+    got = imle_loss(model, SCHED, x0, mask, cand, final_weight=0.5)
+    assert float(got.detach()) == pytest.approx(float(expected), rel=1e-5)
+
+
 def test_imle_loss_gradient_reaches_the_weights():
     model, x0, mask = model_and_window()
     cand = torch.randn(3, *x0.shape, generator=torch.Generator().manual_seed(2))
@@ -94,10 +115,12 @@ def test_config_checks_and_train_step_adds_the_imle_term(tmp_path):
                                   "diffusion": {"prediction_type": "sample"}}))
     with pytest.raises(ValueError, match="x0-predicting"):
         TrainConfig(**{**base, "diffusion": {}, "imle_samples": 4})
-    with pytest.raises(ValueError, match="imle_samples and imle_weight"):
+    with pytest.raises(ValueError, match="imle_samples, imle_weight and imle_final_weight"):
         TrainConfig(**{**base, "imle_samples": -1})
-    with pytest.raises(ValueError, match="imle_samples and imle_weight"):
+    with pytest.raises(ValueError, match="imle_samples, imle_weight and imle_final_weight"):
         TrainConfig(**{**base, "imle_samples": 4, "imle_weight": -0.5})
+    with pytest.raises(ValueError, match="imle_samples, imle_weight and imle_final_weight"):
+        TrainConfig(**{**base, "imle_samples": 4, "imle_final_weight": -1.0})
     TrainConfig(**{**base, "imle_samples": 4, "imle_weight": 0.5})                # x0-prediction: accepted
     model, x0, mask = model_and_window()
     t = torch.full((x0.shape[0],), 7)

@@ -59,7 +59,8 @@ def without_removed_keys(d: dict, where) -> dict:
 # Keys added to TrainConfig after checkpoints were committed, at the value that does what the code did before
 # them: a checkpoint whose stored train_config lacks one was trained that way.
 ADDED_KEYS = {"rotate_axis": "", "reset_output_head": False, "h36m_share": 0.0, "future_swap": 0.0,
-              "future_swap_k": 25, "action_balance": 0.0, "imle_samples": 0, "imle_weight": 1.0}
+              "future_swap_k": 25, "action_balance": 0.0, "imle_samples": 0, "imle_weight": 1.0,
+              "imle_final_weight": 0.0}
 
 
 def stored_config(d: dict, where) -> dict:
@@ -111,6 +112,8 @@ class TrainConfig:
                                      # nearest of this many one-step samples pulled to its future
                                      # (training.imle.imle_loss; x0-prediction only)
     imle_weight: float = 1.0         # ... that loss's weight beside the diffusion loss
+    imle_final_weight: float = 0.0   # ... plus this weight x the same loss of the candidate nearest on the final
+                                     # frame alone (what FDE's best sample is chosen by)
     reset_output_head: bool = False  # with init_from: the last 1x1 conv's weight and bias restart at zero; for a
                                      # warm start whose prediction_type changes (epsilon -> sample), so the run
                                      # starts at "no residual over the fill" instead of from noise estimates
@@ -146,9 +149,9 @@ class TrainConfig:
         if self.future_swap > 0 and self.obs_len < 3:
             raise ValueError("train config: future_swap matches windows on their last 3 observed frames; "
                              f"obs_len is {self.obs_len}")
-        if self.imle_samples < 0 or self.imle_weight < 0:
-            raise ValueError(f"train config: imle_samples and imle_weight must be >= 0, got {self.imle_samples!r} "
-                             f"and {self.imle_weight!r}")
+        if self.imle_samples < 0 or self.imle_weight < 0 or self.imle_final_weight < 0:
+            raise ValueError("train config: imle_samples, imle_weight and imle_final_weight must be >= 0, got "
+                             f"{self.imle_samples!r}, {self.imle_weight!r} and {self.imle_final_weight!r}")
         if self.imle_samples and DiffusionConfig.from_dict(self.diffusion).prediction_type != "sample":
             raise ValueError("train config: imle_samples trains the one-step sample of an x0-predicting model; "
                              "set diffusion.prediction_type to 'sample'")
@@ -248,16 +251,17 @@ def amp_enabled(cfg: TrainConfig, device: str) -> bool:
 
 
 def train_step(forward, opt: torch.optim.Optimizer, sched: Schedule, batch, amp: bool,
-               imle_weight: float = 1.0, imle_search=None) -> torch.Tensor:
+               imle_weight: float = 1.0, imle_search=None, imle_final_weight: float = 0.0) -> torch.Tensor:
     """One optimizer step on one batch (x0, observed, mask, t, eps[, candidates]); the loss (a device tensor: no
     sync). With the candidates (``imle_samples``) the loss adds ``imle_weight`` x the one-step sampler's IMLE loss
-    (``training.imle``; ``imle_search`` computes the candidates' samples, default the forward itself)."""
+    (``training.imle``; ``imle_search`` computes the candidates' samples, default the forward itself;
+    ``imle_final_weight`` its final-frame term)."""
     x0, obs, mask, t, eps, *candidates = batch
     with torch.autocast(device_type=x0.device.type, dtype=torch.bfloat16, enabled=amp):
         loss = training_loss(forward, sched, x0, mask, t=t, eps=eps, observed=obs)
         if candidates:
             loss = loss + imle_weight * imle_loss(forward, sched, x0, mask, candidates[0], observed=obs,
-                                                  search=imle_search)
+                                                  search=imle_search, final_weight=imle_final_weight)
     opt.zero_grad(set_to_none=True)
     loss.backward()
     opt.step()
@@ -469,7 +473,7 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
             for group in opt.param_groups:
                 group["lr"] = lr
             batch = tuple(a.to(device, non_blocking=True) for a in batch)
-            loss = train_step(forward, opt, sched, batch, amp, cfg.imle_weight, imle_search)
+            loss = train_step(forward, opt, sched, batch, amp, cfg.imle_weight, imle_search, cfg.imle_final_weight)
             if ema is not None:
                 ema.update(model)
             run_loss, run_n = run_loss + loss.float(), run_n + 1
