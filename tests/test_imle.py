@@ -131,6 +131,12 @@ def test_config_checks_and_train_step_adds_the_imle_term(tmp_path):
     opt = torch.optim.SGD(model.parameters(), lr=0.0)            # lr 0: the step reports the loss, weights stay
     got = float(train_step(model, opt, SCHED, (x0, x0, mask, t, eps, cand), False, imle_weight=0.5))
     assert got == pytest.approx(plain + 0.5 * extra, rel=1e-5)
+    # the final-frame term reaches the IMLE loss through train_step
+    with_final = float(imle_loss(model, SCHED, x0, mask, cand, observed=x0, final_weight=0.25).detach())
+    assert with_final > extra
+    got = float(train_step(model, opt, SCHED, (x0, x0, mask, t, eps, cand), False, imle_weight=0.5,
+                           imle_final_weight=0.25))
+    assert got == pytest.approx(plain + 0.5 * with_final, rel=1e-5)
     assert float(train_step(model, opt, SCHED, (x0, x0, mask, t, eps), False)) == pytest.approx(plain, rel=1e-5)
 
 
