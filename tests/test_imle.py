@@ -121,6 +121,9 @@ def test_config_checks_and_train_step_adds_the_imle_term(tmp_path):
         TrainConfig(**{**base, "imle_samples": 4, "imle_weight": -0.5})
     with pytest.raises(ValueError, match="imle_samples, imle_weight and imle_final_weight"):
         TrainConfig(**{**base, "imle_samples": 4, "imle_final_weight": -1.0})
+    with pytest.raises(ValueError, match="imle_final_weight .* needs imle_samples"):
+        TrainConfig(**{**base, "imle_final_weight": 1.0})
+    TrainConfig(**{**base, "imle_samples": 4, "imle_final_weight": 1.0})          # with candidates: accepted
     TrainConfig(**{**base, "imle_samples": 4, "imle_weight": 0.5})                # x0-prediction: accepted
     model, x0, mask = model_and_window()
     t = torch.full((x0.shape[0],), 7)

@@ -152,6 +152,9 @@ class TrainConfig:
         if self.imle_samples < 0 or self.imle_weight < 0 or self.imle_final_weight < 0:
             raise ValueError("train config: imle_samples, imle_weight and imle_final_weight must be >= 0, got "
                              f"{self.imle_samples!r}, {self.imle_weight!r} and {self.imle_final_weight!r}")
+        if self.imle_final_weight > 0 and not self.imle_samples:
+            raise ValueError("train config: imle_final_weight weighs a term of the IMLE loss; it needs "
+                             "imle_samples > 0")
         if self.imle_samples and DiffusionConfig.from_dict(self.diffusion).prediction_type != "sample":
             raise ValueError("train config: imle_samples trains the one-step sample of an x0-predicting model; "
                              "set diffusion.prediction_type to 'sample'")
