@@ -32,14 +32,19 @@ def model_and_window(B=3, L=75, given=55, seed=0):
     return model, x0, mask
 
 
+def one_step_samples(model, cand, x0, mask):
+    """The IMLE target of windows x0 and the one-step sample of each candidate (S, B, K, L), computed one by one."""
+    last = torch.full((x0.shape[0],), SCHED.T - 1)
+    target = to_target(model.cfg, x0, x0, mask, model.prior)
+    with torch.no_grad():
+        return target, torch.stack([model(c, x0, mask, last) for c in cand])
+
+
 def test_imle_trains_each_windows_nearest_candidate():
     model, x0, mask = model_and_window()
     S, B = 4, x0.shape[0]
     cand = torch.randn(S, *x0.shape, generator=torch.Generator().manual_seed(1))
-    last = torch.full((B,), SCHED.T - 1)
-    target = to_target(model.cfg, x0, x0, mask, model.prior)
-    with torch.no_grad():
-        outs = torch.stack([model(cand[s], x0, mask, last) for s in range(S)])        # (S, B, K, L)
+    target, outs = one_step_samples(model, cand, x0, mask)
     dist = (((outs - target) * (1 - mask)) ** 2).sum((2, 3))
     best = dist.argmin(0)
     expected = masked_eps_loss(target, outs[best, torch.arange(B)], mask)
@@ -63,10 +68,7 @@ def test_final_weight_adds_the_candidate_nearest_on_the_last_hidden_frame(gap):
     S, B = 6, x0.shape[0]
     final = 64 if gap else 74
     cand = torch.randn(S, *x0.shape, generator=torch.Generator().manual_seed(7))
-    last = torch.full((B,), SCHED.T - 1)
-    target = to_target(model.cfg, x0, x0, mask, model.prior)
-    with torch.no_grad():
-        outs = torch.stack([model(cand[s], x0, mask, last) for s in range(S)])        # (S, B, K, L)
+    target, outs = one_step_samples(model, cand, x0, mask)
     sq = ((outs - target) * (1 - mask)) ** 2
     best, final_best = sq.sum((2, 3)).argmin(0), sq[..., final].sum(2).argmin(0)
     assert (best != final_best).any()           # else the test could not tell the two terms apart
