@@ -20,11 +20,19 @@ too close together or apart in the wrong directions (MODEL_CARD.md, "Spread abou
     python benches/humaneva_lowpass.py --keep --spread 0.75 0.9 1.25 1.5 2 --threads 1 \\
         --json-prefix benches/results/humaneva_lowpass/long20
 
+``--noise-scale C ...`` draws the samples again with the engine's own seeded noise but each chain's starting
+noise x_T (both stages of the cascade) scaled by C, PREFIX_N{C}.json: a sampler temperature, the spread changed
+before the network rather than after it (C = 1 gives the raw row bit for bit)::
+
+    python benches/humaneva_lowpass.py --keep --noise-scale 0.85 1.25 --sampler ddim --steps 1 --threads 1 \\
+        --json-prefix benches/results/humaneva_lowpass/imle50
+
 A post-process measured here, not in the engine: where it pays, the engine is the place for it.
 """
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 import time
@@ -52,6 +60,36 @@ def check_spread(c: float) -> None:
         raise ValueError(f"spread must be > 0, got {c}")
 
 
+SAMPLER_KEYS = ("sampler", "num_inference_steps", "eta", "timestep_spacing")
+
+
+@contextlib.contextmanager
+def noise_scale(c: float):
+    """Within it, ``tcd.TCD.forecast`` draws its seeded noise as usual (``tcd.engine.seeded_noise``, the streams
+    the engine draws itself) and scales each chain's x_T block by ``c`` in both stages of the cascade."""
+    check_spread(c)
+    import tcd.engine as te
+    import tcd.model as tm
+    plain = tm.cascade_raw
+
+    def scaled(short, long, observed, mask, *, num_samples, seed, sequences=None, **kw):
+        if sequences is not None:
+            raise ValueError("noise_scale draws every sample's stream in order (no tempo sampling)")
+        b, k, _ = np.shape(observed)
+        noise = {}
+        for name, model, stage in (("noise_short", short, te.STAGE_SHORT), ("noise_long", long, te.STAGE_LONG)):
+            blocks = model.num_noise_blocks(**{o: kw[o] for o in SAMPLER_KEYS if o in kw})
+            noise[name] = te.seeded_noise(seed, stage, num_samples, blocks, b, k, model.seq_len)
+            noise[name][:, 0] *= c
+        return plain(short, long, observed, mask, num_samples=num_samples, **noise, **kw)
+
+    tm.cascade_raw = scaled
+    try:
+        yield
+    finally:
+        tm.cascade_raw = plain
+
+
 def lowpass(samples: np.ndarray, prior: np.ndarray, keep: int) -> np.ndarray:
     """``samples`` (S, W, T, J, 3) with each sample's residual over ``prior`` (W, T, J, 3) reduced to its first
     ``keep`` DCT coefficients over the T frames (orthonormal DCT-II: ``keep`` = T changes nothing)."""
@@ -77,6 +115,8 @@ def main(argv=None) -> int:
                     help="DCT coefficients kept (of 60); none after it: no low-passed rows")
     ap.add_argument("--spread", type=float, nargs="*", default=[],
                     help="also score the samples with their deviations from their mean scaled by each of these")
+    ap.add_argument("--noise-scale", type=float, nargs="*", default=[],
+                    help="also draw the samples with each chain's starting noise scaled by each of these")
     ap.add_argument("--samples", type=int, default=50)
     ap.add_argument("--sampler", default="ddpm")
     ap.add_argument("--steps", type=int, default=10)
@@ -86,10 +126,11 @@ def main(argv=None) -> int:
     ap.add_argument("--max-windows", type=int, default=0, help="evenly spaced windows (0: all 188)")
     ap.add_argument("--data", default=None, help="the HumanEva-I file or directory (default ../shared/data)")
     ap.add_argument("--json-prefix", required=True,
-                    help="writes PREFIX_raw.json, PREFIX_K{k}.json and PREFIX_S{c}.json")
+                    help="writes PREFIX_raw.json, PREFIX_K{k}.json, PREFIX_S{c}.json and PREFIX_N{c}.json")
     args = ap.parse_args(argv)
     for option, values, check in (("--keep", args.keep, lambda k: check_keep(k, HE_PRED)),
-                                  ("--spread", args.spread, check_spread)):
+                                  ("--spread", args.spread, check_spread),
+                                  ("--noise-scale", args.noise_scale, check_spread)):
         try:                               # checked before the samples are drawn (minutes), not after
             for v in values:
                 check(v)
@@ -117,6 +158,10 @@ def main(argv=None) -> int:
                    for k in sorted(set(args.keep))]
                 + [(f"S{c:g}", spread(samples, c), f", each sample's deviation from the samples' mean x {c:g}", None, c)
                    for c in sorted(set(args.spread))])
+    for c in sorted(set(args.noise_scale)):
+        with noise_scale(c):
+            scaled = humaneva_model_samples(sampling, cases.obs)
+        variants.append((f"N{c:g}", scaled, f", each chain's starting noise x {c:g}", None, None))
     for name, pred, how, keep, c in variants:
         m = cases.score(pred)
         out = {"protocol": cases.protocol(),
@@ -125,6 +170,7 @@ def main(argv=None) -> int:
                "sampling": {"engine": "tcd", "samples": args.samples, "steps": args.steps, "sampler": args.sampler},
                "lowpass_keep": keep,
                "spread": c,
+               "noise_scale": float(name[1:]) if name.startswith("N") else None,
                "per_action": cases.per_action(m),
                "command": "python benches/humaneva_lowpass.py " + " ".join(sys.argv[1:] if argv is None else argv)}
         Path(f"{args.json_prefix}_{name}.json").write_text(json.dumps(out, indent=1))

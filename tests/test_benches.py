@@ -337,3 +337,24 @@ def test_humaneva_spread_scales_each_sample_about_the_samples_mean():
     np.testing.assert_allclose(spread(samples, 1.0), samples, atol=1e-12)
     with pytest.raises(ValueError, match="spread"):
         spread(samples, 0.0)
+
+
+def test_humaneva_noise_scale_scales_the_starting_noise_of_both_stages():
+    import_torch("benches/humaneva_lowpass.py (it samples through training/evaluate.py)")
+    import tcd
+    import tcd.model as tm
+    bench = load_bench("humaneva_lowpass")
+    model = tcd.load(ROOT / "tests" / "fixtures" / "tiny_humaneva_model")      # random weights, around a prior
+    obs = np.random.default_rng(2).normal(scale=0.3, size=(2, model.obs_len, model.num_joints, 3))
+    run = lambda: model.forecast(obs, num_samples=4, sampler="ddim", num_inference_steps=1, seed=7).samples  # noqa: E731
+    plain, cascade = run(), tm.cascade_raw
+    with bench.noise_scale(1.0):
+        np.testing.assert_array_equal(run(), plain)             # the engine's own streams, drawn in the injected layout
+    with bench.noise_scale(1e-9):                               # x_T ~ 0 in both stages: DDIM-1 has nothing to vary
+        still = run()
+    assert tm.cascade_raw is cascade                            # restored
+    spread = lambda s: np.abs(s - s.mean(axis=0)).max()         # noqa: E731
+    assert spread(plain) > 1e-3 and spread(still) < 1e-5 * spread(plain)
+    with pytest.raises(ValueError, match="spread"):
+        with bench.noise_scale(0.0):
+            pass

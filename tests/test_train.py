@@ -157,8 +157,7 @@ def test_committed_checkpoints_resume_under_their_configs():
     from pathlib import Path
     from training.train import stored_config
     root = Path(__file__).parents[1]
-    for checkpoint, config in (("tcdp_short_installment1.pt", "tcdp_short.json"),
-                               ("humaneva_long_imle_50_2.pt", "humaneva_long_imle_50_2.json")):
+    for checkpoint, config in (("tcdp_short_installment1.pt", "tcdp_short.json"),):
         ck = torch.load(root / "training" / "checkpoints" / checkpoint, map_location="cpu", weights_only=False)
         removed = set(REMOVED_AT_DEFAULTS) & set(ck["train_config"])
         assert removed in (set(), set(REMOVED_AT_DEFAULTS))

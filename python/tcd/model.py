@@ -398,9 +398,9 @@ class TCD:
             **sampler: the sampler: ``sampler`` (``"ddpm"``, ``"ddim"``, ``"dpmpp2m"``),
                 ``num_inference_steps``, ``eta``, ``timestep_spacing``, as :class:`tcd.SamplerOptions` defines
                 and checks them; those not given are the model's defaults (``sampling["forecast"]``: the bundled
-                Human3.6M model one DDIM step, the HumanEva-I model DDPM over 10 steps, chosen from
-                docs/samplers.md; a directory without ``sampling.json`` the paper's DDPM over every training
-                step). Any other keyword is a ``TypeError``.
+                Human3.6M and HumanEva-I models one DDIM step, chosen from docs/samplers.md; a directory
+                without ``sampling.json`` the paper's DDPM over every training step).
+                Any other keyword is a ``TypeError``.
             tempo: ``(lo, hi)`` with ``0 < lo <= 1 <= hi``: sample i of ``num_samples`` forecast from the
                 observation replayed at its own tempo, spaced geometrically from ``lo`` to ``hi``
                 (:mod:`tcd.tempo`: samples that differ in when a movement happens); ``(1, 1)`` every sample at
