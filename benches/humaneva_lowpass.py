@@ -60,16 +60,17 @@ def check_spread(c: float) -> None:
         raise ValueError(f"spread must be > 0, got {c}")
 
 
-SAMPLER_KEYS = ("sampler", "num_inference_steps", "eta", "timestep_spacing")
-
-
 @contextlib.contextmanager
 def noise_scale(c: float):
     """Within it, ``tcd.TCD.forecast`` draws its seeded noise as usual (``tcd.engine.seeded_noise``, the streams
     the engine draws itself) and scales each chain's x_T block by ``c`` in both stages of the cascade."""
     check_spread(c)
+    import dataclasses
+
     import tcd.engine as te
     import tcd.model as tm
+    from tcd import SamplerOptions
+    sampler_keys = [f.name for f in dataclasses.fields(SamplerOptions)]   # the keywords a sampler is named by
     plain = tm.cascade_raw
 
     def scaled(short, long, observed, mask, *, num_samples, seed, sequences=None, **kw):
@@ -78,7 +79,7 @@ def noise_scale(c: float):
         b, k, _ = np.shape(observed)
         noise = {}
         for name, model, stage in (("noise_short", short, te.STAGE_SHORT), ("noise_long", long, te.STAGE_LONG)):
-            blocks = model.num_noise_blocks(**{o: kw[o] for o in SAMPLER_KEYS if o in kw})
+            blocks = model.num_noise_blocks(**{o: kw[o] for o in sampler_keys if o in kw})
             noise[name] = te.seeded_noise(seed, stage, num_samples, blocks, b, k, model.seq_len)
             noise[name][:, 0] *= c
         return plain(short, long, observed, mask, num_samples=num_samples, **noise, **kw)
@@ -151,18 +152,19 @@ def main(argv=None) -> int:
 
     Path(args.json_prefix).parent.mkdir(parents=True, exist_ok=True)
     print(f"{'samples':<16}{'ADE':>8}{'FDE':>8}{'MMADE':>8}{'MMFDE':>8}{'APD':>8}")
-    # (file name, samples, what the method adds, lowpass_keep, spread)
-    variants = ([("raw", samples, "", None, None)]
+    # (file name, samples, what the method adds, lowpass_keep, spread, noise_scale)
+    variants = ([("raw", samples, "", None, None, None)]
                 + [(f"K{k}", lowpass(samples, prior, k),
-                    f", residual over the prior low-passed to its first {k} DCT coefficients", k, None)
+                    f", residual over the prior low-passed to its first {k} DCT coefficients", k, None, None)
                    for k in sorted(set(args.keep))]
-                + [(f"S{c:g}", spread(samples, c), f", each sample's deviation from the samples' mean x {c:g}", None, c)
+                + [(f"S{c:g}", spread(samples, c), f", each sample's deviation from the samples' mean x {c:g}", None, c,
+                    None)
                    for c in sorted(set(args.spread))])
     for c in sorted(set(args.noise_scale)):
         with noise_scale(c):
             scaled = humaneva_model_samples(sampling, cases.obs)
-        variants.append((f"N{c:g}", scaled, f", each chain's starting noise x {c:g}", None, None))
-    for name, pred, how, keep, c in variants:
+        variants.append((f"N{c:g}", scaled, f", each chain's starting noise x {c:g}", None, None, c))
+    for name, pred, how, keep, c, noise in variants:
         m = cases.score(pred)
         out = {"protocol": cases.protocol(),
                "method": f"tcd {args.model}{how}",
@@ -170,7 +172,7 @@ def main(argv=None) -> int:
                "sampling": {"engine": "tcd", "samples": args.samples, "steps": args.steps, "sampler": args.sampler},
                "lowpass_keep": keep,
                "spread": c,
-               "noise_scale": float(name[1:]) if name.startswith("N") else None,
+               "noise_scale": noise,
                "per_action": cases.per_action(m),
                "command": "python benches/humaneva_lowpass.py " + " ".join(sys.argv[1:] if argv is None else argv)}
         Path(f"{args.json_prefix}_{name}.json").write_text(json.dumps(out, indent=1))
