@@ -358,3 +358,41 @@ def test_humaneva_noise_scale_scales_the_starting_noise_of_both_stages():
     with pytest.raises(ValueError, match="spread"):
         with bench.noise_scale(0.0):
             pass
+
+
+def test_repair_inbetween_features_are_aligned_on_the_gap():
+    """benches/repair_inbetween.py: the segment starts ``context`` frames before the gap (its indices clamped at
+    the window's edges), is relative to the frame before the gap, and says how much context each side has; a
+    window without a whole-frame gap is refused. A segment off by a frame, or not clamped, would differ."""
+    ib = load_bench("repair_inbetween")
+    t, c = 50, 3
+    fill = np.broadcast_to(np.arange(t, dtype=np.float64)[None, :, None], (2, t, 2)).copy()   # frame index
+    starts = np.array([20, 0])
+    x = ib.features(fill, starts, c)
+    seg = x[:, :-2].reshape(2, 2 * c + ib.GAP, 2)[..., 0]
+    np.testing.assert_array_equal(seg[0], np.arange(20 - c, 20 + ib.GAP + c) - 19)
+    np.testing.assert_array_equal(seg[1], np.clip(np.arange(-c, ib.GAP + c), 0, None))   # frame 0 repeated
+    np.testing.assert_array_equal(x[:, -2:], [[1.0, 1.0], [0.0, 1.0]])
+    mask = np.ones((2, t, 4), bool)
+    mask[0, 5:15] = False
+    mask[1, 40:] = False
+    np.testing.assert_array_equal(ib.gap_starts(mask), [5, 40])
+    mask[1] = True
+    with pytest.raises(ValueError, match="whole-frame gap"):
+        ib.gap_starts(mask)
+
+
+@needs_h36m
+def test_repair_inbetween_with_an_infinite_penalty_is_the_fill(tmp_path):
+    """A ridge map with an overwhelming penalty corrects nothing: its row equals the fill's window by window, and
+    the file pairs in training.compare; a small penalty moves the fill (the map is applied on the gap)."""
+    ib = load_bench("repair_inbetween")
+    out = tmp_path / "ib.json"
+    assert ib.main(["--train", "40", "--lambdas", "1e12", "1e-3", "--data-dir", str(H36M_DIR), "--json", str(out)]) == 0
+    res = json.loads(out.read_text())["results"][0]
+    np.testing.assert_allclose(res["ridge_1e+12"]["per_window_mm"], res["fill"]["per_window_mm"], atol=1e-6)
+    assert not np.allclose(res["ridge_0.001"]["per_window_mm"], res["fill"]["per_window_mm"], atol=1e-3)
+    from training.compare import compare
+    r = compare(json.loads(out.read_text()), json.loads(out.read_text()), key="consecutive_frames:ridge_1e+12",
+                old_key="consecutive_frames:fill")
+    assert r["windows"] == 256 and abs(r["mean_difference"]) < 1e-6

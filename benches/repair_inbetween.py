@@ -1,0 +1,153 @@
+"""Whole-frame gaps: how much would a learned in-betweener add to the bundled repair fill? (issue 29, point 4)
+
+On the repair benchmark's consecutive-frames pattern (one block of 10 frames of 50, every joint hidden) the bundled
+repair fill, the prior forecaster run forward and backward into the gap averaged with its spline correction
+(docs/repair.md, "Whole-frame gaps"), is 18.9 mm against linear interpolation's 31.2: 0.61 x, where issue 29 asks
+for 0.5 x. Its network cannot see where a gap is (it reads the filled window, not the mask), so nothing in it was
+trained for the gap. This bench asks what the cheapest gap-specific correction buys before anything is built into
+the engine: a linear map, fitted by ridge regression (closed form, no training schedule to tune), from the fill
+over a segment aligned on the gap (``--context`` frames each side of it, indices clamped at the window's edges,
+relative to the fill's frame before the gap; plus how many of the context frames lie inside the window on either
+side) to the fill's error over the gap's frames.
+
+It is fitted on ``--train`` windows of the training subjects (S1, S6-S9) with a gap each (start uniform, as the
+benchmark draws it; each also time-reversed when ``--reverse``: a gap looks the same both ways), their fills the
+bundled model's own (``tcd.TCD.repair_fill``, the engine's), and scored on the benchmark's 256 S5 windows and masks
+(``benches/repair_quality.py``'s draws, seed 0), window by window::
+
+    python benches/repair_inbetween.py --train 100000 --json benches/results/repair_inbetween.json
+    python -m training.compare benches/results/repair_inbetween.json benches/results/repair_inbetween.json \\
+        --key consecutive_frames:ridge_100 --bundled-key consecutive_frames:fill
+
+The result holds the fill's and each ridge's per-window ADE on the pattern (methods ``fill``, ``ridge_<lambda>``),
+so ``training.compare`` pairs them like the repair benchmark's methods. A measurement, not in the engine.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benches"))
+
+import repair_quality as rq  # noqa: E402
+import tcd  # noqa: E402
+from training.data import h36m  # noqa: E402
+
+GAP = 10            # the benchmark's consecutive-frames block: round(0.2 * 50)
+PATTERN = 1         # its index in repair_quality.PATTERNS
+
+
+def gap_starts(mask: np.ndarray) -> np.ndarray:
+    """(B,) the first frame of each window's whole-frame gap; ``mask`` (B, T, J) bool observed."""
+    hidden = ~mask.any(2)
+    if not hidden.any(1).all():
+        raise ValueError("every window needs a whole-frame gap")
+    return hidden.argmax(1)
+
+
+def features(fill: np.ndarray, starts: np.ndarray, context: int) -> np.ndarray:
+    """(B, (2 C + GAP) F + 2): the fill (B, T, F) over frames [s - C, s + GAP + C) (indices clamped to the window)
+    relative to its frame s - 1 (clamped), and the fractions of the C context frames inside the window each side."""
+    b, t, _ = fill.shape
+    idx = np.clip(starts[:, None] + np.arange(-context - 1, GAP + context)[None], 0, t - 1)
+    seg = np.take_along_axis(fill, idx[..., None], 1)
+    rel = seg[:, 1:] - seg[:, context:context + 1]                     # seg[:, context]: frame s - 1
+    side = np.stack([np.minimum(starts, context), np.minimum(t - GAP - starts, context)], 1) / context
+    return np.concatenate([rel.reshape(b, -1), side], 1)
+
+
+def scores(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray) -> dict:
+    """The repair benchmark's ADE over the hidden entries and per window (``repair_quality.scores``), untimed."""
+    res = rq.scores(pred, gt, mask, 0, 1.0)
+    return {k: res[k] for k in ("ade_mm", "per_window_mm")}
+
+
+def gap_frames(x: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """(B, GAP, F): x (B, T, F) over each window's gap."""
+    return np.take_along_axis(x, (starts[:, None] + np.arange(GAP)[None])[..., None], 1)
+
+
+def training_set(model: "tcd.TCD", n: int, reverse: bool, context: int, seed: int, data_dir: Path,
+                 batch: int = 2000):
+    """(X, Y): features and the fill's error over the gap (metres) of ``n`` training windows (2 n with their
+    time reversals)."""
+    seqs = [x for _, x in h36m.H36M(data_dir).sequences("train")]
+    rng = np.random.default_rng(seed)
+    fill_fn, t = rq.learned_fill(model), model.obs_len
+    xs, ys = [], []
+    for lo in range(0, n, batch):
+        k = min(batch, n - lo)
+        gt = []
+        for _ in range(k):
+            x = seqs[int(rng.integers(len(seqs)))]
+            s = int(rng.integers(0, len(x) - t + 1))
+            gt.append(x[s:s + t])
+        gt = np.stack(gt).astype(np.float32)
+        for g in ([gt, gt[:, ::-1]] if reverse else [gt]):
+            starts = rng.integers(0, t - GAP + 1, k)
+            mask = np.ones(g.shape[:3], bool)
+            for i, s in enumerate(starts):
+                mask[i, s:s + GAP] = False
+            filled = fill_fn(np.where(mask[..., None], g, 0.0).astype(np.float32), mask).reshape(k, t, -1)
+            xs.append(features(filled, starts, context))
+            ys.append((gap_frames(g.reshape(k, t, -1), starts) - gap_frames(filled, starts)).reshape(k, -1))
+    return np.concatenate(xs), np.concatenate(ys)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--model", default=None, help="model directory with a repair fill (default: the bundled)")
+    ap.add_argument("--train", type=int, default=100000, help="training windows (default 100,000)")
+    ap.add_argument("--reverse", action="store_true", help="also fit on each training window time-reversed")
+    ap.add_argument("--context", type=int, default=10, help="frames of context each side of the gap (default 10)")
+    ap.add_argument("--lambdas", type=float, nargs="+", default=[1e0, 1e1, 1e2, 1e3],
+                    help="ridge penalties, on features in metres (default 1 10 100 1000)")
+    ap.add_argument("--seed", type=int, default=1, help="seed of the training windows (the benchmark's is 0)")
+    ap.add_argument("--data-dir", default=str(h36m.DEFAULT_H36M_DIR))
+    ap.add_argument("--json", default=None, metavar="OUT")
+    args = ap.parse_args(argv)
+    if args.train < 1 or args.context < 1 or min(args.lambdas) < 0:
+        ap.error("--train and --context must be >= 1 and --lambdas >= 0")
+    model = tcd.load(args.model)
+    if model.repair_fill is None:
+        ap.error(f"--model {model.path} has no repair fill")
+    t0 = time.time()
+    X, Y = training_set(model, args.train, args.reverse, args.context, args.seed, Path(args.data_dir))
+    print(f"{len(X)} training gaps and their fills in {time.time() - t0:.0f} s", file=sys.stderr)
+
+    gt = rq.draw_windows(256, model.obs_len, 0, Path(args.data_dir))
+    _, pattern, mask, obs = list(rq.masked_cases(gt, 0))[PATTERN]
+    starts = gap_starts(mask)
+    filled = rq.learned_fill(model)(np.nan_to_num(obs), mask)
+    fx = features(filled.reshape(len(gt), model.obs_len, -1), starts, args.context)
+    res = {"pattern": pattern, "windows": len(gt), "fill": scores(filled, gt, mask)}
+    print(f"fill alone: {res['fill']['ade_mm']:.2f} mm")
+    xtx, xty = X.T @ X, X.T @ Y
+    for lam in args.lambdas:
+        w = np.linalg.solve(xtx + lam * np.eye(len(xtx)), xty)
+        pred = filled.copy().reshape(len(gt), model.obs_len, -1)
+        idx = (starts[:, None] + np.arange(GAP)[None])[..., None]
+        np.put_along_axis(pred, idx, gap_frames(pred, starts) + (fx @ w).reshape(len(gt), GAP, -1), 1)
+        res[f"ridge_{lam:g}"] = scores(pred.reshape(gt.shape), gt, mask)
+        print(f"ridge lambda {lam:g}: {res[f'ridge_{lam:g}']['ade_mm']:.2f} mm")
+    if args.json:
+        out = {"protocol": {"task": "repair", "dataset": "h36m", "subject": "S5", "windows": 256,
+                            "window_frames": model.obs_len, "patterns": [list(rq.PATTERNS[PATTERN][1:])]},
+               "seeds": {"windows_masks_sampling": 0}, "model": str(model.path), "model_sha256": model.sha256,
+               "train_windows": args.train, "reverse": args.reverse, "context": args.context, "train_seed": args.seed,
+               "results": [res], "command": "python benches/repair_inbetween.py " + " ".join(
+                   sys.argv[1:] if argv is None else argv)}
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(out, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
