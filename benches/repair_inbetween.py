@@ -19,6 +19,12 @@ bundled model's own (``tcd.TCD.repair_fill``, the engine's), and scored on the b
     python -m training.compare benches/results/repair_inbetween.json benches/results/repair_inbetween.json \\
         --key consecutive_frames:ridge_100 --bundled-key consecutive_frames:fill
 
+``--shared`` fits instead one temporal kernel that every coordinate shares (its own segment in, its gap frames
+out; 920 numbers where the full map has 1.3 million)::
+
+    python benches/repair_inbetween.py --train 100000 --reverse --shared --lambdas 0.1 10 100 \\
+        --json benches/results/repair_inbetween_shared.json
+
 The result holds the fill's and each ridge's per-window ADE on the pattern (methods ``fill``, ``ridge_<lambda>``),
 so ``training.compare`` pairs them like the repair benchmark's methods. A measurement, not in the engine.
 """
@@ -61,6 +67,30 @@ def features(fill: np.ndarray, starts: np.ndarray, context: int) -> np.ndarray:
     rel = seg[:, 1:] - seg[:, context:context + 1]                     # seg[:, context]: frame s - 1
     side = np.stack([np.minimum(starts, context), np.minimum(t - GAP - starts, context)], 1) / context
     return np.concatenate([rel.reshape(b, -1), side], 1)
+
+
+def per_coordinate(x: np.ndarray, context: int) -> np.ndarray:
+    """``--shared``'s inputs: :func:`features` (B, (2 C + GAP) F + 2) as one row per window and coordinate
+    (B F, 3 (2 C + GAP) + 2): the coordinate's segment, the two context fractions, and the segment times each
+    fraction (so that the kernel can change where a side has no context)."""
+    b, seg = len(x), 2 * context + GAP
+    f = (x.shape[1] - 2) // seg
+    xs = x[:, :-2].reshape(b, seg, f).transpose(0, 2, 1).reshape(b * f, seg)
+    side = np.repeat(x[:, -2:], f, 0)
+    return np.concatenate([xs, side, xs * side[:, :1], xs * side[:, 1:]], 1)
+
+
+def normal_equations(x: np.ndarray, y: np.ndarray, context: int, shared: bool, chunk: int = 4096):
+    """(X'X, X'Y) of the ridge fit, accumulated over chunks of windows (the per-coordinate rows of ``--shared``
+    would not fit in memory at once); y (B, GAP F)."""
+    xtx = xty = 0.0
+    for lo in range(0, len(x), chunk):
+        a, t = x[lo:lo + chunk], y[lo:lo + chunk]
+        if shared:
+            a = per_coordinate(a, context)
+            t = t.reshape(len(t), GAP, -1).transpose(0, 2, 1).reshape(-1, GAP)
+        xtx, xty = xtx + a.T @ a, xty + a.T @ t
+    return xtx, xty
 
 
 def scores(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray) -> dict:
@@ -109,6 +139,9 @@ def main(argv=None) -> int:
     ap.add_argument("--context", type=int, default=10, help="frames of context each side of the gap (default 10)")
     ap.add_argument("--lambdas", type=float, nargs="+", default=[1e0, 1e1, 1e2, 1e3],
                     help="ridge penalties, on features in metres (default 1 10 100 1000)")
+    ap.add_argument("--shared", action="store_true",
+                    help="fit one temporal kernel shared by every coordinate instead of a map over all of them "
+                         "(methods shared_<lambda>)")
     ap.add_argument("--seed", type=int, default=1, help="seed of the training windows (the benchmark's is 0)")
     ap.add_argument("--data-dir", default=str(h36m.DEFAULT_H36M_DIR))
     ap.add_argument("--json", default=None, metavar="OUT")
@@ -129,19 +162,25 @@ def main(argv=None) -> int:
     fx = features(filled.reshape(len(gt), model.obs_len, -1), starts, args.context)
     res = {"pattern": pattern, "windows": len(gt), "fill": scores(filled, gt, mask)}
     print(f"fill alone: {res['fill']['ade_mm']:.2f} mm")
-    xtx, xty = X.T @ X, X.T @ Y
+    xtx, xty = normal_equations(X, Y, args.context, args.shared)
+    name = "shared" if args.shared else "ridge"
     for lam in args.lambdas:
         w = np.linalg.solve(xtx + lam * np.eye(len(xtx)), xty)
+        if args.shared:       # (B F, GAP) per coordinate -> (B, GAP, F)
+            corr = (per_coordinate(fx, args.context) @ w).reshape(len(gt), -1, GAP).transpose(0, 2, 1)
+        else:
+            corr = (fx @ w).reshape(len(gt), GAP, -1)
         pred = filled.copy().reshape(len(gt), model.obs_len, -1)
         idx = (starts[:, None] + np.arange(GAP)[None])[..., None]
-        np.put_along_axis(pred, idx, gap_frames(pred, starts) + (fx @ w).reshape(len(gt), GAP, -1), 1)
-        res[f"ridge_{lam:g}"] = scores(pred.reshape(gt.shape), gt, mask)
-        print(f"ridge lambda {lam:g}: {res[f'ridge_{lam:g}']['ade_mm']:.2f} mm")
+        np.put_along_axis(pred, idx, gap_frames(pred, starts) + corr, 1)
+        res[f"{name}_{lam:g}"] = scores(pred.reshape(gt.shape), gt, mask)
+        print(f"{name} lambda {lam:g}: {res[f'{name}_{lam:g}']['ade_mm']:.2f} mm")
     if args.json:
         out = {"protocol": {"task": "repair", "dataset": "h36m", "subject": "S5", "windows": 256,
                             "window_frames": model.obs_len, "patterns": [list(rq.PATTERNS[PATTERN][1:])]},
                "seeds": {"windows_masks_sampling": 0}, "model": str(model.path), "model_sha256": model.sha256,
-               "train_windows": args.train, "reverse": args.reverse, "context": args.context, "train_seed": args.seed,
+               "train_windows": args.train, "reverse": args.reverse, "context": args.context, "shared": args.shared,
+               "train_seed": args.seed,
                "results": [res], "command": "python benches/repair_inbetween.py " + " ".join(
                    sys.argv[1:] if argv is None else argv)}
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)

@@ -396,3 +396,28 @@ def test_repair_inbetween_with_an_infinite_penalty_is_the_fill(tmp_path):
     r = compare(json.loads(out.read_text()), json.loads(out.read_text()), key="consecutive_frames:ridge_1e+12",
                 old_key="consecutive_frames:fill")
     assert r["windows"] == 256 and abs(r["mean_difference"]) < 1e-6
+    # the kernel shared by every coordinate: the same limit
+    assert ib.main(["--train", "40", "--shared", "--lambdas", "1e12", "--data-dir", str(H36M_DIR),
+                    "--json", str(out)]) == 0
+    res = json.loads(out.read_text())["results"][0]
+    np.testing.assert_allclose(res["shared_1e+12"]["per_window_mm"], res["fill"]["per_window_mm"], atol=1e-6)
+
+
+def test_repair_inbetween_shared_rows_are_one_coordinate_each():
+    """``--shared``'s rows: row (window b, coordinate f) holds that coordinate's segment, then the two context
+    fractions, then the segment times each; the normal equations accumulated in chunks equal the whole ones."""
+    ib = load_bench("repair_inbetween")
+    c, f, seg = 2, 3, 2 * 2 + ib.GAP
+    rng = np.random.default_rng(0)
+    x = np.concatenate([rng.normal(size=(5, seg * f)), rng.uniform(size=(5, 2))], 1)
+    rows = ib.per_coordinate(x, c)
+    assert rows.shape == (5 * f, 3 * seg + 2)
+    b, k = 3, 1
+    segment = x[b, :-2].reshape(seg, f)[:, k]
+    np.testing.assert_array_equal(rows[b * f + k], np.concatenate([segment, x[b, -2:], segment * x[b, -2],
+                                                                   segment * x[b, -1]]))
+    y = rng.normal(size=(5, ib.GAP * f))
+    xtx, xty = ib.normal_equations(x, y, c, True, chunk=2)
+    t = y.reshape(5, ib.GAP, f).transpose(0, 2, 1).reshape(-1, ib.GAP)
+    np.testing.assert_allclose(xtx, rows.T @ rows)
+    np.testing.assert_allclose(xty, rows.T @ t)
