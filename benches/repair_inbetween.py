@@ -15,9 +15,10 @@ benchmark draws it; each also time-reversed when ``--reverse``: a gap looks the 
 bundled model's own (``tcd.TCD.repair_fill``, the engine's), and scored on the benchmark's 256 S5 windows and masks
 (``benches/repair_quality.py``'s draws, seed 0), window by window::
 
-    python benches/repair_inbetween.py --train 100000 --json benches/results/repair_inbetween.json
+    python benches/repair_inbetween.py --train 100000 --reverse --lambdas 10 100 1000 10000 \\
+        --json benches/results/repair_inbetween.json
     python -m training.compare benches/results/repair_inbetween.json benches/results/repair_inbetween.json \\
-        --key consecutive_frames:ridge_100 --bundled-key consecutive_frames:fill
+        --key consecutive_frames:ridge_10 --bundled-key consecutive_frames:fill
 
 ``--shared`` fits instead one temporal kernel that every coordinate shares (its own segment in, its gap frames
 out; 920 numbers where the full map has 1.3 million)::
@@ -25,8 +26,9 @@ out; 920 numbers where the full map has 1.3 million)::
     python benches/repair_inbetween.py --train 100000 --reverse --shared --lambdas 0.1 10 100 \\
         --json benches/results/repair_inbetween_shared.json
 
-The result holds the fill's and each ridge's per-window ADE on the pattern (methods ``fill``, ``ridge_<lambda>``),
-so ``training.compare`` pairs them like the repair benchmark's methods. A measurement, not in the engine.
+The result holds the fill's and each fit's per-window ADE on the pattern (methods ``fill``, ``ridge_<lambda>`` or
+``shared_<lambda>``), so ``training.compare`` pairs them like the repair benchmark's methods. A measurement, not in
+the engine.
 """
 from __future__ import annotations
 
