@@ -27,7 +27,8 @@ before the network rather than after it (C = 1 gives the raw row bit for bit)::
     python benches/humaneva_lowpass.py --keep --noise-scale 0.85 1.25 --sampler ddim --steps 1 --threads 1 \\
         --json-prefix benches/results/humaneva_lowpass/imle50
 
-A post-process measured here, not in the engine: where it pays, the engine is the place for it.
+The low-pass and the spread are post-processes, the noise scale a change of the sampler's input; each is
+measured here, not in the engine: where one pays, the engine is the place for it.
 """
 from __future__ import annotations
 
