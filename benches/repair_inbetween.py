@@ -101,9 +101,14 @@ def scores(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray) -> dict:
     return {k: res[k] for k in ("ade_mm", "per_window_mm")}
 
 
+def gap_index(starts: np.ndarray) -> np.ndarray:
+    """(B, GAP, 1): the frames of each window's gap, for ``np.take_along_axis`` / ``np.put_along_axis`` on axis 1."""
+    return (starts[:, None] + np.arange(GAP)[None])[..., None]
+
+
 def gap_frames(x: np.ndarray, starts: np.ndarray) -> np.ndarray:
     """(B, GAP, F): x (B, T, F) over each window's gap."""
-    return np.take_along_axis(x, (starts[:, None] + np.arange(GAP)[None])[..., None], 1)
+    return np.take_along_axis(x, gap_index(starts), 1)
 
 
 def training_set(model: "tcd.TCD", n: int, reverse: bool, context: int, seed: int, data_dir: Path,
@@ -116,12 +121,7 @@ def training_set(model: "tcd.TCD", n: int, reverse: bool, context: int, seed: in
     xs, ys = [], []
     for lo in range(0, n, batch):
         k = min(batch, n - lo)
-        gt = []
-        for _ in range(k):
-            x = seqs[int(rng.integers(len(seqs)))]
-            s = int(rng.integers(0, len(x) - t + 1))
-            gt.append(x[s:s + t])
-        gt = np.stack(gt).astype(np.float32)
+        gt = rq.windows_from(seqs, k, t, rng)
         for g in ([gt, gt[:, ::-1]] if reverse else [gt]):
             starts = rng.integers(0, t - GAP + 1, k)
             mask = np.ones(g.shape[:3], bool)
@@ -173,8 +173,7 @@ def main(argv=None) -> int:
         else:
             corr = (fx @ w).reshape(len(gt), GAP, -1)
         pred = filled.copy().reshape(len(gt), model.obs_len, -1)
-        idx = (starts[:, None] + np.arange(GAP)[None])[..., None]
-        np.put_along_axis(pred, idx, gap_frames(pred, starts) + corr, 1)
+        np.put_along_axis(pred, gap_index(starts), gap_frames(pred, starts) + corr, 1)
         res[f"{name}_{lam:g}"] = scores(pred.reshape(gt.shape), gt, mask)
         print(f"{name} lambda {lam:g}: {res[f'{name}_{lam:g}']['ade_mm']:.2f} mm")
     if args.json:

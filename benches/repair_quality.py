@@ -57,9 +57,13 @@ SAVGOL_ORDER = 2
 
 
 def draw_windows(n: int, length: int, seed: int, data_dir: Path) -> np.ndarray:
-    """(n, length, 22, 3) metres: seeded windows of the S5 test sequences (sequence, then start, uniform)."""
-    seqs = [x for _, x in h36m.H36M(data_dir).sequences("test")]
-    rng = np.random.default_rng(seed)
+    """(n, length, 22, 3) metres: seeded windows of the S5 test sequences (:func:`windows_from`)."""
+    return windows_from([x for _, x in h36m.H36M(data_dir).sequences("test")], n, length, np.random.default_rng(seed))
+
+
+def windows_from(seqs: list, n: int, length: int, rng: np.random.Generator) -> np.ndarray:
+    """(n, length, ...) float32: ``n`` windows of ``seqs``, each a sequence, then a start, drawn uniformly from
+    ``rng``."""
     out = []
     for _ in range(n):
         x = seqs[int(rng.integers(len(seqs)))]
