@@ -88,7 +88,8 @@ def main(argv=None) -> int:
                     help="frame rate of the written recordings: the source's 50, or 25 (every other frame)")
     ap.add_argument("--steps", type=int, default=None,
                     help="tcd repair --steps (default: the model's; the bundled model's DDPM-10)")
-    ap.add_argument("--samples", type=int, default=5)
+    ap.add_argument("--samples", type=int, default=None,
+                    help="tcd repair --samples (default: the command's, the model's own: the bundled fill alone)")
     ap.add_argument("--jobs", type=int, default=None, help="tcd repair --jobs (default: all cores)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the masks and of tcd repair")
     ap.add_argument("--repair-args", default="", help='more tcd repair arguments, e.g. "--overlap 5 --lookahead 15"')
@@ -106,9 +107,9 @@ def main(argv=None) -> int:
     try:
         gts, ms = build_inputs(Path(args.data_dir), indir, args.files, args.max_frames, args.seed, args.fps)
         cmd = [sys.executable, "-m", "tcd", "repair", str(indir), "-o", str(outdir), "--units", "mm",
-               "--fps", str(args.fps), "--report", str(report), "--quiet", "--samples", str(args.samples),
-               "--seed", str(args.seed)]
-        for flag, value in (("--steps", args.steps), ("--jobs", args.jobs), ("--model", args.model)):
+               "--fps", str(args.fps), "--report", str(report), "--quiet", "--seed", str(args.seed)]
+        for flag, value in (("--samples", args.samples), ("--steps", args.steps), ("--jobs", args.jobs),
+                            ("--model", args.model)):
             if value is not None:
                 cmd += [flag, str(value)]
         cmd += args.repair_args.split()
@@ -153,7 +154,9 @@ def main(argv=None) -> int:
     print(f"| steps | frames/s ({args.fps} fps source) | tcd ADE (mm) | linear interp. | natural cubic spline "
           "| tcd / linear | tcd / spline |")
     print("|---|---|---|---|---|---|---|")
-    print(f"| {prov.get('sampler', 'ddpm').upper()}-{steps} x {args.samples} | {res['frames_per_second']:.0f} | "
+    how = ("the repair fill alone" if prov.get("num_samples") == 0 else
+           f"{prov.get('sampler', 'ddpm').upper()}-{steps} x {prov.get('num_samples')}")
+    print(f"| {how} | {res['frames_per_second']:.0f} | "
           f"{ade['tcd']:.1f} | {ade['linear']:.1f} | {ade['spline']:.1f} | {res['tcd_over_linear']:.2f} | "
           f"{res['tcd_over_spline']:.2f} |")
     if args.json:

@@ -147,7 +147,9 @@ def main(argv=None) -> int:
     ap.add_argument("--windows", type=int, default=64, help="windows per pattern (default 64)")
     ap.add_argument("--steps", type=int, default=None, help="inference steps (default: all, DDPM)")
     ap.add_argument("--sampler", default="ddpm")
-    ap.add_argument("--samples", type=int, default=5)
+    ap.add_argument("--samples", type=int, default=5,
+                    help="samples averaged (default 5); 0: the repair fill alone (TCD.repair's default for a "
+                    "directory with one), sampler and steps unused")
     ap.add_argument("--seed", type=int, default=0, help="seed of the windows, the masks and the noise")
     ap.add_argument("--jobs", type=int, default=None, help="engine threads (default: all cores)")
     ap.add_argument("--data-dir", default=str(h36m.DEFAULT_H36M_DIR))
@@ -182,7 +184,9 @@ def main(argv=None) -> int:
 
     steps = args.steps if args.steps is not None else model.num_train_timesteps
     print(f"\nRepair ADE (mm) over the hidden entries, {args.windows} S5 windows of {w} frames per pattern; "
-          f"tcd: {args.sampler.upper()} {steps} steps, mean of {args.samples} samples, model {model.path} "
+          + ("tcd: the repair fill alone (0 samples)" if args.samples == 0 else
+             f"tcd: {args.sampler.upper()} {steps} steps, mean of {args.samples} samples")
+          + f", model {model.path} "
           f"(sha256 {str(model.sha256)[:12]}), {os.cpu_count()} cores.\n")
     print("| occlusion | tcd | linear interp. | interp. + Savitzky-Golay | cubic spline | tcd / linear | "
           "tcd / spline | tcd frames/s | spline frames/s |")

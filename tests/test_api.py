@@ -413,6 +413,38 @@ def test_bundled_repair_model():
     lin_mm = np.linalg.norm(lin - clip, axis=-1)[~mask].mean() * 1000
     assert np.isfinite(err_mm) and err_mm <= 0.75 * lin_mm, (err_mm, lin_mm)
 
+    # num_samples=0: the repair fill alone, what the chains above started from (tcd.engine.Prior.fill with the
+    # prior forecaster filling the dropped frames), whatever the seed and sampler; measured 21.6 mm here
+    fill = m.repair(clip, mask, num_samples=0, seed=0).poses
+    assert np.array_equal(m.repair(clip, mask, num_samples=0, seed=1, sampler="ddim", num_inference_steps=3).poses,
+                          fill)
+    keep = np.repeat(mask[..., None], 3, -1)
+    flat = lambda a: np.ascontiguousarray(a, np.float32).reshape(1, 50, -1)  # noqa: E731
+    want = m.repair_fill.fill(flat(np.where(keep, clip, 0.0)), flat(keep), forecaster=m.prior).reshape(clip.shape)
+    assert np.array_equal(fill, want.astype(fill.dtype))
+    np.testing.assert_array_equal(fill[mask], clip[mask])
+    fill_mm = np.linalg.norm(fill - clip, axis=-1)[~mask].mean() * 1000
+    assert fill_mm <= 0.75 * lin_mm, (fill_mm, lin_mm)
+
+
+def test_repair_of_no_samples_needs_a_repair_fill(tiny_model, obs):
+    """num_samples=0 (the repair fill alone) on a model without a repair fill is an InvalidInputError naming
+    num_samples, in TCD.repair and in repair_raw; negative counts are refused as before."""
+    for call in (lambda: tiny_model.repair(obs, num_samples=0, seed=0),
+                 lambda: tcd.engine.repair_raw(tiny_model.short, np.zeros((1, tiny_model.short.num_features,
+                                                                            tiny_model.obs_len), np.float32),
+                                               np.ones((1, tiny_model.short.num_features, tiny_model.obs_len),
+                                                       np.float32), num_samples=0, seed=0),
+                 lambda: tiny_model.repair(obs, num_samples=-1, seed=0)):
+        with pytest.raises(tcd.InvalidInputError) as ei:
+            call()
+        assert ei.value.argument == "num_samples", ei.value
+    with pytest.raises(tcd.InvalidInputError, match="repair fill"):
+        tiny_model.repair(obs, num_samples=0, seed=0)
+    # forecasting and sampling still need at least one sample
+    with pytest.raises(tcd.InvalidInputError, match="at least 1"):
+        tiny_model.forecast(obs, num_samples=0, seed=0)
+
 
 SAMPLER_SETTINGS = "eta, num_inference_steps, sampler, timestep_spacing"
 

@@ -76,6 +76,24 @@ def test_one_window_equals_tcd_repair(tiny_model, tmp_path):
     assert np.array_equal(load_npz(tmp_path / "out.npz")["poses"], want)
 
 
+def test_fill_alone_file_equals_tcd_repair(tmp_path, capsys):
+    """``num_samples=0`` through the file repair: a one-window file of the bundled model is TCD.repair's fill
+    alone, whatever the seed, with 0 samples in its provenance; the CLI's ``--samples 0`` writes the same."""
+    m = tcd.load()
+    if m.repair_fill is None:
+        pytest.skip("no bundled repair fill in this build")
+    x = gappy(np.random.default_rng(15), W, block=(20, 30))
+    np.savez(tmp_path / "in.npz", poses=x)
+    info = tcd.repair_file(tmp_path / "in.npz", tmp_path / "out.npz", m, num_samples=0, seed=3)
+    got = load_npz(tmp_path / "out.npz")
+    assert info["status"] == "repaired" and json.loads(str(got["provenance"]))["num_samples"] == 0
+    assert np.array_equal(got["poses"], m.repair(x, num_samples=0, seed=9).poses)
+    code, _, err = run([tmp_path / "in.npz", "-o", tmp_path / "cli", "--samples", "0", "--seed", "4", "--quiet"],
+                       capsys)
+    assert code == 0, err
+    assert np.array_equal(load_npz(tmp_path / "cli" / "in.npz")["poses"], got["poses"])
+
+
 def test_explicit_mask_and_float64(tiny_model, tmp_path):
     rng = np.random.default_rng(1)
     x = rng.normal(scale=0.3, size=(80, 22, 3))  # float64, no NaN: the mask says what is missing
@@ -290,7 +308,8 @@ def test_bad_arguments_exit_2(tiny_model_dir, tmp_path, capsys):
     src = tmp_path / "in.npz"
     np.savez(src, poses=gappy(np.random.default_rng(7), 20))
     for extra, why in ((["--steps", "0"], "--steps"), (["--fps", "-5"], "--fps"), (["--overlap", "50"], "--overlap"),
-                       (["--lookahead", "45"], "--lookahead")):
+                       (["--lookahead", "45"], "--lookahead"),
+                       (["--samples", "0"], "num_samples")):   # the fill alone: the tiny model has no repair fill
         code, _, err = run([src, "-o", tmp_path / "o", "--model", tiny_model_dir, *extra], capsys)
         assert code == 2 and why in err, (extra, err)
     for flag, value in (("--units", "inch"), ("--sampler", "euler")):  # choices: argparse's usage error

@@ -88,10 +88,13 @@ def threads(value: Any) -> Optional[int]:
     return v
 
 
-def num_samples(value: Any, window: Optional[Tuple[int, int]] = None) -> int:
-    """A sample count kept for later calls, checked now with the engine's rules: at least 1, and with
-    ``window = (K, L)`` small enough for the samples of one sequence of that size to fit in memory."""
+def num_samples(value: Any, window: Optional[Tuple[int, int]] = None, *, fill_alone: bool = False) -> int:
+    """A sample count kept for later calls, checked now with the engine's rules: at least 1 (or 0 with
+    ``fill_alone``: a repair's, the repair fill alone), and with ``window = (K, L)`` small enough for the
+    samples of one sequence of that size to fit in memory."""
     v = machine_int("num_samples", value)
+    if fill_alone and v == 0:
+        return v
     _native.check_call_settings(num_samples=v, window=window)
     return v
 

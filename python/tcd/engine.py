@@ -156,9 +156,10 @@ def repair_raw(model: Denoiser, observed: ArrayLike, mask: ArrayLike, *, num_sam
                **sampler: Any) -> Dict[str, np.ndarray]:
     """Fills the mask-0 entries of an observation (B, K, O), O = ``model.obs_len``
     (``training.diffusion.repair``). Returns ``mean`` (B, K, O; observed entries exact) and ``samples``
-    (S, B, K, O). Noise: ``noise`` (S, n + 1, B, K, model.seq_len) ((S, 1, ...) for ``sampler="dpmpp2m"``)
-    or a ``seed`` (streams numbered as in :meth:`Denoiser.sample`). The sampler: its keywords, as in
-    :meth:`Denoiser.sample`.
+    (S, B, K, O); ``num_samples`` 0 returns the repair ``fill`` alone as ``mean`` (a model conditioned on it
+    only; no chain runs, ``samples`` (0, B, K, O)). Noise: ``noise`` (S, n + 1, B, K, model.seq_len)
+    ((S, 1, ...) for ``sampler="dpmpp2m"``) or a ``seed`` (streams numbered as in :meth:`Denoiser.sample`). The
+    sampler: its keywords, as in :meth:`Denoiser.sample`.
 
     ``fill``: the repair fill (a :class:`Prior` with ``anchor`` ``"window"`` over the model's window),
     required where the model is conditioned on it (``cond_fill`` ``"prior"``): before the chains the engine

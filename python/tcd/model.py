@@ -56,6 +56,10 @@ TEMPO_KEY = "forecast_tempo"
 #: ``"repair"`` the repair model (:meth:`TCD.repair`, the model fill of :meth:`TCD.predict`, :func:`tcd.repair_file`)
 SAMPLING_TASKS = ("forecast", "repair")
 
+#: the samples a repair averages when a call names none and the directory has no repair fill
+#: (:attr:`TCD.repair_samples`); with one, 0: the fill alone
+REPAIR_SAMPLES = 5
+
 #: how :meth:`TCD.predict` fills missing observation entries before the prior forecasts
 Fill = Literal["auto", "model", "spline", "linear"]
 FILLS: Tuple[str, ...] = get_args(Fill)
@@ -303,6 +307,15 @@ class TCD:
 
     # ------------------------------------------------------------------ description
     @property
+    def repair_samples(self) -> int:
+        """The ``num_samples`` of a repair (:meth:`repair`, :meth:`predict`'s model fill, :func:`tcd.repair_file`,
+        ``tcd repair``) whose call names none: 0, the repair fill alone, where the directory has a repair fill
+        (the bundled one does: on the repair benchmark its fill alone is below the mean of 5 samples around it
+        on every pattern and on 231-254 of 256 windows each, docs/repair.md "The fill alone"), else
+        :data:`REPAIR_SAMPLES` (5)."""
+        return 0 if self.repair_fill is not None else REPAIR_SAMPLES
+
+    @property
     def obs_len(self) -> int:
         """Observed frames a forecast conditions on (TCD: 50)."""
         return self.short.obs_len
@@ -431,7 +444,7 @@ class TCD:
                         repaired=p.repaired(out["repaired"]), seed=seed,
                         times=None if self.fps is None else np.arange(1, self.horizon + 1) / float(self.fps))
 
-    def repair(self, obs: ArrayLike, mask: Optional[ArrayLike] = None, *, num_samples: int = 5,
+    def repair(self, obs: ArrayLike, mask: Optional[ArrayLike] = None, *, num_samples: Optional[int] = None,
                seed: Optional[int] = None, units: Units = "m", threads: Optional[int] = None,
                progress: Progress = False, layout: Optional[str] = None, fps: Optional[float] = None,
                up: Up = "y", **sampler: Any) -> Repair:
@@ -442,8 +455,16 @@ class TCD:
         at most the model's window (:attr:`obs_len` frames, at the model's frame rate with ``layout`` / ``fps``; a
         shorter one is padded at the start with missing frames; longer ones: :func:`tcd.repair_file`).
 
+        ``num_samples=0`` returns the repair fill alone (``repair_fill.safetensors``, which the repair model
+        is conditioned on; an ``InvalidInputError`` naming ``num_samples`` for a directory without one): the
+        window the chains would start from, deterministic (the seed and sampler unused) and one forward of the
+        fill instead of the chains. On the repair benchmark the bundled fill alone is 5-7 % below the mean of
+        5 samples around it on every pattern (docs/repair.md, "The fill alone"), so it is the default where a
+        directory has a fill: ``num_samples=None`` is :attr:`repair_samples` (0 for the bundled model, else 5).
+
         Returns a :class:`Repair`: ``poses`` of the shape of ``obs`` (observed entries unchanged) and the
         ``seed`` used (drawn from ``os.urandom`` when ``seed`` is None): pass it back to reproduce."""
+        num_samples = self.repair_samples if num_samples is None else num_samples
         num_samples, sampling, units, threads = self._common("repair", num_samples, sampler, units, threads)
         seed = _seed(seed)
         model = self.repair_model if self.repair_model is not None else self.short
@@ -458,9 +479,9 @@ class TCD:
         return Repair(poses=p.repaired(out["mean"]), seed=seed)
 
     def predict(self, obs: ArrayLike, mask: Optional[ArrayLike] = None, *, fill: Fill = "auto",
-                num_samples: int = 5, seed: Optional[int] = None, units: Units = "m", threads: Optional[int] = None,
-                progress: Progress = False, layout: Optional[str] = None, fps: Optional[float] = None,
-                up: Up = "y", **sampler: Any) -> Forecast:
+                num_samples: Optional[int] = None, seed: Optional[int] = None, units: Units = "m",
+                threads: Optional[int] = None, progress: Progress = False, layout: Optional[str] = None,
+                fps: Optional[float] = None, up: Up = "y", **sampler: Any) -> Forecast:
         """The deterministic point forecast of the next :attr:`horizon` frames by the prior
         (``prior.safetensors``: a siMLPe-class network, one forward per 10 frames, no sampling), with the
         inputs and conventions of :meth:`forecast` (mask/NaN, units, batches, the length rule,
@@ -468,7 +489,8 @@ class TCD:
 
         An observation with missing entries is repaired first, the paper's repair-then-predict pipeline:
         ``fill="auto"`` (default) uses the repair model where the directory has one (its sampler: the
-        ``num_samples`` and ``seed`` arguments and the sampler keywords, as in :meth:`repair`) and the natural
+        ``num_samples`` (default :attr:`repair_samples`: the bundled model's fill alone) and ``seed`` arguments
+        and the sampler keywords, as in :meth:`repair`) and the natural
         cubic spline otherwise; ``"model"`` the repair model (the short-term model without one); ``"spline"`` or
         ``"linear"`` the fills of :func:`tcd.interpolate` (a joint never observed in the window cannot be
         filled that way: an error). A complete observation goes to the prior as given.
@@ -481,6 +503,7 @@ class TCD:
                                     "the prior forecaster (the bundled model has one; see MODEL_CARD.md).")
         if _checks.text("fill", fill, FILLS) not in FILLS:
             raise _checks.fail("fill", "one of " + ", ".join(repr(f) for f in FILLS), repr(fill))
+        num_samples = self.repair_samples if num_samples is None else num_samples
         num_samples, sampling, units, threads = self._common("repair", num_samples, sampler, units, threads)
         seed = _seed(seed)
         run = lambda observed, seen: self._predict_raw(observed, seen, fill=fill, num_samples=num_samples,  # noqa: E731

@@ -550,6 +550,7 @@ pub fn cascade(
 /// ([`prior_fill`]) the masked entries hold, computed once before the chains as the cascade does with
 /// the prior forecaster; `fill` is unused otherwise. `forecaster`: the prior forecaster, required where
 /// the fill fills whole-frame gaps with it (`gap_fill` [`GapFill::Forecaster`]), unused otherwise.
+/// `options.num_samples` 0 returns that fill alone, no samples ([`fill_alone`]).
 pub fn repair(
     model: &Denoiser,
     fill: Option<&Prior>,
@@ -578,6 +579,9 @@ pub fn repair(
     if let Some(f) = fill {
         fill_with_prior(f, gaps, &mut x, &m, batch, l, control)?;
     }
+    if s == 0 {
+        return fill_alone(fill.is_some(), &x, noise, [batch, k, o, l]);
+    }
     let job = validate_job(
         model,
         Observation::checked_by_construction(&x, &m, [batch, k, l]),
@@ -599,6 +603,42 @@ pub fn repair(
         obs_len: o,
         mean,
         samples,
+    })
+}
+
+/// A repair of no samples (`num_samples` 0): the repair fill alone, the window `x` (B, K, L) the chains would
+/// start from, over its first O frames; no chain runs, so the sampler and the seed are unused. The fill is
+/// deterministic and, on the repair benchmark, below the mean of 5 samples around it on every pattern
+/// (docs/repair.md, "The fill alone"): the diffusion adds more spread than its mean corrects. A model
+/// without a fill has nothing to return but its input, so 0 is an error for it.
+fn fill_alone(
+    has_fill: bool,
+    x: &[f32],
+    noise: Noise<'_>,
+    [batch, k, o, l]: [usize; 4],
+) -> Result<RepairOutput> {
+    if !has_fill {
+        return Err(Error::invalid_input(
+            "num_samples",
+            "at least 1 (0, the repair fill alone, needs a repair model conditioned on a repair fill, cond_fill \"prior\")",
+            "0",
+        ));
+    }
+    if let Noise::Injected(data) = noise {
+        crate::error::check_len(
+            "noise",
+            data.len(),
+            0,
+            "(0, n + 1, B, K, L): no samples, no noise",
+        )?;
+    }
+    Ok(RepairOutput {
+        batch,
+        num_features: k,
+        num_samples: 0,
+        obs_len: o,
+        mean: take_frames(x, l, 0, o),
+        samples: Vec::new(),
     })
 }
 

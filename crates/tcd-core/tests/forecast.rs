@@ -759,6 +759,83 @@ fn repair_with_a_fill_samples_the_model_on_the_filled_window() {
     }
 }
 
+#[test]
+fn repair_of_no_samples_is_the_fill_alone() {
+    // num_samples 0: the window the chains would start from (prior_fill's), over the observed frames, for any
+    // sampler and seed; no samples. Injected noise must then be empty, and a model without a fill refuses 0.
+    let mut cfg = tiny_config(Role::Repair, 8, 0);
+    cfg.model.cond_fill = tcd_core::CondFill::Prior;
+    cfg.model.target = tcd_core::Target::PriorResidual;
+    cfg.model.target_scale = 10.0;
+    let model = model_of(&cfg, 71);
+    let fill = tiny_repair_fill(6, 8, 72);
+    let (b, k, l) = (2usize, 6usize, 8usize);
+    let given = values(b * k * l, 75, 1.0);
+    let mask = binary_mask(b * k * l, 76, 0.6);
+    let observed = Observation::new(&given, &mask, [b, k, l]).unwrap();
+    let want = tcd_core::prior_fill(&fill, None, &observed, &Control::default()).unwrap();
+    for (sampler, noise) in [
+        (SamplerConfig::ddim(3, 1.0), Noise::seeded(5)),
+        (SamplerConfig::ddpm(), Noise::seeded(6)),
+        (SamplerConfig::ddim(3, 1.0), Noise::Injected(&[])),
+    ] {
+        let opts = ForecastOptions {
+            num_samples: 0,
+            sampler,
+        };
+        let r = repair(
+            &model,
+            Some(&fill),
+            None,
+            &observed,
+            &opts,
+            noise,
+            &Control::default(),
+        )
+        .unwrap();
+        assert_eq!(
+            (r.num_samples, r.samples.len(), r.batch, r.obs_len),
+            (0, 0, b, l)
+        );
+        assert_eq!(r.mean, want);
+        assert!((0..b * k * l).any(|i| mask[i] == 0.0 && r.mean[i] != given[i]));
+    }
+    let opts = ForecastOptions {
+        num_samples: 0,
+        sampler: SamplerConfig::ddim(3, 1.0),
+    };
+    let e = repair(
+        &model,
+        Some(&fill),
+        None,
+        &observed,
+        &opts,
+        Noise::Injected(&[0.0]),
+        &Control::default(),
+    )
+    .unwrap_err();
+    assert!(
+        matches!(&e, Error::InvalidInput { argument, .. } if argument == "noise"),
+        "{e}"
+    );
+    let plain = model_of(&tiny_config(Role::Repair, 8, 0), 77);
+    let e = repair(
+        &plain,
+        None,
+        None,
+        &observed,
+        &opts,
+        Noise::seeded(5),
+        &Control::default(),
+    )
+    .unwrap_err();
+    assert!(
+        matches!(&e, Error::InvalidInput { argument, .. } if argument == "num_samples"),
+        "{e}"
+    );
+    assert!(e.to_string().contains("repair fill"), "{e}");
+}
+
 /// The gap fill's steps written out once more, one gap and one side at a time (`benches/repair_learned_fills.py`'s
 /// `bidirectional_fill`): the history padded at its start, the forecast of n + 1 frames, its linear
 /// correction towards the far frame, the blend, the average with the fill there.

@@ -21,6 +21,9 @@ pub(crate) struct SamplingArgs<'py> {
     pub(crate) observed: PyReadonlyArrayDyn<'py, f32>,
     pub(crate) mask: PyReadonlyArrayDyn<'py, f32>,
     pub(crate) num_samples: i64,
+    /// Whether `num_samples` may be 0: a repair, whose 0 is its fill alone (the engine checks that the
+    /// model has one); sampling and forecasting need at least 1.
+    pub(crate) fill_alone: bool,
     pub(crate) options: SamplerOptions,
     pub(crate) seed: Option<i128>,
     pub(crate) first_sequence: i128,
@@ -91,7 +94,11 @@ impl<'py> SamplingArgs<'py> {
             .map(|(model, _, _)| *model)
             .ok_or_else(|| internal(py, "a sampling call without a model"))?;
         let k = first.num_features();
-        let s = positive("num_samples", self.num_samples)?;
+        let s = if self.fill_alone {
+            non_negative("num_samples", self.num_samples)?
+        } else {
+            positive("num_samples", self.num_samples)?
+        };
         let (b, frames) = observed.bkl("observed", k)?;
         if let Window::ObsLen(whose) = window {
             let obs_len = first.obs_len();

@@ -20,6 +20,12 @@ pub(crate) fn positive(argument: &str, value: i64) -> CoreResult<usize> {
         .ok_or_else(|| invalid(argument, "an integer of at least 1", value.to_string()))
 }
 
+/// As [`positive`], with 0 allowed.
+pub(crate) fn non_negative(argument: &str, value: i64) -> CoreResult<usize> {
+    usize::try_from(value)
+        .map_err(|_| invalid(argument, "an integer of at least 0", value.to_string()))
+}
+
 /// At most this many worker threads (a typo such as `threads=10**6` must not spawn a million).
 pub(crate) const MAX_THREADS: i64 = 1024;
 

@@ -116,6 +116,7 @@ model_methods! {
                 observed,
                 mask,
                 num_samples,
+                fill_alone: false,
                 options,
                 seed,
                 first_sequence,

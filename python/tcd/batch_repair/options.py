@@ -69,8 +69,15 @@ class RepairOptions:
                                    "resampled", repr(fps))
         overlap = _checks.integer("overlap", kw.get("overlap", DEFAULT_OVERLAP), 1, model.obs_len - 1)
         lookahead = _checks.integer("lookahead", kw.get("lookahead", DEFAULT_LOOKAHEAD), 0, model.obs_len - 1 - overlap)
+        n = kw.get("num_samples")
+        num_samples = _checks.num_samples(model.repair_samples if n is None else n,
+                                          window=(den.num_features, den.seq_len), fill_alone=True)
+        if num_samples == 0 and model._repair_fills(den)["fill"] is None:
+            # the engine would refuse it at the first window; refused here, before any file is read
+            raise _checks.fail("num_samples", "at least 1: 0 (the repair fill alone) needs a repair model conditioned "
+                               "on a repair fill (repair_fill.safetensors)", "0")
         return RepairOptions(
-            num_samples=_checks.num_samples(kw.get("num_samples", 5), window=(den.num_features, den.seq_len)),
+            num_samples=num_samples,
             sampling=sampling,
             seed=_checks.seed(DEFAULT_SEED if seed is None else seed),
             units=check_units(kw.get("units", "m")),

@@ -159,7 +159,7 @@ def run_tasks(model: Any, tasks: Iterable[Task], opts: RepairOptions, *, overwri
 
 
 # ---------------------------------------------------------------------------------------------- public API
-def repair_file(src: PathLike, dst: PathLike, model: Any = None, *, num_samples: int = 5,
+def repair_file(src: PathLike, dst: PathLike, model: Any = None, *, num_samples: Optional[int] = None,
                 seed: Optional[int] = DEFAULT_SEED, units: str = "m", fps: Optional[float] = None,
                 overlap: int = DEFAULT_OVERLAP, lookahead: int = DEFAULT_LOOKAHEAD, threads: Optional[int] = None,
                 overwrite: bool = False, layout: Optional[str] = None, up: str = "y",
@@ -176,6 +176,8 @@ def repair_file(src: PathLike, dst: PathLike, model: Any = None, *, num_samples:
         overlap: frames shared by consecutive windows (the conditioning on already repaired frames).
         lookahead: trailing frames of each window (but the last) left to the next window, which generates
             them again seeing the frames after them.
+        num_samples: samples averaged per window; ``None`` (default) the model's :attr:`tcd.TCD.repair_samples`
+            (0, the repair fill alone, for the bundled model).
         seed: the noise seed (default 0): the same seed gives the same output.
         units: ``"m"``, ``"cm"`` or ``"mm"``, the units of the poses (and of the output).
         layout, up: poses in another joint layout (:mod:`tcd.layouts`), in world or camera coordinates with

@@ -52,7 +52,10 @@ def add_parser(sub: Any) -> Any:
     rp.add_argument("--up", default="y", choices=("x", "y", "z", "-x", "-y", "-z"),
                     help="the vertical axis of the inputs' coordinates (default y)")
     add_sampler_flags(rp, tuning=False)
-    rp.add_argument("--samples", type=int, default=5, metavar="N", help="samples averaged per window (default 5)")
+    rp.add_argument("--samples", type=int, default=None, metavar="N",
+                    help="samples averaged per window; 0: the repair fill alone, deterministic, without the "
+                    "diffusion (docs/repair.md, \"The fill alone\"); default 0 where the model has a repair fill "
+                    "(the bundled one does), else 5")
     rp.add_argument("--seed", type=int, default=DEFAULT_SEED, metavar="S",
                     help=f"noise seed (default {DEFAULT_SEED}): the same seed gives the same outputs")
     rp.add_argument("--overlap", type=int, default=DEFAULT_OVERLAP, metavar="C",
