@@ -46,6 +46,7 @@ sys.path.insert(0, str(ROOT / "benches"))
 
 import repair_quality as rq  # noqa: E402
 import tcd  # noqa: E402
+from training import inbetween  # noqa: E402
 from training.data import h36m  # noqa: E402
 
 GAP = 10            # the benchmark's consecutive-frames block: round(0.2 * 50)
@@ -61,25 +62,16 @@ def gap_starts(mask: np.ndarray) -> np.ndarray:
 
 
 def features(fill: np.ndarray, starts: np.ndarray, context: int) -> np.ndarray:
-    """(B, (2 C + GAP) F + 2): the fill (B, T, F) over frames [s - C, s + GAP + C) (indices clamped to the window)
-    relative to its frame s - 1 (clamped), and the fractions of the C context frames inside the window each side."""
-    b, t, _ = fill.shape
-    idx = np.clip(starts[:, None] + np.arange(-context - 1, GAP + context)[None], 0, t - 1)
-    seg = np.take_along_axis(fill, idx[..., None], 1)
-    rel = seg[:, 1:] - seg[:, context:context + 1]                     # seg[:, context]: frame s - 1
-    side = np.stack([np.minimum(starts, context), np.minimum(t - GAP - starts, context)], 1) / context
-    return np.concatenate([rel.reshape(b, -1), side], 1)
+    """(B, (2 C + GAP) F + 2): ``training.inbetween.segment_features`` of the benchmark's gap: the fill (B, T, F)
+    over frames [s - C, s + GAP + C) (indices clamped to the window) relative to its frame s - 1 (clamped), and
+    the fractions of the C context frames inside the window each side."""
+    return inbetween.segment_features(fill, starts, GAP, context)
 
 
 def per_coordinate(x: np.ndarray, context: int) -> np.ndarray:
-    """``--shared``'s inputs: :func:`features` (B, (2 C + GAP) F + 2) as one row per window and coordinate
-    (B F, 3 (2 C + GAP) + 2): the coordinate's segment, the two context fractions, and the segment times each
-    fraction (so that the kernel can change where a side has no context)."""
-    b, seg = len(x), 2 * context + GAP
-    f = (x.shape[1] - 2) // seg
-    xs = x[:, :-2].reshape(b, seg, f).transpose(0, 2, 1).reshape(b * f, seg)
-    side = np.repeat(x[:, -2:], f, 0)
-    return np.concatenate([xs, side, xs * side[:, :1], xs * side[:, 1:]], 1)
+    """``--shared``'s inputs: :func:`features` as one row per window and coordinate (B F, 3 (2 C + GAP) + 2)
+    (``training.inbetween.per_coordinate``, the engine's in-betweener's inputs)."""
+    return inbetween.per_coordinate(x, GAP, context)
 
 
 def normal_equations(x: np.ndarray, y: np.ndarray, context: int, shared: bool, chunk: int = 4096):

@@ -45,7 +45,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import tcd  # noqa: E402
 from training import masks  # noqa: E402
-from training.data import h36m  # noqa: E402
+from training.data import h36m
+from training.data.h36m import random_windows as windows_from  # noqa: E402
 
 PATTERNS = (
     ("random leg + arm (40 %)", "random_leg_arm", 0.4),
@@ -59,17 +60,6 @@ SAVGOL_ORDER = 2
 def draw_windows(n: int, length: int, seed: int, data_dir: Path) -> np.ndarray:
     """(n, length, 22, 3) metres: seeded windows of the S5 test sequences (:func:`windows_from`)."""
     return windows_from([x for _, x in h36m.H36M(data_dir).sequences("test")], n, length, np.random.default_rng(seed))
-
-
-def windows_from(seqs: list, n: int, length: int, rng: np.random.Generator) -> np.ndarray:
-    """(n, length, ...) float32: ``n`` windows of ``seqs``, each a sequence, then a start, drawn uniformly from
-    ``rng``."""
-    out = []
-    for _ in range(n):
-        x = seqs[int(rng.integers(len(seqs)))]
-        s = int(rng.integers(0, len(x) - length + 1))
-        out.append(x[s:s + length])
-    return np.stack(out).astype(np.float32)
 
 
 def linear_fill(x: np.ndarray, m: np.ndarray) -> np.ndarray:

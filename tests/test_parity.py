@@ -565,6 +565,66 @@ def test_repair_around_a_gap_filling_repair_fill_every_kernel(gap_fill_repair_di
     assert ei.value.argument == "forecaster"
 
 
+@pytest.fixture(scope="module")
+def inbetween_repair_dir(gap_fill_repair_dir, tmp_path_factory):
+    """``gap_fill_repair_dir`` with an in-betweener in its repair fill: random kernels (N(0, 0.05)) for gaps of 1 to
+    15 frames with 4 context frames each side (``training.export.set_inbetween``)."""
+    import shutil
+
+    from training.export import set_inbetween
+    from training.inbetween import kernel_width, save_kernels
+    d = tmp_path_factory.mktemp("parity_inbetween") / "model"
+    shutil.copytree(gap_fill_repair_dir, d)
+    rng = np.random.default_rng(41)
+    kernels = {n: (0.05 * rng.standard_normal((n, kernel_width(n, 4)))).astype(np.float32) for n in range(1, 16)}
+    save_kernels(d / "kernels.npz", kernels, 4, {"random": True})
+    set_inbetween(d, d / "kernels.npz")
+    return d
+
+
+@pytest.mark.parametrize("kernel", ALL_KERNELS)
+def test_repair_fill_with_an_in_betweener_every_kernel(inbetween_repair_dir, kernel, monkeypatch):
+    """A gap-filling repair fill with an in-betweener (``training.inbetween``): the engine corrects each whole-frame
+    gap of a length it has a kernel for after the gap fill, as PyTorch does (``training.model.prior_fill``), on
+    each kernel path: in the fill (``tcd.engine.Prior.fill``), the fill alone (``num_samples=0``) and the repair
+    around it; only the gaps' frames change, and only gaps of at most 15 frames (all four here)."""
+    from training.export import load_prior_file
+    from training.model import prior_fill, whole_frame_gaps
+    d = inbetween_repair_dir
+    den = load_kernel(d / "repair.safetensors", kernel, monkeypatch)
+    fill = load_kernel(d / "repair_fill.safetensors", kernel, monkeypatch, cls=tcd.engine.Prior)
+    forecaster = load_kernel(d / "prior.safetensors", kernel, monkeypatch, cls=tcd.engine.Prior)
+    model, sched, _ = load_model_file(d / "repair.safetensors")
+    twin = load_prior_file(d / "repair_fill.safetensors")[0]
+    assert twin.cfg.inbetween_context == 4 and twin.cfg.inbetween_max_gap == 15
+    rng = np.random.default_rng(700 + ALL_KERNELS.index(kernel))
+    observed, mask = gap_observation(rng, den.num_features)
+    obs_t, mask_t = torch.from_numpy(observed), torch.from_numpy(mask)
+    want = prior_fill(twin, obs_t, mask_t).numpy()
+    twin.cfg.inbetween_max_gap, kernels = 0, twin.inbetween_kernels()
+    without = prior_fill(twin, obs_t, mask_t).numpy()                   # the same fill, no in-betweener
+    twin.cfg.inbetween_max_gap = 15
+    in_gap = np.zeros(mask.shape, bool)
+    for b, start, end in whole_frame_gaps(mask_t):
+        in_gap[b, :, start:end] = True
+    assert np.abs(want - without)[in_gap].min() > 0 and np.array_equal(want[~in_gap], without[~in_gap])
+    assert len(kernels) == 15
+    btk = lambda a: np.ascontiguousarray(a.transpose(0, 2, 1))  # noqa: E731
+    np.testing.assert_allclose(fill.fill(btk(observed), btk(mask), forecaster=forecaster), btk(want),
+                               rtol=0, atol=1e-5)
+    alone = tcd.engine.repair_raw(den, observed, mask, num_samples=0, seed=0, fill=fill, forecaster=forecaster)
+    np.testing.assert_allclose(alone["mean"], want, rtol=0, atol=1e-5)
+    assert alone["samples"].shape == (0, 3, den.num_features, OBS_LEN)
+    s, kw = 2, dict(sampler="ddim", num_inference_steps=1, timestep_spacing="trailing")
+    noise = rng.standard_normal((s, 2, 3, den.num_features, den.seq_len)).astype(np.float32)
+    got = tcd.engine.repair_raw(den, observed, mask, num_samples=s, noise=noise, fill=fill, forecaster=forecaster,
+                                **kw)["mean"]
+    model.attach_prior(twin)
+    ref = D.repair(model, sched, obs_t, mask_t, seq_len=den.seq_len, num_samples=s, noise=torch.from_numpy(noise),
+                   **kw).numpy()
+    assert chain_close(got, ref, f"repair around a fill with an in-betweener, {kernel}")
+
+
 def assert_repairs_as_the_engine(m, poses, **fills):
     """``TCD.repair`` of ``poses`` (T, 22, 3, NaN hidden) is ``tcd.engine.repair_raw`` of the directory's repair
     model given ``fills`` (its ``fill`` and ``forecaster`` keywords), bit for bit."""

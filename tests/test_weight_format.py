@@ -192,11 +192,12 @@ def test_engine_requires_what_the_schema_requires_of_a_prior(tmp_path):
         with pytest.raises(WeightsError) as e:
             tcd.engine.Prior.load(path)
         assert name.split(".")[-1] in str(e.value), (name, str(e.value))
-    # two fields default, and only to what every file before them was: anchor "last" (a forecaster) and gap_fill
-    # "none"; the golden file (a forecaster) leaves both out, and a value other than theirs is refused naming it
+    # four fields default, and only to what every file before them was: anchor "last" (a forecaster), gap_fill
+    # "none" and no in-betweener (0, 0); the golden file (a forecaster) leaves them out, and a value other than
+    # theirs is refused naming it
     defaults = [name for name, sub, req in schema_fields("prior") if not req and "default" in sub]
-    assert defaults == ["model.anchor", "model.gap_fill"]
-    assert not {"anchor", "gap_fill"} & set(golden["model"])
+    assert defaults == ["model.anchor", "model.gap_fill", "model.inbetween_context", "model.inbetween_max_gap"]
+    assert not {"anchor", "gap_fill", "inbetween_context", "inbetween_max_gap"} & set(golden["model"])
     p = tcd.engine.Prior.load(write_prior(tmp_path / "p.safetensors", golden))
     assert (p.anchor, p.gap_fill) == ("last", "none")
     for field, value in (("anchor", "first"), ("gap_fill", "linear")):
@@ -208,6 +209,11 @@ def test_engine_requires_what_the_schema_requires_of_a_prior(tmp_path):
     bad = json.loads(json.dumps(golden))
     bad["model"]["gap_fill"] = "forecaster"
     with pytest.raises(WeightsError, match="model.gap_fill"):
+        tcd.engine.Prior.load(write_prior(tmp_path / "bad.safetensors", bad))
+    # and so is an in-betweener (which needs a gap fill)
+    bad = json.loads(json.dumps(golden))
+    bad["model"].update(inbetween_context=2, inbetween_max_gap=3)
+    with pytest.raises(WeightsError, match="model.inbetween_max_gap"):
         tcd.engine.Prior.load(write_prior(tmp_path / "bad.safetensors", bad))
 
 

@@ -325,6 +325,9 @@ def build_prior_config(model, data: dict, training: dict | None = None) -> dict:
         m["anchor"] = model.cfg.anchor
     if model.cfg.gap_fill != "none":    # likewise every file written before gap_fill existed
         m["gap_fill"] = model.cfg.gap_fill
+    if model.cfg.inbetween_max_gap:     # and before the in-betweener
+        m["inbetween_context"] = model.cfg.inbetween_context
+        m["inbetween_max_gap"] = model.cfg.inbetween_max_gap
     return {"format_version": FORMAT_VERSION, "role": PRIOR_ROLE, "model": m,
             "data": data, "training": training or {}, "source_revision": source_revision()}
 
@@ -342,8 +345,10 @@ def load_prior_file(path: str | Path):
     if m["coords"] != 3 or m["num_features"] != 3 * m["num_joints"]:
         raise ValueError(f"{path}: PriorNet takes 3 coordinates per joint, got {m}")
     model = PriorNet(PriorConfig(obs_len=m["obs_len"], chunk=m["chunk"], blocks=m["blocks"],
-                                 anchor=m.get("anchor", "last"), gap_fill=m.get("gap_fill", "none")),
-                     joints=m["num_joints"])                                   # (files before anchor, gap_fill)
+                                 anchor=m.get("anchor", "last"), gap_fill=m.get("gap_fill", "none"),
+                                 inbetween_context=m.get("inbetween_context", 0),
+                                 inbetween_max_gap=m.get("inbetween_max_gap", 0)),
+                     joints=m["num_joints"])                       # (files before anchor, gap_fill, the in-betweener)
     for b in model.blocks:
         b.eps = float(m["layer_norm_eps"])
     model.load_state_dict(load_file(str(path)), strict=True)
@@ -387,23 +392,17 @@ def export_prior(ckpt_path: str | Path, out_dir: str | Path, description: str | 
     return save_prior(Path(out_dir) / name, model, training)
 
 
-def set_gap_fill(out_dir: str | Path, gap_fill: str) -> Path:
-    """Rewrites ``out_dir/repair_fill.safetensors`` with ``model.gap_fill`` set to ``gap_fill`` (``"none"``
-    removes the key, as in a file written before it existed); its weights and the rest of its config stay as
-    they are, and the run is recorded in its ``training`` block. The result is loaded strictly (with the
-    ``prior.safetensors`` beside it, for ``"forecaster"``) before it replaces the file."""
-    from .prior import GAP_FILLS
-    if gap_fill not in GAP_FILLS:
-        raise ValueError(f"gap_fill must be one of {list(GAP_FILLS)}, got {gap_fill!r}")
-    path = Path(out_dir) / REPAIR_FILL_FILE
+def _rewrite_repair_fill(out_dir: str | Path, edit, what: str) -> Path:
+    """Rewrites ``out_dir/repair_fill.safetensors`` with ``edit(cfg, tensors)`` applied to its config and tensors
+    (in place), the run recorded in its ``training`` block under ``what``; the result is loaded strictly (with the
+    ``prior.safetensors`` beside it, where its gap fill needs it) before it replaces the file."""
     from safetensors.torch import load_file
+    path = Path(out_dir) / REPAIR_FILL_FILE
     cfg, tensors = read_config(path), load_file(str(path))
     if cfg["model"].get("anchor") != "window":
         raise ValueError(f"{path}: not a repair fill (anchor \"window\")")
-    cfg["model"].pop("gap_fill", None)
-    if gap_fill != "none":
-        cfg["model"]["gap_fill"] = gap_fill
-    cfg.setdefault("training", {})["gap_fill_set"] = {"value": gap_fill, "source_revision": source_revision()}
+    record = edit(cfg, tensors)
+    cfg.setdefault("training", {})[what] = {**record, "source_revision": source_revision()}
     tmp = path.with_name(path.name + ".tmp")
     save_file(tensors, str(tmp), metadata={CONFIG_KEY: json.dumps(cfg)})
     try:
@@ -413,6 +412,48 @@ def set_gap_fill(out_dir: str | Path, gap_fill: str) -> Path:
         raise
     os.replace(tmp, path)
     return path
+
+
+def set_gap_fill(out_dir: str | Path, gap_fill: str) -> Path:
+    """Rewrites ``out_dir/repair_fill.safetensors`` with ``model.gap_fill`` set to ``gap_fill`` (``"none"``
+    removes the key, as in a file written before it existed); its weights and the rest of its config stay as
+    they are (:func:`_rewrite_repair_fill`)."""
+    from .prior import GAP_FILLS
+    if gap_fill not in GAP_FILLS:
+        raise ValueError(f"gap_fill must be one of {list(GAP_FILLS)}, got {gap_fill!r}")
+
+    def edit(cfg: dict, tensors: dict) -> dict:
+        cfg["model"].pop("gap_fill", None)
+        if gap_fill != "none":
+            cfg["model"]["gap_fill"] = gap_fill
+        return {"value": gap_fill}
+    return _rewrite_repair_fill(out_dir, edit, "gap_fill_set")
+
+
+def set_inbetween(out_dir: str | Path, kernels_path: str | Path | None) -> Path:
+    """Rewrites ``out_dir/repair_fill.safetensors`` with the in-betweener's kernels of ``kernels_path``
+    (``training.inbetween``'s file: ``inbetween_{n}`` for n = 1 .. max_gap, their context) and its config's
+    ``inbetween_context`` / ``inbetween_max_gap``; ``None`` removes them. The fill's own weights stay as they are."""
+    from .inbetween import kernel_width, load_kernels
+    kernels, context, meta = load_kernels(kernels_path) if kernels_path else ({}, 0, {})
+    if kernels and sorted(kernels) != list(range(1, max(kernels) + 1)):
+        raise ValueError(f"{kernels_path}: kernels for gaps of 1 .. n frames expected, got {sorted(kernels)}")
+    for n, w in kernels.items():
+        if w.shape != (n, kernel_width(n, context)):
+            raise ValueError(f"{kernels_path}: inbetween_{n} has shape {w.shape}, not "
+                             f"({n}, {kernel_width(n, context)})")
+
+    def edit(cfg: dict, tensors: dict) -> dict:
+        for k in [k for k in tensors if k.startswith("inbetween_")]:
+            del tensors[k]
+        cfg["model"].pop("inbetween_context", None)
+        cfg["model"].pop("inbetween_max_gap", None)
+        if kernels:
+            cfg["model"]["inbetween_context"], cfg["model"]["inbetween_max_gap"] = context, max(kernels)
+            tensors.update({f"inbetween_{n}": torch.tensor(w, dtype=torch.float32) for n, w in kernels.items()})
+        return {"kernels": str(kernels_path) if kernels_path else None, "max_gap": max(kernels, default=0),
+                "context": context, "fit": meta}
+    return _rewrite_repair_fill(out_dir, edit, "inbetween_set")
 
 
 def random_prior(blocks: int = 24, seed: int = 0, obs_len: int = 50, chunk: int = 10, joints: int = 22,
@@ -453,6 +494,9 @@ def main(argv=None) -> int:
     ap.add_argument("--gap-fill", choices=("none", "forecaster"), help="rewrites --out's repair_fill.safetensors "
                     "with this gap_fill (its weights as they are): \"forecaster\" fills whole-frame gaps from the "
                     "prior.safetensors beside it (docs/repair.md)")
+    ap.add_argument("--inbetween", metavar="KERNELS", help="rewrites --out's repair_fill.safetensors with the "
+                    "in-betweener's kernels (training.inbetween's .npz; \"none\" removes them), its weights as they "
+                    "are")
     ap.add_argument("--preset", choices=sorted(PRESETS), default="tiny", help="model size for --random-init")
     ap.add_argument("--dataset", choices=sorted(DATASET_WINDOWS), default="h36m",
                     help="--random-init: the dataset's joints and windows (humaneva: 14 joints, 15 -> 1 -> 60 frames)")
@@ -461,8 +505,9 @@ def main(argv=None) -> int:
     ap.add_argument("--description", help="free text recorded in each file's training metadata "
                     "(e.g. how the model was trained)")
     args = ap.parse_args(argv)
-    if sum(map(bool, (args.checkpoint, args.random_init, args.files, args.prior, args.gap_fill))) != 1:
-        ap.error("give exactly one of --checkpoint, --random-init, --files, --prior or --gap-fill")
+    if sum(map(bool, (args.checkpoint, args.random_init, args.files, args.prior, args.gap_fill,
+                      args.inbetween))) != 1:
+        ap.error("give exactly one of --checkpoint, --random-init, --files, --prior, --gap-fill or --inbetween")
     out = Path(args.out)
     if args.random_init:
         random_init_dir(out, args.preset, args.seed, dataset=args.dataset)
@@ -474,6 +519,10 @@ def main(argv=None) -> int:
         write_model_json(out)
     elif args.gap_fill:
         print(f"rewrote {set_gap_fill(out, args.gap_fill)} with gap_fill {args.gap_fill!r}")
+        write_model_json(out)
+    elif args.inbetween:
+        kernels = None if args.inbetween == "none" else args.inbetween
+        print(f"rewrote {set_inbetween(out, kernels)} with the in-betweener {kernels}")
         write_model_json(out)
     else:
         for ck in args.checkpoint:

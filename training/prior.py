@@ -99,6 +99,8 @@ class PriorConfig:
     mask_mix: tuple = ()             # anchor "window": the masks trained on (training.masks.mix_entry entries)
     gap_fill: str = "none"           # anchor "window": "forecaster" fills runs of wholly hidden frames from the
                                      # prior forecaster beside it (training.model.fill_gaps, attach_gap_forecaster)
+    inbetween_context: int = 0       # gap_fill "forecaster": the in-betweener's context frames (training.inbetween;
+    inbetween_max_gap: int = 0       # its kernels, fitted after training, for gaps of 1 .. inbetween_max_gap frames)
     window_loss: str = "pooled"      # anchor "window": "pooled", the mean error over every hidden joint of the
                                      # batch; "log_window", the mean over windows of the log of each window's
                                      # mean error (scale-free: a window hiding nearly everything, tens of mm
@@ -187,6 +189,12 @@ class PriorConfig:
         if self.gap_fill != "none" and self.anchor != "window":
             raise ValueError("prior config: gap_fill is for a repair fill (anchor \"window\"); a forecaster fills "
                              "no gaps")
+        if (self.inbetween_context > 0) != (self.inbetween_max_gap > 0) or min(self.inbetween_context,
+                                                                               self.inbetween_max_gap) < 0:
+            raise ValueError("prior config: inbetween_context and inbetween_max_gap are both 0 or both >= 1")
+        if self.inbetween_max_gap and (self.gap_fill != "forecaster" or self.inbetween_max_gap >= self.obs_len):
+            raise ValueError("prior config: the in-betweener corrects the gap fill (gap_fill \"forecaster\") of gaps "
+                             f"shorter than the window ({self.obs_len} frames)")
 
     @property
     def num_joints(self) -> int:
@@ -260,6 +268,13 @@ class PriorNet(nn.Module):
         self.fc_out = nn.Linear(K, K)
         nn.init.xavier_uniform_(self.fc_out.weight, gain=1e-8)  # the untrained network is Zero-Velocity
         nn.init.zeros_(self.fc_out.bias)
+        # the in-betweener's kernels (training.inbetween), fitted after training: in the state dict, not trained
+        for n in range(1, cfg.inbetween_max_gap + 1):
+            self.register_buffer(f"inbetween_{n}", torch.zeros(n, 3 * (2 * cfg.inbetween_context + n) + 2))
+
+    def inbetween_kernels(self) -> dict:
+        """{n: the n-frame gap's kernel (n, 3 (2 C + n) + 2) as a numpy array}; empty without an in-betweener."""
+        return {n: getattr(self, f"inbetween_{n}").numpy() for n in range(1, self.cfg.inbetween_max_gap + 1)}
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         """obs (B, obs_len, K) -> the next ``chunk`` frames (B, chunk, K); for anchor ``"window"`` the input

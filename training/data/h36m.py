@@ -200,6 +200,17 @@ class H36M:
         return np.stack(wins[:per_action]).astype(np.float64)
 
 
+def random_windows(seqs: list, n: int, length: int, rng: np.random.Generator) -> np.ndarray:
+    """(n, length, ...) float32: ``n`` windows of ``seqs``, each a sequence, then a start, drawn uniformly from
+    ``rng`` (the repair benchmark's draw, ``benches/repair_quality.py``, and the in-betweener's training windows)."""
+    out = []
+    for _ in range(n):
+        x = seqs[int(rng.integers(len(seqs)))]
+        s = int(rng.integers(0, len(x) - length + 1))
+        out.append(x[s:s + length])
+    return np.stack(out).astype(np.float32)
+
+
 def train_windows_index(seqs: list[np.ndarray], seq_len: int, stride: int = 1) -> np.ndarray:
     """(N, 2) array of (sequence index, start frame) for all windows of seq_len frames with the given stride."""
     idx = [(i, s) for i, seq in enumerate(seqs) for s in range(0, len(seq) - seq_len + 1, stride)]

@@ -32,7 +32,7 @@ use crate::control::Control;
 use crate::denoiser::{fill_spline, Denoiser};
 use crate::error::{Error, Result};
 use crate::observation::Observation;
-use crate::prior::{Anchor, GapFill, Prior};
+use crate::prior::{inbetween_width, Anchor, GapFill, Prior};
 use crate::rng::{stage, Noise, Sequences};
 use crate::sampler::{run_job, validate_job, SamplerConfig};
 
@@ -424,9 +424,55 @@ fn fill_with_prior(
             };
         }
     }
-    match gaps {
-        Some(f) => fill_gaps(f, values, mask, batch, length, control),
-        None => Ok(()),
+    if let Some(f) = gaps {
+        fill_gaps(f, values, mask, batch, length, control)?;
+        inbetween(prior, values, mask, batch, length);
+    }
+    Ok(())
+}
+
+/// Corrects the whole-frame gaps of a gap-filled (B, K, L) window in place with the repair fill's
+/// in-betweener, where it has a kernel for the gap's length (`training.inbetween.correct`, the same
+/// arithmetic in f64). For a gap [s, e) of n frames, kernel W (n × [`inbetween_width`]) and C context
+/// frames, each coordinate's inputs x are its fill over frames s − C .. e + C (indices clamped to the
+/// window) minus its frame s − 1 (clamped), the fractions of the C context frames inside the window
+/// before and after the gap, and the segment times each fraction; the gap's frames get W x added. Every
+/// input is read from the window before any correction is added. What it gains: docs/repair.md.
+fn inbetween(prior: &Prior, values: &mut [f32], mask: &[f32], batch: usize, length: usize) {
+    let c = prior.config().model.inbetween_context;
+    if c == 0 {
+        return;
+    }
+    let k = prior.num_features();
+    let src = values.to_vec();
+    let clamp = |t: isize| t.clamp(0, length as isize - 1) as usize;
+    for (b, s, e) in whole_frame_gaps(mask, batch, length) {
+        let n = e - s;
+        let Some(w) = prior.inbetween_kernel(n) else {
+            continue;
+        };
+        let (seg, d) = (2 * c + n, inbetween_width(n, c));
+        let before = s.min(c) as f64 / c as f64;
+        let after = (length - e).min(c) as f64 / c as f64;
+        let mut x = vec![0.0f64; d];
+        x[seg] = before;
+        x[seg + 1] = after;
+        for kk in 0..k {
+            let row = (b * k + kk) * length;
+            let at = |t: isize| f64::from(src[row + clamp(t)]);
+            let base = at(s as isize - 1);
+            for j in 0..seg {
+                let r = at(s as isize - c as isize + j as isize) - base;
+                x[j] = r;
+                x[seg + 2 + j] = r * before;
+                x[2 * seg + 2 + j] = r * after;
+            }
+            for (i, wi) in w.chunks_exact(d).enumerate() {
+                let correction: f64 = wi.iter().zip(&x).map(|(&a, &v)| f64::from(a) * v).sum();
+                let v = &mut values[row + s + i];
+                *v = (f64::from(*v) + correction) as f32;
+            }
+        }
     }
 }
 

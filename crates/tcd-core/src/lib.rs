@@ -51,7 +51,8 @@ pub use config::{
 };
 pub use denoiser::{Denoiser, Prepared, Workspace};
 pub use prior::{
-    dct_matrix, prior_expected_tensors, Anchor, GapFill, Prior, PriorConfig, PriorModelConfig,
+    dct_matrix, inbetween_width, prior_expected_tensors, Anchor, GapFill, Prior, PriorConfig,
+    PriorModelConfig,
 };
 pub use weights::{expected_tensors, Tensor, WeightFile, CONFIG_KEY};
 // Observations and what runs on them.

@@ -31,6 +31,8 @@ fn config() -> PriorConfig {
             layer_norm_eps: 1e-5,
             anchor: Anchor::Last,
             gap_fill: GapFill::None,
+            inbetween_context: 0,
+            inbetween_max_gap: 0,
         },
         data: DataConfig::default(),
     }
@@ -515,6 +517,35 @@ fn a_repair_fill_corrects_its_window_on_every_kernel() {
         Error::InvalidConfig { field, .. } => assert_eq!(field, "model.gap_fill"),
         e => panic!("{e:?}"),
     }
+    // an in-betweener (inbetween_context, inbetween_max_gap; kernels inbetween_1 ..) loads on a gap-filling
+    // fill, one kernel per gap length, and is written back; without the gap fill, with one of the two keys 0,
+    // or with a gap as long as the window it is refused naming the field, and a missing kernel is refused
+    let mut ib = g.config().clone();
+    (ib.model.inbetween_context, ib.model.inbetween_max_gap) = (2, 3);
+    let ib_t = tensors(&ib, 9);
+    let q = Prior::from_bytes(&bytes(&ib.to_json(), &ib_t), "repair_fill.safetensors").unwrap();
+    assert_eq!(
+        q.inbetween_kernel(3).map(<[f32]>::len),
+        Some(3 * tcd_core::inbetween_width(3, 2))
+    );
+    assert_eq!(tcd_core::inbetween_width(3, 2), 3 * 7 + 2);
+    assert!(q.inbetween_kernel(0).is_none() && q.inbetween_kernel(4).is_none());
+    assert!(q.config().to_json().contains("\"inbetween_max_gap\":3"));
+    for edit in [
+        (|v: &mut serde_json::Value| v["model"]["gap_fill"] = "none".into())
+            as fn(&mut serde_json::Value),
+        |v| v["model"]["inbetween_context"] = 0.into(),
+        |v| v["model"]["inbetween_max_gap"] = 12.into(),
+    ] {
+        match Prior::from_bytes(&bytes(&with(&ib, edit), &ib_t), "p.safetensors").unwrap_err() {
+            Error::InvalidConfig { field, .. } => assert_eq!(field, "model.inbetween_max_gap"),
+            e => panic!("{e:?}"),
+        }
+    }
+    let mut short = ib_t.clone();
+    short.remove("inbetween_2");
+    let e = Prior::from_bytes(&bytes(&ib.to_json(), &short), "p.safetensors").unwrap_err();
+    assert!(e.to_string().contains("inbetween_2"), "{e}");
     let unknown = with(&cfg, |v| v["model"]["gap_fill"] = "linear".into());
     let e = Prior::from_bytes(&bytes(&unknown, &t), "p.safetensors").unwrap_err();
     assert!(

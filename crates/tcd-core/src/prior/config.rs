@@ -34,6 +34,24 @@ pub struct PriorModelConfig {
     /// ([`GapFill::None`]) in every other file.
     #[serde(default, skip_serializing_if = "GapFill::is_none")]
     pub gap_fill: GapFill,
+    /// The in-betweener of a gap-filling repair fill (`training/inbetween.py`): its context frames each
+    /// side of a gap; 0 (absent) for none.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub inbetween_context: usize,
+    /// The longest whole-frame gap with an in-betweening kernel (`inbetween_{n}`, n = 1 ..= this); 0
+    /// (absent) for none.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub inbetween_max_gap: usize,
+}
+
+fn is_zero(v: &usize) -> bool {
+    *v == 0
+}
+
+/// The inputs of the in-betweening kernel of an n-frame gap with `context` frames each side:
+/// the segment (2 C + n), the two context fractions, the segment times each (`training.inbetween`).
+pub fn inbetween_width(n: usize, context: usize) -> usize {
+    3 * (2 * context + n) + 2
 }
 
 /// How a repair fill fills a window's whole-frame gaps: runs of frames with every entry hidden, where
@@ -156,6 +174,27 @@ impl PriorConfig {
                 "is for a repair fill (anchor \"window\"); a forecaster fills no gaps".to_string(),
             ));
         }
+        if (m.inbetween_context > 0) != (m.inbetween_max_gap > 0) {
+            return Err(bad(
+                "model.inbetween_max_gap",
+                format!(
+                    "and inbetween_context are both 0 or both at least 1, but are {} and {}",
+                    m.inbetween_max_gap, m.inbetween_context
+                ),
+            ));
+        }
+        if m.inbetween_max_gap > 0
+            && (m.gap_fill != GapFill::Forecaster || m.inbetween_max_gap >= m.obs_len)
+        {
+            return Err(bad(
+                "model.inbetween_max_gap",
+                format!(
+                    "is for a repair fill with gap_fill \"forecaster\" and gaps shorter than its window (obs_len = {}), \
+                     but is {} with gap_fill {:?}",
+                    m.obs_len, m.inbetween_max_gap, m.gap_fill
+                ),
+            ));
+        }
         checks.layer_norm_eps(m.layer_norm_eps)?;
         Ok(())
     }
@@ -183,5 +222,11 @@ pub fn prior_expected_tensors(m: &PriorModelConfig) -> Vec<(String, Vec<usize>)>
     }
     v.push(("fc_out.weight".into(), vec![k, k]));
     v.push(("fc_out.bias".into(), vec![k]));
+    for n in 1..=m.inbetween_max_gap {
+        v.push((
+            format!("inbetween_{n}"),
+            vec![n, inbetween_width(n, m.inbetween_context)],
+        ));
+    }
     v
 }

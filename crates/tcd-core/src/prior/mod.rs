@@ -45,7 +45,9 @@ use crate::weights::{read_file, read_weights, Tensor};
 pub mod config;
 mod forward;
 
-pub use config::{prior_expected_tensors, Anchor, GapFill, PriorConfig, PriorModelConfig};
+pub use config::{
+    inbetween_width, prior_expected_tensors, Anchor, GapFill, PriorConfig, PriorModelConfig,
+};
 use forward::Dense;
 
 /// One temporal block: FC over the L frames (DCT coefficients) of each coordinate, layer norm over
@@ -80,6 +82,9 @@ pub struct Prior {
     /// fc_out's bias through the inverse DCT: (chunk × K), `b_out[k] · Σ_f D[f, t]`.
     out_bias: Vec<f32>,
     eps: f32,
+    /// The in-betweening kernels of a gap-filling repair fill, gap length n at index n − 1:
+    /// (n × [`inbetween_width`]) row-major each; empty for none.
+    inbetween: Vec<Vec<f32>>,
 }
 
 /// The orthonormal DCT-II matrix (n × n, row-major; row k is the k-th cosine, its transpose the
@@ -158,6 +163,9 @@ impl Prior {
             out_bias.extend(b_out.iter().map(|&b| (b as f64 * through) as f32));
         }
         let eps = m.layer_norm_eps as f32;
+        let inbetween = (1..=m.inbetween_max_gap)
+            .map(|n| take(&format!("inbetween_{n}")))
+            .collect();
         let prior = Prior {
             path,
             config_json,
@@ -171,6 +179,7 @@ impl Prior {
             fc_out: Dense::new(fc_out),
             out_bias,
             eps,
+            inbetween,
             config,
         };
         prior.with_kernel(Kernel::from_env()?)
@@ -224,6 +233,13 @@ impl Prior {
     /// Frames one forward predicts.
     pub fn chunk(&self) -> usize {
         self.config.model.chunk
+    }
+    /// The in-betweening kernel of an n-frame gap ((n × [`inbetween_width`]) row-major, with the
+    /// context of `config().model.inbetween_context`), if the fill has one for that length.
+    pub fn inbetween_kernel(&self, n: usize) -> Option<&[f32]> {
+        n.checked_sub(1)
+            .and_then(|i| self.inbetween.get(i))
+            .map(Vec::as_slice)
     }
     /// The DCT matrix the model uses (obs_len × obs_len, row-major), for inspection.
     pub fn dct(&self) -> &[f32] {

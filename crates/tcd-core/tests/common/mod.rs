@@ -504,6 +504,8 @@ pub fn tiny_prior_anchored(
             layer_norm_eps: 1e-5,
             anchor,
             gap_fill,
+            inbetween_context: 0,
+            inbetween_max_gap: 0,
         },
         data: DataConfig::default(),
     };
