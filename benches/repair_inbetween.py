@@ -33,7 +33,6 @@ the engine.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -169,15 +168,11 @@ def main(argv=None) -> int:
         res[f"{name}_{lam:g}"] = scores(pred.reshape(gt.shape), gt, mask)
         print(f"{name} lambda {lam:g}: {res[f'{name}_{lam:g}']['ade_mm']:.2f} mm")
     if args.json:
-        out = {"protocol": {"task": "repair", "dataset": "h36m", "subject": "S5", "windows": 256,
-                            "window_frames": model.obs_len, "patterns": [list(rq.PATTERNS[PATTERN][1:])]},
-               "seeds": {"windows_masks_sampling": 0}, "model": str(model.path), "model_sha256": model.sha256,
-               "train_windows": args.train, "reverse": args.reverse, "context": args.context, "shared": args.shared,
-               "train_seed": args.seed,
-               "results": [res], "command": "python benches/repair_inbetween.py " + " ".join(
-                   sys.argv[1:] if argv is None else argv)}
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(out, indent=1))
+        rq.write_json(args.json, rq.repair_result(
+            [rq.PATTERNS[PATTERN][1:]], 256, model.obs_len, 0, [res], model=str(model.path),
+            model_sha256=model.sha256, train_windows=args.train, reverse=args.reverse, context=args.context,
+            shared=args.shared, train_seed=args.seed,
+            command="python benches/repair_inbetween.py " + " ".join(sys.argv[1:] if argv is None else argv)))
     return 0
 
 

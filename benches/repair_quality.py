@@ -131,6 +131,20 @@ def scores(pred: np.ndarray, gt: np.ndarray, m: np.ndarray, frames: int, seconds
             "fps": frames / seconds, "seconds": seconds}
 
 
+def repair_result(patterns: list, n_windows: int, frames: int, mask_seed: int, results: list, **fields) -> dict:
+    """A repair result's JSON: the protocol (``n_windows`` S5 windows of ``frames`` frames) and seeds blocks
+    ``training.compare`` checks before it pairs two runs (``patterns``: [name, rate] per entry of ``results``, in
+    order; ``mask_seed`` the windows', masks' and noise's), the results and the bench's other ``fields``."""
+    return {"protocol": {"task": "repair", "dataset": "h36m", "subject": "S5", "windows": n_windows,
+                         "window_frames": frames, "patterns": [list(p) for p in patterns]},
+            "seeds": {"windows_masks_sampling": mask_seed}, **fields, "results": results}
+
+
+def write_json(path, out: dict) -> None:
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    Path(path).write_text(json.dumps(out, indent=1) + "\n")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--model", default=None, help="model directory (default: the bundled model)")
@@ -192,14 +206,11 @@ def main(argv=None) -> int:
             print(f"| {r['pattern']} | {f:.1f} | {f / r['linear']['ade_mm']:.2f} | {f / r['spline']['ade_mm']:.2f} |")
     if args.json:
         # protocol and seeds: what training.compare checks before it pairs two runs window by window
-        out = {"protocol": {"task": "repair", "dataset": "h36m", "subject": "S5", "windows": args.windows,
-                            "window_frames": w, "patterns": [[p, r] for _, p, r in PATTERNS]},
-               "seeds": {"windows_masks_sampling": args.seed},
-               "model": str(model.path), "model_sha256": model.sha256, "tcd_version": tcd.__version__,
-               "windows": args.windows, "window_frames": w, "sampler": args.sampler, "steps": steps,
-               "samples": args.samples, "seed": args.seed, "jobs": args.jobs, "cores": os.cpu_count(),
-               "savgol": {"window": SAVGOL_WINDOW, "order": SAVGOL_ORDER}, "results": rows}
-        Path(args.json).write_text(json.dumps(out, indent=2) + "\n")
+        write_json(args.json, repair_result(
+            [[p, r] for _, p, r in PATTERNS], args.windows, w, args.seed, rows, model=str(model.path),
+            model_sha256=model.sha256, tcd_version=tcd.__version__, windows=args.windows, window_frames=w,
+            sampler=args.sampler, steps=steps, samples=args.samples, seed=args.seed, jobs=args.jobs,
+            cores=os.cpu_count(), savgol={"window": SAVGOL_WINDOW, "order": SAVGOL_ORDER}))
     return 0
 
 

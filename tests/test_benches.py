@@ -421,3 +421,16 @@ def test_repair_inbetween_shared_rows_are_one_coordinate_each():
     t = y.reshape(5, ib.GAP, f).transpose(0, 2, 1).reshape(-1, ib.GAP)
     np.testing.assert_allclose(xtx, rows.T @ rows)
     np.testing.assert_allclose(xty, rows.T @ t)
+
+
+def test_repair_gap_lengths_hides_n_whole_frames_per_window():
+    """benches/repair_gap_lengths.py: each window hides every joint of exactly n consecutive frames, inside the
+    window, starts seeded by (seed, n)."""
+    gl = load_bench("repair_gap_lengths")
+    for n in (1, 10, 49):
+        m = gl.gap_masks(64, 50, n, 0)
+        hidden = ~m.any(2)
+        assert (hidden.sum(1) == n).all() and ((~m).sum((1, 2)) == 22 * n).all()
+        runs = np.diff(np.concatenate([np.zeros((64, 1)), hidden, np.zeros((64, 1))], 1).astype(int), axis=1)
+        assert ((runs == 1).sum(1) == 1).all()                                 # one run each
+        assert np.array_equal(m, gl.gap_masks(64, 50, n, 0)) and not np.array_equal(m, gl.gap_masks(64, 50, n, 1))

@@ -35,8 +35,9 @@ def test_inputs_are_the_segment_the_fractions_and_their_products():
 
 
 def test_set_inbetween_round_trip(tmp_path):
-    """The kernels go into a copy of the bundled directory's repair fill (config keys and tensors, the fill's own
-    weights as they were; the engine loads it), wrong shapes are refused, and ``None`` takes them out again."""
+    """The kernels go into a copy of the bundled directory's repair fill in place of its own (config keys and
+    tensors, the fill's own weights as they were; the engine loads it), wrong shapes are refused, and ``None``
+    takes them out."""
     from safetensors.numpy import load_file
 
     from training.export import load_prior_file, set_inbetween
@@ -46,9 +47,11 @@ def test_set_inbetween_round_trip(tmp_path):
     d = tmp_path / "m"
     shutil.copytree(src, d)
     (d / "SHA256SUMS").unlink(missing_ok=True)
-    before = load_file(str(d / "repair_fill.safetensors"))
+    before = {k: v for k, v in load_file(str(d / "repair_fill.safetensors")).items()
+              if not k.startswith("inbetween_")}                   # the fill's own weights (the bundled has kernels)
     rng = np.random.default_rng(0)
-    kernels = {n: rng.standard_normal((n, ib.kernel_width(n, 3))).astype(np.float32) for n in (1, 2, 3)}
+    # Fortran-ordered, as a solve's transpose is: written contiguous all the same
+    kernels = {n: np.asfortranarray(rng.standard_normal((n, ib.kernel_width(n, 3))), np.float32) for n in (1, 2, 3)}
     ib.save_kernels(tmp_path / "k.npz", kernels, 3, {"test": True})
     set_inbetween(d, tmp_path / "k.npz")
     after = load_file(str(d / "repair_fill.safetensors"))

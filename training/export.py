@@ -450,7 +450,8 @@ def set_inbetween(out_dir: str | Path, kernels_path: str | Path | None) -> Path:
         cfg["model"].pop("inbetween_max_gap", None)
         if kernels:
             cfg["model"]["inbetween_context"], cfg["model"]["inbetween_max_gap"] = context, max(kernels)
-            tensors.update({f"inbetween_{n}": torch.tensor(w, dtype=torch.float32) for n, w in kernels.items()})
+            tensors.update({f"inbetween_{n}": torch.tensor(w, dtype=torch.float32).contiguous()
+                            for n, w in kernels.items()})
         return {"kernels": str(kernels_path) if kernels_path else None, "max_gap": max(kernels, default=0),
                 "context": context, "fit": meta}
     return _rewrite_repair_fill(out_dir, edit, "inbetween_set")

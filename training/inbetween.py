@@ -119,7 +119,7 @@ def fit(model, max_gap: int = MAX_GAP, windows: int = 20000, reverse: bool = Tru
     for n in range(1, max_gap + 1):
         t0 = time.time()
         xtx, xty = training_gaps(model, n, windows, reverse, context, rng, seqs)
-        out[n] = np.linalg.solve(xtx + lam * np.eye(len(xtx)), xty).T.astype(np.float32)
+        out[n] = np.ascontiguousarray(np.linalg.solve(xtx + lam * np.eye(len(xtx)), xty).T, dtype=np.float32)
         log(f"gap of {n} frames: kernel {out[n].shape} in {time.time() - t0:.0f} s")
     return out
 

@@ -709,17 +709,22 @@ fn prior_conditioned_models_need_a_fitting_prior_and_repair_only_with_a_fill() {
     assert!(e.to_string().contains("`observed`"), "{e}");
 }
 
+/// A repair model (K 6, 8 + 0 frames) conditioned on a fill (cond_fill "prior", the residual over it ×10)
+/// and a repair fill of its window.
+fn repair_model_and_fill() -> (Denoiser, tcd_core::Prior) {
+    let mut cfg = tiny_config(Role::Repair, 8, 0);
+    cfg.model.cond_fill = tcd_core::CondFill::Prior;
+    cfg.model.target = tcd_core::Target::PriorResidual;
+    cfg.model.target_scale = 10.0;
+    (model_of(&cfg, 71), tiny_repair_fill(6, 8, 72))
+}
+
 #[test]
 fn repair_with_a_fill_samples_the_model_on_the_filled_window() {
     // A repair model conditioned on a fill (cond_fill "prior", pred_len 0) and a repair fill of its window:
     // the repair is the model's sampling of the observation whose masked entries hold prior_fill's
     // correction of the spline (the same noise), observed entries exact.
-    let mut cfg = tiny_config(Role::Repair, 8, 0);
-    cfg.model.cond_fill = tcd_core::CondFill::Prior;
-    cfg.model.target = tcd_core::Target::PriorResidual;
-    cfg.model.target_scale = 10.0;
-    let model = model_of(&cfg, 71);
-    let fill = tiny_repair_fill(6, 8, 72);
+    let (model, fill) = repair_model_and_fill();
     let (b, k, l, s) = (2usize, 6usize, 8usize, 3usize);
     let given = values(b * k * l, 73, 1.0);
     let mask = binary_mask(b * k * l, 74, 0.6);
@@ -763,12 +768,7 @@ fn repair_with_a_fill_samples_the_model_on_the_filled_window() {
 fn repair_of_no_samples_is_the_fill_alone() {
     // num_samples 0: the window the chains would start from (prior_fill's), over the observed frames, for any
     // sampler and seed; no samples. Injected noise must then be empty, and a model without a fill refuses 0.
-    let mut cfg = tiny_config(Role::Repair, 8, 0);
-    cfg.model.cond_fill = tcd_core::CondFill::Prior;
-    cfg.model.target = tcd_core::Target::PriorResidual;
-    cfg.model.target_scale = 10.0;
-    let model = model_of(&cfg, 71);
-    let fill = tiny_repair_fill(6, 8, 72);
+    let (model, fill) = repair_model_and_fill();
     let (b, k, l) = (2usize, 6usize, 8usize);
     let given = values(b * k * l, 75, 1.0);
     let mask = binary_mask(b * k * l, 76, 0.6);
