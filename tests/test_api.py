@@ -414,8 +414,8 @@ def test_bundled_repair_model():
     assert np.isfinite(err_mm) and err_mm <= 0.75 * lin_mm, (err_mm, lin_mm)
 
     # num_samples=0: the repair fill alone, what the chains above started from (tcd.engine.Prior.fill with the
-    # prior forecaster filling the dropped frames, then the in-betweener), whatever the seed and sampler; measured
-    # 20.5 mm here (21.6 before the in-betweener; the mean of 5 samples above 21.2, 22.1 before)
+    # prior forecaster filling the dropped frames, then the two in-betweeners), whatever the seed and sampler;
+    # measured 20.5 mm here (21.6 before the in-betweeners; the mean of 5 samples above 21.1, 22.1 before)
     fill = m.repair(clip, mask, num_samples=0, seed=0).poses
     assert np.array_equal(m.repair(clip, mask, num_samples=0, seed=1, sampler="ddim", num_inference_steps=3).poses,
                           fill)

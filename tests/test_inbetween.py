@@ -83,3 +83,21 @@ def test_fit_gives_a_kernel_per_gap_length_that_an_overwhelming_penalty_zeroes()
     assert sorted(k) == [1, 2] and k[2].shape == (2, ib.kernel_width(2, ib.CONTEXT)) and np.abs(k[2]).max() > 1e-3
     k = ib.fit(m, max_gap=2, windows=8, lam=1e12, log=lambda _: None)
     assert max(np.abs(w).max() for w in k.values()) < 1e-6
+
+
+def test_joint_runs_are_a_coordinates_hidden_runs_outside_the_whole_frame_gaps():
+    """``joint_runs``: per window and coordinate, each run of hidden frames; not one that touches a whole-frame gap,
+    nor a coordinate hidden over the whole window; ``correct_runs`` changes those runs' entries only."""
+    mask = np.ones((2, 10, 3), np.float32)
+    mask[0, 2:4, 0] = 0                      # a run of 2 in coordinate 0
+    mask[0, 6, 1] = 0                        # a run of 1 in coordinate 1
+    mask[0, 5:8, :] = 0                      # a whole-frame gap 5-7: coordinate 1's run 5-7 lies in it
+    mask[1, :, 2] = 0                        # coordinate 2 of window 1 hidden throughout
+    mask[1, 9, 0] = 0                        # a run at the window's end
+    gaps = [(0, 5, 8)]
+    assert sorted(ib.joint_runs(mask, gaps)) == [(0, 0, 2, 4), (1, 0, 9, 10)]
+    fill = np.random.default_rng(1).standard_normal((2, 10, 3))
+    w = {1: np.ones((1, ib.kernel_width(1, 2))), 2: np.ones((2, ib.kernel_width(2, 2)))}
+    out = ib.correct_runs(fill, ib.joint_runs(mask, gaps), w, 2)
+    changed = out != fill
+    assert changed[0, 2:4, 0].all() and changed[1, 9, 0] and changed.sum() == 3

@@ -567,8 +567,9 @@ def test_repair_around_a_gap_filling_repair_fill_every_kernel(gap_fill_repair_di
 
 @pytest.fixture(scope="module")
 def inbetween_repair_dir(gap_fill_repair_dir, tmp_path_factory):
-    """``gap_fill_repair_dir`` with an in-betweener in its repair fill: random kernels (N(0, 0.05)) for gaps of 1 to
-    15 frames with 4 context frames each side (``training.export.set_inbetween``)."""
+    """``gap_fill_repair_dir`` with both in-betweeners in its repair fill (``training.export.set_inbetween``): random
+    kernels (N(0, 0.05)) for whole-frame gaps of 1 to 15 frames with 4 context frames each side, and for a
+    coordinate's runs of 1 to 3 hidden frames with 2."""
     import shutil
 
     from training.export import set_inbetween
@@ -579,15 +580,19 @@ def inbetween_repair_dir(gap_fill_repair_dir, tmp_path_factory):
     kernels = {n: (0.05 * rng.standard_normal((n, kernel_width(n, 4)))).astype(np.float32) for n in range(1, 16)}
     save_kernels(d / "kernels.npz", kernels, 4, {"random": True})
     set_inbetween(d, d / "kernels.npz")
+    joints = {n: (0.05 * rng.standard_normal((n, kernel_width(n, 2)))).astype(np.float32) for n in range(1, 4)}
+    save_kernels(d / "joint_kernels.npz", joints, 2, {"random": True})
+    set_inbetween(d, d / "joint_kernels.npz", "joint_inbetween")
     return d
 
 
 @pytest.mark.parametrize("kernel", ALL_KERNELS)
 def test_repair_fill_with_an_in_betweener_every_kernel(inbetween_repair_dir, kernel, monkeypatch):
-    """A gap-filling repair fill with an in-betweener (``training.inbetween``): the engine corrects each whole-frame
-    gap of a length it has a kernel for after the gap fill, as PyTorch does (``training.model.prior_fill``), on
-    each kernel path: in the fill (``tcd.engine.Prior.fill``), the fill alone (``num_samples=0``) and the repair
-    around it; only the gaps' frames change, and only gaps of at most 15 frames (all four here)."""
+    """A gap-filling repair fill with both in-betweeners (``training.inbetween``): the engine corrects each
+    whole-frame gap of a length it has a kernel for after the gap fill, and each run of a coordinate's hidden
+    frames outside them, as PyTorch does (``training.model.prior_fill``), on each kernel path: in the fill
+    (``tcd.engine.Prior.fill``), the fill alone (``num_samples=0``) and the repair around it; observed entries
+    never change, the gaps' frames and the short runs' do."""
     from training.export import load_prior_file
     from training.model import prior_fill, whole_frame_gaps
     d = inbetween_repair_dir
@@ -596,19 +601,21 @@ def test_repair_fill_with_an_in_betweener_every_kernel(inbetween_repair_dir, ker
     forecaster = load_kernel(d / "prior.safetensors", kernel, monkeypatch, cls=tcd.engine.Prior)
     model, sched, _ = load_model_file(d / "repair.safetensors")
     twin = load_prior_file(d / "repair_fill.safetensors")[0]
-    assert twin.cfg.inbetween_context == 4 and twin.cfg.inbetween_max_gap == 15
+    assert (twin.cfg.inbetween_context, twin.cfg.inbetween_max_gap) == (4, 15)
+    assert (twin.cfg.joint_inbetween_context, twin.cfg.joint_inbetween_max_gap) == (2, 3)
     rng = np.random.default_rng(700 + ALL_KERNELS.index(kernel))
     observed, mask = gap_observation(rng, den.num_features)
     obs_t, mask_t = torch.from_numpy(observed), torch.from_numpy(mask)
     want = prior_fill(twin, obs_t, mask_t).numpy()
-    twin.cfg.inbetween_max_gap, kernels = 0, twin.inbetween_kernels()
+    twin.cfg.inbetween_max_gap = twin.cfg.joint_inbetween_max_gap = 0
     without = prior_fill(twin, obs_t, mask_t).numpy()                   # the same fill, no in-betweener
-    twin.cfg.inbetween_max_gap = 15
+    twin.cfg.inbetween_max_gap, twin.cfg.joint_inbetween_max_gap = 15, 3
     in_gap = np.zeros(mask.shape, bool)
     for b, start, end in whole_frame_gaps(mask_t):
         in_gap[b, :, start:end] = True
-    assert np.abs(want - without)[in_gap].min() > 0 and np.array_equal(want[~in_gap], without[~in_gap])
-    assert len(kernels) == 15
+    changed = want != without
+    assert np.abs(want - without)[in_gap].min() > 0 and not changed[mask > 0.5].any()
+    assert changed[(mask <= 0.5) & ~in_gap].mean() > 0.3                 # many short runs of hidden entries
     btk = lambda a: np.ascontiguousarray(a.transpose(0, 2, 1))  # noqa: E731
     np.testing.assert_allclose(fill.fill(btk(observed), btk(mask), forecaster=forecaster), btk(want),
                                rtol=0, atol=1e-5)

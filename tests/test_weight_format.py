@@ -192,12 +192,14 @@ def test_engine_requires_what_the_schema_requires_of_a_prior(tmp_path):
         with pytest.raises(WeightsError) as e:
             tcd.engine.Prior.load(path)
         assert name.split(".")[-1] in str(e.value), (name, str(e.value))
-    # four fields default, and only to what every file before them was: anchor "last" (a forecaster), gap_fill
-    # "none" and no in-betweener (0, 0); the golden file (a forecaster) leaves them out, and a value other than
+    # six fields default, and only to what every file before them was: anchor "last" (a forecaster), gap_fill
+    # "none" and no in-betweeners (0, 0); the golden file (a forecaster) leaves them out, and a value other than
     # theirs is refused naming it
     defaults = [name for name, sub, req in schema_fields("prior") if not req and "default" in sub]
-    assert defaults == ["model.anchor", "model.gap_fill", "model.inbetween_context", "model.inbetween_max_gap"]
-    assert not {"anchor", "gap_fill", "inbetween_context", "inbetween_max_gap"} & set(golden["model"])
+    assert defaults == ["model.anchor", "model.gap_fill", "model.inbetween_context", "model.inbetween_max_gap",
+                        "model.joint_inbetween_context", "model.joint_inbetween_max_gap"]
+    assert not {"anchor", "gap_fill", "inbetween_context", "inbetween_max_gap", "joint_inbetween_context",
+                "joint_inbetween_max_gap"} & set(golden["model"])
     p = tcd.engine.Prior.load(write_prior(tmp_path / "p.safetensors", golden))
     assert (p.anchor, p.gap_fill) == ("last", "none")
     for field, value in (("anchor", "first"), ("gap_fill", "linear")):

@@ -325,9 +325,10 @@ def build_prior_config(model, data: dict, training: dict | None = None) -> dict:
         m["anchor"] = model.cfg.anchor
     if model.cfg.gap_fill != "none":    # likewise every file written before gap_fill existed
         m["gap_fill"] = model.cfg.gap_fill
-    if model.cfg.inbetween_max_gap:     # and before the in-betweener
-        m["inbetween_context"] = model.cfg.inbetween_context
-        m["inbetween_max_gap"] = model.cfg.inbetween_max_gap
+    for prefix in ("inbetween", "joint_inbetween"):     # and before the in-betweeners
+        if getattr(model.cfg, f"{prefix}_max_gap"):
+            m[f"{prefix}_context"] = getattr(model.cfg, f"{prefix}_context")
+            m[f"{prefix}_max_gap"] = getattr(model.cfg, f"{prefix}_max_gap")
     return {"format_version": FORMAT_VERSION, "role": PRIOR_ROLE, "model": m,
             "data": data, "training": training or {}, "source_revision": source_revision()}
 
@@ -346,8 +347,8 @@ def load_prior_file(path: str | Path):
         raise ValueError(f"{path}: PriorNet takes 3 coordinates per joint, got {m}")
     model = PriorNet(PriorConfig(obs_len=m["obs_len"], chunk=m["chunk"], blocks=m["blocks"],
                                  anchor=m.get("anchor", "last"), gap_fill=m.get("gap_fill", "none"),
-                                 inbetween_context=m.get("inbetween_context", 0),
-                                 inbetween_max_gap=m.get("inbetween_max_gap", 0)),
+                                 **{k: m.get(k, 0) for k in ("inbetween_context", "inbetween_max_gap",
+                                                             "joint_inbetween_context", "joint_inbetween_max_gap")}),
                      joints=m["num_joints"])                       # (files before anchor, gap_fill, the in-betweener)
     for b in model.blocks:
         b.eps = float(m["layer_norm_eps"])
@@ -430,10 +431,11 @@ def set_gap_fill(out_dir: str | Path, gap_fill: str) -> Path:
     return _rewrite_repair_fill(out_dir, edit, "gap_fill_set")
 
 
-def set_inbetween(out_dir: str | Path, kernels_path: str | Path | None) -> Path:
+def set_inbetween(out_dir: str | Path, kernels_path: str | Path | None, prefix: str = "inbetween") -> Path:
     """Rewrites ``out_dir/repair_fill.safetensors`` with the in-betweener's kernels of ``kernels_path``
-    (``training.inbetween``'s file: ``inbetween_{n}`` for n = 1 .. max_gap, their context) and its config's
-    ``inbetween_context`` / ``inbetween_max_gap``; ``None`` removes them. The fill's own weights stay as they are."""
+    (``training.inbetween``'s file: kernels for n = 1 .. max_gap, their context) as tensors ``{prefix}_{n}`` and its
+    config's ``{prefix}_context`` / ``{prefix}_max_gap`` (``prefix`` "inbetween", the whole-frame gaps', or
+    "joint_inbetween", the joint runs'); ``None`` removes them. The fill's own weights stay as they are."""
     from .inbetween import kernel_width, load_kernels
     kernels, context, meta = load_kernels(kernels_path) if kernels_path else ({}, 0, {})
     if kernels and sorted(kernels) != list(range(1, max(kernels) + 1)):
@@ -443,18 +445,21 @@ def set_inbetween(out_dir: str | Path, kernels_path: str | Path | None) -> Path:
             raise ValueError(f"{kernels_path}: inbetween_{n} has shape {w.shape}, not "
                              f"({n}, {kernel_width(n, context)})")
 
+    if prefix not in ("inbetween", "joint_inbetween"):
+        raise ValueError(f"prefix must be \"inbetween\" or \"joint_inbetween\", got {prefix!r}")
+
     def edit(cfg: dict, tensors: dict) -> dict:
-        for k in [k for k in tensors if k.startswith("inbetween_")]:
+        for k in [k for k in tensors if k.startswith(prefix + "_")]:
             del tensors[k]
-        cfg["model"].pop("inbetween_context", None)
-        cfg["model"].pop("inbetween_max_gap", None)
+        cfg["model"].pop(f"{prefix}_context", None)
+        cfg["model"].pop(f"{prefix}_max_gap", None)
         if kernels:
-            cfg["model"]["inbetween_context"], cfg["model"]["inbetween_max_gap"] = context, max(kernels)
-            tensors.update({f"inbetween_{n}": torch.tensor(w, dtype=torch.float32).contiguous()
+            cfg["model"][f"{prefix}_context"], cfg["model"][f"{prefix}_max_gap"] = context, max(kernels)
+            tensors.update({f"{prefix}_{n}": torch.tensor(w, dtype=torch.float32).contiguous()
                             for n, w in kernels.items()})
         return {"kernels": str(kernels_path) if kernels_path else None, "max_gap": max(kernels, default=0),
                 "context": context, "fit": meta}
-    return _rewrite_repair_fill(out_dir, edit, "inbetween_set")
+    return _rewrite_repair_fill(out_dir, edit, f"{prefix}_set")
 
 
 def random_prior(blocks: int = 24, seed: int = 0, obs_len: int = 50, chunk: int = 10, joints: int = 22,
@@ -498,6 +503,8 @@ def main(argv=None) -> int:
     ap.add_argument("--inbetween", metavar="KERNELS", help="rewrites --out's repair_fill.safetensors with the "
                     "in-betweener's kernels (training.inbetween's .npz; \"none\" removes them), its weights as they "
                     "are")
+    ap.add_argument("--joint-inbetween", metavar="KERNELS", help="the same for the joint in-betweener's kernels "
+                    "(training.inbetween --joints)")
     ap.add_argument("--preset", choices=sorted(PRESETS), default="tiny", help="model size for --random-init")
     ap.add_argument("--dataset", choices=sorted(DATASET_WINDOWS), default="h36m",
                     help="--random-init: the dataset's joints and windows (humaneva: 14 joints, 15 -> 1 -> 60 frames)")
@@ -507,8 +514,9 @@ def main(argv=None) -> int:
                     "(e.g. how the model was trained)")
     args = ap.parse_args(argv)
     if sum(map(bool, (args.checkpoint, args.random_init, args.files, args.prior, args.gap_fill,
-                      args.inbetween))) != 1:
-        ap.error("give exactly one of --checkpoint, --random-init, --files, --prior, --gap-fill or --inbetween")
+                      args.inbetween, args.joint_inbetween))) != 1:
+        ap.error("give exactly one of --checkpoint, --random-init, --files, --prior, --gap-fill, --inbetween or "
+                 "--joint-inbetween")
     out = Path(args.out)
     if args.random_init:
         random_init_dir(out, args.preset, args.seed, dataset=args.dataset)
@@ -521,9 +529,10 @@ def main(argv=None) -> int:
     elif args.gap_fill:
         print(f"rewrote {set_gap_fill(out, args.gap_fill)} with gap_fill {args.gap_fill!r}")
         write_model_json(out)
-    elif args.inbetween:
-        kernels = None if args.inbetween == "none" else args.inbetween
-        print(f"rewrote {set_inbetween(out, kernels)} with the in-betweener {kernels}")
+    elif args.inbetween or args.joint_inbetween:
+        prefix, given = ("inbetween", args.inbetween) if args.inbetween else ("joint_inbetween", args.joint_inbetween)
+        kernels = None if given == "none" else given
+        print(f"rewrote {set_inbetween(out, kernels, prefix)} with the {prefix.replace('_', ' ')}er {kernels}")
         write_model_json(out)
     else:
         for ck in args.checkpoint:

@@ -39,6 +39,10 @@ import numpy as np
 CONTEXT = 10
 #: the longest gap with a kernel; longer ones keep the gap fill alone
 MAX_GAP = 25
+#: the ridge penalty (benches/repair_inbetween.py's best for the shared kernel on 10-frame gaps)
+LAM = 100.0
+#: the joint in-betweener's (:func:`fit_joint_runs`): context, longest run, penalty
+JOINT_CONTEXT, JOINT_MAX_RUN, JOINT_LAM = 5, 20, 0.1
 
 
 def kernel_width(n: int, context: int) -> int:
@@ -82,6 +86,52 @@ def correct(fill: np.ndarray, gaps: list, kernels: dict, context: int) -> np.nda
     return out
 
 
+def joint_runs(mask: np.ndarray, gaps: list) -> list:
+    """The runs ``(b, f, s, e)`` of hidden frames [s, e) of each coordinate f of each window b of ``mask`` (B, T, F),
+    1 = observed, that hold no frame of a whole-frame gap of ``gaps`` (``training.model.whole_frame_gaps``'s
+    (b, s, e)) and are not the whole window: what the joint in-betweener corrects (a joint hidden while others
+    are seen)."""
+    hidden = np.asarray(mask) <= 0.5
+    in_gap = np.zeros(hidden.shape[:2], bool)
+    for b, s, e in gaps:
+        in_gap[b, s:e] = True
+    runs = []
+    for b, f in zip(*np.nonzero(hidden.any(1) & ~hidden.all(1))):
+        col = np.concatenate([[False], hidden[b, :, f], [False]]).astype(np.int8)
+        starts, ends = np.nonzero(np.diff(col) == 1)[0], np.nonzero(np.diff(col) == -1)[0]
+        runs += [(int(b), int(f), int(s), int(e)) for s, e in zip(starts, ends) if not in_gap[b, s:e].any()]
+    return runs
+
+
+def correct_runs(fill: np.ndarray, runs: list, kernels: dict, context: int) -> np.ndarray:
+    """``fill`` (B, T, F) with each run (b, f, s, e) of ``runs`` (:func:`joint_runs`) whose length has a kernel
+    (``kernels[n]``) corrected on its own coordinate; every correction read from ``fill`` as given."""
+    out = np.array(fill, dtype=np.float64, copy=True)
+    src = np.asarray(fill, dtype=np.float64)
+    for b, f, s, e in runs:
+        w = kernels.get(e - s)
+        if w is not None:
+            x = per_coordinate(segment_features(src[b:b + 1, :, f:f + 1], np.array([s]), e - s, context), e - s,
+                               context)                                                           # (1, D)
+            out[b, s:e, f] += (x @ np.asarray(w, np.float64).T)[0]
+    return out
+
+
+def correct_window(prior, fill: np.ndarray, mask: np.ndarray, gaps: list) -> np.ndarray:
+    """A repair fill's (``prior``, a ``training.prior.PriorNet``) in-betweeners on its gap-filled window ``fill``
+    (B, T, F) with ``mask`` (B, T, F): the whole-frame gaps ``gaps`` by :func:`correct`, the joint runs by
+    :func:`correct_runs`, both read from ``fill`` as given (the engine's order)."""
+    src = np.asarray(fill, dtype=np.float64)
+    out = src.copy()
+    cfg = prior.cfg
+    if cfg.inbetween_max_gap:
+        out += correct(src, gaps, prior.inbetween_kernels(), cfg.inbetween_context) - src
+    if cfg.joint_inbetween_max_gap:
+        out += correct_runs(src, joint_runs(mask, gaps), prior.inbetween_kernels("joint_inbetween"),
+                            cfg.joint_inbetween_context) - src
+    return out
+
+
 def training_gaps(model, n: int, windows: int, reverse: bool, context: int, rng: np.random.Generator,
                   seqs: list, batch: int = 2000):
     """(X'X, X'Y) of the ridge fit of the n-frame gap's kernel: ``windows`` training windows (and their time
@@ -109,7 +159,7 @@ def training_gaps(model, n: int, windows: int, reverse: bool, context: int, rng:
     return xtx, xty
 
 
-def fit(model, max_gap: int = MAX_GAP, windows: int = 20000, reverse: bool = True, lam: float = 100.0,
+def fit(model, max_gap: int = MAX_GAP, windows: int = 20000, reverse: bool = True, lam: float = LAM,
         context: int = CONTEXT, seed: int = 2, data_dir=None, log=print) -> dict:
     """{n: W_n float32 (n, 3 (2 C + n) + 2)} for n = 1 .. ``max_gap``, fitted for ``model``'s repair fill."""
     from training.data import h36m
@@ -122,6 +172,47 @@ def fit(model, max_gap: int = MAX_GAP, windows: int = 20000, reverse: bool = Tru
         out[n] = np.ascontiguousarray(np.linalg.solve(xtx + lam * np.eye(len(xtx)), xty).T, dtype=np.float32)
         log(f"gap of {n} frames: kernel {out[n].shape} in {time.time() - t0:.0f} s")
     return out
+
+
+def fit_joint_runs(model, max_run: int = JOINT_MAX_RUN, windows: int = 20000, lam: float = JOINT_LAM,
+                   context: int = JOINT_CONTEXT, seed: int = 3, data_dir=None, log=print, batch: int = 1000) -> dict:
+    """{n: W_n float32 (n, 3 (2 C + n) + 2)} for n = 1 .. ``max_run``: the joint in-betweener of ``model``'s repair
+    fill, fitted on ``windows`` training windows (and their time reversals), half with the ``random_joints`` mask
+    (10-40 %) and half with ``random_leg_arm`` (40 %) of ``training.masks`` (the fill's own training mix has both),
+    on every run of hidden frames of a coordinate (:func:`joint_runs`); a length without data gets zeros."""
+    from training import masks
+    from training.data import h36m
+    seqs = [x for _, x in h36m.H36M(data_dir or h36m.DEFAULT_H36M_DIR).sequences("train")]
+    rng = np.random.default_rng(seed)
+    t = model.obs_len
+    width = {n: kernel_width(n, context) for n in range(1, max_run + 1)}
+    xtx = {n: np.zeros((d, d)) for n, d in width.items()}
+    xty = {n: np.zeros((d, n)) for n, d in width.items()}
+    t0 = time.time()
+    for lo in range(0, windows, batch):
+        k = min(batch, windows - lo)
+        gt = h36m.random_windows(seqs, k, t, rng)
+        for g in (gt, gt[:, ::-1]):
+            m = np.stack([masks.make_mask("random_joints", t, t, rng, rate=(0.1, 0.4)) if i % 2 else
+                          masks.make_mask("random_leg_arm", t, t, rng, rate=0.4) for i in range(k)])
+            keep = np.repeat(m[..., None] > 0.5, 3, -1).reshape(k, t, -1)
+            g2 = g.reshape(k, t, -1).astype(np.float64)
+            filled = model.repair_fill.fill(np.ascontiguousarray(g2 * keep, np.float32), keep.astype(np.float32),
+                                            forecaster=model.prior).astype(np.float64)
+            runs = np.array(joint_runs(keep, []), dtype=np.int64).reshape(-1, 4)
+            for n in range(1, max_run + 1):
+                r = runs[runs[:, 3] - runs[:, 2] == n]
+                if not len(r):
+                    continue
+                rows = filled[r[:, 0], :, r[:, 1]][..., None]                                   # (R, T, 1)
+                x = per_coordinate(segment_features(rows, r[:, 2], n, context), n, context)
+                idx = r[:, 2:3] + np.arange(n)[None]
+                y = g2[r[:, 0][:, None], idx, r[:, 1][:, None]] - filled[r[:, 0][:, None], idx, r[:, 1][:, None]]
+                xtx[n] += x.T @ x
+                xty[n] += x.T @ y
+        log(f"{lo + k} of {windows} windows, {time.time() - t0:.0f} s")
+    return {n: np.ascontiguousarray(np.linalg.solve(xtx[n] + lam * np.eye(width[n]), xty[n]).T, dtype=np.float32)
+            for n in width}
 
 
 def save_kernels(path, kernels: dict, context: int, meta: dict) -> None:
@@ -141,13 +232,23 @@ def main(argv=None) -> int:
     ap.add_argument("--model", default=None, help="model directory with a repair fill (default: the bundled)")
     ap.add_argument("--out", required=True, help="the kernels (.npz), for training.export --inbetween")
     ap.add_argument("--windows", type=int, default=20000, help="training windows per gap length (default 20,000)")
-    ap.add_argument("--max-gap", type=int, default=MAX_GAP, help=f"longest gap with a kernel (default {MAX_GAP})")
-    ap.add_argument("--context", type=int, default=CONTEXT, help=f"context frames each side (default {CONTEXT})")
-    ap.add_argument("--lam", type=float, default=100.0, help="ridge penalty, on features in metres (default 100)")
+    ap.add_argument("--max-gap", type=int, default=None,
+                    help=f"longest gap with a kernel (default {MAX_GAP}; --joints: {JOINT_MAX_RUN})")
+    ap.add_argument("--context", type=int, default=None,
+                    help=f"context frames each side (default {CONTEXT}; --joints: {JOINT_CONTEXT})")
+    ap.add_argument("--lam", type=float, default=None,
+                    help=f"ridge penalty, on features in metres (default {LAM:g}; --joints: {JOINT_LAM:g})")
     ap.add_argument("--no-reverse", action="store_true", help="do not also fit on the windows time-reversed")
+    ap.add_argument("--joints", action="store_true",
+                    help="fit the joint in-betweener instead (runs of a hidden joint in seen frames; "
+                         "fit_joint_runs: --max-gap is the longest run, default context 5, lam 0.1)")
     ap.add_argument("--seed", type=int, default=2)
     ap.add_argument("--data-dir", default=None)
     args = ap.parse_args(argv)
+    for name, plain, joints in (("max_gap", MAX_GAP, JOINT_MAX_RUN), ("context", CONTEXT, JOINT_CONTEXT),
+                                ("lam", LAM, JOINT_LAM)):
+        if getattr(args, name) is None:
+            setattr(args, name, joints if args.joints else plain)
     import tcd
     model = tcd.load(args.model)
     if model.repair_fill is None or model.repair_fill.gap_fill != "forecaster":
@@ -155,8 +256,13 @@ def main(argv=None) -> int:
     if not 1 <= args.max_gap < model.obs_len or args.context < 1 or args.windows < 1 or args.lam < 0:
         ap.error(f"--max-gap must be in [1, {model.obs_len - 1}], --context and --windows >= 1, --lam >= 0")
     t0 = time.time()
-    kernels = fit(model, args.max_gap, args.windows, not args.no_reverse, args.lam, args.context, args.seed,
-                  args.data_dir, log=lambda m: print(m, file=sys.stderr, flush=True))
+    log = lambda m: print(m, file=sys.stderr, flush=True)  # noqa: E731
+    if args.joints:
+        kernels = fit_joint_runs(model, args.max_gap, args.windows, args.lam, args.context, args.seed,
+                                 args.data_dir, log=log)
+    else:
+        kernels = fit(model, args.max_gap, args.windows, not args.no_reverse, args.lam, args.context, args.seed,
+                      args.data_dir, log=log)
     meta = {"windows": args.windows, "reverse": not args.no_reverse, "lam": args.lam, "seed": args.seed,
             "fill_sha256": model.file_sha256.get("repair_fill.safetensors"), "seconds": time.time() - t0,
             "command": "python -m training.inbetween " + " ".join(sys.argv[1:] if argv is None else argv)}

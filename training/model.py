@@ -341,7 +341,8 @@ def prior_fill(prior: nn.Module, observed: torch.Tensor, mask: torch.Tensor) -> 
     observation in the short and the long model. A repair fill (``prior.cfg.anchor == "window"``, L =
     ``obs_len``) fills the masked entries with its correction of the spline over the whole window instead, and
     one with ``gap_fill == "forecaster"`` then the window's whole-frame gaps from its forecaster (:func:`fill_gaps`),
-    and one with an in-betweener (``inbetween_max_gap``) corrects them (``training.inbetween.correct``)."""
+    and one with an in-betweener (``inbetween_max_gap``) corrects them, one with a joint in-betweener
+    (``joint_inbetween_max_gap``) the runs of a coordinate hidden in seen frames (``training.inbetween``)."""
     if prior is None:
         raise ValueError("a cond_fill='prior' model needs its prior forecaster (TCDModel.attach_prior)")
     obs_len = prior.cfg.obs_len
@@ -359,11 +360,11 @@ def prior_fill(prior: nn.Module, observed: torch.Tensor, mask: torch.Tensor) -> 
                 raise ValueError("prior_fill: the repair fill fills whole-frame gaps with a forecaster (gap_fill "
                                  "\"forecaster\"): training.prior.attach_gap_forecaster")
             fill = fill_gaps(forecaster, fill, mask)
-            if prior.cfg.inbetween_max_gap:     # the in-betweener's correction of the gaps (training.inbetween)
-                from .inbetween import correct
-                corrected = correct(fill.transpose(1, 2).numpy(), whole_frame_gaps(mask), prior.inbetween_kernels(),
-                                    prior.cfg.inbetween_context)
-                fill = torch.from_numpy(corrected).transpose(1, 2).to(fill.dtype)
+        if prior.cfg.inbetween_max_gap or prior.cfg.joint_inbetween_max_gap:     # training.inbetween
+            from .inbetween import correct_window
+            corrected = correct_window(prior, fill.transpose(1, 2).numpy(), mask.transpose(1, 2).numpy(),
+                                       whole_frame_gaps(mask))
+            fill = torch.from_numpy(corrected).transpose(1, 2).to(fill.dtype)
         return fill
     if L <= obs_len:
         raise ValueError(f"prior_fill: the window has {L} frames, not more than the prior's {obs_len} observed ones")

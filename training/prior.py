@@ -101,6 +101,8 @@ class PriorConfig:
                                      # prior forecaster beside it (training.model.fill_gaps, attach_gap_forecaster)
     inbetween_context: int = 0       # gap_fill "forecaster": the in-betweener's context frames (training.inbetween;
     inbetween_max_gap: int = 0       # its kernels, fitted after training, for gaps of 1 .. inbetween_max_gap frames)
+    joint_inbetween_context: int = 0   # anchor "window": the joint in-betweener's (runs of one coordinate hidden
+    joint_inbetween_max_gap: int = 0   # in frames with others seen; training.inbetween.fit_joint_runs)
     window_loss: str = "pooled"      # anchor "window": "pooled", the mean error over every hidden joint of the
                                      # batch; "log_window", the mean over windows of the log of each window's
                                      # mean error (scale-free: a window hiding nearly everything, tens of mm
@@ -192,6 +194,13 @@ class PriorConfig:
         if (self.inbetween_context > 0) != (self.inbetween_max_gap > 0) or min(self.inbetween_context,
                                                                                self.inbetween_max_gap) < 0:
             raise ValueError("prior config: inbetween_context and inbetween_max_gap are both 0 or both >= 1")
+        if (self.joint_inbetween_context > 0) != (self.joint_inbetween_max_gap > 0) or min(
+                self.joint_inbetween_context, self.joint_inbetween_max_gap) < 0:
+            raise ValueError("prior config: joint_inbetween_context and joint_inbetween_max_gap are both 0 or both "
+                             ">= 1")
+        if self.joint_inbetween_max_gap and (self.anchor != "window" or self.joint_inbetween_max_gap >= self.obs_len):
+            raise ValueError("prior config: the joint in-betweener is a repair fill's (anchor \"window\"), for runs "
+                             f"shorter than the window ({self.obs_len} frames)")
         if self.inbetween_max_gap and (self.gap_fill != "forecaster" or self.inbetween_max_gap >= self.obs_len):
             raise ValueError("prior config: the in-betweener corrects the gap fill (gap_fill \"forecaster\") of gaps "
                              f"shorter than the window ({self.obs_len} frames)")
@@ -269,12 +278,16 @@ class PriorNet(nn.Module):
         nn.init.xavier_uniform_(self.fc_out.weight, gain=1e-8)  # the untrained network is Zero-Velocity
         nn.init.zeros_(self.fc_out.bias)
         # the in-betweener's kernels (training.inbetween), fitted after training: in the state dict, not trained
-        for n in range(1, cfg.inbetween_max_gap + 1):
-            self.register_buffer(f"inbetween_{n}", torch.zeros(n, 3 * (2 * cfg.inbetween_context + n) + 2))
+        for prefix, context, max_gap in (("inbetween", cfg.inbetween_context, cfg.inbetween_max_gap),
+                                         ("joint_inbetween", cfg.joint_inbetween_context, cfg.joint_inbetween_max_gap)):
+            for n in range(1, max_gap + 1):
+                self.register_buffer(f"{prefix}_{n}", torch.zeros(n, 3 * (2 * context + n) + 2))
 
-    def inbetween_kernels(self) -> dict:
-        """{n: the n-frame gap's kernel (n, 3 (2 C + n) + 2) as a numpy array}; empty without an in-betweener."""
-        return {n: getattr(self, f"inbetween_{n}").numpy() for n in range(1, self.cfg.inbetween_max_gap + 1)}
+    def inbetween_kernels(self, prefix: str = "inbetween") -> dict:
+        """{n: the kernel (n, 3 (2 C + n) + 2) of an n-frame gap (``prefix`` "inbetween") or run (``prefix``
+        "joint_inbetween") as a numpy array}; empty without that in-betweener."""
+        max_gap = getattr(self.cfg, f"{prefix}_max_gap")
+        return {n: getattr(self, f"{prefix}_{n}").numpy() for n in range(1, max_gap + 1)}
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         """obs (B, obs_len, K) -> the next ``chunk`` frames (B, chunk, K); for anchor ``"window"`` the input

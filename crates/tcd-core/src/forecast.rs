@@ -426,53 +426,95 @@ fn fill_with_prior(
     }
     if let Some(f) = gaps {
         fill_gaps(f, values, mask, batch, length, control)?;
+    }
+    if window {
         inbetween(prior, values, mask, batch, length);
     }
     Ok(())
 }
 
-/// Corrects the whole-frame gaps of a gap-filled (B, K, L) window in place with the repair fill's
-/// in-betweener, where it has a kernel for the gap's length (`training.inbetween.correct`, the same
-/// arithmetic in f64). For a gap [s, e) of n frames, kernel W (n × [`inbetween_width`]) and C context
-/// frames, each coordinate's inputs x are its fill over frames s − C .. e + C (indices clamped to the
-/// window) minus its frame s − 1 (clamped), the fractions of the C context frames inside the window
-/// before and after the gap, and the segment times each fraction; the gap's frames get W x added. Every
-/// input is read from the window before any correction is added. What it gains: docs/repair.md.
+/// A repair fill's in-betweeners on its gap-filled (B, K, L) window, in place (`training.inbetween`, the same
+/// arithmetic in f64; what they gain: docs/repair.md): the whole-frame gaps ([`whole_frame_gaps`]) of a length
+/// with a kernel (`inbetween_n`), every coordinate of the gap; then, per coordinate, each run of hidden frames
+/// with no frame of a whole-frame gap, not the whole window, of a length with a joint kernel
+/// (`joint_inbetween_n`). Every input is read from the window before any correction is added.
 fn inbetween(prior: &Prior, values: &mut [f32], mask: &[f32], batch: usize, length: usize) {
-    let c = prior.config().model.inbetween_context;
-    if c == 0 {
+    let m = &prior.config().model;
+    if m.inbetween_max_gap == 0 && m.joint_inbetween_max_gap == 0 {
         return;
     }
     let k = prior.num_features();
     let src = values.to_vec();
-    let clamp = |t: isize| t.clamp(0, length as isize - 1) as usize;
-    for (b, s, e) in whole_frame_gaps(mask, batch, length) {
-        let n = e - s;
-        let Some(w) = prior.inbetween_kernel(n) else {
-            continue;
-        };
-        let (seg, d) = (2 * c + n, inbetween_width(n, c));
-        let before = s.min(c) as f64 / c as f64;
-        let after = (length - e).min(c) as f64 / c as f64;
-        let mut x = vec![0.0f64; d];
-        x[seg] = before;
-        x[seg + 1] = after;
-        for kk in 0..k {
-            let row = (b * k + kk) * length;
-            let at = |t: isize| f64::from(src[row + clamp(t)]);
-            let base = at(s as isize - 1);
-            for j in 0..seg {
-                let r = at(s as isize - c as isize + j as isize) - base;
-                x[j] = r;
-                x[seg + 2 + j] = r * before;
-                x[2 * seg + 2 + j] = r * after;
-            }
-            for (i, wi) in w.chunks_exact(d).enumerate() {
-                let correction: f64 = wi.iter().zip(&x).map(|(&a, &v)| f64::from(a) * v).sum();
-                let v = &mut values[row + s + i];
-                *v = (f64::from(*v) + correction) as f32;
+    let gaps = whole_frame_gaps(mask, batch, length);
+    for &(b, s, e) in &gaps {
+        if let Some(w) = prior.inbetween_kernel(e - s) {
+            for kk in 0..k {
+                let row = (b * k + kk) * length;
+                let out = &mut values[row..row + length];
+                run_correction(&src[row..row + length], out, (s, e), m.inbetween_context, w);
             }
         }
+    }
+    if m.joint_inbetween_max_gap == 0 {
+        return;
+    }
+    let mut in_gap = vec![false; batch * length];
+    for &(b, s, e) in &gaps {
+        in_gap[b * length + s..b * length + e].fill(true);
+    }
+    for (r, m_row) in mask.chunks_exact(length).enumerate() {
+        let (b, row) = (r / k, r * length);
+        let mut t = 0;
+        while t < length {
+            if m_row[t] > 0.5 {
+                t += 1;
+                continue;
+            }
+            let s = t;
+            while t < length && m_row[t] <= 0.5 {
+                t += 1;
+            }
+            let whole = s == 0 && t == length;
+            if whole || in_gap[b * length + s..b * length + t].iter().any(|&g| g) {
+                continue;
+            }
+            if let Some(w) = prior.joint_inbetween_kernel(t - s) {
+                let out = &mut values[row..row + length];
+                run_correction(
+                    &src[row..row + length],
+                    out,
+                    (s, t),
+                    m.joint_inbetween_context,
+                    w,
+                );
+            }
+        }
+    }
+}
+
+/// One row's correction over its frames [s, e) (n = e − s) by kernel `w` (n × [`inbetween_width`]) with
+/// `c` context frames: the inputs are the row of `src` over frames s − c .. e + c (indices clamped to the
+/// row) minus its frame s − 1 (clamped), the fractions of the c context frames inside the row before and
+/// after, and that segment times each fraction; `out`[s + i] gets w_i · inputs added (f64 sums).
+fn run_correction(src: &[f32], out: &mut [f32], (s, e): (usize, usize), c: usize, w: &[f32]) {
+    let (length, n) = (src.len(), e - s);
+    let (seg, d) = (2 * c + n, inbetween_width(n, c));
+    let at = |t: isize| f64::from(src[t.clamp(0, length as isize - 1) as usize]);
+    let before = s.min(c) as f64 / c as f64;
+    let after = (length - e).min(c) as f64 / c as f64;
+    let base = at(s as isize - 1);
+    let mut x = vec![0.0f64; d];
+    x[seg] = before;
+    x[seg + 1] = after;
+    for j in 0..seg {
+        let r = at(s as isize - c as isize + j as isize) - base;
+        x[j] = r;
+        x[seg + 2 + j] = r * before;
+        x[2 * seg + 2 + j] = r * after;
+    }
+    for (i, wi) in w.chunks_exact(d).enumerate() {
+        let correction: f64 = wi.iter().zip(&x).map(|(&a, &v)| f64::from(a) * v).sum();
+        out[s + i] = (f64::from(out[s + i]) + correction) as f32;
     }
 }
 

@@ -33,6 +33,8 @@ fn config() -> PriorConfig {
             gap_fill: GapFill::None,
             inbetween_context: 0,
             inbetween_max_gap: 0,
+            joint_inbetween_context: 0,
+            joint_inbetween_max_gap: 0,
         },
         data: DataConfig::default(),
     }
@@ -539,6 +541,30 @@ fn a_repair_fill_corrects_its_window_on_every_kernel() {
     ] {
         match Prior::from_bytes(&bytes(&with(&ib, edit), &ib_t), "p.safetensors").unwrap_err() {
             Error::InvalidConfig { field, .. } => assert_eq!(field, "model.inbetween_max_gap"),
+            e => panic!("{e:?}"),
+        }
+    }
+    // the joint in-betweener (joint_inbetween_context, joint_inbetween_max_gap; joint_inbetween_1 ..) loads on
+    // any repair fill and is refused on a forecaster or without its context
+    let mut jb = p.config().clone();
+    (
+        jb.model.joint_inbetween_context,
+        jb.model.joint_inbetween_max_gap,
+    ) = (3, 2);
+    let jb_t = tensors(&jb, 10);
+    let j = Prior::from_bytes(&bytes(&jb.to_json(), &jb_t), "repair_fill.safetensors").unwrap();
+    assert_eq!(
+        j.joint_inbetween_kernel(2).map(<[f32]>::len),
+        Some(2 * tcd_core::inbetween_width(2, 3))
+    );
+    assert!(j.inbetween_kernel(1).is_none() && j.joint_inbetween_kernel(3).is_none());
+    for edit in [
+        (|v: &mut serde_json::Value| v["model"]["anchor"] = "last".into())
+            as fn(&mut serde_json::Value),
+        |v| v["model"]["joint_inbetween_context"] = 0.into(),
+    ] {
+        match Prior::from_bytes(&bytes(&with(&jb, edit), &jb_t), "p.safetensors").unwrap_err() {
+            Error::InvalidConfig { field, .. } => assert!(field.starts_with("model."), "{field}"),
             e => panic!("{e:?}"),
         }
     }

@@ -42,6 +42,13 @@ pub struct PriorModelConfig {
     /// (absent) for none.
     #[serde(default, skip_serializing_if = "is_zero")]
     pub inbetween_max_gap: usize,
+    /// The joint in-betweener of a repair fill (`training/inbetween.py`, `fit_joint_runs`): its context
+    /// frames each side of a run of one coordinate hidden in frames where others are seen; 0 for none.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub joint_inbetween_context: usize,
+    /// The longest such run with a kernel (`joint_inbetween_{n}`, n = 1 ..= this); 0 for none.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub joint_inbetween_max_gap: usize,
 }
 
 fn is_zero(v: &usize) -> bool {
@@ -174,26 +181,43 @@ impl PriorConfig {
                 "is for a repair fill (anchor \"window\"); a forecaster fills no gaps".to_string(),
             ));
         }
-        if (m.inbetween_context > 0) != (m.inbetween_max_gap > 0) {
-            return Err(bad(
-                "model.inbetween_max_gap",
+        // The two in-betweeners (training/inbetween.py): each a context and a longest gap, both 0 or both at
+        // least 1, the gap shorter than the window, on the fills they are for.
+        for (name, context, max_gap, fits, what) in [
+            (
+                "inbetween",
+                m.inbetween_context,
+                m.inbetween_max_gap,
+                m.gap_fill == GapFill::Forecaster,
                 format!(
-                    "and inbetween_context are both 0 or both at least 1, but are {} and {}",
-                    m.inbetween_max_gap, m.inbetween_context
+                    "a repair fill with gap_fill \"forecaster\" (gap_fill {:?})",
+                    m.gap_fill
                 ),
-            ));
-        }
-        if m.inbetween_max_gap > 0
-            && (m.gap_fill != GapFill::Forecaster || m.inbetween_max_gap >= m.obs_len)
-        {
-            return Err(bad(
-                "model.inbetween_max_gap",
-                format!(
-                    "is for a repair fill with gap_fill \"forecaster\" and gaps shorter than its window (obs_len = {}), \
-                     but is {} with gap_fill {:?}",
-                    m.obs_len, m.inbetween_max_gap, m.gap_fill
-                ),
-            ));
+            ),
+            (
+                "joint_inbetween",
+                m.joint_inbetween_context,
+                m.joint_inbetween_max_gap,
+                m.anchor == Anchor::Window,
+                format!("a repair fill (anchor \"window\"; anchor {:?})", m.anchor),
+            ),
+        ] {
+            let field = format!("model.{name}_max_gap");
+            if (context > 0) != (max_gap > 0) {
+                return Err(bad(
+                    &field,
+                    format!("and {name}_context are both 0 or both at least 1, but are {max_gap} and {context}"),
+                ));
+            }
+            if max_gap > 0 && (!fits || max_gap >= m.obs_len) {
+                return Err(bad(
+                    &field,
+                    format!(
+                        "is for {what}, with runs shorter than its window (obs_len = {}), but is {max_gap}",
+                        m.obs_len
+                    ),
+                ));
+            }
         }
         checks.layer_norm_eps(m.layer_norm_eps)?;
         Ok(())
@@ -222,11 +246,20 @@ pub fn prior_expected_tensors(m: &PriorModelConfig) -> Vec<(String, Vec<usize>)>
     }
     v.push(("fc_out.weight".into(), vec![k, k]));
     v.push(("fc_out.bias".into(), vec![k]));
-    for n in 1..=m.inbetween_max_gap {
-        v.push((
-            format!("inbetween_{n}"),
-            vec![n, inbetween_width(n, m.inbetween_context)],
-        ));
+    for (prefix, context, max_gap) in [
+        ("inbetween", m.inbetween_context, m.inbetween_max_gap),
+        (
+            "joint_inbetween",
+            m.joint_inbetween_context,
+            m.joint_inbetween_max_gap,
+        ),
+    ] {
+        for n in 1..=max_gap {
+            v.push((
+                format!("{prefix}_{n}"),
+                vec![n, inbetween_width(n, context)],
+            ));
+        }
     }
     v
 }

@@ -85,6 +85,8 @@ pub struct Prior {
     /// The in-betweening kernels of a gap-filling repair fill, gap length n at index n − 1:
     /// (n × [`inbetween_width`]) row-major each; empty for none.
     inbetween: Vec<Vec<f32>>,
+    /// The joint in-betweener's kernels (runs of one coordinate), the same layout; empty for none.
+    joint_inbetween: Vec<Vec<f32>>,
 }
 
 /// The orthonormal DCT-II matrix (n × n, row-major; row k is the k-th cosine, its transpose the
@@ -166,6 +168,9 @@ impl Prior {
         let inbetween = (1..=m.inbetween_max_gap)
             .map(|n| take(&format!("inbetween_{n}")))
             .collect();
+        let joint_inbetween = (1..=m.joint_inbetween_max_gap)
+            .map(|n| take(&format!("joint_inbetween_{n}")))
+            .collect();
         let prior = Prior {
             path,
             config_json,
@@ -180,6 +185,7 @@ impl Prior {
             out_bias,
             eps,
             inbetween,
+            joint_inbetween,
             config,
         };
         prior.with_kernel(Kernel::from_env()?)
@@ -239,6 +245,13 @@ impl Prior {
     pub fn inbetween_kernel(&self, n: usize) -> Option<&[f32]> {
         n.checked_sub(1)
             .and_then(|i| self.inbetween.get(i))
+            .map(Vec::as_slice)
+    }
+    /// The joint in-betweener's kernel of an n-frame run of one coordinate (context
+    /// `config().model.joint_inbetween_context`), if the fill has one for that length.
+    pub fn joint_inbetween_kernel(&self, n: usize) -> Option<&[f32]> {
+        n.checked_sub(1)
+            .and_then(|i| self.joint_inbetween.get(i))
             .map(Vec::as_slice)
     }
     /// The DCT matrix the model uses (obs_len × obs_len, row-major), for inspection.

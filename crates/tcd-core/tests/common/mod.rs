@@ -506,6 +506,8 @@ pub fn tiny_prior_anchored(
             gap_fill,
             inbetween_context: 0,
             inbetween_max_gap: 0,
+            joint_inbetween_context: 0,
+            joint_inbetween_max_gap: 0,
         },
         data: DataConfig::default(),
     };
