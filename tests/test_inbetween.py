@@ -53,7 +53,9 @@ def test_set_inbetween_round_trip(tmp_path):
     # Fortran-ordered, as a solve's transpose is: written contiguous all the same
     kernels = {n: np.asfortranarray(rng.standard_normal((n, ib.kernel_width(n, 3))), np.float32) for n in (1, 2, 3)}
     ib.save_kernels(tmp_path / "k.npz", kernels, 3, {"test": True})
+    (d / "repair_fill.safetensors").chmod(0o644)
     set_inbetween(d, tmp_path / "k.npz")
+    assert (d / "repair_fill.safetensors").stat().st_mode & 0o777 == 0o644      # the file keeps its mode
     after = load_file(str(d / "repair_fill.safetensors"))
     assert set(after) == set(before) | {"inbetween_1", "inbetween_2", "inbetween_3"}
     assert all(np.array_equal(after[k], before[k]) for k in before)

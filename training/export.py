@@ -411,6 +411,7 @@ def _rewrite_repair_fill(out_dir: str | Path, edit, what: str) -> Path:
     except Exception:
         tmp.unlink()
         raise
+    os.chmod(tmp, path.stat().st_mode & 0o777)      # the file's own mode (the writer's temporary one is 0600)
     os.replace(tmp, path)
     return path
 

@@ -38,7 +38,7 @@ class BadFile(Exception):
 class RepairOptions:
     """Validated settings of a repair run (see :func:`repair_file`)."""
 
-    num_samples: int = 5
+    num_samples: int                # the model's TCD.repair_samples when a call names none (make resolves it)
     sampling: SamplerOptions = SamplerOptions()
     seed: int = DEFAULT_SEED
     units: str = "m"
