@@ -438,16 +438,15 @@ def set_inbetween(out_dir: str | Path, kernels_path: str | Path | None, prefix: 
     config's ``{prefix}_context`` / ``{prefix}_max_gap`` (``prefix`` "inbetween", the whole-frame gaps', or
     "joint_inbetween", the joint runs'); ``None`` removes them. The fill's own weights stay as they are."""
     from .inbetween import kernel_width, load_kernels
+    if prefix not in ("inbetween", "joint_inbetween"):
+        raise ValueError(f"prefix must be \"inbetween\" or \"joint_inbetween\", got {prefix!r}")
     kernels, context, meta = load_kernels(kernels_path) if kernels_path else ({}, 0, {})
     if kernels and sorted(kernels) != list(range(1, max(kernels) + 1)):
         raise ValueError(f"{kernels_path}: kernels for gaps of 1 .. n frames expected, got {sorted(kernels)}")
     for n, w in kernels.items():
         if w.shape != (n, kernel_width(n, context)):
-            raise ValueError(f"{kernels_path}: inbetween_{n} has shape {w.shape}, not "
+            raise ValueError(f"{kernels_path}: {prefix}_{n} has shape {w.shape}, not "
                              f"({n}, {kernel_width(n, context)})")
-
-    if prefix not in ("inbetween", "joint_inbetween"):
-        raise ValueError(f"prefix must be \"inbetween\" or \"joint_inbetween\", got {prefix!r}")
 
     def edit(cfg: dict, tensors: dict) -> dict:
         for k in [k for k in tensors if k.startswith(prefix + "_")]:

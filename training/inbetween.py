@@ -73,17 +73,8 @@ def per_coordinate(x: np.ndarray, n: int, context: int) -> np.ndarray:
 
 def correct(fill: np.ndarray, gaps: list, kernels: dict, context: int) -> np.ndarray:
     """``fill`` (B, T, F) with each gap (b, s, e) of ``gaps`` (``training.model.whole_frame_gaps``) whose length
-    has a kernel (``kernels[n]``, (n, 3 (2 C + n) + 2)) corrected; every correction read from ``fill`` as given."""
-    out = np.array(fill, dtype=np.float64, copy=True)
-    src = np.asarray(fill, dtype=np.float64)
-    for b, s, e in gaps:
-        n = e - s
-        w = kernels.get(n)
-        if w is None:
-            continue
-        x = per_coordinate(segment_features(src[b:b + 1], np.array([s]), n, context), n, context)   # (F, D)
-        out[b, s:e] += (x @ np.asarray(w, np.float64).T).T
-    return out
+    has a kernel (``kernels[n]``, (n, 3 (2 C + n) + 2)) corrected on every coordinate (:func:`correct_runs`)."""
+    return correct_runs(fill, [(b, None, s, e) for b, s, e in gaps], kernels, context)
 
 
 def joint_runs(mask: np.ndarray, gaps: list) -> list:
@@ -105,15 +96,18 @@ def joint_runs(mask: np.ndarray, gaps: list) -> list:
 
 def correct_runs(fill: np.ndarray, runs: list, kernels: dict, context: int) -> np.ndarray:
     """``fill`` (B, T, F) with each run (b, f, s, e) of ``runs`` (:func:`joint_runs`) whose length has a kernel
-    (``kernels[n]``) corrected on its own coordinate; every correction read from ``fill`` as given."""
+    (``kernels[n]``, (n, 3 (2 C + n) + 2)) corrected on its coordinate f (every coordinate where f is None: a
+    whole-frame gap, :func:`correct`); every correction read from ``fill`` as given."""
     out = np.array(fill, dtype=np.float64, copy=True)
     src = np.asarray(fill, dtype=np.float64)
     for b, f, s, e in runs:
         w = kernels.get(e - s)
-        if w is not None:
-            x = per_coordinate(segment_features(src[b:b + 1, :, f:f + 1], np.array([s]), e - s, context), e - s,
-                               context)                                                           # (1, D)
-            out[b, s:e, f] += (x @ np.asarray(w, np.float64).T)[0]
+        if w is None:
+            continue
+        cols = slice(None) if f is None else slice(f, f + 1)
+        x = per_coordinate(segment_features(src[b:b + 1, :, cols], np.array([s]), e - s, context), e - s,
+                           context)                                                               # (F', D)
+        out[b, s:e, cols] += (x @ np.asarray(w, np.float64).T).T
     return out
 
 

@@ -191,19 +191,16 @@ class PriorConfig:
         if self.gap_fill != "none" and self.anchor != "window":
             raise ValueError("prior config: gap_fill is for a repair fill (anchor \"window\"); a forecaster fills "
                              "no gaps")
-        if (self.inbetween_context > 0) != (self.inbetween_max_gap > 0) or min(self.inbetween_context,
-                                                                               self.inbetween_max_gap) < 0:
-            raise ValueError("prior config: inbetween_context and inbetween_max_gap are both 0 or both >= 1")
-        if (self.joint_inbetween_context > 0) != (self.joint_inbetween_max_gap > 0) or min(
-                self.joint_inbetween_context, self.joint_inbetween_max_gap) < 0:
-            raise ValueError("prior config: joint_inbetween_context and joint_inbetween_max_gap are both 0 or both "
-                             ">= 1")
-        if self.joint_inbetween_max_gap and (self.anchor != "window" or self.joint_inbetween_max_gap >= self.obs_len):
-            raise ValueError("prior config: the joint in-betweener is a repair fill's (anchor \"window\"), for runs "
-                             f"shorter than the window ({self.obs_len} frames)")
-        if self.inbetween_max_gap and (self.gap_fill != "forecaster" or self.inbetween_max_gap >= self.obs_len):
-            raise ValueError("prior config: the in-betweener corrects the gap fill (gap_fill \"forecaster\") of gaps "
-                             f"shorter than the window ({self.obs_len} frames)")
+        # the two in-betweeners (training.inbetween), each on the fills it is for (the engine's check, the same)
+        for name, fits, what in (("inbetween", self.gap_fill == "forecaster",
+                                  "the in-betweener corrects the gap fill (gap_fill \"forecaster\") of gaps"),
+                                 ("joint_inbetween", self.anchor == "window",
+                                  "the joint in-betweener is a repair fill's (anchor \"window\"), for runs")):
+            context, max_gap = getattr(self, f"{name}_context"), getattr(self, f"{name}_max_gap")
+            if (context > 0) != (max_gap > 0) or min(context, max_gap) < 0:
+                raise ValueError(f"prior config: {name}_context and {name}_max_gap are both 0 or both >= 1")
+            if max_gap and (not fits or max_gap >= self.obs_len):
+                raise ValueError(f"prior config: {what} shorter than the window ({self.obs_len} frames)")
 
     @property
     def num_joints(self) -> int:
@@ -277,11 +274,12 @@ class PriorNet(nn.Module):
         self.fc_out = nn.Linear(K, K)
         nn.init.xavier_uniform_(self.fc_out.weight, gain=1e-8)  # the untrained network is Zero-Velocity
         nn.init.zeros_(self.fc_out.bias)
-        # the in-betweener's kernels (training.inbetween), fitted after training: in the state dict, not trained
+        # the in-betweeners' kernels (training.inbetween), fitted after training: in the state dict, not trained
+        from .inbetween import kernel_width
         for prefix, context, max_gap in (("inbetween", cfg.inbetween_context, cfg.inbetween_max_gap),
                                          ("joint_inbetween", cfg.joint_inbetween_context, cfg.joint_inbetween_max_gap)):
             for n in range(1, max_gap + 1):
-                self.register_buffer(f"{prefix}_{n}", torch.zeros(n, 3 * (2 * context + n) + 2))
+                self.register_buffer(f"{prefix}_{n}", torch.zeros(n, kernel_width(n, context)))
 
     def inbetween_kernels(self, prefix: str = "inbetween") -> dict:
         """{n: the kernel (n, 3 (2 C + n) + 2) of an n-frame gap (``prefix`` "inbetween") or run (``prefix``

@@ -265,6 +265,24 @@ fn gap_forecaster<'p>(fill: &Prior, forecaster: Option<&'p Prior>) -> Result<Opt
     }
 }
 
+/// The maximal runs `[start, end)` of frames `0..length` where `hidden(t)`.
+fn hidden_runs(length: usize, hidden: impl Fn(usize) -> bool) -> Vec<(usize, usize)> {
+    let mut runs = Vec::new();
+    let mut t = 0;
+    while t < length {
+        if !hidden(t) {
+            t += 1;
+            continue;
+        }
+        let start = t;
+        while t < length && hidden(t) {
+            t += 1;
+        }
+        runs.push((start, t));
+    }
+    runs
+}
+
 /// The runs of frames `[start, end)` of each sequence of a (B, K, L) `mask` in which every entry is
 /// mask 0, as (sequence, start, end), except a run over the whole window (nothing to fill it from).
 fn whole_frame_gaps(mask: &[f32], batch: usize, length: usize) -> Vec<(usize, usize, usize)> {
@@ -272,25 +290,16 @@ fn whole_frame_gaps(mask: &[f32], batch: usize, length: usize) -> Vec<(usize, us
     let mut gaps = Vec::new();
     for (b, m) in mask.chunks_exact(k * length).enumerate() {
         let hidden = |t: usize| (0..k).all(|kk| m[kk * length + t] <= 0.5);
-        let mut t = 0;
-        while t < length {
-            if !hidden(t) {
-                t += 1;
-                continue;
-            }
-            let start = t;
-            while t < length && hidden(t) {
-                t += 1;
-            }
-            if start > 0 || t < length {
-                gaps.push((b, start, t));
+        for (start, end) in hidden_runs(length, hidden) {
+            if start > 0 || end < length {
+                gaps.push((b, start, end));
             }
         }
     }
     gaps
 }
 
-/// Fills the whole-frame gaps ([`whole_frame_gaps`]) of a filled (B, K, L) window in place
+/// Fills the whole-frame `gaps` ([`whole_frame_gaps`]) of a filled (B, K, L) window in place
 /// (`training.model.fill_gaps`, the same steps). For a gap of n frames [s, e), with weights
 /// w_i = (i + 1) / (n + 1):
 /// * forward (s > 0): `forecaster` predicts n + 1 frames from the frames before the gap (its last
@@ -306,12 +315,10 @@ fn whole_frame_gaps(mask: &[f32], batch: usize, length: usize) -> Vec<(usize, us
 fn fill_gaps(
     forecaster: &Prior,
     values: &mut [f32],
-    mask: &[f32],
-    batch: usize,
+    gaps: &[(usize, usize, usize)],
     length: usize,
     control: &Control,
 ) -> Result<()> {
-    let gaps = whole_frame_gaps(mask, batch, length);
     if gaps.is_empty() {
         return Ok(());
     }
@@ -329,7 +336,7 @@ fn fill_gaps(
         count - 1
     };
     let mut sides = Vec::with_capacity(gaps.len());
-    for &(b, s, e) in &gaps {
+    for &(b, s, e) in gaps {
         // The last O frames before s (forward), or of the frames after e read backwards, the first
         // repeated before them where there are fewer.
         let fwd = (s > 0).then(|| push(b, &|j| (s + j).saturating_sub(o)));
@@ -424,11 +431,14 @@ fn fill_with_prior(
             };
         }
     }
-    if let Some(f) = gaps {
-        fill_gaps(f, values, mask, batch, length, control)?;
-    }
-    if window {
-        inbetween(prior, values, mask, batch, length);
+    let m = &prior.config().model;
+    if window && (gaps.is_some() || m.inbetween_max_gap > 0 || m.joint_inbetween_max_gap > 0) {
+        // the window's whole-frame gaps, which the gap fill fills and the in-betweeners correct
+        let frame_gaps = whole_frame_gaps(mask, batch, length);
+        if let Some(f) = gaps {
+            fill_gaps(f, values, &frame_gaps, length, control)?;
+        }
+        inbetween(prior, values, mask, &frame_gaps, batch, length);
     }
     Ok(())
 }
@@ -438,15 +448,21 @@ fn fill_with_prior(
 /// with a kernel (`inbetween_n`), every coordinate of the gap; then, per coordinate, each run of hidden frames
 /// with no frame of a whole-frame gap, not the whole window, of a length with a joint kernel
 /// (`joint_inbetween_n`). Every input is read from the window before any correction is added.
-fn inbetween(prior: &Prior, values: &mut [f32], mask: &[f32], batch: usize, length: usize) {
+fn inbetween(
+    prior: &Prior,
+    values: &mut [f32],
+    mask: &[f32],
+    gaps: &[(usize, usize, usize)],
+    batch: usize,
+    length: usize,
+) {
     let m = &prior.config().model;
     if m.inbetween_max_gap == 0 && m.joint_inbetween_max_gap == 0 {
         return;
     }
     let k = prior.num_features();
     let src = values.to_vec();
-    let gaps = whole_frame_gaps(mask, batch, length);
-    for &(b, s, e) in &gaps {
+    for &(b, s, e) in gaps {
         if let Some(w) = prior.inbetween_kernel(e - s) {
             for kk in 0..k {
                 let row = (b * k + kk) * length;
@@ -459,21 +475,12 @@ fn inbetween(prior: &Prior, values: &mut [f32], mask: &[f32], batch: usize, leng
         return;
     }
     let mut in_gap = vec![false; batch * length];
-    for &(b, s, e) in &gaps {
+    for &(b, s, e) in gaps {
         in_gap[b * length + s..b * length + e].fill(true);
     }
     for (r, m_row) in mask.chunks_exact(length).enumerate() {
         let (b, row) = (r / k, r * length);
-        let mut t = 0;
-        while t < length {
-            if m_row[t] > 0.5 {
-                t += 1;
-                continue;
-            }
-            let s = t;
-            while t < length && m_row[t] <= 0.5 {
-                t += 1;
-            }
+        for (s, t) in hidden_runs(length, |t| m_row[t] <= 0.5) {
             let whole = s == 0 && t == length;
             if whole || in_gap[b * length + s..b * length + t].iter().any(|&g| g) {
                 continue;
