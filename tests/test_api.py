@@ -447,7 +447,7 @@ def test_repair_of_no_samples_needs_a_repair_fill(tiny_model, obs):
         tiny_model.forecast(obs, num_samples=0, seed=0)
 
 
-SAMPLER_SETTINGS = "eta, num_inference_steps, sampler, timestep_spacing"
+SAMPLER_SETTINGS = "eta, noise_coupling, num_inference_steps, sampler, timestep_spacing"
 
 
 def test_sampler_keywords_and_their_defaults(tiny_model, obs):
@@ -455,7 +455,8 @@ def test_sampler_keywords_and_their_defaults(tiny_model, obs):
     ``sampling.json``, as here: tests/test_sampling_defaults.py has the directories' own defaults); timesteps and
     num_noise_blocks read the same keywords."""
     defaults = dataclasses.asdict(tcd.SamplerOptions())
-    assert defaults == {"sampler": "ddpm", "num_inference_steps": None, "eta": 0.0, "timestep_spacing": "trailing"}
+    assert defaults == {"sampler": "ddpm", "num_inference_steps": None, "eta": 0.0, "timestep_spacing": "trailing",
+                        "noise_coupling": "independent"}
     short = tiny_model.short
     assert short.timesteps() == short.timesteps(**defaults) == list(range(49, -1, -1))
     assert short.num_noise_blocks() == 51
@@ -499,7 +500,8 @@ def test_sampler_settings_have_one_form(tiny_model, obs, tmp_path):
     assert RepairOptions.make(tiny_model, sampler={"num_inference_steps": 3}).sampling.num_inference_steps == 3
     for kw, argument in (({"sampler": "euler"}, "sampler"), ({"eta": 2.0}, "eta"),
                          ({"num_inference_steps": 0}, "num_inference_steps"),
-                         ({"timestep_spacing": "x"}, "timestep_spacing")):
+                         ({"timestep_spacing": "x"}, "timestep_spacing"),
+                         ({"noise_coupling": "antithetic"}, "noise_coupling")):
         bad(argument, tcd.SamplerOptions, **kw)
         bad(argument, d.timesteps, **kw)
     bad("num_inference_steps", d.timesteps, num_inference_steps=51)   # more steps than the model was trained with

@@ -101,6 +101,20 @@ def test_forecast_dpmpp2m(tiny_model_dir, npz, tmp_path, capsys):
         assert np.array_equal(f["samples"], want.samples)
 
 
+def test_forecast_noise_coupling(tiny_model_dir, npz, tmp_path, capsys):
+    """--noise-coupling sets the API's noise_coupling: centred samples are the API's, and not the independent ones."""
+    out_path = tmp_path / "out_centred.npz"
+    args = ["--samples", "3", "--steps", "1", "--sampler", "ddim", "--seed", "5", "--noise-coupling", "centered"]
+    code, _, err = run(["forecast", npz, "-o", out_path, "--model", tiny_model_dir, *args], capsys)
+    assert code == 0, err
+    model, poses = tcd.load(tiny_model_dir), np.load(npz)["poses"]
+    kw = dict(seed=5, num_samples=3, num_inference_steps=1, sampler="ddim")
+    want = model.forecast(poses, noise_coupling="centered", **kw)
+    with np.load(out_path) as f:
+        assert np.array_equal(f["samples"], want.samples)
+        assert not np.array_equal(f["samples"], model.forecast(poses, noise_coupling="independent", **kw).samples)
+
+
 def test_forecast_batched_with_mask_and_random_seed(tiny_model_dir, tmp_path, capsys):
     x = poses(np.random.default_rng(1), batch=2, missing=0.0) * np.float32(1000)   # millimetres
     mask = np.ones((2, 50, 22), np.float32)
@@ -214,7 +228,7 @@ def test_bad_input_exit_code_2(tiny_model_dir, npz, tmp_path, capsys, case):
 
 @pytest.mark.parametrize("command, flag, value", [
     ("forecast", "--sampler", "euler"), ("forecast", "--units", "inch"), ("forecast", "--spacing", "middle"),
-    ("demo", "--sampler", "euler"),
+    ("forecast", "--noise-coupling", "antithetic"), ("demo", "--sampler", "euler"),
 ])
 def test_bad_choice_is_a_usage_error(tiny_model_dir, npz, tmp_path, capsys, command, flag, value):
     """An enumerated flag's choices are argparse's: a bad one exits with 2, naming the flag and the value."""

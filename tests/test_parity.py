@@ -294,6 +294,38 @@ def test_cascade_seeded_matches_torch_fed_the_same_streams(tiny):
     assert chain_close(got["samples"], want["samples"].numpy()[..., OBS_LEN:], "seeded cascade ddim n=5 eta=1")
 
 
+@pytest.mark.parametrize("sampler,steps,eta", [("ddim", 1, 0.0), ("ddpm", 10, 0.0), ("ddim", 5, 1.0)])
+def test_centred_noise_cascade_matches_torch(tiny, sampler, steps, eta):
+    """noise_coupling="centered": the engine centres each sequence's x_T (training.diffusion.couple_noise) in both
+    stages, injected or seeded, and agrees with PyTorch fed the raw streams with the same coupling."""
+    short, long = tiny["short"][0], tiny["long"][0]
+    rng = np.random.default_rng(43)
+    b, k, s = 2, short.num_features, 3
+    observed, mask = observation(rng, b, k, OBS_LEN, OBS_LEN, missing=0.3)
+    kw = dict(sampler=sampler, num_inference_steps=steps, eta=eta, timestep_spacing="trailing",
+              noise_coupling="centered")
+    n = short.num_noise_blocks(**kw)
+    noise_short = tcd.engine.seeded_noise(5, tcd.engine.STAGE_SHORT, s, n, b, k, short.seq_len)
+    noise_long = tcd.engine.seeded_noise(5, tcd.engine.STAGE_LONG, s, n, b, k, long.seq_len)
+    got = tcd.engine.cascade_raw(short, long, observed, mask, num_samples=s, seed=5, **kw)
+    injected = tcd.engine.cascade_raw(short, long, observed, mask, num_samples=s, noise_short=noise_short,
+                                      noise_long=noise_long, **kw)
+    assert all(np.array_equal(got[key], injected[key]) for key in got)
+    want = torch_cascade(tiny, observed, mask, s, noise_short, noise_long, **kw)
+    what = f"centred cascade {sampler} n={steps} eta={eta}"
+    assert chain_close(got["short_mean"], want["short_mean"], what + " short_mean")
+    assert chain_close(got["samples"], want["samples"].numpy()[..., OBS_LEN:], what + " samples")
+    independent = tcd.engine.cascade_raw(short, long, observed, mask, num_samples=s, seed=5,
+                                         **{**kw, "noise_coupling": "independent"})
+    assert not np.allclose(independent["samples"], got["samples"])     # the coupling changes what is sampled
+    # the twin's coupling: x_T of each sequence sums to zero, each rescaled to unit variance; z's untouched
+    coupled = D.couple_noise(torch.from_numpy(noise_long), "centered").numpy()
+    assert np.abs(coupled[:, 0].sum(axis=0)).max() < 1e-5
+    assert np.array_equal(coupled[:, 1:], noise_long[:, 1:])
+    assert abs(float(coupled[:, 0].std()) - 1) < 0.05
+    assert D.couple_noise(torch.from_numpy(noise_long[:1]), "centered").numpy().tobytes() == noise_long[:1].tobytes()
+
+
 def test_repair_injected_noise(tiny):
     den, model, sched = tiny["short"]
     rng = np.random.default_rng(51)

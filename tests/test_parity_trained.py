@@ -24,6 +24,7 @@ the engine computes the fill, PyTorch's ``prior_fill`` the reference's): 3.3e-7 
 from __future__ import annotations
 
 import copy
+import dataclasses
 
 import numpy as np
 import pytest
@@ -184,6 +185,17 @@ def test_cascade_on_trained_weights(bundled, clip):
     check_cascade(bundled, tcd.default_model_dir(), truth, observed, mask, "cascade")
 
 
+def test_cascade_on_trained_weights_with_the_default_sampler(bundled, clip):
+    """The cascade with the bundled forecast's own sampler (tcd.load().sampling["forecast"]: one DDIM step and,
+    where it says so, centred noise), 2 samples. The forecast only: one step moves the repaired frames too little
+    from the prior's fill for the network-contribution criterion (the DDPM-10 test above checks a repair)."""
+    short, long = load(bundled["short"][0]), load(bundled["long"][0])
+    truth, observed, mask = window(clip, 30, long.seq_len, short.config["window"]["obs_len"], occlude=True)
+    sampling = dataclasses.asdict(tcd.load().sampling["forecast"])
+    check_cascade(bundled, tcd.default_model_dir(), truth, observed, mask, "cascade, default sampler",
+                  sampling=sampling, repaired=False)
+
+
 @needs_humaneva
 @pytest.mark.parametrize("kernel", ALL_KERNELS)
 def test_humaneva_cascade_on_trained_weights_every_kernel(bundled_humaneva, kernel, monkeypatch):
@@ -200,17 +212,19 @@ def test_humaneva_cascade_on_trained_weights_every_kernel(bundled_humaneva, kern
                   f"humaneva cascade kernel={kernel}", kernel, monkeypatch, repaired=False)
 
 
-def check_cascade(models, directory, truth, observed, mask, what, kernel=None, monkeypatch=None, repaired=True):
+def check_cascade(models, directory, truth, observed, mask, what, kernel=None, monkeypatch=None, repaired=True,
+                  sampling=None):
     """The cascade through the engine against training.diffusion.cascade, the same noise; ``truth`` etc. span the
     long model's window, of which the short model's observed frames are given; the forecast checked, and with
-    ``repaired`` the repaired observation."""
+    ``repaired`` the repaired observation. ``sampling``: the sampler keywords (default DDPM over 10 steps)."""
     (sp, sm, ss, s_silent), (lp, lm, ls, l_silent) = models["short"], models["long"]
     short, long = load(sp, kernel, monkeypatch), load(lp, kernel, monkeypatch)
     o = short.config["window"]["obs_len"]
     observed, mask = observed[..., :o], mask[..., :o]
     rng = np.random.default_rng(11)
-    kw = dict(sampler="ddpm", num_inference_steps=10, timestep_spacing="trailing")
-    noise_short, noise_long = noise_for(short, "ddpm", 10, 2, rng), noise_for(long, "ddpm", 10, 2, rng)
+    kw = sampling or dict(sampler="ddpm", num_inference_steps=10, timestep_spacing="trailing")
+    sampler, steps = kw["sampler"], kw["num_inference_steps"]
+    noise_short, noise_long = noise_for(short, sampler, steps, 2, rng), noise_for(long, sampler, steps, 2, rng)
     prior = tcd.engine.Prior.load(directory / "prior.safetensors")
     got = tcd.engine.cascade_raw(short, long, observed, mask, num_samples=2, noise_short=noise_short,
                           noise_long=noise_long, prior=prior, **kw)
@@ -223,10 +237,10 @@ def check_cascade(models, directory, truth, observed, mask, what, kernel=None, m
     want, silent = reference(sm, lm), reference(s_silent, l_silent)
     future = np.zeros((1, long.num_features, long.seq_len - o), np.float32)    # every future entry generated
     check(got["samples"], want["samples"].numpy()[..., o:], silent["samples"].numpy()[..., o:],
-          truth[..., o:], future, f"{what} ddpm-10 forecast")
+          truth[..., o:], future, f"{what} {sampler}-{steps} forecast")
     if repaired:
         check(got["repaired"][None], want["short_mean"].numpy()[None, ..., :o],
-              silent["short_mean"].numpy()[None, ..., :o], truth[..., :o], mask, f"{what} ddpm-10 repaired")
+              silent["short_mean"].numpy()[None, ..., :o], truth[..., :o], mask, f"{what} {sampler}-{steps} repaired")
 
 
 @pytest.mark.parametrize("sampler", ["ddpm", "ddim"])

@@ -43,6 +43,19 @@ def test_build_over_defaults():
     assert SamplerOptions.build(None, num_inference_steps=4) == SamplerOptions(num_inference_steps=4)
 
 
+def test_a_directory_may_centre_its_forecast_noise(model_dir, obs):
+    """``"noise_coupling": "centered"`` in sampling.json: forecasts centre their noise unless a call says otherwise;
+    naming another sampler drops it with the default's other fields; `tcd info` says so."""
+    (model_dir / "sampling.json").write_text(json.dumps({"forecast": dict(DDIM2, noise_coupling="centered")}))
+    m = tcd.load(model_dir)
+    assert m.sampling["forecast"].noise_coupling == "centered"
+    a = m.forecast(obs, num_samples=3, seed=3)
+    assert np.array_equal(a.samples, m.forecast(obs, num_samples=3, seed=3, noise_coupling="centered", **DDIM2).samples)
+    assert not np.array_equal(a.samples, m.forecast(obs, num_samples=3, seed=3, noise_coupling="independent").samples)
+    assert SamplerOptions.build(m.sampling["forecast"], sampler="ddpm").noise_coupling == "independent"
+    assert m.sampling["forecast"].describe(50) == "ddim, 2 steps (eta 1, trailing spacing, centred noise)"
+
+
 def test_load_reads_the_defaults(model_dir, tiny_model_dir, obs):
     m = tcd.load(model_dir)
     assert m.sampling == {"forecast": SamplerOptions(**DDIM2), "repair": SamplerOptions(num_inference_steps=3)}

@@ -311,10 +311,32 @@ def _from_target(model, x, observed, mask):
     return x if cfg is None else from_target(cfg, x, observed, mask, getattr(model, "prior", None))
 
 
+def couple_noise(noise: torch.Tensor, noise_coupling: str = "independent") -> torch.Tensor:
+    """The chains' noise (S, num_noise_blocks, B, K, L) as a sampler with ``noise_coupling`` starts from
+    (``tcd.SamplerOptions.noise_coupling``; the engine's ``NoiseCoupling``). ``"independent"``: as given.
+    ``"centered"`` (S >= 2): each sequence's S blocks 0 (x_T) moved off their mean c and rescaled,
+    ``(z_s - c) * sqrt(S / (S - 1))`` in float64 with c summed in chain order, rounded once to float32; the
+    per-step blocks as given. Each x_T stays a standard normal; the S of a sequence sum to zero."""
+    if noise_coupling not in ("independent", "centered"):
+        raise ValueError(f"noise_coupling must be 'independent' or 'centered', got {noise_coupling!r}")
+    s = noise.shape[0]
+    if noise_coupling == "independent" or s < 2:
+        return noise
+    x_t = noise[:, 0].to(torch.float64)
+    c = x_t[0].clone()
+    for i in range(1, s):
+        c += x_t[i]
+    c /= s
+    out = noise.clone()
+    out[:, 0] = ((x_t - c) * math.sqrt(s / (s - 1))).to(noise.dtype)
+    return out
+
+
 def sample_many(model, sched: Schedule, observed: torch.Tensor, mask: torch.Tensor, num_samples: int,
                 noise: torch.Tensor | None = None, generator: torch.Generator | None = None,
-                batch_chains: bool = True, **kw) -> torch.Tensor:
-    """num_samples independent chains per window -> (S, B, K, L).
+                batch_chains: bool = True, noise_coupling: str = "independent", **kw) -> torch.Tensor:
+    """num_samples chains per window -> (S, B, K, L), independent but for ``noise_coupling``
+    (:func:`couple_noise`).
 
     ``noise``: (S, num_noise_blocks, B, K, L) or None (num_noise_blocks: num_steps + 1, or 1 for
     dpmpp2m). With ``batch_chains`` the S chains run as one batch
@@ -329,6 +351,7 @@ def sample_many(model, sched: Schedule, observed: torch.Tensor, mask: torch.Tens
     blocks = num_noise_blocks(sampler, n)
     if noise is None:
         noise = torch.stack([draw_noise(blocks - 1, tuple(observed.shape), generator) for _ in range(S)])
+    noise = couple_noise(noise, noise_coupling)
     if not batch_chains:
         return torch.stack([sample(model, sched, observed, mask, noise=noise[s], **kw) for s in range(S)])
     # (S, blocks, B, K, L) -> (blocks, S*B, K, L)

@@ -79,8 +79,20 @@ def zero_velocity(obs: np.ndarray, jmask: np.ndarray, horizon: int = PRED) -> np
     return np.repeat(last[:, None], horizon, axis=1)
 
 
+def noise_coupling_of(args) -> str:
+    """The noise coupling a run samples with (``tcd.SamplerOptions.noise_coupling``): ``--noise-coupling``, else the
+    model directory's forecast default where ``--sampler`` is its sampler (``SamplerOptions.build``'s rule, what
+    ``tcd.TCD.forecast`` does), else ``"independent"``; both engines are given it explicitly."""
+    given = getattr(args, "noise_coupling", None)
+    if given or not getattr(args, "model", None):
+        return given or "independent"
+    import tcd
+    return tcd.SamplerOptions.build(tcd.load(args.model).sampling.get("forecast"), sampler=args.sampler).noise_coupling
+
+
 def tcd_predict(models: dict, obs: np.ndarray, jmask: np.ndarray, *, samples: int, steps: int | None, sampler: str,
-                eta: float, spacing: str, seed: int, device: str, batch_size: int = 16, horizon: int = PRED) -> dict:
+                eta: float, spacing: str, seed: int, device: str, batch_size: int = 16, horizon: int = PRED,
+                noise_coupling: str = "independent") -> dict:
     """Cascade forecast for windows obs (W, O, J, 3) metres (Human3.6M: O = 50) with joint mask (W, O, J).
     Returns samples (S, W, horizon, J, 3) and the repaired observation (W, O, J, 3) (mean of short-term samples)."""
     from .diffusion import cascade
@@ -99,21 +111,22 @@ def tcd_predict(models: dict, obs: np.ndarray, jmask: np.ndarray, *, samples: in
         m = to_bkl(joint_to_coord_mask(jmask[b0:b0 + batch_size])).to(device)
         res = cascade(short_m, short_s, long_m, long_s, x, m, short_len=short_len, long_len=long_len,
                       num_samples=samples, generator=gen, sampler=sampler, num_inference_steps=steps, eta=eta,
-                      timestep_spacing=spacing)
+                      timestep_spacing=spacing, noise_coupling=noise_coupling)
         outs.append(from_bkl(res["samples"][..., obs_len:]))
         reps.append(from_bkl(res["short_mean"][..., :obs_len]))
     return {"samples": np.concatenate(outs, axis=1), "repaired": np.concatenate(reps, axis=0)}
 
 
 def tcd_engine_predict(model_dir: str, obs: np.ndarray, jmask: np.ndarray, *, samples: int, steps: int | None,
-                       sampler: str, eta: float, spacing: str, seed: int, tempo=None) -> dict:
+                       sampler: str, eta: float, spacing: str, seed: int, tempo=None,
+                       noise_coupling: str = "independent") -> dict:
     """The same cascade through the Rust engine (``tcd``): fast on the CPU, in parity with the reference.
     Missing entries are passed as NaN."""
     import tcd
     model = tcd.load(model_dir)
     x = np.where(joint_to_coord_mask(jmask) > 0.5, obs, np.nan)
     f = model.forecast(x, num_samples=samples, num_inference_steps=steps, sampler=sampler, eta=eta,
-                       timestep_spacing=spacing, seed=int(seed), tempo=tempo)
+                       timestep_spacing=spacing, seed=int(seed), tempo=tempo, noise_coupling=noise_coupling)
     return {"samples": np.asarray(f.samples, np.float64), "repaired": np.asarray(f.repaired, np.float64)}
 
 
@@ -190,6 +203,7 @@ def evaluate_h36m(args, models: dict | None = None, data: H36M | None = None, on
         from .export import load_model_dir
         models = load_model_dir(args.model, args.device)
     zv, zv_rep, best, mean, point = {}, {}, {}, {}, {}
+    coupling = noise_coupling_of(args)
     rep_sum, rep_cnt = 0.0, 0
     t0 = time.time()
     for ai, action in enumerate(actions):
@@ -203,7 +217,7 @@ def evaluate_h36m(args, models: dict | None = None, data: H36M | None = None, on
             point[action] = per_frame_error(model_to_xyz32(pred, gt32), gt32).mean(axis=0)
         if models is not None:
             kw = dict(samples=args.samples, steps=args.steps, sampler=args.sampler, eta=args.eta,
-                      spacing=args.timestep_spacing, seed=args.seed * 1000 + ai)
+                      spacing=args.timestep_spacing, seed=args.seed * 1000 + ai, noise_coupling=coupling)
             if args.engine == "tcd":
                 res = tcd_engine_predict(args.model, obs, jmask, tempo=args.tempo, **kw)
             else:
@@ -234,7 +248,7 @@ def evaluate_h36m(args, models: dict | None = None, data: H36M | None = None, on
         out["method"] = f"tcd {args.model}"
         out["sampling"] = {"engine": args.engine, "samples": args.samples, "steps": args.steps or models['short'][1].T,
                            "sampler": args.sampler, "eta": args.eta, "timestep_spacing": args.timestep_spacing,
-                           "tempo": tempo_run(args)}
+                           "noise_coupling": coupling, "tempo": tempo_run(args)}
         out["best_of_n"] = dict(summarize(best), label=f"oracle best-of-{args.samples} (selected against ground truth)")
         out["mean_of_n"] = dict(summarize(mean), label=f"mean of {args.samples} samples (deployable)")
         chosen = out["best_of_n" if args.select == "best" else "mean_of_n"]
@@ -265,6 +279,7 @@ def humaneva_model_samples(args, obs: np.ndarray, log=lambda m: None) -> np.ndar
     W = len(obs)
     outs = []
     t0 = time.time()
+    coupling = noise_coupling_of(args)
     if args.engine == "tcd":
         import tcd
         model = tcd.load(args.model)
@@ -280,12 +295,13 @@ def humaneva_model_samples(args, obs: np.ndarray, log=lambda m: None) -> np.ndar
         seed = args.seed * 1_000_003 + b0
         if args.engine == "tcd":
             f = model.forecast(x, num_samples=args.samples, num_inference_steps=args.steps, sampler=args.sampler,
-                               eta=args.eta, timestep_spacing=args.timestep_spacing, seed=seed, tempo=args.tempo)
+                               eta=args.eta, timestep_spacing=args.timestep_spacing, seed=seed, tempo=args.tempo,
+                               noise_coupling=coupling)
             outs.append(np.asarray(f.samples, np.float64))
         else:
             res = tcd_predict(models, x, np.ones(x.shape[:3], np.float32), samples=args.samples, steps=args.steps,
                               sampler=args.sampler, eta=args.eta, spacing=args.timestep_spacing, seed=seed,
-                              device=args.device, batch_size=len(x), horizon=HE_PRED)
+                              device=args.device, batch_size=len(x), horizon=HE_PRED, noise_coupling=coupling)
             outs.append(res["samples"])
         log(f"[{min(b0 + args.batch_size, W)}/{W} windows] {args.samples} samples each, {time.time() - t0:.0f} s")
     return np.concatenate(outs, axis=1)
@@ -417,7 +433,7 @@ def evaluate_humaneva(args) -> dict:
         out.update(method=f"tcd {args.model}", stochastic=results["model"], seconds=time.time() - t0,
                    sampling={"engine": args.engine, "samples": args.samples, "steps": args.steps,
                              "sampler": args.sampler, "eta": args.eta, "timestep_spacing": args.timestep_spacing,
-                             "tempo": tempo_run(args)})
+                             "noise_coupling": noise_coupling_of(args), "tempo": tempo_run(args)})
     elif args.prior:
         out.update(method=f"prior {args.prior}", stochastic=results["prior"])
     elif args.baseline == "neighbours":
@@ -509,6 +525,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--steps", type=int, default=None, help="inference steps (default: all training steps)")
     ap.add_argument("--sampler", choices=["ddpm", "ddim", "dpmpp2m"], default="ddpm")
     ap.add_argument("--eta", type=float, default=0.0, help="DDIM eta")
+    ap.add_argument("--noise-coupling", choices=["independent", "centered"], default=None,
+                    help="how a window's samples share their starting noise (tcd.SamplerOptions.noise_coupling; "
+                         "default: the model directory's forecast default for --sampler, else independent)")
     ap.add_argument("--timestep-spacing", choices=["leading", "trailing", "linspace"], default="trailing")
     ap.add_argument("--tempo", type=float, nargs=2, metavar=("LO", "HI"), default=None,
                     help="--engine tcd: each sample from the observation replayed at its own tempo, LO to HI "

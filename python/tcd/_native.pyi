@@ -34,6 +34,7 @@ __all__ = [
     "check_call_settings",
     "SAMPLERS",
     "SPACINGS",
+    "COUPLINGS",
     "INTERPOLATIONS",
 ]
 
@@ -42,6 +43,7 @@ STAGE_SHORT: int
 STAGE_LONG: int
 SAMPLERS: List[str]
 SPACINGS: List[str]
+COUPLINGS: List[str]
 INTERPOLATIONS: List[str]
 
 _F32 = npt.NDArray[np.float32]

@@ -18,6 +18,7 @@ from . import _checks, _native
 #: The samplers and the timestep spacings the engine knows, its default first.
 SAMPLERS = tuple(_native.SAMPLERS)
 SPACINGS = tuple(_native.SPACINGS)
+COUPLINGS = tuple(_native.COUPLINGS)
 
 
 @dataclass(frozen=True)
@@ -37,12 +38,18 @@ class SamplerOptions:
             other samplers.
         timestep_spacing: ``"trailing"``, ``"leading"`` or ``"linspace"``: which training steps a
             shortened sampler visits.
+        noise_coupling: ``"independent"`` (the paper's) or ``"centered"``: the S chains of each sequence start
+            from x_T centred on their mean and rescaled by sqrt(S / (S - 1)), so each chain's x_T is still a
+            standard normal but the S sum to zero: samples that spread further apart and a mean that is less
+            noisy (docs/samplers.md, "Centred noise"). The per-step noise is left as drawn; one chain per
+            sequence is not coupled. Applied to seeded and injected noise alike.
     """
 
     sampler: str = "ddpm"
     num_inference_steps: Optional[int] = None
     eta: float = 0.0
     timestep_spacing: str = "trailing"
+    noise_coupling: str = "independent"
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__  # frozen: normalise the types once (numpy ints to int, eta to float)
@@ -51,6 +58,7 @@ class SamplerOptions:
             set_(self, "num_inference_steps", _checks.machine_int("num_inference_steps", self.num_inference_steps))
         set_(self, "eta", _checks.real("eta", self.eta))
         set_(self, "timestep_spacing", _checks.text("timestep_spacing", self.timestep_spacing, SPACINGS))
+        set_(self, "noise_coupling", _checks.text("noise_coupling", self.noise_coupling, COUPLINGS))
         _native.check_sampler_options(self)  # the values, by the engine's rules
 
     @classmethod
@@ -71,7 +79,9 @@ class SamplerOptions:
         return cls(**{**asdict(defaults), **sampler})
 
     def describe(self, num_train_timesteps: int) -> str:
-        """One line for people: ``"ddim, 1 step (eta 0, trailing spacing)"`` (``None`` steps: every training step)."""
+        """One line for people: ``"ddim, 1 step (eta 0, trailing spacing)"`` (``None`` steps: every training step),
+        ``", centred noise"`` added where the chains' noise is coupled."""
         n = num_train_timesteps if self.num_inference_steps is None else self.num_inference_steps
         extra = f"eta {self.eta:g}, " if self.sampler == "ddim" else ""
-        return f"{self.sampler}, {n} step{'' if n == 1 else 's'} ({extra}{self.timestep_spacing} spacing)"
+        coupled = ", centred noise" if self.noise_coupling == "centered" else ""
+        return f"{self.sampler}, {n} step{'' if n == 1 else 's'} ({extra}{self.timestep_spacing} spacing{coupled})"

@@ -87,6 +87,7 @@ fn sampler(kind: &str, steps: &str, eta: f64, spacing: &str) -> R<SamplerConfig>
         kind,
         num_inference_steps,
         timestep_spacing: spacing.parse()?,
+        ..SamplerConfig::default()
     })
 }
 

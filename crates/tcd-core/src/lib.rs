@@ -62,7 +62,7 @@ pub use forecast::{
 };
 pub use observation::Observation;
 // Samplers and their noise.
-pub use rng::{seeded_noise, stage, Noise, Sequences};
+pub use rng::{seeded_noise, stage, Noise, NoiseCoupling, Sequences};
 pub use sampler::{sample, Plan, Sampler, SamplerConfig, SamplerKind, TimestepSpacing};
 pub use schedule::{BetaSchedule, NoiseSchedule};
 // Kernels, threads, control, errors.

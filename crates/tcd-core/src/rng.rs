@@ -122,8 +122,114 @@ pub fn seeded_noise(
     out
 }
 
-/// The noise source of one chain.
-pub(crate) enum ChainNoise<'a> {
+/// How the S chains of one sequence share their starting noise x_T: a sampler setting
+/// ([`crate::SamplerConfig::noise_coupling`]), applied to seeded and injected noise alike.
+///
+/// `Centered` replaces chain s's x_T by `((z_s − c) · √(S/(S−1)))` rounded to f32, where `c` is the mean of
+/// the S chains' x_T of the sequence (summed in f64 in chain order, then divided by S) and every operation
+/// is in f64. Each chain's x_T is still a standard normal vector (z_s − c has covariance (1 − 1/S) I) but
+/// the S of a sequence sum to zero, so their samples are negatively correlated: they spread further
+/// apart and their mean is less noisy than with independent draws. The per-step noise z of DDPM / DDIM
+/// (η > 0) is left as drawn, and a call with one chain per sequence (S = 1) is not coupled.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum NoiseCoupling {
+    /// Every chain's x_T as drawn (or injected): independent samples, the paper's.
+    #[default]
+    Independent,
+    /// The S chains' x_T of each sequence centred on their mean and rescaled to unit variance.
+    Centered,
+}
+
+impl NoiseCoupling {
+    /// Every coupling's name, the default (`independent`) first.
+    pub const NAMES: [&'static str; 2] = ["independent", "centered"];
+
+    /// `independent` | `centered`.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            NoiseCoupling::Independent => "independent",
+            NoiseCoupling::Centered => "centered",
+        }
+    }
+}
+
+impl std::str::FromStr for NoiseCoupling {
+    type Err = crate::Error;
+    fn from_str(s: &str) -> crate::Result<Self> {
+        match s {
+            "independent" => Ok(NoiseCoupling::Independent),
+            "centered" => Ok(NoiseCoupling::Centered),
+            other => Err(crate::Error::invalid_input(
+                "noise_coupling",
+                "\"independent\" or \"centered\"",
+                format!("{other:?}"),
+            )),
+        }
+    }
+}
+
+/// The per-sequence centres of a call's x_T under [`NoiseCoupling::Centered`]: for each sequence b the mean
+/// `c_b` of its S chains' block 0 (K·L values, f64), and the scale √(S/(S−1)).
+pub(crate) struct Centres {
+    means: Vec<f64>,
+    block_len: usize,
+    scale: f64,
+}
+
+impl Centres {
+    /// The centres of a call's noise (`data` of an injected call already length-checked); `None` where
+    /// nothing is coupled (`Independent`, or S = 1). A seeded call draws each chain's x_T once more here:
+    /// S · B · K·L normals, what its chains draw for x_T themselves.
+    pub(crate) fn new(
+        coupling: NoiseCoupling,
+        noise: Noise<'_>,
+        stage: u64,
+        num_samples: usize,
+        num_blocks: usize,
+        batch: usize,
+        block_len: usize,
+    ) -> Option<Self> {
+        if coupling == NoiseCoupling::Independent || num_samples < 2 {
+            return None;
+        }
+        let mut means = vec![0.0f64; batch * block_len];
+        let mut x_t = vec![0.0f32; block_len];
+        for (b, mean) in means.chunks_exact_mut(block_len).enumerate() {
+            for s in 0..num_samples {
+                ChainNoise::new(noise, stage, s, b, num_blocks, batch, None).fill(0, &mut x_t);
+                for (m, &v) in mean.iter_mut().zip(&x_t) {
+                    *m += v as f64;
+                }
+            }
+            for m in mean.iter_mut() {
+                *m /= num_samples as f64;
+            }
+        }
+        Some(Centres {
+            means,
+            block_len,
+            scale: (num_samples as f64 / (num_samples - 1) as f64).sqrt(),
+        })
+    }
+
+    /// The centre of sequence `b` and the scale.
+    pub(crate) fn of(&self, b: usize) -> (&[f64], f64) {
+        (
+            &self.means[b * self.block_len..][..self.block_len],
+            self.scale,
+        )
+    }
+}
+
+/// The noise of one chain: its source, and the centre its x_T is moved off under
+/// [`NoiseCoupling::Centered`].
+pub(crate) struct ChainNoise<'a> {
+    source: ChainSource<'a>,
+    centre: Option<(&'a [f64], f64)>,
+}
+
+/// Where one chain's blocks come from.
+enum ChainSource<'a> {
     Injected {
         data: &'a [f32],
         sample: usize,
@@ -135,7 +241,8 @@ pub(crate) enum ChainNoise<'a> {
 }
 
 impl<'a> ChainNoise<'a> {
-    /// The noise of chain (sample, sequence) of a call; `data` already length-checked.
+    /// The noise of chain (sample, sequence) of a call; `data` already length-checked; `centre`: the
+    /// sequence's [`Centres::of`] where the call is coupled.
     pub(crate) fn new(
         noise: Noise<'a>,
         stage: u64,
@@ -143,28 +250,31 @@ impl<'a> ChainNoise<'a> {
         sequence: usize,
         num_blocks: usize,
         batch: usize,
+        centre: Option<(&'a [f64], f64)>,
     ) -> Self {
-        match noise {
-            Noise::Injected(data) => ChainNoise::Injected {
+        let source = match noise {
+            Noise::Injected(data) => ChainSource::Injected {
                 data,
                 sample,
                 sequence,
                 num_blocks,
                 batch,
             },
-            Noise::Seeded { seed, sequences } => ChainNoise::Seeded(Box::new(chain_rng(
+            Noise::Seeded { seed, sequences } => ChainSource::Seeded(Box::new(chain_rng(
                 seed,
                 sequences.id(sequence),
                 sample as u64,
                 stage,
             ))),
-        }
+        };
+        ChainNoise { source, centre }
     }
 
-    /// Writes block `j` (called with j = 0, 1, 2, ... in order) into `out` (K·L values).
+    /// Writes block `j` (called with j = 0, 1, 2, ... in order) into `out` (K·L values): block 0 moved off
+    /// the sequence's centre where the call is coupled.
     pub(crate) fn fill(&mut self, j: usize, out: &mut [f32]) {
-        match self {
-            ChainNoise::Injected {
+        match &mut self.source {
+            ChainSource::Injected {
                 data,
                 sample,
                 sequence,
@@ -177,7 +287,12 @@ impl<'a> ChainNoise<'a> {
                     out.copy_from_slice(src);
                 }
             }
-            ChainNoise::Seeded(rng) => fill_standard_normal(rng, out),
+            ChainSource::Seeded(rng) => fill_standard_normal(rng, out),
+        }
+        if let (0, Some((centre, scale))) = (j, self.centre) {
+            for (v, &c) in out.iter_mut().zip(centre) {
+                *v = ((*v as f64 - c) * scale) as f32;
+            }
         }
     }
 }
@@ -215,6 +330,59 @@ mod tests {
         }
         assert!(Sequences::Ids(&[1, 2]).check(3).is_err());
         assert!(Sequences::Ids(&[1, 2]).check(2).is_ok());
+    }
+
+    /// Centred x_T: block 0 of chain s is ((z_s − c) · √(S/(S−1))) in f64 with c the chain-order f64 mean of
+    /// the sequence's S blocks 0; the S of a sequence sum to (about) zero; later blocks are as drawn.
+    #[test]
+    fn centred_x_t_follows_its_definition() {
+        let (s_n, blocks, batch, len) = (5usize, 3usize, 2usize, 64usize);
+        let raw = seeded_noise(4, Sequences::From(0), stage::LONG, s_n, blocks, batch, len);
+        let noise = Noise::seeded(4);
+        let centres = Centres::new(
+            NoiseCoupling::Centered,
+            noise,
+            stage::LONG,
+            s_n,
+            blocks,
+            batch,
+            len,
+        )
+        .unwrap();
+        let block =
+            |s: usize, j: usize, b: usize| &raw[((s * blocks + j) * batch + b) * len..][..len];
+        let scale = (5.0f64 / 4.0).sqrt();
+        for b in 0..batch {
+            let mut sum = vec![0.0f64; len];
+            for s in 0..s_n {
+                let mut chain =
+                    ChainNoise::new(noise, stage::LONG, s, b, blocks, batch, Some(centres.of(b)));
+                let mut out = vec![0.0f32; len];
+                chain.fill(0, &mut out);
+                for i in 0..len {
+                    let mut c = 0.0f64;
+                    for t in 0..s_n {
+                        c += block(t, 0, b)[i] as f64;
+                    }
+                    c /= s_n as f64;
+                    assert_eq!(out[i], ((block(s, 0, b)[i] as f64 - c) * scale) as f32);
+                    sum[i] += out[i] as f64;
+                }
+                for j in 1..blocks {
+                    chain.fill(j, &mut out);
+                    assert_eq!(out, block(s, j, b));
+                }
+            }
+            assert!(sum.iter().all(|v| v.abs() < 1e-5), "{sum:?}");
+        }
+        let none = |c, s| Centres::new(c, noise, 0, s, blocks, batch, len).is_none();
+        assert!(none(NoiseCoupling::Independent, 5) && none(NoiseCoupling::Centered, 1));
+        assert_eq!(
+            "centered".parse::<NoiseCoupling>().unwrap(),
+            NoiseCoupling::Centered
+        );
+        let e = "antithetic".parse::<NoiseCoupling>().unwrap_err();
+        assert!(e.to_string().contains("noise_coupling"), "{e}");
     }
 
     #[test]

@@ -12,7 +12,7 @@ use tcd_core::{
     sample, Control, Denoiser, Error, Noise, Observation, PredictionType, Role, Sampler,
     SamplerConfig, SamplerKind, Sequences, TimestepSpacing, VarianceType,
 };
-use tcd_core::{seeded_noise, stage};
+use tcd_core::{seeded_noise, stage, NoiseCoupling};
 
 fn model() -> &'static Denoiser {
     static M: OnceLock<Denoiser> = OnceLock::new();
@@ -37,8 +37,16 @@ fn sampler_strategy() -> impl Strategy<Value = SamplerConfig> {
                 TimestepSpacing::Trailing,
                 TimestepSpacing::Linspace
             ][sp],
+            ..SamplerConfig::default()
         }),
-        (1usize..=10, 0.0f64..=1.0).prop_map(|(n, eta)| SamplerConfig::ddim(n, eta)),
+        (1usize..=10, 0.0f64..=1.0, any::<bool>()).prop_map(|(n, eta, centred)| SamplerConfig {
+            noise_coupling: if centred {
+                NoiseCoupling::Centered
+            } else {
+                NoiseCoupling::Independent
+            },
+            ..SamplerConfig::ddim(n, eta)
+        }),
         (1usize..=10).prop_map(SamplerConfig::dpmpp2m),
     ]
 }
@@ -203,6 +211,53 @@ fn seeded_equals_injected_seeded_noise_and_batch_composition_is_irrelevant() {
     }
 }
 
+/// Centred noise: the seeded call equals the injected one fed the same raw streams (the coupling is applied to
+/// either source); one DDIM step from x_T is x_T's function, so moving x_T off the sequence's mean changes the
+/// samples; a sequence's centre is its own (the same alone and in a batch); one chain per sequence is not coupled.
+#[test]
+fn centred_noise_is_the_same_for_seeded_and_injected_calls() {
+    let m = model();
+    let (b, l, s) = (3usize, 7usize, 4usize);
+    let n = b * 6 * l;
+    let observed = values(n, 5, 1.0);
+    let mask = binary_mask(n, 6, 0.5);
+    let obs = Observation::new(&observed, &mask, [b, 6, l]).unwrap();
+    let centred = SamplerConfig {
+        noise_coupling: NoiseCoupling::Centered,
+        ..SamplerConfig::ddim(1, 0.0)
+    };
+    let run = |cfg: &SamplerConfig, noise: Noise, obs: &Observation, s: usize| {
+        sample(m, obs, s, cfg, noise, &Control::default()).unwrap()
+    };
+    let seeded = run(&centred, Noise::seeded(3), &obs, s);
+    let raw = seeded_noise(3, Sequences::From(0), stage::SHORT, s, 2, b, 6 * l);
+    assert_eq!(seeded, run(&centred, Noise::Injected(&raw), &obs, s));
+    assert_ne!(
+        seeded,
+        run(&SamplerConfig::ddim(1, 0.0), Noise::seeded(3), &obs, s)
+    );
+    let q = 6 * l;
+    let alone = run(
+        &centred,
+        Noise::Seeded {
+            seed: 3,
+            sequences: Sequences::From(1),
+        },
+        &Observation::new(&observed[q..2 * q], &mask[q..2 * q], [1, 6, l]).unwrap(),
+        s,
+    );
+    for si in 0..s {
+        assert_eq!(
+            &alone[si * q..(si + 1) * q],
+            &seeded[(si * b + 1) * q..(si * b + 2) * q]
+        );
+    }
+    assert_eq!(
+        run(&centred, Noise::seeded(3), &obs, 1),
+        run(&SamplerConfig::ddim(1, 0.0), Noise::seeded(3), &obs, 1)
+    );
+}
+
 #[test]
 fn ddim_eta_zero_ignores_the_step_noise() {
     let m = model();
@@ -239,6 +294,7 @@ fn ddim_eta_zero_ignores_the_step_noise() {
         kind: SamplerKind::Ddpm,
         num_inference_steps: Some(5),
         timestep_spacing: TimestepSpacing::Trailing,
+        ..SamplerConfig::default()
     };
     let c = sample(
         m,
@@ -283,6 +339,7 @@ fn ddpm_all_steps_is_the_reference_chain() {
             kind: SamplerKind::Ddpm,
             num_inference_steps: Some(10),
             timestep_spacing: sp,
+            ..SamplerConfig::default()
         };
         assert_eq!(
             sample(

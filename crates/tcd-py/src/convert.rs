@@ -80,7 +80,7 @@ pub(crate) fn check_work(
     }
 }
 
-/// `tcd.SamplerOptions` (any object with its four attributes) → the engine's [`SamplerConfig`]: the
+/// `tcd.SamplerOptions` (any object with its five attributes) → the engine's [`SamplerConfig`]: the
 /// one place where the sampler settings cross from Python. Their values are checked by the engine
 /// ([`SamplerConfig::from_names`]), also when the Python type is made (`check_sampler_options`).
 #[derive(FromPyObject)]
@@ -93,6 +93,8 @@ pub(crate) struct SamplerOptions {
     eta: f64,
     #[pyo3(attribute)]
     timestep_spacing: String,
+    #[pyo3(attribute)]
+    noise_coupling: String,
 }
 
 impl SamplerOptions {
@@ -106,6 +108,7 @@ impl SamplerOptions {
             num_inference_steps,
             self.eta,
             &self.timestep_spacing,
+            &self.noise_coupling,
         )
     }
 }

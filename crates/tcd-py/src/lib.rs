@@ -53,6 +53,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(check_call_settings, m)?)?;
     m.add("SAMPLERS", tcd_core::SamplerKind::NAMES.to_vec())?;
     m.add("SPACINGS", tcd_core::TimestepSpacing::NAMES.to_vec())?;
+    m.add("COUPLINGS", tcd_core::NoiseCoupling::NAMES.to_vec())?;
     m.add(
         "INTERPOLATIONS",
         tcd_core::CondFill::INTERPOLATIONS.to_vec(),

@@ -115,6 +115,7 @@ def provenance(model: Any, opts: RepairOptions, fps: float) -> Dict[str, Any]:
         "num_samples": opts.num_samples,
         "eta": opts.sampling.eta,
         "timestep_spacing": opts.sampling.timestep_spacing,
+        "noise_coupling": opts.sampling.noise_coupling,
         "seed": opts.seed,
         "units": opts.units,
         "fps": fps,

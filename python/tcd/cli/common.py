@@ -12,7 +12,7 @@ from typing import Any, Dict, Iterator, Optional, Tuple
 
 from ..exceptions import InvalidInputError, WeightsError
 from ..model import TCD, load
-from ..options import SAMPLERS, SPACINGS, SamplerOptions
+from ..options import COUPLINGS, SAMPLERS, SPACINGS, SamplerOptions
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
@@ -64,7 +64,7 @@ def stop_signals() -> Iterator[None]:
 # The sampler flags of every command that samples: one mapping from SamplerOptions field to flag. A flag
 # not given is left out, so the defaults are SamplerOptions' own.
 SAMPLER_FLAGS = {"sampler": "--sampler", "num_inference_steps": "--steps", "eta": "--eta",
-                 "timestep_spacing": "--spacing"}
+                 "timestep_spacing": "--spacing", "noise_coupling": "--noise-coupling"}
 # The API argument each flag sets, for the commands' error messages; a command adds or overrides its own.
 OPTION_FLAGS = {"num_samples": "--samples", "seed": "--seed", "units": "--units", "threads": "--threads",
                 **SAMPLER_FLAGS}
@@ -82,9 +82,9 @@ def add_model_flag(p: argparse.ArgumentParser) -> None:
 
 
 def add_sampler_flags(p: argparse.ArgumentParser, *, tuning: bool = True) -> None:
-    """--steps and --sampler (and with ``tuning`` --eta and --spacing). Each defaults to None, so that a
-    flag not given leaves the model's default (its ``sampling.json``, else SamplerOptions'); argparse refuses a
-    choice not in SAMPLERS or SPACINGS."""
+    """--steps and --sampler (and with ``tuning`` --eta, --spacing and --noise-coupling). Each defaults to None,
+    so that a flag not given leaves the model's default (its ``sampling.json``, else SamplerOptions'); argparse
+    refuses a choice not in SAMPLERS, SPACINGS or COUPLINGS."""
     d = SamplerOptions()
     p.add_argument("--steps", dest="num_inference_steps", type=int, default=None, metavar="S",
                    help="inference steps (default: the model's; `tcd info` shows them)")
@@ -95,6 +95,9 @@ def add_sampler_flags(p: argparse.ArgumentParser, *, tuning: bool = True) -> Non
                        help=f"DDIM eta in [0, 1] (default: the model's, else {d.eta:g})")
         p.add_argument("--spacing", dest="timestep_spacing", default=None, choices=SPACINGS,
                        help=f"timestep spacing (default: the model's, else {d.timestep_spacing})")
+        p.add_argument("--noise-coupling", dest="noise_coupling", default=None, choices=COUPLINGS,
+                       help="how the samples of a sequence share their starting noise: centered (they sum to "
+                            f"zero) or independent (default: the model's, else {d.noise_coupling})")
 
 
 def sampler_keywords(args: argparse.Namespace) -> Dict[str, Any]:

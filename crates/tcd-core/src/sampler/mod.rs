@@ -22,7 +22,7 @@ use crate::control::Control;
 use crate::denoiser::{CondTables, Denoiser, SequenceInputs, Workspace};
 use crate::error::{check_len, check_positive, Error, Result};
 use crate::observation::Observation;
-use crate::rng::{stage, ChainNoise, Noise};
+use crate::rng::{stage, Centres, ChainNoise, Noise, NoiseCoupling};
 use crate::schedule::NoiseSchedule;
 use crate::validate;
 
@@ -152,12 +152,14 @@ pub struct SamplerConfig {
     /// `None`: every training step (n = T).
     pub num_inference_steps: Option<usize>,
     pub timestep_spacing: TimestepSpacing,
+    /// How the S chains of a sequence share x_T ([`NoiseCoupling`]; independent by default).
+    pub noise_coupling: NoiseCoupling,
 }
 
 impl SamplerConfig {
     /// The sampler named by the settings of the Python `SamplerOptions` and the command line: the one
     /// check of their values. `sampler` is one of [`SamplerKind::NAMES`], `timestep_spacing` one of
-    /// [`TimestepSpacing::NAMES`], and `eta` must lie in [0, 1] whatever the sampler (only DDIM uses it,
+    /// [`TimestepSpacing::NAMES`], `noise_coupling` one of [`NoiseCoupling::NAMES`], and `eta` must lie in [0, 1] whatever the sampler (only DDIM uses it,
     /// but a bad value is refused rather than ignored). `num_inference_steps` is checked against a
     /// model's training steps by [`SamplerConfig::plan`].
     pub fn from_names(
@@ -165,6 +167,7 @@ impl SamplerConfig {
         num_inference_steps: Option<usize>,
         eta: f64,
         timestep_spacing: &str,
+        noise_coupling: &str,
     ) -> Result<Self> {
         ddim::check_eta(eta)?;
         let kind = match sampler {
@@ -190,6 +193,7 @@ impl SamplerConfig {
             kind,
             num_inference_steps,
             timestep_spacing: timestep_spacing.parse()?,
+            noise_coupling: noise_coupling.parse()?,
         })
     }
 
@@ -199,6 +203,7 @@ impl SamplerConfig {
             kind: SamplerKind::Ddpm,
             num_inference_steps: None,
             timestep_spacing: TimestepSpacing::Trailing,
+            noise_coupling: NoiseCoupling::Independent,
         }
     }
 
@@ -208,6 +213,7 @@ impl SamplerConfig {
             kind: SamplerKind::Ddim { eta },
             num_inference_steps: Some(num_inference_steps),
             timestep_spacing: TimestepSpacing::Trailing,
+            noise_coupling: NoiseCoupling::Independent,
         }
     }
 
@@ -217,6 +223,7 @@ impl SamplerConfig {
             kind: SamplerKind::DpmPp2m,
             num_inference_steps: Some(num_inference_steps),
             timestep_spacing: TimestepSpacing::Trailing,
+            noise_coupling: NoiseCoupling::Independent,
         }
     }
 
@@ -534,6 +541,7 @@ pub(crate) struct SampleJob<'a> {
     pub num_samples: usize,
     pub plan: Plan,
     pub noise: Noise<'a>,
+    pub noise_coupling: NoiseCoupling,
     pub stage: u64,
 }
 
@@ -588,6 +596,7 @@ pub(crate) fn validate_job<'a>(
         num_samples,
         plan,
         noise,
+        noise_coupling: sampler.noise_coupling,
         stage,
     })
 }
@@ -612,6 +621,15 @@ pub(crate) fn run_job(
     let tables = denoiser.cond_tables(length);
     let blocks = job.plan.num_noise_blocks();
     let num_chains = job.num_samples * batch;
+    let centres = Centres::new(
+        job.noise_coupling,
+        job.noise,
+        job.stage,
+        job.num_samples,
+        blocks,
+        batch,
+        n,
+    );
     let threads = rayon::current_num_threads().max(1);
     // Whole rounds of one chain per thread first; the chains left over (fewer than the threads)
     // then split their forwards over the idle threads. 5 chains on 2 threads: 2 rounds of 2, then
@@ -626,7 +644,9 @@ pub(crate) fn run_job(
                 || Workspace::with_threads(denoiser, length, split),
                 |ws, c| {
                     let (s, b) = (c / batch, c % batch);
-                    let mut noise = ChainNoise::new(job.noise, job.stage, s, b, blocks, batch);
+                    let centre = centres.as_ref().map(|c| c.of(b));
+                    let mut noise =
+                        ChainNoise::new(job.noise, job.stage, s, b, blocks, batch, centre);
                     let chain = ChainInputs {
                         tables: &tables,
                         mask: &mask[b * n..(b + 1) * n],
