@@ -434,3 +434,19 @@ def test_repair_gap_lengths_hides_n_whole_frames_per_window():
         runs = np.diff(np.concatenate([np.zeros((64, 1)), hidden, np.zeros((64, 1))], 1).astype(int), axis=1)
         assert ((runs == 1).sum(1) == 1).all()                                 # one run each
         assert np.array_equal(m, gl.gap_masks(64, 50, n, 0)) and not np.array_equal(m, gl.gap_masks(64, 50, n, 1))
+
+
+def test_repair_gap_refiner_starts_as_the_fill_and_moves_hidden_frames_only():
+    """benches/repair_gap_refiner.py: the untrained refiner returns the fill bit for bit; once its output layer is
+    non-zero it changes the hidden frames and no seen one."""
+    torch = import_torch("benches/repair_gap_refiner.py (a PyTorch network)")
+    gr = load_bench("repair_gap_refiner")
+    torch.manual_seed(0)
+    net = gr.refiner(8, 2)
+    fill = torch.randn(3, 50, 66)
+    seen = torch.ones(3, 50, dtype=torch.bool)
+    seen[:, 10:20] = False
+    assert torch.equal(net(fill, seen), fill)
+    torch.nn.init.normal_(net.out.weight)
+    out = net(fill, seen)
+    assert torch.equal(out[seen], fill[seen]) and not torch.equal(out[~seen], fill[~seen])
