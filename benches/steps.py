@@ -5,8 +5,9 @@
                             [--accuracy-from JSON] [--json OUT] [--plot OUT.png]
 
 Configurations (ENGINE.md, "Samplers at fewer steps"): DDPM over all 50 steps (the reference), DDIM at
-50 / 25 / 10 / 5 steps with eta 0 and 1, respaced DDPM at 20 and 10 steps, DPM-Solver++(2M) at 20 and
-10 steps; trailing timestep spacing throughout.
+50 / 25 / 10 / 5 / 2 steps with eta 0 and 1 and at one step (from independent and from centred noise:
+``noise_coupling``), respaced DDPM at 20 and 10 steps, DPM-Solver++(2M) at 20 / 10 / 5 / 2 steps; trailing timestep
+spacing throughout.
 
 Protocol (reusing ``training.evaluate``, ``training.data.h36m``, ``training.masks``, ``training.metrics``):
 * windows: Human3.6M S5, every test action, the first ``--windows-per-action`` windows of the 256-per-action
@@ -28,7 +29,7 @@ Protocol (reusing ``training.evaluate``, ``training.data.h36m``, ``training.mask
 
 Run time: proportional to windows x samples x steps. Each window is forecast twice per configuration
 (clean and occluded), each forecast is a cascade of two stages, so one configuration costs
-2 x 2 x samples x steps forwards per window; over the 18 configurations the steps add up to 302 (DDPM-50 and
+2 x 2 x samples x steps forwards per window; over the 19 configurations the steps add up to 303 (DDPM-50 and
 the two DDIM-50 rows are 150 of them). Measured on the busy 2-core development machine with the reduced
 cpu40 model (batch of one window, 2 samples): ~21 s for a DDIM-5 forecast, ~280 s for a DDPM-50 one, so
 ``--windows-per-action 1 --samples 2`` over all 13 actions and configurations takes hours there; use
@@ -76,18 +77,22 @@ def configurations() -> list[dict]:
     # One step from pure noise to the network's x0 estimate: no noise is added after it, so eta plays no part.
     # With an x0-predicting model it is the model's conditional-mean estimate, the far end of the step axis.
     out.append(dict(name="DDIM-1", sampler="ddim", steps=1, eta=0.0))
+    # The bundled forecast's default: the same step from centred noise (docs/samplers.md, "Centred noise").
+    out.append(dict(name="DDIM-1 centred", sampler="ddim", steps=1, eta=0.0, noise_coupling="centered"))
     for n in (20, 10):
         out.append(dict(name=f"DDPM-{n} (respaced)", sampler="ddpm", steps=n, eta=0.0))
     for n in (20, 10, 5, 2):
         out.append(dict(name=f"DPM++2M-{n}", sampler="dpmpp2m", steps=n, eta=0.0))
     for c in out:
         c.setdefault("reference", False)
+        c.setdefault("noise_coupling", "independent")
         c["timestep_spacing"] = "trailing"
     return out
 
 
 def sampling_kw(cfg: dict) -> dict:
-    return dict(sampler=cfg["sampler"], steps=cfg["steps"], eta=cfg["eta"], spacing=cfg["timestep_spacing"])
+    return dict(sampler=cfg["sampler"], steps=cfg["steps"], eta=cfg["eta"], spacing=cfg["timestep_spacing"],
+                noise_coupling=cfg["noise_coupling"])
 
 
 def load_windows(data_dir: str, per_action: int, mask_seed: int, actions=None) -> list[dict]:
@@ -134,7 +139,8 @@ def latency(model, cfgs: list[dict], obs: np.ndarray, samples: int, reps: int, t
     def once(c, seed):
         t0 = time.perf_counter()
         model.forecast(obs, num_samples=samples, sampler=c["sampler"], num_inference_steps=c["steps"], eta=c["eta"],
-                       timestep_spacing=c["timestep_spacing"], seed=seed, threads=threads)
+                       timestep_spacing=c["timestep_spacing"], noise_coupling=c["noise_coupling"], seed=seed,
+                       threads=threads)
         return time.perf_counter() - t0
 
     for c in cfgs:
