@@ -159,9 +159,10 @@ pub struct SamplerConfig {
 impl SamplerConfig {
     /// The sampler named by the settings of the Python `SamplerOptions` and the command line: the one
     /// check of their values. `sampler` is one of [`SamplerKind::NAMES`], `timestep_spacing` one of
-    /// [`TimestepSpacing::NAMES`], `noise_coupling` one of [`NoiseCoupling::NAMES`], and `eta` must lie in [0, 1] whatever the sampler (only DDIM uses it,
-    /// but a bad value is refused rather than ignored). `num_inference_steps` is checked against a
-    /// model's training steps by [`SamplerConfig::plan`].
+    /// [`TimestepSpacing::NAMES`], `noise_coupling` one of [`NoiseCoupling::NAMES`], and `eta` must lie
+    /// in [0, 1] whatever the sampler (only DDIM uses it, but a bad value is refused rather than
+    /// ignored). `num_inference_steps` is checked against a model's training steps by
+    /// [`SamplerConfig::plan`].
     pub fn from_names(
         sampler: &str,
         num_inference_steps: Option<usize>,
