@@ -28,7 +28,8 @@ Measured 2026-11-28 (twenty-fifth session), ``--minutes 18 --windows 200000 --th
 protocol runs (3,756 steps of 256; 86,170 parameters; ``benches/results/repair_gap_refiner.json``): S11 gaps of
 1-25 frames 24.20 mm against the fill's 26.47 (-9 % at 16-25 frames, but +29 % at 1-2 frames and +4 % at 3-5: the
 pooled loss is ruled by the long gaps), the benchmark's 10-frame gaps 17.38 against 17.77 mm (-0.39 ± 0.13, lower
-on 146 of 256): short of issue 29's 0.5 × linear interpolation (15.6 mm), so not built into the engine. Needs torch and the Human3.6M data.
+on 146 of 256): short of issue 29's 0.5 × linear interpolation (15.6 mm), so not built into the engine.
+Needs torch and the Human3.6M data.
 """
 from __future__ import annotations
 
@@ -153,7 +154,8 @@ def main(argv=None) -> int:
         opt.step()
         step += 1
         if step % 500 == 0:
-            print(f"step {step} of {steps}: training loss {float(loss.detach()):.2f} mm, {time.time() - t0:.0f} s", flush=True)
+            print(f"step {step} of {steps}: training loss {float(loss.detach()):.2f} mm, {time.time() - t0:.0f} s",
+                  flush=True)
     net.eval()
     with torch.no_grad():
         refined = net(vfill, vseen)
