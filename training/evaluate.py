@@ -573,6 +573,7 @@ def main(argv=None) -> int:
         torch.set_num_threads(args.threads)
     if args.data is None:
         args.data = str(DEFAULT_DATA_ROOT / ("h36m" if args.protocol == "h36m" else "humaneva"))
+    args.noise_coupling = noise_coupling_of(args)     # resolved once: the model directory is read here, not per use
     out = evaluate_h36m(args) if args.protocol == "h36m" else evaluate_humaneva(args)
     out["command"] = " ".join(["python -m training.evaluate"] + (argv if argv is not None else sys.argv[1:]))
     if args.protocol == "h36m":

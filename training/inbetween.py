@@ -169,11 +169,13 @@ def fit(model, max_gap: int = MAX_GAP, windows: int = 20000, reverse: bool = Tru
 
 
 def fit_joint_runs(model, max_run: int = JOINT_MAX_RUN, windows: int = 20000, lam: float = JOINT_LAM,
-                   context: int = JOINT_CONTEXT, seed: int = 3, data_dir=None, log=print, batch: int = 1000) -> dict:
+                   context: int = JOINT_CONTEXT, seed: int = 3, data_dir=None, log=print, batch: int = 1000,
+                   reverse: bool = True) -> dict:
     """{n: W_n float32 (n, 3 (2 C + n) + 2)} for n = 1 .. ``max_run``: the joint in-betweener of ``model``'s repair
-    fill, fitted on ``windows`` training windows (and their time reversals), half with the ``random_joints`` mask
-    (10-40 %) and half with ``random_leg_arm`` (40 %) of ``training.masks`` (the fill's own training mix has both),
-    on every run of hidden frames of a coordinate (:func:`joint_runs`); a length without data gets zeros."""
+    fill, fitted on ``windows`` training windows (and, with ``reverse``, their time reversals), half with the
+    ``random_joints`` mask (10-40 %) and half with ``random_leg_arm`` (40 %) of ``training.masks`` (the fill's own
+    training mix has both), on every run of hidden frames of a coordinate (:func:`joint_runs`); a length without data
+    gets zeros."""
     from training import masks
     from training.data import h36m
     seqs = [x for _, x in h36m.H36M(data_dir or h36m.DEFAULT_H36M_DIR).sequences("train")]
@@ -186,7 +188,7 @@ def fit_joint_runs(model, max_run: int = JOINT_MAX_RUN, windows: int = 20000, la
     for lo in range(0, windows, batch):
         k = min(batch, windows - lo)
         gt = h36m.random_windows(seqs, k, t, rng)
-        for g in (gt, gt[:, ::-1]):
+        for g in ((gt, gt[:, ::-1]) if reverse else (gt,)):
             m = np.stack([masks.make_mask("random_joints", t, t, rng, rate=(0.1, 0.4)) if i % 2 else
                           masks.make_mask("random_leg_arm", t, t, rng, rate=0.4) for i in range(k)])
             keep = np.repeat(m[..., None] > 0.5, 3, -1).reshape(k, t, -1)
@@ -253,7 +255,7 @@ def main(argv=None) -> int:
     log = lambda m: print(m, file=sys.stderr, flush=True)  # noqa: E731
     if args.joints:
         kernels = fit_joint_runs(model, args.max_gap, args.windows, args.lam, args.context, args.seed,
-                                 args.data_dir, log=log)
+                                 args.data_dir, log=log, reverse=not args.no_reverse)
     else:
         kernels = fit(model, args.max_gap, args.windows, not args.no_reverse, args.lam, args.context, args.seed,
                       args.data_dir, log=log)
