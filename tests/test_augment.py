@@ -198,6 +198,40 @@ def test_training_batches_swap_a_share_of_the_futures_and_keep_every_other_draw(
         TrainConfig(future_swap=0.5, future_swap_k=0)
 
 
+def test_training_batches_add_further_imle_targets_and_keep_every_other_draw():
+    """imle_targets M: the batch of the run without them (the same windows, swaps, turns, masks, steps, noise and
+    candidates) followed by M - 1 further futures per window: its own past, turned with it, joined to the future
+    of one of its neighbours."""
+    import torch
+    from training.batches import BatchSource, Windows
+    from training.train import TrainConfig
+    rng = np.random.default_rng(1)
+    seqs = [np.cumsum(rng.normal(scale=0.01, size=(120, 22, 3)), axis=0).astype(np.float32) for _ in range(3)]
+    wins = Windows(seqs, 12, 1)
+    plain = TrainConfig(role="long", obs_len=8, pred_len=4, batch_size=16, rotate_axis="z", future_swap=0.5,
+                        future_swap_k=3, imle_samples=2, diffusion={"prediction_type": "sample"})
+    more = TrainConfig(**{**plain.__dict__, "imle_targets": 3})
+    a = BatchSource(plain, wins, 50, 10).batch(1, 2)
+    source = BatchSource(more, wins, 50, 10)
+    b = source.batch(1, 2)
+    assert len(a) == 6 and len(b) == 7
+    assert all(torch.equal(x, y) for x, y in zip(a, b))
+    others = b[6]
+    assert others.shape == (2, *b[0].shape)
+    assert torch.equal(others[..., :8], b[0][..., :8].expand(2, -1, -1, -1))      # the window's own (turned) past
+    assert (others[..., 8:] != b[0][..., 8:]).flatten(2).any(2).float().mean() > 0.5
+    assert all(torch.equal(x, y) for x, y in zip(b, BatchSource(more, wins, 50, 10).batch(1, 2)))
+    # unturned, each further future is one of the window's neighbours' futures, joined (swap_futures)
+    flat = TrainConfig(**{**more.__dict__, "rotate_axis": "", "future_swap": 0.0})
+    c = BatchSource(flat, wins, 50, 10).batch(1, 2)
+    window = c[0][0].T.reshape(12, 22, 3).numpy()
+    joined = [swap_futures(window[None], wins.gather(np.array([j])), 8)[0] for j in source.neighbours[
+        _row_of(wins, window)]]
+    for m in range(2):
+        got = c[6][m, 0].T.reshape(12, 22, 3).numpy()
+        assert any(np.allclose(j, got, atol=1e-6) for j in joined)
+
+
 def _row_of(wins, window: np.ndarray) -> int:
     """The index of the window (L, J, 3) among ``wins``' windows."""
     all_w = wins.gather(np.arange(len(wins)))

@@ -78,6 +78,24 @@ def test_final_weight_adds_the_candidate_nearest_on_the_last_hidden_frame(gap):
     assert float(got.detach()) == pytest.approx(float(expected), rel=1e-5)
 
 
+def test_further_targets_each_pull_their_nearest_candidate():
+    """``others`` (imle_targets): each further future pulls its own nearest of the same samples; the loss is the
+    mean over the targets, so copies of the window's own future change nothing."""
+    model, x0, mask = model_and_window()
+    cand = torch.randn(5, *x0.shape, generator=torch.Generator().manual_seed(11))
+    alone = float(imle_loss(model, SCHED, x0, mask, cand).detach())
+    copies = x0.expand(2, *x0.shape).clone()
+    assert float(imle_loss(model, SCHED, x0, mask, cand, others=copies).detach()) == pytest.approx(alone, rel=1e-5)
+    g = torch.Generator().manual_seed(12)
+    others = x0 + torch.cumsum(torch.randn(2, *x0.shape, generator=g) * 0.02, dim=-1) * (1 - mask)
+    each = [alone] + [float(imle_loss(model, SCHED, o, mask, cand, observed=x0).detach()) for o in others]
+    got = float(imle_loss(model, SCHED, x0, mask, cand, others=others).detach())
+    assert got == pytest.approx(sum(each) / 3, rel=1e-5)
+    assert not got == pytest.approx(alone, rel=1e-3)     # the further futures are not the window's own
+    with pytest.raises(ValueError, match="others must be"):
+        imle_loss(model, SCHED, x0, mask, cand, others=x0)
+
+
 def test_imle_loss_gradient_reaches_the_weights():
     model, x0, mask = model_and_window()
     cand = torch.randn(3, *x0.shape, generator=torch.Generator().manual_seed(2))
@@ -125,6 +143,11 @@ def test_config_checks_and_train_step_adds_the_imle_term(tmp_path):
         TrainConfig(**{**base, "imle_samples": 4, "imle_final_weight": -1.0})
     with pytest.raises(ValueError, match="imle_final_weight .* needs imle_samples"):
         TrainConfig(**{**base, "imle_final_weight": 1.0})
+    with pytest.raises(ValueError, match="imle_targets"):
+        TrainConfig(**{**base, "imle_targets": 3})
+    with pytest.raises(ValueError, match="imle_targets"):
+        TrainConfig(**{**base, "imle_samples": 4, "imle_targets": 0})
+    TrainConfig(**{**base, "imle_samples": 4, "imle_targets": 3})                 # with candidates: accepted
     TrainConfig(**{**base, "imle_samples": 4, "imle_final_weight": 1.0})          # with candidates: accepted
     TrainConfig(**{**base, "imle_samples": 4, "imle_weight": 0.5})                # x0-prediction: accepted
     model, x0, mask = model_and_window()
@@ -143,6 +166,13 @@ def test_config_checks_and_train_step_adds_the_imle_term(tmp_path):
                            imle_final_weight=0.25))
     assert got == pytest.approx(plain + 0.5 * with_final, rel=1e-5)
     assert float(train_step(model, opt, SCHED, (x0, x0, mask, t, eps), False)) == pytest.approx(plain, rel=1e-5)
+    # the further targets of imle_targets (the batch's seventh tensor) reach the IMLE loss through train_step
+    others = x0 + torch.cumsum(torch.randn(2, *x0.shape, generator=torch.Generator().manual_seed(6)) * 0.02,
+                               dim=-1) * (1 - mask)
+    with_others = float(imle_loss(model, SCHED, x0, mask, cand, observed=x0, others=others).detach())
+    assert with_others != pytest.approx(extra, rel=1e-3)
+    got = float(train_step(model, opt, SCHED, (x0, x0, mask, t, eps, cand, others), False, imle_weight=0.5))
+    assert got == pytest.approx(plain + 0.5 * with_others, rel=1e-5)
 
 
 @pytest.mark.slow

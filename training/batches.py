@@ -1,7 +1,8 @@
 """Where training batches come from. A batch is (x0, observed, mask, t, eps), each (B, K, L) but t (B,), with
 the config's ``imle_samples`` S also the one-step sampler's candidate noise (S, B, K, L) (training.imle.imle_loss),
-and is a pure function of (seed, epoch, batch index), so a resumed run continues with exactly the batches
-it would have drawn.
+and with ``imle_targets`` M > 1 then the M - 1 further futures of each window (M - 1, B, K, L): the window with the
+future of one of its ``future_swap_k`` nearest windows. A batch is a pure function of (seed, epoch, batch index),
+so a resumed run continues with exactly the batches it would have drawn.
 
 :class:`BatchSource`: windows gathered with numpy (turned about the vertical when the config's ``rotate_axis``
 says so, ``training.augment``), occlusion masks drawn per window by ``training.masks`` (the reference
@@ -93,7 +94,7 @@ class BatchSource:
         self.weights = weights
         self._perm_epoch, self._perm = None, None
         self.neighbours = (windows.future_neighbours(cfg.obs_len, cfg.future_swap_k, SWAP_EXCLUDE_FRAMES)
-                           if cfg.future_swap > 0 else None)
+                           if cfg.future_swap > 0 or cfg.imle_targets > 1 else None)
 
     def batch(self, epoch: int, batch_i: int):
         cfg = self.cfg
@@ -104,20 +105,37 @@ class BatchSource:
             self._perm_epoch = epoch
         rows = self._perm[(np.arange(cfg.batch_size) + batch_i * cfg.batch_size) % len(self._perm)]
         wins = self.windows.gather(rows)
-        if self.neighbours is not None:     # its own stream, like the rotation's
+        if cfg.future_swap > 0:     # its own stream, like the rotation's
             rng = np.random.default_rng([cfg.seed, epoch, batch_i, 2])
             swap = rng.random(len(rows)) < cfg.future_swap
             donor = self.neighbours[rows, rng.integers(0, cfg.future_swap_k, len(rows))]
             if swap.any():
                 wins[swap] = swap_futures(wins[swap], self.windows.gather(donor[swap]), cfg.obs_len)
+        others = None
+        if cfg.imle_targets > 1:    # the further IMLE targets: the window with a neighbour's future (own stream)
+            rng = np.random.default_rng([cfg.seed, epoch, batch_i, 3])
+            pick = rng.integers(0, cfg.future_swap_k, (len(rows), cfg.imle_targets - 1))
+            donors = self.neighbours[rows[:, None], pick]
+            others = np.stack([swap_futures(wins, self.windows.gather(donors[:, m]), cfg.obs_len)
+                               for m in range(cfg.imle_targets - 1)], axis=1)     # (B, M - 1, L, J, 3)
         if cfg.rotate_axis:     # its own stream: the masks, t and eps stay those of the same run without it
-            wins = rotate_about(wins, cfg.rotate_axis, np.random.default_rng([cfg.seed, epoch, batch_i, 1]))
+            rng = np.random.default_rng([cfg.seed, epoch, batch_i, 1])
+            if others is None:
+                wins = rotate_about(wins, cfg.rotate_axis, rng)
+            else:               # one angle per window for it and its further targets: the same B draws
+                both = rotate_about(np.concatenate([wins[:, None], others], axis=1), cfg.rotate_axis, rng)
+                wins, others = both[:, 0], both[:, 1:]
         x0, obs, mask = make_batch(cfg, wins, np.random.default_rng([cfg.seed, epoch, batch_i]))
         g = torch.Generator().manual_seed(((cfg.seed * 1_000_003 + epoch) * 1_000_003 + batch_i) % (1 << 62))
         t = torch.randint(0, self.T, (x0.shape[0],), generator=g)   # the draw order of training_loss
         eps = torch.randn(x0.shape, generator=g)
         if cfg.imle_samples:    # drawn after eps from the same stream: the batches before them are unchanged
-            return x0, obs, mask, t, eps, torch.randn((cfg.imle_samples, *x0.shape), generator=g)
+            candidates = torch.randn((cfg.imle_samples, *x0.shape), generator=g)
+            if others is None:
+                return x0, obs, mask, t, eps, candidates
+            B, M1, L = others.shape[:3]     # (M - 1, B, K, L), laid out as x0
+            o = np.ascontiguousarray(others.reshape(B, M1, L, -1).transpose(1, 0, 3, 2))
+            return x0, obs, mask, t, eps, candidates, torch.from_numpy(o)
         return x0, obs, mask, t, eps
 
     def iterate(self, epoch: int, start: int, workers: int):

@@ -69,12 +69,17 @@ class EngineSearch:
 
 def imle_loss(model, sched: Schedule, x0: torch.Tensor, mask: torch.Tensor, candidates: torch.Tensor,
               observed: torch.Tensor | None = None, search: Search | None = None,
-              final_weight: float = 0.0) -> torch.Tensor:
+              final_weight: float = 0.0, others: torch.Tensor | None = None) -> torch.Tensor:
     """The one-step sampler's IMLE loss for clean windows x0 (B, K, L) (module docstring): of the S one-step
     samples from ``candidates`` (S, B, K, L) standard normals, each window's nearest to its target (squared
     distance over the hidden entries, in target units) is recomputed with gradients and scored by the masked
     mean square of the diffusion loss. ``search`` computes the candidates' samples (default: ``model`` itself,
     :func:`torch_search`); ``observed`` as in ``training.diffusion.training_loss``.
+
+    ``others`` (M - 1, B, K, L): further futures of each window, laid out as x0 (its own observed frames, the
+    future of one of its nearest training windows: ``imle_targets``). Each also pulls its nearest of the same S
+    samples, and the loss is the mean over all M targets: the samples are taught to cover the futures of similar
+    pasts, not only the one each window had (the nearest-training-futures baseline shows how near those lie).
 
     ``final_weight`` > 0 adds that weight x the same loss of each window's candidate nearest on its last hidden
     frame alone (the forecast's final pose). Why it was tried: the stochastic protocol scores the best sample
@@ -86,6 +91,8 @@ def imle_loss(model, sched: Schedule, x0: torch.Tensor, mask: torch.Tensor, cand
                          f"'sample'); this one predicts {sched.cfg.prediction_type!r}")
     if candidates.dim() != x0.dim() + 1 or tuple(candidates.shape[1:]) != tuple(x0.shape):
         raise ValueError(f"candidates must be (S, *x0.shape) = (S, {tuple(x0.shape)}), got {tuple(candidates.shape)}")
+    if others is not None and (others.dim() != x0.dim() + 1 or tuple(others.shape[1:]) != tuple(x0.shape)):
+        raise ValueError(f"others must be (M - 1, *x0.shape) = (M - 1, {tuple(x0.shape)}), got {tuple(others.shape)}")
     S, B = candidates.shape[:2]
     observed = x0 if observed is None else observed
     target = _to_target(model, x0, observed, mask)
@@ -94,7 +101,8 @@ def imle_loss(model, sched: Schedule, x0: torch.Tensor, mask: torch.Tensor, cand
     with torch.no_grad():
         rows = torch.arange(S * B, device=x0.device) % B                              # row s * B + b: window b
         out = (search or torch_search(model))(candidates.reshape(S * B, *x0.shape[1:]), observed, mask, rows, last)
-        sq = ((out.view(S, B, *x0.shape[1:]) - target) * hidden) ** 2                  # (S, B, K, L)
+        out = out.view(S, B, *x0.shape[1:])
+        sq = ((out - target) * hidden) ** 2                                            # (S, B, K, L)
         best = sq.sum((2, 3)).argmin(0)
         if final_weight > 0:
             frames = torch.arange(x0.shape[-1], device=x0.device)
@@ -103,7 +111,16 @@ def imle_loss(model, sched: Schedule, x0: torch.Tensor, mask: torch.Tensor, cand
             final_best = at_final.sum((2, 3)).argmin(0)
     windows = torch.arange(B, device=x0.device)
     t_last = torch.full((B,), last, device=x0.device)
-    loss = masked_eps_loss(target, model(candidates[best, windows], observed, mask, t_last), mask)
+    if others is None:
+        loss = masked_eps_loss(target, model(candidates[best, windows], observed, mask, t_last), mask)
+    else:       # each target's nearest sample, one forward of B per target (a CPU step costs more per window
+                # at 4 B than at B: docs/training.md, "The step's speed"); the mean over targets, each term
+                # normalised by the same count of hidden entries, is the pooled mean
+        targets = torch.cat([target[None], torch.stack([_to_target(model, o, observed, mask) for o in others])])
+        with torch.no_grad():
+            nearest = (((out[:, None] - targets[None]) * hidden) ** 2).sum((3, 4)).argmin(0)   # (M, B)
+        loss = sum(masked_eps_loss(tm, model(candidates[nm, windows], observed, mask, t_last), mask)
+                   for tm, nm in zip(targets, nearest)) / len(targets)
     if final_weight > 0:
         out = model(candidates[final_best, windows], observed, mask, t_last)
         loss = loss + final_weight * masked_eps_loss(target, out, mask)

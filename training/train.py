@@ -60,7 +60,7 @@ def without_removed_keys(d: dict, where) -> dict:
 # them: a checkpoint whose stored train_config lacks one was trained that way.
 ADDED_KEYS = {"rotate_axis": "", "reset_output_head": False, "h36m_share": 0.0, "future_swap": 0.0,
               "future_swap_k": 25, "action_balance": 0.0, "imle_samples": 0, "imle_weight": 1.0,
-              "imle_final_weight": 0.0}
+              "imle_final_weight": 0.0, "imle_targets": 1}
 
 
 def stored_config(d: dict, where) -> dict:
@@ -114,6 +114,8 @@ class TrainConfig:
     imle_weight: float = 1.0         # ... that loss's weight beside the diffusion loss
     imle_final_weight: float = 0.0   # ... plus this weight x the same loss of the candidate nearest on the final
                                      # frame alone (what FDE's best sample is chosen by)
+    imle_targets: int = 1            # > 1: each window's IMLE loss also pulls a nearest candidate to each of
+                                     # imle_targets - 1 futures of its future_swap_k nearest windows (swap_futures)
     reset_output_head: bool = False  # with init_from: the last 1x1 conv's weight and bias restart at zero; for a
                                      # warm start whose prediction_type changes (epsilon -> sample), so the run
                                      # starts at "no residual over the fill" instead of from noise estimates
@@ -152,6 +154,12 @@ class TrainConfig:
         if self.imle_samples < 0 or self.imle_weight < 0 or self.imle_final_weight < 0:
             raise ValueError("train config: imle_samples, imle_weight and imle_final_weight must be >= 0, got "
                              f"{self.imle_samples!r}, {self.imle_weight!r} and {self.imle_final_weight!r}")
+        if self.imle_targets < 1 or (self.imle_targets > 1 and not self.imle_samples):
+            raise ValueError("train config: imle_targets counts the futures each window's IMLE loss covers; it must "
+                             f"be >= 1, and > 1 needs imle_samples > 0, got {self.imle_targets!r}")
+        if self.imle_targets > 1 and self.obs_len < 3:
+            raise ValueError("train config: imle_targets > 1 draws futures of windows matched on their last 3 "
+                             f"observed frames; obs_len is {self.obs_len}")
         if self.imle_final_weight > 0 and not self.imle_samples:
             raise ValueError("train config: imle_final_weight weighs a term of the IMLE loss; it needs "
                              "imle_samples > 0")
@@ -255,16 +263,17 @@ def amp_enabled(cfg: TrainConfig, device: str) -> bool:
 
 def train_step(forward, opt: torch.optim.Optimizer, sched: Schedule, batch, amp: bool,
                imle_weight: float = 1.0, imle_search=None, imle_final_weight: float = 0.0) -> torch.Tensor:
-    """One optimizer step on one batch (x0, observed, mask, t, eps[, candidates]); the loss (a device tensor: no
-    sync). With the candidates (``imle_samples``) the loss adds ``imle_weight`` x the one-step sampler's IMLE loss
-    (``training.imle``; ``imle_search`` computes the candidates' samples, default the forward itself;
-    ``imle_final_weight`` its final-frame term)."""
-    x0, obs, mask, t, eps, *candidates = batch
+    """One optimizer step on one batch (x0, observed, mask, t, eps[, candidates[, others]]); the loss (a device
+    tensor: no sync). With the candidates (``imle_samples``) the loss adds ``imle_weight`` x the one-step sampler's
+    IMLE loss (``training.imle``; ``imle_search`` computes the candidates' samples, default the forward itself;
+    ``imle_final_weight`` its final-frame term; ``others`` the further futures of ``imle_targets``)."""
+    x0, obs, mask, t, eps, *imle = batch
     with torch.autocast(device_type=x0.device.type, dtype=torch.bfloat16, enabled=amp):
         loss = training_loss(forward, sched, x0, mask, t=t, eps=eps, observed=obs)
-        if candidates:
-            loss = loss + imle_weight * imle_loss(forward, sched, x0, mask, candidates[0], observed=obs,
-                                                  search=imle_search, final_weight=imle_final_weight)
+        if imle:
+            loss = loss + imle_weight * imle_loss(forward, sched, x0, mask, imle[0], observed=obs,
+                                                  search=imle_search, final_weight=imle_final_weight,
+                                                  others=imle[1] if len(imle) > 1 else None)
     opt.zero_grad(set_to_none=True)
     loss.backward()
     opt.step()
