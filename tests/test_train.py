@@ -266,6 +266,25 @@ def test_reset_output_head_restarts_only_the_last_layer_of_a_warm_start(tmp_path
         tiny_cfg(reset_output_head=True)
 
 
+def test_a_warm_start_into_a_wider_config_is_widened(tmp_path):
+    """A config twice as wide as its init_from (channels and ffn_dim): train widens the warm start with
+    training.widen (seeded by the config's seed) and starts from exactly those weights (lr 0 keeps them)."""
+    from training.model import ModelConfig
+    from training.widen import widen_state
+    seqs = {"train": synthetic_motion(4, seed=0), "val": synthetic_motion(2, seed=1)}
+    train(tiny_cfg(epochs=1, steps_per_epoch=2), tmp_path / "narrow", sequences=seqs, log=lambda *a: None)
+    ck = torch.load(tmp_path / "narrow" / "last.pt", weights_only=False)
+    lines = []
+    wide = {"channels": 32, "num_layers": 2, "num_heads": 2, "ffn_dim": 32, "dropout": 0.0}
+    cfg = tiny_cfg(epochs=1, steps_per_epoch=1, lr=0.0, seed=7, init_from=str(tmp_path / "narrow" / "last.pt"),
+                   model=wide)
+    train(cfg, tmp_path / "wide", sequences=seqs, log=lines.append)
+    assert any("widened 2 x to 32 channels" in line for line in lines)
+    got = torch.load(tmp_path / "wide" / "last.pt", weights_only=False)["model"]
+    want = widen_state(ck["model"], ModelConfig.from_dict(ck["model_config"]), 2, seed=7)
+    assert sorted(got) == sorted(want) and all(torch.equal(got[k], want[k]) for k in want)
+
+
 @pytest.mark.slow
 def test_ema_weights_are_validated_resumed_and_exported(tmp_path):
     from training.export import export_checkpoint, load_model_file

@@ -35,6 +35,7 @@ from .batches import BatchSource, Windows, action_weights, make_batch
 from .diffusion import DiffusionConfig, Schedule, training_loss
 from .imle import EngineSearch, imle_loss
 from .model import ModelConfig, TCDModel, count_parameters, load_grown
+from .widen import widen_to
 
 
 DATASETS = ("h36m", "humaneva")
@@ -424,7 +425,12 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
             from .export import checkpoint_weights
             init_state = checkpoint_weights(init_ck)
             log(f"warm start from {init} (its best validation loss {init_ck.get('best_val', float('nan')):.4f})")
-        # the architecture must match, except for more residual layers: those start as no-ops (load_grown)
+        # the architecture must match, except for wider channels (training.widen: the same function) and more
+        # residual layers (those start as no-ops, load_grown)
+        init_state, factor = widen_to(model.cfg, init_state, cfg.seed)
+        if factor > 1:
+            log(f"widened {factor} x to {model.cfg.channels} channels and a feed-forward width of "
+                f"{model.cfg.ffn_dim}, computing what the warm start computes (training.widen)")
         added = load_grown(model, init_state)
         if added:
             log(f"{added} residual layers added after the warm start's, each starting as a no-op")
