@@ -74,21 +74,22 @@ class _Splitter:
             n_in = w2.shape[1]
             r = (torch.rand(len(r_old), n_in, self.f, generator=self.gen, dtype=torch.float64) - 0.5) * self.spread
             share = 1.0 / self.f + r - r.mean(-1, keepdim=True)           # sums to 1 over the copies
-            wide = wide * share[:, c_old, c_copy].to(wide.dtype)
+            wide = wide * share[:, c_old, c_copy].to(wide.device, wide.dtype)
         if row_scale is not None:
-            wide = wide * row_scale[:, None].to(wide.dtype)
+            wide = wide * row_scale[:, None].to(wide.device, wide.dtype)
         return wide[..., None] if conv else wide
 
     @staticmethod
     def vector(b: torch.Tensor, rows, row_scale: torch.Tensor | None = None) -> torch.Tensor:
         out = b[rows[0]].clone()
-        return out if row_scale is None else out * row_scale.to(out.dtype)
+        return out if row_scale is None else out * row_scale.to(out.device, out.dtype)
 
 
 def widen_state(state: dict, cfg: ModelConfig, factor: int, seed: int = 0, spread: float = 0.5) -> dict:
     """The weights of the model ``widened_config(cfg, factor)`` computing exactly what ``state`` (a
     ``training.model.TCDModel`` state_dict of config ``cfg``) computes (up to float rounding); ``seed`` draws the
-    copies' shares, each the narrow weight x (1 / factor + a centred uniform of width ``spread`` / factor)."""
+    copies' shares: each copy's weight is the narrow weight x (1 / factor + u - the mean of the copies' u), u uniform
+    of width ``spread`` about 0, so the shares of one weight sum to 1."""
     widened_config(cfg, factor)                        # checks the factor
     C, F, H, f = cfg.channels, cfg.ffn_dim, cfg.num_heads, factor
     if C % H:
@@ -100,9 +101,9 @@ def widen_state(state: dict, cfg: ModelConfig, factor: int, seed: int = 0, sprea
     out = {}
     seen = set()
 
-    def put(key: str, rows, cols=None, row_scale=None):
+    def put(key: str, rows, cols, row_scale=None):
         w = state[key + ".weight"]
-        out[key + ".weight"] = w.clone() if cols is None and rows is None else sp.linear(w, rows, cols, row_scale)
+        out[key + ".weight"] = sp.linear(w, rows, cols, row_scale)
         if key + ".bias" in state:
             out[key + ".bias"] = sp.vector(state[key + ".bias"], rows, row_scale)
         seen.update({key + ".weight", key + ".bias"})
