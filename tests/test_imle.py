@@ -11,7 +11,7 @@ torch = import_torch("IMLE training of the one-step sampler (training/)")
 
 from training.diffusion import DiffusionConfig, Schedule, masked_eps_loss, training_loss  # noqa: E402
 from training.export import build_config, random_prior  # noqa: E402
-from training.imle import EngineSearch, imle_loss, torch_search  # noqa: E402
+from training.imle import EngineSearch, imle_choose, imle_loss, torch_search  # noqa: E402
 from training.model import ModelConfig, TCDModel, randomize_output_layer, to_target  # noqa: E402
 from training.train import TrainConfig, train_step  # noqa: E402
 
@@ -96,6 +96,43 @@ def test_further_targets_each_pull_their_nearest_candidate():
         imle_loss(model, SCHED, x0, mask, cand, others=x0)
 
 
+@pytest.mark.parametrize("variant", ["own", "others", "final"])
+def test_a_stored_choice_gives_the_loss_of_a_fresh_search_and_stays_as_chosen(variant):
+    """imle_echo's split: imle_choose's result passed to imle_loss gives the loss imle_loss computes by searching
+    itself; after the weights move, the stored choice still trains the candidates it chose (stale by design)."""
+    model, x0, mask = model_and_window(seed=3)
+    cand = torch.randn(6, *x0.shape, generator=torch.Generator().manual_seed(8))
+    kw = {}
+    if variant == "others":
+        kw["others"] = x0 + torch.cumsum(torch.randn(2, *x0.shape, generator=torch.Generator().manual_seed(9))
+                                         * 0.02, dim=-1) * (1 - mask)
+    if variant == "final":
+        kw["final_weight"] = 0.5
+    choice = imle_choose(model, SCHED, x0, mask, cand, observed=x0, **kw)
+    target, samples = one_step_samples(model, cand, x0, mask)
+    hidden = 1 - mask
+    assert torch.equal(choice.nearest[0], (((samples - target) * hidden) ** 2).sum((2, 3)).argmin(0))
+    assert choice.nearest.shape == (3 if variant == "others" else 1, x0.shape[0])
+    assert (choice.final is not None) == (variant == "final")
+    fresh = imle_loss(model, SCHED, x0, mask, cand, observed=x0, **kw)
+    stored = imle_loss(model, SCHED, x0, mask, cand, observed=x0, choice=choice, **kw)
+    assert float(stored.detach()) == pytest.approx(float(fresh.detach()), rel=1e-6)
+    with torch.no_grad():                   # move the weights: a fresh search may choose otherwise, the stored not
+        for p in model.parameters():
+            p.add_(torch.randn(p.shape, generator=torch.Generator().manual_seed(p.numel())) * 0.3)
+    again = imle_choose(model, SCHED, x0, mask, cand, observed=x0, **kw)
+    B = x0.shape[0]
+    last = torch.full((B,), SCHED.T - 1)
+    by_hand = sum(masked_eps_loss(tm, model(cand[nm, torch.arange(B)], x0, mask, last), mask)
+                  for tm, nm in zip(choice.targets, choice.nearest)) / len(choice.targets)
+    if variant == "final":
+        by_hand = by_hand + 0.5 * masked_eps_loss(choice.targets[0], model(cand[choice.final, torch.arange(B)], x0,
+                                                                           mask, last), mask)
+    got = imle_loss(model, SCHED, x0, mask, cand, observed=x0, choice=choice, **kw)
+    assert float(got.detach()) == pytest.approx(float(by_hand.detach()), rel=1e-6)
+    assert not torch.equal(again.nearest, choice.nearest)     # the moved weights do choose otherwise
+
+
 def test_imle_loss_gradient_reaches_the_weights():
     model, x0, mask = model_and_window()
     cand = torch.randn(3, *x0.shape, generator=torch.Generator().manual_seed(2))
@@ -147,6 +184,11 @@ def test_config_checks_and_train_step_adds_the_imle_term(tmp_path):
         TrainConfig(**{**base, "imle_targets": 3})
     with pytest.raises(ValueError, match="imle_targets"):
         TrainConfig(**{**base, "imle_samples": 4, "imle_targets": 0})
+    with pytest.raises(ValueError, match="imle_echo .* needs imle_samples"):
+        TrainConfig(**{**base, "imle_echo": 2})
+    with pytest.raises(ValueError, match="imle_echo"):
+        TrainConfig(**{**base, "imle_samples": 4, "imle_echo": 0})
+    TrainConfig(**{**base, "imle_samples": 4, "imle_echo": 3})                    # with candidates: accepted
     TrainConfig(**{**base, "imle_samples": 4, "imle_targets": 3})                 # with candidates: accepted
     TrainConfig(**{**base, "imle_samples": 4, "imle_final_weight": 1.0})          # with candidates: accepted
     TrainConfig(**{**base, "imle_samples": 4, "imle_weight": 0.5})                # x0-prediction: accepted
@@ -201,3 +243,26 @@ def test_training_with_imle_runs_through_the_engine_and_resumes_exactly(tmp_path
     without = torch.load(other / "last.pt", weights_only=False)["model"]
     assert all(torch.allclose(full[k], part[k], atol=1e-6) for k in full)
     assert any(not torch.allclose(full[k], without[k]) for k in full)     # the IMLE term changed the training
+
+
+@pytest.mark.slow
+def test_imle_echo_takes_that_many_optimizer_steps_per_batch_and_resumes_exactly(tmp_path):
+    """``imle_echo`` 2: one search per batch, two optimizer steps on it (Adam's step count is twice the batches);
+    a run stopped after one batch and resumed lands on the weights of an uninterrupted one."""
+    pytest.importorskip("tcd")
+    from test_train import synthetic_motion, tiny_cfg
+    from training.train import train
+    seqs = {"train": synthetic_motion(4, seed=0), "val": synthetic_motion(2, seed=1)}
+    cfg = tiny_cfg(epochs=2, steps_per_epoch=3, diffusion={"prediction_type": "sample"}, imle_samples=3,
+                   imle_echo=2)
+    train(cfg, tmp_path / "full", sequences=seqs, log=lambda *a: None)
+    train(cfg, tmp_path / "part", sequences=seqs, max_minutes=0.0, log=lambda *a: None)   # stops after one batch
+    train(cfg, tmp_path / "part", sequences=seqs, resume=True, log=lambda *a: None)
+    full = torch.load(tmp_path / "full" / "last.pt", weights_only=False)
+    part = torch.load(tmp_path / "part" / "last.pt", weights_only=False)
+    assert {float(s["step"]) for s in full["optimizer"]["state"].values()} == {2.0 * 2 * 3}
+    assert all(torch.allclose(full["model"][k], part["model"][k], atol=1e-6) for k in full["model"])
+    once = tiny_cfg(epochs=2, steps_per_epoch=3, diffusion={"prediction_type": "sample"}, imle_samples=3)
+    train(once, tmp_path / "once", sequences=seqs, log=lambda *a: None)
+    single = torch.load(tmp_path / "once" / "last.pt", weights_only=False)
+    assert {float(s["step"]) for s in single["optimizer"]["state"].values()} == {2.0 * 3}

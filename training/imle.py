@@ -12,12 +12,14 @@ two), so the other steps keep their meaning.
 
 The candidates' forwards are most of the cost (S per window, against one forward and backward for the diffusion
 loss); :class:`EngineSearch` runs them in the Rust engine (the weights serialised for it every step), several
-times faster than PyTorch's CPU forward of this network.
+times faster than PyTorch's CPU forward of this network. And a search can serve several optimizer steps
+(``imle_echo``: :func:`imle_choose` apart from :func:`imle_loss`): which candidate lands nearest changes slowly
+as the weights move, as Li and Malik's IMLE, which refreshes its nearest samples only every few epochs, relies on.
 """
 from __future__ import annotations
 
 import json
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import torch
 
@@ -67,14 +69,60 @@ class EngineSearch:
         return torch.from_numpy(out).to(noisy.device)
 
 
+class Choice(NamedTuple):
+    """What :func:`imle_choose` picked for a batch: ``targets`` (M, B, K, L), the window's own future first and the
+    further futures of ``imle_targets`` after it, in target units; ``nearest`` (M, B), the index of each target's
+    nearest candidate; ``final`` (B,) or None, each window's candidate nearest on its last hidden frame."""
+    targets: torch.Tensor
+    nearest: torch.Tensor
+    final: torch.Tensor | None
+
+
+def imle_choose(model, sched: Schedule, x0: torch.Tensor, mask: torch.Tensor, candidates: torch.Tensor,
+                observed: torch.Tensor | None = None, search: Search | None = None,
+                final_weight: float = 0.0, others: torch.Tensor | None = None) -> Choice:
+    """The search half of :func:`imle_loss` (its arguments), without gradients: the S candidates' one-step
+    samples and each target's nearest. Apart so that a training step can echo one search over several optimizer
+    steps (``imle_echo``): the search is most of a step's cost and its choice goes stale slowly."""
+    if sched.cfg.prediction_type != "sample":
+        raise ValueError("imle_loss trains the one-step sample of an x0-predicting model (prediction_type "
+                         f"'sample'); this one predicts {sched.cfg.prediction_type!r}")
+    if candidates.dim() != x0.dim() + 1 or tuple(candidates.shape[1:]) != tuple(x0.shape):
+        raise ValueError(f"candidates must be (S, *x0.shape) = (S, {tuple(x0.shape)}), got {tuple(candidates.shape)}")
+    if others is not None and (others.dim() != x0.dim() + 1 or tuple(others.shape[1:]) != tuple(x0.shape)):
+        raise ValueError(f"others must be (M - 1, *x0.shape) = (M - 1, {tuple(x0.shape)}), got {tuple(others.shape)}")
+    S, B = candidates.shape[:2]
+    observed = x0 if observed is None else observed
+    hidden = 1.0 - mask
+    with torch.no_grad():
+        target = _to_target(model, x0, observed, mask)
+        targets = target[None] if others is None else \
+            torch.cat([target[None], torch.stack([_to_target(model, o, observed, mask) for o in others])])
+        rows = torch.arange(S * B, device=x0.device) % B                              # row s * B + b: window b
+        out = (search or torch_search(model))(candidates.reshape(S * B, *x0.shape[1:]), observed, mask, rows,
+                                              sched.T - 1)
+        out = out.view(S, B, *x0.shape[1:])
+        nearest = (((out[:, None] - targets[None]) * hidden) ** 2).sum((3, 4)).argmin(0)   # (M, B)
+        final = None
+        if final_weight > 0:
+            sq = ((out - target) * hidden) ** 2                                         # (S, B, K, L)
+            frames = torch.arange(x0.shape[-1], device=x0.device)
+            last = (hidden.amax(1) * (frames + 1)).argmax(1)                            # (B,): last hidden frame
+            at_last = torch.gather(sq, 3, last.view(1, B, 1, 1).expand(S, B, sq.shape[2], 1))  # (S, B, K, 1)
+            final = at_last.sum((2, 3)).argmin(0)
+    return Choice(targets, nearest, final)
+
+
 def imle_loss(model, sched: Schedule, x0: torch.Tensor, mask: torch.Tensor, candidates: torch.Tensor,
               observed: torch.Tensor | None = None, search: Search | None = None,
-              final_weight: float = 0.0, others: torch.Tensor | None = None) -> torch.Tensor:
+              final_weight: float = 0.0, others: torch.Tensor | None = None,
+              choice: Choice | None = None) -> torch.Tensor:
     """The one-step sampler's IMLE loss for clean windows x0 (B, K, L) (module docstring): of the S one-step
     samples from ``candidates`` (S, B, K, L) standard normals, each window's nearest to its target (squared
     distance over the hidden entries, in target units) is recomputed with gradients and scored by the masked
     mean square of the diffusion loss. ``search`` computes the candidates' samples (default: ``model`` itself,
-    :func:`torch_search`); ``observed`` as in ``training.diffusion.training_loss``.
+    :func:`torch_search`); ``observed`` as in ``training.diffusion.training_loss``; ``choice``, when given, is
+    what :func:`imle_choose` returned for these arguments (the search is not run again).
 
     ``others`` (M - 1, B, K, L): further futures of each window, laid out as x0 (its own observed frames, the
     future of one of its nearest training windows: ``imle_targets``). Each also pulls its nearest of the same S
@@ -86,42 +134,18 @@ def imle_loss(model, sched: Schedule, x0: torch.Tensor, mask: torch.Tensor, cand
     twice, by ADE over the whole future and by FDE at its last frame, and the two bests are often different
     samples (HumanEva-I's FDE was 1.24 x its ADE, TCD's 1.08 x). Measured there (docs/training.md, "The
     final-frame term"): FDE within the margin, ADE worse and the samples narrower; off (0) by default."""
-    if sched.cfg.prediction_type != "sample":
-        raise ValueError("imle_loss trains the one-step sample of an x0-predicting model (prediction_type "
-                         f"'sample'); this one predicts {sched.cfg.prediction_type!r}")
-    if candidates.dim() != x0.dim() + 1 or tuple(candidates.shape[1:]) != tuple(x0.shape):
-        raise ValueError(f"candidates must be (S, *x0.shape) = (S, {tuple(x0.shape)}), got {tuple(candidates.shape)}")
-    if others is not None and (others.dim() != x0.dim() + 1 or tuple(others.shape[1:]) != tuple(x0.shape)):
-        raise ValueError(f"others must be (M - 1, *x0.shape) = (M - 1, {tuple(x0.shape)}), got {tuple(others.shape)}")
-    S, B = candidates.shape[:2]
+    if choice is None:
+        choice = imle_choose(model, sched, x0, mask, candidates, observed, search, final_weight, others)
     observed = x0 if observed is None else observed
-    target = _to_target(model, x0, observed, mask)
-    hidden = 1.0 - mask
-    last = sched.T - 1
-    with torch.no_grad():
-        rows = torch.arange(S * B, device=x0.device) % B                              # row s * B + b: window b
-        out = (search or torch_search(model))(candidates.reshape(S * B, *x0.shape[1:]), observed, mask, rows, last)
-        out = out.view(S, B, *x0.shape[1:])
-        sq = ((out - target) * hidden) ** 2                                            # (S, B, K, L)
-        best = sq.sum((2, 3)).argmin(0)
-        if final_weight > 0:
-            frames = torch.arange(x0.shape[-1], device=x0.device)
-            final = (hidden.amax(1) * (frames + 1)).argmax(1)                       # (B,): last hidden frame
-            at_final = torch.gather(sq, 3, final.view(1, B, 1, 1).expand(S, B, sq.shape[2], 1))  # (S, B, K, 1)
-            final_best = at_final.sum((2, 3)).argmin(0)
+    B = x0.shape[0]
     windows = torch.arange(B, device=x0.device)
-    t_last = torch.full((B,), last, device=x0.device)
-    if others is None:
-        loss = masked_eps_loss(target, model(candidates[best, windows], observed, mask, t_last), mask)
-    else:       # each target's nearest sample, one forward of B per target (a CPU step costs more per window
-                # at 4 B than at B: docs/training.md, "The step's speed"); the mean over targets, each term
-                # normalised by the same count of hidden entries, is the pooled mean
-        targets = torch.cat([target[None], torch.stack([_to_target(model, o, observed, mask) for o in others])])
-        with torch.no_grad():
-            nearest = (((out[:, None] - targets[None]) * hidden) ** 2).sum((3, 4)).argmin(0)   # (M, B)
-        loss = sum(masked_eps_loss(tm, model(candidates[nm, windows], observed, mask, t_last), mask)
-                   for tm, nm in zip(targets, nearest)) / len(targets)
+    t_last = torch.full((B,), sched.T - 1, device=x0.device)
+    # each target's nearest sample, one forward of B per target (a CPU step costs more per window at 4 B than at
+    # B: docs/training.md, "The step's speed"); the mean over targets, each term normalised by the same count of
+    # hidden entries, is the pooled mean
+    loss = sum(masked_eps_loss(tm, model(candidates[nm, windows], observed, mask, t_last), mask)
+               for tm, nm in zip(choice.targets, choice.nearest)) / len(choice.targets)
     if final_weight > 0:
-        out = model(candidates[final_best, windows], observed, mask, t_last)
-        loss = loss + final_weight * masked_eps_loss(target, out, mask)
+        out = model(candidates[choice.final, windows], observed, mask, t_last)
+        loss = loss + final_weight * masked_eps_loss(choice.targets[0], out, mask)
     return loss

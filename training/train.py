@@ -33,7 +33,7 @@ import torch
 from .augment import check_axis
 from .batches import BatchSource, Windows, action_weights, make_batch
 from .diffusion import DiffusionConfig, Schedule, training_loss
-from .imle import EngineSearch, imle_loss
+from .imle import Choice, EngineSearch, imle_choose, imle_loss
 from .model import ModelConfig, TCDModel, count_parameters, load_grown
 from .widen import widen_to
 
@@ -61,7 +61,7 @@ def without_removed_keys(d: dict, where) -> dict:
 # them: a checkpoint whose stored train_config lacks one was trained that way.
 ADDED_KEYS = {"rotate_axis": "", "reset_output_head": False, "h36m_share": 0.0, "future_swap": 0.0,
               "future_swap_k": 25, "action_balance": 0.0, "imle_samples": 0, "imle_weight": 1.0,
-              "imle_final_weight": 0.0, "imle_targets": 1}
+              "imle_final_weight": 0.0, "imle_targets": 1, "imle_echo": 1}
 
 
 def stored_config(d: dict, where) -> dict:
@@ -117,6 +117,8 @@ class TrainConfig:
                                      # frame alone (what FDE's best sample is chosen by)
     imle_targets: int = 1            # > 1: each window's IMLE loss also pulls a nearest candidate to each of
                                      # imle_targets - 1 futures of its future_swap_k nearest windows (swap_futures)
+    imle_echo: int = 1               # > 1: each batch's IMLE search (most of a step's cost) is echoed over this
+                                     # many optimizer steps on the batch (docs/training.md, "Echoing the IMLE search")
     reset_output_head: bool = False  # with init_from: the last 1x1 conv's weight and bias restart at zero; for a
                                      # warm start whose prediction_type changes (epsilon -> sample), so the run
                                      # starts at "no residual over the fill" instead of from noise estimates
@@ -161,6 +163,9 @@ class TrainConfig:
         if self.imle_targets > 1 and self.obs_len < 3:
             raise ValueError("train config: imle_targets > 1 draws futures of windows matched on their last 3 "
                              f"observed frames; obs_len is {self.obs_len}")
+        if self.imle_echo < 1 or (self.imle_echo > 1 and not self.imle_samples):
+            raise ValueError("train config: imle_echo counts the optimizer steps of one batch's IMLE search; it "
+                             f"must be >= 1, and > 1 needs imle_samples > 0, got {self.imle_echo!r}")
         if self.imle_final_weight > 0 and not self.imle_samples:
             raise ValueError("train config: imle_final_weight weighs a term of the IMLE loss; it needs "
                              "imle_samples > 0")
@@ -263,18 +268,20 @@ def amp_enabled(cfg: TrainConfig, device: str) -> bool:
 
 
 def train_step(forward, opt: torch.optim.Optimizer, sched: Schedule, batch, amp: bool,
-               imle_weight: float = 1.0, imle_search=None, imle_final_weight: float = 0.0) -> torch.Tensor:
+               imle_weight: float = 1.0, imle_search=None, imle_final_weight: float = 0.0,
+               choice: Choice | None = None) -> torch.Tensor:
     """One optimizer step on one batch (x0, observed, mask, t, eps[, candidates[, others]]); the loss (a device
     tensor: no sync). With the candidates (``imle_samples``) the loss adds ``imle_weight`` x the one-step sampler's
     IMLE loss (``training.imle``; ``imle_search`` computes the candidates' samples, default the forward itself;
-    ``imle_final_weight`` its final-frame term; ``others`` the further futures of ``imle_targets``)."""
+    ``imle_final_weight`` its final-frame term; ``others`` the further futures of ``imle_targets``; ``choice``
+    an earlier search's result for this batch, :func:`training.imle.imle_choose`, instead of searching again)."""
     x0, obs, mask, t, eps, *imle = batch
     with torch.autocast(device_type=x0.device.type, dtype=torch.bfloat16, enabled=amp):
         loss = training_loss(forward, sched, x0, mask, t=t, eps=eps, observed=obs)
         if imle:
             loss = loss + imle_weight * imle_loss(forward, sched, x0, mask, imle[0], observed=obs,
                                                   search=imle_search, final_weight=imle_final_weight,
-                                                  others=imle[1] if len(imle) > 1 else None)
+                                                  others=imle[1] if len(imle) > 1 else None, choice=choice)
     opt.zero_grad(set_to_none=True)
     loss.backward()
     opt.step()
@@ -491,9 +498,19 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
             for group in opt.param_groups:
                 group["lr"] = lr
             batch = tuple(a.to(device, non_blocking=True) for a in batch)
-            loss = train_step(forward, opt, sched, batch, amp, cfg.imle_weight, imle_search, cfg.imle_final_weight)
-            if ema is not None:
-                ema.update(model)
+            choice = None
+            if cfg.imle_echo > 1:
+                # data echoing (Choi et al., 2019): the search stands upstream of the optimizer as a slow input
+                # pipeline would; its choice goes stale slowly, so one search serves imle_echo steps
+                x0, obs, mask, *_, cands = batch[:6]
+                choice = imle_choose(forward, sched, x0, mask, cands, observed=obs, search=imle_search,
+                                     final_weight=cfg.imle_final_weight,
+                                     others=batch[6] if len(batch) > 6 else None)
+            for _ in range(cfg.imle_echo):
+                loss = train_step(forward, opt, sched, batch, amp, cfg.imle_weight, imle_search,
+                                  cfg.imle_final_weight, choice)
+                if ema is not None:
+                    ema.update(model)
             run_loss, run_n = run_loss + loss.float(), run_n + 1
             batch_i += 1
             now = time.time()
