@@ -13,8 +13,9 @@ two), so the other steps keep their meaning.
 The candidates' forwards are most of the cost (S per window, against one forward and backward for the diffusion
 loss); :class:`EngineSearch` runs them in the Rust engine (the weights serialised for it every step), several
 times faster than PyTorch's CPU forward of this network. And a search can serve several optimizer steps
-(``imle_echo``: :func:`imle_choose` apart from :func:`imle_loss`): which candidate lands nearest changes slowly
-as the weights move, as Li and Malik's IMLE, which refreshes its nearest samples only every few epochs, relies on.
+(``imle_echo``: :func:`imle_choose` apart from :func:`imle_loss`): the premise, which Li and Malik's IMLE (its
+nearest samples refreshed only every few epochs) relies on, is that which candidate lands nearest changes slowly as
+the weights move; its one run here made the model worse (docs/training.md, "Echoing the IMLE search").
 """
 from __future__ import annotations
 
@@ -83,7 +84,7 @@ def imle_choose(model, sched: Schedule, x0: torch.Tensor, mask: torch.Tensor, ca
                 final_weight: float = 0.0, others: torch.Tensor | None = None) -> Choice:
     """The search half of :func:`imle_loss` (its arguments), without gradients: the S candidates' one-step
     samples and each target's nearest. Apart so that a training step can echo one search over several optimizer
-    steps (``imle_echo``): the search is most of a step's cost and its choice goes stale slowly."""
+    steps (``imle_echo``): the search is most of a step's cost."""
     if sched.cfg.prediction_type != "sample":
         raise ValueError("imle_loss trains the one-step sample of an x0-predicting model (prediction_type "
                          f"'sample'); this one predicts {sched.cfg.prediction_type!r}")

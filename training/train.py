@@ -501,7 +501,7 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
             choice = None
             if cfg.imle_echo > 1:
                 # data echoing (Choi et al., 2019): the search stands upstream of the optimizer as a slow input
-                # pipeline would; its choice goes stale slowly, so one search serves imle_echo steps
+                # pipeline would, and one search serves imle_echo steps (docs/training.md: its one run was worse)
                 x0, obs, mask, *_, cands = batch[:6]
                 choice = imle_choose(forward, sched, x0, mask, cands, observed=obs, search=imle_search,
                                      final_weight=cfg.imle_final_weight,
