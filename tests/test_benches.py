@@ -450,3 +450,27 @@ def test_repair_gap_refiner_starts_as_the_fill_and_moves_hidden_frames_only():
     torch.nn.init.normal_(net.out.weight)
     out = net(fill, seen)
     assert torch.equal(out[seen], fill[seen]) and not torch.equal(out[~seen], fill[~seen])
+
+
+def test_humaneva_imle_mlp_starts_as_the_prior_and_pulls_each_target_s_nearest_draw():
+    """benches/humaneva_imle_mlp.py: the untrained generator is the prior's forecast whatever the noise, and the
+    IMLE loss is the mean over targets of the distance to the nearest of the draws (the same seeded draws,
+    searched by brute force here)."""
+    torch = import_torch("benches/humaneva_imle_mlp.py")
+    bench = load_bench("humaneva_imle_mlp")
+    gen = bench.Generator(coords=6, hidden=16, layers=2, z_dim=4, coefs=5)
+    g = torch.Generator().manual_seed(0)
+    obs, prior = torch.randn(3, 15, 6, generator=g), torch.randn(3, 60, 6, generator=g)
+    out = gen(obs, prior, torch.randn(3, 7, 4, generator=g))
+    assert out.shape == (3, 7, 60, 6)
+    torch.testing.assert_close(out, prior[:, None].expand(-1, 7, -1, -1), rtol=0, atol=0)
+    torch.nn.init.normal_(gen.head.weight, std=0.5)          # now the draws differ
+    targets = torch.randn(3, 2, 60, 6, generator=g)
+    torch.manual_seed(5)
+    loss = bench.imle_loss(gen, obs, prior, targets, cands=9, fde_weight=2.0)
+    torch.manual_seed(5)
+    draws = gen(obs, prior, torch.randn(3, 9, 4))                                          # (3, 9, 60, 6)
+    err = torch.linalg.vector_norm(draws[:, :, None] - targets[:, None], dim=-1)           # (3, 9, 2, 60)
+    nearest = (err.mean(-1) + 2.0 * err[..., -1]).min(dim=1).values                        # (3, 2)
+    torch.testing.assert_close(loss, nearest.mean())
+    assert nearest.std() > 0 and loss > 0

@@ -1,0 +1,201 @@
+"""How much a plain MLP generator trained with IMLE learns per CPU-minute on HumanEva-I (issue 31): a lead, not a model.
+
+The bundled HumanEva-I long model (a 5 x 32 CSDI-style transformer sampled with one DDIM step and trained with the
+one-step sampler's IMLE loss) took 13.6 hours of this CPU to reach ADE 0.209 / FDE 0.256, and installments 25-31 on
+it moved nothing past the margin: its IMLE step (50 candidates through the transformer) costs 17-34 s, about 100
+steps an hour. This bench trains, within a time budget, a generator whose IMLE step costs a fraction of a second:
+
+* input: the observation's 15 DCT coefficients and the first ``--coefs`` of the bundled prior's 60-frame forecast
+  (both relative to the last observed pose, 42 coordinates each) and a noise vector z ~ N(0, I) of ``--z``;
+* an MLP of ``--layers`` x ``--hidden`` (GELU) to the first ``--coefs`` DCT coefficients of a residual over the
+  prior's forecast; its last layer starts at zero, so the untrained generator is the prior;
+* IMLE (Li and Malik 2018): each training window draws ``--cands`` z, and each of its targets (its own future and,
+  with ``--targets`` T > 1, the futures of its T - 1 nearest training windows by arrival pose and velocity, joined to
+  its last pose: ``training.augment.swap_futures``, what ``future_swap`` trains with) pulls the candidate nearest to
+  it, by the per-frame L2 error's mean plus ``--fde-weight`` x its last frame's (the protocol's ADE and FDE);
+* with ``--rotate`` each window and its targets turned about the vertical by an angle in [0, 2 pi)
+  (``training.augment.rotate_about``); Adam at ``--lr``, x 0.1 for the last 20 % of the budget.
+
+It scores 50 samples per window on the protocol's 188 windows (``training.evaluate.HumanEvaCases``: the same metrics
+and per-window values as ``python -m training.evaluate --protocol humaneva``, so ``training.compare`` pairs them),
+in PyTorch: the Rust engine has no such generator. Not bundled, and not a TCD model::
+
+    python benches/humaneva_imle_mlp.py --minutes 12 --rotate --targets 8 --threads 2 \\
+        --json benches/results/humaneva_imle_mlp/t8_12min.json
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import torch  # noqa: E402
+from torch import nn  # noqa: E402
+
+from training.prior import dct_matrix  # noqa: E402
+
+OBS, PRED = 15, 60
+
+
+class Generator(nn.Module):
+    """(obs (B, 15, K), the prior's forecast (B, 60, K), z (B, S, Z)) -> S forecasts (B, S, 60, K)."""
+
+    def __init__(self, coords: int, hidden: int, layers: int, z_dim: int, coefs: int):
+        super().__init__()
+        self.coords, self.z_dim, self.coefs = coords, z_dim, coefs
+        self.register_buffer("dct_obs", torch.from_numpy(dct_matrix(OBS)).float(), persistent=False)
+        self.register_buffer("dct_pred", torch.from_numpy(dct_matrix(PRED)[:coefs]).float(), persistent=False)
+        width = OBS * coords + coefs * coords + z_dim
+        body: list[nn.Module] = [nn.Linear(width, hidden), nn.GELU()]
+        for _ in range(layers - 1):
+            body += [nn.Linear(hidden, hidden), nn.GELU()]
+        self.body = nn.Sequential(*body)
+        self.head = nn.Linear(hidden, coefs * coords)
+        nn.init.zeros_(self.head.weight)     # the untrained generator is the prior's forecast
+        nn.init.zeros_(self.head.bias)
+
+    def forward(self, obs: torch.Tensor, prior: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
+        B, S = len(obs), z.shape[1]
+        last = obs[:, -1:]
+        past = torch.einsum("ft,btk->bfk", self.dct_obs, obs - last).reshape(B, -1)
+        ahead = torch.einsum("ft,btk->bfk", self.dct_pred, prior - last).reshape(B, -1)
+        h = torch.cat([past, ahead], 1)[:, None].expand(-1, S, -1)
+        y = self.head(self.body(torch.cat([h, z], -1))).reshape(B, S, self.coefs, self.coords)
+        return prior[:, None] + torch.einsum("cf,bsck->bsfk", self.dct_pred, y)
+
+
+def distance(x: torch.Tensor, y: torch.Tensor, fde_weight: float) -> torch.Tensor:
+    """(..., 60, K) pairs -> (...): the mean over frames of the per-frame L2 error plus ``fde_weight`` x the last's."""
+    e = torch.linalg.vector_norm(x - y, dim=-1)
+    return e.mean(-1) + fde_weight * e[..., -1]
+
+
+def imle_loss(gen: Generator, obs: torch.Tensor, prior: torch.Tensor, targets: torch.Tensor, cands: int,
+              fde_weight: float) -> torch.Tensor:
+    """``targets`` (B, T, 60, K): each pulls the nearest of ``cands`` draws of its window (searched without
+    gradients, then generated again with them), the mean of those distances."""
+    B = len(obs)
+    z = torch.randn(B, cands, gen.z_dim)
+    with torch.no_grad():
+        best = distance(gen(obs, prior, z)[:, :, None], targets[:, None], fde_weight).argmin(1)   # (B, T)
+    chosen = gen(obs, prior, z[torch.arange(B)[:, None], best])                                   # (B, T, 60, K)
+    return distance(chosen, targets, fde_weight).mean()
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--minutes", type=float, required=True, help="the training clock's budget (0: score --init only)")
+    ap.add_argument("--init", default=None, help="start from this state dict (--save of an earlier run)")
+    ap.add_argument("--seed", type=int, default=0, help="the scoring noise's seed (recorded as the result's "
+                    "seeds.sampling, which training.compare checks; the runs of 2026-11-29 scored with 123 as they "
+                    "trained)")
+    ap.add_argument("--max-steps", type=int, default=0, help="stop after this many steps too (0: the budget only)")
+    ap.add_argument("--hidden", type=int, default=768)
+    ap.add_argument("--layers", type=int, default=3)
+    ap.add_argument("--z", type=int, default=64, help="the noise vector's size")
+    ap.add_argument("--coefs", type=int, default=20, help="DCT coefficients of the 60-frame residual (of 60)")
+    ap.add_argument("--cands", type=int, default=50, help="IMLE candidates per window")
+    ap.add_argument("--targets", type=int, default=1, help="targets per window: its own future and T - 1 others")
+    ap.add_argument("--exclude-frames", type=int, default=30, help="other targets: not of the window's own "
+                    "sequence within this many frames of it")
+    ap.add_argument("--rotate", action="store_true", help="turn each window (and its targets) about the vertical")
+    ap.add_argument("--fde-weight", type=float, default=1.0)
+    ap.add_argument("--batch", type=int, default=128)
+    ap.add_argument("--lr", type=float, default=1e-3)
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--eval-every", type=float, default=5.0, help="minutes between interim scores (stderr)")
+    ap.add_argument("--model", default=str(ROOT / "python" / "tcd" / "weights_humaneva"),
+                    help="the model directory whose prior.safetensors the generator forecasts around")
+    ap.add_argument("--data", default=None, help="the HumanEva-I file or directory (default ../shared/data)")
+    ap.add_argument("--json", required=True, help="the result: the protocol's metrics, per window and per action")
+    ap.add_argument("--save", default=None, help="also save the generator's state dict here")
+    args = ap.parse_args(argv)
+    if args.targets < 1 or args.cands < 1 or args.minutes < 0:
+        raise SystemExit("--targets and --cands must be >= 1 and --minutes >= 0")
+
+    import tcd
+    from training.augment import rotate_about, swap_futures
+    from training.batches import Windows
+    from training.data.humaneva import training_sequences
+    from training.evaluate import HumanEvaCases
+
+    torch.set_num_threads(args.threads)
+    torch.manual_seed(0)
+    prior = tcd.engine.Prior.load(Path(args.model) / "prior.safetensors")
+    cases = HumanEvaCases.load(args.data)
+    J = cases.obs.shape[2]
+    K = 3 * J
+
+    def forecast(obs: np.ndarray) -> torch.Tensor:
+        return torch.from_numpy(np.asarray(prior.predict(np.ascontiguousarray(obs, np.float32), PRED), np.float32))
+
+    windows = Windows(list(training_sequences(args.data).values()), OBS + PRED, 1)
+    train = windows.gather(np.arange(len(windows))).reshape(len(windows), OBS + PRED, K)
+    others = windows.future_neighbours(OBS, args.targets - 1, args.exclude_frames) if args.targets > 1 else None
+    gen = Generator(K, args.hidden, args.layers, args.z, args.coefs)
+    if args.init:
+        gen.load_state_dict(torch.load(args.init))
+    opt = torch.optim.Adam(gen.parameters(), lr=args.lr)
+    val_obs = torch.from_numpy(cases.obs.reshape(len(cases.obs), OBS, K).astype(np.float32))
+    val_prior = forecast(val_obs.numpy())
+
+    def score() -> dict:
+        gen.eval()
+        with torch.no_grad():
+            z = torch.randn(len(val_obs), 50, args.z, generator=torch.Generator().manual_seed(args.seed))
+            s = gen(val_obs, val_prior, z).numpy().astype(np.float64)                       # (W, 50, 60, K)
+        gen.train()
+        return cases.score(s.transpose(1, 0, 2, 3).reshape(50, len(val_obs), PRED, J, 3))
+
+    def brief(sc: dict) -> str:
+        return " ".join(f"{k} {sc[k]:.4f}" for k in ("ADE", "FDE", "MMADE", "MMFDE", "APD", "mean_ADE"))
+
+    print(f"{len(train)} training windows, {sum(p.numel() for p in gen.parameters())} parameters", file=sys.stderr)
+    rng = np.random.default_rng(0)
+    t0 = last = time.time()
+    step = 0
+    while time.time() - t0 < args.minutes * 60 and not 0 < args.max_steps <= step:
+        rows = rng.integers(0, len(train), args.batch)
+        w = train[rows][:, None]
+        if others is not None:
+            w = np.concatenate([w, np.stack([swap_futures(train[rows], train[others[rows, j]], OBS)
+                                             for j in range(args.targets - 1)], 1)], 1)      # (B, T, 75, K)
+        if args.rotate:   # every target of a window turned with it
+            w = rotate_about(w.reshape(args.batch, w.shape[1], OBS + PRED, J, 3), "z", rng).reshape(w.shape)
+        obs = np.ascontiguousarray(w[:, 0, :OBS])
+        lr = args.lr * (0.1 if time.time() - t0 > 0.8 * args.minutes * 60 else 1.0)
+        for group in opt.param_groups:
+            group["lr"] = lr
+        targets = torch.from_numpy(np.ascontiguousarray(w[:, :, OBS:]))
+        loss = imle_loss(gen, torch.from_numpy(obs), forecast(obs), targets, args.cands, args.fde_weight)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        step += 1
+        if time.time() - last > args.eval_every * 60:
+            last = time.time()
+            print(f"step {step} ({(last - t0) / 60:.1f} min): loss {loss.item():.4f}; {brief(score())}",
+                  file=sys.stderr, flush=True)
+    minutes = (time.time() - t0) / 60
+    sc = score()
+    print(f"final, step {step} ({minutes:.1f} min): {brief(sc)}", file=sys.stderr)
+    out = {"method": "IMLE MLP generator around the prior (benches/humaneva_imle_mlp.py)", "protocol": cases.protocol(),
+           "options": {k: v for k, v in vars(args).items() if k not in ("json", "save")},
+           "seeds": {"sampling": args.seed}, "steps": step, "minutes": minutes, "stochastic": sc, "model": sc,
+           "per_action": cases.per_action(sc)}
+    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.json).write_text(json.dumps(out, indent=1))
+    if args.save:
+        torch.save(gen.state_dict(), args.save)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
