@@ -39,9 +39,10 @@ sys.path.insert(0, str(ROOT))
 import torch  # noqa: E402
 from torch import nn  # noqa: E402
 
+from training.data.humaneva import HUMANEVA_T_HIS as OBS, HUMANEVA_T_PRED as PRED  # noqa: E402
 from training.prior import dct_matrix  # noqa: E402
 
-OBS, PRED = 15, 60
+SAMPLES = 50   # the protocol's samples per window
 
 
 class Generator(nn.Module):
@@ -149,10 +150,10 @@ def main(argv=None) -> int:
     def score() -> dict:
         gen.eval()
         with torch.no_grad():
-            z = torch.randn(len(val_obs), 50, args.z, generator=torch.Generator().manual_seed(args.seed))
-            s = gen(val_obs, val_prior, z).numpy().astype(np.float64)                       # (W, 50, 60, K)
+            z = torch.randn(len(val_obs), SAMPLES, args.z, generator=torch.Generator().manual_seed(args.seed))
+            s = gen(val_obs, val_prior, z).numpy().astype(np.float64)                       # (W, S, 60, K)
         gen.train()
-        return cases.score(s.transpose(1, 0, 2, 3).reshape(50, len(val_obs), PRED, J, 3))
+        return cases.score(s.transpose(1, 0, 2, 3).reshape(SAMPLES, len(val_obs), PRED, J, 3))
 
     def brief(sc: dict) -> str:
         return " ".join(f"{k} {sc[k]:.4f}" for k in ("ADE", "FDE", "MMADE", "MMFDE", "APD", "mean_ADE"))
@@ -163,9 +164,10 @@ def main(argv=None) -> int:
     step = 0
     while time.time() - t0 < args.minutes * 60 and not 0 < args.max_steps <= step:
         rows = rng.integers(0, len(train), args.batch)
-        w = train[rows][:, None]
+        own = train[rows]
+        w = own[:, None]
         if others is not None:
-            w = np.concatenate([w, np.stack([swap_futures(train[rows], train[others[rows, j]], OBS)
+            w = np.concatenate([w, np.stack([swap_futures(own, train[others[rows, j]], OBS)
                                              for j in range(args.targets - 1)], 1)], 1)      # (B, T, 75, K)
         if args.rotate:   # every target of a window turned with it
             w = rotate_about(w.reshape(args.batch, w.shape[1], OBS + PRED, J, 3), "z", rng).reshape(w.shape)
