@@ -14,7 +14,13 @@ steps an hour. This bench trains, within a time budget, a generator whose IMLE s
   its last pose: ``training.augment.swap_futures``, what ``future_swap`` trains with) pulls the candidate nearest to
   it, by the per-frame L2 error's mean plus ``--fde-weight`` x its last frame's (the protocol's ADE and FDE);
 * with ``--rotate`` each window and its targets turned about the vertical by an angle in [0, 2 pi)
-  (``training.augment.rotate_about``); Adam at ``--lr``, x 0.1 for the last 20 % of the budget.
+  (``training.augment.rotate_about``), with ``--mirror`` half of them reflected (``training.augment.mirror``), with
+  ``--speed`` played faster or slower (``training.augment.resample``); Adam at ``--lr``, x 0.1 for the last 20 % of
+  the budget;
+* with ``--complement``, for a mixture with the bundled model: the bundled model's samples of every training window
+  (turned and reflected with it) compete with the MLP's draws, and a target counts the nearer of the two, so the
+  MLP learns to reach what the bundled model's samples miss; ``--mix M`` scores the mixture of the bundled
+  model's first M protocol samples and the MLP's first 50 - M.
 
 It scores 50 samples per window on the protocol's 188 windows (``training.evaluate.HumanEvaCases``: the same metrics
 and per-window values as ``python -m training.evaluate --protocol humaneva``, so ``training.compare`` pairs them),
@@ -43,12 +49,13 @@ from training.data.humaneva import HUMANEVA_T_HIS as OBS, HUMANEVA_T_PRED as PRE
 from training.prior import dct_matrix  # noqa: E402
 
 SAMPLES = 50   # the protocol's samples per window
+COMPLEMENT_SEED = 7   # the engine's seed for --complement's samples of the training windows (not the scoring's)
 
 
 class Generator(nn.Module):
     """(obs (B, 15, K), the prior's forecast (B, 60, K), z (B, S, Z)) -> S forecasts (B, S, 60, K)."""
 
-    def __init__(self, coords: int, hidden: int, layers: int, z_dim: int, coefs: int):
+    def __init__(self, coords: int, hidden: int, layers: int, z_dim: int, coefs: int, dropout: float = 0.0):
         super().__init__()
         self.coords, self.z_dim, self.coefs = coords, z_dim, coefs
         self.register_buffer("dct_obs", torch.from_numpy(dct_matrix(OBS)).float(), persistent=False)
@@ -56,7 +63,7 @@ class Generator(nn.Module):
         width = OBS * coords + coefs * coords + z_dim
         body: list[nn.Module] = [nn.Linear(width, hidden), nn.GELU()]
         for _ in range(layers - 1):
-            body += [nn.Linear(hidden, hidden), nn.GELU()]
+            body += [nn.Dropout(dropout), nn.Linear(hidden, hidden), nn.GELU()]   # a no-op at 0 or in eval()
         self.body = nn.Sequential(*body)
         self.head = nn.Linear(hidden, coefs * coords)
         nn.init.zeros_(self.head.weight)     # the untrained generator is the prior's forecast
@@ -79,15 +86,29 @@ def distance(x: torch.Tensor, y: torch.Tensor, fde_weight: float) -> torch.Tenso
 
 
 def imle_loss(gen: Generator, obs: torch.Tensor, prior: torch.Tensor, targets: torch.Tensor, cands: int,
-              fde_weight: float) -> torch.Tensor:
+              fde_weight: float, rival: torch.Tensor | None = None) -> torch.Tensor:
     """``targets`` (B, T, 60, K): each pulls the nearest of ``cands`` draws of its window (searched without
-    gradients, then generated again with them), the mean of those distances."""
+    gradients, then generated again with them), the mean of those distances. With ``rival`` (B, T), the distance
+    from each target to another generator's nearest sample, the mean of the smaller of the two: the best of a
+    mixture of both generators' samples, so a target the rival already reaches pulls nothing."""
     B = len(obs)
     z = torch.randn(B, cands, gen.z_dim)
     with torch.no_grad():
         best = distance(gen(obs, prior, z)[:, :, None], targets[:, None], fde_weight).argmin(1)   # (B, T)
     chosen = gen(obs, prior, z[torch.arange(B)[:, None], best])                                   # (B, T, 60, K)
-    return distance(chosen, targets, fde_weight).mean()
+    d = distance(chosen, targets, fde_weight)
+    return (d if rival is None else torch.minimum(d, rival)).mean()
+
+
+def engine_samples(model: str, obs: np.ndarray, samples: int, seed: int) -> np.ndarray:
+    """(S, W, 60, J, 3): ``samples`` one-step DDIM samples of the model directory ``model`` for obs (W, 15, J, 3),
+    through the engine exactly as ``python -m training.evaluate --protocol humaneva --engine tcd --sampler ddim
+    --steps 1 --seed SEED`` draws them (the bundled model's protocol settings)."""
+    from training.evaluate import build_parser, humaneva_model_samples
+    args = build_parser().parse_args(["--protocol", "humaneva", "--model", model, "--engine", "tcd", "--samples",
+                                      str(samples), "--sampler", "ddim", "--steps", "1", "--seed", str(seed),
+                                      "--json", "unused"])
+    return humaneva_model_samples(args, np.asarray(obs, np.float64))
 
 
 def main(argv=None) -> int:
@@ -107,6 +128,20 @@ def main(argv=None) -> int:
     ap.add_argument("--exclude-frames", type=int, default=30, help="other targets: not of the window's own "
                     "sequence within this many frames of it")
     ap.add_argument("--rotate", action="store_true", help="turn each window (and its targets) about the vertical")
+    ap.add_argument("--mirror", action="store_true", help="reflect half the windows (and their targets) through a "
+                    "vertical plane, left and right joints swapped (training.augment.mirror)")
+    ap.add_argument("--speed", type=float, default=0.0, help="play each window (and its other targets) at a speed "
+                    "drawn from [1 - SPEED, 1 + SPEED] (training.augment.resample; 0: as recorded)")
+    ap.add_argument("--complement", default=None, help="an .npy (N, C, 60, K) of the --model's one-step samples of "
+                    "each training window (in Windows order; written first, with --complement-samples, where it does "
+                    "not exist): train the MLP to reach the targets they do not, for a mixture of both (imle_loss's "
+                    "rival)")
+    ap.add_argument("--complement-samples", type=int, default=25, help="samples per window of a new --complement")
+    ap.add_argument("--mix", type=int, default=0, help="score a mixture: the --model's first MIX protocol samples "
+                    "(the engine, DDIM-1, seed --seed: those of benches/results/humaneva_bundled.json) and the MLP's "
+                    "first 50 - MIX; the result's model and stochastic are then the mixture's, generator_alone the "
+                    "MLP's 50")
+    ap.add_argument("--dropout", type=float, default=0.0, help="dropout before each hidden layer but the first")
     ap.add_argument("--fde-weight", type=float, default=1.0)
     ap.add_argument("--batch", type=int, default=128)
     ap.add_argument("--lr", type=float, default=1e-3)
@@ -120,11 +155,15 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.targets < 1 or args.cands < 1 or args.minutes < 0:
         raise SystemExit("--targets and --cands must be >= 1 and --minutes >= 0")
+    if not 0 <= args.mix < SAMPLES:
+        raise SystemExit(f"--mix must be in [0, {SAMPLES})")
+    if args.complement and args.speed:
+        raise SystemExit("--complement holds samples of the windows as recorded: not with --speed")
 
     import tcd
-    from training.augment import rotate_about, swap_futures
+    from training.augment import mirror, mirror_permutation, resample, rotate_about, swap_futures
     from training.batches import Windows
-    from training.data.humaneva import training_sequences
+    from training.data.humaneva import HUMANEVA_MODEL_JOINT_NAMES, training_sequences
     from training.evaluate import HumanEvaCases
 
     torch.set_num_threads(args.threads)
@@ -139,21 +178,42 @@ def main(argv=None) -> int:
 
     windows = Windows(list(training_sequences(args.data).values()), OBS + PRED, 1)
     train = windows.gather(np.arange(len(windows))).reshape(len(windows), OBS + PRED, K)
+    frames = np.concatenate(windows.seqs).reshape(-1, K).astype(np.float32)        # every sequence, end to end
+    offset = np.r_[0, np.cumsum([len(q) for q in windows.seqs])]
+    first = offset[windows.index[:, 0]] + windows.index[:, 1]                       # each window's first row
+    ends = offset[windows.index[:, 0] + 1]                                          # its sequence's end
+
+    def read(rows: np.ndarray, speeds: np.ndarray | None) -> np.ndarray:
+        """(B, 75, K) training windows, played at ``speeds`` (None: as recorded)."""
+        return train[rows] if speeds is None else resample(frames, first[rows], ends[rows], OBS + PRED, speeds)
     others = windows.future_neighbours(OBS, args.targets - 1, args.exclude_frames) if args.targets > 1 else None
-    gen = Generator(K, args.hidden, args.layers, args.z, args.coefs)
+    if args.complement and not Path(args.complement).is_file():
+        print(f"writing {args.complement}: {args.complement_samples} samples of each training window", file=sys.stderr)
+        c = engine_samples(args.model, train[:, :OBS].reshape(-1, OBS, J, 3), args.complement_samples, COMPLEMENT_SEED)
+        np.save(args.complement, np.ascontiguousarray(c.transpose(1, 0, 2, 3, 4).reshape(len(train), -1, PRED, K),
+                                                      np.float32))
+    rivals = np.load(args.complement) if args.complement else None
+    if rivals is not None and (rivals.ndim != 4 or rivals.shape[0] != len(train) or rivals.shape[2:] != (PRED, K)):
+        raise SystemExit(f"--complement: shape {rivals.shape}, not ({len(train)}, C, {PRED}, {K})")
+    gen = Generator(K, args.hidden, args.layers, args.z, args.coefs, args.dropout)
+    perm = mirror_permutation(HUMANEVA_MODEL_JOINT_NAMES)
     if args.init:
         gen.load_state_dict(torch.load(args.init))
     opt = torch.optim.Adam(gen.parameters(), lr=args.lr)
     val_obs = torch.from_numpy(cases.obs.reshape(len(cases.obs), OBS, K).astype(np.float32))
     val_prior = forecast(val_obs.numpy())
 
-    def score() -> dict:
+    def samples() -> np.ndarray:
+        """The MLP's 50 samples of the protocol's windows (50, W, 60, J, 3), noise seeded by --seed."""
         gen.eval()
         with torch.no_grad():
             z = torch.randn(len(val_obs), SAMPLES, args.z, generator=torch.Generator().manual_seed(args.seed))
             s = gen(val_obs, val_prior, z).numpy().astype(np.float64)                       # (W, S, 60, K)
         gen.train()
-        return cases.score(s.transpose(1, 0, 2, 3).reshape(SAMPLES, len(val_obs), PRED, J, 3))
+        return s.transpose(1, 0, 2, 3).reshape(SAMPLES, len(val_obs), PRED, J, 3)
+
+    def score() -> dict:
+        return cases.score(samples())
 
     def brief(sc: dict) -> str:
         return " ".join(f"{k} {sc[k]:.4f}" for k in ("ADE", "FDE", "MMADE", "MMFDE", "APD", "mean_ADE"))
@@ -164,19 +224,29 @@ def main(argv=None) -> int:
     step = 0
     while time.time() - t0 < args.minutes * 60 and not 0 < args.max_steps <= step:
         rows = rng.integers(0, len(train), args.batch)
-        own = train[rows]
+        speeds = rng.uniform(1 - args.speed, 1 + args.speed, args.batch) if args.speed else None
+        own = read(rows, speeds)
         w = own[:, None]
         if others is not None:
-            w = np.concatenate([w, np.stack([swap_futures(own, train[others[rows, j]], OBS)
+            w = np.concatenate([w, np.stack([swap_futures(own, read(others[rows, j], speeds), OBS)
                                              for j in range(args.targets - 1)], 1)], 1)      # (B, T, 75, K)
+        T = w.shape[1]
+        if rivals is not None:   # the rival's samples after the window's observation, turned and reflected with it
+            r = rivals[rows]
+            w = np.concatenate([w, np.concatenate([np.repeat(own[:, None, :OBS], r.shape[1], 1), r], 2)], 1)
+        if args.mirror:   # every target of a window reflected with it
+            flip = np.repeat(rng.random(args.batch) < 0.5, w.shape[1])
+            w = mirror(w.reshape(-1, OBS + PRED, J, 3), "z", perm, flip).reshape(w.shape)
         if args.rotate:   # every target of a window turned with it
             w = rotate_about(w.reshape(args.batch, w.shape[1], OBS + PRED, J, 3), "z", rng).reshape(w.shape)
         obs = np.ascontiguousarray(w[:, 0, :OBS])
         lr = args.lr * (0.1 if time.time() - t0 > 0.8 * args.minutes * 60 else 1.0)
         for group in opt.param_groups:
             group["lr"] = lr
-        targets = torch.from_numpy(np.ascontiguousarray(w[:, :, OBS:]))
-        loss = imle_loss(gen, torch.from_numpy(obs), forecast(obs), targets, args.cands, args.fde_weight)
+        targets = torch.from_numpy(np.ascontiguousarray(w[:, :T, OBS:]))
+        rival = None if rivals is None else distance(torch.from_numpy(np.ascontiguousarray(w[:, T:, OBS:]))[:, :, None],
+                                                     targets[:, None], args.fde_weight).amin(1)        # (B, T)
+        loss = imle_loss(gen, torch.from_numpy(obs), forecast(obs), targets, args.cands, args.fde_weight, rival)
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -186,12 +256,20 @@ def main(argv=None) -> int:
             print(f"step {step} ({(last - t0) / 60:.1f} min): loss {loss.item():.4f}; {brief(score())}",
                   file=sys.stderr, flush=True)
     minutes = (time.time() - t0) / 60
-    sc = score()
+    own = samples()
+    sc = alone = cases.score(own)
     print(f"final, step {step} ({minutes:.1f} min): {brief(sc)}", file=sys.stderr)
-    out = {"method": "IMLE MLP generator around the prior (benches/humaneva_imle_mlp.py)", "protocol": cases.protocol(),
+    method = "IMLE MLP generator around the prior (benches/humaneva_imle_mlp.py)"
+    if args.mix:   # the engine's first MIX samples as the protocol's evaluation draws them, then the MLP's
+        theirs = engine_samples(args.model, cases.obs, SAMPLES, args.seed)[:args.mix]
+        sc = cases.score(np.concatenate([theirs, own[:SAMPLES - args.mix]]))
+        method = (f"{args.mix} samples of {Path(args.model).name} (the engine, DDIM-1) and {SAMPLES - args.mix} "
+                  f"of an {method}")
+        print(f"mixture with {args.mix} of the model's: {brief(sc)}", file=sys.stderr)
+    out = {"method": method, "protocol": cases.protocol(),
            "options": {k: v for k, v in vars(args).items() if k not in ("json", "save")},
            "seeds": {"sampling": args.seed}, "steps": step, "minutes": minutes, "stochastic": sc, "model": sc,
-           "per_action": cases.per_action(sc)}
+           "per_action": cases.per_action(sc), **({"generator_alone": alone} if args.mix else {})}
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     Path(args.json).write_text(json.dumps(out, indent=1))
     if args.save:

@@ -455,7 +455,7 @@ def test_repair_gap_refiner_starts_as_the_fill_and_moves_hidden_frames_only():
 def test_humaneva_imle_mlp_starts_as_the_prior_and_pulls_each_target_s_nearest_draw():
     """benches/humaneva_imle_mlp.py: the untrained generator is the prior's forecast whatever the noise, and the
     IMLE loss is the mean over targets of the distance to the nearest of the draws (the same seeded draws,
-    searched by brute force here)."""
+    searched by brute force here), or, given a rival's distances, of the nearer of the two."""
     torch = import_torch("benches/humaneva_imle_mlp.py")
     bench = load_bench("humaneva_imle_mlp")
     gen = bench.Generator(coords=6, hidden=16, layers=2, z_dim=4, coefs=5)
@@ -474,3 +474,9 @@ def test_humaneva_imle_mlp_starts_as_the_prior_and_pulls_each_target_s_nearest_d
     nearest = (err.mean(-1) + 2.0 * err[..., -1]).min(dim=1).values                        # (3, 2)
     torch.testing.assert_close(loss, nearest.mean())
     assert nearest.std() > 0 and loss > 0
+    # with a rival generator's distances, each target counts the nearer of its draw and the rival
+    rival = nearest * torch.tensor([[0.5, 2.0], [2.0, 0.5], [0.5, 0.5]])
+    torch.manual_seed(5)
+    mixed = bench.imle_loss(gen, obs, prior, targets, cands=9, fde_weight=2.0, rival=rival)
+    torch.testing.assert_close(mixed, torch.minimum(nearest, rival).mean())
+    assert mixed < loss
