@@ -15,8 +15,8 @@ steps an hour. This bench trains, within a time budget, a generator whose IMLE s
   it, by the per-frame L2 error's mean plus ``--fde-weight`` x its last frame's (the protocol's ADE and FDE);
 * with ``--rotate`` each window and its targets turned about the vertical by an angle in [0, 2 pi)
   (``training.augment.rotate_about``), with ``--mirror`` half of them reflected (``training.augment.mirror``), with
-  ``--speed`` played faster or slower (``training.augment.resample``); Adam at ``--lr``, x 0.1 for the last 20 % of
-  the budget;
+  ``--speed-range`` played faster or slower (``training.augment.resample``); Adam at ``--lr``, x 0.1 for the last
+  20 % of the budget;
 * with ``--complement``, for a mixture with the bundled model: the bundled model's samples of every training window
   (turned and reflected with it) compete with the MLP's draws, and a target counts the nearer of the two, so the
   MLP learns to reach what the bundled model's samples miss; ``--mix M`` scores the mixture of the bundled
@@ -130,8 +130,9 @@ def main(argv=None) -> int:
     ap.add_argument("--rotate", action="store_true", help="turn each window (and its targets) about the vertical")
     ap.add_argument("--mirror", action="store_true", help="reflect half the windows (and their targets) through a "
                     "vertical plane, left and right joints swapped (training.augment.mirror)")
-    ap.add_argument("--speed", type=float, default=0.0, help="play each window (and its other targets) at a speed "
-                    "drawn from [1 - SPEED, 1 + SPEED] (training.augment.resample; 0: as recorded)")
+    ap.add_argument("--speed-range", type=float, nargs=2, default=None, metavar=("LO", "HI"),
+                    help="play each window (and its other targets) at a speed drawn log-uniformly from [LO, HI], as "
+                    "the prior's speed_range does (training.augment.resample; default: as recorded)")
     ap.add_argument("--complement", default=None, help="an .npy (N, C, 60, K) of the --model's one-step samples of "
                     "each training window (in Windows order; written first, with --complement-samples, where it does "
                     "not exist): train the MLP to reach the targets they do not, for a mixture of both (imle_loss's "
@@ -157,11 +158,11 @@ def main(argv=None) -> int:
         raise SystemExit("--targets and --cands must be >= 1 and --minutes >= 0")
     if not 0 <= args.mix < SAMPLES:
         raise SystemExit(f"--mix must be in [0, {SAMPLES})")
-    if args.complement and args.speed:
-        raise SystemExit("--complement holds samples of the windows as recorded: not with --speed")
+    if args.complement and args.speed_range:
+        raise SystemExit("--complement holds samples of the windows as recorded: not with --speed-range")
 
     import tcd
-    from training.augment import mirror, mirror_permutation, resample, rotate_about, swap_futures
+    from training.augment import mirror, mirror_permutation, resample, rotate_about, sequence_ends, swap_futures
     from training.batches import Windows
     from training.data.humaneva import HUMANEVA_MODEL_JOINT_NAMES, training_sequences
     from training.evaluate import HumanEvaCases
@@ -179,9 +180,8 @@ def main(argv=None) -> int:
     windows = Windows(list(training_sequences(args.data).values()), OBS + PRED, 1)
     train = windows.gather(np.arange(len(windows))).reshape(len(windows), OBS + PRED, K)
     frames = np.concatenate(windows.seqs).reshape(-1, K).astype(np.float32)        # every sequence, end to end
-    offset = np.r_[0, np.cumsum([len(q) for q in windows.seqs])]
-    first = offset[windows.index[:, 0]] + windows.index[:, 1]                       # each window's first row
-    ends = offset[windows.index[:, 0] + 1]                                          # its sequence's end
+    first = np.r_[0, np.cumsum([len(q) for q in windows.seqs])][windows.index[:, 0]] + windows.index[:, 1]
+    ends = sequence_ends(first, OBS + PRED)                                         # each window's sequence's end
 
     def read(rows: np.ndarray, speeds: np.ndarray | None) -> np.ndarray:
         """(B, 75, K) training windows, played at ``speeds`` (None: as recorded)."""
@@ -224,7 +224,7 @@ def main(argv=None) -> int:
     step = 0
     while time.time() - t0 < args.minutes * 60 and not 0 < args.max_steps <= step:
         rows = rng.integers(0, len(train), args.batch)
-        speeds = rng.uniform(1 - args.speed, 1 + args.speed, args.batch) if args.speed else None
+        speeds = np.exp(rng.uniform(*np.log(args.speed_range), args.batch)) if args.speed_range else None
         own = read(rows, speeds)
         w = own[:, None]
         if others is not None:
