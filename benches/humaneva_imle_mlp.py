@@ -24,7 +24,10 @@ steps an hour. This bench trains, within a time budget, a generator whose IMLE s
 
 It scores 50 samples per window on the protocol's 188 windows (``training.evaluate.HumanEvaCases``: the same metrics
 and per-window values as ``python -m training.evaluate --protocol humaneva``, so ``training.compare`` pairs them),
-in PyTorch: the Rust engine has no such generator. Not bundled, and not a TCD model::
+in PyTorch. The generator is ``training.generator.Generator``; ``python -m training.generator --state-dict`` writes
+a ``--save``d one as ``generator.safetensors``, which the engine runs (``tcd.engine.Generator``) and a model
+directory mixes into its forecasts (``tcd.TCD.forecast``'s ``generator_share``). ``--steps`` instead of ``--minutes``
+makes a run reproducible (with ``--threads 1``)::
 
     python benches/humaneva_imle_mlp.py --minutes 12 --rotate --targets 8 --threads 2 \\
         --json benches/results/humaneva_imle_mlp/t8_12min.json
@@ -43,40 +46,12 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import torch  # noqa: E402
-from torch import nn  # noqa: E402
 
 from training.data.humaneva import HUMANEVA_T_HIS as OBS, HUMANEVA_T_PRED as PRED  # noqa: E402
-from training.prior import dct_matrix  # noqa: E402
+from training.generator import Generator  # noqa: E402  (the model this bench trains)
 
 SAMPLES = 50   # the protocol's samples per window
 COMPLEMENT_SEED = 7   # the engine's seed for --complement's samples of the training windows (not the scoring's)
-
-
-class Generator(nn.Module):
-    """(obs (B, 15, K), the prior's forecast (B, 60, K), z (B, S, Z)) -> S forecasts (B, S, 60, K)."""
-
-    def __init__(self, coords: int, hidden: int, layers: int, z_dim: int, coefs: int, dropout: float = 0.0):
-        super().__init__()
-        self.coords, self.z_dim, self.coefs = coords, z_dim, coefs
-        self.register_buffer("dct_obs", torch.from_numpy(dct_matrix(OBS)).float(), persistent=False)
-        self.register_buffer("dct_pred", torch.from_numpy(dct_matrix(PRED)[:coefs]).float(), persistent=False)
-        width = OBS * coords + coefs * coords + z_dim
-        body: list[nn.Module] = [nn.Linear(width, hidden), nn.GELU()]
-        for _ in range(layers - 1):
-            body += [nn.Dropout(dropout), nn.Linear(hidden, hidden), nn.GELU()]   # a no-op at 0 or in eval()
-        self.body = nn.Sequential(*body)
-        self.head = nn.Linear(hidden, coefs * coords)
-        nn.init.zeros_(self.head.weight)     # the untrained generator is the prior's forecast
-        nn.init.zeros_(self.head.bias)
-
-    def forward(self, obs: torch.Tensor, prior: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
-        B, S = len(obs), z.shape[1]
-        last = obs[:, -1:]
-        past = torch.einsum("ft,btk->bfk", self.dct_obs, obs - last).reshape(B, -1)
-        ahead = torch.einsum("ft,btk->bfk", self.dct_pred, prior - last).reshape(B, -1)
-        h = torch.cat([past, ahead], 1)[:, None].expand(-1, S, -1)
-        y = self.head(self.body(torch.cat([h, z], -1))).reshape(B, S, self.coefs, self.coords)
-        return prior[:, None] + torch.einsum("cf,bsck->bsfk", self.dct_pred, y)
 
 
 def distance(x: torch.Tensor, y: torch.Tensor, fde_weight: float) -> torch.Tensor:
@@ -101,24 +76,26 @@ def imle_loss(gen: Generator, obs: torch.Tensor, prior: torch.Tensor, targets: t
 
 
 def engine_samples(model: str, obs: np.ndarray, samples: int, seed: int) -> np.ndarray:
-    """(S, W, 60, J, 3): ``samples`` one-step DDIM samples of the model directory ``model`` for obs (W, 15, J, 3),
-    through the engine exactly as ``python -m training.evaluate --protocol humaneva --engine tcd --sampler ddim
-    --steps 1 --seed SEED`` draws them (the bundled model's protocol settings)."""
+    """(S, W, 60, J, 3): ``samples`` one-step DDIM samples of the model directory ``model``'s cascade (no generator
+    samples) for obs (W, 15, J, 3), through the engine exactly as ``python -m training.evaluate --protocol humaneva
+    --engine tcd --sampler ddim --steps 1 --seed SEED --generator-share 0`` draws them."""
     from training.evaluate import build_parser, humaneva_model_samples
     args = build_parser().parse_args(["--protocol", "humaneva", "--model", model, "--engine", "tcd", "--samples",
                                       str(samples), "--sampler", "ddim", "--steps", "1", "--seed", str(seed),
-                                      "--json", "unused"])
+                                      "--generator-share", "0", "--json", "unused"])
     return humaneva_model_samples(args, np.asarray(obs, np.float64))
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--minutes", type=float, required=True, help="the training clock's budget (0: score --init only)")
+    ap.add_argument("--minutes", type=float, default=0.0, help="the training clock's budget, learning rate x 0.1 for "
+                    "its last 20 %% (0 with no --steps: score --init only)")
+    ap.add_argument("--steps", type=int, default=0, help="instead of --minutes: exactly this many steps, learning "
+                    "rate x 0.1 for the last 20 %% of them (with --threads 1, the same run gives the same weights)")
     ap.add_argument("--init", default=None, help="start from this state dict (--save of an earlier run)")
     ap.add_argument("--seed", type=int, default=0, help="the scoring noise's seed (recorded as the result's "
                     "seeds.sampling, which training.compare checks; the runs of 2026-11-29 scored with 123 as they "
                     "trained)")
-    ap.add_argument("--max-steps", type=int, default=0, help="stop after this many steps too (0: the budget only)")
     ap.add_argument("--hidden", type=int, default=768)
     ap.add_argument("--layers", type=int, default=3)
     ap.add_argument("--z", type=int, default=64, help="the noise vector's size")
@@ -154,8 +131,10 @@ def main(argv=None) -> int:
     ap.add_argument("--json", required=True, help="the result: the protocol's metrics, per window and per action")
     ap.add_argument("--save", default=None, help="also save the generator's state dict here")
     args = ap.parse_args(argv)
-    if args.targets < 1 or args.cands < 1 or args.minutes < 0:
-        raise SystemExit("--targets and --cands must be >= 1 and --minutes >= 0")
+    if args.targets < 1 or args.cands < 1 or args.minutes < 0 or args.steps < 0:
+        raise SystemExit("--targets and --cands must be >= 1, --minutes and --steps >= 0")
+    if args.minutes and args.steps:
+        raise SystemExit("--minutes or --steps, not both")
     if not 0 <= args.mix < SAMPLES:
         raise SystemExit(f"--mix must be in [0, {SAMPLES})")
     if args.complement and args.speed_range:
@@ -222,7 +201,13 @@ def main(argv=None) -> int:
     rng = np.random.default_rng(0)
     t0 = last = time.time()
     step = 0
-    while time.time() - t0 < args.minutes * 60 and not 0 < args.max_steps <= step:
+
+    def progress() -> float:
+        """The schedule's fraction done: of --steps, or of --minutes' clock."""
+        if args.steps:
+            return step / args.steps
+        return (time.time() - t0) / (args.minutes * 60) if args.minutes else 1.0     # 0: no training
+    while progress() < 1:
         rows = rng.integers(0, len(train), args.batch)
         speeds = np.exp(rng.uniform(*np.log(args.speed_range), args.batch)) if args.speed_range else None
         own = read(rows, speeds)
@@ -240,7 +225,7 @@ def main(argv=None) -> int:
         if args.rotate:   # every target of a window turned with it
             w = rotate_about(w.reshape(args.batch, w.shape[1], OBS + PRED, J, 3), "z", rng).reshape(w.shape)
         obs = np.ascontiguousarray(w[:, 0, :OBS])
-        lr = args.lr * (0.1 if time.time() - t0 > 0.8 * args.minutes * 60 else 1.0)
+        lr = args.lr * (0.1 if progress() >= 0.8 else 1.0)
         for group in opt.param_groups:
             group["lr"] = lr
         targets = torch.from_numpy(np.ascontiguousarray(w[:, :T, OBS:]))

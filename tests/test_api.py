@@ -107,8 +107,8 @@ def test_engine_names_live_in_tcd_engine_only():
     are private by name."""
     import importlib
 
-    engine = {"Denoiser", "Prior", "cascade_raw", "repair_raw", "seeded_noise", "supported_kernels", "STAGE_SHORT",
-              "STAGE_LONG"}
+    engine = {"Denoiser", "Prior", "Generator", "cascade_raw", "repair_raw", "seeded_noise", "supported_kernels",
+              "STAGE_SHORT", "STAGE_LONG", "STAGE_GENERATOR"}
     assert set(tcd.engine.__all__) == engine and all(hasattr(tcd.engine, n) for n in engine)
     for name in engine:
         assert not hasattr(tcd, name), name

@@ -7,6 +7,7 @@ import re
 from pathlib import Path
 
 import jsonschema
+import numpy as np
 import pytest
 
 import tcd
@@ -39,8 +40,10 @@ def write(path: Path, cfg: dict) -> Path:
 
 def role_schema(role: str) -> dict:
     """The schema's rules for a file of ``role`` as one object: the top level with the branch of its
-    ``if role == "prior"`` applied (the model block taken from ``$defs``; no window or diffusion for the prior)."""
-    branch = SCHEMA["then"] if role == "prior" else SCHEMA["else"]
+    ``if role == "prior"`` / ``else if role == "generator"`` / ``else`` applied (the model block taken from
+    ``$defs``; no window or diffusion for the prior and the generator)."""
+    branch = SCHEMA["then"] if role == "prior" else SCHEMA["else"]["then"] if role == "generator" \
+        else SCHEMA["else"]["else"]
     props = dict(SCHEMA["properties"])
     for name, sub in branch.get("properties", {}).items():
         if sub is False:
@@ -222,11 +225,17 @@ def test_engine_requires_what_the_schema_requires_of_a_prior(tmp_path):
 def test_the_schema_tells_the_roles_apart():
     prior = json.loads(PRIOR_GOLDEN.read_text())
     short = json.loads(GOLDEN.read_text())
+    generator = generator_config()
     for bad in ({**prior, "window": short["window"]},                          # a prior has no window
                 {**prior, "model": short["model"]},                            # nor the denoiser's model fields
                 {**short, "role": "prior"},
                 {k: v for k, v in short.items() if k != "diffusion"},          # a denoiser needs its diffusion
-                {**short, "model": prior["model"]}):
+                {**short, "model": prior["model"]},
+                {**generator, "window": short["window"]},                      # a generator has no window
+                {**generator, "model": prior["model"]},                        # nor another kind's model fields
+                {**prior, "role": "generator"},
+                {**short, "role": "generator"},
+                {**generator, "role": "prior"}):
         with pytest.raises(jsonschema.ValidationError):
             jsonschema.validate(bad, SCHEMA)
 
@@ -234,9 +243,77 @@ def test_the_schema_tells_the_roles_apart():
 def test_a_file_of_one_kind_does_not_load_as_the_other(tmp_path):
     prior = write_prior(tmp_path / "prior.safetensors", json.loads(PRIOR_GOLDEN.read_text()))
     short = write(tmp_path / "short.safetensors", json.loads(GOLDEN.read_text()))
+    generator = write_generator(tmp_path / "generator.safetensors", generator_config())
     with pytest.raises(WeightsError, match="prior forecaster") as e:
         tcd.engine.Denoiser.load(prior)
     assert e.value.path == str(prior)
     with pytest.raises(WeightsError, match="Denoiser") as e:
         tcd.engine.Prior.load(short)
     assert e.value.path == str(short)
+    for load in (tcd.engine.Denoiser.load, tcd.engine.Prior.load):
+        with pytest.raises(WeightsError, match="sample generator.*`tcd.engine.Generator.load`") as e:
+            load(generator)
+        assert e.value.path == str(generator)
+    for path, kind in ((short, "Denoiser"), (prior, "Prior")):
+        with pytest.raises(WeightsError, match=f"`tcd.engine.{kind}.load`"):
+            tcd.engine.Generator.load(path)
+
+
+# ------------------------------------------------------------------------------- the generator (role "generator")
+
+def generator_config() -> dict:
+    """A small generator's config with the keys training/generator.py's ``build_generator_config`` writes."""
+    data = {"dataset": "humaneva", "fps": 60.0, "units": "m", "root_relative": True, "layout": "humaneva15"}
+    return {"format_version": 1, "role": "generator",
+            "model": {"num_joints": 2, "coords": 3, "num_features": 6, "obs_len": 5, "pred_len": 12, "hidden": 8,
+                      "layers": 2, "z_dim": 4, "coefs": 3},
+            "data": data, "training": {"random_init": True}, "source_revision": "0123abc"}
+
+
+def write_generator(path: Path, cfg: dict) -> Path:
+    """A generator file with random tensors of the shapes ``generator_config()``'s sizes imply and ``cfg`` as
+    given."""
+    m = generator_config()["model"]
+    rng = np.random.default_rng(0)
+    k, width = m["num_features"], (m["obs_len"] + m["coefs"]) * m["num_features"] + m["z_dim"]
+    shapes = {}
+    for i in range(m["layers"]):
+        shapes[f"layers.{i}.weight"], shapes[f"layers.{i}.bias"] = (m["hidden"], width), (m["hidden"],)
+        width = m["hidden"]
+    shapes["head.weight"], shapes["head.bias"] = (m["coefs"] * k, m["hidden"]), (m["coefs"] * k,)
+    tensors = {name: rng.normal(0, 0.3, shape).astype(np.float32) for name, shape in shapes.items()}
+    return write_weights(path, tensors, {CONFIG_KEY: json.dumps(cfg)})
+
+
+def test_the_generator_exporter_follows_the_schema():
+    import_torch(EXPORTER)
+    from training.export import humaneva_data_meta
+    from training.generator import Generator, build_generator_config
+    jsonschema.validate(build_generator_config(Generator(42, 16, 2, 8, 5), humaneva_data_meta(), {"steps": 1}),
+                        SCHEMA)
+
+
+def test_engine_requires_what_the_schema_requires_of_a_generator(tmp_path):
+    cfg = generator_config()
+    jsonschema.validate(cfg, SCHEMA)
+    g = tcd.engine.Generator.load(write_generator(tmp_path / "g.safetensors", cfg))
+    assert g.config == cfg
+    assert (g.num_features, g.obs_len, g.pred_len, g.hidden, g.layers, g.z_dim, g.coefs) == (6, 5, 12, 8, 2, 4, 3)
+    fields = list(schema_fields("generator"))
+    assert not any(name.startswith(("window", "diffusion")) for name, _, _ in fields)
+    required = [name for name, _, req in fields if req]
+    assert set(required) == {"format_version", "role", "model"} | {f"model.{f}" for f in cfg["model"]}
+    for name in required:
+        with pytest.raises(WeightsError) as e:
+            tcd.engine.Generator.load(write_generator(tmp_path / f"no_{name}.safetensors", drop(cfg, name)))
+        assert name.split(".")[-1] in str(e.value), (name, str(e.value))
+    # a size the schema refuses, and the relations between sizes that it cannot state (coefs <= pred_len,
+    # num_features = num_joints x coords): the engine refuses each naming the field
+    for field, value, schema_refuses in (("z_dim", 0, True), ("coefs", 13, False), ("num_features", 7, False)):
+        bad = copy.deepcopy(cfg)
+        bad["model"][field] = value
+        if schema_refuses:
+            with pytest.raises(jsonschema.ValidationError):
+                jsonschema.validate(bad, SCHEMA)
+        with pytest.raises(WeightsError, match=f"model.{field}"):
+            tcd.engine.Generator.load(write_generator(tmp_path / "bad.safetensors", bad))

@@ -130,6 +130,15 @@ def tcd_engine_predict(model_dir: str, obs: np.ndarray, jmask: np.ndarray, *, sa
     return {"samples": np.asarray(f.samples, np.float64), "repaired": np.asarray(f.repaired, np.float64)}
 
 
+def generator_share_of(args) -> float:
+    """The share of each window's samples the model directory's MLP generator draws in this run: --generator-share,
+    else the directory's default (``tcd.TCD.generator_share``; 0 with --engine torch, which runs no generator)."""
+    if args.generator_share is not None or args.engine != "tcd":
+        return args.generator_share or 0.0
+    import tcd
+    return tcd.load(args.model).generator_share
+
+
 def tempo_run(args) -> list | None:
     """The tempo range the samples ran with (``--tempo``, else the model directory's default; None: none)."""
     if args.engine != "tcd":
@@ -285,7 +294,10 @@ def humaneva_model_samples(args, obs: np.ndarray, log=lambda m: None) -> np.ndar
         model = tcd.load(args.model)
         _check_humaneva_model(args.model, model.obs_len, model.horizon, model.num_joints)
     else:
-        from .export import load_model_dir
+        from .export import GENERATOR_FILE, load_model_dir
+        if (Path(args.model) / GENERATOR_FILE).is_file() and getattr(args, "generator_share", None) != 0:
+            raise SystemExit(f"{args.model} holds an MLP generator ({GENERATOR_FILE}), whose samples only the engine "
+                             "draws: score it with --engine tcd, or the cascade alone with --generator-share 0")
         models = load_model_dir(args.model, args.device)
         w = models["short"][2]["window"]
         _check_humaneva_model(args.model, w["obs_len"], models["long"][2]["window"]["seq_len"] - w["obs_len"],
@@ -296,7 +308,7 @@ def humaneva_model_samples(args, obs: np.ndarray, log=lambda m: None) -> np.ndar
         if args.engine == "tcd":
             f = model.forecast(x, num_samples=args.samples, num_inference_steps=args.steps, sampler=args.sampler,
                                eta=args.eta, timestep_spacing=args.timestep_spacing, seed=seed, tempo=args.tempo,
-                               noise_coupling=coupling)
+                               noise_coupling=coupling, generator_share=getattr(args, "generator_share", None))
             outs.append(np.asarray(f.samples, np.float64))
         else:
             res = tcd_predict(models, x, np.ones(x.shape[:3], np.float32), samples=args.samples, steps=args.steps,
@@ -433,7 +445,8 @@ def evaluate_humaneva(args) -> dict:
         out.update(method=f"tcd {args.model}", stochastic=results["model"], seconds=time.time() - t0,
                    sampling={"engine": args.engine, "samples": args.samples, "steps": args.steps,
                              "sampler": args.sampler, "eta": args.eta, "timestep_spacing": args.timestep_spacing,
-                             "noise_coupling": noise_coupling_of(args), "tempo": tempo_run(args)})
+                             "noise_coupling": noise_coupling_of(args), "tempo": tempo_run(args),
+                             "generator_share": generator_share_of(args)})
     elif args.prior:
         out.update(method=f"prior {args.prior}", stochastic=results["prior"])
     elif args.baseline == "neighbours":
@@ -532,6 +545,10 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--tempo", type=float, nargs=2, metavar=("LO", "HI"), default=None,
                     help="--engine tcd: each sample from the observation replayed at its own tempo, LO to HI "
                          "(tcd.tempo; 1 1: none; default: the model directory's sampling.json)")
+    ap.add_argument("--generator-share", type=float, default=None,
+                    help="--engine tcd: the share of each window's samples the directory's MLP generator draws "
+                         "(tcd.TCD.forecast's generator_share; 0: the cascade alone; default: the directory's "
+                         "sampling.json, 0.5 for the bundled HumanEva-I model)")
     ap.add_argument("--select", choices=["best", "mean"], default="best",
                     help="best = oracle best-of-n (paper), mean = mean of samples (deployable)")
     ap.add_argument("--mask", choices=list(PATTERNS), default="none", help="observation corruption pattern")

@@ -47,6 +47,8 @@ ROLES = ("short", "long", "repair")       # the denoisers' roles
 PRIOR_ROLE = "prior"                       # the prior forecaster's role, in PRIOR_FILE
 PRIOR_FILE = "prior.safetensors"
 REPAIR_FILL_FILE = "repair_fill.safetensors"  # a prior with anchor "window": the repair model's fill (role "prior")
+GENERATOR_ROLE = "generator"               # the MLP sample generator's role (training/generator.py), in GENERATOR_FILE
+GENERATOR_FILE = "generator.safetensors"
 CONFIG_KEY = "tcd_config"
 
 # Windows of the Human3.6M cascade (spec section 5) and the repair model.
@@ -189,6 +191,8 @@ def write_model_json(d: Path) -> None:
         summary[PRIOR_ROLE] = read_config(d / PRIOR_FILE)
     if (d / REPAIR_FILL_FILE).is_file():
         summary["repair_fill"] = read_config(d / REPAIR_FILL_FILE)
+    if (d / GENERATOR_FILE).is_file():
+        summary[GENERATOR_ROLE] = read_config(d / GENERATOR_FILE)
     (d / "model.json").write_text(json.dumps(summary, indent=2) + "\n")
 
 
@@ -282,14 +286,18 @@ def export_checkpoint(ckpt_path: str | Path, out_dir: str | Path, description: s
 
 
 def copy_model_files(files: list[Path], out: Path) -> None:
-    """Copies model files named ``ROLE.safetensors`` (or ``prior.safetensors``, ``repair_fill.safetensors``) into
-    ``out`` after loading each strictly (a file that does not load replaces nothing)."""
-    names = [r + ".safetensors" for r in ROLES] + [PRIOR_FILE, REPAIR_FILL_FILE]
+    """Copies model files named ``ROLE.safetensors`` (or ``prior.safetensors``, ``repair_fill.safetensors``,
+    ``generator.safetensors``) into ``out`` after loading each strictly (a file that does not load replaces
+    nothing)."""
+    names = [r + ".safetensors" for r in ROLES] + [PRIOR_FILE, REPAIR_FILL_FILE, GENERATOR_FILE]
     for f in files:
         if f.name not in names:
             raise SystemExit(f"{f}: the file name must be one of {', '.join(names)}")
         if f.name in (PRIOR_FILE, REPAIR_FILL_FILE):
             load_prior_file(f)
+        elif f.name == GENERATOR_FILE:
+            from .generator import load_generator_file
+            load_generator_file(f)
         else:
             load_model_file(f)
     out.mkdir(parents=True, exist_ok=True)

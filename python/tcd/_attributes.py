@@ -1,5 +1,6 @@
-"""The read-only attributes that :class:`tcd.engine.Denoiser` and :class:`tcd.engine.Prior` take from their
-native object, and :class:`NativeModel`, what else the two classes share.
+"""The read-only attributes that :class:`tcd.engine.Denoiser`, :class:`tcd.engine.Prior` and
+:class:`tcd.engine.Generator` take from their native object, and :class:`NativeModel`, what else the three classes
+share.
 
 ``num_features = NativeAttribute(int, "K = num_joints * 3.")`` in a class body is the attribute
 ``self._native.num_features``, read-only (assigning it raises ``AttributeError``), typed ``int`` for type
@@ -48,11 +49,12 @@ class NativeAttribute(Generic[T]):
 
 class NativeModel(Generic[N]):
     """A loaded weight file: the engine's object ``_native`` (of the class ``_NATIVE``: ``N``) and its parsed
-    ``tcd_config``; the base of :class:`tcd.engine.Denoiser` and :class:`tcd.engine.Prior`, with what they
-    have alike (each has its own ``load``, documented for its kind of file)."""
+    ``tcd_config``; the base of :class:`tcd.engine.Denoiser`, :class:`tcd.engine.Prior` and
+    :class:`tcd.engine.Generator`, with what they have alike (each has its own ``load``, documented for its kind of
+    file)."""
 
     __slots__ = ("_native", "_config")
-    #: The engine's class of the file (``_native.Denoiser``, ``_native.Prior``).
+    #: The engine's class of the file (``_native.Denoiser``, ``_native.Prior``, ``_native.Generator``).
     _NATIVE: ClassVar[Any]
 
     def __init__(self, native: N) -> None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 import numbers
-from typing import Any, Optional, Sequence, Tuple
+from typing import Any, List, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -108,6 +108,23 @@ def float32_array(argument: str, value: Any) -> np.ndarray:
     if a.dtype.kind not in "biuf":
         raise fail(argument, "an array of numbers", f"an array of dtype {a.dtype}")
     return np.ascontiguousarray(a, dtype=np.float32)
+
+
+def optional_float32_array(argument: str, value: Any) -> Optional[np.ndarray]:
+    """None, or :func:`float32_array` (injected noise, which a seed may replace)."""
+    return None if value is None else float32_array(argument, value)
+
+
+def stream_ids(value: Any) -> Optional[List[int]]:
+    """``sequences`` (None, or one seeded stream id per sequence) as Python ints; the engine checks their range and
+    that there is one per sequence."""
+    if value is None:
+        return None
+    a = np.asarray(value)
+    if a.ndim != 1 or (a.size and a.dtype.kind not in "iu"):
+        raise fail("sequences", "a 1-D sequence of integer stream ids, one per sequence",
+                   f"an array of shape {shape_str(a.shape)} and dtype {a.dtype}")
+    return [int(v) for v in a]
 
 
 def shape_str(shape: Sequence[int]) -> str:

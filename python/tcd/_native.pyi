@@ -23,8 +23,10 @@ __all__ = [
     "WeightsError",
     "STAGE_SHORT",
     "STAGE_LONG",
+    "STAGE_GENERATOR",
     "Denoiser",
     "Prior",
+    "Generator",
     "cascade",
     "repair",
     "seeded_noise",
@@ -41,6 +43,7 @@ __all__ = [
 __version__: str
 STAGE_SHORT: int
 STAGE_LONG: int
+STAGE_GENERATOR: int
 SAMPLERS: List[str]
 SPACINGS: List[str]
 COUPLINGS: List[str]
@@ -143,6 +146,50 @@ class Prior:
     def predict(self, obs: _F32, horizon: int, *, threads: Optional[int] = None) -> _F32: ...
     def fill(
         self, observed: _F32, mask: _F32, *, forecaster: Optional[Prior] = None, threads: Optional[int] = None
+    ) -> _F32: ...
+
+@final
+class Generator:
+    """The MLP sample generator; arrays (B, T, K) float32, frame-major; samples (S, B, pred_len, K)."""
+    @staticmethod
+    def load(path: Union[str, os.PathLike[str]]) -> Generator: ...
+    @staticmethod
+    def from_bytes(data: bytes, name: Union[str, os.PathLike[str]]) -> Generator: ...
+    @property
+    def path(self) -> str: ...
+    @property
+    def config_json(self) -> str: ...
+    @property
+    def kernel(self) -> str: ...
+    @property
+    def num_features(self) -> int: ...
+    @property
+    def num_joints(self) -> int: ...
+    @property
+    def coords(self) -> int: ...
+    @property
+    def obs_len(self) -> int: ...
+    @property
+    def pred_len(self) -> int: ...
+    @property
+    def hidden(self) -> int: ...
+    @property
+    def layers(self) -> int: ...
+    @property
+    def z_dim(self) -> int: ...
+    @property
+    def coefs(self) -> int: ...
+    def sample(
+        self,
+        obs: _F32,
+        prior: _F32,
+        num_samples: int,
+        *,
+        noise: Optional[_F32] = None,
+        seed: Optional[int] = None,
+        first_sequence: int = 0,
+        sequences: Optional[List[int]] = None,
+        threads: Optional[int] = None,
     ) -> _F32: ...
 
 def cascade(

@@ -1,11 +1,12 @@
 """The engine-level API, ``tcd.engine``: one denoiser, the samplers and the cascade in the engine's layout,
-and the deterministic prior forecaster.
+the deterministic prior forecaster, and the MLP sample generator.
 
 :class:`Denoiser` (one weight file), :func:`cascade_raw` (short-term -> long-term), :func:`repair_raw`
 (observation-only inference), :func:`seeded_noise` (the seeded streams, :data:`STAGE_SHORT` /
-:data:`STAGE_LONG`), :func:`supported_kernels`, and :class:`Prior` (the prior forecaster, frame-major
-(B, T, K): see its docstring). :mod:`tcd` itself holds the high-level API (:func:`tcd.load`,
-:class:`tcd.TCD`) built on these.
+:data:`STAGE_LONG` / :data:`STAGE_GENERATOR`), :func:`supported_kernels`, :class:`Prior` (the prior forecaster,
+frame-major (B, T, K): see its docstring) and :class:`Generator` (forecast samples around the prior's forecast,
+one MLP forward each, frame-major too; its injected noise (S, B, z_dim): see its docstring). :mod:`tcd` itself
+holds the high-level API (:func:`tcd.load`, :class:`tcd.TCD`) built on these.
 
 Arrays here are float32 **(B, K, L)**: B sequences, K = joints x 3 coordinates (index
 ``joint * 3 + axis``), L frames (frame axis last). Masks are 1 (observed) / 0 (to generate).
@@ -28,20 +29,19 @@ from numpy.typing import ArrayLike
 from . import _checks, _native
 from ._attributes import NativeAttribute, NativeModel, PathLike
 from .options import SamplerOptions
+from ._generator import Generator
 from ._prior import Prior
 from ._progress import Progress, reporter
 
-__all__ = ["Denoiser", "Prior", "cascade_raw", "repair_raw", "seeded_noise", "supported_kernels", "STAGE_SHORT",
-           "STAGE_LONG"]
+__all__ = ["Denoiser", "Prior", "Generator", "cascade_raw", "repair_raw", "seeded_noise", "supported_kernels",
+           "STAGE_SHORT", "STAGE_LONG", "STAGE_GENERATOR"]
 
 #: Stream stage of :meth:`Denoiser.sample`, :func:`repair_raw` and the cascade's short-term stage.
 STAGE_SHORT: int = _native.STAGE_SHORT
 #: Stream stage of the cascade's long-term stage.
 STAGE_LONG: int = _native.STAGE_LONG
-
-
-def _noise(argument: str, value: Optional[ArrayLike]) -> Optional[np.ndarray]:
-    return None if value is None else _checks.float32_array(argument, value)
+#: Stream stage of :meth:`Generator.sample` (its noise z, ``num_blocks`` 1, ``length`` 1 in :func:`seeded_noise`).
+STAGE_GENERATOR: int = _native.STAGE_GENERATOR
 
 
 class Denoiser(NativeModel[_native.Denoiser]):
@@ -106,9 +106,10 @@ class Denoiser(NativeModel[_native.Denoiser]):
         with reporter(progress, "tcd sample") as callback:
             return self._native.sample(
                 _checks.float32_array("observed", observed), _checks.float32_array("mask", mask), num_samples, o,
-                noise=_noise("noise", noise), seed=_checks.optional_machine_int("seed", seed, 128),
+                noise=_checks.optional_float32_array("noise", noise),
+                seed=_checks.optional_machine_int("seed", seed, 128),
                 first_sequence=_checks.machine_int("first_sequence", first_sequence, 128),
-                sequences=_stream_ids(sequences), threads=_checks.optional_machine_int("threads", threads),
+                sequences=_checks.stream_ids(sequences), threads=_checks.optional_machine_int("threads", threads),
                 progress=callback)
 
 
@@ -142,10 +143,11 @@ def cascade_raw(short: Denoiser, long: Denoiser, observed: ArrayLike, mask: Arra
         return dict(_native.cascade(
             short._native, long._native, _checks.float32_array("observed", observed),
             _checks.float32_array("mask", mask), num_samples, o,
-            noise_short=_noise("noise_short", noise_short), noise_long=_noise("noise_long", noise_long),
+            noise_short=_checks.optional_float32_array("noise_short", noise_short),
+            noise_long=_checks.optional_float32_array("noise_long", noise_long),
             seed=_checks.optional_machine_int("seed", seed, 128),
             first_sequence=_checks.machine_int("first_sequence", first_sequence, 128),
-            sequences=_stream_ids(sequences), threads=_checks.optional_machine_int("threads", threads),
+            sequences=_checks.stream_ids(sequences), threads=_checks.optional_machine_int("threads", threads),
             progress=callback, prior=None if prior is None else prior._native))
 
 
@@ -178,22 +180,12 @@ def repair_raw(model: Denoiser, observed: ArrayLike, mask: ArrayLike, *, num_sam
     with reporter(progress, "tcd repair") as callback:
         return dict(_native.repair(
             model._native, _checks.float32_array("observed", observed), _checks.float32_array("mask", mask),
-            num_samples, o, noise=_noise("noise", noise), seed=_checks.optional_machine_int("seed", seed, 128),
+            num_samples, o, noise=_checks.optional_float32_array("noise", noise),
+            seed=_checks.optional_machine_int("seed", seed, 128),
             first_sequence=_checks.machine_int("first_sequence", first_sequence, 128),
-            sequences=_stream_ids(sequences), threads=_checks.optional_machine_int("threads", threads),
+            sequences=_checks.stream_ids(sequences), threads=_checks.optional_machine_int("threads", threads),
             progress=callback, fill=None if fill is None else fill._native,
             forecaster=None if forecaster is None else forecaster._native))
-
-
-def _stream_ids(value: Optional[Sequence[int]]) -> Optional[List[int]]:
-    """``sequences`` as Python ints; the engine checks their range and that there is one per sequence."""
-    if value is None:
-        return None
-    a = np.asarray(value)
-    if a.ndim != 1 or (a.size and a.dtype.kind not in "iu"):
-        raise _checks.fail("sequences", "a 1-D sequence of integer stream ids, one per sequence",
-                           f"an array of shape {_checks.shape_str(a.shape)} and dtype {a.dtype}")
-    return [int(v) for v in a]
 
 
 def supported_kernels() -> List[str]:
@@ -207,7 +199,8 @@ def seeded_noise(seed: int, stage: int, num_samples: int, num_blocks: int, batch
     """The engine's seeded noise streams in the injected layout (S, num_blocks, B, K, L): feeding
     this array as ``noise`` reproduces the seeded call exactly (``stage``: :data:`STAGE_SHORT` for
     :meth:`Denoiser.sample` / :func:`repair_raw` / the cascade's first stage, :data:`STAGE_LONG` for
-    its second)."""
+    its second; :data:`STAGE_GENERATOR` with ``num_blocks`` 1, ``num_features`` z_dim and ``length`` 1 for
+    :meth:`Generator.sample`, reshaped to (S, B, z_dim))."""
     return _native.seeded_noise(
         _checks.machine_int("seed", seed, 128), _checks.machine_int("stage", stage, 128),
         _checks.machine_int("num_samples", num_samples), _checks.machine_int("num_blocks", num_blocks),

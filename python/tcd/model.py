@@ -28,7 +28,7 @@ from numpy.typing import ArrayLike
 from . import _checks, _wild_calls
 from ._poses import UNIT_SCALE, Units, check_units, check_window, validate_poses
 from ._progress import Progress
-from .engine import Denoiser, Prior, cascade_raw, repair_raw
+from .engine import Denoiser, Generator, Prior, cascade_raw, repair_raw
 from . import _native
 from .exceptions import InvalidInputError, ModelNotBundledError, WeightsError
 from .options import SamplerOptions
@@ -44,14 +44,20 @@ PathLike = Union[str, "os.PathLike[str]"]
 PRIOR_FILE = "prior.safetensors"
 #: the repair model's fill in a model directory (:attr:`TCD.repair_fill`), for a repair model conditioned on it
 REPAIR_FILL_FILE = "repair_fill.safetensors"
+#: the MLP sample generator in a model directory (:attr:`TCD.generator`), optional: a share of the forecast's
+#: samples drawn around the prior's forecast (``sampling.json`` ``"forecast_generator_share"``)
+GENERATOR_FILE = "generator.safetensors"
 
 #: a model directory's own sampler defaults (:attr:`TCD.sampling`), optional: ``{"forecast": {...}, "repair":
 #: {...}, "why": "...", "forecast_tempo": [lo, hi]}``, each task's object holding :class:`SamplerOptions` fields; a
 #: task or field left out takes :class:`SamplerOptions`' defaults (the paper's DDPM over every training step);
-#: ``"forecast_tempo"`` is :attr:`TCD.forecast_tempo` (:mod:`tcd.tempo`), optional
+#: ``"forecast_tempo"`` is :attr:`TCD.forecast_tempo` (:mod:`tcd.tempo`), optional; ``"forecast_generator_share"``
+#: is :attr:`TCD.generator_share`, optional (0 when absent)
 SAMPLING_FILE = "sampling.json"
 #: the key of ``sampling.json`` holding :attr:`TCD.forecast_tempo`
 TEMPO_KEY = "forecast_tempo"
+#: the key of ``sampling.json`` holding :attr:`TCD.generator_share`
+GENERATOR_SHARE_KEY = "forecast_generator_share"
 #: the tasks a model directory may set sampler defaults for: ``"forecast"`` the cascade (:meth:`TCD.forecast`),
 #: ``"repair"`` the repair model (:meth:`TCD.repair`, the model fill of :meth:`TCD.predict`, :func:`tcd.repair_file`)
 SAMPLING_TASKS = ("forecast", "repair")
@@ -223,7 +229,8 @@ class TCD:
                  path: Optional[PathLike] = None, threads: Optional[int] = None,
                  file_sha256: Optional[Dict[str, str]] = None, prior: Optional[Prior] = None,
                  sampling: Optional[Dict[str, SamplerOptions]] = None, forecast_tempo: Tempo = None,
-                 repair_fill: Optional[Prior] = None) -> None:
+                 repair_fill: Optional[Prior] = None, generator: Optional[Generator] = None,
+                 generator_share: float = 0.0) -> None:
         self.short = short
         self.long = long
         self.repair_model = repair
@@ -245,6 +252,11 @@ class TCD:
         #: the tempo range :meth:`forecast` samples when a call names none (:mod:`tcd.tempo`): the model
         #: directory's ``sampling.json`` ``"forecast_tempo"``, else None (every sample at the observed tempo)
         self.forecast_tempo: Tempo = check_tempo(forecast_tempo, "forecast_tempo")
+        #: the MLP sample generator (``generator.safetensors``: :class:`tcd.engine.Generator`), or None
+        self.generator = generator
+        #: the share of :meth:`forecast`'s samples the generator draws when a call names none: the model
+        #: directory's ``sampling.json`` ``"forecast_generator_share"``, else 0 (every sample from the cascade)
+        self.generator_share: float = check_generator_share(generator_share, "generator_share")
         #: SHA-256 (hex) of each weight file, by file name; empty when built from Denoisers directly.
         self.file_sha256: Dict[str, str] = dict(file_sha256 or {})
         #: SHA-256 (hex) identifying the model: the digest of its ``SHA256SUMS`` text (None without files).
@@ -291,6 +303,19 @@ class TCD:
                                f"(anchor \"window\") over the repair model's window (num_features = {k}, "
                                f"{'no repair model' if repair is None else f'seq_len = {repair.seq_len}'}).",
                                repair_fill.path)
+        if generator is not None and (prior is None or generator.num_features != k or prior.obs_len != short.obs_len
+                                      or generator.obs_len != short.obs_len
+                                      or generator.pred_len != long.seq_len - short.obs_len):
+            raise WeightsError(f"{where}: the generator (num_features = {generator.num_features}, obs_len = "
+                               f"{generator.obs_len}, pred_len = {generator.pred_len}) samples around the prior's "
+                               f"forecast, so the directory must hold a prior forecaster ({PRIOR_FILE}) reading the "
+                               f"short-term model's {short.obs_len} observed frames, and the generator must match "
+                               f"them (num_features = {k}, obs_len = {short.obs_len}, pred_len = the horizon, "
+                               f"{long.seq_len - short.obs_len}).", generator.path)
+        if self.generator_share and generator is None:
+            raise WeightsError(f"{where}: generator_share = {self.generator_share}, but there is no generator "
+                               f"({GENERATOR_FILE}).", str(Path(path) / GENERATOR_FILE) if path is not None
+                               else GENERATOR_FILE)
         if repair_fill is not None and repair_fill.gap_fill == "forecaster" and prior is None:
             missing = str(Path(path) / PRIOR_FILE) if path is not None else PRIOR_FILE
             raise WeightsError(f"{where}: the repair fill fills whole-frame gaps with the prior forecaster (gap_fill "
@@ -355,12 +380,14 @@ class TCD:
             out["repair"] = self.repair_model.config
         if self.prior is not None:
             out["prior"] = self.prior.config
+        if self.generator is not None:
+            out["generator"] = self.generator.config
         return out
 
     def __repr__(self) -> str:
         return (f"TCD(path={str(self.path)!r}, obs_len={self.obs_len}, horizon={self.horizon}, "
                 f"num_joints={self.num_joints}, repair_model={self.repair_model is not None}, "
-                f"prior={self.prior is not None})")
+                f"prior={self.prior is not None}, generator={self.generator is not None})")
 
     # ------------------------------------------------------------------ inference
     def sampler_options(self, task: str, **sampler: Any) -> SamplerOptions:
@@ -384,7 +411,8 @@ class TCD:
     def forecast(self, obs: ArrayLike, mask: Optional[ArrayLike] = None, *, num_samples: int = 5,
                  seed: Optional[int] = None, units: Units = "m", threads: Optional[int] = None,
                  progress: Progress = False, layout: Optional[str] = None, fps: Optional[float] = None,
-                 up: Up = "y", tempo: Tempo = None, **sampler: Any) -> Forecast:
+                 up: Up = "y", tempo: Tempo = None, generator_share: Optional[float] = None,
+                 **sampler: Any) -> Forecast:
         """Forecasts the next :attr:`horizon` frames of ``obs``.
 
         Args:
@@ -419,9 +447,26 @@ class TCD:
                 (:mod:`tcd.tempo`: samples that differ in when a movement happens); ``(1, 1)`` every sample at
                 the observed tempo; ``None`` the model's default (:attr:`forecast_tempo`; the bundled models set
                 none: their samples' mean gets worse with it, MODEL_CARD.md "Tempo sampling").
+            generator_share: in [0, 1]: ``floor(num_samples * generator_share)`` of the samples come from the
+                directory's MLP generator (:attr:`generator`, one forward each, around the prior's forecast of the
+                observation filled as the cascade's prior fill fills it), after the cascade's; ``None`` the
+                model's default (:attr:`generator_share`: 0.5 for the bundled HumanEva-I model, whose best of 50
+                samples is best half and half, MODEL_CARD.md; 0 for a directory without a generator). The
+                cascade's stages run with the remaining samples; ``mean`` is the mean of all of them, and
+                ``repaired`` the cascade's (the prior's fill where every sample is the generator's). Not with
+                ``tempo``.
         """
         num_samples, sampling, units, threads = self._common("forecast", num_samples, sampler, units, threads)
         tempo = self.forecast_tempo if tempo is None else check_tempo(tempo)
+        share = self.generator_share if generator_share is None else check_generator_share(generator_share)
+        drawn = int(num_samples * share)          # the generator's samples; the cascade's are the rest
+        if drawn and self.generator is None:
+            raise InvalidInputError(f"Argument `generator_share` is {share}, but the model has no generator "
+                                    f"({GENERATOR_FILE}): pass 0 or None.", "generator_share")
+        if drawn and tempo not in (None, (1.0, 1.0)):
+            raise InvalidInputError(f"Argument `tempo` is {tempo}, but the generator draws {drawn} of the "
+                                    f"{num_samples} samples at the observed tempo: pass generator_share=0 with a "
+                                    "tempo.", "tempo")
         seed = _seed(seed)
         prior = self.prior if self._prior_roles else None
 
@@ -429,7 +474,10 @@ class TCD:
             return cascade_raw(self.short, self.long, observed, seen, num_samples=n, seed=seed, threads=threads,
                                progress=progress, prior=prior, sequences=streams, **sampling)
 
-        if tempo is None or tempo == (1.0, 1.0):
+        if drawn:
+            run = lambda observed, seen: self._mixture(  # noqa: E731
+                observed, seen, num_samples - drawn, drawn, seed, threads, cascade)
+        elif tempo is None or tempo == (1.0, 1.0):
             run = lambda observed, seen: cascade(observed, seen, num_samples)  # noqa: E731
         else:
             run = lambda observed, seen: tempo_forecast(lambda o, m, ids: cascade(o, m, 1, ids),  # noqa: E731
@@ -443,6 +491,27 @@ class TCD:
         return Forecast(mean=p.poses(out["mean"]), samples=p.poses(out["samples"]),
                         repaired=p.repaired(out["repaired"]), seed=seed,
                         times=None if self.fps is None else np.arange(1, self.horizon + 1) / float(self.fps))
+
+    def _mixture(self, observed: np.ndarray, seen: np.ndarray, cascaded: int, drawn: int, seed: int,
+                 threads: Optional[int], cascade) -> Dict[str, np.ndarray]:
+        """:meth:`forecast`'s run with the generator: ``cascaded`` samples from ``cascade(observed, seen, n)`` and
+        then ``drawn`` from the generator (its seeded streams, stage :data:`tcd.engine.STAGE_GENERATOR`), in the
+        engine's layout (B, K, O) in, the cascade's dict out. The generator reads the observation as the
+        cascade's prior fill fills it (the spline through each coordinate's observed frames) and the prior's
+        forecast from that: one :meth:`tcd.engine.Prior.fill` over the window and the horizon."""
+        b, k, o = observed.shape
+        h = self.horizon
+        window = np.concatenate([observed, np.zeros((b, k, h), np.float32)], axis=2).transpose(0, 2, 1)
+        given = np.concatenate([seen, np.zeros((b, k, h), np.float32)], axis=2).transpose(0, 2, 1)
+        filled = self.prior.fill(np.ascontiguousarray(window), np.ascontiguousarray(given), threads=threads)
+        drawn_samples = self.generator.sample(filled[:, :o], filled[:, o:], drawn, seed=seed, threads=threads)
+        drawn_samples = np.ascontiguousarray(drawn_samples.transpose(0, 1, 3, 2))       # (S', B, K, H)
+        if not cascaded:
+            return {"samples": drawn_samples, "mean": drawn_samples.mean(axis=0, dtype=np.float32),
+                    "repaired": np.ascontiguousarray(filled[:, :o].transpose(0, 2, 1))}
+        out = cascade(observed, seen, cascaded)
+        samples = np.concatenate([out["samples"], drawn_samples])
+        return {**out, "samples": samples, "mean": samples.mean(axis=0, dtype=np.float32)}
 
     def repair(self, obs: ArrayLike, mask: Optional[ArrayLike] = None, *, num_samples: Optional[int] = None,
                seed: Optional[int] = None, units: Units = "m", threads: Optional[int] = None,
@@ -584,17 +653,29 @@ def load(path: Optional[PathLike] = None, *, threads: Optional[int] = None) -> T
     rp = "repair.safetensors"
     repair_model = Denoiser.from_bytes(blobs[rp], str(d / rp)) if rp in blobs else None
     priors = {n: Prior.from_bytes(blobs[n], str(d / n)) if n in blobs else None for n in (PRIOR_FILE, REPAIR_FILL_FILE)}
-    sampling, forecast_tempo = _read_sampling(d / SAMPLING_FILE)
+    generator = (Generator.from_bytes(blobs[GENERATOR_FILE], str(d / GENERATOR_FILE)) if GENERATOR_FILE in blobs
+                 else None)
+    sampling, forecast_tempo, share = _read_sampling(d / SAMPLING_FILE)
     return TCD(short, long, repair_model, path=d, threads=threads, file_sha256=digests, prior=priors[PRIOR_FILE],
-               sampling=sampling, forecast_tempo=forecast_tempo, repair_fill=priors[REPAIR_FILL_FILE])
+               sampling=sampling, forecast_tempo=forecast_tempo, repair_fill=priors[REPAIR_FILL_FILE],
+               generator=generator, generator_share=share)
 
 
-def _read_sampling(f: Path) -> Tuple[Dict[str, SamplerOptions], Tempo]:
+def check_generator_share(value: Any, name: str = "generator_share") -> float:
+    """``value`` as a share of samples in [0, 1]; an :class:`InvalidInputError` naming ``name`` otherwise."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
+            or not 0.0 <= float(value) <= 1.0:
+        raise _checks.fail(name, "a number in [0, 1] (the share of a forecast's samples the generator draws)",
+                           repr(value))
+    return float(value)
+
+
+def _read_sampling(f: Path) -> Tuple[Dict[str, SamplerOptions], Tempo, float]:
     """A model directory's ``sampling.json`` (:data:`SAMPLING_FILE`), read once and checked: its sampler settings by
-    task and its ``"forecast_tempo"`` (``{}`` and None when there is no file); a :class:`WeightsError` naming the
-    file and the key for anything else."""
+    task, its ``"forecast_tempo"`` and its ``"forecast_generator_share"`` (``{}``, None and 0 when there is no
+    file); a :class:`WeightsError` naming the file and the key for anything else."""
     if not f.is_file():
-        return {}, None
+        return {}, None, 0.0
     try:
         doc = json.loads(f.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
@@ -603,11 +684,11 @@ def _read_sampling(f: Path) -> Tuple[Dict[str, SamplerOptions], Tempo]:
         raise WeightsError(f"{f}: expected an object of tasks ({', '.join(SAMPLING_TASKS)}), got {doc!r}.", str(f))
     out: Dict[str, SamplerOptions] = {}
     for key, value in doc.items():
-        if key in ("why", TEMPO_KEY):  # the reason for the choice, for the reader; the tempo, checked below
+        if key in ("why", TEMPO_KEY, GENERATOR_SHARE_KEY):  # the reason, for the reader; the others checked below
             continue
         if key not in SAMPLING_TASKS:
             raise WeightsError(f"{f}: unknown key {key!r} (the tasks: {', '.join(SAMPLING_TASKS)}; and \"why\", "
-                               f"\"{TEMPO_KEY}\").",
+                               f"\"{TEMPO_KEY}\", \"{GENERATOR_SHARE_KEY}\").",
                                str(f))
         if not isinstance(value, dict):
             raise WeightsError(f"{f}, {key!r}: expected an object of sampler settings, got {value!r}", str(f))
@@ -617,9 +698,10 @@ def _read_sampling(f: Path) -> Tuple[Dict[str, SamplerOptions], Tempo]:
             raise WeightsError(f"{f}, {key!r}: {e}", str(f)) from None
     try:
         tempo = check_tempo(doc.get(TEMPO_KEY), TEMPO_KEY)
+        share = check_generator_share(doc.get(GENERATOR_SHARE_KEY, 0.0), GENERATOR_SHARE_KEY)
     except InvalidInputError as e:
         raise WeightsError(f"{f}: {e}", str(f)) from None
-    return out, tempo
+    return out, tempo, share
 
 
 def _uses_prior(model: Denoiser) -> bool:
@@ -629,7 +711,7 @@ def _uses_prior(model: Denoiser) -> bool:
 
 CHECKSUM_FILE = "SHA256SUMS"
 #: the weight files of a model directory, by role, in checksum order
-ROLES = ("short", "long", "repair", "prior", "repair_fill")
+ROLES = ("short", "long", "repair", "prior", "repair_fill", "generator")
 
 
 def _checksum_text(digests: Dict[str, str]) -> str:

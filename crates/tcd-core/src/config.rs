@@ -249,13 +249,13 @@ pub enum VarianceType {
 impl TcdConfig {
     /// Parses the JSON string stored under `tcd_config`; `path` names the file in errors.
     pub fn from_json(json: &str, path: &Path) -> Result<Self> {
-        // A prior file given to the denoiser's loader: say what it holds, not that its role is unknown.
-        if role_of(json).as_deref() == Some(PRIOR_ROLE) {
+        // A prior's or generator's file given to the denoiser's loader: say what it holds, not that its
+        // role is unknown.
+        if let Some(role) = role_of(json).filter(|r| r == PRIOR_ROLE || r == GENERATOR_ROLE) {
+            let (what, loader) = file_kind(&role);
             return Err(Checks(path).bad(
                 "role",
-                "is \"prior\": the file holds the deterministic prior forecaster, which loads with \
-                 `Prior::load` (Python: `tcd.engine.Prior.load`), not as a denoiser"
-                    .into(),
+                format!("is {role:?}: the file holds {what}, which loads with {loader}, not as a denoiser"),
             ));
         }
         parse_json(json, path)
@@ -422,11 +422,33 @@ impl TcdConfig {
     }
 }
 
-// What the denoiser's config and the prior's (`crate::prior::PriorConfig`, the same format, metadata
-// key and `data` block) share: the prior's role, parsing, serialising and the checks alike in both.
+// What the denoiser's config, the prior's (`crate::prior::PriorConfig`) and the generator's
+// (`crate::generator::GeneratorConfig`) share (the same format, metadata key and `data` block): their
+// roles, parsing, serialising and the checks alike in all.
 
 /// The `role` of a prior file.
 pub(crate) const PRIOR_ROLE: &str = "prior";
+/// The `role` of a generator file.
+pub(crate) const GENERATOR_ROLE: &str = "generator";
+
+/// What a weight file of `role` holds and what loads it, for the error of a loader given a file of
+/// another kind: the prior's, the generator's, and any other role a denoiser's.
+pub(crate) fn file_kind(role: &str) -> (&'static str, &'static str) {
+    match role {
+        PRIOR_ROLE => (
+            "the deterministic prior forecaster",
+            "`Prior::load` (Python: `tcd.engine.Prior.load`)",
+        ),
+        GENERATOR_ROLE => (
+            "the MLP sample generator",
+            "`Generator::load` (Python: `tcd.engine.Generator.load`)",
+        ),
+        _ => (
+            "a denoiser",
+            "`Denoiser::load`, in Python `tcd.engine.Denoiser.load` or a model directory with `tcd.load`",
+        ),
+    }
+}
 
 /// The `role` of a `tcd_config` JSON, where it parses and has a string role (to tell a file of the
 /// other kind apart before parsing it fully).
@@ -472,6 +494,21 @@ impl Checks<'_> {
             path: self.0.to_path_buf(),
             field: field.to_string(),
             reason,
+        }
+    }
+
+    /// Refuses a file whose `role` (read by [`role_of`] before the fields are parsed) is not `role`, the
+    /// role of the `this` the loader loads, saying what the file holds and what loads it.
+    pub(crate) fn role_is(&self, json: &str, role: &str, this: &str) -> Result<()> {
+        match role_of(json).filter(|r| r != role) {
+            Some(other) => {
+                let (what, loader) = file_kind(&other);
+                Err(self.bad(
+                    "role",
+                    format!("must be \"{role}\" for {this}, but is {other:?} ({what}: it loads with {loader})"),
+                ))
+            }
+            None => Ok(()),
         }
     }
 

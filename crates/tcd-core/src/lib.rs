@@ -1,9 +1,10 @@
 //! # tcd-core
 //!
 //! A pure-Rust inference engine for Temporal Cascaded Diffusion (TCD) 3D human pose forecasting:
-//! the CSDI denoiser, DDPM / DDIM samplers, and the short-term → long-term cascade; and the
-//! deterministic prior forecaster ([`Prior`], its arrays frame-major (B, T, K)). It knows
-//! nothing of Python; the binding crate wraps this API.
+//! the CSDI denoiser, DDPM / DDIM samplers, and the short-term → long-term cascade; the
+//! deterministic prior forecaster ([`Prior`], its arrays frame-major (B, T, K)); and the MLP sample
+//! generator ([`Generator`], forecast samples around the prior's forecast, frame-major too). It
+//! knows nothing of Python; the binding crate wraps this API.
 //!
 //! ```no_run
 //! use tcd_core::{cascade, CascadeNoise, Control, Denoiser, ForecastOptions, Observation, Sequences};
@@ -33,6 +34,7 @@ mod control;
 mod denoiser;
 mod error;
 mod forecast;
+mod generator;
 mod kernels;
 mod nn;
 mod observation;
@@ -50,6 +52,7 @@ pub use config::{
     VarianceType, WindowConfig, FORMAT_VERSION,
 };
 pub use denoiser::{Denoiser, Prepared, Workspace};
+pub use generator::{generator_expected_tensors, Generator, GeneratorConfig, GeneratorModelConfig};
 pub use prior::{
     dct_matrix, inbetween_width, prior_expected_tensors, Anchor, GapFill, Prior, PriorConfig,
     PriorModelConfig,

@@ -5,13 +5,18 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 
-/// Stage numbers (the last key word): which model of a cascade a chain belongs to.
+/// Stage numbers (the last key word): which model of a call a chain belongs to, so that no two
+/// models draw the same stream from one seed.
 pub mod stage {
     /// Plain [`crate::sample`], [`crate::repair`] and the short-term stage of
     /// [`crate::cascade`].
     pub const SHORT: u64 = 0;
     /// The long-term stage of [`crate::cascade`].
     pub const LONG: u64 = 1;
+    /// [`crate::Generator::sample`]: sample s of sequence b draws its `z_dim` normals z from the
+    /// chain (b, s) of this stage, so a seed shared with the diffusion samples of the same windows
+    /// gives the generator streams of its own.
+    pub const GENERATOR: u64 = 2;
 }
 
 /// Where a sampling call gets its noise.

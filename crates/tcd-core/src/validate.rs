@@ -68,3 +68,33 @@ pub(crate) fn all_finite(
     }
     Ok(())
 }
+
+/// `values`, sequences of `frames` frames of `k` values (frame-major, (B, frames, K)), is finite in the
+/// last `obs_len` frames of every sequence: the frames a model reads; what comes before them is ignored
+/// (NaN there is fine). The length is the caller's to check first.
+pub(crate) fn finite_last_frames(
+    argument: &str,
+    values: &[f32],
+    frames: usize,
+    k: usize,
+    obs_len: usize,
+) -> Result<()> {
+    let skip = (frames - obs_len) * k;
+    if let Some(i) = values
+        .chunks_exact(frames * k)
+        .enumerate()
+        .find_map(|(b, seq)| {
+            seq[skip..]
+                .iter()
+                .position(|v| !v.is_finite())
+                .map(|j| b * frames * k + skip + j)
+        })
+    {
+        return Err(Error::invalid_input(
+            argument,
+            format!("finite in the last obs_len = {obs_len} frames of every sequence (the frames the model reads)"),
+            format!("{} at flat index {i}", values[i]),
+        ));
+    }
+    Ok(())
+}

@@ -1,6 +1,7 @@
 //! A sampling call: the arguments `Denoiser.sample`, `cascade` and `repair` share ([`SamplingArgs`]),
 //! checked in one order by [`SamplingArgs::prepare`], and the checked [`Call`], run off the GIL by
-//! [`Call::run`].
+//! [`Call::run`]; and the noise arguments (`noise` xor `seed`, `first_sequence` xor `sequences`:
+//! [`seed_args`], [`noise_source`]), which `Generator.sample` takes too.
 //!
 //! The order of the checks, which decides the error raised when several arguments are wrong:
 //! `num_samples`, the observation's shape (`observed`, then `mask`), the size of the samples, the sampler
@@ -135,7 +136,8 @@ impl<'py> SamplingArgs<'py> {
             .map(|((model, argument, noise), blocks)| {
                 let noise = noise.as_ref().map(Array::from_numpy);
                 let shape = [s, blocks, b, model.num_features(), length(model)];
-                noise_source(argument, noise, seed, streams.clone(), &shape)
+                let what = "= (num_samples, num_noise_blocks, B, K, L); num_noise_blocks = num_inference_steps + 1 (1 for dpmpp2m)";
+                noise_source(argument, noise, seed, streams.clone(), &shape, what)
             })
             .collect::<CoreResult<Vec<NoiseSource>>>()?;
         let noise = sources
@@ -190,8 +192,8 @@ impl StreamIds {
     }
 }
 
-/// `seed`, and `first_sequence` xor `sequences`, as the engine takes them.
-fn seed_args(
+/// `seed`, and `first_sequence` xor `sequences`, as the engine takes them (also `Generator.sample`'s).
+pub(crate) fn seed_args(
     seed: Option<i128>,
     first_sequence: i128,
     sequences: Option<Vec<i128>>,
@@ -230,13 +232,14 @@ pub(crate) enum NoiseSource {
 }
 
 /// The noise of one model of a call: `noise`, the injected array of the argument so named (moved, not
-/// copied), checked against `expected_shape`, or the seeded streams.
-fn noise_source(
+/// copied), checked against `expected_shape` (`what` explains it in the message), or the seeded streams.
+pub(crate) fn noise_source(
     argument: &str,
     noise: Option<Array>,
     seed: Option<u64>,
     streams: StreamIds,
     expected_shape: &[usize],
+    what: &str,
 ) -> CoreResult<NoiseSource> {
     match (noise, seed) {
         (Some(_), Some(_)) => Err(invalid(
@@ -250,11 +253,7 @@ fn noise_source(
             "None",
         )),
         (Some(n), None) => {
-            n.expect_shape(
-                argument,
-                expected_shape,
-                "= (num_samples, num_noise_blocks, B, K, L); num_noise_blocks = num_inference_steps + 1 (1 for dpmpp2m)",
-            )?;
+            n.expect_shape(argument, expected_shape, what)?;
             Ok(NoiseSource::Injected(n.data))
         }
         (None, Some(s)) => Ok(NoiseSource::Seeded(s, streams)),

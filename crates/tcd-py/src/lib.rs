@@ -14,13 +14,15 @@
 //! Files: [`convert`] (arguments and arrays in and out), [`call`] (the arguments `Denoiser.sample`,
 //! `cascade` and `repair` share, checked once, and their run), [`run`] (a long call run interruptibly),
 //! [`denoiser`] (the `Denoiser` class), [`prior`] (the `Prior` class: the deterministic forecaster,
-//! arrays (B, T, K)), [`model`] (the loaders and getters both classes have), [`pipeline`] (the module's
-//! functions), [`error`] (the binding's error type: engine errors into Python exceptions).
+//! arrays (B, T, K)), [`generator`] (the `Generator` class: the MLP sample generator, arrays (B, T, K)),
+//! [`model`] (the loaders and getters the three classes have), [`pipeline`] (the module's functions),
+//! [`error`] (the binding's error type: engine errors into Python exceptions).
 
 mod call;
 mod convert;
 mod denoiser;
 mod error;
+mod generator;
 mod model;
 mod pipeline;
 mod prior;
@@ -30,6 +32,7 @@ use pyo3::prelude::*;
 use tcd_core::stage;
 
 use crate::denoiser::PyDenoiser;
+use crate::generator::PyGenerator;
 use crate::pipeline::{
     cascade, check_call_settings, check_sampler_options, interpolate, repair, seeded_noise,
     supported_kernels,
@@ -42,8 +45,10 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     error::add_exceptions(m)?;
     m.add("STAGE_SHORT", stage::SHORT)?;
     m.add("STAGE_LONG", stage::LONG)?;
+    m.add("STAGE_GENERATOR", stage::GENERATOR)?;
     m.add_class::<PyDenoiser>()?;
     m.add_class::<PyPrior>()?;
+    m.add_class::<PyGenerator>()?;
     m.add_function(wrap_pyfunction!(cascade, m)?)?;
     m.add_function(wrap_pyfunction!(repair, m)?)?;
     m.add_function(wrap_pyfunction!(seeded_noise, m)?)?;

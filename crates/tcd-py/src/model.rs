@@ -1,5 +1,5 @@
-//! What the two classes of a loaded weight file, `Denoiser` and `Prior`, have alike: their loaders
-//! and the getters of the file and its sizes.
+//! What the classes of a loaded weight file, `Denoiser`, `Prior` and `Generator`, have alike: their
+//! loaders and the getters of the file and its sizes.
 
 /// The `#[pymethods]` of a frozen pyclass `$class { inner: Arc<$model> }` over one loaded weight
 /// file: `load`, `from_bytes` (`$what` names the file in their docstrings) and the getters `path`,

@@ -17,7 +17,8 @@ from .common import (EXIT_OK, OPTION_FLAGS, _BadInput, add_model_flag, add_sampl
 
 # The arguments the input file sets, for the error messages.
 FLAGS = {**OPTION_FLAGS, "obs": "the `poses` array of the input file", "mask": "the `mask` array of the input file",
-         "fps": "--fps", "layout": "--layout", "up": "--up", "fill": "--fill", "tempo": "--tempo"}
+         "fps": "--fps", "layout": "--layout", "up": "--up", "fill": "--fill", "tempo": "--tempo",
+         "generator_share": "--generator-share"}
 
 
 def add_parser(sub: Any) -> argparse.ArgumentParser:
@@ -51,6 +52,9 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
     p.add_argument("--tempo", type=float, nargs=2, default=None, metavar=("LO", "HI"),
                    help="each sample from the observation replayed at its own tempo, LO to HI (tcd.tempo; 1 1: "
                         "none; default: the model's, `tcd info`)")
+    p.add_argument("--generator-share", type=float, default=None, metavar="F",
+                   help="the share of the samples the model's MLP generator draws, after the cascade's (0: the "
+                        "cascade alone; default: the model's, `tcd info`: 0.5 for the bundled HumanEva-I model)")
     p.add_argument("--threads", type=int, default=None, metavar="N", help="worker threads (default: all cores)")
     p.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
     p.add_argument("--quiet", action="store_true", help="no progress bar (shown on a terminal otherwise)")
@@ -102,8 +106,11 @@ def run(args: argparse.Namespace) -> int:
         raise _BadInput(f"--point: the model directory {model.path} has no prior.safetensors.")
     if args.point and args.tempo is not None:
         raise _BadInput("--tempo samples tempi of the diffusion forecast; --point forecasts one point forecast.")
+    if args.point and args.generator_share is not None:
+        raise _BadInput("--generator-share splits the samples of a forecast; --point forecasts one point forecast.")
     call = model.predict if args.point else model.forecast
-    extra = {"fill": args.fill} if args.point else {"tempo": args.tempo}
+    extra = ({"fill": args.fill} if args.point
+             else {"tempo": args.tempo, "generator_share": args.generator_share})
     try:
         f = call(data["poses"], data.get("mask"), num_samples=args.samples, seed=args.seed, units=args.units,
                  threads=args.threads, progress=not args.quiet and sys.stderr.isatty(), layout=layout, fps=fps,

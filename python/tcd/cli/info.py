@@ -25,6 +25,7 @@ def run(args: argparse.Namespace) -> int:
                           "num_joints": m.num_joints,
                           "sampling": {t: dataclasses.asdict(o) for t, o in m.sampling.items()},
                           "forecast_tempo": None if m.forecast_tempo is None else list(m.forecast_tempo),
+                          "generator_share": m.generator_share,
                           "config": m.config}, indent=2))
         return EXIT_OK
     data = m.data
@@ -52,6 +53,10 @@ def run(args: argparse.Namespace) -> int:
     for task, o in m.sampling.items():
         lines.append(f"default sampler, {task}: {o.describe(m.num_train_timesteps)}")
     lines.append(f"default tempo sampling, forecast: {describe_tempo(m.forecast_tempo)}")
+    g = m.generator
+    lines.append("generator: none" if g is None else
+                 f"generator: MLP {g.layers} x {g.hidden}, z {g.z_dim}, {g.coefs} DCT coefficients around the prior; "
+                 f"draws {m.generator_share:g} of a forecast's samples by default")
     lines.append(f"kernels: {m.short.kernel} (this CPU supports: {', '.join(supported_kernels())})")
     print("\n".join(lines))
     return EXIT_OK

@@ -1,4 +1,5 @@
-//! Layers of the denoiser, one per file, as portable f32 code.
+//! Layers of the denoiser, one per file, as portable f32 code; and [`Dense`], a dense layer on
+//! either kernel, which the prior forecaster and the sample generator share.
 //!
 //! Data layout everywhere: **token-major, contiguous, row-major** buffers of shape
 //! (tokens, channels); a token is one coordinate of one frame. Weights are stored once, at load
@@ -8,10 +9,12 @@
 
 pub mod activation;
 pub mod attention;
+pub mod dense;
 pub mod embedding;
 pub mod layer_norm;
 pub mod linear;
 pub mod transformer;
 
+pub(crate) use dense::Dense;
 pub use linear::Linear;
 pub use transformer::{EncoderLayer, EncoderScratch};

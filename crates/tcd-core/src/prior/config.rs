@@ -6,7 +6,7 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use crate::config::{parse_json, role_of, to_json, Checks, DataConfig, PRIOR_ROLE as ROLE};
+use crate::config::{parse_json, to_json, Checks, DataConfig, PRIOR_ROLE as ROLE};
 use crate::error::Result;
 
 /// Sizes of the prior network (`training/prior.py`, `PriorNet`).
@@ -114,18 +114,10 @@ pub struct PriorConfig {
 }
 
 impl PriorConfig {
-    /// Parses the JSON stored under `tcd_config`; `path` names the file in errors. A denoiser's file
-    /// is refused by its role before its fields are read.
+    /// Parses the JSON stored under `tcd_config`; `path` names the file in errors. A denoiser's or
+    /// generator's file is refused by its role before its fields are read.
     pub fn from_json(json: &str, path: &Path) -> Result<Self> {
-        if let Some(role) = role_of(json).filter(|r| r != ROLE) {
-            return Err(Checks(path).bad(
-                "role",
-                format!(
-                    "must be \"{ROLE}\" for the prior forecaster, but is {role:?} (a denoiser: it loads with \
-                     `Denoiser::load`, in Python `tcd.engine.Denoiser.load` or a model directory with `tcd.load`)"
-                ),
-            ));
-        }
+        Checks(path).role_is(json, ROLE, "the prior forecaster")?;
         parse_json(json, path)
     }
 

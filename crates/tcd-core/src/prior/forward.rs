@@ -10,47 +10,12 @@ use super::config::Anchor;
 use super::Prior;
 use crate::control::Control;
 use crate::error::{check_len, check_positive, Error, Result};
-use crate::kernels::{self, ColumnNorm, Epilogue, FastLinear, Isa, Matrix, MatrixMut};
-use crate::nn::Linear;
+use crate::kernels::{self, ColumnNorm};
+use crate::validate;
 
 /// Sequences per tile: one worker's unit of work. Its buffers (2 × 13 KiB per sequence at
 /// K = 66, L = 50) and the packed weights stay in L2; more rows per GEMM gain nothing.
 const TILE: usize = 4;
-
-/// A dense layer `y = x · Wᵀ + b` on the kernel chosen at load: the portable [`Linear`] (the
-/// reference), or its weights packed for the SIMD GEMM.
-#[derive(Clone, Debug)]
-pub(super) struct Dense {
-    linear: Linear,
-    fast: Option<(Isa, FastLinear)>,
-}
-
-impl Dense {
-    pub(super) fn new(linear: Linear) -> Dense {
-        Dense { linear, fast: None }
-    }
-
-    /// Packs the weights for `isa` (`None`: the portable kernel).
-    pub(super) fn pack(&mut self, isa: Option<Isa>) {
-        self.fast = isa.map(|isa| (isa, FastLinear::new(isa, &self.linear)));
-    }
-
-    /// `y = x · Wᵀ + b` for `rows` rows: x (rows × in), y (rows × out), both dense.
-    fn forward(&self, x: &[f32], y: &mut [f32], rows: usize) {
-        let (n_in, n_out) = (self.linear.in_dim(), self.linear.out_dim());
-        let (x, y) = (&x[..rows * n_in], &mut y[..rows * n_out]);
-        match &self.fast {
-            Some((isa, packed)) => kernels::gemm(
-                *isa,
-                Matrix::dense(x, rows, n_in),
-                packed,
-                MatrixMut::dense(y, rows, n_out),
-                Epilogue::Store,
-            ),
-            None => self.linear.forward(x, y),
-        }
-    }
-}
 
 /// One worker's buffers for tiles of up to `tile` sequences.
 struct Scratch {
@@ -283,23 +248,7 @@ impl Prior {
         let shape = format!("({batch}, {frames}, {k})");
         let total_in = batch.checked_mul(frames).and_then(|v| v.checked_mul(k));
         check_len("obs", obs.len(), total_in.unwrap_or(usize::MAX), &shape)?;
-        if let Some(i) = obs
-            .chunks_exact(frames * k)
-            .enumerate()
-            .find_map(|(b, seq)| {
-                seq[(frames - l) * k..]
-                    .iter()
-                    .position(|v| !v.is_finite())
-                    .map(|j| (b, j))
-            })
-            .map(|(b, j)| b * frames * k + (frames - l) * k + j)
-        {
-            return Err(Error::invalid_input(
-                "obs",
-                format!("finite in the last obs_len = {l} frames of every sequence (the frames the model reads)"),
-                format!("{} at flat index {i}", obs[i]),
-            ));
-        }
+        validate::finite_last_frames("obs", obs, frames, k, l)?;
         let total_out = batch
             .checked_mul(horizon)
             .and_then(|v| v.checked_mul(k))

@@ -39,7 +39,7 @@ use std::path::{Path, PathBuf};
 
 use crate::error::Result;
 use crate::kernels::{Isa, Kernel};
-use crate::nn::Linear;
+use crate::nn::{Dense, Linear};
 use crate::weights::{read_file, read_weights, Tensor};
 
 pub mod config;
@@ -48,7 +48,6 @@ mod forward;
 pub use config::{
     inbetween_width, prior_expected_tensors, Anchor, GapFill, PriorConfig, PriorModelConfig,
 };
-use forward::Dense;
 
 /// One temporal block: FC over the L frames (DCT coefficients) of each coordinate, layer norm over
 /// the K coordinates of each frame with affine `norm_weight`, `norm_bias`.

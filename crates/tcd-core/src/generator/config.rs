@@ -1,0 +1,143 @@
+//! The generator's `tcd_config` (role `"generator"`): its own model fields, no window or diffusion
+//! block. Same format version, metadata key and `data` block as the denoisers' ([`crate::config`]);
+//! `docs/tcd_config.schema.json` defines all three kinds.
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use crate::config::{parse_json, to_json, Checks, DataConfig, GENERATOR_ROLE as ROLE};
+use crate::error::Result;
+
+/// Sizes of the generator's MLP (`training/generator.py`, `Generator`).
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct GeneratorModelConfig {
+    /// Joints in the model layout (HumanEva-I: 14).
+    pub num_joints: usize,
+    /// Coordinates per joint (3).
+    pub coords: usize,
+    /// K = num_joints * coords: the width of one frame.
+    pub num_features: usize,
+    /// O: observed frames it reads (the last `obs_len` of the input; the observation's DCT length).
+    pub obs_len: usize,
+    /// P: frames it forecasts (the prior's forecast it is given, and each sample; their DCT length).
+    pub pred_len: usize,
+    /// Width of every hidden layer.
+    pub hidden: usize,
+    /// Hidden layers (`layers.{i}`, each a Linear and an exact GELU).
+    pub layers: usize,
+    /// Noise values one sample reads.
+    pub z_dim: usize,
+    /// C ≤ P: the DCT coefficients of the forecast it reads and of the residual it writes.
+    pub coefs: usize,
+}
+
+impl GeneratorModelConfig {
+    /// The first layer's input: the observation's O·K and the prior's C·K DCT coefficients, then z
+    /// (`None` if that overflows, which [`GeneratorConfig::validate`] refuses).
+    pub fn input_width(&self) -> Option<usize> {
+        let k = self.num_features;
+        self.obs_len
+            .checked_add(self.coefs)?
+            .checked_mul(k)?
+            .checked_add(self.z_dim)
+    }
+}
+
+/// The whole `tcd_config` object of a generator file. Other keys (`training`, `source_revision`) are
+/// informative: ignored here, kept in [`crate::Generator::config_json`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct GeneratorConfig {
+    /// Must be [`FORMAT_VERSION`](crate::FORMAT_VERSION).
+    pub format_version: u32,
+    /// Must be `"generator"`.
+    pub role: String,
+    pub model: GeneratorModelConfig,
+    #[serde(default)]
+    pub data: DataConfig,
+}
+
+impl GeneratorConfig {
+    /// Parses the JSON stored under `tcd_config`; `path` names the file in errors. A denoiser's or
+    /// prior's file is refused by its role before its fields are read.
+    pub fn from_json(json: &str, path: &Path) -> Result<Self> {
+        Checks(path).role_is(json, ROLE, "the MLP sample generator")?;
+        parse_json(json, path)
+    }
+
+    /// Checks sizes for consistency; `path` names the file in errors.
+    pub fn validate(&self, path: &Path) -> Result<()> {
+        let checks = Checks(path);
+        let bad = |field: &str, reason: String| checks.bad(field, reason);
+        checks.format_version(self.format_version)?;
+        if self.role != ROLE {
+            return Err(bad(
+                "role",
+                format!("must be \"{ROLE}\", but is {:?}", self.role),
+            ));
+        }
+        let m = &self.model;
+        checks.at_least_one(&[
+            ("model.num_joints", m.num_joints),
+            ("model.coords", m.coords),
+            ("model.obs_len", m.obs_len),
+            ("model.pred_len", m.pred_len),
+            ("model.hidden", m.hidden),
+            ("model.layers", m.layers),
+            ("model.z_dim", m.z_dim),
+            ("model.coefs", m.coefs),
+        ])?;
+        if Some(m.num_features) != m.num_joints.checked_mul(m.coords) {
+            return Err(bad(
+                "model.num_features",
+                format!(
+                    "must equal num_joints * coords = {} * {}, but is {}",
+                    m.num_joints, m.coords, m.num_features
+                ),
+            ));
+        }
+        if m.coefs > m.pred_len {
+            return Err(bad(
+                "model.coefs",
+                format!(
+                    "must not exceed pred_len = {} (the forecast's DCT coefficients), but is {}",
+                    m.pred_len, m.coefs
+                ),
+            ));
+        }
+        if m.input_width().is_none() {
+            return Err(bad(
+                "model.z_dim",
+                format!(
+                    "and (obs_len + coefs) * num_features must add up to a first-layer width that fits in \
+                     memory, but are {} and ({} + {}) * {}",
+                    m.z_dim, m.obs_len, m.coefs, m.num_features
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Serialises back to the JSON stored under `tcd_config`.
+    pub fn to_json(&self) -> String {
+        to_json(self)
+    }
+}
+
+/// The tensor names and shapes of a generator with this configuration (PyTorch's (out, in) layout;
+/// the DCT matrices are no tensors: the engine computes them, [`crate::dct_matrix`]). The first
+/// layer reads [`GeneratorModelConfig::input_width`] values, the others `hidden`; the head writes
+/// C·K. A configuration that [`GeneratorConfig::validate`] refuses for its width gets a width of 0.
+pub fn generator_expected_tensors(m: &GeneratorModelConfig) -> Vec<(String, Vec<usize>)> {
+    let width = m.input_width().unwrap_or(0);
+    let mut v = Vec::with_capacity(2 * m.layers + 2);
+    for i in 0..m.layers {
+        let input = if i == 0 { width } else { m.hidden };
+        v.push((format!("layers.{i}.weight"), vec![m.hidden, input]));
+        v.push((format!("layers.{i}.bias"), vec![m.hidden]));
+    }
+    let out = m.coefs.saturating_mul(m.num_features);
+    v.push(("head.weight".into(), vec![out, m.hidden]));
+    v.push(("head.bias".into(), vec![out]));
+    v
+}

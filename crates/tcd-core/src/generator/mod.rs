@@ -1,0 +1,173 @@
+//! The MLP sample generator (issue 31): the network of `training/generator.py` (`Generator`), loaded
+//! from a `generator.safetensors` file and run on the crate's GEMM kernels. It draws forecast samples
+//! around the prior forecaster's forecast, one MLP forward each:
+//!
+//! ```text
+//! past  = DCT_O(obs − last)          (O × K): the last O observed frames, relative to the last pose
+//! ahead = DCT_P(prior − last)[:C]    (C × K): the first C coefficients of the prior's P-frame forecast
+//! y     = head(GELU(W_n ⋯ GELU(W_1 [past, ahead, z])))    z: z_dim standard normals per sample
+//! out   = prior + IDCT_P(y)          y (C × K): the first C DCT coefficients of a residual
+//! ```
+//!
+//! (GELU the exact, erf one; DCTs the orthonormal DCT-II of [`crate::dct_matrix`], over time, one
+//! coordinate at a time; flattened, coefficient-major.) The caller runs the prior
+//! ([`crate::Prior::predict`]) and passes its forecast: the generator is a model of its own, with no
+//! prior inside.
+//!
+//! # Layouts
+//! Arrays are **frame-major (B, T, K)**, as the prior's: the observation (B, T, K) with T ≥ O (the
+//! last O frames are read), the prior's forecast (B, P, K), the samples (S, B, P, K). Injected noise
+//! is (S, B, z_dim); seeded noise is stage [`crate::stage::GENERATOR`] of [`crate::Noise`]'s streams.
+//!
+//! # Files
+//! * `mod.rs`: the [`Generator`] type, loading, kernel choice, accessors;
+//! * `config.rs`: its `tcd_config` ([`GeneratorConfig`]) and the tensors it implies;
+//! * `forward.rs`: [`Generator::sample`], its argument checks and the rows split over threads.
+
+use std::path::{Path, PathBuf};
+
+use crate::error::Result;
+use crate::kernels::{Isa, Kernel};
+use crate::nn::{Dense, Linear};
+use crate::prior::dct_matrix;
+use crate::weights::{read_file, read_weights, Tensor};
+
+pub mod config;
+mod forward;
+
+pub use config::{generator_expected_tensors, GeneratorConfig, GeneratorModelConfig};
+
+/// A loaded sample generator. Immutable after load; `Send + Sync`, share it between threads freely.
+#[derive(Clone, Debug)]
+pub struct Generator {
+    path: PathBuf,
+    config: GeneratorConfig,
+    config_json: String,
+    /// The kernel in use (resolved: never `Auto`).
+    kernel: Kernel,
+    /// The observation's DCT: the orthonormal DCT-II matrix (O × O), row f the f-th cosine.
+    dct_obs: Vec<f32>,
+    /// The forecast's: the first C rows of the (P × P) one, (C × P).
+    dct_pred: Vec<f32>,
+    /// The hidden layers, each followed by the exact GELU: `layers.{i}`.
+    layers: Vec<Dense>,
+    /// `head`: hidden → the C·K coefficients of the residual.
+    head: Dense,
+}
+
+impl Generator {
+    /// Loads and validates a generator weight file. A missing file is [`crate::Error::NotFound`], an
+    /// unreadable one [`crate::Error::Io`]; everything about the content is a weight-file variant.
+    pub fn load(path: impl AsRef<Path>) -> Result<Self> {
+        let path = path.as_ref();
+        Self::from_bytes(&read_file(path)?, path)
+    }
+
+    /// From the bytes of a generator weight file; `name` names it in errors.
+    pub fn from_bytes(bytes: &[u8], name: impl AsRef<Path>) -> Result<Self> {
+        let path = name.as_ref().to_path_buf();
+        let (config, config_json, mut tensors) = read_weights(
+            bytes,
+            &path,
+            GeneratorConfig::from_json,
+            GeneratorConfig::validate,
+            |c| generator_expected_tensors(&c.model),
+        )?;
+        let m = &config.model;
+        // Present with their shapes: read_tensors checked exactly the expected set.
+        let mut take = |name: &str| -> Vec<f32> {
+            tensors
+                .remove(name)
+                .map(|t: Tensor| t.data)
+                .unwrap_or_default()
+        };
+        let mut dense = |name: &str, out: usize, input: usize| -> Result<Dense> {
+            let (w, b) = (
+                take(&format!("{name}.weight")),
+                take(&format!("{name}.bias")),
+            );
+            Ok(Dense::new(Linear::from_torch(out, input, &w, &b)?))
+        };
+        let width = m.input_width().unwrap_or(0); // validated
+        let layers = (0..m.layers)
+            .map(|i| {
+                dense(
+                    &format!("layers.{i}"),
+                    m.hidden,
+                    if i == 0 { width } else { m.hidden },
+                )
+            })
+            .collect::<Result<Vec<Dense>>>()?;
+        let head = dense("head", m.coefs * m.num_features, m.hidden)?;
+        let mut dct_pred = dct_matrix(m.pred_len);
+        dct_pred.truncate(m.coefs * m.pred_len);
+        let generator = Generator {
+            path,
+            kernel: Kernel::Portable,
+            dct_obs: dct_matrix(m.obs_len),
+            dct_pred,
+            layers,
+            head,
+            config_json,
+            config,
+        };
+        generator.with_kernel(Kernel::from_env()?)
+    }
+
+    /// The same model running `kernel` (`Auto`: the best this CPU supports); an error if the CPU
+    /// does not support it. Packs the weights for it once.
+    pub fn with_kernel(mut self, kernel: Kernel) -> Result<Self> {
+        let kernel = kernel.resolve()?;
+        let isa = Isa::for_kernel(kernel);
+        for d in self.layers.iter_mut().chain([&mut self.head]) {
+            d.pack(isa);
+        }
+        self.kernel = kernel;
+        Ok(self)
+    }
+
+    /// The kernel this model runs (never `Auto`).
+    pub fn kernel(&self) -> Kernel {
+        self.kernel
+    }
+    /// The file the model came from (or the name given to [`Generator::from_bytes`]).
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+    /// The parsed `tcd_config`.
+    pub fn config(&self) -> &GeneratorConfig {
+        &self.config
+    }
+    /// The `tcd_config` JSON exactly as stored.
+    pub fn config_json(&self) -> &str {
+        &self.config_json
+    }
+    /// K: coordinates per frame.
+    pub fn num_features(&self) -> usize {
+        self.config.model.num_features
+    }
+    /// O: frames of the observation it reads (the last `obs_len` of the input).
+    pub fn obs_len(&self) -> usize {
+        self.config.model.obs_len
+    }
+    /// P: frames of the prior's forecast it takes and of each sample.
+    pub fn pred_len(&self) -> usize {
+        self.config.model.pred_len
+    }
+    /// Noise values one sample reads.
+    pub fn z_dim(&self) -> usize {
+        self.config.model.z_dim
+    }
+    /// C: DCT coefficients of the forecast it reads and of the residual it writes.
+    pub fn coefs(&self) -> usize {
+        self.config.model.coefs
+    }
+    /// Width of the hidden layers.
+    pub fn hidden(&self) -> usize {
+        self.config.model.hidden
+    }
+    /// Hidden layers.
+    pub fn layers(&self) -> usize {
+        self.config.model.layers
+    }
+}

@@ -1,0 +1,147 @@
+"""Parity of the MLP sample generator in the Rust engine (``tcd.engine.Generator``) with the PyTorch reference
+(``training.generator.Generator``), on every kernel path this CPU supports, and its export. The model-level
+mixture (``tcd.TCD.forecast``'s ``generator_share``), which needs no torch, is tests/test_generator_engine.py.
+
+Weights (the same file on both sides: the reference is loaded back from it with ``load_generator_file``):
+* ``random``: the bundled size (3 x 768, z 64, 20 coefficients), PyTorch's default init of the hidden layers and
+  a seeded normal head of std 8/sqrt(hidden) (the trained init's zero head would be the prior, testing nothing):
+  the samples lie up to a few tenths of a metre from the prior's forecast (``pytest -s`` prints it);
+* ``bundled``: ``python/tcd/weights_humaneva/generator.safetensors`` where the package has one (skipped
+  otherwise), trained with IMLE by ``benches/humaneva_imle_mlp.py``.
+Inputs: 15-frame windows of the bundled HumanEva-I demo clip (real motion) and the bundled HumanEva-I prior's
+forecast of them; the noise z (S, B, 64) injected, the same array on both sides.
+
+Criteria (stated once, used throughout):
+* every value: ``assert_allclose(rtol=1e-4, atol=1e-5)`` (metres), the prior's and the denoiser's tolerance;
+* the network's contribution, max |torch - the prior's forecast|, is at least ``CONTRIBUTION`` x atol: the
+  comparison measures the network;
+* a perturbation of one head bias by 1e-3 (0.13 mm on every frame of one coordinate) fails the criterion (the test
+  can fail).
+"""
+from __future__ import annotations
+
+import math
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import import_torch
+
+torch = import_torch("parity with the PyTorch reference")
+
+import tcd  # noqa: E402
+from fixtures_util import ALL_KERNELS, load_kernel, read_weights, write_weights  # noqa: E402
+from training.export import humaneva_data_meta  # noqa: E402
+from training.generator import Generator, load_generator_file, save_generator  # noqa: E402
+
+RTOL, ATOL = 1e-4, 1e-5
+CONTRIBUTION = 100
+ROOT = Path(__file__).resolve().parents[1]
+BUNDLED = tcd.humaneva_model_dir() / "generator.safetensors"
+
+
+def random_generator(seed: int = 0, hidden: int = 768, layers: int = 3) -> Generator:
+    torch.manual_seed(seed)
+    g = Generator(42, hidden, layers, 64, 20)
+    with torch.no_grad():
+        g.head.weight.normal_(0.0, 8.0 / math.sqrt(hidden))
+        g.head.bias.normal_(0.0, 0.01)
+    return g.eval()
+
+
+@pytest.fixture(scope="module")
+def inputs():
+    """(obs (7, 15, 42), the bundled prior's forecast (7, 60, 42)) float32 metres, from the HumanEva-I demo clip."""
+    from tcd import demo
+    clip = demo.load_clip(demo.HUMANEVA_CLIP_PATH)["poses"]
+    clip = clip.reshape(len(clip), -1).astype(np.float32)
+    obs = np.ascontiguousarray(np.stack([clip[s:s + 15] for s in np.linspace(0, len(clip) - 15, 7).astype(int)]))
+    prior = tcd.engine.Prior.load(tcd.humaneva_model_dir() / "prior.safetensors")
+    return obs, prior.predict(obs, 60)
+
+
+@pytest.fixture(scope="module")
+def random_file(tmp_path_factory):
+    return save_generator(tmp_path_factory.mktemp("gen") / "generator.safetensors", random_generator(),
+                          humaneva_data_meta("none (random init)"), {"random_init": True})
+
+
+def reference(path: Path, obs: np.ndarray, prior: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """The PyTorch generator loaded from ``path``: (S, B, 60, 42) for z (S, B, Z)."""
+    gen, _ = load_generator_file(path)
+    with torch.no_grad():
+        out = gen(torch.from_numpy(obs), torch.from_numpy(prior), torch.from_numpy(z).transpose(0, 1))
+    return out.transpose(0, 1).numpy()
+
+
+def check(path: Path, kernel: str, monkeypatch, inputs, samples: int = 5) -> None:
+    obs, prior = inputs
+    z = np.random.default_rng(1).standard_normal((samples, len(obs), 64)).astype(np.float32)
+    engine = load_kernel(path, kernel, monkeypatch, tcd.engine.Generator).sample(obs, prior, samples, noise=z)
+    ref = reference(path, obs, prior, z)
+    assert engine.shape == ref.shape == (samples, len(obs), 60, 42) and engine.dtype == np.float32
+    contribution = np.abs(ref - prior[None]).max()
+    print(f"{path.name} [{kernel}]: max |engine - torch| {np.abs(engine - ref).max():.2e}, "
+          f"contribution {contribution:.3f} m")
+    assert contribution >= CONTRIBUTION * ATOL
+    np.testing.assert_allclose(engine, ref, rtol=RTOL, atol=ATOL)
+
+
+@pytest.mark.parametrize("kernel", ALL_KERNELS)
+def test_random_weights_match_pytorch(random_file, kernel, monkeypatch, inputs):
+    check(random_file, kernel, monkeypatch, inputs)
+
+
+@pytest.mark.parametrize("kernel", ALL_KERNELS)
+def test_bundled_weights_match_pytorch(kernel, monkeypatch, inputs):
+    if not BUNDLED.is_file():
+        pytest.skip("no bundled HumanEva-I generator in this build")
+    check(BUNDLED, kernel, monkeypatch, inputs, samples=8)
+
+
+def test_a_perturbed_head_bias_fails_the_criterion(random_file, tmp_path, inputs):
+    """The criterion can fail: the engine on a file whose head.bias[0] (the first coordinate's DC coefficient) moved
+    by 1e-3, against the reference of the original."""
+    tensors, meta = read_weights(random_file)
+    tensors["head.bias"] = tensors["head.bias"].copy()
+    tensors["head.bias"][0] += 1e-3
+    moved = write_weights(tmp_path / "generator.safetensors", tensors, meta)
+    obs, prior = inputs
+    z = np.random.default_rng(1).standard_normal((5, len(obs), 64)).astype(np.float32)
+    engine = tcd.engine.Generator.load(moved).sample(obs, prior, 5, noise=z)
+    assert not np.allclose(engine, reference(random_file, obs, prior, z), rtol=RTOL, atol=ATOL)
+
+
+def test_seeded_noise_is_the_generator_stream(random_file, inputs):
+    """A seeded call draws z from the engine's streams of stage STAGE_GENERATOR (``tcd.engine.seeded_noise``
+    materialises them), so the PyTorch reference reproduces it from that array."""
+    obs, prior = inputs
+    gen = tcd.engine.Generator.load(random_file)
+    z = tcd.engine.seeded_noise(11, tcd.engine.STAGE_GENERATOR, 4, 1, len(obs), 64, 1).reshape(4, len(obs), 64)
+    seeded = gen.sample(obs, prior, 4, seed=11)
+    np.testing.assert_array_equal(seeded, gen.sample(obs, prior, 4, noise=z))
+    np.testing.assert_allclose(seeded, reference(random_file, obs, prior, z), rtol=RTOL, atol=ATOL)
+
+
+def test_export_round_trip_and_cli(tmp_path):
+    """``save_generator`` / ``load_generator_file`` keep every weight; ``python -m training.generator`` writes a
+    bench state dict as a file the engine loads, its config in the metadata."""
+    g = random_generator(seed=3, hidden=32, layers=2)
+    loaded, cfg = load_generator_file(save_generator(tmp_path / "g.safetensors", g, humaneva_data_meta()))
+    assert cfg["role"] == "generator" and cfg["model"] == {
+        "num_joints": 14, "coords": 3, "num_features": 42, "obs_len": 15, "pred_len": 60, "hidden": 32, "layers": 2,
+        "z_dim": 64, "coefs": 20}
+    for (name, a), (_, b) in zip(g.state_dict().items(), loaded.state_dict().items()):
+        assert torch.equal(a, b), name
+    torch.save(g.state_dict(), tmp_path / "state.pt")
+    subprocess.run([sys.executable, "-m", "training.generator", "--state-dict", str(tmp_path / "state.pt"),
+                    "--out", str(tmp_path / "dir"), "--hidden", "32", "--layers", "2", "--description", "a test"],
+                   cwd=ROOT, check=True, capture_output=True)
+    e = tcd.engine.Generator.load(tmp_path / "dir" / "generator.safetensors")
+    assert (e.hidden, e.layers, e.z_dim, e.coefs, e.pred_len, e.obs_len) == (32, 2, 64, 20, 60, 15)
+    assert e.config["training"]["description"] == "a test"
+    shutil.rmtree(tmp_path / "dir")
