@@ -150,6 +150,7 @@ def run(model: TCD, *, samples: int = DEFAULT_SAMPLES, seed: int = DEFAULT_SEED,
                            "settings": {"samples": samples, "repair_samples": model.repair_samples, "steps": steps,
                                         "sampler": sampler_name, "seed": seed,
                                         "tempo": None if model.forecast_tempo is None else list(model.forecast_tempo),
+                                        "generator_samples": int(samples * model.generator_share),
                                         "sampling": {t: dataclasses.asdict(model.sampler_options(t, **sampler))
                                                      for t in model.sampling}},
                            "timings_s": {}}
@@ -239,7 +240,9 @@ def summary(res: Dict[str, Any], model: TCD) -> str:
         f"{len(res['observed'])} observed frames at {res['fps']:g} fps",
         f"forecast sampler {SamplerOptions(**s['sampling']['forecast']).describe(model.num_train_timesteps)}, "
         + ("" if s["tempo"] is None else f"{describe_tempo(s['tempo'])} (tcd.tempo), ")
-        + f"{s['samples']} samples, seed {s['seed']}",
+        + f"{s['samples']} samples"
+        + (f" ({s['generator_samples']} of them from the MLP generator)" if s.get("generator_samples") else "")
+        + f", seed {s['seed']}",
         "",
         "forecast error, mm (mean per-joint position error of the mean of the samples):",
         f"  {'horizon (ms)':<32}" + head,
@@ -287,6 +290,9 @@ def verdict(res: Dict[str, Any], model: TCD) -> str:
         shape = f"{layers} layers x {channels} channels"
     else:   # the stages may differ (the bundled long-term model is larger than the short-term one)
         shape = ", ".join(f"{role} {layers} layers x {channels} channels" for role, (layers, channels) in sizes.items())
+    g = model.generator
+    if g is not None and model.generator_share:
+        shape += f"; and an MLP generator of {g.layers} x {g.hidden} drawing {model.generator_share:g} of the samples"
     kind = (f"a full-size model ({shape}, the paper's size)" if full else
             f"a reduced model ({shape}; the paper's is {PAPER_SIZE[0]} x {PAPER_SIZE[1]})")
     caveat = ("one clip is not a benchmark (docs/reference.md has the evaluation protocol)" if full else

@@ -276,6 +276,8 @@ impl TcdConfig {
             ("model.ffn_dim", m.ffn_dim),
             ("model.feature_embedding_dim", m.feature_embedding_dim),
         ])?;
+        // Not `Checks::num_features` (the prior's and the generator's): this message, older than theirs,
+        // also gives the product, and error texts stay as they are.
         if m.num_features != m.num_joints * m.coords {
             return Err(bad(
                 "model.num_features",
@@ -518,6 +520,36 @@ impl Checks<'_> {
             return Err(self.bad(
                 "format_version",
                 format!("must be {FORMAT_VERSION}, but is {version}"),
+            ));
+        }
+        Ok(())
+    }
+
+    /// A parsed `role` (a plain string in the prior's and the generator's configs) is `expected`. A
+    /// file's other role was refused by [`Checks::role_is`] before parsing; this catches a config made
+    /// or edited in code, and keeps `validate` complete on its own.
+    pub(crate) fn role(&self, role: &str, expected: &str) -> Result<()> {
+        if role != expected {
+            return Err(self.bad("role", format!("must be \"{expected}\", but is {role:?}")));
+        }
+        Ok(())
+    }
+
+    /// `model.num_features` is the frame's width `num_joints * coords`, as the prior and the generator
+    /// check it: a product that overflows equals no `num_features`. (The denoiser's
+    /// [`TcdConfig::validate`] keeps its own check, whose message also gives the product.)
+    pub(crate) fn num_features(
+        &self,
+        num_joints: usize,
+        coords: usize,
+        num_features: usize,
+    ) -> Result<()> {
+        if Some(num_features) != num_joints.checked_mul(coords) {
+            return Err(self.bad(
+                "model.num_features",
+                format!(
+                    "must equal num_joints * coords = {num_joints} * {coords}, but is {num_features}"
+                ),
             ));
         }
         Ok(())

@@ -179,6 +179,14 @@ pub(crate) fn read_weights<C>(
     Ok((config, config_json, tensors))
 }
 
+/// Moves the data of tensor `name` out of the tensors [`read_weights`] returned, as a model type's
+/// `from_bytes` builds its layers. Every expected name is there with its shape (read_tensors checked
+/// exactly the expected set), so the empty fallback for a missing one is never used; it spares each
+/// caller an error path that cannot happen.
+pub(crate) fn take_data(tensors: &mut BTreeMap<String, Tensor>, name: &str) -> Vec<f32> {
+    tensors.remove(name).map(|t| t.data).unwrap_or_default()
+}
+
 /// Reads a file into memory: a missing file is [`Error::NotFound`], a directory [`Error::NotAFile`],
 /// an unreadable one [`Error::Io`]. Shared by every model type's `load`.
 pub(crate) fn read_file(path: &Path) -> Result<Vec<u8>> {

@@ -9,8 +9,6 @@ mod common;
 use std::collections::BTreeMap;
 
 use common::*;
-use rand::{Rng, SeedableRng};
-use rand_chacha::ChaCha8Rng;
 use tcd_core::{
     generator_expected_tensors, seeded_noise, stage, with_threads, Control, DataConfig, Denoiser,
     Error, Generator, GeneratorConfig, GeneratorModelConfig, Kernel, Noise, Prior, Sequences,
@@ -39,24 +37,7 @@ fn config() -> GeneratorConfig {
 
 /// Seeded uniform weights of about unit gain (biases ±0.3): the MLP's residual is large.
 fn tensors(cfg: &GeneratorConfig, seed: u64) -> BTreeMap<String, RawTensor> {
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    generator_expected_tensors(&cfg.model)
-        .into_iter()
-        .map(|(name, shape)| {
-            let n: usize = shape.iter().product();
-            let a = if shape.len() == 2 {
-                (6.0 / shape[1] as f32).sqrt()
-            } else {
-                0.3
-            };
-            let data: Vec<f32> = (0..n).map(|_| rng.random_range(-a..a)).collect();
-            (name, RawTensor::f32(shape, &data))
-        })
-        .collect()
-}
-
-fn bytes(cfg_json: &str, t: &BTreeMap<String, RawTensor>) -> Vec<u8> {
-    serialize(t, Some(cfg_json.to_string()))
+    uniform_tensors(generator_expected_tensors(&cfg.model), 6.0, seed)
 }
 
 fn generator(seed: u64) -> (Generator, BTreeMap<String, RawTensor>) {
@@ -70,12 +51,6 @@ fn generator(seed: u64) -> (Generator, BTreeMap<String, RawTensor>) {
 
 fn load_err(json: &str, t: &BTreeMap<String, RawTensor>) -> Error {
     Generator::from_bytes(&bytes(json, t), "g.safetensors").unwrap_err()
-}
-
-fn with(cfg: &GeneratorConfig, edit: impl FnOnce(&mut serde_json::Value)) -> String {
-    let mut v: serde_json::Value = serde_json::from_str(&cfg.to_json()).unwrap();
-    edit(&mut v);
-    v.to_string()
 }
 
 // ------------------------------------------------------------------------------- weight file
@@ -142,10 +117,8 @@ fn good_file_loads_with_its_config() {
 fn config_errors_name_the_field() {
     let cfg = config();
     let (_, t) = generator(1);
-    let invalid = |json: String, field: &str| match load_err(&json, &t) {
-        Error::InvalidConfig { field: f, .. } => assert_eq!(f, field, "{json}"),
-        e => panic!("{json}: {e:?}"),
-    };
+    let invalid =
+        |json: String, field: &str| assert_eq!(invalid_field(load_err(&json, &t)), field, "{json}");
     invalid(
         with(&cfg, |v| v["format_version"] = 2.into()),
         "format_version",
@@ -303,32 +276,9 @@ fn naive_sample(
         cfg.z_dim,
         cfg.hidden,
     );
-    let g = |name: &str| -> Vec<f64> { t[name].values().iter().map(|&v| v as f64).collect() };
-    let dct = |n: usize| -> Vec<f64> {
-        (0..n * n)
-            .map(|i| {
-                let (f, j) = (i / n, i % n);
-                let v = (2.0 / n as f64).sqrt()
-                    * (std::f64::consts::PI * (2 * j + 1) as f64 * f as f64 / (2.0 * n as f64))
-                        .cos();
-                if f == 0 {
-                    v / 2f64.sqrt()
-                } else {
-                    v
-                }
-            })
-            .collect()
-    };
+    let g = |name: &str| get(t, name);
     let samples = z.len() / (batch * zd);
-    let (d_o, d_p) = (dct(o), dct(p));
-    let erf = |x: f64| libm::erf(x);
-    let gelu = |x: f64| 0.5 * x * (1.0 + erf(x / 2f64.sqrt()));
-    let linear = |w: &[f64], bias: &[f64], x: &[f64]| -> Vec<f64> {
-        let n_in = x.len();
-        (0..bias.len())
-            .map(|r| bias[r] + (0..n_in).map(|i| w[r * n_in + i] * x[i]).sum::<f64>())
-            .collect()
-    };
+    let (d_o, d_p) = (naive_dct(o), naive_dct(p));
     let mut out = vec![0.0f64; samples * batch * p * k];
     for b in 0..batch {
         let seen = &obs[(b * frames + frames - o) * k..(b + 1) * frames * k];
@@ -357,7 +307,7 @@ fn naive_sample(
             let mut h = cond.clone();
             h.extend(z[(s * batch + b) * zd..][..zd].iter().map(|&v| v as f64));
             for i in 0..cfg.layers {
-                h = linear(
+                h = matvec(
                     &g(&format!("layers.{i}.weight")),
                     &g(&format!("layers.{i}.bias")),
                     &h,
@@ -367,7 +317,7 @@ fn naive_sample(
                 .collect();
                 assert_eq!(h.len(), hid);
             }
-            let y = linear(&g("head.weight"), &g("head.bias"), &h);
+            let y = matvec(&g("head.weight"), &g("head.bias"), &h);
             for tt in 0..p {
                 for kk in 0..k {
                     out[((s * batch + b) * p + tt) * k + kk] = fc[tt * k + kk] as f64
@@ -510,37 +460,33 @@ fn bad_arguments_are_named() {
     let prior = motion(b * p * k, 2);
     let z = vec![0.5f32; s * b * 7];
     let noise = Noise::Injected(&z);
-    let arg = |r: Result<Vec<f32>, Error>| match r {
-        Err(Error::InvalidInput { argument, .. }) => argument,
-        other => panic!("{other:?}"),
-    };
     assert!(g.sample(&obs, &prior, b, frames, s, noise, &c).is_ok());
     assert_eq!(
-        arg(g.sample(&obs, &prior, 0, frames, s, noise, &c)),
+        invalid_argument(g.sample(&obs, &prior, 0, frames, s, noise, &c)),
         "batch"
     );
     assert_eq!(
-        arg(g.sample(&obs, &prior, b, frames, 0, noise, &c)),
+        invalid_argument(g.sample(&obs, &prior, b, frames, 0, noise, &c)),
         "num_samples"
     );
     assert_eq!(
-        arg(g.sample(&obs[..b * 4 * k], &prior, b, 4, s, noise, &c)),
+        invalid_argument(g.sample(&obs[..b * 4 * k], &prior, b, 4, s, noise, &c)),
         "obs"
     );
     assert_eq!(
-        arg(g.sample(&obs[1..], &prior, b, frames, s, noise, &c)),
+        invalid_argument(g.sample(&obs[1..], &prior, b, frames, s, noise, &c)),
         "obs"
     );
     assert_eq!(
-        arg(g.sample(&obs, &prior[..p * k], b, frames, s, noise, &c)),
+        invalid_argument(g.sample(&obs, &prior[..p * k], b, frames, s, noise, &c)),
         "prior"
     );
     assert_eq!(
-        arg(g.sample(&obs, &prior, b, frames, s, Noise::Injected(&z[1..]), &c)),
+        invalid_argument(g.sample(&obs, &prior, b, frames, s, Noise::Injected(&z[1..]), &c)),
         "noise"
     );
     assert_eq!(
-        arg(g.sample(
+        invalid_argument(g.sample(
             &obs,
             &prior,
             b,
@@ -556,7 +502,7 @@ fn bad_arguments_are_named() {
         sequences: Sequences::Ids(&[1, 2, 3]),
     };
     assert_eq!(
-        arg(g.sample(&obs, &prior, b, frames, s, ids, &c)),
+        invalid_argument(g.sample(&obs, &prior, b, frames, s, ids, &c)),
         "sequences"
     );
     // non-finite values, named by their flat index
@@ -570,11 +516,14 @@ fn bad_arguments_are_named() {
     );
     let mut bad = prior.clone();
     bad[13] = f32::INFINITY;
-    assert_eq!(arg(g.sample(&obs, &bad, b, frames, s, noise, &c)), "prior");
+    assert_eq!(
+        invalid_argument(g.sample(&obs, &bad, b, frames, s, noise, &c)),
+        "prior"
+    );
     let mut bad = z.clone();
     bad[0] = f32::NAN;
     assert_eq!(
-        arg(g.sample(&obs, &prior, b, frames, s, Noise::Injected(&bad), &c)),
+        invalid_argument(g.sample(&obs, &prior, b, frames, s, Noise::Injected(&bad), &c)),
         "noise"
     );
     let cancelled = Control::default();

@@ -8,11 +8,9 @@ mod common;
 use std::collections::BTreeMap;
 
 use common::*;
-use rand::{Rng, SeedableRng};
-use rand_chacha::ChaCha8Rng;
 use tcd_core::{
-    dct_matrix, prior_expected_tensors, with_threads, Anchor, Control, DataConfig, Denoiser, Error,
-    GapFill, Kernel, Prior, PriorConfig, PriorModelConfig,
+    dct_matrix, with_threads, Anchor, Control, DataConfig, Denoiser, Error, GapFill, Kernel, Prior,
+    PriorConfig, PriorModelConfig,
 };
 
 /// K = 6 (2 joints × 3), L = 12, chunk 4, 3 blocks: small, and with a horizon that is no multiple of
@@ -40,36 +38,9 @@ fn config() -> PriorConfig {
     }
 }
 
-/// Seeded N(0, 1/fan_in)-scale weights for every tensor, norm weights around 1: a large contribution.
-fn tensors(cfg: &PriorConfig, seed: u64) -> BTreeMap<String, RawTensor> {
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    prior_expected_tensors(&cfg.model)
-        .into_iter()
-        .map(|(name, shape)| {
-            let n: usize = shape.iter().product();
-            let a = if shape.len() == 2 {
-                (3.0 / shape[1] as f32).sqrt()
-            } else {
-                0.3
-            };
-            let centre = if name.ends_with("norm_weight") {
-                1.0
-            } else {
-                0.0
-            };
-            let data: Vec<f32> = (0..n).map(|_| centre + rng.random_range(-a..a)).collect();
-            (name, RawTensor::f32(shape, &data))
-        })
-        .collect()
-}
-
-fn bytes(cfg_json: &str, t: &BTreeMap<String, RawTensor>) -> Vec<u8> {
-    serialize(t, Some(cfg_json.to_string()))
-}
-
 fn prior(seed: u64) -> (Prior, BTreeMap<String, RawTensor>) {
     let cfg = config();
-    let t = tensors(&cfg, seed);
+    let t = prior_tensors(&cfg, seed);
     (
         Prior::from_bytes(&bytes(&cfg.to_json(), &t), "prior.safetensors").unwrap(),
         t,
@@ -78,12 +49,6 @@ fn prior(seed: u64) -> (Prior, BTreeMap<String, RawTensor>) {
 
 fn load_err(json: &str, t: &BTreeMap<String, RawTensor>) -> Error {
     Prior::from_bytes(&bytes(json, t), "p.safetensors").unwrap_err()
-}
-
-fn with(cfg: &PriorConfig, edit: impl FnOnce(&mut serde_json::Value)) -> String {
-    let mut v: serde_json::Value = serde_json::from_str(&cfg.to_json()).unwrap();
-    edit(&mut v);
-    v.to_string()
 }
 
 // ------------------------------------------------------------------------------- weight file
@@ -122,10 +87,8 @@ fn missing_file_and_directory() {
 fn config_errors_name_the_field() {
     let cfg = config();
     let (_, t) = prior(1);
-    let invalid = |json: String, field: &str| match load_err(&json, &t) {
-        Error::InvalidConfig { field: f, .. } => assert_eq!(f, field, "{json}"),
-        e => panic!("{json}: {e:?}"),
-    };
+    let invalid =
+        |json: String, field: &str| assert_eq!(invalid_field(load_err(&json, &t)), field, "{json}");
     invalid(
         with(&cfg, |v| v["format_version"] = 2.into()),
         "format_version",
@@ -341,22 +304,8 @@ fn naive_rollout(
     horizon: usize,
 ) -> Vec<f64> {
     let (k, l, c) = (cfg.num_features, cfg.obs_len, cfg.chunk);
-    let g = |name: &str| -> Vec<f64> { t[name].values().iter().map(|&v| v as f64).collect() };
-    let d: Vec<f64> = {
-        let n = l as f64;
-        (0..l * l)
-            .map(|i| {
-                let (f, j) = (i / l, i % l);
-                let v = (2.0 / n).sqrt()
-                    * (std::f64::consts::PI * (2 * j + 1) as f64 * f as f64 / (2.0 * n)).cos();
-                if f == 0 {
-                    v / 2f64.sqrt()
-                } else {
-                    v
-                }
-            })
-            .collect()
-    };
+    let g = |name: &str| get(t, name);
+    let d = naive_dct(l);
     let forward = |hist: &[f64]| -> Vec<f64> {
         // hist (L, K) → x (K, L) DCT coefficients
         let mut x = vec![0.0; k * l];
@@ -475,7 +424,7 @@ fn a_repair_fill_corrects_its_window_on_every_kernel() {
     let mut cfg = config();
     cfg.model.chunk = cfg.model.obs_len;
     cfg.model.anchor = Anchor::Window;
-    let t = tensors(&cfg, 8);
+    let t = prior_tensors(&cfg, 8);
     let p = Prior::from_bytes(&bytes(&cfg.to_json(), &t), "repair_fill.safetensors").unwrap();
     let (b, l, k) = (4, 12, 6);
     let obs = motion(b, l, k, 10);
@@ -515,16 +464,16 @@ fn a_repair_fill_corrects_its_window_on_every_kernel() {
     assert!(g.config().to_json().contains("\"gap_fill\":\"forecaster\""));
     assert!(!p.config().to_json().contains("gap_fill"));
     let on_last = with(&last, |v| v["model"]["gap_fill"] = "forecaster".into());
-    match Prior::from_bytes(&bytes(&on_last, &t), "p.safetensors").unwrap_err() {
-        Error::InvalidConfig { field, .. } => assert_eq!(field, "model.gap_fill"),
-        e => panic!("{e:?}"),
-    }
+    assert_eq!(
+        invalid_field(Prior::from_bytes(&bytes(&on_last, &t), "p.safetensors").unwrap_err()),
+        "model.gap_fill"
+    );
     // an in-betweener (inbetween_context, inbetween_max_gap; kernels inbetween_1 ..) loads on a gap-filling
     // fill, one kernel per gap length, and is written back; without the gap fill, with one of the two keys 0,
     // or with a gap as long as the window it is refused naming the field, and a missing kernel is refused
     let mut ib = g.config().clone();
     (ib.model.inbetween_context, ib.model.inbetween_max_gap) = (2, 3);
-    let ib_t = tensors(&ib, 9);
+    let ib_t = prior_tensors(&ib, 9);
     let q = Prior::from_bytes(&bytes(&ib.to_json(), &ib_t), "repair_fill.safetensors").unwrap();
     assert_eq!(
         q.inbetween_kernel(3).map(<[f32]>::len),
@@ -539,10 +488,12 @@ fn a_repair_fill_corrects_its_window_on_every_kernel() {
         |v| v["model"]["inbetween_context"] = 0.into(),
         |v| v["model"]["inbetween_max_gap"] = 12.into(),
     ] {
-        match Prior::from_bytes(&bytes(&with(&ib, edit), &ib_t), "p.safetensors").unwrap_err() {
-            Error::InvalidConfig { field, .. } => assert_eq!(field, "model.inbetween_max_gap"),
-            e => panic!("{e:?}"),
-        }
+        assert_eq!(
+            invalid_field(
+                Prior::from_bytes(&bytes(&with(&ib, edit), &ib_t), "p.safetensors").unwrap_err()
+            ),
+            "model.inbetween_max_gap"
+        );
     }
     // the joint in-betweener (joint_inbetween_context, joint_inbetween_max_gap; joint_inbetween_1 ..) loads on
     // any repair fill and is refused on a forecaster or without its context
@@ -551,7 +502,7 @@ fn a_repair_fill_corrects_its_window_on_every_kernel() {
         jb.model.joint_inbetween_context,
         jb.model.joint_inbetween_max_gap,
     ) = (3, 2);
-    let jb_t = tensors(&jb, 10);
+    let jb_t = prior_tensors(&jb, 10);
     let j = Prior::from_bytes(&bytes(&jb.to_json(), &jb_t), "repair_fill.safetensors").unwrap();
     assert_eq!(
         j.joint_inbetween_kernel(2).map(<[f32]>::len),
@@ -563,10 +514,10 @@ fn a_repair_fill_corrects_its_window_on_every_kernel() {
             as fn(&mut serde_json::Value),
         |v| v["model"]["joint_inbetween_context"] = 0.into(),
     ] {
-        match Prior::from_bytes(&bytes(&with(&jb, edit), &jb_t), "p.safetensors").unwrap_err() {
-            Error::InvalidConfig { field, .. } => assert!(field.starts_with("model."), "{field}"),
-            e => panic!("{e:?}"),
-        }
+        let field = invalid_field(
+            Prior::from_bytes(&bytes(&with(&jb, edit), &jb_t), "p.safetensors").unwrap_err(),
+        );
+        assert!(field.starts_with("model."), "{field}");
     }
     let mut short = ib_t.clone();
     short.remove("inbetween_2");
@@ -583,10 +534,10 @@ fn a_repair_fill_corrects_its_window_on_every_kernel() {
 
 fn invalid_chunk_for_window(cfg: &PriorConfig, t: &BTreeMap<String, RawTensor>) {
     let json = with(cfg, |v| v["model"]["chunk"] = 4.into());
-    match Prior::from_bytes(&bytes(&json, t), "p.safetensors").unwrap_err() {
-        Error::InvalidConfig { field, .. } => assert_eq!(field, "model.chunk"),
-        e => panic!("{e:?}"),
-    }
+    assert_eq!(
+        invalid_field(Prior::from_bytes(&bytes(&json, t), "p.safetensors").unwrap_err()),
+        "model.chunk"
+    );
 }
 
 #[test]
@@ -663,15 +614,20 @@ fn bad_arguments_are_named() {
     let (p, _) = prior(1);
     let c = Control::default();
     let obs = motion(2, 12, 6, 1);
-    let arg = |r: Result<Vec<f32>, Error>| match r {
-        Err(Error::InvalidInput { argument, .. }) => argument,
-        other => panic!("{other:?}"),
-    };
-    assert_eq!(arg(p.predict(&obs, 0, 12, 4, &c)), "batch");
-    assert_eq!(arg(p.predict(&obs, 2, 12, 0, &c)), "horizon");
-    assert_eq!(arg(p.predict(&obs[..2 * 11 * 6], 2, 11, 4, &c)), "obs");
-    assert_eq!(arg(p.predict(&obs[..100], 2, 12, 4, &c)), "obs");
-    assert_eq!(arg(p.predict(&obs, 2, 12, usize::MAX / 4, &c)), "horizon");
+    assert_eq!(invalid_argument(p.predict(&obs, 0, 12, 4, &c)), "batch");
+    assert_eq!(invalid_argument(p.predict(&obs, 2, 12, 0, &c)), "horizon");
+    assert_eq!(
+        invalid_argument(p.predict(&obs[..2 * 11 * 6], 2, 11, 4, &c)),
+        "obs"
+    );
+    assert_eq!(
+        invalid_argument(p.predict(&obs[..100], 2, 12, 4, &c)),
+        "obs"
+    );
+    assert_eq!(
+        invalid_argument(p.predict(&obs, 2, 12, usize::MAX / 4, &c)),
+        "horizon"
+    );
     let mut bad = obs.clone();
     bad[12 * 6 + 7] = f32::INFINITY;
     let e = p.predict(&bad, 2, 12, 4, &c).unwrap_err();

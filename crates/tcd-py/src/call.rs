@@ -134,10 +134,9 @@ impl<'py> SamplingArgs<'py> {
             .iter()
             .zip(blocks)
             .map(|((model, argument, noise), blocks)| {
-                let noise = noise.as_ref().map(Array::from_numpy);
                 let shape = [s, blocks, b, model.num_features(), length(model)];
                 let what = "= (num_samples, num_noise_blocks, B, K, L); num_noise_blocks = num_inference_steps + 1 (1 for dpmpp2m)";
-                noise_source(argument, noise, seed, streams.clone(), &shape, what)
+                noise_source(argument, noise.as_ref(), seed, streams.clone(), &shape, what)
             })
             .collect::<CoreResult<Vec<NoiseSource>>>()?;
         let noise = sources
@@ -231,11 +230,12 @@ pub(crate) enum NoiseSource {
     Seeded(u64, StreamIds),
 }
 
-/// The noise of one model of a call: `noise`, the injected array of the argument so named (moved, not
-/// copied), checked against `expected_shape` (`what` explains it in the message), or the seeded streams.
+/// The noise of one model of a call: `noise`, the injected array of the argument so named (copied out
+/// of numpy here, once it is known to be used), checked against `expected_shape` (`what` explains it in
+/// the message), or the seeded streams.
 pub(crate) fn noise_source(
     argument: &str,
-    noise: Option<Array>,
+    noise: Option<&PyReadonlyArrayDyn<'_, f32>>,
     seed: Option<u64>,
     streams: StreamIds,
     expected_shape: &[usize],
@@ -253,6 +253,7 @@ pub(crate) fn noise_source(
             "None",
         )),
         (Some(n), None) => {
+            let n = Array::from_numpy(n);
             n.expect_shape(argument, expected_shape, what)?;
             Ok(NoiseSource::Injected(n.data))
         }

@@ -160,6 +160,25 @@ impl Array {
         }
     }
 
+    /// Checks a frame-major observation, as the prior and the generator read it: rank 3 (B, T, K) with
+    /// `K` features, B >= 1 and at least `obs_len` frames (the model reads the last obs_len); returns
+    /// (B, T).
+    pub(crate) fn btk(
+        &self,
+        argument: &str,
+        k: usize,
+        obs_len: usize,
+    ) -> CoreResult<(usize, usize)> {
+        match self.shape.as_slice() {
+            &[b, t, kk] if kk == k && b >= 1 && t >= obs_len => Ok((b, t)),
+            _ => Err(invalid(
+                argument,
+                format!("a float32 array of shape (B, T, K) with K = {k}, B >= 1 and T >= obs_len = {obs_len}"),
+                format!("shape {}", Self::shape_str(&self.shape)),
+            )),
+        }
+    }
+
     /// Checks this array has exactly `shape`; `what` describes it for the message.
     pub(crate) fn expect_shape(
         &self,

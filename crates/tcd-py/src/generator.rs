@@ -9,7 +9,7 @@ use tcd_core::{Control, Generator};
 
 use crate::call::{noise_source, seed_args};
 use crate::convert::*;
-use crate::error::{invalid, Result};
+use crate::error::Result;
 use crate::model::model_methods;
 use crate::run::interruptible;
 
@@ -68,23 +68,12 @@ model_methods! {
             let (k, o, p, z) = (model.num_features(), model.obs_len(), model.pred_len(), model.z_dim());
             let s = positive("num_samples", num_samples)?;
             let obs = Array::from_numpy(&obs);
-            let (b, t) = match obs.shape.as_slice() {
-                &[b, t, kk] if kk == k && b >= 1 && t >= o => (b, t),
-                _ => {
-                    return Err(invalid(
-                        "obs",
-                        format!("a float32 array of shape (B, T, K) with K = {k}, B >= 1 and T >= obs_len = {o}"),
-                        format!("shape {}", Array::shape_str(&obs.shape)),
-                    )
-                    .into())
-                }
-            };
+            let (b, t) = obs.btk("obs", k, o)?;
             let prior = Array::from_numpy(&prior);
             prior.expect_shape("prior", &[b, p, k], "= (B, pred_len, K): the prior's forecast of each sequence")?;
             check_work(s, b, k, p)?;
             let (seed, streams) = seed_args(seed, first_sequence, sequences)?;
-            let noise = noise.as_ref().map(Array::from_numpy);
-            let noise = noise_source("noise", noise, seed, streams, &[s, b, z], "= (num_samples, B, z_dim)")?;
+            let noise = noise_source("noise", noise.as_ref(), seed, streams, &[s, b, z], "= (num_samples, B, z_dim)")?;
             let threads = threads_arg(threads)?;
             let out = interruptible(py, None, threads, |control: &Control| {
                 model.sample(&obs.data, &prior.data, b, t, s, noise.as_noise(), control)

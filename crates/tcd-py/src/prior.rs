@@ -78,17 +78,7 @@ model_methods! {
             let k = self.inner.num_features();
             let l = self.inner.obs_len();
             let obs = Array::from_numpy(&obs);
-            let (b, t) = match obs.shape.as_slice() {
-                &[b, t, kk] if kk == k && b >= 1 && t >= l => (b, t),
-                _ => {
-                    return Err(invalid(
-                        "obs",
-                        format!("a float32 array of shape (B, T, K) with K = {k}, B >= 1 and T >= obs_len = {l}"),
-                        format!("shape {}", Array::shape_str(&obs.shape)),
-                    )
-                    .into())
-                }
-            };
+            let (b, t) = obs.btk("obs", k, l)?;
             let horizon = positive("horizon", horizon)?;
             // the output's size, refused up front like a sampler's
             if !within_limit(&[b, k, horizon]) {

@@ -70,12 +70,7 @@ impl GeneratorConfig {
         let checks = Checks(path);
         let bad = |field: &str, reason: String| checks.bad(field, reason);
         checks.format_version(self.format_version)?;
-        if self.role != ROLE {
-            return Err(bad(
-                "role",
-                format!("must be \"{ROLE}\", but is {:?}", self.role),
-            ));
-        }
+        checks.role(&self.role, ROLE)?;
         let m = &self.model;
         checks.at_least_one(&[
             ("model.num_joints", m.num_joints),
@@ -87,15 +82,7 @@ impl GeneratorConfig {
             ("model.z_dim", m.z_dim),
             ("model.coefs", m.coefs),
         ])?;
-        if Some(m.num_features) != m.num_joints.checked_mul(m.coords) {
-            return Err(bad(
-                "model.num_features",
-                format!(
-                    "must equal num_joints * coords = {} * {}, but is {}",
-                    m.num_joints, m.coords, m.num_features
-                ),
-            ));
-        }
+        checks.num_features(m.num_joints, m.coords, m.num_features)?;
         if m.coefs > m.pred_len {
             return Err(bad(
                 "model.coefs",

@@ -30,7 +30,7 @@ use crate::error::Result;
 use crate::kernels::{Isa, Kernel};
 use crate::nn::{Dense, Linear};
 use crate::prior::dct_matrix;
-use crate::weights::{read_file, read_weights, Tensor};
+use crate::weights::{read_file, read_weights, take_data};
 
 pub mod config;
 mod forward;
@@ -74,13 +74,7 @@ impl Generator {
             |c| generator_expected_tensors(&c.model),
         )?;
         let m = &config.model;
-        // Present with their shapes: read_tensors checked exactly the expected set.
-        let mut take = |name: &str| -> Vec<f32> {
-            tensors
-                .remove(name)
-                .map(|t: Tensor| t.data)
-                .unwrap_or_default()
-        };
+        let mut take = |name: &str| take_data(&mut tensors, name);
         let mut dense = |name: &str, out: usize, input: usize| -> Result<Dense> {
             let (w, b) = (
                 take(&format!("{name}.weight")),

@@ -126,12 +126,7 @@ impl PriorConfig {
         let checks = Checks(path);
         let bad = |field: &str, reason: String| checks.bad(field, reason);
         checks.format_version(self.format_version)?;
-        if self.role != ROLE {
-            return Err(bad(
-                "role",
-                format!("must be \"{ROLE}\", but is {:?}", self.role),
-            ));
-        }
+        checks.role(&self.role, ROLE)?;
         let m = &self.model;
         checks.at_least_one(&[
             ("model.num_joints", m.num_joints),
@@ -140,15 +135,7 @@ impl PriorConfig {
             ("model.chunk", m.chunk),
             ("model.blocks", m.blocks),
         ])?;
-        if Some(m.num_features) != m.num_joints.checked_mul(m.coords) {
-            return Err(bad(
-                "model.num_features",
-                format!(
-                    "must equal num_joints * coords = {} * {}, but is {}",
-                    m.num_joints, m.coords, m.num_features
-                ),
-            ));
-        }
+        checks.num_features(m.num_joints, m.coords, m.num_features)?;
         if m.chunk > m.obs_len {
             return Err(bad(
                 "model.chunk",

@@ -40,7 +40,7 @@ use std::path::{Path, PathBuf};
 use crate::error::Result;
 use crate::kernels::{Isa, Kernel};
 use crate::nn::{Dense, Linear};
-use crate::weights::{read_file, read_weights, Tensor};
+use crate::weights::{read_file, read_weights, take_data};
 
 pub mod config;
 mod forward;
@@ -124,13 +124,7 @@ impl Prior {
         )?;
         let m = &config.model;
         let (k, l, chunk) = (m.num_features, m.obs_len, m.chunk);
-        // Present with their shapes: read_tensors checked exactly the expected set.
-        let mut take = |name: &str| -> Vec<f32> {
-            tensors
-                .remove(name)
-                .map(|t: Tensor| t.data)
-                .unwrap_or_default()
-        };
+        let mut take = |name: &str| take_data(&mut tensors, name);
 
         let dct = dct_matrix(l);
         let zeros = |n: usize| vec![0.0f32; n];

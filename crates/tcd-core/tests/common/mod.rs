@@ -120,6 +120,69 @@ pub fn serialize(tensors: &BTreeMap<String, RawTensor>, config_json: Option<Stri
     safetensors::serialize(views, meta).unwrap()
 }
 
+/// A weight file's bytes: tensors `t` with `cfg_json` as its `tcd_config`.
+pub fn bytes(cfg_json: &str, t: &BTreeMap<String, RawTensor>) -> Vec<u8> {
+    serialize(t, Some(cfg_json.to_string()))
+}
+
+/// The JSON of `cfg` (a prior's or a generator's config, as its `to_json` writes it) after `edit`:
+/// a file's config with a field changed, added or removed.
+pub fn with(cfg: &impl serde::Serialize, edit: impl FnOnce(&mut serde_json::Value)) -> String {
+    let mut v = serde_json::to_value(cfg).unwrap();
+    edit(&mut v);
+    v.to_string()
+}
+
+/// Seeded uniform weights for the `expected` tensors (name, shape) of a prior or a generator: a
+/// matrix ±sqrt(`gain` / fan_in), anything else ±0.3, a layer norm's `norm_weight` around 1.
+pub fn uniform_tensors(
+    expected: Vec<(String, Vec<usize>)>,
+    gain: f32,
+    seed: u64,
+) -> BTreeMap<String, RawTensor> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    expected
+        .into_iter()
+        .map(|(name, shape)| {
+            let n: usize = shape.iter().product();
+            let a = if shape.len() == 2 {
+                (gain / shape[1] as f32).sqrt()
+            } else {
+                0.3
+            };
+            let centre = if name.ends_with("norm_weight") {
+                1.0
+            } else {
+                0.0
+            };
+            let data: Vec<f32> = (0..n).map(|_| centre + rng.random_range(-a..a)).collect();
+            (name, RawTensor::f32(shape, &data))
+        })
+        .collect()
+}
+
+/// A prior's random weights: [`uniform_tensors`] of gain 3 (N(0, 1/fan_in) scale), norm weights
+/// around 1, so the network's contribution is large.
+pub fn prior_tensors(cfg: &PriorConfig, seed: u64) -> BTreeMap<String, RawTensor> {
+    uniform_tensors(prior_expected_tensors(&cfg.model), 3.0, seed)
+}
+
+/// The config field an [`Error::InvalidConfig`] names; any other error fails the test.
+pub fn invalid_field(e: Error) -> String {
+    match e {
+        Error::InvalidConfig { field, .. } => field,
+        e => panic!("{e:?}"),
+    }
+}
+
+/// The argument an [`Error::InvalidInput`] names; any other result fails the test.
+pub fn invalid_argument(r: std::result::Result<Vec<f32>, Error>) -> String {
+    match r {
+        Err(Error::InvalidInput { argument, .. }) => argument,
+        other => panic!("{other:?}"),
+    }
+}
+
 pub fn write(dir: &Path, name: &str, bytes: &[u8]) -> PathBuf {
     let p = dir.join(name);
     std::fs::write(&p, bytes).unwrap();
@@ -203,12 +266,13 @@ fn frame_embedding(length: usize, dim: usize) -> Vec<f32> {
     pe
 }
 
-fn get(t: &BTreeMap<String, RawTensor>, name: &str) -> Vec<f64> {
+/// Tensor `name` of `t` in f64.
+pub fn get(t: &BTreeMap<String, RawTensor>, name: &str) -> Vec<f64> {
     t[name].values().iter().map(|&v| v as f64).collect()
 }
 
 /// y[o] = Σ_i W[o][i] x[i] + b[o], W row-major (out, in).
-fn matvec(w: &[f64], b: &[f64], x: &[f64]) -> Vec<f64> {
+pub fn matvec(w: &[f64], b: &[f64], x: &[f64]) -> Vec<f64> {
     let out = b.len();
     let inp = x.len();
     (0..out)
@@ -222,8 +286,26 @@ fn silu(x: f64) -> f64 {
 fn sigmoid(x: f64) -> f64 {
     1.0 / (1.0 + (-x).exp())
 }
-fn gelu(x: f64) -> f64 {
+/// The exact (erf) GELU.
+pub fn gelu(x: f64) -> f64 {
     0.5 * x * (1.0 + libm::erf(x / std::f64::consts::SQRT_2))
+}
+
+/// The orthonormal DCT-II matrix (n × n, row f the f-th cosine) in f64, from its formula: the
+/// prior's and the generator's references.
+pub fn naive_dct(n: usize) -> Vec<f64> {
+    (0..n * n)
+        .map(|i| {
+            let (f, j) = (i / n, i % n);
+            let v = (2.0 / n as f64).sqrt()
+                * (std::f64::consts::PI * (2 * j + 1) as f64 * f as f64 / (2.0 * n as f64)).cos();
+            if f == 0 {
+                v / 2f64.sqrt()
+            } else {
+                v
+            }
+        })
+        .collect()
 }
 
 fn layer_norm(x: &mut [f64], w: &[f64], b: &[f64], eps: f64) {
@@ -511,28 +593,6 @@ pub fn tiny_prior_anchored(
         },
         data: DataConfig::default(),
     };
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let tensors: BTreeMap<String, RawTensor> = prior_expected_tensors(&cfg.model)
-        .into_iter()
-        .map(|(name, shape)| {
-            let n: usize = shape.iter().product();
-            let a = if shape.len() == 2 {
-                (3.0 / shape[1] as f32).sqrt()
-            } else {
-                0.3
-            };
-            let centre = if name.ends_with("norm_weight") {
-                1.0
-            } else {
-                0.0
-            };
-            let data: Vec<f32> = (0..n).map(|_| centre + rng.random_range(-a..a)).collect();
-            (name, RawTensor::f32(shape, &data))
-        })
-        .collect();
-    Prior::from_bytes(
-        &serialize(&tensors, Some(cfg.to_json())),
-        "prior.safetensors",
-    )
-    .unwrap()
+    let tensors = prior_tensors(&cfg, seed);
+    Prior::from_bytes(&bytes(&cfg.to_json(), &tensors), "prior.safetensors").unwrap()
 }
