@@ -116,7 +116,7 @@ def main(argv=None) -> int:
                     "rival)")
     ap.add_argument("--complement-samples", type=int, default=25, help="samples per window of a new --complement")
     ap.add_argument("--mix", type=int, default=0, help="score a mixture: the --model's first MIX protocol samples "
-                    "(the engine, DDIM-1, seed --seed: those of benches/results/humaneva_bundled.json) and the MLP's "
+                    "(the engine, DDIM-1, seed --seed: those of benches/results/humaneva_cascade.json) and the MLP's "
                     "first 50 - MIX; the result's model and stochastic are then the mixture's, generator_alone the "
                     "MLP's 50")
     ap.add_argument("--dropout", type=float, default=0.0, help="dropout before each hidden layer but the first")

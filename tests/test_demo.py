@@ -156,8 +156,8 @@ def test_verdict_names_each_stage_size_where_they_differ():
     def stage(size):
         return SimpleNamespace(config={"model": {"num_layers": size[0], "channels": size[1]}})
 
-    def model(short, long):
-        return SimpleNamespace(short=stage(short), long=stage(long))
+    def model(short, long, generator=None, share=0.0):
+        return SimpleNamespace(short=stage(short), long=stage(long), generator=generator, generator_share=share)
 
     res = {"forecast_mm": {80: 10.0, 1000: 150.0}, "zero_velocity_mm": {80: 20.0, 1000: 140.0}}
     same = demo.verdict(res, model((3, 32), (3, 32)))
@@ -167,3 +167,7 @@ def test_verdict_names_each_stage_size_where_they_differ():
     assert "short-term 3 layers x 32 channels, long-term 4 layers x 64 channels" in mixed and "reduced" in mixed
     assert "a full-size model (12 layers x 64 channels" in demo.verdict(res, model((12, 64), (12, 64)))
     assert "reduced" in demo.verdict(res, model((12, 64), (4, 64)))
+    mlp = SimpleNamespace(layers=3, hidden=768)      # a directory with a generator names it, and its share
+    assert "and an MLP generator of 3 x 768 drawing 0.5 of the samples" in demo.verdict(
+        res, model((3, 32), (3, 32), mlp, 0.5))
+    assert "MLP" not in demo.verdict(res, model((3, 32), (3, 32), mlp, 0.0))

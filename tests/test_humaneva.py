@@ -252,12 +252,14 @@ def test_demo_plot_draws_the_humaneva_skeleton(tmp_path):
 def test_bundled_humaneva_model_loads_and_beats_zero_velocity():
     """The bundled HumanEva-I model (python/tcd/weights_humaneva, where the build has it): its shapes, and on 12
     evenly spaced Validate windows the best of 10 samples against Zero-Velocity's ADE, with the model's default
-    sampler (one DDIM step since 2026-11-28) and with DDPM-10. The full protocol (MODEL_CARD.md) measured 0.209
-    (DDIM-1; 0.222 with DDPM-10 on the weights before) against 0.565 m with 50 samples; the bound leaves room for 10."""
+    sampler (one DDIM step since 2026-11-28; since 2026-11-29 half the samples from its MLP generator) and with
+    DDPM-10. The full protocol (MODEL_CARD.md) measured 0.196 (0.209 for the cascade alone, DDIM-1; 0.222 with DDPM-10
+    on the weights before) against 0.565 m with 50 samples; the bound leaves room for 10."""
     if not (tcd.humaneva_model_dir() / "short.safetensors").is_file():
         pytest.skip("no bundled HumanEva-I model in this build")
     m = tcd.load("humaneva")
     assert (m.obs_len, m.horizon, m.num_joints) == (15, 60, 14) and m.prior is not None
+    assert m.generator is not None and m.generator_share == 0.5
     assert m.joint_names == list(HUMANEVA_MODEL_JOINT_NAMES)
     if not HUMANEVA_FILE.is_file():
         pytest.skip("HumanEva-I data absent")

@@ -475,7 +475,9 @@ def print_humaneva_table(out: dict) -> None:
 
     if "model" in out:
         s = out["sampling"]
-        row(f"tcd ({s['samples']} samples, {s['engine']}, {s['sampler']} {s['steps'] or 'all'} steps)", out["model"])
+        share = s.get("generator_share") or 0
+        row(f"tcd ({s['samples']} samples, {s['engine']}, {s['sampler']} {s['steps'] or 'all'} steps"
+            + (f", {int(s['samples'] * share)} MLP" if share else "") + ")", out["model"])
     if "prior" in out:
         row("prior (deterministic point forecast)", out["prior"])
     row("Zero-Velocity", out["zero_velocity"])
