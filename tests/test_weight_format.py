@@ -145,7 +145,8 @@ def _zeros():
 def test_the_docs_name_every_field():
     text = (ROOT / "docs" / "weights.md").read_text()
     documented = set(re.findall(r"^\| `([a-z_0-9.]+)` \|", text, flags=re.M))
-    leaves = {name for role in ("short", "prior") for name, sub, _ in schema_fields(role) if "properties" not in sub}
+    leaves = {name for role in ("short", "prior", "generator") for name, sub, _ in schema_fields(role)
+              if "properties" not in sub}
     assert documented == leaves
 
 
