@@ -48,7 +48,7 @@ sys.path.insert(0, str(ROOT))
 import torch  # noqa: E402
 
 from training.data.humaneva import HUMANEVA_T_HIS as OBS, HUMANEVA_T_PRED as PRED  # noqa: E402
-from training.generator import Generator  # noqa: E402  (the model this bench trains)
+from training.generator import COEFS, HIDDEN, LAYERS, Z_DIM, Generator  # noqa: E402  (the model it trains)
 
 SAMPLES = 50   # the protocol's samples per window
 COMPLEMENT_SEED = 7   # the engine's seed for --complement's samples of the training windows (not the scoring's)
@@ -96,10 +96,10 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0, help="the scoring noise's seed (recorded as the result's "
                     "seeds.sampling, which training.compare checks; the runs of 2026-11-29 scored with 123 as they "
                     "trained)")
-    ap.add_argument("--hidden", type=int, default=768)
-    ap.add_argument("--layers", type=int, default=3)
-    ap.add_argument("--z", type=int, default=64, help="the noise vector's size")
-    ap.add_argument("--coefs", type=int, default=20, help="DCT coefficients of the 60-frame residual (of 60)")
+    ap.add_argument("--hidden", type=int, default=HIDDEN)
+    ap.add_argument("--layers", type=int, default=LAYERS)
+    ap.add_argument("--z", type=int, default=Z_DIM, help="the noise vector's size")
+    ap.add_argument("--coefs", type=int, default=COEFS, help="DCT coefficients of the 60-frame residual (of 60)")
     ap.add_argument("--cands", type=int, default=50, help="IMLE candidates per window")
     ap.add_argument("--targets", type=int, default=1, help="targets per window: its own future and T - 1 others")
     ap.add_argument("--exclude-frames", type=int, default=30, help="other targets: not of the window's own "

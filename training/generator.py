@@ -41,6 +41,10 @@ from .export import (CONFIG_KEY, FORMAT_VERSION, GENERATOR_FILE, GENERATOR_ROLE,
                      source_revision)
 from .prior import dct_matrix
 
+#: the bundled HumanEva-I generator's sizes: hidden width, hidden layers, noise values, DCT coefficients (the
+#: defaults of ``benches/humaneva_imle_mlp.py`` and of this module's command line)
+HIDDEN, LAYERS, Z_DIM, COEFS = 768, 3, 64, 20
+
 
 class Generator(nn.Module):
     """(obs (B, O, K), the prior's forecast (B, P, K), z (B, S, Z)) -> S forecasts (B, S, P, K).
@@ -68,9 +72,9 @@ class Generator(nn.Module):
         nn.init.zeros_(self.head.weight)     # the untrained generator is the prior's forecast
         nn.init.zeros_(self.head.bias)
 
-    def linears(self) -> list[nn.Linear]:
-        """The hidden layers' Linears in order: the file's ``layers.{i}``."""
-        return [m for m in self.body if isinstance(m, nn.Linear)]
+    def linears(self) -> dict[str, nn.Linear]:
+        """The hidden layers' Linears in order, by their name in ``body``: the file's ``layers.{i}``."""
+        return {name: m for name, m in self.body.named_children() if isinstance(m, nn.Linear)}
 
     def forward(self, obs: torch.Tensor, prior: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
         B, S = len(obs), z.shape[1]
@@ -94,7 +98,7 @@ def build_generator_config(gen: Generator, data: dict, training: dict | None = N
 def generator_tensors(gen: Generator) -> dict[str, torch.Tensor]:
     """The file's tensors: ``layers.{i}.*`` and ``head.*``, contiguous float32 copies."""
     out = {}
-    for i, lin in enumerate(gen.linears()):
+    for i, lin in enumerate(gen.linears().values()):
         out[f"layers.{i}.weight"], out[f"layers.{i}.bias"] = lin.weight, lin.bias
     out["head.weight"], out["head.bias"] = gen.head.weight, gen.head.bias
     return {k: v.detach().float().contiguous().clone() for k, v in out.items()}
@@ -122,7 +126,8 @@ def load_generator_file(path: str | Path) -> tuple[Generator, dict]:
     gen = Generator(m["num_features"], m["hidden"], m["layers"], m["z_dim"], m["coefs"], obs_len=m["obs_len"],
                     pred_len=m["pred_len"])
     tensors = load_file(str(path))
-    names = {f"layers.{i}.{p}": f"body.{3 * i}.{p}" for i in range(m["layers"]) for p in ("weight", "bias")}
+    names = {f"layers.{i}.{p}": f"body.{name}.{p}" for i, name in enumerate(gen.linears())
+             for p in ("weight", "bias")}
     gen.load_state_dict({names.get(k, k): v for k, v in tensors.items()}, strict=True)
     return gen.eval(), cfg
 
@@ -132,10 +137,10 @@ def main(argv=None) -> int:
     ap.add_argument("--state-dict", required=True, help="a Generator state dict (benches/humaneva_imle_mlp.py "
                     "--save)")
     ap.add_argument("--out", required=True, help="the model directory (or .safetensors file) to write")
-    ap.add_argument("--hidden", type=int, default=768)
-    ap.add_argument("--layers", type=int, default=3)
-    ap.add_argument("--z", type=int, default=64)
-    ap.add_argument("--coefs", type=int, default=20)
+    ap.add_argument("--hidden", type=int, default=HIDDEN)
+    ap.add_argument("--layers", type=int, default=LAYERS)
+    ap.add_argument("--z", type=int, default=Z_DIM)
+    ap.add_argument("--coefs", type=int, default=COEFS)
     ap.add_argument("--joints", type=int, default=14)
     ap.add_argument("--description", default=None, help="recorded in the file's training block")
     ap.add_argument("--training-json", default=None, help="a JSON file whose content joins the training block "

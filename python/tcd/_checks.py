@@ -127,5 +127,13 @@ def stream_ids(value: Any) -> Optional[List[int]]:
     return [int(v) for v in a]
 
 
+def streams(seed: Any, first_sequence: Any, sequences: Any, threads: Any) -> dict:
+    """The keywords every seeded engine call takes (``seed``, ``first_sequence``, ``sequences``, ``threads``),
+    checked and converted for the binding; the engine checks their ranges against the call."""
+    return {"seed": optional_machine_int("seed", seed, 128),
+            "first_sequence": machine_int("first_sequence", first_sequence, 128),
+            "sequences": stream_ids(sequences), "threads": optional_machine_int("threads", threads)}
+
+
 def shape_str(shape: Sequence[int]) -> str:
     return "(" + ", ".join(str(s) for s in shape) + ("," if len(shape) == 1 else "") + ")"

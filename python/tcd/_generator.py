@@ -65,6 +65,4 @@ class Generator(NativeModel[_native.Generator]):
         return self._native.sample(
             _checks.float32_array("obs", obs), _checks.float32_array("prior", prior),
             _checks.machine_int("num_samples", num_samples), noise=_checks.optional_float32_array("noise", noise),
-            seed=_checks.optional_machine_int("seed", seed, 128),
-            first_sequence=_checks.machine_int("first_sequence", first_sequence, 128),
-            sequences=_checks.stream_ids(sequences), threads=_checks.optional_machine_int("threads", threads))
+            **_checks.streams(seed, first_sequence, sequences, threads))

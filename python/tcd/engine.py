@@ -107,10 +107,7 @@ class Denoiser(NativeModel[_native.Denoiser]):
             return self._native.sample(
                 _checks.float32_array("observed", observed), _checks.float32_array("mask", mask), num_samples, o,
                 noise=_checks.optional_float32_array("noise", noise),
-                seed=_checks.optional_machine_int("seed", seed, 128),
-                first_sequence=_checks.machine_int("first_sequence", first_sequence, 128),
-                sequences=_checks.stream_ids(sequences), threads=_checks.optional_machine_int("threads", threads),
-                progress=callback)
+                **_checks.streams(seed, first_sequence, sequences, threads), progress=callback)
 
 
 def cascade_raw(short: Denoiser, long: Denoiser, observed: ArrayLike, mask: ArrayLike, *, num_samples: int = 5,
@@ -145,10 +142,8 @@ def cascade_raw(short: Denoiser, long: Denoiser, observed: ArrayLike, mask: Arra
             _checks.float32_array("mask", mask), num_samples, o,
             noise_short=_checks.optional_float32_array("noise_short", noise_short),
             noise_long=_checks.optional_float32_array("noise_long", noise_long),
-            seed=_checks.optional_machine_int("seed", seed, 128),
-            first_sequence=_checks.machine_int("first_sequence", first_sequence, 128),
-            sequences=_checks.stream_ids(sequences), threads=_checks.optional_machine_int("threads", threads),
-            progress=callback, prior=None if prior is None else prior._native))
+            **_checks.streams(seed, first_sequence, sequences, threads), progress=callback,
+            prior=None if prior is None else prior._native))
 
 
 def repair_raw(model: Denoiser, observed: ArrayLike, mask: ArrayLike, *, num_samples: int = 5,
@@ -181,10 +176,8 @@ def repair_raw(model: Denoiser, observed: ArrayLike, mask: ArrayLike, *, num_sam
         return dict(_native.repair(
             model._native, _checks.float32_array("observed", observed), _checks.float32_array("mask", mask),
             num_samples, o, noise=_checks.optional_float32_array("noise", noise),
-            seed=_checks.optional_machine_int("seed", seed, 128),
-            first_sequence=_checks.machine_int("first_sequence", first_sequence, 128),
-            sequences=_checks.stream_ids(sequences), threads=_checks.optional_machine_int("threads", threads),
-            progress=callback, fill=None if fill is None else fill._native,
+            **_checks.streams(seed, first_sequence, sequences, threads), progress=callback,
+            fill=None if fill is None else fill._native,
             forecaster=None if forecaster is None else forecaster._native))
 
 
