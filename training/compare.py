@@ -43,10 +43,12 @@ def per_window(result: dict, key: str) -> dict[str, float]:
     """A HumanEva-I result's model metric on each window, keyed by the window's position."""
     if key not in HUMANEVA_KEYS:
         raise ValueError(f"--key for a HumanEva-I result is one of {HUMANEVA_KEYS}, got {key!r}")
-    if "per_window" not in result.get("model", {}):
-        raise ValueError("the HumanEva-I result has no per-window values of a model (run training.evaluate "
-                         "--protocol humaneva --model DIR: it records them)")
-    return {str(i): float(v) for i, v in enumerate(result["model"]["per_window"][key])}
+    # a --model run scores its model; a --prior run (no model) scores the prior's point forecast
+    scored = result["model"] if "model" in result else result.get("prior", {})
+    if "per_window" not in scored:
+        raise ValueError("the HumanEva-I result has no per-window values of a model or a prior (run "
+                         "training.evaluate --protocol humaneva --model DIR or --prior DIR: they record them)")
+    return {str(i): float(v) for i, v in enumerate(scored["per_window"][key])}
 
 
 def is_repair(result: dict) -> bool:

@@ -18,7 +18,9 @@ its budget (the config's step count). The runner runs the stages in order in ``r
 
 A stage's strings may hold placeholders: ``{run}`` (the recipe's run directory), ``{out}`` (its ``out/``),
 ``{stage:NAME}`` (an earlier stage's directory), ``{input:PATH}`` (a file another recipe produces, PATH as under
-``python/tcd``: the bundled file by default, that recipe's run output with ``--inputs runs``), ``{data}`` (the data
+``python/tcd``: the bundled file by default, that recipe's run output with ``--inputs runs``, run first where it has
+not), ``{recipe:NAME/STAGE}`` (another recipe's stage directory, for an input no bundled file holds: that recipe
+runs up to that stage first where it has not), ``{data}`` (the data
 root), ``{threads}`` and ``{device}``.
 
     python -m training.recipe --list                      # each recipe and the files it produces
@@ -223,10 +225,12 @@ def tree_cpu_seconds(pid: int) -> float:
         return 0.0
 
 
-#: the trainers' progress lines: training.train's "epoch E batch B/S loss L", training.prior's "iteration i/N: loss L"
+#: the trainers' progress lines: training.train's "epoch E batch B/S loss L", training.prior's "iteration i/N: loss L",
+#: the generator's "step N (M min): loss L"
 PROGRESS = (
     re.compile(r"epoch (?P<epoch>\d+) batch (?P<batch>\d+)/(?P<per>\d+) loss (?P<loss>[\d.eE+-]+)"),
     re.compile(r"iteration (?P<step>\d+)/(?P<total>\d+): loss (?P<loss>[\d.eE+-]+)"),
+    re.compile(r"^step (?P<step>\d+) \([\d.]+ min\): loss (?P<loss>[\d.eE+-]+)"),  # the generator's IMLE trainer
 )
 
 
@@ -237,7 +241,11 @@ def parse_progress(line: str) -> dict | None:
             g = m.groupdict()
             if "epoch" in g:
                 return {"step": int(g["epoch"]) * int(g["per"]) + int(g["batch"]), "loss": float(g["loss"])}
-            return {"step": int(g["step"]), "total": int(g["total"]), "loss": float(g["loss"])}
+            return {
+                "step": int(g["step"]),
+                "loss": float(g["loss"]),
+                **({"total": int(g["total"])} if g.get("total") else {}),
+            }
     return None
 
 
@@ -277,6 +285,8 @@ class Runner:
                 return str(self.dir / arg)
             if key == "input":
                 return str(self.input(arg))
+            if key == "recipe":
+                return str(self.dependency(*arg.split("/", 1)))
             if key == "data":
                 return self.data or str(ROOT.parent / "shared" / "data")
             if key == "threads":
@@ -287,15 +297,47 @@ class Runner:
 
         return re.sub(r"\{([a-z]+(?::[^{}]+)?)\}", sub, value)
 
+    def dependency(self, name: str, stage: str) -> Path:
+        """Another recipe's stage directory ({recipe:NAME/STAGE}: a warm start or a prior that no bundled file
+        holds), after running that recipe up to that stage where it has not run yet."""
+        recipes = all_recipes()
+        if name not in recipes or stage not in [s.name for s in recipes[name].stages]:
+            raise RecipeError(f"{self.recipe.path}: {{recipe:{name}/{stage}}} names no stage of a recipe")
+        run_dir = self.dir / "deps" / name if self.smoke else runs_root() / name
+        if not (run_dir / stage / "done.json").is_file():
+            self.log(f"[{self.recipe.name}] needs {name} up to its stage {stage}: running it in {run_dir}")
+            Runner(
+                recipes[name],
+                run_dir,
+                threads=self.threads,
+                device=self.device,
+                inputs=self.inputs,
+                data=self.data,
+                smoke=self.smoke,
+                log=self.log,
+            ).run(until=stage)
+        return run_dir / stage
+
     def input(self, path: str) -> Path:
         if path not in self.recipe.needs:
             raise RecipeError(f"{self.recipe.path}: {{input:{path}}} is not in its 'needs'")
         if self.inputs == "bundled":
             return PACKAGE / path
-        made = runs_root() / producer(path, all_recipes()).name / "out" / path
-        if not made.is_file():
-            raise RecipeError(f"--inputs runs: {made} does not exist yet: run the recipe that produces {path} first")
-        return made
+        maker = producer(path, all_recipes())
+        run_dir = self.dir / "deps" / maker.name if self.smoke else runs_root() / maker.name
+        if not (run_dir / "out" / path).is_file():
+            self.log(f"[{self.recipe.name}] --inputs runs: {path} comes from {maker.name}: running it in {run_dir}")
+            Runner(
+                maker,
+                run_dir,
+                threads=self.threads,
+                device=self.device,
+                inputs=self.inputs,
+                data=self.data,
+                smoke=self.smoke,
+                log=self.log,
+            ).run()
+        return run_dir / "out" / path
 
     # one stage -------------------------------------------------------------------------------------------
     def stage_config(self, stage: Stage) -> dict:
@@ -334,6 +376,8 @@ class Runner:
             config_path.write_text(json.dumps(self.stage_config(stage), indent=1) + "\n")
             resume = (sdir / LAST).is_file()
             cmd = stage.command(config_path, sdir, resume, self.threads, self.device)
+            if self.smoke and stage.run == "prior":
+                cmd.append("--no-compile")  # compiling costs more than a smoke run's two steps
         else:
             resume = False
             cmd = [sys.executable, "-m", stage.module, *self.module_args(stage)]
@@ -406,6 +450,8 @@ class Runner:
     def run(self, until: str | None = None) -> dict:
         self.dir.mkdir(parents=True, exist_ok=True)
         self.restore_carried()
+        for p in self.recipe.produces:  # the stages that write them need not make the folders
+            (self.out / p).parent.mkdir(parents=True, exist_ok=True)
         stages = self.recipe.stages + self.recipe.evaluate
         records = []
         for i, stage in enumerate(stages):
