@@ -49,6 +49,7 @@ PRIOR_FILE = "prior.safetensors"
 REPAIR_FILL_FILE = "repair_fill.safetensors"  # a prior with anchor "window": the repair model's fill (role "prior")
 GENERATOR_ROLE = "generator"               # the MLP sample generator's role (training/generator.py), in GENERATOR_FILE
 GENERATOR_FILE = "generator.safetensors"
+SAMPLING_FILE = "sampling.json"  # a model directory's default samplers (tcd.model reads it)
 CONFIG_KEY = "tcd_config"
 
 # Windows of the Human3.6M cascade (spec section 5) and the repair model.
@@ -289,11 +290,13 @@ def copy_model_files(files: list[Path], out: Path) -> None:
     """Copies model files named ``ROLE.safetensors`` (or ``prior.safetensors``, ``repair_fill.safetensors``,
     ``generator.safetensors``) into ``out`` after loading each strictly (a file that does not load replaces
     nothing)."""
-    names = [r + ".safetensors" for r in ROLES] + [PRIOR_FILE, REPAIR_FILL_FILE, GENERATOR_FILE]
+    names = [r + ".safetensors" for r in ROLES] + [PRIOR_FILE, REPAIR_FILL_FILE, GENERATOR_FILE, SAMPLING_FILE]
     for f in files:
         if f.name not in names:
             raise SystemExit(f"{f}: the file name must be one of {', '.join(names)}")
-        if f.name in (PRIOR_FILE, REPAIR_FILL_FILE):
+        if f.name == SAMPLING_FILE:
+            json.loads(f.read_text())  # tcd.load checks its keys; here, that it is JSON at all
+        elif f.name in (PRIOR_FILE, REPAIR_FILL_FILE):
             load_prior_file(f)
         elif f.name == GENERATOR_FILE:
             from .generator import load_generator_file
