@@ -200,27 +200,6 @@ def test_schedule_may_change_only_where_the_run_so_far_is_the_same(tmp_path):
         train(short, tmp_path / "six", frames=frames, resume=True, log=lambda m: None)
 
 
-def test_committed_prior_checkpoints_start_the_configs_that_name_them():
-    """Every prior checkpoint committed under training/checkpoints/ loads into the network of each prior config
-    whose init_from names it, as training loads it (``load_grown``: the same blocks, or more; every other
-    parameter exactly; what a next installment does first); a config naming a checkpoint
-    that is no longer in the tree is one whose start is in git history (its comment says where)."""
-    import json
-    from pathlib import Path
-    root = Path(__file__).parents[1]
-    committed = {p.name for p in (root / "training" / "checkpoints").glob("prior_installment*.pt")}
-    assert committed, "the bundled prior's checkpoint is carried in training/checkpoints/"
-    started = set()
-    for path in sorted((root / "training" / "configs").glob("prior*.json")):
-        init = json.loads(path.read_text()).get("init_from", "")
-        if Path(init).name not in committed:
-            continue
-        ck = torch.load(root / init, map_location="cpu", weights_only=False)
-        load_grown(PriorNet(PriorConfig.load(path)), ck["model"])      # as training does: equal, or grown deeper
-        started.add(Path(init).name)
-    assert started == committed, f"checkpoints no config starts from: {sorted(committed - started)}"
-
-
 def test_a_deeper_prior_grows_from_a_shallower_one(tmp_path):
     """init_from a prior with fewer blocks: the extra blocks start as identities, so the grown network computes
     the same forecast, and its first training step moves them; a shallower config is refused."""

@@ -149,56 +149,28 @@ def test_removed_keys_at_their_inert_values_are_dropped_and_otherwise_refused(tm
             train(cfg, tmp_path / "run", sequences=seqs, resume=True, log=lambda *a: None)
 
 
-def test_committed_checkpoints_resume_under_their_configs():
-    """The committed checkpoints of training/checkpoints/ resume under their config files: the stored config is
-    the one the file loads as, which is what --resume checks (those written before the GPU tooling's removal hold
-    its keys at their inert values, which loading drops)."""
-    from dataclasses import asdict
-    from pathlib import Path
-    from training.train import stored_config
-    root = Path(__file__).parents[1]
-    for checkpoint, config in (("tcdp_short_installment1.pt", "tcdp_short.json"),):
-        ck = torch.load(root / "training" / "checkpoints" / checkpoint, map_location="cpu", weights_only=False)
-        removed = set(REMOVED_AT_DEFAULTS) & set(ck["train_config"])
-        assert removed in (set(), set(REMOVED_AT_DEFAULTS))
-        stored = stored_config(ck["train_config"], checkpoint)
-        assert stored == asdict(TrainConfig.load(root / "training" / "configs" / config))
-
-
-def test_committed_warm_starts_load_into_the_configs_that_name_them():
-    """Every exported model committed under training/checkpoints/ (a lease's unfinished run, kept as its EMA
-    weights) loads, strictly, into the model of each train config whose init_from names it, as ``train`` loads
-    it: a next lease must not spend its device time finding a mismatch. (Configs that name the bundled weights
-    name what was bundled when they ran: those files change.)"""
-    from pathlib import Path
-    from safetensors.torch import load_file
-    from training.train import build_model
-    root = Path(__file__).parents[1]
-    committed = {p.name for p in (root / "training" / "checkpoints").glob("*.safetensors")}
-    started = set()
-    for path in sorted((root / "training" / "configs").glob("*.json")):
-        if path.stem.startswith(("prior", "humaneva_prior")):
-            continue
-        init = Path(json.loads(path.read_text()).get("init_from", ""))
-        if init.name not in committed or init.parent != Path("training/checkpoints"):
-            continue
-        cfg = TrainConfig.load(path)
-        cfg.prior = str(root / cfg.prior) if cfg.prior else ""
-        model, _ = build_model(cfg, "cpu")
-        model.load_state_dict(load_file(str(root / init)))       # strict, as train's warm start
-        started.add(init.name)
-    assert started == committed, f"committed warm starts no config names: {sorted(committed - started)}"
-
-
 def test_config_files_load(tmp_path):
+    """The configs the tests train from, and every trainer stage's config of every recipe, load as their
+    trainer's (a recipe's stage names its warm start apart, as ``from``)."""
     from pathlib import Path
     from training.prior import PriorConfig
-    for p in sorted((Path(__file__).parents[1] / "training" / "configs").glob("*.json")):
-        if p.stem.startswith(("prior", "humaneva_prior", "repair_fill")):   # training.prior's (a repair fill too)
-            assert PriorConfig.load(p).blocks >= 1
-            continue
-        cfg = TrainConfig.load(p)
-        assert cfg.role in ("short", "long", "repair")
+    from training.recipe import all_recipes
+    files = sorted((Path(__file__).parents[1] / "training" / "configs").glob("*.json"))
+    configs = [json.loads(p.read_text()) for p in files]
+    trainer = ["prior" if p.stem.startswith("humaneva_prior") else "train" for p in files]
+    for r in all_recipes().values():
+        for s in r.stages:
+            if s.run in ("train", "prior"):
+                configs.append({k: v for k, v in s.config.items() if not (isinstance(v, str) and "{" in v)})
+                trainer.append(s.run)
+    assert len(configs) > 5
+    for d, run in zip(configs, trainer, strict=True):
+        path = tmp_path / "c.json"
+        path.write_text(json.dumps(d))
+        if run == "prior":
+            assert PriorConfig.load(path).blocks >= 1
+        else:
+            assert TrainConfig.load(path).role in ("short", "long", "repair")
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps({"role": "short", "learning_rate": 1}))
     with pytest.raises(ValueError, match="learning_rate"):
