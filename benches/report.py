@@ -1,0 +1,671 @@
+"""Every table of numbers in README.md, MODEL_CARD.md and docs/ from the results files: one number, one source.
+
+    python -m benches.report --write            # rewrite every generated block
+    python -m benches.report --check            # exit 1, with a diff, where a block differs from what --write writes
+    python -m benches.report --list             # the block names and the files each reads
+    python -m benches.report --show NAME        # print one block's Markdown
+    python -m benches.report --check README.md docs/usage.md --results DIR     # other files, other results
+
+A generated block is Markdown between two HTML comments naming a generator::
+
+    <!-- report:h36m-forecast -->
+    | mm | 80 | ... |
+    <!-- /report:h36m-forecast -->
+
+or inline, within a line: ``best of 5 is <!-- report:NAME -->0.75<!-- /report:NAME --> × Zero-Velocity``. The
+text between the comments is the generator's output and nothing else: edit the generator (or the results file,
+by running its benchmark), never the block. An unknown name, an unclosed block or a missing results file is an
+error (exit 2) naming the file and line.
+
+The default files are README.md, MODEL_CARD.md and docs/**/*.md. Generators read JSON only (results files under
+``benches/results``, ``--results`` for another folder, and the bundled model directories' ``model.json``,
+``SHA256SUMS`` and safetensors headers): no torch, no motion data, so CI runs the check in a second.
+
+Adding a generator: a function ``def name(src: Sources) -> str`` returning Markdown, and one line in
+``GENERATORS`` (the last section of this file). Formats, one for each kind of number: mm with 1 decimal
+(:func:`mm`), metres with 3 (:func:`metres`), ratios with 2 (:func:`ratio`), counts with thousands separators
+(:func:`count`).
+"""
+from __future__ import annotations
+
+import argparse
+import difflib
+import glob
+import hashlib
+import json
+import math
+import re
+import struct
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "benches" / "results"
+DEFAULT_FILES = ("README.md", "MODEL_CARD.md", "docs/**/*.md")
+H36M_DIR = "python/tcd/weights"
+HUMANEVA_DIR = "python/tcd/weights_humaneva"
+HORIZONS = ("80", "160", "320", "400", "560", "720", "880", "1000")
+NONE = "—"
+
+
+class ReportError(ValueError):
+    """A block the report cannot write: an unknown generator, a missing or stale results file, a broken block."""
+
+
+# ------------------------------------------------------------------------------------------ sources
+
+
+class Sources:
+    """Where the generators read: the results folder and the repository (for the bundled model directories)."""
+
+    def __init__(self, results: Path = RESULTS, root: Path = ROOT):
+        self.results, self.root = Path(results), Path(root)
+        self.read: list[str] = []    # the files read, in order (for --list)
+
+    def json(self, name: str) -> dict:
+        """A results file, ``name`` relative to the results folder."""
+        path = self.results / name
+        self.read.append(str(path))
+        if not path.is_file():
+            raise ReportError(f"missing results file {path}")
+        try:
+            return json.loads(path.read_text())
+        except json.JSONDecodeError as e:
+            raise ReportError(f"results file {path} is not JSON: {e}") from None
+
+    def glob(self, pattern: str) -> list[tuple[str, dict]]:
+        """Every results file matching ``pattern`` (relative to the results folder), sorted; none is no error."""
+        self.read.append(str(self.results / pattern))
+        paths = sorted(glob.glob(str(self.results / pattern)))
+        return [(Path(p).stem, json.loads(Path(p).read_text())) for p in paths]
+
+    def repo_json(self, name: str) -> dict:
+        path = self.root / name
+        self.read.append(str(path))
+        if not path.is_file():
+            raise ReportError(f"missing file {path}")
+        return json.loads(path.read_text())
+
+    def model_sha256(self, model_dir: str) -> str:
+        """A model directory's checksum as ``tcd.TCD.sha256`` has it: the sha256 of its SHA256SUMS."""
+        path = self.root / model_dir / "SHA256SUMS"
+        self.read.append(str(path))
+        if not path.is_file():
+            raise ReportError(f"missing file {path}")
+        return hashlib.sha256(path.read_bytes()).hexdigest()
+
+    def safetensors(self, path: str) -> tuple[dict, dict]:
+        """A weight file's tensors ({name: {"shape": ...}}) and its ``tcd_config`` metadata, from its header."""
+        p = self.root / path
+        self.read.append(str(p))
+        if not p.is_file():
+            raise ReportError(f"missing weight file {p}")
+        with open(p, "rb") as f:
+            (n,) = struct.unpack("<Q", f.read(8))
+            header = json.loads(f.read(n))
+        meta = header.pop("__metadata__", {})
+        return header, json.loads(meta.get("tcd_config", "{}"))
+
+    def bundled(self, name: str, sha: str | None, model_dir: str) -> None:
+        """Refuse a results file measured on other weights than the bundled ones of ``model_dir``."""
+        want = self.model_sha256(model_dir)
+        if sha != want:
+            raise ReportError(f"results file {self.results / name} was measured on the model {sha}, not the bundled "
+                              f"{model_dir} ({want}): run its benchmark again")
+
+
+def paper_table(src: Sources, name: str) -> dict:
+    """A ``python -m benches.paper`` results file, refused where its models have changed since it was made."""
+    d = src.json(name)
+    for model_dir, sha in d.get("models", {}).items():
+        if src.model_sha256(model_dir) != sha:
+            raise ReportError(f"results file {src.results / name} scored {model_dir} at {sha}, which has changed "
+                              f"since: {d.get('command', 'python -m benches.paper')} again")
+    return d
+
+
+def rows_by_key(d: dict, which: str = "our_rows") -> dict:
+    return {r["key"]: r for r in d[which]}
+
+
+# ------------------------------------------------------------------------------------------ formats
+
+
+def mm(x) -> str:
+    return NONE if x is None else f"{x:.1f}"
+
+
+def metres(x) -> str:
+    return NONE if x is None else f"{x:.3f}"
+
+
+def ratio(x) -> str:
+    return NONE if x is None else f"{x:.2f}"
+
+
+def count(n) -> str:
+    return NONE if n is None else f"{int(round(n)):,}"
+
+
+def ms(seconds) -> str:
+    return NONE if seconds is None else f"{1000 * seconds:.1f} ms"
+
+
+def secs(seconds) -> str:
+    return NONE if seconds is None else (f"{seconds:.1f} s" if seconds >= 10 else f"{seconds:.2f} s")
+
+
+def hours(h) -> str:
+    return NONE if h is None else f"{h:.2f}"
+
+
+def table(header: list[str], rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def _div(a, b):
+    return None if a is None or not b else a / b
+
+
+# ------------------------------------------------------------------------------------------ generators
+# Each returns the Markdown of one block from the results files it names. Labels say what a row is; the numbers
+# come from the files.
+
+PATTERN_LABELS = {
+    "random_leg_arm": "random leg + arm",
+    "structured_leg": "right leg, consecutive frames",
+    "consecutive_frames": "consecutive frames",
+    "noisy_25": "noise (25 mm) + leg joints hidden",
+}
+
+
+def _horizon_rows(rows: list[tuple[str, dict, float | None]]) -> list[list[str]]:
+    """(label, {horizon: mm}, the Zero-Velocity at 1 s to divide by) -> table rows, with the ratio at 1 s."""
+    return [[label] + [mm(v.get(h)) for h in HORIZONS] + [ratio(_div(v.get("1000"), zv))]
+            for label, v, zv in rows]
+
+
+def h36m_forecast(src: Sources) -> str:
+    """Human3.6M Setting-B, clean input: the bundled models beside Zero-Velocity and the published methods."""
+    d = paper_table(src, "paper_table1.json")
+    ours, pub = rows_by_key(d), rows_by_key(d, "paper_rows")
+    zv = ours["zero_velocity"]["values"]["1000"]
+    pzv = pub["Zero-Velocity"]["values"]["1000"]
+    p = d["protocol"]["ours"]
+    rows = [("**tcd `forecast`: the mean of 5 samples** (what it returns)", ours["mean_of_5"]["values"], zv),
+            ("tcd `forecast`: the oracle best of 5 (the paper's figure)", ours["best_of_5"]["values"], zv),
+            ("tcd `predict`: the prior's point forecast", ours["prior"]["values"], zv),
+            ("Zero-Velocity, same windows", ours["zero_velocity"]["values"], zv)]
+    names = {"TCD (best of 5)": "TCD, oracle best of 5"}
+    for k, r in pub.items():
+        if k != "Zero-Velocity":
+            rows.append((f"{names.get(k, k)} (published)", r["values"], pzv))
+    rows.append(("Zero-Velocity (published)", pub["Zero-Velocity"]["values"], pzv))
+    caption = (f"**Human3.6M, clean input** (Setting-B, the paper's Table 1): mm at each horizon (ms); S5, "
+               f"{len(p['actions'])} actions × {p['windows_per_action']} windows, the bundled models with their "
+               f"default sampler; published numbers are on all 15 actions. "
+               f"÷ ZV: the error at 1 s over Zero-Velocity's on the same windows (published rows: over the "
+               f"published Zero-Velocity).")
+    return caption + "\n\n" + table(["mm"] + list(HORIZONS) + ["÷ ZV"], _horizon_rows(rows))
+
+
+def h36m_imperfect(src: Sources) -> str:
+    """Human3.6M Setting-B under imperfect observations (the TCD rows of the paper's Table 2)."""
+    d = paper_table(src, "paper_table2.json")
+    ours, pub = rows_by_key(d), rows_by_key(d, "paper_rows")
+    rows = []
+    for p in d["protocol"]["patterns"]:
+        zv = ours[f"zero_velocity/{p}"]["values"]["1000"]
+        label = PATTERN_LABELS.get(p, p)
+        rows += [(f"{label}: tcd, oracle best of 5", ours[f"best_of_5/{p}"]["values"], zv),
+                 (f"{label}: tcd, mean of 5", ours[f"mean_of_5/{p}"]["values"], zv),
+                 (f"{label}: Zero-Velocity", ours[f"zero_velocity/{p}"]["values"], zv)]
+    pzv = pub["Zero-Velocity"]["values"]["1000"]
+    for k, r in pub.items():
+        rows.append((f"{k} (published, imperfect input)", r["values"], pzv))
+    p = d["protocol"]["ours"]
+    caption = (f"**Human3.6M, imperfect observations** (the TCD rows of the paper's Table 2): mm at each horizon "
+               f"(ms); S5, {len(p['actions'])} actions × {p['windows_per_action']} windows, each observation "
+               f"corrupted (`training.masks`: {', '.join(d['protocol']['patterns'])}); "
+               f"Zero-Velocity holds each joint where it was last seen. The paper does not say which corruption its "
+               f"rows are on: its Zero-Velocity row shows a harsher one than ours.")
+    return caption + "\n\n" + table(["mm"] + list(HORIZONS) + ["÷ ZV"], _horizon_rows(rows))
+
+
+def humaneva_forecast(src: Sources) -> str:
+    """HumanEva-I, stochastic: the bundled mixture, its halves and the baselines beside the published numbers."""
+    d = paper_table(src, "paper_table3.json")
+    ours, pub = rows_by_key(d), rows_by_key(d, "paper_rows")
+    cols = ("ADE", "FDE", "MMADE", "MMFDE", "APD")
+    labels = [("tcd", "**tcd `forecast`: the mixture** (its default)"),
+              ("cascade", "its diffusion cascade alone (`generator_share=0`)"),
+              ("generator", "its MLP generator alone (`generator_share=1`)"),
+              ("prior", "tcd `predict`: the prior's point forecast"),
+              ("neighbours", "the nearest training futures, joined (learns nothing)"),
+              ("zero_velocity", "Zero-Velocity")]
+    rows = [[label] + [metres(ours[k]["values"].get(c)) for c in cols + ("mean_ADE",)] for k, label in labels]
+    for k, r in pub.items():
+        rows.append([f"{k} (published)"] + [metres(r["values"].get(c)) for c in cols + ("mean_ADE",)])
+    p = d["protocol"]["ours"]
+    samples = d["runs"]["mixture"]["sampling"]["samples"]
+    caption = (f"**HumanEva-I, stochastic** (the paper's Table 3): metres; `{p['split']}`, {p['windows']} windows, "
+               f"{p['t_his']} observed → {p['t_pred']} forecast frames at {p['fps']} Hz, {samples} samples per "
+               f"window. ADE / FDE: the best sample's mean / final "
+               f"error; MMADE / MMFDE: the same against the multimodal futures; APD: the samples' diversity "
+               f"(higher is more diverse); mean ADE: the ADE of the samples' mean (a point forecast).")
+    return caption + "\n\n" + table(["m"] + list(cols) + ["mean ADE"], rows)
+
+
+def humaneva_per_action(src: Sources) -> str:
+    """The bundled HumanEva-I mixture per action (its windows' means)."""
+    d = paper_table(src, "paper_table3.json")
+    per = d["per_action"]["tcd"]
+    cols = ("ADE", "FDE", "MMADE", "MMFDE", "APD")
+    rows = [[a, count(v["windows"])] + [metres(v[c]) for c in cols] for a, v in per.items()]
+    return ("**HumanEva-I, per action**: the bundled mixture, the means over each action's windows (metres).\n\n"
+            + table(["action", "windows"] + list(cols), rows))
+
+
+def _repair_rows(src: Sources) -> tuple[dict, dict]:
+    fill = src.json("repair_quality_joint_inbetween_256.json")
+    diff = src.json("repair_quality_joint_inbetween_256_ddpm10.json")
+    for name, d in (("repair_quality_joint_inbetween_256.json", fill),
+                    ("repair_quality_joint_inbetween_256_ddpm10.json", diff)):
+        src.bundled(name, d.get("model_sha256"), H36M_DIR)
+    return fill, diff
+
+
+def h36m_repair(src: Sources) -> str:
+    """Repair of occluded Human3.6M windows against interpolation (benches/repair_quality.py)."""
+    fill, diff = _repair_rows(src)
+    if [r["pattern"] for r in fill["results"]] != [r["pattern"] for r in diff["results"]]:
+        raise ReportError("repair_quality_joint_inbetween_256.json and its _ddpm10 run score other patterns")
+    rows = []
+    for a, b in zip(fill["results"], diff["results"]):
+        rows.append([a["pattern"], f"**{mm(a['tcd']['ade_mm'])}**", mm(b["tcd"]["ade_mm"]), mm(a["linear"]["ade_mm"]),
+                     mm(a["spline"]["ade_mm"]), ratio(a["tcd_over_linear"]), ratio(a["tcd_over_spline"])])
+    caption = (f"**Human3.6M, repair** against interpolation (`benches/repair_quality.py`): mm, the mean error over "
+               f"the hidden entries; S5, {count(fill['windows'])} windows of "
+               f"{fill['window_frames']} frames per pattern, the bundled model. tcd `repair` by default returns its "
+               f"repair fill (deterministic); `num_samples={diff['samples']}` averages that many diffusion samples "
+               f"({diff['sampler'].upper()}-{diff['steps']}) around it.")
+    return caption + "\n\n" + table(
+        ["hidden", "**tcd `repair`** (default)", f"tcd, mean of {diff['samples']} samples", "linear interpolation",
+         "natural cubic spline", "÷ linear", "÷ spline"], rows)
+
+
+def repair_dataset(src: Sources) -> str:
+    """`tcd repair` on whole recordings (benches/repair_dataset.py): throughput and error."""
+    runs = [("repair_dataset_fill_alone.json", "the default (the repair fill)"),
+            ("repair_dataset_ddpm10x5.json", None)]
+    rows, first = [], None
+    for name, label in runs:
+        d = src.json(name)
+        pv = d["provenance"]
+        src.bundled(name, pv.get("model_sha256"), H36M_DIR)
+        first = first or d
+        label = label or f"`--samples {pv['num_samples']} --steps {pv['steps']}`"
+        rows.append([label, count(d["frames_per_second"]), mm(d["ade_mm"]["tcd"]), mm(d["ade_mm"]["linear"]),
+                     mm(d["ade_mm"]["spline"])])
+    caption = (f"**Whole recordings** (`benches/repair_dataset.py`): `tcd repair` on {first['files']} occluded "
+               f"recordings ({count(first['frames'])} frames at "
+               f"{first['fps']} fps, {round(100 * first['hidden_fraction'])} % of the entries hidden) on "
+               f"{first['cores']} cores; ADE in mm over the hidden entries.")
+    return caption + "\n\n" + table(["`tcd repair`", "frames / s", "ADE tcd", "linear", "spline"], rows)
+
+
+PEERS = {"tcd": "tcd", "torch": "PyTorch eager", "ort": "ONNX Runtime", "openvino": "OpenVINO"}
+
+
+def speed_peers(src: Sources) -> str:
+    """One full-size denoiser forward: tcd against PyTorch, ONNX Runtime and OpenVINO (benches/peers.py)."""
+    d = src.json("peers.json")
+    rows = d["rows"]
+    body = []
+    for p, name in PEERS.items():
+        cells = []
+        for r in rows:
+            v = r["ms"].get(p)
+            x = r.get("peer_over_tcd", {}).get(p)
+            cells.append(NONE if v is None else f"{v:.1f}" + ("" if x is None else f" ({ratio(x)} ×)"))
+        body.append([name] + cells)
+    v = d["versions"]
+    caption = (f"**Speed against peers** (`benches/peers.py`): ms per forward of the paper's full-size denoiser "
+               f"(random weights, {rows[0]['K']} features), "
+               f"median of {rows[0]['reps']} interleaved runs on a {v['cores']}-core {v['cpu']} CPU "
+               f"({', '.join(v.get('cpu_simd_flags', []))}); in brackets, the peer's time over tcd's. Every peer's "
+               f"output is checked against PyTorch's.")
+    return caption + "\n\n" + table(["ms per forward"] + [f"{r['L']} frames, {r['threads']} thr." for r in rows], body)
+
+
+def speed_whole(src: Sources) -> str:
+    """A whole forecast of the paper's full-size model through tcd (benches/peers.py --whole-forecast)."""
+    wf = src.json("whole_forecast_tcd.json")["whole_forecast"]
+    return table(["a whole full-size forecast, tcd", "seconds", "peak memory"],
+                 [["DDPM-50 × 5 samples (the paper's sampler)", secs(wf["ddpm50_x5"]["seconds"]),
+                   f"{wf['ddpm50_x5']['peak_rss_mib']:.0f} MiB"],
+                  ["DDIM-10 × 1 sample", secs(wf["ddim10_x1"]["seconds"]),
+                   f"{wf['ddim10_x1']['peak_rss_mib']:.0f} MiB"]])
+
+
+def speed_bundled(src: Sources) -> str:
+    """What the bundled models cost per call (benches/steps.py, benches/prior_speed.py, benches/repair_dataset.py)."""
+    st = src.json("steps_ddim1_centred.json")
+    src.bundled("steps_ddim1_centred.json", st["protocol"].get("model_sha256"), H36M_DIR)
+    sampling = src.repo_json(f"{H36M_DIR}/sampling.json")["forecast"]
+    default = [r for r in st["results"] if r["sampler"] == sampling["sampler"] and r["steps"] ==
+               sampling["num_inference_steps"] and r.get("noise_coupling") == sampling.get("noise_coupling")]
+    if not default:
+        raise ReportError(f"results file {src.results / 'steps_ddim1_centred.json'} has no run of the bundled "
+                          f"default sampler {sampling}")
+    r = default[0]
+    ps = src.json("prior_speed.json")
+    one = next(x for x in ps["rows"] if x["batch"] == 1 and x["threads"] == 1)
+    big = next(x for x in ps["rows"] if x["batch"] == 1000 and x["threads"] == 1)
+    rd = src.json("repair_dataset_fill_alone.json")
+    src.bundled("repair_dataset_fill_alone.json", rd["provenance"].get("model_sha256"), H36M_DIR)
+    rows = [[f"`forecast`, {st['protocol']['samples']} samples, the default sampler "
+             f"({r['sampler'].upper()}-{r['steps']})", secs(r["latency_s"]["median"]), NONE,
+             f"{st['protocol']['cpu_count']} cores"],
+            ["`predict`, one window", ms(one["median_s"]["tcd"]), ms(one["median_s"]["torch"]), "1 thread"],
+            [f"`predict`, {count(big['batch'])} windows", secs(big["median_s"]["tcd"]),
+             secs(big["median_s"]["torch"]), "1 thread"],
+            ["`tcd repair`, the default", f"{count(rd['frames_per_second'])} frames / s", NONE,
+             f"{rd['cores']} cores"]]
+    return ("**What a call costs** (`benches/steps.py`, `benches/prior_speed.py`, `benches/repair_dataset.py`):\n\n"
+            + table(["the bundled Human3.6M model", "tcd", "PyTorch eager", "on"], rows))
+
+
+def _params(header: dict, prefix: str | None = None) -> int:
+    return sum(math.prod(v["shape"]) for k, v in header.items() if prefix is None or k.startswith(prefix))
+
+
+def _network(cfg: dict) -> str:
+    m, role = cfg.get("model", {}), cfg.get("role")
+    if role in ("short", "long", "repair"):
+        pred = "x0" if cfg.get("diffusion", {}).get("prediction_type") == "sample" else "ε"
+        return (f"transformer denoiser, {m['num_layers']} layers × {m['channels']} channels, {m['num_heads']} heads; "
+                f"{cfg['diffusion']['num_train_timesteps']} diffusion steps, {pred}-prediction")
+    if role == "generator":
+        return f"MLP, {m['layers']} layers × {m['hidden']}, latent {m['z_dim']}"
+    return f"MLP (siMLPe-class), {m['blocks']} blocks"
+
+
+def _predicts(cfg: dict) -> str:
+    m, role, w = cfg.get("model", {}), cfg.get("role"), cfg.get("window", {})
+    if role == "short":
+        return f"{w['obs_len']} frames → the next {w['pred_len']}"
+    if role == "long":
+        return f"{w['obs_len']} frames → the next {w['pred_len']}"
+    if role == "repair":
+        return f"the missing entries of {w['seq_len']} frames"
+    if role == "generator":
+        return f"{m['obs_len']} frames → {m['pred_len']} (one sample per noise draw)"
+    if m.get("anchor") == "window":
+        return f"the missing entries of {m['obs_len']} frames (the repair fill)"
+    return f"{m['obs_len']} frames → {m['chunk']} (rolled out to the horizon; a point forecast)"
+
+
+def model_details(src: Sources) -> str:
+    """Each bundled weight file: its network, its size (parameters, from the safetensors) and what it predicts."""
+    rows = []
+    for d in (H36M_DIR, HUMANEVA_DIR):
+        names = list(src.repo_json(f"{d}/model.json"))
+        total = 0
+        for role in names:
+            f = f"{d}/{role}.safetensors"
+            header, cfg = src.safetensors(f)
+            n = _params(header)
+            extra = ""
+            kernels = _params(header, "inbetween_") + _params(header, "joint_inbetween_")
+            if kernels:
+                extra = f" (of which {count(kernels)} in the in-betweeners' kernels)"
+            total += n
+            rows.append([f"`{f.removeprefix('python/tcd/')}`", _network(cfg), count(n) + extra, _predicts(cfg)])
+        rows.append([f"`{d.removeprefix('python/tcd/')}/` in all", "", f"**{count(total)}**", ""])
+    return ("Files under `python/tcd/`; parameters counted from their safetensors headers.\n\n"
+            + table(["file", "network", "parameters", "predicts"], rows))
+
+
+def training_data(src: Sources) -> str:
+    """What each bundled directory was trained on and the licence its weights inherit (their metadata)."""
+    rows = []
+    for d in (H36M_DIR, HUMANEVA_DIR):
+        seen: dict[tuple, list] = {}
+        for role in src.repo_json(f"{d}/model.json"):
+            _, cfg = src.safetensors(f"{d}/{role}.safetensors")
+            data = cfg.get("data", {})
+            seen.setdefault((data.get("training_data"), data.get("licence")), []).append(role)
+        for (what, licence), roles in seen.items():
+            rows.append([f"`{d.removeprefix('python/tcd/')}/`: {', '.join(roles)}", what or NONE, licence or NONE])
+    return table(["weights", "trained on", "licence (inherited from the data)"], rows)
+
+
+def convention(src: Sources) -> str:
+    """The input / output convention of each bundled directory (its model.json)."""
+    rows = []
+    for d, up in ((H36M_DIR, "y"), (HUMANEVA_DIR, None)):
+        m = src.repo_json(f"{d}/model.json")
+        data = m["prior"]["data"]
+        short, long_ = m["short"]["window"], m["long"]["window"]
+        rows.append([f"`{d.removeprefix('python/tcd/')}`", f"{len(data['joint_names'])}: "
+                     + ", ".join(data["joint_names"]), f"{data['fps']:g} fps", data["units"],
+                     "yes" if data.get("root_relative") else "no", f"+{data.get('up', up)}",
+                     f"{short['obs_len']} → {long_['seq_len'] - short['obs_len']}"])
+    return table(["model", "joints, in order", "rate", "units", "root-relative", "up", "frames observed → forecast"],
+                 rows)
+
+
+def recipes_cost(src: Sources) -> str:
+    """The training cost of each bundled file, from its recipe's results (``python -m training.recipe NAME`` writes
+    benches/results/recipes/NAME.json). Nothing while no recipe has run to its end."""
+    found = src.glob("recipes/*.json")
+    if not found:
+        return ""
+    rows, total = [], 0.0
+    for name, d in found:
+        cpus = sorted({c for s in d.get("stages", []) for c in s.get("cpus", [])})
+        files = ", ".join(f"`{f}`" + ("" if v.get("identical") else " (not the bundled bytes)")
+                          for f, v in d.get("files", {}).items())
+        rows.append([f"[{name}](training/recipes/{name}.json)", files, hours(d.get("cpu_hours")),
+                     hours(d.get("scoring_cpu_hours")), count(d.get("windows")), "; ".join(cpus) or NONE])
+        total += d.get("cpu_hours") or 0.0
+    rows.append(["in all", "", f"**{hours(total)}**", "", "", ""])
+    return table(["recipe", "produces", "CPU-hours (training)", "CPU-hours (scoring)", "windows", "CPU"], rows)
+
+
+def _sampler(s: dict) -> str:
+    text = f"{s['sampler'].upper()}, {count(s['num_inference_steps'])} step" + ("s" if s["num_inference_steps"] != 1
+                                                                                else "")
+    if s.get("noise_coupling") == "centered":
+        text += ", from centred noise"
+    return text
+
+
+def h36m_sampler(src: Sources) -> str:
+    """Inline: the bundled Human3.6M model's default forecast sampler (its sampling.json)."""
+    return _sampler(src.repo_json(f"{H36M_DIR}/sampling.json")["forecast"])
+
+
+def h36m_repair_sampler(src: Sources) -> str:
+    """Inline: the sampler of a bundled Human3.6M repair asked for diffusion samples (its sampling.json)."""
+    return _sampler(src.repo_json(f"{H36M_DIR}/sampling.json")["repair"])
+
+
+def humaneva_sampler(src: Sources) -> str:
+    """Inline: the bundled HumanEva-I model's default forecast: its sampler and the generator's share."""
+    s = src.repo_json(f"{HUMANEVA_DIR}/sampling.json")
+    return f"{_sampler(s['forecast'])}; `generator_share={s.get('forecast_generator_share', 0):g}`"
+
+
+# ------------------------------------------------------------------------------------------ registration
+# NAME -> generator. One line per block name; a generator may serve several blocks in several files.
+
+GENERATORS: dict[str, Callable[[Sources], str]] = {
+    # README.md and MODEL_CARD.md
+    "h36m-forecast": h36m_forecast,
+    "h36m-imperfect": h36m_imperfect,
+    "h36m-repair": h36m_repair,
+    "repair-dataset": repair_dataset,
+    "humaneva-forecast": humaneva_forecast,
+    "humaneva-per-action": humaneva_per_action,
+    "speed-peers": speed_peers,
+    "speed-whole": speed_whole,
+    "speed-bundled": speed_bundled,
+    "model-details": model_details,
+    "training-data": training_data,
+    "convention": convention,
+    "recipes-cost": recipes_cost,
+    "h36m-sampler": h36m_sampler,
+    "h36m-repair-sampler": h36m_repair_sampler,
+    "humaneva-sampler": humaneva_sampler,
+    # docs/*.md: add yours here, one line each
+}
+
+
+# ------------------------------------------------------------------------------------------ blocks
+
+
+START = re.compile(r"<!-- report:([A-Za-z0-9_.-]+) -->")
+ANY_END = re.compile(r"<!-- /report:([A-Za-z0-9_.-]+) -->")
+
+
+@dataclass
+class Block:
+    name: str
+    line: int          # 1-based line of the opening comment
+    start: int         # offsets of the body (between the comments)
+    end: int
+    inline: bool
+
+
+def find_blocks(text: str, where: str) -> list[Block]:
+    """The generated blocks of a Markdown text, in order; a broken one is a ReportError naming ``where``:line."""
+    blocks, pos = [], 0
+    while True:
+        m = START.search(text, pos)
+        stray = ANY_END.search(text, pos, m.start() if m else len(text))
+        if stray:
+            raise ReportError(f"{where}:{text.count(chr(10), 0, stray.start()) + 1}: "
+                              f"{stray.group(0)} closes no block")
+        if not m:
+            return blocks
+        name, line = m.group(1), text.count("\n", 0, m.start()) + 1
+        close = f"<!-- /report:{name} -->"
+        end = text.find(close, m.end())
+        nested = START.search(text, m.end(), end if end >= 0 else len(text))
+        if end < 0 or nested:
+            raise ReportError(f"{where}:{line}: block {name!r} is not closed by {close} before the next block")
+        body = text[m.end():end]
+        inline = "\n" not in body
+        if not inline and not (body.startswith("\n") and body.endswith("\n")):
+            raise ReportError(f"{where}:{line}: block {name!r}: put each of its comments on a line of its own, or "
+                              "the whole block within one line")
+        blocks.append(Block(name, line, m.end(), end, inline))
+        pos = end + len(close)
+
+
+def render(text: str, where: str, src: Sources, cache: dict | None = None) -> tuple[str, list[tuple[Block, str]]]:
+    """``text`` with every block regenerated, and the blocks whose body changed (with the new body)."""
+    cache = {} if cache is None else cache
+    out, last, changed = [], 0, []
+    for b in find_blocks(text, where):
+        if b.name not in GENERATORS:
+            raise ReportError(f"{where}:{b.line}: unknown block {b.name!r}; the blocks: {', '.join(GENERATORS)}")
+        if b.name not in cache:
+            try:
+                cache[b.name] = GENERATORS[b.name](src).strip("\n")
+            except ReportError as e:
+                raise ReportError(f"{where}:{b.line}: block {b.name!r}: {e}") from None
+        content = cache[b.name]
+        if b.inline:
+            if "\n" in content:
+                raise ReportError(f"{where}:{b.line}: block {b.name!r} is inline but its generator writes lines")
+            body = content
+        else:
+            body = "\n" + content + "\n" if content else "\n"
+        if text[b.start:b.end] != body:
+            changed.append((b, body))
+        out += [text[last:b.start], body]
+        last = b.end
+    out.append(text[last:])
+    return "".join(out), changed
+
+
+def default_files(root: Path = ROOT) -> list[Path]:
+    files = []
+    for pattern in DEFAULT_FILES:
+        files += sorted(Path(p) for p in glob.glob(str(root / pattern), recursive=True))
+    return [f for f in files if f.is_file()]
+
+
+def _name(path: Path) -> str:
+    try:
+        return str(path.resolve().relative_to(ROOT))
+    except ValueError:
+        return str(path)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m benches.report", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    what = ap.add_mutually_exclusive_group(required=True)
+    what.add_argument("--write", action="store_true", help="rewrite every generated block")
+    what.add_argument("--check", action="store_true", help="exit 1 where a block differs from what --write writes")
+    what.add_argument("--list", action="store_true", help="the block names and the files each reads")
+    what.add_argument("--show", metavar="NAME", help="print block NAME's Markdown")
+    ap.add_argument("files", nargs="*", type=Path, help="Markdown files (default: README.md, MODEL_CARD.md, "
+                                                        "docs/**/*.md)")
+    ap.add_argument("--results", type=Path, default=RESULTS, help="the results folder (default benches/results)")
+    args = ap.parse_args(argv)
+    try:
+        if args.list or args.show:
+            names = [args.show] if args.show else list(GENERATORS)
+            for name in names:
+                if name not in GENERATORS:
+                    raise ReportError(f"unknown block {name!r}; the blocks: {', '.join(GENERATORS)}")
+                src = Sources(args.results)
+                md = GENERATORS[name](src)
+                if args.show:
+                    print(md)
+                else:
+                    reads = sorted({_name(Path(p)) for p in src.read})
+                    print(f"{name}: {(GENERATORS[name].__doc__ or '').strip().splitlines()[0]}\n    reads "
+                          + ", ".join(reads))
+            return 0
+        src, cache = Sources(args.results), {}
+        files = args.files or default_files()
+        differ = 0
+        for f in files:
+            if not f.is_file():
+                raise ReportError(f"no such file {f}")
+            text = f.read_text()
+            new, changed = render(text, _name(f), src, cache)
+            if args.check:
+                for b, body in changed:
+                    differ += 1
+                    old = text[b.start:b.end]
+                    for line in difflib.unified_diff(
+                            old.strip("\n").splitlines(), body.strip("\n").splitlines(),
+                            f"{_name(f)}:{b.line} {b.name} (as written)",
+                            f"{_name(f)}:{b.line} {b.name} (as generated)", lineterm=""):
+                        print(line)
+            elif new != text:
+                f.write_text(new)
+                print(f"{_name(f)}: {len(changed)} block(s) rewritten: {', '.join(b.name for b, _ in changed)}")
+        if args.check and differ:
+            print(f"benches.report: {differ} block(s) differ from the results files; "
+                  "python -m benches.report --write rewrites them", file=sys.stderr)
+            return 1
+        return 0
+    except ReportError as e:
+        print(f"benches.report: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
