@@ -509,29 +509,34 @@ class Runner:
 
     # carrying an unfinished run between machines --------------------------------------------------------
     def carry(self) -> Path:
-        """The finished stages' records and the running trainer stage's last.pt into training/checkpoints/NAME/."""
+        """The finished stages' records, the last finished stage's weights (what the next stage starts from) and
+        the running trainer stage's last.pt into training/checkpoints/NAME/."""
         dest = CARRIED / self.recipe.name
         if dest.exists():
             shutil.rmtree(dest)
         dest.mkdir(parents=True)
-        state = {}
+        state, last_done = {}, None
         for s in self.recipe.stages + self.recipe.evaluate:
             sdir = self.dir / s.name
             if (sdir / "done.json").is_file():
                 state[s.name] = {"done": json.loads((sdir / "done.json").read_text())}
+                last_done = sdir
                 continue
             if (sdir / "cost.json").is_file():
                 state[s.name] = {"cost": json.loads((sdir / "cost.json").read_text())}
             if (sdir / LAST).is_file():
-                shutil.copy2(sdir / LAST, dest / f"{s.name}.last.pt")
+                shutil.copy2(sdir / LAST, dest / f"{s.name}.{LAST}")
             break
+        if last_done is not None:
+            for f in sorted(last_done.glob("*.pt")):
+                shutil.copy2(f, dest / f"{last_done.name}.{f.name}")
         (dest / "state.json").write_text(json.dumps(state, indent=1) + "\n")
         return dest
 
     def restore_carried(self):
-        """Start from a carried run (training/checkpoints/NAME/) when this run directory has no stage yet. The
-        carried stages' own outputs are not carried: a later stage that reads one (a warm start from a stage before
-        the running one) needs the run directory itself."""
+        """Start from a carried run (training/checkpoints/NAME/) when this run directory has no stage yet. Only the
+        last finished stage's weights are carried: a later stage that reads an earlier one's (a warm start from
+        further back) needs the run directory itself."""
         src = CARRIED / self.recipe.name
         if not (src / "state.json").is_file() or any((self.dir / s.name).exists() for s in self.recipe.stages):
             return
@@ -542,8 +547,8 @@ class Runner:
                 (sdir / "done.json").write_text(json.dumps(st["done"], indent=1) + "\n")
             if "cost" in st:
                 (sdir / "cost.json").write_text(json.dumps(st["cost"], indent=1))
-            if (src / f"{name}.last.pt").is_file():
-                shutil.copy2(src / f"{name}.last.pt", sdir / LAST)
+            for f in src.glob(f"{name}.*.pt"):
+                shutil.copy2(f, sdir / f.name[len(name) + 1 :])
         self.log(f"[{self.recipe.name}] restored the carried run from {src}")
 
 

@@ -1,0 +1,211 @@
+"""The recipe runner (training.recipe): every bundled weight file has a recipe, recipes load and are refused when
+malformed, a run resumes where it stopped and records what each stage cost, and every recipe's stages wire up (a
+smoke run of a few steps each, on the real data)."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from conftest import DATA, ROOT
+
+from training import recipe as R
+
+BUNDLED = sorted(str(p.relative_to(R.PACKAGE)) for p in R.PACKAGE.glob("weights*/*.safetensors"))
+
+
+def test_every_bundled_weight_file_has_exactly_one_recipe():
+    recipes = R.all_recipes()
+    produced = [p for r in recipes.values() for p in r.produces]
+    assert sorted(set(produced)) == sorted(produced), "a file is produced by two recipes"
+    missing = sorted(set(BUNDLED) - set(produced))
+    assert not missing, f"bundled files without a recipe: {missing}"
+
+
+def test_list_names_every_bundled_file():
+    out = subprocess.run(
+        [sys.executable, "-m", "training.recipe", "--list"], cwd=ROOT, capture_output=True, text=True, check=True
+    ).stdout
+    for path in BUNDLED:
+        assert path in out
+
+
+def test_recipes_name_only_stages_inputs_and_results_that_exist():
+    recipes = R.all_recipes()
+    for r in recipes.values():
+        for need in r.needs:
+            if need.endswith(".safetensors"):
+                R.producer(need, recipes)  # raises when no recipe produces it
+            else:
+                assert (R.PACKAGE / need).is_file(), f"{r.name} needs {need}, which is not shipped"
+        for c in r.compare:
+            assert (ROOT / c["bundled"]).is_file(), f"{r.name}: compares against missing {c['bundled']}"
+        assert r.cost.get("cpu_hours"), f"{r.name}: say what a run from scratch costs"
+
+
+# ------------------------------------------------------------------------------------------ a recipe of its own
+
+
+def write_recipe(tmp_path: Path, stages: list, produces=("weights_test/a.json",), **extra) -> R.Recipe:
+    d = {
+        "name": "toy",
+        "description": "a toy",
+        "produces": list(produces),
+        "stages": stages,
+        "cost": {"cpu_hours": 0.001},
+        **extra,
+    }
+    p = tmp_path / "toy.json"
+    p.write_text(json.dumps(d))
+    return R.Recipe.load(p)
+
+
+def copy_stage(name, src, dst):
+    """A module stage that writes ``dst`` from the JSON file ``src`` (python -m json.tool)."""
+    return {"name": name, "run": "module", "module": "json.tool", "args": [src, dst]}
+
+
+def test_a_run_writes_its_files_records_each_stage_and_resumes(tmp_path, monkeypatch):
+    monkeypatch.setattr(R, "RESULTS", tmp_path / "results")
+    src = tmp_path / "src.json"
+    src.write_text('{"x": 1}')
+    rec = write_recipe(
+        tmp_path,
+        [
+            copy_stage("one", str(src), "{stage:one}/a.json"),
+            copy_stage("two", "{stage:one}/a.json", "{out}/weights_test/a.json"),
+        ],
+    )
+    logs = []
+    result = R.Runner(rec, tmp_path / "run", log=logs.append).run()
+    assert json.loads((tmp_path / "run" / "out" / "weights_test" / "a.json").read_text()) == {"x": 1}
+    assert [s["stage"] for s in result["stages"]] == ["one", "two"]
+    assert all(s["attempts"] == 1 and s["cpu_hours"] >= 0 for s in result["stages"])
+    assert result["files"]["weights_test/a.json"]["bundled_sha256"] is None
+    assert json.loads((tmp_path / "results" / "toy.json").read_text())["recipe"] == "toy"
+    logs.clear()
+    R.Runner(rec, tmp_path / "run", log=logs.append).run()
+    assert sum("done before, skipped" in m for m in logs) == 2
+
+
+def test_a_failed_stage_stops_the_run_and_runs_again_next_time(tmp_path, monkeypatch):
+    monkeypatch.setattr(R, "RESULTS", tmp_path / "results")
+    src = tmp_path / "src.json"
+    rec = write_recipe(tmp_path, [copy_stage("one", str(src), "{out}/weights_test/a.json")])
+    with pytest.raises(R.RecipeError, match="stage one failed"):
+        R.Runner(rec, tmp_path / "run", log=lambda m: None).run()
+    assert not (tmp_path / "run" / "one" / "done.json").exists()
+    src.write_text("[1]")
+    result = R.Runner(rec, tmp_path / "run", log=lambda m: None).run()
+    assert result["stages"][0]["attempts"] == 2
+
+
+def test_malformed_recipes_are_refused_naming_the_problem(tmp_path):
+    ok = copy_stage("one", "a", "b")
+    with pytest.raises(R.RecipeError, match="unknown stage keys"):
+        write_recipe(tmp_path, [{**ok, "stpes": 3}])
+    with pytest.raises(R.RecipeError, match="no earlier stage"):
+        write_recipe(
+            tmp_path,
+            [
+                {"name": "a", "run": "prior", "config": {"iterations": 2}, "from": "b"},
+                {"name": "b", "run": "prior", "config": {"iterations": 2}},
+            ],
+        )
+    with pytest.raises(R.RecipeError, match="not config.init_from"):
+        write_recipe(tmp_path, [{"name": "a", "run": "prior", "config": {"init_from": "x.pt"}}])
+    with pytest.raises(R.RecipeError, match="'run' must be one of"):
+        write_recipe(tmp_path, [{"name": "a", "run": "shell", "module": "x"}])
+    with pytest.raises(R.RecipeError, match="stage names repeat"):
+        write_recipe(tmp_path, [ok, ok])
+    p = tmp_path / "other.json"
+    p.write_text(json.dumps({"name": "toy", "description": "d", "produces": ["x"], "stages": [ok]}))
+    with pytest.raises(R.RecipeError, match="is not its file's"):
+        R.Recipe.load(p)
+
+
+def test_placeholders_resolve_and_unknown_ones_are_refused(tmp_path):
+    rec = write_recipe(tmp_path, [copy_stage("one", "a", "b")], needs=["weights/prior.safetensors"])
+    run = R.Runner(rec, tmp_path / "run", threads=3)
+    assert run.resolve(["{stage:one}/x", "{threads}", "{input:weights/prior.safetensors}"]) == [
+        str(tmp_path / "run" / "one" / "x"),
+        "3",
+        str(R.PACKAGE / "weights" / "prior.safetensors"),
+    ]
+    with pytest.raises(R.RecipeError, match="unknown placeholder"):
+        run.resolve("{nope}")
+    with pytest.raises(R.RecipeError, match="not in its 'needs'"):
+        run.resolve("{input:weights/long.safetensors}")
+
+
+def test_a_trainer_stage_warm_starts_from_the_stage_it_names(tmp_path):
+    rec = write_recipe(
+        tmp_path,
+        [
+            {"name": "a", "run": "prior", "config": {"iterations": 5}},
+            {"name": "b", "run": "prior", "config": {"iterations": 5}, "from": "a/best.pt"},
+        ],
+    )
+    run = R.Runner(rec, tmp_path / "run")
+    assert run.stage_config(rec.stages[1])["init_from"] == str(tmp_path / "run" / "a" / "best.pt")
+    assert "init_from" not in run.stage_config(rec.stages[0])
+    assert rec.stages[1].windows() == 5 * 256
+    smoke = R.Runner(rec, tmp_path / "run", smoke=True).stage_config(rec.stages[0])
+    assert smoke["iterations"] == 2
+
+
+def test_the_trainers_progress_lines_are_read():
+    assert R.parse_progress("epoch 3 batch 200/400 loss 0.0312 lr 1.0e-03 55s") == {"step": 1400, "loss": 0.0312}
+    assert R.parse_progress("iteration 300/4000: loss 0.04512, 12.0 it/s") == {
+        "step": 300,
+        "total": 4000,
+        "loss": 0.04512,
+    }
+    assert R.parse_progress("step 120 (5.0 min): loss 0.1234; ADE 0.2") == {"step": 120, "loss": 0.1234}
+    assert R.parse_progress("loaded 2612 windows") is None
+
+
+def test_an_unfinished_run_is_carried_and_restored(tmp_path, monkeypatch):
+    monkeypatch.setattr(R, "CARRIED", tmp_path / "carried")
+    rec = write_recipe(
+        tmp_path,
+        [copy_stage("one", "a", "b"), {"name": "two", "run": "prior", "config": {"iterations": 5}, "from": "one"}],
+    )
+    run_dir = tmp_path / "run"
+    (run_dir / "one").mkdir(parents=True)
+    (run_dir / "one" / "done.json").write_text(json.dumps({"stage": "one", "cpu_hours": 0.5}))
+    (run_dir / "one" / "best.pt").write_bytes(b"weights")
+    (run_dir / "two").mkdir()
+    (run_dir / "two" / "last.pt").write_bytes(b"state")
+    (run_dir / "two" / "cost.json").write_text(json.dumps([{"cpu_s": 7.0}]))
+    dest = R.Runner(rec, run_dir).carry()
+    assert sorted(p.name for p in dest.iterdir()) == ["one.best.pt", "state.json", "two.last.pt"]
+    fresh = tmp_path / "fresh"
+    R.Runner(rec, fresh, log=lambda m: None).restore_carried()
+    assert (fresh / "two" / "last.pt").read_bytes() == b"state"
+    assert (fresh / "one" / "best.pt").read_bytes() == b"weights"
+    assert json.loads((fresh / "one" / "done.json").read_text())["cpu_hours"] == 0.5
+
+
+# ------------------------------------------------------------------------------------------ every recipe, smoked
+
+
+@pytest.mark.slow
+@pytest.mark.data
+@pytest.mark.parametrize("name", sorted(p.stem for p in R.RECIPES.glob("*.json")))
+def test_every_recipe_smoke_runs(name, tmp_path):
+    pytest.importorskip("torch", reason="the trainers need torch")
+    for d in ("h36m", "humaneva"):
+        if not (DATA / d).exists():
+            pytest.skip(f"{DATA / d} is absent")
+    r = subprocess.run(
+        [sys.executable, "-m", "training.recipe", name, "--smoke", "--run-dir", str(tmp_path), "--data", str(DATA)],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+    )
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    result = json.loads((tmp_path / "result.json").read_text())
+    assert sorted(result["files"]) == sorted(R.all_recipes()[name].produces)
