@@ -238,6 +238,13 @@ def main(argv=None) -> int:
         ``masks`` (default: the run's generator)."""
         to = [t if t is not None else 0 for t in layouts.LAYOUTS[layout].to32]
         short = int(round(0.8 * fps))
+
+        def at(a):                                                  # the root
+            return a[:, :, list(root)].mean(axis=2, keepdims=True)
+
+        def rel(a):                                                 # the root subtracted
+            return a - at(a)
+
         c = conversion.setdefault(label, {"windows": 0})
         for k, v in conversion_offset_mm(x, layout, up, fps, joints).items():
             c[k] = c.get(k, 0.0) + v * len(x)
@@ -254,8 +261,6 @@ def main(argv=None) -> int:
             pred = f.mean[:, every - 1::every][:, :gt.shape[1]]
             last = np.repeat(last_observed(xin)[:, None], gt.shape[1], axis=1)   # Zero-Velocity, the same input
             name = label + (f", {variant}" if variant else "")
-            at = lambda a: a[:, :, list(root)].mean(axis=2, keepdims=True)   # noqa: E731  the root
-            rel = lambda a: a - at(a)                               # noqa: E731  the root subtracted
             add(name, "root-relative", mpjpe_mm(rel(pred)[:, :, joints], rel(gt)[:, :, joints]),
                 mpjpe_mm(rel(last)[:, :, joints], rel(gt)[:, :, joints]))
             add(name, "world", mpjpe_mm(pred[:, :, joints], gt[:, :, joints]),

@@ -486,7 +486,7 @@ def test_sampler_settings_have_one_form(tiny_model, obs, tmp_path):
         "repair_file": lambda **k: tcd.repair_file(tmp_path / "in.npz", tmp_path / "out.npz", tiny_model, **k),
         "demo.run": lambda **k: demo.run(tiny_model, quiet=True, **k),
     }
-    for name, call in calls.items():
+    for call in calls.values():                  # the keys name the calls for a reader
         for key, value in (("options", tcd.SamplerOptions()), ("num_steps", 3)):
             with pytest.raises(TypeError, match=re.escape(f"{key!r} (sampler settings: {SAMPLER_SETTINGS})")):
                 call(**{key: value})

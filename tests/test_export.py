@@ -21,7 +21,7 @@ def test_random_init_dir_is_complete_and_non_trivial(tmp_path):
     d = random_init_dir(tmp_path / "m", preset="tiny", seed=0)
     models = load_model_dir(d)
     assert set(models) == {"short", "long"}
-    for role, (model, sched, cfg) in models.items():
+    for role, (model, _sched, cfg) in models.items():
         assert cfg["role"] == role and cfg["format_version"] == 1
         assert cfg["window"]["seq_len"] == cfg["window"]["obs_len"] + cfg["window"]["pred_len"]
         assert len(cfg["diffusion"]["betas"]) == 50 and cfg["diffusion"]["beta_schedule"] == "cosine"

@@ -16,7 +16,11 @@ from tcd.tempo import check_tempo, tempi, tempo_forecast, unwarp_future, unwarp_
 K, T, H = 6, 15, 20
 
 
-def linear(b: int, frames: np.ndarray, rng=np.random.default_rng(0)):
+#: linear()'s default generator: one for the module, so successive calls draw different motions
+_LINEAR_RNG = np.random.default_rng(0)
+
+
+def linear(b: int, frames: np.ndarray, rng: np.random.Generator = _LINEAR_RNG):
     """(b, K, len(frames)) motion linear in time, each coordinate its own start and velocity."""
     start, vel = rng.normal(size=(b, K, 1)), rng.normal(size=(b, K, 1))
     return start + vel * frames, start, vel

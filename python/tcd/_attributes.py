@@ -11,10 +11,19 @@ from __future__ import annotations
 
 import json
 import os
-from typing import Any, ClassVar, Dict, Generic, Optional, Type, TypeVar, Union, overload
+from typing import Any, ClassVar, Dict, Generic, Optional, Protocol, Type, TypeVar, Union, overload
 
 T = TypeVar("T")
-N = TypeVar("N")
+
+
+class _NativeFile(Protocol):
+    """What :class:`NativeModel` reads of its native object itself (the rest through :class:`NativeAttribute`)."""
+
+    @property
+    def config_json(self) -> str: ...
+
+
+N = TypeVar("N", bound=_NativeFile)
 M = TypeVar("M", bound="NativeModel[Any]")
 
 PathLike = Union[str, "os.PathLike[str]"]
@@ -62,7 +71,7 @@ class NativeModel(Generic[N]):
             name = type(self).__name__
             raise TypeError(f"use {name}.load(path) or {name}.from_bytes(data)")
         self._native: N = native
-        self._config: Dict[str, Any] = json.loads(getattr(native, "config_json"))
+        self._config: Dict[str, Any] = json.loads(native.config_json)
 
     @classmethod
     def _load(cls: Type[M], path: PathLike) -> M:
