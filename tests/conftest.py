@@ -23,7 +23,7 @@ sys.path.insert(0, str(ROOT))
 DATA = Path(os.environ.get("TCD_DATA_DIR", ROOT.parent / "shared" / "data"))
 H36M_DIR = DATA / "h36m"
 FIXTURES = ROOT / "tests" / "fixtures"
-TORCH_HINT = "the training stack, a dev dependency: pip install '.[dev]'"
+TORCH_HINT = "the PyTorch reference and the training stack: pip install '.[reference]' (or '.[dev]')"
 
 
 def import_torch(what: str):
