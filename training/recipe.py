@@ -76,12 +76,13 @@ class Stage:
     args: list = field(default_factory=list)
     smoke: dict = field(default_factory=dict)  # a module stage's "--flag": value replacements for --smoke
     budget: dict = field(default_factory=dict)  # a module stage's {"steps", "windows"} (a trainer's are its config's)
+    stop_after: int = 0  # a training.train stage whose weights were taken part-way through its schedule
     gpu: str = ""  # a stage that needs a GPU says so, and for how long on which one
     note: str = ""
 
     @classmethod
     def from_dict(cls, d: dict, where: str) -> "Stage":
-        known = {"name", "run", "config", "from", "module", "args", "smoke", "budget", "gpu", "note"}
+        known = {"name", "run", "config", "from", "module", "args", "smoke", "budget", "stop_after", "gpu", "note"}
         unknown = set(d) - known
         if unknown:
             raise RecipeError(f"{where}: unknown stage keys {sorted(unknown)}")
@@ -96,12 +97,15 @@ class Stage:
             args=list(d.get("args", [])),
             smoke=d.get("smoke", {}),
             budget=d.get("budget", {}),
+            stop_after=int(d.get("stop_after", 0)),
             gpu=d.get("gpu", ""),
             note=d.get("note", ""),
         )
         if s.run in TRAINERS:
             if not s.config or s.module or s.args:
                 raise RecipeError(f"{where}: a {s.run!r} stage has a 'config' and no 'module' or 'args'")
+            if s.stop_after and s.run != "train":
+                raise RecipeError(f"{where}: stop_after is a training.train stage's")
             if "init_from" in s.config:
                 raise RecipeError(f"{where}: name the warm start with the stage's 'from', not config.init_from")
         elif s.run == "module":
@@ -127,6 +131,8 @@ class Stage:
         ]
         if device != "cpu" and self.run == "train":  # training.prior runs on the CPU only
             cmd += ["--device", device]
+        if self.stop_after:
+            cmd += ["--stop-after-steps", str(self.stop_after)]
         return cmd + (["--resume"] if resume else [])
 
     def steps(self) -> int | None:
@@ -134,6 +140,8 @@ class Stage:
         c = self.config
         if self.run == "prior":
             return int(c.get("iterations", 40_000))
+        if self.stop_after:
+            return self.stop_after
         if self.run == "train":
             return int(c.get("epochs", 50)) * int(c["steps_per_epoch"]) if c.get("steps_per_epoch") else None
         return self.budget.get("steps")

@@ -16,6 +16,7 @@ Unlike the official code, every draw is seeded (batch order, masks, t and noise 
 (seed, epoch, batch)), so a resumed run continues exactly where it stopped, and the best-validation
 checkpoint is kept beside the last one (``best.pt``, ``last.pt``).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -52,16 +53,28 @@ def without_removed_keys(d: dict, where) -> dict:
     holds another value."""
     active = {k: d[k] for k in REMOVED_KEYS if k in d and d[k] != REMOVED_KEYS[k]}
     if active:
-        raise ValueError(f"{where}: {active} asks for what was removed with the GPU-call tooling (batches on the "
-                         "device, EMA probes, choose_average); it is at git tag gpu-workflow-before-removal")
+        raise ValueError(
+            f"{where}: {active} asks for what was removed with the GPU-call tooling (batches on the "
+            "device, EMA probes, choose_average); it is at git tag gpu-workflow-before-removal"
+        )
     return {k: v for k, v in d.items() if k not in REMOVED_KEYS}
 
 
 # Keys added to TrainConfig after checkpoints were committed, at the value that does what the code did before
 # them: a checkpoint whose stored train_config lacks one was trained that way.
-ADDED_KEYS = {"rotate_axis": "", "reset_output_head": False, "h36m_share": 0.0, "future_swap": 0.0,
-              "future_swap_k": 25, "action_balance": 0.0, "imle_samples": 0, "imle_weight": 1.0,
-              "imle_final_weight": 0.0, "imle_targets": 1, "imle_echo": 1}
+ADDED_KEYS = {
+    "rotate_axis": "",
+    "reset_output_head": False,
+    "h36m_share": 0.0,
+    "future_swap": 0.0,
+    "future_swap_k": 25,
+    "action_balance": 0.0,
+    "imle_samples": 0,
+    "imle_weight": 1.0,
+    "imle_final_weight": 0.0,
+    "imle_targets": 1,
+    "imle_echo": 1,
+}
 
 
 def stored_config(d: dict, where) -> dict:
@@ -72,12 +85,12 @@ def stored_config(d: dict, where) -> dict:
 
 @dataclass
 class TrainConfig:
-    role: str = "short"              # short (50 -> 5), long (55 -> 20, teacher-forced), repair (50 -> 0)
-    dataset: str = "h36m"            # "h36m" (Human3.6M, 22 joints, 25 fps) or "humaneva" (HumanEva-I, 14, 60 Hz)
-    obs_len: int = 50                # observed frames (mask 1 unless occluded)
-    pred_len: int = 5                # predicted frames (mask 0)
-    model: dict = field(default_factory=dict)       # ModelConfig overrides
-    diffusion: dict = field(default_factory=dict)   # DiffusionConfig overrides
+    role: str = "short"  # short (50 -> 5), long (55 -> 20, teacher-forced), repair (50 -> 0)
+    dataset: str = "h36m"  # "h36m" (Human3.6M, 22 joints, 25 fps) or "humaneva" (HumanEva-I, 14, 60 Hz)
+    obs_len: int = 50  # observed frames (mask 1 unless occluded)
+    pred_len: int = 5  # predicted frames (mask 0)
+    model: dict = field(default_factory=dict)  # ModelConfig overrides
+    diffusion: dict = field(default_factory=dict)  # DiffusionConfig overrides
     batch_size: int = 32
     lr: float = 1e-3
     weight_decay: float = 1e-6
@@ -86,42 +99,42 @@ class TrainConfig:
     gamma: float = 0.1
     train_stride: int = 1
     val_stride: int = 25
-    val_every: int = 5               # epochs between validations (and always after the last one)
-    val_timesteps: int = 0           # 0 = all T steps (the reference); n > 0: n evenly spaced steps
-    val_max_windows: int = 0         # 0 = all validation windows
-    steps_per_epoch: int = 0         # 0 = a full pass over the training windows
+    val_every: int = 5  # epochs between validations (and always after the last one)
+    val_timesteps: int = 0  # 0 = all T steps (the reference); n > 0: n evenly spaced steps
+    val_max_windows: int = 0  # 0 = all validation windows
+    steps_per_epoch: int = 0  # 0 = a full pass over the training windows
     mask_mix: list = field(default_factory=lambda: [["none", 1.0]])  # [[pattern, weight(, rate)], ...] per window
     seed: int = 0
-    amp: bool = True                 # bf16 autocast on CUDA
-    compile: bool = False            # torch.compile the training forward (eager where compiling fails)
-    ema_decay: float = 0.0           # > 0: exponential moving average of the weights, validated and exported
-    warmup_steps: int = 0            # linear learning-rate warm-up over the first optimizer steps
-    init_from: str = ""              # warm start: a checkpoint (.pt) or exported .safetensors whose weights
-                                     # start this run
-    prior: str = ""                  # a cond_fill="prior" model's prior forecaster: prior.safetensors or
-                                     # a training.prior last.pt
-    rotate_axis: str = ""            # "" or the data's vertical axis: each training window turned about it
-                                     # (training.augment; validation windows are not)
-    h36m_share: float = 0.0          # HumanEva-I: the fraction of training windows from Human3.6M retargeted to
-                                     # its skeleton (training.data.humaneva.training_mix; validation stays HumanEva-I)
-    future_swap: float = 0.0         # the share of training windows whose future is another training window's, one
-                                     # that arrives at the same pose and velocity (training.augment.swap_futures)
-    future_swap_k: int = 25          # ... drawn from each window's future_swap_k nearest such windows
-    action_balance: float = 0.0      # HumanEva-I: a training window drawn with weight n^-action_balance, n the
-                                     # windows of its action (0: every window alike, 1: every action alike)
-    imle_samples: int = 0            # > 0: each window also trains the one-step sampler (DDIM-1) by IMLE, the
-                                     # nearest of this many one-step samples pulled to its future
-                                     # (training.imle.imle_loss; x0-prediction only)
-    imle_weight: float = 1.0         # ... that loss's weight beside the diffusion loss
-    imle_final_weight: float = 0.0   # ... plus this weight x the same loss of the candidate nearest on the final
-                                     # frame alone (what FDE's best sample is chosen by)
-    imle_targets: int = 1            # > 1: each window's IMLE loss also pulls a nearest candidate to each of
-                                     # imle_targets - 1 futures of its future_swap_k nearest windows (swap_futures)
-    imle_echo: int = 1               # > 1: each batch's IMLE search (most of a step's cost) is echoed over this
-                                     # many optimizer steps on the batch (docs/training.md, "Echoing the IMLE search")
+    amp: bool = True  # bf16 autocast on CUDA
+    compile: bool = False  # torch.compile the training forward (eager where compiling fails)
+    ema_decay: float = 0.0  # > 0: exponential moving average of the weights, validated and exported
+    warmup_steps: int = 0  # linear learning-rate warm-up over the first optimizer steps
+    init_from: str = ""  # warm start: a checkpoint (.pt) or exported .safetensors whose weights
+    # start this run
+    prior: str = ""  # a cond_fill="prior" model's prior forecaster: prior.safetensors or
+    # a training.prior last.pt
+    rotate_axis: str = ""  # "" or the data's vertical axis: each training window turned about it
+    # (training.augment; validation windows are not)
+    h36m_share: float = 0.0  # HumanEva-I: the fraction of training windows from Human3.6M retargeted to
+    # its skeleton (training.data.humaneva.training_mix; validation stays HumanEva-I)
+    future_swap: float = 0.0  # the share of training windows whose future is another training window's, one
+    # that arrives at the same pose and velocity (training.augment.swap_futures)
+    future_swap_k: int = 25  # ... drawn from each window's future_swap_k nearest such windows
+    action_balance: float = 0.0  # HumanEva-I: a training window drawn with weight n^-action_balance, n the
+    # windows of its action (0: every window alike, 1: every action alike)
+    imle_samples: int = 0  # > 0: each window also trains the one-step sampler (DDIM-1) by IMLE, the
+    # nearest of this many one-step samples pulled to its future
+    # (training.imle.imle_loss; x0-prediction only)
+    imle_weight: float = 1.0  # ... that loss's weight beside the diffusion loss
+    imle_final_weight: float = 0.0  # ... plus this weight x the same loss of the candidate nearest on the final
+    # frame alone (what FDE's best sample is chosen by)
+    imle_targets: int = 1  # > 1: each window's IMLE loss also pulls a nearest candidate to each of
+    # imle_targets - 1 futures of its future_swap_k nearest windows (swap_futures)
+    imle_echo: int = 1  # > 1: each batch's IMLE search (most of a step's cost) is echoed over this
+    # many optimizer steps on the batch (docs/training.md, "Echoing the IMLE search")
     reset_output_head: bool = False  # with init_from: the last 1x1 conv's weight and bias restart at zero; for a
-                                     # warm start whose prediction_type changes (epsilon -> sample), so the run
-                                     # starts at "no residual over the fill" instead of from noise estimates
+    # warm start whose prediction_type changes (epsilon -> sample), so the run
+    # starts at "no residual over the fill" instead of from noise estimates
 
     @classmethod
     def load(cls, path: str | Path) -> "TrainConfig":
@@ -136,6 +149,7 @@ class TrainConfig:
         if self.dataset not in DATASETS:
             raise ValueError(f"train config: dataset must be one of {DATASETS}, got {self.dataset!r}")
         from .data.humaneva import check_h36m_share
+
         check_h36m_share(self.h36m_share, self.dataset, "train config")
         if not 0.0 <= self.ema_decay < 1.0:
             raise ValueError(f"train config: ema_decay must be in [0, 1), got {self.ema_decay!r}")
@@ -147,36 +161,50 @@ class TrainConfig:
         if not 0.0 <= self.action_balance <= 1.0:
             raise ValueError(f"train config: action_balance must be in [0, 1], got {self.action_balance!r}")
         if self.action_balance > 0 and (self.dataset != "humaneva" or self.h36m_share > 0):
-            raise ValueError("train config: action_balance weighs HumanEva-I's actions; it needs dataset "
-                             "'humaneva' and h36m_share 0")
+            raise ValueError(
+                "train config: action_balance weighs HumanEva-I's actions; it needs dataset 'humaneva' and h36m_share 0"
+            )
         if self.future_swap_k < 1:
             raise ValueError(f"train config: future_swap_k must be >= 1, got {self.future_swap_k!r}")
         if self.future_swap > 0 and self.obs_len < 3:
-            raise ValueError("train config: future_swap matches windows on their last 3 observed frames; "
-                             f"obs_len is {self.obs_len}")
+            raise ValueError(
+                f"train config: future_swap matches windows on their last 3 observed frames; obs_len is {self.obs_len}"
+            )
         if self.imle_samples < 0 or self.imle_weight < 0 or self.imle_final_weight < 0:
-            raise ValueError("train config: imle_samples, imle_weight and imle_final_weight must be >= 0, got "
-                             f"{self.imle_samples!r}, {self.imle_weight!r} and {self.imle_final_weight!r}")
+            raise ValueError(
+                "train config: imle_samples, imle_weight and imle_final_weight must be >= 0, got "
+                f"{self.imle_samples!r}, {self.imle_weight!r} and {self.imle_final_weight!r}"
+            )
         if self.imle_targets < 1 or (self.imle_targets > 1 and not self.imle_samples):
-            raise ValueError("train config: imle_targets counts the futures each window's IMLE loss covers; it must "
-                             f"be >= 1, and > 1 needs imle_samples > 0, got {self.imle_targets!r}")
+            raise ValueError(
+                "train config: imle_targets counts the futures each window's IMLE loss covers; it must "
+                f"be >= 1, and > 1 needs imle_samples > 0, got {self.imle_targets!r}"
+            )
         if self.imle_targets > 1 and self.obs_len < 3:
-            raise ValueError("train config: imle_targets > 1 draws futures of windows matched on their last 3 "
-                             f"observed frames; obs_len is {self.obs_len}")
+            raise ValueError(
+                "train config: imle_targets > 1 draws futures of windows matched on their last 3 "
+                f"observed frames; obs_len is {self.obs_len}"
+            )
         if self.imle_echo < 1 or (self.imle_echo > 1 and not self.imle_samples):
-            raise ValueError("train config: imle_echo counts the optimizer steps of one batch's IMLE search; it "
-                             f"must be >= 1, and > 1 needs imle_samples > 0, got {self.imle_echo!r}")
+            raise ValueError(
+                "train config: imle_echo counts the optimizer steps of one batch's IMLE search; it "
+                f"must be >= 1, and > 1 needs imle_samples > 0, got {self.imle_echo!r}"
+            )
         if self.imle_final_weight > 0 and not self.imle_samples:
-            raise ValueError("train config: imle_final_weight weighs a term of the IMLE loss; it needs "
-                             "imle_samples > 0")
+            raise ValueError(
+                "train config: imle_final_weight weighs a term of the IMLE loss; it needs imle_samples > 0"
+            )
         if self.imle_samples and DiffusionConfig.from_dict(self.diffusion).prediction_type != "sample":
-            raise ValueError("train config: imle_samples trains the one-step sample of an x0-predicting model; "
-                             "set diffusion.prediction_type to 'sample'")
+            raise ValueError(
+                "train config: imle_samples trains the one-step sample of an x0-predicting model; "
+                "set diffusion.prediction_type to 'sample'"
+            )
         if self.reset_output_head and not self.init_from:
             raise ValueError("train config: reset_output_head resets a warm start's last layer; it needs init_from")
 
 
 # ------------------------------------------------------------------------------------------ data
+
 
 def load_sequences(cfg: TrainConfig, data: str | None, split: str) -> list[np.ndarray]:
     """Model-space sequences (T, J, 3) metres for a split. ``data`` is a raw data directory or a cache
@@ -184,10 +212,12 @@ def load_sequences(cfg: TrainConfig, data: str | None, split: str) -> list[np.nd
     or its .npz, and both splits are the Train split's chunks (see the module docstring)."""
     if cfg.dataset == "humaneva":
         from .data.humaneva import training_mix, training_sequences
+
         if split == "train":
             return training_mix(cfg.h36m_share, cfg.obs_len + cfg.pred_len, data)
         return list(training_sequences(data).values())
     from .data.h36m import DEFAULT_H36M_DIR, H36M
+
     path = Path(data) if data else DEFAULT_H36M_DIR
     if path.is_file() and path.name.startswith("h36m_model_cache"):
         with np.load(path) as z:
@@ -198,6 +228,7 @@ def load_sequences(cfg: TrainConfig, data: str | None, split: str) -> list[np.nd
 def write_cache(data: str | None, out: str | Path) -> None:
     """A compact float16 cache of the model-space train/val sequences (quicker to load than the raw data)."""
     from .data.h36m import DEFAULT_H36M_DIR, H36M
+
     h = H36M(data or DEFAULT_H36M_DIR)
     arrays = {f"{split}/{key}": seq.astype(np.float16) for split in ("train", "val") for key, seq in h.sequences(split)}
     np.savez_compressed(out, **arrays)
@@ -212,12 +243,15 @@ def load_prior(path: str):
         raise FileNotFoundError(f"train config: prior: no file at {path}")
     if str(path).endswith(".safetensors"):
         from .export import load_prior_file
+
         return load_prior_file(path)[0]
     from .prior import load
+
     return load(path)
 
 
 # ------------------------------------------------------------------------------------------ loop
+
 
 def learning_rate(cfg: TrainConfig, step: int, steps_per_epoch: int) -> float:
     """The learning rate of optimizer step ``step`` (0-based): ``cfg.lr``, times ``gamma`` for each
@@ -240,6 +274,7 @@ def training_forward(model: TCDModel, cfg: TrainConfig, batch_shape: tuple, devi
     forward and backward, on a batch of the training shape (B, K, L); where compiling fails (no compiler,
     an unsupported backend) training goes on eagerly and the log says why."""
     from .channels_last import ChannelsLast
+
     fast = ChannelsLast(model)
     if not cfg.compile:
         return fast
@@ -250,8 +285,9 @@ def training_forward(model: TCDModel, cfg: TrainConfig, batch_shape: tuple, devi
         # 2026-11-26's seventh session that doubled the compile time and took a run's calibration)
         x, observed, mask = (torch.zeros(batch_shape, device=device) for _ in range(3))
         t = torch.zeros(batch_shape[0], dtype=torch.long, device=device)
-        with torch.autocast(device_type=torch.device(device).type, dtype=torch.bfloat16,
-                            enabled=amp_enabled(cfg, device)):
+        with torch.autocast(
+            device_type=torch.device(device).type, dtype=torch.bfloat16, enabled=amp_enabled(cfg, device)
+        ):
             out = compiled(x, observed, mask, t)
         out.float().sum().backward()
         model.zero_grad(set_to_none=True)
@@ -267,9 +303,17 @@ def amp_enabled(cfg: TrainConfig, device: str) -> bool:
     return cfg.amp and torch.device(device).type == "cuda"
 
 
-def train_step(forward, opt: torch.optim.Optimizer, sched: Schedule, batch, amp: bool,
-               imle_weight: float = 1.0, imle_search=None, imle_final_weight: float = 0.0,
-               choice: Choice | None = None) -> torch.Tensor:
+def train_step(
+    forward,
+    opt: torch.optim.Optimizer,
+    sched: Schedule,
+    batch,
+    amp: bool,
+    imle_weight: float = 1.0,
+    imle_search=None,
+    imle_final_weight: float = 0.0,
+    choice: Choice | None = None,
+) -> torch.Tensor:
     """One optimizer step on one batch (x0, observed, mask, t, eps[, candidates[, others]]); the loss (a device
     tensor: no sync). With the candidates (``imle_samples``) the loss adds ``imle_weight`` x the one-step sampler's
     IMLE loss (``training.imle``; ``imle_search`` computes the candidates' samples, default the forward itself;
@@ -279,9 +323,18 @@ def train_step(forward, opt: torch.optim.Optimizer, sched: Schedule, batch, amp:
     with torch.autocast(device_type=x0.device.type, dtype=torch.bfloat16, enabled=amp):
         loss = training_loss(forward, sched, x0, mask, t=t, eps=eps, observed=obs)
         if imle:
-            loss = loss + imle_weight * imle_loss(forward, sched, x0, mask, imle[0], observed=obs,
-                                                  search=imle_search, final_weight=imle_final_weight,
-                                                  others=imle[1] if len(imle) > 1 else None, choice=choice)
+            loss = loss + imle_weight * imle_loss(
+                forward,
+                sched,
+                x0,
+                mask,
+                imle[0],
+                observed=obs,
+                search=imle_search,
+                final_weight=imle_final_weight,
+                others=imle[1] if len(imle) > 1 else None,
+                choice=choice,
+            )
     opt.zero_grad(set_to_none=True)
     loss.backward()
     opt.step()
@@ -290,8 +343,9 @@ def train_step(forward, opt: torch.optim.Optimizer, sched: Schedule, batch, amp:
 
 def make_optimizer(model: torch.nn.Module, cfg: TrainConfig, device: str) -> torch.optim.Adam:
     # fused Adam: one kernel for all parameters on a GPU instead of a dozen per tensor
-    return torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay,
-                            fused=torch.device(device).type == "cuda")
+    return torch.optim.Adam(
+        model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay, fused=torch.device(device).type == "cuda"
+    )
 
 
 class EMA:
@@ -326,6 +380,7 @@ def validation_loss(model, sched: Schedule, cfg: TrainConfig, val: Windows, devi
     """Mean masked loss over validation windows and diffusion steps, with fixed noise (host masks, the
     same windows and draws whatever the batch source of training)."""
     from .channels_last import ChannelsLast
+
     was_training = model.training
     model.eval()
     forward = ChannelsLast(model)
@@ -335,7 +390,7 @@ def validation_loss(model, sched: Schedule, cfg: TrainConfig, val: Windows, devi
     ts = range(sched.T) if not cfg.val_timesteps else np.linspace(0, sched.T - 1, cfg.val_timesteps).round().astype(int)
     total, n = 0.0, 0
     for b0 in range(0, len(rows), cfg.batch_size):
-        r = rows[b0:b0 + cfg.batch_size]
+        r = rows[b0 : b0 + cfg.batch_size]
         x0, obs, mask = make_batch(cfg, val.gather(r), np.random.default_rng([cfg.seed, 777, b0]))
         x0, obs, mask = x0.to(device), obs.to(device), mask.to(device)
         for t in ts:
@@ -364,15 +419,28 @@ def build_model(cfg: TrainConfig, device: str) -> tuple[TCDModel, Schedule]:
     return model, Schedule(diff_cfg)
 
 
-def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume: bool = False,
-          max_minutes: float | None = None, device: str = "cpu", checkpoint_minutes: float = 5.0,
-          sequences: dict | None = None, workers: int = 0, deadline: float | None = None, log=print) -> dict:
+def train(
+    cfg: TrainConfig,
+    out: str | Path,
+    *,
+    data: str | None = None,
+    resume: bool = False,
+    max_minutes: float | None = None,
+    device: str = "cpu",
+    checkpoint_minutes: float = 5.0,
+    sequences: dict | None = None,
+    workers: int = 0,
+    deadline: float | None = None,
+    stop_after_steps: int | None = None,
+    log=print,
+) -> dict:
     """Train (or resume) a model into ``out``. ``sequences`` ({"train": [...], "val": [...]} of (T, J, 3)
     arrays in metres) replaces the dataset, for tests on synthetic motion. ``workers`` > 0 draws the
     host batches in that many DataLoader processes (the same batches, bit for bit, as ``workers`` = 0).
     Training stops resumably after ``max_minutes`` of training (counted once the forward is compiled) or
     at ``deadline`` (a ``time.time()`` value: a wall-clock stop, whatever set-up and compiling took),
-    whichever comes first.
+    or after ``stop_after_steps`` optimizer steps of the schedule (a recipe stage whose weights were taken part-way:
+    the schedule stays the config's), whichever comes first.
 
     Checkpoints hold the raw weights (``model``), the optimizer, and with ``ema_decay`` the averaged
     weights (``ema``), which are the ones validated, kept in ``best.pt`` and exported."""
@@ -380,32 +448,42 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
     out.mkdir(parents=True, exist_ok=True)
     L = cfg.obs_len + cfg.pred_len
     if torch.device(device).type == "cuda":
-        torch.set_float32_matmul_precision("high")      # TF32 for what autocast leaves in float32
+        torch.set_float32_matmul_precision("high")  # TF32 for what autocast leaves in float32
     model, sched = build_model(cfg, device)
     model_cfg, diff_cfg = model.cfg, sched.cfg
     opt = make_optimizer(model, cfg, device)
     seqs = sequences or {split: load_sequences(cfg, data, split) for split in ("train", "val")}
     joints = {int(q.shape[1]) for split in seqs.values() for q in split}
     if joints != {model_cfg.num_joints}:
-        raise ValueError(f"the {cfg.dataset} sequences have {sorted(joints)} joints, the model "
-                         f"{model_cfg.num_joints} (model.num_joints in the config)")
+        raise ValueError(
+            f"the {cfg.dataset} sequences have {sorted(joints)} joints, the model "
+            f"{model_cfg.num_joints} (model.num_joints in the config)"
+        )
     train_w = Windows(seqs["train"], L, cfg.train_stride)
     val_w = Windows(seqs["val"], L, cfg.val_stride)
     if not len(train_w) or not len(val_w):
         raise ValueError(f"no training or validation window of {L} frames in the data")
     steps_per_epoch = cfg.steps_per_epoch or math.ceil(len(train_w) / cfg.batch_size)
-    weights = None                   # how BatchSource draws the windows: None is a uniform permutation per epoch
-    if cfg.action_balance > 0:       # here, before the warm start and the forward are set up: a bad call fails early
+    weights = None  # how BatchSource draws the windows: None is a uniform permutation per epoch
+    if cfg.action_balance > 0:  # here, before the warm start and the forward are set up: a bad call fails early
         if sequences is not None:
             raise ValueError("action_balance needs the HumanEva-I data's actions, not given sequences")
         from .data.humaneva import training_actions
+
         weights = action_weights(np.asarray(training_actions(data))[train_w.index[:, 0]], cfg.action_balance)
     from .export import data_meta
-    meta = {"role": cfg.role, "model_config": model_cfg.to_dict(), "diffusion_config": diff_cfg.to_dict(),
-            "window": {"obs_len": cfg.obs_len, "pred_len": cfg.pred_len, "seq_len": L},
-            "data": data_meta(cfg.dataset, h36m_share=cfg.h36m_share), "train_config": asdict(cfg)}
-    if model_cfg.cond_fill == "prior":    # which prior the model was trained around (a path can be overwritten)
+
+    meta = {
+        "role": cfg.role,
+        "model_config": model_cfg.to_dict(),
+        "diffusion_config": diff_cfg.to_dict(),
+        "window": {"obs_len": cfg.obs_len, "pred_len": cfg.pred_len, "seq_len": L},
+        "data": data_meta(cfg.dataset, h36m_share=cfg.h36m_share),
+        "train_config": asdict(cfg),
+    }
+    if model_cfg.cond_fill == "prior":  # which prior the model was trained around (a path can be overwritten)
         import hashlib
+
         meta["prior_sha256"] = hashlib.sha256(Path(cfg.prior).read_bytes()).hexdigest()
     epoch, batch_i, best_val, elapsed0, history = 0, 0, float("inf"), 0.0, []
     last = out / "last.pt"
@@ -425,19 +503,23 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
             raise FileNotFoundError(f"init_from: no checkpoint at {init}")
         if init.suffix == ".safetensors":  # an exported model (e.g. the bundled python/tcd/weights/short.safetensors)
             from safetensors.torch import load_file
+
             init_state = load_file(str(init), device=device)
             log(f"warm start from exported weights {init}")
         else:
             init_ck = torch.load(init, map_location=device, weights_only=False)
             from .export import checkpoint_weights
+
             init_state = checkpoint_weights(init_ck)
             log(f"warm start from {init} (its best validation loss {init_ck.get('best_val', float('nan')):.4f})")
         # the architecture must match, except for wider channels (training.widen: the same function) and more
         # residual layers (those start as no-ops, load_grown)
         init_state, factor = widen_to(model.cfg, init_state, cfg.seed)
         if factor > 1:
-            log(f"widened {factor} x to {model.cfg.channels} channels and a feed-forward width of "
-                f"{model.cfg.ffn_dim}, computing what the warm start computes (training.widen)")
+            log(
+                f"widened {factor} x to {model.cfg.channels} channels and a feed-forward width of "
+                f"{model.cfg.ffn_dim}, computing what the warm start computes (training.widen)"
+            )
         added = load_grown(model, init_state)
         if added:
             log(f"{added} residual layers added after the warm start's, each starting as a no-op")
@@ -450,19 +532,25 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
     if ema is not None and ck is not None:
         ema.module.load_state_dict(ck["ema"])
         ema.n_averaged = ck["ema_n"]
-    evaluated = model if ema is None else ema.module    # the weights validated and exported
-    log(f"{cfg.role}: {count_parameters(model):,} parameters, {len(train_w):,} training windows, "
+    evaluated = model if ema is None else ema.module  # the weights validated and exported
+    log(
+        f"{cfg.role}: {count_parameters(model):,} parameters, {len(train_w):,} training windows, "
         f"{len(val_w):,} validation windows, {steps_per_epoch} steps/epoch x {cfg.epochs} epochs, device {device}"
-        + (f", EMA {cfg.ema_decay}" if ema is not None else ""))
+        + (f", EMA {cfg.ema_decay}" if ema is not None else "")
+    )
     amp = amp_enabled(cfg, device)
     model.train()
     forward = training_forward(model, cfg, (cfg.batch_size, model_cfg.num_features, L), device, log)
     source = BatchSource(cfg, train_w, sched.T, steps_per_epoch, weights)
     imle_search = None
-    if cfg.imle_samples and torch.device(device).type == "cpu":    # the engine runs on the CPU only
+    if cfg.imle_samples and torch.device(device).type == "cpu":  # the engine runs on the CPU only
         from .export import build_config
-        imle_search = EngineSearch(model, build_config(cfg.role, model_cfg, diff_cfg, cfg.obs_len, cfg.pred_len,
-                                                       meta["data"]), threads=torch.get_num_threads())
+
+        imle_search = EngineSearch(
+            model,
+            build_config(cfg.role, model_cfg, diff_cfg, cfg.obs_len, cfg.pred_len, meta["data"]),
+            threads=torch.get_num_threads(),
+        )
     t_start = time.time()
     last_ck = t_start
     ends = [t for t in (None if max_minutes is None else t_start + 60 * max_minutes, deadline) if t is not None]
@@ -470,9 +558,16 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
 
     def state(best=None):
         # best.pt holds the weights only: it is exported or warm-started from, never resumed
-        s = dict(meta, model=model.state_dict(), epoch=epoch, batch=batch_i, step=epoch * steps_per_epoch + batch_i,
-                 best_val=best_val if best is None else best, elapsed_s=elapsed0 + time.time() - t_start,
-                 history=history)
+        s = dict(
+            meta,
+            model=model.state_dict(),
+            epoch=epoch,
+            batch=batch_i,
+            step=epoch * steps_per_epoch + batch_i,
+            best_val=best_val if best is None else best,
+            elapsed_s=elapsed0 + time.time() - t_start,
+            history=history,
+        )
         if best is None:
             s["optimizer"] = opt.state_dict()
         if ema is not None:
@@ -503,21 +598,34 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
                 # data echoing (Choi et al., 2019): the search stands upstream of the optimizer as a slow input
                 # pipeline would, and one search serves imle_echo steps (docs/training.md: its one run was worse)
                 x0, obs, mask, *_, cands = batch[:6]
-                choice = imle_choose(forward, sched, x0, mask, cands, observed=obs, search=imle_search,
-                                     final_weight=cfg.imle_final_weight,
-                                     others=batch[6] if len(batch) > 6 else None)
+                choice = imle_choose(
+                    forward,
+                    sched,
+                    x0,
+                    mask,
+                    cands,
+                    observed=obs,
+                    search=imle_search,
+                    final_weight=cfg.imle_final_weight,
+                    others=batch[6] if len(batch) > 6 else None,
+                )
             for _ in range(cfg.imle_echo):
-                loss = train_step(forward, opt, sched, batch, amp, cfg.imle_weight, imle_search,
-                                  cfg.imle_final_weight, choice)
+                loss = train_step(
+                    forward, opt, sched, batch, amp, cfg.imle_weight, imle_search, cfg.imle_final_weight, choice
+                )
                 if ema is not None:
                     ema.update(model)
             run_loss, run_n = run_loss + loss.float(), run_n + 1
             batch_i += 1
             now = time.time()
             if batch_i % 100 == 0:
-                log(f"epoch {epoch} batch {batch_i}/{steps_per_epoch} loss {float(run_loss) / run_n:.4f} "
-                    f"lr {lr:.1e} {now - t_start:.0f}s")
-            if stop_at is not None and now > stop_at:
+                log(
+                    f"epoch {epoch} batch {batch_i}/{steps_per_epoch} loss {float(run_loss) / run_n:.4f} "
+                    f"lr {lr:.1e} {now - t_start:.0f}s"
+                )
+            if (stop_at is not None and now > stop_at) or (
+                stop_after_steps is not None and epoch * steps_per_epoch + batch_i >= stop_after_steps
+            ):
                 stopped = True
                 break
             if now - last_ck > 60 * checkpoint_minutes:
@@ -535,7 +643,7 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
     if stopped:
         # time budget reached: validate what we have so that best.pt always exists
         trained = (time.time() - t_start) / 60
-        history.append({"epoch": epoch, "batch": batch_i, "stopped": "max-minutes"})
+        history.append({"epoch": epoch, "batch": batch_i, "stopped": "max-minutes" if stop_at else "steps"})
         v = validate(history[-1])
         log(f"stopped after {trained:.2f} min of training at epoch {epoch} batch {batch_i}: val loss {v:.4f}")
         save_checkpoint(last, state())
@@ -543,21 +651,41 @@ def train(cfg: TrainConfig, out: str | Path, *, data: str | None = None, resume:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m training.train", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        prog="python -m training.train", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--config", help="JSON TrainConfig (training/configs/*.json)")
     ap.add_argument("--out", help="run directory (checkpoints last.pt, best.pt)")
-    ap.add_argument("--data", default=None, help="Human3.6M directory or a cache from --write-cache; HumanEva-I "
-                    "directory or .npz for a \"dataset\": \"humaneva\" config (default ../shared/data/<dataset>)")
+    ap.add_argument(
+        "--data",
+        default=None,
+        help="Human3.6M directory or a cache from --write-cache; HumanEva-I "
+        'directory or .npz for a "dataset": "humaneva" config (default ../shared/data/<dataset>)',
+    )
     ap.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
     ap.add_argument("--max-minutes", type=float, default=None, help="stop (resumably) after this many minutes")
-    ap.add_argument("--stop-at", type=float, default=None, metavar="UNIX_SECONDS",
-                    help="stop (resumably) at this wall-clock time (date +%%s), whatever set-up and compiling took")
+    ap.add_argument(
+        "--stop-at",
+        type=float,
+        default=None,
+        metavar="UNIX_SECONDS",
+        help="stop (resumably) at this wall-clock time (date +%%s), whatever set-up and compiling took",
+    )
+    ap.add_argument(
+        "--stop-after-steps",
+        type=int,
+        default=None,
+        metavar="N",
+        help="stop (resumably) after N optimizer steps of the config's schedule",
+    )
     ap.add_argument("--device", default="cpu", help="cpu | cuda")
     ap.add_argument("--threads", type=int, default=None, help="torch CPU threads")
-    ap.add_argument("--workers", type=int, default=0,
-                    help="DataLoader processes drawing the batches "
-                         "(0: in the training process; same batches either way)")
+    ap.add_argument(
+        "--workers",
+        type=int,
+        default=0,
+        help="DataLoader processes drawing the batches (0: in the training process; same batches either way)",
+    )
     ap.add_argument("--write-cache", metavar="NPZ", help="write a compact model-space data cache and exit")
     args = ap.parse_args(argv)
     if args.write_cache:
@@ -569,8 +697,17 @@ def main(argv=None) -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
     cfg = TrainConfig.load(args.config)
-    res = train(cfg, args.out, data=args.data, resume=args.resume, max_minutes=args.max_minutes, device=args.device,
-                workers=args.workers, deadline=args.stop_at)
+    res = train(
+        cfg,
+        args.out,
+        data=args.data,
+        resume=args.resume,
+        max_minutes=args.max_minutes,
+        device=args.device,
+        workers=args.workers,
+        deadline=args.stop_at,
+        stop_after_steps=args.stop_after_steps,
+    )
     print(json.dumps({k: v for k, v in res.items() if k != "history"}))
     return 0
 
