@@ -13,6 +13,7 @@ a prior trained on one room's headings forecasts turned windows far worse; ``tra
 The angles: ``default_rng(seed)``, one per window, uniform in [0, 2 pi); the ground truth is turned with its
 observation.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -81,8 +82,10 @@ def main(argv=None) -> int:
         out["humaneva"] = r = humaneva(args.humaneva_model, args.humaneva_data, args.seed)
         for split in ("Train", "Validate"):
             for name, v in r[split]["m"].items():
-                print(f"HumanEva-I {split:8s} ({r[split]['windows']} windows) {name:12s} "
-                      f"ADE {v['ADE']:.3f}  FDE {v['FDE']:.3f} m")
+                print(
+                    f"HumanEva-I {split:8s} ({r[split]['windows']} windows) {name:12s} "
+                    f"ADE {v['ADE']:.3f}  FDE {v['FDE']:.3f} m"
+                )
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=1) + "\n")
     return 0

@@ -32,6 +32,7 @@ makes a run reproducible (with ``--threads 1``)::
     python benches/humaneva_imle_mlp.py --minutes 12 --rotate --targets 8 --threads 2 \\
         --json benches/results/humaneva_imle_mlp/t8_12min.json
 """
+
 from __future__ import annotations
 
 import argparse
@@ -50,8 +51,8 @@ import torch  # noqa: E402
 from training.data.humaneva import HUMANEVA_T_HIS as OBS, HUMANEVA_T_PRED as PRED  # noqa: E402
 from training.generator import COEFS, HIDDEN, LAYERS, Z_DIM, Generator  # noqa: E402  (the model it trains)
 
-SAMPLES = 50   # the protocol's samples per window
-COMPLEMENT_SEED = 7   # the engine's seed for --complement's samples of the training windows (not the scoring's)
+SAMPLES = 50  # the protocol's samples per window
+COMPLEMENT_SEED = 7  # the engine's seed for --complement's samples of the training windows (not the scoring's)
 
 
 def distance(x: torch.Tensor, y: torch.Tensor, fde_weight: float) -> torch.Tensor:
@@ -60,8 +61,15 @@ def distance(x: torch.Tensor, y: torch.Tensor, fde_weight: float) -> torch.Tenso
     return e.mean(-1) + fde_weight * e[..., -1]
 
 
-def imle_loss(gen: Generator, obs: torch.Tensor, prior: torch.Tensor, targets: torch.Tensor, cands: int,
-              fde_weight: float, rival: torch.Tensor | None = None) -> torch.Tensor:
+def imle_loss(
+    gen: Generator,
+    obs: torch.Tensor,
+    prior: torch.Tensor,
+    targets: torch.Tensor,
+    cands: int,
+    fde_weight: float,
+    rival: torch.Tensor | None = None,
+) -> torch.Tensor:
     """``targets`` (B, T, 60, K): each pulls the nearest of ``cands`` draws of its window (searched without
     gradients, then generated again with them), the mean of those distances. With ``rival`` (B, T), the distance
     from each target to another generator's nearest sample, the mean of the smaller of the two: the best of a
@@ -69,8 +77,8 @@ def imle_loss(gen: Generator, obs: torch.Tensor, prior: torch.Tensor, targets: t
     B = len(obs)
     z = torch.randn(B, cands, gen.z_dim)
     with torch.no_grad():
-        best = distance(gen(obs, prior, z)[:, :, None], targets[:, None], fde_weight).argmin(1)   # (B, T)
-    chosen = gen(obs, prior, z[torch.arange(B)[:, None], best])                                   # (B, T, 60, K)
+        best = distance(gen(obs, prior, z)[:, :, None], targets[:, None], fde_weight).argmin(1)  # (B, T)
+    chosen = gen(obs, prior, z[torch.arange(B)[:, None], best])  # (B, T, 60, K)
     d = distance(chosen, targets, fde_weight)
     return (d if rival is None else torch.minimum(d, rival)).mean()
 
@@ -80,53 +88,114 @@ def engine_samples(model: str, obs: np.ndarray, samples: int, seed: int) -> np.n
     samples) for obs (W, 15, J, 3), through the engine exactly as ``python -m training.evaluate --protocol humaneva
     --engine tcd --sampler ddim --steps 1 --seed SEED --generator-share 0`` draws them."""
     from training.evaluate import build_parser, humaneva_model_samples
-    args = build_parser().parse_args(["--protocol", "humaneva", "--model", model, "--engine", "tcd", "--samples",
-                                      str(samples), "--sampler", "ddim", "--steps", "1", "--seed", str(seed),
-                                      "--generator-share", "0", "--json", "unused"])
+
+    args = build_parser().parse_args(
+        [
+            "--protocol",
+            "humaneva",
+            "--model",
+            model,
+            "--engine",
+            "tcd",
+            "--samples",
+            str(samples),
+            "--sampler",
+            "ddim",
+            "--steps",
+            "1",
+            "--seed",
+            str(seed),
+            "--generator-share",
+            "0",
+            "--json",
+            "unused",
+        ]
+    )
     return humaneva_model_samples(args, np.asarray(obs, np.float64))
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--minutes", type=float, default=0.0, help="the training clock's budget, learning rate x 0.1 for "
-                    "its last 20 %% (0 with no --steps: score --init only)")
-    ap.add_argument("--steps", type=int, default=0, help="instead of --minutes: exactly this many steps, learning "
-                    "rate x 0.1 for the last 20 %% of them (with --threads 1, the same run gives the same weights)")
+    ap.add_argument(
+        "--minutes",
+        type=float,
+        default=0.0,
+        help="the training clock's budget, learning rate x 0.1 for "
+        "its last 20 %% (0 with no --steps: score --init only)",
+    )
+    ap.add_argument(
+        "--steps",
+        type=int,
+        default=0,
+        help="instead of --minutes: exactly this many steps, learning "
+        "rate x 0.1 for the last 20 %% of them (with --threads 1, the same run gives the same weights)",
+    )
     ap.add_argument("--init", default=None, help="start from this state dict (--save of an earlier run)")
-    ap.add_argument("--seed", type=int, default=0, help="the scoring noise's seed (recorded as the result's "
-                    "seeds.sampling, which training.compare checks; the runs of 2026-11-29 scored with 123 as they "
-                    "trained)")
+    ap.add_argument(
+        "--seed",
+        type=int,
+        default=0,
+        help="the scoring noise's seed (recorded as the result's "
+        "seeds.sampling, which training.compare checks; the runs of 2026-11-29 scored with 123 as they "
+        "trained)",
+    )
     ap.add_argument("--hidden", type=int, default=HIDDEN)
     ap.add_argument("--layers", type=int, default=LAYERS)
     ap.add_argument("--z", type=int, default=Z_DIM, help="the noise vector's size")
     ap.add_argument("--coefs", type=int, default=COEFS, help="DCT coefficients of the 60-frame residual (of 60)")
     ap.add_argument("--cands", type=int, default=50, help="IMLE candidates per window")
     ap.add_argument("--targets", type=int, default=1, help="targets per window: its own future and T - 1 others")
-    ap.add_argument("--exclude-frames", type=int, default=30, help="other targets: not of the window's own "
-                    "sequence within this many frames of it")
+    ap.add_argument(
+        "--exclude-frames",
+        type=int,
+        default=30,
+        help="other targets: not of the window's own sequence within this many frames of it",
+    )
     ap.add_argument("--rotate", action="store_true", help="turn each window (and its targets) about the vertical")
-    ap.add_argument("--mirror", action="store_true", help="reflect half the windows (and their targets) through a "
-                    "vertical plane, left and right joints swapped (training.augment.mirror)")
-    ap.add_argument("--speed-range", type=float, nargs=2, default=None, metavar=("LO", "HI"),
-                    help="play each window (and its other targets) at a speed drawn log-uniformly from [LO, HI], as "
-                    "the prior's speed_range does (training.augment.resample; default: as recorded)")
-    ap.add_argument("--complement", default=None, help="an .npy (N, C, 60, K) of the --model's one-step samples of "
-                    "each training window (in Windows order; written first, with --complement-samples, where it does "
-                    "not exist): train the MLP to reach the targets they do not, for a mixture of both (imle_loss's "
-                    "rival)")
+    ap.add_argument(
+        "--mirror",
+        action="store_true",
+        help="reflect half the windows (and their targets) through a "
+        "vertical plane, left and right joints swapped (training.augment.mirror)",
+    )
+    ap.add_argument(
+        "--speed-range",
+        type=float,
+        nargs=2,
+        default=None,
+        metavar=("LO", "HI"),
+        help="play each window (and its other targets) at a speed drawn log-uniformly from [LO, HI], as "
+        "the prior's speed_range does (training.augment.resample; default: as recorded)",
+    )
+    ap.add_argument(
+        "--complement",
+        default=None,
+        help="an .npy (N, C, 60, K) of the --model's one-step samples of "
+        "each training window (in Windows order; written first, with --complement-samples, where it does "
+        "not exist): train the MLP to reach the targets they do not, for a mixture of both (imle_loss's "
+        "rival)",
+    )
     ap.add_argument("--complement-samples", type=int, default=25, help="samples per window of a new --complement")
-    ap.add_argument("--mix", type=int, default=0, help="score a mixture: the --model's first MIX protocol samples "
-                    "(the engine, DDIM-1, seed --seed: those of benches/results/humaneva_cascade.json) and the MLP's "
-                    "first 50 - MIX; the result's model and stochastic are then the mixture's, generator_alone the "
-                    "MLP's 50")
+    ap.add_argument(
+        "--mix",
+        type=int,
+        default=0,
+        help="score a mixture: the --model's first MIX protocol samples "
+        "(the engine, DDIM-1, seed --seed: those of benches/results/humaneva_cascade.json) and the MLP's "
+        "first 50 - MIX; the result's model and stochastic are then the mixture's, generator_alone the "
+        "MLP's 50",
+    )
     ap.add_argument("--dropout", type=float, default=0.0, help="dropout before each hidden layer but the first")
     ap.add_argument("--fde-weight", type=float, default=1.0)
     ap.add_argument("--batch", type=int, default=128)
     ap.add_argument("--lr", type=float, default=1e-3)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--eval-every", type=float, default=5.0, help="minutes between interim scores (stderr)")
-    ap.add_argument("--model", default=str(ROOT / "python" / "tcd" / "weights_humaneva"),
-                    help="the model directory whose prior.safetensors the generator forecasts around")
+    ap.add_argument(
+        "--model",
+        default=str(ROOT / "python" / "tcd" / "weights_humaneva"),
+        help="the model directory whose prior.safetensors the generator forecasts around",
+    )
     ap.add_argument("--data", default=None, help="the HumanEva-I file or directory (default ../shared/data)")
     ap.add_argument("--json", required=True, help="the result: the protocol's metrics, per window and per action")
     ap.add_argument("--save", default=None, help="also save the generator's state dict here")
@@ -158,19 +227,22 @@ def main(argv=None) -> int:
 
     windows = Windows(list(training_sequences(args.data).values()), OBS + PRED, 1)
     train = windows.gather(np.arange(len(windows))).reshape(len(windows), OBS + PRED, K)
-    frames = np.concatenate(windows.seqs).reshape(-1, K).astype(np.float32)        # every sequence, end to end
+    frames = np.concatenate(windows.seqs).reshape(-1, K).astype(np.float32)  # every sequence, end to end
     first = np.r_[0, np.cumsum([len(q) for q in windows.seqs])][windows.index[:, 0]] + windows.index[:, 1]
-    ends = sequence_ends(first, OBS + PRED)                                         # each window's sequence's end
+    ends = sequence_ends(first, OBS + PRED)  # each window's sequence's end
 
     def read(rows: np.ndarray, speeds: np.ndarray | None) -> np.ndarray:
         """(B, 75, K) training windows, played at ``speeds`` (None: as recorded)."""
         return train[rows] if speeds is None else resample(frames, first[rows], ends[rows], OBS + PRED, speeds)
+
     others = windows.future_neighbours(OBS, args.targets - 1, args.exclude_frames) if args.targets > 1 else None
     if args.complement and not Path(args.complement).is_file():
         print(f"writing {args.complement}: {args.complement_samples} samples of each training window", file=sys.stderr)
         c = engine_samples(args.model, train[:, :OBS].reshape(-1, OBS, J, 3), args.complement_samples, COMPLEMENT_SEED)
-        np.save(args.complement, np.ascontiguousarray(c.transpose(1, 0, 2, 3, 4).reshape(len(train), -1, PRED, K),
-                                                      np.float32))
+        np.save(
+            args.complement,
+            np.ascontiguousarray(c.transpose(1, 0, 2, 3, 4).reshape(len(train), -1, PRED, K), np.float32),
+        )
     rivals = np.load(args.complement) if args.complement else None
     if rivals is not None and (rivals.ndim != 4 or rivals.shape[0] != len(train) or rivals.shape[2:] != (PRED, K)):
         raise SystemExit(f"--complement: shape {rivals.shape}, not ({len(train)}, C, {PRED}, {K})")
@@ -187,7 +259,7 @@ def main(argv=None) -> int:
         gen.eval()
         with torch.no_grad():
             z = torch.randn(len(val_obs), SAMPLES, args.z, generator=torch.Generator().manual_seed(args.seed))
-            s = gen(val_obs, val_prior, z).numpy().astype(np.float64)                       # (W, S, 60, K)
+            s = gen(val_obs, val_prior, z).numpy().astype(np.float64)  # (W, S, 60, K)
         gen.train()
         return s.transpose(1, 0, 2, 3).reshape(SAMPLES, len(val_obs), PRED, J, 3)
 
@@ -206,31 +278,44 @@ def main(argv=None) -> int:
         """The schedule's fraction done: of --steps, or of --minutes' clock."""
         if args.steps:
             return step / args.steps
-        return (time.time() - t0) / (args.minutes * 60) if args.minutes else 1.0     # 0: no training
+        return (time.time() - t0) / (args.minutes * 60) if args.minutes else 1.0  # 0: no training
+
     while progress() < 1:
         rows = rng.integers(0, len(train), args.batch)
         speeds = np.exp(rng.uniform(*np.log(args.speed_range), args.batch)) if args.speed_range else None
         own = read(rows, speeds)
         w = own[:, None]
         if others is not None:
-            w = np.concatenate([w, np.stack([swap_futures(own, read(others[rows, j], speeds), OBS)
-                                             for j in range(args.targets - 1)], 1)], 1)      # (B, T, 75, K)
+            w = np.concatenate(
+                [
+                    w,
+                    np.stack(
+                        [swap_futures(own, read(others[rows, j], speeds), OBS) for j in range(args.targets - 1)], 1
+                    ),
+                ],
+                1,
+            )  # (B, T, 75, K)
         T = w.shape[1]
-        if rivals is not None:   # the rival's samples after the window's observation, turned and reflected with it
+        if rivals is not None:  # the rival's samples after the window's observation, turned and reflected with it
             r = rivals[rows]
             w = np.concatenate([w, np.concatenate([np.repeat(own[:, None, :OBS], r.shape[1], 1), r], 2)], 1)
-        if args.mirror:   # every target of a window reflected with it
+        if args.mirror:  # every target of a window reflected with it
             flip = np.repeat(rng.random(args.batch) < 0.5, w.shape[1])
             w = mirror(w.reshape(-1, OBS + PRED, J, 3), "z", perm, flip).reshape(w.shape)
-        if args.rotate:   # every target of a window turned with it
+        if args.rotate:  # every target of a window turned with it
             w = rotate_about(w.reshape(args.batch, w.shape[1], OBS + PRED, J, 3), "z", rng).reshape(w.shape)
         obs = np.ascontiguousarray(w[:, 0, :OBS])
         lr = args.lr * (0.1 if progress() >= 0.8 else 1.0)
         for group in opt.param_groups:
             group["lr"] = lr
         targets = torch.from_numpy(np.ascontiguousarray(w[:, :T, OBS:]))
-        rival = None if rivals is None else distance(torch.from_numpy(np.ascontiguousarray(w[:, T:, OBS:]))[:, :, None],
-                                                     targets[:, None], args.fde_weight).amin(1)        # (B, T)
+        rival = (
+            None
+            if rivals is None
+            else distance(
+                torch.from_numpy(np.ascontiguousarray(w[:, T:, OBS:]))[:, :, None], targets[:, None], args.fde_weight
+            ).amin(1)
+        )  # (B, T)
         loss = imle_loss(gen, torch.from_numpy(obs), forecast(obs), targets, args.cands, args.fde_weight, rival)
         opt.zero_grad()
         loss.backward()
@@ -238,23 +323,36 @@ def main(argv=None) -> int:
         step += 1
         if time.time() - last > args.eval_every * 60:
             last = time.time()
-            print(f"step {step} ({(last - t0) / 60:.1f} min): loss {loss.item():.4f}; {brief(score())}",
-                  file=sys.stderr, flush=True)
+            print(
+                f"step {step} ({(last - t0) / 60:.1f} min): loss {loss.item():.4f}; {brief(score())}",
+                file=sys.stderr,
+                flush=True,
+            )
     minutes = (time.time() - t0) / 60
     own = samples()
     sc = alone = cases.score(own)
     print(f"final, step {step} ({minutes:.1f} min): {brief(sc)}", file=sys.stderr)
     method = "IMLE MLP generator around the prior (benches/humaneva_imle_mlp.py)"
-    if args.mix:   # the engine's first MIX samples as the protocol's evaluation draws them, then the MLP's
-        theirs = engine_samples(args.model, cases.obs, SAMPLES, args.seed)[:args.mix]
-        sc = cases.score(np.concatenate([theirs, own[:SAMPLES - args.mix]]))
-        method = (f"{args.mix} samples of {Path(args.model).name} (the engine, DDIM-1) and {SAMPLES - args.mix} "
-                  f"of an {method}")
+    if args.mix:  # the engine's first MIX samples as the protocol's evaluation draws them, then the MLP's
+        theirs = engine_samples(args.model, cases.obs, SAMPLES, args.seed)[: args.mix]
+        sc = cases.score(np.concatenate([theirs, own[: SAMPLES - args.mix]]))
+        method = (
+            f"{args.mix} samples of {Path(args.model).name} (the engine, DDIM-1) and {SAMPLES - args.mix} "
+            f"of an {method}"
+        )
         print(f"mixture with {args.mix} of the model's: {brief(sc)}", file=sys.stderr)
-    out = {"method": method, "protocol": cases.protocol(),
-           "options": {k: v for k, v in vars(args).items() if k not in ("json", "save")},
-           "seeds": {"sampling": args.seed}, "steps": step, "minutes": minutes, "stochastic": sc, "model": sc,
-           "per_action": cases.per_action(sc), **({"generator_alone": alone} if args.mix else {})}
+    out = {
+        "method": method,
+        "protocol": cases.protocol(),
+        "options": {k: v for k, v in vars(args).items() if k not in ("json", "save")},
+        "seeds": {"sampling": args.seed},
+        "steps": step,
+        "minutes": minutes,
+        "stochastic": sc,
+        "model": sc,
+        "per_action": cases.per_action(sc),
+        **({"generator_alone": alone} if args.mix else {}),
+    }
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     Path(args.json).write_text(json.dumps(out, indent=1))
     if args.save:

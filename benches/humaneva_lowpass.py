@@ -30,6 +30,7 @@ before the network rather than after it (C = 1 gives the raw row bit for bit)::
 The low-pass and the spread are post-processes, the noise scale a change of the sampler's input; each is
 measured here, not in the engine: where one pays, the engine is the place for it.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -44,8 +45,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from training.evaluate import (HE_PRED, HumanEvaCases, build_parser, humaneva_model_samples,  # noqa: E402
-                               humaneva_prior_forecast)
+from training.evaluate import (  # noqa: E402
+    HE_PRED,
+    HumanEvaCases,
+    build_parser,
+    humaneva_model_samples,
+    humaneva_prior_forecast,
+)
 from training.prior import dct_matrix  # noqa: E402
 
 
@@ -71,7 +77,8 @@ def noise_scale(c: float):
     import tcd.engine as te
     import tcd.model as tm
     from tcd import SamplerOptions
-    sampler_keys = [f.name for f in dataclasses.fields(SamplerOptions)]   # the keywords a sampler is named by
+
+    sampler_keys = [f.name for f in dataclasses.fields(SamplerOptions)]  # the keywords a sampler is named by
     plain = tm.cascade_raw
 
     def scaled(short, long, observed, mask, *, num_samples, seed, sequences=None, **kw):
@@ -98,7 +105,7 @@ def lowpass(samples: np.ndarray, prior: np.ndarray, keep: int) -> np.ndarray:
     T = samples.shape[2]
     check_keep(keep, T)
     d = dct_matrix(T)
-    project = d[:keep].T @ d[:keep]                                   # (T, T): onto the first `keep` cosines
+    project = d[:keep].T @ d[:keep]  # (T, T): onto the first `keep` cosines
     residual = samples - prior[None]
     return prior[None] + np.einsum("ts,...sjc->...tjc", project, residual)
 
@@ -113,39 +120,76 @@ def spread(samples: np.ndarray, c: float) -> np.ndarray:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--model", default=str(ROOT / "python" / "tcd" / "weights_humaneva"))
-    ap.add_argument("--keep", type=int, nargs="*", default=[5, 10, 20],
-                    help="DCT coefficients kept (of 60); none after it: no low-passed rows")
-    ap.add_argument("--spread", type=float, nargs="*", default=[],
-                    help="also score the samples with their deviations from their mean scaled by each of these")
-    ap.add_argument("--noise-scale", type=float, nargs="*", default=[],
-                    help="also draw the samples with each chain's starting noise scaled by each of these")
+    ap.add_argument(
+        "--keep",
+        type=int,
+        nargs="*",
+        default=[5, 10, 20],
+        help="DCT coefficients kept (of 60); none after it: no low-passed rows",
+    )
+    ap.add_argument(
+        "--spread",
+        type=float,
+        nargs="*",
+        default=[],
+        help="also score the samples with their deviations from their mean scaled by each of these",
+    )
+    ap.add_argument(
+        "--noise-scale",
+        type=float,
+        nargs="*",
+        default=[],
+        help="also draw the samples with each chain's starting noise scaled by each of these",
+    )
     ap.add_argument("--samples", type=int, default=50)
     ap.add_argument("--sampler", default="ddpm")
     ap.add_argument("--steps", type=int, default=10)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--threads", type=int, default=1, help="torch CPU threads (the engine uses every core, as in "
-                    "training.evaluate)")
+    ap.add_argument(
+        "--threads", type=int, default=1, help="torch CPU threads (the engine uses every core, as in training.evaluate)"
+    )
     ap.add_argument("--max-windows", type=int, default=0, help="evenly spaced windows (0: all 188)")
     ap.add_argument("--data", default=None, help="the HumanEva-I file or directory (default ../shared/data)")
-    ap.add_argument("--json-prefix", required=True,
-                    help="writes PREFIX_raw.json, PREFIX_K{k}.json, PREFIX_S{c}.json and PREFIX_N{c}.json")
+    ap.add_argument(
+        "--json-prefix",
+        required=True,
+        help="writes PREFIX_raw.json, PREFIX_K{k}.json, PREFIX_S{c}.json and PREFIX_N{c}.json",
+    )
     args = ap.parse_args(argv)
-    for option, values, check in (("--keep", args.keep, lambda k: check_keep(k, HE_PRED)),
-                                  ("--spread", args.spread, check_spread),
-                                  ("--noise-scale", args.noise_scale, check_spread)):
-        try:                               # checked before the samples are drawn (minutes), not after
+    for option, values, check in (
+        ("--keep", args.keep, lambda k: check_keep(k, HE_PRED)),
+        ("--spread", args.spread, check_spread),
+        ("--noise-scale", args.noise_scale, check_spread),
+    ):
+        try:  # checked before the samples are drawn (minutes), not after
             for v in values:
                 check(v)
         except ValueError as e:
             ap.error(f"{option}: {e}")
     import torch
+
     torch.set_num_threads(args.threads)
 
     cases = HumanEvaCases.load(args.data, args.max_windows)
     # sampled as training.evaluate samples (its options and defaults: the same seeds and batches)
-    sampling = build_parser().parse_args(["--protocol", "humaneva", "--model", args.model, "--engine", "tcd",
-                                          "--samples", str(args.samples), "--sampler", args.sampler,
-                                          "--steps", str(args.steps), "--seed", str(args.seed)])
+    sampling = build_parser().parse_args(
+        [
+            "--protocol",
+            "humaneva",
+            "--model",
+            args.model,
+            "--engine",
+            "tcd",
+            "--samples",
+            str(args.samples),
+            "--sampler",
+            args.sampler,
+            "--steps",
+            str(args.steps),
+            "--seed",
+            str(args.seed),
+        ]
+    )
     t0 = time.time()
     samples = humaneva_model_samples(sampling, cases.obs, log=lambda m: print(m, file=sys.stderr, flush=True))
     prior = humaneva_prior_forecast(args.model, cases.obs)
@@ -154,28 +198,43 @@ def main(argv=None) -> int:
     Path(args.json_prefix).parent.mkdir(parents=True, exist_ok=True)
     print(f"{'samples':<16}{'ADE':>8}{'FDE':>8}{'MMADE':>8}{'MMFDE':>8}{'APD':>8}")
     # (file name, samples, what the method adds, lowpass_keep, spread, noise_scale)
-    variants = ([("raw", samples, "", None, None, None)]
-                + [(f"K{k}", lowpass(samples, prior, k),
-                    f", residual over the prior low-passed to its first {k} DCT coefficients", k, None, None)
-                   for k in sorted(set(args.keep))]
-                + [(f"S{c:g}", spread(samples, c), f", each sample's deviation from the samples' mean x {c:g}", None, c,
-                    None)
-                   for c in sorted(set(args.spread))])
+    variants = (
+        [("raw", samples, "", None, None, None)]
+        + [
+            (
+                f"K{k}",
+                lowpass(samples, prior, k),
+                f", residual over the prior low-passed to its first {k} DCT coefficients",
+                k,
+                None,
+                None,
+            )
+            for k in sorted(set(args.keep))
+        ]
+        + [
+            (f"S{c:g}", spread(samples, c), f", each sample's deviation from the samples' mean x {c:g}", None, c, None)
+            for c in sorted(set(args.spread))
+        ]
+    )
     for c in sorted(set(args.noise_scale)):
         with noise_scale(c):
             scaled = humaneva_model_samples(sampling, cases.obs)
         variants.append((f"N{c:g}", scaled, f", each chain's starting noise x {c:g}", None, None, c))
     for name, pred, how, keep, c, noise in variants:
         m = cases.score(pred)
-        out = {"protocol": cases.protocol(),
-               "method": f"tcd {args.model}{how}",
-               "seeds": {"sampling": args.seed}, "model": m, "stochastic": m,
-               "sampling": {"engine": "tcd", "samples": args.samples, "steps": args.steps, "sampler": args.sampler},
-               "lowpass_keep": keep,
-               "spread": c,
-               "noise_scale": noise,
-               "per_action": cases.per_action(m),
-               "command": "python benches/humaneva_lowpass.py " + " ".join(sys.argv[1:] if argv is None else argv)}
+        out = {
+            "protocol": cases.protocol(),
+            "method": f"tcd {args.model}{how}",
+            "seeds": {"sampling": args.seed},
+            "model": m,
+            "stochastic": m,
+            "sampling": {"engine": "tcd", "samples": args.samples, "steps": args.steps, "sampler": args.sampler},
+            "lowpass_keep": keep,
+            "spread": c,
+            "noise_scale": noise,
+            "per_action": cases.per_action(m),
+            "command": "python benches/humaneva_lowpass.py " + " ".join(sys.argv[1:] if argv is None else argv),
+        }
         Path(f"{args.json_prefix}_{name}.json").write_text(json.dumps(out, indent=1))
         print(f"{name:<16}" + "".join(f"{m[k]:>8.3f}" for k in ("ADE", "FDE", "MMADE", "MMFDE", "APD")))
     return 0

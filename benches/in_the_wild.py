@@ -40,6 +40,7 @@ and AMASS take (windows the default run does not report, to choose a rule on); `
 ``tcd.wild.JOIN_FRAMES`` for the run. The bundled model is reduced: the numbers measure the conversions, not
 the paper's accuracy.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -75,6 +76,7 @@ def amass_world_smpl24(path: Path, skeleton: Path):
     joints are SMPL-H's index-finger bases (joints 22 and 37)."""
     from training.data.amass import load_smpl_skeleton
     from training.data.kinematics import fk_axis_angle
+
     rest, parents = load_smpl_skeleton(skeleton)
     with np.load(path) as z:
         poses = np.asarray(z["poses"], dtype=np.float64).reshape(len(z["poses"]), -1, 3)
@@ -91,17 +93,20 @@ def cmu_world_h36m32(rows: np.ndarray) -> np.ndarray:
     from training.data.cmu import CMU_OFFSETS, CMU_PARENTS, CMU_OFFSET_SCALE
     from training.data.kinematics import fk_expmap
     from training.make_demo_clip import H36M_FROM_CMU_BONE
+
     local_rows = rows.copy()
     local_rows[:, 0:6] = 0.0
     local = fk_expmap(local_rows[:, 3:].reshape(len(rows), -1, 3), CMU_PARENTS, CMU_OFFSETS)
-    world = (np.einsum("tjk,tkl->tjl", local, fk.expmap_to_rotmat(rows[:, 3:6]))
-             + rows[:, None, 0:3] * CMU_OFFSET_SCALE) / 1000.0
+    world = (
+        np.einsum("tjk,tkl->tjl", local, fk.expmap_to_rotmat(rows[:, 3:6])) + rows[:, None, 0:3] * CMU_OFFSET_SCALE
+    ) / 1000.0
     out = np.full((len(rows), 32, 3), np.nan)
     for j, (_, b) in H36M_FROM_CMU_BONE.items():
         out[:, j] = world[:, b]
     for j, c in {0: 0, 1: 8, 6: 2, 11: 13}.items():
         out[:, j] = world[:, c]
     return out
+
 
 #: seconds after the last observed frame: the short horizons (80 and 160 ms: where a forecast that starts away
 #: from the person shows) and the long ones; each at the nearest frame of the row's rate (``first``: its first
@@ -129,16 +134,16 @@ def windows(src: H36MSource, action: str, per_action: int, first: int = 0):
     c, w = [], []
     for a, b in zip(st1, st2):
         for i, s in ((0, a), (1, b)):
-            c.append(canon[i][s:s + 75])
-            w.append(worlds[i][2 * s:2 * s + 149])
-    return np.stack(c[first:first + per_action]), np.stack(w[first:first + per_action])
+            c.append(canon[i][s : s + 75])
+            w.append(worlds[i][2 * s : 2 * s + 149])
+    return np.stack(c[first : first + per_action]), np.stack(w[first : first + per_action])
 
 
 def last_observed(x: np.ndarray) -> np.ndarray:
     """(B, T, J, 3) with NaN for missing -> (B, J, 3): each joint where it was last observed (Zero-Velocity
     on the same input as the forecast; NaN for a joint never observed)."""
-    seen = np.isfinite(x).all(-1)                                   # (B, T, J)
-    idx = x.shape[1] - 1 - np.argmax(seen[:, ::-1], axis=1)        # (B, J) the last observed frame
+    seen = np.isfinite(x).all(-1)  # (B, T, J)
+    idx = x.shape[1] - 1 - np.argmax(seen[:, ::-1], axis=1)  # (B, J) the last observed frame
     out = np.take_along_axis(x, idx[:, None, :, None], axis=1)[:, 0]
     return np.where(seen.any(1)[..., None], out, np.nan)
 
@@ -151,13 +156,16 @@ def conversion_offset_mm(x: np.ndarray, layout: str, up: str, fps: float, joints
     the three in turn (with the join of ``tcd.wild.JOIN_FRAMES`` the forecast starts at the last pose itself)."""
     import copy
     from tcd import wild as w
+
     lay, upv = layouts.get_layout(layout), w.up_vector(up)
     xm, _ = w.resample_to_model(x, fps, 25.0, 50)
     y, scene = w.to_model(xm, lay, upv)
-    last = lambda v: v[:, -1:]                                  # noqa: E731
-    parts = {"lengths": lambda s: setattr(s, "lengths", {k: last(v) for k, v in s.lengths.items()}),
-             "hips": lambda s: setattr(s, "fixed", {k: last(v) for k, v in s.fixed.items()}),
-             "carried": lambda s: setattr(s, "carried", {k: (a, last(v)) for k, (a, v) in s.carried.items()})}
+    last = lambda v: v[:, -1:]  # noqa: E731
+    parts = {
+        "lengths": lambda s: setattr(s, "lengths", {k: last(v) for k, v in s.lengths.items()}),
+        "hips": lambda s: setattr(s, "fixed", {k: last(v) for k, v in s.fixed.items()}),
+        "carried": lambda s: setattr(s, "carried", {k: (a, last(v)) for k, (a, v) in s.carried.items()}),
+    }
 
     def offset(sc, frames):
         saved = w.JOIN_FRAMES
@@ -198,21 +206,32 @@ def main(argv=None) -> int:
     ap.add_argument("--steps", type=int, default=10)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--cmu", default=str(DEFAULT_CMU), help="the CMU exp-map takes (skipped when absent)")
-    ap.add_argument("--amass", default=str(DEFAULT_AMASS),
-                    help="AMASS takes and smpl_skeleton.npz (skipped when absent)")
-    ap.add_argument("--first-window", type=int, default=0,
-                    help="skip the first N windows of each action (Human3.6M, CMU) and AMASS take: windows the "
-                         "default run does not report, to choose a rule on")
-    ap.add_argument("--variants", choices=("all", "as-given"), default="all",
-                    help="as-given: only the unoccluded, 2 s observations")
-    ap.add_argument("--join-frames", type=int, default=None,
-                    help="tcd.wild.JOIN_FRAMES for this run (default: the library's)")
-    ap.add_argument("--somof13", action="store_true",
-                    help="also the AMASS takes as the 13 joints 3DPW gives through SoMoF (no pelvis)")
+    ap.add_argument(
+        "--amass", default=str(DEFAULT_AMASS), help="AMASS takes and smpl_skeleton.npz (skipped when absent)"
+    )
+    ap.add_argument(
+        "--first-window",
+        type=int,
+        default=0,
+        help="skip the first N windows of each action (Human3.6M, CMU) and AMASS take: windows the "
+        "default run does not report, to choose a rule on",
+    )
+    ap.add_argument(
+        "--variants", choices=("all", "as-given"), default="all", help="as-given: only the unoccluded, 2 s observations"
+    )
+    ap.add_argument(
+        "--join-frames", type=int, default=None, help="tcd.wild.JOIN_FRAMES for this run (default: the library's)"
+    )
+    ap.add_argument(
+        "--somof13",
+        action="store_true",
+        help="also the AMASS takes as the 13 joints 3DPW gives through SoMoF (no pelvis)",
+    )
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
     if args.join_frames is not None:
         from tcd import wild as wild_rules
+
         wild_rules.JOIN_FRAMES = args.join_frames
     variants = ("",) if args.variants == "as-given" else ("", *PAPER_PATTERNS, "0.8 s observed")
 
@@ -229,7 +248,7 @@ def main(argv=None) -> int:
         row["tcd"].append(tcd_err)
         row["zero_velocity"].append(zv_err)
 
-    somof_rng = np.random.default_rng(args.seed)                   # its own: the other rows' masks stay as they are
+    somof_rng = np.random.default_rng(args.seed)  # its own: the other rows' masks stay as they are
 
     def wild(label, x, gt, layout, fps, up, joints, every=1, root=(0,), masks=None):
         """Runs the wild path on x (B, T, J, 3) in every variant; ``gt`` (B, F, J, 3) at the forecast's
@@ -239,10 +258,10 @@ def main(argv=None) -> int:
         to = [t if t is not None else 0 for t in layouts.LAYOUTS[layout].to32]
         short = int(round(0.8 * fps))
 
-        def at(a):                                                  # the root
+        def at(a):  # the root
             return a[:, :, list(root)].mean(axis=2, keepdims=True)
 
-        def rel(a):                                                 # the root subtracted
+        def rel(a):  # the root subtracted
             return a - at(a)
 
         c = conversion.setdefault(label, {"windows": 0})
@@ -251,20 +270,28 @@ def main(argv=None) -> int:
         c["windows"] += len(x)
         for variant in variants:
             xin = x.copy()
-            if variant in PAPER_PATTERNS:                           # the paper's occlusions (training/masks.py)
+            if variant in PAPER_PATTERNS:  # the paper's occlusions (training/masks.py)
                 for i in range(len(xin)):
                     seen = make_mask(variant, xin.shape[1], xin.shape[1], masks or rng, joints32=to) > 0
                     xin[i][~seen] = np.nan
             if variant.startswith("0.8"):
                 xin = xin[:, -short:]
             f = model.forecast(xin, layout=layout, fps=fps, up=up, **kw)
-            pred = f.mean[:, every - 1::every][:, :gt.shape[1]]
-            last = np.repeat(last_observed(xin)[:, None], gt.shape[1], axis=1)   # Zero-Velocity, the same input
+            pred = f.mean[:, every - 1 :: every][:, : gt.shape[1]]
+            last = np.repeat(last_observed(xin)[:, None], gt.shape[1], axis=1)  # Zero-Velocity, the same input
             name = label + (f", {variant}" if variant else "")
-            add(name, "root-relative", mpjpe_mm(rel(pred)[:, :, joints], rel(gt)[:, :, joints]),
-                mpjpe_mm(rel(last)[:, :, joints], rel(gt)[:, :, joints]))
-            add(name, "world", mpjpe_mm(pred[:, :, joints], gt[:, :, joints]),
-                mpjpe_mm(last[:, :, joints], gt[:, :, joints]))
+            add(
+                name,
+                "root-relative",
+                mpjpe_mm(rel(pred)[:, :, joints], rel(gt)[:, :, joints]),
+                mpjpe_mm(rel(last)[:, :, joints], rel(gt)[:, :, joints]),
+            )
+            add(
+                name,
+                "world",
+                mpjpe_mm(pred[:, :, joints], gt[:, :, joints]),
+                mpjpe_mm(last[:, :, joints], gt[:, :, joints]),
+            )
             add(name, "root", mpjpe_mm(at(pred), at(gt)), mpjpe_mm(at(last), at(gt)))
 
     model_idx = list(layouts.MODEL_IDS)
@@ -275,16 +302,21 @@ def main(argv=None) -> int:
         f = model.forecast(obs, **kw)
         zv = np.repeat(obs[:, -1:], 25, axis=1)
         add("native h36m22 25fps", "canonical", mpjpe_mm(f.mean, gt), mpjpe_mm(zv, gt))
-        add("native h36m22 25fps (h36m17's joints)", "canonical",
+        add(
+            "native h36m22 25fps (h36m17's joints)",
+            "canonical",
             mpjpe_mm(f.mean[:, :, _h17_in_model()], gt[:, :, _h17_in_model()]),
-            mpjpe_mm(zv[:, :, _h17_in_model()], gt[:, :, _h17_in_model()]))
-        future = world[:, 100::2]                                   # the 25 future frames at 25 fps (1 s)
+            mpjpe_mm(zv[:, :, _h17_in_model()], gt[:, :, _h17_in_model()]),
+        )
+        future = world[:, 100::2]  # the 25 future frames at 25 fps (1 s)
         for name, joints in (("h36m32", model_idx), ("h36m17", H36M17_MODEL)):
-            to = list(layouts.LAYOUTS[name].to32)                   # 50 fps, 99 frames (2 s); truth at 25 fps
-            wild(f"H36M {name} world 50fps", world[:, :99][:, :, to], future[:, :, to], name, 50.0, "y", joints,
-                 every=2)
+            to = list(layouts.LAYOUTS[name].to32)  # 50 fps, 99 frames (2 s); truth at 25 fps
+            wild(
+                f"H36M {name} world 50fps", world[:, :99][:, :, to], future[:, :, to], name, 50.0, "y", joints, every=2
+            )
     if args.cmu is not None and Path(args.cmu).is_file():
         from training.data.cmu import load_cmu_npz
+
         per_action: dict = {}
         for key, take in load_cmu_npz(args.cmu).items():
             action = key.split("/")[0]
@@ -296,10 +328,17 @@ def main(argv=None) -> int:
                 if per_action[action] <= args.first_window:
                     continue
                 for fps in (120.0, 30.0):
-                    seq = world[None, start:start + 361:int(CMU_FPS / fps)]
+                    seq = world[None, start : start + 361 : int(CMU_FPS / fps)]
                     n_obs = int(2 * fps) + 1
-                    wild(f"CMU h36m32 world {fps:g}fps", seq[:, :n_obs], seq[:, n_obs:n_obs + int(fps)], "h36m32",
-                         fps, "y", model_idx)
+                    wild(
+                        f"CMU h36m32 world {fps:g}fps",
+                        seq[:, :n_obs],
+                        seq[:, n_obs : n_obs + int(fps)],
+                        "h36m32",
+                        fps,
+                        "y",
+                        model_idx,
+                    )
     skeleton = Path(args.amass) / "smpl_skeleton.npz"
     if skeleton.is_file():
         for path in sorted(Path(args.amass).glob("*.npz")):
@@ -308,37 +347,79 @@ def main(argv=None) -> int:
             world, rate = amass_world_smpl24(path, skeleton)
             second = int(round(rate))
             for start in range(args.first_window * second, len(world) - 3 * second, second):
-                seq = world[None, start:start + 3 * second + 1]
-                wild(f"AMASS smpl24 world {rate:.0f}fps", seq[:, :2 * second + 1], seq[:, 2 * second + 1:], "smpl24",
-                     rate, "z", SMPL24_MODEL)
-                if args.somof13:                                    # 3DPW's joints: no pelvis
-                    obs13 = np.full_like(seq[:, :2 * second + 1], np.nan)
-                    obs13[:, :, SOMOF13] = seq[:, :2 * second + 1, SOMOF13]
-                    wild(f"AMASS as SoMoF 13 joints, no pelvis, world {rate:.0f}fps", obs13, seq[:, 2 * second + 1:],
-                         "smpl24", rate, "z", SOMOF13, root=(1, 2), masks=somof_rng)
+                seq = world[None, start : start + 3 * second + 1]
+                wild(
+                    f"AMASS smpl24 world {rate:.0f}fps",
+                    seq[:, : 2 * second + 1],
+                    seq[:, 2 * second + 1 :],
+                    "smpl24",
+                    rate,
+                    "z",
+                    SMPL24_MODEL,
+                )
+                if args.somof13:  # 3DPW's joints: no pelvis
+                    obs13 = np.full_like(seq[:, : 2 * second + 1], np.nan)
+                    obs13[:, :, SOMOF13] = seq[:, : 2 * second + 1, SOMOF13]
+                    wild(
+                        f"AMASS as SoMoF 13 joints, no pelvis, world {rate:.0f}fps",
+                        obs13,
+                        seq[:, 2 * second + 1 :],
+                        "smpl24",
+                        rate,
+                        "z",
+                        SOMOF13,
+                        root=(1, 2),
+                        masks=somof_rng,
+                    )
     rows = []
     for (name, space), d in acc.items():
         t, z = np.mean(d["tcd"], axis=0), np.mean(d["zero_velocity"], axis=0)
-        fps = len(t)                                             # 1 s of forecast frames at the input's rate
-        rows.append({"input": name, "space": space, "first_ms": round(1000.0 / fps, 1),
-                     "tcd_mm": at_horizons(t, fps), "zero_velocity_mm": at_horizons(z, fps),
-                     "ratio_first": round(float(t[0] / z[0]), 3), "ratio_1s": round(float(t[-1] / z[-1]), 3)})
-    report = {"protocol": {"subject": 5, "cmu": args.cmu, "windows_per_action": args.windows_per_action,
-                           "first_window": args.first_window, "variants": args.variants, "somof13": args.somof13,
-                           "join_frames": tcd.wild.JOIN_FRAMES, "sampler": args.sampler,
-                           "steps": args.steps, "samples": args.samples, "seed": args.seed,
-                           "model_sha256": model.sha256}, "seconds": round(time.perf_counter() - t0, 1),
-              "last_pose_conversion_mm": {k: {n: (v if n == "windows" else round(v / c["windows"], 2))
-                                              for n, v in c.items()} for k, c in conversion.items()},
-              "rows": rows}
+        fps = len(t)  # 1 s of forecast frames at the input's rate
+        rows.append(
+            {
+                "input": name,
+                "space": space,
+                "first_ms": round(1000.0 / fps, 1),
+                "tcd_mm": at_horizons(t, fps),
+                "zero_velocity_mm": at_horizons(z, fps),
+                "ratio_first": round(float(t[0] / z[0]), 3),
+                "ratio_1s": round(float(t[-1] / z[-1]), 3),
+            }
+        )
+    report = {
+        "protocol": {
+            "subject": 5,
+            "cmu": args.cmu,
+            "windows_per_action": args.windows_per_action,
+            "first_window": args.first_window,
+            "variants": args.variants,
+            "somof13": args.somof13,
+            "join_frames": tcd.wild.JOIN_FRAMES,
+            "sampler": args.sampler,
+            "steps": args.steps,
+            "samples": args.samples,
+            "seed": args.seed,
+            "model_sha256": model.sha256,
+        },
+        "seconds": round(time.perf_counter() - t0, 1),
+        "last_pose_conversion_mm": {
+            k: {n: (v if n == "windows" else round(v / c["windows"], 2)) for n, v in c.items()}
+            for k, c in conversion.items()
+        },
+        "rows": rows,
+    }
     w = max(len(r["input"]) for r in rows)
     keys = ("first", "0.08s", "0.16s", "0.5s", "1s")
-    print(f"{'input':<{w}}  {'space':<13}  {'tcd ' + ' / '.join(keys):<44}  {'zero-velocity, the same':<44}"
-          "  tcd/zv first, 1s")
+    print(
+        f"{'input':<{w}}  {'space':<13}  {'tcd ' + ' / '.join(keys):<44}  {'zero-velocity, the same':<44}"
+        "  tcd/zv first, 1s"
+    )
     for r in rows:
         t, z = r["tcd_mm"], r["zero_velocity_mm"]
-        print(f"{r['input']:<{w}}  {r['space']:<13}  {' / '.join(f'{t[k]:6.1f}' for k in keys):<44}  "
-              f"{' / '.join(f'{z[k]:6.1f}' for k in keys):<44}  {r['ratio_first']:.3f}, {r['ratio_1s']:.3f}")
+        print(
+            f"{r['input']:<{w}}  {r['space']:<13}  {' / '.join(f'{t[k]:6.1f}' for k in keys):<44}  "
+            f"{' / '.join(f'{z[k]:6.1f}' for k in keys):<44}  {r['ratio_first']:.3f}, {r['ratio_1s']:.3f}"
+        )
     print("\nthe last observed pose through the conversion alone, forecast rules (mm; tcd.wild, no model):")
     for k, c in report["last_pose_conversion_mm"].items():
         print(f"  {k:<{w}}  " + ", ".join(f"{n} {v}" for n, v in c.items()))

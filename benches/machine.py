@@ -1,13 +1,24 @@
 """What a benchmark records of the machine it ran on (the CPU varies between sessions: compare only results
 of one machine). Shared by benches/peers.py, benches/prior_speed.py and benches/train_speed.py."""
+
 from __future__ import annotations
 
 import platform
 from pathlib import Path
 
 # The flags that decide tcd's kernel path and torch's bf16 / AMX paths (a VM may hide some of them).
-SIMD_FLAGS = {"avx", "avx2", "fma", "avx512f", "avx512bw", "avx512vl", "avx512_bf16", "avx512_fp16", "amx_tile",
-              "amx_bf16"}
+SIMD_FLAGS = {
+    "avx",
+    "avx2",
+    "fma",
+    "avx512f",
+    "avx512bw",
+    "avx512vl",
+    "avx512_bf16",
+    "avx512_fp16",
+    "amx_tile",
+    "amx_bf16",
+}
 
 
 def _cpuinfo() -> list[str]:

@@ -21,6 +21,7 @@ its own command is recorded beside the table's. ``--windows-per-action`` (Human3
 Adding a table: one function ``def tableN(run: Runner) -> dict`` (below, "The tables") that asks ``run.evaluate`` for
 the runs it needs and returns its rows, and one line in ``TABLES``.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -107,8 +108,14 @@ def mismatches(argv: list[str], d: dict, windows_per_action: int, max_windows: i
         check("protocol.mask", proto.get("mask"), f.get("--mask", "none"))
         check("protocol.windows_per_action", proto.get("windows_per_action"), windows_per_action)
     sampling = d.get("sampling", {})
-    for flag, key in (("--engine", "engine"), ("--samples", "samples"), ("--steps", "steps"), ("--sampler", "sampler"),
-                      ("--noise-coupling", "noise_coupling"), ("--generator-share", "generator_share")):
+    for flag, key in (
+        ("--engine", "engine"),
+        ("--samples", "samples"),
+        ("--steps", "steps"),
+        ("--sampler", "sampler"),
+        ("--noise-coupling", "noise_coupling"),
+        ("--generator-share", "generator_share"),
+    ):
         if flag in f:
             check(f"sampling.{key}", sampling.get(key), f[flag])
     return bad
@@ -117,15 +124,21 @@ def mismatches(argv: list[str], d: dict, windows_per_action: int, max_windows: i
 class Runner:
     """The runs of one table: each from ``training.evaluate`` (run here) or from a ``--from`` file, recorded."""
 
-    def __init__(self, windows_per_action: int = 256, max_windows: int | None = None, threads: int | None = None,
-                 sources: dict[str, str] | None = None, evaluate: Callable[[list[str]], dict] | None = None,
-                 log: Callable[[str], None] = lambda m: print(m, file=sys.stderr, flush=True)):
+    def __init__(
+        self,
+        windows_per_action: int = 256,
+        max_windows: int | None = None,
+        threads: int | None = None,
+        sources: dict[str, str] | None = None,
+        evaluate: Callable[[list[str]], dict] | None = None,
+        log: Callable[[str], None] = lambda m: print(m, file=sys.stderr, flush=True),
+    ):
         self.windows_per_action, self.max_windows, self.threads = windows_per_action, max_windows, threads
         self.sources = dict(sources or {})
         self._evaluate = evaluate or run_evaluate
         self.log = log
         self.records: dict[str, dict] = {}
-        self.models: dict[str, str | None] = {}     # the model directories the runs score, and their checksums
+        self.models: dict[str, str | None] = {}  # the model directories the runs score, and their checksums
 
     def evaluate(self, name: str, argv: list[str]) -> dict:
         """Run ``name``: ``python -m training.evaluate ARGV`` with this table's window count, or its --from file."""
@@ -170,6 +183,7 @@ def run_evaluate(argv: list[str]) -> dict:
     """``python -m training.evaluate ARGV --quiet --json TMP`` in this process (its printed tables hidden); the
     result it wrote."""
     from training import evaluate  # torch: only where a table runs a protocol here
+
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "run.json"
         with contextlib.redirect_stdout(io.StringIO()):
@@ -204,11 +218,13 @@ def row(key: str, name: str, values: dict, columns, **extra) -> dict:
 
 def published_h36m() -> dict:
     from training.metrics import PUBLISHED_H36M
+
     return PUBLISHED_H36M
 
 
 def published_humaneva() -> dict:
     from training.metrics import PUBLISHED_HUMANEVA
+
     return PUBLISHED_HUMANEVA
 
 
@@ -235,8 +251,10 @@ PATTERNS = ("random_leg_arm", "structured_leg", "consecutive_frames", "noisy_25"
 def table1(run: Runner) -> dict:
     """Human3.6M Setting-B, clean input: the bundled cascade (oracle best of 5, the paper's figure, and the mean of
     5, what ``forecast`` returns), the prior's point forecast and Zero-Velocity, beside the published methods."""
-    cascade = run.evaluate("cascade", ["--model", H36M, "--engine", "tcd", "--samples", "5", "--mask", "none",
-                                       *default_sampler_flags(H36M)])
+    cascade = run.evaluate(
+        "cascade",
+        ["--model", H36M, "--engine", "tcd", "--samples", "5", "--mask", "none", *default_sampler_flags(H36M)],
+    )
     prior = run.evaluate("prior", ["--prior", H36M, "--mask", "none"])
     pub = published_h36m()
     paper_rows = [row(k, k, v, HORIZONS, source=H36M_SOURCES.get(k, PAPER)) for k, v in pub.items()]
@@ -244,12 +262,19 @@ def table1(run: Runner) -> dict:
         row("best_of_5", "tcd forecast, oracle best of 5", cascade["best_of_n"]["average"], HORIZONS, run="cascade"),
         row("mean_of_5", "tcd forecast, mean of 5", cascade["mean_of_n"]["average"], HORIZONS, run="cascade"),
         row("prior", "tcd predict (the prior)", prior["average"], HORIZONS, run="prior"),
-        row("zero_velocity", "Zero-Velocity, same windows", cascade["zero_velocity"]["average"], HORIZONS,
-            run="cascade"),
+        row(
+            "zero_velocity", "Zero-Velocity, same windows", cascade["zero_velocity"]["average"], HORIZONS, run="cascade"
+        ),
     ]
-    return {"title": "Human3.6M Setting-B, clean input (the paper's Table 1)", "units": "mm",
-            "columns": list(HORIZONS), "column_unit": "ms", "paper_rows": paper_rows, "our_rows": ours,
-            "protocol": {"ours": cascade["protocol"], "paper": "S5, 15 actions, 256 windows each"}}
+    return {
+        "title": "Human3.6M Setting-B, clean input (the paper's Table 1)",
+        "units": "mm",
+        "columns": list(HORIZONS),
+        "column_unit": "ms",
+        "paper_rows": paper_rows,
+        "our_rows": ours,
+        "protocol": {"ours": cascade["protocol"], "paper": "S5, 15 actions, 256 windows each"},
+    }
 
 
 def table2(run: Runner) -> dict:
@@ -257,28 +282,53 @@ def table2(run: Runner) -> dict:
     pattern, oracle best of 5 and mean of 5, with Zero-Velocity on the same corrupted observations."""
     ours, repair = [], {}
     for p in PATTERNS:
-        d = run.evaluate(p, ["--model", H36M, "--engine", "tcd", "--samples", "5", "--mask", p,
-                             *default_sampler_flags(H36M)])
-        ours += [row(f"best_of_5/{p}", f"{p}: tcd forecast, oracle best of 5", d["best_of_n"]["average"], HORIZONS,
-                     run=p),
-                 row(f"mean_of_5/{p}", f"{p}: tcd forecast, mean of 5", d["mean_of_n"]["average"], HORIZONS, run=p),
-                 row(f"zero_velocity/{p}", f"{p}: Zero-Velocity, same observations", d["zero_velocity"]["average"],
-                     HORIZONS, run=p)]
+        d = run.evaluate(
+            p, ["--model", H36M, "--engine", "tcd", "--samples", "5", "--mask", p, *default_sampler_flags(H36M)]
+        )
+        ours += [
+            row(f"best_of_5/{p}", f"{p}: tcd forecast, oracle best of 5", d["best_of_n"]["average"], HORIZONS, run=p),
+            row(f"mean_of_5/{p}", f"{p}: tcd forecast, mean of 5", d["mean_of_n"]["average"], HORIZONS, run=p),
+            row(
+                f"zero_velocity/{p}",
+                f"{p}: Zero-Velocity, same observations",
+                d["zero_velocity"]["average"],
+                HORIZONS,
+                run=p,
+            ),
+        ]
         repair[p] = d.get("repair")
     paper_rows = [row(k, k, v, HORIZONS, source=f"{PAPER}, Table 2") for k, v in PUBLISHED_TABLE2.items()]
-    return {"title": "Human3.6M Setting-B, imperfect observations (the TCD rows of the paper's Table 2)",
-            "units": "mm", "columns": list(HORIZONS), "column_unit": "ms", "paper_rows": paper_rows,
-            "our_rows": ours, "repair": repair,
-            "protocol": {"ours": run.records[PATTERNS[0]]["protocol"], "patterns": list(PATTERNS),
-                         "paper": "S5, 15 actions; the corruption not stated in the text available"}}
+    return {
+        "title": "Human3.6M Setting-B, imperfect observations (the TCD rows of the paper's Table 2)",
+        "units": "mm",
+        "columns": list(HORIZONS),
+        "column_unit": "ms",
+        "paper_rows": paper_rows,
+        "our_rows": ours,
+        "repair": repair,
+        "protocol": {
+            "ours": run.records[PATTERNS[0]]["protocol"],
+            "patterns": list(PATTERNS),
+            "paper": "S5, 15 actions; the corruption not stated in the text available",
+        },
+    }
 
 
 def table3(run: Runner) -> dict:
     """HumanEva-I, stochastic (the paper's Table 3, its HumanEva-I half): the bundled mixture (its default), its
     cascade alone and its generator alone, each 50 samples; the prior, the nearest training futures and
     Zero-Velocity; beside the published numbers."""
-    base = ["--protocol", "humaneva", "--model", HUMANEVA, "--engine", "tcd", "--samples", "50",
-            *default_sampler_flags(HUMANEVA)]
+    base = [
+        "--protocol",
+        "humaneva",
+        "--model",
+        HUMANEVA,
+        "--engine",
+        "tcd",
+        "--samples",
+        "50",
+        *default_sampler_flags(HUMANEVA),
+    ]
     mix = run.evaluate("mixture", base)
     cascade = run.evaluate("cascade", base + ["--generator-share", "0"])
     gen = run.evaluate("generator", base + ["--generator-share", "1"])
@@ -293,17 +343,24 @@ def table3(run: Runner) -> dict:
     ]
     pub = published_humaneva()
     paper_rows = [row(k, k, v, STOCHASTIC, source=PAPER) for k, v in pub.items() if v]
-    return {"title": "HumanEva-I, stochastic, 50 samples (the paper's Table 3, HumanEva-I)", "units": "m",
-            "columns": list(STOCHASTIC), "column_unit": "", "paper_rows": paper_rows, "our_rows": ours,
-            "not_given": [k for k, v in pub.items() if not v], "per_action": {"tcd": mix.get("per_action")},
-            "protocol": {"ours": mix["protocol"], "paper": "DLow / GSPS protocol, 50 samples"}}
+    return {
+        "title": "HumanEva-I, stochastic, 50 samples (the paper's Table 3, HumanEva-I)",
+        "units": "m",
+        "columns": list(STOCHASTIC),
+        "column_unit": "",
+        "paper_rows": paper_rows,
+        "our_rows": ours,
+        "not_given": [k for k, v in pub.items() if not v],
+        "per_action": {"tcd": mix.get("per_action")},
+        "protocol": {"ours": mix["protocol"], "paper": "DLow / GSPS protocol, 50 samples"},
+    }
 
 
 @dataclass
 class Table:
     make: Callable[[Runner], dict]
-    out: str            # the results file, relative to the repository root
-    runs: tuple         # the names of its runs (for --list and --from)
+    out: str  # the results file, relative to the repository root
+    runs: tuple  # the names of its runs (for --list and --from)
 
 
 # ------------------------------------------------------------------------------------------ registration
@@ -358,22 +415,31 @@ def make(name: str, runner: Runner, command: str) -> dict:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m benches.paper", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        prog="python -m benches.paper", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("table", nargs="?", help="the table to make (--list: the tables)")
     ap.add_argument("--list", action="store_true", help="the tables, their results files and their runs")
-    ap.add_argument("--windows-per-action", type=int, default=256, help="Human3.6M windows per action (256: the "
-                                                                        "protocol)")
+    ap.add_argument(
+        "--windows-per-action", type=int, default=256, help="Human3.6M windows per action (256: the protocol)"
+    )
     ap.add_argument("--max-windows", type=int, default=None, help="HumanEva-I: this many of the 188 windows")
     ap.add_argument("--threads", type=int, default=None, help="passed to training.evaluate")
-    ap.add_argument("--from", dest="sources", nargs="+", default=[], metavar="RUN=FILE",
-                    help="take run RUN from a training.evaluate --json result instead of running it")
+    ap.add_argument(
+        "--from",
+        dest="sources",
+        nargs="+",
+        default=[],
+        metavar="RUN=FILE",
+        help="take run RUN from a training.evaluate --json result instead of running it",
+    )
     ap.add_argument("--out", default=None, help="the results file (default: the table's, under benches/results)")
     args = ap.parse_args(argv)
     if args.list or not args.table:
         for name, t in TABLES.items():
-            print(f"{name}: {(t.make.__doc__ or '').split(':')[0].strip()}\n    writes {t.out}; runs: "
-                  f"{', '.join(t.runs)}")
+            print(
+                f"{name}: {(t.make.__doc__ or '').split(':')[0].strip()}\n    writes {t.out}; runs: {', '.join(t.runs)}"
+            )
         return 0
     sources = {}
     for s in args.sources:

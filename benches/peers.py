@@ -25,6 +25,7 @@ cores; the peers' whole-forecast times are *estimated* from their per-forward me
 (250 forwards at L = 55 + 250 at L = 75, as ENGINE.md does), and the peak resident memory of a forecast is
 measured in a fresh process that imports only ``tcd``.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -65,9 +66,16 @@ def inputs(K: int, L: int, obs: int = 50):
 def export_onnx(model, arrays, path: Path) -> Path:
     args = tuple(torch.from_numpy(a) for a in arrays) + (torch.tensor([STEP], dtype=torch.long),)
     with torch.no_grad(), warnings.catch_warnings():
-        warnings.simplefilter("ignore")   # tracer notes on shape checks: the shapes are fixed per export
-        torch.onnx.export(model, args, str(path), input_names=["noisy", "observed", "mask", "step"],
-                          output_names=["eps"], opset_version=17, dynamo=False)
+        warnings.simplefilter("ignore")  # tracer notes on shape checks: the shapes are fixed per export
+        torch.onnx.export(
+            model,
+            args,
+            str(path),
+            input_names=["noisy", "observed", "mask", "step"],
+            output_names=["eps"],
+            opset_version=17,
+            dynamo=False,
+        )
     return path
 
 
@@ -80,19 +88,24 @@ def make_peers(names, model, onnx_path: Path, den, arrays, threads: int, compile
     if "tcd" in names:
         fns["tcd"] = lambda: den.forward(noisy, observed, mask, STEP, threads=threads)
     if "torch" in names:
+
         def run_torch():
             torch.set_num_threads(threads)
             with torch.no_grad():
                 return model(*t_in).numpy()
+
         fns["torch"] = run_torch
     if compiled is not None:
+
         def run_compiled():
             torch.set_num_threads(threads)
             with torch.no_grad():
                 return compiled(*t_in).numpy()
+
         fns["torch.compile"] = run_compiled
     if "ort" in names:
         import onnxruntime as ort
+
         so = ort.SessionOptions()
         so.intra_op_num_threads = threads
         so.inter_op_num_threads = 1
@@ -102,10 +115,13 @@ def make_peers(names, model, onnx_path: Path, den, arrays, threads: int, compile
         fns["ort"] = lambda: sess.run(None, feeds)[0]
     if "openvino" in names:
         import openvino as ov
+
         core = ov.Core()
-        compiled_ov = core.compile_model(str(onnx_path), "CPU", {"PERFORMANCE_HINT": "LATENCY",
-                                                                 "INFERENCE_NUM_THREADS": threads,
-                                                                 "INFERENCE_PRECISION_HINT": "f32"})
+        compiled_ov = core.compile_model(
+            str(onnx_path),
+            "CPU",
+            {"PERFORMANCE_HINT": "LATENCY", "INFERENCE_NUM_THREADS": threads, "INFERENCE_PRECISION_HINT": "f32"},
+        )
         req = compiled_ov.create_infer_request()
         fns["openvino"] = lambda: np.array(req.infer(feeds)[compiled_ov.output(0)])
     return fns
@@ -132,12 +148,14 @@ def time_interleaved(fns: dict, reps: int, warmup: int = 3, settle: float = 0.0)
 def peak_rss_of_forecast(model_dir: Path, kw: dict) -> float:
     """MiB: the peak resident set (VmHWM) of a fresh process that imports tcd (no torch) and runs one
     forecast. VmHWM, not ru_maxrss: Linux carries ru_maxrss over exec from the (large) forking parent."""
-    code = ("import numpy as np, tcd\n"
-            f"m = tcd.load({str(model_dir)!r})\n"
-            "obs = np.random.default_rng(0).normal(scale=0.3, size=(50, m.num_joints, 3)).astype(np.float32)\n"
-            f"m.forecast(obs, **{kw!r})\n"
-            "hwm = [l for l in open('/proc/self/status') if l.startswith('VmHWM:')][0]\n"
-            "print(int(hwm.split()[1]) / 1024)\n")
+    code = (
+        "import numpy as np, tcd\n"
+        f"m = tcd.load({str(model_dir)!r})\n"
+        "obs = np.random.default_rng(0).normal(scale=0.3, size=(50, m.num_joints, 3)).astype(np.float32)\n"
+        f"m.forecast(obs, **{kw!r})\n"
+        "hwm = [l for l in open('/proc/self/status') if l.startswith('VmHWM:')][0]\n"
+        "print(int(hwm.split()[1]) / 1024)\n"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     return float(out.stdout.strip().splitlines()[-1])
 
@@ -145,8 +163,10 @@ def peak_rss_of_forecast(model_dir: Path, kw: dict) -> float:
 def whole_forecast(model_dir: Path, reps: int) -> dict:
     m = tcd.load(model_dir)
     obs = np.random.default_rng(0).normal(scale=0.3, size=(50, m.num_joints, 3)).astype(np.float32)
-    runs = {"ddpm50_x5": dict(num_samples=5, seed=0),
-            "ddim10_x1": dict(num_samples=1, num_inference_steps=10, sampler="ddim", seed=0)}
+    runs = {
+        "ddpm50_x5": dict(num_samples=5, seed=0),
+        "ddim10_x1": dict(num_samples=1, num_inference_steps=10, sampler="ddim", seed=0),
+    }
     out = {}
     for name, kw in runs.items():
         m.forecast(obs, **kw)  # warm-up
@@ -155,19 +175,30 @@ def whole_forecast(model_dir: Path, reps: int) -> dict:
             t0 = time.perf_counter()
             m.forecast(obs, **kw)
             ts.append(time.perf_counter() - t0)
-        out[name] = {"seconds": statistics.median(ts), "reps": reps,
-                     "peak_rss_mib": peak_rss_of_forecast(model_dir, kw)}
-        print(f"whole forecast {name}: tcd {out[name]['seconds']:.2f} s (median of {reps}), "
-              f"peak RSS {out[name]['peak_rss_mib']:.0f} MiB")
+        out[name] = {
+            "seconds": statistics.median(ts),
+            "reps": reps,
+            "peak_rss_mib": peak_rss_of_forecast(model_dir, kw),
+        }
+        print(
+            f"whole forecast {name}: tcd {out[name]['seconds']:.2f} s (median of {reps}), "
+            f"peak RSS {out[name]['peak_rss_mib']:.0f} MiB"
+        )
     return out
 
 
 def versions() -> dict:
-    v = {"python": platform.python_version(), "torch": torch.__version__, "tcd": tcd.__version__,
-         "cpu": cpu_model(), "cores": os.cpu_count(),
-         "tcd_kernel": os.environ.get("TCD_KERNEL", "auto"),
-         # what auto resolves to here, and the CPU's SIMD flags (a VM may hide AVX-512)
-         "tcd_supported_kernels": tcd.engine.supported_kernels(), "cpu_simd_flags": cpu_simd_flags()}
+    v = {
+        "python": platform.python_version(),
+        "torch": torch.__version__,
+        "tcd": tcd.__version__,
+        "cpu": cpu_model(),
+        "cores": os.cpu_count(),
+        "tcd_kernel": os.environ.get("TCD_KERNEL", "auto"),
+        # what auto resolves to here, and the CPU's SIMD flags (a VM may hide AVX-512)
+        "tcd_supported_kernels": tcd.engine.supported_kernels(),
+        "cpu_simd_flags": cpu_simd_flags(),
+    }
     for mod in ("onnxruntime", "openvino"):
         try:
             v[mod] = __import__(mod).__version__
@@ -176,8 +207,13 @@ def versions() -> dict:
     return v
 
 
-NAMES = {"tcd": "tcd", "torch": "PyTorch eager", "ort": "ONNX Runtime", "openvino": "OpenVINO",
-         "compile": "torch.compile"}
+NAMES = {
+    "tcd": "tcd",
+    "torch": "PyTorch eager",
+    "ort": "ONNX Runtime",
+    "openvino": "OpenVINO",
+    "compile": "torch.compile",
+}
 
 
 def markdown(result: dict) -> str:
@@ -196,18 +232,28 @@ def markdown(result: dict) -> str:
     wf = result.get("whole_forecast")
     if wf:
         d = wf["ddpm50_x5"]
-        lines += ["", "| whole forecast | tcd (measured) | " + " | ".join(
-            f"{NAMES[k]} (estimated)" for k in sorted(d.get("peers_estimated_seconds", {}))) + " |",
+        lines += [
+            "",
+            "| whole forecast | tcd (measured) | "
+            + " | ".join(f"{NAMES[k]} (estimated)" for k in sorted(d.get("peers_estimated_seconds", {})))
+            + " |",
             "|---" * (2 + len(d.get("peers_estimated_seconds", {}))) + "|",
-            "| DDPM-50 × 5 samples, both stages (s) | " + f"{d['seconds']:.1f} | " + " | ".join(
-                f"{v:.1f}" for _, v in sorted(d.get("peers_estimated_seconds", {}).items())) + " |"]
+            "| DDPM-50 × 5 samples, both stages (s) | "
+            + f"{d['seconds']:.1f} | "
+            + " | ".join(f"{v:.1f}" for _, v in sorted(d.get("peers_estimated_seconds", {}).items()))
+            + " |",
+        ]
         if "ddim10_x1" in wf:
-            lines.append(f"| DDIM-10 × 1 sample (s) | {wf['ddim10_x1']['seconds']:.2f} |"
-                         + " |" * len(d.get("peers_estimated_seconds", {})))
+            lines.append(
+                f"| DDIM-10 × 1 sample (s) | {wf['ddim10_x1']['seconds']:.2f} |"
+                + " |" * len(d.get("peers_estimated_seconds", {}))
+            )
         lines.append("")
-        lines.append("Peak resident memory of a forecast (fresh process): "
-                     + ", ".join(f"{k} {v['peak_rss_mib']:.0f} MiB" for k, v in wf.items() if "peak_rss_mib" in v)
-                     + ".")
+        lines.append(
+            "Peak resident memory of a forecast (fresh process): "
+            + ", ".join(f"{k} {v['peak_rss_mib']:.0f} MiB" for k, v in wf.items() if "peak_rss_mib" in v)
+            + "."
+        )
     return "\n".join(lines)
 
 
@@ -217,16 +263,24 @@ def main(argv=None) -> int:
     ap.add_argument("--lengths", type=int, nargs="+", default=[75, 55])
     ap.add_argument("--threads", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--reps", type=int, default=21)
-    ap.add_argument("--settle", type=float, default=0.3,
-                    help="seconds of sleep before each timed call (spinning worker threads of the previous "
-                         "peer go idle; without it the peer timed next is slowed, up to ~20 %% measured)")
+    ap.add_argument(
+        "--settle",
+        type=float,
+        default=0.3,
+        help="seconds of sleep before each timed call (spinning worker threads of the previous "
+        "peer go idle; without it the peer timed next is slowed, up to ~20 %% measured)",
+    )
     ap.add_argument("--peers", nargs="+", default=list(ALL_PEERS), choices=ALL_PEERS)
     ap.add_argument("--compile", action="store_true", help="also time torch.compile (inductor; slow to compile)")
     ap.add_argument("--whole-forecast", action="store_true", help="also time TCD.forecast (see the docstring)")
     ap.add_argument("--forecast-reps", type=int, default=3)
     ap.add_argument("--json", default=None)
-    ap.add_argument("--table-from", default=None, metavar="JSON",
-                    help="print the markdown tables of a saved --json result and exit (runs nothing)")
+    ap.add_argument(
+        "--table-from",
+        default=None,
+        metavar="JSON",
+        help="print the markdown tables of a saved --json result and exit (runs nothing)",
+    )
     args = ap.parse_args(argv)
     if args.table_from:
         print(markdown(json.loads(Path(args.table_from).read_text())))
@@ -236,8 +290,7 @@ def main(argv=None) -> int:
             try:
                 __import__({"ort": "onnxruntime", "openvino": "openvino"}[p])
             except ImportError:
-                ap.error(f"peer {p!r} is not installed: python3 -m pip install \".[peers]\" "
-                         "(or leave it out of --peers)")
+                ap.error(f'peer {p!r} is not installed: python3 -m pip install ".[peers]" (or leave it out of --peers)')
     tmp = Path(tempfile.mkdtemp(prefix="tcd_peers_"))
     d = random_init_dir(tmp / "model", preset=args.preset, seed=0)
     rows = []
@@ -263,9 +316,15 @@ def main(argv=None) -> int:
             if "tcd" in med:
                 row["peer_over_tcd"] = {k: v / med["tcd"] for k, v in med.items() if k != "tcd"}
             rows.append(row)
-            print(f"L={L} threads={threads}: " + ", ".join(f"{k} {v:.1f} ms" for k, v in med.items())
-                  + ("" if "tcd" not in med else "  | peer/tcd " + ", ".join(
-                      f"{k} {v:.2f}" for k, v in row["peer_over_tcd"].items())))
+            print(
+                f"L={L} threads={threads}: "
+                + ", ".join(f"{k} {v:.1f} ms" for k, v in med.items())
+                + (
+                    ""
+                    if "tcd" not in med
+                    else "  | peer/tcd " + ", ".join(f"{k} {v:.2f}" for k, v in row["peer_over_tcd"].items())
+                )
+            )
     result = {"preset": args.preset, "step": STEP, "settle_s": args.settle, "versions": versions(), "rows": rows}
     if args.whole_forecast:
         tmax = max(args.threads)

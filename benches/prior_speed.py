@@ -19,6 +19,7 @@ the machine's SIMD flags and its load average before and after (on a shared mach
 cores: compare within one run). The issue's goals, reported, never asserted: one forecast under 1 ms, a batch
 of 1,000 under 0.1 s on 2 cores.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -43,10 +44,10 @@ import tcd  # noqa: E402
 from machine import cpu_model, cpu_simd_flags  # noqa: E402
 from training import export  # noqa: E402
 
-GOALS_S = {"one": 1e-3, "batch": 0.1}   # the issue's goals, at 2 threads for the batch
+GOALS_S = {"one": 1e-3, "batch": 0.1}  # the issue's goals, at 2 threads for the batch
 # After a block of torch calls: its OpenMP workers keep spinning after each call and take the cores (tcd's
 # next call at 2 threads measured 10x slower right after a torch call, 6x slower 50 ms after, here).
-PAUSE_S = 1.0   # --pause
+PAUSE_S = 1.0  # --pause
 
 
 def model_file(args, tmp: Path) -> tuple[Path, str]:
@@ -65,9 +66,10 @@ def model_file(args, tmp: Path) -> tuple[Path, str]:
 def windows(batch: int, obs_len: int) -> np.ndarray:
     """(batch, obs_len, K) float32: windows of the demo clip, repeated."""
     from tcd.demo import load_clip
+
     clip = load_clip()["poses"]
     clip = clip.reshape(len(clip), -1).astype(np.float32)
-    wins = np.stack([clip[s:s + obs_len] for s in range(len(clip) - obs_len + 1)])
+    wins = np.stack([clip[s : s + obs_len] for s in range(len(clip) - obs_len + 1)])
     return np.ascontiguousarray(wins[np.arange(batch) % len(wins)])
 
 
@@ -85,7 +87,7 @@ def time_pair(prior, model, obs: np.ndarray, horizon: int, threads: int, reps: i
     times = {"tcd": [], "torch": []}
     outputs = {}
     for name, fn in (("torch", run_torch), ("tcd", run_tcd)):
-        outputs[name] = np.asarray(fn())                 # warm-up; the outputs are compared below
+        outputs[name] = np.asarray(fn())  # warm-up; the outputs are compared below
         for _ in range(reps):
             t0 = time.perf_counter()
             fn()
@@ -93,14 +95,21 @@ def time_pair(prior, model, obs: np.ndarray, horizon: int, threads: int, reps: i
         time.sleep(pause)
     got, want = outputs["tcd"], outputs["torch"]
     med = {k: statistics.median(v) for k, v in times.items()}
-    return {"batch": len(obs), "threads": threads, "horizon": horizon, "reps": reps,
-            "median_s": med, "min_s": {k: min(v) for k, v in times.items()},
-            "torch_over_tcd": med["torch"] / med["tcd"],
-            "max_abs_diff": float(np.abs(got.astype(np.float64) - want).max())}
+    return {
+        "batch": len(obs),
+        "threads": threads,
+        "horizon": horizon,
+        "reps": reps,
+        "median_s": med,
+        "min_s": {k: min(v) for k, v in times.items()},
+        "torch_over_tcd": med["torch"] / med["tcd"],
+        "max_abs_diff": float(np.abs(got.astype(np.float64) - want).max()),
+    }
 
 
 def markdown(result: dict) -> str:
     rows = result["rows"]
+
     def column(r):
         return ("1 forecast" if r["batch"] == 1 else f"batch of {r['batch']:,}") + f", {r['threads']} thr."
 
@@ -120,8 +129,9 @@ def markdown(result: dict) -> str:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--model",
-                    help="a model directory with prior.safetensors, or the file (default: the bundled prior)")
+    ap.add_argument(
+        "--model", help="a model directory with prior.safetensors, or the file (default: the bundled prior)"
+    )
     ap.add_argument("--random", action="store_true", help="time a seeded random prior even where one is bundled")
     ap.add_argument("--blocks", type=int, default=24, help="blocks of the random prior")
     ap.add_argument("--reps", type=int, default=21, help="timed repetitions of each job (the batch job: a third)")
@@ -144,24 +154,42 @@ def main(argv=None) -> int:
             for threads in args.threads:
                 r = time_pair(prior, model, obs, args.horizon, threads, reps, args.pause)
                 rows.append(r)
-                print(f"B={batch:5d} threads={threads}: tcd {r['median_s']['tcd'] * 1e3:9.3f} ms, torch "
-                      f"{r['median_s']['torch'] * 1e3:9.3f} ms ({r['torch_over_tcd']:.1f}x), "
-                      f"max abs diff {r['max_abs_diff']:.2g}", flush=True)
+                print(
+                    f"B={batch:5d} threads={threads}: tcd {r['median_s']['tcd'] * 1e3:9.3f} ms, torch "
+                    f"{r['median_s']['torch'] * 1e3:9.3f} ms ({r['torch_over_tcd']:.1f}x), "
+                    f"max abs diff {r['max_abs_diff']:.2g}",
+                    flush=True,
+                )
     torch.set_num_threads(torch_threads)
     one = [r for r in rows if r["batch"] == 1]
     big = [r for r in rows if r["batch"] == args.batch and r["threads"] == 2]
     result = {
-        "model": {"weights": what, "blocks": prior.blocks, "obs_len": prior.obs_len, "chunk": prior.chunk,
-                  "num_features": prior.num_features},
-        "machine": {"cpu": cpu_model(), "cores": os.cpu_count(), "cpu_simd_flags": cpu_simd_flags(),
-                    "tcd_kernel": prior.kernel, "tcd_supported_kernels": tcd.engine.supported_kernels(),
-                    "python": platform.python_version(), "torch": torch.__version__, "tcd": tcd.__version__,
-                    # 1-minute load averages before and after: other processes share the cores
-                    "load_average": [load_before[0], os.getloadavg()[0]]},
+        "model": {
+            "weights": what,
+            "blocks": prior.blocks,
+            "obs_len": prior.obs_len,
+            "chunk": prior.chunk,
+            "num_features": prior.num_features,
+        },
+        "machine": {
+            "cpu": cpu_model(),
+            "cores": os.cpu_count(),
+            "cpu_simd_flags": cpu_simd_flags(),
+            "tcd_kernel": prior.kernel,
+            "tcd_supported_kernels": tcd.engine.supported_kernels(),
+            "python": platform.python_version(),
+            "torch": torch.__version__,
+            "tcd": tcd.__version__,
+            # 1-minute load averages before and after: other processes share the cores
+            "load_average": [load_before[0], os.getloadavg()[0]],
+        },
         "rows": rows,
-        "goals": {"one_forecast_s": GOALS_S["one"], "batch_1000_on_2_threads_s": GOALS_S["batch"],
-                  "one_forecast_met": bool(one) and min(r["median_s"]["tcd"] for r in one) < GOALS_S["one"],
-                  "batch_met": (big[0]["median_s"]["tcd"] < GOALS_S["batch"]) if big and args.batch == 1000 else None},
+        "goals": {
+            "one_forecast_s": GOALS_S["one"],
+            "batch_1000_on_2_threads_s": GOALS_S["batch"],
+            "one_forecast_met": bool(one) and min(r["median_s"]["tcd"] for r in one) < GOALS_S["one"],
+            "batch_met": (big[0]["median_s"]["tcd"] < GOALS_S["batch"]) if big and args.batch == 1000 else None,
+        },
         "command": "python3 benches/prior_speed.py " + " ".join(sys.argv[1:] if argv is None else argv),
     }
     print(markdown(result))

@@ -27,6 +27,7 @@ command resamples to the model's 25 fps, so it generates half as many frames, an
 observations of the frames at 25 fps (the baselines use all of them). Needs scipy
 (``pip install 'tcd-forecast[bench]'``) and the Human3.6M data.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -59,7 +60,7 @@ def occlusion_mask(frames: int, num_joints: int, rng: np.random.Generator) -> np
     for b, s in enumerate(range(0, frames, BLOCK)):
         _, pattern, rate = PATTERNS[b % len(PATTERNS)]
         m = masks.make_mask(pattern, BLOCK, BLOCK, rng, rate=rate).astype(bool)
-        out[s:s + BLOCK] = m[:frames - s]
+        out[s : s + BLOCK] = m[: frames - s]
     return out
 
 
@@ -71,7 +72,7 @@ def build_inputs(data_dir: Path, indir: Path, files: int, max_frames: int, seed:
     keys = sorted(k for k in data.files if k.startswith("S5/"))[:files]
     gts, ms = {}, {}
     for i, key in enumerate(keys):
-        rows = data[key][:max_frames][::50 // fps]  # 50 fps, or every other frame for 25 fps
+        rows = data[key][:max_frames][:: 50 // fps]  # 50 fps, or every other frame for 25 fps
         gt = (tcd.fk.expmap_to_model(rows) * 1000.0).astype(np.float32)  # (T, 22, 3) mm
         m = occlusion_mask(len(gt), gt.shape[1], np.random.default_rng([seed, i]))
         name = key.split("/", 1)[1]
@@ -84,12 +85,22 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--files", type=int, default=24, help="S5 sequences (default all 24)")
     ap.add_argument("--max-frames", type=int, default=1000, help="first frames (50 fps) of each (default 1000)")
-    ap.add_argument("--fps", type=int, default=50, choices=(50, 25),
-                    help="frame rate of the written recordings: the source's 50, or 25 (every other frame)")
-    ap.add_argument("--steps", type=int, default=None,
-                    help="tcd repair --steps (default: the model's; the bundled model's DDPM-10)")
-    ap.add_argument("--samples", type=int, default=None,
-                    help="tcd repair --samples (default: the command's, the model's own: the bundled fill alone)")
+    ap.add_argument(
+        "--fps",
+        type=int,
+        default=50,
+        choices=(50, 25),
+        help="frame rate of the written recordings: the source's 50, or 25 (every other frame)",
+    )
+    ap.add_argument(
+        "--steps", type=int, default=None, help="tcd repair --steps (default: the model's; the bundled model's DDPM-10)"
+    )
+    ap.add_argument(
+        "--samples",
+        type=int,
+        default=None,
+        help="tcd repair --samples (default: the command's, the model's own: the bundled fill alone)",
+    )
     ap.add_argument("--jobs", type=int, default=None, help="tcd repair --jobs (default: all cores)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the masks and of tcd repair")
     ap.add_argument("--repair-args", default="", help='more tcd repair arguments, e.g. "--overlap 5 --lookahead 15"')
@@ -106,10 +117,30 @@ def main(argv=None) -> int:
     indir.mkdir(parents=True, exist_ok=True)
     try:
         gts, ms = build_inputs(Path(args.data_dir), indir, args.files, args.max_frames, args.seed, args.fps)
-        cmd = [sys.executable, "-m", "tcd", "repair", str(indir), "-o", str(outdir), "--units", "mm",
-               "--fps", str(args.fps), "--report", str(report), "--quiet", "--seed", str(args.seed)]
-        for flag, value in (("--samples", args.samples), ("--steps", args.steps), ("--jobs", args.jobs),
-                            ("--model", args.model)):
+        cmd = [
+            sys.executable,
+            "-m",
+            "tcd",
+            "repair",
+            str(indir),
+            "-o",
+            str(outdir),
+            "--units",
+            "mm",
+            "--fps",
+            str(args.fps),
+            "--report",
+            str(report),
+            "--quiet",
+            "--seed",
+            str(args.seed),
+        ]
+        for flag, value in (
+            ("--samples", args.samples),
+            ("--steps", args.steps),
+            ("--jobs", args.jobs),
+            ("--model", args.model),
+        ):
             if value is not None:
                 cmd += [flag, str(value)]
         cmd += args.repair_args.split()
@@ -128,37 +159,56 @@ def main(argv=None) -> int:
             obs = np.where(m[..., None], gt, np.nan)
             if not np.array_equal(out[m], gt[m]):
                 raise SystemExit(f"{name}: observed values changed")
-            fills = {"tcd": out, "linear": linear_fill(obs[None], m[None])[0],
-                     "spline": spline_fill(obs[None], m[None])[0]}
+            fills = {
+                "tcd": out,
+                "linear": linear_fill(obs[None], m[None])[0],
+                "spline": spline_fill(obs[None], m[None])[0],
+            }
             for k, f in fills.items():
                 err[k].append(np.linalg.norm(f.astype(np.float64) - gt, axis=-1)[~m])
         ade = {k: float(np.concatenate(v).mean()) for k, v in err.items()}
         frames = sum(len(g) for g in gts.values())
         res = {
-            "command": " ".join(["tcd"] + cmd[3:]).replace(str(work), "WORK"), "files": len(gts), "fps": args.fps,
+            "command": " ".join(["tcd"] + cmd[3:]).replace(str(work), "WORK"),
+            "files": len(gts),
+            "fps": args.fps,
             "frames": frames,
             "hidden_entries": int(sum((~m).sum() for m in ms.values())),
             "hidden_fraction": float(np.mean(np.concatenate([(~m).ravel() for m in ms.values()]))),
-            "seconds": seconds, "frames_per_second": frames / seconds, "cores": os.cpu_count(),
-            "ade_mm": ade, "tcd_over_linear": ade["tcd"] / ade["linear"], "tcd_over_spline": ade["tcd"] / ade["spline"],
-            "provenance": prov, "tcd_version": tcd.__version__,
+            "seconds": seconds,
+            "frames_per_second": frames / seconds,
+            "cores": os.cpu_count(),
+            "ade_mm": ade,
+            "tcd_over_linear": ade["tcd"] / ade["linear"],
+            "tcd_over_spline": ade["tcd"] / ade["spline"],
+            "provenance": prov,
+            "tcd_version": tcd.__version__,
         }
     finally:
         if not args.work:
             shutil.rmtree(work, ignore_errors=True)
 
     steps = prov.get("steps")
-    print(f"`{res['command']}`: {res['files']} files, {frames} frames at {args.fps} fps "
-          f"({res['hidden_fraction']:.0%} of the joint-frames hidden), {seconds:.1f} s wall "
-          f"on {os.cpu_count()} cores\n")
-    print(f"| steps | frames/s ({args.fps} fps source) | tcd ADE (mm) | linear interp. | natural cubic spline "
-          "| tcd / linear | tcd / spline |")
+    print(
+        f"`{res['command']}`: {res['files']} files, {frames} frames at {args.fps} fps "
+        f"({res['hidden_fraction']:.0%} of the joint-frames hidden), {seconds:.1f} s wall "
+        f"on {os.cpu_count()} cores\n"
+    )
+    print(
+        f"| steps | frames/s ({args.fps} fps source) | tcd ADE (mm) | linear interp. | natural cubic spline "
+        "| tcd / linear | tcd / spline |"
+    )
     print("|---|---|---|---|---|---|---|")
-    how = ("the repair fill alone" if prov.get("num_samples") == 0 else
-           f"{prov.get('sampler', 'ddpm').upper()}-{steps} x {prov.get('num_samples')}")
-    print(f"| {how} | {res['frames_per_second']:.0f} | "
-          f"{ade['tcd']:.1f} | {ade['linear']:.1f} | {ade['spline']:.1f} | {res['tcd_over_linear']:.2f} | "
-          f"{res['tcd_over_spline']:.2f} |")
+    how = (
+        "the repair fill alone"
+        if prov.get("num_samples") == 0
+        else f"{prov.get('sampler', 'ddpm').upper()}-{steps} x {prov.get('num_samples')}"
+    )
+    print(
+        f"| {how} | {res['frames_per_second']:.0f} | "
+        f"{ade['tcd']:.1f} | {ade['linear']:.1f} | {ade['spline']:.1f} | {res['tcd_over_linear']:.2f} | "
+        f"{res['tcd_over_spline']:.2f} |"
+    )
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(res, indent=1) + "\n")

@@ -12,6 +12,7 @@ first is the reference ``training.compare`` pairs the others with) and scores th
 The JSON holds each model's per-window ADE per length (method ``model<i>``, ``linear``), for ``training.compare
 NEW OLD --key gap_<n>:model1 --bundled-key gap_<n>:model0``.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -34,14 +35,18 @@ def gap_masks(windows: int, length: int, n: int, seed: int) -> np.ndarray:
     starts = np.random.default_rng([seed, n]).integers(0, length - n + 1, windows)
     m = np.ones((windows, length, 22), bool)
     for w, s in enumerate(starts):
-        m[w, s:s + n] = False
+        m[w, s : s + n] = False
     return m
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--model", nargs="+", default=["default"],
-                    help="model directories or bundled names (\"default\": the bundled Human3.6M model)")
+    ap.add_argument(
+        "--model",
+        nargs="+",
+        default=["default"],
+        help='model directories or bundled names ("default": the bundled Human3.6M model)',
+    )
     ap.add_argument("--lengths", type=int, nargs="+", default=[1, 2, 5, 10, 15, 20, 25, 30])
     ap.add_argument("--windows", type=int, default=256)
     ap.add_argument("--seed", type=int, default=0)
@@ -64,13 +69,25 @@ def main(argv=None) -> int:
             res[f"model{i}"] = rq.scores(model.repair(obs, num_samples=0).poses, gt, m, 0, 1.0)
         res["linear"] = rq.scores(rq.linear_fill(obs, m), gt, m, 0, 1.0)
         rows.append(res)
-        print(f"| {n} | " + " | ".join(f"{res[f'model{i}']['ade_mm']:.2f}" for i in range(len(models)))
-              + f" | {res['linear']['ade_mm']:.2f} |", flush=True)
+        print(
+            f"| {n} | "
+            + " | ".join(f"{res[f'model{i}']['ade_mm']:.2f}" for i in range(len(models)))
+            + f" | {res['linear']['ade_mm']:.2f} |",
+            flush=True,
+        )
     if args.json:
-        rq.write_json(args.json, rq.repair_result(
-            [[r["pattern"], None] for r in rows], args.windows, t, args.seed, rows,
-            models=[{"path": str(md.path), "sha256": md.sha256} for md in models],
-            command="python benches/repair_gap_lengths.py " + " ".join(sys.argv[1:] if argv is None else argv)))
+        rq.write_json(
+            args.json,
+            rq.repair_result(
+                [[r["pattern"], None] for r in rows],
+                args.windows,
+                t,
+                args.seed,
+                rows,
+                models=[{"path": str(md.path), "sha256": md.sha256} for md in models],
+                command="python benches/repair_gap_lengths.py " + " ".join(sys.argv[1:] if argv is None else argv),
+            ),
+        )
     return 0
 
 

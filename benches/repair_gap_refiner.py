@@ -31,6 +31,7 @@ pooled loss is ruled by the long gaps), the benchmark's 10-frame gaps 17.38 agai
 on 146 of 256): short of issue 29's 0.5 × linear interpolation (15.6 mm), so not built into the engine.
 Needs torch and the Human3.6M data.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -67,7 +68,7 @@ def gap_windows(model: "tcd.TCD", split: str, n: int, rng: np.random.Generator, 
         start = rng.integers(0, FRAMES - length + 1)
         seen = np.ones((k, FRAMES), bool)
         for i in range(k):
-            seen[i, start[i]:start[i] + length[i]] = False
+            seen[i, start[i] : start[i] + length[i]] = False
         keep = np.repeat(seen[..., None], g.shape[-1], -1).astype(np.float32)
         fill = model.repair_fill.fill(np.ascontiguousarray(g * keep, np.float32), keep, forecaster=model.prior)
         for key, v in (("gt", g), ("fill", fill.astype(np.float32)), ("seen", seen)):
@@ -127,6 +128,7 @@ def main(argv=None) -> int:
     ap.add_argument("--json", default=None, metavar="OUT")
     args = ap.parse_args(argv)
     import torch
+
     torch.set_num_threads(args.threads)
     torch.manual_seed(args.seed)
     model = tcd.load()
@@ -141,9 +143,9 @@ def main(argv=None) -> int:
     gen = torch.Generator().manual_seed(args.seed)
     steps, step, t0 = None, 0, time.time()
     while steps is None or step < steps:
-        if step == 50:      # the step count the minutes allow, from the first 50 steps' pace
+        if step == 50:  # the step count the minutes allow, from the first 50 steps' pace
             steps = max(100, int(args.minutes * 60 / ((time.time() - t0) / 50)))
-        total = steps or 10 ** 9
+        total = steps or 10**9
         lr = 1e-3 * min(1.0, (step + 1) / 200) * 0.5 * (1 + math.cos(math.pi * min(step, total) / total))
         for group in opt.param_groups:
             group["lr"] = lr
@@ -154,8 +156,10 @@ def main(argv=None) -> int:
         opt.step()
         step += 1
         if step % 500 == 0:
-            print(f"step {step} of {steps}: training loss {float(loss.detach()):.2f} mm, {time.time() - t0:.0f} s",
-                  flush=True)
+            print(
+                f"step {step} of {steps}: training loss {float(loss.detach()):.2f} mm, {time.time() - t0:.0f} s",
+                flush=True,
+            )
     net.eval()
     with torch.no_grad():
         refined = net(vfill, vseen)
@@ -163,36 +167,58 @@ def main(argv=None) -> int:
     by_length = []
     for lo, hi in LENGTH_BINS:
         s = torch.from_numpy((n >= lo) & (n < hi))
-        by_length.append({"frames": [lo, hi - 1], "windows": int(s.sum()),
-                          "fill_mm": float(hidden_error_mm(vfill[s], vgt[s], vseen[s])),
-                          "refined_mm": float(hidden_error_mm(refined[s], vgt[s], vseen[s]))})
+        by_length.append(
+            {
+                "frames": [lo, hi - 1],
+                "windows": int(s.sum()),
+                "fill_mm": float(hidden_error_mm(vfill[s], vgt[s], vseen[s])),
+                "refined_mm": float(hidden_error_mm(refined[s], vgt[s], vseen[s])),
+            }
+        )
     gt5 = draw_windows(256, FRAMES, 0, Path(h36m.DEFAULT_H36M_DIR))
     label, pattern, m, obs = next(c for c in masked_cases(gt5, 0) if c[1] == "consecutive_frames")
     base = learned_fill(model)(np.nan_to_num(obs), m)
     with torch.no_grad():
         flat = torch.from_numpy(base.reshape(256, FRAMES, -1).astype(np.float32))
         ref = net(flat, torch.from_numpy(m.all(-1))).numpy().reshape(base.shape)
-    per = {k: np.array([distances(p, gt5)[i][~m[i]].mean() * 1000 for i in range(256)]) for k, p in
-           (("fill", base), ("refined", ref))}
+    per = {
+        k: np.array([distances(p, gt5)[i][~m[i]].mean() * 1000 for i in range(256)])
+        for k, p in (("fill", base), ("refined", ref))
+    }
     diff = per["refined"] - per["fill"]
-    out = {"settings": vars(args), "steps": steps, "seconds": time.time() - t0,
-           "parameters": sum(p.numel() for p in net.parameters()),
-           "validation": {"fill_mm": float(hidden_error_mm(vfill, vgt, vseen)),
-                          "refined_mm": float(hidden_error_mm(refined, vgt, vseen)), "by_gap_length": by_length},
-           "benchmark_consecutive_frames": {
-               "windows": 256, "fill_mm": float(distances(base, gt5)[~m].mean() * 1000),
-               "refined_mm": float(distances(ref, gt5)[~m].mean() * 1000),
-               "paired_mm": [float(diff.mean()), float(diff.std(ddof=1) / math.sqrt(len(diff)))],
-               "refined_lower_on": int((diff < 0).sum())}}
-    print(f"validation (S11, gaps of 1-25 frames): fill {out['validation']['fill_mm']:.2f} mm, refined "
-          f"{out['validation']['refined_mm']:.2f}")
+    out = {
+        "settings": vars(args),
+        "steps": steps,
+        "seconds": time.time() - t0,
+        "parameters": sum(p.numel() for p in net.parameters()),
+        "validation": {
+            "fill_mm": float(hidden_error_mm(vfill, vgt, vseen)),
+            "refined_mm": float(hidden_error_mm(refined, vgt, vseen)),
+            "by_gap_length": by_length,
+        },
+        "benchmark_consecutive_frames": {
+            "windows": 256,
+            "fill_mm": float(distances(base, gt5)[~m].mean() * 1000),
+            "refined_mm": float(distances(ref, gt5)[~m].mean() * 1000),
+            "paired_mm": [float(diff.mean()), float(diff.std(ddof=1) / math.sqrt(len(diff)))],
+            "refined_lower_on": int((diff < 0).sum()),
+        },
+    }
+    print(
+        f"validation (S11, gaps of 1-25 frames): fill {out['validation']['fill_mm']:.2f} mm, refined "
+        f"{out['validation']['refined_mm']:.2f}"
+    )
     for b in by_length:
-        print(f"  {b['frames'][0]}-{b['frames'][1]} frames ({b['windows']} windows): {b['fill_mm']:.2f} -> "
-              f"{b['refined_mm']:.2f}")
+        print(
+            f"  {b['frames'][0]}-{b['frames'][1]} frames ({b['windows']} windows): {b['fill_mm']:.2f} -> "
+            f"{b['refined_mm']:.2f}"
+        )
     bm = out["benchmark_consecutive_frames"]
-    print(f"repair benchmark, consecutive frames (256 S5 windows): fill {bm['fill_mm']:.2f} mm, refined "
-          f"{bm['refined_mm']:.2f} (paired {bm['paired_mm'][0]:+.3f} ± {bm['paired_mm'][1]:.3f}, lower on "
-          f"{bm['refined_lower_on']} of 256)")
+    print(
+        f"repair benchmark, consecutive frames (256 S5 windows): fill {bm['fill_mm']:.2f} mm, refined "
+        f"{bm['refined_mm']:.2f} (paired {bm['paired_mm'][0]:+.3f} ± {bm['paired_mm'][1]:.3f}, lower on "
+        f"{bm['refined_lower_on']} of 256)"
+    )
     if args.json:
         write_json(args.json, out)
     return 0

@@ -30,6 +30,7 @@ The result holds the fill's and each fit's per-window ADE on the pattern (method
 ``shared_<lambda>``), so ``training.compare`` pairs them like the repair benchmark's methods. A measurement, not in
 the engine.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -48,8 +49,8 @@ import tcd  # noqa: E402
 from training import inbetween  # noqa: E402
 from training.data import h36m  # noqa: E402
 
-GAP = 10            # the benchmark's consecutive-frames block: round(0.2 * 50)
-PATTERN = 1         # its index in repair_quality.PATTERNS
+GAP = 10  # the benchmark's consecutive-frames block: round(0.2 * 50)
+PATTERN = 1  # its index in repair_quality.PATTERNS
 
 
 def gap_starts(mask: np.ndarray) -> np.ndarray:
@@ -78,7 +79,7 @@ def normal_equations(x: np.ndarray, y: np.ndarray, context: int, shared: bool, c
     would not fit in memory at once); y (B, GAP F)."""
     xtx = xty = 0.0
     for lo in range(0, len(x), chunk):
-        a, t = x[lo:lo + chunk], y[lo:lo + chunk]
+        a, t = x[lo : lo + chunk], y[lo : lo + chunk]
         if shared:
             a = per_coordinate(a, context)
             t = t.reshape(len(t), GAP, -1).transpose(0, 2, 1).reshape(-1, GAP)
@@ -102,8 +103,7 @@ def gap_frames(x: np.ndarray, starts: np.ndarray) -> np.ndarray:
     return np.take_along_axis(x, gap_index(starts), 1)
 
 
-def training_set(model: "tcd.TCD", n: int, reverse: bool, context: int, seed: int, data_dir: Path,
-                 batch: int = 2000):
+def training_set(model: "tcd.TCD", n: int, reverse: bool, context: int, seed: int, data_dir: Path, batch: int = 2000):
     """(X, Y): features and the fill's error over the gap (metres) of ``n`` training windows (2 n with their
     time reversals)."""
     seqs = [x for _, x in h36m.H36M(data_dir).sequences("train")]
@@ -113,11 +113,11 @@ def training_set(model: "tcd.TCD", n: int, reverse: bool, context: int, seed: in
     for lo in range(0, n, batch):
         k = min(batch, n - lo)
         gt = rq.windows_from(seqs, k, t, rng)
-        for g in ([gt, gt[:, ::-1]] if reverse else [gt]):
+        for g in [gt, gt[:, ::-1]] if reverse else [gt]:
             starts = rng.integers(0, t - GAP + 1, k)
             mask = np.ones(g.shape[:3], bool)
             for i, s in enumerate(starts):
-                mask[i, s:s + GAP] = False
+                mask[i, s : s + GAP] = False
             filled = fill_fn(np.where(mask[..., None], g, 0.0).astype(np.float32), mask).reshape(k, t, -1)
             xs.append(features(filled, starts, context))
             ys.append((gap_frames(g.reshape(k, t, -1), starts) - gap_frames(filled, starts)).reshape(k, -1))
@@ -130,11 +130,19 @@ def main(argv=None) -> int:
     ap.add_argument("--train", type=int, default=100000, help="training windows (default 100,000)")
     ap.add_argument("--reverse", action="store_true", help="also fit on each training window time-reversed")
     ap.add_argument("--context", type=int, default=10, help="frames of context each side of the gap (default 10)")
-    ap.add_argument("--lambdas", type=float, nargs="+", default=[1e0, 1e1, 1e2, 1e3],
-                    help="ridge penalties, on features in metres (default 1 10 100 1000)")
-    ap.add_argument("--shared", action="store_true",
-                    help="fit one temporal kernel shared by every coordinate instead of a map over all of them "
-                         "(methods shared_<lambda>)")
+    ap.add_argument(
+        "--lambdas",
+        type=float,
+        nargs="+",
+        default=[1e0, 1e1, 1e2, 1e3],
+        help="ridge penalties, on features in metres (default 1 10 100 1000)",
+    )
+    ap.add_argument(
+        "--shared",
+        action="store_true",
+        help="fit one temporal kernel shared by every coordinate instead of a map over all of them "
+        "(methods shared_<lambda>)",
+    )
     ap.add_argument("--seed", type=int, default=1, help="seed of the training windows (the benchmark's is 0)")
     ap.add_argument("--data-dir", default=str(h36m.DEFAULT_H36M_DIR))
     ap.add_argument("--json", default=None, metavar="OUT")
@@ -159,7 +167,7 @@ def main(argv=None) -> int:
     name = "shared" if args.shared else "ridge"
     for lam in args.lambdas:
         w = np.linalg.solve(xtx + lam * np.eye(len(xtx)), xty)
-        if args.shared:       # (B F, GAP) per coordinate -> (B, GAP, F)
+        if args.shared:  # (B F, GAP) per coordinate -> (B, GAP, F)
             corr = (per_coordinate(fx, args.context) @ w).reshape(len(gt), -1, GAP).transpose(0, 2, 1)
         else:
             corr = (fx @ w).reshape(len(gt), GAP, -1)
@@ -168,11 +176,24 @@ def main(argv=None) -> int:
         res[f"{name}_{lam:g}"] = scores(pred.reshape(gt.shape), gt, mask)
         print(f"{name} lambda {lam:g}: {res[f'{name}_{lam:g}']['ade_mm']:.2f} mm")
     if args.json:
-        rq.write_json(args.json, rq.repair_result(
-            [rq.PATTERNS[PATTERN][1:]], 256, model.obs_len, 0, [res], model=str(model.path),
-            model_sha256=model.sha256, train_windows=args.train, reverse=args.reverse, context=args.context,
-            shared=args.shared, train_seed=args.seed,
-            command="python benches/repair_inbetween.py " + " ".join(sys.argv[1:] if argv is None else argv)))
+        rq.write_json(
+            args.json,
+            rq.repair_result(
+                [rq.PATTERNS[PATTERN][1:]],
+                256,
+                model.obs_len,
+                0,
+                [res],
+                model=str(model.path),
+                model_sha256=model.sha256,
+                train_windows=args.train,
+                reverse=args.reverse,
+                context=args.context,
+                shared=args.shared,
+                train_seed=args.seed,
+                command="python benches/repair_inbetween.py " + " ".join(sys.argv[1:] if argv is None else argv),
+            ),
+        )
     return 0
 
 

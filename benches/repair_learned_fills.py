@@ -23,6 +23,7 @@ on this CPU:
 Each is scored like the repair benchmark: ADE (mm) over the hidden entries, the same seeded S5 windows and masks
 (``--windows``, ``--seed``), beside linear interpolation and the spline. Needs torch, scipy and the Human3.6M data.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -58,10 +59,10 @@ def bidirectional_fill(prior, gt: np.ndarray, m: np.ndarray, spline: np.ndarray)
         n, x = e - s, gt[b].reshape(L, K)
         w = ((np.arange(n) + 1) / (n + 1))[:, None]
         fwd = bwd = None
-        if s > 0:                                   # forward from the frames before the gap, meeting frame e
+        if s > 0:  # forward from the frames before the gap, meeting frame e
             f = prior.predict(pad_history(x[:s])[None], n + 1)[0]
             fwd = f[:n] + w * (x[e] - f[n]) if e < L else f[:n]
-        if e < L:                                   # backward from the frames after it, meeting frame s - 1
+        if e < L:  # backward from the frames after it, meeting frame s - 1
             r = prior.predict(pad_history(x[e:][::-1].copy())[None], n + 1)[0]
             bwd = (r[:n] + w * (x[s - 1] - r[n]) if s > 0 else r[:n])[::-1]
         fwd = bwd if fwd is None else fwd
@@ -94,10 +95,10 @@ def learned_residual(args) -> tuple:
             super().__init__()
             self.net = PriorNet(PriorConfig(obs_len=L, chunk=L, blocks=args.blocks))
 
-        def forward(self, fill):                                         # (B, L, K)
+        def forward(self, fill):  # (B, L, K)
             return self.net(fill) - fill[:, -1:] + fill
 
-    def filled(x, joint_mask):                                           # (B, L, K), (B, L, J) -> spline fill
+    def filled(x, joint_mask):  # (B, L, K), (B, L, J) -> spline fill
         mc = joint_mask.repeat_interleave(3, -1).transpose(1, 2)
         return spline_fill(x.transpose(1, 2), mc).transpose(1, 2)
 
@@ -106,15 +107,16 @@ def learned_residual(args) -> tuple:
     opt = torch.optim.Adam(net.parameters(), lr=args.lr, weight_decay=1e-4)
     log, it, t0, run = [], 0, time.time(), []
     while time.time() - t0 < 60 * args.minutes:
-        if args.lr_final is not None and time.time() - t0 > 45 * args.minutes:     # the last quarter
+        if args.lr_final is not None and time.time() - t0 > 45 * args.minutes:  # the last quarter
             for group in opt.param_groups:
                 group["lr"] = args.lr_final
         rng = np.random.default_rng([args.seed, it])
         wins = frames[starts[rng.integers(0, len(starts), 256)][:, None] + np.arange(L)]
         flip = rng.random(256) < 0.5
         wins[flip] = wins[flip, ::-1]
-        m = np.stack([masks.make_mask(mix[p][0], L, L, rng, rate=mix[p][2])
-                      for p in rng.choice(len(mix), 256, p=weights)])
+        m = np.stack(
+            [masks.make_mask(mix[p][0], L, L, rng, rate=mix[p][2]) for p in rng.choice(len(mix), 256, p=weights)]
+        )
         x, mj = torch.from_numpy(np.ascontiguousarray(wins)), torch.from_numpy(m)
         err = torch.linalg.vector_norm((net(filled(x, mj)) - x).reshape(-1, L, J, 3), dim=-1)
         loss = (err * (1 - mj)).sum() / (1 - mj).sum().clamp(min=1)
@@ -143,8 +145,12 @@ def main(argv=None) -> int:
     ap.add_argument("--minutes", type=float, default=12.0, help="training wall clock of the learned residual")
     ap.add_argument("--blocks", type=int, default=24)
     ap.add_argument("--lr", type=float, default=3e-4)
-    ap.add_argument("--lr-final", type=float, default=None,
-                    help="the learning rate of the last quarter of the minutes (default: --lr throughout)")
+    ap.add_argument(
+        "--lr-final",
+        type=float,
+        default=None,
+        help="the learning rate of the last quarter of the minutes (default: --lr throughout)",
+    )
     ap.add_argument("--windows", type=int, default=32, help="benchmark windows per pattern (repair_quality's)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--threads", type=int, default=1)
@@ -172,8 +178,12 @@ def main(argv=None) -> int:
             if k != "pattern":
                 print(f"| {row['pattern']} | {k} | {v:.2f} | {v / row['linear']:.2f} | {v / row['spline']:.2f} |")
     if args.json:
-        out = {"settings": {k: v for k, v in vars(args).items() if k != "json"}, "training": training,
-               "results": rows, "command": " ".join(["python", *sys.argv])}
+        out = {
+            "settings": {k: v for k, v in vars(args).items() if k != "json"},
+            "training": training,
+            "results": rows,
+            "command": " ".join(["python", *sys.argv]),
+        }
         Path(args.json).write_text(json.dumps(out, indent=1) + "\n")
     return 0
 

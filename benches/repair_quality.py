@@ -30,6 +30,7 @@ Prints a markdown table; ``--json`` writes every number and the settings, with e
 models or samplers on the same windows, or (``--bundled-key PATTERN:spline``) a model against the spline.
 Needs scipy (``pip install 'tcd-forecast[bench]'``) and the Human3.6M data.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -98,6 +99,7 @@ def learned_fill(model: "tcd.TCD"):
         flat = lambda a: np.ascontiguousarray(a, np.float32).reshape(b, t, -1)  # noqa: E731
         # the forecaster, which the engine uses where the fill's gap_fill says so and ignores otherwise
         return model.repair_fill.fill(flat(np.where(keep, x, 0.0)), flat(keep), forecaster=model.prior).reshape(x.shape)
+
     return fill
 
 
@@ -126,18 +128,31 @@ def scores(pred: np.ndarray, gt: np.ndarray, m: np.ndarray, frames: int, seconds
     none: what ``training.compare`` pairs between two runs, or two methods of one run)."""
     err, hidden = distances(pred, gt), ~m
     per_window = err * 1000.0
-    return {"ade_mm": float(err[hidden].mean() * 1000.0),
-            "per_window_mm": [float(e[h].mean()) if h.any() else None for e, h in zip(per_window, hidden)],
-            "fps": frames / seconds, "seconds": seconds}
+    return {
+        "ade_mm": float(err[hidden].mean() * 1000.0),
+        "per_window_mm": [float(e[h].mean()) if h.any() else None for e, h in zip(per_window, hidden)],
+        "fps": frames / seconds,
+        "seconds": seconds,
+    }
 
 
 def repair_result(patterns: list, n_windows: int, frames: int, mask_seed: int, results: list, **fields) -> dict:
     """A repair result's JSON: the protocol (``n_windows`` S5 windows of ``frames`` frames) and seeds blocks
     ``training.compare`` checks before it pairs two runs (``patterns``: [name, rate] per entry of ``results``, in
     order; ``mask_seed`` the windows', masks' and noise's), the results and the bench's other ``fields``."""
-    return {"protocol": {"task": "repair", "dataset": "h36m", "subject": "S5", "windows": n_windows,
-                         "window_frames": frames, "patterns": [list(p) for p in patterns]},
-            "seeds": {"windows_masks_sampling": mask_seed}, **fields, "results": results}
+    return {
+        "protocol": {
+            "task": "repair",
+            "dataset": "h36m",
+            "subject": "S5",
+            "windows": n_windows,
+            "window_frames": frames,
+            "patterns": [list(p) for p in patterns],
+        },
+        "seeds": {"windows_masks_sampling": mask_seed},
+        **fields,
+        "results": results,
+    }
 
 
 def write_json(path, out: dict) -> None:
@@ -151,9 +166,13 @@ def main(argv=None) -> int:
     ap.add_argument("--windows", type=int, default=64, help="windows per pattern (default 64)")
     ap.add_argument("--steps", type=int, default=None, help="inference steps (default: all, DDPM)")
     ap.add_argument("--sampler", default="ddpm")
-    ap.add_argument("--samples", type=int, default=5,
-                    help="samples averaged (default 5); 0: the repair fill alone (TCD.repair's default for a "
-                    "directory with one), sampler and steps unused")
+    ap.add_argument(
+        "--samples",
+        type=int,
+        default=5,
+        help="samples averaged (default 5); 0: the repair fill alone (TCD.repair's default for a "
+        "directory with one), sampler and steps unused",
+    )
     ap.add_argument("--seed", type=int, default=0, help="seed of the windows, the masks and the noise")
     ap.add_argument("--jobs", type=int, default=None, help="engine threads (default: all cores)")
     ap.add_argument("--data-dir", default=str(h36m.DEFAULT_H36M_DIR))
@@ -166,11 +185,21 @@ def main(argv=None) -> int:
     rows = []
     for label, _, m, obs in masked_cases(gt, args.seed):
         frames = gt.shape[0] * w
-        res = {"pattern": label, "windows": int(gt.shape[0]), "hidden_entries": int((~m).sum()),
-               "hidden_fraction": float((~m).mean())}
+        res = {
+            "pattern": label,
+            "windows": int(gt.shape[0]),
+            "hidden_entries": int((~m).sum()),
+            "hidden_fraction": float((~m).mean()),
+        }
         t0 = time.perf_counter()
-        pred = model.repair(obs, num_samples=args.samples, num_inference_steps=args.steps, sampler=args.sampler,
-                            seed=args.seed, threads=args.jobs).poses
+        pred = model.repair(
+            obs,
+            num_samples=args.samples,
+            num_inference_steps=args.steps,
+            sampler=args.sampler,
+            seed=args.seed,
+            threads=args.jobs,
+        ).poses
         dt = time.perf_counter() - t0
         res["tcd"] = scores(pred, gt, m, frames, dt)
         fills = [("linear", linear_fill), ("savgol", savgol_fill), ("spline", spline_fill)]
@@ -182,23 +211,35 @@ def main(argv=None) -> int:
         res["tcd_over_linear"] = res["tcd"]["ade_mm"] / res["linear"]["ade_mm"]
         res["tcd_over_spline"] = res["tcd"]["ade_mm"] / res["spline"]["ade_mm"]
         rows.append(res)
-        print(f"{label}: tcd {res['tcd']['ade_mm']:.1f} mm, linear {res['linear']['ade_mm']:.1f} mm, "
-              f"savgol {res['savgol']['ade_mm']:.1f} mm, spline {res['spline']['ade_mm']:.1f} mm"
-              + (f", repair fill {res['fill']['ade_mm']:.1f} mm" if "fill" in res else ""), file=sys.stderr)
+        print(
+            f"{label}: tcd {res['tcd']['ade_mm']:.1f} mm, linear {res['linear']['ade_mm']:.1f} mm, "
+            f"savgol {res['savgol']['ade_mm']:.1f} mm, spline {res['spline']['ade_mm']:.1f} mm"
+            + (f", repair fill {res['fill']['ade_mm']:.1f} mm" if "fill" in res else ""),
+            file=sys.stderr,
+        )
 
     steps = args.steps if args.steps is not None else model.num_train_timesteps
-    print(f"\nRepair ADE (mm) over the hidden entries, {args.windows} S5 windows of {w} frames per pattern; "
-          + ("tcd: the repair fill alone (0 samples)" if args.samples == 0 else
-             f"tcd: {args.sampler.upper()} {steps} steps, mean of {args.samples} samples")
-          + f", model {model.path} "
-          f"(sha256 {str(model.sha256)[:12]}), {os.cpu_count()} cores.\n")
-    print("| occlusion | tcd | linear interp. | interp. + Savitzky-Golay | cubic spline | tcd / linear | "
-          "tcd / spline | tcd frames/s | spline frames/s |")
+    print(
+        f"\nRepair ADE (mm) over the hidden entries, {args.windows} S5 windows of {w} frames per pattern; "
+        + (
+            "tcd: the repair fill alone (0 samples)"
+            if args.samples == 0
+            else f"tcd: {args.sampler.upper()} {steps} steps, mean of {args.samples} samples"
+        )
+        + f", model {model.path} "
+        f"(sha256 {str(model.sha256)[:12]}), {os.cpu_count()} cores.\n"
+    )
+    print(
+        "| occlusion | tcd | linear interp. | interp. + Savitzky-Golay | cubic spline | tcd / linear | "
+        "tcd / spline | tcd frames/s | spline frames/s |"
+    )
     print("|---|---|---|---|---|---|---|---|---|")
     for r in rows:
-        print(f"| {r['pattern']} | {r['tcd']['ade_mm']:.1f} | {r['linear']['ade_mm']:.1f} | "
-              f"{r['savgol']['ade_mm']:.1f} | {r['spline']['ade_mm']:.1f} | {r['tcd_over_linear']:.2f} | "
-              f"{r['tcd_over_spline']:.2f} | {r['tcd']['fps']:.0f} | {r['spline']['fps']:.0f} |")
+        print(
+            f"| {r['pattern']} | {r['tcd']['ade_mm']:.1f} | {r['linear']['ade_mm']:.1f} | "
+            f"{r['savgol']['ade_mm']:.1f} | {r['spline']['ade_mm']:.1f} | {r['tcd_over_linear']:.2f} | "
+            f"{r['tcd_over_spline']:.2f} | {r['tcd']['fps']:.0f} | {r['spline']['fps']:.0f} |"
+        )
     if model.repair_fill is not None:
         print("\n| occlusion | repair fill alone | × linear | × spline |\n|---|---|---|---|")
         for r in rows:
@@ -206,11 +247,28 @@ def main(argv=None) -> int:
             print(f"| {r['pattern']} | {f:.1f} | {f / r['linear']['ade_mm']:.2f} | {f / r['spline']['ade_mm']:.2f} |")
     if args.json:
         # protocol and seeds: what training.compare checks before it pairs two runs window by window
-        write_json(args.json, repair_result(
-            [[p, r] for _, p, r in PATTERNS], args.windows, w, args.seed, rows, model=str(model.path),
-            model_sha256=model.sha256, tcd_version=tcd.__version__, windows=args.windows, window_frames=w,
-            sampler=args.sampler, steps=steps, samples=args.samples, seed=args.seed, jobs=args.jobs,
-            cores=os.cpu_count(), savgol={"window": SAVGOL_WINDOW, "order": SAVGOL_ORDER}))
+        write_json(
+            args.json,
+            repair_result(
+                [[p, r] for _, p, r in PATTERNS],
+                args.windows,
+                w,
+                args.seed,
+                rows,
+                model=str(model.path),
+                model_sha256=model.sha256,
+                tcd_version=tcd.__version__,
+                windows=args.windows,
+                window_frames=w,
+                sampler=args.sampler,
+                steps=steps,
+                samples=args.samples,
+                seed=args.seed,
+                jobs=args.jobs,
+                cores=os.cpu_count(),
+                savgol={"window": SAVGOL_WINDOW, "order": SAVGOL_ORDER},
+            ),
+        )
     return 0
 
 

@@ -11,6 +11,7 @@ hidden per file (seeded), written to a temporary directory; sampler DDPM-10, 1 s
 the Ray cluster's start (reported apart). The overhead per file is (Ray, 1 worker, 1 file per task) minus
 (local, 1 thread), divided by the number of small files (``--small-files`` of 50 frames).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -42,7 +43,7 @@ def make_files(d: Path, n: int, frames: int, seed: int) -> Path:
         x = base.copy()
         x[rng.random(x.shape[:2]) < 0.2] = np.nan
         s = int(rng.integers(0, frames - 10))
-        x[s:s + 10] = np.nan
+        x[s : s + 10] = np.nan
         np.savez(d / f"take{i:03d}.npz", poses=x)
     return d
 
@@ -65,8 +66,15 @@ def main(argv=None) -> int:
     import ray
 
     model = tcd.load()
-    results: dict = {"cpus": os.cpu_count(), "files": args.files, "frames_per_file": args.frames,
-                     "sampler": "ddpm", "steps": args.steps, "samples": args.samples, "rows": []}
+    results: dict = {
+        "cpus": os.cpu_count(),
+        "files": args.files,
+        "frames_per_file": args.frames,
+        "sampler": "ddpm",
+        "steps": args.steps,
+        "samples": args.samples,
+        "rows": [],
+    }
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         big = make_files(tmp / "big", args.files, args.frames, 0)
@@ -74,8 +82,12 @@ def main(argv=None) -> int:
         total = args.files * args.frames
 
         def opts(threads):
-            return RepairOptions.make(model, sampler={"sampler": "ddpm", "num_inference_steps": args.steps},
-                                      num_samples=args.samples, threads=threads)
+            return RepairOptions.make(
+                model,
+                sampler={"sampler": "ddpm", "num_inference_steps": args.steps},
+                num_samples=args.samples,
+                threads=threads,
+            )
 
         def local(src, out, threads):
             tasks, _ = collect_tasks([src], out)
@@ -83,9 +95,10 @@ def main(argv=None) -> int:
 
         def on_ray(src, out, workers, per_task):
             ray.shutdown()
-            start = timed(lambda: ray.init(num_cpus=workers, include_dashboard=False, logging_level="ERROR",
-                                           log_to_driver=False))
-            distributed.check_writable(out)                       # warms a worker up, as the command does
+            start = timed(
+                lambda: ray.init(num_cpus=workers, include_dashboard=False, logging_level="ERROR", log_to_driver=False)
+            )
+            distributed.check_writable(out)  # warms a worker up, as the command does
             tasks, _ = collect_tasks([src], out)
             secs = timed(lambda: distributed.run_tasks_ray(model, tasks, opts(1), files_per_task=per_task))
             ray.shutdown()
@@ -93,22 +106,32 @@ def main(argv=None) -> int:
 
         for threads in (1, 2):
             s = local(big, tmp / f"local{threads}", threads)
-            results["rows"].append({"path": f"local, --jobs {threads}", "seconds": round(s, 2),
-                                    "frames_per_s": round(total / s, 1)})
+            results["rows"].append(
+                {"path": f"local, --jobs {threads}", "seconds": round(s, 2), "frames_per_s": round(total / s, 1)}
+            )
             print(results["rows"][-1], flush=True)
         for workers in (1, 2):
             s, start = on_ray(big, tmp / f"ray{workers}", workers, 1)
-            results["rows"].append({"path": f"ray, {workers} worker(s)", "seconds": round(s, 2),
-                                    "frames_per_s": round(total / s, 1), "cluster_start_s": round(start, 2)})
+            results["rows"].append(
+                {
+                    "path": f"ray, {workers} worker(s)",
+                    "seconds": round(s, 2),
+                    "frames_per_s": round(total / s, 1),
+                    "cluster_start_s": round(start, 2),
+                }
+            )
             print(results["rows"][-1], flush=True)
         s_local = local(small, tmp / "small_local", 1)
         s_ray, _ = on_ray(small, tmp / "small_ray", 1, 1)
         s_ray4, _ = on_ray(small, tmp / "small_ray4", 1, 4)
         results["small_files"] = {
-            "files": args.small_files, "local_s": round(s_local, 2), "ray_1_file_per_task_s": round(s_ray, 2),
+            "files": args.small_files,
+            "local_s": round(s_local, 2),
+            "ray_1_file_per_task_s": round(s_ray, 2),
             "ray_4_files_per_task_s": round(s_ray4, 2),
             "overhead_per_file_ms": round(1000 * (s_ray - s_local) / args.small_files, 1),
-            "overhead_per_file_ms_4_per_task": round(1000 * (s_ray4 - s_local) / args.small_files, 1)}
+            "overhead_per_file_ms_4_per_task": round(1000 * (s_ray4 - s_local) / args.small_files, 1),
+        }
         print(results["small_files"], flush=True)
     if args.json:
         args.json.write_text(json.dumps(results, indent=1) + "\n")

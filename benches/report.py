@@ -26,6 +26,7 @@ Adding a generator: a function ``def name(src: Sources) -> str`` returning Markd
 (:func:`mm`), metres with 3 (:func:`metres`), ratios with 2 (:func:`ratio`), counts with thousands separators
 (:func:`count`).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -62,7 +63,7 @@ class Sources:
 
     def __init__(self, results: Path = RESULTS, root: Path = ROOT):
         self.results, self.root = Path(results), Path(root)
-        self.read: list[str] = []    # the files read, in order (for --list)
+        self.read: list[str] = []  # the files read, in order (for --list)
 
     def json(self, name: str) -> dict:
         """A results file, ``name`` relative to the results folder."""
@@ -112,8 +113,10 @@ class Sources:
         """Refuse a results file measured on other weights than the bundled ones of ``model_dir``."""
         want = self.model_sha256(model_dir)
         if sha != want:
-            raise ReportError(f"results file {self.results / name} was measured on the model {sha}, not the bundled "
-                              f"{model_dir} ({want}): run its benchmark again")
+            raise ReportError(
+                f"results file {self.results / name} was measured on the model {sha}, not the bundled "
+                f"{model_dir} ({want}): run its benchmark again"
+            )
 
 
 def paper_table(src: Sources, name: str) -> dict:
@@ -121,8 +124,10 @@ def paper_table(src: Sources, name: str) -> dict:
     d = src.json(name)
     for model_dir, sha in d.get("models", {}).items():
         if src.model_sha256(model_dir) != sha:
-            raise ReportError(f"results file {src.results / name} scored {model_dir} at {sha}, which has changed "
-                              f"since: {d.get('command', 'python -m benches.paper')} again")
+            raise ReportError(
+                f"results file {src.results / name} scored {model_dir} at {sha}, which has changed "
+                f"since: {d.get('command', 'python -m benches.paper')} again"
+            )
     return d
 
 
@@ -185,8 +190,7 @@ PATTERN_LABELS = {
 
 def _horizon_rows(rows: list[tuple[str, dict, float | None]]) -> list[list[str]]:
     """(label, {horizon: mm}, the Zero-Velocity at 1 s to divide by) -> table rows, with the ratio at 1 s."""
-    return [[label] + [mm(v.get(h)) for h in HORIZONS] + [ratio(_div(v.get("1000"), zv))]
-            for label, v, zv in rows]
+    return [[label] + [mm(v.get(h)) for h in HORIZONS] + [ratio(_div(v.get("1000"), zv))] for label, v, zv in rows]
 
 
 def h36m_forecast(src: Sources) -> str:
@@ -196,20 +200,24 @@ def h36m_forecast(src: Sources) -> str:
     zv = ours["zero_velocity"]["values"]["1000"]
     pzv = pub["Zero-Velocity"]["values"]["1000"]
     p = d["protocol"]["ours"]
-    rows = [("**tcd `forecast`: the mean of 5 samples** (what it returns)", ours["mean_of_5"]["values"], zv),
-            ("tcd `forecast`: the oracle best of 5 (the paper's figure)", ours["best_of_5"]["values"], zv),
-            ("tcd `predict`: the prior's point forecast", ours["prior"]["values"], zv),
-            ("Zero-Velocity, same windows", ours["zero_velocity"]["values"], zv)]
+    rows = [
+        ("**tcd `forecast`: the mean of 5 samples** (what it returns)", ours["mean_of_5"]["values"], zv),
+        ("tcd `forecast`: the oracle best of 5 (the paper's figure)", ours["best_of_5"]["values"], zv),
+        ("tcd `predict`: the prior's point forecast", ours["prior"]["values"], zv),
+        ("Zero-Velocity, same windows", ours["zero_velocity"]["values"], zv),
+    ]
     names = {"TCD (best of 5)": "TCD, oracle best of 5"}
     for k, r in pub.items():
         if k != "Zero-Velocity":
             rows.append((f"{names.get(k, k)} (published)", r["values"], pzv))
     rows.append(("Zero-Velocity (published)", pub["Zero-Velocity"]["values"], pzv))
-    caption = (f"**Human3.6M, clean input** (Setting-B, the paper's Table 1): mm at each horizon (ms); S5, "
-               f"{len(p['actions'])} actions × {p['windows_per_action']} windows, the bundled models with their "
-               f"default sampler; published numbers are on all 15 actions. "
-               f"÷ ZV: the error at 1 s over Zero-Velocity's on the same windows (published rows: over the "
-               f"published Zero-Velocity).")
+    caption = (
+        f"**Human3.6M, clean input** (Setting-B, the paper's Table 1): mm at each horizon (ms); S5, "
+        f"{len(p['actions'])} actions × {p['windows_per_action']} windows, the bundled models with their "
+        f"default sampler; published numbers are on all 15 actions. "
+        f"÷ ZV: the error at 1 s over Zero-Velocity's on the same windows (published rows: over the "
+        f"published Zero-Velocity)."
+    )
     return caption + "\n\n" + table(["mm"] + list(HORIZONS) + ["÷ ZV"], _horizon_rows(rows))
 
 
@@ -221,18 +229,22 @@ def h36m_imperfect(src: Sources) -> str:
     for p in d["protocol"]["patterns"]:
         zv = ours[f"zero_velocity/{p}"]["values"]["1000"]
         label = PATTERN_LABELS.get(p, p)
-        rows += [(f"{label}: tcd, oracle best of 5", ours[f"best_of_5/{p}"]["values"], zv),
-                 (f"{label}: tcd, mean of 5", ours[f"mean_of_5/{p}"]["values"], zv),
-                 (f"{label}: Zero-Velocity", ours[f"zero_velocity/{p}"]["values"], zv)]
+        rows += [
+            (f"{label}: tcd, oracle best of 5", ours[f"best_of_5/{p}"]["values"], zv),
+            (f"{label}: tcd, mean of 5", ours[f"mean_of_5/{p}"]["values"], zv),
+            (f"{label}: Zero-Velocity", ours[f"zero_velocity/{p}"]["values"], zv),
+        ]
     pzv = pub["Zero-Velocity"]["values"]["1000"]
     for k, r in pub.items():
         rows.append((f"{k} (published, imperfect input)", r["values"], pzv))
     p = d["protocol"]["ours"]
-    caption = (f"**Human3.6M, imperfect observations** (the TCD rows of the paper's Table 2): mm at each horizon "
-               f"(ms); S5, {len(p['actions'])} actions × {p['windows_per_action']} windows, each observation "
-               f"corrupted (`training.masks`: {', '.join(d['protocol']['patterns'])}); "
-               f"Zero-Velocity holds each joint where it was last seen. The paper does not say which corruption its "
-               f"rows are on: its Zero-Velocity row shows a harsher one than ours.")
+    caption = (
+        f"**Human3.6M, imperfect observations** (the TCD rows of the paper's Table 2): mm at each horizon "
+        f"(ms); S5, {len(p['actions'])} actions × {p['windows_per_action']} windows, each observation "
+        f"corrupted (`training.masks`: {', '.join(d['protocol']['patterns'])}); "
+        f"Zero-Velocity holds each joint where it was last seen. The paper does not say which corruption its "
+        f"rows are on: its Zero-Velocity row shows a harsher one than ours."
+    )
     return caption + "\n\n" + table(["mm"] + list(HORIZONS) + ["÷ ZV"], _horizon_rows(rows))
 
 
@@ -241,22 +253,26 @@ def humaneva_forecast(src: Sources) -> str:
     d = paper_table(src, "paper_table3.json")
     ours, pub = rows_by_key(d), rows_by_key(d, "paper_rows")
     cols = ("ADE", "FDE", "MMADE", "MMFDE", "APD")
-    labels = [("tcd", "**tcd `forecast`: the mixture** (its default)"),
-              ("cascade", "its diffusion cascade alone (`generator_share=0`)"),
-              ("generator", "its MLP generator alone (`generator_share=1`)"),
-              ("prior", "tcd `predict`: the prior's point forecast"),
-              ("neighbours", "the nearest training futures, joined (learns nothing)"),
-              ("zero_velocity", "Zero-Velocity")]
+    labels = [
+        ("tcd", "**tcd `forecast`: the mixture** (its default)"),
+        ("cascade", "its diffusion cascade alone (`generator_share=0`)"),
+        ("generator", "its MLP generator alone (`generator_share=1`)"),
+        ("prior", "tcd `predict`: the prior's point forecast"),
+        ("neighbours", "the nearest training futures, joined (learns nothing)"),
+        ("zero_velocity", "Zero-Velocity"),
+    ]
     rows = [[label] + [metres(ours[k]["values"].get(c)) for c in cols + ("mean_ADE",)] for k, label in labels]
     for k, r in pub.items():
         rows.append([f"{k} (published)"] + [metres(r["values"].get(c)) for c in cols + ("mean_ADE",)])
     p = d["protocol"]["ours"]
     samples = d["runs"]["mixture"]["sampling"]["samples"]
-    caption = (f"**HumanEva-I, stochastic** (the paper's Table 3): metres; `{p['split']}`, {p['windows']} windows, "
-               f"{p['t_his']} observed → {p['t_pred']} forecast frames at {p['fps']} Hz, {samples} samples per "
-               f"window. ADE / FDE: the best sample's mean / final "
-               f"error; MMADE / MMFDE: the same against the multimodal futures; APD: the samples' diversity "
-               f"(higher is more diverse); mean ADE: the ADE of the samples' mean (a point forecast).")
+    caption = (
+        f"**HumanEva-I, stochastic** (the paper's Table 3): metres; `{p['split']}`, {p['windows']} windows, "
+        f"{p['t_his']} observed → {p['t_pred']} forecast frames at {p['fps']} Hz, {samples} samples per "
+        f"window. ADE / FDE: the best sample's mean / final "
+        f"error; MMADE / MMFDE: the same against the multimodal futures; APD: the samples' diversity "
+        f"(higher is more diverse); mean ADE: the ADE of the samples' mean (a point forecast)."
+    )
     return caption + "\n\n" + table(["m"] + list(cols) + ["mean ADE"], rows)
 
 
@@ -266,15 +282,19 @@ def humaneva_per_action(src: Sources) -> str:
     per = d["per_action"]["tcd"]
     cols = ("ADE", "FDE", "MMADE", "MMFDE", "APD")
     rows = [[a, count(v["windows"])] + [metres(v[c]) for c in cols] for a, v in per.items()]
-    return ("**HumanEva-I, per action**: the bundled mixture, the means over each action's windows (metres).\n\n"
-            + table(["action", "windows"] + list(cols), rows))
+    return (
+        "**HumanEva-I, per action**: the bundled mixture, the means over each action's windows (metres).\n\n"
+        + table(["action", "windows"] + list(cols), rows)
+    )
 
 
 def _repair_rows(src: Sources) -> tuple[dict, dict]:
     fill = src.json("repair_quality_joint_inbetween_256.json")
     diff = src.json("repair_quality_joint_inbetween_256_ddpm10.json")
-    for name, d in (("repair_quality_joint_inbetween_256.json", fill),
-                    ("repair_quality_joint_inbetween_256_ddpm10.json", diff)):
+    for name, d in (
+        ("repair_quality_joint_inbetween_256.json", fill),
+        ("repair_quality_joint_inbetween_256_ddpm10.json", diff),
+    ):
         src.bundled(name, d.get("model_sha256"), H36M_DIR)
     return fill, diff
 
@@ -286,22 +306,45 @@ def h36m_repair(src: Sources) -> str:
         raise ReportError("repair_quality_joint_inbetween_256.json and its _ddpm10 run score other patterns")
     rows = []
     for a, b in zip(fill["results"], diff["results"]):
-        rows.append([a["pattern"], f"**{mm(a['tcd']['ade_mm'])}**", mm(b["tcd"]["ade_mm"]), mm(a["linear"]["ade_mm"]),
-                     mm(a["spline"]["ade_mm"]), ratio(a["tcd_over_linear"]), ratio(a["tcd_over_spline"])])
-    caption = (f"**Human3.6M, repair** against interpolation (`benches/repair_quality.py`): mm, the mean error over "
-               f"the hidden entries; S5, {count(fill['windows'])} windows of "
-               f"{fill['window_frames']} frames per pattern, the bundled model. tcd `repair` by default returns its "
-               f"repair fill (deterministic); `num_samples={diff['samples']}` averages that many diffusion samples "
-               f"({diff['sampler'].upper()}-{diff['steps']}) around it.")
-    return caption + "\n\n" + table(
-        ["hidden", "**tcd `repair`** (default)", f"tcd, mean of {diff['samples']} samples", "linear interpolation",
-         "natural cubic spline", "÷ linear", "÷ spline"], rows)
+        rows.append(
+            [
+                a["pattern"],
+                f"**{mm(a['tcd']['ade_mm'])}**",
+                mm(b["tcd"]["ade_mm"]),
+                mm(a["linear"]["ade_mm"]),
+                mm(a["spline"]["ade_mm"]),
+                ratio(a["tcd_over_linear"]),
+                ratio(a["tcd_over_spline"]),
+            ]
+        )
+    caption = (
+        f"**Human3.6M, repair** against interpolation (`benches/repair_quality.py`): mm, the mean error over "
+        f"the hidden entries; S5, {count(fill['windows'])} windows of "
+        f"{fill['window_frames']} frames per pattern, the bundled model. tcd `repair` by default returns its "
+        f"repair fill (deterministic); `num_samples={diff['samples']}` averages that many diffusion samples "
+        f"({diff['sampler'].upper()}-{diff['steps']}) around it."
+    )
+    return (
+        caption
+        + "\n\n"
+        + table(
+            [
+                "hidden",
+                "**tcd `repair`** (default)",
+                f"tcd, mean of {diff['samples']} samples",
+                "linear interpolation",
+                "natural cubic spline",
+                "÷ linear",
+                "÷ spline",
+            ],
+            rows,
+        )
+    )
 
 
 def repair_dataset(src: Sources) -> str:
     """`tcd repair` on whole recordings (benches/repair_dataset.py): throughput and error."""
-    runs = [("repair_dataset_fill_alone.json", "the default (the repair fill)"),
-            ("repair_dataset_ddpm10x5.json", None)]
+    runs = [("repair_dataset_fill_alone.json", "the default (the repair fill)"), ("repair_dataset_ddpm10x5.json", None)]
     rows, first = [], None
     for name, label in runs:
         d = src.json(name)
@@ -309,12 +352,21 @@ def repair_dataset(src: Sources) -> str:
         src.bundled(name, pv.get("model_sha256"), H36M_DIR)
         first = first or d
         label = label or f"`--samples {pv['num_samples']} --steps {pv['steps']}`"
-        rows.append([label, count(d["frames_per_second"]), mm(d["ade_mm"]["tcd"]), mm(d["ade_mm"]["linear"]),
-                     mm(d["ade_mm"]["spline"])])
-    caption = (f"**Whole recordings** (`benches/repair_dataset.py`): `tcd repair` on {first['files']} occluded "
-               f"recordings ({count(first['frames'])} frames at "
-               f"{first['fps']} fps, {round(100 * first['hidden_fraction'])} % of the entries hidden) on "
-               f"{first['cores']} cores; ADE in mm over the hidden entries.")
+        rows.append(
+            [
+                label,
+                count(d["frames_per_second"]),
+                mm(d["ade_mm"]["tcd"]),
+                mm(d["ade_mm"]["linear"]),
+                mm(d["ade_mm"]["spline"]),
+            ]
+        )
+    caption = (
+        f"**Whole recordings** (`benches/repair_dataset.py`): `tcd repair` on {first['files']} occluded "
+        f"recordings ({count(first['frames'])} frames at "
+        f"{first['fps']} fps, {round(100 * first['hidden_fraction'])} % of the entries hidden) on "
+        f"{first['cores']} cores; ADE in mm over the hidden entries."
+    )
     return caption + "\n\n" + table(["`tcd repair`", "frames / s", "ADE tcd", "linear", "spline"], rows)
 
 
@@ -334,22 +386,30 @@ def speed_peers(src: Sources) -> str:
             cells.append(NONE if v is None else f"{v:.1f}" + ("" if x is None else f" ({ratio(x)} ×)"))
         body.append([name] + cells)
     v = d["versions"]
-    caption = (f"**Speed against peers** (`benches/peers.py`): ms per forward of the paper's full-size denoiser "
-               f"(random weights, {rows[0]['K']} features), "
-               f"median of {rows[0]['reps']} interleaved runs on a {v['cores']}-core {v['cpu']} CPU "
-               f"({', '.join(v.get('cpu_simd_flags', []))}); in brackets, the peer's time over tcd's. Every peer's "
-               f"output is checked against PyTorch's.")
+    caption = (
+        f"**Speed against peers** (`benches/peers.py`): ms per forward of the paper's full-size denoiser "
+        f"(random weights, {rows[0]['K']} features), "
+        f"median of {rows[0]['reps']} interleaved runs on a {v['cores']}-core {v['cpu']} CPU "
+        f"({', '.join(v.get('cpu_simd_flags', []))}); in brackets, the peer's time over tcd's. Every peer's "
+        f"output is checked against PyTorch's."
+    )
     return caption + "\n\n" + table(["ms per forward"] + [f"{r['L']} frames, {r['threads']} thr." for r in rows], body)
 
 
 def speed_whole(src: Sources) -> str:
     """A whole forecast of the paper's full-size model through tcd (benches/peers.py --whole-forecast)."""
     wf = src.json("whole_forecast_tcd.json")["whole_forecast"]
-    return table(["a whole full-size forecast, tcd", "seconds", "peak memory"],
-                 [["DDPM-50 × 5 samples (the paper's sampler)", secs(wf["ddpm50_x5"]["seconds"]),
-                   f"{wf['ddpm50_x5']['peak_rss_mib']:.0f} MiB"],
-                  ["DDIM-10 × 1 sample", secs(wf["ddim10_x1"]["seconds"]),
-                   f"{wf['ddim10_x1']['peak_rss_mib']:.0f} MiB"]])
+    return table(
+        ["a whole full-size forecast, tcd", "seconds", "peak memory"],
+        [
+            [
+                "DDPM-50 × 5 samples (the paper's sampler)",
+                secs(wf["ddpm50_x5"]["seconds"]),
+                f"{wf['ddpm50_x5']['peak_rss_mib']:.0f} MiB",
+            ],
+            ["DDIM-10 × 1 sample", secs(wf["ddim10_x1"]["seconds"]), f"{wf['ddim10_x1']['peak_rss_mib']:.0f} MiB"],
+        ],
+    )
 
 
 def speed_bundled(src: Sources) -> str:
@@ -357,27 +417,45 @@ def speed_bundled(src: Sources) -> str:
     st = src.json("steps_ddim1_centred.json")
     src.bundled("steps_ddim1_centred.json", st["protocol"].get("model_sha256"), H36M_DIR)
     sampling = src.repo_json(f"{H36M_DIR}/sampling.json")["forecast"]
-    default = [r for r in st["results"] if r["sampler"] == sampling["sampler"] and r["steps"] ==
-               sampling["num_inference_steps"] and r.get("noise_coupling") == sampling.get("noise_coupling")]
+    default = [
+        r
+        for r in st["results"]
+        if r["sampler"] == sampling["sampler"]
+        and r["steps"] == sampling["num_inference_steps"]
+        and r.get("noise_coupling") == sampling.get("noise_coupling")
+    ]
     if not default:
-        raise ReportError(f"results file {src.results / 'steps_ddim1_centred.json'} has no run of the bundled "
-                          f"default sampler {sampling}")
+        raise ReportError(
+            f"results file {src.results / 'steps_ddim1_centred.json'} has no run of the bundled "
+            f"default sampler {sampling}"
+        )
     r = default[0]
     ps = src.json("prior_speed.json")
     one = next(x for x in ps["rows"] if x["batch"] == 1 and x["threads"] == 1)
     big = next(x for x in ps["rows"] if x["batch"] == 1000 and x["threads"] == 1)
     rd = src.json("repair_dataset_fill_alone.json")
     src.bundled("repair_dataset_fill_alone.json", rd["provenance"].get("model_sha256"), H36M_DIR)
-    rows = [[f"`forecast`, {st['protocol']['samples']} samples, the default sampler "
-             f"({r['sampler'].upper()}-{r['steps']})", secs(r["latency_s"]["median"]), NONE,
-             f"{st['protocol']['cpu_count']} cores"],
-            ["`predict`, one window", ms(one["median_s"]["tcd"]), ms(one["median_s"]["torch"]), "1 thread"],
-            [f"`predict`, {count(big['batch'])} windows", secs(big["median_s"]["tcd"]),
-             secs(big["median_s"]["torch"]), "1 thread"],
-            ["`tcd repair`, the default", f"{count(rd['frames_per_second'])} frames / s", NONE,
-             f"{rd['cores']} cores"]]
-    return ("**What a call costs** (`benches/steps.py`, `benches/prior_speed.py`, `benches/repair_dataset.py`):\n\n"
-            + table(["the bundled Human3.6M model", "tcd", "PyTorch eager", "on"], rows))
+    rows = [
+        [
+            f"`forecast`, {st['protocol']['samples']} samples, the default sampler "
+            f"({r['sampler'].upper()}-{r['steps']})",
+            secs(r["latency_s"]["median"]),
+            NONE,
+            f"{st['protocol']['cpu_count']} cores",
+        ],
+        ["`predict`, one window", ms(one["median_s"]["tcd"]), ms(one["median_s"]["torch"]), "1 thread"],
+        [
+            f"`predict`, {count(big['batch'])} windows",
+            secs(big["median_s"]["tcd"]),
+            secs(big["median_s"]["torch"]),
+            "1 thread",
+        ],
+        ["`tcd repair`, the default", f"{count(rd['frames_per_second'])} frames / s", NONE, f"{rd['cores']} cores"],
+    ]
+    return (
+        "**What a call costs** (`benches/steps.py`, `benches/prior_speed.py`, `benches/repair_dataset.py`):\n\n"
+        + table(["the bundled Human3.6M model", "tcd", "PyTorch eager", "on"], rows)
+    )
 
 
 def _params(header: dict, prefix: str | None = None) -> int:
@@ -388,8 +466,10 @@ def _network(cfg: dict) -> str:
     m, role = cfg.get("model", {}), cfg.get("role")
     if role in ("short", "long", "repair"):
         pred = "x0" if cfg.get("diffusion", {}).get("prediction_type") == "sample" else "ε"
-        return (f"transformer denoiser, {m['num_layers']} layers × {m['channels']} channels, {m['num_heads']} heads; "
-                f"{cfg['diffusion']['num_train_timesteps']} diffusion steps, {pred}-prediction")
+        return (
+            f"transformer denoiser, {m['num_layers']} layers × {m['channels']} channels, {m['num_heads']} heads; "
+            f"{cfg['diffusion']['num_train_timesteps']} diffusion steps, {pred}-prediction"
+        )
     if role == "generator":
         return f"MLP, {m['layers']} layers × {m['hidden']}, latent {m['z_dim']}"
     return f"MLP (siMLPe-class), {m['blocks']} blocks"
@@ -427,8 +507,9 @@ def model_details(src: Sources) -> str:
             total += n
             rows.append([f"`{f.removeprefix('python/tcd/')}`", _network(cfg), count(n) + extra, _predicts(cfg)])
         rows.append([f"`{d.removeprefix('python/tcd/')}/` in all", "", f"**{count(total)}**", ""])
-    return ("Files under `python/tcd/`; parameters counted from their safetensors headers.\n\n"
-            + table(["file", "network", "parameters", "predicts"], rows))
+    return "Files under `python/tcd/`; parameters counted from their safetensors headers.\n\n" + table(
+        ["file", "network", "parameters", "predicts"], rows
+    )
 
 
 def training_data(src: Sources) -> str:
@@ -452,12 +533,20 @@ def convention(src: Sources) -> str:
         m = src.repo_json(f"{d}/model.json")
         data = m["prior"]["data"]
         short, long_ = m["short"]["window"], m["long"]["window"]
-        rows.append([f"`{d.removeprefix('python/tcd/')}`", f"{len(data['joint_names'])}: "
-                     + ", ".join(data["joint_names"]), f"{data['fps']:g} fps", data["units"],
-                     "yes" if data.get("root_relative") else "no", f"+{data.get('up', up)}",
-                     f"{short['obs_len']} → {long_['seq_len'] - short['obs_len']}"])
-    return table(["model", "joints, in order", "rate", "units", "root-relative", "up", "frames observed → forecast"],
-                 rows)
+        rows.append(
+            [
+                f"`{d.removeprefix('python/tcd/')}`",
+                f"{len(data['joint_names'])}: " + ", ".join(data["joint_names"]),
+                f"{data['fps']:g} fps",
+                data["units"],
+                "yes" if data.get("root_relative") else "no",
+                f"+{data.get('up', up)}",
+                f"{short['obs_len']} → {long_['seq_len'] - short['obs_len']}",
+            ]
+        )
+    return table(
+        ["model", "joints, in order", "rate", "units", "root-relative", "up", "frames observed → forecast"], rows
+    )
 
 
 def recipes_cost(src: Sources) -> str:
@@ -469,18 +558,28 @@ def recipes_cost(src: Sources) -> str:
     rows, total = [], 0.0
     for name, d in found:
         cpus = sorted({c for s in d.get("stages", []) for c in s.get("cpus", [])})
-        files = ", ".join(f"`{f}`" + ("" if v.get("identical") else " (not the bundled bytes)")
-                          for f, v in d.get("files", {}).items())
-        rows.append([f"[{name}](training/recipes/{name}.json)", files, hours(d.get("cpu_hours")),
-                     hours(d.get("scoring_cpu_hours")), count(d.get("windows")), "; ".join(cpus) or NONE])
+        files = ", ".join(
+            f"`{f}`" + ("" if v.get("identical") else " (not the bundled bytes)") for f, v in d.get("files", {}).items()
+        )
+        rows.append(
+            [
+                f"[{name}](training/recipes/{name}.json)",
+                files,
+                hours(d.get("cpu_hours")),
+                hours(d.get("scoring_cpu_hours")),
+                count(d.get("windows")),
+                "; ".join(cpus) or NONE,
+            ]
+        )
         total += d.get("cpu_hours") or 0.0
     rows.append(["in all", "", f"**{hours(total)}**", "", "", ""])
     return table(["recipe", "produces", "CPU-hours (training)", "CPU-hours (scoring)", "windows", "CPU"], rows)
 
 
 def _sampler(s: dict) -> str:
-    text = f"{s['sampler'].upper()}, {count(s['num_inference_steps'])} step" + ("s" if s["num_inference_steps"] != 1
-                                                                                else "")
+    text = f"{s['sampler'].upper()}, {count(s['num_inference_steps'])} step" + (
+        "s" if s["num_inference_steps"] != 1 else ""
+    )
     if s.get("noise_coupling") == "centered":
         text += ", from centred noise"
     return text
@@ -537,8 +636,8 @@ ANY_END = re.compile(r"<!-- /report:([A-Za-z0-9_.-]+) -->")
 @dataclass
 class Block:
     name: str
-    line: int          # 1-based line of the opening comment
-    start: int         # offsets of the body (between the comments)
+    line: int  # 1-based line of the opening comment
+    start: int  # offsets of the body (between the comments)
     end: int
     inline: bool
 
@@ -550,8 +649,7 @@ def find_blocks(text: str, where: str) -> list[Block]:
         m = START.search(text, pos)
         stray = ANY_END.search(text, pos, m.start() if m else len(text))
         if stray:
-            raise ReportError(f"{where}:{text.count(chr(10), 0, stray.start()) + 1}: "
-                              f"{stray.group(0)} closes no block")
+            raise ReportError(f"{where}:{text.count(chr(10), 0, stray.start()) + 1}: {stray.group(0)} closes no block")
         if not m:
             return blocks
         name, line = m.group(1), text.count("\n", 0, m.start()) + 1
@@ -560,11 +658,13 @@ def find_blocks(text: str, where: str) -> list[Block]:
         nested = START.search(text, m.end(), end if end >= 0 else len(text))
         if end < 0 or nested:
             raise ReportError(f"{where}:{line}: block {name!r} is not closed by {close} before the next block")
-        body = text[m.end():end]
+        body = text[m.end() : end]
         inline = "\n" not in body
         if not inline and not (body.startswith("\n") and body.endswith("\n")):
-            raise ReportError(f"{where}:{line}: block {name!r}: put each of its comments on a line of its own, or "
-                              "the whole block within one line")
+            raise ReportError(
+                f"{where}:{line}: block {name!r}: put each of its comments on a line of its own, or "
+                "the whole block within one line"
+            )
         blocks.append(Block(name, line, m.end(), end, inline))
         pos = end + len(close)
 
@@ -588,9 +688,9 @@ def render(text: str, where: str, src: Sources, cache: dict | None = None) -> tu
             body = content
         else:
             body = "\n" + content + "\n" if content else "\n"
-        if text[b.start:b.end] != body:
+        if text[b.start : b.end] != body:
             changed.append((b, body))
-        out += [text[last:b.start], body]
+        out += [text[last : b.start], body]
         last = b.end
     out.append(text[last:])
     return "".join(out), changed
@@ -611,15 +711,17 @@ def _name(path: Path) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m benches.report", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        prog="python -m benches.report", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     what = ap.add_mutually_exclusive_group(required=True)
     what.add_argument("--write", action="store_true", help="rewrite every generated block")
     what.add_argument("--check", action="store_true", help="exit 1 where a block differs from what --write writes")
     what.add_argument("--list", action="store_true", help="the block names and the files each reads")
     what.add_argument("--show", metavar="NAME", help="print block NAME's Markdown")
-    ap.add_argument("files", nargs="*", type=Path, help="Markdown files (default: README.md, MODEL_CARD.md, "
-                                                        "docs/**/*.md)")
+    ap.add_argument(
+        "files", nargs="*", type=Path, help="Markdown files (default: README.md, MODEL_CARD.md, docs/**/*.md)"
+    )
     ap.add_argument("--results", type=Path, default=RESULTS, help="the results folder (default benches/results)")
     args = ap.parse_args(argv)
     try:
@@ -634,8 +736,10 @@ def main(argv=None) -> int:
                     print(md)
                 else:
                     reads = sorted({_name(Path(p)) for p in src.read})
-                    print(f"{name}: {(GENERATORS[name].__doc__ or '').strip().splitlines()[0]}\n    reads "
-                          + ", ".join(reads))
+                    print(
+                        f"{name}: {(GENERATORS[name].__doc__ or '').strip().splitlines()[0]}\n    reads "
+                        + ", ".join(reads)
+                    )
             return 0
         src, cache = Sources(args.results), {}
         files = args.files or default_files()
@@ -648,18 +752,24 @@ def main(argv=None) -> int:
             if args.check:
                 for b, body in changed:
                     differ += 1
-                    old = text[b.start:b.end]
+                    old = text[b.start : b.end]
                     for line in difflib.unified_diff(
-                            old.strip("\n").splitlines(), body.strip("\n").splitlines(),
-                            f"{_name(f)}:{b.line} {b.name} (as written)",
-                            f"{_name(f)}:{b.line} {b.name} (as generated)", lineterm=""):
+                        old.strip("\n").splitlines(),
+                        body.strip("\n").splitlines(),
+                        f"{_name(f)}:{b.line} {b.name} (as written)",
+                        f"{_name(f)}:{b.line} {b.name} (as generated)",
+                        lineterm="",
+                    ):
                         print(line)
             elif new != text:
                 f.write_text(new)
                 print(f"{_name(f)}: {len(changed)} block(s) rewritten: {', '.join(b.name for b, _ in changed)}")
         if args.check and differ:
-            print(f"benches.report: {differ} block(s) differ from the results files; "
-                  "python -m benches.report --write rewrites them", file=sys.stderr)
+            print(
+                f"benches.report: {differ} block(s) differ from the results files; "
+                "python -m benches.report --write rewrites them",
+                file=sys.stderr,
+            )
             return 1
         return 0
     except ReportError as e:

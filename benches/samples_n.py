@@ -17,6 +17,7 @@ S11 is the diffusion runs' validation subject but one the prior trains on), ever
 per future frame: ``training.evaluate``'s (mean over 32 joints, mm), averaged over windows then actions, at
 560 ms and 1 s. Sampling seed of action a: ``seed * 1000 + a``; the prior (``TCD.predict``) on the same windows.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -35,7 +36,7 @@ from training.data.h36m import DEFAULT_DATA_ROOT, H36M, model_to_xyz32, xyz32_to
 from training.metrics import oracle_best, per_frame_error  # noqa: E402
 
 OBS, PRED = 50, 25
-AT = {"560": 13, "1000": 24}      # future frame index of each reported horizon (ms)
+AT = {"560": 13, "1000": 24}  # future frame index of each reported horizon (ms)
 
 
 def sample_counts(n_max: int) -> list[int]:
@@ -60,10 +61,15 @@ def run(args) -> dict:
     for ai, action in enumerate(actions):
         wins = data.test_windows(action, OBS + PRED, OBS, args.windows_per_action, subject=args.subject)
         gt32, obs = wins[:, OBS:], xyz32_to_model(wins[:, :OBS]).astype(np.float64)
-        f = model.forecast(obs, num_samples=args.samples, sampler=args.sampler, num_inference_steps=args.steps,
-                           seed=args.seed * 1000 + ai)
-        samples = np.asarray(f.samples, np.float64)                                      # (S, W, 25, 22, 3)
-        per_sample = np.stack([errors(s, gt32) for s in samples])                        # (S, W, 25)
+        f = model.forecast(
+            obs,
+            num_samples=args.samples,
+            sampler=args.sampler,
+            num_inference_steps=args.steps,
+            seed=args.seed * 1000 + ai,
+        )
+        samples = np.asarray(f.samples, np.float64)  # (S, W, 25, 22, 3)
+        per_sample = np.stack([errors(s, gt32) for s in samples])  # (S, W, 25)
         for n in ns:
             mean_n[n].append(errors(samples[:n].mean(axis=0), gt32).mean(axis=0))
             best_n[n].append(oracle_best(per_sample[:n]).mean(axis=0))
@@ -75,17 +81,30 @@ def run(args) -> dict:
         per_frame = np.mean(rows, axis=0)
         return {ms: round(float(per_frame[i]), 2) for ms, i in AT.items()}
 
-    return {"protocol": {"dataset": "h36m", "subject": f"S{args.subject}", "actions": actions,
-                         "windows_per_action": args.windows_per_action, "observed_frames": OBS,
-                         "predicted_frames": PRED, "units": "mm",
-                         "error": "mean over 32 joints (22 predicted pasted into GT, 6 duplicates copied)",
-                         "samples": args.samples, "sampler": args.sampler, "steps": args.steps, "seed": args.seed,
-                         "rows": "the first n of the samples of one forecast call"},
-            "model": str(args.model or "bundled"), "elapsed_s": round(time.time() - t0, 1),
-            "prior": at(prior), "zero_velocity": at(zv),
-            "mean_of_n": {str(n): at(mean_n[n]) for n in ns},
-            "best_of_n": {str(n): at(best_n[n]) for n in ns},
-            "command": "python3 benches/samples_n.py " + " ".join(sys.argv[1:])}
+    return {
+        "protocol": {
+            "dataset": "h36m",
+            "subject": f"S{args.subject}",
+            "actions": actions,
+            "windows_per_action": args.windows_per_action,
+            "observed_frames": OBS,
+            "predicted_frames": PRED,
+            "units": "mm",
+            "error": "mean over 32 joints (22 predicted pasted into GT, 6 duplicates copied)",
+            "samples": args.samples,
+            "sampler": args.sampler,
+            "steps": args.steps,
+            "seed": args.seed,
+            "rows": "the first n of the samples of one forecast call",
+        },
+        "model": str(args.model or "bundled"),
+        "elapsed_s": round(time.time() - t0, 1),
+        "prior": at(prior),
+        "zero_velocity": at(zv),
+        "mean_of_n": {str(n): at(mean_n[n]) for n in ns},
+        "best_of_n": {str(n): at(best_n[n]) for n in ns},
+        "command": "python3 benches/samples_n.py " + " ".join(sys.argv[1:]),
+    }
 
 
 def main(argv=None) -> int:

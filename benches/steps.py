@@ -44,6 +44,7 @@ accuracy rows are copied, only the latency pass runs).
 
 Bench-only dependency: matplotlib for ``--plot`` (``pip install tcd-forecast[bench]``).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -91,8 +92,13 @@ def configurations() -> list[dict]:
 
 
 def sampling_kw(cfg: dict) -> dict:
-    return dict(sampler=cfg["sampler"], steps=cfg["steps"], eta=cfg["eta"], spacing=cfg["timestep_spacing"],
-                noise_coupling=cfg["noise_coupling"])
+    return dict(
+        sampler=cfg["sampler"],
+        steps=cfg["steps"],
+        eta=cfg["eta"],
+        spacing=cfg["timestep_spacing"],
+        noise_coupling=cfg["noise_coupling"],
+    )
 
 
 def load_windows(data_dir: str, per_action: int, mask_seed: int, actions=None) -> list[dict]:
@@ -104,8 +110,8 @@ def load_windows(data_dir: str, per_action: int, mask_seed: int, actions=None) -
     for ai, action in enumerate(data.test_actions()):
         if actions and action not in actions:
             continue
-        wins = data.test_windows(action, OBS + PRED, OBS, per_action)           # (W, 75, 32, 3) mm
-        obs_clean = xyz32_to_model(wins[:, :OBS]).astype(np.float64)            # (W, 50, 22, 3) m
+        wins = data.test_windows(action, OBS + PRED, OBS, per_action)  # (W, 75, 32, 3) mm
+        obs_clean = xyz32_to_model(wins[:, :OBS]).astype(np.float64)  # (W, 50, 22, 3) m
         occ, jmask = obs_clean.copy(), np.ones(obs_clean.shape[:3], dtype=np.float32)
         for w in range(len(occ)):
             occ[w], jmask[w] = corrupt(obs_clean[w], MASK_PATTERN, OBS, np.random.default_rng([mask_seed, ai, w]))
@@ -120,16 +126,19 @@ def accuracy(model_arg, cfg: dict, windows: list[dict], samples: int, seed: int)
         kw = dict(samples=samples, seed=seed * 1000 + w["index"], **sampling_kw(cfg))
         gt32 = w["gt32"]
         clean = tcd_engine_predict(model_arg, w["obs"], np.ones(w["obs"].shape[:3], np.float32), **kw)
-        errs = np.stack([per_frame_error(model_to_xyz32(s, gt32), gt32) for s in clean["samples"]])   # (S, W, 25)
+        errs = np.stack([per_frame_error(model_to_xyz32(s, gt32), gt32) for s in clean["samples"]])  # (S, W, 25)
         best_err[w["action"]] = oracle_best(errs).mean(axis=0)
         mean_err[w["action"]] = per_frame_error(model_to_xyz32(clean["samples"].mean(axis=0), gt32), gt32).mean(axis=0)
         occ = tcd_engine_predict(model_arg, w["occ"], w["jmask"], **kw)
         occ_err[w["action"]] = per_frame_error(model_to_xyz32(occ["samples"].mean(axis=0), gt32), gt32).mean(axis=0)
         s, c = repair_ade(occ["repaired"], w["obs"], w["jmask"])
         rep_sum, rep_cnt = rep_sum + s, rep_cnt + c
-    return {"mean_of_n": summarize(mean_err), "best_of_n": summarize(best_err),
-            "mean_of_n_occluded": summarize(occ_err),
-            "repair": {"ade_mm": 1000.0 * rep_sum / max(rep_cnt, 1), "occluded_entries": rep_cnt}}
+    return {
+        "mean_of_n": summarize(mean_err),
+        "best_of_n": summarize(best_err),
+        "mean_of_n_occluded": summarize(occ_err),
+        "repair": {"ade_mm": 1000.0 * rep_sum / max(rep_cnt, 1), "occluded_entries": rep_cnt},
+    }
 
 
 def latency(model, cfgs: list[dict], obs: np.ndarray, samples: int, reps: int, threads) -> dict[str, list[float]]:
@@ -138,13 +147,21 @@ def latency(model, cfgs: list[dict], obs: np.ndarray, samples: int, reps: int, t
 
     def once(c, seed):
         t0 = time.perf_counter()
-        model.forecast(obs, num_samples=samples, sampler=c["sampler"], num_inference_steps=c["steps"], eta=c["eta"],
-                       timestep_spacing=c["timestep_spacing"], noise_coupling=c["noise_coupling"], seed=seed,
-                       threads=threads)
+        model.forecast(
+            obs,
+            num_samples=samples,
+            sampler=c["sampler"],
+            num_inference_steps=c["steps"],
+            eta=c["eta"],
+            timestep_spacing=c["timestep_spacing"],
+            noise_coupling=c["noise_coupling"],
+            seed=seed,
+            threads=threads,
+        )
         return time.perf_counter() - t0
 
     for c in cfgs:
-        once(c, 0)                                                                    # warm-up
+        once(c, 0)  # warm-up
     for r in range(reps):
         for c in cfgs:
             times[c["name"]].append(once(c, 1 + r))
@@ -155,18 +172,27 @@ def table(rows: list[dict], samples: int) -> str:
     cols = [str(h) for h in HORIZONS_MS]
     head = "| sampler | " + " | ".join(f"{c} ms" for c in cols) + " | repair ADE | latency (s) |"
     sep = "|---" * (len(cols) + 3) + "|"
-    lines = [f"Forecast error (mm, mean of {samples} samples), repair ADE (mm, {MASK_PATTERN}), "
-             f"median latency of one forecast ({samples} samples):", "", head, sep]
+    lines = [
+        f"Forecast error (mm, mean of {samples} samples), repair ADE (mm, {MASK_PATTERN}), "
+        f"median latency of one forecast ({samples} samples):",
+        "",
+        head,
+        sep,
+    ]
     for r in rows:
         avg = r["mean_of_n"]["average"]
-        lines.append(f"| {r['name']} | " + " | ".join(f"{avg.get(c, float('nan')):.1f}" for c in cols)
-                     + f" | {r['repair']['ade_mm']:.1f} | {r['latency_s']['median']:.3f} |")
+        lines.append(
+            f"| {r['name']} | "
+            + " | ".join(f"{avg.get(c, float('nan')):.1f}" for c in cols)
+            + f" | {r['repair']['ade_mm']:.1f} | {r['latency_s']['median']:.3f} |"
+        )
     return "\n".join(lines)
 
 
 def plot(rows: list[dict], path: str) -> None:
     try:
         import matplotlib
+
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
     except ImportError:
@@ -196,16 +222,34 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0, help="sampling seed (default 0)")
     ap.add_argument("--mask-seed", type=int, default=0, help="occlusion seed (default 0)")
     ap.add_argument("--threads", type=int, default=None, help="engine threads (default: all cores)")
-    ap.add_argument("--latency-reps", type=int, default=5,
-                    help="timed repetitions per configuration (default 5; 0 = accuracy only, no latency pass)")
-    ap.add_argument("--accuracy-from", default=None, metavar="JSON",
-                    help="take the accuracy columns from this earlier --json run (same model, e.g. one made with "
-                         "--latency-reps 0 while the machine was busy) and only measure the latency now")
-    ap.add_argument("--actions", nargs="+", default=None, metavar="ACTION",
-                    help="only these S5 actions (default: all 13; for quick checks, e.g. walking)")
-    ap.add_argument("--only", nargs="+", default=None, metavar="NAME",
-                    help="run only these configurations: a full name, its first word (DDIM-5: both etas) or its "
-                         "family (DDIM, DDPM, DPM++2M)")
+    ap.add_argument(
+        "--latency-reps",
+        type=int,
+        default=5,
+        help="timed repetitions per configuration (default 5; 0 = accuracy only, no latency pass)",
+    )
+    ap.add_argument(
+        "--accuracy-from",
+        default=None,
+        metavar="JSON",
+        help="take the accuracy columns from this earlier --json run (same model, e.g. one made with "
+        "--latency-reps 0 while the machine was busy) and only measure the latency now",
+    )
+    ap.add_argument(
+        "--actions",
+        nargs="+",
+        default=None,
+        metavar="ACTION",
+        help="only these S5 actions (default: all 13; for quick checks, e.g. walking)",
+    )
+    ap.add_argument(
+        "--only",
+        nargs="+",
+        default=None,
+        metavar="NAME",
+        help="run only these configurations: a full name, its first word (DDIM-5: both etas) or its "
+        "family (DDIM, DDPM, DPM++2M)",
+    )
     ap.add_argument("--json", default=None, help="write results and protocol here")
     ap.add_argument("--plot", default=None, help="PNG: error at 1000 ms vs latency (needs matplotlib)")
     args = ap.parse_args(argv)
@@ -220,8 +264,10 @@ def main(argv=None) -> int:
     model = tcd.load(args.model, threads=args.threads)
     cfgs = configurations()
     if args.only:
+
         def wanted(name):
             return any(p in (name, name.split(" ")[0], name.split("-")[0]) for p in args.only)
+
         cfgs = [c for c in cfgs if wanted(c["name"])]
         if not cfgs:
             ap.error(f"--only {args.only} matches no configuration")
@@ -235,8 +281,10 @@ def main(argv=None) -> int:
         prev = json.loads(Path(args.accuracy_from).read_text())
         accuracy_protocol = prev["protocol"]
         if accuracy_protocol.get("model_sha256") != model.sha256:
-            ap.error(f"--accuracy-from {args.accuracy_from} was measured with another model "
-                     f"(sha256 {accuracy_protocol.get('model_sha256')}, this one {model.sha256})")
+            ap.error(
+                f"--accuracy-from {args.accuracy_from} was measured with another model "
+                f"(sha256 {accuracy_protocol.get('model_sha256')}, this one {model.sha256})"
+            )
         if accuracy_protocol.get("samples") != args.samples:
             ap.error(f"--accuracy-from {args.accuracy_from} used --samples {accuracy_protocol.get('samples')}")
         by_name = {r["name"]: r for r in prev["results"]}
@@ -249,9 +297,12 @@ def main(argv=None) -> int:
             t0 = time.time()
             acc = accuracy(args.model, c, windows, args.samples, args.seed)
             rows.append(dict(c, **acc))
-            print(f"[{i + 1}/{len(cfgs)}] {c['name']}: {time.time() - t0:.0f} s "
-                  f"(1000 ms: {acc['mean_of_n']['average'].get('1000', float('nan')):.1f} mm)", file=sys.stderr,
-                  flush=True)
+            print(
+                f"[{i + 1}/{len(cfgs)}] {c['name']}: {time.time() - t0:.0f} s "
+                f"(1000 ms: {acc['mean_of_n']['average'].get('1000', float('nan')):.1f} mm)",
+                file=sys.stderr,
+                flush=True,
+            )
     if args.latency_reps:
         times = latency(model, cfgs, windows[0]["obs"][0], args.samples, args.latency_reps, args.threads)
         for r in rows:
@@ -263,26 +314,51 @@ def main(argv=None) -> int:
 
     print(table(rows, args.samples))
     elapsed = time.time() - t_start
-    print(f"\n{n_windows} windows ({args.windows_per_action}/action), {args.samples} samples, "
-          f"{len(cfgs)} configurations, {elapsed:.0f} s in all", file=sys.stderr)
+    print(
+        f"\n{n_windows} windows ({args.windows_per_action}/action), {args.samples} samples, "
+        f"{len(cfgs)} configurations, {elapsed:.0f} s in all",
+        file=sys.stderr,
+    )
     out = {
         "protocol": {
-            "dataset": "h36m", "subject": "S5", "actions": [w["action"] for w in windows],
-            "windows_per_action": args.windows_per_action, "windows": n_windows,
+            "dataset": "h36m",
+            "subject": "S5",
+            "actions": [w["action"] for w in windows],
+            "windows_per_action": args.windows_per_action,
+            "windows": n_windows,
             "window_draw": "RandomState(1234567890), first windows of the 256-per-action protocol",
-            "observed_frames": OBS, "predicted_frames": PRED, "fps": 25, "units": "mm",
+            "observed_frames": OBS,
+            "predicted_frames": PRED,
+            "fps": 25,
+            "units": "mm",
             "error": "mean over 32 joints (22 predicted pasted into GT, 6 duplicates copied) of the mean of n samples",
             "repair": f"ADE over occluded entries, {MASK_PATTERN}, short-stage mean of the cascade",
-            "samples": args.samples, "timestep_spacing": "trailing",
-            "seeds": {"windows": 1234567890, "mask": args.mask_seed, "sampling": args.seed,
-                      "sampling_per_action": "seed * 1000 + action_index"},
-            "latency": {"what": "TCD.forecast of one sequence (the first window), cascade, n samples",
-                        "repetitions": args.latency_reps, "interleaved": True, "warmup": 1},
-            "engine": "tcd (Rust)", "tcd_version": getattr(tcd, "__version__", None),
-            "model": str(model.path), "model_sha256": model.sha256,
-            "threads": args.threads, "cpu_count": os.cpu_count(), "machine": platform.machine(),
-            "platform": platform.platform(), "python": platform.python_version(),
-            "data": args.data, "elapsed_s": elapsed, "accuracy_from": args.accuracy_from,
+            "samples": args.samples,
+            "timestep_spacing": "trailing",
+            "seeds": {
+                "windows": 1234567890,
+                "mask": args.mask_seed,
+                "sampling": args.seed,
+                "sampling_per_action": "seed * 1000 + action_index",
+            },
+            "latency": {
+                "what": "TCD.forecast of one sequence (the first window), cascade, n samples",
+                "repetitions": args.latency_reps,
+                "interleaved": True,
+                "warmup": 1,
+            },
+            "engine": "tcd (Rust)",
+            "tcd_version": getattr(tcd, "__version__", None),
+            "model": str(model.path),
+            "model_sha256": model.sha256,
+            "threads": args.threads,
+            "cpu_count": os.cpu_count(),
+            "machine": platform.machine(),
+            "platform": platform.platform(),
+            "python": platform.python_version(),
+            "data": args.data,
+            "elapsed_s": elapsed,
+            "accuracy_from": args.accuracy_from,
             "accuracy_protocol": accuracy_protocol,
             "command": " ".join(["python benches/steps.py"] + (argv if argv is not None else sys.argv[1:])),
         },

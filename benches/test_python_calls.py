@@ -22,6 +22,7 @@ The forecasts, 2026-11-26 (AMD EPYC Zen 4, 2 cores, the other core busy with a t
 130 ms for 5 samples with the bundled model's default sampler (one DDIM step), 245 ms for DDIM-10 x 1, 4,791 ms for
 DDPM-50 x 5 (37 x the default).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -46,7 +47,7 @@ def clip():
 def _occluded(poses: np.ndarray, rate: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
     rng = np.random.default_rng(seed)
     mask = rng.random(poses.shape[:2]) >= rate
-    mask[-1] = True                      # the last observed frame stays whole
+    mask[-1] = True  # the last observed frame stays whole
     return poses, mask
 
 
@@ -67,22 +68,21 @@ def test_forward_long_L75(benchmark, model):
     assert eps.shape == (1, k, length) and np.isfinite(eps).all()
 
 
-@pytest.mark.parametrize("samples,steps,sampler", [(5, None, "ddpm"), (1, 10, "ddim")],
-                         ids=["ddpm50x5", "ddim10x1"])
+@pytest.mark.parametrize("samples,steps,sampler", [(5, None, "ddpm"), (1, 10, "ddim")], ids=["ddpm50x5", "ddim10x1"])
 def test_forecast(benchmark, model, clip, samples, steps, sampler):
-    obs = clip[:model.obs_len]
+    obs = clip[: model.obs_len]
     fc = benchmark(model.forecast, obs, num_samples=samples, num_inference_steps=steps, sampler=sampler, seed=0)
     assert fc.mean.shape == (model.horizon, model.num_joints, 3) and np.isfinite(fc.mean).all()
 
 
 def test_forecast_default_sampler(benchmark, model, clip):
-    obs = clip[:model.obs_len]
+    obs = clip[: model.obs_len]
     fc = benchmark(model.forecast, obs, num_samples=5, seed=0)
     assert fc.samples.shape == (5, model.horizon, model.num_joints, 3) and np.isfinite(fc.samples).all()
 
 
 def test_repair_window(benchmark, model, clip):
-    obs, mask = _occluded(clip[:model.obs_len], 0.4, seed=1)
+    obs, mask = _occluded(clip[: model.obs_len], 0.4, seed=1)
     out = benchmark(model.repair, obs, mask, seed=0).poses
     assert out.shape == obs.shape and np.isfinite(out).all()
     np.testing.assert_array_equal(out[mask], obs[mask])
@@ -91,14 +91,15 @@ def test_repair_window(benchmark, model, clip):
 def test_repair_file_500_frames(benchmark, model, clip, tmp_path):
     reps = -(-500 // len(clip))
     poses = np.concatenate([clip] * reps)[:500].copy()
-    poses[100:120] = np.nan                       # a dropped stretch
-    poses[200:300, 0:4] = np.nan                  # a leg occluded for 4 s
+    poses[100:120] = np.nan  # a dropped stretch
+    poses[200:300, 0:4] = np.nan  # a leg occluded for 4 s
     src = tmp_path / "seq.npz"
     np.savez(src, poses=poses)
 
     def run():
-        return tcd.repair_file(src, tmp_path / "out.npz", model, num_samples=1, num_inference_steps=10,
-                               sampler="ddim", overwrite=True)
+        return tcd.repair_file(
+            src, tmp_path / "out.npz", model, num_samples=1, num_inference_steps=10, sampler="ddim", overwrite=True
+        )
 
     benchmark(run)
     with np.load(tmp_path / "out.npz") as f:

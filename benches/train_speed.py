@@ -14,6 +14,7 @@ only pays on a CPU with AVX512-BF16 or AMX). Each cell warms up, then times whol
 blocks and reports the median block's windows/s and the process's CPU seconds per 1,000 windows. Timings on a shared
 machine are noisy: compare cells of one run, never against a fixed threshold.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -34,8 +35,15 @@ import torch  # noqa: E402
 from machine import cpu_model, cpu_simd_flags  # noqa: E402
 from training import channels_last  # noqa: E402
 from training.batches import BatchSource, Windows  # noqa: E402
-from training.train import (TrainConfig, build_model, load_sequences, make_ema, make_optimizer,  # noqa: E402
-                            train_step, training_forward)
+from training.train import (  # noqa: E402
+    TrainConfig,
+    build_model,
+    load_sequences,
+    make_ema,
+    make_optimizer,
+    train_step,
+    training_forward,
+)
 
 
 def measure(cfg: TrainConfig, windows: Windows, variant: str, seconds: float, log, profile: int = 0) -> dict:
@@ -60,8 +68,9 @@ def measure(cfg: TrainConfig, windows: Windows, variant: str, seconds: float, lo
 
     for _ in range(3):
         step()
-    if profile:     # where a step's time goes: torch.profiler over a few steps, ops by their own CPU time
+    if profile:  # where a step's time goes: torch.profiler over a few steps, ops by their own CPU time
         from torch.profiler import ProfilerActivity
+
         with torch.profiler.profile(activities=[ProfilerActivity.CPU]) as prof:
             for _ in range(profile):
                 step()
@@ -77,8 +86,11 @@ def measure(cfg: TrainConfig, windows: Windows, variant: str, seconds: float, lo
         blocks.append({"steps": n, "wall_s": wall, "cpu_s": cpu})
     rates = [b["steps"] * cfg.batch_size / b["wall_s"] for b in blocks]
     cpu_per_k = [1000 * b["cpu_s"] / (b["steps"] * cfg.batch_size) for b in blocks]
-    return {"windows_per_s": statistics.median(rates), "cpu_s_per_1000_windows": statistics.median(cpu_per_k),
-            "blocks": blocks}
+    return {
+        "windows_per_s": statistics.median(rates),
+        "cpu_s_per_1000_windows": statistics.median(cpu_per_k),
+        "blocks": blocks,
+    }
 
 
 def main(argv=None) -> int:
@@ -88,11 +100,20 @@ def main(argv=None) -> int:
     ap.add_argument("--data", help="the dataset directory (default: the config's dataset at its default place)")
     ap.add_argument("--batch", type=int, nargs="+", default=[8, 32, 128])
     ap.add_argument("--threads", type=int, nargs="+", default=[1])
-    ap.add_argument("--variants", nargs="+", default=["eager", "sdpa", "compile", "bf16"],
-                    choices=["eager", "sdpa", "compile", "bf16"])
+    ap.add_argument(
+        "--variants",
+        nargs="+",
+        default=["eager", "sdpa", "compile", "bf16"],
+        choices=["eager", "sdpa", "compile", "bf16"],
+    )
     ap.add_argument("--seconds", type=float, default=20.0, help="timed seconds per cell (after the warm-up)")
-    ap.add_argument("--profile", type=int, default=0, metavar="STEPS",
-                    help="before each cell's timing, profile this many steps and print the ops' CPU time")
+    ap.add_argument(
+        "--profile",
+        type=int,
+        default=0,
+        metavar="STEPS",
+        help="before each cell's timing, profile this many steps and print the ops' CPU time",
+    )
     ap.add_argument("--json", help="write the table here")
     args = ap.parse_args(argv)
 
@@ -100,25 +121,44 @@ def main(argv=None) -> int:
     if args.prior:
         cfg = dataclasses.replace(cfg, prior=args.prior)
     windows = Windows(load_sequences(cfg, args.data, "train"), cfg.obs_len + cfg.pred_len, cfg.train_stride)
-    print(f"{cpu_model()}, {os.cpu_count()} cores, torch {torch.__version__}; {args.config}: "
-          f"{len(windows):,} training windows", flush=True)
+    print(
+        f"{cpu_model()}, {os.cpu_count()} cores, torch {torch.__version__}; {args.config}: "
+        f"{len(windows):,} training windows",
+        flush=True,
+    )
     rows, threads_before = [], torch.get_num_threads()
     for threads in args.threads:
         torch.set_num_threads(threads)
         for batch in args.batch:
             for variant in args.variants:
-                cell = measure(dataclasses.replace(cfg, batch_size=batch), windows, variant, args.seconds, print,
-                               args.profile)
+                cell = measure(
+                    dataclasses.replace(cfg, batch_size=batch), windows, variant, args.seconds, print, args.profile
+                )
                 cell.update(threads=threads, batch=batch, variant=variant)
                 rows.append(cell)
-                print(f"threads {threads} batch {batch:4d} {variant:8s} {cell['windows_per_s']:8.1f} windows/s "
-                      f"{cell['cpu_s_per_1000_windows']:7.1f} CPU s / 1,000 windows", flush=True)
-                if args.json:   # after every cell: a run cut short keeps what it measured
-                    Path(args.json).write_text(json.dumps({
-                        "command": "python3 benches/train_speed.py " + " ".join(sys.argv[1:] if argv is None else argv),
-                        "config": args.config, "cpu": cpu_model(), "cores": os.cpu_count(),
-                        "cpu_simd_flags": cpu_simd_flags(),
-                        "torch": torch.__version__, "load_avg": os.getloadavg(), "rows": rows}, indent=1) + "\n")
+                print(
+                    f"threads {threads} batch {batch:4d} {variant:8s} {cell['windows_per_s']:8.1f} windows/s "
+                    f"{cell['cpu_s_per_1000_windows']:7.1f} CPU s / 1,000 windows",
+                    flush=True,
+                )
+                if args.json:  # after every cell: a run cut short keeps what it measured
+                    Path(args.json).write_text(
+                        json.dumps(
+                            {
+                                "command": "python3 benches/train_speed.py "
+                                + " ".join(sys.argv[1:] if argv is None else argv),
+                                "config": args.config,
+                                "cpu": cpu_model(),
+                                "cores": os.cpu_count(),
+                                "cpu_simd_flags": cpu_simd_flags(),
+                                "torch": torch.__version__,
+                                "load_avg": os.getloadavg(),
+                                "rows": rows,
+                            },
+                            indent=1,
+                        )
+                        + "\n"
+                    )
     torch.set_num_threads(threads_before)
     return 0
 

@@ -10,6 +10,7 @@ Torch: the package needs numpy only, and its tests run without torch (``python3 
 checks that). A module or test that needs torch (the PyTorch reference, the training code) gets it through
 :func:`import_torch`, which skips it, saying why, where torch is not installed.
 """
+
 import hashlib
 import os
 import shutil

@@ -1,6 +1,7 @@
 """Helpers shared by test_api.py, test_parity.py, test_parity_trained.py and test_cli.py: random-init model
 directories, a model on one kernel path, and deliberately broken weight files. Weight files are rewritten
 with safetensors' numpy API (no torch)."""
+
 from __future__ import annotations
 
 import json
@@ -11,7 +12,7 @@ import numpy as np
 import pytest
 
 CONFIG_KEY = "tcd_config"
-ALL_KERNELS = ["portable", "avx2", "avx512"]   # the engine's kernel paths, in tcd.engine.supported_kernels() order
+ALL_KERNELS = ["portable", "avx2", "avx512"]  # the engine's kernel paths, in tcd.engine.supported_kernels() order
 
 
 def make_model_dir(out: Path, preset: str = "tiny", seed: int = 0, repair: dict | None = None) -> Path:
@@ -54,8 +55,9 @@ def with_config(meta: dict, cfg: dict) -> dict:
     return out
 
 
-def poses(rng: np.random.Generator, batch: int | None = None, frames: int = 50, joints: int = 22,
-          missing: float = 0.2) -> np.ndarray:
+def poses(
+    rng: np.random.Generator, batch: int | None = None, frames: int = 50, joints: int = 22, missing: float = 0.2
+) -> np.ndarray:
     """Random root-relative poses in metres, (T, J, 3) or (B, T, J, 3), with a fraction set to NaN
     (per joint: all three coordinates together)."""
     shape = (frames, joints) if batch is None else (batch, frames, joints)
@@ -83,6 +85,7 @@ def load_kernel(path, kernel: str, monkeypatch, cls=None):
     """The model at ``path`` (a ``cls``: ``tcd.engine.Denoiser`` by default, or ``tcd.engine.Prior``) on one kernel path
     (``TCD_KERNEL`` is read at load); skips paths this CPU lacks."""
     import tcd
+
     if kernel not in tcd.engine.supported_kernels():
         pytest.skip(f"this CPU cannot run the {kernel} kernels")
     monkeypatch.setenv("TCD_KERNEL", kernel)

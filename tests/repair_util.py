@@ -1,5 +1,6 @@
 """Helpers of the dataset-repair tests (test_repair.py, test_repair_inputs.py): fast sampler settings, gappy
 random poses, running `tcd repair` in-process and comparing output trees."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -18,7 +19,7 @@ def gappy(rng, frames, missing=0.2, block=None):
     """Random poses (metres) with random missing joints and optionally a block of missing frames."""
     x = poses(rng, frames=frames, missing=missing)
     if block is not None:
-        x[block[0]:block[1]] = np.nan
+        x[block[0] : block[1]] = np.nan
     return x
 
 

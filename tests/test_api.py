@@ -1,5 +1,6 @@
 """The public Python API of `tcd`: reproducibility, invariants, units, masks, typed errors, weight-file
 errors. Forecasts run DDIM with 1-3 steps on a tiny random-init model to stay fast."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -25,6 +26,7 @@ def obs():
 
 
 # ------------------------------------------------------------------------------------ basics
+
 
 def test_load_and_describe(tiny_model, tiny_model_dir):
     assert isinstance(tiny_model, tcd.TCD)
@@ -76,7 +78,7 @@ def test_one_length_rule(tiny_model, obs):
         assert short.repaired.shape == x.shape and np.array_equal(short.repaired, full.repaired[..., 30:, :, :])
         r, rp = tiny_model.repair(x, **kw), tiny_model.repair(p, **kw)
         assert r.poses.shape == x.shape and np.array_equal(r.poses, rp.poses[..., 30:, :, :])
-    one = tiny_model.forecast(obs[-1:], **kw)                              # one frame: the rest is in-painted
+    one = tiny_model.forecast(obs[-1:], **kw)  # one frame: the rest is in-painted
     assert one.mean.shape == (25, 22, 3) and one.repaired.shape == (1, 22, 3)
 
 
@@ -89,6 +91,7 @@ def test_argument_types_match_their_checks():
     from tcd._interpolation import INTERPOLATIONS, Interpolation
     from tcd._poses import UNIT_SCALE, Units
     from tcd.model import FILLS, Fill
+
     assert typing.get_args(Units) == tuple(UNIT_SCALE)
     assert typing.get_args(Interpolation) == INTERPOLATIONS
     assert typing.get_args(Fill) == FILLS
@@ -107,8 +110,18 @@ def test_engine_names_live_in_tcd_engine_only():
     are private by name."""
     import importlib
 
-    engine = {"Denoiser", "Prior", "Generator", "cascade_raw", "repair_raw", "seeded_noise", "supported_kernels",
-              "STAGE_SHORT", "STAGE_LONG", "STAGE_GENERATOR"}
+    engine = {
+        "Denoiser",
+        "Prior",
+        "Generator",
+        "cascade_raw",
+        "repair_raw",
+        "seeded_noise",
+        "supported_kernels",
+        "STAGE_SHORT",
+        "STAGE_LONG",
+        "STAGE_GENERATOR",
+    }
     assert set(tcd.engine.__all__) == engine and all(hasattr(tcd.engine, n) for n in engine)
     for name in engine:
         assert not hasattr(tcd, name), name
@@ -249,7 +262,7 @@ def test_repair(tiny_model, obs):
     assert batch.shape == (1, 50, 22, 3) and np.array_equal(batch[0], r)
     # seed=None draws one, recorded as Forecast.seed is: passing it back reproduces the result
     drawn = tiny_model.repair(obs, **kw)
-    assert isinstance(drawn.seed, int) and 0 <= drawn.seed < 2 ** 64
+    assert isinstance(drawn.seed, int) and 0 <= drawn.seed < 2**64
     assert np.array_equal(tiny_model.repair(obs, seed=drawn.seed, **kw).poses, drawn.poses)
 
 
@@ -281,11 +294,13 @@ def test_dpmpp2m_forecast_and_repair(tiny_model, obs):
     seen = ~np.isnan(obs)
     assert np.array_equal(r[seen], obs[seen]) and np.isfinite(r).all()
     assert tiny_model.short.num_noise_blocks(sampler="dpmpp2m", num_inference_steps=3) == 1
-    assert (tiny_model.short.timesteps(sampler="dpmpp2m", num_inference_steps=3)
-            == tiny_model.short.timesteps(sampler="ddim", num_inference_steps=3))
+    assert tiny_model.short.timesteps(sampler="dpmpp2m", num_inference_steps=3) == tiny_model.short.timesteps(
+        sampler="ddim", num_inference_steps=3
+    )
 
 
 # ------------------------------------------------------------------------------------ low level
+
 
 def test_denoiser_forward_and_seeded_noise(tiny_model_dir):
     d = tcd.engine.Denoiser.load(tiny_model_dir / "short.safetensors")
@@ -302,8 +317,11 @@ def test_denoiser_forward_and_seeded_noise(tiny_model_dir):
     kw = dict(sampler="ddim", num_inference_steps=4, eta=1.0)
     noise = tcd.engine.seeded_noise(5, tcd.engine.STAGE_SHORT, 3, d.num_noise_blocks(**kw), 1, 66, 55)
     assert np.array_equal(d.sample(obs, mask, 3, seed=5, **kw), d.sample(obs, mask, 3, noise=noise, **kw))
-    assert d.timesteps(**kw) == d.timesteps(sampler="ddim", num_inference_steps=4, timestep_spacing="trailing") \
+    assert (
+        d.timesteps(**kw)
+        == d.timesteps(sampler="ddim", num_inference_steps=4, timestep_spacing="trailing")
         == [49, 37, 24, 11]
+    )
     assert d.timesteps() == list(range(49, -1, -1))
 
 
@@ -322,25 +340,43 @@ def test_stream_ids_per_sequence(tiny_model_dir):
     o = x[:, :, :50]
     mo = m[:, :, :50]
     rep = tcd.engine.repair_raw(d, o, mo, num_samples=2, sequences=[1, 0], **kw)
-    assert np.array_equal(rep["samples"][:, :1], tcd.engine.repair_raw(d, o[:1], mo[:1], num_samples=2,
-                                                                       first_sequence=1, **kw)["samples"])
-    assert np.array_equal(rep["samples"][:, 1:],
-                          tcd.engine.repair_raw(d, o[1:], mo[1:], num_samples=2, **kw)["samples"])
+    assert np.array_equal(
+        rep["samples"][:, :1], tcd.engine.repair_raw(d, o[:1], mo[:1], num_samples=2, first_sequence=1, **kw)["samples"]
+    )
+    assert np.array_equal(
+        rep["samples"][:, 1:], tcd.engine.repair_raw(d, o[1:], mo[1:], num_samples=2, **kw)["samples"]
+    )
     bad("sequences", d.sample, x, m, 1, sequences=[1], **kw)  # one id for two sequences: the engine says so
     bad("sequences", d.sample, x, m, 1, sequences=[1, -2], **kw)
     bad("sequences", d.sample, x, m, 1, sequences=[[1, 2]], **kw)
     bad("sequences", d.sample, x, m, 1, sequences=[1, 2], first_sequence=4, **kw)
-    bad("sequences", d.sample, x, m, 1, noise=np.zeros((1, 4, 2, 66, 55), np.float32), sequences=[1, 2],
-        sampler="ddim", num_inference_steps=3)
+    bad(
+        "sequences",
+        d.sample,
+        x,
+        m,
+        1,
+        noise=np.zeros((1, 4, 2, 66, 55), np.float32),
+        sequences=[1, 2],
+        sampler="ddim",
+        num_inference_steps=3,
+    )
 
 
 # ------------------------------------------------------------------------------------ property tests
 
-@settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture,
-                                                               HealthCheck.too_slow])
-@given(batch=st.sampled_from([None, 1, 2]), missing=st.floats(0.0, 0.9), seed=st.integers(0, 2**64 - 1),
-       mask_style=st.sampled_from(["nan", "joint", "coord"]), units=st.sampled_from(["m", "mm"]),
-       data_seed=st.integers(0, 1000))
+
+@settings(
+    max_examples=8, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow]
+)
+@given(
+    batch=st.sampled_from([None, 1, 2]),
+    missing=st.floats(0.0, 0.9),
+    seed=st.integers(0, 2**64 - 1),
+    mask_style=st.sampled_from(["nan", "joint", "coord"]),
+    units=st.sampled_from(["m", "mm"]),
+    data_seed=st.integers(0, 1000),
+)
 def test_property_shapes_and_observed_unchanged(tiny_model, batch, missing, seed, mask_style, units, data_seed):
     rng = np.random.default_rng(data_seed)
     x = poses(rng, batch, missing=missing)
@@ -368,6 +404,7 @@ def test_property_shapes_and_observed_unchanged(tiny_model, batch, missing, seed
 
 # ------------------------------------------------------------------------------------ stubs
 
+
 def test_native_stub_matches_the_module():
     """python/tcd/_native.pyi agrees with the compiled module: names, signatures (positional or keyword),
     defaults, classes, ``__all__``, by mypy's stubtest on the installed package (issue 30's stub gate: it found
@@ -379,8 +416,14 @@ def test_native_stub_matches_the_module():
     pytest.importorskip("mypy")
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     # run from / so that `tcd` is the installed package with its compiled module, not the source tree
-    r = subprocess.run([sys.executable, "-m", "mypy.stubtest", "tcd._native"], cwd="/", env=env,
-                       capture_output=True, text=True, timeout=300)
+    r = subprocess.run(
+        [sys.executable, "-m", "mypy.stubtest", "tcd._native"],
+        cwd="/",
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert r.returncode == 0, r.stdout + r.stderr
 
 
@@ -391,6 +434,7 @@ def test_bundled_repair_model():
     if not (tcd.default_model_dir() / "repair.safetensors").is_file():
         pytest.skip("no bundled repair model in this build")
     from tcd.demo import load_clip
+
     m = tcd.load()
     r = m.repair_model
     assert r is not None and r.role == "repair" and (r.obs_len, r.pred_len, r.seq_len) == (50, 0, 50)
@@ -399,7 +443,7 @@ def test_bundled_repair_model():
     clip = load_clip()["poses"][:50]
     rng = np.random.default_rng(0)
     mask = rng.random(clip.shape[:2]) >= 0.3
-    mask[20:30] = False                                        # 10 dropped frames
+    mask[20:30] = False  # 10 dropped frames
     out = m.repair(clip, mask, num_samples=5, num_inference_steps=10, sampler="ddpm", seed=0).poses
     np.testing.assert_array_equal(out[mask], clip[mask])
     err_mm = np.linalg.norm(out - clip, axis=-1)[~mask].mean() * 1000
@@ -417,8 +461,9 @@ def test_bundled_repair_model():
     # prior forecaster filling the dropped frames, then the two in-betweeners), whatever the seed and sampler;
     # measured 20.5 mm here (21.6 before the in-betweeners; the mean of 5 samples above 21.1, 22.1 before)
     fill = m.repair(clip, mask, num_samples=0, seed=0).poses
-    assert np.array_equal(m.repair(clip, mask, num_samples=0, seed=1, sampler="ddim", num_inference_steps=3).poses,
-                          fill)
+    assert np.array_equal(
+        m.repair(clip, mask, num_samples=0, seed=1, sampler="ddim", num_inference_steps=3).poses, fill
+    )
     keep = np.repeat(mask[..., None], 3, -1)
     flat = lambda a: np.ascontiguousarray(a, np.float32).reshape(1, 50, -1)  # noqa: E731
     want = m.repair_fill.fill(flat(np.where(keep, clip, 0.0)), flat(keep), forecaster=m.prior).reshape(clip.shape)
@@ -431,12 +476,17 @@ def test_bundled_repair_model():
 def test_repair_of_no_samples_needs_a_repair_fill(tiny_model, obs):
     """num_samples=0 (the repair fill alone) on a model without a repair fill is an InvalidInputError naming
     num_samples, in TCD.repair and in repair_raw; negative counts are refused as before."""
-    for call in (lambda: tiny_model.repair(obs, num_samples=0, seed=0),
-                 lambda: tcd.engine.repair_raw(tiny_model.short, np.zeros((1, tiny_model.short.num_features,
-                                                                            tiny_model.obs_len), np.float32),
-                                               np.ones((1, tiny_model.short.num_features, tiny_model.obs_len),
-                                                       np.float32), num_samples=0, seed=0),
-                 lambda: tiny_model.repair(obs, num_samples=-1, seed=0)):
+    for call in (
+        lambda: tiny_model.repair(obs, num_samples=0, seed=0),
+        lambda: tcd.engine.repair_raw(
+            tiny_model.short,
+            np.zeros((1, tiny_model.short.num_features, tiny_model.obs_len), np.float32),
+            np.ones((1, tiny_model.short.num_features, tiny_model.obs_len), np.float32),
+            num_samples=0,
+            seed=0,
+        ),
+        lambda: tiny_model.repair(obs, num_samples=-1, seed=0),
+    ):
         with pytest.raises(tcd.InvalidInputError) as ei:
             call()
         assert ei.value.argument == "num_samples", ei.value
@@ -455,8 +505,13 @@ def test_sampler_keywords_and_their_defaults(tiny_model, obs):
     ``sampling.json``, as here: tests/test_sampling_defaults.py has the directories' own defaults); timesteps and
     num_noise_blocks read the same keywords."""
     defaults = dataclasses.asdict(tcd.SamplerOptions())
-    assert defaults == {"sampler": "ddpm", "num_inference_steps": None, "eta": 0.0, "timestep_spacing": "trailing",
-                        "noise_coupling": "independent"}
+    assert defaults == {
+        "sampler": "ddpm",
+        "num_inference_steps": None,
+        "eta": 0.0,
+        "timestep_spacing": "trailing",
+        "noise_coupling": "independent",
+    }
     short = tiny_model.short
     assert short.timesteps() == short.timesteps(**defaults) == list(range(49, -1, -1))
     assert short.num_noise_blocks() == 51
@@ -473,6 +528,7 @@ def test_sampler_settings_have_one_form(tiny_model, obs, tmp_path):
     positional settings; a bad value is an InvalidInputError naming its field."""
     from tcd import demo
     from tcd.batch_repair import RepairOptions
+
     d, long = tiny_model.short, tiny_model.long
     x, m = np.zeros((1, 66, 50), np.float32), np.ones((1, 66, 50), np.float32)
     calls = {
@@ -486,7 +542,7 @@ def test_sampler_settings_have_one_form(tiny_model, obs, tmp_path):
         "repair_file": lambda **k: tcd.repair_file(tmp_path / "in.npz", tmp_path / "out.npz", tiny_model, **k),
         "demo.run": lambda **k: demo.run(tiny_model, quiet=True, **k),
     }
-    for call in calls.values():                  # the keys name the calls for a reader
+    for call in calls.values():  # the keys name the calls for a reader
         for key, value in (("options", tcd.SamplerOptions()), ("num_steps", 3)):
             with pytest.raises(TypeError, match=re.escape(f"{key!r} (sampler settings: {SAMPLER_SETTINGS})")):
                 call(**{key: value})
@@ -494,25 +550,37 @@ def test_sampler_settings_have_one_form(tiny_model, obs, tmp_path):
     for method in (d.timesteps, d.num_noise_blocks):
         with pytest.raises(TypeError, match="positional"):
             method("ddim", 3)
-    for key in ("options", "num_inference_steps"):       # RepairOptions.make: the sampler only as `sampler`
+    for key in ("options", "num_inference_steps"):  # RepairOptions.make: the sampler only as `sampler`
         with pytest.raises(TypeError, match=repr(key)):
             RepairOptions.make(tiny_model, **{key: None})
     assert RepairOptions.make(tiny_model, sampler={"num_inference_steps": 3}).sampling.num_inference_steps == 3
-    for kw, argument in (({"sampler": "euler"}, "sampler"), ({"eta": 2.0}, "eta"),
-                         ({"num_inference_steps": 0}, "num_inference_steps"),
-                         ({"timestep_spacing": "x"}, "timestep_spacing"),
-                         ({"noise_coupling": "antithetic"}, "noise_coupling")):
+    for kw, argument in (
+        ({"sampler": "euler"}, "sampler"),
+        ({"eta": 2.0}, "eta"),
+        ({"num_inference_steps": 0}, "num_inference_steps"),
+        ({"timestep_spacing": "x"}, "timestep_spacing"),
+        ({"noise_coupling": "antithetic"}, "noise_coupling"),
+    ):
         bad(argument, tcd.SamplerOptions, **kw)
         bad(argument, d.timesteps, **kw)
-    bad("num_inference_steps", d.timesteps, num_inference_steps=51)   # more steps than the model was trained with
+    bad("num_inference_steps", d.timesteps, num_inference_steps=51)  # more steps than the model was trained with
 
 
 def test_native_attributes_read_only_and_documented(tiny_model):
     """Denoiser's and Prior's attributes from the engine's model: the native values, read-only, each listed by
     help() with its type and text."""
     d = tiny_model.short
-    names = ("path", "role", "num_features", "num_joints", "obs_len", "pred_len", "seq_len", "kernel",
-             "num_train_timesteps")
+    names = (
+        "path",
+        "role",
+        "num_features",
+        "num_joints",
+        "obs_len",
+        "pred_len",
+        "seq_len",
+        "kernel",
+        "num_train_timesteps",
+    )
     text = pydoc.render_doc(tcd.engine.Denoiser, renderer=pydoc.plaintext)
     for name in names:
         assert getattr(d, name) == getattr(d._native, name)
@@ -530,6 +598,7 @@ def test_batch_repair_package_holds_its_api_only():
     import types
 
     import tcd.batch_repair as br
+
     names = {n for n, v in vars(br).items() if not n.startswith("_") and not isinstance(v, types.ModuleType)}
     assert names - {"annotations"} == set(br.__all__)
     for old in ("cli", "CLI_USAGE", "add_subparser", "window_starts", "write_npz_atomic"):

@@ -1,6 +1,7 @@
 """The command line's bad inputs, table-driven (issue 19, item 4): every case is an exit code and a fragment
 of the one-line message, never a traceback, and nothing is written. (The API's bad inputs are in
 test_errors.py.)"""
+
 from __future__ import annotations
 
 import os
@@ -48,7 +49,7 @@ def make_input(kind: str, d):
         return npz(p, poses=np.array([good, "x"], dtype=object))
     if kind == "no_poses":
         return npz(p, pose=good)
-    if kind == "amass":                       # SMPL-H parameters, as AMASS distributes them
+    if kind == "amass":  # SMPL-H parameters, as AMASS distributes them
         return npz(p, poses=np.zeros((50, 156)), trans=np.zeros((50, 3)), mocap_framerate=np.array(120.0))
     if kind == "directory":
         (d / "dir.npz").mkdir()
@@ -88,8 +89,11 @@ FORECAST_CASES = [
 ]
 
 
-@pytest.mark.parametrize("kind,extra,code,fragment", FORECAST_CASES,
-                         ids=[f"{k}{'-' + '-'.join(e) if e else ''}" for k, e, _, _ in FORECAST_CASES])
+@pytest.mark.parametrize(
+    "kind,extra,code,fragment",
+    FORECAST_CASES,
+    ids=[f"{k}{'-' + '-'.join(e) if e else ''}" for k, e, _, _ in FORECAST_CASES],
+)
 def test_forecast_bad_input(tiny_model_dir, tmp_path, capsys, kind, extra, code, fragment):
     src = make_input(kind, tmp_path)
     out = tmp_path / "out.npz"
@@ -131,26 +135,58 @@ REPAIR_OPTION_CASES = [
 def test_repair_bad_options(tiny_model_dir, tmp_path, capsys, extra, fragment):
     (tmp_path / "in").mkdir()
     make_input("good", tmp_path / "in")
-    code = run_cli(["repair", str(tmp_path / "in"), "-o", str(tmp_path / "out"), "--model", str(tiny_model_dir),
-                 "--quiet", "--steps", "1", "--sampler", "ddim", *extra])
+    code = run_cli(
+        [
+            "repair",
+            str(tmp_path / "in"),
+            "-o",
+            str(tmp_path / "out"),
+            "--model",
+            str(tiny_model_dir),
+            "--quiet",
+            "--steps",
+            "1",
+            "--sampler",
+            "ddim",
+            *extra,
+        ]
+    )
     err = capsys.readouterr().err
     assert code == 2 and fragment in err and "Traceback" not in err, err
     assert not (tmp_path / "out").exists()
 
 
-@pytest.mark.parametrize("kind,fragment", [
-    ("npy_named_npz", "a single .npy array"),
-    ("amass", "an AMASS file"),
-    ("text", "a text file"),
-    ("pickled", "object (pickled) arrays"),
-    ("millimetres", "pass units='mm'"),
-])
+@pytest.mark.parametrize(
+    "kind,fragment",
+    [
+        ("npy_named_npz", "a single .npy array"),
+        ("amass", "an AMASS file"),
+        ("text", "a text file"),
+        ("pickled", "object (pickled) arrays"),
+        ("millimetres", "pass units='mm'"),
+    ],
+)
 def test_repair_reports_a_bad_file_and_repairs_the_others(tiny_model_dir, tmp_path, capsys, kind, fragment):
     (tmp_path / "in" / "bad").mkdir(parents=True)
     make_input(kind, tmp_path / "in" / "bad")
     np.savez(tmp_path / "in" / "good.npz", poses=poses(np.random.default_rng(1), frames=60))
-    code = run_cli(["repair", str(tmp_path / "in"), "-o", str(tmp_path / "out"), "--model", str(tiny_model_dir),
-                 "--quiet", "--steps", "1", "--sampler", "ddim", "--samples", "1"])
+    code = run_cli(
+        [
+            "repair",
+            str(tmp_path / "in"),
+            "-o",
+            str(tmp_path / "out"),
+            "--model",
+            str(tiny_model_dir),
+            "--quiet",
+            "--steps",
+            "1",
+            "--sampler",
+            "ddim",
+            "--samples",
+            "1",
+        ]
+    )
     err = capsys.readouterr().err
     assert code == 1 and fragment in err and "Traceback" not in err, err
     assert (tmp_path / "out" / "good.npz").is_file() and not (tmp_path / "out" / "bad").exists()

@@ -1,5 +1,6 @@
 """The benchmark scripts' own logic: benches/steps.py (accuracy pass, latency pass, the two-phase merge with
 --accuracy-from) and benches/peers.py's markdown tables. Timing values are never asserted."""
+
 from __future__ import annotations
 
 import importlib.util
@@ -28,8 +29,20 @@ def test_steps_two_phases_merge(tiny_model_dir, tmp_path):
     adds the latency; a JSON of another model, other samples or missing configurations is refused."""
     import_torch("benches/steps.py (it reads the data through training/evaluate.py)")
     steps = load_bench("steps")
-    common = ["--model", str(tiny_model_dir), "--data", str(H36M_DIR), "--actions", "walking", "--only", "DDIM-5",
-              "--windows-per-action", "1", "--samples", "2"]
+    common = [
+        "--model",
+        str(tiny_model_dir),
+        "--data",
+        str(H36M_DIR),
+        "--actions",
+        "walking",
+        "--only",
+        "DDIM-5",
+        "--windows-per-action",
+        "1",
+        "--samples",
+        "2",
+    ]
     acc = tmp_path / "acc.json"
     assert steps.main(common + ["--latency-reps", "0", "--json", str(acc)]) == 0
     a = json.loads(acc.read_text())
@@ -50,8 +63,20 @@ def test_steps_two_phases_merge(tiny_model_dir, tmp_path):
     with pytest.raises(SystemExit):  # other --samples than the accuracy run
         steps.main(common[:-1] + ["3", "--latency-reps", "1", "--accuracy-from", str(acc)])
     with pytest.raises(SystemExit):  # a configuration the accuracy run lacks
-        steps.main(common[:7] + ["DDPM-10", "--windows-per-action", "1", "--samples", "2", "--latency-reps", "1",
-                                 "--accuracy-from", str(acc)])
+        steps.main(
+            common[:7]
+            + [
+                "DDPM-10",
+                "--windows-per-action",
+                "1",
+                "--samples",
+                "2",
+                "--latency-reps",
+                "1",
+                "--accuracy-from",
+                str(acc),
+            ]
+        )
     other = make_model_dir(tmp_path / "other", preset="tiny", seed=4)
     with pytest.raises(SystemExit):  # another model
         steps.main(["--model", str(other)] + common[2:] + ["--latency-reps", "1", "--accuracy-from", str(acc)])
@@ -64,14 +89,30 @@ def test_peers_markdown_tables():
     the whole-forecast rows and the peak memory line."""
     import_torch("benches/peers.py (PyTorch is one of its peers)")
     peers = load_bench("peers")
-    result = {"rows": [
-        {"L": 75, "threads": 2, "ms": {"tcd": 50.0, "torch": 200.0, "openvino": 100.0},
-         "peer_over_tcd": {"torch": 4.0, "openvino": 2.0}},
-        {"L": 55, "threads": 2, "ms": {"tcd": 40.0, "torch": 120.0, "openvino": 80.0},
-         "peer_over_tcd": {"torch": 3.0, "openvino": 2.0}}],
-        "whole_forecast": {"ddpm50_x5": {"seconds": 12.5, "peak_rss_mib": 61.0,
-                                         "peers_estimated_seconds": {"torch": 80.0, "openvino": 45.0}},
-                           "ddim10_x1": {"seconds": 0.31, "peak_rss_mib": 40.0}}}
+    result = {
+        "rows": [
+            {
+                "L": 75,
+                "threads": 2,
+                "ms": {"tcd": 50.0, "torch": 200.0, "openvino": 100.0},
+                "peer_over_tcd": {"torch": 4.0, "openvino": 2.0},
+            },
+            {
+                "L": 55,
+                "threads": 2,
+                "ms": {"tcd": 40.0, "torch": 120.0, "openvino": 80.0},
+                "peer_over_tcd": {"torch": 3.0, "openvino": 2.0},
+            },
+        ],
+        "whole_forecast": {
+            "ddpm50_x5": {
+                "seconds": 12.5,
+                "peak_rss_mib": 61.0,
+                "peers_estimated_seconds": {"torch": 80.0, "openvino": 45.0},
+            },
+            "ddim10_x1": {"seconds": 0.31, "peak_rss_mib": 40.0},
+        },
+    }
     md = peers.markdown(result)
     lines = md.splitlines()
     assert lines[0] == "| ms per forward | L = 75, 2 thr. | L = 55, 2 thr. |"
@@ -94,25 +135,29 @@ def test_repair_quality_baselines_fill_only_hidden_entries():
     t = np.arange(50, dtype=np.float64)
     curve = (1e-5 * (t - 20) ** 3 + 0.002 * t + 0.01 * np.sin(t / 3))[None, :, None, None] * np.ones((1, 50, 2, 3))
     m = np.ones((1, 50, 2), dtype=bool)
-    m[0, 10:14, 0] = False          # an interior gap of joint 0
-    m[0, [25, 31, 40], 1] = False   # single frames of joint 1
-    m[0, 45:, 1] = False            # trailing frames of joint 1: held at the last observed value
+    m[0, 10:14, 0] = False  # an interior gap of joint 0
+    m[0, [25, 31, 40], 1] = False  # single frames of joint 1
+    m[0, 45:, 1] = False  # trailing frames of joint 1: held at the last observed value
     keep = np.repeat(m[..., None], 3, -1)
     x = np.where(keep, curve, np.nan)
     lin, spl = rq.linear_fill(x, m), rq.spline_fill(x, m)
     np.testing.assert_array_equal(spl[keep], curve[keep])
     np.testing.assert_allclose(spl[0, 45:, 1], np.repeat(curve[0, 44:45, 1], 5, 0), rtol=0, atol=1e-8)
-    assert np.abs(spl[0, 10:14, 0] - lin[0, 10:14, 0]).max() > 1e-4    # the spline is not the linear fill
+    assert np.abs(spl[0, 10:14, 0] - lin[0, 10:14, 0]).max() > 1e-4  # the spline is not the linear fill
     line = 0.01 * t[None, :, None, None] * np.ones((1, 50, 2, 3))
-    np.testing.assert_allclose(rq.linear_fill(np.where(keep, line, np.nan), m)[0, 10:14, 0], line[0, 10:14, 0],
-                               atol=1e-8)
+    np.testing.assert_allclose(
+        rq.linear_fill(np.where(keep, line, np.nan), m)[0, 10:14, 0], line[0, 10:14, 0], atol=1e-8
+    )
     # the training fill, last: it needs torch
     torch = import_torch("the comparison with training.model.spline_fill")
     from training.model import spline_fill
-    ref = spline_fill(torch.from_numpy(x.transpose(0, 2, 3, 1).copy()),
-                      torch.from_numpy(keep.transpose(0, 2, 3, 1).astype(np.float64).copy()))
+
+    ref = spline_fill(
+        torch.from_numpy(x.transpose(0, 2, 3, 1).copy()),
+        torch.from_numpy(keep.transpose(0, 2, 3, 1).astype(np.float64).copy()),
+    )
     ref = ref.numpy().transpose(0, 3, 1, 2)
-    np.testing.assert_allclose(spl, ref, rtol=0, atol=1e-8)   # values ~0.1: float32 rounding ~1e-8
+    np.testing.assert_allclose(spl, ref, rtol=0, atol=1e-8)  # values ~0.1: float32 rounding ~1e-8
 
 
 def test_repair_dataset_occlusion_blocks_cycle_the_patterns():
@@ -135,15 +180,36 @@ def test_repair_dataset_runs_tcd_repair_on_a_directory(tiny_model_dir, tmp_path)
     directory, checks the observed values came back unchanged and reports ADE against the baselines."""
     rd = load_bench("repair_dataset")
     out = tmp_path / "r.json"
-    assert rd.main(["--model", str(tiny_model_dir), "--files", "2", "--max-frames", "120", "--steps", "2",
-                    "--samples", "1", "--data-dir", str(H36M_DIR), "--work", str(tmp_path / "w"),
-                    "--json", str(out)]) == 0
+    assert (
+        rd.main(
+            [
+                "--model",
+                str(tiny_model_dir),
+                "--files",
+                "2",
+                "--max-frames",
+                "120",
+                "--steps",
+                "2",
+                "--samples",
+                "1",
+                "--data-dir",
+                str(H36M_DIR),
+                "--work",
+                str(tmp_path / "w"),
+                "--json",
+                str(out),
+            ]
+        )
+        == 0
+    )
     r = json.loads(out.read_text())
     assert r["files"] == 2 and r["fps"] == 50 and r["frames"] == 240 and 0 < r["hidden_fraction"] < 1
     assert r["provenance"]["units"] == "mm" and r["provenance"]["fps"] == 50.0 and r["provenance"]["steps"] == 2
     assert all(math.isfinite(v) and v > 0 for v in r["ade_mm"].values())
     assert sorted(p.name for p in (tmp_path / "w" / "out").iterdir()) == sorted(
-        p.name for p in (tmp_path / "w" / "in").iterdir())
+        p.name for p in (tmp_path / "w" / "in").iterdir()
+    )
 
 
 @needs_h36m
@@ -151,8 +217,23 @@ def test_in_the_wild_smoke(tiny_model_dir, tmp_path):
     """benches/in_the_wild.py runs every input path through the public API and writes its table."""
     bench = load_bench("in_the_wild")
     out = tmp_path / "wild.json"
-    assert bench.main(["--data", str(H36M_DIR), "--model", str(tiny_model_dir), "--windows-per-action", "1",
-                       "--steps", "1", "--json", str(out)]) == 0
+    assert (
+        bench.main(
+            [
+                "--data",
+                str(H36M_DIR),
+                "--model",
+                str(tiny_model_dir),
+                "--windows-per-action",
+                "1",
+                "--steps",
+                "1",
+                "--json",
+                str(out),
+            ]
+        )
+        == 0
+    )
     rows = json.loads(out.read_text())["rows"]
     cmu = bench.DEFAULT_CMU.is_file()
     amass = (bench.DEFAULT_AMASS / "smpl_skeleton.npz").is_file()
@@ -168,17 +249,35 @@ def test_samples_n_rows_are_nested_prefixes(tiny_model_dir, tmp_path):
     Zero-Velocity beside, on the protocol's subject S5."""
     import shutil
     from conftest import FIXTURES
+
     bench = load_bench("samples_n")
     assert bench.sample_counts(5) == [1, 2, 5] and bench.sample_counts(7) == [1, 2, 5, 7]
     d = tmp_path / "m"
     shutil.copytree(tiny_model_dir, d)
     shutil.copyfile(FIXTURES / "tiny_prior.safetensors", d / "prior.safetensors")
     out = tmp_path / "n.json"
-    assert bench.main(["--model", str(d), "--data", str(H36M_DIR), "--windows-per-action", "1", "--samples", "3",
-                       "--steps", "2", "--json", str(out)]) == 0
+    assert (
+        bench.main(
+            [
+                "--model",
+                str(d),
+                "--data",
+                str(H36M_DIR),
+                "--windows-per-action",
+                "1",
+                "--samples",
+                "3",
+                "--steps",
+                "2",
+                "--json",
+                str(out),
+            ]
+        )
+        == 0
+    )
     r = json.loads(out.read_text())
     assert list(r["mean_of_n"]) == ["1", "2", "3"] and r["protocol"]["subject"] == "S5"
-    assert r["best_of_n"]["1"] == r["mean_of_n"]["1"]          # one sample: its mean and the oracle's pick
+    assert r["best_of_n"]["1"] == r["mean_of_n"]["1"]  # one sample: its mean and the oracle's pick
     assert r["mean_of_n"]["2"] != r["mean_of_n"]["1"]
     assert all(v > 0 for v in (r["prior"]["1000"], r["zero_velocity"]["1000"]))
 
@@ -190,14 +289,17 @@ def test_heading_turns_windows_with_their_ground_truth(tmp_path):
     recorded, so turning moves the ground truth with the observation; the prior's rows come out."""
     import_torch("benches/heading.py reads the data through training/")
     from conftest import FIXTURES
+
     bench = load_bench("heading")
     w = np.random.default_rng(0).normal(size=(4, 75, 14, 3))
     turned = bench.rotate_about(w, "z", np.random.default_rng(0))
     zv = lambda x: np.linalg.norm((np.repeat(x[:, 14:15], 60, 1) - x[:, 15:]).reshape(4, 60, -1), axis=-1)  # noqa: E731
     np.testing.assert_allclose(zv(turned), zv(w), atol=1e-9)
     out = tmp_path / "h.json"
-    assert bench.main(["--humaneva-model", str(FIXTURES / "tiny_humaneva_model"), "--skip", "h36m",
-                       "--json", str(out)]) == 0
+    assert (
+        bench.main(["--humaneva-model", str(FIXTURES / "tiny_humaneva_model"), "--skip", "h36m", "--json", str(out)])
+        == 0
+    )
     r = json.loads(out.read_text())["humaneva"]
     assert r["Train"]["windows"] > 0 and r["Validate"]["windows"] == 188
     assert set(r["Validate"]["m"]) == {"as recorded", "turned"}
@@ -211,8 +313,12 @@ def test_repair_scaling_smoke(tmp_path):
     out = tmp_path / "scaling.json"
     assert bench.main(["--files", "2", "--frames", "60", "--small-files", "2", "--steps", "2", "--json", str(out)]) == 0
     r = json.loads(out.read_text())
-    assert [row["path"] for row in r["rows"]] == ["local, --jobs 1", "local, --jobs 2", "ray, 1 worker(s)",
-                                                  "ray, 2 worker(s)"]
+    assert [row["path"] for row in r["rows"]] == [
+        "local, --jobs 1",
+        "local, --jobs 2",
+        "ray, 1 worker(s)",
+        "ray, 2 worker(s)",
+    ]
     assert all(row["frames_per_s"] > 0 for row in r["rows"]) and "overhead_per_file_ms" in r["small_files"]
 
 
@@ -223,23 +329,26 @@ def test_root_extrapolation_reads_the_root_at_the_callers_frames(monkeypatch):
     frames."""
     from test_wild import h36m32
     from tcd import wild
+
     bench = load_bench("root_extrapolation")
     monkeypatch.setattr(wild, "ROOT_DEAD_ZONE_MPS", 0.0)
     pose = h36m32(1)[0]
     t = np.arange(100)[:, None, None]
-    x = (pose[None] + t * np.array([0.01, 0.0, 0.0]))[None]                 # (1, 100, 32, 3) at 50 fps
+    x = (pose[None] + t * np.array([0.01, 0.0, 0.0]))[None]  # (1, 100, 32, 3) at 50 fps
     last = x[0, -1, 0]
     ahead = np.arange(1, 51)[:, None] * np.array([0.01, 0.0, 0.0])
     np.testing.assert_allclose(bench.root_forecast(x, "h36m32", 50.0, "y", None)[0], last + ahead, atol=1e-9)
-    np.testing.assert_allclose(bench.root_forecast(x, "h36m32", 50.0, "y", 0.0)[0], np.repeat(last[None], 50, 0),
-                               atol=1e-9)
+    np.testing.assert_allclose(
+        bench.root_forecast(x, "h36m32", 50.0, "y", 0.0)[0], np.repeat(last[None], 50, 0), atol=1e-9
+    )
     damped = bench.root_forecast(x, "h36m32", 50.0, "y", 0.4)[0, :, 0] - last[0]
     assert np.all(np.diff(damped) > 0) and 0 < damped[-1] < ahead[-1, 0]
     monkeypatch.setattr(wild, "ROOT_DEAD_ZONE_MPS", 0.2)
     np.testing.assert_allclose(bench.root_forecast(x, "h36m32", 50.0, "y", None)[0], last + 0.6 * ahead, atol=1e-9)
-    slow = (pose[None] + t * np.array([0.003, 0.0, 0.0]))[None]             # 0.15 m/s: inside the dead zone
-    np.testing.assert_allclose(bench.root_forecast(slow, "h36m32", 50.0, "y", None)[0],
-                               np.repeat(slow[0, -1, :1], 50, 0), atol=1e-9)
+    slow = (pose[None] + t * np.array([0.003, 0.0, 0.0]))[None]  # 0.15 m/s: inside the dead zone
+    np.testing.assert_allclose(
+        bench.root_forecast(slow, "h36m32", 50.0, "y", None)[0], np.repeat(slow[0, -1, :1], 50, 0), atol=1e-9
+    )
 
 
 def test_prior_speed_smoke(tmp_path):
@@ -248,21 +357,46 @@ def test_prior_speed_smoke(tmp_path):
     asserted."""
     import_torch("benches/prior_speed.py (it times PyTorch beside the engine)")
     import tcd
+
     bench = load_bench("prior_speed")
     out = tmp_path / "prior_speed.json"
-    assert bench.main(["--random", "--blocks", "2", "--reps", "1", "--batch", "5", "--threads", "1", "2",
-                       "--pause", "0", "--json", str(out)]) == 0
+    assert (
+        bench.main(
+            [
+                "--random",
+                "--blocks",
+                "2",
+                "--reps",
+                "1",
+                "--batch",
+                "5",
+                "--threads",
+                "1",
+                "2",
+                "--pause",
+                "0",
+                "--json",
+                str(out),
+            ]
+        )
+        == 0
+    )
     r = json.loads(out.read_text())
     assert [(row["batch"], row["threads"], row["horizon"]) for row in r["rows"]] == [
-        (1, 1, 25), (1, 2, 25), (5, 1, 25), (5, 2, 25)]
+        (1, 1, 25),
+        (1, 2, 25),
+        (5, 1, 25),
+        (5, 2, 25),
+    ]
     for row in r["rows"]:
         assert row["median_s"]["tcd"] > 0 and row["median_s"]["torch"] > 0 and row["max_abs_diff"] < 1e-4
     assert r["model"] == {"weights": "random, 2 blocks", "blocks": 2, "obs_len": 50, "chunk": 10, "num_features": 66}
     assert r["machine"]["cpu"] and r["machine"]["tcd_kernel"] in tcd.engine.supported_kernels()
-    assert r["goals"]["batch_met"] is None                      # only a batch of 1,000 is judged
+    assert r["goals"]["batch_met"] is None  # only a batch of 1,000 is judged
     md = bench.markdown(r)
-    assert md.splitlines()[0] == ("| median | 1 forecast, 1 thr. | 1 forecast, 2 thr. | batch of 5, 1 thr. | "
-                                  "batch of 5, 2 thr. |")
+    assert md.splitlines()[0] == (
+        "| median | 1 forecast, 1 thr. | 1 forecast, 2 thr. | batch of 5, 1 thr. | batch of 5, 2 thr. |"
+    )
     assert md.splitlines()[2].startswith("| tcd (Rust) | ") and "×) |" in md.splitlines()[3]
 
 
@@ -276,8 +410,25 @@ def test_train_speed_smoke(tmp_path):
     if not prior.is_file():
         pytest.skip("no bundled HumanEva-I prior in this build")
     out = tmp_path / "speed.json"
-    assert bench.main(["--config", str(ROOT / "training/configs/humaneva_long_2.json"), "--prior", str(prior),
-                       "--batch", "2", "--variants", "eager", "--seconds", "0.5", "--json", str(out)]) == 0
+    assert (
+        bench.main(
+            [
+                "--config",
+                str(ROOT / "training/configs/humaneva_long_2.json"),
+                "--prior",
+                str(prior),
+                "--batch",
+                "2",
+                "--variants",
+                "eager",
+                "--seconds",
+                "0.5",
+                "--json",
+                str(out),
+            ]
+        )
+        == 0
+    )
     d = json.loads(out.read_text())
     assert [(r["batch"], r["variant"], r["threads"]) for r in d["rows"]] == [(2, "eager", 1)]
     assert d["rows"][0]["windows_per_s"] > 0 and len(d["rows"][0]["blocks"]) == 5
@@ -299,13 +450,13 @@ def test_bidirectional_fill_bends_each_forecast_to_meet_the_far_side_of_the_gap(
     gt = (0.3 + 0.01 * t * np.linspace(-1, 1, lf.J)[None, :, None] * np.array([1.0, 2.0, -0.5])).astype(np.float32)
     gt = np.stack([gt, gt + 0.1])
     m = np.ones((2, lf.L, lf.J), dtype=bool)
-    m[0, 12:22] = False                                      # an interior gap
-    m[1, 0:10] = False                                       # a gap at the start: the backward forecast only
+    m[0, 12:22] = False  # an interior gap
+    m[1, 0:10] = False  # a gap at the start: the backward forecast only
     spline = np.zeros_like(gt)
     blend = lf.bidirectional_fill(Hold(), gt, m, spline)["prior forward + backward"]
     np.testing.assert_allclose(blend[0, 12:22], gt[0, 12:22], atol=1e-5)
     np.testing.assert_array_equal(blend[0, :12], spline[0, :12])
-    np.testing.assert_allclose(blend[1, :10], np.repeat(gt[1, 10:11], 10, 0), atol=1e-6)   # held: nothing before
+    np.testing.assert_allclose(blend[1, :10], np.repeat(gt[1, 10:11], 10, 0), atol=1e-6)  # held: nothing before
     mixed = lf.bidirectional_fill(Hold(), gt, m, spline)["prior forward + backward, averaged with the spline"]
     np.testing.assert_allclose(mixed[0, 12:22], 0.5 * gt[0, 12:22], atol=1e-5)
 
@@ -316,11 +467,11 @@ def test_humaneva_lowpass_keeps_the_first_cosines_of_the_residual_over_the_prior
     rng = np.random.default_rng(0)
     prior = rng.normal(size=(2, 60, 14, 3))
     t = np.arange(60)[None, None, :, None, None]
-    slow, fast = (np.cos(np.pi * (2 * t + 1) * k / 120) for k in (2, 30))   # DCT-II cosines 2 and 30 of 60
+    slow, fast = (np.cos(np.pi * (2 * t + 1) * k / 120) for k in (2, 30))  # DCT-II cosines 2 and 30 of 60
     a, b = rng.normal(size=(3, 2, 1, 14, 3)), rng.normal(size=(3, 2, 1, 14, 3))
     samples = prior[None] + a * slow + b * fast
-    np.testing.assert_allclose(lowpass(samples, prior, 60), samples, atol=1e-12)          # all kept: unchanged
-    np.testing.assert_allclose(lowpass(samples, prior, 10), prior[None] + a * slow, atol=1e-12)   # cosine 30 gone
+    np.testing.assert_allclose(lowpass(samples, prior, 60), samples, atol=1e-12)  # all kept: unchanged
+    np.testing.assert_allclose(lowpass(samples, prior, 10), prior[None] + a * slow, atol=1e-12)  # cosine 30 gone
     np.testing.assert_allclose(lowpass(samples, prior, 2), np.broadcast_to(prior, samples.shape), atol=1e-12)
     with pytest.raises(ValueError, match="keep"):
         lowpass(samples, prior, 0)
@@ -332,8 +483,8 @@ def test_humaneva_spread_scales_each_sample_about_the_samples_mean():
     samples = np.random.default_rng(1).normal(size=(4, 2, 60, 14, 3))
     mean = samples.mean(axis=0)
     out = spread(samples, 1.5)
-    np.testing.assert_allclose(out.mean(axis=0), mean, atol=1e-12)                      # the mean kept
-    np.testing.assert_allclose(out - mean, 1.5 * (samples - mean), atol=1e-12)          # deviations x 1.5
+    np.testing.assert_allclose(out.mean(axis=0), mean, atol=1e-12)  # the mean kept
+    np.testing.assert_allclose(out - mean, 1.5 * (samples - mean), atol=1e-12)  # deviations x 1.5
     np.testing.assert_allclose(spread(samples, 1.0), samples, atol=1e-12)
     with pytest.raises(ValueError, match="spread"):
         spread(samples, 0.0)
@@ -343,17 +494,18 @@ def test_humaneva_noise_scale_scales_the_starting_noise_of_both_stages():
     import_torch("benches/humaneva_lowpass.py (it samples through training/evaluate.py)")
     import tcd
     import tcd.model as tm
+
     bench = load_bench("humaneva_lowpass")
-    model = tcd.load(ROOT / "tests" / "fixtures" / "tiny_humaneva_model")      # random weights, around a prior
+    model = tcd.load(ROOT / "tests" / "fixtures" / "tiny_humaneva_model")  # random weights, around a prior
     obs = np.random.default_rng(2).normal(scale=0.3, size=(2, model.obs_len, model.num_joints, 3))
     run = lambda: model.forecast(obs, num_samples=4, sampler="ddim", num_inference_steps=1, seed=7).samples  # noqa: E731
     plain, cascade = run(), tm.cascade_raw
     with bench.noise_scale(1.0):
-        np.testing.assert_array_equal(run(), plain)             # the engine's own streams, drawn in the injected layout
-    with bench.noise_scale(1e-9):                               # x_T ~ 0 in both stages: DDIM-1 has nothing to vary
+        np.testing.assert_array_equal(run(), plain)  # the engine's own streams, drawn in the injected layout
+    with bench.noise_scale(1e-9):  # x_T ~ 0 in both stages: DDIM-1 has nothing to vary
         still = run()
-    assert tm.cascade_raw is cascade                            # restored
-    spread = lambda s: np.abs(s - s.mean(axis=0)).max()         # noqa: E731
+    assert tm.cascade_raw is cascade  # restored
+    spread = lambda s: np.abs(s - s.mean(axis=0)).max()  # noqa: E731
     assert spread(plain) > 1e-3 and spread(still) < 1e-5 * spread(plain)
     with pytest.raises(ValueError, match="spread"):
         with bench.noise_scale(0.0):
@@ -366,12 +518,12 @@ def test_repair_inbetween_features_are_aligned_on_the_gap():
     window without a whole-frame gap is refused. A segment off by a frame, or not clamped, would differ."""
     ib = load_bench("repair_inbetween")
     t, c = 50, 3
-    fill = np.broadcast_to(np.arange(t, dtype=np.float64)[None, :, None], (2, t, 2)).copy()   # frame index
+    fill = np.broadcast_to(np.arange(t, dtype=np.float64)[None, :, None], (2, t, 2)).copy()  # frame index
     starts = np.array([20, 0])
     x = ib.features(fill, starts, c)
     seg = x[:, :-2].reshape(2, 2 * c + ib.GAP, 2)[..., 0]
     np.testing.assert_array_equal(seg[0], np.arange(20 - c, 20 + ib.GAP + c) - 19)
-    np.testing.assert_array_equal(seg[1], np.clip(np.arange(-c, ib.GAP + c), 0, None))   # frame 0 repeated
+    np.testing.assert_array_equal(seg[1], np.clip(np.arange(-c, ib.GAP + c), 0, None))  # frame 0 repeated
     np.testing.assert_array_equal(x[:, -2:], [[1.0, 1.0], [0.0, 1.0]])
     mask = np.ones((2, t, 4), bool)
     mask[0, 5:15] = False
@@ -393,12 +545,19 @@ def test_repair_inbetween_with_an_infinite_penalty_is_the_fill(tmp_path):
     np.testing.assert_allclose(res["ridge_1e+12"]["per_window_mm"], res["fill"]["per_window_mm"], atol=1e-6)
     assert not np.allclose(res["ridge_0.001"]["per_window_mm"], res["fill"]["per_window_mm"], atol=1e-3)
     from training.compare import compare
-    r = compare(json.loads(out.read_text()), json.loads(out.read_text()), key="consecutive_frames:ridge_1e+12",
-                old_key="consecutive_frames:fill")
+
+    r = compare(
+        json.loads(out.read_text()),
+        json.loads(out.read_text()),
+        key="consecutive_frames:ridge_1e+12",
+        old_key="consecutive_frames:fill",
+    )
     assert r["windows"] == 256 and abs(r["mean_difference"]) < 1e-6
     # the kernel shared by every coordinate: the same limit
-    assert ib.main(["--train", "40", "--shared", "--lambdas", "1e12", "--data-dir", str(H36M_DIR),
-                    "--json", str(out)]) == 0
+    assert (
+        ib.main(["--train", "40", "--shared", "--lambdas", "1e12", "--data-dir", str(H36M_DIR), "--json", str(out)])
+        == 0
+    )
     res = json.loads(out.read_text())["results"][0]
     np.testing.assert_allclose(res["shared_1e+12"]["per_window_mm"], res["fill"]["per_window_mm"], atol=1e-6)
 
@@ -414,8 +573,9 @@ def test_repair_inbetween_shared_rows_are_one_coordinate_each():
     assert rows.shape == (5 * f, 3 * seg + 2)
     b, k = 3, 1
     segment = x[b, :-2].reshape(seg, f)[:, k]
-    np.testing.assert_array_equal(rows[b * f + k], np.concatenate([segment, x[b, -2:], segment * x[b, -2],
-                                                                   segment * x[b, -1]]))
+    np.testing.assert_array_equal(
+        rows[b * f + k], np.concatenate([segment, x[b, -2:], segment * x[b, -2], segment * x[b, -1]])
+    )
     y = rng.normal(size=(5, ib.GAP * f))
     xtx, xty = ib.normal_equations(x, y, c, True, chunk=2)
     t = y.reshape(5, ib.GAP, f).transpose(0, 2, 1).reshape(-1, ib.GAP)
@@ -432,7 +592,7 @@ def test_repair_gap_lengths_hides_n_whole_frames_per_window():
         hidden = ~m.any(2)
         assert (hidden.sum(1) == n).all() and ((~m).sum((1, 2)) == 22 * n).all()
         runs = np.diff(np.concatenate([np.zeros((64, 1)), hidden, np.zeros((64, 1))], 1).astype(int), axis=1)
-        assert ((runs == 1).sum(1) == 1).all()                                 # one run each
+        assert ((runs == 1).sum(1) == 1).all()  # one run each
         assert np.array_equal(m, gl.gap_masks(64, 50, n, 0)) and not np.array_equal(m, gl.gap_masks(64, 50, n, 1))
 
 
@@ -464,14 +624,14 @@ def test_humaneva_imle_mlp_starts_as_the_prior_and_pulls_each_target_s_nearest_d
     out = gen(obs, prior, torch.randn(3, 7, 4, generator=g))
     assert out.shape == (3, 7, 60, 6)
     torch.testing.assert_close(out, prior[:, None].expand(-1, 7, -1, -1), rtol=0, atol=0)
-    torch.nn.init.normal_(gen.head.weight, std=0.5)          # now the draws differ
+    torch.nn.init.normal_(gen.head.weight, std=0.5)  # now the draws differ
     targets = torch.randn(3, 2, 60, 6, generator=g)
     torch.manual_seed(5)
     loss = bench.imle_loss(gen, obs, prior, targets, cands=9, fde_weight=2.0)
     torch.manual_seed(5)
-    draws = gen(obs, prior, torch.randn(3, 9, 4))                                          # (3, 9, 60, 6)
-    err = torch.linalg.vector_norm(draws[:, :, None] - targets[:, None], dim=-1)           # (3, 9, 2, 60)
-    nearest = (err.mean(-1) + 2.0 * err[..., -1]).min(dim=1).values                        # (3, 2)
+    draws = gen(obs, prior, torch.randn(3, 9, 4))  # (3, 9, 60, 6)
+    err = torch.linalg.vector_norm(draws[:, :, None] - targets[:, None], dim=-1)  # (3, 9, 2, 60)
+    nearest = (err.mean(-1) + 2.0 * err[..., -1]).min(dim=1).values  # (3, 2)
     torch.testing.assert_close(loss, nearest.mean())
     assert nearest.std() > 0 and loss > 0
     # with a rival generator's distances, each target counts the nearer of its draw and the rival

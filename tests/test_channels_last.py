@@ -1,5 +1,6 @@
 """The channels-last training forward (training/channels_last.py) computes the reference forward
 (training/model.py, which the Rust engine is checked against) on the same parameters."""
+
 import pytest
 
 from conftest import import_torch
@@ -17,7 +18,7 @@ def inputs(B, K, L, seed=0):
     noisy = torch.randn(B, K, L, generator=g)
     observed = torch.randn(B, K, L, generator=g) * 0.3
     mask = (torch.rand(B, K, L, generator=g) < 0.6).float()
-    mask[..., L - 5:] = 0.0                                                   # a future to predict
+    mask[..., L - 5 :] = 0.0  # a future to predict
     step = torch.randint(0, 50, (B,), generator=g)
     return noisy, observed, mask, step
 
@@ -25,7 +26,7 @@ def inputs(B, K, L, seed=0):
 def model(cfg, seed=0):
     torch.manual_seed(seed)
     m = TCDModel(cfg).eval()
-    randomize_output_layer(m, seed=seed, std=0.5)   # the zero-initialised last conv would make both outputs its bias
+    randomize_output_layer(m, seed=seed, std=0.5)  # the zero-initialised last conv would make both outputs its bias
     return m
 
 
@@ -38,7 +39,7 @@ def test_equals_the_reference_forward_at_every_preset(preset, L):
         ref = m(noisy, observed, mask, step)
         out = ChannelsLast(m)(noisy, observed, mask, step)
     assert out.shape == ref.shape == (2, m.cfg.num_features, L)
-    assert float(ref.abs().max()) > 0.1                                       # a real signal to compare
+    assert float(ref.abs().max()) > 0.1  # a real signal to compare
     torch.testing.assert_close(out, ref, rtol=1e-5, atol=1e-5)
 
 
@@ -47,9 +48,10 @@ def test_equals_the_reference_with_every_cond_fill_and_a_shared_step(fill):
     m = model(replace(PRESETS["tiny"], cond_fill=fill), seed=1)
     noisy, observed, mask, _ = inputs(3, m.cfg.num_features, 50, seed=1)
     with torch.no_grad():
-        for step in (7, torch.tensor([49])):                                  # one step broadcast over the batch
-            torch.testing.assert_close(ChannelsLast(m)(noisy, observed, mask, step), m(noisy, observed, mask, step),
-                                       rtol=1e-5, atol=1e-5)
+        for step in (7, torch.tensor([49])):  # one step broadcast over the batch
+            torch.testing.assert_close(
+                ChannelsLast(m)(noisy, observed, mask, step), m(noisy, observed, mask, step), rtol=1e-5, atol=1e-5
+            )
 
 
 def test_gradients_equal_the_reference():

@@ -1,6 +1,7 @@
 """`.ci/run` fails when a test fails (CI lands nothing then), the run without torch (tests/without_torch.py)
 included: run with stand-ins for python3 and cargo that fail where told, and a stand-in wheel check that leaves
 a mark."""
+
 import os
 import shutil
 import stat
@@ -18,8 +19,10 @@ def fake(path: Path, body: str) -> None:
     path.chmod(path.stat().st_mode | stat.S_IEXEC)
 
 
-@pytest.mark.parametrize("failing,should_pass", [(None, True), ("pytest", False), ("pip", False), ("cargo", False),
-                                                 ("tests/without_torch.py", False)])
+@pytest.mark.parametrize(
+    "failing,should_pass",
+    [(None, True), ("pytest", False), ("pip", False), ("cargo", False), ("tests/without_torch.py", False)],
+)
 def test_ci_run_fails_when_a_step_fails(tmp_path, failing, should_pass):
     repo, bin_dir = tmp_path / "repo", tmp_path / "bin"
     (repo / ".ci").mkdir(parents=True)
@@ -46,7 +49,12 @@ def test_without_torch_hides_torch_and_fails_when_a_test_fails(tmp_path):
         "            __import__(name)\n"
         "    pytest.importorskip('torch')\n\n\n"
         "def test_fails():\n"
-        "    assert False\n")
-    r = subprocess.run([sys.executable, str(ROOT / "tests" / "without_torch.py"), "-q", "-p", "no:cacheprovider",
-                        "test_probe.py"], cwd=tmp_path, capture_output=True, text=True)
+        "    assert False\n"
+    )
+    r = subprocess.run(
+        [sys.executable, str(ROOT / "tests" / "without_torch.py"), "-q", "-p", "no:cacheprovider", "test_probe.py"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 1 and "1 failed, 1 skipped" in r.stdout, (r.returncode, r.stdout, r.stderr)

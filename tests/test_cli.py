@@ -1,4 +1,5 @@
 """The `tcd` command line: info, a forecast round trip, refusal to overwrite, exit code 2 on bad input."""
+
 from __future__ import annotations
 
 import os
@@ -44,7 +45,8 @@ def test_info(tiny_model_dir, capsys):
 
 def test_info_without_bundled_model(capsys, tmp_path, monkeypatch):
     import tcd.model
-    monkeypatch.setattr(tcd.model, "default_model_dir", lambda: tmp_path)   # an installation without weights
+
+    monkeypatch.setattr(tcd.model, "default_model_dir", lambda: tmp_path)  # an installation without weights
     code, out, err = run(["info"], capsys)
     assert code == 2 and out == ""
     assert "No default model is bundled" in err
@@ -52,6 +54,7 @@ def test_info_without_bundled_model(capsys, tmp_path, monkeypatch):
 
 def test_info_bundled_model(capsys):
     import tcd
+
     if not (tcd.default_model_dir() / "short.safetensors").is_file():
         pytest.skip("no bundled model in this build")
     code, out, err = run(["info"], capsys)
@@ -82,8 +85,20 @@ def test_forecast_any_length(tiny_model_dir, npz, tmp_path, capsys):
     """The API's length rule: 40 frames are padded with missing frames, as TCD.forecast does."""
     short = np.load(npz)["poses"][10:]
     out_path = tmp_path / "out.npz"
-    code, _, err = run(["forecast", save(tmp_path / "short.npz", poses=short), "-o", out_path, "--model",
-                        tiny_model_dir, "--seed", "3", *FAST], capsys)
+    code, _, err = run(
+        [
+            "forecast",
+            save(tmp_path / "short.npz", poses=short),
+            "-o",
+            out_path,
+            "--model",
+            tiny_model_dir,
+            "--seed",
+            "3",
+            *FAST,
+        ],
+        capsys,
+    )
     assert code == 0, err
     want = tcd.load(tiny_model_dir).forecast(short, seed=3, num_samples=2, num_inference_steps=2, sampler="ddim")
     with np.load(out_path) as f:
@@ -95,8 +110,9 @@ def test_forecast_dpmpp2m(tiny_model_dir, npz, tmp_path, capsys):
     args = ["--samples", "2", "--steps", "3", "--sampler", "dpmpp2m", "--seed", "5"]
     code, _, err = run(["forecast", npz, "-o", out_path, "--model", tiny_model_dir, *args], capsys)
     assert code == 0, err
-    want = tcd.load(tiny_model_dir).forecast(np.load(npz)["poses"], seed=5, num_samples=2, num_inference_steps=3,
-                                        sampler="dpmpp2m")
+    want = tcd.load(tiny_model_dir).forecast(
+        np.load(npz)["poses"], seed=5, num_samples=2, num_inference_steps=3, sampler="dpmpp2m"
+    )
     with np.load(out_path) as f:
         assert np.array_equal(f["samples"], want.samples)
 
@@ -116,7 +132,7 @@ def test_forecast_noise_coupling(tiny_model_dir, npz, tmp_path, capsys):
 
 
 def test_forecast_batched_with_mask_and_random_seed(tiny_model_dir, tmp_path, capsys):
-    x = poses(np.random.default_rng(1), batch=2, missing=0.0) * np.float32(1000)   # millimetres
+    x = poses(np.random.default_rng(1), batch=2, missing=0.0) * np.float32(1000)  # millimetres
     mask = np.ones((2, 50, 22), np.float32)
     mask[:, 10:20] = 0
     inp = tmp_path / "in.npz"
@@ -129,8 +145,9 @@ def test_forecast_batched_with_mask_and_random_seed(tiny_model_dir, tmp_path, ca
         seed = int(f["seed"])
         repaired = f["repaired"]
     assert np.array_equal(repaired[:, :10], x[:, :10]) and not np.array_equal(repaired[:, 10:20], x[:, 10:20])
-    want = tcd.load(tiny_model_dir).forecast(x, mask, seed=seed, num_samples=2, num_inference_steps=2, sampler="ddim",
-                                        units="mm")
+    want = tcd.load(tiny_model_dir).forecast(
+        x, mask, seed=seed, num_samples=2, num_inference_steps=2, sampler="ddim", units="mm"
+    )
     assert np.array_equal(repaired, want.repaired)
 
 
@@ -145,6 +162,7 @@ def test_refuses_to_overwrite(tiny_model_dir, npz, tmp_path, capsys):
 def test_failure_while_writing_leaves_no_output(tiny_model_dir, npz, tmp_path, capsys, monkeypatch):
     """OUT is written atomically: a failure half-way (np.savez raising after some bytes) leaves no file
     under OUT, or with --overwrite the old OUT as it was, and no temporary file."""
+
     def savez(fh, **arrays):
         fh.write(b"partial bytes")
         raise OSError("disk full")
@@ -186,14 +204,27 @@ def save(path, **arrays):
     return path
 
 
-@pytest.mark.parametrize("case", [
-    "empty_window", "wrong_joints", "no_poses", "missing_input", "not_npz", "bad_mask", "all_missing",
-    "bad_samples", "bad_steps", "bad_eta", "missing_model", "negative_seed",
-])
+@pytest.mark.parametrize(
+    "case",
+    [
+        "empty_window",
+        "wrong_joints",
+        "no_poses",
+        "missing_input",
+        "not_npz",
+        "bad_mask",
+        "all_missing",
+        "bad_samples",
+        "bad_steps",
+        "bad_eta",
+        "missing_model",
+        "negative_seed",
+    ],
+)
 def test_bad_input_exit_code_2(tiny_model_dir, npz, tmp_path, capsys, case):
     good = np.load(npz)["poses"]
     inp, extra, model = npz, [], tiny_model_dir
-    if case == "empty_window":   # any length is forecast from its last obs_len frames: here all missing
+    if case == "empty_window":  # any length is forecast from its last obs_len frames: here all missing
         inp = save(tmp_path / "x.npz", poses=np.concatenate([good, np.full_like(good, np.nan)]))
     elif case == "wrong_joints":
         inp = save(tmp_path / "x.npz", poses=good[:, :17])
@@ -226,10 +257,16 @@ def test_bad_input_exit_code_2(tiny_model_dir, npz, tmp_path, capsys, case):
     assert not out_path.exists()
 
 
-@pytest.mark.parametrize("command, flag, value", [
-    ("forecast", "--sampler", "euler"), ("forecast", "--units", "inch"), ("forecast", "--spacing", "middle"),
-    ("forecast", "--noise-coupling", "antithetic"), ("demo", "--sampler", "euler"),
-])
+@pytest.mark.parametrize(
+    "command, flag, value",
+    [
+        ("forecast", "--sampler", "euler"),
+        ("forecast", "--units", "inch"),
+        ("forecast", "--spacing", "middle"),
+        ("forecast", "--noise-coupling", "antithetic"),
+        ("demo", "--sampler", "euler"),
+    ],
+)
 def test_bad_choice_is_a_usage_error(tiny_model_dir, npz, tmp_path, capsys, command, flag, value):
     """An enumerated flag's choices are argparse's: a bad one exits with 2, naming the flag and the value."""
     out_path = tmp_path / "out.npz"
@@ -258,11 +295,32 @@ def test_console_script_and_module(tiny_model_dir, tmp_path):
     env = {**os.environ, "PYTHONPATH": ""}
     script = shutil.which("tcd")
     cmd = [script] if script else [sys.executable, "-m", "tcd"]
-    r = subprocess.run([*cmd, "info", "--model", str(tiny_model_dir)], capture_output=True, text=True, env=env,
-                       cwd=tmp_path, timeout=120)
+    r = subprocess.run(
+        [*cmd, "info", "--model", str(tiny_model_dir)],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=tmp_path,
+        timeout=120,
+    )
     assert r.returncode == 0, r.stderr
     assert "forecast frames (horizon): 25" in r.stdout
-    r = subprocess.run([sys.executable, "-m", "tcd", "forecast", str(tmp_path / "nope.npz"), "-o",
-                        str(tmp_path / "o.npz"), "--model", str(tiny_model_dir)], capture_output=True, text=True,
-                       env=env, cwd=tmp_path, timeout=120)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "tcd",
+            "forecast",
+            str(tmp_path / "nope.npz"),
+            "-o",
+            str(tmp_path / "o.npz"),
+            "--model",
+            str(tiny_model_dir),
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=tmp_path,
+        timeout=120,
+    )
     assert r.returncode == 2 and "does not exist" in r.stderr

@@ -1,4 +1,5 @@
 """training.compare: the paired test that gates bundled weights."""
+
 import json
 
 import pytest
@@ -8,17 +9,21 @@ from training.compare import compare, main
 
 def result(errors, seed=0, windows=256):
     per_action = {f"a{i}": {"1000": e, "80": e / 10} for i, e in enumerate(errors)}
-    return {"protocol": {"subject": "S5", "windows_per_action": windows, "data": "x"}, "seeds": {"sampling": seed},
-            "per_action": per_action, "mean_of_n": {"per_action": per_action}}
+    return {
+        "protocol": {"subject": "S5", "windows_per_action": windows, "data": "x"},
+        "seeds": {"sampling": seed},
+        "per_action": per_action,
+        "mean_of_n": {"per_action": per_action},
+    }
 
 
 def test_a_consistent_drop_beyond_the_margin_is_better_and_noise_is_not():
     old = [100.0, 110.0, 120.0, 130.0, 90.0]
     assert compare(result([e - 3 for e in old]), result(old))["verdict"] == "new is better"
     assert compare(result(old), result([e - 3 for e in old]))["verdict"] == "bundled is better"
-    mixed = [e + d for e, d in zip(old, (-6, 5, -6, 5, -1))]          # 0.6 mm lower on average, noisy
+    mixed = [e + d for e, d in zip(old, (-6, 5, -6, 5, -1))]  # 0.6 mm lower on average, noisy
     assert compare(result(mixed), result(old))["verdict"] == "within noise"
-    small = [e - 0.5 for e in old]                                      # consistent but below the 1 % margin
+    small = [e - 0.5 for e in old]  # consistent but below the 1 % margin
     assert compare(result(small), result(old))["verdict"] == "within noise"
     assert compare(result(small), result(old), margin=0.001)["verdict"] == "new is better"
 
@@ -42,8 +47,7 @@ def test_exit_status_gates(tmp_path):
 
 def humaneva_result(ade, seed=0):
     scores = {"ADE": float(sum(ade) / len(ade)), "per_window": {k: list(ade) for k in ("ADE", "FDE", "MMADE", "MMFDE")}}
-    return {"protocol": {"dataset": "humaneva-i", "windows": len(ade)}, "seeds": {"sampling": seed},
-            "model": scores}
+    return {"protocol": {"dataset": "humaneva-i", "windows": len(ade)}, "seeds": {"sampling": seed}, "model": scores}
 
 
 def test_humaneva_results_are_paired_over_windows():
@@ -51,8 +55,10 @@ def test_humaneva_results_are_paired_over_windows():
     old = list(0.3 + 0.1 * rng.random(40))
     res = compare(humaneva_result([e - 0.01 for e in old]), humaneva_result(old))
     assert res["verdict"] == "new is better" and res["windows"] == 40 and res["key"] == "average"
-    assert compare(humaneva_result(old), humaneva_result([e - 0.01 for e in old]), key="FDE")["verdict"] == \
-        "bundled is better"
+    assert (
+        compare(humaneva_result(old), humaneva_result([e - 0.01 for e in old]), key="FDE")["verdict"]
+        == "bundled is better"
+    )
     noisy = [e + d for e, d in zip(old, rng.normal(0, 0.05, 40))]
     assert compare(humaneva_result(noisy), humaneva_result(old))["verdict"] == "within noise"
     with pytest.raises(ValueError, match="one of"):
@@ -73,17 +79,21 @@ def test_bundled_key_pairs_a_tcd_run_with_a_prior_run():
         compare(tcd_run, prior_run, key="mean_of_n")
     r = compare(tcd_run, prior_run, key="mean_of_n", old_key="average")
     assert r["verdict"] == "new is better" and r["bundled_key"] == "average" and r["mean_difference"] == -5.0
-    assert compare(tcd_run, prior_run)["verdict"] == "within noise"          # average against average: equal
+    assert compare(tcd_run, prior_run)["verdict"] == "within noise"  # average against average: equal
 
 
 def repair_result(tcd_mm, spline_mm, seed=0):
     """A benches/repair_quality.py --json result: two patterns, per-window ADE of the model and the spline."""
     patterns = [["random_leg_arm", 0.4], ["random_joints", [0.1, 0.4]]]
-    row = {"tcd": {"ade_mm": 0.0, "per_window_mm": list(tcd_mm)},
-           "spline": {"ade_mm": 0.0, "per_window_mm": list(spline_mm)}}
-    return {"protocol": {"task": "repair", "windows": len(tcd_mm), "patterns": patterns},
-            "seeds": {"windows_masks_sampling": seed},
-            "results": [row, {**row, "tcd": {"per_window_mm": [9.0] * len(tcd_mm)}}]}
+    row = {
+        "tcd": {"ade_mm": 0.0, "per_window_mm": list(tcd_mm)},
+        "spline": {"ade_mm": 0.0, "per_window_mm": list(spline_mm)},
+    }
+    return {
+        "protocol": {"task": "repair", "windows": len(tcd_mm), "patterns": patterns},
+        "seeds": {"windows_masks_sampling": seed},
+        "results": [row, {**row, "tcd": {"per_window_mm": [9.0] * len(tcd_mm)}}],
+    }
 
 
 def test_repair_results_are_paired_over_windows_per_pattern_and_method():
@@ -93,16 +103,16 @@ def test_repair_results_are_paired_over_windows_per_pattern_and_method():
     new, old = repair_result(better, spline), repair_result(spline, spline)
     r = compare(new, old, key="random_leg_arm")
     assert r["verdict"] == "new is better" and r["windows"] == 30 and abs(r["mean_difference"] + 0.3) < 1e-9
-    assert compare(new, old, key="random_joints")["verdict"] == "within noise"     # 9.0 on both sides
+    assert compare(new, old, key="random_joints")["verdict"] == "within noise"  # 9.0 on both sides
     # one file, the model against the spline it is conditioned on
     assert compare(new, new, key="random_leg_arm", old_key="random_leg_arm:spline")["verdict"] == "new is better"
     assert compare(new, new, key="random_joints", old_key="random_joints:spline")["verdict"] == "bundled is better"
     with pytest.raises(ValueError, match="PATTERN one of"):
-        compare(new, old)                                                         # the default key names no pattern
+        compare(new, old)  # the default key names no pattern
     with pytest.raises(ValueError, match="method 'savgol'"):
         compare(new, old, key="random_leg_arm:savgol")
     with pytest.raises(ValueError, match="same seeds"):
         compare(new, repair_result(spline, spline, seed=1), key="random_leg_arm")
-    unpaired = {k: v for k, v in old.items() if k != "protocol"}     # a repair result from before the records
+    unpaired = {k: v for k, v in old.items() if k != "protocol"}  # a repair result from before the records
     with pytest.raises(ValueError, match="BUNDLED has no 'protocol'"):
         compare(new, unpaired, key="random_leg_arm")

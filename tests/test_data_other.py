@@ -3,6 +3,7 @@
 Data-free tests use small hand-made inputs. Tests on the real data (../shared/data, or the folder
 named by TCD_DATA_DIR) skip when it is absent.
 """
+
 from __future__ import annotations
 
 import math
@@ -44,9 +45,63 @@ needs_cmu = needs_data("cmu/cmu_expmap_train.npz")
 needs_humaneva = needs_data("humaneva/humaneva_i_15j_60hz.npz")
 
 # SMPL-H kinematic tree (52 joints), used to build synthetic skeleton files.
-SMPLH_PARENTS = np.array([-1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 20, 22, 23,
-                          20, 25, 26, 20, 28, 29, 20, 31, 32, 20, 34, 35, 21, 37, 38, 21, 40, 41, 21, 43, 44,
-                          21, 46, 47, 21, 49, 50], dtype=np.int32)
+SMPLH_PARENTS = np.array(
+    [
+        -1,
+        0,
+        0,
+        0,
+        1,
+        2,
+        3,
+        4,
+        5,
+        6,
+        7,
+        8,
+        9,
+        9,
+        9,
+        12,
+        13,
+        14,
+        16,
+        17,
+        18,
+        19,
+        20,
+        22,
+        23,
+        20,
+        25,
+        26,
+        20,
+        28,
+        29,
+        20,
+        31,
+        32,
+        20,
+        34,
+        35,
+        21,
+        37,
+        38,
+        21,
+        40,
+        41,
+        21,
+        43,
+        44,
+        21,
+        46,
+        47,
+        21,
+        49,
+        50,
+    ],
+    dtype=np.int32,
+)
 
 
 def rot_z(deg: float) -> np.ndarray:
@@ -56,6 +111,7 @@ def rot_z(deg: float) -> np.ndarray:
 
 # --------------------------------------------------------------------------------------------------
 # generic helpers
+
 
 def test_fk_axis_angle_three_joint_chain():
     rest = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]])
@@ -82,6 +138,7 @@ def test_iter_windows_counts_and_content():
 # --------------------------------------------------------------------------------------------------
 # AMASS
 
+
 def _write_skeleton(path: Path, rng) -> np.ndarray:
     rest = rng.normal(scale=0.3, size=(52, 3))
     rest[0] = [0.01, -0.2, 0.03]
@@ -89,8 +146,10 @@ def _write_skeleton(path: Path, rng) -> np.ndarray:
     return rest.astype(np.float32).astype(np.float64)
 
 
-@pytest.mark.parametrize("framerate,fps,step", [(120.0, 25, 4), (120.00004577636719, 25, 4), (60.0, 25, 2),
-                                               (100.0, 25, 4), (250.0, 25, 10), (30.0, 25, 1)])
+@pytest.mark.parametrize(
+    "framerate,fps,step",
+    [(120.0, 25, 4), (120.00004577636719, 25, 4), (60.0, 25, 2), (100.0, 25, 4), (250.0, 25, 10), (30.0, 25, 1)],
+)
 def test_amass_sample_step(framerate, fps, step):
     assert amass_sample_step(framerate, fps) == step
 
@@ -167,6 +226,7 @@ def test_amass_real_sample_bone_lengths(name):
 
 # --------------------------------------------------------------------------------------------------
 # CMU
+
 
 def _zero_pose_positions() -> np.ndarray:
     pos = np.zeros((38, 3))
@@ -250,10 +310,12 @@ def test_cmu_real_bone_lengths():
 # --------------------------------------------------------------------------------------------------
 # HumanEva
 
+
 def _chunks(lengths, seed=4):
     rng = np.random.default_rng(seed)
-    return {f"Validate/S1/Box 1 chunk{i}": rng.normal(size=(n, 15, 3)).astype(np.float32)
-            for i, n in enumerate(lengths)}
+    return {
+        f"Validate/S1/Box 1 chunk{i}": rng.normal(size=(n, 15, 3)).astype(np.float32) for i, n in enumerate(lengths)
+    }
 
 
 def test_humaneva_window_counts_and_root_relative():
@@ -292,13 +354,23 @@ def test_multimodal_gt_threshold_and_self():
 
 def test_load_humaneva_split_and_exclusions(tmp_path):
     rng = np.random.default_rng(6)
-    arrays = {k: rng.normal(size=(80, 15, 3)).astype(np.float32) for k in [
-        "Train/S1/Walking 1 chunk0", "Train/S3/Walking 1 chunk0", "Train/S3/Walking 1 chunk2",
-        "Validate/S1/Jog 1 chunk0", "Validate/S3/Walking 1 chunk4", "Validate/S3/Walking 1 chunk2"]}
+    arrays = {
+        k: rng.normal(size=(80, 15, 3)).astype(np.float32)
+        for k in [
+            "Train/S1/Walking 1 chunk0",
+            "Train/S3/Walking 1 chunk0",
+            "Train/S3/Walking 1 chunk2",
+            "Validate/S1/Jog 1 chunk0",
+            "Validate/S3/Walking 1 chunk4",
+            "Validate/S3/Walking 1 chunk2",
+        ]
+    }
     np.savez(tmp_path / "he.npz", **arrays)
     assert list(load_humaneva(tmp_path / "he.npz", "Train")) == ["Train/S1/Walking 1 chunk0"]
-    assert list(load_humaneva(tmp_path / "he.npz", "Validate")) == ["Validate/S1/Jog 1 chunk0",
-                                                                   "Validate/S3/Walking 1 chunk2"]
+    assert list(load_humaneva(tmp_path / "he.npz", "Validate")) == [
+        "Validate/S1/Jog 1 chunk0",
+        "Validate/S3/Walking 1 chunk2",
+    ]
     assert len(load_humaneva(tmp_path / "he.npz", "Validate", exclude_bad_takes=False)) == 3
     with pytest.raises(ValueError):
         load_humaneva(tmp_path / "he.npz", "Test")

@@ -1,4 +1,5 @@
 """`tcd demo`, the bundled demo clip, and the bundled model's checksum checks."""
+
 from __future__ import annotations
 
 import json
@@ -56,7 +57,7 @@ def test_demo_cli_runs_and_writes_results(tiny_model_dir, tmp_path, capsys):
         assert f["forecast_samples"].shape == (2, 25, 22, 3)
         obs, rep, mask = f["observed"], f["repaired"], f["occlusion_mask"]
         summary = json.loads(str(f["summary"]))
-    np.testing.assert_array_equal(rep[mask > 0], obs[mask > 0])   # observed entries bit-identical
+    np.testing.assert_array_equal(rep[mask > 0], obs[mask > 0])  # observed entries bit-identical
     assert np.isfinite(rep).all()
     assert set(summary["forecast_mm"]) == {"80", "160", "320", "400", "560", "720", "880", "1000"}
     assert summary["model_sha256"] == tcd.load(tiny_model_dir).sha256
@@ -81,7 +82,7 @@ def test_demo_runs_again_over_its_own_output_only(tiny_model_dir, tmp_path, caps
     assert main(argv) == 0
     first = out.read_bytes()
     text = capsys.readouterr().out
-    assert main(argv + ["--seed", "1"]) == 0                 # its own output: replaced without --overwrite
+    assert main(argv + ["--seed", "1"]) == 0  # its own output: replaced without --overwrite
     assert out.read_bytes() != first
     # the closing sentences: what the table shows, and how good this model is (from its own size)
     cfg = tcd.load(tiny_model_dir).short.config["model"]
@@ -101,6 +102,7 @@ def test_demo_bad_steps_names_the_option(tiny_model_dir, tmp_path, capsys):
 
 
 # ----------------------------------------------------------------------------- checksums
+
 
 def test_checksums_verified_when_present(tiny_model_dir, tmp_path):
     d = Path(shutil.copytree(tiny_model_dir, tmp_path / "m"))
@@ -138,9 +140,12 @@ def test_summary_columns_stay_apart_for_any_error(tiny_model_dir):
     numbers together."""
     model = tcd.load(tiny_model_dir)
     res = demo.run(model, samples=1, num_inference_steps=2, quiet=True)
-    res["forecast_mm"] = {m: 123456.7 for m in res["forecast_mm"]}       # as the full-size random model gives
-    rows = [line for line in demo.summary(res, model).splitlines()
-            if line.startswith(("  tcd, ", "  zero-velocity", "  horizon"))]
+    res["forecast_mm"] = {m: 123456.7 for m in res["forecast_mm"]}  # as the full-size random model gives
+    rows = [
+        line
+        for line in demo.summary(res, model).splitlines()
+        if line.startswith(("  tcd, ", "  zero-velocity", "  horizon"))
+    ]
     assert len(rows) == 4
     for line in rows:
         assert len(line[30:].split()) == len(res["forecast_mm"]), line
@@ -167,7 +172,8 @@ def test_verdict_names_each_stage_size_where_they_differ():
     assert "short-term 3 layers x 32 channels, long-term 4 layers x 64 channels" in mixed and "reduced" in mixed
     assert "a full-size model (12 layers x 64 channels" in demo.verdict(res, model((12, 64), (12, 64)))
     assert "reduced" in demo.verdict(res, model((12, 64), (4, 64)))
-    mlp = SimpleNamespace(layers=3, hidden=768)      # a directory with a generator names it, and its share
+    mlp = SimpleNamespace(layers=3, hidden=768)  # a directory with a generator names it, and its share
     assert "and an MLP generator of 3 x 768 drawing 0.5 of the samples" in demo.verdict(
-        res, model((3, 32), (3, 32), mlp, 0.5))
+        res, model((3, 32), (3, 32), mlp, 0.5)
+    )
     assert "MLP" not in demo.verdict(res, model((3, 32), (3, 32), mlp, 0.0))

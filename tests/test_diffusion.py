@@ -7,9 +7,22 @@ from conftest import import_torch
 
 torch = import_torch("the PyTorch reference's diffusion (training/diffusion.py)")
 
-from training.diffusion import (DiffusionConfig, Schedule, cascade, dpmpp2m_coefficients, draw_noise, make_betas,  # noqa: E402
-                                masked_eps_loss, num_noise_blocks, q_sample, repair, sample, sample_many, step_pairs,
-                                training_loss)
+from training.diffusion import (  # noqa: E402
+    DiffusionConfig,
+    Schedule,
+    cascade,
+    dpmpp2m_coefficients,
+    draw_noise,
+    make_betas,
+    masked_eps_loss,
+    num_noise_blocks,
+    q_sample,
+    repair,
+    sample,
+    sample_many,
+    step_pairs,
+    training_loss,
+)
 from training.model import ModelConfig, TCDModel, randomize_output_layer  # noqa: E402
 
 SCHED = Schedule(DiffusionConfig())
@@ -80,14 +93,33 @@ def test_q_sample_formula():
     assert q_sample(SCHED, x0, t, eps).item() == pytest.approx(math.sqrt(a) + 2 * math.sqrt(1 - a), rel=1e-6)
 
 
-@pytest.mark.parametrize("sampler,steps,eta", [("ddpm", None, 0.0), ("ddim", 50, 0.0), ("ddim", 10, 0.0),
-                                               ("ddim", 10, 1.0), ("ddpm", 10, 0.0), ("dpmpp2m", 5, 0.0),
-                                               ("dpmpp2m", 10, 0.0), ("dpmpp2m", 20, 0.0), ("dpmpp2m", 50, 0.0)])
+@pytest.mark.parametrize(
+    "sampler,steps,eta",
+    [
+        ("ddpm", None, 0.0),
+        ("ddim", 50, 0.0),
+        ("ddim", 10, 0.0),
+        ("ddim", 10, 1.0),
+        ("ddpm", 10, 0.0),
+        ("dpmpp2m", 5, 0.0),
+        ("dpmpp2m", 10, 0.0),
+        ("dpmpp2m", 20, 0.0),
+        ("dpmpp2m", 50, 0.0),
+    ],
+)
 def test_samplers_with_oracle_eps_recover_x0(sampler, steps, eta):
     x0, mask = window(B=3)
     obs = x0.clone()
-    out = sample(OracleEps(x0), SCHED, obs, torch.zeros_like(mask), sampler=sampler, num_inference_steps=steps, eta=eta,
-                 generator=torch.Generator().manual_seed(0))
+    out = sample(
+        OracleEps(x0),
+        SCHED,
+        obs,
+        torch.zeros_like(mask),
+        sampler=sampler,
+        num_inference_steps=steps,
+        eta=eta,
+        generator=torch.Generator().manual_seed(0),
+    )
     assert torch.allclose(out, x0, atol=2e-4)
 
 
@@ -97,7 +129,7 @@ def test_injected_noise_determinism_and_observed_unchanged(tiny):
     a = sample(tiny, SCHED, x0, mask, noise=noise)
     b = sample(tiny, SCHED, x0, mask, noise=noise.clone())
     assert torch.equal(a, b)
-    assert torch.equal(a[..., :8], x0[..., :8])                       # bit-identical observation
+    assert torch.equal(a[..., :8], x0[..., :8])  # bit-identical observation
     c = sample(tiny, SCHED, x0, mask, noise=draw_noise(50, x0.shape, torch.Generator().manual_seed(4)))
     assert not torch.allclose(a[..., 8:], c[..., 8:])
     with pytest.raises(ValueError, match="noise must have shape"):
@@ -115,15 +147,17 @@ def test_ddim_eta0_ignores_step_noise(tiny):
 
 def test_ddpm_first_step_by_hand():
     """One DDPM step with a constant eps prediction, checked against the written formula."""
+
     class Const(torch.nn.Module):
         def forward(self, x, o, m, step):
             return torch.full_like(x, 0.5)
+
     x0, mask = torch.zeros(1, 1, 1), torch.zeros(1, 1, 1)
     noise = torch.zeros(3, 1, 1, 1)
-    noise[0], noise[1], noise[2] = 1.3, -0.7, 9.0   # the last z is never used
+    noise[0], noise[1], noise[2] = 1.3, -0.7, 9.0  # the last z is never used
     T = SCHED.T
     sched1 = Schedule(DiffusionConfig())
-    pairs = step_pairs(T, "ddpm", 2, "trailing")            # [(49, 24), (24, -1)]
+    pairs = step_pairs(T, "ddpm", 2, "trailing")  # [(49, 24), (24, -1)]
     out = sample(Const(), sched1, x0, mask, sampler="ddpm", num_inference_steps=2, noise=noise)
     a49, a24 = SCHED.alphas_cumprod[49], SCHED.alphas_cumprod[24]
     beta = 1 - a49 / a24
@@ -146,15 +180,27 @@ def test_batched_chains_equal_sequential(tiny):
 
 def test_cascade_structure(tiny):
     obs, mask = window(B=2, L=8, obs_len=8)
-    mask[0, :9, 2:5] = 0                                       # occlusion inside the observation
+    mask[0, :9, 2:5] = 0  # occlusion inside the observation
     g = torch.Generator().manual_seed(0)
-    res = cascade(tiny, SCHED, tiny, SCHED, obs, mask, short_len=10, long_len=14, num_samples=3, generator=g,
-                  sampler="ddim", num_inference_steps=5)
+    res = cascade(
+        tiny,
+        SCHED,
+        tiny,
+        SCHED,
+        obs,
+        mask,
+        short_len=10,
+        long_len=14,
+        num_samples=3,
+        generator=g,
+        sampler="ddim",
+        num_inference_steps=5,
+    )
     short, mean, long = res["short_samples"], res["short_mean"], res["samples"]
     assert short.shape == (3, 2, K, 10) and mean.shape == (2, K, 10) and long.shape == (3, 2, K, 14)
     assert torch.allclose(mean, short.mean(0))
     for s in range(3):
-        assert torch.equal(long[s, :, :, :10], mean)          # frames given to the long-term model
+        assert torch.equal(long[s, :, :, :10], mean)  # frames given to the long-term model
     vis = mask.bool()
     assert torch.equal(short[:, :, :, :8][:, vis], obs[vis].expand(3, -1))
     assert not torch.equal(long[0, ..., 10:], long[1, ..., 10:])
@@ -163,14 +209,24 @@ def test_cascade_structure(tiny):
 def test_repair_keeps_observed_and_fills_hidden(tiny):
     obs, mask = window(B=2, L=8, obs_len=8)
     mask[:, :6, 3:6] = 0
-    out = repair(tiny, SCHED, obs * mask, mask, seq_len=10, num_samples=2, sampler="ddim", num_inference_steps=5,
-                 generator=torch.Generator().manual_seed(0))
+    out = repair(
+        tiny,
+        SCHED,
+        obs * mask,
+        mask,
+        seq_len=10,
+        num_samples=2,
+        sampler="ddim",
+        num_inference_steps=5,
+        generator=torch.Generator().manual_seed(0),
+    )
     assert out.shape == obs.shape
     assert torch.equal(out[mask.bool()], obs[mask.bool()])
     assert torch.all(out[~mask.bool()] != 0)
 
 
 # ------------------------------------------------------------------------------------ DPM-Solver++(2M)
+
 
 class Affine(torch.nn.Module):
     """A smooth, step-dependent eps prediction: eps = 0.3 x + 0.05 (t + 1) / T (computed in float64)."""
@@ -185,10 +241,10 @@ def dpmpp2m_by_hand(x, steps):
     D0 = m0, D1 = (m0 - m1) / r0, r0 = h_prev / h; first order at step 0 and at the last step
     (sigma_t = 0: the update is x0_hat itself)."""
     ab = np.cumprod(1.0 - make_betas(DiffusionConfig()))
-    ts = [int(v) for v in np.round(np.arange(50, 0, -50 / steps)) - 1]       # trailing
-    alpha = lambda t: math.sqrt(ab[t])                                         # noqa: E731
-    sigma = lambda t: math.sqrt(1 - ab[t])                                     # noqa: E731
-    lam = lambda t: math.log(alpha(t) / sigma(t))                              # noqa: E731
+    ts = [int(v) for v in np.round(np.arange(50, 0, -50 / steps)) - 1]  # trailing
+    alpha = lambda t: math.sqrt(ab[t])  # noqa: E731
+    sigma = lambda t: math.sqrt(1 - ab[t])  # noqa: E731
+    lam = lambda t: math.log(alpha(t) / sigma(t))  # noqa: E731
     m_prev, lam_prev = None, None
     for i, t in enumerate(ts):
         eps = 0.3 * x + 0.05 * (t + 1) / 50
@@ -202,15 +258,18 @@ def dpmpp2m_by_hand(x, steps):
         else:
             r0 = (lam(t) - lam_prev) / h
             d1 = (m0 - m_prev) / r0
-            x = sigma(s_next) / sigma(t) * x - alpha(s_next) * (math.exp(-h) - 1) * m0 \
+            x = (
+                sigma(s_next) / sigma(t) * x
+                - alpha(s_next) * (math.exp(-h) - 1) * m0
                 - 0.5 * alpha(s_next) * (math.exp(-h) - 1) * d1
+            )
         m_prev, lam_prev = m0, lam(t)
 
 
 @pytest.mark.parametrize("steps", [1, 2, 3, 4, 10])
 def test_dpmpp2m_matches_hand_derivation(steps):
     x_T = np.array([1.3, -0.4, 2.2])
-    noise = torch.tensor(x_T, dtype=torch.float32).view(1, 1, 3, 1)     # one block: x_T
+    noise = torch.tensor(x_T, dtype=torch.float32).view(1, 1, 3, 1)  # one block: x_T
     zeros = torch.zeros(1, 3, 1)
     out = sample(Affine(), SCHED, zeros, zeros, sampler="dpmpp2m", num_inference_steps=steps, noise=noise)
     want = np.array([dpmpp2m_by_hand(v, steps) for v in x_T])
@@ -220,7 +279,7 @@ def test_dpmpp2m_matches_hand_derivation(steps):
 def test_dpmpp2m_coefficients():
     c = dpmpp2m_coefficients(SCHED, step_pairs(50, "dpmpp2m", 5, "trailing"))
     assert [x["final"] for x in c] == [False] * 4 + [True]
-    assert c[0]["w_prev"] == 0.0 and c[0]["w_cur"] == 1.0                 # first order first
+    assert c[0]["w_prev"] == 0.0 and c[0]["w_cur"] == 1.0  # first order first
     for x in c[1:4]:
         assert x["w_cur"] + x["w_prev"] == pytest.approx(1.0, abs=1e-15)  # D extrapolates x0_hat
         assert x["w_prev"] < 0
@@ -247,8 +306,9 @@ def test_dpmpp2m_deterministic_and_one_noise_block(tiny):
         sample(tiny, SCHED, x0, mask, noise=draw_noise(10, x0.shape), **kw)
     many = sample_many(tiny, SCHED, x0, mask, 2, noise=torch.stack([noise[0], noise[0]])[:, None], **kw)
     assert torch.allclose(many[0], a, atol=1e-5) and torch.allclose(many[1], a, atol=1e-5)
-    seq = sample_many(tiny, SCHED, x0, mask, 2, noise=torch.stack([noise[0], noise[0]])[:, None], batch_chains=False,
-                      **kw)
+    seq = sample_many(
+        tiny, SCHED, x0, mask, 2, noise=torch.stack([noise[0], noise[0]])[:, None], batch_chains=False, **kw
+    )
     assert torch.allclose(many, seq, atol=1e-5)
 
 
@@ -256,11 +316,32 @@ def test_dpmpp2m_cascade_and_repair(tiny):
     obs, mask = window(B=2, L=8, obs_len=8)
     mask[:, :6, 3:6] = 0
     g = torch.Generator().manual_seed(0)
-    res = cascade(tiny, SCHED, tiny, SCHED, obs, mask, short_len=10, long_len=14, num_samples=2, generator=g,
-                  sampler="dpmpp2m", num_inference_steps=5)
+    res = cascade(
+        tiny,
+        SCHED,
+        tiny,
+        SCHED,
+        obs,
+        mask,
+        short_len=10,
+        long_len=14,
+        num_samples=2,
+        generator=g,
+        sampler="dpmpp2m",
+        num_inference_steps=5,
+    )
     assert res["samples"].shape == (2, 2, K, 14) and torch.isfinite(res["samples"]).all()
-    out = repair(tiny, SCHED, obs * mask, mask, seq_len=10, num_samples=2, sampler="dpmpp2m", num_inference_steps=5,
-                 generator=torch.Generator().manual_seed(0))
+    out = repair(
+        tiny,
+        SCHED,
+        obs * mask,
+        mask,
+        seq_len=10,
+        num_samples=2,
+        sampler="dpmpp2m",
+        num_inference_steps=5,
+        generator=torch.Generator().manual_seed(0),
+    )
     assert torch.equal(out[mask.bool()], obs[mask.bool()])
     assert torch.all(out[~mask.bool()] != 0)
 
@@ -270,9 +351,16 @@ def test_dpmpp2m_matches_diffusers_scheduler(steps):
     """Cross-check with diffusers' DPMSolverMultistepScheduler (optional: not a dependency)."""
     diffusers = pytest.importorskip("diffusers")
     sch = diffusers.DPMSolverMultistepScheduler(
-        num_train_timesteps=50, trained_betas=make_betas(DiffusionConfig()).tolist(), algorithm_type="dpmsolver++",
-        solver_order=2, lower_order_final=True, timestep_spacing="trailing", final_sigmas_type="zero",
-        prediction_type="epsilon", thresholding=False)
+        num_train_timesteps=50,
+        trained_betas=make_betas(DiffusionConfig()).tolist(),
+        algorithm_type="dpmsolver++",
+        solver_order=2,
+        lower_order_final=True,
+        timestep_spacing="trailing",
+        final_sigmas_type="zero",
+        prediction_type="epsilon",
+        thresholding=False,
+    )
     sch.set_timesteps(steps)
     assert [int(t) for t in sch.timesteps] == [t for t, _ in step_pairs(50, "dpmpp2m", steps, "trailing")]
     model = Affine()

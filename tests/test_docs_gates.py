@@ -6,6 +6,7 @@ The words are matched whole, case-insensitively, so "release", "silent", "talent
 API name that merely contains one (ONNX Runtime's ``InferenceSession``, ``SessionOptions``) has no word boundary
 around it and is not matched either. No other exemption: a document that needs one of the words in a product sense
 should say it another way. No data needed."""
+
 from __future__ import annotations
 
 import re
@@ -18,12 +19,16 @@ MAX_LINES = {"README.md": 150, "MODEL_CARD.md": 250}
 
 #: diary words, whole words (plurals and "leased" included)
 DIARY_WORDS = re.compile(r"\b(?:installments?|sessions?|lent|leases?|leased)\b", re.IGNORECASE)
-_MONTH = (r"(?:jan(?:uary)?|feb(?:ruary)?|mar(?:ch)?|apr(?:il)?|may|june?|july?|aug(?:ust)?|sep(?:t(?:ember)?)?"
-          r"|oct(?:ober)?|nov(?:ember)?|dec(?:ember)?)")
-_DATE = (r"(?:(?:19|20)\d{2}-(?:0?[1-9]|1[0-2])(?:-\d{1,2})?\b"       # 2026-11-28, 2026-11
-         r"|\d{1,2}/\d{1,2}/\d{2,4}\b"                                 # 28/11/2026
-         rf"|{_MONTH}\.?\s+\d{{1,4}}\b"                                # Nov 28, November 2026, Nov. 28
-         rf"|\d{{1,2}}(?:st|nd|rd|th)?\s+(?:of\s+)?{_MONTH}\b)")      # 28 November, 28th of Nov
+_MONTH = (
+    r"(?:jan(?:uary)?|feb(?:ruary)?|mar(?:ch)?|apr(?:il)?|may|june?|july?|aug(?:ust)?|sep(?:t(?:ember)?)?"
+    r"|oct(?:ober)?|nov(?:ember)?|dec(?:ember)?)"
+)
+_DATE = (
+    r"(?:(?:19|20)\d{2}-(?:0?[1-9]|1[0-2])(?:-\d{1,2})?\b"  # 2026-11-28, 2026-11
+    r"|\d{1,2}/\d{1,2}/\d{2,4}\b"  # 28/11/2026
+    rf"|{_MONTH}\.?\s+\d{{1,4}}\b"  # Nov 28, November 2026, Nov. 28
+    rf"|\d{{1,2}}(?:st|nd|rd|th)?\s+(?:of\s+)?{_MONTH}\b)"
+)  # 28 November, 28th of Nov
 #: "until / since / before" (or "till") and a date, across a line break too
 DIARY_DATES = re.compile(rf"\b(?:until|till|since|before)\s+(?:the\s+)?{_DATE}", re.IGNORECASE)
 
@@ -54,23 +59,38 @@ def test_no_development_diary(path):
     text = path.read_text(encoding="utf-8")
     lines = text.splitlines()
     hits = [f"{_rel(path)}:{n}: {found!r} in: {lines[n - 1].strip()[:100]}" for n, found in diary_hits(text)]
-    assert not hits, (f"{len(hits)} development-diary phrase(s); say what the code does, not when or in which "
-                      "sitting it was done:\n" + "\n".join(hits))
+    assert not hits, (
+        f"{len(hits)} development-diary phrase(s); say what the code does, not when or in which "
+        "sitting it was done:\n" + "\n".join(hits)
+    )
 
 
 def test_diary_hits_finds_the_diary_and_nothing_else():
-    diary = ("The short model's installment 1, trained on lent GPUs\n"
-             "(bundled in the twentieth Session; the fourth lease's weights) and two sessions earlier,\n"
-             "valid until 2026-11-28, used since Nov 28, refused before\n"
-             "28 November and since the 3rd of December; since November 2026 it leased a GPU.\n")
+    diary = (
+        "The short model's installment 1, trained on lent GPUs\n"
+        "(bundled in the twentieth Session; the fourth lease's weights) and two sessions earlier,\n"
+        "valid until 2026-11-28, used since Nov 28, refused before\n"
+        "28 November and since the 3rd of December; since November 2026 it leased a GPU.\n"
+    )
     assert diary_hits(diary) == [
-        (1, "installment"), (1, "lent"), (2, "Session"), (2, "lease"), (2, "sessions"), (3, "until 2026-11-28"),
-        (3, "since Nov 28"), (3, "before 28 November"), (4, "since the 3rd of December"),
-        (4, "since November 2026"), (4, "leased")]
-    clean = ("A release is silent about talent; ort.InferenceSession(path, ort.SessionOptions()) runs the peer.\n"
-             "Since the prior forecasts, the samples spread; until convergence, before 50 steps, since 2 cores\n"
-             "are few. Training lasts 12 h; a leaseholder is no diary, nor is a session_id or a sessionless call.\n"
-             "From 2026-11-28 is not one of the three words; the 25 fps clip is from May, before the data.\n")
+        (1, "installment"),
+        (1, "lent"),
+        (2, "Session"),
+        (2, "lease"),
+        (2, "sessions"),
+        (3, "until 2026-11-28"),
+        (3, "since Nov 28"),
+        (3, "before 28 November"),
+        (4, "since the 3rd of December"),
+        (4, "since November 2026"),
+        (4, "leased"),
+    ]
+    clean = (
+        "A release is silent about talent; ort.InferenceSession(path, ort.SessionOptions()) runs the peer.\n"
+        "Since the prior forecasts, the samples spread; until convergence, before 50 steps, since 2 cores\n"
+        "are few. Training lasts 12 h; a leaseholder is no diary, nor is a session_id or a sessionless call.\n"
+        "From 2026-11-28 is not one of the three words; the 25 fps clip is from May, before the data.\n"
+    )
     assert diary_hits(clean) == []
 
 
@@ -84,9 +104,9 @@ def _workspace_version() -> str:
 
 def test_citation_and_changelog_name_the_workspace_version():
     version = _workspace_version()
-    cff = re.search(r"^version:\s*['\"]?([^'\"\s]+)", (ROOT / "CITATION.cff").read_text(encoding="utf-8"),
-                    re.MULTILINE)
+    cff = re.search(r"^version:\s*['\"]?([^'\"\s]+)", (ROOT / "CITATION.cff").read_text(encoding="utf-8"), re.MULTILINE)
     assert cff and cff.group(1) == version, f"CITATION.cff version {cff and cff.group(1)!r}, Cargo.toml {version!r}"
     changelog = (ROOT / "CHANGELOG.md").read_text(encoding="utf-8")
     assert re.search(rf"^## \[?{re.escape(version)}\]?(\s|$)", changelog, re.MULTILINE), (
-        f"CHANGELOG.md has no '## {version}' section")
+        f"CHANGELOG.md has no '## {version}' section"
+    )

@@ -1,5 +1,6 @@
 """Bad input and broken weight files: every refusal is a typed error (InvalidInputError or WeightsError,
 both ValueError and TcdError) naming the argument or the file, raised before anything is computed."""
+
 from __future__ import annotations
 
 import math
@@ -21,20 +22,24 @@ def obs():
 
 # ------------------------------------------------------------------------------------ bad input
 
+
 def test_bad_obs(tiny_model, obs):
-    e = bad("obs", tiny_model.forecast, obs[0])                            # rank 2
+    e = bad("obs", tiny_model.forecast, obs[0])  # rank 2
     assert "(T, J, 3) or (B, T, J, 3)" in str(e) and "(22, 3)" in str(e)
-    bad("obs", tiny_model.forecast, obs[None, None])                       # rank 5
-    e = bad("obs", tiny_model.forecast, obs[:, :21])                       # joints
+    bad("obs", tiny_model.forecast, obs[None, None])  # rank 5
+    e = bad("obs", tiny_model.forecast, obs[:, :21])  # joints
     assert "21 joints" in str(e) and "J = 22" in str(e)
-    bad("obs", tiny_model.forecast, obs[..., :2])                          # coordinates
-    e = bad("obs", tiny_model.repair, np.concatenate([obs, obs[:1]]))      # a repair: one window at most
+    bad("obs", tiny_model.forecast, obs[..., :2])  # coordinates
+    e = bad("obs", tiny_model.repair, np.concatenate([obs, obs[:1]]))  # a repair: one window at most
     assert "at most the model's window (50 frames)" in str(e) and "51 frames" in str(e)
     assert "tcd.repair_file" in str(e)
-    e = bad("obs", tiny_model.forecast, np.concatenate([obs, np.full_like(obs, np.nan)]))   # nothing in its window
+    e = bad("obs", tiny_model.forecast, np.concatenate([obs, np.full_like(obs, np.nan)]))  # nothing in its window
     assert "last 50 frames" in str(e) and "every value missing there" in str(e)
-    e = bad("obs", tiny_model.forecast, np.stack([np.concatenate([obs[:25], obs]),
-                                                  np.concatenate([obs[:25], np.full_like(obs, np.nan)])]))
+    e = bad(
+        "obs",
+        tiny_model.forecast,
+        np.stack([np.concatenate([obs[:25], obs]), np.concatenate([obs[:25], np.full_like(obs, np.nan)])]),
+    )
     assert "sequence 1 of `obs`" in str(e)
     x = obs.copy()
     x[3, 4, 1] = np.inf
@@ -44,7 +49,7 @@ def test_bad_obs(tiny_model, obs):
     bad("obs", tiny_model.forecast, x)
     bad("obs", tiny_model.forecast, np.full((50, 22, 3), "a"))
     bad("obs", tiny_model.forecast, np.zeros((0, 50, 22, 3), np.float32))
-    e = bad("obs", tiny_model.forecast, np.nan_to_num(obs) > 0)               # booleans are not coordinates
+    e = bad("obs", tiny_model.forecast, np.nan_to_num(obs) > 0)  # booleans are not coordinates
     assert "dtype bool" in str(e)
     bad("obs", tiny_model.forecast, obs.astype(np.complex64))
 
@@ -53,14 +58,14 @@ def test_poses_not_in_the_declared_units(tiny_model, obs):
     """Poses must measure like a person in the declared units (median distance of the observed joints from
     their frame's centroid within 0.01-3 m); otherwise `units` is named with the unit that fits."""
     for call in (tiny_model.forecast, tiny_model.repair):
-        e = bad("units", call, obs * 1000)                                 # millimetres given as metres
+        e = bad("units", call, obs * 1000)  # millimetres given as metres
         assert "pass units='mm'" in str(e)
-        e = bad("units", call, obs, units="mm")                            # metres given as millimetres
+        e = bad("units", call, obs, units="mm")  # metres given as millimetres
         assert "pass units='m'" in str(e)
         e = bad("units", call, obs * 1e30)
         assert "no supported unit fits" in str(e)
     spread = tcd._poses.spread_m(obs[None], ~np.isnan(obs[None]), "m")
-    assert 0.1 < spread < 1.0                                              # the test poses: a person's size
+    assert 0.1 < spread < 1.0  # the test poses: a person's size
     tiny_model.forecast(obs + 250.0, num_samples=1, num_inference_steps=1, sampler="ddim", seed=0)  # far away: fine
     tiny_model.forecast(np.zeros((50, 22, 3)), num_samples=1, num_inference_steps=1, sampler="ddim", seed=0)
 
@@ -94,32 +99,35 @@ def test_all_missing_is_an_error(tiny_model, obs):
     bad("obs", tiny_model.repair, np.full_like(obs, np.nan))
 
 
-@pytest.mark.parametrize("argument,kwargs", [
-    ("num_samples", {"num_samples": 0}),
-    ("num_samples", {"num_samples": -2}),
-    ("num_samples", {"num_samples": 1.5}),
-    ("num_samples", {"num_samples": True}),
-    ("num_samples", {"num_samples": 2**70}),    # beyond the binding's 64 bits: still a typed error
-    ("num_inference_steps", {"num_inference_steps": 0}),
-    ("num_inference_steps", {"num_inference_steps": -1}),
-    ("num_inference_steps", {"num_inference_steps": 51}),
-    ("num_inference_steps", {"num_inference_steps": 10.0}),
-    ("sampler", {"sampler": "euler"}),
-    ("sampler", {"sampler": None}),
-    ("timestep_spacing", {"timestep_spacing": "middle"}),
-    ("noise_coupling", {"noise_coupling": "antithetic"}),
-    ("units", {"units": "inch"}),
-    ("eta", {"eta": -0.1}),
-    ("eta", {"eta": 1.5}),
-    ("eta", {"eta": math.nan}),
-    ("eta", {"eta": "0"}),
-    ("seed", {"seed": -1}),
-    ("seed", {"seed": 2**64}),
-    ("seed", {"seed": 1.0}),
-    ("seed", {"seed": 2**130}),
-    ("threads", {"threads": 0}),
-    ("threads", {"threads": 10**6}),
-])
+@pytest.mark.parametrize(
+    "argument,kwargs",
+    [
+        ("num_samples", {"num_samples": 0}),
+        ("num_samples", {"num_samples": -2}),
+        ("num_samples", {"num_samples": 1.5}),
+        ("num_samples", {"num_samples": True}),
+        ("num_samples", {"num_samples": 2**70}),  # beyond the binding's 64 bits: still a typed error
+        ("num_inference_steps", {"num_inference_steps": 0}),
+        ("num_inference_steps", {"num_inference_steps": -1}),
+        ("num_inference_steps", {"num_inference_steps": 51}),
+        ("num_inference_steps", {"num_inference_steps": 10.0}),
+        ("sampler", {"sampler": "euler"}),
+        ("sampler", {"sampler": None}),
+        ("timestep_spacing", {"timestep_spacing": "middle"}),
+        ("noise_coupling", {"noise_coupling": "antithetic"}),
+        ("units", {"units": "inch"}),
+        ("eta", {"eta": -0.1}),
+        ("eta", {"eta": 1.5}),
+        ("eta", {"eta": math.nan}),
+        ("eta", {"eta": "0"}),
+        ("seed", {"seed": -1}),
+        ("seed", {"seed": 2**64}),
+        ("seed", {"seed": 1.0}),
+        ("seed", {"seed": 2**130}),
+        ("threads", {"threads": 0}),
+        ("threads", {"threads": 10**6}),
+    ],
+)
 def test_bad_options(tiny_model, obs, argument, kwargs):
     bad(argument, tiny_model.forecast, obs, **kwargs)
     bad(argument, tiny_model.repair, obs, **kwargs)
@@ -132,6 +140,7 @@ def test_settings_kept_for_later_are_checked_when_given(tiny_model_dir):
     bad("threads", tcd.load, tiny_model_dir, threads=2000)
     m = tcd.load(tiny_model_dir)
     from tcd.batch_repair import RepairOptions
+
     bad("seed", RepairOptions.make, m, seed=-1)
     bad("num_samples", RepairOptions.make, m, num_samples=0)
     bad("threads", RepairOptions.make, m, threads=0)
@@ -163,29 +172,33 @@ def test_bad_low_level_arguments(tiny_model_dir):
     bad("long", tcd.engine.cascade_raw, d, d, x[:, :, :50], m[:, :, :50], seed=1)  # short model as long model
 
 
-@pytest.mark.parametrize("argument,kwargs", [
-    ("num_samples", {"num_samples": 0}),
-    ("num_samples", {"num_samples": -1}),
-    ("num_inference_steps", {"num_inference_steps": 0}),
-    ("num_inference_steps", {"num_inference_steps": 51}),
-    ("sampler", {"sampler": "euler"}),
-    ("timestep_spacing", {"timestep_spacing": "middle"}),
-    ("noise_coupling", {"noise_coupling": "antithetic"}),
-    ("eta", {"eta": 2.0}),
-    ("eta", {"eta": math.nan}),
-    ("threads", {"threads": 0}),
-    ("threads", {"threads": 10**6}),
-    ("seed", {}),
-    ("seed", {"seed": -1}),
-    ("seed", {"seed": 2**64}),
-    ("first_sequence", {"first_sequence": -1}),
-    ("num_samples", {"num_samples": 2**40}),
-])
+@pytest.mark.parametrize(
+    "argument,kwargs",
+    [
+        ("num_samples", {"num_samples": 0}),
+        ("num_samples", {"num_samples": -1}),
+        ("num_inference_steps", {"num_inference_steps": 0}),
+        ("num_inference_steps", {"num_inference_steps": 51}),
+        ("sampler", {"sampler": "euler"}),
+        ("timestep_spacing", {"timestep_spacing": "middle"}),
+        ("noise_coupling", {"noise_coupling": "antithetic"}),
+        ("eta", {"eta": 2.0}),
+        ("eta", {"eta": math.nan}),
+        ("threads", {"threads": 0}),
+        ("threads", {"threads": 10**6}),
+        ("seed", {}),
+        ("seed", {"seed": -1}),
+        ("seed", {"seed": 2**64}),
+        ("first_sequence", {"first_sequence": -1}),
+        ("num_samples", {"num_samples": 2**40}),
+    ],
+)
 def test_native_errors_are_typed(tiny_model_dir, argument, kwargs):
     """The binding's own checks and the engine's errors (bypassing the Python layer) map onto
     tcd.exceptions too."""
     import dataclasses
     import types
+
     d = _native.Denoiser.load(str(tiny_model_dir / "short.safetensors"))
     x = np.zeros((1, 66, 55), np.float32)
     kw = dict(kwargs)
@@ -211,9 +224,11 @@ def test_native_engine_error_mapping(tiny_model_dir):
 
 # ------------------------------------------------------------------------------------ loading
 
+
 def test_load_without_bundled_model_explains(tmp_path, monkeypatch):
     import tcd.model
-    monkeypatch.setattr(tcd.model, "default_model_dir", lambda: tmp_path)   # an installation without weights
+
+    monkeypatch.setattr(tcd.model, "default_model_dir", lambda: tmp_path)  # an installation without weights
     monkeypatch.setattr(tcd.model, "_default", None)
     with pytest.raises(FileNotFoundError, match="No default model is bundled"):
         tcd.load()
@@ -241,7 +256,7 @@ def test_load_missing_paths(tmp_path, tiny_model_dir):
         tcd.load(d)
     with pytest.raises(FileNotFoundError):
         tcd.engine.Denoiser.load(tmp_path / "missing.safetensors")
-    with pytest.raises(WeightsError, match="is a directory"):   # a directory is not a weight file
+    with pytest.raises(WeightsError, match="is a directory"):  # a directory is not a weight file
         tcd.engine.Denoiser.load(tmp_path)
     bad("path", tcd.load, 42)
 
@@ -307,7 +322,7 @@ def garbage(path):
 def nan_weight(path):
     tensors, meta = read_weights(path)
     w = tensors["diffmodel.diffusion_embedding.projection2.weight"].copy()
-    w.flat[5] = np.nan    # one NaN: it used to load, and forecasts came back finite and wrong
+    w.flat[5] = np.nan  # one NaN: it used to load, and forecasts came back finite and wrong
     tensors["diffmodel.diffusion_embedding.projection2.weight"] = w
     write_weights(path, tensors, meta)
 
@@ -320,19 +335,22 @@ def inf_weight(path):
     write_weights(path, tensors, meta)
 
 
-@pytest.mark.parametrize("edit,needle", [
-    (truncate, "truncated or corrupt"),
-    (drop_tensor, "lacks the tensor `diffmodel.residual_layers.1.mid_projection.bias`"),
-    (add_tensor, "diffmodel.extra.weight"),
-    (config_disagrees, "shape"),
-    (wrong_layer_count, "lacks the tensor"),
-    (wrong_dtype, "F32"),
-    (no_metadata, "tcd_config"),
-    (bad_json, "could not be parsed"),
-    (garbage, "not a valid safetensors file"),
-    (nan_weight, r"`diffmodel.diffusion_embedding.projection2.weight` .* holds NaN at flat index 5"),
-    (inf_weight, r"`embed_layer.weight` .* holds -inf at flat index 0"),
-])
+@pytest.mark.parametrize(
+    "edit,needle",
+    [
+        (truncate, "truncated or corrupt"),
+        (drop_tensor, "lacks the tensor `diffmodel.residual_layers.1.mid_projection.bias`"),
+        (add_tensor, "diffmodel.extra.weight"),
+        (config_disagrees, "shape"),
+        (wrong_layer_count, "lacks the tensor"),
+        (wrong_dtype, "F32"),
+        (no_metadata, "tcd_config"),
+        (bad_json, "could not be parsed"),
+        (garbage, "not a valid safetensors file"),
+        (nan_weight, r"`diffmodel.diffusion_embedding.projection2.weight` .* holds NaN at flat index 5"),
+        (inf_weight, r"`embed_layer.weight` .* holds -inf at flat index 0"),
+    ],
+)
 def test_weights_errors(tiny_model_dir, tmp_path, edit, needle):
     d = broken_dir(tiny_model_dir, tmp_path, edit.__name__, edit)
     with pytest.raises(WeightsError, match=needle) as ei:

@@ -1,5 +1,6 @@
 """The exporter (training/export.py): random-init model directories, checkpoints to weight files, strict
 loading, ``--files``; and the committed model fixtures are what it writes (tests/fixtures/README.md)."""
+
 import importlib.util
 import json
 
@@ -29,7 +30,7 @@ def test_random_init_dir_is_complete_and_non_trivial(tmp_path):
         assert cfg["data"]["units"] == "m" and cfg["data"]["fps"] == 25.0
         L = cfg["window"]["seq_len"]
         y = model(torch.randn(1, 66, L), torch.randn(1, 66, L), torch.ones(1, 66, L), 3)
-        assert y.abs().mean() > 1e-3                             # the last conv is not zero
+        assert y.abs().mean() > 1e-3  # the last conv is not zero
     summary = json.loads((d / "model.json").read_text())
     assert set(summary) == {"short", "long"}
     # seeded: the same seed gives the same bytes
@@ -80,18 +81,20 @@ def test_files_replace_roles_only_when_they_load(tmp_path):
     """`--files`: how exported weights become the bundled ones; a file that does not load strictly, or
     is not named after a role, replaces nothing."""
     import tcd
+
     src = random_init_dir(tmp_path / "new", "tiny", seed=4)
     bundle = random_init_dir(tmp_path / "bundle", "tiny", seed=5)
     before = (bundle / "short.safetensors").read_bytes()
     assert main(["--files", str(src / "long.safetensors"), "--out", str(bundle)]) == 0
     assert (bundle / "long.safetensors").read_bytes() == (src / "long.safetensors").read_bytes()
     assert (bundle / "short.safetensors").read_bytes() == before
-    tcd.load(bundle)                                # checksums and model.json rewritten
+    tcd.load(bundle)  # checksums and model.json rewritten
     assert json.loads((bundle / "model.json").read_text()).keys() >= {"short", "long"}
     broken = tmp_path / "long.safetensors"
     broken.write_bytes(b"not a model")
     from safetensors import SafetensorError
-    with pytest.raises(SafetensorError, match="header"):       # read_config's safe_open, before anything is copied
+
+    with pytest.raises(SafetensorError, match="header"):  # read_config's safe_open, before anything is copied
         main(["--files", str(broken), "--out", str(bundle)])
     assert (bundle / "long.safetensors").read_bytes() == (src / "long.safetensors").read_bytes()
     with pytest.raises(SystemExit, match="file name"):
@@ -103,8 +106,14 @@ def test_gap_fill_rewrites_the_repair_fill_only(tmp_path):
     recorded in its training block) and loads with the forecaster beside it; ``none`` takes the key out again;
     without ``prior.safetensors`` beside it nothing is replaced."""
     import tcd
-    d = random_init_dir(tmp_path / "m", "tiny", seed=2, prior_blocks=2,
-                        repair={"cond_fill": "prior", "target": "prior_residual", "target_scale": 10.0})
+
+    d = random_init_dir(
+        tmp_path / "m",
+        "tiny",
+        seed=2,
+        prior_blocks=2,
+        repair={"cond_fill": "prior", "target": "prior_residual", "target_scale": 10.0},
+    )
     fill = d / "repair_fill.safetensors"
     before, tensors = fill.read_bytes(), load_file(str(fill))
     assert main(["--gap-fill", "forecaster", "--out", str(d)]) == 0
@@ -122,7 +131,7 @@ def test_gap_fill_rewrites_the_repair_fill_only(tmp_path):
     with pytest.raises(ValueError, match="prior.safetensors"):
         main(["--gap-fill", "forecaster", "--out", str(d)])
     assert fill.read_bytes() == now and not (d / "repair_fill.safetensors.tmp").exists()
-    assert before != now                                         # (the training block records the change)
+    assert before != now  # (the training block records the change)
 
 
 def test_committed_fixtures_are_what_make_fixtures_writes(tmp_path, monkeypatch):
@@ -136,9 +145,11 @@ def test_committed_fixtures_are_what_make_fixtures_writes(tmp_path, monkeypatch)
     monkeypatch.setattr(export, "source_revision", lambda: recorded)
     out = make_fixtures.write(tmp_path / "fixtures")
     written = sorted(str(p.relative_to(out)) for p in out.rglob("*") if p.is_file())
-    assert written == sorted(str((out / d / n).relative_to(out)) for d, names in make_fixtures.FILES.items()
-                             for n in names)
+    assert written == sorted(
+        str((out / d / n).relative_to(out)) for d, names in make_fixtures.FILES.items() for n in names
+    )
     for name in written:
         assert (out / name).read_bytes() == (FIXTURES / name).read_bytes(), (
             f"tests/fixtures/{name} is not what tests/fixtures/make_fixtures.py writes: if the exporter or the "
-            "random init changed on purpose, run it and commit the new fixtures")
+            "random init changed on purpose, run it and commit the new fixtures"
+        )

@@ -1,5 +1,6 @@
 """tcd._files, the atomic writes of every output: complete or absent, never replacing a file without
 overwrite, no temporary file left behind."""
+
 from __future__ import annotations
 
 import os
@@ -31,8 +32,10 @@ def test_npz_and_text_written_with_the_umask_permissions(tmp_path):
 @pytest.mark.parametrize("links", [True, False])
 def test_existing_file_kept_without_overwrite(tmp_path, monkeypatch, links):
     if not links:  # a file system without hard links: the check-then-rename fallback
+
         def no_link(src, dst):
             raise PermissionError("no hard links here")
+
         monkeypatch.setattr(os, "link", no_link)
     dst = tmp_path / "out.txt"
     files.write_text_atomic(dst, "first", overwrite=False)
@@ -40,8 +43,9 @@ def test_existing_file_kept_without_overwrite(tmp_path, monkeypatch, links):
         files.write_text_atomic(dst, "second", overwrite=False)
     assert ei.value.filename == str(dst)
     with pytest.raises(FileExistsError):  # appearing while being written
-        files.write_atomic(dst.with_name("late.txt"), lambda fh: dst.with_name("late.txt").write_text("other"),
-                           overwrite=False)
+        files.write_atomic(
+            dst.with_name("late.txt"), lambda fh: dst.with_name("late.txt").write_text("other"), overwrite=False
+        )
     assert (tmp_path / "late.txt").read_text() == "other"
     files.write_text_atomic(dst, "third", overwrite=True)
     assert dst.read_text() == "third"

@@ -4,6 +4,7 @@ seeded streams that depend neither on threads nor on the batch, bad arguments an
 generator (2 x 32) written here with safetensors' numpy API into a copy of the committed tiny HumanEva-I model
 (tests/fixtures/tiny_humaneva_model, with its random prior). Parity with the PyTorch reference:
 tests/test_generator_parity.py."""
+
 from __future__ import annotations
 
 import json
@@ -25,8 +26,18 @@ def write_generator(path: Path, hidden: int = 32, layers: int = 2, seed: int = 0
     """A random generator file: normal weights of unit-gain scale, the head's scaled so that the samples lie a few
     tenths of a metre from the prior's forecast."""
     rng = np.random.default_rng(seed)
-    m = {"num_joints": 14, "coords": 3, "num_features": K, "obs_len": OBS, "pred_len": P, "hidden": hidden,
-         "layers": layers, "z_dim": Z, "coefs": C, **model}
+    m = {
+        "num_joints": 14,
+        "coords": 3,
+        "num_features": K,
+        "obs_len": OBS,
+        "pred_len": P,
+        "hidden": hidden,
+        "layers": layers,
+        "z_dim": Z,
+        "coefs": C,
+        **model,
+    }
     tensors, width = {}, m["obs_len"] * m["num_features"] + m["coefs"] * m["num_features"] + m["z_dim"]
     for i in range(layers):
         tensors[f"layers.{i}.weight"] = rng.normal(0, 1 / np.sqrt(width), (hidden, width)).astype(np.float32)
@@ -34,11 +45,14 @@ def write_generator(path: Path, hidden: int = 32, layers: int = 2, seed: int = 0
         width = hidden
     tensors["head.weight"] = rng.normal(0, 0.3 / np.sqrt(hidden), (m["coefs"] * m["num_features"], hidden))
     tensors["head.bias"] = rng.normal(0, 0.01, m["coefs"] * m["num_features"])
-    cfg = {"format_version": 1, "role": "generator", "model": m,
-           "data": json.loads((FIXTURES / "tiny_humaneva_model" / "model.json").read_text())["prior"]["data"],
-           "training": {"random_init": True}}
-    return write_weights(path, {k: v.astype(np.float32) for k, v in tensors.items()},
-                         {"tcd_config": json.dumps(cfg)})
+    cfg = {
+        "format_version": 1,
+        "role": "generator",
+        "model": m,
+        "data": json.loads((FIXTURES / "tiny_humaneva_model" / "model.json").read_text())["prior"]["data"],
+        "training": {"random_init": True},
+    }
+    return write_weights(path, {k: v.astype(np.float32) for k, v in tensors.items()}, {"tcd_config": json.dumps(cfg)})
 
 
 @pytest.fixture(scope="module")
@@ -56,15 +70,24 @@ def model(model_dir):
 def observation(batch: int = 3) -> np.ndarray:
     """(B, 15, 14, 3) float32 metres: windows of the bundled HumanEva-I demo clip."""
     from tcd import demo
+
     clip = demo.load_clip(demo.HUMANEVA_CLIP_PATH)["poses"].astype(np.float32)
-    return np.stack([clip[s:s + OBS] for s in range(0, 20 * batch, 20)])
+    return np.stack([clip[s : s + OBS] for s in range(0, 20 * batch, 20)])
 
 
 def test_description(model, model_dir):
     g = model.generator
     assert isinstance(g, tcd.engine.Generator) and model.generator_share == 0.0
     assert (g.num_features, g.num_joints, g.obs_len, g.pred_len, g.hidden, g.layers, g.z_dim, g.coefs) == (
-        K, 14, OBS, P, 32, 2, Z, C)
+        K,
+        14,
+        OBS,
+        P,
+        32,
+        2,
+        Z,
+        C,
+    )
     assert g.config["role"] == "generator" and model.config["generator"] == g.config
     assert g.path == str(model_dir / "generator.safetensors") and "generator=True" in repr(model)
     assert "Generator(" in repr(g)
@@ -79,10 +102,10 @@ def test_seeded_samples_do_not_depend_on_threads_or_the_batch(model):
     np.testing.assert_array_equal(a, g.sample(obs, fc, 4, seed=7, threads=2))
     np.testing.assert_array_equal(a[:, 2:], g.sample(obs[2:], fc[2:], 4, seed=7, first_sequence=2))
     np.testing.assert_array_equal(a[:, [2, 0]], g.sample(obs[[2, 0]], fc[[2, 0]], 4, seed=7, sequences=[2, 0]))
-    assert np.abs(a - fc[None]).max() > 0.05 and np.ptp(a, axis=0).max() > 0.01    # the network moves them
+    assert np.abs(a - fc[None]).max() > 0.05 and np.ptp(a, axis=0).max() > 0.01  # the network moves them
     b = g.sample(obs, fc, 4, seed=8)
     assert not np.array_equal(a, b)
-    longer = np.concatenate([np.zeros((3, 5, K), np.float32), obs], axis=1)           # its last 15 frames read
+    longer = np.concatenate([np.zeros((3, 5, K), np.float32), obs], axis=1)  # its last 15 frames read
     np.testing.assert_array_equal(a, g.sample(longer, fc, 4, seed=7))
 
 
@@ -100,16 +123,16 @@ def test_bad_arguments(model):
     bad("num_samples", g.sample, obs, fc, 0, seed=0)
     bad("noise", g.sample, obs, fc, 2, noise=np.zeros((2, 2, Z - 1), np.float32))
     with pytest.raises(InvalidInputError):
-        g.sample(obs, fc, 2)                                           # neither noise nor seed
+        g.sample(obs, fc, 2)  # neither noise nor seed
     with pytest.raises(InvalidInputError):
         g.sample(obs, fc, 2, seed=0, noise=np.zeros((2, 2, Z), np.float32))
 
 
 def test_bad_files(model_dir, tmp_path):
     f = model_dir / "generator.safetensors"
-    with pytest.raises(WeightsError):                                  # a prior's file is no generator
+    with pytest.raises(WeightsError):  # a prior's file is no generator
         tcd.engine.Generator.load(model_dir / "prior.safetensors")
-    with pytest.raises(WeightsError):                                  # nor a generator's a prior
+    with pytest.raises(WeightsError):  # nor a generator's a prior
         tcd.engine.Prior.load(f)
     tensors, meta = read_weights(f)
     del tensors["head.bias"]
@@ -134,12 +157,11 @@ def test_forecast_mixture_is_the_cascade_then_the_generator(model):
     drawn = model.generator.sample(x, model.prior.predict(x, P), 3, seed=5).reshape(3, 2, P, 14, 3)
     np.testing.assert_allclose(mixed.samples[3:], drawn, rtol=0, atol=1e-7)
     np.testing.assert_allclose(mixed.mean, mixed.samples.mean(axis=0), rtol=1e-6, atol=1e-6)
-    np.testing.assert_array_equal(model.forecast(obs, num_samples=3, generator_share=0, **kw).samples,
-                                  cascade.samples)
-    every = model.forecast(obs, num_samples=3, generator_share=1.0, **kw)       # no cascade: the observation kept
+    np.testing.assert_array_equal(model.forecast(obs, num_samples=3, generator_share=0, **kw).samples, cascade.samples)
+    every = model.forecast(obs, num_samples=3, generator_share=1.0, **kw)  # no cascade: the observation kept
     np.testing.assert_allclose(every.samples, drawn, rtol=0, atol=1e-7)
     np.testing.assert_array_equal(every.repaired, obs)
-    odd = model.forecast(obs, num_samples=5, generator_share=0.5, **kw)          # floor(2.5) = 2 from the generator
+    odd = model.forecast(obs, num_samples=5, generator_share=0.5, **kw)  # floor(2.5) = 2 from the generator
     np.testing.assert_array_equal(odd.samples[:3], cascade.samples)
 
 
@@ -150,12 +172,13 @@ def test_the_share_from_sampling_json_and_bad_shares(model_dir, tmp_path):
     assert m.generator_share == 0.5
     obs = observation(1)
     kw = dict(seed=1, sampler="ddim", num_inference_steps=1)
-    np.testing.assert_array_equal(m.forecast(obs, num_samples=4, **kw).samples,
-                                  m.forecast(obs, num_samples=4, generator_share=0.5, **kw).samples)
+    np.testing.assert_array_equal(
+        m.forecast(obs, num_samples=4, **kw).samples, m.forecast(obs, num_samples=4, generator_share=0.5, **kw).samples
+    )
     bad("generator_share", m.forecast, obs, generator_share=1.5)
     bad("generator_share", m.forecast, obs, generator_share="half")
     bad("tempo", m.forecast, obs, num_samples=4, tempo=(0.8, 1.25))
-    m.forecast(obs, num_samples=4, tempo=(0.8, 1.25), generator_share=0, **kw)    # the cascade alone: fine
+    m.forecast(obs, num_samples=4, tempo=(0.8, 1.25), generator_share=0, **kw)  # the cascade alone: fine
     (d / "sampling.json").write_text(json.dumps({"forecast_generator_share": 2}))
     with pytest.raises(WeightsError, match="forecast_generator_share"):
         tcd.load(d)

@@ -18,6 +18,7 @@ Criteria (stated once, used throughout):
 * a perturbation of one head bias by 1e-3 (0.13 mm on every frame of one coordinate) fails the criterion (the test
   can fail).
 """
+
 from __future__ import annotations
 
 import math
@@ -57,17 +58,22 @@ def random_generator(seed: int = 0, hidden: int = 768, layers: int = 3) -> Gener
 def inputs():
     """(obs (7, 15, 42), the bundled prior's forecast (7, 60, 42)) float32 metres, from the HumanEva-I demo clip."""
     from tcd import demo
+
     clip = demo.load_clip(demo.HUMANEVA_CLIP_PATH)["poses"]
     clip = clip.reshape(len(clip), -1).astype(np.float32)
-    obs = np.ascontiguousarray(np.stack([clip[s:s + 15] for s in np.linspace(0, len(clip) - 15, 7).astype(int)]))
+    obs = np.ascontiguousarray(np.stack([clip[s : s + 15] for s in np.linspace(0, len(clip) - 15, 7).astype(int)]))
     prior = tcd.engine.Prior.load(tcd.humaneva_model_dir() / "prior.safetensors")
     return obs, prior.predict(obs, 60)
 
 
 @pytest.fixture(scope="module")
 def random_file(tmp_path_factory):
-    return save_generator(tmp_path_factory.mktemp("gen") / "generator.safetensors", random_generator(),
-                          humaneva_data_meta("none (random init)"), {"random_init": True})
+    return save_generator(
+        tmp_path_factory.mktemp("gen") / "generator.safetensors",
+        random_generator(),
+        humaneva_data_meta("none (random init)"),
+        {"random_init": True},
+    )
 
 
 def reference(path: Path, obs: np.ndarray, prior: np.ndarray, z: np.ndarray) -> np.ndarray:
@@ -85,8 +91,10 @@ def check(path: Path, kernel: str, monkeypatch, inputs, samples: int = 5) -> Non
     ref = reference(path, obs, prior, z)
     assert engine.shape == ref.shape == (samples, len(obs), 60, 42) and engine.dtype == np.float32
     contribution = np.abs(ref - prior[None]).max()
-    print(f"{path.name} [{kernel}]: max |engine - torch| {np.abs(engine - ref).max():.2e}, "
-          f"contribution {contribution:.3f} m")
+    print(
+        f"{path.name} [{kernel}]: max |engine - torch| {np.abs(engine - ref).max():.2e}, "
+        f"contribution {contribution:.3f} m"
+    )
     assert contribution >= CONTRIBUTION * ATOL
     np.testing.assert_allclose(engine, ref, rtol=RTOL, atol=ATOL)
 
@@ -133,14 +141,39 @@ def test_export_round_trip_and_cli(tmp_path):
     g = random_generator(seed=3, hidden=32, layers=2)
     loaded, cfg = load_generator_file(save_generator(tmp_path / "g.safetensors", g, humaneva_data_meta()))
     assert cfg["role"] == "generator" and cfg["model"] == {
-        "num_joints": 14, "coords": 3, "num_features": 42, "obs_len": 15, "pred_len": 60, "hidden": 32, "layers": 2,
-        "z_dim": 64, "coefs": 20}
+        "num_joints": 14,
+        "coords": 3,
+        "num_features": 42,
+        "obs_len": 15,
+        "pred_len": 60,
+        "hidden": 32,
+        "layers": 2,
+        "z_dim": 64,
+        "coefs": 20,
+    }
     for (name, a), (_, b) in zip(g.state_dict().items(), loaded.state_dict().items()):
         assert torch.equal(a, b), name
     torch.save(g.state_dict(), tmp_path / "state.pt")
-    subprocess.run([sys.executable, "-m", "training.generator", "--state-dict", str(tmp_path / "state.pt"),
-                    "--out", str(tmp_path / "dir"), "--hidden", "32", "--layers", "2", "--description", "a test"],
-                   cwd=ROOT, check=True, capture_output=True)
+    subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "training.generator",
+            "--state-dict",
+            str(tmp_path / "state.pt"),
+            "--out",
+            str(tmp_path / "dir"),
+            "--hidden",
+            "32",
+            "--layers",
+            "2",
+            "--description",
+            "a test",
+        ],
+        cwd=ROOT,
+        check=True,
+        capture_output=True,
+    )
     e = tcd.engine.Generator.load(tmp_path / "dir" / "generator.safetensors")
     assert (e.hidden, e.layers, e.z_dim, e.coefs, e.pred_len, e.obs_len) == (32, 2, 64, 20, 60, 15)
     assert e.config["training"]["description"] == "a test"

@@ -6,6 +6,7 @@ thread is inside a forecast of about a second. With the GIL held for the whole n
 thread could not wake at all until it returned (a handful of wake-ups at the edges); released, it wakes
 hundreds of times.
 """
+
 from __future__ import annotations
 
 import threading
@@ -44,7 +45,7 @@ def _wakeups_while(workers: list[threading.Thread]) -> int:
 
 @pytest.mark.slow
 def test_other_python_threads_run_during_a_forecast(model, obs):
-    kw = dict(num_samples=2, seed=3, threads=1, sampler="ddpm")   # DDPM-50, both stages: ~200 forwards
+    kw = dict(num_samples=2, seed=3, threads=1, sampler="ddpm")  # DDPM-50, both stages: ~200 forwards
     out = {}
     started = threading.Event()
 

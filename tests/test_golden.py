@@ -15,6 +15,7 @@ estimate differs between Intel and AMD (the table recorded on AMD failed on a Sa
 now divides exactly (``crates/tcd-core/src/kernels/x86/simd.rs``). The portable and avx512 tables are
 unchanged.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -40,6 +41,7 @@ def sha(a: np.ndarray) -> str:
 def observation() -> np.ndarray:
     """The demo clip's first 50 frames with a seeded occlusion (NaN): 12 % of joint-frames and frames 20-24."""
     import tcd
+
     clip = np.load(Path(tcd.__file__).parent / "data" / "demo_walking.npz")["poses"][:50].astype(np.float32)
     rng = np.random.default_rng(1234)
     hidden = rng.random(clip.shape[:2]) < 0.12
@@ -53,22 +55,44 @@ def outputs(tmp: Path) -> dict[str, str]:
     """The checksummed outputs on the kernel path ``$TCD_KERNEL`` selects (read when a model file loads)."""
     import tcd
     from tcd.cli import main as cli
+
     model = tcd.load(MODEL_DIR)
     obs = observation()
     out = {"kernel": model.short.kernel}
     f = model.forecast(obs, num_samples=2, seed=0, num_inference_steps=10)
-    out.update({"forecast_ddpm10_mean": sha(f.mean), "forecast_ddpm10_samples": sha(f.samples),
-                "forecast_ddpm10_repaired": sha(f.repaired)})
+    out.update(
+        {
+            "forecast_ddpm10_mean": sha(f.mean),
+            "forecast_ddpm10_samples": sha(f.samples),
+            "forecast_ddpm10_repaired": sha(f.repaired),
+        }
+    )
     f = model.forecast(obs * 1000.0, num_samples=1, seed=3, sampler="ddim", num_inference_steps=5, units="mm")
     out["forecast_ddim5_mm_samples"] = sha(f.samples)
     f = model.forecast(obs, num_samples=1, seed=4, sampler="dpmpp2m", num_inference_steps=5)
     out["forecast_dpmpp2m5_samples"] = sha(f.samples)
     out["repair_ddpm10"] = sha(model.repair(obs, num_samples=2, seed=5, num_inference_steps=10).poses)
-    seq = np.concatenate([obs, observation()[::-1]])                       # 100 frames: two windows and more
+    seq = np.concatenate([obs, observation()[::-1]])  # 100 frames: two windows and more
     (tmp / "in").mkdir(parents=True, exist_ok=True)
     np.savez(tmp / "in" / "take.npz", poses=seq)
-    assert cli(["repair", str(tmp / "in"), "-o", str(tmp / "out"), "--model", str(MODEL_DIR), "--steps", "10",
-                "--samples", "2", "--quiet"]) == 0
+    assert (
+        cli(
+            [
+                "repair",
+                str(tmp / "in"),
+                "-o",
+                str(tmp / "out"),
+                "--model",
+                str(MODEL_DIR),
+                "--steps",
+                "10",
+                "--samples",
+                "2",
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     with np.load(tmp / "out" / "take.npz") as z:
         out["tcd_repair_cli_poses"] = sha(z["poses"])
     return out
@@ -77,6 +101,7 @@ def outputs(tmp: Path) -> dict[str, str]:
 @pytest.mark.slow
 def test_golden_outputs_per_kernel(tmp_path, monkeypatch):
     import tcd
+
     recorded = json.loads(CHECKSUMS.read_text())
     checked = 0
     for kernel in tcd.engine.supported_kernels():
@@ -89,8 +114,9 @@ def test_golden_outputs_per_kernel(tmp_path, monkeypatch):
     missing = sorted(set(tcd.engine.supported_kernels()) - set(recorded))
     assert checked >= 1, f"no recorded kernel path among {tcd.engine.supported_kernels()}"
     if missing:
-        pytest.skip(f"no golden checksums recorded for {missing}: "
-                    "TCD_KERNEL=<kernel> python3 tests/test_golden.py --record")
+        pytest.skip(
+            f"no golden checksums recorded for {missing}: TCD_KERNEL=<kernel> python3 tests/test_golden.py --record"
+        )
 
 
 def test_golden_model_is_the_fixture_copy():
@@ -102,6 +128,7 @@ def test_golden_model_is_the_fixture_copy():
 
 if __name__ == "__main__" and sys.argv[1:] == ["--record"]:
     import tempfile
+
     table = json.loads(CHECKSUMS.read_text()) if CHECKSUMS.is_file() else {}
     with tempfile.TemporaryDirectory() as d:
         got = outputs(Path(d))

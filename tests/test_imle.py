@@ -1,5 +1,6 @@
 """The one-step sampler's IMLE loss (training.imle): which candidate it trains, the engine's candidate forwards
 against PyTorch's, and the config's checks."""
+
 from __future__ import annotations
 
 import json
@@ -15,15 +16,23 @@ from training.imle import EngineSearch, imle_choose, imle_loss, torch_search  # 
 from training.model import ModelConfig, TCDModel, randomize_output_layer, to_target  # noqa: E402
 from training.train import TrainConfig, train_step  # noqa: E402
 
-CFG = dict(channels=16, num_layers=1, num_heads=4, ffn_dim=16, dropout=0.0, cond_fill="prior",
-           target="prior_residual", target_scale=10.0)
+CFG = dict(
+    channels=16,
+    num_layers=1,
+    num_heads=4,
+    ffn_dim=16,
+    dropout=0.0,
+    cond_fill="prior",
+    target="prior_residual",
+    target_scale=10.0,
+)
 SCHED = Schedule(DiffusionConfig(prediction_type="sample"))
 
 
 def model_and_window(B=3, L=75, given=55, seed=0):
     torch.manual_seed(seed)
     model = TCDModel(ModelConfig.from_dict(CFG), SCHED.T)
-    randomize_output_layer(model, seed, std=0.2)        # the zero-initialised head would ignore the noise
+    randomize_output_layer(model, seed, std=0.2)  # the zero-initialised head would ignore the noise
     model.attach_prior(random_prior(blocks=2, seed=seed))
     g = torch.Generator().manual_seed(seed)
     x0 = torch.cumsum(torch.randn(B, 66, L, generator=g) * 0.01, dim=-1)
@@ -50,8 +59,9 @@ def test_imle_trains_each_windows_nearest_candidate():
     expected = masked_eps_loss(target, outs[best, torch.arange(B)], mask)
     assert float(imle_loss(model, SCHED, x0, mask, cand).detach()) == pytest.approx(float(expected), rel=1e-5)
     # the nearest is what counts: putting it first and the others after changes nothing
-    order = torch.stack([torch.cat([best[b:b + 1], torch.tensor([s for s in range(S) if s != best[b]])])
-                         for b in range(B)], 1)                                           # (S, B)
+    order = torch.stack(
+        [torch.cat([best[b : b + 1], torch.tensor([s for s in range(S) if s != best[b]])]) for b in range(B)], 1
+    )  # (S, B)
     moved = cand[order, torch.arange(B)]
     assert float(imle_loss(model, SCHED, x0, mask, moved).detach()) == pytest.approx(float(expected), rel=1e-5)
     # and a worse candidate alone gives a larger loss than the nearest
@@ -63,7 +73,7 @@ def test_imle_trains_each_windows_nearest_candidate():
 @pytest.mark.parametrize("gap", [False, True])
 def test_final_weight_adds_the_candidate_nearest_on_the_last_hidden_frame(gap):
     model, x0, mask = model_and_window()
-    if gap:                     # frames 55-64 hidden, the rest observed: the last hidden frame is 64, not 74
+    if gap:  # frames 55-64 hidden, the rest observed: the last hidden frame is 64, not 74
         mask[..., 65:] = 1.0
     S, B = 6, x0.shape[0]
     final = 64 if gap else 74
@@ -71,9 +81,10 @@ def test_final_weight_adds_the_candidate_nearest_on_the_last_hidden_frame(gap):
     target, outs = one_step_samples(model, cand, x0, mask)
     sq = ((outs - target) * (1 - mask)) ** 2
     best, final_best = sq.sum((2, 3)).argmin(0), sq[..., final].sum(2).argmin(0)
-    assert (best != final_best).any()           # else the test could not tell the two terms apart
-    expected = (masked_eps_loss(target, outs[best, torch.arange(B)], mask)
-                + 0.5 * masked_eps_loss(target, outs[final_best, torch.arange(B)], mask))
+    assert (best != final_best).any()  # else the test could not tell the two terms apart
+    expected = masked_eps_loss(target, outs[best, torch.arange(B)], mask) + 0.5 * masked_eps_loss(
+        target, outs[final_best, torch.arange(B)], mask
+    )
     got = imle_loss(model, SCHED, x0, mask, cand, final_weight=0.5)
     assert float(got.detach()) == pytest.approx(float(expected), rel=1e-5)
 
@@ -91,7 +102,7 @@ def test_further_targets_each_pull_their_nearest_candidate():
     each = [alone] + [float(imle_loss(model, SCHED, o, mask, cand, observed=x0).detach()) for o in others]
     got = float(imle_loss(model, SCHED, x0, mask, cand, others=others).detach())
     assert got == pytest.approx(sum(each) / 3, rel=1e-5)
-    assert not got == pytest.approx(alone, rel=1e-3)     # the further futures are not the window's own
+    assert not got == pytest.approx(alone, rel=1e-3)  # the further futures are not the window's own
     with pytest.raises(ValueError, match="others must be"):
         imle_loss(model, SCHED, x0, mask, cand, others=x0)
 
@@ -104,8 +115,9 @@ def test_a_stored_choice_gives_the_loss_of_a_fresh_search_and_stays_as_chosen(va
     cand = torch.randn(6, *x0.shape, generator=torch.Generator().manual_seed(8))
     kw = {}
     if variant == "others":
-        kw["others"] = x0 + torch.cumsum(torch.randn(2, *x0.shape, generator=torch.Generator().manual_seed(9))
-                                         * 0.02, dim=-1) * (1 - mask)
+        kw["others"] = x0 + torch.cumsum(
+            torch.randn(2, *x0.shape, generator=torch.Generator().manual_seed(9)) * 0.02, dim=-1
+        ) * (1 - mask)
     if variant == "final":
         kw["final_weight"] = 0.5
     choice = imle_choose(model, SCHED, x0, mask, cand, observed=x0, **kw)
@@ -117,20 +129,23 @@ def test_a_stored_choice_gives_the_loss_of_a_fresh_search_and_stays_as_chosen(va
     fresh = imle_loss(model, SCHED, x0, mask, cand, observed=x0, **kw)
     stored = imle_loss(model, SCHED, x0, mask, cand, observed=x0, choice=choice, **kw)
     assert float(stored.detach()) == pytest.approx(float(fresh.detach()), rel=1e-6)
-    with torch.no_grad():                   # move the weights: a fresh search may choose otherwise, the stored not
+    with torch.no_grad():  # move the weights: a fresh search may choose otherwise, the stored not
         for p in model.parameters():
             p.add_(torch.randn(p.shape, generator=torch.Generator().manual_seed(p.numel())) * 0.3)
     again = imle_choose(model, SCHED, x0, mask, cand, observed=x0, **kw)
     B = x0.shape[0]
     last = torch.full((B,), SCHED.T - 1)
-    by_hand = sum(masked_eps_loss(tm, model(cand[nm, torch.arange(B)], x0, mask, last), mask)
-                  for tm, nm in zip(choice.targets, choice.nearest)) / len(choice.targets)
+    by_hand = sum(
+        masked_eps_loss(tm, model(cand[nm, torch.arange(B)], x0, mask, last), mask)
+        for tm, nm in zip(choice.targets, choice.nearest)
+    ) / len(choice.targets)
     if variant == "final":
-        by_hand = by_hand + 0.5 * masked_eps_loss(choice.targets[0], model(cand[choice.final, torch.arange(B)], x0,
-                                                                           mask, last), mask)
+        by_hand = by_hand + 0.5 * masked_eps_loss(
+            choice.targets[0], model(cand[choice.final, torch.arange(B)], x0, mask, last), mask
+        )
     got = imle_loss(model, SCHED, x0, mask, cand, observed=x0, choice=choice, **kw)
     assert float(got.detach()) == pytest.approx(float(by_hand.detach()), rel=1e-6)
-    assert not torch.equal(again.nearest, choice.nearest)     # the moved weights do choose otherwise
+    assert not torch.equal(again.nearest, choice.nearest)  # the moved weights do choose otherwise
 
 
 def test_imle_loss_gradient_reaches_the_weights():
@@ -168,8 +183,11 @@ def test_imle_needs_x0_prediction_and_matching_candidates():
 
 
 def test_config_checks_and_train_step_adds_the_imle_term(tmp_path):
-    base = json.loads(json.dumps({"role": "long", "obs_len": 55, "pred_len": 20, "model": CFG,
-                                  "diffusion": {"prediction_type": "sample"}}))
+    base = json.loads(
+        json.dumps(
+            {"role": "long", "obs_len": 55, "pred_len": 20, "model": CFG, "diffusion": {"prediction_type": "sample"}}
+        )
+    )
     with pytest.raises(ValueError, match="x0-predicting"):
         TrainConfig(**{**base, "diffusion": {}, "imle_samples": 4})
     with pytest.raises(ValueError, match="imle_samples, imle_weight and imle_final_weight"):
@@ -188,29 +206,31 @@ def test_config_checks_and_train_step_adds_the_imle_term(tmp_path):
         TrainConfig(**{**base, "imle_echo": 2})
     with pytest.raises(ValueError, match="imle_echo"):
         TrainConfig(**{**base, "imle_samples": 4, "imle_echo": 0})
-    TrainConfig(**{**base, "imle_samples": 4, "imle_echo": 3})                    # with candidates: accepted
-    TrainConfig(**{**base, "imle_samples": 4, "imle_targets": 3})                 # with candidates: accepted
-    TrainConfig(**{**base, "imle_samples": 4, "imle_final_weight": 1.0})          # with candidates: accepted
-    TrainConfig(**{**base, "imle_samples": 4, "imle_weight": 0.5})                # x0-prediction: accepted
+    TrainConfig(**{**base, "imle_samples": 4, "imle_echo": 3})  # with candidates: accepted
+    TrainConfig(**{**base, "imle_samples": 4, "imle_targets": 3})  # with candidates: accepted
+    TrainConfig(**{**base, "imle_samples": 4, "imle_final_weight": 1.0})  # with candidates: accepted
+    TrainConfig(**{**base, "imle_samples": 4, "imle_weight": 0.5})  # x0-prediction: accepted
     model, x0, mask = model_and_window()
     t = torch.full((x0.shape[0],), 7)
     eps = torch.randn(x0.shape, generator=torch.Generator().manual_seed(4))
     cand = torch.randn(4, *x0.shape, generator=torch.Generator().manual_seed(5))
     plain = float(training_loss(model, SCHED, x0, mask, t=t, eps=eps, observed=x0).detach())
     extra = float(imle_loss(model, SCHED, x0, mask, cand, observed=x0).detach())
-    opt = torch.optim.SGD(model.parameters(), lr=0.0)            # lr 0: the step reports the loss, weights stay
+    opt = torch.optim.SGD(model.parameters(), lr=0.0)  # lr 0: the step reports the loss, weights stay
     got = float(train_step(model, opt, SCHED, (x0, x0, mask, t, eps, cand), False, imle_weight=0.5))
     assert got == pytest.approx(plain + 0.5 * extra, rel=1e-5)
     # the final-frame term reaches the IMLE loss through train_step
     with_final = float(imle_loss(model, SCHED, x0, mask, cand, observed=x0, final_weight=0.25).detach())
     assert with_final > extra
-    got = float(train_step(model, opt, SCHED, (x0, x0, mask, t, eps, cand), False, imle_weight=0.5,
-                           imle_final_weight=0.25))
+    got = float(
+        train_step(model, opt, SCHED, (x0, x0, mask, t, eps, cand), False, imle_weight=0.5, imle_final_weight=0.25)
+    )
     assert got == pytest.approx(plain + 0.5 * with_final, rel=1e-5)
     assert float(train_step(model, opt, SCHED, (x0, x0, mask, t, eps), False)) == pytest.approx(plain, rel=1e-5)
     # the further targets of imle_targets (the batch's seventh tensor) reach the IMLE loss through train_step
-    others = x0 + torch.cumsum(torch.randn(2, *x0.shape, generator=torch.Generator().manual_seed(6)) * 0.02,
-                               dim=-1) * (1 - mask)
+    others = x0 + torch.cumsum(torch.randn(2, *x0.shape, generator=torch.Generator().manual_seed(6)) * 0.02, dim=-1) * (
+        1 - mask
+    )
     with_others = float(imle_loss(model, SCHED, x0, mask, cand, observed=x0, others=others).detach())
     assert with_others != pytest.approx(extra, rel=1e-3)
     got = float(train_step(model, opt, SCHED, (x0, x0, mask, t, eps, cand, others), False, imle_weight=0.5))
@@ -226,6 +246,7 @@ def test_training_with_imle_runs_through_the_engine_and_resumes_exactly(tmp_path
     from test_train import synthetic_motion, tiny_cfg
     from training.batches import BatchSource, Windows
     from training.train import train
+
     seqs = {"train": synthetic_motion(4, seed=0), "val": synthetic_motion(2, seed=1)}
     cfg = tiny_cfg(epochs=2, steps_per_epoch=4, diffusion={"prediction_type": "sample"}, imle_samples=3)
     plain = tiny_cfg(epochs=2, steps_per_epoch=4, diffusion={"prediction_type": "sample"})
@@ -234,7 +255,7 @@ def test_training_with_imle_runs_through_the_engine_and_resumes_exactly(tmp_path
     assert len(a) == 6 and len(b) == 5 and all(torch.equal(x, y) for x, y in zip(a, b))
     assert a[5].shape == (3, *a[0].shape)
     train(cfg, tmp_path / "full", sequences=seqs, log=lambda *a: None)
-    train(cfg, tmp_path / "part", sequences=seqs, max_minutes=0.0, log=lambda *a: None)   # stops after one batch
+    train(cfg, tmp_path / "part", sequences=seqs, max_minutes=0.0, log=lambda *a: None)  # stops after one batch
     train(cfg, tmp_path / "part", sequences=seqs, resume=True, log=lambda *a: None)
     full = torch.load(tmp_path / "full" / "last.pt", weights_only=False)["model"]
     part = torch.load(tmp_path / "part" / "last.pt", weights_only=False)["model"]
@@ -242,7 +263,7 @@ def test_training_with_imle_runs_through_the_engine_and_resumes_exactly(tmp_path
     train(plain, other, sequences=seqs, log=lambda *a: None)
     without = torch.load(other / "last.pt", weights_only=False)["model"]
     assert all(torch.allclose(full[k], part[k], atol=1e-6) for k in full)
-    assert any(not torch.allclose(full[k], without[k]) for k in full)     # the IMLE term changed the training
+    assert any(not torch.allclose(full[k], without[k]) for k in full)  # the IMLE term changed the training
 
 
 @pytest.mark.slow
@@ -252,11 +273,11 @@ def test_imle_echo_takes_that_many_optimizer_steps_per_batch_and_resumes_exactly
     pytest.importorskip("tcd")
     from test_train import synthetic_motion, tiny_cfg
     from training.train import train
+
     seqs = {"train": synthetic_motion(4, seed=0), "val": synthetic_motion(2, seed=1)}
-    cfg = tiny_cfg(epochs=2, steps_per_epoch=3, diffusion={"prediction_type": "sample"}, imle_samples=3,
-                   imle_echo=2)
+    cfg = tiny_cfg(epochs=2, steps_per_epoch=3, diffusion={"prediction_type": "sample"}, imle_samples=3, imle_echo=2)
     train(cfg, tmp_path / "full", sequences=seqs, log=lambda *a: None)
-    train(cfg, tmp_path / "part", sequences=seqs, max_minutes=0.0, log=lambda *a: None)   # stops after one batch
+    train(cfg, tmp_path / "part", sequences=seqs, max_minutes=0.0, log=lambda *a: None)  # stops after one batch
     train(cfg, tmp_path / "part", sequences=seqs, resume=True, log=lambda *a: None)
     full = torch.load(tmp_path / "full" / "last.pt", weights_only=False)
     part = torch.load(tmp_path / "part" / "last.pt", weights_only=False)

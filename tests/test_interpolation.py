@@ -1,6 +1,7 @@
 """`tcd.interpolate`: the engine's fills of missing values along time, checked against outside oracles
 (numpy's `interp`, scipy's natural `CubicSpline`) and bit for bit against the PyTorch reference fills the
 models are trained with (`training.model.linear_fill` / `spline_fill`; that comparison needs torch)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -61,22 +62,22 @@ def test_equals_the_training_fills_bit_for_bit(method):
 
     reference = getattr(model, f"{method}_fill")
     x = gappy(2)
-    rows = torch.from_numpy(np.nan_to_num(x).transpose(0, 2, 3, 1).copy())         # (B, J, 3, T)
+    rows = torch.from_numpy(np.nan_to_num(x).transpose(0, 2, 3, 1).copy())  # (B, J, 3, T)
     mask = torch.from_numpy((~np.isnan(x)).transpose(0, 2, 3, 1).astype(np.float32).copy())
     want = reference(rows, mask).numpy().transpose(0, 3, 1, 2)
     got = tcd.interpolate(x, method=method)
-    ok = ~np.isnan(got)                  # rows never observed: NaN here, 0 in the conditioning channel
+    ok = ~np.isnan(got)  # rows never observed: NaN here, 0 in the conditioning channel
     np.testing.assert_array_equal(got[ok], want[ok])
     assert np.all(want[~ok] == 0)
 
 
 def test_observed_values_dtype_and_unobserved_rows():
     x = gappy(3, batch=None).astype(np.float64)
-    x[:, 2, 1] = np.nan                                   # one coordinate never observed
+    x[:, 2, 1] = np.nan  # one coordinate never observed
     out = tcd.interpolate(x)
     assert out.dtype == np.float64 and out.shape == x.shape
     seen = ~np.isnan(x)
-    np.testing.assert_array_equal(out[seen], x[seen])   # bit for bit, not rounded to float32
+    np.testing.assert_array_equal(out[seen], x[seen])  # bit for bit, not rounded to float32
     assert np.isnan(out[:, 2, 1]).all() and np.isnan(out).sum() == len(x)
     assert tcd.interpolate(np.ones((4, 2, 3), np.int64)).dtype == np.float64
 
@@ -84,9 +85,10 @@ def test_observed_values_dtype_and_unobserved_rows():
 def test_mask_equals_nan():
     x = gappy(4)
     joint_mask = (~np.isnan(x[..., 0])).astype(np.float32)
-    filled_in = np.where(np.isnan(x), 123.0, x)           # values under mask 0 are never read
-    np.testing.assert_array_equal(tcd.interpolate(filled_in, joint_mask, method="spline"),
-                                  tcd.interpolate(x, method="spline"))
+    filled_in = np.where(np.isnan(x), 123.0, x)  # values under mask 0 are never read
+    np.testing.assert_array_equal(
+        tcd.interpolate(filled_in, joint_mask, method="spline"), tcd.interpolate(x, method="spline")
+    )
 
 
 def test_bad_input():

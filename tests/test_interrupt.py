@@ -12,6 +12,7 @@ Ctrl-C test ran its call to the end ("DID NOT RAISE") or timed out. The last tes
 
 No timing thresholds (only generous timeouts): a stop is proven by the forwards done being fewer than the
 call's total."""
+
 from __future__ import annotations
 
 import ctypes
@@ -38,19 +39,20 @@ def test_progress_counts_every_forward(tiny_model):
     obs = poses(np.random.default_rng(0), batch=2)
     seen = []
     tiny_model.forecast(obs, num_samples=3, seed=0, progress=lambda done, total: seen.append((done, total)), **FAST)
-    total = 3 * 2 * 3 * 2                               # samples x sequences x steps x (short, long)
+    total = 3 * 2 * 3 * 2  # samples x sequences x steps x (short, long)
     assert seen[-1] == (total, total)
     assert all(t == total for _, t in seen) and [d for d, _ in seen] == sorted(d for d, _ in seen)
     seen.clear()
     tiny_model.repair(obs, num_samples=2, seed=0, progress=lambda d, t: seen.append((d, t)), **FAST)
     assert seen[-1] == (2 * 2 * 3, 2 * 2 * 3)
-    a = tiny_model.forecast(obs, num_samples=2, seed=1, progress=True, **FAST)       # a tqdm bar on stderr
+    a = tiny_model.forecast(obs, num_samples=2, seed=1, progress=True, **FAST)  # a tqdm bar on stderr
     b = tiny_model.forecast(obs, num_samples=2, seed=1, **FAST)
     np.testing.assert_array_equal(a.samples, b.samples)
 
 
 def test_bad_progress_argument(tiny_model):
     from fixtures_util import bad
+
     bad("progress", tiny_model.forecast, poses(np.random.default_rng(0)), progress="yes", **FAST)
 
 
@@ -69,11 +71,11 @@ def sigint_raises():
         yield
     finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, mask)
-        if before is not None:            # None: a handler not set from Python, which cannot be put back
+        if before is not None:  # None: a handler not set from Python, which cannot be put back
             signal.signal(signal.SIGINT, before)
 
 
-LONG = dict(batch=16, num_samples=5)      # DDPM over every training step, both stages: 8,000 forwards
+LONG = dict(batch=16, num_samples=5)  # DDPM over every training step, both stages: 8,000 forwards
 
 
 def long_call(model, progress):
@@ -128,8 +130,8 @@ def test_ctrl_c_while_the_caller_waits_between_two_polls_stops_the_call(sigint_r
     callback is a C function (``SimpleQueue.put``: no Python runs during the call, so nothing but the
     binding's poll can see the signal); another thread sends it once the queue shows forwards done."""
     model = tcd.load()
-    reports: "queue.SimpleQueue[int]" = queue.SimpleQueue()   # put(done, total): `total` goes to `block`
-    done = []                                                  # the forwards done, report by report
+    reports: "queue.SimpleQueue[int]" = queue.SimpleQueue()  # put(done, total): `total` goes to `block`
+    done = []  # the forwards done, report by report
 
     def send_once_running():
         while not done or done[-1] == 0:
@@ -150,6 +152,7 @@ class _SigintOnConversion:
     """An argument whose conversion to an integer raises SIGINT and gives 2, all in C (``max`` calls the
     C function ``raise(SIGINT)`` as its key; no Python bytecode runs, so Python cannot raise
     KeyboardInterrupt before the binding's own code does): a signal pending when the engine call starts."""
+
     __index__ = functools.partial(max, [int(signal.SIGINT)], key=getattr(ctypes.CDLL(None), "raise"))
 
 
@@ -160,11 +163,12 @@ def test_ctrl_c_before_the_worker_starts_stops_the_call_before_any_forward(sigin
     model = tcd.load()
     d = model.short
     obs = np.zeros((1, d.num_features, d.obs_len), np.float32)
-    reports = {}                                              # progress: reports[done] = total, in C
+    reports = {}  # progress: reports[done] = total, in C
     options = tcd.SamplerOptions(sampler="ddim", num_inference_steps=2)
     with pytest.raises(KeyboardInterrupt):
-        d._native.sample(obs, np.ones_like(obs), 1, options, seed=0, threads=_SigintOnConversion(),
-                         progress=reports.__setitem__)
+        d._native.sample(
+            obs, np.ones_like(obs), 1, options, seed=0, threads=_SigintOnConversion(), progress=reports.__setitem__
+        )
     assert reports == {}
     # the same call without the signal runs and reports its 2 forwards
     d._native.sample(obs, np.ones_like(obs), 1, options, seed=0, threads=2, progress=reports.__setitem__)
@@ -176,10 +180,12 @@ def test_ctrl_c_before_the_worker_starts_stops_the_call_before_any_forward(sigin
 # Starts Python with SIGINT set to sys.argv[1] (SIG_DFL: Python's KeyboardInterrupt; SIG_IGN: ignored, as a
 # non-interactive shell starts `cmd &`), SIGTERM default and both unblocked, instead of inheriting pytest's:
 # exec keeps a default or ignored disposition and the mask, so the child starts as from such a parent.
-LAUNCH = ("import os, signal, sys; signal.signal(signal.SIGINT, getattr(signal, sys.argv[1])); "
-          "signal.signal(signal.SIGTERM, signal.SIG_DFL); "
-          "signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM}); "
-          "os.execv(sys.executable, [sys.executable, '-c'] + sys.argv[2:])")
+LAUNCH = (
+    "import os, signal, sys; signal.signal(signal.SIGINT, getattr(signal, sys.argv[1])); "
+    "signal.signal(signal.SIGTERM, signal.SIG_DFL); "
+    "signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM}); "
+    "os.execv(sys.executable, [sys.executable, '-c'] + sys.argv[2:])"
+)
 
 # The child: `tcd.cli.main` (the console script's) with a hook that says on stdout when the moment to send
 # the signal has come.
@@ -236,12 +242,20 @@ class Child:
 
     def __init__(self, argv, hook, sigint="SIG_DFL"):
         code = CHILD.format(hook=hook, argv=[str(a) for a in argv])
-        self.p = subprocess.Popen([sys.executable, "-c", LAUNCH, sigint, code], stdin=subprocess.PIPE,
-                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+        self.p = subprocess.Popen(
+            [sys.executable, "-c", LAUNCH, sigint, code],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            cwd=ROOT,
+        )
         self.lines: "queue.SimpleQueue[str | None]" = queue.SimpleQueue()
         self.err: list = []
-        self.readers = [threading.Thread(target=self._read_lines, daemon=True),
-                        threading.Thread(target=lambda: self.err.append(self.p.stderr.read()), daemon=True)]
+        self.readers = [
+            threading.Thread(target=self._read_lines, daemon=True),
+            threading.Thread(target=lambda: self.err.append(self.p.stderr.read()), daemon=True),
+        ]
         for t in self.readers:
             t.start()
 
@@ -341,6 +355,7 @@ def test_cli_started_with_sigint_ignored_keeps_it_ignored_and_stops_on_sigterm(t
 
 def test_cli_main_leaves_the_signal_dispositions_as_it_found_them(capsys):
     from tcd.cli import main
+
     before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
     assert main(["info"]) == 0
     assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == before
@@ -349,17 +364,34 @@ def test_cli_main_leaves_the_signal_dispositions_as_it_found_them(capsys):
 def test_the_ctrl_c_tests_pass_when_pytest_starts_with_sigint_ignored():
     """The failure of issue 27: this file's signal tests, run by a pytest that starts with SIGINT ignored."""
     tests = "ctrl_c_stops or caller_waits or worker_starts or cli_ctrl_c"
-    p = subprocess.run([sys.executable, "-c", LAUNCH, "SIG_IGN", "import sys, pytest; sys.exit(pytest.main())",
-                        "-q", "-p", "no:cacheprovider", "-k", tests, __file__], cwd=ROOT, capture_output=True,
-                       text=True, timeout=600)
+    p = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            LAUNCH,
+            "SIG_IGN",
+            "import sys, pytest; sys.exit(pytest.main())",
+            "-q",
+            "-p",
+            "no:cacheprovider",
+            "-k",
+            tests,
+            __file__,
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert p.returncode == 0, p.stdout[-3000:] + p.stderr[-3000:]
     assert p.stdout.strip().splitlines()[-1].startswith("5 passed,"), p.stdout[-3000:]
 
 
 def test_cli_closed_pipe_ends_quietly():
     """`tcd info | head`: the reader is gone before anything is written; no "Broken pipe", exit 0."""
-    p = subprocess.Popen([sys.executable, "-m", "tcd", "info"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                         text=True)
+    p = subprocess.Popen(
+        [sys.executable, "-m", "tcd", "info"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
     p.stdout.close()
     _, err = p.communicate(timeout=60)
     assert p.returncode == 0 and err == "", err

@@ -20,7 +20,7 @@ def test_fk_on_a_hand_made_chain():
     parents = [-1, 0, 1, 2]
     offsets = np.array([[0, 0, 0], [1.0, 0, 0], [0, 2.0, 0], [0, 3.0, 0]])
     e = np.zeros((1, 4, 3))
-    e[0, 1] = [0, 0, np.pi / 2]     # rotate joint a by 90 degrees about z
+    e[0, 1] = [0, 0, np.pi / 2]  # rotate joint a by 90 degrees about z
     pos = fk_expmap(e, parents, offsets)[0]
     # b = offset_b @ R_a + p_a = [0,2,0] @ Rz(90) + [1,0,0]; the row vector y maps to +x
     assert np.allclose(pos[1], [1, 0, 0])
@@ -37,8 +37,9 @@ def test_bone_lengths_preserved_on_random_poses():
     pos = fk_expmap(e, sk["parents"], sk["offsets_mm"])
     for j in range(1, 32):
         p = sk["parents"][j]
-        assert np.allclose(np.linalg.norm(pos[:, j] - pos[:, p], axis=-1), np.linalg.norm(sk["offsets_mm"][j]),
-                           atol=1e-9)
+        assert np.allclose(
+            np.linalg.norm(pos[:, j] - pos[:, p], axis=-1), np.linalg.norm(sk["offsets_mm"][j]), atol=1e-9
+        )
 
 
 def test_model_joint_mapping_round_trip():

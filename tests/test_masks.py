@@ -1,4 +1,5 @@
 """Tests of training/masks.py: imperfect-observation masks (TCD reference, section 4)."""
+
 from __future__ import annotations
 
 import json

@@ -9,14 +9,26 @@ torch = import_torch("the PyTorch reference model (training/model.py)")
 
 from torch import nn  # noqa: E402
 
-from training.model import (ModelConfig, TCDModel, count_parameters, frame_embedding, load_grown,  # noqa: E402
-                            randomize_output_layer, step_embedding_table)
+from training.model import (  # noqa: E402
+    ModelConfig,
+    TCDModel,
+    count_parameters,
+    frame_embedding,
+    load_grown,
+    randomize_output_layer,
+    step_embedding_table,
+)
 
 
 def expected_keys(n_layers):
     keys = ["embed_layer.weight"]
-    for p in ("diffusion_embedding.projection1", "diffusion_embedding.projection2", "input_projection",
-              "output_projection1", "output_projection2"):
+    for p in (
+        "diffusion_embedding.projection1",
+        "diffusion_embedding.projection2",
+        "input_projection",
+        "output_projection1",
+        "output_projection2",
+    ):
         keys += [f"diffmodel.{p}.weight", f"diffmodel.{p}.bias"]
     for i in range(n_layers):
         pre = f"diffmodel.residual_layers.{i}"
@@ -24,8 +36,12 @@ def expected_keys(n_layers):
             keys += [f"{pre}.{p}.weight", f"{pre}.{p}.bias"]
         for tr in ("time_layer", "feature_layer"):
             lp = f"{pre}.{tr}.layers.0"
-            keys += [f"{lp}.self_attn.in_proj_weight", f"{lp}.self_attn.in_proj_bias",
-                     f"{lp}.self_attn.out_proj.weight", f"{lp}.self_attn.out_proj.bias"]
+            keys += [
+                f"{lp}.self_attn.in_proj_weight",
+                f"{lp}.self_attn.in_proj_bias",
+                f"{lp}.self_attn.out_proj.weight",
+                f"{lp}.self_attn.out_proj.bias",
+            ]
             for p in ("linear1", "linear2", "norm1", "norm2"):
                 keys += [f"{lp}.{p}.weight", f"{lp}.{p}.bias"]
     return keys
@@ -92,9 +108,9 @@ def test_forward_uses_mask_and_ignores_hidden_observations():
     y = m(x, obs, mask, 10)
     assert y.shape == (1, 66, 12) and y.abs().mean() > 1e-3
     obs2 = obs.clone()
-    obs2[..., 8:] += 5.0                       # values under mask 0 are not seen
+    obs2[..., 8:] += 5.0  # values under mask 0 are not seen
     x2 = x.clone()
-    x2[..., :8] += 5.0                         # noisy values under mask 1 are not seen
+    x2[..., :8] += 5.0  # noisy values under mask 1 are not seen
     assert torch.equal(m(x2, obs2, mask, 10), y)
     assert not torch.allclose(m(x, obs, mask, 11), y)  # the step matters
 
@@ -114,14 +130,15 @@ def test_spline_fill_is_the_natural_cubic_spline_and_ignores_hidden_values(seed)
     """spline_fill: scipy's natural cubic spline between the first and last observed frames, linear_fill's
     rule outside them and on rows with fewer than 2 observed frames; observed entries bit-identical."""
     from training.model import linear_fill, spline_fill
+
     rng = np.random.default_rng(seed)
     x = rng.normal(size=(3, 9, 30)).cumsum(-1).astype(np.float32)
     m = (rng.random(x.shape) < [0.3, 0.6, 0.9][seed]).astype(np.float32)
     m[0, 0] = 0.0
     m[0, 1] = 0.0
-    m[0, 1, 12] = 1.0           # one observed frame: held
+    m[0, 1, 12] = 1.0  # one observed frame: held
     m[0, 2] = 0.0
-    m[0, 2, [3, 20]] = 1.0      # two: the straight line between them
+    m[0, 2, [3, 20]] = 1.0  # two: the straight line between them
     x_nan = np.where(m > 0, x, np.nan).astype(np.float32)
     got = spline_fill(torch.from_numpy(x_nan), torch.from_numpy(m)).numpy()
     lin = linear_fill(torch.from_numpy(x_nan), torch.from_numpy(m)).numpy()
@@ -146,18 +163,19 @@ def test_spline_fill_is_the_natural_cubic_spline_and_ignores_hidden_values(seed)
 @pytest.mark.parametrize("seed", range(4))
 def test_linear_fill_matches_np_interp_and_ignores_hidden_values(seed):
     from training.model import linear_fill
+
     rng = np.random.default_rng(seed)
     x = rng.normal(size=(3, 7, 20)).astype(np.float32)
     m = (rng.random(x.shape) < [0.0, 0.2, 0.6][seed % 3]).astype(np.float32)
     m[0, 0] = 0.0
     m[0, 1] = 0.0
-    m[0, 1, 19] = 1.0           # only the last frame: held backwards
+    m[0, 1, 19] = 1.0  # only the last frame: held backwards
     m[0, 2] = 0.0
-    m[0, 2, 0] = 1.0            # only the first: held forwards
+    m[0, 2, 0] = 1.0  # only the first: held forwards
     x_nan = np.where(m > 0, x, np.nan).astype(np.float32)
     got = linear_fill(torch.from_numpy(x_nan), torch.from_numpy(m)).numpy()
     assert np.isfinite(got).all()
-    np.testing.assert_array_equal(got[m > 0], x[m > 0])        # observed: bit-identical
+    np.testing.assert_array_equal(got[m > 0], x[m > 0])  # observed: bit-identical
     np.testing.assert_allclose(got, _np_fill(x, m), rtol=0, atol=1e-6)
     assert (got[0, 0] == 0).all() and (got[0, 1] == x[0, 1, 19]).all() and (got[0, 2] == x[0, 2, 0]).all()
 
@@ -174,7 +192,7 @@ def test_cond_fill_linear_changes_the_input_and_is_validated():
     noisy, obs = torch.randn(1, K, L), torch.randn(1, K, L)
     mask = torch.ones(1, K, L)
     with torch.no_grad():
-        assert torch.equal(zero(noisy, obs, mask, 3), lin(noisy, obs, mask, 3))   # nothing to fill
+        assert torch.equal(zero(noisy, obs, mask, 3), lin(noisy, obs, mask, 3))  # nothing to fill
         mask[..., 4:8] = 0
         assert not torch.allclose(zero(noisy, obs, mask, 3), lin(noisy, obs, mask, 3))
     with pytest.raises(ValueError, match="cond_fill"):
@@ -184,13 +202,21 @@ def test_cond_fill_linear_changes_the_input_and_is_validated():
 def test_linear_residual_target_round_trips_and_is_validated():
     from training import diffusion as D
     from training.model import from_target, linear_fill, to_target
-    cfg = ModelConfig(channels=16, num_layers=1, num_heads=2, ffn_dim=16, cond_fill="linear",
-                      target="linear_residual", target_scale=5.0)
+
+    cfg = ModelConfig(
+        channels=16,
+        num_layers=1,
+        num_heads=2,
+        ffn_dim=16,
+        cond_fill="linear",
+        target="linear_residual",
+        target_scale=5.0,
+    )
     torch.manual_seed(1)
     x0 = torch.randn(2, 66, 12)
     mask = (torch.rand(2, 66, 12) > 0.4).float()
     r = to_target(cfg, x0, x0, mask)
-    assert torch.equal(r[mask > 0], torch.zeros_like(r[mask > 0]))      # observed entries: no residual
+    assert torch.equal(r[mask > 0], torch.zeros_like(r[mask > 0]))  # observed entries: no residual
     torch.testing.assert_close(r, (x0 - linear_fill(x0, mask)) * 5.0)
     torch.testing.assert_close(from_target(cfg, r, x0, mask), x0, rtol=0, atol=1e-6)
     absolute = ModelConfig(channels=16, num_layers=1, num_heads=2, ffn_dim=16)
@@ -223,7 +249,7 @@ def test_a_grown_model_starts_as_the_function_of_the_smaller_one():
     mask = (torch.rand(3, 12, 9, generator=g) < 0.5).float()
     step = torch.tensor([3, 17, 40])
     want = small(noisy, observed, mask, step)
-    assert want.abs().mean() > 1e-2                       # a non-trivial function
+    assert want.abs().mean() > 1e-2  # a non-trivial function
     torch.testing.assert_close(big(noisy, observed, mask, step), want, rtol=1e-5, atol=1e-6)
     assert all(torch.all(layer.output_projection.weight == 0) for layer in big.diffmodel.residual_layers[2:])
     big(noisy, observed, mask, step).square().sum().backward()

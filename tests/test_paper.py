@@ -1,5 +1,6 @@
 """benches/paper.py: the registered tables, a table made from small fake results files (``--from``: no torch, no
 data) and printed with the paper's rows beside ours, and a --from file of another run refused."""
+
 import json
 
 import pytest
@@ -12,9 +13,12 @@ H = list(paper.HORIZONS)
 def evaluate_result(method: str, mask: str = "none", windows: int = 2, scale: float = 1.0, **sampling) -> dict:
     """A small stand-in for a ``training.evaluate --json`` result (Human3.6M)."""
     avg = {h: scale * (10.0 + i) for i, h in enumerate(H)}
-    d = {"protocol": {"dataset": "h36m", "actions": ["walking"], "windows_per_action": windows, "mask": mask},
-         "method": method, "zero_velocity": {"average": {h: 2 * v for h, v in avg.items()}},
-         "command": f"python -m training.evaluate --fake {method}"}
+    d = {
+        "protocol": {"dataset": "h36m", "actions": ["walking"], "windows_per_action": windows, "mask": mask},
+        "method": method,
+        "zero_velocity": {"average": {h: 2 * v for h, v in avg.items()}},
+        "command": f"python -m training.evaluate --fake {method}",
+    }
     if sampling:
         d["sampling"] = sampling
         d["best_of_n"] = {"average": avg}
@@ -26,8 +30,16 @@ def evaluate_result(method: str, mask: str = "none", windows: int = 2, scale: fl
 
 def bundled_cascade(mask="none", windows=2):
     s = json.loads((paper.ROOT / paper.H36M / "sampling.json").read_text())["forecast"]
-    return evaluate_result(f"tcd {paper.H36M}", mask, windows, engine="tcd", samples=5, sampler=s["sampler"],
-                           steps=s["num_inference_steps"], noise_coupling=s.get("noise_coupling", "independent"))
+    return evaluate_result(
+        f"tcd {paper.H36M}",
+        mask,
+        windows,
+        engine="tcd",
+        samples=5,
+        sampler=s["sampler"],
+        steps=s["num_inference_steps"],
+        noise_coupling=s.get("noise_coupling", "independent"),
+    )
 
 
 def test_the_paper_tables_are_registered():
@@ -45,9 +57,13 @@ def test_a_registered_table_made_from_files_and_printed(tmp_path, monkeypatch, c
     def fake(run):
         """A fake table: the prior of directory m."""
         d = run.evaluate("point", ["--prior", "m", "--mask", "none"])
-        return {"title": "a fake", "units": "mm", "columns": H, "paper_rows": [
-            paper.row("P", "their method", {"80": 9.0, "1000": 99.0}, H)],
-            "our_rows": [paper.row("ours", "our method", d["average"], H)]}
+        return {
+            "title": "a fake",
+            "units": "mm",
+            "columns": H,
+            "paper_rows": [paper.row("P", "their method", {"80": 9.0, "1000": 99.0}, H)],
+            "our_rows": [paper.row("ours", "our method", d["average"], H)],
+        }
 
     monkeypatch.setitem(paper.TABLES, "fake", paper.Table(fake, "benches/results/paper_fake.json", ("point",)))
     out = tmp_path / "fake.json"
@@ -69,12 +85,17 @@ def test_a_registered_table_made_from_files_and_printed(tmp_path, monkeypatch, c
 def test_table1_from_files(tmp_path, capsys):
     """table1 itself on fake runs: the published rows from training.metrics, ours from the files."""
     from training.metrics import PUBLISHED_H36M
+
     cascade, prior = tmp_path / "cascade.json", tmp_path / "prior.json"
     cascade.write_text(json.dumps(bundled_cascade()))
     prior.write_text(json.dumps(evaluate_result(f"prior {paper.H36M}", scale=0.5)))
     out = tmp_path / "t1.json"
-    assert paper.main(["table1", "--windows-per-action", "2", "--from", f"cascade={cascade}", f"prior={prior}",
-                       "--out", str(out)]) == 0
+    assert (
+        paper.main(
+            ["table1", "--windows-per-action", "2", "--from", f"cascade={cascade}", f"prior={prior}", "--out", str(out)]
+        )
+        == 0
+    )
     d = json.loads(out.read_text())
     ours = {r["key"]: r["values"] for r in d["our_rows"]}
     assert ours["best_of_5"]["80"] == 10.0 and ours["mean_of_5"]["80"] == 11.0 and ours["prior"]["80"] == 5.0
@@ -84,11 +105,14 @@ def test_table1_from_files(tmp_path, capsys):
     assert "TCD (best of 5)" in capsys.readouterr().out
 
 
-@pytest.mark.parametrize("change,message", [
-    (dict(mask="random_leg_arm"), "protocol.mask"),
-    (dict(windows=256), "protocol.windows_per_action"),
-    (dict(method="tcd models/other"), "method"),
-])
+@pytest.mark.parametrize(
+    "change,message",
+    [
+        (dict(mask="random_leg_arm"), "protocol.mask"),
+        (dict(windows=256), "protocol.windows_per_action"),
+        (dict(method="tcd models/other"), "method"),
+    ],
+)
 def test_a_file_of_another_run_is_refused(tmp_path, capsys, change, message):
     d = bundled_cascade(change.get("mask", "none"), change.get("windows", 2))
     if "method" in change:
@@ -97,8 +121,18 @@ def test_a_file_of_another_run_is_refused(tmp_path, capsys, change, message):
     f.write_text(json.dumps(d))
     prior = tmp_path / "prior.json"
     prior.write_text(json.dumps(evaluate_result(f"prior {paper.H36M}")))
-    rc = paper.main(["table1", "--windows-per-action", "2", "--from", f"cascade={f}", f"prior={prior}",
-                     "--out", str(tmp_path / "t1.json")])
+    rc = paper.main(
+        [
+            "table1",
+            "--windows-per-action",
+            "2",
+            "--from",
+            f"cascade={f}",
+            f"prior={prior}",
+            "--out",
+            str(tmp_path / "t1.json"),
+        ]
+    )
     assert rc == 2 and message in capsys.readouterr().err
     assert not (tmp_path / "t1.json").exists()
 
@@ -108,6 +142,6 @@ def test_command_line_errors(tmp_path, capsys):
     assert "unknown table" in capsys.readouterr().err
     assert paper.main(["table1", "--from", f"nope={tmp_path}/x.json", "--out", str(tmp_path / "x.json")]) == 2
     assert "has no run 'nope'" in capsys.readouterr().err
-    with pytest.raises(SystemExit):                 # a quick look must not overwrite the protocol's file
+    with pytest.raises(SystemExit):  # a quick look must not overwrite the protocol's file
         paper.main(["table1", "--windows-per-action", "2"])
     assert paper.main(["--list"]) == 0 and "paper_table1.json" in capsys.readouterr().out

@@ -8,6 +8,7 @@ Criteria (stated once, used throughout):
   rounding grows with it (observed: ~2e-7 relative, 5e-5 absolute at most), which the absolute bound
   still covers.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -22,7 +23,7 @@ from fixtures_util import ALL_KERNELS, load_kernel, make_model_dir  # noqa: E402
 from training import diffusion as D  # noqa: E402
 from training.export import load_model_file  # noqa: E402
 
-CHAIN_ATOL = 1e-4   # model units (metres)
+CHAIN_ATOL = 1e-4  # model units (metres)
 OBS_LEN = 50  # observed frames of the cascade
 
 
@@ -43,7 +44,7 @@ def tiny(tiny_model_dir):
 def observation(rng, b, k, length, obs_frames, missing=0.2):
     """observed / mask (B, K, L): the first obs_frames frames observed except a random fraction."""
     mask = np.zeros((b, k, length), np.float32)
-    mask[:, :, :obs_frames] = (rng.random((b, k, obs_frames)) >= missing)
+    mask[:, :, :obs_frames] = rng.random((b, k, obs_frames)) >= missing
     observed = (rng.normal(scale=0.3, size=(b, k, length)) * mask).astype(np.float32)
     return observed, mask
 
@@ -52,8 +53,10 @@ def max_diff(a, b, what=""):
     """max |a - b|; printed with the largest |b| (see them with `pytest -s`)."""
     a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
     d = float(np.abs(a - b).max())
-    print(f"parity {what}: max abs diff {d:.3g}, max |torch| {np.abs(b).max():.3g}, "
-          f"max rel diff {d / max(np.abs(b).max(), 1e-30):.3g}")
+    print(
+        f"parity {what}: max abs diff {d:.3g}, max |torch| {np.abs(b).max():.3g}, "
+        f"max rel diff {d / max(np.abs(b).max(), 1e-30):.3g}"
+    )
     return d
 
 
@@ -178,9 +181,20 @@ def test_cascade_every_kernel(reduced_dir, kernel, monkeypatch):
     ns = rng.standard_normal((s, 11, 1, k, short.seq_len)).astype(np.float32)
     nl = rng.standard_normal((s, 11, 1, k, long.seq_len)).astype(np.float32)
     got = tcd.engine.cascade_raw(short, long, observed, mask, num_samples=s, noise_short=ns, noise_long=nl, **kw)
-    want = D.cascade(ms, ss, ml, sl, torch.from_numpy(observed), torch.from_numpy(mask), short_len=short.seq_len,
-                     long_len=long.seq_len, num_samples=s, noise_short=torch.from_numpy(ns),
-                     noise_long=torch.from_numpy(nl), **kw)
+    want = D.cascade(
+        ms,
+        ss,
+        ml,
+        sl,
+        torch.from_numpy(observed),
+        torch.from_numpy(mask),
+        short_len=short.seq_len,
+        long_len=long.seq_len,
+        num_samples=s,
+        noise_short=torch.from_numpy(ns),
+        noise_long=torch.from_numpy(nl),
+        **kw,
+    )
     what = f"cascade reduced kernel={kernel}"
     assert chain_close(got["short_mean"], want["short_mean"].numpy(), what + " short_mean")
     assert chain_close(got["samples"], want["samples"].numpy()[..., OBS_LEN:], what + " samples")
@@ -190,15 +204,15 @@ def test_cascade_every_kernel(reduced_dir, kernel, monkeypatch):
 
 CHAINS = [
     # sampler, num_inference_steps, eta, timestep_spacing, num_samples
-    ("ddpm", None, 0.0, "trailing", 2),   # the reference: all 50 steps
-    ("ddpm", 10, 0.0, "trailing", 1),     # respaced DDPM
+    ("ddpm", None, 0.0, "trailing", 2),  # the reference: all 50 steps
+    ("ddpm", 10, 0.0, "trailing", 1),  # respaced DDPM
     ("ddim", 10, 0.0, "trailing", 1),
     ("ddim", 10, 1.0, "trailing", 1),
     ("ddim", 10, 0.0, "leading", 1),
     ("ddim", 10, 1.0, "leading", 1),
     ("ddim", 10, 0.0, "linspace", 1),
     ("ddim", 7, 0.5, "linspace", 2),
-    ("dpmpp2m", 5, 0.0, "trailing", 1),   # DPM-Solver++(2M): one noise block (x_T)
+    ("dpmpp2m", 5, 0.0, "trailing", 1),  # DPM-Solver++(2M): one noise block (x_T)
     ("dpmpp2m", 10, 0.0, "trailing", 2),
     ("dpmpp2m", 20, 0.0, "trailing", 1),
     ("dpmpp2m", 10, 0.0, "linspace", 1),
@@ -216,8 +230,15 @@ def test_chain_injected_noise(tiny, sampler, steps, eta, spacing, num_samples):
     blocks = den.num_noise_blocks(**kw)
     noise = rng.standard_normal((num_samples, blocks, b, k, length)).astype(np.float32)
     got = den.sample(observed, mask, num_samples, noise=noise, **kw)
-    want = D.sample_many(model, sched, torch.from_numpy(observed), torch.from_numpy(mask), num_samples,
-                         noise=torch.from_numpy(noise), **kw).numpy()
+    want = D.sample_many(
+        model,
+        sched,
+        torch.from_numpy(observed),
+        torch.from_numpy(mask),
+        num_samples,
+        noise=torch.from_numpy(noise),
+        **kw,
+    ).numpy()
     assert got.shape == want.shape == (num_samples, b, k, length)
     assert np.abs(want).max() > 1.0  # the chain really moved
     assert chain_close(got, want, f"chain {sampler} n={steps} eta={eta} {spacing} S={num_samples}")
@@ -239,19 +260,32 @@ def test_seeded_noise_matches_torch_fed_the_same_streams(tiny):
     assert abs(float(noise.mean())) < 0.05 and abs(float(noise.std()) - 1) < 0.05
     seeded = den.sample(observed, mask, s, seed=1234, **kw)
     assert np.array_equal(seeded, den.sample(observed, mask, s, noise=noise, **kw))
-    want = D.sample_many(model, sched, torch.from_numpy(observed), torch.from_numpy(mask), s,
-                         noise=torch.from_numpy(noise), **kw).numpy()
+    want = D.sample_many(
+        model, sched, torch.from_numpy(observed), torch.from_numpy(mask), s, noise=torch.from_numpy(noise), **kw
+    ).numpy()
     assert chain_close(seeded, want, "seeded chain ddim n=8 eta=1")
 
 
 # ------------------------------------------------------------------------------------ cascade / repair
 
+
 def torch_cascade(tiny, observed, mask, s, noise_short, noise_long, **kw):
     _, ms, ss = tiny["short"]
     _, ml, sl = tiny["long"]
-    return D.cascade(ms, ss, ml, sl, torch.from_numpy(observed), torch.from_numpy(mask), short_len=55, long_len=75,
-                     num_samples=s, noise_short=torch.from_numpy(noise_short),
-                     noise_long=torch.from_numpy(noise_long), **kw)
+    return D.cascade(
+        ms,
+        ss,
+        ml,
+        sl,
+        torch.from_numpy(observed),
+        torch.from_numpy(mask),
+        short_len=55,
+        long_len=75,
+        num_samples=s,
+        noise_short=torch.from_numpy(noise_short),
+        noise_long=torch.from_numpy(noise_long),
+        **kw,
+    )
 
 
 @pytest.mark.parametrize("sampler,steps,eta,s", [("ddpm", None, 0.0, 1), ("ddim", 10, 1.0, 2), ("dpmpp2m", 10, 0.0, 2)])
@@ -264,8 +298,9 @@ def test_cascade_injected_noise(tiny, sampler, steps, eta, s):
     n_s, n_l = short.num_noise_blocks(**kw), long.num_noise_blocks(**kw)
     noise_short = rng.standard_normal((s, n_s, b, k, short.seq_len)).astype(np.float32)
     noise_long = rng.standard_normal((s, n_l, b, k, long.seq_len)).astype(np.float32)
-    got = tcd.engine.cascade_raw(short, long, observed, mask, num_samples=s, noise_short=noise_short,
-                          noise_long=noise_long, **kw)
+    got = tcd.engine.cascade_raw(
+        short, long, observed, mask, num_samples=s, noise_short=noise_short, noise_long=noise_long, **kw
+    )
     want = torch_cascade(tiny, observed, mask, s, noise_short, noise_long, **kw)
     samples = want["samples"].numpy()
     assert got["samples"].shape == (s, b, k, 25) and got["mean"].shape == (b, k, 25)
@@ -302,22 +337,25 @@ def test_centred_noise_cascade_matches_torch(tiny, sampler, steps, eta):
     rng = np.random.default_rng(43)
     b, k, s = 2, short.num_features, 3
     observed, mask = observation(rng, b, k, OBS_LEN, OBS_LEN, missing=0.3)
-    kw = dict(sampler=sampler, num_inference_steps=steps, eta=eta, timestep_spacing="trailing",
-              noise_coupling="centered")
+    kw = dict(
+        sampler=sampler, num_inference_steps=steps, eta=eta, timestep_spacing="trailing", noise_coupling="centered"
+    )
     n = short.num_noise_blocks(**kw)
     noise_short = tcd.engine.seeded_noise(5, tcd.engine.STAGE_SHORT, s, n, b, k, short.seq_len)
     noise_long = tcd.engine.seeded_noise(5, tcd.engine.STAGE_LONG, s, n, b, k, long.seq_len)
     got = tcd.engine.cascade_raw(short, long, observed, mask, num_samples=s, seed=5, **kw)
-    injected = tcd.engine.cascade_raw(short, long, observed, mask, num_samples=s, noise_short=noise_short,
-                                      noise_long=noise_long, **kw)
+    injected = tcd.engine.cascade_raw(
+        short, long, observed, mask, num_samples=s, noise_short=noise_short, noise_long=noise_long, **kw
+    )
     assert all(np.array_equal(got[key], injected[key]) for key in got)
     want = torch_cascade(tiny, observed, mask, s, noise_short, noise_long, **kw)
     what = f"centred cascade {sampler} n={steps} eta={eta}"
     assert chain_close(got["short_mean"], want["short_mean"], what + " short_mean")
     assert chain_close(got["samples"], want["samples"].numpy()[..., OBS_LEN:], what + " samples")
-    independent = tcd.engine.cascade_raw(short, long, observed, mask, num_samples=s, seed=5,
-                                         **{**kw, "noise_coupling": "independent"})
-    assert not np.allclose(independent["samples"], got["samples"])     # the coupling changes what is sampled
+    independent = tcd.engine.cascade_raw(
+        short, long, observed, mask, num_samples=s, seed=5, **{**kw, "noise_coupling": "independent"}
+    )
+    assert not np.allclose(independent["samples"], got["samples"])  # the coupling changes what is sampled
     # the twin's coupling: x_T of each sequence sums to zero, each rescaled to unit variance; z's untouched
     coupled = D.couple_noise(torch.from_numpy(noise_long), "centered").numpy()
     assert np.abs(coupled[:, 0].sum(axis=0)).max() < 1e-5
@@ -334,8 +372,16 @@ def test_repair_injected_noise(tiny):
     kw = dict(sampler="ddim", num_inference_steps=10, eta=0.0, timestep_spacing="trailing")
     noise = rng.standard_normal((s, 11, b, k, den.seq_len)).astype(np.float32)
     got = tcd.engine.repair_raw(den, observed, mask, num_samples=s, noise=noise, **kw)
-    want = D.repair(model, sched, torch.from_numpy(observed), torch.from_numpy(mask), seq_len=den.seq_len,
-                    num_samples=s, noise=torch.from_numpy(noise), **kw).numpy()
+    want = D.repair(
+        model,
+        sched,
+        torch.from_numpy(observed),
+        torch.from_numpy(mask),
+        seq_len=den.seq_len,
+        num_samples=s,
+        noise=torch.from_numpy(noise),
+        **kw,
+    ).numpy()
     assert chain_close(got["mean"], want, "repair ddim n=10")
     sel = mask == 1
     assert np.array_equal(got["mean"][sel], observed[sel])
@@ -355,22 +401,32 @@ def test_dpmpp2m_noise_blocks_seeded_and_repair(tiny):
     noise = tcd.engine.seeded_noise(77, tcd.engine.STAGE_SHORT, s, 1, b, k, den.seq_len)
     seeded = den.sample(observed, mask, s, seed=77, **kw)
     assert np.array_equal(seeded, den.sample(observed, mask, s, noise=noise, **kw))
-    want = D.sample_many(model, sched, torch.from_numpy(observed), torch.from_numpy(mask), s,
-                         noise=torch.from_numpy(noise), **kw).numpy()
+    want = D.sample_many(
+        model, sched, torch.from_numpy(observed), torch.from_numpy(mask), s, noise=torch.from_numpy(noise), **kw
+    ).numpy()
     assert chain_close(seeded, want, "seeded chain dpmpp2m n=10")
     with pytest.raises(tcd.InvalidInputError, match="noise"):
         den.sample(observed, mask, s, noise=np.zeros((s, 11, b, k, den.seq_len), np.float32), **kw)
     obs, m = observation(rng, 1, k, OBS_LEN, OBS_LEN, missing=0.4)
     rnoise = rng.standard_normal((s, 1, 1, k, den.seq_len)).astype(np.float32)
     got = tcd.engine.repair_raw(den, obs, m, num_samples=s, noise=rnoise, **kw)
-    want = D.repair(model, sched, torch.from_numpy(obs), torch.from_numpy(m), seq_len=den.seq_len, num_samples=s,
-                    noise=torch.from_numpy(rnoise), **kw).numpy()
+    want = D.repair(
+        model,
+        sched,
+        torch.from_numpy(obs),
+        torch.from_numpy(m),
+        seq_len=den.seq_len,
+        num_samples=s,
+        noise=torch.from_numpy(rnoise),
+        **kw,
+    ).numpy()
     assert chain_close(got["mean"], want, "repair dpmpp2m n=10")
     sel = m == 1
     assert np.array_equal(got["mean"][sel], obs[sel])
 
 
 # ------------------------------------------------------------------------- interpolated conditioning
+
 
 def tiny_repair(tmp_path_factory, name: str, seed: int, over: dict):
     """A tiny repair model (50 + 0 frames) with the model-config overrides ``over``, each checked in both
@@ -405,9 +461,9 @@ def test_forward_cond_fill(request, fill, seed, mask_kind):
         mask = np.ones((b, k, length), np.float32)
         mask[:, :, :3] = mask[:, :, 20:31] = mask[:, :, 45:] = 0
         mask[:, 0] = 0
-        mask[:, 0, 7] = 1              # one observed frame: held
+        mask[:, 0, 7] = 1  # one observed frame: held
         mask[:, 1] = 0
-        mask[:, 1, [4, 30]] = 1        # two: a straight line between them
+        mask[:, 1, [4, 30]] = 1  # two: a straight line between them
     else:
         mask = make_mask(mask_kind, rng, b, k, length)
     got = den.forward(noisy, np.where(mask > 0, observed, np.nan).astype(np.float32), mask, 13)
@@ -424,8 +480,16 @@ def test_repair_cond_fill_linear_injected_noise(tiny_linear):
     kw = dict(sampler="ddpm", num_inference_steps=10, timestep_spacing="trailing")
     noise = rng.standard_normal((s, 11, b, k, den.seq_len)).astype(np.float32)
     got = tcd.engine.repair_raw(den, observed, mask, num_samples=s, noise=noise, **kw)
-    want = D.repair(model, sched, torch.from_numpy(observed), torch.from_numpy(mask), seq_len=den.seq_len,
-                    num_samples=s, noise=torch.from_numpy(noise), **kw).numpy()
+    want = D.repair(
+        model,
+        sched,
+        torch.from_numpy(observed),
+        torch.from_numpy(mask),
+        seq_len=den.seq_len,
+        num_samples=s,
+        noise=torch.from_numpy(noise),
+        **kw,
+    ).numpy()
     assert chain_close(got["mean"], want, "repair cond_fill=linear ddpm n=10")
     sel = mask == 1
     assert np.array_equal(got["mean"][sel], observed[sel])
@@ -434,36 +498,58 @@ def test_repair_cond_fill_linear_injected_noise(tiny_linear):
 @pytest.fixture(scope="module")
 def tiny_residual(tmp_path_factory):
     """A repair model that diffuses 5 x the residual over the linear fill."""
-    return tiny_repair(tmp_path_factory, "parity_residual", 6,
-                       {"cond_fill": "linear", "target": "linear_residual", "target_scale": 5.0})
+    return tiny_repair(
+        tmp_path_factory,
+        "parity_residual",
+        6,
+        {"cond_fill": "linear", "target": "linear_residual", "target_scale": 5.0},
+    )
 
 
 @pytest.fixture(scope="module")
 def tiny_spline(tmp_path_factory):
     """A repair model conditioned on the natural cubic spline fill and diffusing 20 x the residual over it."""
-    return tiny_repair(tmp_path_factory, "parity_spline", 8,
-                       {"cond_fill": "spline", "target": "spline_residual", "target_scale": 20.0})
+    return tiny_repair(
+        tmp_path_factory, "parity_spline", 8, {"cond_fill": "spline", "target": "spline_residual", "target_scale": 20.0}
+    )
 
 
-@pytest.mark.parametrize("fill,sampler,steps", [("linear", "ddpm", 10), ("linear", "ddim", 5), ("linear", "dpmpp2m", 5),
-                                                ("spline", "ddpm", 10), ("spline", "ddim", 5)])
+@pytest.mark.parametrize(
+    "fill,sampler,steps",
+    [
+        ("linear", "ddpm", 10),
+        ("linear", "ddim", 5),
+        ("linear", "dpmpp2m", 5),
+        ("spline", "ddpm", 10),
+        ("spline", "ddim", 5),
+    ],
+)
 def test_repair_residual_injected_noise(request, fill, sampler, steps):
     """target = linear_residual / spline_residual: the chain runs on the scaled residual and is mapped back
     onto the fill before the observation is merged, identically in Rust and PyTorch; observed entries are
     returned bit for bit."""
     from training.model import FILLS
+
     den, model, sched = request.getfixturevalue({"linear": "tiny_residual", "spline": "tiny_spline"}[fill])
     seed, atol = {"linear": (91, 1e-3), "spline": (191, 1e-4)}[fill]
     rng = np.random.default_rng(seed + steps)
     b, k, s = 2, den.num_features, 2
     observed, mask = observation(rng, b, k, OBS_LEN, OBS_LEN, missing=0.4)
-    mask[0, :, 10:25] = 0          # a long gap, all joints
+    mask[0, :, 10:25] = 0  # a long gap, all joints
     kw = dict(sampler=sampler, num_inference_steps=steps, timestep_spacing="trailing")
     blocks = 1 if sampler == "dpmpp2m" else steps + 1
     noise = rng.standard_normal((s, blocks, b, k, den.seq_len)).astype(np.float32)
     got = tcd.engine.repair_raw(den, observed, mask, num_samples=s, noise=noise, **kw)
-    want = D.repair(model, sched, torch.from_numpy(observed), torch.from_numpy(mask), seq_len=den.seq_len,
-                    num_samples=s, noise=torch.from_numpy(noise), **kw).numpy()
+    want = D.repair(
+        model,
+        sched,
+        torch.from_numpy(observed),
+        torch.from_numpy(mask),
+        seq_len=den.seq_len,
+        num_samples=s,
+        noise=torch.from_numpy(noise),
+        **kw,
+    ).numpy()
     assert chain_close(got["mean"], want, f"repair target={fill}_residual {sampler} n={steps}")
     sel = mask == 1
     assert np.array_equal(got["mean"][sel], observed[sel])
@@ -474,12 +560,17 @@ def test_repair_residual_injected_noise(request, fill, sampler, steps):
 
 # ------------------------------------------------------------------------- a repair model around its fill
 
+
 @pytest.fixture(scope="module")
 def fill_repair_dir(tmp_path_factory):
     """A repair model conditioned on its repair fill (cond_fill "prior": a 4-block prior with anchor "window"
     over the 50-frame window, random like the model) and diffusing 10 x the residual over it."""
-    return make_model_dir(tmp_path_factory.mktemp("parity_repair_fill"), "tiny", seed=9,
-                          repair={"cond_fill": "prior", "target": "prior_residual", "target_scale": 10.0})
+    return make_model_dir(
+        tmp_path_factory.mktemp("parity_repair_fill"),
+        "tiny",
+        seed=9,
+        repair={"cond_fill": "prior", "target": "prior_residual", "target_scale": 10.0},
+    )
 
 
 @pytest.mark.parametrize("kernel", ALL_KERNELS)
@@ -490,6 +581,7 @@ def test_repair_around_a_repair_fill_every_kernel(fill_repair_dir, sampler, step
     kernel path; observed entries come back bit for bit, and the fill is neither the spline nor ignored."""
     from training.export import load_prior_file
     from training.model import prior_fill, spline_fill
+
     den = load_kernel(fill_repair_dir / "repair.safetensors", kernel, monkeypatch)
     fill = load_kernel(fill_repair_dir / "repair_fill.safetensors", kernel, monkeypatch, cls=tcd.engine.Prior)
     assert fill.anchor == "window" and fill.obs_len == fill.chunk == den.seq_len
@@ -498,19 +590,27 @@ def test_repair_around_a_repair_fill_every_kernel(fill_repair_dir, sampler, step
     rng = np.random.default_rng(300 + steps + ALL_KERNELS.index(kernel))
     b, k, s = 2, den.num_features, 2
     observed, mask = observation(rng, b, k, OBS_LEN, OBS_LEN, missing=0.4)
-    mask[0, :, 10:25] = 0          # a long gap, all joints
+    mask[0, :, 10:25] = 0  # a long gap, all joints
     kw = dict(sampler=sampler, num_inference_steps=steps, timestep_spacing="trailing")
     noise = rng.standard_normal((s, steps + 1, b, k, den.seq_len)).astype(np.float32)
     got = tcd.engine.repair_raw(den, observed, mask, num_samples=s, noise=noise, fill=fill, **kw)
-    want = D.repair(model, sched, torch.from_numpy(observed), torch.from_numpy(mask), seq_len=den.seq_len,
-                    num_samples=s, noise=torch.from_numpy(noise), **kw).numpy()
+    want = D.repair(
+        model,
+        sched,
+        torch.from_numpy(observed),
+        torch.from_numpy(mask),
+        seq_len=den.seq_len,
+        num_samples=s,
+        noise=torch.from_numpy(noise),
+        **kw,
+    ).numpy()
     assert chain_close(got["mean"], want, f"repair around its fill, {sampler} n={steps}, {kernel}")
     sel = mask == 1
     assert np.array_equal(got["mean"][sel], observed[sel])
     obs_t, mask_t = torch.from_numpy(observed), torch.from_numpy(mask)
     base = prior_fill(model.prior, obs_t, mask_t).numpy()
-    assert not np.allclose(base, spline_fill(obs_t, mask_t).numpy(), atol=1e-3)     # the fill corrects the spline
-    assert not np.allclose(got["mean"], base, atol=1e-4)                            # and the chain adds to it
+    assert not np.allclose(base, spline_fill(obs_t, mask_t).numpy(), atol=1e-3)  # the fill corrects the spline
+    assert not np.allclose(got["mean"], base, atol=1e-4)  # and the chain adds to it
     # without its fill the call is refused, naming it
     with pytest.raises(tcd.exceptions.InvalidInputError, match="repair fill") as ei:
         tcd.engine.repair_raw(den, observed, mask, num_samples=s, noise=noise, **kw)
@@ -523,8 +623,16 @@ def gap_fill_repair_dir(fill_repair_dir, tmp_path_factory):
     set to fill whole-frame gaps with it (``gap_fill: "forecaster"``; the same weights)."""
     import shutil
 
-    from training.export import (PRIOR_FILE, REPAIR_FILL_FILE, build_prior_config, load_prior_file, random_prior,
-                                 save_model_file, write_model_json)
+    from training.export import (
+        PRIOR_FILE,
+        REPAIR_FILL_FILE,
+        build_prior_config,
+        load_prior_file,
+        random_prior,
+        save_model_file,
+        write_model_json,
+    )
+
     d = tmp_path_factory.mktemp("parity_gap_fill") / "model"
     shutil.copytree(fill_repair_dir, d)
     fill, cfg = load_prior_file(d / REPAIR_FILL_FILE)
@@ -548,21 +656,21 @@ def gap_observation(rng, k):
 
 @pytest.mark.parametrize("kernel", ALL_KERNELS)
 @pytest.mark.parametrize("sampler,steps", [("ddpm", 10), ("ddim", 1)])
-def test_repair_around_a_gap_filling_repair_fill_every_kernel(gap_fill_repair_dir, sampler, steps, kernel,
-                                                             monkeypatch):
+def test_repair_around_a_gap_filling_repair_fill_every_kernel(gap_fill_repair_dir, sampler, steps, kernel, monkeypatch):
     """A repair fill with ``gap_fill: "forecaster"``: the engine fills the window's whole-frame gaps from the
     prior forecaster, forward and backward (``training.model.fill_gaps``), after the fill's correction of the
     spline, as PyTorch does, on each kernel path; the gaps (and only they) differ from the plain fill, and the
     repair around them from the plain fill's; without the forecaster the call is refused, naming it."""
     from training.export import load_prior_file
     from training.model import prior_fill, whole_frame_gaps
+
     d = gap_fill_repair_dir
     den = load_kernel(d / "repair.safetensors", kernel, monkeypatch)
     fill = load_kernel(d / "repair_fill.safetensors", kernel, monkeypatch, cls=tcd.engine.Prior)
     forecaster = load_kernel(d / "prior.safetensors", kernel, monkeypatch, cls=tcd.engine.Prior)
     assert fill.gap_fill == "forecaster" and forecaster.gap_fill == "none"
     model, sched, _ = load_model_file(d / "repair.safetensors")
-    gapped = load_prior_file(d / "repair_fill.safetensors")[0]          # its forecaster attached, from beside it
+    gapped = load_prior_file(d / "repair_fill.safetensors")[0]  # its forecaster attached, from beside it
     rng = np.random.default_rng(500 + steps + ALL_KERNELS.index(kernel))
     observed, mask = gap_observation(rng, den.num_features)
     obs_t, mask_t = torch.from_numpy(observed), torch.from_numpy(mask)
@@ -570,14 +678,16 @@ def test_repair_around_a_gap_filling_repair_fill_every_kernel(gap_fill_repair_di
     s = 2
     kw = dict(sampler=sampler, num_inference_steps=steps, timestep_spacing="trailing")
     noise = rng.standard_normal((s, steps + 1, 3, den.num_features, den.seq_len)).astype(np.float32)
-    got = tcd.engine.repair_raw(den, observed, mask, num_samples=s, noise=noise, fill=fill, forecaster=forecaster,
-                                **kw)["mean"]
+    got = tcd.engine.repair_raw(
+        den, observed, mask, num_samples=s, noise=noise, fill=fill, forecaster=forecaster, **kw
+    )["mean"]
     want = {}
     for name, gap_fill in (("gaps", "forecaster"), ("plain", "none")):
         gapped.cfg.gap_fill = gap_fill
         model.attach_prior(gapped)
-        want[name] = D.repair(model, sched, obs_t, mask_t, seq_len=den.seq_len, num_samples=s,
-                              noise=torch.from_numpy(noise), **kw).numpy()
+        want[name] = D.repair(
+            model, sched, obs_t, mask_t, seq_len=den.seq_len, num_samples=s, noise=torch.from_numpy(noise), **kw
+        ).numpy()
         want[name + " fill"] = prior_fill(gapped, obs_t, mask_t).numpy()
     assert chain_close(got, want["gaps"], f"repair around a gap-filling fill, {sampler} n={steps}, {kernel}")
     in_gap = np.zeros(mask.shape, bool)
@@ -585,11 +695,12 @@ def test_repair_around_a_gap_filling_repair_fill_every_kernel(gap_fill_repair_di
         in_gap[b, :, start:end] = True
     fill_diff = np.abs(want["gaps fill"] - want["plain fill"])
     assert fill_diff[in_gap].min() > 0 and np.array_equal(want["gaps fill"][~in_gap], want["plain fill"][~in_gap])
-    assert np.abs(got - want["plain"])[in_gap].mean() > 1e-3           # the gap fill changed the repair
+    assert np.abs(got - want["plain"])[in_gap].mean() > 1e-3  # the gap fill changed the repair
     # the fill itself as the engine gives it (tcd.engine.Prior.fill, frame-major), with and without the forecaster
     btk = lambda a: np.ascontiguousarray(a.transpose(0, 2, 1))  # noqa: E731
-    np.testing.assert_allclose(fill.fill(btk(observed), btk(mask), forecaster=forecaster), btk(want["gaps fill"]),
-                               rtol=0, atol=1e-5)
+    np.testing.assert_allclose(
+        fill.fill(btk(observed), btk(mask), forecaster=forecaster), btk(want["gaps fill"]), rtol=0, atol=1e-5
+    )
     with pytest.raises(tcd.exceptions.InvalidInputError, match="prior forecaster"):
         fill.fill(btk(observed), btk(mask))
     with pytest.raises(tcd.exceptions.InvalidInputError, match="prior forecaster") as ei:
@@ -606,6 +717,7 @@ def inbetween_repair_dir(gap_fill_repair_dir, tmp_path_factory):
 
     from training.export import set_inbetween
     from training.inbetween import kernel_width, save_kernels
+
     d = tmp_path_factory.mktemp("parity_inbetween") / "model"
     shutil.copytree(gap_fill_repair_dir, d)
     rng = np.random.default_rng(41)
@@ -627,6 +739,7 @@ def test_repair_fill_with_an_in_betweener_every_kernel(inbetween_repair_dir, ker
     never change, the gaps' frames and the short runs' do."""
     from training.export import load_prior_file
     from training.model import prior_fill, whole_frame_gaps
+
     d = inbetween_repair_dir
     den = load_kernel(d / "repair.safetensors", kernel, monkeypatch)
     fill = load_kernel(d / "repair_fill.safetensors", kernel, monkeypatch, cls=tcd.engine.Prior)
@@ -640,27 +753,28 @@ def test_repair_fill_with_an_in_betweener_every_kernel(inbetween_repair_dir, ker
     obs_t, mask_t = torch.from_numpy(observed), torch.from_numpy(mask)
     want = prior_fill(twin, obs_t, mask_t).numpy()
     twin.cfg.inbetween_max_gap = twin.cfg.joint_inbetween_max_gap = 0
-    without = prior_fill(twin, obs_t, mask_t).numpy()                   # the same fill, no in-betweener
+    without = prior_fill(twin, obs_t, mask_t).numpy()  # the same fill, no in-betweener
     twin.cfg.inbetween_max_gap, twin.cfg.joint_inbetween_max_gap = 15, 3
     in_gap = np.zeros(mask.shape, bool)
     for b, start, end in whole_frame_gaps(mask_t):
         in_gap[b, :, start:end] = True
     changed = want != without
     assert np.abs(want - without)[in_gap].min() > 0 and not changed[mask > 0.5].any()
-    assert changed[(mask <= 0.5) & ~in_gap].mean() > 0.3                 # many short runs of hidden entries
+    assert changed[(mask <= 0.5) & ~in_gap].mean() > 0.3  # many short runs of hidden entries
     btk = lambda a: np.ascontiguousarray(a.transpose(0, 2, 1))  # noqa: E731
-    np.testing.assert_allclose(fill.fill(btk(observed), btk(mask), forecaster=forecaster), btk(want),
-                               rtol=0, atol=1e-5)
+    np.testing.assert_allclose(fill.fill(btk(observed), btk(mask), forecaster=forecaster), btk(want), rtol=0, atol=1e-5)
     alone = tcd.engine.repair_raw(den, observed, mask, num_samples=0, seed=0, fill=fill, forecaster=forecaster)
     np.testing.assert_allclose(alone["mean"], want, rtol=0, atol=1e-5)
     assert alone["samples"].shape == (0, 3, den.num_features, OBS_LEN)
     s, kw = 2, dict(sampler="ddim", num_inference_steps=1, timestep_spacing="trailing")
     noise = rng.standard_normal((s, 2, 3, den.num_features, den.seq_len)).astype(np.float32)
-    got = tcd.engine.repair_raw(den, observed, mask, num_samples=s, noise=noise, fill=fill, forecaster=forecaster,
-                                **kw)["mean"]
+    got = tcd.engine.repair_raw(
+        den, observed, mask, num_samples=s, noise=noise, fill=fill, forecaster=forecaster, **kw
+    )["mean"]
     model.attach_prior(twin)
-    ref = D.repair(model, sched, obs_t, mask_t, seq_len=den.seq_len, num_samples=s, noise=torch.from_numpy(noise),
-                   **kw).numpy()
+    ref = D.repair(
+        model, sched, obs_t, mask_t, seq_len=den.seq_len, num_samples=s, noise=torch.from_numpy(noise), **kw
+    ).numpy()
     assert chain_close(got, ref, f"repair around a fill with an in-betweener, {kernel}")
 
 
@@ -669,14 +783,16 @@ def assert_repairs_as_the_engine(m, poses, **fills):
     model given ``fills`` (its ``fill`` and ``forecaster`` keywords), bit for bit."""
     kw = dict(num_samples=2, seed=4, sampler="ddim", num_inference_steps=1)
     engine = lambda a: np.ascontiguousarray(a.reshape(1, OBS_LEN, 66).transpose(0, 2, 1))  # noqa: E731
-    want = tcd.engine.repair_raw(m.repair_model, engine(np.nan_to_num(poses)),
-                                 engine((~np.isnan(poses)).astype(np.float32)), **fills, **kw)["mean"]
+    want = tcd.engine.repair_raw(
+        m.repair_model, engine(np.nan_to_num(poses)), engine((~np.isnan(poses)).astype(np.float32)), **fills, **kw
+    )["mean"]
     np.testing.assert_array_equal(engine(m.repair(poses, **kw).poses), want)
 
 
 def assert_refused_without(d, tmp_path, name):
     """A copy of the model directory ``d`` without the file ``name`` does not load; the error names the file."""
     import shutil
+
     bare = tmp_path / "bare"
     shutil.copytree(d, bare)
     (bare / name).unlink()

@@ -21,6 +21,7 @@ The bundled HumanEva-I cascade (long model 5 x 32), every kernel path: 0.9e-6 ..
 the engine computes the fill, PyTorch's ``prior_fill`` the reference's): 3.3e-7 .. 4.4e-7, contributions 8.8 .. 9.2 m,
 4.2 .. 4.4 cm from the clip.
 """
+
 from __future__ import annotations
 
 import copy
@@ -42,8 +43,8 @@ from training.data.humaneva import humaneva_test_windows, load_humaneva  # noqa:
 from training.export import load_model_dir  # noqa: E402
 from training.model import prior_fill  # noqa: E402
 
-RTOL = 2e-5           # of the output's scale
-CONTRIBUTION = 1e3    # the network's contribution over the tolerance, at least
+RTOL = 2e-5  # of the output's scale
+CONTRIBUTION = 1e3  # the network's contribution over the tolerance, at least
 NEAR_MOTION_M = 0.25  # mean |output - clip| over the generated entries, metres
 
 
@@ -68,8 +69,9 @@ def trained_models(d, roles):
     # each model conditioned on a fill with its fill attached: the forecasting models the prior, the repair model
     # its repair fill (training.export.load_model_dir)
     models = load_model_dir(d)
-    return {role: (d / f"{role}.safetensors", models[role][0], models[role][1], silenced(models[role][0]))
-            for role in roles}
+    return {
+        role: (d / f"{role}.safetensors", models[role][0], models[role][1], silenced(models[role][0])) for role in roles
+    }
 
 
 def engine_observed(model, observed, mask):
@@ -105,12 +107,12 @@ def load(path, kernel=None, monkeypatch=None):
 def window(clip, start, length, observed_frames, occlude=False):
     """truth, observed, mask (1, K, length): the clip's frames, the first ``observed_frames`` observed (with
     the demo's leg and arm occlusion when ``occlude``), the rest generated."""
-    truth = np.ascontiguousarray(clip[start:start + length].T[None], dtype=np.float32)
+    truth = np.ascontiguousarray(clip[start : start + length].T[None], dtype=np.float32)
     assert truth.shape[-1] == length
     mask = np.zeros_like(truth)
     mask[..., :observed_frames] = 1
     if occlude:
-        joints = occlusion_mask(observed_frames, load_clip()["joint_names"])          # (frames, J)
+        joints = occlusion_mask(observed_frames, load_clip()["joint_names"])  # (frames, J)
         mask[0, :, :observed_frames] = np.repeat(joints, 3, axis=1).T
     return truth, (truth * mask).astype(np.float32), mask
 
@@ -124,8 +126,10 @@ def check(got, want, silent, truth, mask, what):
     tol = RTOL * scale
     contribution = float(np.abs(want - silent)[gen].max())
     off_motion = float(np.abs(want - np.broadcast_to(truth, want.shape))[gen].mean())
-    print(f"parity trained {what}: max abs diff {diff:.3g}, scale {scale:.3g} (rel {diff / scale:.3g}), "
-          f"network contribution {contribution:.3g}, mean |out - clip| {off_motion:.3g} m")
+    print(
+        f"parity trained {what}: max abs diff {diff:.3g}, scale {scale:.3g} (rel {diff / scale:.3g}), "
+        f"network contribution {contribution:.3g}, mean |out - clip| {off_motion:.3g} m"
+    )
     assert diff <= tol, f"{what}: {diff:.3g} > {tol:.3g}"
     assert contribution >= CONTRIBUTION * tol, f"{what}: the network moved the output by {contribution:.3g} only"
     assert off_motion <= NEAR_MOTION_M, f"{what}: {off_motion:.3g} m from the clip: not a trained chain"
@@ -177,6 +181,7 @@ def test_chain_on_trained_weights_every_kernel(bundled, clip, kernel, monkeypatc
 
 # ------------------------------------------------------------------------------------ cascade / repair
 
+
 def test_cascade_on_trained_weights(bundled, clip):
     """The whole cascade (DDPM-10, 2 samples) from an occluded observation: the short-term model repairs and
     extends it, the long-term model forecasts 1 s."""
@@ -192,28 +197,46 @@ def test_cascade_on_trained_weights_with_the_default_sampler(bundled, clip):
     short, long = load(bundled["short"][0]), load(bundled["long"][0])
     truth, observed, mask = window(clip, 30, long.seq_len, short.config["window"]["obs_len"], occlude=True)
     sampling = dataclasses.asdict(tcd.load().sampling["forecast"])
-    check_cascade(bundled, tcd.default_model_dir(), truth, observed, mask, "cascade, default sampler",
-                  sampling=sampling, repaired=False)
+    check_cascade(
+        bundled,
+        tcd.default_model_dir(),
+        truth,
+        observed,
+        mask,
+        "cascade, default sampler",
+        sampling=sampling,
+        repaired=False,
+    )
 
 
 @needs_humaneva
 @pytest.mark.parametrize("kernel", ALL_KERNELS)
 def test_humaneva_cascade_on_trained_weights_every_kernel(bundled_humaneva, kernel, monkeypatch):
     """The bundled HumanEva-I cascade (DDPM-10, its default) on a Validate window, each kernel path."""
-    w = humaneva_test_windows(load_humaneva(HUMANEVA_FILE, "Validate"))[40]        # (75, 14, 3) metres
+    w = humaneva_test_windows(load_humaneva(HUMANEVA_FILE, "Validate"))[40]  # (75, 14, 3) metres
     truth = np.ascontiguousarray(w.reshape(len(w), -1).T[None], dtype=np.float32)
     mask = np.zeros_like(truth)
     mask[..., :15] = 1
-    mask[:, 6:12, 3:15] = 0                     # both elbows and wrists hidden over the last 12 observed frames
+    mask[:, 6:12, 3:15] = 0  # both elbows and wrists hidden over the last 12 observed frames
     mask[:, 15:21, 3:15] = 0
     # the repaired frames are not checked: the short model moves them 3 mm from the prior's fill, too little for
     # the network-contribution criterion (the Human3.6M cascade above checks a repair)
-    check_cascade(bundled_humaneva, tcd.humaneva_model_dir(), truth, (truth * mask).astype(np.float32), mask,
-                  f"humaneva cascade kernel={kernel}", kernel, monkeypatch, repaired=False)
+    check_cascade(
+        bundled_humaneva,
+        tcd.humaneva_model_dir(),
+        truth,
+        (truth * mask).astype(np.float32),
+        mask,
+        f"humaneva cascade kernel={kernel}",
+        kernel,
+        monkeypatch,
+        repaired=False,
+    )
 
 
-def check_cascade(models, directory, truth, observed, mask, what, kernel=None, monkeypatch=None, repaired=True,
-                  sampling=None):
+def check_cascade(
+    models, directory, truth, observed, mask, what, kernel=None, monkeypatch=None, repaired=True, sampling=None
+):
     """The cascade through the engine against training.diffusion.cascade, the same noise; ``truth`` etc. span the
     long model's window, of which the short model's observed frames are given; the forecast checked, and with
     ``repaired`` the repaired observation. ``sampling``: the sampler keywords (default DDPM over 10 steps)."""
@@ -226,21 +249,45 @@ def check_cascade(models, directory, truth, observed, mask, what, kernel=None, m
     sampler, steps = kw["sampler"], kw["num_inference_steps"]
     noise_short, noise_long = noise_for(short, sampler, steps, 2, rng), noise_for(long, sampler, steps, 2, rng)
     prior = tcd.engine.Prior.load(directory / "prior.safetensors")
-    got = tcd.engine.cascade_raw(short, long, observed, mask, num_samples=2, noise_short=noise_short,
-                          noise_long=noise_long, prior=prior, **kw)
+    got = tcd.engine.cascade_raw(
+        short, long, observed, mask, num_samples=2, noise_short=noise_short, noise_long=noise_long, prior=prior, **kw
+    )
 
     def reference(short_model, long_model):
-        return D.cascade(short_model, ss, long_model, ls, torch.from_numpy(observed), torch.from_numpy(mask),
-                         short_len=short.seq_len, long_len=long.seq_len, num_samples=2,
-                         noise_short=torch.from_numpy(noise_short), noise_long=torch.from_numpy(noise_long), **kw)
+        return D.cascade(
+            short_model,
+            ss,
+            long_model,
+            ls,
+            torch.from_numpy(observed),
+            torch.from_numpy(mask),
+            short_len=short.seq_len,
+            long_len=long.seq_len,
+            num_samples=2,
+            noise_short=torch.from_numpy(noise_short),
+            noise_long=torch.from_numpy(noise_long),
+            **kw,
+        )
 
     want, silent = reference(sm, lm), reference(s_silent, l_silent)
-    future = np.zeros((1, long.num_features, long.seq_len - o), np.float32)    # every future entry generated
-    check(got["samples"], want["samples"].numpy()[..., o:], silent["samples"].numpy()[..., o:],
-          truth[..., o:], future, f"{what} {sampler}-{steps} forecast")
+    future = np.zeros((1, long.num_features, long.seq_len - o), np.float32)  # every future entry generated
+    check(
+        got["samples"],
+        want["samples"].numpy()[..., o:],
+        silent["samples"].numpy()[..., o:],
+        truth[..., o:],
+        future,
+        f"{what} {sampler}-{steps} forecast",
+    )
     if repaired:
-        check(got["repaired"][None], want["short_mean"].numpy()[None, ..., :o],
-              silent["short_mean"].numpy()[None, ..., :o], truth[..., :o], mask, f"{what} {sampler}-{steps} repaired")
+        check(
+            got["repaired"][None],
+            want["short_mean"].numpy()[None, ..., :o],
+            silent["short_mean"].numpy()[None, ..., :o],
+            truth[..., :o],
+            mask,
+            f"{what} {sampler}-{steps} repaired",
+        )
 
 
 @pytest.mark.parametrize("sampler", ["ddpm", "ddim"])
@@ -250,17 +297,26 @@ def test_repair_on_trained_weights(bundled, clip, sampler):
     path, model, sched, silent_model = bundled["repair"]
     den = load(path)
     fill = tcd.engine.Prior.load(path.parent / "repair_fill.safetensors")
-    forecaster = tcd.engine.Prior.load(path.parent / "prior.safetensors")      # its gap fill's (gap_fill "forecaster")
+    forecaster = tcd.engine.Prior.load(path.parent / "prior.safetensors")  # its gap fill's (gap_fill "forecaster")
     truth, observed, mask = window(clip, 60, den.seq_len, den.seq_len, occlude=True)
     mask[..., 32:44] = 0
     observed = (truth * mask).astype(np.float32)
     noise = noise_for(den, sampler, 10, 2, np.random.default_rng(13))
     kw = dict(sampler=sampler, num_inference_steps=10, eta=0.0, timestep_spacing="trailing")
-    got = tcd.engine.repair_raw(den, observed, mask, num_samples=2, noise=noise, fill=fill, forecaster=forecaster,
-                                **kw)["mean"]
+    got = tcd.engine.repair_raw(
+        den, observed, mask, num_samples=2, noise=noise, fill=fill, forecaster=forecaster, **kw
+    )["mean"]
 
     def reference(m):
-        return D.repair(m, sched, torch.from_numpy(observed), torch.from_numpy(mask), seq_len=den.seq_len,
-                        num_samples=2, noise=torch.from_numpy(noise), **kw).numpy()
+        return D.repair(
+            m,
+            sched,
+            torch.from_numpy(observed),
+            torch.from_numpy(mask),
+            seq_len=den.seq_len,
+            num_samples=2,
+            noise=torch.from_numpy(noise),
+            **kw,
+        ).numpy()
 
     check(got[None], reference(model)[None], reference(silent_model)[None], truth, mask, f"repair {sampler}-10")

@@ -1,5 +1,6 @@
 """TCD.predict / tcd.predict / `tcd forecast --point` (issue 28, part 4): the prior's point forecast with the
 inputs of `forecast`, and repair-then-predict for observations with missing entries."""
+
 from __future__ import annotations
 
 import shutil
@@ -33,7 +34,7 @@ def clip(batch: int = 0) -> np.ndarray:
     poses = np.load(tcd.default_model_dir().parent / "data" / "demo_walking.npz")["poses"].astype(np.float32)
     if not batch:
         return poses[:50]
-    return np.stack([poses[i * 5:i * 5 + 50] for i in range(batch)])
+    return np.stack([poses[i * 5 : i * 5 + 50] for i in range(batch)])
 
 
 def test_clean_observation_goes_to_the_prior_as_given(model):
@@ -43,7 +44,7 @@ def test_clean_observation_goes_to_the_prior_as_given(model):
     direct = model.prior.predict(obs.reshape(1, 50, 66), 25)[0].reshape(25, 22, 3)
     np.testing.assert_array_equal(f.mean, direct)
     np.testing.assert_array_equal(f.repaired, obs)
-    assert np.abs(f.mean - obs[-1]).max() > 0.01          # the network moves the poses: not Zero-Velocity
+    assert np.abs(f.mean - obs[-1]).max() > 0.01  # the network moves the poses: not Zero-Velocity
     assert "samples=None" in repr(f)
 
 
@@ -96,7 +97,7 @@ def test_bad_fill_and_unfillable_joints(model):
         model.predict(clip(), fill="cubic")
     assert e.value.argument == "fill"
     obs = clip()
-    obs[:, 5] = np.nan                                    # joint 5 never observed: nothing to interpolate from
+    obs[:, 5] = np.nan  # joint 5 never observed: nothing to interpolate from
     with pytest.raises(InvalidInputError, match="never observed") as e:
         model.predict(obs, fill="linear")
     assert e.value.argument == "obs"
@@ -110,18 +111,44 @@ def test_a_directory_without_prior(tiny_model):
 
 def test_other_frame_rates_and_layouts(model):
     obs = clip()
-    f = model.predict(obs[::2], fps=12.5)                  # half the model's rate: resampled both ways
+    f = model.predict(obs[::2], fps=12.5)  # half the model's rate: resampled both ways
     assert f.samples is None and f.mean.shape == (12, 22, 3)
     np.testing.assert_allclose(f.times, np.arange(1, 13) / 12.5)
 
 
 def test_cli_point_forecast(model_dir, tmp_path, tiny_model_dir):
     np.savez(tmp_path / "in.npz", poses=clip(batch=2))
-    assert cli(["forecast", str(tmp_path / "in.npz"), "-o", str(tmp_path / "out.npz"), "--model", str(model_dir),
-                "--point", "--quiet"]) == 0
+    assert (
+        cli(
+            [
+                "forecast",
+                str(tmp_path / "in.npz"),
+                "-o",
+                str(tmp_path / "out.npz"),
+                "--model",
+                str(model_dir),
+                "--point",
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     with np.load(tmp_path / "out.npz") as z:
         assert "samples" not in z.files and z["mean"].shape == (2, 25, 22, 3)
         np.testing.assert_array_equal(z["mean"], tcd.load(model_dir).predict(clip(batch=2)).mean)
-    assert cli(["forecast", str(tmp_path / "in.npz"), "-o", str(tmp_path / "o2.npz"), "--model", str(tiny_model_dir),
-                "--point", "--quiet"]) == 2
+    assert (
+        cli(
+            [
+                "forecast",
+                str(tmp_path / "in.npz"),
+                "-o",
+                str(tmp_path / "o2.npz"),
+                "--model",
+                str(tiny_model_dir),
+                "--point",
+                "--quiet",
+            ]
+        )
+        == 2
+    )
     assert not (tmp_path / "o2.npz").exists()

@@ -1,6 +1,7 @@
 """The prior forecaster's PyTorch reference (training/prior.py): the DCT, the untrained network (Zero-
 Velocity), rollout, the loss, config checks, and resumable training (a stopped and resumed run equals an
 uninterrupted one)."""
+
 from __future__ import annotations
 
 import json
@@ -12,8 +13,20 @@ from conftest import import_torch
 
 torch = import_torch("the prior forecaster's PyTorch reference (training/prior.py)")
 
-from training.prior import (PriorConfig, PriorNet, batch, dct_matrix, hidden_loss, load, load_grown,  # noqa: E402
-                            loss_fn, repair_batch, train, validation_windows, window_loss)
+from training.prior import (  # noqa: E402
+    PriorConfig,
+    PriorNet,
+    batch,
+    dct_matrix,
+    hidden_loss,
+    load,
+    load_grown,
+    loss_fn,
+    repair_batch,
+    train,
+    validation_windows,
+    window_loss,
+)
 
 
 def synthetic_frames(n_frames: int = 400, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -27,7 +40,7 @@ def synthetic_frames(n_frames: int = 400, seed: int = 0) -> tuple[np.ndarray, np
 def test_dct_is_orthonormal():
     m = dct_matrix(50)
     np.testing.assert_allclose(m @ m.T, np.eye(50), atol=1e-12)
-    assert np.allclose(m[0], m[0, 0])                  # row 0 is the mean
+    assert np.allclose(m[0], m[0, 0])  # row 0 is the mean
 
 
 def test_untrained_network_is_zero_velocity_and_rolls_out():
@@ -59,9 +72,9 @@ def test_rollout_feeds_back_its_chunks():
 def test_loss_is_joint_distance_plus_velocity():
     target = torch.zeros(1, 2, 66)
     pred = torch.zeros(1, 2, 66)
-    pred[0, 1, :3] = torch.tensor([3.0, 4.0, 0.0])      # one joint 5 away in frame 1
-    pos = 5.0 / 44                                      # mean over 2 frames x 22 joints
-    vel = 5.0 / 22                                      # one velocity of 22
+    pred[0, 1, :3] = torch.tensor([3.0, 4.0, 0.0])  # one joint 5 away in frame 1
+    pos = 5.0 / 44  # mean over 2 frames x 22 joints
+    vel = 5.0 / 22  # one velocity of 22
     assert loss_fn(pred, target, 0.0).item() == pytest.approx(pos)
     assert loss_fn(pred, target, 1.0).item() == pytest.approx(pos + vel)
 
@@ -77,9 +90,9 @@ def test_batch_is_a_pure_function_and_flips():
     fwd = rev = 0
     for w in a:
         i = int(torch.argmin(((f - w[0]) ** 2).sum(1)))
-        if i + 60 <= len(f) and torch.equal(w, f[i:i + 60]):
+        if i + 60 <= len(f) and torch.equal(w, f[i : i + 60]):
             fwd += 1
-        elif i - 59 >= 0 and torch.equal(w, f[i - 59:i + 1].flip(0)):
+        elif i - 59 >= 0 and torch.equal(w, f[i - 59 : i + 1].flip(0)):
             rev += 1
     assert fwd + rev == 64 and fwd > 10 and rev > 10
 
@@ -94,13 +107,23 @@ def test_batch_observation_noise():
     assert torch.equal(noisy[:, 50:], clean[:, 50:])
     d = (noisy[:, :50] - clean[:, :50]).double()
     hit = d.abs().amax(dim=(1, 2)) > 0
-    assert 90 < int(hit.sum()) < 166                     # about half of 256
+    assert 90 < int(hit.sum()) < 166  # about half of 256
     assert d[hit].std().item() == pytest.approx(0.025, rel=0.02)
 
 
-@pytest.mark.parametrize("field,value", [("chunk", 0), ("blocks", 0), ("flip_prob", 1.5), ("chunk", 60),
-                                         ("obs_noise_mm", -1.0), ("obs_noise_mm", float("nan")),
-                                         ("obs_noise_prob", 1.5), ("loss_frames", -1)])
+@pytest.mark.parametrize(
+    "field,value",
+    [
+        ("chunk", 0),
+        ("blocks", 0),
+        ("flip_prob", 1.5),
+        ("chunk", 60),
+        ("obs_noise_mm", -1.0),
+        ("obs_noise_mm", float("nan")),
+        ("obs_noise_prob", 1.5),
+        ("loss_frames", -1),
+    ],
+)
 def test_config_rejects_bad_values(field, value):
     with pytest.raises(ValueError, match=field):
         PriorConfig(**{field: value})
@@ -129,22 +152,27 @@ def test_resumed_training_equals_uninterrupted(tmp_path):
     for k in a:
         torch.testing.assert_close(a[k], b[k], rtol=0, atol=0, msg=k)
     with pytest.raises(ValueError, match="another config"):
-        train(PriorConfig(blocks=3, batch_size=16, iterations=6), tmp_path / "part", frames=frames, resume=True,
-              log=lambda m: None)
+        train(
+            PriorConfig(blocks=3, batch_size=16, iterations=6),
+            tmp_path / "part",
+            frames=frames,
+            resume=True,
+            log=lambda m: None,
+        )
 
 
 def test_training_lowers_the_loss(tmp_path):
     torch.set_num_threads(1)
     frames = synthetic_frames()
     cfg = PriorConfig(blocks=2, batch_size=32, iterations=150, lr=3e-3)
-    held_out = batch(cfg, *frames, 10_000)            # an iteration the run never draws
+    held_out = batch(cfg, *frames, 10_000)  # an iteration the run never draws
 
     def loss_of(net):
         with torch.no_grad():
             return loss_fn(net(held_out[:, :50]), held_out[:, 50:], 1.0).item()
 
     torch.manual_seed(cfg.seed)
-    before = loss_of(PriorNet(cfg))                  # the run's initial weights: Zero-Velocity
+    before = loss_of(PriorNet(cfg))  # the run's initial weights: Zero-Velocity
     train(cfg, tmp_path, frames=frames, log=lambda m: None)
     after = loss_of(load(tmp_path / "last.pt"))
     assert after < 0.7 * before, (before, after)
@@ -155,7 +183,7 @@ def test_loss_frames_trains_on_the_rolled_out_horizon(tmp_path):
     two chunks rolled out (the second predicted from the first), computed here by hand; not the one-chunk loss."""
     torch.set_num_threads(1)
     frames, starts = synthetic_frames()
-    starts = starts[:-10]                                 # every window of 70 frames
+    starts = starts[:-10]  # every window of 70 frames
     cfg = PriorConfig(blocks=2, batch_size=8, iterations=3, lr=1e-2, lr_decay_at=1.0, loss_frames=20)
     assert batch(cfg, frames, starts, 0).shape == (8, 70, 66)
     train(cfg, tmp_path, frames=(frames, starts), log=lambda m: None)
@@ -167,7 +195,7 @@ def test_loss_frames_trains_on_the_rolled_out_horizon(tmp_path):
         opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
         for it in range(cfg.iterations):
             wins = batch(cfg, frames, starts, it)
-            loss_fn(net.rollout(wins[:, :50], horizon), wins[:, 50:50 + horizon], cfg.velocity_weight).backward()
+            loss_fn(net.rollout(wins[:, :50], horizon), wins[:, 50 : 50 + horizon], cfg.velocity_weight).backward()
             opt.step()
             opt.zero_grad(set_to_none=True)
         return net.state_dict()
@@ -181,12 +209,16 @@ def test_loss_frames_trains_on_the_rolled_out_horizon(tmp_path):
 def test_schedule_may_change_only_where_the_run_so_far_is_the_same(tmp_path):
     torch.set_num_threads(1)
     frames = synthetic_frames()
-    long = PriorConfig(blocks=2, batch_size=16, iterations=12, lr_decay_at=0.5)     # decays at 6
-    short = PriorConfig(blocks=2, batch_size=16, iterations=8, lr_decay_at=0.5)     # decays at 4
+    long = PriorConfig(blocks=2, batch_size=16, iterations=12, lr_decay_at=0.5)  # decays at 6
+    short = PriorConfig(blocks=2, batch_size=16, iterations=8, lr_decay_at=0.5)  # decays at 4
     train(short, tmp_path / "short", frames=frames, log=lambda m: None)
     # 3 iterations of a schedule that never decays, resumed as the short one: the same first 3 rates
-    part = train(PriorConfig(blocks=2, batch_size=16, iterations=3, lr_decay_at=1.0), tmp_path / "p3",
-                 frames=frames, log=lambda m: None)
+    part = train(
+        PriorConfig(blocks=2, batch_size=16, iterations=3, lr_decay_at=1.0),
+        tmp_path / "p3",
+        frames=frames,
+        log=lambda m: None,
+    )
     assert part["done"]
     done = train(short, tmp_path / "p3", frames=frames, resume=True, log=lambda m: None)
     assert done["iteration"] == 8
@@ -211,35 +243,51 @@ def test_a_deeper_prior_grows_from_a_shallower_one(tmp_path):
     ck = torch.load(tmp_path / "small" / "last.pt", weights_only=False)
     net4 = PriorNet(PriorConfig(blocks=4))
     assert load_grown(net4, ck["model"]) == 2
-    obs = torch.from_numpy(np.stack([frames[0][i:i + 50] for i in (0, 77)]))
+    obs = torch.from_numpy(np.stack([frames[0][i : i + 50] for i in (0, 77)]))
     with torch.no_grad():
         torch.testing.assert_close(net4.eval().rollout(obs, 25), net2.rollout(obs, 25), rtol=0, atol=1e-6)
     big = PriorConfig(blocks=4, batch_size=16, iterations=1, init_from=str(tmp_path / "small" / "last.pt"))
     train(big, tmp_path / "big", frames=frames, log=lambda m: None)
     grown = torch.load(tmp_path / "big" / "last.pt", weights_only=False)["model"]
-    assert grown["blocks.3.norm_weight"].abs().max() > 0           # the new blocks learn
+    assert grown["blocks.3.norm_weight"].abs().max() > 0  # the new blocks learn
     with pytest.raises(ValueError, match="grow, not shrink"):
         load_grown(PriorNet(PriorConfig(blocks=1)), ck["model"])
     with pytest.raises(ValueError, match="does not fit"):
-        load_grown(PriorNet(PriorConfig(blocks=4, dataset="humaneva", subjects=(1, 2, 3), obs_len=15, chunk=15)),
-                   ck["model"])
+        load_grown(
+            PriorNet(PriorConfig(blocks=4, dataset="humaneva", subjects=(1, 2, 3), obs_len=15, chunk=15)), ck["model"]
+        )
 
 
 REPAIR_MIX = (("random_joints", 1.0, 0.4), ("consecutive_frames", 1.0, 0.2))
 
 
 def repair_fill_config(**over) -> PriorConfig:
-    return PriorConfig(**{"obs_len": 50, "chunk": 50, "blocks": 2, "batch_size": 16, "anchor": "window",
-                          "mask_mix": REPAIR_MIX, "velocity_weight": 0.0, **over})
+    return PriorConfig(
+        **{
+            "obs_len": 50,
+            "chunk": 50,
+            "blocks": 2,
+            "batch_size": 16,
+            "anchor": "window",
+            "mask_mix": REPAIR_MIX,
+            "velocity_weight": 0.0,
+            **over,
+        }
+    )
 
 
-@pytest.mark.parametrize("over,match", [({"chunk": 10}, "chunk must equal obs_len"),
-                                        ({"loss_frames": 20}, "loss_frames be 0"),
-                                        ({"mask_mix": (("no_such_mask", 1.0),)}, "no_such_mask"),
-                                        ({"obs_noise_prob": 0.5, "obs_noise_mm": 25.0}, "flips and rotations only"),
-                                        ({"anchor": "first"}, "anchor must be one of"),
-                                        ({"gap_fill": "linear"}, "gap_fill must be one of"),
-                                        ({"dataset": "humaneva", "subjects": (1, 2, 3)}, "trains on Human3.6M")])
+@pytest.mark.parametrize(
+    "over,match",
+    [
+        ({"chunk": 10}, "chunk must equal obs_len"),
+        ({"loss_frames": 20}, "loss_frames be 0"),
+        ({"mask_mix": (("no_such_mask", 1.0),)}, "no_such_mask"),
+        ({"obs_noise_prob": 0.5, "obs_noise_mm": 25.0}, "flips and rotations only"),
+        ({"anchor": "first"}, "anchor must be one of"),
+        ({"gap_fill": "linear"}, "gap_fill must be one of"),
+        ({"dataset": "humaneva", "subjects": (1, 2, 3)}, "trains on Human3.6M"),
+    ],
+)
 def test_repair_fill_config_rejects_what_it_cannot_train(over, match):
     with pytest.raises(ValueError, match=match):
         repair_fill_config(**over)
@@ -257,6 +305,7 @@ def test_a_repair_fill_corrects_the_spline_of_its_masked_windows(tmp_path):
     is ``repair_fill.safetensors``, a prior with anchor "window"."""
     from training import export
     from training.model import spline_fill
+
     torch.set_num_threads(1)
     frames, starts = synthetic_frames()
     cfg = repair_fill_config()
@@ -265,7 +314,7 @@ def test_a_repair_fill_corrects_the_spline_of_its_masked_windows(tmp_path):
     filled, joint_mask = repair_batch(cfg, wins, 10_000)
     again, mask_again = repair_batch(cfg, wins, 10_000)
     assert torch.equal(filled, again) and torch.equal(joint_mask, mask_again)
-    assert 0.05 < float(1 - joint_mask.mean()) < 0.6                 # some joints hidden, most seen
+    assert 0.05 < float(1 - joint_mask.mean()) < 0.6  # some joints hidden, most seen
     mk = joint_mask.repeat_interleave(3, -1).transpose(1, 2)
     torch.testing.assert_close(filled, spline_fill(wins.transpose(1, 2), mk).transpose(1, 2))
     seen = mk.transpose(1, 2) > 0.5
@@ -273,7 +322,7 @@ def test_a_repair_fill_corrects_the_spline_of_its_masked_windows(tmp_path):
     torch.manual_seed(cfg.seed)
     fresh = PriorNet(cfg)
     with torch.no_grad():
-        torch.testing.assert_close(fresh(filled), filled, atol=1e-6, rtol=0)   # fc_out ~ 0: the spline itself
+        torch.testing.assert_close(fresh(filled), filled, atol=1e-6, rtol=0)  # fc_out ~ 0: the spline itself
     # the loss is over the hidden joints: an error on seen joints only costs nothing
     off = wins + 1.0 * seen
     assert hidden_loss(off, wins, joint_mask).item() == 0.0
@@ -306,10 +355,12 @@ def test_validation_keeps_the_best_weights(tmp_path):
     best.pt holds the weights (and iteration) of the lowest, which the exporter records; the held-out subjects
     cannot be trained on."""
     from training import export
+
     torch.set_num_threads(1)
     frames, held_out = synthetic_frames(), synthetic_frames(seed=1)
-    cfg = repair_fill_config(iterations=40, lr=1e-2, lr_final=1e-2, val_subjects=(11,), val_every=10, val_windows=32,
-                             subjects=(1, 6))
+    cfg = repair_fill_config(
+        iterations=40, lr=1e-2, lr_final=1e-2, val_subjects=(11,), val_every=10, val_windows=32, subjects=(1, 6)
+    )
     train(cfg, tmp_path, frames=frames, val_frames=held_out, log=lambda m: None)
     history = torch.load(tmp_path / "last.pt", weights_only=False)["history"]
     vals = {h["iteration"]: h["val"] for h in history if "val" in h}
@@ -336,12 +387,12 @@ def test_log_window_loss_weighs_every_window_alike():
     B, L, J = 3, 4, 2
     target = torch.zeros(B, L, 3 * J)
     joint_mask = torch.ones(B, L, J)
-    joint_mask[0, 0, 0] = 0.0                       # window 0: one hidden joint, 1 mm off
-    joint_mask[1, :2, :] = 0.0                      # window 1: four hidden joints, 10 mm off; window 2: none
+    joint_mask[0, 0, 0] = 0.0  # window 0: one hidden joint, 1 mm off
+    joint_mask[1, :2, :] = 0.0  # window 1: four hidden joints, 10 mm off; window 2: none
     pred = target.clone()
     pred[0, 0, 0] = 0.001
     pred[1, :2, 1::3] = 0.010
-    pred[2] += 5.0                                  # all seen: costs nothing
+    pred[2] += 5.0  # all seen: costs nothing
     pooled = hidden_loss(pred, target, joint_mask).item()
     assert pooled == pytest.approx((0.001 + 4 * 0.010) / 5, rel=1e-5)
     logw = hidden_loss(pred, target, joint_mask, "log_window").item()
@@ -358,22 +409,33 @@ def test_validation_on_separate_patterns_is_their_geometric_mean(tmp_path):
     best.pt is chosen on; the entries are checked like mask_mix's."""
     from dataclasses import replace
     from training.prior import validation_loss
+
     torch.set_num_threads(1)
     frames, held_out = synthetic_frames(), synthetic_frames(seed=1)
     patterns = (("random_leg_arm", 1.0, 0.4), ("consecutive_frames", 1.0, 0.2))
-    cfg = repair_fill_config(iterations=20, lr=1e-2, lr_final=1e-2, val_subjects=(11,), val_every=10, val_windows=32,
-                             subjects=(1, 6), val_mask_mix=patterns, window_loss="log_window")
+    cfg = repair_fill_config(
+        iterations=20,
+        lr=1e-2,
+        lr_final=1e-2,
+        val_subjects=(11,),
+        val_every=10,
+        val_windows=32,
+        subjects=(1, 6),
+        val_mask_mix=patterns,
+        window_loss="log_window",
+    )
     train(cfg, tmp_path, frames=frames, val_frames=held_out, log=lambda m: None)
     history = torch.load(tmp_path / "last.pt", weights_only=False)["history"]
     vals = {h["iteration"]: h["val"] for h in history if "val" in h}
     vcfg, val = validation_windows(cfg, frames=held_out)
     net = load(tmp_path / "last.pt")
     with torch.no_grad():
-        each = [window_loss(replace(vcfg, mask_mix=(p,), window_loss="pooled"), net, net, val, 0).item()
-                for p in patterns]
+        each = [
+            window_loss(replace(vcfg, mask_mix=(p,), window_loss="pooled"), net, net, val, 0).item() for p in patterns
+        ]
         assert validation_loss(vcfg, net, val) == pytest.approx(np.sqrt(each[0] * each[1]), rel=1e-6)
     assert vals[20] == pytest.approx(np.sqrt(each[0] * each[1]), rel=1e-6)
-    assert each[1] > 2 * each[0]                    # the whole-frame gap is the larger error, not the larger say
+    assert each[1] > 2 * each[0]  # the whole-frame gap is the larger error, not the larger say
     assert json.loads(json.dumps(load(tmp_path / "last.pt").cfg.val_mask_mix)) == json.loads(json.dumps(patterns))
     with pytest.raises(ValueError, match="no_such_mask"):
         repair_fill_config(val_mask_mix=(("no_such_mask", 1.0),))

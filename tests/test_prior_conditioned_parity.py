@@ -22,6 +22,7 @@ ddim 2.7e-7, dpmpp2m 2.4e-7; outputs up to 1.2 m); the seeded x0 cascade through
 exported trained pair 3.6e-7. The prior's fill moves the long window's masked frames up to 6.4 m from the
 held last frame; the x0 and epsilon readings of the same weights differ by up to 15 m.
 """
+
 from __future__ import annotations
 
 import functools
@@ -42,8 +43,8 @@ from training import export  # noqa: E402
 from training.diffusion import DiffusionConfig  # noqa: E402
 from training.model import prior_fill  # noqa: E402
 
-CHAIN_ATOL = 1e-4      # model units (metres), the cascade criterion of tests/test_parity.py
-CONTRIBUTION = 1e2     # what a feature changes, at least, over CHAIN_ATOL
+CHAIN_ATOL = 1e-4  # model units (metres), the cascade criterion of tests/test_parity.py
+CONTRIBUTION = 1e2  # what a feature changes, at least, over CHAIN_ATOL
 OBS, LS, LL = 50, 55, 75
 PREDICTIONS = ("epsilon", "sample")
 SAMPLERS = [  # sampler, num_inference_steps, eta, num_samples
@@ -57,8 +58,14 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def _make_dir(out, prediction: str):
-    return export.random_init_dir(out, preset="tiny", seed=7, diff_cfg=DiffusionConfig(prediction_type=prediction),
-                                  model=PRIOR_MODEL, prior_blocks=3)
+    return export.random_init_dir(
+        out,
+        preset="tiny",
+        seed=7,
+        diff_cfg=DiffusionConfig(prediction_type=prediction),
+        model=PRIOR_MODEL,
+        prior_blocks=3,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -71,8 +78,8 @@ def observation(seed: int, batch: int = 2, k: int = 66, missing: float = 0.3):
     """(engine observed with NaN at missing entries, reference observed with 0 there, mask), (B, K, OBS)."""
     rng = np.random.default_rng(seed)
     mask = (rng.random((batch, k, OBS)) >= missing).astype(np.float32)
-    mask[0, :5, -3:] = 0            # a few coordinates missing over the last frames (the prior reads them)
-    mask[-1, 6:9, :] = 0             # one joint never observed: its spline fill is 0
+    mask[0, :5, -3:] = 0  # a few coordinates missing over the last frames (the prior reads them)
+    mask[-1, 6:9, :] = 0  # one joint never observed: its spline fill is 0
     values = rng.normal(scale=0.3, size=(batch, k, OBS)).astype(np.float32)
     ref = (values * mask).astype(np.float32)
     eng = np.where(mask == 1, values, np.nan).astype(np.float32)
@@ -82,8 +89,10 @@ def observation(seed: int, batch: int = 2, k: int = 66, missing: float = 0.3):
 def noise_for(seed: int, sampler: str, steps: int, s: int, batch: int = 2, k: int = 66):
     rng = np.random.default_rng(seed)
     blocks = 1 if sampler == "dpmpp2m" else steps + 1
-    return (rng.standard_normal((s, blocks, batch, k, LS)).astype(np.float32),
-            rng.standard_normal((s, blocks, batch, k, LL)).astype(np.float32))
+    return (
+        rng.standard_normal((s, blocks, batch, k, LS)).astype(np.float32),
+        rng.standard_normal((s, blocks, batch, k, LL)).astype(np.float32),
+    )
 
 
 @functools.lru_cache(maxsize=None)
@@ -94,9 +103,20 @@ def _torch_models(path: str):
 def torch_cascade(d, observed, mask, s, noise_short, noise_long, **kw):
     models = _torch_models(str(d))
     (ms, ss, _), (ml, sl, _) = models["short"], models["long"]
-    out = D.cascade(ms, ss, ml, sl, torch.from_numpy(observed), torch.from_numpy(mask), short_len=LS, long_len=LL,
-                    num_samples=s, noise_short=torch.from_numpy(noise_short), noise_long=torch.from_numpy(noise_long),
-                    **kw)
+    out = D.cascade(
+        ms,
+        ss,
+        ml,
+        sl,
+        torch.from_numpy(observed),
+        torch.from_numpy(mask),
+        short_len=LS,
+        long_len=LL,
+        num_samples=s,
+        noise_short=torch.from_numpy(noise_short),
+        noise_long=torch.from_numpy(noise_long),
+        **kw,
+    )
     return {k: v.numpy() for k, v in out.items()}
 
 
@@ -118,6 +138,7 @@ def max_diff(a, b, what=""):
 
 # ------------------------------------------------------------------------------------------- parity
 
+
 @pytest.mark.parametrize("kernel", ALL_KERNELS)
 @pytest.mark.parametrize("prediction", PREDICTIONS)
 @pytest.mark.parametrize("sampler,steps,eta,s", SAMPLERS)
@@ -128,15 +149,16 @@ def test_cascade_matches_pytorch(dirs, prediction, sampler, steps, eta, s, kerne
     prior = load_kernel(d / export.PRIOR_FILE, kernel, monkeypatch, cls=tcd.engine.Prior)
     assert short.config["diffusion"]["prediction_type"] == prediction
     eng, ref, mask, ns, nl, kw, want = reference(d, prediction, sampler, steps, eta, s)
-    got = tcd.engine.cascade_raw(short, long, eng, mask, num_samples=s, noise_short=ns, noise_long=nl, prior=prior,
-                                 **kw)
+    got = tcd.engine.cascade_raw(
+        short, long, eng, mask, num_samples=s, noise_short=ns, noise_long=nl, prior=prior, **kw
+    )
     what = f"prior-conditioned cascade {prediction} {sampler} n={steps} eta={eta} S={s} kernel={kernel}"
     assert max_diff(got["short_mean"], want["short_mean"], what + " short_mean") <= CHAIN_ATOL
     assert max_diff(got["samples"], want["samples"][..., OBS:], what + " samples") <= CHAIN_ATOL
     assert max_diff(got["mean"], want["samples"][..., OBS:].mean(axis=0), what + " mean") <= CHAIN_ATOL
     assert max_diff(got["repaired"], want["short_mean"][..., :OBS], what + " repaired") <= CHAIN_ATOL
     sel = mask == 1
-    assert np.array_equal(got["repaired"][sel], eng[sel])        # observed entries bit for bit
+    assert np.array_equal(got["repaired"][sel], eng[sel])  # observed entries bit for bit
     assert np.isfinite(got["samples"]).all() and np.isfinite(got["repaired"]).all()
 
 
@@ -164,6 +186,7 @@ def test_the_comparison_sees_the_prior_and_the_prediction_type(dirs):
 
 
 # --------------------------------------------------------------------------------------- public API
+
 
 def test_tcd_load_passes_the_prior_and_matches_pytorch_on_the_seeded_streams(dirs):
     """tcd.load(dir).forecast runs the cascade with the directory's prior (the seeded streams of
@@ -199,8 +222,18 @@ def test_errors_name_the_prior_and_the_missing_file(dirs, tmp_path):
     assert "obs_len = 55" in str(e)
     # repair runs a prior-conditioned model only with a repair fill (anchor "window"), never the forecaster
     for fill in (None, prior):
-        e = bad("fill", tcd.engine.repair_raw, short, eng, mask, num_samples=1, seed=0, sampler="ddim",
-                num_inference_steps=2, fill=fill)
+        e = bad(
+            "fill",
+            tcd.engine.repair_raw,
+            short,
+            eng,
+            mask,
+            num_samples=1,
+            seed=0,
+            sampler="ddim",
+            num_inference_steps=2,
+            fill=fill,
+        )
         assert "repair fill" in str(e)
     # the low-level calls read the fill from `observed`: NaN there is refused
     m = np.concatenate([mask, np.zeros((1, 66, LS - OBS), np.float32)], -1)
@@ -221,11 +254,13 @@ def test_errors_name_the_prior_and_the_missing_file(dirs, tmp_path):
         export.load_model_dir(bare)
     # the user-facing repair of a directory without a repair model uses the short model: refused too
     with pytest.raises(InvalidInputError, match="prior"):
-        tcd.load(d).repair(np.nan_to_num(eng[0].T.reshape(OBS, 22, 3)), seed=0, num_samples=1,
-                           sampler="ddim", num_inference_steps=2)
+        tcd.load(d).repair(
+            np.nan_to_num(eng[0].T.reshape(OBS, 22, 3)), seed=0, num_samples=1, sampler="ddim", num_inference_steps=2
+        )
 
 
 # ------------------------------------------------------------------------------------------- export
+
 
 def test_export_writes_and_restores_prior_conditioning_and_x0_prediction(tmp_path):
     """``python -m training.export --checkpoint`` of a cond_fill='prior', prediction_type='sample' run writes
@@ -234,14 +269,22 @@ def test_export_writes_and_restores_prior_conditioning_and_x0_prediction(tmp_pat
     from test_train import synthetic_motion, tiny_cfg
     from training.train import train
 
-    prior_file = export.save_prior(tmp_path / "prior.safetensors",
-                                   export.random_prior(blocks=2, obs_len=8, chunk=2, seed=3))
+    prior_file = export.save_prior(
+        tmp_path / "prior.safetensors", export.random_prior(blocks=2, obs_len=8, chunk=2, seed=3)
+    )
     seqs = {"train": synthetic_motion(4, T=40, seed=0), "val": synthetic_motion(2, T=40, seed=1)}
     out = tmp_path / "out"
     for role, (o, p) in (("short", (10, 4)), ("long", (14, 6))):
-        cfg = tiny_cfg(role=role, obs_len=o, pred_len=p, epochs=1, steps_per_epoch=2,
-                       model={**tiny_cfg().model, **PRIOR_MODEL}, diffusion={"prediction_type": "sample"},
-                       prior=str(prior_file))
+        cfg = tiny_cfg(
+            role=role,
+            obs_len=o,
+            pred_len=p,
+            epochs=1,
+            steps_per_epoch=2,
+            model={**tiny_cfg().model, **PRIOR_MODEL},
+            diffusion={"prediction_type": "sample"},
+            prior=str(prior_file),
+        )
         train(cfg, tmp_path / role, sequences=seqs, log=lambda *a: None)
         assert export.main(["--checkpoint", str(tmp_path / role / "last.pt"), "--out", str(out)]) == 0
     assert export.main(["--files", str(prior_file), "--out", str(out)]) == 0
@@ -263,9 +306,22 @@ def test_export_writes_and_restores_prior_conditioning_and_x0_prediction(tmp_pat
     kw = dict(sampler="dpmpp2m", num_inference_steps=5, timestep_spacing="trailing")
     ns = np.random.default_rng(1).standard_normal((1, 1, 1, 66, 14)).astype(np.float32)
     nl = np.random.default_rng(2).standard_normal((1, 1, 1, 66, 20)).astype(np.float32)
-    got = tcd.engine.cascade_raw(model.short, model.long, eng, mask, num_samples=1, noise_short=ns, noise_long=nl,
-                          prior=model.prior, **kw)
+    got = tcd.engine.cascade_raw(
+        model.short, model.long, eng, mask, num_samples=1, noise_short=ns, noise_long=nl, prior=model.prior, **kw
+    )
     (ms, ss, _), (ml, sl, _) = models["short"], models["long"]
-    want = D.cascade(ms, ss, ml, sl, torch.from_numpy(ref), torch.from_numpy(mask), short_len=14, long_len=20,
-                     num_samples=1, noise_short=torch.from_numpy(ns), noise_long=torch.from_numpy(nl), **kw)
+    want = D.cascade(
+        ms,
+        ss,
+        ml,
+        sl,
+        torch.from_numpy(ref),
+        torch.from_numpy(mask),
+        short_len=14,
+        long_len=20,
+        num_samples=1,
+        noise_short=torch.from_numpy(ns),
+        noise_long=torch.from_numpy(nl),
+        **kw,
+    )
     assert max_diff(got["samples"], want["samples"].numpy()[..., 10:], "exported trained pair") <= CHAIN_ATOL

@@ -1,6 +1,7 @@
 """Training side of TCD models around the prior forecaster (issue 29): cond_fill "prior" with target
 "prior_residual", and x0-prediction (prediction_type "sample"). The engine's parity with these is in
 tests/test_prior_conditioned_parity.py."""
+
 from __future__ import annotations
 
 import math
@@ -11,14 +12,28 @@ from conftest import import_torch
 
 torch = import_torch("training around the prior forecaster (training/)")
 
-from training.diffusion import (DiffusionConfig, Schedule, predicted_noise, q_sample, sample_many,  # noqa: E402
-                                training_loss)
+from training.diffusion import (  # noqa: E402
+    DiffusionConfig,
+    Schedule,
+    predicted_noise,
+    q_sample,
+    sample_many,
+    training_loss,
+)
 from training.export import random_prior  # noqa: E402
 from training.model import ModelConfig, TCDModel, prior_fill, spline_fill, to_target  # noqa: E402
 from training.train import TrainConfig, load_prior  # noqa: E402
 
-PRIOR_CFG = dict(channels=16, num_layers=1, num_heads=4, ffn_dim=16, dropout=0.0, cond_fill="prior",
-                 target="prior_residual", target_scale=10.0)
+PRIOR_CFG = dict(
+    channels=16,
+    num_layers=1,
+    num_heads=4,
+    ffn_dim=16,
+    dropout=0.0,
+    cond_fill="prior",
+    target="prior_residual",
+    target_scale=10.0,
+)
 
 
 def window(B=3, L=75, given=55, seed=0):
@@ -26,7 +41,7 @@ def window(B=3, L=75, given=55, seed=0):
     x0 = torch.cumsum(torch.randn(B, 66, L, generator=g) * 0.01, dim=-1)
     mask = torch.zeros(B, 66, L)
     mask[..., :given] = 1.0
-    mask[0, 5:9, 10:20] = 0.0          # occluded observation entries
+    mask[0, 5:9, 10:20] = 0.0  # occluded observation entries
     return x0, mask
 
 
@@ -45,7 +60,7 @@ def test_prior_fill_is_spline_then_rollout_and_keeps_observed():
     with torch.no_grad():
         future = prior.rollout(fill[..., :n_obs].transpose(1, 2), 25).transpose(1, 2)
     free = mask[..., n_obs:] < 0.5
-    assert torch.equal(fill[..., n_obs:][free], future[..., :fill.shape[-1] - n_obs][free])
+    assert torch.equal(fill[..., n_obs:][free], future[..., : fill.shape[-1] - n_obs][free])
     assert torch.isfinite(fill).all()
 
 
@@ -81,9 +96,9 @@ def test_predicted_noise_inverts_the_forward_process():
     for t in (0, 10, 49):
         xt = q_sample(sched, x0, torch.full((x0.shape[0],), t), eps)
         back = predicted_noise(sched, x0, xt, t)
-        tol = 1e-3 if t == 0 else 1e-4     # 1/sqrt(1 - abar_0) is large: float32 rounding of xt shows
+        tol = 1e-3 if t == 0 else 1e-4  # 1/sqrt(1 - abar_0) is large: float32 rounding of xt shows
         assert torch.allclose(back, eps, atol=tol), (t, float((back - eps).abs().max()))
-    assert predicted_noise(Schedule(DiffusionConfig()), x0, x0 * 0, 5) is x0   # epsilon: the output itself
+    assert predicted_noise(Schedule(DiffusionConfig()), x0, x0 * 0, 5) is x0  # epsilon: the output itself
 
 
 def test_x0_prediction_starts_at_the_prior():
@@ -98,8 +113,16 @@ def test_x0_prediction_starts_at_the_prior():
         model.attach_prior(prior)
         torch.nn.init.zeros_(model.diffmodel.output_projection2.bias)
         sched = Schedule(DiffusionConfig(prediction_type=pt))
-        out = sample_many(model.eval(), sched, observed, mask, 2, sampler="ddim", num_inference_steps=10,
-                          generator=torch.Generator().manual_seed(0))
+        out = sample_many(
+            model.eval(),
+            sched,
+            observed,
+            mask,
+            2,
+            sampler="ddim",
+            num_inference_steps=10,
+            generator=torch.Generator().manual_seed(0),
+        )
         err = float((out - fill).abs().max())
         assert (err < 1e-4) == close, (pt, err)
 
@@ -113,7 +136,7 @@ def test_x0_loss_is_on_the_clean_target():
     sched = Schedule(DiffusionConfig(prediction_type="sample"))
     t = torch.full((x0.shape[0],), 7)
     loss = training_loss(model, sched, x0, mask, t=t, observed=x0 * mask)
-    target = to_target(model.cfg, x0, x0 * mask, mask, prior)   # the network outputs 0: the loss is the target's
+    target = to_target(model.cfg, x0, x0 * mask, mask, prior)  # the network outputs 0: the loss is the target's
     free = 1.0 - mask
     expect = ((target * free) ** 2).sum() / free.sum()
     assert math.isclose(float(loss.detach()), float(expect), rel_tol=1e-5)
@@ -121,13 +144,26 @@ def test_x0_loss_is_on_the_clean_target():
 
 def test_train_config_prior_trains_a_step(tmp_path):
     from training.export import save_prior
+
     prior = prior_net()
     path = save_prior(tmp_path / "prior.safetensors", prior)
     seqs = [torch.cumsum(torch.randn(120, 22, 3) * 0.01, 0).numpy() for _ in range(2)]
-    cfg = TrainConfig(role="long", obs_len=55, pred_len=20, model=PRIOR_CFG, diffusion={"prediction_type": "sample"},
-                      batch_size=2, epochs=1, steps_per_epoch=2, val_every=1, val_timesteps=2, val_max_windows=2,
-                      prior=str(path))
+    cfg = TrainConfig(
+        role="long",
+        obs_len=55,
+        pred_len=20,
+        model=PRIOR_CFG,
+        diffusion={"prediction_type": "sample"},
+        batch_size=2,
+        epochs=1,
+        steps_per_epoch=2,
+        val_every=1,
+        val_timesteps=2,
+        val_max_windows=2,
+        prior=str(path),
+    )
     from training.train import train
+
     res = train(cfg, tmp_path / "run", sequences={"train": seqs, "val": seqs}, log=lambda *a: None)
     assert res is not None
     ck = torch.load(tmp_path / "run" / "last.pt", weights_only=False)

@@ -3,6 +3,7 @@ depend on threads, batching or the caller's thread, the frames it reads, bad arg
 committed 2-block random prior (tests/fixtures/tiny_prior.safetensors, ``training.export.random_prior(blocks=2,
 seed=0)``: every weight shapes the output). No torch: its parity with the PyTorch reference is
 tests/test_prior_parity.py."""
+
 from __future__ import annotations
 
 import shutil
@@ -32,9 +33,10 @@ def synthetic_motion(seed: int, sequences: int = 12, frames: int = 160, k: int =
 def observations(batch: int, frames: int = 60) -> np.ndarray:
     """(B, T, K) float32 metres: real motion (the bundled demo clip) for the first windows, synthetic after."""
     from tcd.demo import load_clip
+
     clip = load_clip()["poses"]
     clip = clip.reshape(len(clip), -1).astype(np.float32)
-    wins = [clip[s:s + frames] for s in range(0, len(clip) - frames + 1, 23)][:batch]
+    wins = [clip[s : s + frames] for s in range(0, len(clip) - frames + 1, 23)][:batch]
     wins += list(synthetic_motion(2, sequences=batch - len(wins), frames=frames)) if batch > len(wins) else []
     return np.ascontiguousarray(np.stack(wins))
 
@@ -65,8 +67,8 @@ def test_results_do_not_depend_on_threads_batch_or_caller_thread(prior):
     assert np.array_equal(one, prior.predict(obs, 25, threads=2))
     assert np.array_equal(one, prior.predict(obs, 25))
     assert np.array_equal(one[4:5], prior.predict(obs[4:5], 25, threads=2))
-    assert np.array_equal(one, prior.predict(obs.astype(np.float64), 25))            # converted to float32
-    assert np.array_equal(one, prior.predict(np.asfortranarray(obs), 25))              # any memory order
+    assert np.array_equal(one, prior.predict(obs.astype(np.float64), 25))  # converted to float32
+    assert np.array_equal(one, prior.predict(np.asfortranarray(obs), 25))  # any memory order
     results = [None] * 4
 
     def run(i):
@@ -90,14 +92,14 @@ def test_only_the_last_obs_len_frames_are_read(prior):
 
 def test_bad_arguments(prior):
     obs = observations(2)
-    bad("obs", prior.predict, obs[0], 10)                              # not (B, T, K)
-    bad("obs", prior.predict, obs[:, :49], 10)                         # fewer than obs_len frames
-    bad("obs", prior.predict, obs[..., :60], 10)                       # K
-    bad("obs", prior.predict, obs[:0], 10)                             # B = 0
+    bad("obs", prior.predict, obs[0], 10)  # not (B, T, K)
+    bad("obs", prior.predict, obs[:, :49], 10)  # fewer than obs_len frames
+    bad("obs", prior.predict, obs[..., :60], 10)  # K
+    bad("obs", prior.predict, obs[:0], 10)  # B = 0
     bad("obs", prior.predict, np.array([["a"]]), 10)
     for h in (0, -3):
         bad("horizon", prior.predict, obs, h)
-    bad("horizon", prior.predict, obs, 2**40)                          # the output would not fit
+    bad("horizon", prior.predict, obs, 2**40)  # the output would not fit
     bad("horizon", prior.predict, obs, 2.5)
     bad("horizon", prior.predict, obs, True)
     bad("threads", prior.predict, obs, 10, threads=0)
@@ -124,13 +126,13 @@ def test_fill_is_the_spline_then_the_rollout(prior):
     np.testing.assert_array_equal(got[:, :50], spline)
     np.testing.assert_array_equal(got[:, 50:], prior.predict(got[:, :50], 10))
     assert np.array_equal(prior.fill(np.where(mask > 0, obs, 7.0).astype(np.float32), mask), got)
-    bad("observed", prior.fill, obs[..., :60], mask[..., :60])         # K
-    bad("observed", prior.fill, obs[0], mask[0])                       # not (B, T, K)
+    bad("observed", prior.fill, obs[..., :60], mask[..., :60])  # K
+    bad("observed", prior.fill, obs[0], mask[0])  # not (B, T, K)
     bad("mask", prior.fill, obs, mask[:, :59])
     m2 = mask.copy()
     m2[0, 0, 0] = 0.5
     bad("mask", prior.fill, obs, m2)
-    bad("length", prior.fill, obs[:, :50], mask[:, :50])               # a forecaster rolls out after obs_len
+    bad("length", prior.fill, obs[:, :50], mask[:, :50])  # a forecaster rolls out after obs_len
     bad("forecaster", prior.fill, obs, mask, forecaster=object())
     bad("threads", prior.fill, obs, mask, threads=0)
 

@@ -27,6 +27,7 @@ GEMMs add their terms in order),
 and the rollout compounds it (5.5e-6 at 25 frames; PyTorch 1.3e-6). The DCT matrix the engine computes
 equals PyTorch's float32 matrix bit for bit.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -44,7 +45,7 @@ from training import export  # noqa: E402
 from training.prior import PriorConfig, dct_matrix, train  # noqa: E402
 
 RTOL, ATOL = 1e-4, 1e-5
-CONTRIBUTION = 1e3     # the network's contribution over ATOL, at least
+CONTRIBUTION = 1e3  # the network's contribution over ATOL, at least
 HORIZONS = (10, 25, 17)
 
 
@@ -53,8 +54,9 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 @pytest.fixture(scope="module")
 def random_file(tmp_path_factory):
-    return export.save_prior(tmp_path_factory.mktemp("prior_random") / "prior.safetensors",
-                             export.random_prior(blocks=24, seed=0))
+    return export.save_prior(
+        tmp_path_factory.mktemp("prior_random") / "prior.safetensors", export.random_prior(blocks=24, seed=0)
+    )
 
 
 @pytest.fixture(scope="module")
@@ -83,8 +85,11 @@ def bundled_file():
 @pytest.fixture(params=["random", "trained", "bundled"])
 def weights(request):
     """(path, torch reference loaded from the same file, name)."""
-    path = {"random": lambda: request.getfixturevalue("random_file"),
-            "trained": lambda: request.getfixturevalue("trained_file"), "bundled": bundled_file}[request.param]()
+    path = {
+        "random": lambda: request.getfixturevalue("random_file"),
+        "trained": lambda: request.getfixturevalue("trained_file"),
+        "bundled": bundled_file,
+    }[request.param]()
     model, _ = export.load_prior_file(path)
     return path, model, request.param
 
@@ -111,8 +116,10 @@ def test_predict_matches_pytorch(weights, kernel, batch, monkeypatch):
         assert got.shape == want.shape == (batch, horizon, 66) and got.dtype == np.float32
         diff = float(np.abs(got.astype(np.float64) - want).max())
         contribution = float(np.abs(want - obs[:, -1:]).max())
-        print(f"prior parity {name} {kernel} B={batch} H={horizon}: max abs diff {diff:.3g}, "
-              f"max |torch| {np.abs(want).max():.3g}, contribution {contribution:.3g}")
+        print(
+            f"prior parity {name} {kernel} B={batch} H={horizon}: max abs diff {diff:.3g}, "
+            f"max |torch| {np.abs(want).max():.3g}, contribution {contribution:.3g}"
+        )
         np.testing.assert_allclose(got, want, rtol=RTOL, atol=ATOL)
         assert contribution >= CONTRIBUTION * ATOL, contribution
 
@@ -140,8 +147,9 @@ def test_dct_matrix_is_pytorchs_bit_for_bit(obs_len, chunk, tmp_path, monkeypatc
         assert np.array_equal(model.dct.numpy(), want)
         obs = np.random.default_rng(0).normal(scale=0.3, size=(4, obs_len + 3, 6)).astype(np.float32)
         for horizon in (chunk, 3 * chunk + 1):
-            np.testing.assert_allclose(prior.predict(obs, horizon), reference(model, obs, horizon),
-                                       rtol=RTOL, atol=ATOL)
+            np.testing.assert_allclose(
+                prior.predict(obs, horizon), reference(model, obs, horizon), rtol=RTOL, atol=ATOL
+            )
 
 
 def test_export_cli_writes_the_directory_as_for_the_denoisers(trained_file):
@@ -149,6 +157,7 @@ def test_export_cli_writes_the_directory_as_for_the_denoisers(trained_file):
     model.json and SHA256SUMS consistent with the directory's files."""
     import hashlib
     import json
+
     d = trained_file.parent
     cfg = export.read_config(trained_file)
     assert cfg["role"] == "prior" and cfg["training"]["iteration"] == 40

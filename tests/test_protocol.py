@@ -1,5 +1,6 @@
 """training.protocol: the whole evaluation in one resumable process, on the CPU with a tiny model and a few
 windows."""
+
 import json
 
 import numpy as np
@@ -22,8 +23,7 @@ FEW = ["--windows-per-action", "1", "--samples", "2", "--steps", "2", "--quiet",
 @pytest.fixture(scope="module")
 def model_dir(tmp_path_factory):
     """Tiny short, long and repair models (the repair model conditions on the spline fill)."""
-    return make_model_dir(tmp_path_factory.mktemp("protocol_model"), "tiny", seed=3,
-                          repair={"cond_fill": "spline"})
+    return make_model_dir(tmp_path_factory.mktemp("protocol_model"), "tiny", seed=3, repair={"cond_fill": "spline"})
 
 
 def run(model_dir, out, *extra):
@@ -39,8 +39,11 @@ def test_every_unit_written_resumed_and_summarized(model_dir, tmp_path, capsys):
     out = tmp_path / "res"
     assert run(model_dir, out, "--patterns", "none,random_leg_arm") == 0
     actions = H36M(H36M_DIR).test_actions()
-    assert units(out) == sorted(f"{part}/{a}.json" for part in ("forecast_none", "forecast_random_leg_arm",
-                                                                 "repair_random_leg_arm") for a in actions)
+    assert units(out) == sorted(
+        f"{part}/{a}.json"
+        for part in ("forecast_none", "forecast_random_leg_arm", "repair_random_leg_arm")
+        for a in actions
+    )
     summary = json.loads((out / "summary.json").read_text())
     assert list(summary["forecast"]) == ["none", "random_leg_arm"] and list(summary["repair"]) == ["random_leg_arm"]
     assert summary["incomplete"] == [] and summary["actions"] == len(actions) == 13
@@ -68,9 +71,27 @@ def test_units_pool_to_the_whole_protocol_run(model_dir, tmp_path):
     over every action: same seeds per action, the same mean over actions."""
     out = tmp_path / "res"
     run(model_dir, out, "--patterns", "random_leg_arm", "--forward", "reference", "--batch-size", "16")
-    whole = E.main(["--model", str(model_dir), "--data", str(H36M_DIR), "--mask", "random_leg_arm",
-                    "--windows-per-action", "1", "--samples", "2", "--steps", "2", "--quiet", "--threads", "1",
-                    "--json", str(tmp_path / "whole.json")])
+    whole = E.main(
+        [
+            "--model",
+            str(model_dir),
+            "--data",
+            str(H36M_DIR),
+            "--mask",
+            "random_leg_arm",
+            "--windows-per-action",
+            "1",
+            "--samples",
+            "2",
+            "--steps",
+            "2",
+            "--quiet",
+            "--threads",
+            "1",
+            "--json",
+            str(tmp_path / "whole.json"),
+        ]
+    )
     assert whole == 0
     ref = json.loads((tmp_path / "whole.json").read_text())
     got = json.loads((out / "summary.json").read_text())["forecast"]["random_leg_arm"]
@@ -103,7 +124,7 @@ def test_channels_last_forward_gives_the_reference_numbers(model_dir, tmp_path):
             assert fx[block][h] == pytest.approx(fy[block][h], rel=1e-5)
     for k in ("tcd", "linear", "spline"):
         assert x["repair"]["random_leg_arm"][k] == pytest.approx(y["repair"]["random_leg_arm"][k], rel=1e-5)
-    assert protocol.compare(a, b)["better"] == {"forecast": None, "repair": None}      # equal within the margin
+    assert protocol.compare(a, b)["better"] == {"forecast": None, "repair": None}  # equal within the margin
 
 
 @needs_h36m
@@ -136,27 +157,40 @@ def test_compare_is_a_paired_test_over_actions(tmp_path):
         for i, act in enumerate(actions):
             if i < forecast_actions:
                 (d / "forecast_none").mkdir(parents=True, exist_ok=True)
-                (d / "forecast_none" / f"{act}.json").write_text(json.dumps({
-                    "protocol": {"windows_per_action": 64, "actions": [act]}, "sampling": {"samples": 5, "steps": 50},
-                    "zero_velocity": {"per_action": {act: {"1000": 100.0}}},
-                    "best_of_n": {"per_action": {act: {"1000": 70.0}}},
-                    "mean_of_n": {"per_action": {act: {"1000": 100.0 * ratios[i]}}}}))
+                (d / "forecast_none" / f"{act}.json").write_text(
+                    json.dumps(
+                        {
+                            "protocol": {"windows_per_action": 64, "actions": [act]},
+                            "sampling": {"samples": 5, "steps": 50},
+                            "zero_velocity": {"per_action": {act: {"1000": 100.0}}},
+                            "best_of_n": {"per_action": {act: {"1000": 70.0}}},
+                            "mean_of_n": {"per_action": {act: {"1000": 100.0 * ratios[i]}}},
+                        }
+                    )
+                )
             (d / "repair_noisy_25").mkdir(parents=True, exist_ok=True)
-            (d / "repair_noisy_25" / f"{act}.json").write_text(json.dumps({
-                "pattern": "noisy_25", "action": act, "hidden_entries": 10,
-                "sum_mm": {"tcd": 20.0 * repair[i], "linear": 40.0, "spline": 20.0}}))
+            (d / "repair_noisy_25" / f"{act}.json").write_text(
+                json.dumps(
+                    {
+                        "pattern": "noisy_25",
+                        "action": act,
+                        "hidden_entries": 10,
+                        "sum_mm": {"tcd": 20.0 * repair[i], "linear": 40.0, "spline": 20.0},
+                    }
+                )
+            )
         (d / "summary.json").write_text(json.dumps(protocol.summarize(d, actions)))
         return d
 
     rng = np.random.default_rng(0)
-    noisy = lambda level, spread: level + spread * rng.standard_normal(13)       # noqa: E731
+    noisy = lambda level, spread: level + spread * rng.standard_normal(13)  # noqa: E731
     a = results(tmp_path / "a", noisy(0.80, 0.02), np.full(13, 0.5))
     b = results(tmp_path / "b", noisy(0.805, 0.02), np.full(13, 1.5))
     cmp = protocol.compare(a, b)
     assert cmp["a"]["repair"] == pytest.approx(0.5) and cmp["b"]["repair"] == pytest.approx(1.5)
     assert cmp["paired"]["forecast"]["pairs"] == 13 and cmp["paired"]["repair"]["standard_error"] == 0.0
     assert cmp["better"] == {"forecast": None, "repair": str(a)}
-    assert protocol.compare(a, b, margin=0.0)["better"]["forecast"] is None          # within sampling noise
+    assert protocol.compare(a, b, margin=0.0)["better"]["forecast"] is None  # within sampling noise
     # the same 1 % lead on every action is no noise; still within a 5 % margin
     c = results(tmp_path / "c", np.full(13, 0.80), np.full(13, 1.0))
     d = results(tmp_path / "d", np.full(13, 0.808), np.full(13, 1.0))
@@ -164,15 +198,17 @@ def test_compare_is_a_paired_test_over_actions(tmp_path):
     assert protocol.compare(c, d, margin=0.05)["better"]["forecast"] is None
     # a pattern one set has not finished is left out of both
     e = results(tmp_path / "e", np.full(13, 0.5), np.full(13, 1.0), forecast_actions=7)
-    assert (protocol.compare(c, e)["a"]["forecast_patterns"] == []
-            and protocol.compare(c, e)["better"]["forecast"] is None)
+    assert (
+        protocol.compare(c, e)["a"]["forecast_patterns"] == [] and protocol.compare(c, e)["better"]["forecast"] is None
+    )
 
 
 def test_bf16_autocast_forward_stays_close_and_float32():
     models = load_model_dir(tcd.default_model_dir())
     model, _, _ = models["long"]
-    fast = protocol.fast_models({"long": models["long"]}, forward="channels_last", precision="bf16",
-                                compile_=False, device="cpu")["long"][0]
+    fast = protocol.fast_models(
+        {"long": models["long"]}, forward="channels_last", precision="bf16", compile_=False, device="cpu"
+    )["long"][0]
     g = torch.Generator().manual_seed(0)
     noisy, observed = torch.randn(2, 66, 75, generator=g), 0.3 * torch.randn(2, 66, 75, generator=g)
     mask = (torch.rand(2, 66, 75, generator=g) < 0.5).float()
@@ -180,5 +216,4 @@ def test_bf16_autocast_forward_stays_close_and_float32():
         want, got = model(noisy, observed, mask, 20), fast(noisy, observed, mask, 20)
     assert got.dtype == torch.float32
     rel = float((got - want).norm() / want.norm())
-    assert 0 < rel < 3e-2      # bf16 operands: ~1e-2, never the fp32 result itself
-
+    assert 0 < rel < 3e-2  # bf16 operands: ~1e-2, never the fp32 result itself

@@ -1,5 +1,6 @@
 """`tcd repair --ray` (issue 18): the same bytes as a local run, a worker killed in the middle of a file, resume,
 and the bad inputs, on a local Ray cluster."""
+
 from __future__ import annotations
 
 import json
@@ -42,23 +43,25 @@ def test_ray_run_writes_the_local_bytes_and_resumes(tiny_model_dir, tmp_path, ca
     on_ray[2] = str(tmp_path / "ray")
     code, text, err = run(on_ray, capsys)
     assert code == 0, err
-    same_tree(tree(tmp_path / "local"), tree(tmp_path / "ray"))        # byte-identical arrays and provenance
+    same_tree(tree(tmp_path / "local"), tree(tmp_path / "ray"))  # byte-identical arrays and provenance
     report = json.loads((tmp_path / "report.json").read_text())
     assert all(f["status"] == "repaired" and ":" in f["worker"] for f in report["files"])
-    code, text, err = run(on_ray, capsys)                               # re-run: everything is finished
+    code, text, err = run(on_ray, capsys)  # re-run: everything is finished
     report = json.loads((tmp_path / "report.json").read_text())
     assert code == 0 and [f["status"] for f in report["files"]] == ["skipped"] * 5, err
 
 
 def test_a_worker_killed_in_the_middle_of_a_file(tiny_model_dir, tmp_path, capsys):
     src = dataset(tmp_path / "in")
-    code, _, err = run([str(src), "-o", str(tmp_path / "local"), "--model", str(tiny_model_dir), "--quiet", *FAST],
-                       capsys)
+    code, _, err = run(
+        [str(src), "-o", str(tmp_path / "local"), "--model", str(tiny_model_dir), "--quiet", *FAST], capsys
+    )
     assert code == 0, err
     marker = tmp_path / "killed"
     ray.init(runtime_env={"env_vars": {distributed.KILL_ONCE_ENV: str(marker)}}, **RAY_INIT)
-    code, text, err = run([str(src), "-o", str(tmp_path / "ray"), "--model", str(tiny_model_dir), "--ray", *FAST],
-                          capsys)
+    code, text, err = run(
+        [str(src), "-o", str(tmp_path / "ray"), "--model", str(tiny_model_dir), "--ray", *FAST], capsys
+    )
     assert marker.exists(), "no worker was killed"
     assert code == 0, err
     # the retry finished the run: the same bytes, and nothing partial or temporary left behind (tree checks)
@@ -68,9 +71,9 @@ def test_a_worker_killed_in_the_middle_of_a_file(tiny_model_dir, tmp_path, capsy
 def test_bad_ray_arguments(tiny_model_dir, tmp_path, capsys, monkeypatch):
     src = dataset(tmp_path / "in", n=1)
     argv = [str(src), "-o", str(tmp_path / "out"), "--model", str(tiny_model_dir), *FAST]
-    code, _, err = run(argv + ["--ray", "127.0.0.1:1"], capsys)       # nothing listens there
+    code, _, err = run(argv + ["--ray", "127.0.0.1:1"], capsys)  # nothing listens there
     assert code == 2 and "the Ray cluster at 127.0.0.1:1 cannot be reached" in err, err
-    monkeypatch.setitem(sys.modules, "ray", None)                       # Ray not installed
+    monkeypatch.setitem(sys.modules, "ray", None)  # Ray not installed
     code, _, err = run(argv + ["--ray"], capsys)
     assert code == 2 and 'pip install "tcd-forecast[ray]"' in err, err
     assert not any((tmp_path / "out").glob("*.npz"))

@@ -3,6 +3,7 @@
 A random-init tiny model's values are meaningless: these tests check the structure (shapes, masks,
 bit-identical observed values, windows and their conditioning), determinism, resumability and the error
 handling, not accuracy (benches/repair_quality.py measures that)."""
+
 from __future__ import annotations
 
 import json
@@ -24,6 +25,7 @@ from tcd.batch_repair import options as repair_options
 from tcd.batch_repair import runner as repair_runner
 from tcd.batch_repair.windows import window_starts
 from tcd.cli import repair as repair_command
+
 
 # ---------------------------------------------------------------------------------------------- windows
 @pytest.mark.parametrize("frames", [50, 51, 89, 90, 91, 313, 1000])
@@ -62,8 +64,9 @@ def test_round_trip_lengths(tiny_model, tmp_path, frames):
     assert prov["sampler"] == "ddim" and prov["steps"] == 2 and prov["seed"] == 5 and prov["num_samples"] == 2
     assert prov["tcd_version"] == tcd.__version__
     assert info["status"] == "repaired" and info["frames"] == frames
-    assert info["windows"] == len(window_starts(max(frames, W), W, repair_options.DEFAULT_OVERLAP,
-                                                repair_options.DEFAULT_LOOKAHEAD))
+    assert info["windows"] == len(
+        window_starts(max(frames, W), W, repair_options.DEFAULT_OVERLAP, repair_options.DEFAULT_LOOKAHEAD)
+    )
     assert info["missing_values"] == int((~seen).sum())
 
 
@@ -88,8 +91,9 @@ def test_fill_alone_file_equals_tcd_repair(tmp_path, capsys):
     got = load_npz(tmp_path / "out.npz")
     assert info["status"] == "repaired" and json.loads(str(got["provenance"]))["num_samples"] == 0
     assert np.array_equal(got["poses"], m.repair(x, num_samples=0, seed=9).poses)
-    code, _, err = run([tmp_path / "in.npz", "-o", tmp_path / "cli", "--samples", "0", "--seed", "4", "--quiet"],
-                       capsys)
+    code, _, err = run(
+        [tmp_path / "in.npz", "-o", tmp_path / "cli", "--samples", "0", "--seed", "4", "--quiet"], capsys
+    )
     assert code == 0, err
     assert np.array_equal(load_npz(tmp_path / "cli" / "in.npz")["poses"], got["poses"])
 
@@ -139,17 +143,16 @@ def test_later_windows_condition_on_repaired_frames(tiny_model, tmp_path, monkey
         shared = starts[k - 1] + W - starts[k]
         assert mask[0, :, :shared].all()  # every entry of the shared frames counts as observed
         # ... with the values the previous window produced (repaired where they were missing)
-        assert np.array_equal(obs[0, :, :shared], prev_mean[0, :, W - shared:])
-        assert (prev_mask[0, :, W - shared:] == 0).any()
+        assert np.array_equal(obs[0, :, :shared], prev_mean[0, :, W - shared :])
+        assert (prev_mask[0, :, W - shared :] == 0).any()
         # the new frames keep the original mask
-        orig = (~np.isnan(x[starts[k] + shared:starts[k] + W])).reshape(W - shared, -1).T
+        orig = (~np.isnan(x[starts[k] + shared : starts[k] + W])).reshape(W - shared, -1).T
         assert np.array_equal(mask[0, :, shared:].astype(bool), orig)
     # and the output's missing entries are the windows' values for their new frames
     for k, (lo, hi) in enumerate(((0, 50), (50, 90), (90, 130))):
-        win = calls[k][2][0].T.reshape(W, 22, 3)[lo - starts[k]:hi - starts[k]]
+        win = calls[k][2][0].T.reshape(W, 22, 3)[lo - starts[k] : hi - starts[k]]
         miss = np.isnan(x[lo:hi])
         assert np.array_equal(out[lo:hi][miss], win[miss])
-
 
 
 def test_lookahead_frames_are_generated_again_by_the_next_window(tiny_model, tmp_path, monkeypatch):
@@ -174,14 +177,14 @@ def test_lookahead_frames_are_generated_again_by_the_next_window(tiny_model, tmp
         assert ctx == (5 if k < 3 else 30)
         assert mask[0, :, :ctx].all()
         prev_mean = calls[k - 1][2][0]
-        assert np.array_equal(obs[0, :, :ctx], prev_mean[:, starts[k] - starts[k - 1]:done[k - 1] - starts[k - 1]])
-        orig = (~np.isnan(x[done[k - 1]:starts[k] + W])).reshape(starts[k] + W - done[k - 1], -1).T
+        assert np.array_equal(obs[0, :, :ctx], prev_mean[:, starts[k] - starts[k - 1] : done[k - 1] - starts[k - 1]])
+        orig = (~np.isnan(x[done[k - 1] : starts[k] + W])).reshape(starts[k] + W - done[k - 1], -1).T
         assert np.array_equal(mask[0, :, ctx:].astype(bool), orig)  # the lookahead frames keep their gaps
     lo = 0
     for k in range(4):
-        win = calls[k][2][0].T.reshape(W, 22, 3)[lo - starts[k]:done[k] - starts[k]]
-        miss = np.isnan(x[lo:done[k]])
-        assert np.array_equal(out[lo:done[k]][miss], win[miss])
+        win = calls[k][2][0].T.reshape(W, 22, 3)[lo - starts[k] : done[k] - starts[k]]
+        miss = np.isnan(x[lo : done[k]])
+        assert np.array_equal(out[lo : done[k]][miss], win[miss])
         lo = done[k]
     # window 0's own values for its uncommitted tail were replaced by window 1's
     tail = np.isnan(x[40:50])
@@ -197,8 +200,22 @@ def test_same_seed_same_output_regardless_of_jobs_and_batching(tiny_model_dir, t
         np.savez(d / f"s{i}.npz", poses=gappy(rng, t))
     outs = {}
     for jobs in ("1", "2"):
-        code, _, err = run([d, "-o", tmp_path / f"out{jobs}", "--model", tiny_model_dir, "--jobs", jobs, "--seed", "9",
-                            "--quiet", *FAST], capsys)
+        code, _, err = run(
+            [
+                d,
+                "-o",
+                tmp_path / f"out{jobs}",
+                "--model",
+                tiny_model_dir,
+                "--jobs",
+                jobs,
+                "--seed",
+                "9",
+                "--quiet",
+                *FAST,
+            ],
+            capsys,
+        )
         assert code == 0, err
         outs[jobs] = tree(tmp_path / f"out{jobs}")
     same_tree(outs["1"], outs["2"])
@@ -238,8 +255,11 @@ def test_directory_with_bad_files(tiny_model_dir, tmp_path, capsys):
     assert rep["summary"]["failed"] == 6 and rep["summary"]["repaired"] == 2
     assert rep["model_sha256"] == tcd.load(tiny_model_dir).sha256
     reasons = {
-        "corrupt.npz": "unreadable", "garbage.npz": "unreadable", "wrong_shape.npz": "17 joints",
-        "all_missing.npz": "every value is missing", "inf.npz": "finite, with NaN marking missing",
+        "corrupt.npz": "unreadable",
+        "garbage.npz": "unreadable",
+        "wrong_shape.npz": "17 joints",
+        "all_missing.npz": "every value is missing",
+        "inf.npz": "finite, with NaN marking missing",
         "no_poses.npz": "without a `poses` array",
     }
     for name, why in reasons.items():
@@ -260,7 +280,7 @@ def test_rerun_skips_and_overwrite(tiny_model_dir, tmp_path, capsys):
     stamp = (out / "in.npz").stat().st_mtime_ns
     time.sleep(0.01)
     code, text, _ = run([src, "-o", out, "--model", tiny_model_dir, "--seed", "1", *FAST], capsys)
-    assert code == 0 and "0 repaired, 1 skipped" in text      # finished with these settings: resumed past it
+    assert code == 0 and "0 repaired, 1 skipped" in text  # finished with these settings: resumed past it
     # an output made with other settings is not "finished": it is reported, and left as it is
     code, text, err = run([src, "-o", out, "--model", tiny_model_dir, "--seed", "2", *FAST], capsys)
     assert code == 1 and "0 repaired, 0 skipped, 1 failed" in text
@@ -307,9 +327,13 @@ def test_never_overwrites_an_input(tiny_model_dir, tmp_path, capsys):
 def test_bad_arguments_exit_2(tiny_model_dir, tmp_path, capsys):
     src = tmp_path / "in.npz"
     np.savez(src, poses=gappy(np.random.default_rng(7), 20))
-    for extra, why in ((["--steps", "0"], "--steps"), (["--fps", "-5"], "--fps"), (["--overlap", "50"], "--overlap"),
-                       (["--lookahead", "45"], "--lookahead"),
-                       (["--samples", "0"], "num_samples")):   # the fill alone: the tiny model has no repair fill
+    for extra, why in (
+        (["--steps", "0"], "--steps"),
+        (["--fps", "-5"], "--fps"),
+        (["--overlap", "50"], "--overlap"),
+        (["--lookahead", "45"], "--lookahead"),
+        (["--samples", "0"], "num_samples"),
+    ):  # the fill alone: the tiny model has no repair fill
         code, _, err = run([src, "-o", tmp_path / "o", "--model", tiny_model_dir, *extra], capsys)
         assert code == 2 and why in err, (extra, err)
     for flag, value in (("--units", "inch"), ("--sampler", "euler")):  # choices: argparse's usage error

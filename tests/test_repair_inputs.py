@@ -1,6 +1,7 @@
 """`tcd repair`'s inputs: units, frame rates (resampled to the model's and back), Human3.6M exp-map text
 files and the forward kinematics that turn them into joint positions. Structure, not accuracy, as in
 test_repair.py."""
+
 from __future__ import annotations
 
 import json
@@ -91,8 +92,22 @@ def test_cli_fps_and_units(tiny_model_dir, tmp_path, capsys):
     rng = np.random.default_rng(11)
     x = gappy(rng, 75) * np.float32(1000)
     np.savez(tmp_path / "in.npz", poses=x)
-    code, _, err = run([tmp_path / "in.npz", "-o", tmp_path / "out", "--model", tiny_model_dir, "--fps", "30",
-                        "--units", "mm", "--quiet", *FAST], capsys)
+    code, _, err = run(
+        [
+            tmp_path / "in.npz",
+            "-o",
+            tmp_path / "out",
+            "--model",
+            tiny_model_dir,
+            "--fps",
+            "30",
+            "--units",
+            "mm",
+            "--quiet",
+            *FAST,
+        ],
+        capsys,
+    )
     assert code == 0, err
     tcd.repair_file(tmp_path / "in.npz", tmp_path / "api.npz", tiny_model_dir, fps=30, units="mm", **FAST_KW)
     a, b = load_npz(tmp_path / "out" / "in.npz"), load_npz(tmp_path / "api.npz")
@@ -111,8 +126,8 @@ def _expmap_rows(rng, frames):
 def test_expmap_txt_input(tiny_model_dir, tmp_path, capsys):
     rng = np.random.default_rng(12)
     rows = _expmap_rows(rng, 64)
-    rows[10:14] = np.nan                       # missing frames
-    rows[20:30, 3 + 3 * 17:3 + 3 * 18] = np.nan  # left shoulder rotation unknown: the arm below it missing
+    rows[10:14] = np.nan  # missing frames
+    rows[20:30, 3 + 3 * 17 : 3 + 3 * 18] = np.nan  # left shoulder rotation unknown: the arm below it missing
     d = tmp_path / "h36m" / "S5"
     d.mkdir(parents=True)
     np.savetxt(d / "walking_1.txt", rows, delimiter=",")

@@ -1,6 +1,7 @@
 """benches/report.py: the generated blocks of the Markdown files, rewritten by --write and checked by --check
 (a changed number, an unknown block, a missing or broken results file, a broken block), on files in a temporary
 folder; and the repository's own README.md, MODEL_CARD.md and docs/ as --write would write them. No torch, no data."""
+
 import json
 import shutil
 
@@ -10,13 +11,27 @@ from benches import report
 
 PEERS = {
     "versions": {"cores": 2, "cpu": "x86_64", "cpu_simd_flags": ["avx2"]},
-    "rows": [{"L": 75, "K": 66, "threads": 1, "reps": 3, "ms": {"tcd": 50.0, "torch": 200.0},
-              "peer_over_tcd": {"torch": 4.0}}],
+    "rows": [
+        {
+            "L": 75,
+            "K": 66,
+            "threads": 1,
+            "reps": 3,
+            "ms": {"tcd": 50.0, "torch": 200.0},
+            "peer_over_tcd": {"torch": 4.0},
+        }
+    ],
 }
-WHOLE = {"whole_forecast": {"ddpm50_x5": {"seconds": 12.25, "peak_rss_mib": 70.2},
-                            "ddim10_x1": {"seconds": 0.5, "peak_rss_mib": 60.0}}}
-BLOCK = ("# Page\n\nbefore\n\n<!-- report:speed-peers -->\n<!-- /report:speed-peers -->\n\n"
-         "<!-- report:speed-whole -->\n<!-- /report:speed-whole -->\n\nafter\n")
+WHOLE = {
+    "whole_forecast": {
+        "ddpm50_x5": {"seconds": 12.25, "peak_rss_mib": 70.2},
+        "ddim10_x1": {"seconds": 0.5, "peak_rss_mib": 60.0},
+    }
+}
+BLOCK = (
+    "# Page\n\nbefore\n\n<!-- report:speed-peers -->\n<!-- /report:speed-peers -->\n\n"
+    "<!-- report:speed-whole -->\n<!-- /report:speed-whole -->\n\nafter\n"
+)
 
 
 @pytest.fixture
@@ -37,25 +52,26 @@ def run(capsys, *argv):
 def test_write_then_check_then_a_changed_number(tmp_path, results, capsys):
     page = tmp_path / "page.md"
     page.write_text(BLOCK)
-    assert run(capsys, "--check", page, "--results", results)[0] == 1          # an empty block differs
+    assert run(capsys, "--check", page, "--results", results)[0] == 1  # an empty block differs
     rc, out, _ = run(capsys, "--write", page, "--results", results)
     assert rc == 0 and "speed-peers" in out
     text = page.read_text()
     assert text.startswith("# Page\n\nbefore\n\n<!-- report:speed-peers -->\n") and text.endswith(
-        "<!-- /report:speed-whole -->\n\nafter\n")
+        "<!-- /report:speed-whole -->\n\nafter\n"
+    )
     assert "| DDPM-50 × 5 samples (the paper's sampler) | 12.2 s | 70 MiB |" in text
     assert "| tcd | 50.0 |" in text and "| PyTorch eager | 200.0 (4.00 ×) |" in text
     assert run(capsys, "--check", page, "--results", results)[0] == 0
-    assert run(capsys, "--write", page, "--results", results)[1] == ""           # nothing left to rewrite
+    assert run(capsys, "--write", page, "--results", results)[1] == ""  # nothing left to rewrite
 
-    page.write_text(text.replace("| tcd | 50.0 |", "| tcd | 49.0 |"))           # a number edited by hand
+    page.write_text(text.replace("| tcd | 50.0 |", "| tcd | 49.0 |"))  # a number edited by hand
     rc, out, err = run(capsys, "--check", page, "--results", results)
     assert rc == 1 and "-| tcd | 49.0 |" in out and "+| tcd | 50.0 |" in out and "speed-peers" in out
     assert "1 block(s) differ" in err
 
     page.write_text(text)
     PEERS2 = json.loads(json.dumps(PEERS))
-    PEERS2["rows"][0]["ms"]["tcd"] = 51.0                                         # a results file rerun
+    PEERS2["rows"][0]["ms"]["tcd"] = 51.0  # a results file rerun
     (results / "peers.json").write_text(json.dumps(PEERS2))
     rc, out, _ = run(capsys, "--check", page, "--results", results)
     assert rc == 1 and "+| tcd | 51.0 |" in out
@@ -76,15 +92,18 @@ def test_missing_results_file_is_an_error_naming_it(tmp_path, results, capsys):
     (results / "whole_forecast_tcd.json").unlink()
     rc, _, err = run(capsys, "--write", page, "--results", results)
     assert rc == 2 and "missing results file" in err and "whole_forecast_tcd.json" in err
-    assert page.read_text() == BLOCK                                              # nothing written
+    assert page.read_text() == BLOCK  # nothing written
 
 
-@pytest.mark.parametrize("text,message", [
-    ("<!-- report:speed-peers -->\nno end\n", "not closed"),
-    ("<!-- report:speed-peers -->\n<!-- report:speed-peers -->\n<!-- /report:speed-peers -->\n", "not closed"),
-    ("x <!-- /report:speed-peers --> y\n", "closes no block"),
-    ("<!-- report:speed-peers -->text\n<!-- /report:speed-peers -->\n", "a line of its own"),
-])
+@pytest.mark.parametrize(
+    "text,message",
+    [
+        ("<!-- report:speed-peers -->\nno end\n", "not closed"),
+        ("<!-- report:speed-peers -->\n<!-- report:speed-peers -->\n<!-- /report:speed-peers -->\n", "not closed"),
+        ("x <!-- /report:speed-peers --> y\n", "closes no block"),
+        ("<!-- report:speed-peers -->text\n<!-- /report:speed-peers -->\n", "a line of its own"),
+    ],
+)
 def test_broken_blocks_are_errors(tmp_path, results, capsys, text, message):
     page = tmp_path / "page.md"
     page.write_text(text)
@@ -111,9 +130,18 @@ def test_recipes_cost_reads_what_exists(tmp_path, capsys):
     results = tmp_path / "results"
     (results / "recipes").mkdir(parents=True)
     assert report.recipes_cost(report.Sources(results)) == ""
-    (results / "recipes" / "h36m-prior.json").write_text(json.dumps({
-        "recipe": "h36m-prior", "files": {"weights/prior.safetensors": {"identical": False}}, "cpu_hours": 3.456,
-        "scoring_cpu_hours": 0.1, "windows": 7530000, "stages": [{"cpus": ["AMD EPYC"]}]}))
+    (results / "recipes" / "h36m-prior.json").write_text(
+        json.dumps(
+            {
+                "recipe": "h36m-prior",
+                "files": {"weights/prior.safetensors": {"identical": False}},
+                "cpu_hours": 3.456,
+                "scoring_cpu_hours": 0.1,
+                "windows": 7530000,
+                "stages": [{"cpus": ["AMD EPYC"]}],
+            }
+        )
+    )
     md = report.recipes_cost(report.Sources(results))
     assert "[h36m-prior](training/recipes/h36m-prior.json)" in md and "| 3.46 |" in md and "7,530,000" in md
     assert "(not the bundled bytes)" in md and "**3.46**" in md and "AMD EPYC" in md

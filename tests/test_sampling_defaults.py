@@ -1,5 +1,6 @@
 """A model directory's own sampler defaults (``sampling.json``, :attr:`tcd.TCD.sampling`): what every layer
 runs when a call names no sampler, how a call's keywords override them, and the errors of a bad file."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -22,8 +23,9 @@ DDIM2 = {"sampler": "ddim", "num_inference_steps": 2, "eta": 1.0}
 def model_dir(tiny_model_dir, tmp_path):
     """The tiny model with ``sampling.json``: forecasts with DDIM-2 (eta 1), repairs with DDPM-3."""
     d = shutil.copytree(tiny_model_dir, tmp_path / "m")
-    (d / "sampling.json").write_text(json.dumps({"why": "a test", "forecast": DDIM2,
-                                                 "repair": {"num_inference_steps": 3}}))
+    (d / "sampling.json").write_text(
+        json.dumps({"why": "a test", "forecast": DDIM2, "repair": {"num_inference_steps": 3}})
+    )
     return d
 
 
@@ -62,11 +64,14 @@ def test_load_reads_the_defaults(model_dir, tiny_model_dir, obs):
     assert tcd.load(tiny_model_dir).sampling == {"forecast": SamplerOptions(), "repair": SamplerOptions()}
     a = m.forecast(obs, num_samples=2, seed=3)
     assert np.array_equal(a.samples, m.forecast(obs, num_samples=2, seed=3, **DDIM2).samples)
-    assert not np.array_equal(a.samples, m.forecast(obs, num_samples=2, seed=3, sampler="ddim",
-                                                    num_inference_steps=3).samples)
+    assert not np.array_equal(
+        a.samples, m.forecast(obs, num_samples=2, seed=3, sampler="ddim", num_inference_steps=3).samples
+    )
     # a keyword overrides its field only; the repair's default is the repair's
-    assert np.array_equal(m.forecast(obs, num_samples=2, seed=3, eta=0.0).samples,
-                          m.forecast(obs, num_samples=2, seed=3, **dict(DDIM2, eta=0.0)).samples)
+    assert np.array_equal(
+        m.forecast(obs, num_samples=2, seed=3, eta=0.0).samples,
+        m.forecast(obs, num_samples=2, seed=3, **dict(DDIM2, eta=0.0)).samples,
+    )
     r = m.repair(obs, num_samples=2, seed=3).poses
     assert np.array_equal(r, m.repair(obs, num_samples=2, seed=3, sampler="ddpm", num_inference_steps=3).poses)
 
@@ -75,12 +80,44 @@ def test_cli_and_repair_file_use_the_model_defaults(model_dir, obs, tmp_path, ca
     inp = tmp_path / "in.npz"
     np.savez(inp, poses=obs)
     m = tcd.load(model_dir)
-    assert main(["forecast", str(inp), "-o", str(tmp_path / "f.npz"), "--model", str(model_dir), "--seed", "4",
-                 "--samples", "2"]) == 0
+    assert (
+        main(
+            [
+                "forecast",
+                str(inp),
+                "-o",
+                str(tmp_path / "f.npz"),
+                "--model",
+                str(model_dir),
+                "--seed",
+                "4",
+                "--samples",
+                "2",
+            ]
+        )
+        == 0
+    )
     with np.load(tmp_path / "f.npz") as f:
         assert np.array_equal(f["samples"], m.forecast(obs, num_samples=2, seed=4, **DDIM2).samples)
-    assert main(["forecast", str(inp), "-o", str(tmp_path / "g.npz"), "--model", str(model_dir), "--seed", "4",
-                 "--samples", "2", "--eta", "0"]) == 0
+    assert (
+        main(
+            [
+                "forecast",
+                str(inp),
+                "-o",
+                str(tmp_path / "g.npz"),
+                "--model",
+                str(model_dir),
+                "--seed",
+                "4",
+                "--samples",
+                "2",
+                "--eta",
+                "0",
+            ]
+        )
+        == 0
+    )
     with np.load(tmp_path / "g.npz") as f:
         assert np.array_equal(f["samples"], m.forecast(obs, num_samples=2, seed=4, **dict(DDIM2, eta=0.0)).samples)
     s = tcd.repair_file(inp, tmp_path / "r.npz", m, num_samples=2)
@@ -98,15 +135,18 @@ def test_cli_and_repair_file_use_the_model_defaults(model_dir, obs, tmp_path, ca
     assert info["sampling"]["forecast"] == dataclasses.asdict(SamplerOptions(**DDIM2))
 
 
-@pytest.mark.parametrize("text, says", [
-    ("{", "not a readable JSON file"),
-    ("[1]", "expected an object of tasks"),
-    ('{"predict": {}}', "unknown key 'predict'"),
-    ('{"forecast": {"steps": 2}}', "'steps'"),
-    ('{"forecast": {"sampler": "euler"}}', "sampler"),
-    ('{"forecast": {"num_inference_steps": 0}}', "num_inference_steps"),
-    ('{"forecast": "ddim"}', "expected an object of sampler settings"),
-])
+@pytest.mark.parametrize(
+    "text, says",
+    [
+        ("{", "not a readable JSON file"),
+        ("[1]", "expected an object of tasks"),
+        ('{"predict": {}}', "unknown key 'predict'"),
+        ('{"forecast": {"steps": 2}}', "'steps'"),
+        ('{"forecast": {"sampler": "euler"}}', "sampler"),
+        ('{"forecast": {"num_inference_steps": 0}}', "num_inference_steps"),
+        ('{"forecast": "ddim"}', "expected an object of sampler settings"),
+    ],
+)
 def test_bad_sampling_file_is_a_weights_error(tiny_model_dir, tmp_path, text, says):
     d = shutil.copytree(tiny_model_dir, tmp_path / "m")
     (d / "sampling.json").write_text(text)

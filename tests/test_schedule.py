@@ -37,13 +37,16 @@ def test_bad_schedule_and_stored_betas_rejected():
     assert DiffusionConfig.from_dict(DiffusionConfig().to_dict()) == DiffusionConfig()
 
 
-@pytest.mark.parametrize("spacing,n,expected", [
-    ("trailing", 5, [49, 39, 29, 19, 9]),
-    ("leading", 5, [40, 30, 20, 10, 0]),
-    ("linspace", 5, [49, 37, 24, 12, 0]),
-    ("trailing", 50, list(range(49, -1, -1))),
-    ("leading", 50, list(range(49, -1, -1))),
-])
+@pytest.mark.parametrize(
+    "spacing,n,expected",
+    [
+        ("trailing", 5, [49, 39, 29, 19, 9]),
+        ("leading", 5, [40, 30, 20, 10, 0]),
+        ("linspace", 5, [49, 37, 24, 12, 0]),
+        ("trailing", 50, list(range(49, -1, -1))),
+        ("leading", 50, list(range(49, -1, -1))),
+    ],
+)
 def test_timestep_spacing(spacing, n, expected):
     assert timesteps(50, n, spacing) == expected
 

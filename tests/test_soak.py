@@ -1,5 +1,6 @@
 """Soak and concurrency (issue 19, item 6): hundreds of calls in one process do not grow its memory, and four
 threads sharing one loaded model get exactly the results of serial calls."""
+
 from __future__ import annotations
 
 import threading
@@ -31,10 +32,10 @@ def test_hundreds_of_calls_do_not_grow_memory(tiny_model):
         tiny_model.forecast(x, seed=i, threads=1 + i % 2, **FAST)
         tiny_model.repair(x, seed=i, threads=1 + i % 2, **FAST)
 
-    for i in range(40):              # warm-up: allocator pools, thread pools of both sizes, caches
+    for i in range(40):  # warm-up: allocator pools, thread pools of both sizes, caches
         round_of_calls(i)
     before = rss_mib()
-    for i in range(150):             # 300 calls
+    for i in range(150):  # 300 calls
         round_of_calls(i)
     grown = rss_mib() - before
     # a leak of even one output array per call (2 x 25 x 66 x 4 bytes and up) would add several MiB
@@ -51,7 +52,7 @@ def test_four_threads_on_one_model_match_serial_calls(tiny_model):
     def work(i):
         try:
             x, s = jobs[i]
-            for _ in range(5):       # repeated, so the threads really overlap
+            for _ in range(5):  # repeated, so the threads really overlap
                 got[i] = tiny_model.forecast(x, seed=s, threads=1, **FAST).samples
         except BaseException as e:  # surfaced below: an exception in a thread would otherwise be lost
             errors.append(e)

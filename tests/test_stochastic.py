@@ -1,4 +1,5 @@
 """Tests of the DLow / GSPS stochastic metrics (training/stochastic.py) on hand-made arrays."""
+
 from __future__ import annotations
 
 import itertools
@@ -23,7 +24,7 @@ def _samples_from_flat(vectors, t_pred=2, d=3) -> np.ndarray:
     """Samples whose flattened (t_pred * d) vectors are given (padded with zeros)."""
     out = np.zeros((len(vectors), t_pred * d))
     for i, v in enumerate(vectors):
-        out[i, :len(v)] = v
+        out[i, : len(v)] = v
     return out.reshape(len(vectors), t_pred, d)
 
 
@@ -54,8 +55,7 @@ def test_apd_top50_nonstandard():
     assert apd_top50(pred) == pytest.approx(4.0)  # fewer than 50 pairs: all of them
     rng = np.random.default_rng(0)
     pred = rng.normal(size=(20, 3, 2))  # 190 pairs
-    brute = sorted((np.linalg.norm(a - b) for a, b in itertools.combinations(pred.reshape(20, -1), 2)),
-                   reverse=True)
+    brute = sorted((np.linalg.norm(a - b) for a, b in itertools.combinations(pred.reshape(20, -1), 2)), reverse=True)
     assert apd_top50(pred) == pytest.approx(np.mean(brute[:50]))
     assert apd(pred) == pytest.approx(np.mean(brute))
     assert apd_top50(pred) > apd(pred)
@@ -63,10 +63,12 @@ def test_apd_top50_nonstandard():
 
 def test_ade_fde_min_taken_separately():
     gt = np.zeros((2, 2))
-    pred = np.array([
-        [[3.0, 4.0], [0.0, 0.0]],  # per-frame errors 5, 0 -> mean 2.5, last 0
-        [[1.0, 0.0], [0.0, 2.0]],  # per-frame errors 1, 2 -> mean 1.5, last 2
-    ])
+    pred = np.array(
+        [
+            [[3.0, 4.0], [0.0, 0.0]],  # per-frame errors 5, 0 -> mean 2.5, last 0
+            [[1.0, 0.0], [0.0, 2.0]],  # per-frame errors 1, 2 -> mean 1.5, last 2
+        ]
+    )
     assert ade(pred, gt) == pytest.approx(1.5)
     assert fde(pred, gt) == pytest.approx(0.0)
     assert ade(pred[:1], gt) == pytest.approx(2.5)
@@ -83,15 +85,19 @@ def test_ade_uses_norm_of_flattened_pose_not_per_joint_mean():
 
 
 def test_mmade_mmfde_average_over_futures():
-    pred = np.array([
-        [[0.0], [0.0]],
-        [[2.0], [2.0]],
-    ])  # (S=2, t_pred=2, D=1)
-    gt_multi = np.array([
-        [[0.0], [1.0]],  # s0: errors 0,1 -> ade .5 fde 1; s1: 2,1 -> ade 1.5 fde 1 => ade .5, fde 1
-        [[2.0], [3.0]],  # s0: 2,3 -> 2.5, 3; s1: 0,1 -> .5, 1                     => ade .5, fde 1
-        [[1.0], [1.0]],  # s0: 1,1 -> 1, 1;   s1: 1,1 -> 1, 1                       => ade 1, fde 1
-    ])
+    pred = np.array(
+        [
+            [[0.0], [0.0]],
+            [[2.0], [2.0]],
+        ]
+    )  # (S=2, t_pred=2, D=1)
+    gt_multi = np.array(
+        [
+            [[0.0], [1.0]],  # s0: errors 0,1 -> ade .5 fde 1; s1: 2,1 -> ade 1.5 fde 1 => ade .5, fde 1
+            [[2.0], [3.0]],  # s0: 2,3 -> 2.5, 3; s1: 0,1 -> .5, 1                     => ade .5, fde 1
+            [[1.0], [1.0]],  # s0: 1,1 -> 1, 1;   s1: 1,1 -> 1, 1                       => ade 1, fde 1
+        ]
+    )
     assert mmade(pred, gt_multi) == pytest.approx((0.5 + 0.5 + 1.0) / 3)
     assert mmfde(pred, gt_multi) == pytest.approx(1.0)
     assert mmade(pred, gt_multi[:1]) == pytest.approx(ade(pred, gt_multi[0]))
@@ -140,8 +146,9 @@ def test_perfect_sample_gives_zero_error_with_multimodal_gt():
     # each window's own future is among its multimodal futures (distance 0), the others are not: MMADE is
     # the mean, over windows and their futures g, of the best sample's mean per-frame distance to g
     assert all(any(np.array_equal(g, gt) for g in m) for m, gt in zip(mm, gts))
-    mmade = np.mean([np.mean([min(np.linalg.norm(p - g, axis=1).mean() for p in pred) for g in m])
-                     for pred, m in zip(preds, mm)])
+    mmade = np.mean(
+        [np.mean([min(np.linalg.norm(p - g, axis=1).mean() for p in pred) for g in m]) for pred, m in zip(preds, mm)]
+    )
     assert res["MMADE"] == pytest.approx(mmade)
 
 
@@ -149,8 +156,13 @@ def test_oracle_best_picks_each_windows_sample_by_its_mean_error():
     """training.metrics.oracle_best (the Human3.6M oracle best of n): per window, all frames of the one sample whose
     mean error over the frames is lowest, even where another sample is lower at some frame."""
     from training.metrics import oracle_best
-    errs = np.array([[[1.0, 9.0], [5.0, 5.0]],      # sample 0: window 0 mean 5, window 1 mean 5
-                     [[4.0, 4.0], [2.0, 7.0]]])     # sample 1: window 0 mean 4, window 1 mean 4.5
+
+    errs = np.array(
+        [
+            [[1.0, 9.0], [5.0, 5.0]],  # sample 0: window 0 mean 5, window 1 mean 5
+            [[4.0, 4.0], [2.0, 7.0]],
+        ]
+    )  # sample 1: window 0 mean 4, window 1 mean 4.5
     np.testing.assert_array_equal(oracle_best(errs), [[4.0, 4.0], [2.0, 7.0]])
-    errs[1, 1] = [6.0, 6.0]                         # now sample 0 is window 1's best
+    errs[1, 1] = [6.0, 6.0]  # now sample 0 is window 1's best
     np.testing.assert_array_equal(oracle_best(errs), [[4.0, 4.0], [5.0, 5.0]])

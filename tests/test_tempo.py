@@ -1,5 +1,6 @@
 """Tempo sampling (:mod:`tcd.tempo`): the observation replayed at each sample's tempo, the forecast read back on
 the original clock, through ``TCD.forecast(tempo=...)`` and a model directory's ``sampling.json`` default."""
+
 from __future__ import annotations
 
 import json
@@ -45,14 +46,14 @@ def test_linear_motion_warps_and_comes_back_exactly(s):
     w, m = warp(x, np.ones_like(x), s)
     at = (T - 1) + s * (np.arange(T) - (T - 1))
     inside = at >= 0
-    assert np.array_equal(m[..., ~inside], np.zeros_like(m[..., ~inside]))      # before frame 0: missing
+    assert np.array_equal(m[..., ~inside], np.zeros_like(m[..., ~inside]))  # before frame 0: missing
     assert (m[..., inside] == 1).all()
     np.testing.assert_allclose(w[..., inside], (start + vel * at)[..., inside], atol=1e-12)
     # the forecast on the warped clock continues the warped motion: frame T - 1 + k is x at T - 1 + s k
     warped_future = start + vel * ((T - 1) + s * np.arange(1, H + 1))
     back = unwarp_future(w[..., -1:], warped_future, s)
     t = np.arange(1, H + 1)
-    truth = start + vel * ((T - 1) + np.minimum(t, s * H))                     # held after s * H
+    truth = start + vel * ((T - 1) + np.minimum(t, s * H))  # held after s * H
     np.testing.assert_allclose(back, truth, atol=1e-12)
 
 
@@ -85,7 +86,7 @@ def test_tempo_forecast_reads_each_sample_back_on_its_own_clock():
 
     n = 5
     out = tempo_forecast(one, x, seen, n, (0.6, 1.6))
-    assert calls == [((n * 2, K, T), [0, 5, 1, 6, 2, 7, 3, 8, 4, 9])]   # n * B; b * n + i
+    assert calls == [((n * 2, K, T), [0, 5, 1, 6, 2, 7, 3, 8, 4, 9])]  # n * B; b * n + i
     assert out["samples"].shape == (n, 2, K, H) and out["mean"].shape == (2, K, H)
     t = np.arange(1, H + 1)
     for i, s in enumerate(tempi((0.6, 1.6), n)):
@@ -100,8 +101,9 @@ def test_tempi_are_geometric_and_include_both_ends():
     assert tempi((0.6, 1.6), 1).tolist() == [1.0]
 
 
-@pytest.mark.parametrize("value", ["fast", (1.0,), (1.2, 2.0), (0.5, 0.9), (0.0, 1.0), (0.2, 1.5), (np.nan, 1.0),
-                                   (1.0, True)])
+@pytest.mark.parametrize(
+    "value", ["fast", (1.0,), (1.2, 2.0), (0.5, 0.9), (0.0, 1.0), (0.2, 1.5), (np.nan, 1.0), (1.0, True)]
+)
 def test_bad_tempo_is_an_error_naming_it(value):
     bad("tempo", check_tempo, value)
 
@@ -111,22 +113,22 @@ def test_forecast_with_tempo(tiny_model_dir):
     assert m.forecast_tempo is None
     obs = poses(np.random.default_rng(0), batch=2, missing=0.1)
     plain = m.forecast(obs, num_samples=4, seed=7, num_inference_steps=2)
-    assert np.array_equal(plain.samples, m.forecast(obs, num_samples=4, seed=7, num_inference_steps=2,
-                                                    tempo=(1, 1)).samples)
+    assert np.array_equal(
+        plain.samples, m.forecast(obs, num_samples=4, seed=7, num_inference_steps=2, tempo=(1, 1)).samples
+    )
     a = m.forecast(obs, num_samples=4, seed=7, num_inference_steps=2, tempo=(0.6, 1.6))
     b = m.forecast(obs, num_samples=4, seed=7, num_inference_steps=2, tempo=(0.6, 1.6))
     assert a.samples.shape == plain.samples.shape and np.isfinite(a.samples).all()
-    assert np.array_equal(a.samples, b.samples)                               # seeded
+    assert np.array_equal(a.samples, b.samples)  # seeded
     assert not np.allclose(a.samples, plain.samples)
     seen = np.isfinite(obs)
-    np.testing.assert_allclose(a.repaired[seen], obs[seen], atol=1e-6)         # observed entries as given
+    np.testing.assert_allclose(a.repaired[seen], obs[seen], atol=1e-6)  # observed entries as given
     assert np.isfinite(a.repaired).all()
     # sequence b's samples do not depend on the batch's size or other sequences (streams b * n + i), as without
     # tempo sampling (stream b)
     alone = m.forecast(obs[:1], num_samples=4, seed=7, num_inference_steps=2, tempo=(0.6, 1.6))
     assert np.array_equal(alone.samples[:, 0], a.samples[:, 0])
-    other = m.forecast(np.stack([obs[0], obs[0][::-1]]), num_samples=4, seed=7, num_inference_steps=2,
-                       tempo=(0.6, 1.6))
+    other = m.forecast(np.stack([obs[0], obs[0][::-1]]), num_samples=4, seed=7, num_inference_steps=2, tempo=(0.6, 1.6))
     assert np.array_equal(other.samples[:, 0], a.samples[:, 0])
     bad("tempo", m.forecast, obs, tempo="fast")
 
@@ -139,8 +141,9 @@ def test_sampling_file_sets_the_default_tempo(tiny_model_dir, tmp_path):
     obs = poses(np.random.default_rng(0), batch=2, missing=0.1)
     kw = dict(num_samples=3, seed=1, num_inference_steps=2)
     assert np.array_equal(m.forecast(obs, **kw).samples, m.forecast(obs, tempo=(0.7, 1.4), **kw).samples)
-    assert np.array_equal(m.forecast(obs, tempo=(1, 1), **kw).samples,
-                          tcd.load(tiny_model_dir).forecast(obs, **kw).samples)
+    assert np.array_equal(
+        m.forecast(obs, tempo=(1, 1), **kw).samples, tcd.load(tiny_model_dir).forecast(obs, **kw).samples
+    )
     (d / "sampling.json").write_text(json.dumps({"forecast_tempo": [1.5, 2.0]}))
     with pytest.raises(WeightsError, match="forecast_tempo"):
         tcd.load(d)
@@ -156,6 +159,7 @@ def test_command_line_tempo(tiny_model_dir, tmp_path, capsys):
     """``tcd forecast --tempo LO HI`` is the call's ``tempo``; ``tcd info`` shows the default; a bad range is exit
     code 2 naming the flag, with nothing written."""
     from tcd.cli import main
+
     obs = poses(np.random.default_rng(0), batch=2, missing=0.1)
     src = tmp_path / "in.npz"
     np.savez(src, poses=obs)

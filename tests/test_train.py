@@ -28,9 +28,21 @@ def synthetic_motion(n_seq=6, T=60, J=22, seed=0):
 
 
 def tiny_cfg(**kw):
-    d = dict(role="short", obs_len=10, pred_len=4, batch_size=8, epochs=3, steps_per_epoch=20, val_every=1,
-             val_timesteps=5, val_max_windows=16, train_stride=2, val_stride=7, lr=3e-3,
-             model={"channels": 16, "num_layers": 2, "num_heads": 2, "ffn_dim": 16, "dropout": 0.0})
+    d = dict(
+        role="short",
+        obs_len=10,
+        pred_len=4,
+        batch_size=8,
+        epochs=3,
+        steps_per_epoch=20,
+        val_every=1,
+        val_timesteps=5,
+        val_max_windows=16,
+        train_stride=2,
+        val_stride=7,
+        lr=3e-3,
+        model={"channels": 16, "num_layers": 2, "num_heads": 2, "ffn_dim": 16, "dropout": 0.0},
+    )
     d.update(kw)
     return TrainConfig(**d)
 
@@ -41,9 +53,9 @@ def test_make_batch_masks_and_targets():
     x0, obs, mask = make_batch(cfg, wins, np.random.default_rng(0))
     assert x0.shape == obs.shape == mask.shape == (4, 66, 14)
     assert torch.all(mask[..., 10:] == 0)
-    assert 0 < float(mask[..., :10].mean()) < 1                      # some occlusion in the observation
+    assert 0 < float(mask[..., :10].mean()) < 1  # some occlusion in the observation
     assert torch.all(obs[mask == 0] == 0)
-    assert torch.equal(x0[mask == 1], obs[mask == 1])                 # no noise pattern: visible = clean
+    assert torch.equal(x0[mask == 1], obs[mask == 1])  # no noise pattern: visible = clean
 
 
 def test_mask_mix_entries_may_carry_a_rate():
@@ -68,8 +80,9 @@ def test_short_cpu_training_lowers_the_loss(tmp_path):
     # validation loss of the same seeded model before any update
     torch.manual_seed(cfg.seed)
     untrained = TCDModel(ModelConfig.from_dict(cfg.model))
-    before = validation_loss(untrained, Schedule(DiffusionConfig()), cfg, Windows(seqs["val"], 14, cfg.val_stride),
-                             "cpu")
+    before = validation_loss(
+        untrained, Schedule(DiffusionConfig()), cfg, Windows(seqs["val"], 14, cfg.val_stride), "cpu"
+    )
     res = train(cfg, tmp_path, sequences=seqs, log=lambda *a: None)
     after = [h["val_loss"] for h in res["history"] if "val_loss" in h]
     assert len(after) == 1
@@ -86,7 +99,7 @@ def test_resume_continues_exactly(tmp_path):
     # so emulate an interruption by training one epoch with the same config and then resuming)
     part = tmp_path / "part"
     cfg1 = tiny_cfg(epochs=2, steps_per_epoch=6)
-    train(cfg1, part, sequences=seqs, max_minutes=0.0, log=lambda *a: None)   # stops after one batch
+    train(cfg1, part, sequences=seqs, max_minutes=0.0, log=lambda *a: None)  # stops after one batch
     train(cfg1, part, sequences=seqs, resume=True, log=lambda *a: None)
     a = torch.load(tmp_path / "full" / "last.pt", weights_only=False)["model"]
     b = torch.load(part / "last.pt", weights_only=False)["model"]
@@ -99,8 +112,12 @@ def test_dataloader_workers_draw_the_same_batches(tmp_path):
     """workers > 0 draws each batch (rows, masks, t, noise) in worker processes from the same seeds:
     the trained weights are bitwise those of the in-process run."""
     seqs = {"train": synthetic_motion(4, seed=0), "val": synthetic_motion(2, seed=1)}
-    cfg = tiny_cfg(epochs=2, steps_per_epoch=5, val_every=2,
-                   mask_mix=[["random_leg_arm", 1.0, 0.4], ["random_joints", 1.0, [0.1, 0.4]]])
+    cfg = tiny_cfg(
+        epochs=2,
+        steps_per_epoch=5,
+        val_every=2,
+        mask_mix=[["random_leg_arm", 1.0, 0.4], ["random_joints", 1.0, [0.1, 0.4]]],
+    )
     train(cfg, tmp_path / "serial", sequences=seqs, log=lambda *a: None)
     train(cfg, tmp_path / "workers", sequences=seqs, workers=2, log=lambda *a: None)
     a = torch.load(tmp_path / "serial" / "last.pt", weights_only=False)["model"]
@@ -113,8 +130,9 @@ def test_resume_refuses_another_config(tmp_path):
     seqs = {"train": synthetic_motion(4, seed=0), "val": synthetic_motion(2, seed=1)}
     train(tiny_cfg(epochs=1, steps_per_epoch=2), tmp_path, sequences=seqs, log=lambda *a: None)
     with pytest.raises(ValueError, match="another config"):
-        train(tiny_cfg(epochs=1, steps_per_epoch=2, lr=1e-4), tmp_path, sequences=seqs, resume=True,
-              log=lambda *a: None)
+        train(
+            tiny_cfg(epochs=1, steps_per_epoch=2, lr=1e-4), tmp_path, sequences=seqs, resume=True, log=lambda *a: None
+        )
 
 
 REMOVED_AT_DEFAULTS = {"batches": "host", "ema_probe_decays": [], "choose_average": False}
@@ -126,6 +144,7 @@ def test_removed_keys_at_their_inert_values_are_dropped_and_otherwise_refused(tm
     before; any other value is refused, naming the key and the git tag that has the code."""
     from dataclasses import asdict
     from training.train import REMOVED_KEYS
+
     assert REMOVED_KEYS == REMOVED_AT_DEFAULTS
     seqs = {"train": synthetic_motion(4, seed=0), "val": synthetic_motion(2, seed=1)}
     cfg = tiny_cfg(epochs=1, steps_per_epoch=2)
@@ -133,7 +152,7 @@ def test_removed_keys_at_their_inert_values_are_dropped_and_otherwise_refused(tm
     old.write_text(json.dumps({**asdict(cfg), **REMOVED_AT_DEFAULTS}))
     plain.write_text(json.dumps(asdict(cfg)))
     assert TrainConfig.load(old) == TrainConfig.load(plain)
-    train(cfg, tmp_path / "run", sequences=seqs, max_minutes=0.0, log=lambda *a: None)   # stops after one batch
+    train(cfg, tmp_path / "run", sequences=seqs, max_minutes=0.0, log=lambda *a: None)  # stops after one batch
     last = tmp_path / "run" / "last.pt"
     ck = torch.load(last, weights_only=False)
     ck["train_config"] = {**ck["train_config"], **REMOVED_AT_DEFAULTS}
@@ -155,6 +174,7 @@ def test_config_files_load(tmp_path):
     from pathlib import Path
     from training.prior import PriorConfig
     from training.recipe import all_recipes
+
     files = sorted((Path(__file__).parents[1] / "training" / "configs").glob("*.json"))
     configs = [json.loads(p.read_text()) for p in files]
     trainer = ["prior" if p.stem.startswith("humaneva_prior") else "train" for p in files]
@@ -181,10 +201,12 @@ def test_sequences_load_from_a_data_cache(tmp_path):
     """--data may name a cache in --write-cache's layout (float16 ``{split}/{key}`` arrays): each split's
     sequences, in key order, as float32."""
     from training.train import load_sequences
+
     seqs = {"train": synthetic_motion(3, seed=0), "val": synthetic_motion(2, seed=1)}
     cache = tmp_path / "h36m_model_cache_test.npz"
-    np.savez(cache, **{f"{split}/{i:02d}": q.astype(np.float16)
-                       for split, qs in seqs.items() for i, q in enumerate(qs)})
+    np.savez(
+        cache, **{f"{split}/{i:02d}": q.astype(np.float16) for split, qs in seqs.items() for i, q in enumerate(qs)}
+    )
     for split, qs in seqs.items():
         got = load_sequences(tiny_cfg(), str(cache), split)
         assert len(got) == len(qs) and all(g.dtype == np.float32 for g in got)
@@ -223,10 +245,16 @@ def test_reset_output_head_restarts_only_the_last_layer_of_a_warm_start(tmp_path
     train(tiny_cfg(epochs=1, steps_per_epoch=4), tmp_path / "eps", sequences=seqs, log=lambda *a: None)
     start = torch.load(tmp_path / "eps" / "last.pt", weights_only=False)["model"]
     head = "diffmodel.output_projection2.weight"
-    assert start[head].abs().sum() > 0                                   # trained away from its zero init
-    for reset in (False, True):                                          # lr 0: the weights stay where they start
-        cfg = tiny_cfg(epochs=1, steps_per_epoch=1, lr=0.0, init_from=str(tmp_path / "eps" / "last.pt"),
-                       diffusion={"prediction_type": "sample"}, reset_output_head=reset)
+    assert start[head].abs().sum() > 0  # trained away from its zero init
+    for reset in (False, True):  # lr 0: the weights stay where they start
+        cfg = tiny_cfg(
+            epochs=1,
+            steps_per_epoch=1,
+            lr=0.0,
+            init_from=str(tmp_path / "eps" / "last.pt"),
+            diffusion={"prediction_type": "sample"},
+            reset_output_head=reset,
+        )
         train(cfg, tmp_path / f"x0_{reset}", sequences=seqs, log=lambda *a: None)
         got = torch.load(tmp_path / f"x0_{reset}" / "last.pt", weights_only=False)["model"]
         for k in start:
@@ -243,13 +271,15 @@ def test_a_warm_start_into_a_wider_config_is_widened(tmp_path):
     training.widen (seeded by the config's seed) and starts from exactly those weights (lr 0 keeps them)."""
     from training.model import ModelConfig
     from training.widen import widen_state
+
     seqs = {"train": synthetic_motion(4, seed=0), "val": synthetic_motion(2, seed=1)}
     train(tiny_cfg(epochs=1, steps_per_epoch=2), tmp_path / "narrow", sequences=seqs, log=lambda *a: None)
     ck = torch.load(tmp_path / "narrow" / "last.pt", weights_only=False)
     lines = []
     wide = {"channels": 32, "num_layers": 2, "num_heads": 2, "ffn_dim": 32, "dropout": 0.0}
-    cfg = tiny_cfg(epochs=1, steps_per_epoch=1, lr=0.0, seed=7, init_from=str(tmp_path / "narrow" / "last.pt"),
-                   model=wide)
+    cfg = tiny_cfg(
+        epochs=1, steps_per_epoch=1, lr=0.0, seed=7, init_from=str(tmp_path / "narrow" / "last.pt"), model=wide
+    )
     train(cfg, tmp_path / "wide", sequences=seqs, log=lines.append)
     assert any("widened 2 x to 32 channels" in line for line in lines)
     got = torch.load(tmp_path / "wide" / "last.pt", weights_only=False)["model"]
@@ -260,6 +290,7 @@ def test_a_warm_start_into_a_wider_config_is_widened(tmp_path):
 @pytest.mark.slow
 def test_ema_weights_are_validated_resumed_and_exported(tmp_path):
     from training.export import export_checkpoint, load_model_file
+
     seqs = {"train": synthetic_motion(4, seed=0), "val": synthetic_motion(2, seed=1)}
     cfg = tiny_cfg(epochs=2, steps_per_epoch=6, ema_decay=0.9)
     train(cfg, tmp_path / "full", sequences=seqs, log=lambda *a: None)
@@ -269,10 +300,10 @@ def test_ema_weights_are_validated_resumed_and_exported(tmp_path):
     full = torch.load(tmp_path / "full" / "last.pt", weights_only=False)
     resumed = torch.load(part / "last.pt", weights_only=False)
     best = torch.load(tmp_path / "full" / "best.pt", weights_only=False)
-    assert "optimizer" not in best and best["ema"].keys() == full["ema"].keys()      # best.pt: the weights only
+    assert "optimizer" not in best and best["ema"].keys() == full["ema"].keys()  # best.pt: the weights only
     assert full["ema_n"] == resumed["ema_n"] == 12
     key = "diffmodel.residual_layers.0.mid_projection.weight"
-    assert not torch.allclose(full["ema"][key], full["model"][key])        # an average, not the last weights
+    assert not torch.allclose(full["ema"][key], full["model"][key])  # an average, not the last weights
     for k in full["ema"]:
         assert torch.allclose(full["ema"][k], resumed["ema"][k], atol=1e-6), k
     path = export_checkpoint(tmp_path / "full" / "last.pt", tmp_path / "export")
@@ -289,6 +320,7 @@ def test_ema_weights_are_validated_resumed_and_exported(tmp_path):
 def test_compile_failure_falls_back_to_eager_training(tmp_path, monkeypatch):
     def broken(*a, **k):
         raise RuntimeError("no compiler here")
+
     monkeypatch.setattr(torch, "compile", broken)
     seqs = {"train": synthetic_motion(4, seed=0), "val": synthetic_motion(2, seed=1)}
     lines = []
@@ -304,6 +336,7 @@ def test_the_compiled_forward_is_compiled_once(tmp_path, monkeypatch):
     warm-up once passed one tensor as x, observed and mask; Dynamo guards on aliasing, and the first real
     step compiled everything again."""
     import functools
+
     monkeypatch.setattr(torch, "compile", functools.partial(torch.compile, backend="eager"))
     monkeypatch.setattr(torch._dynamo.config, "error_on_recompile", True)
     torch._dynamo.reset()
@@ -319,6 +352,7 @@ def test_training_stops_at_the_deadline(tmp_path):
     """train(deadline=) (--stop-at): a wall-clock stop, counted whatever set-up and compiling took: a
     deadline already past stops after the first batch, validated and resumable, like max_minutes=0."""
     import time
+
     seqs = {"train": synthetic_motion(4, seed=0), "val": synthetic_motion(2, seed=1)}
     cfg = tiny_cfg(epochs=2, steps_per_epoch=4)
     res = train(cfg, tmp_path / "r", sequences=seqs, deadline=time.time() - 1, log=lambda *a: None)

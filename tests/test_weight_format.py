@@ -1,6 +1,7 @@
 """The weight-file format has one schema, docs/tcd_config.schema.json: the exporter writes it, the engine
 reads it, docs/weights.md describes it (see that page). The engine's side runs on the committed tiny weights
 (tests/fixtures) without torch; that the exporter writes the golden configs needs torch (the training code)."""
+
 import copy
 import json
 import re
@@ -25,8 +26,15 @@ def golden_config() -> dict:
     """What the exporter writes for the tiny preset's short-term model (without the source revision)."""
     from training.diffusion import DiffusionConfig
     from training.export import PRESETS, WINDOWS, build_config, h36m_data_meta
-    cfg = build_config("short", PRESETS["tiny"], DiffusionConfig(), *WINDOWS["short"],
-                       h36m_data_meta(training_data="none (random init)"), {"random_init": True, "preset": "tiny"})
+
+    cfg = build_config(
+        "short",
+        PRESETS["tiny"],
+        DiffusionConfig(),
+        *WINDOWS["short"],
+        h36m_data_meta(training_data="none (random init)"),
+        {"random_init": True, "preset": "tiny"},
+    )
     cfg.pop("source_revision")
     return cfg
 
@@ -42,8 +50,9 @@ def role_schema(role: str) -> dict:
     """The schema's rules for a file of ``role`` as one object: the top level with the branch of its
     ``if role == "prior"`` / ``else if role == "generator"`` / ``else`` applied (the model block taken from
     ``$defs``; no window or diffusion for the prior and the generator)."""
-    branch = SCHEMA["then"] if role == "prior" else SCHEMA["else"]["then"] if role == "generator" \
-        else SCHEMA["else"]["else"]
+    branch = (
+        SCHEMA["then"] if role == "prior" else SCHEMA["else"]["then"] if role == "generator" else SCHEMA["else"]["else"]
+    )
     props = dict(SCHEMA["properties"])
     for name, sub in branch.get("properties", {}).items():
         if sub is False:
@@ -82,9 +91,13 @@ def test_every_exported_config_follows_the_schema():
     from training.diffusion import DiffusionConfig
     from training.export import PRESETS, ROLES, WINDOWS, build_config, h36m_data_meta
     from training.model import ModelConfig
+
     for role in ROLES:
-        overrides = [{}] if role != "repair" else [{}, {"cond_fill": "spline", "target": "spline_residual",
-                                                        "target_scale": 4.0}]
+        overrides = (
+            [{}]
+            if role != "repair"
+            else [{}, {"cond_fill": "spline", "target": "spline_residual", "target_scale": 4.0}]
+        )
         for preset in sorted(PRESETS):
             for o in overrides:
                 mcfg = ModelConfig.from_dict({**PRESETS[preset].to_dict(), **o})
@@ -104,7 +117,8 @@ def test_golden_config_is_what_the_exporter_writes():
     import_torch(EXPORTER)
     assert golden_config() == json.loads(GOLDEN.read_text()), (
         "the exporter's output changed: if on purpose, update docs/tcd_config.schema.json, docs/weights.md and "
-        "this fixture together")
+        "this fixture together"
+    )
 
 
 def test_the_engine_reads_the_golden_config(tmp_path):
@@ -113,7 +127,13 @@ def test_the_engine_reads_the_golden_config(tmp_path):
     d = tcd.engine.Denoiser.load(write(tmp_path / "golden.safetensors", golden))
     assert d.config == golden
     assert (d.role, d.num_features, d.obs_len, d.pred_len, d.seq_len, d.num_train_timesteps) == (
-        "short", 66, 50, 5, 55, 50)
+        "short",
+        66,
+        50,
+        5,
+        55,
+        50,
+    )
 
 
 def test_engine_requires_what_the_schema_requires_and_defaults_the_rest(tmp_path):
@@ -137,6 +157,7 @@ def test_engine_requires_what_the_schema_requires_and_defaults_the_rest(tmp_path
 
 def _zeros():
     import numpy as np
+
     m = np.zeros((1, 66, 55), np.float32)
     m[:, :, :50] = 1.0
     return np.zeros((1, 66, 55), np.float32), m
@@ -145,8 +166,12 @@ def _zeros():
 def test_the_docs_name_every_field():
     text = (ROOT / "docs" / "weights.md").read_text()
     documented = set(re.findall(r"^\| `([a-z_0-9.]+)` \|", text, flags=re.M))
-    leaves = {name for role in ("short", "prior", "generator") for name, sub, _ in schema_fields(role)
-              if "properties" not in sub}
+    leaves = {
+        name
+        for role in ("short", "prior", "generator")
+        for name, sub, _ in schema_fields(role)
+        if "properties" not in sub
+    }
     assert documented == leaves
 
 
@@ -159,6 +184,7 @@ def prior_golden_config() -> dict:
     """What the exporter writes for a 2-block prior of the default config (without the source revision)."""
     from training.export import build_prior_config, prior_data_meta, random_prior
     from training.prior import PriorConfig
+
     cfg = build_prior_config(random_prior(blocks=2), prior_data_meta(PriorConfig()), {"random_init": True})
     cfg.pop("source_revision")
     return cfg
@@ -174,7 +200,8 @@ def test_prior_golden_config_is_what_the_exporter_writes():
     import_torch(EXPORTER)
     assert prior_golden_config() == json.loads(PRIOR_GOLDEN.read_text()), (
         "the exporter's prior config changed: if on purpose, update docs/tcd_config.schema.json, docs/weights.md "
-        "and this fixture together")
+        "and this fixture together"
+    )
 
 
 def test_the_engine_reads_the_prior_golden_config(tmp_path):
@@ -200,10 +227,22 @@ def test_engine_requires_what_the_schema_requires_of_a_prior(tmp_path):
     # "none" and no in-betweeners (0, 0); the golden file (a forecaster) leaves them out, and a value other than
     # theirs is refused naming it
     defaults = [name for name, sub, req in schema_fields("prior") if not req and "default" in sub]
-    assert defaults == ["model.anchor", "model.gap_fill", "model.inbetween_context", "model.inbetween_max_gap",
-                        "model.joint_inbetween_context", "model.joint_inbetween_max_gap"]
-    assert not {"anchor", "gap_fill", "inbetween_context", "inbetween_max_gap", "joint_inbetween_context",
-                "joint_inbetween_max_gap"} & set(golden["model"])
+    assert defaults == [
+        "model.anchor",
+        "model.gap_fill",
+        "model.inbetween_context",
+        "model.inbetween_max_gap",
+        "model.joint_inbetween_context",
+        "model.joint_inbetween_max_gap",
+    ]
+    assert not {
+        "anchor",
+        "gap_fill",
+        "inbetween_context",
+        "inbetween_max_gap",
+        "joint_inbetween_context",
+        "joint_inbetween_max_gap",
+    } & set(golden["model"])
     p = tcd.engine.Prior.load(write_prior(tmp_path / "p.safetensors", golden))
     assert (p.anchor, p.gap_fill) == ("last", "none")
     for field, value in (("anchor", "first"), ("gap_fill", "linear")):
@@ -227,16 +266,18 @@ def test_the_schema_tells_the_roles_apart():
     prior = json.loads(PRIOR_GOLDEN.read_text())
     short = json.loads(GOLDEN.read_text())
     generator = generator_config()
-    for bad in ({**prior, "window": short["window"]},                          # a prior has no window
-                {**prior, "model": short["model"]},                            # nor the denoiser's model fields
-                {**short, "role": "prior"},
-                {k: v for k, v in short.items() if k != "diffusion"},          # a denoiser needs its diffusion
-                {**short, "model": prior["model"]},
-                {**generator, "window": short["window"]},                      # a generator has no window
-                {**generator, "model": prior["model"]},                        # nor another kind's model fields
-                {**prior, "role": "generator"},
-                {**short, "role": "generator"},
-                {**generator, "role": "prior"}):
+    for bad in (
+        {**prior, "window": short["window"]},  # a prior has no window
+        {**prior, "model": short["model"]},  # nor the denoiser's model fields
+        {**short, "role": "prior"},
+        {k: v for k, v in short.items() if k != "diffusion"},  # a denoiser needs its diffusion
+        {**short, "model": prior["model"]},
+        {**generator, "window": short["window"]},  # a generator has no window
+        {**generator, "model": prior["model"]},  # nor another kind's model fields
+        {**prior, "role": "generator"},
+        {**short, "role": "generator"},
+        {**generator, "role": "prior"},
+    ):
         with pytest.raises(jsonschema.ValidationError):
             jsonschema.validate(bad, SCHEMA)
 
@@ -262,13 +303,28 @@ def test_a_file_of_one_kind_does_not_load_as_the_other(tmp_path):
 
 # ------------------------------------------------------------------------------- the generator (role "generator")
 
+
 def generator_config() -> dict:
     """A small generator's config with the keys training/generator.py's ``build_generator_config`` writes."""
     data = {"dataset": "humaneva", "fps": 60.0, "units": "m", "root_relative": True, "layout": "humaneva15"}
-    return {"format_version": 1, "role": "generator",
-            "model": {"num_joints": 2, "coords": 3, "num_features": 6, "obs_len": 5, "pred_len": 12, "hidden": 8,
-                      "layers": 2, "z_dim": 4, "coefs": 3},
-            "data": data, "training": {"random_init": True}, "source_revision": "0123abc"}
+    return {
+        "format_version": 1,
+        "role": "generator",
+        "model": {
+            "num_joints": 2,
+            "coords": 3,
+            "num_features": 6,
+            "obs_len": 5,
+            "pred_len": 12,
+            "hidden": 8,
+            "layers": 2,
+            "z_dim": 4,
+            "coefs": 3,
+        },
+        "data": data,
+        "training": {"random_init": True},
+        "source_revision": "0123abc",
+    }
 
 
 def write_generator(path: Path, cfg: dict) -> Path:
@@ -290,8 +346,8 @@ def test_the_generator_exporter_follows_the_schema():
     import_torch(EXPORTER)
     from training.export import humaneva_data_meta
     from training.generator import Generator, build_generator_config
-    jsonschema.validate(build_generator_config(Generator(42, 16, 2, 8, 5), humaneva_data_meta(), {"steps": 1}),
-                        SCHEMA)
+
+    jsonschema.validate(build_generator_config(Generator(42, 16, 2, 8, 5), humaneva_data_meta(), {"steps": 1}), SCHEMA)
 
 
 def test_engine_requires_what_the_schema_requires_of_a_generator(tmp_path):

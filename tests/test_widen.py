@@ -1,4 +1,5 @@
 """training.widen: a trained denoiser made wider (channels and feed-forward width x factor) computing the same."""
+
 from __future__ import annotations
 
 import json
@@ -17,10 +18,11 @@ from training.widen import widen_state, widen_to, widened_config  # noqa: E402
 
 def narrow_model(channels=16, heads=2, ffn=8, layers=2, seed=0, **kw):
     torch.manual_seed(seed)
-    cfg = ModelConfig(num_joints=4, channels=channels, num_layers=layers, num_heads=heads, ffn_dim=ffn,
-                      dropout=0.0, **kw)
+    cfg = ModelConfig(
+        num_joints=4, channels=channels, num_layers=layers, num_heads=heads, ffn_dim=ffn, dropout=0.0, **kw
+    )
     model = TCDModel(cfg).eval()
-    randomize_output_layer(model, seed=seed, std=0.5)      # the zero-initialised head would hide every other weight
+    randomize_output_layer(model, seed=seed, std=0.5)  # the zero-initialised head would hide every other weight
     return model
 
 
@@ -39,7 +41,7 @@ def test_the_wide_model_computes_what_the_narrow_one_computes(channels, heads, f
     wide = TCDModel(wide_cfg).eval()
     wide.load_state_dict(widen_state(narrow.state_dict(), narrow.cfg, factor, seed=4), strict=True)
     want = narrow(*inputs())
-    assert want.abs().mean() > 1e-2                                  # a non-trivial function
+    assert want.abs().mean() > 1e-2  # a non-trivial function
     torch.testing.assert_close(wide(*inputs()), want, rtol=1e-5, atol=2e-6)
 
 
@@ -51,14 +53,14 @@ def test_the_copies_share_their_narrow_weight_unevenly_and_part_after_a_step():
     state = widen_state(narrow.state_dict(), narrow.cfg, 2, seed=5)
     key = "diffmodel.output_projection1.weight"
     w, w0 = state[key][..., 0], narrow.state_dict()[key][..., 0]
-    torch.testing.assert_close(w[:C, :C] + w[:C, C:], w0)             # the shares of each weight sum to it
-    assert not torch.allclose(w[:C, :C], w[:C, C:])                    # and differ between the copies
+    torch.testing.assert_close(w[:C, :C] + w[:C, C:], w0)  # the shares of each weight sum to it
+    assert not torch.allclose(w[:C, :C], w[:C, C:])  # and differ between the copies
     again = widen_state(narrow.state_dict(), narrow.cfg, 2, seed=5)
-    assert all(torch.equal(state[k], again[k]) for k in state)        # seeded
+    assert all(torch.equal(state[k], again[k]) for k in state)  # seeded
     wide = TCDModel(widened_config(narrow.cfg, 2))
     wide.load_state_dict(state)
     inp = "diffmodel.input_projection.weight"
-    assert torch.equal(wide.state_dict()[inp][:C], wide.state_dict()[inp][C:])   # the producer's rows: copies
+    assert torch.equal(wide.state_dict()[inp][:C], wide.state_dict()[inp][C:])  # the producer's rows: copies
     opt = torch.optim.SGD(wide.parameters(), lr=0.1)
     wide(*inputs()).square().sum().backward()
     opt.step()
@@ -75,7 +77,7 @@ def test_widen_to_widens_only_by_a_whole_factor_of_both_widths():
     with pytest.raises(ValueError, match="same factor"):
         widen_to(ModelConfig.from_dict({**narrow.cfg.to_dict(), "channels": 32, "ffn_dim": 8}), state)
     odd = ModelConfig.from_dict({**narrow.cfg.to_dict(), "channels": 24, "ffn_dim": 12})
-    assert widen_to(odd, state)[1] == 1                               # not a whole factor: the load reports it
+    assert widen_to(odd, state)[1] == 1  # not a whole factor: the load reports it
     with pytest.raises(ValueError, match="multiple of num_heads"):
         widen_state(narrow_model(12, 3, 8).state_dict(), ModelConfig(channels=12, num_heads=5), 2)
     with pytest.raises(ValueError, match="integer >= 1"):
@@ -89,6 +91,7 @@ def test_the_engine_runs_the_widened_weights_as_the_narrow_model():
     pytest.importorskip("tcd")
     from safetensors.torch import save
     from tcd.engine import Denoiser
+
     narrow = narrow_model(16, 2, 16)
     wide_cfg = widened_config(narrow.cfg, 2)
     config = build_config("long", wide_cfg, DiffusionConfig(prediction_type="sample"), 5, 4, {"training_data": "x"})

@@ -1,5 +1,6 @@
 """Poses from the wild (issue 17, first part): the joint layouts' mappings, world coordinates, frame rates
 and lengths, through the public API (tcd.TCD.forecast / repair with layout=, fps=, up=)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -44,8 +45,8 @@ def in_layout(x32: np.ndarray, name: str) -> np.ndarray:
             out[:, i] = x32[:, t]
     if name == "coco17":
         side = x32[:, 6] - x32[:, 1]
-        out[:, 3], out[:, 4] = x32[:, 14] + 0.3 * side, x32[:, 14] - 0.3 * side      # ears
-        out[:, 0] = out[:, 1] = out[:, 2] = x32[:, 15]                               # nose, eyes
+        out[:, 3], out[:, 4] = x32[:, 14] + 0.3 * side, x32[:, 14] - 0.3 * side  # ears
+        out[:, 0] = out[:, 1] = out[:, 2] = x32[:, 15]  # nose, eyes
     if name == "smpl24":
         out[:, 3], out[:, 6], out[:, 13], out[:, 14] = x32[:, 11], x32[:, 12], x32[:, 16], x32[:, 24]
     return out
@@ -59,7 +60,7 @@ def test_layout_round_trip_is_exact(name):
     back = wild.from_model(y, scene, scene.root, scene.rot, own_frames=True)[0]
     np.testing.assert_allclose(back, x, rtol=0, atol=1e-12)
     lacks = {"h36m32": 0, "h36m17": 8, "smpl24": 5, "coco17": 10}[name]
-    assert int(np.isnan(y[0, 0, :, 0]).sum()) == lacks        # model joints the layout lacks: in-painted
+    assert int(np.isnan(y[0, 0, :, 0]).sum()) == lacks  # model joints the layout lacks: in-painted
 
 
 def test_h36m32_on_the_model_skeleton_costs_nothing(tiny_model):
@@ -73,10 +74,11 @@ def test_h36m32_on_the_model_skeleton_costs_nothing(tiny_model):
     n = wild.JOIN_FRAMES
     assert n == 5
     w = np.minimum(np.arange(1, 26) / n, 1.0)[:, None, None]
-    np.testing.assert_allclose(f.samples[:, :, model], x[-1, model] + (native.samples - x[-1, model]) * w,
-                               rtol=1e-5, atol=1e-6)
-    np.testing.assert_allclose(f.samples[:, n - 1:, model], native.samples[:, n - 1:], rtol=1e-5, atol=1e-6)
-    assert np.abs(native.samples[:, 0] - x[-1, model]).max() > 0.01        # the join has something to do
+    np.testing.assert_allclose(
+        f.samples[:, :, model], x[-1, model] + (native.samples - x[-1, model]) * w, rtol=1e-5, atol=1e-6
+    )
+    np.testing.assert_allclose(f.samples[:, n - 1 :, model], native.samples[:, n - 1 :], rtol=1e-5, atol=1e-6)
+    assert np.abs(native.samples[:, 0] - x[-1, model]).max() > 0.01  # the join has something to do
     np.testing.assert_allclose(f.times, native.times)
     assert f.mean.shape == (25, 32, 3)
 
@@ -100,21 +102,22 @@ def test_world_coordinates_move_with_the_input(tiny_model, name):
 def test_any_frame_rate_and_length(tiny_model):
     x25 = h36m32()
     from tcd._resample import resample_backward
-    x50 = resample_backward(x25.reshape(50, -1), 99, 50.0, 25.0).reshape(99, 32, 3)   # the same motion at 50 fps
+
+    x50 = resample_backward(x25.reshape(50, -1), 99, 50.0, 25.0).reshape(99, 32, 3)  # the same motion at 50 fps
     f25 = tiny_model.forecast(x25, layout="h36m32", **FAST)
     f50 = tiny_model.forecast(x50, layout="h36m32", fps=50, **FAST)
     assert f50.mean.shape == (50, 32, 3)
     np.testing.assert_allclose(f50.times, np.arange(1, 51) / 50)
-    np.testing.assert_allclose(f50.mean[1::2], f25.mean, atol=1e-6)    # every other 50 fps frame is a model frame
-    short = tiny_model.forecast(x25[-20:], layout="h36m32", **FAST)      # 0.8 s: padded with missing frames
+    np.testing.assert_allclose(f50.mean[1::2], f25.mean, atol=1e-6)  # every other 50 fps frame is a model frame
+    short = tiny_model.forecast(x25[-20:], layout="h36m32", **FAST)  # 0.8 s: padded with missing frames
     assert short.mean.shape == (25, 32, 3) and short.repaired.shape == (20, 32, 3) and np.isfinite(short.mean).all()
     long = tiny_model.forecast(np.concatenate([x25, x25]), layout="h36m32", **FAST)  # 4 s: the last 2 s are used
     np.testing.assert_allclose(long.mean, f25.mean, atol=1e-9)
-    bad("obs", tiny_model.repair, np.concatenate([x25, x25]), layout="h36m32")       # repair: one window at most
-    gone = np.concatenate([x25, np.full_like(x25, np.nan)])              # the last 2 s missing: the window is empty
-    bad("obs", tiny_model.forecast, gone, layout="h36m32")               # (here: no hips in it to place the body)
+    bad("obs", tiny_model.repair, np.concatenate([x25, x25]), layout="h36m32")  # repair: one window at most
+    gone = np.concatenate([x25, np.full_like(x25, np.nan)])  # the last 2 s missing: the window is empty
+    bad("obs", tiny_model.forecast, gone, layout="h36m32")  # (here: no hips in it to place the body)
     e = bad("obs", tiny_model.forecast, gone[:, list(layouts.MODEL_IDS)], layout="h36m22")
-    assert "last 50 frames" in str(e)                                    # the rule without layout / fps
+    assert "last 50 frames" in str(e)  # the rule without layout / fps
 
 
 @pytest.mark.parametrize("damping_s", [None, 0.4, 0.0])
@@ -124,6 +127,7 @@ def test_the_future_root_continues_its_velocity_and_turn_rate(tiny_model, dampin
     frames of the last velocity, its speed less the dead zone (tcd.wild.ROOT_DEAD_ZONE_MPS, here 0.2 m/s: 1.05 of
     this walker's 1.25 m/s), away, ``f`` or ``tau (1 - exp(-f / tau))``."""
     from tcd import wild
+
     monkeypatch.setattr(wild, "ROOT_DAMPING_S", damping_s)
     monkeypatch.setattr(wild, "ROOT_DEAD_ZONE_MPS", 0.2)
     f = np.arange(1, 26, dtype=np.float64)
@@ -131,14 +135,15 @@ def test_the_future_root_continues_its_velocity_and_turn_rate(tiny_model, dampin
     travel = f if tau is None else (np.zeros_like(f) if tau == 0 else tau * (1 - np.exp(-f / tau)))
     x = h36m32()
     t = np.arange(50)[:, None, None]
-    walking = x + t * np.array([0.0, 0.0, 0.05])                         # 0.05 m per frame forward (1.25 m/s)
+    walking = x + t * np.array([0.0, 0.0, 0.05])  # 0.05 m per frame forward (1.25 m/s)
     out = tiny_model.forecast(walking, layout="h36m32", **FAST)
-    np.testing.assert_allclose(out.mean[:, 0], (49 * 0.05 + travel * 0.05 * 1.05 / 1.25)[:, None] * [0.0, 0.0, 1.0],
-                               atol=1e-9)
-    rate = 0.02                                                          # radians per frame about +y
+    np.testing.assert_allclose(
+        out.mean[:, 0], (49 * 0.05 + travel * 0.05 * 1.05 / 1.25)[:, None] * [0.0, 0.0, 1.0], atol=1e-9
+    )
+    rate = 0.02  # radians per frame about +y
     turning = np.stack([world_y(x[i], rate * i) for i in range(50)])
     out = tiny_model.forecast(turning, layout="h36m32", **FAST)
-    across = out.mean[:, 6] - out.mean[:, 1]                             # right hip -> left hip
+    across = out.mean[:, 6] - out.mean[:, 1]  # right hip -> left hip
     heading = np.unwrap(np.arctan2(-across[:, 2], across[:, 0]))
     np.testing.assert_allclose(heading, rate * (49 + travel), atol=1e-9)
 
@@ -151,38 +156,83 @@ def world_y(pose: np.ndarray, angle: float) -> np.ndarray:
 def test_bad_wild_inputs(tiny_model):
     x = h36m32()
     bad("layout", tiny_model.forecast, x, layout="openpose25")
-    bad("obs", tiny_model.forecast, x[:, :17], layout="h36m32")          # 17 joints are not h36m32's 32
+    bad("obs", tiny_model.forecast, x[:, :17], layout="h36m32")  # 17 joints are not h36m32's 32
     for fps in (0, -25, float("nan"), True, "25"):
         bad("fps", tiny_model.forecast, x, layout="h36m32", fps=fps)
     for up in ("w", (1.0, 1.0, 0.0), (0.0, 1.0)):
         bad("up", tiny_model.forecast, x, layout="h36m32", up=up)
     one = np.full_like(x, np.nan)
     one[7] = x[7]
-    bad("obs", tiny_model.forecast, one, layout="h36m32")                # one observed frame: no motion
+    bad("obs", tiny_model.forecast, one, layout="h36m32")  # one observed frame: no motion
     no_hips = x.copy()
     no_hips[:, [1, 6]] = np.nan
-    bad("obs", tiny_model.forecast, no_hips, layout="h36m32")            # nothing to place the body by
+    bad("obs", tiny_model.forecast, no_hips, layout="h36m32")  # nothing to place the body by
 
 
 def test_cli_forecast_with_layout_fps_and_up(tiny_model_dir, tmp_path, capsys):
     from tcd.cli import main
+
     x = in_layout(world(h36m32()), "h36m17")
-    np.savez(tmp_path / "in.npz", poses=x * 1000)                              # millimetres, z up, 25 fps
+    np.savez(tmp_path / "in.npz", poses=x * 1000)  # millimetres, z up, 25 fps
     out = tmp_path / "out.npz"
-    assert main(["forecast", str(tmp_path / "in.npz"), "-o", str(out), "--model", str(tiny_model_dir), "--layout",
-                 "h36m17", "--fps", "25", "--up", "z", "--units", "mm", "--samples", "2", "--seed", "0",
-                 "--sampler", "ddim", "--steps", "3"]) == 0
+    assert (
+        main(
+            [
+                "forecast",
+                str(tmp_path / "in.npz"),
+                "-o",
+                str(out),
+                "--model",
+                str(tiny_model_dir),
+                "--layout",
+                "h36m17",
+                "--fps",
+                "25",
+                "--up",
+                "z",
+                "--units",
+                "mm",
+                "--samples",
+                "2",
+                "--seed",
+                "0",
+                "--sampler",
+                "ddim",
+                "--steps",
+                "3",
+            ]
+        )
+        == 0
+    )
     want = tcd_load(tiny_model_dir).forecast(x * 1000, layout="h36m17", fps=25, up="z", units="mm", **FAST)
     with np.load(out) as z:
         np.testing.assert_array_equal(z["mean"], want.mean)
         np.testing.assert_array_equal(z["times"], want.times)
-    assert main(["forecast", str(tmp_path / "in.npz"), "-o", str(tmp_path / "o2.npz"), "--model", str(tiny_model_dir),
-                 "--layout", "h36m17", "--fps", "0", "--units", "mm"]) == 2
+    assert (
+        main(
+            [
+                "forecast",
+                str(tmp_path / "in.npz"),
+                "-o",
+                str(tmp_path / "o2.npz"),
+                "--model",
+                str(tiny_model_dir),
+                "--layout",
+                "h36m17",
+                "--fps",
+                "0",
+                "--units",
+                "mm",
+            ]
+        )
+        == 2
+    )
     assert "(`fps` is --fps.)" in capsys.readouterr().err
 
 
 def tcd_load(d):
     import tcd
+
     return tcd.load(d)
 
 
@@ -191,28 +241,55 @@ def test_repair_file_and_tcd_repair_with_a_layout(tiny_model_dir, tmp_path, caps
     bit for bit, gaps filled, the provenance records the layout; tcd repair gives the same file."""
     from tcd._resample import resample_backward
     from tcd.cli import main
+
     x = in_layout(world(h36m32(75)), "h36m17")
     x50 = resample_backward(x.reshape(75, -1), 149, 50.0, 25.0).reshape(149, 17, 3)
-    x50[40:60, 11:14] = np.nan                                          # the left arm lost for 0.4 s
+    x50[40:60, 11:14] = np.nan  # the left arm lost for 0.4 s
     np.savez(tmp_path / "take.npz", poses=x50 * 1000)
     kw = dict(num_samples=1, num_inference_steps=2, sampler="ddim")
     tcd_repair_file = __import__("tcd").repair_file
-    tcd_repair_file(tmp_path / "take.npz", tmp_path / "api.npz", tiny_model_dir, fps=50, units="mm",
-                    layout="h36m17", up="z", **kw)
+    tcd_repair_file(
+        tmp_path / "take.npz", tmp_path / "api.npz", tiny_model_dir, fps=50, units="mm", layout="h36m17", up="z", **kw
+    )
     with np.load(tmp_path / "api.npz") as z:
         out, prov = z["poses"], z["provenance"]
     seen = ~np.isnan(x50)
     assert out.shape == x50.shape and np.array_equal(out[seen], (x50 * 1000)[seen]) and np.isfinite(out).all()
     assert '"layout": "h36m17"' in str(prov) and '"up": "z"' in str(prov)
-    assert main(["repair", str(tmp_path / "take.npz"), "-o", str(tmp_path / "cli"), "--model", str(tiny_model_dir),
-                 "--fps", "50", "--units", "mm", "--layout", "h36m17", "--up", "z", "--samples", "1", "--steps", "2",
-                 "--sampler", "ddim", "--quiet"]) == 0
+    assert (
+        main(
+            [
+                "repair",
+                str(tmp_path / "take.npz"),
+                "-o",
+                str(tmp_path / "cli"),
+                "--model",
+                str(tiny_model_dir),
+                "--fps",
+                "50",
+                "--units",
+                "mm",
+                "--layout",
+                "h36m17",
+                "--up",
+                "z",
+                "--samples",
+                "1",
+                "--steps",
+                "2",
+                "--sampler",
+                "ddim",
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     with np.load(tmp_path / "cli" / "take.npz") as z:
         np.testing.assert_array_equal(z["poses"], out)
 
 
 # ---------------------------------------------------------------------------------------------- issue 27
-SOMOF13 = (1, 2, 4, 5, 7, 8, 12, 16, 17, 18, 19, 20, 21)   # 3DPW through SoMoF: hips, knees, ankles, neck, arms
+SOMOF13 = (1, 2, 4, 5, 7, 8, 12, 16, 17, 18, 19, 20, 21)  # 3DPW through SoMoF: hips, knees, ankles, neck, arms
 
 
 def test_a_13_joint_smpl_observation_without_a_pelvis_forecasts(tiny_model):
@@ -230,7 +307,7 @@ def test_a_13_joint_smpl_observation_without_a_pelvis_forecasts(tiny_model):
     np.testing.assert_allclose(f.mean[:, list(SOMOF13)], want.mean[:, list(SOMOF13)], atol=1e-5)
     assert np.isnan(f.mean[:, 0]).all() and np.isnan(f.samples[..., 0, :]).all() and np.isnan(f.repaired[:, 0]).all()
     assert np.isfinite(want.mean[:, 0]).all()
-    coco = in_layout(world(h36m32()), "coco17")                          # COCO: hips only, as before
+    coco = in_layout(world(h36m32()), "coco17")  # COCO: hips only, as before
     assert np.isfinite(tiny_model.forecast(coco, layout="coco17", up="z", **FAST).mean).all()
 
 
@@ -240,7 +317,7 @@ def test_a_pelvis_missing_in_some_frames_is_placed_by_the_hips(tiny_model, name)
     it (measured in the root frame on the frames that show both): a pelvis 5 cm above its hips, as SMPL's,
     hidden for the last 0.8 s, is repaired exactly and forecasts as if it had been seen."""
     x = h36m32()
-    x[:, 0] += [0.0, 0.05, 0.01]                                         # up and forward of the hips' mid-point
+    x[:, 0] += [0.0, 0.05, 0.01]  # up and forward of the hips' mid-point
     x = np.stack([world_y(pose, 0.01 * i) for i, pose in enumerate(x)])  # turning while walking
     x += np.arange(50)[:, None, None] * [0.01, 0.0, 0.03]
     seen = in_layout(world(x), name)
@@ -260,16 +337,16 @@ def test_the_forecast_starts_at_the_last_observed_pose(name, monkeypatch):
     tilts; a model that holds the last pose still starts at the last observed pose, the first forecast frame
     1 / JOIN_FRAMES of the way to the median skeleton's version."""
     rng = np.random.default_rng(0)
-    x32 = h36m32() * 1.1 + rng.normal(0.0, 0.005, (50, 32, 3))          # another person, jittery like a lifter
+    x32 = h36m32() * 1.1 + rng.normal(0.0, 0.005, (50, 32, 3))  # another person, jittery like a lifter
     x = in_layout(world(x32), name)
     y, scene = wild.to_model(x[None], layouts.get_layout(name), wild.up_vector("z"))
-    held = np.repeat(y[:, -1:], 25, axis=1)                              # a model that holds the last pose
+    held = np.repeat(y[:, -1:], 25, axis=1)  # a model that holds the last pose
     root, rot = np.repeat(scene.root[:, -1:], 25, axis=1), np.repeat(scene.rot[:, -1:], 25, axis=1)
     out = wild.from_model(held, scene, root, rot, own_frames=False)[0]
     monkeypatch.setattr(wild, "JOIN_FRAMES", 0)
     unjoined = wild.from_model(held, scene, root, rot, own_frames=False)[0]
     last, seen = x[-1], ~np.isnan(x[-1, :, 0])
-    assert np.linalg.norm(unjoined[0, seen] - last[seen], axis=-1).mean() > 0.002   # the conversion moves it
+    assert np.linalg.norm(unjoined[0, seen] - last[seen], axis=-1).mean() > 0.002  # the conversion moves it
     w = np.minimum(np.arange(1, 26) / 5, 1.0)[:, None, None]
     np.testing.assert_allclose(out[:, seen], last[seen] + (unjoined[:, seen] - last[seen]) * w, atol=1e-12)
     np.testing.assert_allclose(out[4:], unjoined[4:], atol=1e-12)
@@ -284,11 +361,10 @@ def test_a_joint_never_shown_does_not_carry_the_bones_below_it():
     x[:, list(SOMOF13)] = full[:, list(SOMOF13)]
     y, scene = wild.to_model(x[None], layouts.get_layout("smpl24"), wild.up_vector("z"))
     missing = np.isnan(y)
-    assert missing[0, 0].any()                                           # thorax, head, feet, hands
+    assert missing[0, 0].any()  # thorax, head, feet, hands
     filled = np.where(missing, np.random.default_rng(1).normal(0.0, 0.3, y.shape), y)
     back = wild.from_model(filled, scene, scene.root, scene.rot, own_frames=True)[0]
     np.testing.assert_allclose(back[:, list(SOMOF13)], x[:, list(SOMOF13)], rtol=0, atol=1e-12)
-
 
 
 def test_a_joint_whose_ancestor_a_frame_hides_is_missing_there():
@@ -299,7 +375,7 @@ def test_a_joint_whose_ancestor_a_frame_hides_is_missing_there():
     x = full.copy()
     hidden = np.arange(0, 50, 3)
     for t in hidden:
-        x[t, [17, 18, 19, 20]] = np.nan                                  # 20: the wrist's duplicate
+        x[t, [17, 18, 19, 20]] = np.nan  # 20: the wrist's duplicate
     lay, up = layouts.get_layout("h36m32"), wild.up_vector("z")
     y = wild.to_model(x[None], lay, up)[0][0]
     y_full = wild.to_model(full[None], lay, up)[0][0]
@@ -314,23 +390,23 @@ def test_a_joint_the_last_frame_lacks_starts_where_it_was_last_seen(monkeypatch)
     sighting (in that frame's root frame), as Zero-Velocity holds it, and reaches the model's at JOIN_FRAMES."""
     rng = np.random.default_rng(1)
     x = world(h36m32() + rng.normal(0.0, 0.003, (50, 32, 3)))
-    wrist = 27                                                           # h36m32's right wrist
-    x[-3:, wrist] = np.nan                                               # hidden in the last 3 frames
+    wrist = 27  # h36m32's right wrist
+    x[-3:, wrist] = np.nan  # hidden in the last 3 frames
     y, scene = wild.to_model(x[None], layouts.get_layout("h36m32"), wild.up_vector("z"))
     root, rot = scene.root[:, -1:], scene.rot[:, -1:]
-    sighting = (x[-4, wrist] - scene.root[0, -4]) @ scene.rot[0, -4]     # in frame -4's root frame
+    sighting = (x[-4, wrist] - scene.root[0, -4]) @ scene.rot[0, -4]  # in frame -4's root frame
     np.testing.assert_allclose(scene.last[0, wrist], sighting, atol=1e-12)
-    pose = np.where(np.isnan(y[:, -1:]), y[:, -4:-3], y[:, -1:])         # a model that in-paints the wrist
+    pose = np.where(np.isnan(y[:, -1:]), y[:, -4:-3], y[:, -1:])  # a model that in-paints the wrist
     held = np.repeat(pose, 25, axis=1)
     root, rot = np.repeat(root, 25, axis=1), np.repeat(rot, 25, axis=1)
     out = wild.from_model(held, scene, root, rot, own_frames=False)[0]
     assert np.isfinite(out).all()
     monkeypatch.setattr(wild, "JOIN_FRAMES", 0)
     unjoined = wild.from_model(held, scene, root, rot, own_frames=False)[0]
-    start = sighting @ rot[0, 0].T + root[0, 0]                          # the sighting, put on the last root
+    start = sighting @ rot[0, 0].T + root[0, 0]  # the sighting, put on the last root
     w = np.minimum(np.arange(1, 26) / 5, 1.0)[:, None]
     np.testing.assert_allclose(out[:, wrist], start + (unjoined[:, wrist] - start) * w, atol=1e-9)
-    assert np.linalg.norm(unjoined[0, wrist] - start) > 1e-3                # the join has something to do
+    assert np.linalg.norm(unjoined[0, wrist] - start) > 1e-3  # the join has something to do
 
 
 def test_the_last_sighting_is_taken_at_the_callers_frame_rate():
@@ -338,7 +414,7 @@ def test_the_last_sighting_is_taken_at_the_callers_frame_rate():
     a model frame shows a joint only where both input frames around it do); ``sightings`` takes where it was
     last seen from the input frames (2 frames, 17 ms, before the end), not from the model frames (40 ms)."""
     rng = np.random.default_rng(2)
-    t = np.arange(120) / 120.0                                          # the clip's frames as 1 s at 120 fps
+    t = np.arange(120) / 120.0  # the clip's frames as 1 s at 120 fps
     x = world(h36m32(120) + 0.2 * np.sin(2 * np.pi * t)[:, None, None] + rng.normal(0.0, 0.002, (120, 32, 3)))
     wrist = 27
     x[-2:, wrist] = np.nan
@@ -349,6 +425,6 @@ def test_the_last_sighting_is_taken_at_the_callers_frame_rate():
     _, caller_rate = wild.to_model(xm, lay, up, sightings=x[None])
     root, rot, canon = wild._canonical(x[None], lay, up, "obs")
     np.testing.assert_allclose(caller_rate.last[0, wrist], canon[0, -3, wrist], atol=1e-12)
-    assert np.linalg.norm(own_rate.last[0, wrist] - canon[0, -3, wrist]) > 1e-3     # a model frame further back
-    np.testing.assert_array_equal(caller_rate.start[0, wrist], x[-3, wrist])       # time 0, caller coordinates
+    assert np.linalg.norm(own_rate.last[0, wrist] - canon[0, -3, wrist]) > 1e-3  # a model frame further back
+    np.testing.assert_array_equal(caller_rate.start[0, wrist], x[-3, wrist])  # time 0, caller coordinates
     np.testing.assert_array_equal(caller_rate.start[0, :wrist], x[-1, :wrist])

@@ -15,6 +15,7 @@ has (torch installed for the rest of the suite) this checks that they pass witho
 (tests/fixtures), and that every test that needs torch skips, saying why (``conftest.import_torch``). CI runs the
 suite through it after the main test command (``.ci/run``).
 """
+
 import sys
 
 
@@ -28,10 +29,11 @@ class _NoTorch:
 
 
 def main(argv: list[str]) -> int:
-    if "torch" in sys.modules:                     # nothing imports it before this, but say so if it ever does
+    if "torch" in sys.modules:  # nothing imports it before this, but say so if it ever does
         raise SystemExit("tests/without_torch.py: torch was imported before it could be hidden")
     sys.meta_path.insert(0, _NoTorch())
     import pytest
+
     return pytest.main(argv)
 
 

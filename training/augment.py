@@ -20,6 +20,7 @@ on it learns a narrow conditional distribution; the futures that similar pasts h
 person in that pose may do next (the protocol's "multimodal ground truth", DLow / GSPS, is the same idea at test
 time). On HumanEva-I the bundled model's 50 samples spread about a third as far as those futures do (MODEL_CARD.md).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -55,7 +56,7 @@ def mirror_permutation(names) -> np.ndarray:
     for i, n in enumerate(names):
         for a, b in (("left_", "right_"), ("right_", "left_")):
             if n.startswith(a):
-                twin = b + n[len(a):]
+                twin = b + n[len(a) :]
                 if twin not in index:
                     raise ValueError(f"mirror: joint {n!r} has no {twin!r}")
                 perm[i] = index[twin]
@@ -79,13 +80,12 @@ def sequence_ends(starts: np.ndarray, length: int) -> np.ndarray:
     """For each window start of :func:`training.prior.training_frames` (runs of consecutive rows, one run per
     sequence, every window of ``length`` frames inside its sequence), the row just past its sequence's end."""
     starts = np.asarray(starts, dtype=np.int64)
-    run_last = np.r_[np.flatnonzero(np.diff(starts) != 1), len(starts) - 1]     # the last start of each run
+    run_last = np.r_[np.flatnonzero(np.diff(starts) != 1), len(starts) - 1]  # the last start of each run
     run_of = np.searchsorted(run_last, np.arange(len(starts)))
     return starts[run_last][run_of] + length
 
 
-def resample(frames: np.ndarray, rows: np.ndarray, ends: np.ndarray, length: int,
-             speeds: np.ndarray) -> np.ndarray:
+def resample(frames: np.ndarray, rows: np.ndarray, ends: np.ndarray, length: int, speeds: np.ndarray) -> np.ndarray:
     """(B, length, K) windows of ``frames`` (N, K) starting at ``rows``, frame t read at row ``rows + s t``
     (linear interpolation), s = ``speeds`` (B): above 1 faster, below 1 slower. A speed whose window would run
     past its sequence's end (``ends``, :func:`sequence_ends`) is lowered to the fastest that fits (at least 1:
@@ -93,7 +93,7 @@ def resample(frames: np.ndarray, rows: np.ndarray, ends: np.ndarray, length: int
     rows, ends = np.asarray(rows, np.int64), np.asarray(ends, np.int64)
     fits = (ends - 1 - rows) / max(length - 1, 1)
     s = np.minimum(np.asarray(speeds, np.float64), fits)
-    pos = rows[:, None] + s[:, None] * np.arange(length)                       # (B, length), rows of frames
+    pos = rows[:, None] + s[:, None] * np.arange(length)  # (B, length), rows of frames
     i0 = np.minimum(np.floor(pos).astype(np.int64), ends[:, None] - 1)
     i1 = np.minimum(i0 + 1, ends[:, None] - 1)
     w = (pos - i0)[..., None].astype(frames.dtype)
@@ -112,11 +112,12 @@ def arrival_keys(wins: np.ndarray, obs_len: int, velocity_weight: float = 5.0) -
 def squared_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """(len(a), len(b)) squared Euclidean distances between the rows of two key arrays (for ranking neighbours)."""
     a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
-    return (a ** 2).sum(1)[:, None] + (b ** 2).sum(1)[None] - 2.0 * a @ b.T
+    return (a**2).sum(1)[:, None] + (b**2).sum(1)[None] - 2.0 * a @ b.T
 
 
-def future_neighbours(keys: np.ndarray, seq_ids: np.ndarray, starts: np.ndarray, k: int,
-                      exclude_frames: int) -> np.ndarray:
+def future_neighbours(
+    keys: np.ndarray, seq_ids: np.ndarray, starts: np.ndarray, k: int, exclude_frames: int
+) -> np.ndarray:
     """(N, k) indices: for each window, the ``k`` windows with the nearest :func:`arrival_keys` (Euclidean), leaving
     out the windows of the same sequence that start within ``exclude_frames`` of it (itself included: they are its
     own future shifted by a few frames, not another one). Brute force, in blocks of rows: fine for the tens of

@@ -10,6 +10,7 @@ patterns), t and eps by a CPU ``torch.Generator``; optionally in DataLoader work
 With the config's ``future_swap`` a share of the windows take another training window's future
 (``training.augment.swap_futures``) before they are turned.
 """
+
 from __future__ import annotations
 
 from typing import TYPE_CHECKING
@@ -30,15 +31,16 @@ class Windows:
     def __init__(self, seqs: list[np.ndarray], length: int, stride: int):
         self.seqs = seqs
         self.length = length
-        self.index = np.asarray([(i, s) for i, q in enumerate(seqs) for s in range(0, len(q) - length + 1, stride)],
-                                dtype=np.int64).reshape(-1, 2)
+        self.index = np.asarray(
+            [(i, s) for i, q in enumerate(seqs) for s in range(0, len(q) - length + 1, stride)], dtype=np.int64
+        ).reshape(-1, 2)
 
     def __len__(self) -> int:
         return len(self.index)
 
     def gather(self, rows: np.ndarray, frames: slice = slice(None)) -> np.ndarray:
         """(len(rows), length, J, 3) windows, or only their ``frames`` (a slice of the window's frames)."""
-        return np.stack([self.seqs[i][s:s + self.length][frames] for i, s in self.index[rows]]).astype(np.float32)
+        return np.stack([self.seqs[i][s : s + self.length][frames] for i, s in self.index[rows]]).astype(np.float32)
 
     def future_neighbours(self, obs_len: int, k: int, exclude_frames: int) -> np.ndarray:
         """(N, k): each window's ``k`` nearest windows by :func:`training.augment.arrival_keys` at ``obs_len``,
@@ -53,16 +55,18 @@ def make_batch(cfg: "TrainConfig", wins: np.ndarray, rng: np.random.Generator):
     B, L, J, _ = wins.shape
     observed = wins.copy()
     jmask = np.zeros((B, L, J), dtype=np.float32)
-    jmask[:, :cfg.obs_len] = 1.0
+    jmask[:, : cfg.obs_len] = 1.0
     patterns, weights, rates = zip(*(mix_entry(entry) for entry in cfg.mask_mix))
     weights = np.asarray(weights, dtype=np.float64)
     choice = rng.choice(len(patterns), size=B, p=weights / weights.sum())
     for b in range(B):
         if patterns[choice[b]] != "none":
             observed[b], jmask[b] = corrupt(wins[b], patterns[choice[b]], cfg.obs_len, rng, rate=rates[choice[b]])
-    observed[:, cfg.obs_len:] = 0.0
+    observed[:, cfg.obs_len :] = 0.0
+
     def bkl(a):
         return torch.from_numpy(np.ascontiguousarray(a.reshape(B, L, J * 3).transpose(0, 2, 1)))
+
     return bkl(wins), bkl(observed), bkl(np.repeat(jmask[..., None], 3, axis=-1))
 
 
@@ -86,15 +90,19 @@ class BatchSource:
     whether drawn here or in DataLoader worker processes, and a resumed run continues with exactly the batches it
     would have drawn."""
 
-    def __init__(self, cfg: "TrainConfig", windows: Windows, T: int, steps_per_epoch: int,
-                 weights: np.ndarray | None = None):
+    def __init__(
+        self, cfg: "TrainConfig", windows: Windows, T: int, steps_per_epoch: int, weights: np.ndarray | None = None
+    ):
         self.cfg, self.windows, self.T, self.steps_per_epoch = cfg, windows, T, steps_per_epoch
         if weights is not None and np.shape(weights) != (len(windows),):
             raise ValueError(f"weights: one per window ({len(windows)}), got shape {np.shape(weights)}")
         self.weights = weights
         self._perm_epoch, self._perm = None, None
-        self.neighbours = (windows.future_neighbours(cfg.obs_len, cfg.future_swap_k, SWAP_EXCLUDE_FRAMES)
-                           if cfg.future_swap > 0 or cfg.imle_targets > 1 else None)
+        self.neighbours = (
+            windows.future_neighbours(cfg.obs_len, cfg.future_swap_k, SWAP_EXCLUDE_FRAMES)
+            if cfg.future_swap > 0 or cfg.imle_targets > 1
+            else None
+        )
 
     def batch(self, epoch: int, batch_i: int):
         cfg = self.cfg
@@ -105,35 +113,40 @@ class BatchSource:
             self._perm_epoch = epoch
         rows = self._perm[(np.arange(cfg.batch_size) + batch_i * cfg.batch_size) % len(self._perm)]
         wins = self.windows.gather(rows)
-        if cfg.future_swap > 0:     # its own stream, like the rotation's
+        if cfg.future_swap > 0:  # its own stream, like the rotation's
             rng = np.random.default_rng([cfg.seed, epoch, batch_i, 2])
             swap = rng.random(len(rows)) < cfg.future_swap
             donor = self.neighbours[rows, rng.integers(0, cfg.future_swap_k, len(rows))]
             if swap.any():
                 wins[swap] = swap_futures(wins[swap], self.windows.gather(donor[swap]), cfg.obs_len)
         others = None
-        if cfg.imle_targets > 1:    # the further IMLE targets: the window with a neighbour's future (own stream)
+        if cfg.imle_targets > 1:  # the further IMLE targets: the window with a neighbour's future (own stream)
             rng = np.random.default_rng([cfg.seed, epoch, batch_i, 3])
             pick = rng.integers(0, cfg.future_swap_k, (len(rows), cfg.imle_targets - 1))
             donors = self.neighbours[rows[:, None], pick]
-            others = np.stack([swap_futures(wins, self.windows.gather(donors[:, m]), cfg.obs_len)
-                               for m in range(cfg.imle_targets - 1)], axis=1)     # (B, M - 1, L, J, 3)
-        if cfg.rotate_axis:     # its own stream: the masks, t and eps stay those of the same run without it
+            others = np.stack(
+                [
+                    swap_futures(wins, self.windows.gather(donors[:, m]), cfg.obs_len)
+                    for m in range(cfg.imle_targets - 1)
+                ],
+                axis=1,
+            )  # (B, M - 1, L, J, 3)
+        if cfg.rotate_axis:  # its own stream: the masks, t and eps stay those of the same run without it
             rng = np.random.default_rng([cfg.seed, epoch, batch_i, 1])
             if others is None:
                 wins = rotate_about(wins, cfg.rotate_axis, rng)
-            else:               # one angle per window for it and its further targets: the same B draws
+            else:  # one angle per window for it and its further targets: the same B draws
                 both = rotate_about(np.concatenate([wins[:, None], others], axis=1), cfg.rotate_axis, rng)
                 wins, others = both[:, 0], both[:, 1:]
         x0, obs, mask = make_batch(cfg, wins, np.random.default_rng([cfg.seed, epoch, batch_i]))
         g = torch.Generator().manual_seed(((cfg.seed * 1_000_003 + epoch) * 1_000_003 + batch_i) % (1 << 62))
-        t = torch.randint(0, self.T, (x0.shape[0],), generator=g)   # the draw order of training_loss
+        t = torch.randint(0, self.T, (x0.shape[0],), generator=g)  # the draw order of training_loss
         eps = torch.randn(x0.shape, generator=g)
-        if cfg.imle_samples:    # drawn after eps from the same stream: the batches before them are unchanged
+        if cfg.imle_samples:  # drawn after eps from the same stream: the batches before them are unchanged
             candidates = torch.randn((cfg.imle_samples, *x0.shape), generator=g)
             if others is None:
                 return x0, obs, mask, t, eps, candidates
-            B, M1, L = others.shape[:3]     # (M - 1, B, K, L), laid out as x0
+            B, M1, L = others.shape[:3]  # (M - 1, B, K, L), laid out as x0
             o = np.ascontiguousarray(others.reshape(B, M1, L, -1).transpose(1, 0, 3, 2))
             return x0, obs, mask, t, eps, candidates, torch.from_numpy(o)
         return x0, obs, mask, t, eps
@@ -145,8 +158,14 @@ class BatchSource:
                 yield self.batch(epoch, i)
             return
         ds = _EpochBatches(self, epoch, start)
-        loader = torch.utils.data.DataLoader(ds, batch_size=None, shuffle=False, num_workers=workers,
-                                             pin_memory=torch.cuda.is_available(), prefetch_factor=4)
+        loader = torch.utils.data.DataLoader(
+            ds,
+            batch_size=None,
+            shuffle=False,
+            num_workers=workers,
+            pin_memory=torch.cuda.is_available(),
+            prefetch_factor=4,
+        )
         yield from loader
 
 
@@ -159,4 +178,3 @@ class _EpochBatches(torch.utils.data.Dataset):
 
     def __getitem__(self, i: int):
         return self.source.batch(self.epoch, self.start + i)
-

@@ -26,6 +26,7 @@ checks that both forwards agree within 1e-5 at every size preset, in eval mode a
 ``cond_fill``. ``ChannelsLast`` holds the model as ``.model``: checkpoints and exports take
 ``wrapper.model.state_dict()``, which loads strictly into today's classes.
 """
+
 from __future__ import annotations
 
 import math
@@ -57,7 +58,7 @@ def encoder_layer(layer: nn.TransformerEncoderLayer, x: torch.Tensor) -> torch.T
     N, S, C = x.shape
     H = attn.num_heads
     qkv = F.linear(x, attn.in_proj_weight, attn.in_proj_bias).view(N, S, 3, H, C // H)
-    q, k, v = qkv.permute(2, 0, 3, 1, 4).unbind(0)                          # each (N, H, S, d)
+    q, k, v = qkv.permute(2, 0, 3, 1, 4).unbind(0)  # each (N, H, S, d)
     o = attention(q, k, v, attn.dropout if layer.training else 0.0)
     o = F.linear(o.transpose(1, 2).reshape(N, S, C), attn.out_proj.weight, attn.out_proj.bias)
     x = layer.norm1(x + layer.dropout1(o))
@@ -66,7 +67,7 @@ def encoder_layer(layer: nn.TransformerEncoderLayer, x: torch.Tensor) -> torch.T
 
 
 def _w(conv: nn.Conv1d) -> torch.Tensor:
-    return conv.weight.squeeze(-1)                                          # (Cout, Cin, 1) -> (Cout, Cin)
+    return conv.weight.squeeze(-1)  # (Cout, Cin, 1) -> (Cout, Cin)
 
 
 class ChannelsLast(nn.Module):
@@ -76,14 +77,15 @@ class ChannelsLast(nn.Module):
     def __init__(self, model: TCDModel):
         super().__init__()
         self.model = model
-        self.cfg = model.cfg          # read by the losses and samplers (training.diffusion)
+        self.cfg = model.cfg  # read by the losses and samplers (training.diffusion)
 
     @property
-    def prior(self):                  # read by the losses and samplers, as cfg
+    def prior(self):  # read by the losses and samplers, as cfg
         return self.model.prior
 
-    def forward(self, noisy: torch.Tensor, observed: torch.Tensor, mask: torch.Tensor,
-                step: torch.Tensor | int) -> torch.Tensor:
+    def forward(
+        self, noisy: torch.Tensor, observed: torch.Tensor, mask: torch.Tensor, step: torch.Tensor | int
+    ) -> torch.Tensor:
         m = self.model
         cfg, net = m.cfg, m.diffmodel
         B, K, L = noisy.shape
@@ -93,37 +95,41 @@ class ChannelsLast(nn.Module):
             step = torch.tensor([step], device=noisy.device)
         step = step.reshape(-1).to(noisy.device).long()
         cond = condition(cfg, observed, mask, m.prior)
-        x = torch.stack([cond, (1 - mask) * noisy], dim=-1)                   # (B, K, L, 2)
-        h = F.relu(F.linear(x, _w(net.input_projection), net.input_projection.bias))   # (B, K, L, C)
-        emb = net.diffusion_embedding(step)                                   # (B or 1, 128)
+        x = torch.stack([cond, (1 - mask) * noisy], dim=-1)  # (B, K, L, 2)
+        h = F.relu(F.linear(x, _w(net.input_projection), net.input_projection.bias))  # (B, K, L, C)
+        emb = net.diffusion_embedding(step)  # (B or 1, 128)
 
         # Side information by linearity: cond_projection(side) = W_t temb + W_f femb + w_m mask + b.
-        temb = frame_embedding(L, cfg.time_embedding_dim, noisy.device).to(h.dtype)     # (L, 128)
-        femb = m.embed_layer.weight                                           # (K, 16)
+        temb = frame_embedding(L, cfg.time_embedding_dim, noisy.device).to(h.dtype)  # (L, 128)
+        femb = m.embed_layer.weight  # (K, 16)
         nt, nf = cfg.time_embedding_dim, cfg.feature_embedding_dim
-        mask_lk = mask.transpose(1, 2).unsqueeze(-1)                          # (B, L, K, 1) view
+        mask_lk = mask.transpose(1, 2).unsqueeze(-1)  # (B, L, K, 1) view
 
         skip_sum = None
         for block in net.residual_layers:
             C = h.shape[-1]
             y = h + block.diffusion_projection(emb).view(-1, 1, 1, C)
-            if L > 1:                                                         # the reference skips a length-1 axis
+            if L > 1:  # the reference skips a length-1 axis
                 y = encoder_layer(block.time_layer.layers[0], y.reshape(B * K, L, C)).view(B, K, L, C)
-            y = y.transpose(1, 2).reshape(B * L, K, C)                        # the block's one transpose
+            y = y.transpose(1, 2).reshape(B * L, K, C)  # the block's one transpose
             if K > 1:
                 y = encoder_layer(block.feature_layer.layers[0], y)
             y = y.view(B, L, K, C)
-            wc = _w(block.cond_projection)                                    # (2C, 145)
-            side = (F.linear(temb, wc[:, :nt]).unsqueeze(1) + F.linear(femb, wc[:, nt:nt + nf]).unsqueeze(0)
-                    + block.cond_projection.bias)                             # (L, K, 2C)
+            wc = _w(block.cond_projection)  # (2C, 145)
+            side = (
+                F.linear(temb, wc[:, :nt]).unsqueeze(1)
+                + F.linear(femb, wc[:, nt : nt + nf]).unsqueeze(0)
+                + block.cond_projection.bias
+            )  # (L, K, 2C)
             y = F.linear(y, _w(block.mid_projection), block.mid_projection.bias) + side + mask_lk * wc[:, nt + nf]
             gate, filt = y.chunk(2, dim=-1)
-            y = F.linear(torch.sigmoid(gate) * torch.tanh(filt), _w(block.output_projection),
-                         block.output_projection.bias)
-            residual, skip = y.chunk(2, dim=-1)                               # (B, L, K, C) each
-            h = (h + residual.transpose(1, 2)) / math.sqrt(2.0)               # back in (B, K, L, C)
+            y = F.linear(
+                torch.sigmoid(gate) * torch.tanh(filt), _w(block.output_projection), block.output_projection.bias
+            )
+            residual, skip = y.chunk(2, dim=-1)  # (B, L, K, C) each
+            h = (h + residual.transpose(1, 2)) / math.sqrt(2.0)  # back in (B, K, L, C)
             skip_sum = skip if skip_sum is None else skip_sum + skip
         y = skip_sum / math.sqrt(len(net.residual_layers))
         y = F.relu(F.linear(y, _w(net.output_projection1), net.output_projection1.bias))
-        out = F.linear(y, _w(net.output_projection2), net.output_projection2.bias)      # (B, L, K, 1)
-        return out.squeeze(-1).transpose(1, 2)                                # (B, K, L)
+        out = F.linear(y, _w(net.output_projection2), net.output_projection2.bias)  # (B, L, K, 1)
+        return out.squeeze(-1).transpose(1, 2)  # (B, K, L)

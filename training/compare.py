@@ -22,6 +22,7 @@ pattern (``random_leg_arm``, ``consecutive_frames``, ``random_joints``) and the 
 (``--key random_leg_arm --bundled-key random_leg_arm:spline`` with the same file twice: the model against the
 spline). ``new`` and ``bundled`` are then means over windows, not the table's mean over hidden entries.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -32,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 
-HUMANEVA_KEYS = ("ADE", "FDE", "MMADE", "MMFDE", "mean_ADE", "mean_FDE")   # mean_*: the samples' mean
+HUMANEVA_KEYS = ("ADE", "FDE", "MMADE", "MMFDE", "mean_ADE", "mean_FDE")  # mean_*: the samples' mean
 
 
 def is_humaneva(result: dict) -> bool:
@@ -46,8 +47,10 @@ def per_window(result: dict, key: str) -> dict[str, float]:
     # a --model run scores its model; a --prior run (no model) scores the prior's point forecast
     scored = result["model"] if "model" in result else result.get("prior", {})
     if "per_window" not in scored:
-        raise ValueError("the HumanEva-I result has no per-window values of a model or a prior (run "
-                         "training.evaluate --protocol humaneva --model DIR or --prior DIR: they record them)")
+        raise ValueError(
+            "the HumanEva-I result has no per-window values of a model or a prior (run "
+            "training.evaluate --protocol humaneva --model DIR or --prior DIR: they record them)"
+        )
     return {str(i): float(v) for i, v in enumerate(scored["per_window"][key])}
 
 
@@ -60,8 +63,9 @@ def per_repair_window(result: dict, key: str) -> dict[str, float]:
     pattern, _, method = key.partition(":")
     rows = {p: r for (p, _), r in zip(result["protocol"]["patterns"], result["results"])}
     if pattern not in rows:
-        raise ValueError(f"--key for a repair result is PATTERN[:METHOD] with PATTERN one of {sorted(rows)}, "
-                         f"got {key!r}")
+        raise ValueError(
+            f"--key for a repair result is PATTERN[:METHOD] with PATTERN one of {sorted(rows)}, got {key!r}"
+        )
     row = rows[pattern]
     method = method or "tcd"
     if "per_window_mm" not in row.get(method, {}):
@@ -84,14 +88,23 @@ def per_action(result: dict, key: str, horizon: str) -> dict[str, float]:
     return {a: float(v[horizon]) for a, v in table.items()}
 
 
-def compare(new: dict, old: dict, *, key: str = "average", horizon: str = "1000", margin: float = 0.01,
-            old_key: str | None = None) -> dict:
+def compare(
+    new: dict,
+    old: dict,
+    *,
+    key: str = "average",
+    horizon: str = "1000",
+    margin: float = 0.01,
+    old_key: str | None = None,
+) -> dict:
     for what in ("protocol", "seeds"):
         for name, res in (("NEW", new), ("BUNDLED", old)):
             if not isinstance(res.get(what), dict):
-                raise ValueError(f"{name} has no {what!r}: not a result of training.evaluate --json or of "
-                                 "benches/repair_quality.py --json (repair results written before 2026-11-26 have "
-                                 "none)")
+                raise ValueError(
+                    f"{name} has no {what!r}: not a result of training.evaluate --json or of "
+                    "benches/repair_quality.py --json (repair results written before 2026-11-26 have "
+                    "none)"
+                )
         a = {k: v for k, v in new[what].items() if k != "data"}
         b = {k: v for k, v in old[what].items() if k != "data"}
         if a != b:
@@ -107,26 +120,44 @@ def compare(new: dict, old: dict, *, key: str = "average", horizon: str = "1000"
     if abs(xa - xb) > margin * max(xa, xb) and abs(d.mean()) > 2 * se:
         verdict = "new is better" if d.mean() < 0 else "bundled is better"
     unit = "windows" if is_humaneva(new) or is_repair(new) else "actions"
-    return {"horizon_ms": None if unit == "windows" else horizon, "key": key,
-            **({} if old_key is None else {"bundled_key": old_key}), unit: len(actions),
-            "new": xa, "bundled": xb, "mean_difference": float(d.mean()), "standard_error": se,
-            "new_better_on": int((d < 0).sum()), "margin": margin, "verdict": verdict}
+    return {
+        "horizon_ms": None if unit == "windows" else horizon,
+        "key": key,
+        **({} if old_key is None else {"bundled_key": old_key}),
+        unit: len(actions),
+        "new": xa,
+        "bundled": xb,
+        "mean_difference": float(d.mean()),
+        "standard_error": se,
+        "new_better_on": int((d < 0).sum()),
+        "margin": margin,
+        "verdict": verdict,
+    }
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m training.compare", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        prog="python -m training.compare", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("new")
     ap.add_argument("bundled")
-    ap.add_argument("--key", default="average",
-                    help="average (default), mean_of_n or best_of_n; HumanEva-I: ADE (= average), FDE, MMADE, MMFDE; "
-                    "repair benchmark: PATTERN[:METHOD]")
+    ap.add_argument(
+        "--key",
+        default="average",
+        help="average (default), mean_of_n or best_of_n; HumanEva-I: ADE (= average), FDE, MMADE, MMFDE; "
+        "repair benchmark: PATTERN[:METHOD]",
+    )
     ap.add_argument("--bundled-key", default=None, help="BUNDLED's key, when not --key's")
     ap.add_argument("--horizon", default="1000", help="ms (default 1000)")
     ap.add_argument("--margin", type=float, default=0.01, help="relative difference that counts (default 0.01)")
     args = ap.parse_args(argv)
-    res = compare(*(json.loads(Path(p).read_text()) for p in (args.new, args.bundled)), key=args.key,
-                  horizon=args.horizon, margin=args.margin, old_key=args.bundled_key)
+    res = compare(
+        *(json.loads(Path(p).read_text()) for p in (args.new, args.bundled)),
+        key=args.key,
+        horizon=args.horizon,
+        margin=args.margin,
+        old_key=args.bundled_key,
+    )
     print(json.dumps(res, indent=1))
     return 0 if res["verdict"] == "new is better" else 1
 

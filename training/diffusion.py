@@ -14,6 +14,7 @@ Target. A model whose config says ``target="linear_residual"`` diffuses ``target
 linear_fill(observed, mask))`` instead of x0 (training.model.to_target); samplers map the final x back
 (from_target) before merging the observation. ``target="absolute"`` (TCD) diffuses x0.
 """
+
 from __future__ import annotations
 
 import math
@@ -32,18 +33,19 @@ PREDICTION_TYPES = ("epsilon", "sample")
 
 @dataclass
 class DiffusionConfig:
-    num_train_timesteps: int = 50   # T
-    beta_schedule: str = "cosine"   # cosine (TCD default) | linear (MotionDiff: T=100, 1e-4..0.05) | quad (CSDI)
-    beta_start: float = 1e-4        # linear / quad only
-    beta_end: float = 0.5           # linear / quad only
-    max_beta: float = 0.5           # cosine clip (TCD clips at 0.5, not 0.999)
+    num_train_timesteps: int = 50  # T
+    beta_schedule: str = "cosine"  # cosine (TCD default) | linear (MotionDiff: T=100, 1e-4..0.05) | quad (CSDI)
+    beta_start: float = 1e-4  # linear / quad only
+    beta_end: float = 0.5  # linear / quad only
+    max_beta: float = 0.5  # cosine clip (TCD clips at 0.5, not 0.999)
     prediction_type: str = "epsilon"  # what the network outputs: the noise (TCD, CSDI) or "sample": the clean
-                                      # target x0 (the residual, for a residual target), as CoMusion and MDM do
+    # target x0 (the residual, for a residual target), as CoMusion and MDM do
 
     def __post_init__(self):
         if self.prediction_type not in PREDICTION_TYPES:
-            raise ValueError(f"diffusion config: prediction_type must be one of {PREDICTION_TYPES}, "
-                             f"got {self.prediction_type!r}")
+            raise ValueError(
+                f"diffusion config: prediction_type must be one of {PREDICTION_TYPES}, got {self.prediction_type!r}"
+            )
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -53,10 +55,23 @@ class DiffusionConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> "DiffusionConfig":
-        cfg = cls(**{k: d[k] for k in ("num_train_timesteps", "beta_schedule", "beta_start", "beta_end", "max_beta",
-                                       "prediction_type") if k in d})
-        if "betas" in d and not np.allclose(np.asarray(d["betas"], dtype=np.float64), make_betas(cfg),
-                                            rtol=0, atol=1e-12):
+        cfg = cls(
+            **{
+                k: d[k]
+                for k in (
+                    "num_train_timesteps",
+                    "beta_schedule",
+                    "beta_start",
+                    "beta_end",
+                    "max_beta",
+                    "prediction_type",
+                )
+                if k in d
+            }
+        )
+        if "betas" in d and not np.allclose(
+            np.asarray(d["betas"], dtype=np.float64), make_betas(cfg), rtol=0, atol=1e-12
+        ):
             raise ValueError("diffusion config: the stored betas disagree with the schedule they name")
         return cfg
 
@@ -67,13 +82,15 @@ def make_betas(cfg: DiffusionConfig) -> np.ndarray:
     if T < 1:
         raise ValueError(f"num_train_timesteps must be >= 1, got {T}")
     if cfg.beta_schedule == "cosine":
+
         def abar(s):
             return math.cos((s + 0.008) / 1.008 * math.pi / 2) ** 2
+
         return np.array([min(1.0 - abar((i + 1) / T) / abar(i / T), cfg.max_beta) for i in range(T)], dtype=np.float64)
     if cfg.beta_schedule == "linear":
         return np.linspace(cfg.beta_start, cfg.beta_end, T, dtype=np.float64)
     if cfg.beta_schedule == "quad":
-        return np.linspace(cfg.beta_start ** 0.5, cfg.beta_end ** 0.5, T, dtype=np.float64) ** 2
+        return np.linspace(cfg.beta_start**0.5, cfg.beta_end**0.5, T, dtype=np.float64) ** 2
     raise ValueError(f"beta_schedule must be one of {SCHEDULES}, got {cfg.beta_schedule!r}")
 
 
@@ -118,9 +135,16 @@ def masked_eps_loss(eps: torch.Tensor, eps_hat: torch.Tensor, mask: torch.Tensor
     return (((eps - eps_hat) * target) ** 2).sum() / torch.clamp(denom, min=1.0)
 
 
-def training_loss(model, sched: Schedule, x0: torch.Tensor, mask: torch.Tensor,
-                  t: torch.Tensor | None = None, eps: torch.Tensor | None = None,
-                  generator: torch.Generator | None = None, observed: torch.Tensor | None = None) -> torch.Tensor:
+def training_loss(
+    model,
+    sched: Schedule,
+    x0: torch.Tensor,
+    mask: torch.Tensor,
+    t: torch.Tensor | None = None,
+    eps: torch.Tensor | None = None,
+    generator: torch.Generator | None = None,
+    observed: torch.Tensor | None = None,
+) -> torch.Tensor:
     """The masked epsilon loss of section 2.1 for clean windows x0 (B, K, L) and conditioning mask (B, K, L).
 
     ``observed`` (default x0) is what the network sees on conditioned entries: for noisy-observation
@@ -208,6 +232,7 @@ def dpmpp2m_coefficients(sched: Schedule, pairs: list[tuple[int, int]]) -> list[
     steps ``cx`` = sigma_t'/sigma_s, ``c0`` = -alpha_t' expm1(-h), ``w_cur``, ``w_prev`` (D = w_cur x0_i
     + w_prev x0_{i-1}; w_prev = 0 at first order).
     """
+
     def lam(t):
         a = sched.abar(t)
         return 0.5 * math.log(a) - 0.5 * math.log(1.0 - a)
@@ -241,9 +266,19 @@ def draw_noise(num_steps: int, shape, generator: torch.Generator | None = None) 
 
 
 @torch.no_grad()
-def sample(model, sched: Schedule, observed: torch.Tensor, mask: torch.Tensor, *, sampler: str = "ddpm",
-           num_inference_steps: int | None = None, eta: float = 0.0, timestep_spacing: str = "trailing",
-           noise: torch.Tensor | None = None, generator: torch.Generator | None = None) -> torch.Tensor:
+def sample(
+    model,
+    sched: Schedule,
+    observed: torch.Tensor,
+    mask: torch.Tensor,
+    *,
+    sampler: str = "ddpm",
+    num_inference_steps: int | None = None,
+    eta: float = 0.0,
+    timestep_spacing: str = "trailing",
+    noise: torch.Tensor | None = None,
+    generator: torch.Generator | None = None,
+) -> torch.Tensor:
     """Draw one sample per batch element. observed, mask: (B, K, L). Returns the merged sample (B, K, L).
 
     ddpm: ancestral sampling with the posterior variance beta_tilde; with num_inference_steps = T (default)
@@ -274,7 +309,7 @@ def sample(model, sched: Schedule, observed: torch.Tensor, mask: torch.Tensor, *
         eps = predicted_noise(sched, model(x, observed, mask, step), x, t)
         a_t, a_next = sched.abar(t), sched.abar(t_next)
         if sampler == "ddpm":
-            beta = 1.0 - a_t / a_next                      # = beta_t when the steps are consecutive
+            beta = 1.0 - a_t / a_next  # = beta_t when the steps are consecutive
             c1 = 1.0 / math.sqrt(1.0 - beta)
             c2 = beta / math.sqrt(1.0 - a_t)
             x = c1 * (x - c2 * eps)
@@ -293,7 +328,7 @@ def sample(model, sched: Schedule, observed: torch.Tensor, mask: torch.Tensor, *
         else:
             x0_hat = (x - math.sqrt(1.0 - a_t) * eps) / math.sqrt(a_t)
             sigma = eta * math.sqrt((1.0 - a_next) / (1.0 - a_t)) * math.sqrt(1.0 - a_t / a_next)
-            dir_coef = math.sqrt(max(1.0 - a_next - sigma ** 2, 0.0))
+            dir_coef = math.sqrt(max(1.0 - a_next - sigma**2, 0.0))
             x = math.sqrt(a_next) * x0_hat + dir_coef * eps
             if sigma > 0:
                 x = x + sigma * noise[i + 1]
@@ -332,9 +367,18 @@ def couple_noise(noise: torch.Tensor, noise_coupling: str = "independent") -> to
     return out
 
 
-def sample_many(model, sched: Schedule, observed: torch.Tensor, mask: torch.Tensor, num_samples: int,
-                noise: torch.Tensor | None = None, generator: torch.Generator | None = None,
-                batch_chains: bool = True, noise_coupling: str = "independent", **kw) -> torch.Tensor:
+def sample_many(
+    model,
+    sched: Schedule,
+    observed: torch.Tensor,
+    mask: torch.Tensor,
+    num_samples: int,
+    noise: torch.Tensor | None = None,
+    generator: torch.Generator | None = None,
+    batch_chains: bool = True,
+    noise_coupling: str = "independent",
+    **kw,
+) -> torch.Tensor:
     """num_samples chains per window -> (S, B, K, L), independent but for ``noise_coupling``
     (:func:`couple_noise`).
 
@@ -346,8 +390,9 @@ def sample_many(model, sched: Schedule, observed: torch.Tensor, mask: torch.Tens
     if S < 1:
         raise ValueError(f"num_samples must be >= 1, got {S}")
     sampler = kw.get("sampler", "ddpm")
-    n = len(step_pairs(sched.T, sampler, kw.get("num_inference_steps") or sched.T,
-                       kw.get("timestep_spacing", "trailing")))
+    n = len(
+        step_pairs(sched.T, sampler, kw.get("num_inference_steps") or sched.T, kw.get("timestep_spacing", "trailing"))
+    )
     blocks = num_noise_blocks(sampler, n)
     if noise is None:
         noise = torch.stack([draw_noise(blocks - 1, tuple(observed.shape), generator) for _ in range(S)])
@@ -374,10 +419,22 @@ def pad_frames(x: torch.Tensor, length: int) -> torch.Tensor:
 
 
 @torch.no_grad()
-def cascade(short_model, short_sched: Schedule, long_model, long_sched: Schedule, observed: torch.Tensor,
-            mask: torch.Tensor, *, short_len: int, long_len: int, num_samples: int = 5,
-            noise_short: torch.Tensor | None = None, noise_long: torch.Tensor | None = None,
-            generator: torch.Generator | None = None, **kw) -> dict:
+def cascade(
+    short_model,
+    short_sched: Schedule,
+    long_model,
+    long_sched: Schedule,
+    observed: torch.Tensor,
+    mask: torch.Tensor,
+    *,
+    short_len: int,
+    long_len: int,
+    num_samples: int = 5,
+    noise_short: torch.Tensor | None = None,
+    noise_long: torch.Tensor | None = None,
+    generator: torch.Generator | None = None,
+    **kw,
+) -> dict:
     """Temporal cascade: short-term model (obs -> short_len frames), the mean of its samples overwrites
     frames 0..short_len-1 with mask 1, then the long-term model fills frames short_len..long_len-1.
 
@@ -397,16 +454,33 @@ def cascade(short_model, short_sched: Schedule, long_model, long_sched: Schedule
 
 
 @torch.no_grad()
-def repair(model, sched: Schedule, observed: torch.Tensor, mask: torch.Tensor, *, seq_len: int,
-           num_samples: int = 5, noise: torch.Tensor | None = None, generator: torch.Generator | None = None,
-           **kw) -> torch.Tensor:
+def repair(
+    model,
+    sched: Schedule,
+    observed: torch.Tensor,
+    mask: torch.Tensor,
+    *,
+    seq_len: int,
+    num_samples: int = 5,
+    noise: torch.Tensor | None = None,
+    generator: torch.Generator | None = None,
+    **kw,
+) -> torch.Tensor:
     """Observation-only inference: fill the occluded entries of (B, K, O) with the mean of the samples.
 
     The observation is padded to the model's window with masked frames; observed entries are returned
     unchanged.
     """
     obs_len = observed.shape[2]
-    out = sample_many(model, sched, pad_frames(observed, seq_len), pad_frames(mask, seq_len), num_samples,
-                      noise=noise, generator=generator, **kw)
+    out = sample_many(
+        model,
+        sched,
+        pad_frames(observed, seq_len),
+        pad_frames(mask, seq_len),
+        num_samples,
+        noise=noise,
+        generator=generator,
+        **kw,
+    )
     rep = out.mean(dim=0)[:, :, :obs_len]
     return rep * (1 - mask) + observed * mask

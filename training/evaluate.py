@@ -27,6 +27,7 @@ published numbers (``training.metrics.PUBLISHED_HUMANEVA``). ``--max-windows N``
 windows (evenly spaced; their multimodal futures still come from all 188): a quick look, not the protocol.
     python -m training.evaluate --prior python/tcd/weights --mask consecutive_frames   # the point forecast
 """
+
 from __future__ import annotations
 
 import argparse
@@ -46,6 +47,7 @@ OBS, PRED = 50, 25
 
 
 # ------------------------------------------------------------------------------------------ layout
+
 
 def to_bkl(x: np.ndarray) -> torch.Tensor:
     """(B, L, J, 3) -> (B, K, L) float32 tensor, K = 3 J in joint-major order."""
@@ -68,6 +70,7 @@ def joint_to_coord_mask(jmask: np.ndarray) -> np.ndarray:
 
 # ------------------------------------------------------------------------------------------ predictors
 
+
 def zero_velocity(obs: np.ndarray, jmask: np.ndarray, horizon: int = PRED) -> np.ndarray:
     """Repeat the last visible value of every joint: (W, O, J, 3), (W, O, J) -> (W, horizon, J, 3).
     A joint never visible stays at 0."""
@@ -87,46 +90,98 @@ def noise_coupling_of(args) -> str:
     if given or not getattr(args, "model", None):
         return given or "independent"
     import tcd
+
     return tcd.SamplerOptions.build(tcd.load(args.model).sampling.get("forecast"), sampler=args.sampler).noise_coupling
 
 
-def tcd_predict(models: dict, obs: np.ndarray, jmask: np.ndarray, *, samples: int, steps: int | None, sampler: str,
-                eta: float, spacing: str, seed: int, device: str, batch_size: int = 16, horizon: int = PRED,
-                noise_coupling: str = "independent") -> dict:
+def tcd_predict(
+    models: dict,
+    obs: np.ndarray,
+    jmask: np.ndarray,
+    *,
+    samples: int,
+    steps: int | None,
+    sampler: str,
+    eta: float,
+    spacing: str,
+    seed: int,
+    device: str,
+    batch_size: int = 16,
+    horizon: int = PRED,
+    noise_coupling: str = "independent",
+) -> dict:
     """Cascade forecast for windows obs (W, O, J, 3) metres (Human3.6M: O = 50) with joint mask (W, O, J).
     Returns samples (S, W, horizon, J, 3) and the repaired observation (W, O, J, 3) (mean of short-term samples)."""
     from .diffusion import cascade
+
     short_m, short_s, short_cfg = models["short"]
     long_m, long_s, long_cfg = models["long"]
     short_len, long_len = short_cfg["window"]["seq_len"], long_cfg["window"]["seq_len"]
     obs_len = obs.shape[1]
     if short_cfg["window"]["obs_len"] != obs_len or long_len - obs_len != horizon:
-        raise ValueError(f"models expect {short_cfg['window']['obs_len']} observed frames and {long_len} in all; "
-                         f"the protocol has {obs_len} + {horizon}")
+        raise ValueError(
+            f"models expect {short_cfg['window']['obs_len']} observed frames and {long_len} in all; "
+            f"the protocol has {obs_len} + {horizon}"
+        )
     obs = obs * joint_to_coord_mask(jmask)  # missing values are zero in the model input
     outs, reps = [], []
     for b0 in range(0, len(obs), batch_size):
         gen = torch.Generator(device=device).manual_seed(int(seed) * 1_000_003 + b0)
-        x = to_bkl(obs[b0:b0 + batch_size]).to(device)
-        m = to_bkl(joint_to_coord_mask(jmask[b0:b0 + batch_size])).to(device)
-        res = cascade(short_m, short_s, long_m, long_s, x, m, short_len=short_len, long_len=long_len,
-                      num_samples=samples, generator=gen, sampler=sampler, num_inference_steps=steps, eta=eta,
-                      timestep_spacing=spacing, noise_coupling=noise_coupling)
+        x = to_bkl(obs[b0 : b0 + batch_size]).to(device)
+        m = to_bkl(joint_to_coord_mask(jmask[b0 : b0 + batch_size])).to(device)
+        res = cascade(
+            short_m,
+            short_s,
+            long_m,
+            long_s,
+            x,
+            m,
+            short_len=short_len,
+            long_len=long_len,
+            num_samples=samples,
+            generator=gen,
+            sampler=sampler,
+            num_inference_steps=steps,
+            eta=eta,
+            timestep_spacing=spacing,
+            noise_coupling=noise_coupling,
+        )
         outs.append(from_bkl(res["samples"][..., obs_len:]))
         reps.append(from_bkl(res["short_mean"][..., :obs_len]))
     return {"samples": np.concatenate(outs, axis=1), "repaired": np.concatenate(reps, axis=0)}
 
 
-def tcd_engine_predict(model_dir: str, obs: np.ndarray, jmask: np.ndarray, *, samples: int, steps: int | None,
-                       sampler: str, eta: float, spacing: str, seed: int, tempo=None,
-                       noise_coupling: str = "independent") -> dict:
+def tcd_engine_predict(
+    model_dir: str,
+    obs: np.ndarray,
+    jmask: np.ndarray,
+    *,
+    samples: int,
+    steps: int | None,
+    sampler: str,
+    eta: float,
+    spacing: str,
+    seed: int,
+    tempo=None,
+    noise_coupling: str = "independent",
+) -> dict:
     """The same cascade through the Rust engine (``tcd``): fast on the CPU, in parity with the reference.
     Missing entries are passed as NaN."""
     import tcd
+
     model = tcd.load(model_dir)
     x = np.where(joint_to_coord_mask(jmask) > 0.5, obs, np.nan)
-    f = model.forecast(x, num_samples=samples, num_inference_steps=steps, sampler=sampler, eta=eta,
-                       timestep_spacing=spacing, seed=int(seed), tempo=tempo, noise_coupling=noise_coupling)
+    f = model.forecast(
+        x,
+        num_samples=samples,
+        num_inference_steps=steps,
+        sampler=sampler,
+        eta=eta,
+        timestep_spacing=spacing,
+        seed=int(seed),
+        tempo=tempo,
+        noise_coupling=noise_coupling,
+    )
     return {"samples": np.asarray(f.samples, np.float64), "repaired": np.asarray(f.repaired, np.float64)}
 
 
@@ -136,6 +191,7 @@ def generator_share_of(args) -> float:
     if args.generator_share is not None or args.engine != "tcd":
         return args.generator_share or 0.0
     import tcd
+
     return tcd.load(args.model).generator_share
 
 
@@ -146,6 +202,7 @@ def tempo_run(args) -> list | None:
     if args.tempo is not None:
         return None if tuple(args.tempo) == (1.0, 1.0) else list(args.tempo)
     import tcd
+
     t = tcd.load(args.model).forecast_tempo
     return None if t is None else list(t)
 
@@ -161,14 +218,17 @@ def prior_predict(args, obs: np.ndarray, jmask: np.ndarray, seed: int) -> np.nda
     path = Path(args.prior)
     if path.is_dir():
         import tcd
+
         f = tcd.load(path).predict(x, fill=args.fill, seed=seed)
         return np.asarray(f.mean, np.float64)
     from .prior import load
+
     if np.isnan(x).any():
         import tcd
+
         if args.fill in ("spline", "linear"):
             x = tcd.interpolate(x, method=args.fill)
-        else:   # "auto" / "model": the bundled repair model, as the public API does without a directory
+        else:  # "auto" / "model": the bundled repair model, as the public API does without a directory
             x = tcd.load().repair(x, seed=seed).poses
     net = load(path)
     W, obs_len, J, _ = x.shape
@@ -179,22 +239,28 @@ def prior_predict(args, obs: np.ndarray, jmask: np.ndarray, seed: int) -> np.nda
 
 # ------------------------------------------------------------------------------------------ protocol
 
+
 def summarize(per_action_frames: dict[str, np.ndarray]) -> dict:
     per_frame = np.mean(np.stack(list(per_action_frames.values())), axis=0)
-    return {"average": at_horizons(per_frame), "per_action": {a: at_horizons(v) for a, v in per_action_frames.items()},
-            "per_frame": [float(v) for v in per_frame]}
+    return {
+        "average": at_horizons(per_frame),
+        "per_action": {a: at_horizons(v) for a, v in per_action_frames.items()},
+        "per_frame": [float(v) for v in per_frame],
+    }
 
 
-def protocol_windows(data: H36M, action: str, action_index: int, windows_per_action: int, mask: str,
-                     mask_seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def protocol_windows(
+    data: H36M, action: str, action_index: int, windows_per_action: int, mask: str, mask_seed: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """One action's protocol windows: the future ground truth (W, 25, 32, 3) mm, the clean observation
     (W, 50, 22, 3) m, and the observation corrupted by the pattern ``mask`` with its joint mask (W, 50, 22)
     (window w's corruption drawn from ``default_rng([mask_seed, action_index, w])``)."""
-    wins = data.test_windows(action, OBS + PRED, OBS, windows_per_action)               # (W, 75, 32, 3) mm
-    obs_clean = xyz32_to_model(wins[:, :OBS]).astype(np.float64)                         # (W, 50, 22, 3) m
+    wins = data.test_windows(action, OBS + PRED, OBS, windows_per_action)  # (W, 75, 32, 3) mm
+    obs_clean = xyz32_to_model(wins[:, :OBS]).astype(np.float64)  # (W, 50, 22, 3) m
     obs, jmask = obs_clean.copy(), np.ones(obs_clean.shape[:3], dtype=np.float32)
     if mask != "none":
         from .masks import corrupt
+
         for w in range(len(obs)):
             rng = np.random.default_rng([mask_seed, action_index, w])
             obs[w], jmask[w] = corrupt(obs_clean[w], mask, OBS, rng)
@@ -210,6 +276,7 @@ def evaluate_h36m(args, models: dict | None = None, data: H36M | None = None, on
     actions = data.test_actions()
     if models is None and args.model:
         from .export import load_model_dir
+
         models = load_model_dir(args.model, args.device)
     zv, zv_rep, best, mean, point = {}, {}, {}, {}, {}
     coupling = noise_coupling_of(args)
@@ -218,15 +285,23 @@ def evaluate_h36m(args, models: dict | None = None, data: H36M | None = None, on
     for ai, action in enumerate(actions):
         if only is not None and action not in only:
             continue
-        gt32, obs_clean, obs, jmask = protocol_windows(data, action, ai, args.windows_per_action, args.mask,
-                                                       args.mask_seed)
+        gt32, obs_clean, obs, jmask = protocol_windows(
+            data, action, ai, args.windows_per_action, args.mask, args.mask_seed
+        )
         zv[action] = per_frame_error(model_to_xyz32(zero_velocity(obs, jmask), gt32), gt32).mean(axis=0)
         if getattr(args, "prior", None):
             pred = prior_predict(args, obs, jmask, seed=args.seed * 1000 + ai)
             point[action] = per_frame_error(model_to_xyz32(pred, gt32), gt32).mean(axis=0)
         if models is not None:
-            kw = dict(samples=args.samples, steps=args.steps, sampler=args.sampler, eta=args.eta,
-                      spacing=args.timestep_spacing, seed=args.seed * 1000 + ai, noise_coupling=coupling)
+            kw = dict(
+                samples=args.samples,
+                steps=args.steps,
+                sampler=args.sampler,
+                eta=args.eta,
+                spacing=args.timestep_spacing,
+                seed=args.seed * 1000 + ai,
+                noise_coupling=coupling,
+            )
             if args.engine == "tcd":
                 res = tcd_engine_predict(args.model, obs, jmask, tempo=args.tempo, **kw)
             else:
@@ -238,46 +313,73 @@ def evaluate_h36m(args, models: dict | None = None, data: H36M | None = None, on
                 s, c = repair_ade(res["repaired"], obs_clean, jmask)
                 rep_sum, rep_cnt = rep_sum + s, rep_cnt + c
                 zv_rep[action] = per_frame_error(
-                    model_to_xyz32(zero_velocity(res["repaired"], np.ones_like(jmask)), gt32), gt32).mean(axis=0)
+                    model_to_xyz32(zero_velocity(res["repaired"], np.ones_like(jmask)), gt32), gt32
+                ).mean(axis=0)
         if not args.quiet:
             print(f"[{ai + 1}/{len(actions)}] {action}: {len(obs)} windows, {time.time() - t0:.0f} s", file=sys.stderr)
     evaluated = [a for a in actions if only is None or a in only]
-    out = {"protocol": {"dataset": "h36m", "subject": "S5", "actions": evaluated,
-                        "windows_per_action": args.windows_per_action,
-                        "observed_frames": OBS, "predicted_frames": PRED, "fps": 25, "units": "mm",
-                        "error": "mean over 32 joints (22 predicted pasted into GT, 6 duplicates copied)",
-                        "mask": args.mask, "data": str(data.source.origin)},
-           "seeds": {"windows": 1234567890, "mask": args.mask_seed, "sampling": args.seed},
-           "zero_velocity": summarize(zv)}
+    out = {
+        "protocol": {
+            "dataset": "h36m",
+            "subject": "S5",
+            "actions": evaluated,
+            "windows_per_action": args.windows_per_action,
+            "observed_frames": OBS,
+            "predicted_frames": PRED,
+            "fps": 25,
+            "units": "mm",
+            "error": "mean over 32 joints (22 predicted pasted into GT, 6 duplicates copied)",
+            "mask": args.mask,
+            "data": str(data.source.origin),
+        },
+        "seeds": {"windows": 1234567890, "mask": args.mask_seed, "sampling": args.seed},
+        "zero_velocity": summarize(zv),
+    }
     if getattr(args, "prior", None):
         out.update(method=f"prior {args.prior}", fill=args.fill, **summarize(point))
     elif models is None:
         out.update(method="zero-velocity", **summarize(zv))
     else:
         out["method"] = f"tcd {args.model}"
-        out["sampling"] = {"engine": args.engine, "samples": args.samples, "steps": args.steps or models['short'][1].T,
-                           "sampler": args.sampler, "eta": args.eta, "timestep_spacing": args.timestep_spacing,
-                           "noise_coupling": coupling, "tempo": tempo_run(args)}
+        out["sampling"] = {
+            "engine": args.engine,
+            "samples": args.samples,
+            "steps": args.steps or models["short"][1].T,
+            "sampler": args.sampler,
+            "eta": args.eta,
+            "timestep_spacing": args.timestep_spacing,
+            "noise_coupling": coupling,
+            "tempo": tempo_run(args),
+        }
         out["best_of_n"] = dict(summarize(best), label=f"oracle best-of-{args.samples} (selected against ground truth)")
         out["mean_of_n"] = dict(summarize(mean), label=f"mean of {args.samples} samples (deployable)")
         chosen = out["best_of_n" if args.select == "best" else "mean_of_n"]
-        out.update(select=args.select, average=chosen["average"], per_action=chosen["per_action"],
-                   per_frame=chosen["per_frame"])
+        out.update(
+            select=args.select,
+            average=chosen["average"],
+            per_action=chosen["per_action"],
+            per_frame=chosen["per_frame"],
+        )
         if args.mask != "none":
-            out["repair"] = {"ade_mm": 1000.0 * rep_sum / max(rep_cnt, 1), "occluded_entries": rep_cnt,
-                             "label": "ADE over occluded observation entries (mean of short-term samples)"}
+            out["repair"] = {
+                "ade_mm": 1000.0 * rep_sum / max(rep_cnt, 1),
+                "occluded_entries": rep_cnt,
+                "label": "ADE over occluded observation entries (mean of short-term samples)",
+            }
             out["zero_velocity_on_repaired"] = summarize(zv_rep)
     return out
 
 
-HE_OBS, HE_PRED = 15, 60   # HumanEva-I: 15 observed -> 60 predicted frames at 60 Hz
+HE_OBS, HE_PRED = 15, 60  # HumanEva-I: 15 observed -> 60 predicted frames at 60 Hz
 
 
 def _check_humaneva_model(where: str, obs_len: int, horizon: int, num_joints: int) -> None:
     if (obs_len, horizon, num_joints) != (HE_OBS, HE_PRED, 14):
-        raise SystemExit(f"{where}: the model reads {obs_len} frames and forecasts {horizon} of {num_joints} joints; "
-                         f"the HumanEva-I protocol needs {HE_OBS} -> {HE_PRED} frames of 14 joints (a model trained "
-                         "with training/configs/humaneva_*.json)")
+        raise SystemExit(
+            f"{where}: the model reads {obs_len} frames and forecasts {horizon} of {num_joints} joints; "
+            f"the HumanEva-I protocol needs {HE_OBS} -> {HE_PRED} frames of 14 joints (a model trained "
+            "with training/configs/humaneva_*.json)"
+        )
 
 
 def humaneva_model_samples(args, obs: np.ndarray, log=lambda m: None) -> np.ndarray:
@@ -291,29 +393,58 @@ def humaneva_model_samples(args, obs: np.ndarray, log=lambda m: None) -> np.ndar
     coupling = noise_coupling_of(args)
     if args.engine == "tcd":
         import tcd
+
         model = tcd.load(args.model)
         _check_humaneva_model(args.model, model.obs_len, model.horizon, model.num_joints)
     else:
         from .export import GENERATOR_FILE, load_model_dir
+
         if (Path(args.model) / GENERATOR_FILE).is_file() and getattr(args, "generator_share", None) != 0:
-            raise SystemExit(f"{args.model} holds an MLP generator ({GENERATOR_FILE}), whose samples only the engine "
-                             "draws: score it with --engine tcd, or the cascade alone with --generator-share 0")
+            raise SystemExit(
+                f"{args.model} holds an MLP generator ({GENERATOR_FILE}), whose samples only the engine "
+                "draws: score it with --engine tcd, or the cascade alone with --generator-share 0"
+            )
         models = load_model_dir(args.model, args.device)
         w = models["short"][2]["window"]
-        _check_humaneva_model(args.model, w["obs_len"], models["long"][2]["window"]["seq_len"] - w["obs_len"],
-                              models["short"][0].cfg.num_joints)
+        _check_humaneva_model(
+            args.model,
+            w["obs_len"],
+            models["long"][2]["window"]["seq_len"] - w["obs_len"],
+            models["short"][0].cfg.num_joints,
+        )
     for b0 in range(0, W, args.batch_size):
-        x = obs[b0:b0 + args.batch_size]
+        x = obs[b0 : b0 + args.batch_size]
         seed = args.seed * 1_000_003 + b0
         if args.engine == "tcd":
-            f = model.forecast(x, num_samples=args.samples, num_inference_steps=args.steps, sampler=args.sampler,
-                               eta=args.eta, timestep_spacing=args.timestep_spacing, seed=seed, tempo=args.tempo,
-                               noise_coupling=coupling, generator_share=getattr(args, "generator_share", None))
+            f = model.forecast(
+                x,
+                num_samples=args.samples,
+                num_inference_steps=args.steps,
+                sampler=args.sampler,
+                eta=args.eta,
+                timestep_spacing=args.timestep_spacing,
+                seed=seed,
+                tempo=args.tempo,
+                noise_coupling=coupling,
+                generator_share=getattr(args, "generator_share", None),
+            )
             outs.append(np.asarray(f.samples, np.float64))
         else:
-            res = tcd_predict(models, x, np.ones(x.shape[:3], np.float32), samples=args.samples, steps=args.steps,
-                              sampler=args.sampler, eta=args.eta, spacing=args.timestep_spacing, seed=seed,
-                              device=args.device, batch_size=len(x), horizon=HE_PRED, noise_coupling=coupling)
+            res = tcd_predict(
+                models,
+                x,
+                np.ones(x.shape[:3], np.float32),
+                samples=args.samples,
+                steps=args.steps,
+                sampler=args.sampler,
+                eta=args.eta,
+                spacing=args.timestep_spacing,
+                seed=seed,
+                device=args.device,
+                batch_size=len(x),
+                horizon=HE_PRED,
+                noise_coupling=coupling,
+            )
             outs.append(res["samples"])
         log(f"[{min(b0 + args.batch_size, W)}/{W} windows] {args.samples} samples each, {time.time() - t0:.0f} s")
     return np.concatenate(outs, axis=1)
@@ -328,13 +459,17 @@ def humaneva_prior_forecast(path: str | Path, obs: np.ndarray) -> np.ndarray:
     x = np.ascontiguousarray(obs.reshape(W, T, J * 3), dtype=np.float32)
     if path.is_dir() or path.suffix == ".safetensors":
         import tcd
+
         prior = tcd.engine.Prior.load(path / "prior.safetensors" if path.is_dir() else path)
         if prior.num_features != J * 3 or prior.obs_len > T:
-            raise SystemExit(f"{path}: the prior reads {prior.obs_len} frames of {prior.num_joints} joints; the "
-                             f"HumanEva-I protocol gives {T} frames of {J}")
+            raise SystemExit(
+                f"{path}: the prior reads {prior.obs_len} frames of {prior.num_joints} joints; the "
+                f"HumanEva-I protocol gives {T} frames of {J}"
+            )
         out = prior.predict(x, HE_PRED)
     else:
         from .prior import load
+
         net = load(path)
         with torch.no_grad():
             out = net.rollout(torch.from_numpy(x), HE_PRED).numpy()
@@ -350,13 +485,15 @@ def humaneva_neighbour_forecast(obs: np.ndarray, n: int, data=None) -> np.ndarra
     from .augment import arrival_keys, squared_distances, swap_futures
     from .batches import Windows
     from .data.humaneva import training_sequences
+
     windows = Windows(list(training_sequences(data).values()), HE_OBS + HE_PRED, 1)
     train = windows.gather(np.arange(len(windows)))
     if not 1 <= n <= len(train):
-        raise SystemExit(f"the nearest training futures: --samples must be in 1..{len(train)} (the training "
-                         f"windows), got {n}")
+        raise SystemExit(
+            f"the nearest training futures: --samples must be in 1..{len(train)} (the training windows), got {n}"
+        )
     d = squared_distances(arrival_keys(obs, HE_OBS), arrival_keys(train, HE_OBS))
-    nearest = np.argsort(d, axis=1, kind="stable")[:, :n]                            # (W, n)
+    nearest = np.argsort(d, axis=1, kind="stable")[:, :n]  # (W, n)
     past = np.concatenate([obs, np.zeros((len(obs), HE_PRED) + obs.shape[2:])], axis=1)
     out = [swap_futures(past, train[nearest[:, i]].astype(np.float64), HE_OBS)[:, HE_OBS:] for i in range(n)]
     return np.stack(out)
@@ -364,9 +501,16 @@ def humaneva_neighbour_forecast(obs: np.ndarray, n: int, data=None) -> np.ndarra
 
 def humaneva_protocol(windows: int, windows_in_protocol: int, split: str = "Validate") -> dict:
     """The ``protocol`` block of a HumanEva-I result: ``training.compare`` pairs two results only where it is equal."""
-    return {"dataset": "humaneva-i", "split": split, "t_his": HE_OBS, "t_pred": HE_PRED, "fps": 60,
-            "windows": windows, "windows_in_protocol": windows_in_protocol,
-            "units": "m (DLow/GSPS: L2 norm of the flattened 42-dim pose)"}
+    return {
+        "dataset": "humaneva-i",
+        "split": split,
+        "t_his": HE_OBS,
+        "t_pred": HE_PRED,
+        "fps": 60,
+        "windows": windows,
+        "windows_in_protocol": windows_in_protocol,
+        "units": "m (DLow/GSPS: L2 norm of the flattened 42-dim pose)",
+    }
 
 
 @dataclass
@@ -374,28 +518,40 @@ class HumanEvaCases:
     """The protocol's windows a HumanEva-I evaluation scores (all 188, or ``max_windows`` evenly spaced) and how:
     one place for the evaluator and the benches that rescore samples (``benches/humaneva_lowpass.py``)."""
 
-    rows: np.ndarray                 # which of the protocol's windows
+    rows: np.ndarray  # which of the protocol's windows
     windows_in_protocol: int
-    obs: np.ndarray                  # (W, 15, 14, 3) metres
-    gts: list                        # each window's future (60, 42)
-    gt_multi: list                   # each window's multimodal futures (M, 60, 42), from every window as DLow does
-    actions: np.ndarray              # each window's action ("Box", ...)
-    split: str = "Validate"          # the protocol's; "Train" draws the same windows from the training split
+    obs: np.ndarray  # (W, 15, 14, 3) metres
+    gts: list  # each window's future (60, 42)
+    gt_multi: list  # each window's multimodal futures (M, 60, 42), from every window as DLow does
+    actions: np.ndarray  # each window's action ("Box", ...)
+    split: str = "Validate"  # the protocol's; "Train" draws the same windows from the training split
 
     @classmethod
     def load(cls, data=None, max_windows: int | None = None, split: str = "Validate") -> "HumanEvaCases":
-        from .data.humaneva import (humaneva_file, humaneva_test_actions, humaneva_test_windows, load_humaneva,
-                                    multimodal_gt)
+        from .data.humaneva import (
+            humaneva_file,
+            humaneva_test_actions,
+            humaneva_test_windows,
+            load_humaneva,
+            multimodal_gt,
+        )
+
         data = load_humaneva(humaneva_file(data), split=split)
-        wins = humaneva_test_windows(data)                               # (N, 75, 14, 3) metres
+        wins = humaneva_test_windows(data)  # (N, 75, 14, 3) metres
         D = wins.shape[2] * 3
         gt_multi_all = multimodal_gt(wins, HE_OBS)
         rows = np.arange(len(wins))
         if max_windows:
             rows = np.unique(np.linspace(0, len(wins) - 1, min(max_windows, len(wins))).round().astype(int))
-        return cls(rows, len(wins), wins[rows, :HE_OBS].astype(np.float64),
-                   [wins[i, HE_OBS:].reshape(-1, D) for i in rows], [gt_multi_all[i] for i in rows],
-                   np.asarray(humaneva_test_actions(data))[rows], split)
+        return cls(
+            rows,
+            len(wins),
+            wins[rows, :HE_OBS].astype(np.float64),
+            [wins[i, HE_OBS:].reshape(-1, D) for i in rows],
+            [gt_multi_all[i] for i in rows],
+            np.asarray(humaneva_test_actions(data))[rows],
+            split,
+        )
 
     def protocol(self) -> dict:
         return humaneva_protocol(len(self.rows), self.windows_in_protocol, self.split)
@@ -405,6 +561,7 @@ class HumanEvaCases:
         ``mean_ADE`` / ``mean_FDE``, the ADE / FDE of the samples' mean (what ``Forecast.mean`` returns: the
         point forecast a user deploys, not a protocol metric)."""
         from .stochastic import ade, evaluate_stochastic, fde
+
         S, W = pred.shape[:2]
         flat = [pred[:, w].reshape(S, HE_PRED, -1) for w in range(W)]
         out = evaluate_stochastic(flat, self.gts, self.gt_multi, per_window=True)
@@ -416,37 +573,58 @@ class HumanEvaCases:
     def per_action(self, scores: dict) -> dict:
         """Each action's windows and means of ``scores``' per-window values (Box has a fifth of the windows and
         about twice the mean's error: where the error is)."""
-        return {a: {"windows": int((self.actions == a).sum()),
-                    **{k: float(np.mean(np.asarray(v)[self.actions == a])) for k, v in scores["per_window"].items()}}
-                for a in sorted(set(self.actions))}
+        return {
+            a: {
+                "windows": int((self.actions == a).sum()),
+                **{k: float(np.mean(np.asarray(v)[self.actions == a])) for k, v in scores["per_window"].items()},
+            }
+            for a in sorted(set(self.actions))
+        }
 
 
 def evaluate_humaneva(args) -> dict:
     """The stochastic HumanEva-I protocol for ``args`` (the options of :func:`main`); see the module docstring."""
     from .metrics import PUBLISHED_HUMANEVA, PUBLISHED_HUMANEVA_SOURCES
+
     cases = HumanEvaCases.load(args.data, getattr(args, "max_windows", None), getattr(args, "split", "Validate"))
     obs, score = cases.obs, cases.score
     say = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
 
     results = {"zero_velocity": score(np.repeat(obs[None, :, -1:], HE_PRED, axis=2))}
-    prior_path = args.prior or (args.model if args.model and (Path(args.model) / "prior.safetensors").is_file()
-                                else None)
+    prior_path = args.prior or (
+        args.model if args.model and (Path(args.model) / "prior.safetensors").is_file() else None
+    )
     if prior_path:
         results["prior"] = score(humaneva_prior_forecast(prior_path, obs)[None])
-    if cases.split == "Validate":   # on the Train split each window would find itself
+    if cases.split == "Validate":  # on the Train split each window would find itself
         results["neighbours"] = score(humaneva_neighbour_forecast(obs, args.samples, args.data))
     t0 = time.time()
     if args.model:
         results["model"] = score(humaneva_model_samples(args, obs, log=say))
-    out = {"protocol": cases.protocol(),
-           "seeds": {"sampling": args.seed} if args.model else {}, **results,
-           "published": {k: v for k, v in PUBLISHED_HUMANEVA.items()}, "published_sources": PUBLISHED_HUMANEVA_SOURCES}
+    out = {
+        "protocol": cases.protocol(),
+        "seeds": {"sampling": args.seed} if args.model else {},
+        **results,
+        "published": {k: v for k, v in PUBLISHED_HUMANEVA.items()},
+        "published_sources": PUBLISHED_HUMANEVA_SOURCES,
+    }
     if args.model:
-        out.update(method=f"tcd {args.model}", stochastic=results["model"], seconds=time.time() - t0,
-                   sampling={"engine": args.engine, "samples": args.samples, "steps": args.steps,
-                             "sampler": args.sampler, "eta": args.eta, "timestep_spacing": args.timestep_spacing,
-                             "noise_coupling": noise_coupling_of(args), "tempo": tempo_run(args),
-                             "generator_share": generator_share_of(args)})
+        out.update(
+            method=f"tcd {args.model}",
+            stochastic=results["model"],
+            seconds=time.time() - t0,
+            sampling={
+                "engine": args.engine,
+                "samples": args.samples,
+                "steps": args.steps,
+                "sampler": args.sampler,
+                "eta": args.eta,
+                "timestep_spacing": args.timestep_spacing,
+                "noise_coupling": noise_coupling_of(args),
+                "tempo": tempo_run(args),
+                "generator_share": generator_share_of(args),
+            },
+        )
     elif args.prior:
         out.update(method=f"prior {args.prior}", stochastic=results["prior"])
     elif args.baseline == "neighbours":
@@ -464,9 +642,11 @@ def evaluate_humaneva(args) -> dict:
 def print_humaneva_table(out: dict) -> None:
     keys = ("ADE", "FDE", "MMADE", "MMFDE", "APD")
     p = out["protocol"]
-    print(f"\nHumanEva-I, {p['windows']} of {p['windows_in_protocol']} Validate windows, {p['t_his']} -> {p['t_pred']} "
-          f"frames at {p['fps']} Hz; metres (L2 norm of the flattened 42-dim pose; lower is better but APD, the "
-          "diversity)")
+    print(
+        f"\nHumanEva-I, {p['windows']} of {p['windows_in_protocol']} Validate windows, {p['t_his']} -> {p['t_pred']} "
+        f"frames at {p['fps']} Hz; metres (L2 norm of the flattened 42-dim pose; lower is better but APD, the "
+        "diversity)"
+    )
     print(f"{'method':<44}" + "".join(f"{k:>8}" for k in keys))
 
     def row(name: str, d: dict | None) -> None:
@@ -476,8 +656,12 @@ def print_humaneva_table(out: dict) -> None:
     if "model" in out:
         s = out["sampling"]
         share = s.get("generator_share") or 0
-        row(f"tcd ({s['samples']} samples, {s['engine']}, {s['sampler']} {s['steps'] or 'all'} steps"
-            + (f", {int(s['samples'] * share)} MLP" if share else "") + ")", out["model"])
+        row(
+            f"tcd ({s['samples']} samples, {s['engine']}, {s['sampler']} {s['steps'] or 'all'} steps"
+            + (f", {int(s['samples'] * share)} MLP" if share else "")
+            + ")",
+            out["model"],
+        )
     if "prior" in out:
         row("prior (deterministic point forecast)", out["prior"])
     row("Zero-Velocity", out["zero_velocity"])
@@ -494,16 +678,20 @@ def print_humaneva_table(out: dict) -> None:
 
 def print_table(out: dict) -> None:
     cols = [str(h) for h in HORIZONS_MS]
+
     def row(name, d):
         return f"{name:<18}" + "".join(f"{d.get(c, float('nan')):>8.1f}" for c in cols)
+
     blocks = [("zero-velocity", out["zero_velocity"])]
     if out["method"].startswith("prior"):
         blocks = [(f"{out['method']} (point forecast, missing entries: {out['fill']})", out)] + blocks
     if "best_of_n" in out:
         blocks = [(out["best_of_n"]["label"], out["best_of_n"]), (out["mean_of_n"]["label"], out["mean_of_n"])] + blocks
     for label, block in blocks:
-        print(f"\n{label}  (mm; S5, {out['protocol']['windows_per_action']} windows/action, "
-              f"mask={out['protocol']['mask']})")
+        print(
+            f"\n{label}  (mm; S5, {out['protocol']['windows_per_action']} windows/action, "
+            f"mask={out['protocol']['mask']})"
+        )
         print(f"{'action':<18}" + "".join(f"{c + 'ms':>8}" for c in cols))
         for a, d in block["per_action"].items():
             print(row(a, d))
@@ -513,61 +701,109 @@ def print_table(out: dict) -> None:
         for name, d in PUBLISHED_H36M.items():
             print(row(name, d))
     if "repair" in out:
-        print(f"\nrepair ADE over occluded entries: {out['repair']['ade_mm']:.2f} mm "
-              f"({out['repair']['occluded_entries']} entries)")
+        print(
+            f"\nrepair ADE over occluded entries: {out['repair']['ade_mm']:.2f} mm "
+            f"({out['repair']['occluded_entries']} entries)"
+        )
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line of :func:`main` (its defaults are the protocol's; benches parse their sampling with it)."""
     from .masks import PATTERNS
-    ap = argparse.ArgumentParser(prog="python -m training.evaluate", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+
+    ap = argparse.ArgumentParser(
+        prog="python -m training.evaluate", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     who = ap.add_mutually_exclusive_group(required=True)
-    who.add_argument("--baseline", choices=["zero-velocity", "neighbours"],
-                     help="neighbours (--protocol humaneva): the nearest training windows' futures")
+    who.add_argument(
+        "--baseline",
+        choices=["zero-velocity", "neighbours"],
+        help="neighbours (--protocol humaneva): the nearest training windows' futures",
+    )
     who.add_argument("--model", help="model directory (short.safetensors + long.safetensors)")
-    who.add_argument("--prior", help="the deterministic prior: a model directory with prior.safetensors (the public "
-                                     "API, tcd.load(DIR).predict; --protocol humaneva: tcd.engine.Prior, so the "
-                                     "directory may hold the prior alone) or a training checkpoint last.pt (PyTorch)")
-    ap.add_argument("--fill", choices=["auto", "model", "spline", "linear"], default="auto",
-                    help="--prior: how missing observation entries are filled before predicting (auto: the "
-                         "repair model where one is loaded, else the natural cubic spline)")
+    who.add_argument(
+        "--prior",
+        help="the deterministic prior: a model directory with prior.safetensors (the public "
+        "API, tcd.load(DIR).predict; --protocol humaneva: tcd.engine.Prior, so the "
+        "directory may hold the prior alone) or a training checkpoint last.pt (PyTorch)",
+    )
+    ap.add_argument(
+        "--fill",
+        choices=["auto", "model", "spline", "linear"],
+        default="auto",
+        help="--prior: how missing observation entries are filled before predicting (auto: the "
+        "repair model where one is loaded, else the natural cubic spline)",
+    )
     ap.add_argument("--protocol", choices=["h36m", "humaneva"], default="h36m")
     ap.add_argument("--data", default=None, help="data directory (default ../shared/data/<dataset>)")
     ap.add_argument("--json", help="write the results here")
-    ap.add_argument("--samples", type=int, default=None,
-                    help="samples per window (default 5; --protocol humaneva: 50, the protocol's)")
+    ap.add_argument(
+        "--samples",
+        type=int,
+        default=None,
+        help="samples per window (default 5; --protocol humaneva: 50, the protocol's)",
+    )
     ap.add_argument("--steps", type=int, default=None, help="inference steps (default: all training steps)")
     ap.add_argument("--sampler", choices=["ddpm", "ddim", "dpmpp2m"], default="ddpm")
     ap.add_argument("--eta", type=float, default=0.0, help="DDIM eta")
-    ap.add_argument("--noise-coupling", choices=["independent", "centered"], default=None,
-                    help="how a window's samples share their starting noise (tcd.SamplerOptions.noise_coupling; "
-                         "default: the model directory's forecast default for --sampler, else independent)")
+    ap.add_argument(
+        "--noise-coupling",
+        choices=["independent", "centered"],
+        default=None,
+        help="how a window's samples share their starting noise (tcd.SamplerOptions.noise_coupling; "
+        "default: the model directory's forecast default for --sampler, else independent)",
+    )
     ap.add_argument("--timestep-spacing", choices=["leading", "trailing", "linspace"], default="trailing")
-    ap.add_argument("--tempo", type=float, nargs=2, metavar=("LO", "HI"), default=None,
-                    help="--engine tcd: each sample from the observation replayed at its own tempo, LO to HI "
-                         "(tcd.tempo; 1 1: none; default: the model directory's sampling.json)")
-    ap.add_argument("--generator-share", type=float, default=None,
-                    help="--engine tcd: the share of each window's samples the directory's MLP generator draws "
-                         "(tcd.TCD.forecast's generator_share; 0: the cascade alone; default: the directory's "
-                         "sampling.json, 0.5 for the bundled HumanEva-I model)")
-    ap.add_argument("--select", choices=["best", "mean"], default="best",
-                    help="best = oracle best-of-n (paper), mean = mean of samples (deployable)")
+    ap.add_argument(
+        "--tempo",
+        type=float,
+        nargs=2,
+        metavar=("LO", "HI"),
+        default=None,
+        help="--engine tcd: each sample from the observation replayed at its own tempo, LO to HI "
+        "(tcd.tempo; 1 1: none; default: the model directory's sampling.json)",
+    )
+    ap.add_argument(
+        "--generator-share",
+        type=float,
+        default=None,
+        help="--engine tcd: the share of each window's samples the directory's MLP generator draws "
+        "(tcd.TCD.forecast's generator_share; 0: the cascade alone; default: the directory's "
+        "sampling.json, 0.5 for the bundled HumanEva-I model)",
+    )
+    ap.add_argument(
+        "--select",
+        choices=["best", "mean"],
+        default="best",
+        help="best = oracle best-of-n (paper), mean = mean of samples (deployable)",
+    )
     ap.add_argument("--mask", choices=list(PATTERNS), default="none", help="observation corruption pattern")
     ap.add_argument("--mask-seed", type=int, default=0)
     ap.add_argument("--seed", type=int, default=0, help="sampling seed")
     ap.add_argument("--windows-per-action", type=int, default=256)
-    ap.add_argument("--split", choices=["Validate", "Train"], default="Validate",
-                    help="--protocol humaneva: the split the windows come from (Validate: the protocol's test "
-                         "windows; Train: the same rule on the data the models learnt, to see what a choice does "
-                         "there)")
-    ap.add_argument("--max-windows", type=int, default=None,
-                    help="--protocol humaneva: score this many of the 188 windows, evenly spaced (a quick look)")
+    ap.add_argument(
+        "--split",
+        choices=["Validate", "Train"],
+        default="Validate",
+        help="--protocol humaneva: the split the windows come from (Validate: the protocol's test "
+        "windows; Train: the same rule on the data the models learnt, to see what a choice does "
+        "there)",
+    )
+    ap.add_argument(
+        "--max-windows",
+        type=int,
+        default=None,
+        help="--protocol humaneva: score this many of the 188 windows, evenly spaced (a quick look)",
+    )
     ap.add_argument("--batch-size", type=int, default=16, help="windows per sampling batch")
     ap.add_argument("--device", default="cpu")
-    ap.add_argument("--engine", choices=["torch", "tcd"], default="torch",
-                    help="torch: this PyTorch reference; tcd: the Rust engine of the installed tcd package "
-                         "(same model, parity-tested; its own seeded noise streams)")
+    ap.add_argument(
+        "--engine",
+        choices=["torch", "tcd"],
+        default="torch",
+        help="torch: this PyTorch reference; tcd: the Rust engine of the installed tcd package "
+        "(same model, parity-tested; its own seeded noise streams)",
+    )
     ap.add_argument("--threads", type=int, default=None, help="torch CPU threads")
     ap.add_argument("--quiet", action="store_true")
     return ap
@@ -592,7 +828,7 @@ def main(argv=None) -> int:
         torch.set_num_threads(args.threads)
     if args.data is None:
         args.data = str(DEFAULT_DATA_ROOT / ("h36m" if args.protocol == "h36m" else "humaneva"))
-    args.noise_coupling = noise_coupling_of(args)     # resolved once: the model directory is read here, not per use
+    args.noise_coupling = noise_coupling_of(args)  # resolved once: the model directory is read here, not per use
     out = evaluate_h36m(args) if args.protocol == "h36m" else evaluate_humaneva(args)
     out["command"] = " ".join(["python -m training.evaluate"] + (argv if argv is not None else sys.argv[1:]))
     if args.protocol == "h36m":

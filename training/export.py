@@ -24,6 +24,7 @@ blocks, layer_norm_eps}, "data": {...}, "training": {...}, "source_revision"}``.
     python -m training.export --random-init --out fixtures/tiny --preset tiny --seed 0
     python -m training.export --prior runs/prior/last.pt --out models/h36m
 """
+
 from __future__ import annotations
 
 import argparse
@@ -43,11 +44,11 @@ from .diffusion import DiffusionConfig, Schedule
 from .model import ModelConfig, TCDModel, randomize_output_layer
 
 FORMAT_VERSION = 1
-ROLES = ("short", "long", "repair")       # the denoisers' roles
-PRIOR_ROLE = "prior"                       # the prior forecaster's role, in PRIOR_FILE
+ROLES = ("short", "long", "repair")  # the denoisers' roles
+PRIOR_ROLE = "prior"  # the prior forecaster's role, in PRIOR_FILE
 PRIOR_FILE = "prior.safetensors"
 REPAIR_FILL_FILE = "repair_fill.safetensors"  # a prior with anchor "window": the repair model's fill (role "prior")
-GENERATOR_ROLE = "generator"               # the MLP sample generator's role (training/generator.py), in GENERATOR_FILE
+GENERATOR_ROLE = "generator"  # the MLP sample generator's role (training/generator.py), in GENERATOR_FILE
 GENERATOR_FILE = "generator.safetensors"
 SAMPLING_FILE = "sampling.json"  # a model directory's default samplers (tcd.model reads it)
 CONFIG_KEY = "tcd_config"
@@ -69,12 +70,18 @@ PRESETS = {
 
 def source_revision() -> str:
     try:
-        out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent, capture_output=True,
-                             text=True, timeout=5)
+        out = subprocess.run(
+            ["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent, capture_output=True, text=True, timeout=5
+        )
         rev = out.stdout.strip()
         if out.returncode == 0 and rev:
-            dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=Path(__file__).parent,
-                                   capture_output=True, text=True, timeout=5).stdout.strip()
+            dirty = subprocess.run(
+                ["git", "status", "--porcelain", "--untracked-files=no"],
+                cwd=Path(__file__).parent,
+                capture_output=True,
+                text=True,
+                timeout=5,
+            ).stdout.strip()
             return rev + ("-dirty" if dirty else "")
     except (OSError, subprocess.SubprocessError):
         pass
@@ -83,23 +90,40 @@ def source_revision() -> str:
 
 def h36m_data_meta(training_data: str = "Human3.6M S1,S6,S7,S8,S9 (exp-map, 25 fps)") -> dict:
     from .data.h36m import joint_names_22, joints_used
-    return {"dataset": "h36m", "fps": 25.0, "units": "m", "root_relative": True,
-            "joint_names": joint_names_22(), "joint_index_32": joints_used(),
-            "training_data": training_data,
-            "licence": "Human3.6M: academic non-commercial research use only"}
+
+    return {
+        "dataset": "h36m",
+        "fps": 25.0,
+        "units": "m",
+        "root_relative": True,
+        "joint_names": joint_names_22(),
+        "joint_index_32": joints_used(),
+        "training_data": training_data,
+        "licence": "Human3.6M: academic non-commercial research use only",
+    }
 
 
-def humaneva_data_meta(training_data: str = "HumanEva-I Train split, S1,S2,S3 (60 Hz)",
-                       with_h36m: bool = False) -> dict:
+def humaneva_data_meta(
+    training_data: str = "HumanEva-I Train split, S1,S2,S3 (60 Hz)", with_h36m: bool = False
+) -> dict:
     """The ``data`` block of a HumanEva-I model: 14 joints (joints 1..14 of the 15-joint VideoPose3D layout
     relative to the pelvis, the protocol's 42 dimensions), 60 Hz, metres, world axes with +z up (the global
     rotation is kept, as the DLow / GSPS protocol does; only the translation is removed)."""
     from .data.humaneva import HUMANEVA_FPS, HUMANEVA_MODEL_JOINT_NAMES
-    return {"dataset": "humaneva", "fps": float(HUMANEVA_FPS), "units": "m", "root_relative": True,
-            "joint_names": list(HUMANEVA_MODEL_JOINT_NAMES), "layout": "humaneva15", "root_joint": "pelvis",
-            "up": "z", "training_data": training_data,
-            "licence": "HumanEva-I: research use only (registration required)"
-            + ("; Human3.6M: academic non-commercial use" if with_h36m else "")}
+
+    return {
+        "dataset": "humaneva",
+        "fps": float(HUMANEVA_FPS),
+        "units": "m",
+        "root_relative": True,
+        "joint_names": list(HUMANEVA_MODEL_JOINT_NAMES),
+        "layout": "humaneva15",
+        "root_joint": "pelvis",
+        "up": "z",
+        "training_data": training_data,
+        "licence": "HumanEva-I: research use only (registration required)"
+        + ("; Human3.6M: academic non-commercial use" if with_h36m else ""),
+    }
 
 
 def data_meta(dataset: str, training_data: str | None = None, h36m_share: float = 0.0) -> dict:
@@ -108,6 +132,7 @@ def data_meta(dataset: str, training_data: str | None = None, h36m_share: float 
     if dataset == "humaneva":
         if h36m_share:
             from .data.humaneva import mix_description
+
             return humaneva_data_meta(mix_description(h36m_share), with_h36m=True)
         return humaneva_data_meta() if training_data is None else humaneva_data_meta(training_data)
     if dataset == "h36m":
@@ -115,14 +140,27 @@ def data_meta(dataset: str, training_data: str | None = None, h36m_share: float 
     raise ValueError(f"unknown dataset {dataset!r}: 'h36m' or 'humaneva'")
 
 
-def build_config(role: str, model_cfg: ModelConfig, diff_cfg: DiffusionConfig, obs_len: int, pred_len: int,
-                 data: dict, training: dict | None = None) -> dict:
+def build_config(
+    role: str,
+    model_cfg: ModelConfig,
+    diff_cfg: DiffusionConfig,
+    obs_len: int,
+    pred_len: int,
+    data: dict,
+    training: dict | None = None,
+) -> dict:
     if role not in ROLES:
         raise ValueError(f"role must be one of {ROLES}, got {role!r}")
-    return {"format_version": FORMAT_VERSION, "role": role, "model": model_cfg.to_dict(),
-            "window": {"obs_len": obs_len, "pred_len": pred_len, "seq_len": obs_len + pred_len},
-            "diffusion": diff_cfg.to_dict(), "data": data, "training": training or {},
-            "source_revision": source_revision()}
+    return {
+        "format_version": FORMAT_VERSION,
+        "role": role,
+        "model": model_cfg.to_dict(),
+        "window": {"obs_len": obs_len, "pred_len": pred_len, "seq_len": obs_len + pred_len},
+        "diffusion": diff_cfg.to_dict(),
+        "data": data,
+        "training": training or {},
+        "source_revision": source_revision(),
+    }
 
 
 def save_model_file(path: str | Path, model: torch.nn.Module, config: dict) -> None:
@@ -145,6 +183,7 @@ def load_model_file(path: str | Path, device: str = "cpu", prior=None) -> tuple[
     ``training.prior.PriorNet``, e.g. from :func:`load_prior_file`) is attached to a ``cond_fill="prior"``
     model (the file holds the denoiser only; :func:`load_model_dir` attaches the directory's prior)."""
     from safetensors.torch import load_file
+
     cfg = read_config(path)
     if cfg.get("format_version") != FORMAT_VERSION:
         raise ValueError(f"{path}: format_version {cfg.get('format_version')} is not {FORMAT_VERSION}")
@@ -165,7 +204,8 @@ def load_model_dir(path: str | Path, device: str = "cpu") -> dict[str, tuple[TCD
     files = {role: d / f"{role}.safetensors" for role in ROLES if (d / f"{role}.safetensors").is_file()}
     if "short" not in files or "long" not in files:
         raise FileNotFoundError(f"{d} must hold short.safetensors and long.safetensors")
-    def fill_file(role: str) -> str:    # what a cond_fill 'prior' model of this role is conditioned on
+
+    def fill_file(role: str) -> str:  # what a cond_fill 'prior' model of this role is conditioned on
         return REPAIR_FILL_FILE if role == "repair" else PRIOR_FILE
 
     needs = {role: fill_file(role) for role, f in files.items() if read_config(f)["model"].get("cond_fill") == "prior"}
@@ -173,8 +213,10 @@ def load_model_dir(path: str | Path, device: str = "cpu") -> dict[str, tuple[TCD
     for name in dict.fromkeys(needs.values()):
         if not (d / name).is_file():
             roles = [r for r, n in needs.items() if n == name]
-            raise FileNotFoundError(f"{d}: the {', '.join(roles)} model(s) are conditioned on a fill (cond_fill "
-                                    f"'prior'), but the directory has no {name}")
+            raise FileNotFoundError(
+                f"{d}: the {', '.join(roles)} model(s) are conditioned on a fill (cond_fill "
+                f"'prior'), but the directory has no {name}"
+            )
         fills[name] = load_prior_file(d / name)[0]
     return {role: load_model_file(f, device, prior=fills.get(needs.get(role))) for role, f in files.items()}
 
@@ -197,9 +239,16 @@ def write_model_json(d: Path) -> None:
     (d / "model.json").write_text(json.dumps(summary, indent=2) + "\n")
 
 
-def random_init_dir(out: str | Path, preset: str = "tiny", seed: int = 0,
-                    diff_cfg: DiffusionConfig | None = None, repair: dict | None = None,
-                    model: dict | None = None, prior_blocks: int = 0, dataset: str = "h36m") -> Path:
+def random_init_dir(
+    out: str | Path,
+    preset: str = "tiny",
+    seed: int = 0,
+    diff_cfg: DiffusionConfig | None = None,
+    repair: dict | None = None,
+    model: dict | None = None,
+    prior_blocks: int = 0,
+    dataset: str = "h36m",
+) -> Path:
     """Seeded random-init short and long models (the last conv gets a small random weight, so that
     outputs are non-trivial): fixtures for parity tests and benchmarks. With ``repair`` (model-config
     overrides, e.g. ``{"cond_fill": "linear"}``; ``{}`` for the preset as it is) a repair model
@@ -229,13 +278,20 @@ def random_init_dir(out: str | Path, preset: str = "tiny", seed: int = 0,
         net = TCDModel(mcfg, diff_cfg.num_train_timesteps)
         randomize_output_layer(net, seed=seed * 1000 + i)
         obs, pred = windows[role]
-        cfg = build_config(role, net.cfg, diff_cfg, obs, pred, data_meta(dataset, "none (random init)"),
-                           {"random_init": True, "preset": preset, "seed": seed})
+        cfg = build_config(
+            role,
+            net.cfg,
+            diff_cfg,
+            obs,
+            pred,
+            data_meta(dataset, "none (random init)"),
+            {"random_init": True, "preset": preset, "seed": seed},
+        )
         save_model_file(d / f"{role}.safetensors", net.eval(), cfg)
     if prior_blocks > 0:
         prior = random_prior(blocks=prior_blocks, seed=seed, obs_len=windows["short"][0], joints=joints)
         save_model_file(d / PRIOR_FILE, prior, build_prior_config(prior, data_meta(dataset, "none (random init)")))
-    if repair is not None and repair.get("cond_fill") == "prior":      # the repair model's fill, random too
+    if repair is not None and repair.get("cond_fill") == "prior":  # the repair model's fill, random too
         n = sum(windows["repair"])
         fill = random_prior(blocks=4, seed=seed + 1, obs_len=n, chunk=n, joints=joints, anchor="window")
         save_model_file(d / REPAIR_FILL_FILE, fill, build_prior_config(fill, data_meta(dataset, "none (random init)")))
@@ -247,6 +303,7 @@ def write_checksums(d: str | Path) -> Path:
     """``SHA256SUMS`` for the weight files of a model directory: the file ``tcd.load`` checks (and requires
     for the bundled model). One implementation, the package's."""
     from tcd.model import write_checksums as _write  # the built package (installed by the dev set-up)
+
     return _write(d)
 
 
@@ -279,8 +336,9 @@ def export_checkpoint(ckpt_path: str | Path, out_dir: str | Path, description: s
         training["best_val"] = None  # no validation yet (an early last.pt): JSON has no Infinity
     if description:
         training["description"] = description
-    cfg = build_config(role, model_cfg, diff_cfg, ck["window"]["obs_len"], ck["window"]["pred_len"], ck["data"],
-                       training)
+    cfg = build_config(
+        role, model_cfg, diff_cfg, ck["window"]["obs_len"], ck["window"]["pred_len"], ck["data"], training
+    )
     path = Path(out_dir) / f"{role}.safetensors"
     save_model_file(path, model.eval(), cfg)
     return path
@@ -300,6 +358,7 @@ def copy_model_files(files: list[Path], out: Path) -> None:
             load_prior_file(f)
         elif f.name == GENERATOR_FILE:
             from .generator import load_generator_file
+
             load_generator_file(f)
         else:
             load_model_file(f)
@@ -313,12 +372,14 @@ def copy_model_files(files: list[Path], out: Path) -> None:
 
 # ------------------------------------------------------------------------------- the prior forecaster
 
+
 def prior_data_meta(cfg) -> dict:
     """The ``data`` block of a prior trained with ``cfg`` (a ``training.prior.PriorConfig``): the denoisers'
     description of its dataset, naming the subjects the prior was trained on."""
     subjects = ",".join(f"S{s}" for s in cfg.subjects)
     if getattr(cfg, "dataset", "h36m") == "humaneva":
         from .data.humaneva import mix_description
+
         share = getattr(cfg, "h36m_share", 0.0)
         return humaneva_data_meta(mix_description(share, cfg.subjects), with_h36m=bool(share))
     return h36m_data_meta(training_data=f"Human3.6M {subjects} (exp-map, 25 fps)")
@@ -330,18 +391,31 @@ def build_prior_config(model, data: dict, training: dict | None = None) -> dict:
     eps = {float(b.eps) for b in model.blocks}
     if len(eps) != 1:
         raise ValueError(f"the prior's blocks must share one layer-norm epsilon, got {sorted(eps)}")
-    m = {"num_joints": k // 3, "coords": 3, "num_features": k, "obs_len": model.cfg.obs_len,
-         "chunk": model.cfg.chunk, "blocks": len(model.blocks), "layer_norm_eps": eps.pop()}
-    if model.cfg.anchor != "last":      # a forecaster's file stays as before anchor existed (its default)
+    m = {
+        "num_joints": k // 3,
+        "coords": 3,
+        "num_features": k,
+        "obs_len": model.cfg.obs_len,
+        "chunk": model.cfg.chunk,
+        "blocks": len(model.blocks),
+        "layer_norm_eps": eps.pop(),
+    }
+    if model.cfg.anchor != "last":  # a forecaster's file stays as before anchor existed (its default)
         m["anchor"] = model.cfg.anchor
-    if model.cfg.gap_fill != "none":    # likewise every file written before gap_fill existed
+    if model.cfg.gap_fill != "none":  # likewise every file written before gap_fill existed
         m["gap_fill"] = model.cfg.gap_fill
-    for prefix in ("inbetween", "joint_inbetween"):     # and before the in-betweeners
+    for prefix in ("inbetween", "joint_inbetween"):  # and before the in-betweeners
         if getattr(model.cfg, f"{prefix}_max_gap"):
             m[f"{prefix}_context"] = getattr(model.cfg, f"{prefix}_context")
             m[f"{prefix}_max_gap"] = getattr(model.cfg, f"{prefix}_max_gap")
-    return {"format_version": FORMAT_VERSION, "role": PRIOR_ROLE, "model": m,
-            "data": data, "training": training or {}, "source_revision": source_revision()}
+    return {
+        "format_version": FORMAT_VERSION,
+        "role": PRIOR_ROLE,
+        "model": m,
+        "data": data,
+        "training": training or {},
+        "source_revision": source_revision(),
+    }
 
 
 def load_prior_file(path: str | Path):
@@ -349,27 +423,47 @@ def load_prior_file(path: str | Path):
     from safetensors.torch import load_file
 
     from .prior import PriorConfig, PriorNet
+
     cfg = read_config(path)
     if cfg.get("format_version") != FORMAT_VERSION or cfg.get("role") != PRIOR_ROLE:
-        raise ValueError(f"{path}: not a prior file of format_version {FORMAT_VERSION} "
-                         f"(role {cfg.get('role')!r}, format_version {cfg.get('format_version')!r})")
+        raise ValueError(
+            f"{path}: not a prior file of format_version {FORMAT_VERSION} "
+            f"(role {cfg.get('role')!r}, format_version {cfg.get('format_version')!r})"
+        )
     m = cfg["model"]
     if m["coords"] != 3 or m["num_features"] != 3 * m["num_joints"]:
         raise ValueError(f"{path}: PriorNet takes 3 coordinates per joint, got {m}")
-    model = PriorNet(PriorConfig(obs_len=m["obs_len"], chunk=m["chunk"], blocks=m["blocks"],
-                                 anchor=m.get("anchor", "last"), gap_fill=m.get("gap_fill", "none"),
-                                 **{k: m.get(k, 0) for k in ("inbetween_context", "inbetween_max_gap",
-                                                             "joint_inbetween_context", "joint_inbetween_max_gap")}),
-                     joints=m["num_joints"])                       # (files before anchor, gap_fill, the in-betweener)
+    model = PriorNet(
+        PriorConfig(
+            obs_len=m["obs_len"],
+            chunk=m["chunk"],
+            blocks=m["blocks"],
+            anchor=m.get("anchor", "last"),
+            gap_fill=m.get("gap_fill", "none"),
+            **{
+                k: m.get(k, 0)
+                for k in (
+                    "inbetween_context",
+                    "inbetween_max_gap",
+                    "joint_inbetween_context",
+                    "joint_inbetween_max_gap",
+                )
+            },
+        ),
+        joints=m["num_joints"],
+    )  # (files before anchor, gap_fill, the in-betweener)
     for b in model.blocks:
         b.eps = float(m["layer_norm_eps"])
     model.load_state_dict(load_file(str(path)), strict=True)
-    if model.cfg.gap_fill == "forecaster":      # its forecaster is the model directory's, beside it
+    if model.cfg.gap_fill == "forecaster":  # its forecaster is the model directory's, beside it
         forecaster = Path(path).parent / PRIOR_FILE
         if not forecaster.is_file():
-            raise ValueError(f"{path}: the repair fill fills whole-frame gaps with the prior forecaster (gap_fill "
-                             f"\"forecaster\"), but {forecaster} is missing")
+            raise ValueError(
+                f"{path}: the repair fill fills whole-frame gaps with the prior forecaster (gap_fill "
+                f'"forecaster"), but {forecaster} is missing'
+            )
         from .prior import attach_gap_forecaster
+
         attach_gap_forecaster(model, load_prior_file(forecaster)[0])
     return model.eval(), cfg
 
@@ -389,14 +483,20 @@ def export_prior(ckpt_path: str | Path, out_dir: str | Path, description: str | 
     import io
 
     from . import prior
+
     data = Path(ckpt_path).read_bytes()
     ck = torch.load(io.BytesIO(data), map_location="cpu", weights_only=False)
     model = prior.load(io.BytesIO(data))
     history = ck.get("history") or []
-    training = {"train_config": ck["config"], "iteration": ck["iteration"], "elapsed_s": ck.get("elapsed_s"),
-                "loss": next((h["loss"] for h in reversed(history) if "loss" in h), None), "weights": "raw"}
+    training = {
+        "train_config": ck["config"],
+        "iteration": ck["iteration"],
+        "elapsed_s": ck.get("elapsed_s"),
+        "loss": next((h["loss"] for h in reversed(history) if "loss" in h), None),
+        "weights": "raw",
+    }
     vals = [h["val"] for h in history if "val" in h and h["iteration"] <= ck["iteration"]]
-    if vals:                            # a run with validation (best.pt: the weights of the lowest)
+    if vals:  # a run with validation (best.pt: the weights of the lowest)
         training["val"] = vals[-1]
     if description:
         training["description"] = description
@@ -409,10 +509,11 @@ def _rewrite_repair_fill(out_dir: str | Path, edit, what: str) -> Path:
     (in place), the run recorded in its ``training`` block under ``what``; the result is loaded strictly (with the
     ``prior.safetensors`` beside it, where its gap fill needs it) before it replaces the file."""
     from safetensors.torch import load_file
+
     path = Path(out_dir) / REPAIR_FILL_FILE
     cfg, tensors = read_config(path), load_file(str(path))
     if cfg["model"].get("anchor") != "window":
-        raise ValueError(f"{path}: not a repair fill (anchor \"window\")")
+        raise ValueError(f'{path}: not a repair fill (anchor "window")')
     record = edit(cfg, tensors)
     cfg.setdefault("training", {})[what] = {**record, "source_revision": source_revision()}
     tmp = path.with_name(path.name + ".tmp")
@@ -422,7 +523,7 @@ def _rewrite_repair_fill(out_dir: str | Path, edit, what: str) -> Path:
     except Exception:
         tmp.unlink()
         raise
-    os.chmod(tmp, path.stat().st_mode & 0o777)      # the file's own mode (the writer's temporary one is 0600)
+    os.chmod(tmp, path.stat().st_mode & 0o777)  # the file's own mode (the writer's temporary one is 0600)
     os.replace(tmp, path)
     return path
 
@@ -432,6 +533,7 @@ def set_gap_fill(out_dir: str | Path, gap_fill: str) -> Path:
     removes the key, as in a file written before it existed); its weights and the rest of its config stay as
     they are (:func:`_rewrite_repair_fill`)."""
     from .prior import GAP_FILLS
+
     if gap_fill not in GAP_FILLS:
         raise ValueError(f"gap_fill must be one of {list(GAP_FILLS)}, got {gap_fill!r}")
 
@@ -440,6 +542,7 @@ def set_gap_fill(out_dir: str | Path, gap_fill: str) -> Path:
         if gap_fill != "none":
             cfg["model"]["gap_fill"] = gap_fill
         return {"value": gap_fill}
+
     return _rewrite_repair_fill(out_dir, edit, "gap_fill_set")
 
 
@@ -449,15 +552,15 @@ def set_inbetween(out_dir: str | Path, kernels_path: str | Path | None, prefix: 
     config's ``{prefix}_context`` / ``{prefix}_max_gap`` (``prefix`` "inbetween", the whole-frame gaps', or
     "joint_inbetween", the joint runs'); ``None`` removes them. The fill's own weights stay as they are."""
     from .inbetween import kernel_width, load_kernels
+
     if prefix not in ("inbetween", "joint_inbetween"):
-        raise ValueError(f"prefix must be \"inbetween\" or \"joint_inbetween\", got {prefix!r}")
+        raise ValueError(f'prefix must be "inbetween" or "joint_inbetween", got {prefix!r}')
     kernels, context, meta = load_kernels(kernels_path) if kernels_path else ({}, 0, {})
     if kernels and sorted(kernels) != list(range(1, max(kernels) + 1)):
         raise ValueError(f"{kernels_path}: kernels for gaps of 1 .. n frames expected, got {sorted(kernels)}")
     for n, w in kernels.items():
         if w.shape != (n, kernel_width(n, context)):
-            raise ValueError(f"{kernels_path}: {prefix}_{n} has shape {w.shape}, not "
-                             f"({n}, {kernel_width(n, context)})")
+            raise ValueError(f"{kernels_path}: {prefix}_{n} has shape {w.shape}, not ({n}, {kernel_width(n, context)})")
 
     def edit(cfg: dict, tensors: dict) -> dict:
         for k in [k for k in tensors if k.startswith(prefix + "_")]:
@@ -466,15 +569,22 @@ def set_inbetween(out_dir: str | Path, kernels_path: str | Path | None, prefix: 
         cfg["model"].pop(f"{prefix}_max_gap", None)
         if kernels:
             cfg["model"][f"{prefix}_context"], cfg["model"][f"{prefix}_max_gap"] = context, max(kernels)
-            tensors.update({f"{prefix}_{n}": torch.tensor(w, dtype=torch.float32).contiguous()
-                            for n, w in kernels.items()})
-        return {"kernels": str(kernels_path) if kernels_path else None, "max_gap": max(kernels, default=0),
-                "context": context, "fit": meta}
+            tensors.update(
+                {f"{prefix}_{n}": torch.tensor(w, dtype=torch.float32).contiguous() for n, w in kernels.items()}
+            )
+        return {
+            "kernels": str(kernels_path) if kernels_path else None,
+            "max_gap": max(kernels, default=0),
+            "context": context,
+            "fit": meta,
+        }
+
     return _rewrite_repair_fill(out_dir, edit, f"{prefix}_set")
 
 
-def random_prior(blocks: int = 24, seed: int = 0, obs_len: int = 50, chunk: int = 10, joints: int = 22,
-                 anchor: str = "last"):
+def random_prior(
+    blocks: int = 24, seed: int = 0, obs_len: int = 50, chunk: int = 10, joints: int = 22, anchor: str = "last"
+):
     """A ``training.prior.PriorNet`` with every weight drawn from a seeded normal of unit-gain scale (std
     1/sqrt(fan_in) for the matrices, 0.1 for the biases, 1 + 0.1 N(0, 1) for the norm weights), fc_out then
     scaled by 1/20 so that the forecast lies a few tenths of a metre (rms) from the last pose, the scale of
@@ -482,6 +592,7 @@ def random_prior(blocks: int = 24, seed: int = 0, obs_len: int = 50, chunk: int 
     weight shapes the output. ``anchor="window"`` (chunk = obs_len): a repair fill, its correction as far from
     its input window. A fixture for parity tests and benchmarks."""
     from .prior import PriorConfig, PriorNet
+
     model = PriorNet(PriorConfig(obs_len=obs_len, chunk=chunk, blocks=blocks, anchor=anchor), joints=joints)
     g = torch.Generator().manual_seed(seed)
     with torch.no_grad():
@@ -499,35 +610,77 @@ def random_prior(blocks: int = 24, seed: int = 0, obs_len: int = 50, chunk: int 
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m training.export", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        prog="python -m training.export", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--checkpoint", nargs="+", help="training checkpoint(s) (.pt); each records its role")
     ap.add_argument("--random-init", action="store_true", help="write seeded random-init short and long models")
-    ap.add_argument("--files", nargs="+", metavar="ROLE.safetensors",
-                    help="exported model files to copy into --out, each checked to load strictly first (how a "
-                         "candidate's files replace the bundled ones of their roles)")
-    ap.add_argument("--prior", metavar="CKPT", help="a training.prior checkpoint (last.pt): writes prior.safetensors "
-                    "(the deterministic prior forecaster) into --out beside the denoisers")
-    ap.add_argument("--gap-fill", choices=("none", "forecaster"), help="rewrites --out's repair_fill.safetensors "
-                    "with this gap_fill (its weights as they are): \"forecaster\" fills whole-frame gaps from the "
-                    "prior.safetensors beside it (docs/repair.md)")
-    ap.add_argument("--inbetween", metavar="KERNELS", help="rewrites --out's repair_fill.safetensors with the "
-                    "in-betweener's kernels (training.inbetween's .npz; \"none\" removes them), its weights as they "
-                    "are")
-    ap.add_argument("--joint-inbetween", metavar="KERNELS", help="the same for the joint in-betweener's kernels "
-                    "(training.inbetween --joints)")
+    ap.add_argument(
+        "--files",
+        nargs="+",
+        metavar="ROLE.safetensors",
+        help="exported model files to copy into --out, each checked to load strictly first (how a "
+        "candidate's files replace the bundled ones of their roles)",
+    )
+    ap.add_argument(
+        "--prior",
+        metavar="CKPT",
+        help="a training.prior checkpoint (last.pt): writes prior.safetensors "
+        "(the deterministic prior forecaster) into --out beside the denoisers",
+    )
+    ap.add_argument(
+        "--gap-fill",
+        choices=("none", "forecaster"),
+        help="rewrites --out's repair_fill.safetensors "
+        'with this gap_fill (its weights as they are): "forecaster" fills whole-frame gaps from the '
+        "prior.safetensors beside it (docs/repair.md)",
+    )
+    ap.add_argument(
+        "--inbetween",
+        metavar="KERNELS",
+        help="rewrites --out's repair_fill.safetensors with the "
+        "in-betweener's kernels (training.inbetween's .npz; \"none\" removes them), its weights as they "
+        "are",
+    )
+    ap.add_argument(
+        "--joint-inbetween",
+        metavar="KERNELS",
+        help="the same for the joint in-betweener's kernels (training.inbetween --joints)",
+    )
     ap.add_argument("--preset", choices=sorted(PRESETS), default="tiny", help="model size for --random-init")
-    ap.add_argument("--dataset", choices=sorted(DATASET_WINDOWS), default="h36m",
-                    help="--random-init: the dataset's joints and windows (humaneva: 14 joints, 15 -> 1 -> 60 frames)")
+    ap.add_argument(
+        "--dataset",
+        choices=sorted(DATASET_WINDOWS),
+        default="h36m",
+        help="--random-init: the dataset's joints and windows (humaneva: 14 joints, 15 -> 1 -> 60 frames)",
+    )
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", required=True, help="model directory to write")
-    ap.add_argument("--description", help="free text recorded in each file's training metadata "
-                    "(e.g. how the model was trained)")
+    ap.add_argument(
+        "--description", help="free text recorded in each file's training metadata (e.g. how the model was trained)"
+    )
     args = ap.parse_args(argv)
-    if sum(map(bool, (args.checkpoint, args.random_init, args.files, args.prior, args.gap_fill,
-                      args.inbetween, args.joint_inbetween))) != 1:
-        ap.error("give exactly one of --checkpoint, --random-init, --files, --prior, --gap-fill, --inbetween or "
-                 "--joint-inbetween")
+    if (
+        sum(
+            map(
+                bool,
+                (
+                    args.checkpoint,
+                    args.random_init,
+                    args.files,
+                    args.prior,
+                    args.gap_fill,
+                    args.inbetween,
+                    args.joint_inbetween,
+                ),
+            )
+        )
+        != 1
+    ):
+        ap.error(
+            "give exactly one of --checkpoint, --random-init, --files, --prior, --gap-fill, --inbetween or "
+            "--joint-inbetween"
+        )
     out = Path(args.out)
     if args.random_init:
         random_init_dir(out, args.preset, args.seed, dataset=args.dataset)

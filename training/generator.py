@@ -26,6 +26,7 @@ The Rust engine runs it (``tcd.engine.Generator``), its noise from its own seede
     python -m training.generator --state-dict runs/he_mlp/stageC.pt --out models/humaneva \\
         --description "IMLE, 7,149 steps, benches/humaneva_imle_mlp.py"
 """
+
 from __future__ import annotations
 
 import argparse
@@ -37,8 +38,15 @@ import torch
 from torch import nn
 
 from .data.humaneva import HUMANEVA_T_HIS, HUMANEVA_T_PRED
-from .export import (CONFIG_KEY, FORMAT_VERSION, GENERATOR_FILE, GENERATOR_ROLE, humaneva_data_meta, read_config,
-                     source_revision)
+from .export import (
+    CONFIG_KEY,
+    FORMAT_VERSION,
+    GENERATOR_FILE,
+    GENERATOR_ROLE,
+    humaneva_data_meta,
+    read_config,
+    source_revision,
+)
 from .prior import dct_matrix
 
 #: the bundled HumanEva-I generator's sizes: hidden width, hidden layers, noise values, DCT coefficients (the
@@ -52,13 +60,24 @@ class Generator(nn.Module):
     ``body`` is [Linear, GELU, (Dropout, Linear, GELU) x (layers - 1)] (a Dropout is the identity at 0 and in
     eval()); its Linears are the file's ``layers.{i}``."""
 
-    def __init__(self, coords: int, hidden: int, layers: int, z_dim: int, coefs: int, dropout: float = 0.0,
-                 obs_len: int = HUMANEVA_T_HIS, pred_len: int = HUMANEVA_T_PRED):
+    def __init__(
+        self,
+        coords: int,
+        hidden: int,
+        layers: int,
+        z_dim: int,
+        coefs: int,
+        dropout: float = 0.0,
+        obs_len: int = HUMANEVA_T_HIS,
+        pred_len: int = HUMANEVA_T_PRED,
+    ):
         super().__init__()
         if not 1 <= coefs <= pred_len or min(coords, hidden, layers, z_dim, obs_len) < 1:
-            raise ValueError(f"Generator: sizes must be >= 1 and coefs <= pred_len, got coords {coords}, hidden "
-                             f"{hidden}, layers {layers}, z_dim {z_dim}, coefs {coefs}, obs_len {obs_len}, "
-                             f"pred_len {pred_len}")
+            raise ValueError(
+                f"Generator: sizes must be >= 1 and coefs <= pred_len, got coords {coords}, hidden "
+                f"{hidden}, layers {layers}, z_dim {z_dim}, coefs {coefs}, obs_len {obs_len}, "
+                f"pred_len {pred_len}"
+            )
         self.coords, self.hidden, self.z_dim, self.coefs = coords, hidden, z_dim, coefs
         self.obs_len, self.pred_len = obs_len, pred_len
         self.register_buffer("dct_obs", torch.from_numpy(dct_matrix(obs_len)).float(), persistent=False)
@@ -69,7 +88,7 @@ class Generator(nn.Module):
             body += [nn.Dropout(dropout), nn.Linear(hidden, hidden), nn.GELU()]
         self.body = nn.Sequential(*body)
         self.head = nn.Linear(hidden, coefs * coords)
-        nn.init.zeros_(self.head.weight)     # the untrained generator is the prior's forecast
+        nn.init.zeros_(self.head.weight)  # the untrained generator is the prior's forecast
         nn.init.zeros_(self.head.bias)
 
     def linears(self) -> dict[str, nn.Linear]:
@@ -88,11 +107,25 @@ class Generator(nn.Module):
 
 def build_generator_config(gen: Generator, data: dict, training: dict | None = None) -> dict:
     """The ``tcd_config`` of a :class:`Generator` (docs/tcd_config.schema.json, role ``generator``)."""
-    m = {"num_joints": gen.coords // 3, "coords": 3, "num_features": gen.coords, "obs_len": gen.obs_len,
-         "pred_len": gen.pred_len, "hidden": gen.hidden, "layers": len(gen.linears()), "z_dim": gen.z_dim,
-         "coefs": gen.coefs}
-    return {"format_version": FORMAT_VERSION, "role": GENERATOR_ROLE, "model": m, "data": data,
-            "training": training or {}, "source_revision": source_revision()}
+    m = {
+        "num_joints": gen.coords // 3,
+        "coords": 3,
+        "num_features": gen.coords,
+        "obs_len": gen.obs_len,
+        "pred_len": gen.pred_len,
+        "hidden": gen.hidden,
+        "layers": len(gen.linears()),
+        "z_dim": gen.z_dim,
+        "coefs": gen.coefs,
+    }
+    return {
+        "format_version": FORMAT_VERSION,
+        "role": GENERATOR_ROLE,
+        "model": m,
+        "data": data,
+        "training": training or {},
+        "source_revision": source_revision(),
+    }
 
 
 def generator_tensors(gen: Generator) -> dict[str, torch.Tensor]:
@@ -107,35 +140,47 @@ def generator_tensors(gen: Generator) -> dict[str, torch.Tensor]:
 def save_generator(path: str | Path, gen: Generator, data: dict, training: dict | None = None) -> Path:
     """Writes ``gen`` as a generator file (its config in the metadata)."""
     from safetensors.torch import save_file
+
     if gen.coords % 3:
         raise ValueError(f"Generator: {gen.coords} coordinates is not joints x 3")
     path = Path(path)
-    save_file(generator_tensors(gen), str(path),
-              metadata={CONFIG_KEY: json.dumps(build_generator_config(gen, data, training))})
+    save_file(
+        generator_tensors(gen),
+        str(path),
+        metadata={CONFIG_KEY: json.dumps(build_generator_config(gen, data, training))},
+    )
     return path
 
 
 def load_generator_file(path: str | Path) -> tuple[Generator, dict]:
     """(:class:`Generator` in eval mode, its config) from a generator file, loaded strictly."""
     from safetensors.torch import load_file
+
     cfg = read_config(path)
     if cfg.get("format_version") != FORMAT_VERSION or cfg.get("role") != GENERATOR_ROLE:
-        raise ValueError(f"{path}: not a generator file of format_version {FORMAT_VERSION} "
-                         f"(role {cfg.get('role')!r}, format_version {cfg.get('format_version')!r})")
+        raise ValueError(
+            f"{path}: not a generator file of format_version {FORMAT_VERSION} "
+            f"(role {cfg.get('role')!r}, format_version {cfg.get('format_version')!r})"
+        )
     m = cfg["model"]
-    gen = Generator(m["num_features"], m["hidden"], m["layers"], m["z_dim"], m["coefs"], obs_len=m["obs_len"],
-                    pred_len=m["pred_len"])
+    gen = Generator(
+        m["num_features"],
+        m["hidden"],
+        m["layers"],
+        m["z_dim"],
+        m["coefs"],
+        obs_len=m["obs_len"],
+        pred_len=m["pred_len"],
+    )
     tensors = load_file(str(path))
-    names = {f"layers.{i}.{p}": f"body.{name}.{p}" for i, name in enumerate(gen.linears())
-             for p in ("weight", "bias")}
+    names = {f"layers.{i}.{p}": f"body.{name}.{p}" for i, name in enumerate(gen.linears()) for p in ("weight", "bias")}
     gen.load_state_dict({names.get(k, k): v for k, v in tensors.items()}, strict=True)
     return gen.eval(), cfg
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--state-dict", required=True, help="a Generator state dict (benches/humaneva_imle_mlp.py "
-                    "--save)")
+    ap.add_argument("--state-dict", required=True, help="a Generator state dict (benches/humaneva_imle_mlp.py --save)")
     ap.add_argument("--out", required=True, help="the model directory (or .safetensors file) to write")
     ap.add_argument("--hidden", type=int, default=HIDDEN)
     ap.add_argument("--layers", type=int, default=LAYERS)
@@ -143,8 +188,11 @@ def main(argv=None) -> int:
     ap.add_argument("--coefs", type=int, default=COEFS)
     ap.add_argument("--joints", type=int, default=14)
     ap.add_argument("--description", default=None, help="recorded in the file's training block")
-    ap.add_argument("--training-json", default=None, help="a JSON file whose content joins the training block "
-                    "(e.g. a bench result's options)")
+    ap.add_argument(
+        "--training-json",
+        default=None,
+        help="a JSON file whose content joins the training block (e.g. a bench result's options)",
+    )
     args = ap.parse_args(argv)
     gen = Generator(3 * args.joints, args.hidden, args.layers, args.z, args.coefs)
     gen.load_state_dict(torch.load(args.state_dict, map_location="cpu"), strict=True)

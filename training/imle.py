@@ -17,6 +17,7 @@ times faster than PyTorch's CPU forward of this network. And a search can serve 
 nearest samples refreshed only every few epochs) relies on, is that which candidate lands nearest changes slowly as
 the weights move; its one run here made the model worse (docs/training.md, "Echoing the IMLE search").
 """
+
 from __future__ import annotations
 
 import json
@@ -36,14 +37,17 @@ Search = Callable[[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, int],
 
 def torch_search(model, chunk: int = 64) -> Search:
     """The candidates' forwards in PyTorch, ``chunk`` sequences at a time (the reference for :class:`EngineSearch`)."""
+
     def search(noisy, observed, mask, rows, step):
         outs = []
         with torch.no_grad():
             for r in range(0, noisy.shape[0], chunk):
-                s, w = slice(r, r + chunk), rows[r:r + chunk]
-                outs.append(model(noisy[s], observed[w], mask[w],
-                                  torch.full((len(w),), step, device=noisy.device)).float())
+                s, w = slice(r, r + chunk), rows[r : r + chunk]
+                outs.append(
+                    model(noisy[s], observed[w], mask[w], torch.full((len(w),), step, device=noisy.device)).float()
+                )
         return torch.cat(outs)
+
     return search
 
 
@@ -61,12 +65,14 @@ class EngineSearch:
     def __call__(self, noisy, observed, mask, rows, step):
         from safetensors.torch import save
         from tcd.engine import Denoiser
+
         tensors = {k: v.detach().to("cpu", torch.float32).contiguous() for k, v in self.model.state_dict().items()}
         net = Denoiser.from_bytes(save(tensors, metadata=self.metadata), "imle candidates")
-        with torch.no_grad():    # once per window, not per candidate: the fill depends on the window only
+        with torch.no_grad():  # once per window, not per candidate: the fill depends on the window only
             cond = condition(self.model.cfg, observed, mask, self.model.prior)
-        out = net.forward(noisy.cpu().numpy(), cond[rows].cpu().numpy(), mask[rows].cpu().numpy(), step,
-                          threads=self.threads)
+        out = net.forward(
+            noisy.cpu().numpy(), cond[rows].cpu().numpy(), mask[rows].cpu().numpy(), step, threads=self.threads
+        )
         return torch.from_numpy(out).to(noisy.device)
 
 
@@ -74,20 +80,31 @@ class Choice(NamedTuple):
     """What :func:`imle_choose` picked for a batch: ``targets`` (M, B, K, L), the window's own future first and the
     further futures of ``imle_targets`` after it, in target units; ``nearest`` (M, B), the index of each target's
     nearest candidate; ``final`` (B,) or None, each window's candidate nearest on its last hidden frame."""
+
     targets: torch.Tensor
     nearest: torch.Tensor
     final: torch.Tensor | None
 
 
-def imle_choose(model, sched: Schedule, x0: torch.Tensor, mask: torch.Tensor, candidates: torch.Tensor,
-                observed: torch.Tensor | None = None, search: Search | None = None,
-                final_weight: float = 0.0, others: torch.Tensor | None = None) -> Choice:
+def imle_choose(
+    model,
+    sched: Schedule,
+    x0: torch.Tensor,
+    mask: torch.Tensor,
+    candidates: torch.Tensor,
+    observed: torch.Tensor | None = None,
+    search: Search | None = None,
+    final_weight: float = 0.0,
+    others: torch.Tensor | None = None,
+) -> Choice:
     """The search half of :func:`imle_loss` (its arguments), without gradients: the S candidates' one-step
     samples and each target's nearest. Apart so that a training step can echo one search over several optimizer
     steps (``imle_echo``): the search is most of a step's cost."""
     if sched.cfg.prediction_type != "sample":
-        raise ValueError("imle_loss trains the one-step sample of an x0-predicting model (prediction_type "
-                         f"'sample'); this one predicts {sched.cfg.prediction_type!r}")
+        raise ValueError(
+            "imle_loss trains the one-step sample of an x0-predicting model (prediction_type "
+            f"'sample'); this one predicts {sched.cfg.prediction_type!r}"
+        )
     if candidates.dim() != x0.dim() + 1 or tuple(candidates.shape[1:]) != tuple(x0.shape):
         raise ValueError(f"candidates must be (S, *x0.shape) = (S, {tuple(x0.shape)}), got {tuple(candidates.shape)}")
     if others is not None and (others.dim() != x0.dim() + 1 or tuple(others.shape[1:]) != tuple(x0.shape)):
@@ -97,27 +114,39 @@ def imle_choose(model, sched: Schedule, x0: torch.Tensor, mask: torch.Tensor, ca
     hidden = 1.0 - mask
     with torch.no_grad():
         target = _to_target(model, x0, observed, mask)
-        targets = target[None] if others is None else \
-            torch.cat([target[None], torch.stack([_to_target(model, o, observed, mask) for o in others])])
-        rows = torch.arange(S * B, device=x0.device) % B                              # row s * B + b: window b
-        out = (search or torch_search(model))(candidates.reshape(S * B, *x0.shape[1:]), observed, mask, rows,
-                                              sched.T - 1)
+        targets = (
+            target[None]
+            if others is None
+            else torch.cat([target[None], torch.stack([_to_target(model, o, observed, mask) for o in others])])
+        )
+        rows = torch.arange(S * B, device=x0.device) % B  # row s * B + b: window b
+        out = (search or torch_search(model))(
+            candidates.reshape(S * B, *x0.shape[1:]), observed, mask, rows, sched.T - 1
+        )
         out = out.view(S, B, *x0.shape[1:])
-        nearest = (((out[:, None] - targets[None]) * hidden) ** 2).sum((3, 4)).argmin(0)   # (M, B)
+        nearest = (((out[:, None] - targets[None]) * hidden) ** 2).sum((3, 4)).argmin(0)  # (M, B)
         final = None
         if final_weight > 0:
-            sq = ((out - target) * hidden) ** 2                                         # (S, B, K, L)
+            sq = ((out - target) * hidden) ** 2  # (S, B, K, L)
             frames = torch.arange(x0.shape[-1], device=x0.device)
-            last = (hidden.amax(1) * (frames + 1)).argmax(1)                            # (B,): last hidden frame
+            last = (hidden.amax(1) * (frames + 1)).argmax(1)  # (B,): last hidden frame
             at_last = torch.gather(sq, 3, last.view(1, B, 1, 1).expand(S, B, sq.shape[2], 1))  # (S, B, K, 1)
             final = at_last.sum((2, 3)).argmin(0)
     return Choice(targets, nearest, final)
 
 
-def imle_loss(model, sched: Schedule, x0: torch.Tensor, mask: torch.Tensor, candidates: torch.Tensor,
-              observed: torch.Tensor | None = None, search: Search | None = None,
-              final_weight: float = 0.0, others: torch.Tensor | None = None,
-              choice: Choice | None = None) -> torch.Tensor:
+def imle_loss(
+    model,
+    sched: Schedule,
+    x0: torch.Tensor,
+    mask: torch.Tensor,
+    candidates: torch.Tensor,
+    observed: torch.Tensor | None = None,
+    search: Search | None = None,
+    final_weight: float = 0.0,
+    others: torch.Tensor | None = None,
+    choice: Choice | None = None,
+) -> torch.Tensor:
     """The one-step sampler's IMLE loss for clean windows x0 (B, K, L) (module docstring): of the S one-step
     samples from ``candidates`` (S, B, K, L) standard normals, each window's nearest to its target (squared
     distance over the hidden entries, in target units) is recomputed with gradients and scored by the masked
@@ -144,8 +173,10 @@ def imle_loss(model, sched: Schedule, x0: torch.Tensor, mask: torch.Tensor, cand
     # each target's nearest sample, one forward of B per target (a CPU step costs more per window at 4 B than at
     # B: docs/training.md, "The step's speed"); the mean over targets, each term normalised by the same count of
     # hidden entries, is the pooled mean
-    loss = sum(masked_eps_loss(tm, model(candidates[nm, windows], observed, mask, t_last), mask)
-               for tm, nm in zip(choice.targets, choice.nearest)) / len(choice.targets)
+    loss = sum(
+        masked_eps_loss(tm, model(candidates[nm, windows], observed, mask, t_last), mask)
+        for tm, nm in zip(choice.targets, choice.nearest)
+    ) / len(choice.targets)
     if final_weight > 0:
         out = model(candidates[choice.final, windows], observed, mask, t_last)
         loss = loss + final_weight * masked_eps_loss(choice.targets[0], out, mask)

@@ -26,6 +26,7 @@ each, of every length, at a uniform start, and their time reversals, the fills t
     python -m training.inbetween --out runs/inbetween.npz [--windows 20000] [--max-gap 25] [--lam 100]
     python -m training.export --inbetween runs/inbetween.npz --out DIR      # into DIR/repair_fill.safetensors
 """
+
 from __future__ import annotations
 
 import argparse
@@ -56,7 +57,7 @@ def segment_features(fill: np.ndarray, starts: np.ndarray, n: int, context: int)
     b, t, _ = fill.shape
     idx = np.clip(starts[:, None] + np.arange(-context - 1, n + context)[None], 0, t - 1)
     seg = np.take_along_axis(fill, idx[..., None], 1)
-    rel = seg[:, 1:] - seg[:, context:context + 1]                     # seg[:, context]: frame s - 1
+    rel = seg[:, 1:] - seg[:, context : context + 1]  # seg[:, context]: frame s - 1
     side = np.stack([np.minimum(starts, context), np.minimum(t - n - starts, context)], 1) / context
     return np.concatenate([rel.reshape(b, -1), side], 1)
 
@@ -105,8 +106,9 @@ def correct_runs(fill: np.ndarray, runs: list, kernels: dict, context: int) -> n
         if w is None:
             continue
         cols = slice(None) if f is None else slice(f, f + 1)
-        x = per_coordinate(segment_features(src[b:b + 1, :, cols], np.array([s]), e - s, context), e - s,
-                           context)                                                               # (F', D)
+        x = per_coordinate(
+            segment_features(src[b : b + 1, :, cols], np.array([s]), e - s, context), e - s, context
+        )  # (F', D)
         out[b, s:e, cols] += (x @ np.asarray(w, np.float64).T).T
     return out
 
@@ -121,42 +123,59 @@ def correct_window(prior, fill: np.ndarray, mask: np.ndarray, gaps: list) -> np.
     if cfg.inbetween_max_gap:
         out += correct(src, gaps, prior.inbetween_kernels(), cfg.inbetween_context) - src
     if cfg.joint_inbetween_max_gap:
-        out += correct_runs(src, joint_runs(mask, gaps), prior.inbetween_kernels("joint_inbetween"),
-                            cfg.joint_inbetween_context) - src
+        out += (
+            correct_runs(
+                src, joint_runs(mask, gaps), prior.inbetween_kernels("joint_inbetween"), cfg.joint_inbetween_context
+            )
+            - src
+        )
     return out
 
 
-def training_gaps(model, n: int, windows: int, reverse: bool, context: int, rng: np.random.Generator,
-                  seqs: list, batch: int = 2000):
+def training_gaps(
+    model, n: int, windows: int, reverse: bool, context: int, rng: np.random.Generator, seqs: list, batch: int = 2000
+):
     """(X'X, X'Y) of the ridge fit of the n-frame gap's kernel: ``windows`` training windows (and their time
     reversals with ``reverse``), one gap each at a uniform start, filled by ``model``'s repair fill (the engine's,
     with its gap fill); Y the fill's error over the gap (metres)."""
     from training.data.h36m import random_windows
+
     t = model.obs_len
     xtx = xty = 0.0
     for lo in range(0, windows, batch):
         k = min(batch, windows - lo)
         gt = random_windows(seqs, k, t, rng)
-        for g in ([gt, gt[:, ::-1]] if reverse else [gt]):
+        for g in [gt, gt[:, ::-1]] if reverse else [gt]:
             starts = rng.integers(0, t - n + 1, k)
             mask = np.ones(g.shape[:3], bool)
             for i, s in enumerate(starts):
-                mask[i, s:s + n] = False
+                mask[i, s : s + n] = False
             keep = np.repeat(mask[..., None], 3, -1).reshape(k, t, -1).astype(np.float32)
-            filled = model.repair_fill.fill(np.ascontiguousarray(g.reshape(k, t, -1) * keep, np.float32), keep,
-                                            forecaster=model.prior)                   # the engine's fill
+            filled = model.repair_fill.fill(
+                np.ascontiguousarray(g.reshape(k, t, -1) * keep, np.float32), keep, forecaster=model.prior
+            )  # the engine's fill
             x = per_coordinate(segment_features(filled.astype(np.float64), starts, n, context), n, context)
             idx = (starts[:, None] + np.arange(n)[None])[..., None]
-            err = (np.take_along_axis(g.reshape(k, t, -1), idx, 1) - np.take_along_axis(filled, idx, 1))
-            y = err.transpose(0, 2, 1).reshape(-1, n)                                # (k F, n)
+            err = np.take_along_axis(g.reshape(k, t, -1), idx, 1) - np.take_along_axis(filled, idx, 1)
+            y = err.transpose(0, 2, 1).reshape(-1, n)  # (k F, n)
             xtx, xty = xtx + x.T @ x, xty + x.T @ y
     return xtx, xty
 
 
-def fit(model, max_gap: int = MAX_GAP, windows: int = 20000, reverse: bool = True, lam: float = LAM,
-        context: int = CONTEXT, seed: int = 2, data_dir=None, log=print) -> dict:
+def fit(
+    model,
+    max_gap: int = MAX_GAP,
+    windows: int = 20000,
+    reverse: bool = True,
+    lam: float = LAM,
+    context: int = CONTEXT,
+    seed: int = 2,
+    data_dir=None,
+    log=print,
+) -> dict:
     """{n: W_n float32 (n, 3 (2 C + n) + 2)} for n = 1 .. ``max_gap``, fitted for ``model``'s repair fill."""
     from training.data import h36m
+
     seqs = [x for _, x in h36m.H36M(data_dir or h36m.DEFAULT_H36M_DIR).sequences("train")]
     rng = np.random.default_rng(seed)
     out = {}
@@ -168,9 +187,18 @@ def fit(model, max_gap: int = MAX_GAP, windows: int = 20000, reverse: bool = Tru
     return out
 
 
-def fit_joint_runs(model, max_run: int = JOINT_MAX_RUN, windows: int = 20000, lam: float = JOINT_LAM,
-                   context: int = JOINT_CONTEXT, seed: int = 3, data_dir=None, log=print, batch: int = 1000,
-                   reverse: bool = True) -> dict:
+def fit_joint_runs(
+    model,
+    max_run: int = JOINT_MAX_RUN,
+    windows: int = 20000,
+    lam: float = JOINT_LAM,
+    context: int = JOINT_CONTEXT,
+    seed: int = 3,
+    data_dir=None,
+    log=print,
+    batch: int = 1000,
+    reverse: bool = True,
+) -> dict:
     """{n: W_n float32 (n, 3 (2 C + n) + 2)} for n = 1 .. ``max_run``: the joint in-betweener of ``model``'s repair
     fill, fitted on ``windows`` training windows (and, with ``reverse``, their time reversals), half with the
     ``random_joints`` mask (10-40 %) and half with ``random_leg_arm`` (40 %) of ``training.masks`` (the fill's own
@@ -178,6 +206,7 @@ def fit_joint_runs(model, max_run: int = JOINT_MAX_RUN, windows: int = 20000, la
     gets zeros."""
     from training import masks
     from training.data import h36m
+
     seqs = [x for _, x in h36m.H36M(data_dir or h36m.DEFAULT_H36M_DIR).sequences("train")]
     rng = np.random.default_rng(seed)
     t = model.obs_len
@@ -188,32 +217,42 @@ def fit_joint_runs(model, max_run: int = JOINT_MAX_RUN, windows: int = 20000, la
     for lo in range(0, windows, batch):
         k = min(batch, windows - lo)
         gt = h36m.random_windows(seqs, k, t, rng)
-        for g in ((gt, gt[:, ::-1]) if reverse else (gt,)):
-            m = np.stack([masks.make_mask("random_joints", t, t, rng, rate=(0.1, 0.4)) if i % 2 else
-                          masks.make_mask("random_leg_arm", t, t, rng, rate=0.4) for i in range(k)])
+        for g in (gt, gt[:, ::-1]) if reverse else (gt,):
+            m = np.stack(
+                [
+                    masks.make_mask("random_joints", t, t, rng, rate=(0.1, 0.4))
+                    if i % 2
+                    else masks.make_mask("random_leg_arm", t, t, rng, rate=0.4)
+                    for i in range(k)
+                ]
+            )
             keep = np.repeat(m[..., None] > 0.5, 3, -1).reshape(k, t, -1)
             g2 = g.reshape(k, t, -1).astype(np.float64)
-            filled = model.repair_fill.fill(np.ascontiguousarray(g2 * keep, np.float32), keep.astype(np.float32),
-                                            forecaster=model.prior).astype(np.float64)
+            filled = model.repair_fill.fill(
+                np.ascontiguousarray(g2 * keep, np.float32), keep.astype(np.float32), forecaster=model.prior
+            ).astype(np.float64)
             runs = np.array(joint_runs(keep, []), dtype=np.int64).reshape(-1, 4)
             for n in range(1, max_run + 1):
                 r = runs[runs[:, 3] - runs[:, 2] == n]
                 if not len(r):
                     continue
-                rows = filled[r[:, 0], :, r[:, 1]][..., None]                                   # (R, T, 1)
+                rows = filled[r[:, 0], :, r[:, 1]][..., None]  # (R, T, 1)
                 x = per_coordinate(segment_features(rows, r[:, 2], n, context), n, context)
                 idx = r[:, 2:3] + np.arange(n)[None]
                 y = g2[r[:, 0][:, None], idx, r[:, 1][:, None]] - filled[r[:, 0][:, None], idx, r[:, 1][:, None]]
                 xtx[n] += x.T @ x
                 xty[n] += x.T @ y
         log(f"{lo + k} of {windows} windows, {time.time() - t0:.0f} s")
-    return {n: np.ascontiguousarray(np.linalg.solve(xtx[n] + lam * np.eye(width[n]), xty[n]).T, dtype=np.float32)
-            for n in width}
+    return {
+        n: np.ascontiguousarray(np.linalg.solve(xtx[n] + lam * np.eye(width[n]), xty[n]).T, dtype=np.float32)
+        for n in width
+    }
 
 
 def save_kernels(path, kernels: dict, context: int, meta: dict) -> None:
-    np.savez(path, context=np.int64(context), meta=json.dumps(meta),
-             **{f"inbetween_{n}": w for n, w in kernels.items()})
+    np.savez(
+        path, context=np.int64(context), meta=json.dumps(meta), **{f"inbetween_{n}": w for n, w in kernels.items()}
+    )
 
 
 def load_kernels(path) -> tuple[dict, int, dict]:
@@ -228,40 +267,83 @@ def main(argv=None) -> int:
     ap.add_argument("--model", default=None, help="model directory with a repair fill (default: the bundled)")
     ap.add_argument("--out", required=True, help="the kernels (.npz), for training.export --inbetween")
     ap.add_argument("--windows", type=int, default=20000, help="training windows per gap length (default 20,000)")
-    ap.add_argument("--max-gap", type=int, default=None,
-                    help=f"longest gap with a kernel (default {MAX_GAP}; --joints: {JOINT_MAX_RUN})")
-    ap.add_argument("--context", type=int, default=None,
-                    help=f"context frames each side (default {CONTEXT}; --joints: {JOINT_CONTEXT})")
-    ap.add_argument("--lam", type=float, default=None,
-                    help=f"ridge penalty, on features in metres (default {LAM:g}; --joints: {JOINT_LAM:g})")
+    ap.add_argument(
+        "--max-gap",
+        type=int,
+        default=None,
+        help=f"longest gap with a kernel (default {MAX_GAP}; --joints: {JOINT_MAX_RUN})",
+    )
+    ap.add_argument(
+        "--context",
+        type=int,
+        default=None,
+        help=f"context frames each side (default {CONTEXT}; --joints: {JOINT_CONTEXT})",
+    )
+    ap.add_argument(
+        "--lam",
+        type=float,
+        default=None,
+        help=f"ridge penalty, on features in metres (default {LAM:g}; --joints: {JOINT_LAM:g})",
+    )
     ap.add_argument("--no-reverse", action="store_true", help="do not also fit on the windows time-reversed")
-    ap.add_argument("--joints", action="store_true",
-                    help="fit the joint in-betweener instead (runs of a hidden joint in seen frames; "
-                         "fit_joint_runs: --max-gap is the longest run, default context 5, lam 0.1)")
+    ap.add_argument(
+        "--joints",
+        action="store_true",
+        help="fit the joint in-betweener instead (runs of a hidden joint in seen frames; "
+        "fit_joint_runs: --max-gap is the longest run, default context 5, lam 0.1)",
+    )
     ap.add_argument("--seed", type=int, default=2)
     ap.add_argument("--data-dir", default=None)
     args = ap.parse_args(argv)
-    for name, plain, joints in (("max_gap", MAX_GAP, JOINT_MAX_RUN), ("context", CONTEXT, JOINT_CONTEXT),
-                                ("lam", LAM, JOINT_LAM)):
+    for name, plain, joints in (
+        ("max_gap", MAX_GAP, JOINT_MAX_RUN),
+        ("context", CONTEXT, JOINT_CONTEXT),
+        ("lam", LAM, JOINT_LAM),
+    ):
         if getattr(args, name) is None:
             setattr(args, name, joints if args.joints else plain)
     import tcd
+
     model = tcd.load(args.model)
     if model.repair_fill is None or model.repair_fill.gap_fill != "forecaster":
-        ap.error(f"{model.path}: the in-betweener corrects a repair fill with gap_fill \"forecaster\"")
+        ap.error(f'{model.path}: the in-betweener corrects a repair fill with gap_fill "forecaster"')
     if not 1 <= args.max_gap < model.obs_len or args.context < 1 or args.windows < 1 or args.lam < 0:
         ap.error(f"--max-gap must be in [1, {model.obs_len - 1}], --context and --windows >= 1, --lam >= 0")
     t0 = time.time()
     log = lambda m: print(m, file=sys.stderr, flush=True)  # noqa: E731
     if args.joints:
-        kernels = fit_joint_runs(model, args.max_gap, args.windows, args.lam, args.context, args.seed,
-                                 args.data_dir, log=log, reverse=not args.no_reverse)
+        kernels = fit_joint_runs(
+            model,
+            args.max_gap,
+            args.windows,
+            args.lam,
+            args.context,
+            args.seed,
+            args.data_dir,
+            log=log,
+            reverse=not args.no_reverse,
+        )
     else:
-        kernels = fit(model, args.max_gap, args.windows, not args.no_reverse, args.lam, args.context, args.seed,
-                      args.data_dir, log=log)
-    meta = {"windows": args.windows, "reverse": not args.no_reverse, "lam": args.lam, "seed": args.seed,
-            "fill_sha256": model.file_sha256.get("repair_fill.safetensors"), "seconds": time.time() - t0,
-            "command": "python -m training.inbetween " + " ".join(sys.argv[1:] if argv is None else argv)}
+        kernels = fit(
+            model,
+            args.max_gap,
+            args.windows,
+            not args.no_reverse,
+            args.lam,
+            args.context,
+            args.seed,
+            args.data_dir,
+            log=log,
+        )
+    meta = {
+        "windows": args.windows,
+        "reverse": not args.no_reverse,
+        "lam": args.lam,
+        "seed": args.seed,
+        "fill_sha256": model.file_sha256.get("repair_fill.safetensors"),
+        "seconds": time.time() - t0,
+        "command": "python -m training.inbetween " + " ".join(sys.argv[1:] if argv is None else argv),
+    }
     save_kernels(args.out, kernels, args.context, meta)
     print(f"{len(kernels)} kernels -> {args.out} in {time.time() - t0:.0f} s", file=sys.stderr)
     return 0

@@ -25,6 +25,7 @@ from its HumanEva parent of the Human3.6M joint it stands for (``tcd.layouts`` `
 bone length (the median over the Train split's frames: 14 numbers, no motion of the licensed data); +z up, as
 HumanEva-I; the model's 14 joints relative to the pelvis, metres.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -45,15 +46,32 @@ OUT = Path(__file__).resolve().parent.parent / "python" / "tcd" / "data" / "demo
 # parent (zero offset: 16 and 24 sit on the thorax like 13, 20 / 23 / 28 / 31 on their parent).
 H36M_FROM_CMU_BONE = {
     # right leg (H36M 1..5, -x side) <- CMU 7..12
-    2: (8, 9), 3: (9, 10), 4: (10, 11), 5: (11, 12),
+    2: (8, 9),
+    3: (9, 10),
+    4: (10, 11),
+    5: (11, 12),
     # left leg (H36M 6..10, +x side) <- CMU 1..6
-    7: (2, 3), 8: (3, 4), 9: (4, 5), 10: (5, 6),
+    7: (2, 3),
+    8: (3, 4),
+    9: (4, 5),
+    10: (5, 6),
     # spine, neck, head
-    12: (13, 14), 13: (14, 15), 14: (15, 17), 15: (17, 19),
+    12: (13, 14),
+    13: (14, 15),
+    14: (15, 17),
+    15: (17, 19),
     # left arm (H36M 16..23) <- CMU 20..28: clavicle, humerus, radius, thumb, hand
-    17: (20, 21), 18: (21, 22), 19: (22, 23), 21: (27, 28), 22: (23, 25),
+    17: (20, 21),
+    18: (21, 22),
+    19: (22, 23),
+    21: (27, 28),
+    22: (23, 25),
     # right arm (H36M 24..31) <- CMU 29..37
-    25: (29, 30), 26: (30, 31), 27: (31, 32), 29: (36, 37), 30: (32, 34),
+    25: (29, 30),
+    26: (30, 31),
+    27: (31, 32),
+    29: (36, 37),
+    30: (32, 34),
 }
 
 
@@ -82,9 +100,9 @@ def cmu_to_h36m32(cmu_mm: np.ndarray) -> np.ndarray:
                 raise ValueError(f"CMU bone {a}->{b} has zero length")
             out[:, j] = out[:, p] + lengths[j] * d / n
         elif p == 0:
-            out[:, j] = offsets[j]                  # fixed offset from the root (hips, spine base)
+            out[:, j] = offsets[j]  # fixed offset from the root (hips, spine base)
         elif lengths[j] == 0.0 or j in (16, 24):
-            out[:, j] = out[:, 13] if j in (16, 24) else out[:, p]   # shoulders' base = thorax
+            out[:, j] = out[:, 13] if j in (16, 24) else out[:, p]  # shoulders' base = thorax
         else:
             raise AssertionError(f"Human3.6M joint {j} has no CMU bone")
     return out
@@ -102,6 +120,7 @@ def humaneva_bone_lengths(path=None) -> np.ndarray:
     """(15,) metres: each HumanEva-I joint's distance from its parent, the median over every frame of the Train
     split (0 for the pelvis)."""
     from training.data.humaneva import HUMANEVA_PARENTS, humaneva_file, load_humaneva
+
     frames = np.concatenate(list(load_humaneva(humaneva_file(path), "Train").values()))
     parents = np.asarray(HUMANEVA_PARENTS)
     out = np.zeros(len(parents))
@@ -111,22 +130,29 @@ def humaneva_bone_lengths(path=None) -> np.ndarray:
 
 def cmu_source(key: str, extra: dict) -> np.ndarray:
     """The ``source`` entry of a clip converted from CMU: the database's attribution, the clip, then ``extra``."""
-    return np.array(json.dumps({
-        "dataset": "CMU Graphics Lab Motion Capture Database (mocap.cs.cmu.edu)",
-        "attribution": "The data used in this project was obtained from mocap.cs.cmu.edu. "
-                       "The database was created with funding from NSF EIA-0196217.",
-        "clip": key, "capture_fps": CMU_FPS, **extra,
-    }))
+    return np.array(
+        json.dumps(
+            {
+                "dataset": "CMU Graphics Lab Motion Capture Database (mocap.cs.cmu.edu)",
+                "attribution": "The data used in this project was obtained from mocap.cs.cmu.edu. "
+                "The database was created with funding from NSF EIA-0196217.",
+                "clip": key,
+                "capture_fps": CMU_FPS,
+                **extra,
+            }
+        )
+    )
 
 
 def build_humaneva(cmu_path: str, key: str, humaneva_path=None) -> dict:
     from training.data.humaneva import HUMANEVA_MODEL_JOINT_NAMES, HUMANEVA_PARENTS
+
     seqs = load_cmu_npz(cmu_path)
     if key not in seqs:
         raise KeyError(f"{key} not in {cmu_path}")
     # the release's first frame is not part of the motion (the Human3.6M clip's first step is 0.76 m): dropped
     cmu = resample(expmap_to_positions_cmu(seqs[key], sample_rate=1)[1:], CMU_FPS, HUMANEVA_FPS)
-    h32 = cmu_to_h36m32(cmu) / 1000.0 @ Y_UP_TO_Z_UP.T                        # metres, +z up
+    h32 = cmu_to_h36m32(cmu) / 1000.0 @ Y_UP_TO_Z_UP.T  # metres, +z up
     src = h32[:, HUMANEVA_FROM_H36M32]
     lengths = humaneva_bone_lengths(humaneva_path)
     out = np.zeros_like(src)
@@ -138,11 +164,14 @@ def build_humaneva(cmu_path: str, key: str, humaneva_path=None) -> dict:
         "poses": (out[:, 1:] - out[:, :1]).astype(np.float32),
         "fps": np.float32(HUMANEVA_FPS),
         "joint_names": np.array(HUMANEVA_MODEL_JOINT_NAMES),
-        "source": cmu_source(key, {
-            "conversion": "python -m training.make_demo_clip --layout humaneva (CMU bone directions through the "
-                          "Human3.6M skeleton, HumanEva-I median bone lengths, joints 1..14 of humaneva15 relative "
-                          "to the pelvis, metres, +z up, 60 fps)",
-        }),
+        "source": cmu_source(
+            key,
+            {
+                "conversion": "python -m training.make_demo_clip --layout humaneva (CMU bone directions through the "
+                "Human3.6M skeleton, HumanEva-I median bone lengths, joints 1..14 of humaneva15 relative "
+                "to the pelvis, metres, +z up, 60 fps)",
+            },
+        ),
     }
 
 
@@ -157,20 +186,30 @@ def build(cmu_path: str, key: str) -> dict:
         "poses": poses.astype(np.float32),
         "fps": np.float32(MODEL_FPS),
         "joint_names": np.array(joint_names_22()),
-        "source": cmu_source(key, {
-            "conversion": "python -m training.make_demo_clip (CMU bone directions, Human3.6M bone lengths, "
-                          "22-joint model layout, metres, root-relative, 25 fps)",
-        }),
+        "source": cmu_source(
+            key,
+            {
+                "conversion": "python -m training.make_demo_clip (CMU bone directions, Human3.6M bone lengths, "
+                "22-joint model layout, metres, root-relative, 25 fps)",
+            },
+        ),
     }
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m training.make_demo_clip", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        prog="python -m training.make_demo_clip",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     ap.add_argument("--cmu", default="../shared/data/cmu/cmu_expmap_train.npz")
     ap.add_argument("--key", default="walking/walking_2")
-    ap.add_argument("--layout", choices=["h36m", "humaneva"], default="h36m",
-                    help="the model the clip is for: the Human3.6M 22-joint model or the HumanEva-I model")
+    ap.add_argument(
+        "--layout",
+        choices=["h36m", "humaneva"],
+        default="h36m",
+        help="the model the clip is for: the Human3.6M 22-joint model or the HumanEva-I model",
+    )
     ap.add_argument("--humaneva", default=None, help="HumanEva-I data (bone lengths; default ../shared/data/humaneva)")
     ap.add_argument("--out", default=None, help="default: python/tcd/data/demo_walking[_humaneva].npz")
     args = ap.parse_args(argv)
@@ -180,8 +219,9 @@ def main(argv=None) -> int:
         clip, out = build(args.cmu, args.key), args.out or str(OUT)
     Path(out).parent.mkdir(parents=True, exist_ok=True)
     np.savez_compressed(out, **clip)
-    print(f"wrote {out}: {clip['poses'].shape[0]} frames at {float(clip['fps']):g} fps, "
-          f"{clip['poses'].shape[1]} joints")
+    print(
+        f"wrote {out}: {clip['poses'].shape[0]} frames at {float(clip['fps']):g} fps, {clip['poses'].shape[1]} joints"
+    )
     return 0
 
 

@@ -40,6 +40,7 @@ tolerance, so that e.g. 0.29 * 100 gives 29 frames and not 28.
 All randomness comes from the ``numpy.random.Generator`` passed in: the same generator state gives
 the same mask (and noise).
 """
+
 from __future__ import annotations
 
 import math
@@ -82,7 +83,28 @@ DEFAULT_RATES: dict[str, float] = {
 # 32-skeleton joint ids of the 22 joints the Human3.6M model uses, in model order
 # (``joints_used_22`` of shared/data/h36m/skeleton32.json).
 JOINTS32_H36M_22: tuple[int, ...] = (
-    2, 3, 4, 5, 7, 8, 9, 10, 12, 13, 14, 15, 17, 18, 19, 21, 22, 25, 26, 27, 29, 30,
+    2,
+    3,
+    4,
+    5,
+    7,
+    8,
+    9,
+    10,
+    12,
+    13,
+    14,
+    15,
+    17,
+    18,
+    19,
+    21,
+    22,
+    25,
+    26,
+    27,
+    29,
+    30,
 )
 
 N_JOINTS32 = 32
@@ -192,9 +214,7 @@ def _model_columns(joints32: np.ndarray, group32) -> np.ndarray:
 def _block_start(rng: np.random.Generator, obs_len: int, length: int, pattern: str) -> int:
     # Cannot trigger while rate <= 1 (the length follows the rate); kept as a guard.
     if length > obs_len:  # pragma: no cover
-        raise ValueError(
-            f"obs_len ({obs_len}) is shorter than the block length ({length}) of pattern {pattern!r}"
-        )
+        raise ValueError(f"obs_len ({obs_len}) is shorter than the block length ({length}) of pattern {pattern!r}")
     return int(rng.integers(0, obs_len - length + 1))
 
 
@@ -238,11 +258,11 @@ def make_mask(
         length = _round_count(rate, obs_len)
         start = _block_start(rng, obs_len, length, pattern)
         cols = _model_columns(j32, RIGHT_LEG_JOINTS32)
-        obs[start:start + length, cols] = 0.0
+        obs[start : start + length, cols] = 0.0
     elif pattern == "consecutive_frames":
         length = _round_count(rate, obs_len)
         start = _block_start(rng, obs_len, length, pattern)
-        obs[start:start + length, :] = 0.0
+        obs[start : start + length, :] = 0.0
     elif pattern == "random_frames":
         frames = rng.choice(obs_len, size=_floor_count(rate, obs_len), replace=False)
         obs[frames, :] = 0.0
@@ -289,13 +309,13 @@ def corrupt(
     j32 = _check_joints32(joints32)
     arr = np.asarray(window)
     if arr.ndim != 3 or arr.shape[1] != j32.size or arr.shape[2] != 3 or arr.shape[0] < 1:
-        raise ValueError(
-            f"window must have shape (seq_len, {j32.size}, 3) to match joints32; got {arr.shape}"
-        )
+        raise ValueError(f"window must have shape (seq_len, {j32.size}, 3) to match joints32; got {arr.shape}")
     if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
         raise ValueError(f"window must hold real numbers; got dtype {arr.dtype}")
-    if isinstance(units_per_mm, bool) or not isinstance(units_per_mm, numbers.Real) or not (
-        math.isfinite(units_per_mm) and units_per_mm > 0
+    if (
+        isinstance(units_per_mm, bool)
+        or not isinstance(units_per_mm, numbers.Real)
+        or not (math.isfinite(units_per_mm) and units_per_mm > 0)
     ):
         raise ValueError(f"units_per_mm must be a finite positive number; got {units_per_mm!r}")
 

@@ -1,4 +1,5 @@
 """Deterministic-protocol metrics (Setting-B) and the repair metric."""
+
 from __future__ import annotations
 
 import numpy as np

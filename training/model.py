@@ -6,6 +6,7 @@ The network predicts the noise added to the entries that are not conditioned (ma
 state_dict keys mirror the reference structure (section 10.1):
 ``embed_layer.weight`` and ``diffmodel.*``.
 """
+
 from __future__ import annotations
 
 import math
@@ -22,34 +23,34 @@ TARGETS = ("absolute", "linear_residual", "spline_residual", "prior_residual")
 
 @dataclass
 class ModelConfig:
-    num_joints: int = 22                # joints in the model layout (Human3.6M: 22)
-    coords: int = 3                     # coordinates per joint
-    channels: int = 64                  # residual channels C
-    num_layers: int = 12                # residual blocks (H36M 12, AMASS 4)
-    num_heads: int = 8                  # attention heads of both transformers
-    ffn_dim: int = 64                   # feed-forward width of the transformer layers
+    num_joints: int = 22  # joints in the model layout (Human3.6M: 22)
+    coords: int = 3  # coordinates per joint
+    channels: int = 64  # residual channels C
+    num_layers: int = 12  # residual blocks (H36M 12, AMASS 4)
+    num_heads: int = 8  # attention heads of both transformers
+    ffn_dim: int = 64  # feed-forward width of the transformer layers
     diffusion_embedding_dim: int = 128  # step embedding width (table and projections)
-    time_embedding_dim: int = 128       # sinusoidal frame-index embedding channels
-    feature_embedding_dim: int = 16     # learned per-coordinate embedding channels
-    layer_norm_eps: float = 1e-5        # PyTorch default of nn.TransformerEncoderLayer
-    dropout: float = 0.1                # transformer dropout (training only; the reference keeps PyTorch's default)
-    cond_fill: str = "zero"             # what the observed channel holds at masked entries: "zero" (CSDI/TCD),
-                                        # "linear" (interpolated along time from the observed frames, PriSTI-style)
-                                        # or "spline" (the natural cubic spline through them, spline_fill)
-                                        # or "prior" (prior_fill: the spline over the observed frames, the
-                                        # prior forecaster's rollout over the frames after them)
-    target: str = "absolute"            # what the diffusion generates: "absolute" (the poses, TCD) or
-                                        # "linear_residual": target_scale * (poses - linear_fill(observed, mask)),
-                                        # "spline_residual": the same over spline_fill,
-                                        # "prior_residual": the same over prior_fill (needs cond_fill "prior")
-    target_scale: float = 1.0           # multiplier of the residual (brings it to the scale of the data)
+    time_embedding_dim: int = 128  # sinusoidal frame-index embedding channels
+    feature_embedding_dim: int = 16  # learned per-coordinate embedding channels
+    layer_norm_eps: float = 1e-5  # PyTorch default of nn.TransformerEncoderLayer
+    dropout: float = 0.1  # transformer dropout (training only; the reference keeps PyTorch's default)
+    cond_fill: str = "zero"  # what the observed channel holds at masked entries: "zero" (CSDI/TCD),
+    # "linear" (interpolated along time from the observed frames, PriSTI-style)
+    # or "spline" (the natural cubic spline through them, spline_fill)
+    # or "prior" (prior_fill: the spline over the observed frames, the
+    # prior forecaster's rollout over the frames after them)
+    target: str = "absolute"  # what the diffusion generates: "absolute" (the poses, TCD) or
+    # "linear_residual": target_scale * (poses - linear_fill(observed, mask)),
+    # "spline_residual": the same over spline_fill,
+    # "prior_residual": the same over prior_fill (needs cond_fill "prior")
+    target_scale: float = 1.0  # multiplier of the residual (brings it to the scale of the data)
 
     @property
-    def num_features(self) -> int:      # K
+    def num_features(self) -> int:  # K
         return self.num_joints * self.coords
 
     @property
-    def side_dim(self) -> int:          # time + feature embeddings + the mask channel
+    def side_dim(self) -> int:  # time + feature embeddings + the mask channel
         return self.time_embedding_dim + self.feature_embedding_dim + 1
 
     def to_dict(self) -> dict:
@@ -64,17 +65,21 @@ class ModelConfig:
         cfg = cls(**{k: v for k, v in d.items() if k in names})
         for derived in ("num_features", "side_dim"):
             if derived in d and d[derived] != getattr(cfg, derived):
-                raise ValueError(f"model config: {derived}={d[derived]} disagrees with the sizes "
-                                 f"({getattr(cfg, derived)})")
+                raise ValueError(
+                    f"model config: {derived}={d[derived]} disagrees with the sizes ({getattr(cfg, derived)})"
+                )
         if cfg.cond_fill not in COND_FILLS:
             raise ValueError(f"model config: cond_fill must be one of {COND_FILLS}, got {cfg.cond_fill!r}")
         if cfg.target not in TARGETS:
             raise ValueError(f"model config: target must be one of {TARGETS}, got {cfg.target!r}")
         if (cfg.target == "prior_residual") != (cfg.cond_fill == "prior"):
-            raise ValueError("model config: target 'prior_residual' and cond_fill 'prior' go together "
-                             f"(got target {cfg.target!r}, cond_fill {cfg.cond_fill!r})")
-        if not (isinstance(cfg.target_scale, (int, float)) and math.isfinite(cfg.target_scale)
-                and cfg.target_scale > 0):
+            raise ValueError(
+                "model config: target 'prior_residual' and cond_fill 'prior' go together "
+                f"(got target {cfg.target!r}, cond_fill {cfg.cond_fill!r})"
+            )
+        if not (
+            isinstance(cfg.target_scale, (int, float)) and math.isfinite(cfg.target_scale) and cfg.target_scale > 0
+        ):
             raise ValueError(f"model config: target_scale must be a finite number > 0, got {cfg.target_scale!r}")
         if cfg.channels % cfg.num_heads:
             raise ValueError(f"model config: channels={cfg.channels} is not divisible by num_heads={cfg.num_heads}")
@@ -130,8 +135,14 @@ class DiffusionEmbedding(nn.Module):
 
 
 def transformer(cfg: ModelConfig) -> nn.TransformerEncoder:
-    layer = nn.TransformerEncoderLayer(d_model=cfg.channels, nhead=cfg.num_heads, dim_feedforward=cfg.ffn_dim,
-                                       dropout=cfg.dropout, activation="gelu", layer_norm_eps=cfg.layer_norm_eps)
+    layer = nn.TransformerEncoderLayer(
+        d_model=cfg.channels,
+        nhead=cfg.num_heads,
+        dim_feedforward=cfg.ffn_dim,
+        dropout=cfg.dropout,
+        activation="gelu",
+        layer_norm_eps=cfg.layer_norm_eps,
+    )
     return nn.TransformerEncoder(layer, num_layers=1, enable_nested_tensor=False)
 
 
@@ -149,24 +160,24 @@ class ResidualBlock(nn.Module):
     def forward_time(self, y: torch.Tensor, B: int, C: int, K: int, L: int) -> torch.Tensor:
         if L == 1:
             return y
-        y = y.reshape(B, C, K, L).permute(0, 2, 1, 3).reshape(B * K, C, L)   # one sequence per coordinate
-        y = self.time_layer(y.permute(2, 0, 1)).permute(1, 2, 0)            # (L, B*K, C) sequence-first
+        y = y.reshape(B, C, K, L).permute(0, 2, 1, 3).reshape(B * K, C, L)  # one sequence per coordinate
+        y = self.time_layer(y.permute(2, 0, 1)).permute(1, 2, 0)  # (L, B*K, C) sequence-first
         return y.reshape(B, K, C, L).permute(0, 2, 1, 3).reshape(B, C, K * L)
 
     def forward_feature(self, y: torch.Tensor, B: int, C: int, K: int, L: int) -> torch.Tensor:
         if K == 1:
             return y
-        y = y.reshape(B, C, K, L).permute(0, 3, 1, 2).reshape(B * L, C, K)   # one sequence per frame
-        y = self.feature_layer(y.permute(2, 0, 1)).permute(1, 2, 0)         # (K, B*L, C)
+        y = y.reshape(B, C, K, L).permute(0, 3, 1, 2).reshape(B * L, C, K)  # one sequence per frame
+        y = self.feature_layer(y.permute(2, 0, 1)).permute(1, 2, 0)  # (K, B*L, C)
         return y.reshape(B, L, C, K).permute(0, 2, 3, 1).reshape(B, C, K * L)
 
     def forward(self, x: torch.Tensor, cond: torch.Tensor, emb: torch.Tensor):
         B, C, K, L = x.shape
         x = x.reshape(B, C, K * L)
-        y = x + self.diffusion_projection(emb).unsqueeze(-1)                 # (B, C, K*L)
+        y = x + self.diffusion_projection(emb).unsqueeze(-1)  # (B, C, K*L)
         y = self.forward_time(y, B, C, K, L)
         y = self.forward_feature(y, B, C, K, L)
-        y = self.mid_projection(y)                                           # (B, 2C, K*L)
+        y = self.mid_projection(y)  # (B, 2C, K*L)
         y = y + self.cond_projection(cond.reshape(B, cond.shape[1], K * L))
         gate, filt = torch.chunk(y, 2, dim=1)
         y = torch.sigmoid(gate) * torch.tanh(filt)
@@ -229,19 +240,20 @@ class TCDModel(nn.Module):
         B, K, L = mask.shape
         if K != self.cfg.num_features:
             raise ValueError(f"mask has K={K} features, the model expects {self.cfg.num_features}")
-        temb = frame_embedding(L, self.cfg.time_embedding_dim, mask.device)          # (L, 128)
-        temb = temb.t().unsqueeze(1).expand(-1, K, -1)                                  # (128, K, L)
-        femb = self.embed_layer.weight.t().unsqueeze(2).expand(-1, -1, L)               # (16, K, L)
+        temb = frame_embedding(L, self.cfg.time_embedding_dim, mask.device)  # (L, 128)
+        temb = temb.t().unsqueeze(1).expand(-1, K, -1)  # (128, K, L)
+        femb = self.embed_layer.weight.t().unsqueeze(2).expand(-1, -1, L)  # (16, K, L)
         side = torch.cat([temb, femb], dim=0).unsqueeze(0).expand(B, -1, -1, -1)
         return torch.cat([side, mask.unsqueeze(1)], dim=1)
 
-    def forward(self, noisy: torch.Tensor, observed: torch.Tensor, mask: torch.Tensor,
-                step: torch.Tensor | int) -> torch.Tensor:
+    def forward(
+        self, noisy: torch.Tensor, observed: torch.Tensor, mask: torch.Tensor, step: torch.Tensor | int
+    ) -> torch.Tensor:
         if not torch.is_tensor(step):
             step = torch.tensor([step], device=noisy.device)
         step = step.reshape(-1).to(noisy.device).long()
         cond = condition(self.cfg, observed, mask, self.prior)
-        inp = torch.stack([cond, (1 - mask) * noisy], dim=1)                            # (B, 2, K, L)
+        inp = torch.stack([cond, (1 - mask) * noisy], dim=1)  # (B, 2, K, L)
         return self.diffmodel(inp, self.side_info(mask), step)
 
 
@@ -265,8 +277,9 @@ def linear_fill(observed: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     span = (nxt - prev).clamp(min=1).to(x.dtype)
     w = (idx - prev).to(x.dtype) / span
     between = a + (b - a) * w
-    out = torch.where(has_prev & has_next, between,
-                      torch.where(has_prev, a, torch.where(has_next, b, torch.zeros_like(x))))
+    out = torch.where(
+        has_prev & has_next, between, torch.where(has_prev, a, torch.where(has_next, b, torch.zeros_like(x)))
+    )
     return torch.where(obs, x, out)
 
 
@@ -291,11 +304,11 @@ def spline_fill(observed: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     x = x.to(torch.float64)
     dev = observed.device
     S = x.shape[0]
-    n = obs.sum(-1)                                                   # knots per row
+    n = obs.sum(-1)  # knots per row
     idx = torch.arange(L, device=dev).expand(S, L)
-    order = torch.where(obs, idx, idx + L).argsort(-1)               # observed frames first, ascending
-    kx = order.to(torch.float64)                                      # knot frames (valid below n)
-    ky = x.gather(-1, order)                                          # knot values
+    order = torch.where(obs, idx, idx + L).argsort(-1)  # observed frames first, ascending
+    kx = order.to(torch.float64)  # knot frames (valid below n)
+    ky = x.gather(-1, order)  # knot values
     h = kx[:, 1:] - kx[:, :-1]
     zero = torch.zeros(S, dtype=torch.float64, device=dev)
     cp = [zero] * L
@@ -322,8 +335,12 @@ def spline_fill(observed: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     hh = x1 - x0
     a = x1 - t
     b = t - x0
-    v = m0 * a * a * a / (6.0 * hh) + m1 * b * b * b / (6.0 * hh) + (y0 / hh - m0 * hh / 6.0) * a \
+    v = (
+        m0 * a * a * a / (6.0 * hh)
+        + m1 * b * b * b / (6.0 * hh)
+        + (y0 / hh - m0 * hh / 6.0) * a
         + (y1 / hh - m1 * hh / 6.0) * b
+    )
     between = ~obs & (obs.long().cumsum(-1) >= 1) & (j1 < n.unsqueeze(-1))
     v = torch.where(between, v, torch.zeros((), dtype=torch.float64, device=dev)).to(observed.dtype)
     return torch.where(between.reshape(observed.shape), v.reshape(observed.shape), lin)
@@ -347,7 +364,7 @@ def prior_fill(prior: nn.Module, observed: torch.Tensor, mask: torch.Tensor) -> 
         raise ValueError("a cond_fill='prior' model needs its prior forecaster (TCDModel.attach_prior)")
     obs_len = prior.cfg.obs_len
     L = observed.shape[-1]
-    if prior.cfg.anchor == "window":     # a repair fill: its correction of the spline over the whole window
+    if prior.cfg.anchor == "window":  # a repair fill: its correction of the spline over the whole window
         if L != obs_len:
             raise ValueError(f"prior_fill: the repair fill corrects windows of {obs_len} frames, got {L}")
         spline = spline_fill(observed, mask)
@@ -357,18 +374,22 @@ def prior_fill(prior: nn.Module, observed: torch.Tensor, mask: torch.Tensor) -> 
         if prior.cfg.gap_fill == "forecaster":
             forecaster = getattr(prior, "gap_forecaster", None)
             if forecaster is None:
-                raise ValueError("prior_fill: the repair fill fills whole-frame gaps with a forecaster (gap_fill "
-                                 "\"forecaster\"): training.prior.attach_gap_forecaster")
+                raise ValueError(
+                    "prior_fill: the repair fill fills whole-frame gaps with a forecaster (gap_fill "
+                    '"forecaster"): training.prior.attach_gap_forecaster'
+                )
             fill = fill_gaps(forecaster, fill, mask)
-        if prior.cfg.inbetween_max_gap or prior.cfg.joint_inbetween_max_gap:     # training.inbetween
+        if prior.cfg.inbetween_max_gap or prior.cfg.joint_inbetween_max_gap:  # training.inbetween
             from .inbetween import correct_window
-            corrected = correct_window(prior, fill.transpose(1, 2).numpy(), mask.transpose(1, 2).numpy(),
-                                       whole_frame_gaps(mask))
+
+            corrected = correct_window(
+                prior, fill.transpose(1, 2).numpy(), mask.transpose(1, 2).numpy(), whole_frame_gaps(mask)
+            )
             fill = torch.from_numpy(corrected).transpose(1, 2).to(fill.dtype)
         return fill
     if L <= obs_len:
         raise ValueError(f"prior_fill: the window has {L} frames, not more than the prior's {obs_len} observed ones")
-    head = spline_fill(observed[..., :obs_len], mask[..., :obs_len])               # (B, K, O)
+    head = spline_fill(observed[..., :obs_len], mask[..., :obs_len])  # (B, K, O)
     with torch.no_grad():
         future = prior.rollout(head.float().transpose(1, 2), L - obs_len).transpose(1, 2).to(observed.dtype)
     fill = torch.cat([head, future], dim=-1)
@@ -406,9 +427,9 @@ def fill_gaps(forecaster: nn.Module, fill: torch.Tensor, mask: torch.Tensor) -> 
     if not gaps:
         return fill
     o, length = forecaster.cfg.obs_len, fill.shape[-1]
-    x = fill.float().transpose(1, 2)                                             # (B, L, K)
+    x = fill.float().transpose(1, 2)  # (B, L, K)
 
-    def history(b: int, frames: list) -> torch.Tensor:      # the last o of ``frames``, the first repeated before
+    def history(b: int, frames: list) -> torch.Tensor:  # the last o of ``frames``, the first repeated before
         return x[b, [frames[max(0, len(frames) - o + j)] for j in range(o)]]
 
     hist, sides = [], []
@@ -423,7 +444,7 @@ def fill_gaps(forecaster: nn.Module, fill: torch.Tensor, mask: torch.Tensor) -> 
         sides.append((fwd, bwd))
     horizon = max(e - s for _, s, e in gaps) + 1
     with torch.no_grad():
-        pred = forecaster.rollout(torch.stack(hist), horizon)                    # (N, horizon, K)
+        pred = forecaster.rollout(torch.stack(hist), horizon)  # (N, horizon, K)
     out = x.clone()
     for (b, s, e), (fwd, bwd) in zip(gaps, sides):
         n = e - s
@@ -434,7 +455,7 @@ def fill_gaps(forecaster: nn.Module, fill: torch.Tensor, mask: torch.Tensor) -> 
             forward = pred[fwd, :n] + w * miss
         if bwd is not None:
             miss = x[b, s - 1] - pred[bwd, n] if s > 0 else torch.zeros_like(pred[bwd, n])
-            backward = pred[bwd, :n].flip(0) + (1 - w) * miss    # backward frame i: its forecast's n - 1 - i
+            backward = pred[bwd, :n].flip(0) + (1 - w) * miss  # backward frame i: its forecast's n - 1 - i
         if forward is None:
             both = backward
         elif backward is None:
@@ -445,8 +466,9 @@ def fill_gaps(forecaster: nn.Module, fill: torch.Tensor, mask: torch.Tensor) -> 
     return out.transpose(1, 2).to(fill.dtype)
 
 
-def condition(cfg: ModelConfig, observed: torch.Tensor, mask: torch.Tensor,
-              prior: nn.Module | None = None) -> torch.Tensor:
+def condition(
+    cfg: ModelConfig, observed: torch.Tensor, mask: torch.Tensor, prior: nn.Module | None = None
+) -> torch.Tensor:
     """What the observed channel of the network holds (``cfg.cond_fill``): ``mask * observed`` (CSDI/TCD),
     or the observation with its masked entries filled (linear, spline, prior)."""
     if cfg.cond_fill == "zero":
@@ -456,15 +478,17 @@ def condition(cfg: ModelConfig, observed: torch.Tensor, mask: torch.Tensor,
     return FILLS[cfg.cond_fill](observed, mask)
 
 
-def residual_base(cfg: ModelConfig, observed: torch.Tensor, mask: torch.Tensor,
-                  prior: nn.Module | None = None) -> torch.Tensor:
+def residual_base(
+    cfg: ModelConfig, observed: torch.Tensor, mask: torch.Tensor, prior: nn.Module | None = None
+) -> torch.Tensor:
     """What a residual target is taken over: the fill its name says (``"spline_residual"``: spline_fill, ...)."""
     name = cfg.target.removesuffix("_residual")
     return prior_fill(prior, observed, mask) if name == "prior" else FILLS[name](observed, mask)
 
 
-def to_target(cfg: ModelConfig, x0: torch.Tensor, observed: torch.Tensor, mask: torch.Tensor,
-              prior: nn.Module | None = None) -> torch.Tensor:
+def to_target(
+    cfg: ModelConfig, x0: torch.Tensor, observed: torch.Tensor, mask: torch.Tensor, prior: nn.Module | None = None
+) -> torch.Tensor:
     """Clean windows -> the variable the diffusion runs on: x0 itself (``target="absolute"``) or
     ``target_scale * (x0 - base)`` with the base of the residual (:func:`residual_base`)."""
     if cfg.target == "absolute":
@@ -472,8 +496,9 @@ def to_target(cfg: ModelConfig, x0: torch.Tensor, observed: torch.Tensor, mask: 
     return (x0 - residual_base(cfg, observed, mask, prior)) * cfg.target_scale
 
 
-def from_target(cfg: ModelConfig, x: torch.Tensor, observed: torch.Tensor, mask: torch.Tensor,
-                prior: nn.Module | None = None) -> torch.Tensor:
+def from_target(
+    cfg: ModelConfig, x: torch.Tensor, observed: torch.Tensor, mask: torch.Tensor, prior: nn.Module | None = None
+) -> torch.Tensor:
     """Inverse of :func:`to_target` on a sample: ``base + x * (1 / target_scale)`` in float32 (the
     Rust engine's operation order)."""
     if cfg.target == "absolute":
@@ -490,23 +515,25 @@ def load_grown(model: TCDModel, state: dict) -> int:
     differs is an error. Returns the number of layers added."""
     prefix = "diffmodel.residual_layers."
 
-    def layer_of(key: str) -> int:           # "diffmodel.residual_layers.3.mid_projection.weight" -> 3
-        return int(key[len(prefix):].split(".")[0])
+    def layer_of(key: str) -> int:  # "diffmodel.residual_layers.3.mid_projection.weight" -> 3
+        return int(key[len(prefix) :].split(".")[0])
 
     have = 1 + max((layer_of(k) for k in state if k.startswith(prefix)), default=-1)
     layers = model.diffmodel.residual_layers
     added = len(layers) - have
     if added < 0:
-        raise ValueError(f"init_from has {have} residual layers, the config {len(layers)}: a model can grow, "
-                         "not shrink")
+        raise ValueError(
+            f"init_from has {have} residual layers, the config {len(layers)}: a model can grow, not shrink"
+        )
     try:
         missing, unexpected = model.load_state_dict(state, strict=False)
-    except RuntimeError as e:                  # shapes differ: another channel count, joint count or embedding
+    except RuntimeError as e:  # shapes differ: another channel count, joint count or embedding
         raise ValueError(f"init_from does not fit the config: {e}") from None
     new = {k for k in model.state_dict() if k.startswith(prefix) and layer_of(k) >= have}
     if unexpected or set(missing) != new:
-        raise ValueError(f"init_from does not fit the config: missing {sorted(set(missing) - new)}, "
-                         f"unexpected {sorted(unexpected)}")
+        raise ValueError(
+            f"init_from does not fit the config: missing {sorted(set(missing) - new)}, unexpected {sorted(unexpected)}"
+        )
     if added:
         with torch.no_grad():
             for layer in layers[have:]:

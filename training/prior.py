@@ -35,6 +35,7 @@ held-out subjects (``val_subjects``, every ``val_every`` iterations; ``best.pt``
                              [--max-minutes M] [--threads 1]
     python -m training.prior --config training/configs/humaneva_prior.json --out runs/humaneva_prior
 """
+
 from __future__ import annotations
 
 import argparse
@@ -64,52 +65,52 @@ DATASET_JOINTS = {"h36m": 22, "humaneva": 14}
 
 @dataclass
 class PriorConfig:
-    obs_len: int = 50                # observed frames the network reads
-    chunk: int = 10                  # frames one forward predicts (rolled out to longer horizons)
-    blocks: int = 48                 # temporal FC + layer norm blocks
+    obs_len: int = 50  # observed frames the network reads
+    chunk: int = 10  # frames one forward predicts (rolled out to longer horizons)
+    blocks: int = 48  # temporal FC + layer norm blocks
     lr: float = 3e-4
     lr_final: float = 1e-5
-    lr_decay_at: float = 0.75        # fraction of the iterations after which lr_final is used
+    lr_decay_at: float = 0.75  # fraction of the iterations after which lr_final is used
     weight_decay: float = 1e-4
     batch_size: int = 256
     iterations: int = 40_000
-    flip_prob: float = 0.5           # temporal-flip augmentation
-    rotate_axis: str = ""            # "" or the data's vertical axis: each window turned about it (training.augment)
-    mirror_prob: float = 0.0         # the fraction of windows mirrored (left and right swapped; needs rotate_axis)
-    obs_noise_mm: float = 0.0        # sigma of the Gaussian noise put on every observed coordinate of a noisy window
-    obs_noise_prob: float = 0.0      # the fraction of windows made noisy (the target frames stay clean)
-    speed_range: tuple = ()          # () or (lo, hi): each window played at a speed log-uniform in [lo, hi]
-    velocity_weight: float = 1.0     # weight of the velocity term of the loss
-    loss_frames: int = 0             # future frames the loss covers, rolled out chunk by chunk (0: one chunk)
-    subjects: tuple = (1, 6, 7, 8, 9, 11)   # siMLPe's training subjects (S5 is the test subject); HumanEva: 1..3
+    flip_prob: float = 0.5  # temporal-flip augmentation
+    rotate_axis: str = ""  # "" or the data's vertical axis: each window turned about it (training.augment)
+    mirror_prob: float = 0.0  # the fraction of windows mirrored (left and right swapped; needs rotate_axis)
+    obs_noise_mm: float = 0.0  # sigma of the Gaussian noise put on every observed coordinate of a noisy window
+    obs_noise_prob: float = 0.0  # the fraction of windows made noisy (the target frames stay clean)
+    speed_range: tuple = ()  # () or (lo, hi): each window played at a speed log-uniform in [lo, hi]
+    velocity_weight: float = 1.0  # weight of the velocity term of the loss
+    loss_frames: int = 0  # future frames the loss covers, rolled out chunk by chunk (0: one chunk)
+    subjects: tuple = (1, 6, 7, 8, 9, 11)  # siMLPe's training subjects (S5 is the test subject); HumanEva: 1..3
     seed: int = 0
-    init_from: str = ""              # a later installment: the last.pt (or exported prior.safetensors) whose weights
-                                     # start this run (fresh Adam;
-                                     # a deeper config grows it: load_grown)
-    dataset: str = "h36m"            # "h36m" (Human3.6M, 22 joints) or "humaneva" (HumanEva-I Train split, 14 joints)
-    h36m_share: float = 0.0          # HumanEva-I: the fraction of windows from Human3.6M retargeted to its skeleton
-                                     # (training.data.humaneva.training_mix)
-    val_subjects: tuple = ()         # held out from training: with val_every, the loss on val_windows fixed windows
-    val_every: int = 0               # of theirs every val_every iterations, and best.pt keeps the weights with the
-    val_windows: int = 512           # lowest (0: no validation; the repair fill oscillates without it)
-    anchor: str = "last"             # "last": the next chunk, added to the last observed pose (the forecaster);
-                                     # "window": chunk = obs_len, a correction added to the input window itself
-                                     # (the repair fill: the spline-filled window of a masked observation in,
-                                     # the repaired window out; see repair_batch)
-    mask_mix: tuple = ()             # anchor "window": the masks trained on (training.masks.mix_entry entries)
-    gap_fill: str = "none"           # anchor "window": "forecaster" fills runs of wholly hidden frames from the
-                                     # prior forecaster beside it (training.model.fill_gaps, attach_gap_forecaster)
-    inbetween_context: int = 0       # gap_fill "forecaster": the in-betweener's context frames (training.inbetween;
-    inbetween_max_gap: int = 0       # its kernels, fitted after training, for gaps of 1 .. inbetween_max_gap frames)
-    joint_inbetween_context: int = 0   # anchor "window": the joint in-betweener's (runs of one coordinate hidden
-    joint_inbetween_max_gap: int = 0   # in frames with others seen; training.inbetween.fit_joint_runs)
-    window_loss: str = "pooled"      # anchor "window": "pooled", the mean error over every hidden joint of the
-                                     # batch; "log_window", the mean over windows of the log of each window's
-                                     # mean error (scale-free: a window hiding nearly everything, tens of mm
-                                     # off, no longer outweighs the few-mm occlusions; see docs/repair.md)
-    val_mask_mix: tuple = ()         # anchor "window": validate on each of these patterns (mask_mix entries)
-                                     # apart, scored by the geometric mean of their errors (empty: the mask_mix's
-                                     # pooled loss)
+    init_from: str = ""  # a later installment: the last.pt (or exported prior.safetensors) whose weights
+    # start this run (fresh Adam;
+    # a deeper config grows it: load_grown)
+    dataset: str = "h36m"  # "h36m" (Human3.6M, 22 joints) or "humaneva" (HumanEva-I Train split, 14 joints)
+    h36m_share: float = 0.0  # HumanEva-I: the fraction of windows from Human3.6M retargeted to its skeleton
+    # (training.data.humaneva.training_mix)
+    val_subjects: tuple = ()  # held out from training: with val_every, the loss on val_windows fixed windows
+    val_every: int = 0  # of theirs every val_every iterations, and best.pt keeps the weights with the
+    val_windows: int = 512  # lowest (0: no validation; the repair fill oscillates without it)
+    anchor: str = "last"  # "last": the next chunk, added to the last observed pose (the forecaster);
+    # "window": chunk = obs_len, a correction added to the input window itself
+    # (the repair fill: the spline-filled window of a masked observation in,
+    # the repaired window out; see repair_batch)
+    mask_mix: tuple = ()  # anchor "window": the masks trained on (training.masks.mix_entry entries)
+    gap_fill: str = "none"  # anchor "window": "forecaster" fills runs of wholly hidden frames from the
+    # prior forecaster beside it (training.model.fill_gaps, attach_gap_forecaster)
+    inbetween_context: int = 0  # gap_fill "forecaster": the in-betweener's context frames (training.inbetween;
+    inbetween_max_gap: int = 0  # its kernels, fitted after training, for gaps of 1 .. inbetween_max_gap frames)
+    joint_inbetween_context: int = 0  # anchor "window": the joint in-betweener's (runs of one coordinate hidden
+    joint_inbetween_max_gap: int = 0  # in frames with others seen; training.inbetween.fit_joint_runs)
+    window_loss: str = "pooled"  # anchor "window": "pooled", the mean error over every hidden joint of the
+    # batch; "log_window", the mean over windows of the log of each window's
+    # mean error (scale-free: a window hiding nearly everything, tens of mm
+    # off, no longer outweighs the few-mm occlusions; see docs/repair.md)
+    val_mask_mix: tuple = ()  # anchor "window": validate on each of these patterns (mask_mix entries)
+    # apart, scored by the geometric mean of their errors (empty: the mask_mix's
+    # pooled loss)
 
     @classmethod
     def load(cls, path: str | Path) -> "PriorConfig":
@@ -137,8 +138,9 @@ class PriorConfig:
         if not 0.0 <= self.mirror_prob <= 1.0:
             raise ValueError(f"prior config: mirror_prob must be in [0, 1], got {self.mirror_prob!r}")
         if self.mirror_prob > 0.0 and not self.rotate_axis:
-            raise ValueError("prior config: mirror_prob needs rotate_axis (the data's vertical, which the mirror "
-                             "plane holds)")
+            raise ValueError(
+                "prior config: mirror_prob needs rotate_axis (the data's vertical, which the mirror plane holds)"
+            )
         if not (math.isfinite(self.obs_noise_mm) and self.obs_noise_mm >= 0.0):
             raise ValueError(f"prior config: obs_noise_mm must be a finite number >= 0, got {self.obs_noise_mm!r}")
         if not 0.0 <= self.obs_noise_prob <= 1.0:
@@ -146,56 +148,81 @@ class PriorConfig:
         if self.speed_range:
             lo, hi = (tuple(map(float, self.speed_range)) + (math.nan,))[:2]
             if len(self.speed_range) != 2 or not (0.0 < lo <= hi and math.isfinite(hi)):
-                raise ValueError(f"prior config: speed_range must be [] or [lo, hi] with 0 < lo <= hi, "
-                                 f"got {list(self.speed_range)!r}")
+                raise ValueError(
+                    f"prior config: speed_range must be [] or [lo, hi] with 0 < lo <= hi, "
+                    f"got {list(self.speed_range)!r}"
+                )
         if self.dataset not in DATASET_JOINTS:
             raise ValueError(f"prior config: dataset must be one of {sorted(DATASET_JOINTS)}, got {self.dataset!r}")
         if self.dataset == "humaneva" and not set(self.subjects) <= {1, 2, 3}:
-            raise ValueError("prior config: a HumanEva-I prior trains on subjects among [1, 2, 3] (the Train split's "
-                             f"S1..S3); set \"subjects\": [1, 2, 3], got {list(self.subjects)}")
+            raise ValueError(
+                "prior config: a HumanEva-I prior trains on subjects among [1, 2, 3] (the Train split's "
+                f'S1..S3); set "subjects": [1, 2, 3], got {list(self.subjects)}'
+            )
         from .data.humaneva import check_h36m_share
+
         check_h36m_share(self.h36m_share, self.dataset, "prior config")
         if int(self.val_every) < 0 or int(self.val_windows) < 1:
-            raise ValueError(f"prior config: val_every must be >= 0 and val_windows >= 1, got {self.val_every!r}, "
-                             f"{self.val_windows!r}")
+            raise ValueError(
+                f"prior config: val_every must be >= 0 and val_windows >= 1, got {self.val_every!r}, "
+                f"{self.val_windows!r}"
+            )
         if self.val_every and not self.val_subjects:
             raise ValueError("prior config: val_every needs val_subjects (the held-out subjects it validates on)")
         if set(self.val_subjects) & set(self.subjects):
-            raise ValueError(f"prior config: val_subjects {list(self.val_subjects)} must be held out of subjects "
-                             f"{list(self.subjects)}")
+            raise ValueError(
+                f"prior config: val_subjects {list(self.val_subjects)} must be held out of subjects "
+                f"{list(self.subjects)}"
+            )
         if self.anchor not in ANCHORS:
             raise ValueError(f"prior config: anchor must be one of {list(ANCHORS)}, got {self.anchor!r}")
         if self.anchor == "window":
             if self.chunk != self.obs_len or int(self.loss_frames) != 0:
-                raise ValueError("prior config: anchor \"window\" corrects its whole input: chunk must equal obs_len "
-                                 f"and loss_frames be 0, got chunk {self.chunk}, obs_len {self.obs_len}, "
-                                 f"loss_frames {self.loss_frames}")
-            if self.dataset != "h36m":      # training.masks draws masks over Human3.6M's 22 model joints
-                raise ValueError(f"prior config: anchor \"window\" (a repair fill) trains on Human3.6M, got "
-                                 f"dataset {self.dataset!r}")
+                raise ValueError(
+                    'prior config: anchor "window" corrects its whole input: chunk must equal obs_len '
+                    f"and loss_frames be 0, got chunk {self.chunk}, obs_len {self.obs_len}, "
+                    f"loss_frames {self.loss_frames}"
+                )
+            if self.dataset != "h36m":  # training.masks draws masks over Human3.6M's 22 model joints
+                raise ValueError(
+                    f'prior config: anchor "window" (a repair fill) trains on Human3.6M, got dataset {self.dataset!r}'
+                )
             from .masks import mix_entry
+
             for entry in self.mask_mix + tuple(self.val_mask_mix):
                 mix_entry(entry)
             if self.obs_noise_prob > 0.0 or self.speed_range or self.mirror_prob > 0.0:
-                raise ValueError("prior config: anchor \"window\" supports flips and rotations only (no obs_noise, "
-                                 "speed_range or mirror)")
+                raise ValueError(
+                    'prior config: anchor "window" supports flips and rotations only (no obs_noise, '
+                    "speed_range or mirror)"
+                )
         elif self.mask_mix:
-            raise ValueError("prior config: mask_mix is for anchor \"window\" (a forecaster sees whole frames)")
+            raise ValueError('prior config: mask_mix is for anchor "window" (a forecaster sees whole frames)')
         if self.gap_fill not in GAP_FILLS:
             raise ValueError(f"prior config: gap_fill must be one of {list(GAP_FILLS)}, got {self.gap_fill!r}")
         if self.window_loss not in WINDOW_LOSSES:
-            raise ValueError(f"prior config: window_loss must be one of {list(WINDOW_LOSSES)}, "
-                             f"got {self.window_loss!r}")
+            raise ValueError(
+                f"prior config: window_loss must be one of {list(WINDOW_LOSSES)}, got {self.window_loss!r}"
+            )
         if (self.window_loss != "pooled" or self.val_mask_mix) and self.anchor != "window":
-            raise ValueError("prior config: window_loss and val_mask_mix are for a repair fill (anchor \"window\")")
+            raise ValueError('prior config: window_loss and val_mask_mix are for a repair fill (anchor "window")')
         if self.gap_fill != "none" and self.anchor != "window":
-            raise ValueError("prior config: gap_fill is for a repair fill (anchor \"window\"); a forecaster fills "
-                             "no gaps")
+            raise ValueError(
+                'prior config: gap_fill is for a repair fill (anchor "window"); a forecaster fills no gaps'
+            )
         # the two in-betweeners (training.inbetween), each on the fills it is for (the engine's check, the same)
-        for name, fits, what in (("inbetween", self.gap_fill == "forecaster",
-                                  "the in-betweener corrects the gap fill (gap_fill \"forecaster\") of gaps"),
-                                 ("joint_inbetween", self.anchor == "window",
-                                  "the joint in-betweener is a repair fill's (anchor \"window\"), for runs")):
+        for name, fits, what in (
+            (
+                "inbetween",
+                self.gap_fill == "forecaster",
+                'the in-betweener corrects the gap fill (gap_fill "forecaster") of gaps',
+            ),
+            (
+                "joint_inbetween",
+                self.anchor == "window",
+                'the joint in-betweener is a repair fill\'s (anchor "window"), for runs',
+            ),
+        ):
             context, max_gap = getattr(self, f"{name}_context"), getattr(self, f"{name}_max_gap")
             if (context > 0) != (max_gap > 0) or min(context, max_gap) < 0:
                 raise ValueError(f"prior config: {name}_context and {name}_max_gap are both 0 or both >= 1")
@@ -218,15 +245,22 @@ class PriorConfig:
     @classmethod
     def from_dict(cls, d: dict) -> "PriorConfig":
         """The config of a checkpoint's dict (one written before ``dataset`` existed is a Human3.6M one)."""
-        return cls(**{**d, "subjects": tuple(d["subjects"]), "speed_range": tuple(d.get("speed_range", ())),
-                      "mask_mix": tuple(d.get("mask_mix", ())), "val_subjects": tuple(d.get("val_subjects", ())),
-                      "val_mask_mix": tuple(d.get("val_mask_mix", ()))})
+        return cls(
+            **{
+                **d,
+                "subjects": tuple(d["subjects"]),
+                "speed_range": tuple(d.get("speed_range", ())),
+                "mask_mix": tuple(d.get("mask_mix", ())),
+                "val_subjects": tuple(d.get("val_subjects", ())),
+                "val_mask_mix": tuple(d.get("val_mask_mix", ())),
+            }
+        )
 
     def to_dict(self) -> dict:
         d = asdict(self)
         d["subjects"] = list(self.subjects)
         d["speed_range"] = list(self.speed_range)
-        d["mask_mix"] = json.loads(json.dumps(self.mask_mix))      # nested lists, as the config file has them
+        d["mask_mix"] = json.loads(json.dumps(self.mask_mix))  # nested lists, as the config file has them
         d["val_subjects"] = list(self.val_subjects)
         d["val_mask_mix"] = json.loads(json.dumps(self.val_mask_mix))
         return d
@@ -252,10 +286,10 @@ class TemporalBlock(nn.Module):
         self.norm_weight = nn.Parameter(torch.ones(coords))
         self.norm_bias = nn.Parameter(torch.zeros(coords))
         self.eps = eps
-        nn.init.xavier_uniform_(self.fc.weight, gain=1e-8)   # start as the identity block
+        nn.init.xavier_uniform_(self.fc.weight, gain=1e-8)  # start as the identity block
         nn.init.zeros_(self.fc.bias)
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:      # (B, coords, frames)
+    def forward(self, x: torch.Tensor) -> torch.Tensor:  # (B, coords, frames)
         y = nn.functional.linear(x, self.fc.weight, self.fc.bias)
         mean = y.mean(dim=1, keepdim=True)
         var = (y - mean).square().mean(dim=1, keepdim=True)  # biased, as LayerNorm
@@ -276,8 +310,11 @@ class PriorNet(nn.Module):
         nn.init.zeros_(self.fc_out.bias)
         # the in-betweeners' kernels (training.inbetween), fitted after training: in the state dict, not trained
         from .inbetween import kernel_width
-        for prefix, context, max_gap in (("inbetween", cfg.inbetween_context, cfg.inbetween_max_gap),
-                                         ("joint_inbetween", cfg.joint_inbetween_context, cfg.joint_inbetween_max_gap)):
+
+        for prefix, context, max_gap in (
+            ("inbetween", cfg.inbetween_context, cfg.inbetween_max_gap),
+            ("joint_inbetween", cfg.joint_inbetween_context, cfg.joint_inbetween_max_gap),
+        ):
             for n in range(1, max_gap + 1):
                 self.register_buffer(f"{prefix}_{n}", torch.zeros(n, kernel_width(n, context)))
 
@@ -290,12 +327,12 @@ class PriorNet(nn.Module):
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         """obs (B, obs_len, K) -> the next ``chunk`` frames (B, chunk, K); for anchor ``"window"`` the input
         window corrected (B, obs_len, K)."""
-        x = nn.functional.linear(obs.transpose(1, 2), self.dct)              # (B, K, obs_len) DCT coefficients
-        x = torch.matmul(self.fc_in.weight, x) + self.fc_in.bias[:, None]    # spatial FC, per coefficient
+        x = nn.functional.linear(obs.transpose(1, 2), self.dct)  # (B, K, obs_len) DCT coefficients
+        x = torch.matmul(self.fc_in.weight, x) + self.fc_in.bias[:, None]  # spatial FC, per coefficient
         for block in self.blocks:
             x = block(x)
         x = torch.matmul(self.fc_out.weight, x) + self.fc_out.bias[:, None]
-        x = nn.functional.linear(x, self.dct.t()[: self.cfg.chunk])          # inverse DCT, first chunk frames
+        x = nn.functional.linear(x, self.dct.t()[: self.cfg.chunk])  # inverse DCT, first chunk frames
         return x.transpose(1, 2) + (obs if self.cfg.anchor == "window" else obs[:, -1:])
 
     def rollout(self, obs: torch.Tensor, horizon: int, step=None) -> torch.Tensor:
@@ -303,16 +340,16 @@ class PriorNet(nn.Module):
         each appended to the history before the next. ``step``: the forward to call (a compiled one), else
         the module itself."""
         if self.cfg.anchor != "last":
-            raise ValueError("rollout: a prior with anchor \"window\" corrects a window, it does not forecast")
+            raise ValueError('rollout: a prior with anchor "window" corrects a window, it does not forecast')
         step = self if step is None else step
-        hist = obs[:, -self.cfg.obs_len:]
+        hist = obs[:, -self.cfg.obs_len :]
         out = []
         n = 0
         while n < horizon:
             nxt = step(hist)
             out.append(nxt)
             n += nxt.shape[1]
-            hist = torch.cat([hist, nxt], dim=1)[:, -self.cfg.obs_len:]
+            hist = torch.cat([hist, nxt], dim=1)[:, -self.cfg.obs_len :]
         return torch.cat(out, dim=1)[:, :horizon]
 
 
@@ -321,8 +358,8 @@ def attach_gap_forecaster(fill: nn.Module, forecaster: nn.Module) -> nn.Module:
     (``training.model.fill_gaps``); returns ``fill``. Kept out of the module's children, so the fill's
     ``state_dict`` (what its file holds) stays its own."""
     if fill.cfg.anchor != "window" or forecaster.cfg.anchor != "last":
-        raise ValueError("attach_gap_forecaster: a repair fill (anchor \"window\") and a forecaster (anchor \"last\")")
-    vars(fill)["gap_forecaster"] = forecaster       # a plain attribute, not a registered submodule
+        raise ValueError('attach_gap_forecaster: a repair fill (anchor "window") and a forecaster (anchor "last")')
+    vars(fill)["gap_forecaster"] = forecaster  # a plain attribute, not a registered submodule
     return fill
 
 
@@ -332,12 +369,15 @@ def count_parameters(model: nn.Module) -> int:
 
 # ------------------------------------------------------------------------------------------ data
 
+
 def dataset_joint_names(dataset: str) -> tuple:
     """The names of the model joints of ``dataset``, in the data's order (left/right are the subject's)."""
     if dataset == "humaneva":
         from .data.humaneva import HUMANEVA_MODEL_JOINT_NAMES
+
         return HUMANEVA_MODEL_JOINT_NAMES
     from tcd.layouts import get_layout
+
     return get_layout("h36m22").joint_names
 
 
@@ -345,19 +385,28 @@ def training_sequences(cfg: PriorConfig, data: str | None = None) -> list[np.nda
     """The training sequences of ``cfg.subjects`` in ``cfg.dataset``, (T, J, 3) float32 metres each."""
     if cfg.dataset == "humaneva":
         from .data.humaneva import training_mix
+
         return training_mix(cfg.h36m_share, cfg.obs_len + cfg.future, data, cfg.subjects)
     from .data.h36m import DEFAULT_H36M_DIR, H36M, SPLITS
+
     known = {s for subs in SPLITS.values() for s in subs}
     if set(cfg.subjects) - known or 5 in cfg.subjects:
-        raise ValueError(f"prior config: subjects must be among {sorted(known - {5})} (S5 is the test subject), "
-                         f"got {list(cfg.subjects)}")
+        raise ValueError(
+            f"prior config: subjects must be among {sorted(known - {5})} (S5 is the test subject), "
+            f"got {list(cfg.subjects)}"
+        )
     h = H36M(data or DEFAULT_H36M_DIR)
-    return [seq for split in ("train", "val") for key, seq in h.sequences(split)
-            if int(key.split("/")[0][1:]) in cfg.subjects]
+    return [
+        seq
+        for split in ("train", "val")
+        for key, seq in h.sequences(split)
+        if int(key.split("/")[0][1:]) in cfg.subjects
+    ]
 
 
-def training_frames(cfg: PriorConfig, data: str | None = None,
-                    seqs: list[np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+def training_frames(
+    cfg: PriorConfig, data: str | None = None, seqs: list[np.ndarray] | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """All training sequences (``seqs``, else :func:`training_sequences`) concatenated, (N, K) float32
     metres, and the start rows of every window of ``obs_len + future`` frames that lies inside one sequence."""
     seqs = training_sequences(cfg, data) if seqs is None else seqs
@@ -380,7 +429,7 @@ def batch(cfg: PriorConfig, frames: np.ndarray, starts: np.ndarray, iteration: i
     rng = np.random.default_rng([cfg.seed, iteration])
     rows = starts[rng.integers(0, len(starts), cfg.batch_size)]
     L = cfg.obs_len + cfg.future
-    if cfg.speed_range:     # its own stream: configs without it keep their batches bit for bit
+    if cfg.speed_range:  # its own stream: configs without it keep their batches bit for bit
         lo, hi = np.log(cfg.speed_range)
         speeds = np.exp(np.random.default_rng([cfg.seed, iteration, 1]).uniform(lo, hi, cfg.batch_size))
         wins = resample(frames, rows, sequence_ends(starts, L)[np.searchsorted(starts, rows)], L, speeds)
@@ -388,18 +437,18 @@ def batch(cfg: PriorConfig, frames: np.ndarray, starts: np.ndarray, iteration: i
         wins = frames[rows[:, None] + np.arange(L)]
     flip = rng.random(cfg.batch_size) < cfg.flip_prob
     wins[flip] = wins[flip, ::-1]
-    if cfg.rotate_axis:     # drawn after the flips: configs without it keep their batches bit for bit
+    if cfg.rotate_axis:  # drawn after the flips: configs without it keep their batches bit for bit
         B, T, K = wins.shape
         wins = rotate_about(wins.reshape(B, T, K // 3, 3), cfg.rotate_axis, rng).reshape(B, T, K)
-    if cfg.mirror_prob > 0.0:        # drawn after the rotation, for the same reason
+    if cfg.mirror_prob > 0.0:  # drawn after the rotation, for the same reason
         B, T, K = wins.shape
         which = rng.random(cfg.batch_size) < cfg.mirror_prob
         perm = mirror_permutation(dataset_joint_names(cfg.dataset))
         wins = mirror(wins.reshape(B, T, K // 3, 3), cfg.rotate_axis, perm, which).reshape(B, T, K)
-    if cfg.obs_noise_prob > 0.0:     # drawn last, for the same reason
+    if cfg.obs_noise_prob > 0.0:  # drawn last, for the same reason
         noisy = rng.random(cfg.batch_size) < cfg.obs_noise_prob
         noise = rng.normal(0.0, cfg.obs_noise_mm * 1e-3, (cfg.batch_size, cfg.obs_len, wins.shape[2]))
-        wins[noisy, :cfg.obs_len] += noise[noisy].astype(wins.dtype)
+        wins[noisy, : cfg.obs_len] += noise[noisy].astype(wins.dtype)
     return torch.from_numpy(np.ascontiguousarray(wins))
 
 
@@ -422,18 +471,21 @@ def repair_batch(cfg: PriorConfig, wins: torch.Tensor, iteration: int) -> tuple[
     The spline is what the engine computes before the fill's forward (``tcd-core`` ``fill_spline``)."""
     from .masks import make_mask, mix_entry
     from .model import spline_fill
+
     mix = [mix_entry(e) for e in cfg.mask_mix]
     p = np.array([w for _, w, _ in mix], dtype=np.float64)
     rng = np.random.default_rng([cfg.seed, iteration, 2])
     B, L, K = wins.shape
-    joint_mask = torch.from_numpy(np.stack([make_mask(mix[i][0], L, L, rng, rate=mix[i][2])
-                                            for i in rng.choice(len(mix), B, p=p / p.sum())]))
-    mk = joint_mask.repeat_interleave(3, -1).transpose(1, 2)                     # (B, K, L)
+    joint_mask = torch.from_numpy(
+        np.stack([make_mask(mix[i][0], L, L, rng, rate=mix[i][2]) for i in rng.choice(len(mix), B, p=p / p.sum())])
+    )
+    mk = joint_mask.repeat_interleave(3, -1).transpose(1, 2)  # (B, K, L)
     return spline_fill(wins.transpose(1, 2), mk).transpose(1, 2).contiguous(), joint_mask
 
 
-def hidden_loss(pred: torch.Tensor, target: torch.Tensor, joint_mask: torch.Tensor,
-                how: str = "pooled") -> torch.Tensor:
+def hidden_loss(
+    pred: torch.Tensor, target: torch.Tensor, joint_mask: torch.Tensor, how: str = "pooled"
+) -> torch.Tensor:
     """The mean per-joint L2 distance over the hidden joints (joint_mask 0) of (B, L, K) windows: what
     ``benches/repair_quality.py`` scores (the observed entries are given back exactly). ``how="log_window"``:
     the mean over the windows with a hidden joint of the log of each one's mean distance instead."""
@@ -451,23 +503,33 @@ def window_loss(cfg: PriorConfig, model: nn.Module, forward, wins: torch.Tensor,
     """The training loss of the windows ``wins`` (:func:`batch`'s): a forecaster's (:func:`loss_fn` on its
     chunk, or on ``loss_frames`` rolled out), or a repair fill's (:func:`hidden_loss` over the masks of
     :func:`repair_batch`'s draw ``draw``). ``forward``: the forward to call (a compiled one), else ``model``."""
-    if cfg.anchor == "window":       # a repair fill: the spline-filled masked window in, the window out
+    if cfg.anchor == "window":  # a repair fill: the spline-filled masked window in, the window out
         filled, joint_mask = repair_batch(cfg, wins, draw)
         return hidden_loss(forward(filled), wins, joint_mask, cfg.window_loss)
-    obs = wins[:, :cfg.obs_len]
+    obs = wins[:, : cfg.obs_len]
     # loss_frames > chunk: the loss covers the rolled-out horizon the prior is used at (HumanEva-I rolls 15
     # frames out to 60), so the network learns to forecast from its own chunks, not only from the data's
     pred = forward(obs) if cfg.future == cfg.chunk else model.rollout(obs, cfg.future, forward)
-    return loss_fn(pred, wins[:, cfg.obs_len:], cfg.velocity_weight)
+    return loss_fn(pred, wins[:, cfg.obs_len :], cfg.velocity_weight)
 
 
-def validation_windows(cfg: PriorConfig, data: str | None = None,
-                       frames: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[PriorConfig, torch.Tensor]:
+def validation_windows(
+    cfg: PriorConfig, data: str | None = None, frames: tuple[np.ndarray, np.ndarray] | None = None
+) -> tuple[PriorConfig, torch.Tensor]:
     """The held-out windows of ``cfg.val_subjects`` a run validates on: ``val_windows`` of them, drawn once
     (draw 0 of a config of those subjects, without flips or turns), and that config (whose ``repair_batch``
     draw 0 gives a repair fill's masks). ``frames`` replaces those subjects' frames (tests)."""
-    vcfg = replace(cfg, subjects=cfg.val_subjects, val_subjects=(), val_every=0, batch_size=cfg.val_windows,
-                   flip_prob=0.0, rotate_axis="", mirror_prob=0.0, h36m_share=0.0)
+    vcfg = replace(
+        cfg,
+        subjects=cfg.val_subjects,
+        val_subjects=(),
+        val_every=0,
+        batch_size=cfg.val_windows,
+        flip_prob=0.0,
+        rotate_axis="",
+        mirror_prob=0.0,
+        h36m_share=0.0,
+    )
     return vcfg, batch(vcfg, *(frames if frames is not None else training_frames(vcfg, data)), 0)
 
 
@@ -477,8 +539,10 @@ def validation_loss(vcfg: PriorConfig, model: nn.Module, val: torch.Tensor) -> f
     pooled hidden error of each (every window masked by each pattern in turn: draw 0)."""
     if not vcfg.val_mask_mix:
         return window_loss(vcfg, model, model, val, 0).item()
-    logs = [math.log(window_loss(replace(vcfg, mask_mix=(entry,), window_loss="pooled"), model, model, val, 0).item())
-            for entry in vcfg.val_mask_mix]
+    logs = [
+        math.log(window_loss(replace(vcfg, mask_mix=(entry,), window_loss="pooled"), model, model, val, 0).item())
+        for entry in vcfg.val_mask_mix
+    ]
     return math.exp(sum(logs) / len(logs))
 
 
@@ -492,13 +556,15 @@ def same_run_so_far(old: PriorConfig, new: PriorConfig, iterations: int) -> bool
     the same. Then a run may be resumed under ``new`` (a schedule shortened or lengthened before its decay):
     the batches are functions of (seed, iteration) only, so the result is the run ``new`` would have made."""
     schedule = {"iterations", "lr_decay_at"}
-    if {k: v for k, v in old.to_dict().items() if k not in schedule} != \
-            {k: v for k, v in new.to_dict().items() if k not in schedule}:
+    if {k: v for k, v in old.to_dict().items() if k not in schedule} != {
+        k: v for k, v in new.to_dict().items() if k not in schedule
+    }:
         return False
     return all(learning_rate(old, i) == learning_rate(new, i) for i in range(iterations))
 
 
 # ------------------------------------------------------------------------------------------ loop
+
 
 def _save(path: Path, state: dict) -> None:
     tmp = path.with_suffix(".tmp")
@@ -506,17 +572,26 @@ def _save(path: Path, state: dict) -> None:
     tmp.replace(path)
 
 
-def train(cfg: PriorConfig, out: str | Path, *, data: str | None = None, resume: bool = False,
-          max_minutes: float | None = None, checkpoint_minutes: float = 5.0, compile: bool = False,
-          frames: tuple[np.ndarray, np.ndarray] | None = None,
-          val_frames: tuple[np.ndarray, np.ndarray] | None = None, log=print) -> dict:
+def train(
+    cfg: PriorConfig,
+    out: str | Path,
+    *,
+    data: str | None = None,
+    resume: bool = False,
+    max_minutes: float | None = None,
+    checkpoint_minutes: float = 5.0,
+    compile: bool = False,
+    frames: tuple[np.ndarray, np.ndarray] | None = None,
+    val_frames: tuple[np.ndarray, np.ndarray] | None = None,
+    log=print,
+) -> dict:
     """Train (or resume) into ``out`` (``last.pt``: weights, optimizer, iteration, loss history, CPU
     seconds). Stops resumably after ``max_minutes``. ``compile``: ``torch.compile`` the forward (1.9x
     the windows/s of eager at 48 blocks on one Zen 5 core, after about 50 s of compiling; the weights are
     the eager module's). ``frames`` replaces the dataset, ``val_frames`` the validation subjects' (tests).
     With ``val_every``, ``best.pt`` (as ``last.pt``) holds the weights of the lowest validation loss."""
     if cfg.anchor == "window" and not cfg.mask_mix:
-        raise ValueError("prior config: anchor \"window\" trains on a mask_mix (the occlusions it learns to fill)")
+        raise ValueError('prior config: anchor "window" trains on a mask_mix (the occlusions it learns to fill)')
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(cfg.seed)
@@ -526,31 +601,40 @@ def train(cfg: PriorConfig, out: str | Path, *, data: str | None = None, resume:
     it, elapsed0, history = 0, 0.0, []
     if resume and last.is_file():
         ck = torch.load(last, map_location="cpu", weights_only=False)
-        if PriorConfig.from_dict(ck["config"]).to_dict() != cfg.to_dict():   # (a config before `dataset`: h36m)
+        if PriorConfig.from_dict(ck["config"]).to_dict() != cfg.to_dict():  # (a config before `dataset`: h36m)
             if not same_run_so_far(PriorConfig.from_dict(ck["config"]), cfg, ck["iteration"]):
                 raise ValueError(f"{last} was trained with another config; start a new --out or use the same config")
-            log(f"{last}: the schedule changes to {cfg.iterations} iterations (decay at {cfg.lr_decay_at}); "
-                f"its {ck['iteration']} iterations are the new schedule's first")
+            log(
+                f"{last}: the schedule changes to {cfg.iterations} iterations (decay at {cfg.lr_decay_at}); "
+                f"its {ck['iteration']} iterations are the new schedule's first"
+            )
         model.load_state_dict(ck["model"])
         opt.load_state_dict(ck["optimizer"])
         it, elapsed0, history = ck["iteration"], ck["elapsed_s"], ck["history"]
         log(f"resumed from {last}: iteration {it}")
     elif cfg.init_from:
-        if str(cfg.init_from).endswith(".safetensors"):      # an exported prior (a bundled one's run may be gone)
+        if str(cfg.init_from).endswith(".safetensors"):  # an exported prior (a bundled one's run may be gone)
             from .export import load_prior_file
+
             init = {"model": load_prior_file(cfg.init_from)[0].state_dict(), "iteration": "exported"}
         else:
             init = torch.load(cfg.init_from, map_location="cpu", weights_only=False)
         grown = load_grown(model, init["model"])
-        log(f"weights from {cfg.init_from} (iteration {init['iteration']} of its run)"
-            + (f"; blocks {cfg.blocks - grown + 1}..{cfg.blocks} added as identities" if grown else ""))
+        log(
+            f"weights from {cfg.init_from} (iteration {init['iteration']} of its run)"
+            + (f"; blocks {cfg.blocks - grown + 1}..{cfg.blocks} added as identities" if grown else "")
+        )
     fr, starts = frames if frames is not None else training_frames(cfg, data)
     if fr.shape[1] != 3 * cfg.num_joints:
-        raise ValueError(f"the {cfg.dataset} prior has {cfg.num_joints} joints ({3 * cfg.num_joints} coordinates), "
-                         f"the training frames {fr.shape[1]} coordinates")
+        raise ValueError(
+            f"the {cfg.dataset} prior has {cfg.num_joints} joints ({3 * cfg.num_joints} coordinates), "
+            f"the training frames {fr.shape[1]} coordinates"
+        )
     forward = torch.compile(model) if compile else model
-    log(f"prior: {count_parameters(model):,} parameters, {len(starts):,} training windows, "
-        f"{torch.get_num_threads()} thread(s)")
+    log(
+        f"prior: {count_parameters(model):,} parameters, {len(starts):,} training windows, "
+        f"{torch.get_num_threads()} thread(s)"
+    )
 
     if cfg.val_every:
         vcfg, val = validation_windows(cfg, data, val_frames)
@@ -558,8 +642,14 @@ def train(cfg: PriorConfig, out: str | Path, *, data: str | None = None, resume:
         log(f"validation: {len(val)} windows of subjects {list(cfg.val_subjects)} every {cfg.val_every} iterations")
 
     def state() -> dict:
-        return {"config": cfg.to_dict(), "model": model.state_dict(), "optimizer": opt.state_dict(),
-                "iteration": it, "elapsed_s": elapsed0 + time.time() - t0, "history": history}
+        return {
+            "config": cfg.to_dict(),
+            "model": model.state_dict(),
+            "optimizer": opt.state_dict(),
+            "iteration": it,
+            "elapsed_s": elapsed0 + time.time() - t0,
+            "history": history,
+        }
 
     t0 = last_ck = time.time()
     run_loss, run_n = 0.0, 0
@@ -574,8 +664,10 @@ def train(cfg: PriorConfig, out: str | Path, *, data: str | None = None, resume:
         run_loss, run_n = run_loss + loss.item(), run_n + 1
         if it % 200 == 0 or it == cfg.iterations:
             history.append({"iteration": it, "loss": run_loss / run_n, "elapsed_s": elapsed0 + time.time() - t0})
-            log(f"iteration {it}/{cfg.iterations}: loss {run_loss / run_n:.5f}, "
-                f"{(elapsed0 + time.time() - t0) / 60:.1f} min")
+            log(
+                f"iteration {it}/{cfg.iterations}: loss {run_loss / run_n:.5f}, "
+                f"{(elapsed0 + time.time() - t0) / 60:.1f} min"
+            )
             run_loss, run_n = 0.0, 0
         if cfg.val_every and (it % cfg.val_every == 0 or it == cfg.iterations):
             with torch.no_grad():
@@ -607,13 +699,17 @@ def load_grown(model: PriorNet, state: dict) -> int:
         raise ValueError(f"init_from has {have} blocks, the config {len(model.blocks)}: a prior can grow, not shrink")
     try:
         missing, unexpected = model.load_state_dict(state, strict=False)
-    except RuntimeError as e:                  # shapes differ: another dataset, obs_len or joint count
+    except RuntimeError as e:  # shapes differ: another dataset, obs_len or joint count
         raise ValueError(f"init_from does not fit the config: {e}") from None
-    new = {f"blocks.{i}.{name}" for i in range(have, len(model.blocks)) for name in ("fc.weight", "fc.bias",
-                                                                                     "norm_weight", "norm_bias")}
+    new = {
+        f"blocks.{i}.{name}"
+        for i in range(have, len(model.blocks))
+        for name in ("fc.weight", "fc.bias", "norm_weight", "norm_bias")
+    }
     if unexpected or set(missing) != new:
-        raise ValueError(f"init_from does not fit the config: missing {sorted(set(missing) - new)}, "
-                         f"unexpected {sorted(unexpected)}")
+        raise ValueError(
+            f"init_from does not fit the config: missing {sorted(set(missing) - new)}, unexpected {sorted(unexpected)}"
+        )
     with torch.no_grad():
         for block in model.blocks[have:]:
             block.norm_weight.zero_()
@@ -630,12 +726,17 @@ def load(path: str | Path) -> PriorNet:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m training.prior", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        prog="python -m training.prior", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--config", required=True, help="prior config JSON (keys of PriorConfig)")
     ap.add_argument("--out", required=True, help="run directory (last.pt)")
-    ap.add_argument("--data", default=None, help="the config's dataset: the Human3.6M directory (default "
-                    "../shared/data/h36m) or the HumanEva-I directory or .npz (default ../shared/data/humaneva)")
+    ap.add_argument(
+        "--data",
+        default=None,
+        help="the config's dataset: the Human3.6M directory (default "
+        "../shared/data/h36m) or the HumanEva-I directory or .npz (default ../shared/data/humaneva)",
+    )
     ap.add_argument("--resume", action="store_true", help="continue from <out>/last.pt")
     ap.add_argument("--max-minutes", type=float, default=None)
     ap.add_argument("--checkpoint-minutes", type=float, default=5.0)
@@ -643,9 +744,16 @@ def main(argv=None) -> int:
     ap.add_argument("--no-compile", dest="compile", action="store_false", help="train the eager forward")
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
-    res = train(PriorConfig.load(args.config), args.out, data=args.data, resume=args.resume,
-                max_minutes=args.max_minutes, checkpoint_minutes=args.checkpoint_minutes, compile=args.compile,
-                log=lambda m: print(m, flush=True))
+    res = train(
+        PriorConfig.load(args.config),
+        args.out,
+        data=args.data,
+        resume=args.resume,
+        max_minutes=args.max_minutes,
+        checkpoint_minutes=args.checkpoint_minutes,
+        compile=args.compile,
+        log=lambda m: print(m, flush=True),
+    )
     print(json.dumps({k: v for k, v in res.items() if k != "history"}))
     return 0
 

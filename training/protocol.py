@@ -26,6 +26,7 @@ Speed: the samplers run the model through its channels-last forward (``training.
 the reference within 1e-5; ``--forward reference`` for the reference itself), with TF32 matrix products
 on CUDA by default (``--precision``: fp32, tf32 or bf16 autocast) and optionally ``torch.compile``.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -49,6 +50,7 @@ HORIZON = "1000"
 
 # ------------------------------------------------------------------------------------------ forwards
 
+
 class Autocast(nn.Module):
     """Runs ``module`` under bf16 autocast and returns float32 (the samplers' arithmetic stays float32)."""
 
@@ -65,6 +67,7 @@ class Autocast(nn.Module):
 def fast_models(models: dict, *, forward: str, precision: str, compile_: bool, device: str) -> dict:
     """``export.load_model_dir``'s dict with each model replaced by the forward the samplers call."""
     from .channels_last import ChannelsLast
+
     dev = torch.device(device)
     if dev.type == "cuda":
         torch.backends.cuda.matmul.allow_tf32 = precision == "tf32"
@@ -76,7 +79,7 @@ def fast_models(models: dict, *, forward: str, precision: str, compile_: bool, d
         if precision == "bf16":
             net = Autocast(net, dev.type)
         if compile_:
-            compiled = torch.compile(net)                 # static shapes: one (chains, K, L) per role
+            compiled = torch.compile(net)  # static shapes: one (chains, K, L) per role
             compiled.cfg = net.cfg
             net = compiled
         out[role] = (net, sched, cfg)
@@ -85,36 +88,71 @@ def fast_models(models: dict, *, forward: str, precision: str, compile_: bool, d
 
 # ------------------------------------------------------------------------------------------ repair
 
-def repair_action(models: dict, data: H36M, pattern: str, action_index: int, action: str, *,
-                  windows_per_action: int, samples: int, steps: int | None, sampler: str, spacing: str, seed: int,
-                  mask_seed: int, device: str, batch_size: int) -> dict:
+
+def repair_action(
+    models: dict,
+    data: H36M,
+    pattern: str,
+    action_index: int,
+    action: str,
+    *,
+    windows_per_action: int,
+    samples: int,
+    steps: int | None,
+    sampler: str,
+    spacing: str,
+    seed: int,
+    mask_seed: int,
+    device: str,
+    batch_size: int,
+) -> dict:
     """Summed distances (mm) over the hidden observation entries of one action's protocol windows, corrupted
     as :func:`evaluate.protocol_windows` corrupts them for the forecast: the repair model and the two
     interpolations."""
     from .diffusion import repair
     from .model import FILLS
+
     model, sched, cfg = models["repair"]
     seq_len = cfg["window"]["seq_len"]
     _, obs_clean, obs, jmask = E.protocol_windows(data, action, action_index, windows_per_action, pattern, mask_seed)
     obs = obs * E.joint_to_coord_mask(jmask)
     sums, count = {"tcd": 0.0, "linear": 0.0, "spline": 0.0}, 0
     for b0 in range(0, len(obs), batch_size):
-        x = E.to_bkl(obs[b0:b0 + batch_size]).to(device)
-        m = E.to_bkl(E.joint_to_coord_mask(jmask[b0:b0 + batch_size])).to(device)
+        x = E.to_bkl(obs[b0 : b0 + batch_size]).to(device)
+        m = E.to_bkl(E.joint_to_coord_mask(jmask[b0 : b0 + batch_size])).to(device)
         gen = torch.Generator(device=device).manual_seed(seed * 1_000_003 + action_index * 10_007 + b0)
-        filled = {"tcd": repair(model, sched, x, m, seq_len=seq_len, num_samples=samples, generator=gen,
-                                sampler=sampler, num_inference_steps=steps, timestep_spacing=spacing),
-                  "linear": FILLS["linear"](x, m), "spline": FILLS["spline"](x, m)}
+        filled = {
+            "tcd": repair(
+                model,
+                sched,
+                x,
+                m,
+                seq_len=seq_len,
+                num_samples=samples,
+                generator=gen,
+                sampler=sampler,
+                num_inference_steps=steps,
+                timestep_spacing=spacing,
+            ),
+            "linear": FILLS["linear"](x, m),
+            "spline": FILLS["spline"](x, m),
+        }
         for name, value in filled.items():
-            total, c = repair_ade(E.from_bkl(value), obs_clean[b0:b0 + batch_size], jmask[b0:b0 + batch_size])
+            total, c = repair_ade(E.from_bkl(value), obs_clean[b0 : b0 + batch_size], jmask[b0 : b0 + batch_size])
             sums[name] += 1000.0 * total
         count += c
-    return {"pattern": pattern, "action": action, "sum_mm": sums, "hidden_entries": count,
-            "ade_mm": {k: v / max(count, 1) for k, v in sums.items()},
-            "label": "distances in mm over the hidden observation entries (tcd: mean of the samples)"}
+    return {
+        "pattern": pattern,
+        "action": action,
+        "sum_mm": sums,
+        "hidden_entries": count,
+        "ade_mm": {k: v / max(count, 1) for k, v in sums.items()},
+        "label": "distances in mm over the hidden observation entries (tcd: mean of the samples)",
+    }
 
 
 # ------------------------------------------------------------------------------------------ parts
+
 
 def parts(patterns, has_repair: bool) -> list[tuple[str, str]]:
     """(kind, pattern) in the order they run: every forecast first (the headline numbers), then repair."""
@@ -127,6 +165,7 @@ def parts(patterns, has_repair: bool) -> list[tuple[str, str]]:
 def weight_digests(d: Path) -> dict:
     """sha256 of each model file: what identifies the weights (the directory's path changes between calls)."""
     import hashlib
+
     return {p.stem: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(d.glob("*.safetensors"))}
 
 
@@ -145,15 +184,28 @@ def run(args) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     from .export import load_model_dir
+
     loaded = load_model_dir(args.model, args.device)
-    models = fast_models(loaded, forward=args.forward, precision=args.precision, compile_=args.compile,
-                         device=args.device)
+    models = fast_models(
+        loaded, forward=args.forward, precision=args.precision, compile_=args.compile, device=args.device
+    )
     data = H36M(args.data)
     actions = data.test_actions()
-    settings = {"model": str(args.model), "weights_sha256": weight_digests(Path(args.model)), "device": args.device,
-                "forward": args.forward, "precision": args.precision, "compile": args.compile, "samples": args.samples,
-                "steps": args.steps, "sampler": args.sampler, "timestep_spacing": args.timestep_spacing,
-                "windows_per_action": args.windows_per_action, "seed": args.seed, "mask_seed": args.mask_seed}
+    settings = {
+        "model": str(args.model),
+        "weights_sha256": weight_digests(Path(args.model)),
+        "device": args.device,
+        "forward": args.forward,
+        "precision": args.precision,
+        "compile": args.compile,
+        "samples": args.samples,
+        "steps": args.steps,
+        "sampler": args.sampler,
+        "timestep_spacing": args.timestep_spacing,
+        "windows_per_action": args.windows_per_action,
+        "seed": args.seed,
+        "mask_seed": args.mask_seed,
+    }
     if torch.cuda.is_available() and torch.device(args.device).type == "cuda":
         settings["gpu"] = torch.cuda.get_device_name()
     t_start, slowest, stopped = time.time(), 0.0, False
@@ -166,29 +218,58 @@ def run(args) -> int:
             if path.is_file():
                 prev = json.loads(path.read_text()).get("settings", {})
                 if identity(prev) != identity(settings):
-                    raise SystemExit(f"{path} was made with other settings or weights ({identity(prev)}, now "
-                                     f"{identity(settings)}); use another --out")
+                    raise SystemExit(
+                        f"{path} was made with other settings or weights ({identity(prev)}, now "
+                        f"{identity(settings)}); use another --out"
+                    )
                 done_before += 1
                 continue
             elapsed = (time.time() - t_start) / 60
             if args.max_minutes is not None and elapsed + slowest > args.max_minutes:
-                print(f"stopping before {kind} {pattern} {action}: {elapsed:.1f} min used, the slowest unit took "
-                      f"{slowest:.1f} of the {args.max_minutes} min budget; run again to continue", file=sys.stderr)
+                print(
+                    f"stopping before {kind} {pattern} {action}: {elapsed:.1f} min used, the slowest unit took "
+                    f"{slowest:.1f} of the {args.max_minutes} min budget; run again to continue",
+                    file=sys.stderr,
+                )
                 stopped = True
                 break
             t0 = time.time()
             if kind == "forecast":
-                ns = argparse.Namespace(model=args.model, mask=pattern, mask_seed=args.mask_seed, seed=args.seed,
-                                        samples=args.samples, steps=args.steps, sampler=args.sampler, eta=0.0,
-                                        timestep_spacing=args.timestep_spacing,
-                                        windows_per_action=args.windows_per_action, batch_size=args.batch_size,
-                                        device=args.device, engine="torch", select="best", quiet=True)
+                ns = argparse.Namespace(
+                    model=args.model,
+                    mask=pattern,
+                    mask_seed=args.mask_seed,
+                    seed=args.seed,
+                    samples=args.samples,
+                    steps=args.steps,
+                    sampler=args.sampler,
+                    eta=0.0,
+                    timestep_spacing=args.timestep_spacing,
+                    windows_per_action=args.windows_per_action,
+                    batch_size=args.batch_size,
+                    device=args.device,
+                    engine="torch",
+                    select="best",
+                    quiet=True,
+                )
                 res = E.evaluate_h36m(ns, models=models, data=data, only=[action])
             else:
-                res = repair_action(models, data, pattern, ai, action, windows_per_action=args.windows_per_action,
-                                    samples=args.samples, steps=args.steps, sampler=args.sampler,
-                                    spacing=args.timestep_spacing, seed=args.seed, mask_seed=args.mask_seed,
-                                    device=args.device, batch_size=args.batch_size)
+                res = repair_action(
+                    models,
+                    data,
+                    pattern,
+                    ai,
+                    action,
+                    windows_per_action=args.windows_per_action,
+                    samples=args.samples,
+                    steps=args.steps,
+                    sampler=args.sampler,
+                    spacing=args.timestep_spacing,
+                    seed=args.seed,
+                    mask_seed=args.mask_seed,
+                    device=args.device,
+                    batch_size=args.batch_size,
+                )
             res["settings"], res["seconds"] = settings, time.time() - t0
             write_json(path, res)
             slowest = max(slowest, res["seconds"] / 60)
@@ -208,6 +289,7 @@ def run(args) -> int:
 
 # ------------------------------------------------------------------------------------------ summary
 
+
 def _mean_over_actions(units: list[dict], block: str) -> dict[str, float]:
     """The whole protocol's average at each horizon: the mean over actions of each action's error."""
     rows = [next(iter(u[block]["per_action"].values())) for u in units]
@@ -218,9 +300,12 @@ def summarize(out: Path, actions: list[str]) -> dict:
     """The units in ``out`` pooled per pattern (see the module docstring), with the goal table's numbers at
     1000 ms and the ratios to Zero-Velocity. ``incomplete`` lists the parts that lack actions."""
     from .masks import PATTERNS
+
     forecast, repair_, incomplete = {}, {}, []
-    parts_found = sorted((d for d in out.iterdir() if d.is_dir() and "_" in d.name),
-                         key=lambda d: (d.name.split("_", 1)[0] != "forecast", PATTERNS.index(d.name.split("_", 1)[1])))
+    parts_found = sorted(
+        (d for d in out.iterdir() if d.is_dir() and "_" in d.name),
+        key=lambda d: (d.name.split("_", 1)[0] != "forecast", PATTERNS.index(d.name.split("_", 1)[1])),
+    )
     for d in parts_found:
         kind, pattern = d.name.split("_", 1)
         units = [json.loads((d / f"{a}.json").read_text()) for a in actions if (d / f"{a}.json").is_file()]
@@ -233,20 +318,37 @@ def summarize(out: Path, actions: list[str]) -> dict:
             entries = sum(u.get("repair", {}).get("occluded_entries", 0) for u in units)
             rep = sum(u["repair"]["ade_mm"] * u["repair"]["occluded_entries"] for u in units if "repair" in u)
             forecast[pattern] = {
-                "actions": len(units), "zero_velocity_mm": zv[HORIZON], "best_of_n_mm": best[HORIZON],
-                "mean_of_n_mm": mean[HORIZON], "best_of_n_ratio": best[HORIZON] / zv[HORIZON],
-                "mean_of_n_ratio": mean[HORIZON] / zv[HORIZON], "zero_velocity_all_horizons": zv,
-                "best_of_n_all_horizons": best, "mean_of_n_all_horizons": mean,
+                "actions": len(units),
+                "zero_velocity_mm": zv[HORIZON],
+                "best_of_n_mm": best[HORIZON],
+                "mean_of_n_mm": mean[HORIZON],
+                "best_of_n_ratio": best[HORIZON] / zv[HORIZON],
+                "mean_of_n_ratio": mean[HORIZON] / zv[HORIZON],
+                "zero_velocity_all_horizons": zv,
+                "best_of_n_all_horizons": best,
+                "mean_of_n_all_horizons": mean,
                 "cascade_repair_ade_mm": rep / entries if entries else None,
                 "windows_per_action": units[0]["protocol"]["windows_per_action"],
-                "samples": units[0]["sampling"]["samples"], "steps": units[0]["sampling"]["steps"]}
+                "samples": units[0]["sampling"]["samples"],
+                "steps": units[0]["sampling"]["steps"],
+            }
         else:
             count = sum(u["hidden_entries"] for u in units)
             a = {k: sum(u["sum_mm"][k] for u in units) / max(count, 1) for k in ("tcd", "linear", "spline")}
-            repair_[pattern] = dict(a, actions=len(units), hidden_entries=count, tcd_over_linear=a["tcd"] / a["linear"],
-                                    tcd_over_spline=a["tcd"] / a["spline"])
-    return {"horizon_ms": int(HORIZON), "actions": len(actions), "forecast": forecast, "repair": repair_,
-            "incomplete": incomplete}
+            repair_[pattern] = dict(
+                a,
+                actions=len(units),
+                hidden_entries=count,
+                tcd_over_linear=a["tcd"] / a["linear"],
+                tcd_over_spline=a["tcd"] / a["spline"],
+            )
+    return {
+        "horizon_ms": int(HORIZON),
+        "actions": len(actions),
+        "forecast": forecast,
+        "repair": repair_,
+        "incomplete": incomplete,
+    }
 
 
 def score(summary: dict) -> dict:
@@ -255,23 +357,34 @@ def score(summary: dict) -> dict:
     over patterns of the repair model's ADE over the natural spline's. None where not evaluated."""
     f = [v["mean_of_n_ratio"] for v in summary["forecast"].values()]
     r = [v["tcd_over_spline"] for v in summary["repair"].values()]
-    return {"forecast": float(np.mean(f)) if f else None, "repair": float(np.mean(r)) if r else None,
-            "forecast_patterns": sorted(summary["forecast"]), "repair_patterns": sorted(summary["repair"])}
+    return {
+        "forecast": float(np.mean(f)) if f else None,
+        "repair": float(np.mean(r)) if r else None,
+        "forecast_patterns": sorted(summary["forecast"]),
+        "repair_patterns": sorted(summary["repair"]),
+    }
 
 
 def table(summary: dict) -> str:
     lines = ["| pattern | Zero-Velocity mm | best of n mm (ratio) | mean of n mm (ratio) |", "|---|---|---|---|"]
     for p, v in summary["forecast"].items():
         p = p if v["actions"] == summary["actions"] else f"{p} ({v['actions']} of {summary['actions']} actions)"
-        lines.append(f"| {p} | {v['zero_velocity_mm']:.1f} | {v['best_of_n_mm']:.1f} ({v['best_of_n_ratio']:.3f}) "
-                     f"| {v['mean_of_n_mm']:.1f} ({v['mean_of_n_ratio']:.3f}) |")
+        lines.append(
+            f"| {p} | {v['zero_velocity_mm']:.1f} | {v['best_of_n_mm']:.1f} ({v['best_of_n_ratio']:.3f}) "
+            f"| {v['mean_of_n_mm']:.1f} ({v['mean_of_n_ratio']:.3f}) |"
+        )
     if summary["repair"]:
-        lines += ["", "| pattern | repair ADE mm: tcd | linear | spline | tcd / linear | tcd / spline |",
-                  "|---|---|---|---|---|---|"]
+        lines += [
+            "",
+            "| pattern | repair ADE mm: tcd | linear | spline | tcd / linear | tcd / spline |",
+            "|---|---|---|---|---|---|",
+        ]
         for p, v in summary["repair"].items():
             p = p if v["actions"] == summary["actions"] else f"{p} ({v['actions']} of {summary['actions']} actions)"
-            lines.append(f"| {p} | {v['tcd']:.2f} | {v['linear']:.2f} | {v['spline']:.2f} | "
-                         f"{v['tcd_over_linear']:.3f} | {v['tcd_over_spline']:.3f} |")
+            lines.append(
+                f"| {p} | {v['tcd']:.2f} | {v['linear']:.2f} | {v['spline']:.2f} | "
+                f"{v['tcd_over_linear']:.3f} | {v['tcd_over_spline']:.3f} |"
+            )
     return "\n".join(lines)
 
 
@@ -283,8 +396,9 @@ def unit_scores(d: Path, key: str, pattern: str) -> dict[str, float]:
         u = json.loads(path.read_text())
         if key == "forecast":
             action = next(iter(u["mean_of_n"]["per_action"]))
-            out[action] = (u["mean_of_n"]["per_action"][action][HORIZON]
-                           / u["zero_velocity"]["per_action"][action][HORIZON])
+            out[action] = (
+                u["mean_of_n"]["per_action"][action][HORIZON] / u["zero_velocity"]["per_action"][action][HORIZON]
+            )
         else:
             out[u["action"]] = u["sum_mm"]["tcd"] / u["sum_mm"]["spline"]
     return out
@@ -299,8 +413,11 @@ def compare(a: Path, b: Path, margin: float = 0.01) -> dict:
     sa, sb = (json.loads((d / "summary.json").read_text()) for d in (a, b))
     paired, better = {}, {}
     for key in ("forecast", "repair"):
-        common = sorted(p for p in set(sa[key]) & set(sb[key])
-                        if sa[key][p]["actions"] == sa["actions"] and sb[key][p]["actions"] == sb["actions"])
+        common = sorted(
+            p
+            for p in set(sa[key]) & set(sb[key])
+            if sa[key][p]["actions"] == sa["actions"] and sb[key][p]["actions"] == sb["actions"]
+        )
         sa[key] = {p: v for p, v in sa[key].items() if p in common}
         sb[key] = {p: v for p, v in sb[key].items() if p in common}
         diffs = []
@@ -313,27 +430,46 @@ def compare(a: Path, b: Path, margin: float = 0.01) -> dict:
     fa, fb = score(sa), score(sb)
     for key in ("forecast", "repair"):
         x, y, pr = fa[key], fb[key], paired[key]
-        if x is None or y is None or not pr["pairs"] or abs(x - y) <= margin * max(x, y) \
-                or abs(pr["mean_difference"]) <= 2 * pr["standard_error"] or (x < y) != (pr["mean_difference"] < 0):
-            better[key] = None             # too close, too noisy, or the pooled and per-action views disagree
+        if (
+            x is None
+            or y is None
+            or not pr["pairs"]
+            or abs(x - y) <= margin * max(x, y)
+            or abs(pr["mean_difference"]) <= 2 * pr["standard_error"]
+            or (x < y) != (pr["mean_difference"] < 0)
+        ):
+            better[key] = None  # too close, too noisy, or the pooled and per-action views disagree
         else:
             better[key] = str(a) if x < y else str(b)
-    return {"a": {"dir": str(a), **fa}, "b": {"dir": str(b), **fb}, "margin": margin, "paired": paired,
-            "better": better}
+    return {
+        "a": {"dir": str(a), **fa},
+        "b": {"dir": str(b), **fb},
+        "margin": margin,
+        "paired": paired,
+        "better": better,
+    }
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m training.protocol", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        prog="python -m training.protocol", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     who = ap.add_mutually_exclusive_group(required=True)
     who.add_argument("--model", help="model directory (short, long and optionally repair .safetensors)")
     who.add_argument("--compare", nargs=2, metavar="RESULTS", help="two result directories to compare")
-    ap.add_argument("--margin", type=float, default=0.01,
-                    help="with --compare: the relative difference of scores that counts as better (default 0.01)")
+    ap.add_argument(
+        "--margin",
+        type=float,
+        default=0.01,
+        help="with --compare: the relative difference of scores that counts as better (default 0.01)",
+    )
     ap.add_argument("--out", help="result directory (one JSON per part; existing parts are kept)")
     ap.add_argument("--data", default=str(DEFAULT_DATA_ROOT / "h36m"), help="Human3.6M exp-map data (S5 is enough)")
-    ap.add_argument("--patterns", default=",".join(PROTOCOL_PATTERNS),
-                    help=f"comma-separated observation patterns (default {','.join(PROTOCOL_PATTERNS)})")
+    ap.add_argument(
+        "--patterns",
+        default=",".join(PROTOCOL_PATTERNS),
+        help=f"comma-separated observation patterns (default {','.join(PROTOCOL_PATTERNS)})",
+    )
     ap.add_argument("--windows-per-action", type=int, default=256)
     ap.add_argument("--samples", type=int, default=5)
     ap.add_argument("--steps", type=int, default=None, help="inference steps (default: all training steps)")
@@ -342,11 +478,13 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0, help="sampling seed")
     ap.add_argument("--mask-seed", type=int, default=0)
     ap.add_argument("--device", default="cpu")
-    ap.add_argument("--batch-size", type=int, default=None, help="windows per sampling batch (default 16 on the "
-                                                                   "CPU, 128 on a GPU)")
+    ap.add_argument(
+        "--batch-size", type=int, default=None, help="windows per sampling batch (default 16 on the CPU, 128 on a GPU)"
+    )
     ap.add_argument("--forward", choices=["channels_last", "reference"], default="channels_last")
-    ap.add_argument("--precision", choices=["fp32", "tf32", "bf16"], default=None,
-                    help="default tf32 on CUDA, fp32 elsewhere")
+    ap.add_argument(
+        "--precision", choices=["fp32", "tf32", "bf16"], default=None, help="default tf32 on CUDA, fp32 elsewhere"
+    )
     ap.add_argument("--compile", action="store_true", help="torch.compile the forwards")
     ap.add_argument("--max-minutes", type=float, default=None)
     ap.add_argument("--threads", type=int, default=None, help="torch CPU threads")
@@ -359,6 +497,7 @@ def main(argv=None) -> int:
     if not args.out:
         ap.error("--out is required with --model")
     from .masks import PATTERNS
+
     args.patterns = [p for p in args.patterns.split(",") if p]
     unknown = [p for p in args.patterns if p not in PATTERNS]
     if unknown or not args.patterns:

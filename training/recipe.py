@@ -296,7 +296,7 @@ class Runner:
             if key == "recipe":
                 return str(self.dependency(*arg.split("/", 1)))
             if key == "data":
-                return self.data or str(ROOT.parent / "shared" / "data")
+                return self.data or os.environ.get("TCD_DATA_DIR") or str(ROOT.parent / "shared" / "data")
             if key == "threads":
                 return str(self.threads)
             if key == "device":
@@ -641,7 +641,11 @@ def main(argv=None) -> int:
         default="bundled",
         help="other recipes' files ({input:...}): the bundled ones, or those recipes' runs",
     )
-    ap.add_argument("--data", default=None, help="the data root (default ../shared/data)")
+    ap.add_argument(
+        "--data",
+        default=None,
+        help="the data root, with h36m/ and humaneva/ (default $TCD_DATA_DIR, else ../shared/data)",
+    )
     ap.add_argument(
         "--smoke",
         action="store_true",

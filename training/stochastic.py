@@ -13,6 +13,7 @@ sample at one frame is the **L2 norm of the whole D-dim pose difference** (not a
 distances); report it only when comparing with MotionDiff's numbers, and say so.
 Papers print these numbers x1000 (e.g. DLow's ADE 0.425 appears as 425).
 """
+
 from __future__ import annotations
 
 from typing import Sequence
@@ -38,8 +39,8 @@ def pairwise_distances(pred) -> np.ndarray:
     out = np.empty(s * (s - 1) // 2)
     pos = 0
     for a in range(s - 1):
-        d = np.linalg.norm(flat[a + 1:] - flat[a], axis=1)
-        out[pos:pos + d.size] = d
+        d = np.linalg.norm(flat[a + 1 :] - flat[a], axis=1)
+        out[pos : pos + d.size] = d
         pos += d.size
     return out
 
@@ -100,9 +101,13 @@ def mmfde(pred, gt_multi) -> float:
     return float(np.mean([fde(pred, g) for g in gt_multi]))
 
 
-def evaluate_stochastic(preds: Sequence[np.ndarray], gts: Sequence[np.ndarray],
-                        gt_multis: Sequence[np.ndarray], include_apd_top50: bool = False,
-                        per_window: bool = False) -> dict:
+def evaluate_stochastic(
+    preds: Sequence[np.ndarray],
+    gts: Sequence[np.ndarray],
+    gt_multis: Sequence[np.ndarray],
+    include_apd_top50: bool = False,
+    per_window: bool = False,
+) -> dict:
     """Average each metric over the test windows (each window weighs 1, as DLow's ``AverageMeter``).
 
     ``preds[i]`` (S, t_pred, D), ``gts[i]`` (t_pred, D), ``gt_multis[i]`` (M_i, t_pred, D).

@@ -13,6 +13,7 @@ the narrow mean and variance, so the norms keep their weights. Each attention he
 the factor (the head count stays): its queries are scaled by 1 / sqrt(factor), which undoes the wider head's
 1 / sqrt(head dim) against the factor-times longer dot product of repeated queries and keys.
 """
+
 from __future__ import annotations
 
 import math
@@ -73,7 +74,7 @@ class _Splitter:
         if c_copy is not None:
             n_in = w2.shape[1]
             r = (torch.rand(len(r_old), n_in, self.f, generator=self.gen, dtype=torch.float64) - 0.5) * self.spread
-            share = 1.0 / self.f + r - r.mean(-1, keepdim=True)           # sums to 1 over the copies
+            share = 1.0 / self.f + r - r.mean(-1, keepdim=True)  # sums to 1 over the copies
             wide = wide * share[:, c_old, c_copy].to(wide.device, wide.dtype)
         if row_scale is not None:
             wide = wide * row_scale[:, None].to(wide.device, wide.dtype)
@@ -90,14 +91,14 @@ def widen_state(state: dict, cfg: ModelConfig, factor: int, seed: int = 0, sprea
     ``training.model.TCDModel`` state_dict of config ``cfg``) computes (up to float rounding); ``seed`` draws the
     copies' shares: each copy's weight is the narrow weight x (1 / factor + u - the mean of the copies' u), u uniform
     of width ``spread`` about 0, so the shares of one weight sum to 1."""
-    widened_config(cfg, factor)                        # checks the factor
+    widened_config(cfg, factor)  # checks the factor
     C, F, H, f = cfg.channels, cfg.ffn_dim, cfg.num_heads, factor
     if C % H:
         raise ValueError(f"channels {C} is not a multiple of num_heads {H}")
     sp = _Splitter(f, seed, spread)
     plain_c, plain_f, heads_c, halves_c = _plain(C, f), _plain(F, f), _heads(C, H, f), _halves(C, f)
     q_scale = torch.cat([torch.full((C * f,), 1.0 / math.sqrt(f)), torch.ones(2 * C * f)])
-    qkv_rows = torch.cat([heads_c[0] + k * C for k in range(3)]), None     # queries | keys | values, by head
+    qkv_rows = torch.cat([heads_c[0] + k * C for k in range(3)]), None  # queries | keys | values, by head
     out = {}
     seen = set()
 
@@ -135,7 +136,7 @@ def widen_state(state: dict, cfg: ModelConfig, factor: int, seed: int = 0, sprea
             put(q + "linear2", plain_c, plain_f)
             norm(q + "norm1")
             norm(q + "norm2")
-    for k, v in state.items():                         # what does not depend on the width, as it was
+    for k, v in state.items():  # what does not depend on the width, as it was
         if k not in seen:
             if not (k.startswith("embed_layer.") or k.startswith(d + "diffusion_embedding.")):
                 raise ValueError(f"widen_state does not know the tensor {k!r}")
@@ -156,6 +157,8 @@ def widen_to(cfg: ModelConfig, state: dict, seed: int = 0) -> tuple[dict, int]:
     f = cfg.channels // narrow
     ffn = state["diffmodel.residual_layers.0.time_layer.layers.0.linear1.weight"].shape[0]
     if ffn * f != cfg.ffn_dim:
-        raise ValueError(f"init_from has {narrow} channels and a feed-forward width of {ffn}; the config asks "
-                         f"{cfg.channels} and {cfg.ffn_dim}: widening multiplies both by the same factor")
+        raise ValueError(
+            f"init_from has {narrow} channels and a feed-forward width of {ffn}; the config asks "
+            f"{cfg.channels} and {cfg.ffn_dim}: widening multiplies both by the same factor"
+        )
     return widen_state(state, replace(cfg, channels=narrow, ffn_dim=ffn), f, seed), f

@@ -17,14 +17,25 @@ deterministic prior forecaster on (B, T, K) frames). Poses from the wild: :mod:`
 Errors: :mod:`tcd.exceptions`. Inference runs in a Rust engine (no torch). Modules whose name starts with an
 underscore are internal.
 """
+
 from __future__ import annotations
 
 from . import engine, exceptions
 from ._native import __version__
 from .exceptions import InvalidInputError, ModelNotBundledError, TcdError, WeightsError
 from ._interpolation import interpolate
-from .model import (BUNDLED_MODELS, TCD, Forecast, Repair, default_model_dir, forecast, humaneva_model_dir, load,
-                    predict, repair)
+from .model import (
+    BUNDLED_MODELS,
+    TCD,
+    Forecast,
+    Repair,
+    default_model_dir,
+    forecast,
+    humaneva_model_dir,
+    load,
+    predict,
+    repair,
+)
 from .options import SamplerOptions
 from .batch_repair import repair_file  # `tcd repair` / offline repair of files of any length (issue 6)
 

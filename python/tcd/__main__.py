@@ -1,4 +1,5 @@
 """``python -m tcd``: the ``tcd`` command line."""
+
 import sys
 
 from .cli import main

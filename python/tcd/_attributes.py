@@ -7,6 +7,7 @@ share.
 checkers (``__get__`` returns the type given) and listed with its type and text by ``help()`` under "Data
 descriptors". One declaration per attribute instead of a hand-written property that forwards it.
 """
+
 from __future__ import annotations
 
 import json
@@ -92,9 +93,12 @@ class NativeModel(Generic[N]):
     path = NativeAttribute(str, "The weight file's path (or the name given to :meth:`from_bytes`).")
     num_features = NativeAttribute(int, "K = num_joints * 3.")
     num_joints = NativeAttribute(int, "Joints of the model (its config's ``model.num_joints``).")
-    kernel = NativeAttribute(str, 'The compute kernels in use: ``"portable"``, ``"avx2"`` or ``"avx512"`` (chosen '
-                             "when the file is loaded: ``$TCD_KERNEL``, default the best this CPU supports, see "
-                             ":func:`tcd.engine.supported_kernels`).")
+    kernel = NativeAttribute(
+        str,
+        'The compute kernels in use: ``"portable"``, ``"avx2"`` or ``"avx512"`` (chosen '
+        "when the file is loaded: ``$TCD_KERNEL``, default the best this CPU supports, see "
+        ":func:`tcd.engine.supported_kernels`).",
+    )
 
     def __repr__(self) -> str:
         return repr(self._native)

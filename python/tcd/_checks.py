@@ -1,5 +1,6 @@
 """Argument checks shared by the public API: each failure is an InvalidInputError naming the argument,
 what was expected and what was received."""
+
 from __future__ import annotations
 
 import math
@@ -50,7 +51,7 @@ def machine_int(argument: str, value: Any, bits: int = 64) -> int:
     """An int (not bool) that fits the binding's signed ``bits``-bit parameter (64, or 128 for seeds and stream
     ids, whose range is 0..2**64 - 1): the conversion is Python's to check, the range the engine's (a value
     out of range there is an InvalidInputError naming the argument, not an OverflowError)."""
-    if not _is_int(value) or not -2**(bits - 1) <= int(value) < 2**(bits - 1):
+    if not _is_int(value) or not -(2 ** (bits - 1)) <= int(value) < 2 ** (bits - 1):
         raise fail(argument, "an integer", f"{value!r} ({type(value).__name__})")
     return int(value)
 
@@ -68,8 +69,12 @@ def real(argument: str, value: Any) -> float:
 
 def frame_rate(value: Any) -> float:
     """A positive, finite frame rate (frames per second), as a float; an InvalidInputError naming ``fps``."""
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (numbers.Real, np.floating, np.integer)) \
-            or not math.isfinite(float(value)) or float(value) <= 0:
+    if (
+        isinstance(value, (bool, np.bool_))
+        or not isinstance(value, (numbers.Real, np.floating, np.integer))
+        or not math.isfinite(float(value))
+        or float(value) <= 0
+    ):
         raise fail("fps", "a positive, finite frame rate (frames per second)", repr(value))
     return float(value)
 
@@ -122,17 +127,23 @@ def stream_ids(value: Any) -> Optional[List[int]]:
         return None
     a = np.asarray(value)
     if a.ndim != 1 or (a.size and a.dtype.kind not in "iu"):
-        raise fail("sequences", "a 1-D sequence of integer stream ids, one per sequence",
-                   f"an array of shape {shape_str(a.shape)} and dtype {a.dtype}")
+        raise fail(
+            "sequences",
+            "a 1-D sequence of integer stream ids, one per sequence",
+            f"an array of shape {shape_str(a.shape)} and dtype {a.dtype}",
+        )
     return [int(v) for v in a]
 
 
 def streams(seed: Any, first_sequence: Any, sequences: Any, threads: Any) -> dict:
     """The keywords every seeded engine call takes (``seed``, ``first_sequence``, ``sequences``, ``threads``),
     checked and converted for the binding; the engine checks their ranges against the call."""
-    return {"seed": optional_machine_int("seed", seed, 128),
-            "first_sequence": machine_int("first_sequence", first_sequence, 128),
-            "sequences": stream_ids(sequences), "threads": optional_machine_int("threads", threads)}
+    return {
+        "seed": optional_machine_int("seed", seed, 128),
+        "first_sequence": machine_int("first_sequence", first_sequence, 128),
+        "sequences": stream_ids(sequences),
+        "threads": optional_machine_int("threads", threads),
+    }
 
 
 def shape_str(shape: Sequence[int]) -> str:

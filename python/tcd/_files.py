@@ -1,6 +1,7 @@
 """Every file the package writes goes through here: it is written under a temporary name in the
 destination directory and renamed into place, so an output either is complete or does not exist. And the
 one reader of the user's .npz inputs (:func:`read_npz`), which says what a file is when it is not one."""
+
 from __future__ import annotations
 
 import errno
@@ -67,7 +68,8 @@ def read_pose_npz(path: Path) -> Dict[str, np.ndarray]:
         raise UnreadableFile(
             "an AMASS file: its `poses` are SMPL-H joint rotations (axis-angle), not joint positions; compute the "
             "joints with the SMPL-H body model (the smplx package) and pass them as `poses` (T, 24, 3) with "
-            "layout smpl24")
+            "layout smpl24"
+        )
     return data
 
 
@@ -138,6 +140,7 @@ def write_atomic(dst: Path, write: Callable[[IO[Any]], Any], overwrite: bool = T
 
 def write_npz_atomic(dst: Path, overwrite: bool, **arrays: np.ndarray) -> None:
     """Writes ``arrays`` to ``dst`` (``np.savez``) atomically, synced to disk."""
+
     def write(fh: IO[bytes]) -> None:
         np.savez(fh, **arrays)
         fh.flush()

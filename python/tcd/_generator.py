@@ -14,6 +14,7 @@ the caller passes it: the generator runs no prior of its own).
 Arrays are float32 **(B, T, K)**, frame-major like :class:`tcd.engine.Prior`'s; the samples (S, B, pred_len, K).
 Its public home is :mod:`tcd.engine` (``tcd.engine.Generator``).
 """
+
 from __future__ import annotations
 
 from typing import Optional, Sequence
@@ -46,13 +47,23 @@ class Generator(NativeModel[_native.Generator]):
     hidden = NativeAttribute(int, "Width of the hidden layers.")
     layers = NativeAttribute(int, "Hidden layers (each a Linear and the exact GELU).")
     z_dim = NativeAttribute(int, "Noise values one sample reads: the last axis of injected ``noise``.")
-    coefs = NativeAttribute(int, "C <= pred_len: the DCT coefficients of the forecast it reads and of the residual "
-                            "it adds to it.")
+    coefs = NativeAttribute(
+        int, "C <= pred_len: the DCT coefficients of the forecast it reads and of the residual it adds to it."
+    )
 
     # ------------------------------------------------------------------ compute
-    def sample(self, obs: ArrayLike, prior: ArrayLike, num_samples: int = 1, *, noise: Optional[ArrayLike] = None,
-               seed: Optional[int] = None, first_sequence: int = 0, sequences: Optional[Sequence[int]] = None,
-               threads: Optional[int] = None) -> np.ndarray:
+    def sample(
+        self,
+        obs: ArrayLike,
+        prior: ArrayLike,
+        num_samples: int = 1,
+        *,
+        noise: Optional[ArrayLike] = None,
+        seed: Optional[int] = None,
+        first_sequence: int = 0,
+        sequences: Optional[Sequence[int]] = None,
+        threads: Optional[int] = None,
+    ) -> np.ndarray:
         """``num_samples`` forecasts of each sequence: ``obs`` (B, T, K) float32 with T >= ``obs_len`` (the last
         ``obs_len`` frames are read and must be finite) and ``prior`` (B, ``pred_len``, K), the prior forecaster's
         forecast of each (finite) -> (S, B, ``pred_len``, K) float32.
@@ -63,6 +74,9 @@ class Generator(NativeModel[_native.Generator]):
         (S, B, z_dim) is the noise it reads. ``threads`` (default: all cores) share the samples; results depend
         neither on it nor on the other sequences of the batch. Ctrl-C stops the call within about 0.1 s."""
         return self._native.sample(
-            _checks.float32_array("obs", obs), _checks.float32_array("prior", prior),
-            _checks.machine_int("num_samples", num_samples), noise=_checks.optional_float32_array("noise", noise),
-            **_checks.streams(seed, first_sequence, sequences, threads))
+            _checks.float32_array("obs", obs),
+            _checks.float32_array("prior", prior),
+            _checks.machine_int("num_samples", num_samples),
+            noise=_checks.optional_float32_array("noise", noise),
+            **_checks.streams(seed, first_sequence, sequences, threads),
+        )

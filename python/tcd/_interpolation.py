@@ -1,6 +1,7 @@
 """Interpolation of missing pose values along time: the engine's linear and natural-cubic-spline fills,
 the very ones a model with interpolated conditioning sees (``cond_fill`` in the weight file), offered as
 a function so that baselines, the demo and the benchmarks use the same code instead of copies."""
+
 from __future__ import annotations
 
 from typing import Literal, Optional
@@ -19,8 +20,7 @@ INTERPOLATIONS = tuple(_native.INTERPOLATIONS)
 Interpolation = Literal["linear", "spline"]
 
 
-def interpolate(poses: ArrayLike, mask: Optional[ArrayLike] = None, *,
-                method: Interpolation = "linear") -> np.ndarray:
+def interpolate(poses: ArrayLike, mask: Optional[ArrayLike] = None, *, method: Interpolation = "linear") -> np.ndarray:
     """Fills the missing values of ``poses`` (T, J, 3) or (B, T, J, 3), NaN = missing (or ``mask``: 1 =
     observed, of ``poses``' shape or without its last axis), along time, per sequence, joint and coordinate.
 

@@ -6,6 +6,7 @@ noise (S, n + 1, B, K, L) ((S, 1, B, K, L) for ``sampler="dpmpp2m"``). The sampl
 ``tcd.exceptions.WeightsError`` (bad weight file), ``FileNotFoundError`` (missing file),
 ``OSError`` (unreadable file), ``tcd.exceptions.TcdError`` (anything else).
 """
+
 import os
 from typing import Any, Callable, Dict, List, Optional, Tuple, Union, final
 
@@ -94,9 +95,7 @@ class Denoiser:
     def num_train_timesteps(self) -> int: ...
     def timesteps(self, options: SamplerOptions) -> List[int]: ...
     def num_noise_blocks(self, options: SamplerOptions) -> int: ...
-    def forward(
-        self, noisy: _F32, observed: _F32, mask: _F32, step: int, *, threads: Optional[int] = None
-    ) -> _F32: ...
+    def forward(self, noisy: _F32, observed: _F32, mask: _F32, step: int, *, threads: Optional[int] = None) -> _F32: ...
     def sample(
         self,
         observed: _F32,

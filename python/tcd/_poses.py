@@ -6,6 +6,7 @@ What it checks is what only Python can see: that the input converts to numbers, 
 mask says observed, and that every sequence has something observed. Units, the engine's layout and the
 engine's own checks (sizes against the model, sampler settings) are the callers'.
 """
+
 from __future__ import annotations
 
 import math
@@ -18,8 +19,16 @@ from numpy.typing import ArrayLike
 from . import _checks
 from .exceptions import InvalidInputError
 
-__all__ = ["PLAUSIBLE_SPREAD_M", "Poses", "UNIT_SCALE", "Units", "check_units", "check_window", "spread_m",
-           "validate_poses"]
+__all__ = [
+    "PLAUSIBLE_SPREAD_M",
+    "Poses",
+    "UNIT_SCALE",
+    "Units",
+    "check_units",
+    "check_window",
+    "spread_m",
+    "validate_poses",
+]
 
 #: The units a pose array may be in (the ``units`` argument of every call that takes poses).
 Units = Literal["m", "cm", "mm"]
@@ -37,9 +46,9 @@ def check_units(value: Any) -> Units:
 class Poses:
     """A checked pose input, always with a batch axis."""
 
-    values: np.ndarray    # (B, T, J, 3) the caller's values in a float dtype (float64 for integer input)
+    values: np.ndarray  # (B, T, J, 3) the caller's values in a float dtype (float64 for integer input)
     observed: np.ndarray  # (B, T, J, 3) bool, True = observed (the mask, or ~isnan(values) without one)
-    batched: bool         # whether the caller gave the batch axis
+    batched: bool  # whether the caller gave the batch axis
 
     @property
     def dtype(self) -> np.dtype:
@@ -55,11 +64,11 @@ PLAUSIBLE_SPREAD_M = (0.01, 3.0)
 def spread_m(values: np.ndarray, observed: np.ndarray, units: str) -> Optional[float]:
     """The median distance (metres) of the observed joints from their frame's centroid, over the frames with
     at least two fully observed joints; None when no frame has two (nothing to measure)."""
-    joint_seen = observed.all(axis=-1)                                   # (B, T, J)
-    frames = joint_seen.sum(axis=-1) >= 2                                # (B, T)
+    joint_seen = observed.all(axis=-1)  # (B, T, J)
+    frames = joint_seen.sum(axis=-1) >= 2  # (B, T)
     if not frames.any():
         return None
-    v = np.where(joint_seen[..., None], values, 0.0)[frames].astype(np.float64)   # (N, J, 3)
+    v = np.where(joint_seen[..., None], values, 0.0)[frames].astype(np.float64)  # (N, J, 3)
     seen = joint_seen[frames]
     centroid = v.sum(axis=1, keepdims=True) / seen.sum(axis=1)[:, None, None]
     dist = np.linalg.norm(v - centroid, axis=-1)[seen]
@@ -69,20 +78,28 @@ def spread_m(values: np.ndarray, observed: np.ndarray, units: str) -> Optional[f
 def _check_plausible(values: np.ndarray, observed: np.ndarray, units: str, name: str, owner: str) -> None:
     spread = spread_m(values, observed, units)
     low, high = PLAUSIBLE_SPREAD_M
-    if spread is None or spread == 0.0 or low <= spread <= high:   # 0: every joint at one point, no scale
+    if spread is None or spread == 0.0 or low <= spread <= high:  # 0: every joint at one point, no scale
         return
     # the unit in which the person measures closest to a typical 0.3 m
     fits = {u: spread * UNIT_SCALE[units] / UNIT_SCALE[u] for u in UNIT_SCALE}
     fits = {u: v for u, v in fits.items() if low <= v <= high}
     likely = min(fits, key=lambda u: abs(math.log(fits[u] / 0.3))) if fits else None
     words = {"m": "metres", "cm": "centimetres", "mm": "millimetres"}
-    hint = (f"the values look like {words[likely]}: pass units={likely!r}" if likely
-            else "no supported unit fits: are these poses?")
-    subject = (f"Argument `units` must be the unit of `{name}` ({units!r}), but" if owner == "Argument"
-               else f"{owner} `{name}` is not in the declared units ({units!r}):")
+    hint = (
+        f"the values look like {words[likely]}: pass units={likely!r}"
+        if likely
+        else "no supported unit fits: are these poses?"
+    )
+    subject = (
+        f"Argument `units` must be the unit of `{name}` ({units!r}), but"
+        if owner == "Argument"
+        else f"{owner} `{name}` is not in the declared units ({units!r}):"
+    )
     raise InvalidInputError(
         f"{subject} its observed joints lie a median {spread:.4g} m from their frame's centroid (a person "
-        f"measures about 0.15-0.5 m; accepted {low}-{high} m): {hint}.", "units")
+        f"measures about 0.15-0.5 m; accepted {low}-{high} m): {hint}.",
+        "units",
+    )
 
 
 def _fail(names: Tuple[str, str], which: int, expected: str, received: str, owner: str) -> InvalidInputError:
@@ -92,9 +109,16 @@ def _fail(names: Tuple[str, str], which: int, expected: str, received: str, owne
     return InvalidInputError(str(e).replace("Argument ", f"{owner} ", 1), names[which])
 
 
-def validate_poses(obs: ArrayLike, mask: Optional[ArrayLike] = None, *, num_joints: Optional[int],
-                   batched_ok: bool = True, names: Tuple[str, str] = ("obs", "mask"),
-                   owner: str = "Argument", units: Optional[str] = None) -> Poses:
+def validate_poses(
+    obs: ArrayLike,
+    mask: Optional[ArrayLike] = None,
+    *,
+    num_joints: Optional[int],
+    batched_ok: bool = True,
+    names: Tuple[str, str] = ("obs", "mask"),
+    owner: str = "Argument",
+    units: Optional[str] = None,
+) -> Poses:
     """Checks poses (T, J, 3) (or (B, T, J, 3) when ``batched_ok``) with NaN = missing, and an optional
     ``mask`` of the same shape or without the last axis (1 = observed).
 
@@ -105,6 +129,7 @@ def validate_poses(obs: ArrayLike, mask: Optional[ArrayLike] = None, *, num_join
     given, the values must be plausible poses in that unit (:data:`PLAUSIBLE_SPREAD_M`), else an
     InvalidInputError naming ``units`` and the unit that fits.
     Raises :class:`tcd.exceptions.InvalidInputError` naming the array at fault."""
+
     def fail(which: int, expected: str, received: str) -> InvalidInputError:
         return _fail(names, which, expected, received, owner)
 
@@ -113,7 +138,7 @@ def validate_poses(obs: ArrayLike, mask: Optional[ArrayLike] = None, *, num_join
         a = np.asarray(obs)
     except (ValueError, TypeError) as e:
         raise fail(0, f"an array of shape {layouts}", f"an object numpy cannot convert ({e})") from None
-    if a.dtype.kind not in "iuf":   # booleans are not coordinates
+    if a.dtype.kind not in "iuf":  # booleans are not coordinates
         raise fail(0, f"a float array of shape {layouts}", f"an array of dtype {a.dtype}")
     t_rule = "T >= 1 frames"
     j_rule = f"J = {num_joints} joints" if num_joints is not None else "J >= 1 joints"
@@ -125,8 +150,9 @@ def validate_poses(obs: ArrayLike, mask: Optional[ArrayLike] = None, *, num_join
     a4 = a if batched else a[None]
     b, t, j, c = a4.shape
     if c != 3:
-        raise fail(0, f"an array of shape {want} (3 coordinates per joint)",
-                   f"shape {shape} with {c} coordinates per joint")
+        raise fail(
+            0, f"an array of shape {want} (3 coordinates per joint)", f"shape {shape} with {c} coordinates per joint"
+        )
     if j != num_joints and num_joints is not None:
         raise fail(0, f"an array of shape {want} (the model's joint layout)", f"shape {shape} with {j} joints")
     if j < 1:
@@ -140,8 +166,11 @@ def validate_poses(obs: ArrayLike, mask: Optional[ArrayLike] = None, *, num_join
     nan = np.isnan(a4)
     inf = np.isinf(a4)
     if inf.any():
-        raise fail(0, "finite, with NaN marking missing values",
-                   f"{a4[inf][0]} at index {_index(np.argwhere(inf)[0], batched)}")
+        raise fail(
+            0,
+            "finite, with NaN marking missing values",
+            f"{a4[inf][0]} at index {_index(np.argwhere(inf)[0], batched)}",
+        )
 
     if mask is None:
         full = ~nan
@@ -153,25 +182,38 @@ def validate_poses(obs: ArrayLike, mask: Optional[ArrayLike] = None, *, num_join
         if m.dtype.kind not in "biuf":
             raise fail(1, "an array of 0 (missing) and 1 (observed)", f"an array of dtype {m.dtype}")
         if m.shape not in (a.shape, a.shape[:-1]):
-            raise fail(1, f"an array of shape {shape} or {_checks.shape_str(a.shape[:-1])} (the shape of "
-                          f"`{names[0]}`, optionally without its last axis)", f"shape {_checks.shape_str(m.shape)}")
+            raise fail(
+                1,
+                f"an array of shape {shape} or {_checks.shape_str(a.shape[:-1])} (the shape of "
+                f"`{names[0]}`, optionally without its last axis)",
+                f"shape {_checks.shape_str(m.shape)}",
+            )
         bad = ~((m == 0) | (m == 1))
         if bad.any():
-            raise fail(1, "0 (missing) or 1 (observed) everywhere",
-                       f"{m[bad][0]!r} at index {tuple(int(i) for i in np.argwhere(bad)[0])}")
+            raise fail(
+                1,
+                "0 (missing) or 1 (observed) everywhere",
+                f"{m[bad][0]!r} at index {tuple(int(i) for i in np.argwhere(bad)[0])}",
+            )
         m = m.astype(bool)
         if m.shape == a.shape[:-1]:
             m = np.repeat(m[..., None], 3, axis=-1)
         full = m if batched else m[None]
         clash = full & nan
         if clash.any():
-            raise fail(0, f"a number wherever `{names[1]}` is 1 (observed)",
-                       f"NaN at index {_index(np.argwhere(clash)[0], batched)}, where {names[1]} is 1")
+            raise fail(
+                0,
+                f"a number wherever `{names[1]}` is 1 (observed)",
+                f"NaN at index {_index(np.argwhere(clash)[0], batched)}, where {names[1]} is 1",
+            )
     empty = ~full.reshape(b, -1).any(axis=1)
     if empty.any():
         which = f"sequence {int(np.argmax(empty))} of `{names[0]}`" if batched else f"`{names[0]}`"
-        raise fail(0 if mask is None else 1, "an observation with at least one observed value per sequence",
-                   f"{which} in which every value is missing")
+        raise fail(
+            0 if mask is None else 1,
+            "an observation with at least one observed value per sequence",
+            f"{which} in which every value is missing",
+        )
     if units is not None:
         _check_plausible(a4, full, units, names[0], owner)
     return Poses(values=a4, observed=full, batched=batched)
@@ -184,9 +226,12 @@ def check_window(seen: np.ndarray, window: int, batched: bool) -> None:
     empty = ~seen.reshape(seen.shape[0], -1).any(axis=1)
     if empty.any():
         which = f"sequence {int(np.argmax(empty))} of `obs`" if batched else "`obs`"
-        raise _checks.fail("obs", f"an observation with at least one observed value per sequence in the model's "
-                                  f"window (its last {window} frames, at the model's frame rate)",
-                           f"{which} with every value missing there")
+        raise _checks.fail(
+            "obs",
+            f"an observation with at least one observed value per sequence in the model's "
+            f"window (its last {window} frames, at the model's frame rate)",
+            f"{which} with every value missing there",
+        )
 
 
 def _index(idx: np.ndarray, batched: bool) -> Tuple[int, ...]:

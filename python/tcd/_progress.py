@@ -9,6 +9,7 @@ Ctrl-C is seen by a call made from the main thread (the only one where Python ru
 another thread, raise in the callback) in a process where SIGINT raises KeyboardInterrupt, Python's default:
 a process started with SIGINT ignored (a script's ``python app.py &``) keeps it ignored, and tcd does not
 change it. A Ctrl-C that arrived just before the call stops it before its first forward."""
+
 from __future__ import annotations
 
 import sys

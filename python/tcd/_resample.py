@@ -1,5 +1,6 @@
 """Resampling pose sequences between frame rates, the one rule dataset repair (:mod:`tcd.batch_repair`), poses
 from the wild (:mod:`tcd.wild`) and tempo sampling (:mod:`tcd.tempo`) share."""
+
 from __future__ import annotations
 
 import math
@@ -9,7 +10,7 @@ import numpy as np
 
 __all__ = ["resample_forward", "resample_backward"]
 
-_EPS = 1e-9   # frame positions this close to a source frame are that frame
+_EPS = 1e-9  # frame positions this close to a source frame are that frame
 
 
 def resample_forward(x: np.ndarray, m: np.ndarray, src_fps: float, dst_fps: float) -> Tuple[np.ndarray, np.ndarray]:

@@ -15,6 +15,7 @@ Length, either way: the length rule of :mod:`tcd.model` counted in model frames 
 the last ``obs_len`` of them, a shorter observation padded at the start with missing frames), and at least
 2 observed frames per sequence (the root's motion is measured on them).
 """
+
 from __future__ import annotations
 
 import math
@@ -45,16 +46,20 @@ def _prepare(model: Any, obs: Any, mask: Any, layout: Any, fps: Any, up: Any, un
     """Checks the call's poses and settings; returns what the engine needs and how to come back."""
     lay = get_layout(layout)
     if model.fps is None:
-        raise _checks.fail("fps", "None: the model does not record its frame rate, so poses cannot be resampled",
-                           repr(fps))
+        raise _checks.fail(
+            "fps", "None: the model does not record its frame rate, so poses cannot be resampled", repr(fps)
+        )
     src_fps = _fps(fps, float(model.fps))
     up_v = wild.up_vector(up)
     p = validate_poses(obs, mask, num_joints=lay.num_joints, units=units)
     seen_frames = p.observed.reshape(p.observed.shape[0], p.observed.shape[1], -1).any(-1).sum(-1)
     if (seen_frames < 2).any():
-        raise _checks.fail("obs", "an observation with at least 2 observed frames per sequence (to measure motion)",
-                           f"{int(seen_frames.min())} observed frame(s)")
-    joint_seen = p.observed.all(-1, keepdims=True)           # a joint is observed when all 3 coordinates are
+        raise _checks.fail(
+            "obs",
+            "an observation with at least 2 observed frames per sequence (to measure motion)",
+            f"{int(seen_frames.min())} observed frame(s)",
+        )
+    joint_seen = p.observed.all(-1, keepdims=True)  # a joint is observed when all 3 coordinates are
     x = np.where(joint_seen, p.values, np.nan).astype(np.float64) / UNIT_SCALE[units]
     xm, times = wild.resample_to_model(x, src_fps, float(model.fps), frames)
     y, scene = wild.to_model(xm, lay, up_v, sightings=x)
@@ -103,7 +108,7 @@ def _rotation_onto(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     v, c = np.cross(a, b), float(np.dot(a, b))
     if c > 1.0 - 1e-12:
         return np.eye(3)
-    if c < -1.0 + 1e-12:                                   # opposite: half a turn about an axis normal to a
+    if c < -1.0 + 1e-12:  # opposite: half a turn about an axis normal to a
         axis = np.cross(a, np.eye(3)[int(np.argmin(np.abs(a)))])
         axis /= np.linalg.norm(axis)
         return 2.0 * np.outer(axis, axis) - np.eye(3)
@@ -115,31 +120,43 @@ def _own_prepare(model: Any, own: str, obs: Any, mask: Any, layout: Any, fps: An
     """:func:`_prepare` for a model in its own layout (see the module docstring)."""
     lay = get_layout(layout)
     if lay.name != own:
-        raise _checks.fail("layout", f"'{own}' (the layout this model was trained in; its poses without a layout "
-                                     f"are {own}'s joints but the root, relative to it)", repr(layout))
+        raise _checks.fail(
+            "layout",
+            f"'{own}' (the layout this model was trained in; its poses without a layout "
+            f"are {own}'s joints but the root, relative to it)",
+            repr(layout),
+        )
     if model.fps is None:
-        raise _checks.fail("fps", "None: the model does not record its frame rate, so poses cannot be resampled",
-                           repr(fps))
+        raise _checks.fail(
+            "fps", "None: the model does not record its frame rate, so poses cannot be resampled", repr(fps)
+        )
     src_fps = _fps(fps, float(model.fps))
-    rot = _rotation_onto(wild.up_vector(up), wild.up_vector(model.data.get("up", "y")))   # caller -> model axes
+    rot = _rotation_onto(wild.up_vector(up), wild.up_vector(model.data.get("up", "y")))  # caller -> model axes
     root_j = lay.joint_names.index(model.data.get("root_joint", lay.joint_names[0]))
     p = validate_poses(obs, mask, num_joints=lay.num_joints, units=units)
     seen_frames = p.observed.reshape(p.observed.shape[0], p.observed.shape[1], -1).any(-1).sum(-1)
     if (seen_frames < 2).any():
-        raise _checks.fail("obs", "an observation with at least 2 observed frames per sequence (to measure motion)",
-                           f"{int(seen_frames.min())} observed frame(s)")
+        raise _checks.fail(
+            "obs",
+            "an observation with at least 2 observed frames per sequence (to measure motion)",
+            f"{int(seen_frames.min())} observed frame(s)",
+        )
     joint_seen = p.observed.all(-1, keepdims=True)
     x = np.where(joint_seen, p.values, np.nan).astype(np.float64) / UNIT_SCALE[units] @ rot.T
-    xm, times = wild.resample_to_model(x, src_fps, float(model.fps), frames)            # (B, O, J, 3)
+    xm, times = wild.resample_to_model(x, src_fps, float(model.fps), frames)  # (B, O, J, 3)
     b, t = xm.shape[:2]
     root = xm[:, :, root_j]
     have = np.isfinite(root).all(-1)
     if not have.any(-1).all():
-        raise InvalidInputError(f"Argument `obs` never shows the {lay.joint_names[root_j]} (joint {root_j} of {own}) "
-                                "inside the model's window: the model's poses are relative to it.", "obs")
+        raise InvalidInputError(
+            f"Argument `obs` never shows the {lay.joint_names[root_j]} (joint {root_j} of {own}) "
+            "inside the model's window: the model's poses are relative to it.",
+            "obs",
+        )
     f = np.arange(t, dtype=np.float64)
-    root = np.stack([np.stack([np.interp(f, f[have[i]], root[i, have[i], c]) for c in range(3)], -1)
-                     for i in range(b)])                                                # (B, O, 3), held at the ends
+    root = np.stack(
+        [np.stack([np.interp(f, f[have[i]], root[i, have[i], c]) for c in range(3)], -1) for i in range(b)]
+    )  # (B, O, 3), held at the ends
     others = [j for j in range(lay.num_joints) if j != root_j]
     y = xm[:, :, others] - root[:, :, None]
     seen = np.isfinite(y).all(-1, keepdims=True)
@@ -169,8 +186,9 @@ def _own_future_root(root: np.ndarray, count: int, fps: float) -> np.ndarray:
     return root[:, -1:] + velocity[:, None, :] * travel[None, :, None]
 
 
-def _to_caller(p: Any, future_w: np.ndarray, last: np.ndarray, h: int, model_fps: float, src_fps: float,
-               scale: float) -> Tuple[np.ndarray, np.ndarray]:
+def _to_caller(
+    p: Any, future_w: np.ndarray, last: np.ndarray, h: int, model_fps: float, src_fps: float, scale: float
+) -> Tuple[np.ndarray, np.ndarray]:
     """Forecast frames (..., B, h, J, 3) at the model's rate, after the repaired last frame ``last``
     (B, 1, J, 3), at the caller's rate, units and dtype (and batch axis); with the times of its frames."""
     model_t = np.arange(h + 1) / model_fps
@@ -181,23 +199,45 @@ def _to_caller(p: Any, future_w: np.ndarray, last: np.ndarray, h: int, model_fps
     return (y if p.batched else y[..., 0, :, :, :]), at
 
 
-def _own_forecast(model: Any, own: str, obs: Any, mask: Any, *, layout: Any, fps: Any, up: Any, units: str,
-                  run: Callable[[np.ndarray, np.ndarray], Dict[str, Any]]) -> Tuple[Any, ...]:
-    p, src_fps, times, root, world, observed, seen = _own_prepare(model, own, obs, mask, layout, fps, up, units,
-                                                                  model.obs_len)
+def _own_forecast(
+    model: Any,
+    own: str,
+    obs: Any,
+    mask: Any,
+    *,
+    layout: Any,
+    fps: Any,
+    up: Any,
+    units: str,
+    run: Callable[[np.ndarray, np.ndarray], Dict[str, Any]],
+) -> Tuple[Any, ...]:
+    p, src_fps, times, root, world, observed, seen = _own_prepare(
+        model, own, obs, mask, layout, fps, up, units, model.obs_len
+    )
     out = run(observed, seen)
     h, model_fps, scale = model.horizon, float(model.fps), UNIT_SCALE[units]
     root_f = _own_future_root(root, h, model_fps)
     rep_w = world(out["repaired"], root)
     mean, at = _to_caller(p, world(out["mean"], root_f), rep_w[:, -1:], h, model_fps, src_fps, scale)
-    samples = (None if out["samples"] is None else
-               _to_caller(p, world(out["samples"], root_f), rep_w[:, -1:], h, model_fps, src_fps, scale)[0])
+    samples = (
+        None
+        if out["samples"] is None
+        else _to_caller(p, world(out["samples"], root_f), rep_w[:, -1:], h, model_fps, src_fps, scale)[0]
+    )
     return mean, samples, _repaired(p, rep_w, times, scale), at
 
 
-def forecast(model: "TCD", obs: ArrayLike, mask: Optional[ArrayLike], *, layout: str, fps: Optional[float],
-             up: Up, units: Units,
-             run: Callable[[np.ndarray, np.ndarray], Dict[str, Any]]) -> Tuple[Any, ...]:
+def forecast(
+    model: "TCD",
+    obs: ArrayLike,
+    mask: Optional[ArrayLike],
+    *,
+    layout: str,
+    fps: Optional[float],
+    up: Up,
+    units: Units,
+    run: Callable[[np.ndarray, np.ndarray], Dict[str, Any]],
+) -> Tuple[Any, ...]:
     """(mean, samples, repaired, times): the forecast in the caller's layout, coordinates, units and frame
     rate, ``times`` the seconds of each forecast frame after the last observed one. ``run(observed, seen)``
     forecasts in the model's space and layout ((B, K, T) in, a dict of ``mean`` (B, K, H), ``samples``
@@ -208,11 +248,14 @@ def forecast(model: "TCD", obs: ArrayLike, mask: Optional[ArrayLike], *, layout:
         return _own_forecast(model, own, obs, mask, layout=layout, fps=fps, up=up, units=units, run=run)
     p, src_fps, scene, times, observed, seen = _prepare(model, obs, mask, layout, fps, up, units, model.obs_len)
     out = run(observed, seen)
-    h, model_fps = model.horizon, float(cast(float, model.fps))             # not None: _prepare checked it
+    h, model_fps = model.horizon, float(cast(float, model.fps))  # not None: _prepare checked it
     root_f, rot_f = wild.future_frames(scene, h, model_fps, wild.ROOT_DAMPING_S)
     mean_w = wild.from_model(_model_poses(out["mean"]), scene, root_f, rot_f, own_frames=False)
-    samples_w = (None if out["samples"] is None else
-                 wild.from_model(_model_poses(out["samples"]), scene, root_f, rot_f, own_frames=False))
+    samples_w = (
+        None
+        if out["samples"] is None
+        else wild.from_model(_model_poses(out["samples"]), scene, root_f, rot_f, own_frames=False)
+    )
     rep_w = wild.from_model(_model_poses(out["repaired"]), scene, scene.root, scene.rot, own_frames=True)
     # future frames at the caller's rate: model frame k is (k + 1) / model_fps s after the last observed
     # frame, which is time 0 (the repaired last frame)
@@ -237,26 +280,51 @@ def forecast(model: "TCD", obs: ArrayLike, mask: Optional[ArrayLike], *, layout:
     return caller(mean_w), samples, _repaired(p, rep_w, times, scale), at
 
 
-def repair(model: "TCD", den: Denoiser, obs: ArrayLike, mask: Optional[ArrayLike], *, layout: str,
-           fps: Optional[float], up: Up, num_samples: int, sampling: Dict[str, Any], seed: int, units: Units,
-           threads: Optional[int], progress: Progress) -> np.ndarray:
+def repair(
+    model: "TCD",
+    den: Denoiser,
+    obs: ArrayLike,
+    mask: Optional[ArrayLike],
+    *,
+    layout: str,
+    fps: Optional[float],
+    up: Up,
+    num_samples: int,
+    sampling: Dict[str, Any],
+    seed: int,
+    units: Units,
+    threads: Optional[int],
+    progress: Progress,
+) -> np.ndarray:
     """The observation with its missing entries filled by ``den``, in the caller's layout, coordinates,
     units and frame rate; at most the model's window (longer files: :func:`tcd.repair_file`; a shorter one
     is padded at the start with missing frames). ``sampling``: the sampler keywords of
     :func:`tcd.engine.repair_raw`."""
     own = own_layout(model)
     if own is not None:
-        p, src_fps, times, root, world, observed, seen = _own_prepare(model, own, obs, mask, layout, fps, up, units,
-                                                                      den.obs_len)
+        p, src_fps, times, root, world, observed, seen = _own_prepare(
+            model, own, obs, mask, layout, fps, up, units, den.obs_len
+        )
     else:
         p, src_fps, scene, times, observed, seen = _prepare(model, obs, mask, layout, fps, up, units, den.obs_len)
     if times[0] > 1e-9:
         raise InvalidInputError(
             f"Argument `obs` must span at most the model's window ({model.obs_len} frames at {model.fps:g} fps) "
             f"to be repaired in one call, but received {p.values.shape[1]} frames at {src_fps:g} fps: repair "
-            "longer sequences with tcd.repair_file (overlapping windows).", "obs")
-    out = repair_raw(den, observed, seen, num_samples=num_samples, seed=seed, threads=threads, progress=progress,
-                     **model._repair_fills(den), **sampling)
+            "longer sequences with tcd.repair_file (overlapping windows).",
+            "obs",
+        )
+    out = repair_raw(
+        den,
+        observed,
+        seen,
+        num_samples=num_samples,
+        seed=seed,
+        threads=threads,
+        progress=progress,
+        **model._repair_fills(den),
+        **sampling,
+    )
     if own is not None:
         return _repaired(p, world(out["mean"], root), times, UNIT_SCALE[units])
     rep_w = wild.from_model(_model_poses(out["mean"]), scene, scene.root, scene.rot, own_frames=True)

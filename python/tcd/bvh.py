@@ -9,6 +9,7 @@ it; legs, arms, hands and thumbs by the usual names (``LeftUpLeg``/``LeftThigh``
 ``LeftForeArm``/``LeftLowArm``, ``LeftHand``, ``LeftHandThumb*``, ``LeftHandIndex1``; the same on the
 right). A Human3.6M joint without a match is missing (in-painted); BVH joints without a match are not used.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -91,13 +92,13 @@ def to_h36m32(pos: np.ndarray, names: List[str], parents: List[int]) -> np.ndarr
         found[0] = next((i for i, p in enumerate(parents) if p < 0), None)
     neck = found.get(13)
     if neck is not None and parents[neck] >= 0:
-        found[12] = parents[neck]                              # the thorax: where the neck hangs from
+        found[12] = parents[neck]  # the thorax: where the neck hangs from
         chain, j = [], parents[neck]
         while j >= 0 and j != found[0]:
             chain.append(j)
             j = parents[j]
         if j == found[0] and chain:
-            found[11] = chain[-1]                              # the spine base: the hips' child towards it
+            found[11] = chain[-1]  # the spine base: the hips' child towards it
     out = np.full((pos.shape[0], 32, 3), np.nan)
     for id32, i in found.items():
         if i is not None:

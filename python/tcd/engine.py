@@ -19,6 +19,7 @@ Pass ``noise`` for bit-exact parity tests, or a ``seed`` for the engine's seeded
 ``num_inference_steps``, ``eta`` and ``timestep_spacing`` (:class:`tcd.SamplerOptions` has their defaults
 and checks).
 """
+
 from __future__ import annotations
 
 from typing import Any, Dict, List, Optional, Sequence
@@ -33,8 +34,18 @@ from ._generator import Generator
 from ._prior import Prior
 from ._progress import Progress, reporter
 
-__all__ = ["Denoiser", "Prior", "Generator", "cascade_raw", "repair_raw", "seeded_noise", "supported_kernels",
-           "STAGE_SHORT", "STAGE_LONG", "STAGE_GENERATOR"]
+__all__ = [
+    "Denoiser",
+    "Prior",
+    "Generator",
+    "cascade_raw",
+    "repair_raw",
+    "seeded_noise",
+    "supported_kernels",
+    "STAGE_SHORT",
+    "STAGE_LONG",
+    "STAGE_GENERATOR",
+]
 
 #: Stream stage of :meth:`Denoiser.sample`, :func:`repair_raw` and the cascade's short-term stage.
 STAGE_SHORT: int = _native.STAGE_SHORT
@@ -76,23 +87,37 @@ class Denoiser(NativeModel[_native.Denoiser]):
         only) for the deterministic dpmpp2m. The sampler keywords, as :meth:`timesteps`."""
         return int(self._native.num_noise_blocks(SamplerOptions.build(**sampler)))
 
-    def forward(self, noisy: ArrayLike, observed: ArrayLike, mask: ArrayLike, step: int, *,
-                threads: Optional[int] = None) -> np.ndarray:
+    def forward(
+        self, noisy: ArrayLike, observed: ArrayLike, mask: ArrayLike, step: int, *, threads: Optional[int] = None
+    ) -> np.ndarray:
         """ε̂ = net(noisy, observed, mask, step) (x̂₀ for a model whose ``diffusion.prediction_type`` is
         ``"sample"``): arrays (B, K, L) float32, ``step`` in 0..num_train_timesteps-1. Returns (B, K, L)
         float32. ``threads`` (default: all cores) split each sequence's forward across that many threads.
         A model with ``cond_fill`` ``"prior"`` reads the prior forecaster's fill from the mask-0 entries of
         ``observed`` (the caller puts it there; :func:`cascade_raw` does, given the prior)."""
         step = _checks.machine_int("step", step)
-        return self._native.forward(_checks.float32_array("noisy", noisy),
-                                    _checks.float32_array("observed", observed),
-                                    _checks.float32_array("mask", mask), step,
-                                    threads=_checks.optional_machine_int("threads", threads))
+        return self._native.forward(
+            _checks.float32_array("noisy", noisy),
+            _checks.float32_array("observed", observed),
+            _checks.float32_array("mask", mask),
+            step,
+            threads=_checks.optional_machine_int("threads", threads),
+        )
 
-    def sample(self, observed: ArrayLike, mask: ArrayLike, num_samples: int = 1, *,
-               noise: Optional[ArrayLike] = None, seed: Optional[int] = None, first_sequence: int = 0,
-               sequences: Optional[Sequence[int]] = None, threads: Optional[int] = None,
-               progress: Progress = None, **sampler: Any) -> np.ndarray:
+    def sample(
+        self,
+        observed: ArrayLike,
+        mask: ArrayLike,
+        num_samples: int = 1,
+        *,
+        noise: Optional[ArrayLike] = None,
+        seed: Optional[int] = None,
+        first_sequence: int = 0,
+        sequences: Optional[Sequence[int]] = None,
+        threads: Optional[int] = None,
+        progress: Progress = None,
+        **sampler: Any,
+    ) -> np.ndarray:
         """``num_samples`` merged samples per sequence: observed, mask (B, K, L) -> (S, B, K, L).
 
         Exactly one of ``noise`` (S, n + 1, B, K, L) — (S, 1, B, K, L) for ``sampler="dpmpp2m"`` — and
@@ -105,16 +130,33 @@ class Denoiser(NativeModel[_native.Denoiser]):
         o = SamplerOptions.build(**sampler)
         with reporter(progress, "tcd sample") as callback:
             return self._native.sample(
-                _checks.float32_array("observed", observed), _checks.float32_array("mask", mask), num_samples, o,
+                _checks.float32_array("observed", observed),
+                _checks.float32_array("mask", mask),
+                num_samples,
+                o,
                 noise=_checks.optional_float32_array("noise", noise),
-                **_checks.streams(seed, first_sequence, sequences, threads), progress=callback)
+                **_checks.streams(seed, first_sequence, sequences, threads),
+                progress=callback,
+            )
 
 
-def cascade_raw(short: Denoiser, long: Denoiser, observed: ArrayLike, mask: ArrayLike, *, num_samples: int = 5,
-                noise_short: Optional[ArrayLike] = None, noise_long: Optional[ArrayLike] = None,
-                seed: Optional[int] = None, first_sequence: int = 0, sequences: Optional[Sequence[int]] = None,
-                threads: Optional[int] = None, progress: Progress = None, prior: Optional[Prior] = None,
-                **sampler: Any) -> Dict[str, np.ndarray]:
+def cascade_raw(
+    short: Denoiser,
+    long: Denoiser,
+    observed: ArrayLike,
+    mask: ArrayLike,
+    *,
+    num_samples: int = 5,
+    noise_short: Optional[ArrayLike] = None,
+    noise_long: Optional[ArrayLike] = None,
+    seed: Optional[int] = None,
+    first_sequence: int = 0,
+    sequences: Optional[Sequence[int]] = None,
+    threads: Optional[int] = None,
+    progress: Progress = None,
+    prior: Optional[Prior] = None,
+    **sampler: Any,
+) -> Dict[str, np.ndarray]:
     """The short-term -> long-term cascade in the engine's layout (``training.diffusion.cascade``).
 
     observed, mask: (B, K, O) with O = ``short.obs_len``. Noise: ``noise_short`` (S, n + 1, B, K, L_s)
@@ -137,20 +179,39 @@ def cascade_raw(short: Denoiser, long: Denoiser, observed: ArrayLike, mask: Arra
     num_samples = _checks.machine_int("num_samples", num_samples)
     o = SamplerOptions.build(**sampler)
     with reporter(progress, "tcd forecast") as callback:
-        return dict(_native.cascade(
-            short._native, long._native, _checks.float32_array("observed", observed),
-            _checks.float32_array("mask", mask), num_samples, o,
-            noise_short=_checks.optional_float32_array("noise_short", noise_short),
-            noise_long=_checks.optional_float32_array("noise_long", noise_long),
-            **_checks.streams(seed, first_sequence, sequences, threads), progress=callback,
-            prior=None if prior is None else prior._native))
+        return dict(
+            _native.cascade(
+                short._native,
+                long._native,
+                _checks.float32_array("observed", observed),
+                _checks.float32_array("mask", mask),
+                num_samples,
+                o,
+                noise_short=_checks.optional_float32_array("noise_short", noise_short),
+                noise_long=_checks.optional_float32_array("noise_long", noise_long),
+                **_checks.streams(seed, first_sequence, sequences, threads),
+                progress=callback,
+                prior=None if prior is None else prior._native,
+            )
+        )
 
 
-def repair_raw(model: Denoiser, observed: ArrayLike, mask: ArrayLike, *, num_samples: int = 5,
-               noise: Optional[ArrayLike] = None, seed: Optional[int] = None, first_sequence: int = 0,
-               sequences: Optional[Sequence[int]] = None, threads: Optional[int] = None, progress: Progress = None,
-               fill: Optional[Prior] = None, forecaster: Optional[Prior] = None,
-               **sampler: Any) -> Dict[str, np.ndarray]:
+def repair_raw(
+    model: Denoiser,
+    observed: ArrayLike,
+    mask: ArrayLike,
+    *,
+    num_samples: int = 5,
+    noise: Optional[ArrayLike] = None,
+    seed: Optional[int] = None,
+    first_sequence: int = 0,
+    sequences: Optional[Sequence[int]] = None,
+    threads: Optional[int] = None,
+    progress: Progress = None,
+    fill: Optional[Prior] = None,
+    forecaster: Optional[Prior] = None,
+    **sampler: Any,
+) -> Dict[str, np.ndarray]:
     """Fills the mask-0 entries of an observation (B, K, O), O = ``model.obs_len``
     (``training.diffusion.repair``). Returns ``mean`` (B, K, O; observed entries exact) and ``samples``
     (S, B, K, O); ``num_samples`` 0 returns the repair ``fill`` alone as ``mean`` (a model conditioned on it
@@ -173,12 +234,20 @@ def repair_raw(model: Denoiser, observed: ArrayLike, mask: ArrayLike, *, num_sam
     num_samples = _checks.machine_int("num_samples", num_samples)
     o = SamplerOptions.build(**sampler)
     with reporter(progress, "tcd repair") as callback:
-        return dict(_native.repair(
-            model._native, _checks.float32_array("observed", observed), _checks.float32_array("mask", mask),
-            num_samples, o, noise=_checks.optional_float32_array("noise", noise),
-            **_checks.streams(seed, first_sequence, sequences, threads), progress=callback,
-            fill=None if fill is None else fill._native,
-            forecaster=None if forecaster is None else forecaster._native))
+        return dict(
+            _native.repair(
+                model._native,
+                _checks.float32_array("observed", observed),
+                _checks.float32_array("mask", mask),
+                num_samples,
+                o,
+                noise=_checks.optional_float32_array("noise", noise),
+                **_checks.streams(seed, first_sequence, sequences, threads),
+                progress=callback,
+                fill=None if fill is None else fill._native,
+                forecaster=None if forecaster is None else forecaster._native,
+            )
+        )
 
 
 def supported_kernels() -> List[str]:
@@ -187,15 +256,28 @@ def supported_kernels() -> List[str]:
     return list(_native.supported_kernels())
 
 
-def seeded_noise(seed: int, stage: int, num_samples: int, num_blocks: int, batch: int, num_features: int,
-                 length: int, first_sequence: int = 0) -> np.ndarray:
+def seeded_noise(
+    seed: int,
+    stage: int,
+    num_samples: int,
+    num_blocks: int,
+    batch: int,
+    num_features: int,
+    length: int,
+    first_sequence: int = 0,
+) -> np.ndarray:
     """The engine's seeded noise streams in the injected layout (S, num_blocks, B, K, L): feeding
     this array as ``noise`` reproduces the seeded call exactly (``stage``: :data:`STAGE_SHORT` for
     :meth:`Denoiser.sample` / :func:`repair_raw` / the cascade's first stage, :data:`STAGE_LONG` for
     its second; :data:`STAGE_GENERATOR` with ``num_blocks`` 1, ``num_features`` z_dim and ``length`` 1 for
     :meth:`Generator.sample`, reshaped to (S, B, z_dim))."""
     return _native.seeded_noise(
-        _checks.machine_int("seed", seed, 128), _checks.machine_int("stage", stage, 128),
-        _checks.machine_int("num_samples", num_samples), _checks.machine_int("num_blocks", num_blocks),
-        _checks.machine_int("batch", batch), _checks.machine_int("num_features", num_features),
-        _checks.machine_int("length", length), _checks.machine_int("first_sequence", first_sequence, 128))
+        _checks.machine_int("seed", seed, 128),
+        _checks.machine_int("stage", stage, 128),
+        _checks.machine_int("num_samples", num_samples),
+        _checks.machine_int("num_blocks", num_blocks),
+        _checks.machine_int("batch", batch),
+        _checks.machine_int("num_features", num_features),
+        _checks.machine_int("length", length),
+        _checks.machine_int("first_sequence", first_sequence, 128),
+    )

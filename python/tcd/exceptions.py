@@ -14,6 +14,7 @@ model file or directory:
   that this installation does not hold yet. Also a ``FileNotFoundError``. ``.model`` is the name, ``.path``
   the directory where it would be.
 """
+
 from typing import Optional
 
 from ._native import InvalidInputError, TcdError, WeightsError

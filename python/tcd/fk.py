@@ -11,6 +11,7 @@ Missing values: NaN anywhere in a joint's exp-map triplet makes that joint's rot
 joint below it (whose position depends on it) comes out NaN; a row of NaN is a missing frame. The
 root columns (0:6) are ignored (zeroed), as in training.
 """
+
 from __future__ import annotations
 
 import json
@@ -20,8 +21,17 @@ from typing import Any, Dict, List, Sequence, Union
 
 import numpy as np
 
-__all__ = ["SKELETON_PATH", "skeleton", "joints_used", "expmap_to_rotmat", "fk_expmap", "expmap_to_xyz32",
-           "expmap_to_model", "read_expmap_txt", "H36M_TXT_FPS"]
+__all__ = [
+    "SKELETON_PATH",
+    "skeleton",
+    "joints_used",
+    "expmap_to_rotmat",
+    "fk_expmap",
+    "expmap_to_xyz32",
+    "expmap_to_model",
+    "read_expmap_txt",
+    "H36M_TXT_FPS",
+]
 
 SKELETON_PATH = Path(__file__).resolve().parent / "data" / "skeleton32.json"
 #: Frame rate of the Human3.6M exp-map ``.txt`` files.
@@ -120,6 +130,7 @@ def read_expmap_txt(path: Union[str, Path]) -> np.ndarray:
     if rows.size == 0:
         raise ValueError("the file holds no rows")
     if rows.shape[1] != EXPMAP_COLUMNS:
-        raise ValueError(f"expected {EXPMAP_COLUMNS} values per row (root position + 32 exp-map triplets), "
-                         f"got {rows.shape[1]}")
+        raise ValueError(
+            f"expected {EXPMAP_COLUMNS} values per row (root position + 32 exp-map triplets), got {rows.shape[1]}"
+        )
     return rows

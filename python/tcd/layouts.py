@@ -24,6 +24,7 @@ hip / knee / ankle, head), mapped here onto the Human3.6M skeleton like the othe
 forecasts it. A model trained on HumanEva-I itself (``tcd.load("humaneva")``) works in that layout directly:
 its joints are joints 1..14 of ``humaneva15`` relative to the pelvis (``TCD.joint_names``).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -34,13 +35,40 @@ from . import _checks, fk
 __all__ = ["Layout", "LAYOUTS", "get_layout", "MODEL_IDS", "FIXED_IDS", "NAMES32"]
 
 #: Names of the Human3.6M 32-joint skeleton's joints (left/right are the subject's).
-NAMES32 = ("pelvis", "right_hip", "right_knee", "right_ankle", "right_toe", "right_toe_site",
-           "left_hip", "left_knee", "left_ankle", "left_toe", "left_toe_site",
-           "spine", "thorax", "neck", "head", "head_site",
-           "left_clavicle", "left_shoulder", "left_elbow", "left_wrist", "left_wrist_end", "left_thumb",
-           "left_hand", "left_hand_site",
-           "right_clavicle", "right_shoulder", "right_elbow", "right_wrist", "right_wrist_end", "right_thumb",
-           "right_hand", "right_hand_site")
+NAMES32 = (
+    "pelvis",
+    "right_hip",
+    "right_knee",
+    "right_ankle",
+    "right_toe",
+    "right_toe_site",
+    "left_hip",
+    "left_knee",
+    "left_ankle",
+    "left_toe",
+    "left_toe_site",
+    "spine",
+    "thorax",
+    "neck",
+    "head",
+    "head_site",
+    "left_clavicle",
+    "left_shoulder",
+    "left_elbow",
+    "left_wrist",
+    "left_wrist_end",
+    "left_thumb",
+    "left_hand",
+    "left_hand_site",
+    "right_clavicle",
+    "right_shoulder",
+    "right_elbow",
+    "right_wrist",
+    "right_wrist_end",
+    "right_thumb",
+    "right_hand",
+    "right_hand_site",
+)
 #: 32-skeleton ids of the model's 22 joints, in model order.
 MODEL_IDS: Tuple[int, ...] = tuple(fk.joints_used())
 #: 32-skeleton joints the model's convention fixes: the root at the origin, the hips and the spine base at
@@ -96,26 +124,65 @@ def _h36m22() -> Layout:
             p = parents32[p]
         return index.get(p, -1)
 
-    return Layout("h36m22", tuple(NAMES32[j] for j in MODEL_IDS), tuple(parent(j) for j in MODEL_IDS), MODEL_IDS,
-                  canonical=True)
+    return Layout(
+        "h36m22", tuple(NAMES32[j] for j in MODEL_IDS), tuple(parent(j) for j in MODEL_IDS), MODEL_IDS, canonical=True
+    )
 
 
-_H36M17_IDS = tuple(fk.skeleton()["joints_h36m_17"])   # 0,1,2,3,6,7,8,12,13,14,15,17,18,19,25,26,27
+_H36M17_IDS = tuple(fk.skeleton()["joints_h36m_17"])  # 0,1,2,3,6,7,8,12,13,14,15,17,18,19,25,26,27
 H36M17 = Layout(
     "h36m17",
-    ("pelvis", "right_hip", "right_knee", "right_ankle", "left_hip", "left_knee", "left_ankle", "spine",
-     "thorax", "neck", "head", "left_shoulder", "left_elbow", "left_wrist", "right_shoulder", "right_elbow",
-     "right_wrist"),
+    (
+        "pelvis",
+        "right_hip",
+        "right_knee",
+        "right_ankle",
+        "left_hip",
+        "left_knee",
+        "left_ankle",
+        "spine",
+        "thorax",
+        "neck",
+        "head",
+        "left_shoulder",
+        "left_elbow",
+        "left_wrist",
+        "right_shoulder",
+        "right_elbow",
+        "right_wrist",
+    ),
     (-1, 0, 1, 2, 0, 4, 5, 0, 7, 8, 9, 8, 11, 12, 8, 14, 15),
     _H36M17_IDS,
 )
 
 SMPL24 = Layout(
     "smpl24",
-    ("pelvis", "left_hip", "right_hip", "spine1", "left_knee", "right_knee", "spine2", "left_ankle",
-     "right_ankle", "spine3", "left_foot", "right_foot", "neck", "left_collar", "right_collar", "head",
-     "left_shoulder", "right_shoulder", "left_elbow", "right_elbow", "left_wrist", "right_wrist",
-     "left_hand", "right_hand"),
+    (
+        "pelvis",
+        "left_hip",
+        "right_hip",
+        "spine1",
+        "left_knee",
+        "right_knee",
+        "spine2",
+        "left_ankle",
+        "right_ankle",
+        "spine3",
+        "left_foot",
+        "right_foot",
+        "neck",
+        "left_collar",
+        "right_collar",
+        "head",
+        "left_shoulder",
+        "right_shoulder",
+        "left_elbow",
+        "right_elbow",
+        "left_wrist",
+        "right_wrist",
+        "left_hand",
+        "right_hand",
+    ),
     (-1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 20, 21),
     # SMPL's spine3 stands for the thorax, its feet for the toes, its hands for the hands; spine1, spine2 and
     # the collars have no model counterpart and are carried
@@ -124,22 +191,53 @@ SMPL24 = Layout(
 
 COCO17 = Layout(
     "coco17",
-    ("nose", "left_eye", "right_eye", "left_ear", "right_ear", "left_shoulder", "right_shoulder", "left_elbow",
-     "right_elbow", "left_wrist", "right_wrist", "left_hip", "right_hip", "left_knee", "right_knee",
-     "left_ankle", "right_ankle"),
+    (
+        "nose",
+        "left_eye",
+        "right_eye",
+        "left_ear",
+        "right_ear",
+        "left_shoulder",
+        "right_shoulder",
+        "left_elbow",
+        "right_elbow",
+        "left_wrist",
+        "right_wrist",
+        "left_hip",
+        "right_hip",
+        "left_knee",
+        "right_knee",
+        "left_ankle",
+        "right_ankle",
+    ),
     (-1, 0, 0, 1, 2, 0, 0, 5, 6, 7, 8, 5, 6, 11, 12, 13, 14),
     (None, None, None, None, None, 17, 25, 18, 26, 19, 27, 6, 1, 7, 2, 8, 3),
     # no neck and no head joint: the neck is the mid-point of the shoulders, the head that of the ears;
     # the face points are carried
     combined={13: (5, 6), 14: (3, 4)},
     pelvis_from=(11, 12),
-    anchors={face: 14 for face in range(5)},                 # nose, eyes and ears ride on the head
+    anchors={face: 14 for face in range(5)},  # nose, eyes and ears ride on the head
 )
 
 HUMANEVA15 = Layout(
     "humaneva15",
-    ("pelvis", "thorax", "left_shoulder", "left_elbow", "left_wrist", "right_shoulder", "right_elbow", "right_wrist",
-     "left_hip", "left_knee", "left_ankle", "right_hip", "right_knee", "right_ankle", "head"),
+    (
+        "pelvis",
+        "thorax",
+        "left_shoulder",
+        "left_elbow",
+        "left_wrist",
+        "right_shoulder",
+        "right_elbow",
+        "right_wrist",
+        "left_hip",
+        "left_knee",
+        "left_ankle",
+        "right_hip",
+        "right_knee",
+        "right_ankle",
+        "head",
+    ),
     (-1, 0, 1, 2, 3, 1, 5, 6, 0, 8, 9, 0, 11, 12, 1),
     # the thorax is where the shoulders meet (the 32-skeleton's 13, as h36m17's thorax); the head is the top of
     # the head (15, as h36m17's head)

@@ -11,6 +11,7 @@ is forecast from its last ``obs_len`` frames (:meth:`TCD.repair` refuses it: :fu
 repairs any length); a shorter one is padded at the start with missing frames, which the model in-paints
 like any missing value. ``repaired`` always has the input's frames: those before the window as given.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -35,8 +36,18 @@ from .options import SamplerOptions
 from .tempo import Tempo, check_tempo, tempo_forecast
 from .wild import Up
 
-__all__ = ["TCD", "Forecast", "Repair", "load", "forecast", "predict", "repair", "default_model_dir",
-           "humaneva_model_dir", "BUNDLED_MODELS"]
+__all__ = [
+    "TCD",
+    "Forecast",
+    "Repair",
+    "load",
+    "forecast",
+    "predict",
+    "repair",
+    "default_model_dir",
+    "humaneva_model_dir",
+    "BUNDLED_MODELS",
+]
 
 PathLike = Union[str, "os.PathLike[str]"]
 
@@ -95,15 +106,21 @@ def _bundled_dir(name: str) -> Path:
             raise ModelNotBundledError(
                 "No default model is bundled with tcd yet: pass a model directory, e.g. "
                 "tcd.load('path/to/model') or `--model DIR` on the command line (a directory holding "
-                "short.safetensors and long.safetensors, as written by `python -m training.export`).", name, str(d))
+                "short.safetensors and long.safetensors, as written by `python -m training.export`).",
+                name,
+                str(d),
+            )
         return d
     d = humaneva_model_dir()
     if not (d / "short.safetensors").is_file():
         raise ModelNotBundledError(
             f"The HumanEva-I model is not bundled with this installation of tcd yet ({d} holds no "
-            "short.safetensors). Train and export it as docs/training.md (section \"HumanEva-I\") says, then "
+            'short.safetensors). Train and export it as docs/training.md (section "HumanEva-I") says, then '
             "pass its directory, e.g. tcd.load('models/humaneva') or `--model models/humaneva`; a release that "
-            "bundles it opens it with tcd.load('humaneva').", name, str(d))
+            "bundles it opens it with tcd.load('humaneva').",
+            name,
+            str(d),
+        )
     return d
 
 
@@ -130,8 +147,10 @@ class Forecast:
 
     def __repr__(self) -> str:
         samples = "None" if self.samples is None else _checks.shape_str(self.samples.shape)
-        return (f"Forecast(mean={_checks.shape_str(self.mean.shape)}, samples={samples}, "
-                f"repaired={_checks.shape_str(self.repaired.shape)}, seed={self.seed})")
+        return (
+            f"Forecast(mean={_checks.shape_str(self.mean.shape)}, samples={samples}, "
+            f"repaired={_checks.shape_str(self.repaired.shape)}, seed={self.seed})"
+        )
 
 
 @dataclass(frozen=True, eq=False)
@@ -153,16 +172,25 @@ class Repair:
 class _Poses:
     """A validated pose input and the model's window of it, in the engine's layout."""
 
-    def __init__(self, observed: np.ndarray, mask: np.ndarray, original: np.ndarray, full_mask: np.ndarray,
-                 batched: bool, scale: float, dtype: np.dtype, start: int) -> None:
-        self.observed = observed      # (B, K, W) float32, model units, 0 where missing: the window
-        self.mask = mask              # (B, K, W) float32 0/1
-        self.original = original      # (B, T, J, 3) the caller's values
-        self.full_mask = full_mask    # (B, T, J, 3) bool
+    def __init__(
+        self,
+        observed: np.ndarray,
+        mask: np.ndarray,
+        original: np.ndarray,
+        full_mask: np.ndarray,
+        batched: bool,
+        scale: float,
+        dtype: np.dtype,
+        start: int,
+    ) -> None:
+        self.observed = observed  # (B, K, W) float32, model units, 0 where missing: the window
+        self.mask = mask  # (B, K, W) float32 0/1
+        self.original = original  # (B, T, J, 3) the caller's values
+        self.full_mask = full_mask  # (B, T, J, 3) bool
         self.batched = batched
         self.scale = scale
         self.dtype = dtype
-        self.start = start            # the caller's frame at the window's first frame (< 0: padded)
+        self.start = start  # the caller's frame at the window's first frame (< 0: padded)
 
     def poses(self, bkl: np.ndarray) -> np.ndarray:
         """(..., B, K, L) float32 model units -> (..., B?, L, J, 3) in the caller's units and dtype."""
@@ -178,16 +206,17 @@ class _Poses:
         out = self.poses(bkt)
         original = self.original if self.batched else self.original[0]
         full_mask = self.full_mask if self.batched else self.full_mask[0]
-        if self.start < 0:                                     # the padded frames dropped
-            out = out[..., -self.start:, :, :]
-        elif self.start > 0:                                   # the frames before the window as given
-            out = np.concatenate([original[..., :self.start, :, :].astype(self.dtype, copy=False), out], axis=-3)
+        if self.start < 0:  # the padded frames dropped
+            out = out[..., -self.start :, :, :]
+        elif self.start > 0:  # the frames before the window as given
+            out = np.concatenate([original[..., : self.start, :, :].astype(self.dtype, copy=False), out], axis=-3)
         # Observed entries bit for bit as given (also when units or dtype needed a conversion).
         return np.where(full_mask, original.astype(self.dtype, copy=False), out)
 
 
-def _poses(obs: ArrayLike, mask: Optional[ArrayLike], num_joints: int, window: int, units: Units, *,
-           repair: bool = False) -> _Poses:
+def _poses(
+    obs: ArrayLike, mask: Optional[ArrayLike], num_joints: int, window: int, units: Units, *, repair: bool = False
+) -> _Poses:
     """Checks ``obs`` / ``mask`` (see :meth:`TCD.forecast`) and converts the model's window of them (the
     module docstring's length rule: its last ``window`` frames, padded at the start with missing frames when
     shorter) to (B, K, window) float32. ``repair``: more than ``window`` frames is an error."""
@@ -197,7 +226,9 @@ def _poses(obs: ArrayLike, mask: Optional[ArrayLike], num_joints: int, window: i
     if repair and t > window:
         raise InvalidInputError(
             f"Argument `obs` must span at most the model's window ({window} frames) to be repaired in one call, "
-            f"but received {t} frames: repair longer sequences with tcd.repair_file (overlapping windows).", "obs")
+            f"but received {t} frames: repair longer sequences with tcd.repair_file (overlapping windows).",
+            "obs",
+        )
     start = t - window
     if start < 0:
         pad = (b, -start) + a4.shape[2:]
@@ -217,7 +248,7 @@ def _poses(obs: ArrayLike, mask: Optional[ArrayLike], num_joints: int, window: i
 
 
 def _seed(seed: Optional[int]) -> int:
-    s = _checks.optional_machine_int("seed", seed, 128)   # its range (0..2**64 - 1) is the engine's to check
+    s = _checks.optional_machine_int("seed", seed, 128)  # its range (0..2**64 - 1) is the engine's to check
     return int.from_bytes(os.urandom(8), "little") if s is None else s
 
 
@@ -225,12 +256,21 @@ class TCD:
     """A Temporal Cascaded Diffusion model directory: short-term and long-term denoisers (and an
     optional repair model). Load with :func:`tcd.load`. Immutable and thread-safe."""
 
-    def __init__(self, short: Denoiser, long: Denoiser, repair: Optional[Denoiser] = None,
-                 path: Optional[PathLike] = None, threads: Optional[int] = None,
-                 file_sha256: Optional[Dict[str, str]] = None, prior: Optional[Prior] = None,
-                 sampling: Optional[Dict[str, SamplerOptions]] = None, forecast_tempo: Tempo = None,
-                 repair_fill: Optional[Prior] = None, generator: Optional[Generator] = None,
-                 generator_share: float = 0.0) -> None:
+    def __init__(
+        self,
+        short: Denoiser,
+        long: Denoiser,
+        repair: Optional[Denoiser] = None,
+        path: Optional[PathLike] = None,
+        threads: Optional[int] = None,
+        file_sha256: Optional[Dict[str, str]] = None,
+        prior: Optional[Prior] = None,
+        sampling: Optional[Dict[str, SamplerOptions]] = None,
+        forecast_tempo: Tempo = None,
+        repair_fill: Optional[Prior] = None,
+        generator: Optional[Generator] = None,
+        generator_share: float = 0.0,
+    ) -> None:
         self.short = short
         self.long = long
         self.repair_model = repair
@@ -247,8 +287,9 @@ class TCD:
         #: the sampler each task uses when a call names none, by task (``"forecast"``, ``"repair"``): the model
         #: directory's ``sampling.json`` (chosen from measurements: docs/samplers.md), else
         #: :class:`SamplerOptions`' defaults. A call's sampler keywords override it (see :meth:`sampler_options`).
-        self.sampling: Dict[str, SamplerOptions] = {t: (sampling or {}).get(t) or SamplerOptions()
-                                                    for t in SAMPLING_TASKS}
+        self.sampling: Dict[str, SamplerOptions] = {
+            t: (sampling or {}).get(t) or SamplerOptions() for t in SAMPLING_TASKS
+        }
         #: the tempo range :meth:`forecast` samples when a call names none (:mod:`tcd.tempo`): the model
         #: directory's ``sampling.json`` ``"forecast_tempo"``, else None (every sample at the observed tempo)
         self.forecast_tempo: Tempo = check_tempo(forecast_tempo, "forecast_tempo")
@@ -260,67 +301,103 @@ class TCD:
         #: SHA-256 (hex) of each weight file, by file name; empty when built from Denoisers directly.
         self.file_sha256: Dict[str, str] = dict(file_sha256 or {})
         #: SHA-256 (hex) identifying the model: the digest of its ``SHA256SUMS`` text (None without files).
-        self.sha256: Optional[str] = (hashlib.sha256(_checksum_text(self.file_sha256).encode()).hexdigest()
-                                      if self.file_sha256 else None)
+        self.sha256: Optional[str] = (
+            hashlib.sha256(_checksum_text(self.file_sha256).encode()).hexdigest() if self.file_sha256 else None
+        )
         where = str(path) if path is not None else "the model"
         k = short.num_features
         if short.num_features % 3:
             raise WeightsError(f"{where}: the short-term model has num_features = {k}, not joints x 3.", short.path)
         if long.num_features != k:
-            raise WeightsError(f"{where}: the long-term model has num_features = {long.num_features}, "
-                               f"but the short-term model has {k}.", long.path)
+            raise WeightsError(
+                f"{where}: the long-term model has num_features = {long.num_features}, "
+                f"but the short-term model has {k}.",
+                long.path,
+            )
         if long.obs_len != short.seq_len or long.seq_len <= short.obs_len:
-            raise WeightsError(f"{where}: the long-term model's obs_len ({long.obs_len}) must equal the short-term "
-                               f"model's seq_len ({short.seq_len}).", long.path)
+            raise WeightsError(
+                f"{where}: the long-term model's obs_len ({long.obs_len}) must equal the short-term "
+                f"model's seq_len ({short.seq_len}).",
+                long.path,
+            )
         #: the roles whose model is conditioned on the prior forecaster (``cond_fill`` ``"prior"``)
         self._prior_roles = tuple(role for role, m in (("short", short), ("long", long)) if _uses_prior(m))
         if self._prior_roles and prior is None:
             missing = str(Path(path) / PRIOR_FILE) if path is not None else PRIOR_FILE
             roles = " and ".join(f"{r}-term" for r in self._prior_roles)
-            raise WeightsError(f"{where}: the {roles} model is conditioned on the prior forecaster (cond_fill "
-                               f"\"prior\"), but {missing} is missing: the model directory must hold the prior "
-                               f"it was trained with.", missing)
+            raise WeightsError(
+                f"{where}: the {roles} model is conditioned on the prior forecaster (cond_fill "
+                f'"prior"), but {missing} is missing: the model directory must hold the prior '
+                f"it was trained with.",
+                missing,
+            )
         if prior is not None and (prior.num_features != k or prior.obs_len > short.obs_len):
-            raise WeightsError(f"{where}: the prior (num_features = {prior.num_features}, obs_len = {prior.obs_len}) "
-                               f"must match the short-term model (num_features = {k}) and read at most its "
-                               f"{short.obs_len} observed frames.", prior.path)
+            raise WeightsError(
+                f"{where}: the prior (num_features = {prior.num_features}, obs_len = {prior.obs_len}) "
+                f"must match the short-term model (num_features = {k}) and read at most its "
+                f"{short.obs_len} observed frames.",
+                prior.path,
+            )
         if prior is not None and prior.anchor != "last":
-            raise WeightsError(f"{where}: {PRIOR_FILE} is a repair fill (anchor \"{prior.anchor}\"), not a forecaster "
-                               f"(anchor \"last\").", prior.path)
+            raise WeightsError(
+                f'{where}: {PRIOR_FILE} is a repair fill (anchor "{prior.anchor}"), not a forecaster (anchor "last").',
+                prior.path,
+            )
         if repair is not None and (repair.num_features != k or repair.obs_len != short.obs_len):
-            raise WeightsError(f"{where}: the repair model (num_features = {repair.num_features}, obs_len = "
-                               f"{repair.obs_len}) must match the short-term model (num_features = {k}, obs_len = "
-                               f"{short.obs_len}).", repair.path)
+            raise WeightsError(
+                f"{where}: the repair model (num_features = {repair.num_features}, obs_len = "
+                f"{repair.obs_len}) must match the short-term model (num_features = {k}, obs_len = "
+                f"{short.obs_len}).",
+                repair.path,
+            )
         if repair is not None and _uses_prior(repair) and repair_fill is None:
             missing = str(Path(path) / REPAIR_FILL_FILE) if path is not None else REPAIR_FILL_FILE
-            raise WeightsError(f"{where}: the repair model is conditioned on its fill (cond_fill \"prior\"), but "
-                               f"{missing} is missing: the model directory must hold the fill it was trained with.",
-                               missing)
-        if repair_fill is not None and (repair is None or repair_fill.anchor != "window"
-                                        or repair_fill.num_features != k or repair_fill.obs_len != repair.seq_len):
-            raise WeightsError(f"{where}: the repair fill (anchor \"{repair_fill.anchor}\", num_features = "
-                               f"{repair_fill.num_features}, obs_len = {repair_fill.obs_len}) must be a repair fill "
-                               f"(anchor \"window\") over the repair model's window (num_features = {k}, "
-                               f"{'no repair model' if repair is None else f'seq_len = {repair.seq_len}'}).",
-                               repair_fill.path)
-        if generator is not None and (prior is None or generator.num_features != k or prior.obs_len != short.obs_len
-                                      or generator.obs_len != short.obs_len
-                                      or generator.pred_len != long.seq_len - short.obs_len):
-            raise WeightsError(f"{where}: the generator (num_features = {generator.num_features}, obs_len = "
-                               f"{generator.obs_len}, pred_len = {generator.pred_len}) samples around the prior's "
-                               f"forecast, so the directory must hold a prior forecaster ({PRIOR_FILE}) reading the "
-                               f"short-term model's {short.obs_len} observed frames, and the generator must match "
-                               f"them (num_features = {k}, obs_len = {short.obs_len}, pred_len = the horizon, "
-                               f"{long.seq_len - short.obs_len}).", generator.path)
+            raise WeightsError(
+                f'{where}: the repair model is conditioned on its fill (cond_fill "prior"), but '
+                f"{missing} is missing: the model directory must hold the fill it was trained with.",
+                missing,
+            )
+        if repair_fill is not None and (
+            repair is None
+            or repair_fill.anchor != "window"
+            or repair_fill.num_features != k
+            or repair_fill.obs_len != repair.seq_len
+        ):
+            raise WeightsError(
+                f'{where}: the repair fill (anchor "{repair_fill.anchor}", num_features = '
+                f"{repair_fill.num_features}, obs_len = {repair_fill.obs_len}) must be a repair fill "
+                f'(anchor "window") over the repair model\'s window (num_features = {k}, '
+                f"{'no repair model' if repair is None else f'seq_len = {repair.seq_len}'}).",
+                repair_fill.path,
+            )
+        if generator is not None and (
+            prior is None
+            or generator.num_features != k
+            or prior.obs_len != short.obs_len
+            or generator.obs_len != short.obs_len
+            or generator.pred_len != long.seq_len - short.obs_len
+        ):
+            raise WeightsError(
+                f"{where}: the generator (num_features = {generator.num_features}, obs_len = "
+                f"{generator.obs_len}, pred_len = {generator.pred_len}) samples around the prior's "
+                f"forecast, so the directory must hold a prior forecaster ({PRIOR_FILE}) reading the "
+                f"short-term model's {short.obs_len} observed frames, and the generator must match "
+                f"them (num_features = {k}, obs_len = {short.obs_len}, pred_len = the horizon, "
+                f"{long.seq_len - short.obs_len}).",
+                generator.path,
+            )
         if self.generator_share and generator is None:
-            raise WeightsError(f"{where}: generator_share = {self.generator_share}, but there is no generator "
-                               f"({GENERATOR_FILE}).", str(Path(path) / GENERATOR_FILE) if path is not None
-                               else GENERATOR_FILE)
+            raise WeightsError(
+                f"{where}: generator_share = {self.generator_share}, but there is no generator ({GENERATOR_FILE}).",
+                str(Path(path) / GENERATOR_FILE) if path is not None else GENERATOR_FILE,
+            )
         if repair_fill is not None and repair_fill.gap_fill == "forecaster" and prior is None:
             missing = str(Path(path) / PRIOR_FILE) if path is not None else PRIOR_FILE
-            raise WeightsError(f"{where}: the repair fill fills whole-frame gaps with the prior forecaster (gap_fill "
-                               f"\"forecaster\"), but {missing} is missing: the model directory must hold it.",
-                               missing)
+            raise WeightsError(
+                f"{where}: the repair fill fills whole-frame gaps with the prior forecaster (gap_fill "
+                f'"forecaster"), but {missing} is missing: the model directory must hold it.',
+                missing,
+            )
 
     def _repair_fills(self, den: Denoiser) -> Dict[str, Optional[Prior]]:
         """What a repair by ``den`` runs with, as :func:`tcd.engine.repair_raw`'s keywords: ``fill``, the
@@ -385,9 +462,11 @@ class TCD:
         return out
 
     def __repr__(self) -> str:
-        return (f"TCD(path={str(self.path)!r}, obs_len={self.obs_len}, horizon={self.horizon}, "
-                f"num_joints={self.num_joints}, repair_model={self.repair_model is not None}, "
-                f"prior={self.prior is not None}, generator={self.generator is not None})")
+        return (
+            f"TCD(path={str(self.path)!r}, obs_len={self.obs_len}, horizon={self.horizon}, "
+            f"num_joints={self.num_joints}, repair_model={self.repair_model is not None}, "
+            f"prior={self.prior is not None}, generator={self.generator is not None})"
+        )
 
     # ------------------------------------------------------------------ inference
     def sampler_options(self, task: str, **sampler: Any) -> SamplerOptions:
@@ -398,21 +477,34 @@ class TCD:
             raise ValueError(f"task must be one of {', '.join(SAMPLING_TASKS)}, got {task!r}")
         return SamplerOptions.build(self.sampling[task], **sampler)
 
-    def _common(self, task: str, num_samples: int, sampler: Dict[str, Any], units: Units,
-                threads: Optional[int]) -> Tuple[int, Dict[str, Any], Units, Optional[int]]:
+    def _common(
+        self, task: str, num_samples: int, sampler: Dict[str, Any], units: Units, threads: Optional[int]
+    ) -> Tuple[int, Dict[str, Any], Units, Optional[int]]:
         """The arguments every call checks before any work; the sampler keywords come back checked, all four
         given (the model's defaults for ``task`` filled in), for the low-level calls."""
-        num_samples = _checks.machine_int("num_samples", num_samples)   # ranges: the engine's
+        num_samples = _checks.machine_int("num_samples", num_samples)  # ranges: the engine's
         sampling = dataclasses.asdict(self.sampler_options(task, **sampler))
         units = check_units(units)
         threads = _checks.optional_machine_int("threads", threads)
         return num_samples, sampling, units, self.threads if threads is None else threads
 
-    def forecast(self, obs: ArrayLike, mask: Optional[ArrayLike] = None, *, num_samples: int = 5,
-                 seed: Optional[int] = None, units: Units = "m", threads: Optional[int] = None,
-                 progress: Progress = False, layout: Optional[str] = None, fps: Optional[float] = None,
-                 up: Up = "y", tempo: Tempo = None, generator_share: Optional[float] = None,
-                 **sampler: Any) -> Forecast:
+    def forecast(
+        self,
+        obs: ArrayLike,
+        mask: Optional[ArrayLike] = None,
+        *,
+        num_samples: int = 5,
+        seed: Optional[int] = None,
+        units: Units = "m",
+        threads: Optional[int] = None,
+        progress: Progress = False,
+        layout: Optional[str] = None,
+        fps: Optional[float] = None,
+        up: Up = "y",
+        tempo: Tempo = None,
+        generator_share: Optional[float] = None,
+        **sampler: Any,
+    ) -> Forecast:
         """Forecasts the next :attr:`horizon` frames of ``obs``.
 
         Args:
@@ -459,41 +551,77 @@ class TCD:
         num_samples, sampling, units, threads = self._common("forecast", num_samples, sampler, units, threads)
         tempo = self.forecast_tempo if tempo is None else check_tempo(tempo)
         share = self.generator_share if generator_share is None else check_generator_share(generator_share)
-        drawn = int(num_samples * share)          # the generator's samples; the cascade's are the rest
+        drawn = int(num_samples * share)  # the generator's samples; the cascade's are the rest
         if drawn and self.generator is None:
-            raise InvalidInputError(f"Argument `generator_share` is {share}, but the model has no generator "
-                                    f"({GENERATOR_FILE}): pass 0 or None.", "generator_share")
+            raise InvalidInputError(
+                f"Argument `generator_share` is {share}, but the model has no generator "
+                f"({GENERATOR_FILE}): pass 0 or None.",
+                "generator_share",
+            )
         if drawn and tempo not in (None, (1.0, 1.0)):
-            raise InvalidInputError(f"Argument `tempo` is {tempo}, but the generator draws {drawn} of the "
-                                    f"{num_samples} samples at the observed tempo: pass generator_share=0 with a "
-                                    "tempo.", "tempo")
+            raise InvalidInputError(
+                f"Argument `tempo` is {tempo}, but the generator draws {drawn} of the "
+                f"{num_samples} samples at the observed tempo: pass generator_share=0 with a "
+                "tempo.",
+                "tempo",
+            )
         seed = _seed(seed)
         prior = self.prior if self._prior_roles else None
 
         def cascade(observed: np.ndarray, seen: np.ndarray, n: int, streams=None) -> Dict[str, np.ndarray]:
-            return cascade_raw(self.short, self.long, observed, seen, num_samples=n, seed=seed, threads=threads,
-                               progress=progress, prior=prior, sequences=streams, **sampling)
+            return cascade_raw(
+                self.short,
+                self.long,
+                observed,
+                seen,
+                num_samples=n,
+                seed=seed,
+                threads=threads,
+                progress=progress,
+                prior=prior,
+                sequences=streams,
+                **sampling,
+            )
 
         if drawn:
             run = lambda observed, seen: self._mixture(  # noqa: E731
-                observed, seen, num_samples - drawn, drawn, seed, threads, cascade)
+                observed, seen, num_samples - drawn, drawn, seed, threads, cascade
+            )
         elif tempo is None or tempo == (1.0, 1.0):
             run = lambda observed, seen: cascade(observed, seen, num_samples)  # noqa: E731
         else:
-            run = lambda observed, seen: tempo_forecast(lambda o, m, ids: cascade(o, m, 1, ids),  # noqa: E731
-                                                        observed, seen, num_samples, tempo)
+            run = lambda observed, seen: tempo_forecast(  # noqa: E731
+                lambda o, m, ids: cascade(o, m, 1, ids),
+                observed,
+                seen,
+                num_samples,
+                tempo,
+            )
         if layout is not None or fps is not None:
             mean, samples, repaired, times = _wild_calls.forecast(
-                self, obs, mask, layout="h36m22" if layout is None else layout, fps=fps, up=up, units=units, run=run)
+                self, obs, mask, layout="h36m22" if layout is None else layout, fps=fps, up=up, units=units, run=run
+            )
             return Forecast(mean=mean, samples=samples, repaired=repaired, seed=seed, times=times)
         p = _poses(obs, mask, self.num_joints, self.obs_len, units)
         out = run(p.observed, p.mask)
-        return Forecast(mean=p.poses(out["mean"]), samples=p.poses(out["samples"]),
-                        repaired=p.repaired(out["repaired"]), seed=seed,
-                        times=None if self.fps is None else np.arange(1, self.horizon + 1) / float(self.fps))
+        return Forecast(
+            mean=p.poses(out["mean"]),
+            samples=p.poses(out["samples"]),
+            repaired=p.repaired(out["repaired"]),
+            seed=seed,
+            times=None if self.fps is None else np.arange(1, self.horizon + 1) / float(self.fps),
+        )
 
-    def _mixture(self, observed: np.ndarray, seen: np.ndarray, cascaded: int, drawn: int, seed: int,
-                 threads: Optional[int], cascade) -> Dict[str, np.ndarray]:
+    def _mixture(
+        self,
+        observed: np.ndarray,
+        seen: np.ndarray,
+        cascaded: int,
+        drawn: int,
+        seed: int,
+        threads: Optional[int],
+        cascade,
+    ) -> Dict[str, np.ndarray]:
         """:meth:`forecast`'s run with the generator: ``cascaded`` samples from ``cascade(observed, seen, n)`` and
         then ``drawn`` from the generator (its seeded streams, stage :data:`tcd.engine.STAGE_GENERATOR`), in the
         engine's layout (B, K, O) in, the cascade's dict out. The generator reads the observation as the
@@ -505,18 +633,32 @@ class TCD:
         given = np.concatenate([seen, np.zeros((b, k, h), np.float32)], axis=2).transpose(0, 2, 1)
         filled = self.prior.fill(np.ascontiguousarray(window), np.ascontiguousarray(given), threads=threads)
         drawn_samples = self.generator.sample(filled[:, :o], filled[:, o:], drawn, seed=seed, threads=threads)
-        drawn_samples = np.ascontiguousarray(drawn_samples.transpose(0, 1, 3, 2))       # (S', B, K, H)
+        drawn_samples = np.ascontiguousarray(drawn_samples.transpose(0, 1, 3, 2))  # (S', B, K, H)
         if not cascaded:
-            return {"samples": drawn_samples, "mean": drawn_samples.mean(axis=0, dtype=np.float32),
-                    "repaired": np.ascontiguousarray(filled[:, :o].transpose(0, 2, 1))}
+            return {
+                "samples": drawn_samples,
+                "mean": drawn_samples.mean(axis=0, dtype=np.float32),
+                "repaired": np.ascontiguousarray(filled[:, :o].transpose(0, 2, 1)),
+            }
         out = cascade(observed, seen, cascaded)
         samples = np.concatenate([out["samples"], drawn_samples])
         return {**out, "samples": samples, "mean": samples.mean(axis=0, dtype=np.float32)}
 
-    def repair(self, obs: ArrayLike, mask: Optional[ArrayLike] = None, *, num_samples: Optional[int] = None,
-               seed: Optional[int] = None, units: Units = "m", threads: Optional[int] = None,
-               progress: Progress = False, layout: Optional[str] = None, fps: Optional[float] = None,
-               up: Up = "y", **sampler: Any) -> Repair:
+    def repair(
+        self,
+        obs: ArrayLike,
+        mask: Optional[ArrayLike] = None,
+        *,
+        num_samples: Optional[int] = None,
+        seed: Optional[int] = None,
+        units: Units = "m",
+        threads: Optional[int] = None,
+        progress: Progress = False,
+        layout: Optional[str] = None,
+        fps: Optional[float] = None,
+        up: Up = "y",
+        **sampler: Any,
+    ) -> Repair:
         """Fills the missing entries of ``obs`` (same arguments as :meth:`forecast`) with the mean of
         ``num_samples`` samples of the repair model (the short-term model when the directory has no
         ``repair.safetensors``), sampled as the sampler keywords say (those not given: the model's
@@ -538,19 +680,52 @@ class TCD:
         seed = _seed(seed)
         model = self.repair_model if self.repair_model is not None else self.short
         if layout is not None or fps is not None:
-            poses = _wild_calls.repair(self, model, obs, mask, layout="h36m22" if layout is None else layout,
-                                       fps=fps, up=up, num_samples=num_samples, sampling=sampling, seed=seed,
-                                       units=units, threads=threads, progress=progress)
+            poses = _wild_calls.repair(
+                self,
+                model,
+                obs,
+                mask,
+                layout="h36m22" if layout is None else layout,
+                fps=fps,
+                up=up,
+                num_samples=num_samples,
+                sampling=sampling,
+                seed=seed,
+                units=units,
+                threads=threads,
+                progress=progress,
+            )
             return Repair(poses=poses, seed=seed)
         p = _poses(obs, mask, self.num_joints, self.obs_len, units, repair=True)
-        out = repair_raw(model, p.observed, p.mask, num_samples=num_samples, seed=seed, threads=threads,
-                         progress=progress, **self._repair_fills(model), **sampling)
+        out = repair_raw(
+            model,
+            p.observed,
+            p.mask,
+            num_samples=num_samples,
+            seed=seed,
+            threads=threads,
+            progress=progress,
+            **self._repair_fills(model),
+            **sampling,
+        )
         return Repair(poses=p.repaired(out["mean"]), seed=seed)
 
-    def predict(self, obs: ArrayLike, mask: Optional[ArrayLike] = None, *, fill: Fill = "auto",
-                num_samples: Optional[int] = None, seed: Optional[int] = None, units: Units = "m",
-                threads: Optional[int] = None, progress: Progress = False, layout: Optional[str] = None,
-                fps: Optional[float] = None, up: Up = "y", **sampler: Any) -> Forecast:
+    def predict(
+        self,
+        obs: ArrayLike,
+        mask: Optional[ArrayLike] = None,
+        *,
+        fill: Fill = "auto",
+        num_samples: Optional[int] = None,
+        seed: Optional[int] = None,
+        units: Units = "m",
+        threads: Optional[int] = None,
+        progress: Progress = False,
+        layout: Optional[str] = None,
+        fps: Optional[float] = None,
+        up: Up = "y",
+        **sampler: Any,
+    ) -> Forecast:
         """The deterministic point forecast of the next :attr:`horizon` frames by the prior
         (``prior.safetensors``: a siMLPe-class network, one forward per 10 frames, no sampling), with the
         inputs and conventions of :meth:`forecast` (mask/NaN, units, batches, the length rule,
@@ -568,28 +743,52 @@ class TCD:
         ``repaired`` the filled observation and ``seed`` the repair's seed. Raises ``FileNotFoundError`` when
         the model directory has no ``prior.safetensors``."""
         if self.prior is None:
-            raise FileNotFoundError(f"The model directory {self.path} has no prior.safetensors: TCD.predict needs "
-                                    "the prior forecaster (the bundled model has one; see MODEL_CARD.md).")
+            raise FileNotFoundError(
+                f"The model directory {self.path} has no prior.safetensors: TCD.predict needs "
+                "the prior forecaster (the bundled model has one; see MODEL_CARD.md)."
+            )
         if _checks.text("fill", fill, FILLS) not in FILLS:
             raise _checks.fail("fill", "one of " + ", ".join(repr(f) for f in FILLS), repr(fill))
         num_samples = self.repair_samples if num_samples is None else num_samples
         num_samples, sampling, units, threads = self._common("repair", num_samples, sampler, units, threads)
         seed = _seed(seed)
-        run = lambda observed, seen: self._predict_raw(observed, seen, fill=fill, num_samples=num_samples,  # noqa: E731
-                                                       sampling=sampling, seed=seed, threads=threads, progress=progress)
+        run = lambda observed, seen: self._predict_raw(  # noqa: E731
+            observed,
+            seen,
+            fill=fill,
+            num_samples=num_samples,
+            sampling=sampling,
+            seed=seed,
+            threads=threads,
+            progress=progress,
+        )
         if layout is not None or fps is not None:
-            mean, _, repaired, times = _wild_calls.forecast(self, obs, mask,
-                                                           layout="h36m22" if layout is None else layout,
-                                                           fps=fps, up=up, units=units, run=run)
+            mean, _, repaired, times = _wild_calls.forecast(
+                self, obs, mask, layout="h36m22" if layout is None else layout, fps=fps, up=up, units=units, run=run
+            )
             return Forecast(mean=mean, samples=None, repaired=repaired, seed=seed, times=times)
         p = _poses(obs, mask, self.num_joints, self.obs_len, units)
         out = run(p.observed, p.mask)
-        return Forecast(mean=p.poses(out["mean"]), samples=None, repaired=p.repaired(out["repaired"]), seed=seed,
-                        times=None if self.fps is None else np.arange(1, self.horizon + 1) / float(self.fps))
+        return Forecast(
+            mean=p.poses(out["mean"]),
+            samples=None,
+            repaired=p.repaired(out["repaired"]),
+            seed=seed,
+            times=None if self.fps is None else np.arange(1, self.horizon + 1) / float(self.fps),
+        )
 
-    def _predict_raw(self, observed: np.ndarray, seen: np.ndarray, *, fill: str, num_samples: int,
-                     sampling: Dict[str, Any], seed: int, threads: Optional[int],
-                     progress: Progress) -> Dict[str, Any]:
+    def _predict_raw(
+        self,
+        observed: np.ndarray,
+        seen: np.ndarray,
+        *,
+        fill: str,
+        num_samples: int,
+        sampling: Dict[str, Any],
+        seed: int,
+        threads: Optional[int],
+        progress: Progress,
+    ) -> Dict[str, Any]:
         """Repair-then-predict in the engine's layout: observed, seen (B, K, T) float32 (0 where missing) ->
         {"mean": (B, K, H) point forecast, "repaired": (B, K, T), "samples": None}."""
         repaired = observed
@@ -599,8 +798,17 @@ class TCD:
                 fill = "model" if self.repair_model is not None else "spline"
             if fill == "model":
                 den = self.repair_model if self.repair_model is not None else self.short
-                out = repair_raw(den, observed, seen, num_samples=num_samples, seed=seed, threads=threads,
-                                 progress=progress, **self._repair_fills(den), **sampling)
+                out = repair_raw(
+                    den,
+                    observed,
+                    seen,
+                    num_samples=num_samples,
+                    seed=seed,
+                    threads=threads,
+                    progress=progress,
+                    **self._repair_fills(den),
+                    **sampling,
+                )
                 repaired = np.where(missing, out["mean"], observed).astype(np.float32)
             else:
                 never = missing.all(axis=-1)
@@ -609,11 +817,12 @@ class TCD:
                     raise InvalidInputError(
                         f"Argument `obs` has coordinate {k} of joint {k // 3} never observed in sequence {b}: "
                         f"fill={fill!r} interpolates along time and has nothing to start from; use fill='model'.",
-                        "obs")
+                        "obs",
+                    )
                 repaired = np.ascontiguousarray(_native.interpolate(observed, seen, fill), dtype=np.float32)
                 repaired = np.where(missing, repaired, observed)
-        hist = np.ascontiguousarray(repaired[..., -self.prior.obs_len:].transpose(0, 2, 1))   # (B, T, K)
-        mean = self.prior.predict(hist, self.horizon, threads=threads)                         # (B, H, K)
+        hist = np.ascontiguousarray(repaired[..., -self.prior.obs_len :].transpose(0, 2, 1))  # (B, T, K)
+        mean = self.prior.predict(hist, self.horizon, threads=threads)  # (B, H, K)
         return {"mean": np.ascontiguousarray(mean.transpose(0, 2, 1)), "repaired": repaired, "samples": None}
 
 
@@ -638,12 +847,15 @@ def load(path: Optional[PathLike] = None, *, threads: Optional[int] = None) -> T
         if not d.exists():
             raise FileNotFoundError(f"The model directory {d} does not exist.")
         if not d.is_dir():
-            raise NotADirectoryError(f"{d} is not a directory: pass the model directory that holds "
-                                     "short.safetensors and long.safetensors.")
+            raise NotADirectoryError(
+                f"{d} is not a directory: pass the model directory that holds short.safetensors and long.safetensors."
+            )
     for role in ("short", "long"):
         if not (d / f"{role}.safetensors").is_file():
-            raise FileNotFoundError(f"The model directory {d} has no {role}.safetensors: a model directory holds "
-                                    "short.safetensors and long.safetensors (and optionally repair.safetensors).")
+            raise FileNotFoundError(
+                f"The model directory {d} has no {role}.safetensors: a model directory holds "
+                "short.safetensors and long.safetensors (and optionally repair.safetensors)."
+            )
     names = [f"{r}.safetensors" for r in ROLES if (d / f"{r}.safetensors").is_file()]
     blobs = {n: (d / n).read_bytes() for n in names}
     digests = {n: hashlib.sha256(b).hexdigest() for n, b in blobs.items()}
@@ -653,20 +865,36 @@ def load(path: Optional[PathLike] = None, *, threads: Optional[int] = None) -> T
     rp = "repair.safetensors"
     repair_model = Denoiser.from_bytes(blobs[rp], str(d / rp)) if rp in blobs else None
     priors = {n: Prior.from_bytes(blobs[n], str(d / n)) if n in blobs else None for n in (PRIOR_FILE, REPAIR_FILL_FILE)}
-    generator = (Generator.from_bytes(blobs[GENERATOR_FILE], str(d / GENERATOR_FILE)) if GENERATOR_FILE in blobs
-                 else None)
+    generator = (
+        Generator.from_bytes(blobs[GENERATOR_FILE], str(d / GENERATOR_FILE)) if GENERATOR_FILE in blobs else None
+    )
     sampling, forecast_tempo, share = _read_sampling(d / SAMPLING_FILE)
-    return TCD(short, long, repair_model, path=d, threads=threads, file_sha256=digests, prior=priors[PRIOR_FILE],
-               sampling=sampling, forecast_tempo=forecast_tempo, repair_fill=priors[REPAIR_FILL_FILE],
-               generator=generator, generator_share=share)
+    return TCD(
+        short,
+        long,
+        repair_model,
+        path=d,
+        threads=threads,
+        file_sha256=digests,
+        prior=priors[PRIOR_FILE],
+        sampling=sampling,
+        forecast_tempo=forecast_tempo,
+        repair_fill=priors[REPAIR_FILL_FILE],
+        generator=generator,
+        generator_share=share,
+    )
 
 
 def check_generator_share(value: Any, name: str = "generator_share") -> float:
     """``value`` as a share of samples in [0, 1]; an :class:`InvalidInputError` naming ``name`` otherwise."""
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
-            or not 0.0 <= float(value) <= 1.0:
-        raise _checks.fail(name, "a number in [0, 1] (the share of a forecast's samples the generator draws)",
-                           repr(value))
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, (int, float, np.integer, np.floating))
+        or not 0.0 <= float(value) <= 1.0
+    ):
+        raise _checks.fail(
+            name, "a number in [0, 1] (the share of a forecast's samples the generator draws)", repr(value)
+        )
     return float(value)
 
 
@@ -687,13 +915,15 @@ def _read_sampling(f: Path) -> Tuple[Dict[str, SamplerOptions], Tempo, float]:
         if key in ("why", TEMPO_KEY, GENERATOR_SHARE_KEY):  # the reason, for the reader; the others checked below
             continue
         if key not in SAMPLING_TASKS:
-            raise WeightsError(f"{f}: unknown key {key!r} (the tasks: {', '.join(SAMPLING_TASKS)}; and \"why\", "
-                               f"\"{TEMPO_KEY}\", \"{GENERATOR_SHARE_KEY}\").",
-                               str(f))
+            raise WeightsError(
+                f'{f}: unknown key {key!r} (the tasks: {", ".join(SAMPLING_TASKS)}; and "why", '
+                f'"{TEMPO_KEY}", "{GENERATOR_SHARE_KEY}").',
+                str(f),
+            )
         if not isinstance(value, dict):
             raise WeightsError(f"{f}, {key!r}: expected an object of sampler settings, got {value!r}", str(f))
         try:
-            out[key] = SamplerOptions.build(**value)       # the fields it leaves out: SamplerOptions' defaults
+            out[key] = SamplerOptions.build(**value)  # the fields it leaves out: SamplerOptions' defaults
         except (TypeError, InvalidInputError) as e:
             raise WeightsError(f"{f}, {key!r}: {e}", str(f)) from None
     try:
@@ -724,8 +954,11 @@ def _verify_checksums(d: Path, digests: Dict[str, str], bundled: bool) -> None:
     f = d / CHECKSUM_FILE
     if not f.is_file():
         if bundled:
-            raise WeightsError(f"The bundled model in {d} has no {CHECKSUM_FILE}: the installation is incomplete; "
-                               "reinstall tcd-forecast.", str(f))
+            raise WeightsError(
+                f"The bundled model in {d} has no {CHECKSUM_FILE}: the installation is incomplete; "
+                "reinstall tcd-forecast.",
+                str(f),
+            )
         return
     expected: Dict[str, str] = {}
     for i, line in enumerate(f.read_text().splitlines(), 1):

@@ -8,6 +8,7 @@ them with :meth:`SamplerOptions.build`; the binding converts the resulting :clas
 The values are checked by the engine's rules (``SamplerConfig::from_names``), when an options object is
 made and again when it is used; Python checks only that each field has the Python type the binding reads.
 """
+
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, fields
@@ -72,8 +73,9 @@ class SamplerOptions:
         names = {f.name for f in fields(cls)}
         unknown = sorted(set(sampler) - names)
         if unknown:
-            raise TypeError(f"unexpected keyword argument {unknown[0]!r} "
-                            f"(sampler settings: {', '.join(sorted(names))})")
+            raise TypeError(
+                f"unexpected keyword argument {unknown[0]!r} (sampler settings: {', '.join(sorted(names))})"
+            )
         if defaults is None or sampler.get("sampler", defaults.sampler) != defaults.sampler:
             return cls(**sampler)
         return cls(**{**asdict(defaults), **sampler})

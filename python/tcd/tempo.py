@@ -20,6 +20,7 @@ The repaired observation is each sample's repair read back on the original clock
 whose warped window covers the frame (every sample with ``s >= 1`` covers all of it, and ``hi >= 1``); its
 observed entries are the observation's.
 """
+
 from __future__ import annotations
 
 from typing import Callable, Dict, List, Optional, Sequence, Tuple
@@ -44,8 +45,11 @@ def check_tempo(tempo: object, name: str = "tempo") -> Tempo:
         raise _checks.fail(name, "None or a (lo, hi) pair of tempi", repr(tempo))
     lo, hi = (_checks.real(name, v) for v in values)
     if not (0.0 < lo <= 1.0 <= hi) or hi / lo > 4.0:
-        raise _checks.fail(name, "a (lo, hi) pair with 0 < lo <= 1 <= hi and hi / lo <= 4 (the observed tempo "
-                                 "inside the range)", repr((lo, hi)))
+        raise _checks.fail(
+            name,
+            "a (lo, hi) pair with 0 < lo <= 1 <= hi and hi / lo <= 4 (the observed tempo inside the range)",
+            repr((lo, hi)),
+        )
     return (lo, hi)
 
 
@@ -77,18 +81,17 @@ def warp(observed: np.ndarray, seen: np.ndarray, s: float) -> Tuple[np.ndarray, 
     frame ``last - k`` reads original frame ``last - s k``). Unobserved entries hold 0."""
     T = observed.shape[-1]
     x, m = resample_forward(_frames_last(observed), _frames_last(seen > 0), 1.0, 1.0 / s)
-    if len(x) < T:       # s > 1: the first warped frames lie before the observation's first frame: missing
+    if len(x) < T:  # s > 1: the first warped frames lie before the observation's first frame: missing
         x = np.concatenate([x, np.zeros((T - len(x), x.shape[1]))])
         m = np.concatenate([m, np.zeros((T - len(m), m.shape[1]), bool)])
-    return (_batched(x[:T], observed.shape).astype(observed.dtype),
-            _batched(m[:T], observed.shape).astype(seen.dtype))
+    return (_batched(x[:T], observed.shape).astype(observed.dtype), _batched(m[:T], observed.shape).astype(seen.dtype))
 
 
 def unwarp_future(last: np.ndarray, future: np.ndarray, s: float) -> np.ndarray:
     """A forecast (..., K, H) made on the clock of tempo ``s`` read back on the original clock, ``last``
     (..., K, 1) the warped last observed frame (step 3 of the module docstring): original frame t is warped
     frame t / s, and :func:`tcd._resample.resample_backward` holds the last frame beyond the forecast."""
-    full = np.concatenate([last, future], axis=-1)                 # frame 0: the last observed one
+    full = np.concatenate([last, future], axis=-1)  # frame 0: the last observed one
     H = future.shape[-1]
     y = resample_backward(full.reshape(-1, H + 1).T, H + 1, 1.0, 1.0 / s)
     return np.ascontiguousarray(y[1:].T).reshape(future.shape)
@@ -103,9 +106,13 @@ def unwarp_history(history: np.ndarray, s: float) -> Tuple[np.ndarray, np.ndarra
     return _batched(y, history.shape), covered
 
 
-def tempo_forecast(run_one: Callable[[np.ndarray, np.ndarray, List[int]], Dict[str, np.ndarray]],
-                   observed: np.ndarray, seen: np.ndarray, num_samples: int,
-                   tempo: Tuple[float, float]) -> Dict[str, np.ndarray]:
+def tempo_forecast(
+    run_one: Callable[[np.ndarray, np.ndarray, List[int]], Dict[str, np.ndarray]],
+    observed: np.ndarray,
+    seen: np.ndarray,
+    num_samples: int,
+    tempo: Tuple[float, float],
+) -> Dict[str, np.ndarray]:
     """The forecast of the module docstring in the engine's layout: ``observed``, ``seen`` (B, K, T);
     ``run_one(observed, seen, streams)`` forecasts one sample of each of its sequences, sequence j from the noise
     stream ``streams[j]`` (the cascade's ``sequences``). All samples run as one batch of n * B sequences, sample
@@ -115,16 +122,18 @@ def tempo_forecast(run_one: Callable[[np.ndarray, np.ndarray, List[int]], Dict[s
     ss = tempi(tempo, num_samples)
     n = len(ss)
     warped = [warp(observed, seen, float(s)) for s in ss]
-    out = run_one(np.concatenate([w[0] for w in warped]), np.concatenate([w[1] for w in warped]),
-                  [b * n + i for i in range(n) for b in range(B)])
+    out = run_one(
+        np.concatenate([w[0] for w in warped]),
+        np.concatenate([w[1] for w in warped]),
+        [b * n + i for i in range(n) for b in range(B)],
+    )
     one = np.asarray(out["samples"])[0]
-    one = one.reshape(n, B, *one.shape[1:])                         # (n, B, K, H): sample i's sequences
+    one = one.reshape(n, B, *one.shape[1:])  # (n, B, K, H): sample i's sequences
     rep = np.asarray(out["repaired"])
-    rep = rep.reshape(n, B, *rep.shape[1:])                         # (n, B, K, T)
+    rep = rep.reshape(n, B, *rep.shape[1:])  # (n, B, K, T)
     samples = np.stack([unwarp_future(r[..., -1:], f, float(s)) for r, f, s in zip(rep, one, ss)])
     histories = [unwarp_history(r, float(s)) for r, s in zip(rep, ss)]
     total = sum(np.where(covered, h, 0.0) for h, covered in histories)
     count = sum(covered.astype(np.float64) for _, covered in histories)
-    repaired = np.where(seen > 0, observed, total / count).astype(rep.dtype)   # observed entries as given
-    return {"mean": samples.mean(axis=0).astype(one.dtype), "samples": samples.astype(one.dtype),
-            "repaired": repaired}
+    repaired = np.where(seen > 0, observed, total / count).astype(rep.dtype)  # observed entries as given
+    return {"mean": samples.mean(axis=0).astype(one.dtype), "samples": samples.astype(one.dtype), "repaired": repaired}

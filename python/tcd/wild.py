@@ -48,6 +48,7 @@ The rules, in the order they are applied:
 
 Observed values are returned unchanged in ``repaired``.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -62,8 +63,17 @@ from .exceptions import InvalidInputError
 from .layouts import FIXED_IDS, MODEL_IDS, Layout
 from ._resample import resample_forward
 
-__all__ = ["UP_AXES", "Up", "up_vector", "Scene", "to_model", "from_model", "join", "future_frames",
-           "resample_to_model"]
+__all__ = [
+    "UP_AXES",
+    "Up",
+    "up_vector",
+    "Scene",
+    "to_model",
+    "from_model",
+    "join",
+    "future_frames",
+    "resample_to_model",
+]
 
 UP_AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
 #: The ``up`` argument: an axis of :data:`UP_AXES`, optionally signed (``"-z"``), or a unit 3-vector.
@@ -152,8 +162,9 @@ def _mean_of(x: np.ndarray, joints: Tuple[int, ...]) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------------------------- root frames
-def _hip_root_offset(layout: Layout, x: np.ndarray, mid: np.ndarray, rot: np.ndarray, width: np.ndarray,
-                     hips: np.ndarray) -> np.ndarray:
+def _hip_root_offset(
+    layout: Layout, x: np.ndarray, mid: np.ndarray, rot: np.ndarray, width: np.ndarray, hips: np.ndarray
+) -> np.ndarray:
     """Per sequence, the pelvis's offset from the mid-point of the hips along the root frame's axes (B, 3):
     the median over the frames that show the pelvis and both hips; for a sequence that never shows its
     pelvis, the model skeleton's offset scaled by the caller's hip width over the model's (on the Human3.6M
@@ -190,7 +201,9 @@ def _frames(x: np.ndarray, layout: Layout, up: np.ndarray, arg: str) -> Tuple[np
             raise InvalidInputError(
                 f"Argument `{arg}` must show both hips in at least one frame, to place the body (the root is "
                 f"the pelvis, or the mid-point of the hips where the pelvis is missing), but {which} has no "
-                "frame with both hips.", arg)
+                "frame with both hips.",
+                arg,
+            )
     left = across / np.where(hips, norm, 1.0)[..., None]
     rot = np.stack([left, np.broadcast_to(up, left.shape), np.cross(left, up)], axis=-1)
     mid = 0.5 * (left_hip + right_hip)
@@ -198,7 +211,7 @@ def _frames(x: np.ndarray, layout: Layout, up: np.ndarray, arg: str) -> Tuple[np
     root = _mean_of(x, layout.source_of(0))
     from_hips = np.where(hips[..., None], mid + np.einsum("btck,bk->btc", rot, offset), np.nan)
     root = np.where(np.isfinite(root).all(-1, keepdims=True), root, from_hips)
-    has_root = np.isfinite(root).all(-1)                    # every frame with both hips, and more
+    has_root = np.isfinite(root).all(-1)  # every frame with both hips, and more
     frames = np.arange(t)
     for i in range(b):
         for c in range(3):
@@ -247,14 +260,14 @@ class Scene:
 
     layout: Layout
     up: np.ndarray
-    root: np.ndarray                  # (B, T, 3) the root, caller coordinates
-    rot: np.ndarray                   # (B, T, 3, 3) the root frame (columns: left, up, forward)
-    lengths: Dict[int, np.ndarray]    # model 32-id -> (B, T) caller distance to ``ancestor``
-    ancestor: Dict[int, np.ndarray]   # model 32-id -> (B,) its nearest placed ancestor the sequence shows
-    fixed: Dict[int, np.ndarray]      # fixed 32-id -> (B, T, 3) caller position in the root frame
-    carried: Dict[int, Tuple[int, np.ndarray]]   # layout joint -> (anchor 32-id, (B, T, 3) offset)
-    last: np.ndarray                  # (B, J, 3) each joint where last seen, in that frame's root frame (last_seen)
-    start: np.ndarray                 # (B, J, 3) each joint where last seen, caller coordinates: a forecast's time 0
+    root: np.ndarray  # (B, T, 3) the root, caller coordinates
+    rot: np.ndarray  # (B, T, 3, 3) the root frame (columns: left, up, forward)
+    lengths: Dict[int, np.ndarray]  # model 32-id -> (B, T) caller distance to ``ancestor``
+    ancestor: Dict[int, np.ndarray]  # model 32-id -> (B,) its nearest placed ancestor the sequence shows
+    fixed: Dict[int, np.ndarray]  # fixed 32-id -> (B, T, 3) caller position in the root frame
+    carried: Dict[int, Tuple[int, np.ndarray]]  # layout joint -> (anchor 32-id, (B, T, 3) offset)
+    last: np.ndarray  # (B, J, 3) each joint where last seen, in that frame's root frame (last_seen)
+    start: np.ndarray  # (B, J, 3) each joint where last seen, caller coordinates: a forecast's time 0
 
     def value(self, per_frame: np.ndarray, frames: bool) -> np.ndarray:
         """``per_frame`` on the observation's own frames where finite (``frames``), else (and for other
@@ -297,8 +310,9 @@ def _canonical(x: np.ndarray, layout: Layout, up: np.ndarray, arg: str) -> Tuple
     return root, rot, np.einsum("btjc,btck->btjk", x - root[:, :, None, :], rot)
 
 
-def to_model(x: np.ndarray, layout: Layout, up: np.ndarray, arg: str = "obs",
-             sightings: Optional[np.ndarray] = None) -> Tuple[np.ndarray, Scene]:
+def to_model(
+    x: np.ndarray, layout: Layout, up: np.ndarray, arg: str = "obs", sightings: Optional[np.ndarray] = None
+) -> Tuple[np.ndarray, Scene]:
     """(B, T, J, 3) caller poses (NaN = missing, metres) -> (B, T, 22, 3) model poses (NaN = missing).
     ``sightings``: the caller's poses at their own frame rate, ending at ``x``'s last frame (``x`` resampled
     from them), from which ``Scene.last`` takes where each joint was last seen (default: ``x``). At the
@@ -309,7 +323,7 @@ def to_model(x: np.ndarray, layout: Layout, up: np.ndarray, arg: str = "obs",
     placed = set(FIXED_IDS) | set(MODEL_IDS)
     src = {j: _mean_of(canon, layout.source_of(j)) for j in placed}
     pelvis_seen = np.isfinite(src[0]).all(-1, keepdims=True)
-    src[0] = np.zeros_like(src[0])                           # the root is the origin of its own frame
+    src[0] = np.zeros_like(src[0])  # the root is the origin of its own frame
     shown = {j: np.isfinite(src[j]).all(-1).any(-1) for j in placed}
     shown[0] = np.ones_like(shown[0])
     ancestor = {j: _shown_ancestor(shown, j) for j in MODEL_IDS}
@@ -328,8 +342,9 @@ def to_model(x: np.ndarray, layout: Layout, up: np.ndarray, arg: str = "obs",
             use = (ancestor[j] == a)[:, None] & np.isfinite(val).all(-1) & np.isfinite(src[a]).all(-1)
             d = val - src[a]
             n = np.linalg.norm(d, axis=-1, keepdims=True)
-            step = np.where(n > 1e-12, d / np.where(n > 1e-12, n, 1.0) * np.linalg.norm(rest[j] - rest[a]),
-                            rest[j] - rest[a])
+            step = np.where(
+                n > 1e-12, d / np.where(n > 1e-12, n, 1.0) * np.linalg.norm(rest[j] - rest[a]), rest[j] - rest[a]
+            )
             out[use] = (model[a] + step)[use]
         model[j] = out
     lengths = {}
@@ -339,7 +354,7 @@ def to_model(x: np.ndarray, layout: Layout, up: np.ndarray, arg: str = "obs",
             use = ancestor[j] == a
             lengths[j][use] = np.linalg.norm(src[j][use] - src[a][use], axis=-1)
     fixed = {j: src[j] for j in FIXED_IDS}
-    fixed[0] = np.where(pelvis_seen, src[0], np.nan)         # where the caller showed a pelvis (else: the hips')
+    fixed[0] = np.where(pelvis_seen, src[0], np.nan)  # where the caller showed a pelvis (else: the hips')
     carried = {}
     for i, t in enumerate(layout.to32):
         if t is None or t not in placed:
@@ -409,8 +424,8 @@ def last_seen(canon: np.ndarray) -> np.ndarray:
     forecast starts from there, as Zero-Velocity does: on the in-the-wild benchmark's occluded rows the model's
     in-painting of such a joint started the forecast 1.1 to 2.9 x further from the truth than the joint's last
     sighting (benches/in_the_wild.py, issue 27)."""
-    seen = np.isfinite(canon).all(-1)                                   # (B, T, J)
-    idx = canon.shape[1] - 1 - np.argmax(seen[:, ::-1], axis=1)         # the last frame showing each joint
+    seen = np.isfinite(canon).all(-1)  # (B, T, J)
+    idx = canon.shape[1] - 1 - np.argmax(seen[:, ::-1], axis=1)  # the last frame showing each joint
     out = np.take_along_axis(canon, idx[:, None, :, None], axis=1)[:, 0]
     return np.where(seen.any(axis=1)[..., None], out, np.nan)
 
@@ -428,8 +443,9 @@ def join(canon: np.ndarray, last: np.ndarray, frames: Optional[int] = None) -> n
     return np.where(np.isfinite(start), start + (canon - start) * w, canon)
 
 
-def future_frames(scene: Scene, count: int, fps: float,
-                  damping_s: Optional[float] = None) -> Tuple[np.ndarray, np.ndarray]:
+def future_frames(
+    scene: Scene, count: int, fps: float, damping_s: Optional[float] = None
+) -> Tuple[np.ndarray, np.ndarray]:
     """Root (B, count, 3) and root frames (B, count, 3, 3) of the ``count`` model frames (at ``fps``) after
     the last observed one: the velocity (its speed less ROOT_DEAD_ZONE_MPS) and turn rate of the last
     EXTRAPOLATION_FRAMES frames, held (``damping_s`` None) or decaying exponentially with that time constant in
@@ -443,13 +459,15 @@ def future_frames(scene: Scene, count: int, fps: float,
     # frames travelled at the last velocity: f itself, or tau (1 - exp(-f / tau)) as the velocity decays
     travel = f if damping_s is None else damping_s * fps * -np.expm1(-f / (damping_s * fps))
     velocity = (root[:, -1] - root[:, -1 - k]) / k
-    if ROOT_DEAD_ZONE_MPS > 0:          # soft threshold: the speed less the dead zone, never below 0
+    if ROOT_DEAD_ZONE_MPS > 0:  # soft threshold: the speed less the dead zone, never below 0
         speed = np.linalg.norm(velocity, axis=-1, keepdims=True) * fps
         velocity = velocity * np.clip(1.0 - ROOT_DEAD_ZONE_MPS / np.maximum(speed, 1e-12), 0.0, None)
     heading = _heading(rot, up)
     rate = (heading[:, -1] - heading[:, -1 - k]) / k
-    return (root[:, -1:, :] + velocity[:, None, :] * travel[None, :, None],
-            _turn(rot[:, -1], rate[:, None] * travel, up))
+    return (
+        root[:, -1:, :] + velocity[:, None, :] * travel[None, :, None],
+        _turn(rot[:, -1], rate[:, None] * travel, up),
+    )
 
 
 # ---------------------------------------------------------------------------------------------- frame rates
@@ -467,7 +485,8 @@ def resample_to_model(x: np.ndarray, fps: float, model_fps: float, frames: int) 
     res = np.stack(outs).reshape(b, n, j, 3)
     times = (t - 1) - np.arange(n)[::-1] * (fps / model_fps)
     if n >= frames:
-        return res[:, n - frames:], times[n - frames:]
+        return res[:, n - frames :], times[n - frames :]
     pad = np.full((b, frames - n, j, 3), np.nan)
-    return np.concatenate([pad, res], axis=1), np.concatenate([times[0] - (np.arange(frames - n, 0, -1)) *
-                                                                (fps / model_fps), times])
+    return np.concatenate([pad, res], axis=1), np.concatenate(
+        [times[0] - (np.arange(frames - n, 0, -1)) * (fps / model_fps), times]
+    )

@@ -11,6 +11,7 @@ Protocol (spec section 3.3, the DePOSit / HisRepItself AMASS pipeline):
 
 The same FK and joint subset serve 3DPW (whose loader lives elsewhere).
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -35,10 +36,28 @@ AMASS_JOINTS_USED = list(range(AMASS_JOINT_START, AMASS_JOINT_STOP))  # 18 joint
 # Standard SMPL body-joint names (indices 0..21 are shared by SMPL and SMPL-H). "left" is the
 # subject's left, which is +x in the SMPL rest pose (p3d0[1] = left hip has x > 0).
 SMPL_BODY_JOINT_NAMES = [
-    "pelvis", "left_hip", "right_hip", "spine1", "left_knee", "right_knee", "spine2",
-    "left_ankle", "right_ankle", "spine3", "left_foot", "right_foot", "neck", "left_collar",
-    "right_collar", "head", "left_shoulder", "right_shoulder", "left_elbow", "right_elbow",
-    "left_wrist", "right_wrist",
+    "pelvis",
+    "left_hip",
+    "right_hip",
+    "spine1",
+    "left_knee",
+    "right_knee",
+    "spine2",
+    "left_ankle",
+    "right_ankle",
+    "spine3",
+    "left_foot",
+    "right_foot",
+    "neck",
+    "left_collar",
+    "right_collar",
+    "head",
+    "left_shoulder",
+    "right_shoulder",
+    "left_elbow",
+    "right_elbow",
+    "left_wrist",
+    "right_wrist",
 ]
 # Names of the 18 kept joints, in output order (SMPL joints 4..21).
 JOINTS_AMASS_18 = SMPL_BODY_JOINT_NAMES[AMASS_JOINT_START:AMASS_JOINT_STOP]
@@ -100,7 +119,7 @@ def iter_windows(seq: np.ndarray, seq_len: int, stride: int = 1) -> Iterator[np.
     if seq_len <= 0 or stride <= 0:
         raise ValueError("seq_len and stride must be positive")
     for start in range(0, len(seq) - seq_len + 1, stride):
-        yield seq[start:start + seq_len]
+        yield seq[start : start + seq_len]
 
 
 def list_amass_files(root, datasets) -> list[Path]:

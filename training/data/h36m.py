@@ -5,6 +5,7 @@ or the standard tree ``[dataset/]S{s}/{action}_{n}.txt`` (99 comma-separated col
 Pipeline: every 2nd frame (50 Hz -> 25 fps) -> root position and root rotation zeroed -> forward
 kinematics on the 32-joint skeleton (mm) -> the 22 model joints in metres, (T, 22, 3).
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -21,8 +22,23 @@ REPO_ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_DATA_ROOT = Path(os.environ.get("TCD_DATA_DIR", REPO_ROOT.parent / "shared" / "data"))
 DEFAULT_H36M_DIR = DEFAULT_DATA_ROOT / "h36m"
 
-ACTIONS = ("walking", "eating", "smoking", "discussion", "directions", "greeting", "phoning", "posing",
-           "purchases", "sitting", "sittingdown", "takingphoto", "waiting", "walkingdog", "walkingtogether")
+ACTIONS = (
+    "walking",
+    "eating",
+    "smoking",
+    "discussion",
+    "directions",
+    "greeting",
+    "phoning",
+    "posing",
+    "purchases",
+    "sitting",
+    "sittingdown",
+    "takingphoto",
+    "waiting",
+    "walkingdog",
+    "walkingtogether",
+)
 SPLITS = {"train": (1, 6, 7, 8, 9), "val": (11,), "test": (5,)}
 FPS = 25
 SOURCE_FPS = 50
@@ -30,13 +46,38 @@ TEST_SEED = 1234567890
 
 # Names of the 32 skeleton joints (the HRI / LTD naming); the 22 used ones are the model layout.
 JOINT_NAMES_32 = (
-    "hip", "right_hip", "right_knee", "right_ankle", "right_toe", "right_toe_site",
-    "left_hip", "left_knee", "left_ankle", "left_toe", "left_toe_site",
-    "spine", "thorax", "neck", "head", "head_site",
-    "left_shoulder_anchor", "left_shoulder", "left_elbow", "left_wrist", "left_wrist_dup", "left_thumb",
-    "left_hand", "left_hand_site",
-    "right_shoulder_anchor", "right_shoulder", "right_elbow", "right_wrist", "right_wrist_dup", "right_thumb",
-    "right_hand", "right_hand_site",
+    "hip",
+    "right_hip",
+    "right_knee",
+    "right_ankle",
+    "right_toe",
+    "right_toe_site",
+    "left_hip",
+    "left_knee",
+    "left_ankle",
+    "left_toe",
+    "left_toe_site",
+    "spine",
+    "thorax",
+    "neck",
+    "head",
+    "head_site",
+    "left_shoulder_anchor",
+    "left_shoulder",
+    "left_elbow",
+    "left_wrist",
+    "left_wrist_dup",
+    "left_thumb",
+    "left_hand",
+    "left_hand_site",
+    "right_shoulder_anchor",
+    "right_shoulder",
+    "right_elbow",
+    "right_wrist",
+    "right_wrist_dup",
+    "right_thumb",
+    "right_hand",
+    "right_hand_site",
 )
 
 
@@ -73,7 +114,8 @@ class H36MSource:
             files = sorted(root.glob("S*/*_*.txt"))
             if not files:
                 raise FileNotFoundError(
-                    f"no Human3.6M exp-map data in {self.dir}: expected h36m_expmap_50fps.npz or S*/<action>_<n>.txt")
+                    f"no Human3.6M exp-map data in {self.dir}: expected h36m_expmap_50fps.npz or S*/<action>_<n>.txt"
+                )
             self._npz = None
             self._files = {f"{f.parent.name}/{f.stem}": f for f in files}
             self.keys = set(self._files)
@@ -119,8 +161,9 @@ def model_to_xyz32(pred_m: np.ndarray, gt32_mm: np.ndarray) -> np.ndarray:
     return out
 
 
-def find_indices_256(n1: int, n2: int, seq_len: int, input_n: int = 50, draws: int = 128,
-                     seed: int = TEST_SEED) -> tuple[np.ndarray, np.ndarray]:
+def find_indices_256(
+    n1: int, n2: int, seq_len: int, input_n: int = 50, draws: int = 128, seed: int = TEST_SEED
+) -> tuple[np.ndarray, np.ndarray]:
     """The HRI/SRNN test-window draw: one RandomState(seed) per action, draws alternating between the two
     sub-actions, idx ~ randint(16, n - 150); window = frames idx + 50 - input_n ... + seq_len.
     Returns start frames for sub-action 1 and 2 (``draws`` each)."""
@@ -182,8 +225,15 @@ class H36M:
         """Actions with at least one sub-action for the subject (13 of 15 for our S5 copy)."""
         return [a for a in ACTIONS if self.source.has(subject, a, 1) or self.source.has(subject, a, 2)]
 
-    def test_windows(self, action: str, seq_len: int = 75, input_n: int = 50, per_action: int = 256,
-                     subject: int = 5, seed: int = TEST_SEED) -> np.ndarray:
+    def test_windows(
+        self,
+        action: str,
+        seq_len: int = 75,
+        input_n: int = 50,
+        per_action: int = 256,
+        subject: int = 5,
+        seed: int = TEST_SEED,
+    ) -> np.ndarray:
         """The 256-per-action protocol (section 10.2): (W, seq_len, 32, 3) mm. Where only one sub-action exists,
         both draw streams index it. ``per_action`` < 256 keeps the first windows of the interleaved order
         (1, 2, 1, 2, ...), so smaller evaluations are prefixes of the full one."""
@@ -195,8 +245,8 @@ class H36M:
         st1, st2 = find_indices_256(len(seq1), len(seq2), seq_len, input_n, seed=seed)
         wins = []
         for a, b in zip(st1, st2):
-            wins.append(seq1[a:a + seq_len])
-            wins.append(seq2[b:b + seq_len])
+            wins.append(seq1[a : a + seq_len])
+            wins.append(seq2[b : b + seq_len])
         return np.stack(wins[:per_action]).astype(np.float64)
 
 
@@ -207,7 +257,7 @@ def random_windows(seqs: list, n: int, length: int, rng: np.random.Generator) ->
     for _ in range(n):
         x = seqs[int(rng.integers(len(seqs)))]
         s = int(rng.integers(0, len(x) - length + 1))
-        out.append(x[s:s + length])
+        out.append(x[s : s + length])
     return np.stack(out).astype(np.float32)
 
 

@@ -25,6 +25,7 @@ Train split (the bad takes removed) in the model's space, joints 1..14 relative 
 (:func:`training_sequences`), every window of the model's length inside one chunk. The protocol has no
 validation split: a model is scored on ``Validate`` only at the end (``training.evaluate``).
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -42,9 +43,23 @@ HUMANEVA_PARENTS = [-1, 0, 1, 2, 3, 1, 5, 6, 0, 8, 9, 0, 11, 12, 1]
 
 # Names of the 15 joints in the file's order (VideoPose3D ``humaneva_dataset.py``: pelvis, thorax, lsho, lelb,
 # lwri, rsho, relb, rwri, lhip, lkne, lank, rhip, rkne, rank, head; left/right are the subject's).
-HUMANEVA_JOINT_NAMES = ("pelvis", "thorax", "left_shoulder", "left_elbow", "left_wrist", "right_shoulder",
-                        "right_elbow", "right_wrist", "left_hip", "left_knee", "left_ankle", "right_hip",
-                        "right_knee", "right_ankle", "head")
+HUMANEVA_JOINT_NAMES = (
+    "pelvis",
+    "thorax",
+    "left_shoulder",
+    "left_elbow",
+    "left_wrist",
+    "right_shoulder",
+    "right_elbow",
+    "right_wrist",
+    "left_hip",
+    "left_knee",
+    "left_ankle",
+    "right_hip",
+    "right_knee",
+    "right_ankle",
+    "head",
+)
 # The model's joints: joints 1..14 relative to the pelvis (the protocol's 42 dimensions).
 HUMANEVA_MODEL_JOINT_NAMES = HUMANEVA_JOINT_NAMES[1:]
 # The subjects of the Train split (S1, S2, S3), the only ones a model may be trained on.
@@ -84,6 +99,7 @@ def humaneva_file(path=None) -> Path:
     shared data directory's copy (``$TCD_DATA_DIR/humaneva``, else ``../shared/data/humaneva``)."""
     if path is None:
         from .h36m import DEFAULT_DATA_ROOT
+
         path = DEFAULT_DATA_ROOT / "humaneva"
     path = Path(path)
     return path / HUMANEVA_FILE_NAME if path.is_dir() else path
@@ -94,11 +110,16 @@ def training_sequences(path=None, subjects=HUMANEVA_TRAIN_SUBJECTS) -> dict[str,
     ``{"Train/S1/Box 1 chunk1": (T, 14, 3) float32 metres}`` in the file's order (the model's space)."""
     subjects = tuple(int(s) for s in subjects)
     if not subjects or set(subjects) - set(HUMANEVA_TRAIN_SUBJECTS):
-        raise ValueError(f"HumanEva-I training subjects must be among {list(HUMANEVA_TRAIN_SUBJECTS)} "
-                         f"(S1..S3 of the Train split), got {list(subjects)}")
+        raise ValueError(
+            f"HumanEva-I training subjects must be among {list(HUMANEVA_TRAIN_SUBJECTS)} "
+            f"(S1..S3 of the Train split), got {list(subjects)}"
+        )
     wanted = {f"S{s}" for s in subjects}
-    return {k: root_relative(v).astype(np.float32) for k, v in load_humaneva(humaneva_file(path), "Train").items()
-            if k.split("/")[1] in wanted}
+    return {
+        k: root_relative(v).astype(np.float32)
+        for k, v in load_humaneva(humaneva_file(path), "Train").items()
+        if k.split("/")[1] in wanted
+    }
 
 
 def training_actions(path=None, subjects=HUMANEVA_TRAIN_SUBJECTS) -> list[str]:
@@ -117,8 +138,9 @@ def window_starts(n_frames: int, t_total: int, step: int) -> range:
     return range(0, n_frames - t_total, step)
 
 
-def protocol_window_index(data: dict[str, np.ndarray], t_his: int = HUMANEVA_T_HIS, t_pred: int = HUMANEVA_T_PRED,
-                      step: int | None = None) -> list[tuple[str, int]]:
+def protocol_window_index(
+    data: dict[str, np.ndarray], t_his: int = HUMANEVA_T_HIS, t_pred: int = HUMANEVA_T_PRED, step: int | None = None
+) -> list[tuple[str, int]]:
     """(chunk key, first frame) of every test window, in ``data``'s order: DLow's ``iter_generator(step=t_his)``
     (``step`` defaults to ``t_his``); chunks with at most ``t_his + t_pred`` frames give no window."""
     step = t_his if step is None else step
@@ -127,20 +149,24 @@ def protocol_window_index(data: dict[str, np.ndarray], t_his: int = HUMANEVA_T_H
     return [(key, start) for key, seq in data.items() for start in window_starts(seq.shape[0], t_his + t_pred, step)]
 
 
-def humaneva_test_windows(data: dict[str, np.ndarray], t_his: int = HUMANEVA_T_HIS,
-                          t_pred: int = HUMANEVA_T_PRED, step: int | None = None) -> np.ndarray:
+def humaneva_test_windows(
+    data: dict[str, np.ndarray], t_his: int = HUMANEVA_T_HIS, t_pred: int = HUMANEVA_T_PRED, step: int | None = None
+) -> np.ndarray:
     """All test windows (:func:`protocol_window_index`), root-relative: (N, t_his + t_pred, 14, 3), in ``data``'s
     order."""
     t_total = t_his + t_pred
-    windows = [root_relative(data[key][start:start + t_total]) for key, start in
-               protocol_window_index(data, t_his, t_pred, step)]
+    windows = [
+        root_relative(data[key][start : start + t_total])
+        for key, start in protocol_window_index(data, t_his, t_pred, step)
+    ]
     if not windows:
         return np.zeros((0, t_total, HUMANEVA_NUM_JOINTS - 1, 3), dtype=np.float32)
     return np.stack(windows)
 
 
-def humaneva_test_actions(data: dict[str, np.ndarray], t_his: int = HUMANEVA_T_HIS, t_pred: int = HUMANEVA_T_PRED,
-                          step: int | None = None) -> list[str]:
+def humaneva_test_actions(
+    data: dict[str, np.ndarray], t_his: int = HUMANEVA_T_HIS, t_pred: int = HUMANEVA_T_PRED, step: int | None = None
+) -> list[str]:
     """The action of each window :func:`humaneva_test_windows` gives, in its order: ``"Box"`` for a window of
     ``Validate/S1/Box 1 chunk0`` (Box, Gestures, Jog, ThrowCatch, Walking)."""
     return [key.split("/")[-1].split(" ")[0] for key, _ in protocol_window_index(data, t_his, t_pred, step)]
@@ -177,9 +203,11 @@ def check_h36m_share(share: float, dataset: str, where: str) -> None:
     """ValueError (naming ``where``) unless ``share`` is a fraction in [0, 1) and, when above 0, ``dataset`` is
     HumanEva-I: the one check of ``h36m_share`` for the prior's and the denoisers' configs and :func:`training_mix`."""
     if not 0.0 <= share < 1.0 or (share and dataset != "humaneva"):
-        raise ValueError(f"{where}: h36m_share (the fraction of a HumanEva-I model's training windows taken from "
-                         f"Human3.6M) must be in [0, 1) and needs \"dataset\": \"humaneva\", got {share!r} "
-                         f"for {dataset!r}")
+        raise ValueError(
+            f"{where}: h36m_share (the fraction of a HumanEva-I model's training windows taken from "
+            f'Human3.6M) must be in [0, 1) and needs "dataset": "humaneva", got {share!r} '
+            f"for {dataset!r}"
+        )
 
 
 def bone_lengths(seqs) -> np.ndarray:
@@ -225,10 +253,12 @@ def h36m_as_humaneva(subjects=H36M_EXTRA_SUBJECTS, h36m_data=None, humaneva_path
     from tcd.layouts import HUMANEVA15
 
     from .h36m import DEFAULT_H36M_DIR, SOURCE_FPS, H36MSource, expmap_to_xyz32
+
     subjects = tuple(int(s) for s in subjects)
     if not subjects or set(subjects) - set(H36M_EXTRA_SUBJECTS):
-        raise ValueError(f"Human3.6M subjects for a HumanEva-I model must be among {list(H36M_EXTRA_SUBJECTS)}, "
-                         f"got {list(subjects)}")
+        raise ValueError(
+            f"Human3.6M subjects for a HumanEva-I model must be among {list(H36M_EXTRA_SUBJECTS)}, got {list(subjects)}"
+        )
     lengths = bone_lengths(load_humaneva(humaneva_file(humaneva_path), "Train").values())
     source = H36MSource(h36m_data or DEFAULT_H36M_DIR)
     ids = list(HUMANEVA15.to32)
@@ -239,13 +269,14 @@ def h36m_as_humaneva(subjects=H36M_EXTRA_SUBJECTS, h36m_data=None, humaneva_path
             continue
         action, sub = rest.rsplit("_", 1)
         xyz = expmap_to_xyz32(source.raw(int(subj[1:]), action, int(sub)), sample_rate=1)[:, ids] / 1000.0
-        z_up = np.stack([xyz[..., 0], -xyz[..., 2], xyz[..., 1]], axis=-1)   # +90 degrees about x
+        z_up = np.stack([xyz[..., 0], -xyz[..., 2], xyz[..., 1]], axis=-1)  # +90 degrees about x
         out[key] = root_relative(retarget(resample(z_up, SOURCE_FPS, HUMANEVA_FPS), lengths)).astype(np.float32)
     return out
 
 
-def training_mix(h36m_share: float, window: int, path=None, subjects=HUMANEVA_TRAIN_SUBJECTS,
-                 h36m_data=None) -> list[np.ndarray]:
+def training_mix(
+    h36m_share: float, window: int, path=None, subjects=HUMANEVA_TRAIN_SUBJECTS, h36m_data=None
+) -> list[np.ndarray]:
     """HumanEva-I's training chunks (:func:`training_sequences`) and, when ``h36m_share`` > 0, Human3.6M's
     retargeted sequences (:func:`h36m_as_humaneva`), the chunks listed ``r`` times over so that a uniform draw
     of the windows of ``window`` frames comes from Human3.6M with probability ``h36m_share`` (as near as a
@@ -255,7 +286,7 @@ def training_mix(h36m_share: float, window: int, path=None, subjects=HUMANEVA_TR
     if h36m_share == 0.0:
         return target
     extra = list(h36m_as_humaneva(H36M_EXTRA_SUBJECTS, h36m_data, path).values())
-    count = lambda seqs: sum(max(len(s) - window + 1, 0) for s in seqs)   # noqa: E731
+    count = lambda seqs: sum(max(len(s) - window + 1, 0) for s in seqs)  # noqa: E731
     n_target, n_extra = count(target), count(extra)
     if not n_target:
         raise ValueError(f"no HumanEva-I training window of {window} frames")
@@ -267,6 +298,8 @@ def mix_description(h36m_share: float, subjects=HUMANEVA_TRAIN_SUBJECTS) -> str:
     """The ``training_data`` line of a model's metadata for a HumanEva-I training mix."""
     line = f"HumanEva-I Train split, {','.join(f'S{s}' for s in subjects)} (60 Hz)"
     if h36m_share > 0.0:
-        line += (f" + Human3.6M {','.join(f'S{s}' for s in H36M_EXTRA_SUBJECTS)} retargeted to its skeleton "
-                 f"({h36m_share:g} of the windows)")
+        line += (
+            f" + Human3.6M {','.join(f'S{s}' for s in H36M_EXTRA_SUBJECTS)} retargeted to its skeleton "
+            f"({h36m_share:g} of the windows)"
+        )
     return line

@@ -8,6 +8,7 @@ The exp-map kinematics (``expmap_to_rotmat``, ``fk_expmap``; Human3.6M and CMU) 
 ``__init__`` loads the compiled engine, and training must use this checkout's skeleton and kinematics
 whichever ``tcd`` is installed (``fk.py`` imports nothing from the package).
 """
+
 from __future__ import annotations
 
 import importlib.util

@@ -42,6 +42,7 @@ Outputs
     temporary file in the destination directory and renamed into place, so an output either is
     complete or does not exist.
 """
+
 from __future__ import annotations
 
 # The package's modules, in the order of the work: options (settings, provenance), inputs (reading one

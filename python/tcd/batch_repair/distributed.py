@@ -15,6 +15,7 @@ run completes.
 
 Needs Ray on the driver and on every node: ``pip install "tcd-forecast[ray]"``.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -34,7 +35,7 @@ CONNECT_TIMEOUT_S = 5.0
 #: Test-only fault injection: a path; the first worker to repair frames creates it and dies.
 KILL_ONCE_ENV = "TCD_TEST_KILL_WORKER_ONCE"
 
-_MODELS: Dict[str, Any] = {}   # per worker process: model directory -> loaded model
+_MODELS: Dict[str, Any] = {}  # per worker process: model directory -> loaded model
 
 
 def _ray():
@@ -59,14 +60,20 @@ def connect(address: Optional[str] = None) -> str:
             socket.create_connection((host or "127.0.0.1", int(port)), timeout=CONNECT_TIMEOUT_S).close()
         except (OSError, ValueError) as e:
             raise ConnectionError(f"the Ray cluster at {addr} cannot be reached ({e})") from None
-    ray.init(address=addr or None, include_dashboard=False, logging_level="ERROR", log_to_driver=False,
-             ignore_reinit_error=True)
+    ray.init(
+        address=addr or None,
+        include_dashboard=False,
+        logging_level="ERROR",
+        log_to_driver=False,
+        ignore_reinit_error=True,
+    )
     return addr or "a local Ray cluster on this machine"
 
 
 def _repair_chunk(model_dir: str, tasks: Sequence[Task], opts: RepairOptions, overwrite: bool):
     """On a worker: the chunk's outcomes, with this worker's name."""
     from ..model import load
+
     model = _MODELS.get(model_dir)
     if model is None:
         model = _MODELS[model_dir] = load(model_dir)
@@ -75,10 +82,11 @@ def _repair_chunk(model_dir: str, tasks: Sequence[Task], opts: RepairOptions, ov
     def on_frames(_: int) -> None:
         if marker and not os.path.exists(marker):
             Path(marker).touch()
-            os._exit(1)                                      # dies in the middle of a file, once
+            os._exit(1)  # dies in the middle of a file, once
 
-    outcomes = run_tasks(model, list(tasks), opts, overwrite=overwrite, files_per_batch=max(len(tasks), 1),
-                         on_frames=on_frames)
+    outcomes = run_tasks(
+        model, list(tasks), opts, overwrite=overwrite, files_per_batch=max(len(tasks), 1), on_frames=on_frames
+    )
     worker = f"{socket.gethostname()}:{os.getpid()}"
     for o in outcomes:
         o.worker = worker
@@ -103,10 +111,17 @@ def check_writable(out: Path) -> Optional[str]:
     return ray.get(ray.remote(probe).remote(str(out)))
 
 
-def run_tasks_ray(model: Any, tasks: Sequence[Task], opts: RepairOptions, *, overwrite: bool = False,
-                  files_per_task: int = 4, max_retries: int = 3,
-                  on_frames: Optional[Callable[[int], None]] = None,
-                  on_outcome: Optional[Callable[[Outcome], None]] = None) -> List[Outcome]:
+def run_tasks_ray(
+    model: Any,
+    tasks: Sequence[Task],
+    opts: RepairOptions,
+    *,
+    overwrite: bool = False,
+    files_per_task: int = 4,
+    max_retries: int = 3,
+    on_frames: Optional[Callable[[int], None]] = None,
+    on_outcome: Optional[Callable[[Outcome], None]] = None,
+) -> List[Outcome]:
     """:func:`run_tasks` on the connected Ray cluster (:func:`connect` first); outcomes in task order."""
     ray = _ray()
     if model.path is None:
@@ -116,13 +131,15 @@ def run_tasks_ray(model: Any, tasks: Sequence[Task], opts: RepairOptions, *, ove
     remote = ray.remote(num_cpus=opts_remote.threads, max_retries=max_retries)(_repair_chunk)
     tasks = list(tasks)
     outcomes: List[Optional[Outcome]] = [None] * len(tasks)
-    starts = {remote.remote(str(model.path), tasks[i:i + files_per_task], opts_remote, overwrite): i
-              for i in range(0, len(tasks), files_per_task)}
+    starts = {
+        remote.remote(str(model.path), tasks[i : i + files_per_task], opts_remote, overwrite): i
+        for i in range(0, len(tasks), files_per_task)
+    }
     waiting = list(starts)
     while waiting:
         ready, waiting = ray.wait(waiting, num_returns=1)
         start = starts[ready[0]]
-        chunk = tasks[start:start + files_per_task]
+        chunk = tasks[start : start + files_per_task]
         try:
             results = ray.get(ready[0])
         except ray.exceptions.RayError as e:
@@ -134,7 +151,7 @@ def run_tasks_ray(model: Any, tasks: Sequence[Task], opts: RepairOptions, *, ove
                 on_outcome(o)
             if on_frames is not None and o.frames:
                 on_frames(o.frames)
-    for t in tasks:                                          # what killed attempts left behind
+    for t in tasks:  # what killed attempts left behind
         for stale in t.dst.parent.glob(f".{t.dst.name}.*.tmp*"):
             try:
                 stale.unlink()

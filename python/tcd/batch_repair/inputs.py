@@ -1,4 +1,5 @@
 """Reading and checking one input file (``.npz`` poses or a Human3.6M exp-map ``.txt``)."""
+
 from __future__ import annotations
 
 import zipfile
@@ -15,13 +16,14 @@ from ..layouts import get_layout
 from .._poses import UNIT_SCALE, validate_poses
 from .options import BadFile, PathLike
 
+
 # ---------------------------------------------------------------------------------------------- inputs
 @dataclass
 class Loaded:
-    poses: np.ndarray      # (T, J, 3) the caller's values in the output dtype (NaN / anything where missing)
+    poses: np.ndarray  # (T, J, 3) the caller's values in the output dtype (NaN / anything where missing)
     full_mask: np.ndarray  # (T, J, 3) bool, True = observed
-    mask_out: np.ndarray   # what goes to the output's `mask`
-    fps: float             # the input's frame rate
+    mask_out: np.ndarray  # what goes to the output's `mask`
+    fps: float  # the input's frame rate
     # another joint layout (tcd.wild): poses / full_mask above are the model-layout conversion, in the
     # caller's units; these keep the caller's own poses and what brings the repair back to them
     scene: Optional[wild.Scene] = None
@@ -57,16 +59,30 @@ def _checked_poses(data: Dict[str, np.ndarray], num_joints: int, units: str) -> 
     """``poses`` (T, J, 3) in a float dtype and the observed entries (T, J, 3) bool, checked by the API's
     :func:`tcd._poses.validate_poses`; a problem is a :class:`BadFile` naming the array."""
     try:
-        p = validate_poses(data["poses"], data.get("mask"), num_joints=num_joints, batched_ok=False,
-                           names=("poses", "mask"), owner="The file's", units=units)
+        p = validate_poses(
+            data["poses"],
+            data.get("mask"),
+            num_joints=num_joints,
+            batched_ok=False,
+            names=("poses", "mask"),
+            owner="The file's",
+            units=units,
+        )
     except InvalidInputError as e:
         raise BadFile(str(e)) from None
     return p.values[0], p.observed[0]
 
 
-def load_input(path: PathLike, num_joints: int, units: str = "m", fps: Optional[float] = None,
-               model_fps: Optional[float] = None, joint_index_32: Optional[Sequence[int]] = None,
-               layout: str = "h36m22", up: str = "y") -> Loaded:
+def load_input(
+    path: PathLike,
+    num_joints: int,
+    units: str = "m",
+    fps: Optional[float] = None,
+    model_fps: Optional[float] = None,
+    joint_index_32: Optional[Sequence[int]] = None,
+    layout: str = "h36m22",
+    up: str = "y",
+) -> Loaded:
     """Reads and checks one input file; raises :class:`BadFile` with the reason when it cannot be repaired."""
     path = Path(path)
     if not path.is_file():
@@ -105,8 +121,9 @@ def load_input(path: PathLike, num_joints: int, units: str = "m", fps: Optional[
     return Loaded(poses=poses, full_mask=full, mask_out=mask_out, fps=src_fps)
 
 
-def _converted(poses: np.ndarray, full: np.ndarray, mask_out: np.ndarray, fps: float, lay: Any, up: str,
-               units: str) -> Loaded:
+def _converted(
+    poses: np.ndarray, full: np.ndarray, mask_out: np.ndarray, fps: float, lay: Any, up: str, units: str
+) -> Loaded:
     """A file in another layout: converted to the model's convention for the windows (:mod:`tcd.wild`)."""
     scale = UNIT_SCALE[units]
     joint_seen = full.all(-1, keepdims=True)
@@ -119,13 +136,15 @@ def _converted(poses: np.ndarray, full: np.ndarray, mask_out: np.ndarray, fps: f
     model_poses = np.where(seen, y[0] * scale, 0.0).astype(poses.dtype)
     if not seen.any():
         raise BadFile("no model joint is observed: nothing to condition the repair on")
-    return Loaded(poses=model_poses, full_mask=seen, mask_out=mask_out, fps=fps, scene=scene, original=poses,
-                  original_mask=full)
+    return Loaded(
+        poses=model_poses, full_mask=seen, mask_out=mask_out, fps=fps, scene=scene, original=poses, original_mask=full
+    )
 
 
 def _bvh_poses(path: Path) -> Tuple[np.ndarray, float]:
     """A BVH file as (T, 32, 3) h36m32 poses (NaN where it has no such joint) and its frame rate."""
     from ..bvh import read_bvh_h36m32
+
     try:
         return read_bvh_h36m32(path)
     except UnreadableFile as e:
@@ -143,8 +162,11 @@ def peek_frames(path: Path) -> int:
         with zipfile.ZipFile(path) as z:
             with z.open("poses.npy") as f:
                 version = np.lib.format.read_magic(f)
-                shape = (np.lib.format.read_array_header_1_0(f) if version == (1, 0)
-                         else np.lib.format.read_array_header_2_0(f))[0]
+                shape = (
+                    np.lib.format.read_array_header_1_0(f)
+                    if version == (1, 0)
+                    else np.lib.format.read_array_header_2_0(f)
+                )[0]
                 return int(shape[0]) if len(shape) == 3 else 0
     except Exception:  # noqa: BLE001 - a progress estimate only; the real read reports the problem
         return 0

@@ -1,5 +1,6 @@
 """Settings of a repair run: the defaults, their checks (:class:`RepairOptions`), the denoiser used and
 the provenance recorded in every output."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -38,7 +39,7 @@ class BadFile(Exception):
 class RepairOptions:
     """Validated settings of a repair run (see :func:`repair_file`)."""
 
-    num_samples: int                # the model's TCD.repair_samples when a call names none (make resolves it)
+    num_samples: int  # the model's TCD.repair_samples when a call names none (make resolves it)
     sampling: SamplerOptions = SamplerOptions()
     seed: int = DEFAULT_SEED
     units: str = "m"
@@ -46,8 +47,8 @@ class RepairOptions:
     overlap: int = DEFAULT_OVERLAP
     lookahead: int = DEFAULT_LOOKAHEAD
     threads: Optional[int] = None
-    layout: str = "h36m22"          # the inputs' joint layout (tcd.layouts); others are converted (tcd.wild)
-    up: str = "y"                   # the inputs' vertical axis, for layouts other than the model's
+    layout: str = "h36m22"  # the inputs' joint layout (tcd.layouts); others are converted (tcd.wild)
+    up: str = "y"  # the inputs' vertical axis, for layouts other than the model's
 
     @staticmethod
     def make(model: Any, *, sampler: Optional[Dict[str, Any]] = None, **kw: Any) -> "RepairOptions":
@@ -55,9 +56,10 @@ class RepairOptions:
         :meth:`SamplerOptions.build`); the rest as the other keywords of :func:`repair_file`."""
         unknown = sorted(set(kw) - _MAKE_KEYWORDS)
         if unknown:
-            raise TypeError(f"unexpected keyword argument {unknown[0]!r} (settings: sampler, "
-                            f"{', '.join(sorted(_MAKE_KEYWORDS))})")
-        sampling = model.sampler_options("repair", **(sampler or {}))   # over the model's own defaults
+            raise TypeError(
+                f"unexpected keyword argument {unknown[0]!r} (settings: sampler, {', '.join(sorted(_MAKE_KEYWORDS))})"
+            )
+        sampling = model.sampler_options("repair", **(sampler or {}))  # over the model's own defaults
         den = _denoiser(model)
         den.timesteps(**dataclasses.asdict(sampling))  # the step count against the model, before any file is read
         seed = kw.get("seed", DEFAULT_SEED)
@@ -65,24 +67,31 @@ class RepairOptions:
         if fps is not None:
             fps = _checks.frame_rate(fps)
             if model.fps is None:
-                raise _checks.fail("fps", "None: the model does not record its frame rate, so inputs cannot be "
-                                   "resampled", repr(fps))
+                raise _checks.fail(
+                    "fps", "None: the model does not record its frame rate, so inputs cannot be resampled", repr(fps)
+                )
         overlap = _checks.integer("overlap", kw.get("overlap", DEFAULT_OVERLAP), 1, model.obs_len - 1)
         lookahead = _checks.integer("lookahead", kw.get("lookahead", DEFAULT_LOOKAHEAD), 0, model.obs_len - 1 - overlap)
         n = kw.get("num_samples")
-        num_samples = _checks.num_samples(model.repair_samples if n is None else n,
-                                          window=(den.num_features, den.seq_len), fill_alone=True)
+        num_samples = _checks.num_samples(
+            model.repair_samples if n is None else n, window=(den.num_features, den.seq_len), fill_alone=True
+        )
         if num_samples == 0 and model._repair_fills(den)["fill"] is None:
             # the engine would refuse it at the first window; refused here, before any file is read
-            raise _checks.fail("num_samples", "at least 1: 0 (the repair fill alone) needs a repair model conditioned "
-                               "on a repair fill (repair_fill.safetensors)", "0")
+            raise _checks.fail(
+                "num_samples",
+                "at least 1: 0 (the repair fill alone) needs a repair model conditioned "
+                "on a repair fill (repair_fill.safetensors)",
+                "0",
+            )
         return RepairOptions(
             num_samples=num_samples,
             sampling=sampling,
             seed=_checks.seed(DEFAULT_SEED if seed is None else seed),
             units=check_units(kw.get("units", "m")),
             fps=fps,
-            overlap=overlap, lookahead=lookahead,
+            overlap=overlap,
+            lookahead=lookahead,
             threads=_checks.threads(kw.get("threads")),
             layout=get_layout(kw.get("layout") or "h36m22").name,
             up=_checked_up(kw.get("up", "y")),
@@ -90,7 +99,7 @@ class RepairOptions:
 
 
 def _checked_up(up: Any) -> str:
-    up_vector(up)                    # the check; the name is what the options and the provenance keep
+    up_vector(up)  # the check; the name is what the options and the provenance keep
     if not isinstance(up, str):
         raise _checks.fail("up", "'x', 'y' or 'z' (optionally signed) for tcd repair", repr(up))
     return up

@@ -1,5 +1,6 @@
 """The engine loop: the windows of several files batched into one engine call, each file's outcome,
 and :func:`repair_file` for one file."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -18,9 +19,20 @@ from ..engine import repair_raw
 from ..exceptions import InvalidInputError
 from .._files import write_npz_atomic
 from .inputs import load_input, peek_frames
-from .options import (DEFAULT_FILES_PER_BATCH, DEFAULT_LOOKAHEAD, DEFAULT_OVERLAP, DEFAULT_SEED, INPUT_SUFFIXES,
-                      BadFile, PathLike, RepairOptions, _denoiser, provenance)
+from .options import (
+    DEFAULT_FILES_PER_BATCH,
+    DEFAULT_LOOKAHEAD,
+    DEFAULT_OVERLAP,
+    DEFAULT_SEED,
+    INPUT_SUFFIXES,
+    BadFile,
+    PathLike,
+    RepairOptions,
+    _denoiser,
+    provenance,
+)
 from .windows import FileJob
+
 
 # ---------------------------------------------------------------------------------------------- the engine loop
 @dataclass
@@ -35,18 +47,24 @@ class Task:
 @dataclass
 class Outcome:
     task: Task
-    status: str                     # "repaired", "skipped" or "failed"
+    status: str  # "repaired", "skipped" or "failed"
     reason: Optional[str] = None
     frames: int = 0
-    missing: int = 0                # missing (frame, joint, axis) entries repaired
+    missing: int = 0  # missing (frame, joint, axis) entries repaired
     windows: int = 0
     seconds: float = 0.0
-    worker: Optional[str] = None     # host:pid of the Ray worker that repaired it (tcd repair --ray)
+    worker: Optional[str] = None  # host:pid of the Ray worker that repaired it (tcd repair --ray)
 
     def as_dict(self) -> Dict[str, Any]:
-        d = {"input": str(self.task.src), "output": str(self.task.dst), "status": self.status,
-             "frames": self.frames, "missing_values": self.missing, "windows": self.windows,
-             "seconds": round(self.seconds, 4)}
+        d = {
+            "input": str(self.task.src),
+            "output": str(self.task.dst),
+            "status": self.status,
+            "frames": self.frames,
+            "missing_values": self.missing,
+            "windows": self.windows,
+            "seconds": round(self.seconds, 4),
+        }
         if self.reason is not None:
             d["reason"] = self.reason
         if self.worker is not None:
@@ -54,14 +72,21 @@ class Outcome:
         return d
 
 
-def run_tasks(model: Any, tasks: Iterable[Task], opts: RepairOptions, *, overwrite: bool = False,
-              files_per_batch: int = DEFAULT_FILES_PER_BATCH, on_frames: Optional[Callable[[int], None]] = None,
-              on_outcome: Optional[Callable[[Outcome], None]] = None) -> List[Outcome]:
+def run_tasks(
+    model: Any,
+    tasks: Iterable[Task],
+    opts: RepairOptions,
+    *,
+    overwrite: bool = False,
+    files_per_batch: int = DEFAULT_FILES_PER_BATCH,
+    on_frames: Optional[Callable[[int], None]] = None,
+    on_outcome: Optional[Callable[[Outcome], None]] = None,
+) -> List[Outcome]:
     """Repairs every task, at most ``files_per_batch`` files in memory, their windows batched per engine
     call. Bad inputs and failed writes become ``failed`` outcomes; the run goes on. Returns the outcomes
     in task order."""
     den = _denoiser(model)
-    fills = model._repair_fills(den)      # repair_raw's fill (and its forecaster) for the repair model
+    fills = model._repair_fills(den)  # repair_raw's fill (and its forecaster) for the repair model
     w = model.obs_len
     joint_index = (model.data or {}).get("joint_index_32")
     outcomes: Dict[int, Outcome] = {}
@@ -108,20 +133,28 @@ def run_tasks(model: Any, tasks: Iterable[Task], opts: RepairOptions, *, overwri
                 if mismatch is None:
                     done(i, Outcome(task, "skipped", "already repaired with these settings", frames=n))
                 else:
-                    done(i, Outcome(task, "failed", f"the output exists but {mismatch}; pass --overwrite to "
-                                                    "replace it", frames=n))
+                    done(
+                        i,
+                        Outcome(
+                            task,
+                            "failed",
+                            f"the output exists but {mismatch}; pass --overwrite to replace it",
+                            frames=n,
+                        ),
+                    )
                 frames_cb(n)
                 continue
             try:
-                loaded = load_input(task.src, model.num_joints, opts.units, opts.fps, model.fps, joint_index,
-                                    opts.layout, opts.up)
+                loaded = load_input(
+                    task.src, model.num_joints, opts.units, opts.fps, model.fps, joint_index, opts.layout, opts.up
+                )
             except BadFile as e:
                 done(i, Outcome(task, "failed", str(e), seconds=time.perf_counter() - t0))
                 frames_cb(peek_frames(task.src))
                 continue
             active.append(Active(i, task, FileJob(loaded, w, opts.overlap, model.fps, opts.units, opts.lookahead), t0))
 
-    sampler = dataclasses.asdict(opts.sampling)   # repair_raw's sampler keywords
+    sampler = dataclasses.asdict(opts.sampling)  # repair_raw's sampler keywords
     refill()
     while active:
         obs, msk = [], []
@@ -130,8 +163,17 @@ def run_tasks(model: Any, tasks: Iterable[Task], opts: RepairOptions, *, overwri
             obs.append(o)
             msk.append(m)
         # Window k of a file draws the engine's stream k, whichever files share the batch.
-        out = repair_raw(den, np.stack(obs), np.stack(msk), num_samples=opts.num_samples, seed=opts.seed,
-                         sequences=[a.job.k for a in active], threads=opts.threads, **fills, **sampler)
+        out = repair_raw(
+            den,
+            np.stack(obs),
+            np.stack(msk),
+            num_samples=opts.num_samples,
+            seed=opts.seed,
+            sequences=[a.job.k for a in active],
+            threads=opts.threads,
+            **fills,
+            **sampler,
+        )
         still: List[Active] = []
         for a, mean in zip(active, out["mean"]):
             a.job.accept(mean)
@@ -144,10 +186,24 @@ def run_tasks(model: Any, tasks: Iterable[Task], opts: RepairOptions, *, overwri
                 poses = a.job.result()
                 prov = provenance(model, opts, None if not math.isfinite(ld.fps) else ld.fps)
                 prov["input"] = a.task.name or a.task.src.name
-                write_npz_atomic(a.task.dst, overwrite, poses=poses, mask=ld.mask_out,
-                                 provenance=np.array(json.dumps(prov, sort_keys=True)))
-                done(a.i, Outcome(a.task, "repaired", frames=ld.frames, missing=int((~ld.full_mask).sum()),
-                                  windows=a.job.windows, seconds=time.perf_counter() - a.t0))
+                write_npz_atomic(
+                    a.task.dst,
+                    overwrite,
+                    poses=poses,
+                    mask=ld.mask_out,
+                    provenance=np.array(json.dumps(prov, sort_keys=True)),
+                )
+                done(
+                    a.i,
+                    Outcome(
+                        a.task,
+                        "repaired",
+                        frames=ld.frames,
+                        missing=int((~ld.full_mask).sum()),
+                        windows=a.job.windows,
+                        seconds=time.perf_counter() - a.t0,
+                    ),
+                )
             except FileExistsError:
                 done(a.i, Outcome(a.task, "skipped", "the output appeared during the run", frames=ld.frames))
             except OSError as e:
@@ -159,11 +215,23 @@ def run_tasks(model: Any, tasks: Iterable[Task], opts: RepairOptions, *, overwri
 
 
 # ---------------------------------------------------------------------------------------------- public API
-def repair_file(src: PathLike, dst: PathLike, model: Any = None, *, num_samples: Optional[int] = None,
-                seed: Optional[int] = DEFAULT_SEED, units: str = "m", fps: Optional[float] = None,
-                overlap: int = DEFAULT_OVERLAP, lookahead: int = DEFAULT_LOOKAHEAD, threads: Optional[int] = None,
-                overwrite: bool = False, layout: Optional[str] = None, up: str = "y",
-                **sampler: Any) -> Dict[str, Any]:
+def repair_file(
+    src: PathLike,
+    dst: PathLike,
+    model: Any = None,
+    *,
+    num_samples: Optional[int] = None,
+    seed: Optional[int] = DEFAULT_SEED,
+    units: str = "m",
+    fps: Optional[float] = None,
+    overlap: int = DEFAULT_OVERLAP,
+    lookahead: int = DEFAULT_LOOKAHEAD,
+    threads: Optional[int] = None,
+    overwrite: bool = False,
+    layout: Optional[str] = None,
+    up: str = "y",
+    **sampler: Any,
+) -> Dict[str, Any]:
     """Repairs the pose sequence in ``src`` (an ``.npz`` with ``poses`` (T, J, 3), NaN = missing, and an
     optional ``mask``; or a Human3.6M exp-map ``.txt``) of any length T, and writes ``dst`` (an ``.npz``
     with ``poses``, ``mask`` and ``provenance``) atomically. See :mod:`tcd.batch_repair` for the windowing,
@@ -193,8 +261,19 @@ def repair_file(src: PathLike, dst: PathLike, model: Any = None, *, num_samples:
     from ..model import TCD, load
 
     m = model if isinstance(model, TCD) else load(model)
-    opts = RepairOptions.make(m, sampler=sampler, num_samples=num_samples, seed=seed, units=units, fps=fps,
-                              overlap=overlap, lookahead=lookahead, threads=threads, layout=layout, up=up)
+    opts = RepairOptions.make(
+        m,
+        sampler=sampler,
+        num_samples=num_samples,
+        seed=seed,
+        units=units,
+        fps=fps,
+        overlap=overlap,
+        lookahead=lookahead,
+        threads=threads,
+        layout=layout,
+        up=up,
+    )
     s, d = Path(src), Path(dst)
     if same_path(s, d):
         raise InvalidInputError(f"The output {d} is the input {s}: an input is never overwritten in place.", "dst")
@@ -227,7 +306,7 @@ def finished_output_mismatch(dst: Path, settings: Dict[str, Any]) -> Optional[st
             recorded = json.loads(str(z["provenance"]))
     except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, AttributeError, TypeError):
         return "is not a readable tcd repair output"
-    if not isinstance(recorded, dict):                       # provenance that is JSON but not a record
+    if not isinstance(recorded, dict):  # provenance that is JSON but not a record
         return "is not a readable tcd repair output"
     differ = sorted(k for k in settings if recorded.get(k) != settings[k])
     if differ:
@@ -242,8 +321,7 @@ def same_path(a: Path, b: Path) -> bool:
             return os.path.samefile(a, b)
     except OSError:
         pass
-    return os.path.normcase(os.path.abspath(a)) == os.path.normcase(os.path.abspath(b)) or \
-        a.resolve() == b.resolve()
+    return os.path.normcase(os.path.abspath(a)) == os.path.normcase(os.path.abspath(b)) or a.resolve() == b.resolve()
 
 
 # ---------------------------------------------------------------------------------------------- planning (CLI)

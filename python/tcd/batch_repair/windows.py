@@ -1,5 +1,6 @@
 """One file through the model: resampling to the model's frame rate and back, the overlapping windows
 with their lookahead (:class:`FileJob`), as described in :mod:`tcd.batch_repair`."""
+
 from __future__ import annotations
 
 import math
@@ -11,12 +12,15 @@ from .inputs import Loaded
 from .._poses import UNIT_SCALE
 from .._resample import resample_backward, resample_forward
 
+
 def window_starts(frames: int, window: int, overlap: int, lookahead: int = 0) -> List[int]:
     """Start frames of the windows covering ``frames`` (>= ``window``) frames; consecutive windows share
     at least ``overlap + lookahead`` frames and the last one ends at ``frames``."""
     if not 1 <= overlap + lookahead < window or overlap < 1 or lookahead < 0:
-        raise ValueError(f"need overlap >= 1, lookahead >= 0 and overlap + lookahead < window ({window}), "
-                         f"got overlap {overlap}, lookahead {lookahead}")
+        raise ValueError(
+            f"need overlap >= 1, lookahead >= 0 and overlap + lookahead < window ({window}), "
+            f"got overlap {overlap}, lookahead {lookahead}"
+        )
     starts = [0]
     while starts[-1] + window < frames:
         starts.append(min(starts[-1] + window - overlap - lookahead, frames - window))
@@ -27,8 +31,9 @@ def window_starts(frames: int, window: int, overlap: int, lookahead: int = 0) ->
 class FileJob:
     """One input's repair, window by window, in the model's units, layout (frames, K) and frame rate."""
 
-    def __init__(self, loaded: Loaded, window: int, overlap: int, model_fps: Optional[float], units: str,
-                 lookahead: int = 0) -> None:
+    def __init__(
+        self, loaded: Loaded, window: int, overlap: int, model_fps: Optional[float], units: str, lookahead: int = 0
+    ) -> None:
         self.loaded = loaded
         self.scale = UNIT_SCALE[units]
         p = loaded.poses
@@ -36,8 +41,9 @@ class FileJob:
         k = j * 3
         x = np.where(loaded.full_mask, p, 0.0).reshape(t, k).astype(np.float64) / self.scale
         m = loaded.full_mask.reshape(t, k)
-        self.resample = (model_fps is not None and math.isfinite(loaded.fps)
-                         and abs(loaded.fps - model_fps) > 1e-9 * model_fps)
+        self.resample = (
+            model_fps is not None and math.isfinite(loaded.fps) and abs(loaded.fps - model_fps) > 1e-9 * model_fps
+        )
         if self.resample:
             x, m = resample_forward(x, m, loaded.fps, float(model_fps))
         self.model_frames = x.shape[0]
@@ -49,8 +55,8 @@ class FileJob:
         self.window = window
         self.starts = window_starts(padded, window, overlap, lookahead)
         self.lookahead = lookahead
-        self.k = 0              # next window
-        self.done = 0           # frames [0, done) repaired
+        self.k = 0  # next window
+        self.done = 0  # frames [0, done) repaired
         self.model_fps = model_fps
 
     @property
@@ -65,10 +71,10 @@ class FileJob:
         """(observed, mask) of the next window, each (K, W) float32: frames already repaired count as observed."""
         s = self.starts[self.k]
         w = self.window
-        mask = self.mask[s:s + w].copy()
+        mask = self.mask[s : s + w].copy()
         if self.done > s:
             mask[: self.done - s] = True
-        obs = np.where(mask, self.values[s:s + w], 0.0)
+        obs = np.where(mask, self.values[s : s + w], 0.0)
         return np.ascontiguousarray(obs.T, dtype=np.float32), np.ascontiguousarray(mask.T, dtype=np.float32)
 
     def accept(self, mean: np.ndarray) -> int:
@@ -78,7 +84,7 @@ class FileJob:
         s = self.starts[self.k]
         w = self.window
         first = max(self.done - s, 0)
-        self.values[s + first:s + w] = mean.T[first:]
+        self.values[s + first : s + w] = mean.T[first:]
         end = s + w if self.k == len(self.starts) - 1 else s + w - self.lookahead
         new = min(end, self.model_frames) - min(max(self.done, s), self.model_frames)
         self.done = max(self.done, end)

@@ -30,6 +30,7 @@ stop it; stop such a run with ``kill PID`` (SIGTERM).
 One module per command (``info``, ``forecast``, ``demo``, ``repair``: ``add_parser`` and ``run``); what
 they share (exit codes, the option-to-flag mapping, the sampler flags) is in ``common``.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -40,18 +41,45 @@ from typing import Optional, Sequence
 from .._native import __version__
 from ..exceptions import TcdError
 from . import demo, forecast, info, repair
-from .common import (EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK, EXIT_TERMINATED, OPTION_FLAGS,
-                     SAMPLER_FLAGS, _BadInput, add_sampler_flags, flag_message, sampler_keywords, stop_signals, stopped)
+from .common import (
+    EXIT_BAD_INPUT,
+    EXIT_FAILURE,
+    EXIT_INTERRUPTED,
+    EXIT_OK,
+    EXIT_TERMINATED,
+    OPTION_FLAGS,
+    SAMPLER_FLAGS,
+    _BadInput,
+    add_sampler_flags,
+    flag_message,
+    sampler_keywords,
+    stop_signals,
+    stopped,
+)
 
-__all__ = ["main", "EXIT_OK", "EXIT_FAILURE", "EXIT_BAD_INPUT", "EXIT_INTERRUPTED", "EXIT_TERMINATED", "OPTION_FLAGS",
-           "SAMPLER_FLAGS", "flag_message", "add_sampler_flags", "sampler_keywords"]
+__all__ = [
+    "main",
+    "EXIT_OK",
+    "EXIT_FAILURE",
+    "EXIT_BAD_INPUT",
+    "EXIT_INTERRUPTED",
+    "EXIT_TERMINATED",
+    "OPTION_FLAGS",
+    "SAMPLER_FLAGS",
+    "flag_message",
+    "add_sampler_flags",
+    "sampler_keywords",
+]
 
 COMMANDS = {"info": info, "forecast": forecast, "demo": demo, "repair": repair}  # in the order of --help
 
 
 def _parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="tcd", description="Temporal Cascaded Diffusion: 3D human motion forecasting.",
-                                 epilog="Exit codes: 0 success, 2 bad input, 1 other failure.")
+    ap = argparse.ArgumentParser(
+        prog="tcd",
+        description="Temporal Cascaded Diffusion: 3D human motion forecasting.",
+        epilog="Exit codes: 0 success, 2 bad input, 1 other failure.",
+    )
     ap.add_argument("--version", action="version", version=f"tcd {__version__}")
     sub = ap.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
@@ -62,10 +90,10 @@ def _parser() -> argparse.ArgumentParser:
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
     """Entry point of the ``tcd`` console script; returns the exit code."""
-    prog = "tcd"                                # "tcd <command>" once the arguments are parsed
+    prog = "tcd"  # "tcd <command>" once the arguments are parsed
     try:
-        with stop_signals():                    # SIGTERM stops a command as Ctrl-C does, until it returns
-            args = _parser().parse_args(argv)   # exits with 2 on a usage error
+        with stop_signals():  # SIGTERM stops a command as Ctrl-C does, until it returns
+            args = _parser().parse_args(argv)  # exits with 2 on a usage error
             prog = f"tcd {args.command}"
             return COMMANDS[args.command].run(args)
     except _BadInput as e:

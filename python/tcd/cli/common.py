@@ -1,5 +1,6 @@
 """What the commands share: exit codes, the user's-error exception, the option-to-flag mapping, the
 sampler flags and loading the model."""
+
 from __future__ import annotations
 
 import argparse
@@ -18,7 +19,7 @@ EXIT_OK = 0
 EXIT_FAILURE = 1
 EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130  # tcd repair: re-run the command to resume
-EXIT_TERMINATED = 143   # 128 + SIGTERM
+EXIT_TERMINATED = 143  # 128 + SIGTERM
 
 
 class _BadInput(Exception):
@@ -50,8 +51,7 @@ def stop_signals() -> Iterator[None]:
     not stop it; ``kill PID`` (SIGTERM) does. A handler the embedding program installed is kept too (only
     the default disposition is replaced), and so is everything when called from a thread other than the main
     one (Python runs handlers there only). The disposition found is restored on the way out."""
-    if threading.current_thread() is not threading.main_thread() or \
-            signal.getsignal(signal.SIGTERM) != signal.SIG_DFL:
+    if threading.current_thread() is not threading.main_thread() or signal.getsignal(signal.SIGTERM) != signal.SIG_DFL:
         yield
         return
     try:
@@ -63,11 +63,21 @@ def stop_signals() -> Iterator[None]:
 
 # The sampler flags of every command that samples: one mapping from SamplerOptions field to flag. A flag
 # not given is left out, so the defaults are SamplerOptions' own.
-SAMPLER_FLAGS = {"sampler": "--sampler", "num_inference_steps": "--steps", "eta": "--eta",
-                 "timestep_spacing": "--spacing", "noise_coupling": "--noise-coupling"}
+SAMPLER_FLAGS = {
+    "sampler": "--sampler",
+    "num_inference_steps": "--steps",
+    "eta": "--eta",
+    "timestep_spacing": "--spacing",
+    "noise_coupling": "--noise-coupling",
+}
 # The API argument each flag sets, for the commands' error messages; a command adds or overrides its own.
-OPTION_FLAGS = {"num_samples": "--samples", "seed": "--seed", "units": "--units", "threads": "--threads",
-                **SAMPLER_FLAGS}
+OPTION_FLAGS = {
+    "num_samples": "--samples",
+    "seed": "--seed",
+    "units": "--units",
+    "threads": "--threads",
+    **SAMPLER_FLAGS,
+}
 
 
 def flag_message(e: InvalidInputError, flags: Dict[str, str] = OPTION_FLAGS) -> str:
@@ -77,8 +87,12 @@ def flag_message(e: InvalidInputError, flags: Dict[str, str] = OPTION_FLAGS) -> 
 
 
 def add_model_flag(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--model", metavar="DIR", help="model directory, or a bundled model's name: h36m (the default) "
-                   "or humaneva (the HumanEva-I model, where this installation bundles it)")
+    p.add_argument(
+        "--model",
+        metavar="DIR",
+        help="model directory, or a bundled model's name: h36m (the default) "
+        "or humaneva (the HumanEva-I model, where this installation bundles it)",
+    )
 
 
 def add_sampler_flags(p: argparse.ArgumentParser, *, tuning: bool = True) -> None:
@@ -86,18 +100,39 @@ def add_sampler_flags(p: argparse.ArgumentParser, *, tuning: bool = True) -> Non
     so that a flag not given leaves the model's default (its ``sampling.json``, else SamplerOptions'); argparse
     refuses a choice not in SAMPLERS, SPACINGS or COUPLINGS."""
     d = SamplerOptions()
-    p.add_argument("--steps", dest="num_inference_steps", type=int, default=None, metavar="S",
-                   help="inference steps (default: the model's; `tcd info` shows them)")
-    p.add_argument("--sampler", default=None, choices=SAMPLERS,
-                   help="sampler (default: the model's, `tcd info`; dpmpp2m is DPM-Solver++(2M))")
+    p.add_argument(
+        "--steps",
+        dest="num_inference_steps",
+        type=int,
+        default=None,
+        metavar="S",
+        help="inference steps (default: the model's; `tcd info` shows them)",
+    )
+    p.add_argument(
+        "--sampler",
+        default=None,
+        choices=SAMPLERS,
+        help="sampler (default: the model's, `tcd info`; dpmpp2m is DPM-Solver++(2M))",
+    )
     if tuning:
-        p.add_argument("--eta", type=float, default=None,
-                       help=f"DDIM eta in [0, 1] (default: the model's, else {d.eta:g})")
-        p.add_argument("--spacing", dest="timestep_spacing", default=None, choices=SPACINGS,
-                       help=f"timestep spacing (default: the model's, else {d.timestep_spacing})")
-        p.add_argument("--noise-coupling", dest="noise_coupling", default=None, choices=COUPLINGS,
-                       help="how the samples of a sequence share their starting noise: centered (they sum to "
-                            f"zero) or independent (default: the model's, else {d.noise_coupling})")
+        p.add_argument(
+            "--eta", type=float, default=None, help=f"DDIM eta in [0, 1] (default: the model's, else {d.eta:g})"
+        )
+        p.add_argument(
+            "--spacing",
+            dest="timestep_spacing",
+            default=None,
+            choices=SPACINGS,
+            help=f"timestep spacing (default: the model's, else {d.timestep_spacing})",
+        )
+        p.add_argument(
+            "--noise-coupling",
+            dest="noise_coupling",
+            default=None,
+            choices=COUPLINGS,
+            help="how the samples of a sequence share their starting noise: centered (they sum to "
+            f"zero) or independent (default: the model's, else {d.noise_coupling})",
+        )
 
 
 def sampler_keywords(args: argparse.Namespace) -> Dict[str, Any]:

@@ -1,4 +1,5 @@
 """``tcd demo``: the command line of :mod:`tcd.demo` (which does the work)."""
+
 from __future__ import annotations
 
 import argparse
@@ -7,24 +8,40 @@ from typing import Any
 
 from .. import demo
 from ..exceptions import InvalidInputError
-from .common import (EXIT_OK, _BadInput, add_model_flag, add_sampler_flags, flag_message, load_model, output_exists,
-                     sampler_keywords, writing)
+from .common import (
+    EXIT_OK,
+    _BadInput,
+    add_model_flag,
+    add_sampler_flags,
+    flag_message,
+    load_model,
+    output_exists,
+    sampler_keywords,
+    writing,
+)
 
 
 def add_parser(sub: Any) -> argparse.ArgumentParser:
-    p = sub.add_parser("demo", help="forecast and repair the bundled demo clip (the README's main job)",
-                       description="Forecast and repair the bundled CMU walking clip with the bundled model; "
-                       "prints a summary with timings and writes demo.npz.")
+    p = sub.add_parser(
+        "demo",
+        help="forecast and repair the bundled demo clip (the README's main job)",
+        description="Forecast and repair the bundled CMU walking clip with the bundled model; "
+        "prints a summary with timings and writes demo.npz.",
+    )
     add_model_flag(p)
     p.add_argument("-o", "--output", metavar="OUT.npz", default="demo.npz", help="output file (default demo.npz)")
     p.add_argument("--samples", type=int, default=None, metavar="N", help="samples (default 5)")
     add_sampler_flags(p, tuning=False)
     p.add_argument("--seed", type=int, default=0, help="noise and occlusion seed (default 0)")
     p.add_argument("--threads", type=int, default=None, metavar="N", help="worker threads (default: all cores)")
-    p.add_argument("--plot", metavar="GIF", help="also render an animation (needs matplotlib: "
-                   "pip install 'tcd-forecast[plot]')")
-    p.add_argument("--overwrite", action="store_true",
-                   help="replace OUT (and GIF) even if they are not this command's earlier outputs")
+    p.add_argument(
+        "--plot", metavar="GIF", help="also render an animation (needs matplotlib: pip install 'tcd-forecast[plot]')"
+    )
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace OUT (and GIF) even if they are not this command's earlier outputs",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     return p
 
@@ -47,8 +64,9 @@ def run(args: argparse.Namespace) -> int:
     model = load_model(args.model)
     samples = demo.DEFAULT_SAMPLES if args.samples is None else args.samples
     try:
-        res = demo.run(model, samples=samples, seed=args.seed, threads=args.threads, quiet=args.quiet,
-                       **sampler_keywords(args))
+        res = demo.run(
+            model, samples=samples, seed=args.seed, threads=args.threads, quiet=args.quiet, **sampler_keywords(args)
+        )
     except InvalidInputError as e:
         raise _BadInput(flag_message(e)) from None
     except ValueError as e:

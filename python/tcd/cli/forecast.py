@@ -1,4 +1,5 @@
 """``tcd forecast IN.npz -o OUT.npz``: forecast the frames after the observed poses of a file."""
+
 from __future__ import annotations
 
 import argparse
@@ -12,49 +13,110 @@ from ..exceptions import InvalidInputError
 from .._files import UnreadableFile, read_pose_npz, write_npz_atomic
 from ..layouts import LAYOUTS
 from .._poses import UNIT_SCALE
-from .common import (EXIT_OK, OPTION_FLAGS, _BadInput, add_model_flag, add_sampler_flags, flag_message, load_model,
-                     output_exists, sampler_keywords, writing)
+from .common import (
+    EXIT_OK,
+    OPTION_FLAGS,
+    _BadInput,
+    add_model_flag,
+    add_sampler_flags,
+    flag_message,
+    load_model,
+    output_exists,
+    sampler_keywords,
+    writing,
+)
 
 # The arguments the input file sets, for the error messages.
-FLAGS = {**OPTION_FLAGS, "obs": "the `poses` array of the input file", "mask": "the `mask` array of the input file",
-         "fps": "--fps", "layout": "--layout", "up": "--up", "fill": "--fill", "tempo": "--tempo",
-         "generator_share": "--generator-share"}
+FLAGS = {
+    **OPTION_FLAGS,
+    "obs": "the `poses` array of the input file",
+    "mask": "the `mask` array of the input file",
+    "fps": "--fps",
+    "layout": "--layout",
+    "up": "--up",
+    "fill": "--fill",
+    "tempo": "--tempo",
+    "generator_share": "--generator-share",
+}
 
 
 def add_parser(sub: Any) -> argparse.ArgumentParser:
-    p = sub.add_parser("forecast", help="forecast the poses of an .npz file",
-                       description="Forecast the frames after the observed poses of IN.npz.")
-    p.add_argument("input", metavar="IN.npz", help="input: `poses` (T, J, 3) or (B, T, J, 3), NaN = missing, any T "
-                   "(the model reads the last obs_len frames; fewer are padded with missing frames); optional "
-                   "`mask` (1 = observed); or a .bvh file (read as h36m32 joints, at its frame rate)")
-    p.add_argument("-o", "--output", metavar="OUT.npz", required=True,
-                   help="output: mean, samples (not with --point), repaired, seed, times (s after the last observed "
-                   "frame)")
+    p = sub.add_parser(
+        "forecast",
+        help="forecast the poses of an .npz file",
+        description="Forecast the frames after the observed poses of IN.npz.",
+    )
+    p.add_argument(
+        "input",
+        metavar="IN.npz",
+        help="input: `poses` (T, J, 3) or (B, T, J, 3), NaN = missing, any T "
+        "(the model reads the last obs_len frames; fewer are padded with missing frames); optional "
+        "`mask` (1 = observed); or a .bvh file (read as h36m32 joints, at its frame rate)",
+    )
+    p.add_argument(
+        "-o",
+        "--output",
+        metavar="OUT.npz",
+        required=True,
+        help="output: mean, samples (not with --point), repaired, seed, times (s after the last observed frame)",
+    )
     add_model_flag(p)
-    p.add_argument("--point", action="store_true",
-                   help="the deterministic point forecast of the prior (TCD.predict): missing entries are "
-                   "repaired first (see --fill); OUT gets mean, repaired, seed, times and no samples")
-    p.add_argument("--fill", default="auto", choices=("auto", "model", "spline", "linear"),
-                   help="--point: how missing entries are filled before the prior forecasts (auto: the repair "
-                   "model where the directory has one, else the natural cubic spline)")
-    p.add_argument("--samples", type=int, default=5, metavar="N",
-                   help="samples per sequence (default 5; with --point, of the repair)")
+    p.add_argument(
+        "--point",
+        action="store_true",
+        help="the deterministic point forecast of the prior (TCD.predict): missing entries are "
+        "repaired first (see --fill); OUT gets mean, repaired, seed, times and no samples",
+    )
+    p.add_argument(
+        "--fill",
+        default="auto",
+        choices=("auto", "model", "spline", "linear"),
+        help="--point: how missing entries are filled before the prior forecasts (auto: the repair "
+        "model where the directory has one, else the natural cubic spline)",
+    )
+    p.add_argument(
+        "--samples",
+        type=int,
+        default=5,
+        metavar="N",
+        help="samples per sequence (default 5; with --point, of the repair)",
+    )
     add_sampler_flags(p)
     p.add_argument("--seed", type=int, default=None, help="noise seed (default: random, recorded in OUT)")
     p.add_argument("--units", default="m", choices=tuple(UNIT_SCALE), help="units of the poses: m (default), cm or mm")
-    p.add_argument("--layout", default=None, choices=tuple(LAYOUTS),
-                   help="joint layout of the poses (default: the model's own, root-relative); with another "
-                   "layout, world or camera coordinates are accepted (see --up)")
-    p.add_argument("--fps", type=float, default=None, metavar="F",
-                   help="frame rate of the poses (default: the model's)")
-    p.add_argument("--up", default="y", choices=("x", "y", "z", "-x", "-y", "-z"),
-                   help="the vertical axis of the poses' coordinates (default y)")
-    p.add_argument("--tempo", type=float, nargs=2, default=None, metavar=("LO", "HI"),
-                   help="each sample from the observation replayed at its own tempo, LO to HI (tcd.tempo; 1 1: "
-                        "none; default: the model's, `tcd info`)")
-    p.add_argument("--generator-share", type=float, default=None, metavar="F",
-                   help="the share of the samples the model's MLP generator draws, after the cascade's (0: the "
-                        "cascade alone; default: the model's, `tcd info`: 0.5 for the bundled HumanEva-I model)")
+    p.add_argument(
+        "--layout",
+        default=None,
+        choices=tuple(LAYOUTS),
+        help="joint layout of the poses (default: the model's own, root-relative); with another "
+        "layout, world or camera coordinates are accepted (see --up)",
+    )
+    p.add_argument(
+        "--fps", type=float, default=None, metavar="F", help="frame rate of the poses (default: the model's)"
+    )
+    p.add_argument(
+        "--up",
+        default="y",
+        choices=("x", "y", "z", "-x", "-y", "-z"),
+        help="the vertical axis of the poses' coordinates (default y)",
+    )
+    p.add_argument(
+        "--tempo",
+        type=float,
+        nargs=2,
+        default=None,
+        metavar=("LO", "HI"),
+        help="each sample from the observation replayed at its own tempo, LO to HI (tcd.tempo; 1 1: "
+        "none; default: the model's, `tcd info`)",
+    )
+    p.add_argument(
+        "--generator-share",
+        type=float,
+        default=None,
+        metavar="F",
+        help="the share of the samples the model's MLP generator draws, after the cascade's (0: the "
+        "cascade alone; default: the model's, `tcd info`: 0.5 for the bundled HumanEva-I model)",
+    )
     p.add_argument("--threads", type=int, default=None, metavar="N", help="worker threads (default: all cores)")
     p.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
     p.add_argument("--quiet", action="store_true", help="no progress bar (shown on a terminal otherwise)")
@@ -72,6 +134,7 @@ def _read_npz(path: Path) -> Dict[str, np.ndarray]:
 
 def _read_bvh(path: Path):
     from ..bvh import read_bvh_h36m32
+
     if not path.is_file():
         raise _BadInput(f"The input file {path} does not exist.")
     try:
@@ -90,8 +153,10 @@ def run(args: argparse.Namespace) -> int:
     if not out.parent.is_dir():
         raise _BadInput(f"The output directory {out.parent} does not exist.")
     if out.exists() and Path(args.input).exists() and out.samefile(args.input):
-        raise _BadInput(f"The output {out} is the input file: choose another output path (the input is never "
-                        "overwritten, with or without --overwrite).")
+        raise _BadInput(
+            f"The output {out} is the input file: choose another output path (the input is never "
+            "overwritten, with or without --overwrite)."
+        )
     layout, fps = args.layout, args.fps
     if Path(args.input).suffix.lower() == ".bvh":
         data, file_fps = _read_bvh(Path(args.input))
@@ -109,12 +174,22 @@ def run(args: argparse.Namespace) -> int:
     if args.point and args.generator_share is not None:
         raise _BadInput("--generator-share splits the samples of a forecast; --point forecasts one point forecast.")
     call = model.predict if args.point else model.forecast
-    extra = ({"fill": args.fill} if args.point
-             else {"tempo": args.tempo, "generator_share": args.generator_share})
+    extra = {"fill": args.fill} if args.point else {"tempo": args.tempo, "generator_share": args.generator_share}
     try:
-        f = call(data["poses"], data.get("mask"), num_samples=args.samples, seed=args.seed, units=args.units,
-                 threads=args.threads, progress=not args.quiet and sys.stderr.isatty(), layout=layout, fps=fps,
-                 up=args.up, **extra, **sampler)
+        f = call(
+            data["poses"],
+            data.get("mask"),
+            num_samples=args.samples,
+            seed=args.seed,
+            units=args.units,
+            threads=args.threads,
+            progress=not args.quiet and sys.stderr.isatty(),
+            layout=layout,
+            fps=fps,
+            up=args.up,
+            **extra,
+            **sampler,
+        )
     except InvalidInputError as e:
         raise _BadInput(flag_message(e, FLAGS)) from None
     arrays = {"mean": f.mean, "repaired": f.repaired, "seed": np.uint64(f.seed)}

@@ -1,4 +1,5 @@
 """``tcd info``: describe a model directory."""
+
 from __future__ import annotations
 
 import argparse
@@ -21,12 +22,21 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     m = load_model(args.model)
     if args.json:
-        print(json.dumps({"path": str(m.path), "obs_len": m.obs_len, "horizon": m.horizon,
-                          "num_joints": m.num_joints,
-                          "sampling": {t: dataclasses.asdict(o) for t, o in m.sampling.items()},
-                          "forecast_tempo": None if m.forecast_tempo is None else list(m.forecast_tempo),
-                          "generator_share": m.generator_share,
-                          "config": m.config}, indent=2))
+        print(
+            json.dumps(
+                {
+                    "path": str(m.path),
+                    "obs_len": m.obs_len,
+                    "horizon": m.horizon,
+                    "num_joints": m.num_joints,
+                    "sampling": {t: dataclasses.asdict(o) for t, o in m.sampling.items()},
+                    "forecast_tempo": None if m.forecast_tempo is None else list(m.forecast_tempo),
+                    "generator_share": m.generator_share,
+                    "config": m.config,
+                },
+                indent=2,
+            )
+        )
         return EXIT_OK
     data = m.data
     lines: List[str] = [
@@ -44,19 +54,27 @@ def run(args: argparse.Namespace) -> int:
             continue
         c = d.config
         mc, diff = c.get("model", {}), c.get("diffusion", {})
-        lines.append(f"{role}: window {d.obs_len} + {d.pred_len} frames, channels {mc.get('channels')}, "
-                     f"layers {mc.get('num_layers')}, heads {mc.get('num_heads')}, "
-                     f"T = {d.num_train_timesteps} ({diff.get('beta_schedule')})"
-                     + ("" if mc.get("cond_fill", "zero") == "zero" else f", conditioning {mc['cond_fill']}-filled")
-                     + ("" if mc.get("target", "absolute") == "absolute"
-                        else f", target {mc['target']} (scale {mc.get('target_scale', 1.0):g})"))
+        lines.append(
+            f"{role}: window {d.obs_len} + {d.pred_len} frames, channels {mc.get('channels')}, "
+            f"layers {mc.get('num_layers')}, heads {mc.get('num_heads')}, "
+            f"T = {d.num_train_timesteps} ({diff.get('beta_schedule')})"
+            + ("" if mc.get("cond_fill", "zero") == "zero" else f", conditioning {mc['cond_fill']}-filled")
+            + (
+                ""
+                if mc.get("target", "absolute") == "absolute"
+                else f", target {mc['target']} (scale {mc.get('target_scale', 1.0):g})"
+            )
+        )
     for task, o in m.sampling.items():
         lines.append(f"default sampler, {task}: {o.describe(m.num_train_timesteps)}")
     lines.append(f"default tempo sampling, forecast: {describe_tempo(m.forecast_tempo)}")
     g = m.generator
-    lines.append("generator: none" if g is None else
-                 f"generator: MLP {g.layers} x {g.hidden}, z {g.z_dim}, {g.coefs} DCT coefficients around the prior; "
-                 f"draws {m.generator_share:g} of a forecast's samples by default")
+    lines.append(
+        "generator: none"
+        if g is None
+        else f"generator: MLP {g.layers} x {g.hidden}, z {g.z_dim}, {g.coefs} DCT coefficients around the prior; "
+        f"draws {m.generator_share:g} of a forecast's samples by default"
+    )
     lines.append(f"kernels: {m.short.kernel} (this CPU supports: {', '.join(supported_kernels())})")
     print("\n".join(lines))
     return EXIT_OK

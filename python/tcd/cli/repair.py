@@ -1,4 +1,5 @@
 """``tcd repair``: its arguments, its progress bar and its report; the work is :mod:`tcd.batch_repair`'s."""
+
 from __future__ import annotations
 
 import json
@@ -11,65 +12,135 @@ from ..layouts import LAYOUTS
 from .._poses import UNIT_SCALE
 from .._native import __version__
 from ..batch_repair.inputs import peek_frames
-from ..batch_repair.options import (DEFAULT_FILES_PER_BATCH, DEFAULT_LOOKAHEAD, DEFAULT_OVERLAP, DEFAULT_SEED,
-                                    RepairOptions)
+from ..batch_repair.options import (
+    DEFAULT_FILES_PER_BATCH,
+    DEFAULT_LOOKAHEAD,
+    DEFAULT_OVERLAP,
+    DEFAULT_SEED,
+    RepairOptions,
+)
 from ..batch_repair.runner import Outcome, collect_tasks, run_tasks, same_path
 from ..exceptions import InvalidInputError
 from .._files import write_text_atomic
-from .common import (EXIT_BAD_INPUT, EXIT_FAILURE, EXIT_OK, OPTION_FLAGS, _BadInput, add_model_flag, add_sampler_flags,
-                     flag_message, load_model, sampler_keywords, stopped)
+from .common import (
+    EXIT_BAD_INPUT,
+    EXIT_FAILURE,
+    EXIT_OK,
+    OPTION_FLAGS,
+    _BadInput,
+    add_model_flag,
+    add_sampler_flags,
+    flag_message,
+    load_model,
+    sampler_keywords,
+    stopped,
+)
 
 # RepairOptions.make's arguments by the flag that sets each, for the error messages (--jobs sets threads).
-FLAGS = {**OPTION_FLAGS, "threads": "--jobs", "fps": "--fps", "overlap": "--overlap", "lookahead": "--lookahead",
-         "layout": "--layout", "up": "--up"}
+FLAGS = {
+    **OPTION_FLAGS,
+    "threads": "--jobs",
+    "fps": "--fps",
+    "overlap": "--overlap",
+    "lookahead": "--lookahead",
+    "layout": "--layout",
+    "up": "--up",
+}
 
-CLI_USAGE = ("tcd repair INPUT... -o OUTDIR [--model DIR] [--units m|cm|mm] [--fps F] [--steps N] "
-             "[--sampler ddpm|ddim|dpmpp2m] [--samples N] [--seed S] [--overlap C] [--lookahead L] [--jobs N] "
-             "[--overwrite] [--report report.json] [--quiet]")
+CLI_USAGE = (
+    "tcd repair INPUT... -o OUTDIR [--model DIR] [--units m|cm|mm] [--fps F] [--steps N] "
+    "[--sampler ddpm|ddim|dpmpp2m] [--samples N] [--seed S] [--overlap C] [--lookahead L] [--jobs N] "
+    "[--overwrite] [--report report.json] [--quiet]"
+)
 
 
 def add_parser(sub: Any) -> Any:
     """Adds the ``repair`` subcommand to the ``tcd`` argument parser."""
     rp = sub.add_parser(
-        "repair", help="repair (fill the missing values of) pose files of any length",
+        "repair",
+        help="repair (fill the missing values of) pose files of any length",
         description="Repair the missing values (NaN or mask 0) of pose sequences of any length: .npz files with "
         "`poses` (T, J, 3) and optional `mask`, Human3.6M exp-map .txt files, or directories of them (recursive). "
         "Writes OUTDIR/<relative path>.npz with `poses`, `mask` and `provenance`; observed values are kept bit for "
         "bit. Finished outputs are skipped on a re-run (resume) unless --overwrite.",
         epilog="Exit codes: 0 every file repaired (or skipped), 1 some file failed (listed on stderr and in the "
-        "report), 2 bad arguments, 130 interrupted (143 terminated; re-run the command to resume).")
+        "report), 2 bad arguments, 130 interrupted (143 terminated; re-run the command to resume).",
+    )
     rp.add_argument("inputs", nargs="+", metavar="INPUT", help=".npz / .txt files or directories")
     rp.add_argument("-o", "--output", metavar="OUTDIR", required=True, help="output directory (created if needed)")
     add_model_flag(rp)
-    rp.add_argument("--units", default="m", choices=tuple(UNIT_SCALE),
-                    help="units of the poses: m (default), cm or mm (outputs in the same units)")
-    rp.add_argument("--fps", type=float, default=None, metavar="F",
-                    help="frame rate of the inputs (default: the model's; 50 for exp-map .txt); other rates are "
-                    "resampled to the model's and back")
-    rp.add_argument("--layout", default=None, choices=tuple(LAYOUTS),
-                    help="joint layout of the inputs (default: the model's own, root-relative); with another "
-                    "layout, world or camera coordinates are accepted (see --up)")
-    rp.add_argument("--up", default="y", choices=("x", "y", "z", "-x", "-y", "-z"),
-                    help="the vertical axis of the inputs' coordinates (default y)")
+    rp.add_argument(
+        "--units",
+        default="m",
+        choices=tuple(UNIT_SCALE),
+        help="units of the poses: m (default), cm or mm (outputs in the same units)",
+    )
+    rp.add_argument(
+        "--fps",
+        type=float,
+        default=None,
+        metavar="F",
+        help="frame rate of the inputs (default: the model's; 50 for exp-map .txt); other rates are "
+        "resampled to the model's and back",
+    )
+    rp.add_argument(
+        "--layout",
+        default=None,
+        choices=tuple(LAYOUTS),
+        help="joint layout of the inputs (default: the model's own, root-relative); with another "
+        "layout, world or camera coordinates are accepted (see --up)",
+    )
+    rp.add_argument(
+        "--up",
+        default="y",
+        choices=("x", "y", "z", "-x", "-y", "-z"),
+        help="the vertical axis of the inputs' coordinates (default y)",
+    )
     add_sampler_flags(rp, tuning=False)
-    rp.add_argument("--samples", type=int, default=None, metavar="N",
-                    help="samples averaged per window; 0: the repair fill alone, deterministic, without the "
-                    "diffusion (docs/repair.md, \"The fill alone\"); default 0 where the model has a repair fill "
-                    "(the bundled one does), else 5")
-    rp.add_argument("--seed", type=int, default=DEFAULT_SEED, metavar="S",
-                    help=f"noise seed (default {DEFAULT_SEED}): the same seed gives the same outputs")
-    rp.add_argument("--overlap", type=int, default=DEFAULT_OVERLAP, metavar="C",
-                    help=f"frames shared by consecutive windows (default {DEFAULT_OVERLAP})")
-    rp.add_argument("--lookahead", type=int, default=DEFAULT_LOOKAHEAD, metavar="L",
-                    help="trailing frames of each window regenerated by the next one, which sees what follows "
-                    f"them (default {DEFAULT_LOOKAHEAD})")
+    rp.add_argument(
+        "--samples",
+        type=int,
+        default=None,
+        metavar="N",
+        help="samples averaged per window; 0: the repair fill alone, deterministic, without the "
+        'diffusion (docs/repair.md, "The fill alone"); default 0 where the model has a repair fill '
+        "(the bundled one does), else 5",
+    )
+    rp.add_argument(
+        "--seed",
+        type=int,
+        default=DEFAULT_SEED,
+        metavar="S",
+        help=f"noise seed (default {DEFAULT_SEED}): the same seed gives the same outputs",
+    )
+    rp.add_argument(
+        "--overlap",
+        type=int,
+        default=DEFAULT_OVERLAP,
+        metavar="C",
+        help=f"frames shared by consecutive windows (default {DEFAULT_OVERLAP})",
+    )
+    rp.add_argument(
+        "--lookahead",
+        type=int,
+        default=DEFAULT_LOOKAHEAD,
+        metavar="L",
+        help="trailing frames of each window regenerated by the next one, which sees what follows "
+        f"them (default {DEFAULT_LOOKAHEAD})",
+    )
     rp.add_argument("--jobs", type=int, default=None, metavar="N", help="worker threads (default: all cores)")
     rp.add_argument("--overwrite", action="store_true", help="replace existing outputs (default: skip them)")
     rp.add_argument("--report", metavar="FILE", help="write a JSON report of every input (status, reason, frames)")
     rp.add_argument("--quiet", action="store_true", help="no progress bar and no summary")
-    rp.add_argument("--ray", nargs="?", const="", default=None, metavar="ADDRESS",
-                    help="spread the files over a Ray cluster: ADDRESS, else $RAY_ADDRESS, else a local cluster on "
-                    "this machine (needs the ray extra; the output and model directories must be shared)")
+    rp.add_argument(
+        "--ray",
+        nargs="?",
+        const="",
+        default=None,
+        metavar="ADDRESS",
+        help="spread the files over a Ray cluster: ADDRESS, else $RAY_ADDRESS, else a local cluster on "
+        "this machine (needs the ray extra; the output and model directories must be shared)",
+    )
     return rp
 
 
@@ -86,6 +157,7 @@ def _progress_bar(total: int, quiet: bool) -> Any:
 def run(args: Any) -> int:
     """Runs ``tcd repair``; returns the exit code (0 ok, 1 some file failed, 2 bad arguments, 130 interrupted,
     143 terminated)."""
+
     def bad(msg: str) -> int:
         print(f"tcd repair: error: {msg}", file=sys.stderr)
         return EXIT_BAD_INPUT
@@ -103,9 +175,19 @@ def run(args: Any) -> int:
         return bad(f"the report {args.report} would overwrite an input.")
     try:
         model = load_model(args.model)
-        opts = RepairOptions.make(model, sampler=sampler_keywords(args), num_samples=args.samples, seed=args.seed,
-                                  units=args.units, fps=args.fps, overlap=args.overlap, lookahead=args.lookahead,
-                                  threads=args.jobs, layout=args.layout, up=args.up)
+        opts = RepairOptions.make(
+            model,
+            sampler=sampler_keywords(args),
+            num_samples=args.samples,
+            seed=args.seed,
+            units=args.units,
+            fps=args.fps,
+            overlap=args.overlap,
+            lookahead=args.lookahead,
+            threads=args.jobs,
+            layout=args.layout,
+            up=args.up,
+        )
     except _BadInput as e:
         return bad(str(e))
     except InvalidInputError as e:
@@ -116,6 +198,7 @@ def run(args: Any) -> int:
         return bad(f"cannot create the output directory {out}: {e}")
     if args.ray is not None:
         from ..batch_repair import distributed
+
         try:
             where = distributed.connect(args.ray or None)
         except (ImportError, ConnectionError) as e:
@@ -145,11 +228,19 @@ def run(args: Any) -> int:
     t0 = time.perf_counter()
     try:
         if args.ray is not None:
-            outcomes = distributed.run_tasks_ray(model, tasks, opts, overwrite=args.overwrite, on_frames=on_frames,
-                                                 on_outcome=on_outcome)
+            outcomes = distributed.run_tasks_ray(
+                model, tasks, opts, overwrite=args.overwrite, on_frames=on_frames, on_outcome=on_outcome
+            )
         else:
-            outcomes = run_tasks(model, tasks, opts, overwrite=args.overwrite,
-                                 files_per_batch=DEFAULT_FILES_PER_BATCH, on_frames=on_frames, on_outcome=on_outcome)
+            outcomes = run_tasks(
+                model,
+                tasks,
+                opts,
+                overwrite=args.overwrite,
+                files_per_batch=DEFAULT_FILES_PER_BATCH,
+                on_frames=on_frames,
+                on_outcome=on_outcome,
+            )
     except KeyboardInterrupt as e:  # Ctrl-C or SIGTERM
         if bar is not None:
             bar.close()
@@ -163,16 +254,35 @@ def run(args: Any) -> int:
     outcomes = outcomes + collisions
     count = {s: sum(o.status == s for o in outcomes) for s in ("repaired", "skipped", "failed")}
     frames = sum(o.frames for o in outcomes if o.status == "repaired")
-    summary = {"files": len(outcomes), **count, "frames_repaired": frames, "seconds": round(seconds, 3),
-               "frames_per_second": round(frames / seconds, 2) if seconds > 0 and frames else None}
+    summary = {
+        "files": len(outcomes),
+        **count,
+        "frames_repaired": frames,
+        "seconds": round(seconds, 3),
+        "frames_per_second": round(frames / seconds, 2) if seconds > 0 and frames else None,
+    }
     if args.report:
-        report = {"tool": "tcd repair", "tcd_version": __version__, "model": str(model.path),
-                  "model_sha256": model.sha256, "output": str(out),
-                  "settings": {"sampler": opts.sampling.sampler, "steps": opts.sampling.num_inference_steps,
-                               "samples": opts.num_samples, "seed": opts.seed, "units": opts.units, "fps": opts.fps,
-                               "overlap": opts.overlap,
-                               "lookahead": opts.lookahead, "jobs": opts.threads, "overwrite": bool(args.overwrite)},
-                  "summary": summary, "files": [o.as_dict() for o in outcomes]}
+        report = {
+            "tool": "tcd repair",
+            "tcd_version": __version__,
+            "model": str(model.path),
+            "model_sha256": model.sha256,
+            "output": str(out),
+            "settings": {
+                "sampler": opts.sampling.sampler,
+                "steps": opts.sampling.num_inference_steps,
+                "samples": opts.num_samples,
+                "seed": opts.seed,
+                "units": opts.units,
+                "fps": opts.fps,
+                "overlap": opts.overlap,
+                "lookahead": opts.lookahead,
+                "jobs": opts.threads,
+                "overwrite": bool(args.overwrite),
+            },
+            "summary": summary,
+            "files": [o.as_dict() for o in outcomes],
+        }
         try:
             write_text_atomic(Path(args.report), json.dumps(report, indent=2) + "\n")
         except OSError as e:
@@ -180,6 +290,8 @@ def run(args: Any) -> int:
             return EXIT_FAILURE
     if not args.quiet:
         fps_txt = f", {summary['frames_per_second']} frames/s" if summary["frames_per_second"] else ""
-        print(f"tcd repair: {count['repaired']} repaired, {count['skipped']} skipped, {count['failed']} failed "
-              f"({frames} frames in {seconds:.1f} s{fps_txt}) -> {out}")
+        print(
+            f"tcd repair: {count['repaired']} repaired, {count['skipped']} skipped, {count['failed']} failed "
+            f"({frames} frames in {seconds:.1f} s{fps_txt}) -> {out}"
+        )
     return EXIT_FAILURE if count["failed"] else EXIT_OK
