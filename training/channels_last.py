@@ -16,7 +16,7 @@ are checked against that forward, so it stays as it is. This module computes the
 * attention is ``F.scaled_dot_product_attention`` on a GPU (flash / memory-efficient kernels) and the explicit
   softmax(q k^T / sqrt(d)) v on the CPU: the reduced models' heads have 8 channels, which PyTorch's CPU
   flash kernel handles poorly (54 % of a HumanEva-I long model's step); the explicit form trains 1.00 to 1.12 x
-  the windows/s (batch 8 and 32, one Zen 4 core; docs/training.md, "The step's speed");
+  the windows/s (batch 8 and 32, one Zen 4 core; docs/training.md, "Tried, not kept");
 * the conditioning projection of the 145 side channels is split by linearity: frame embedding (L, 128)
   and feature embedding (K, 16) are projected once per block (an (L, 2C) and a (K, 2C) table), and the
   mask channel is one column, so the (B, 145, K, L) side tensor is never built.

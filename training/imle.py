@@ -15,7 +15,7 @@ loss); :class:`EngineSearch` runs them in the Rust engine (the weights serialise
 times faster than PyTorch's CPU forward of this network. And a search can serve several optimizer steps
 (``imle_echo``: :func:`imle_choose` apart from :func:`imle_loss`): the premise, which Li and Malik's IMLE (its
 nearest samples refreshed only every few epochs) relies on, is that which candidate lands nearest changes slowly as
-the weights move; its one run here made the model worse (docs/training.md, "Echoing the IMLE search").
+the weights move; its one run here made the model worse (docs/training.md, "Tried, not kept").
 """
 
 from __future__ import annotations
@@ -171,7 +171,7 @@ def imle_loss(
     windows = torch.arange(B, device=x0.device)
     t_last = torch.full((B,), sched.T - 1, device=x0.device)
     # each target's nearest sample, one forward of B per target (a CPU step costs more per window at 4 B than at
-    # B: docs/training.md, "The step's speed"); the mean over targets, each term normalised by the same count of
+    # B: docs/training.md, "Tried, not kept"); the mean over targets, each term normalised by the same count of
     # hidden entries, is the pooled mean
     loss = sum(
         masked_eps_loss(tm, model(candidates[nm, windows], observed, mask, t_last), mask)

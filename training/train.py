@@ -131,7 +131,7 @@ class TrainConfig:
     imle_targets: int = 1  # > 1: each window's IMLE loss also pulls a nearest candidate to each of
     # imle_targets - 1 futures of its future_swap_k nearest windows (swap_futures)
     imle_echo: int = 1  # > 1: each batch's IMLE search (most of a step's cost) is echoed over this
-    # many optimizer steps on the batch (docs/training.md, "Echoing the IMLE search")
+    # many optimizer steps on the batch (docs/training.md, "Tried, not kept")
     reset_output_head: bool = False  # with init_from: the last 1x1 conv's weight and bias restart at zero; for a
     # warm start whose prediction_type changes (epsilon -> sample), so the run
     # starts at "no residual over the fill" instead of from noise estimates

@@ -1,7 +1,7 @@
 """Widening a trained denoiser: ``channels`` and ``ffn_dim`` times an integer ``factor``, the same function.
 
 Why: on HumanEva-I the 5 x 32 long model stopped improving whatever the recipe, and it does not fit Box even on its
-own training windows (docs/training.md, "Box, where the 5 × 32 network stops"). A wider network trained from
+own training windows (docs/training.md, "Tried, not kept"). A wider network trained from
 scratch would throw away the installments behind the bundled one; this starts it where they left off.
 
 How (Net2Net, Chen et al. 2016, with exact preservation): every channel of the residual stream, of the skips, of
