@@ -311,41 +311,39 @@ class Runner:
         recipes = all_recipes()
         if name not in recipes or stage not in [s.name for s in recipes[name].stages]:
             raise RecipeError(f"{self.recipe.path}: {{recipe:{name}/{stage}}} names no stage of a recipe")
-        run_dir = self.dir / "deps" / name if self.smoke else runs_root() / name
-        if not (run_dir / stage / "done.json").is_file():
-            self.log(f"[{self.recipe.name}] needs {name} up to its stage {stage}: running it in {run_dir}")
-            Runner(
-                recipes[name],
-                run_dir,
-                threads=self.threads,
-                device=self.device,
-                inputs=self.inputs,
-                data=self.data,
-                smoke=self.smoke,
-                log=self.log,
-            ).run(until=stage)
-        return run_dir / stage
+        other = self.sibling(recipes[name])
+        if not (other.dir / stage / "done.json").is_file():
+            self.log(f"[{self.recipe.name}] needs {name} up to its stage {stage}: running it in {other.dir}")
+            other.run(until=stage)
+        return other.dir / stage
+
+    def sibling(self, recipe: Recipe) -> "Runner":
+        """A runner of another recipe with this one's options, in its own run directory (inside this one's for a
+        smoke run, which must not touch real runs)."""
+        run_dir = self.dir / "deps" / recipe.name if self.smoke else runs_root() / recipe.name
+        return Runner(
+            recipe,
+            run_dir,
+            threads=self.threads,
+            device=self.device,
+            inputs=self.inputs,
+            data=self.data,
+            smoke=self.smoke,
+            log=self.log,
+        )
 
     def input(self, path: str) -> Path:
         if path not in self.recipe.needs:
             raise RecipeError(f"{self.recipe.path}: {{input:{path}}} is not in its 'needs'")
         if self.inputs == "bundled" or not path.endswith(".safetensors"):  # a sampling.json is shipped as written
             return PACKAGE / path
-        maker = producer(path, all_recipes())
-        run_dir = self.dir / "deps" / maker.name if self.smoke else runs_root() / maker.name
-        if not (run_dir / "out" / path).is_file():
-            self.log(f"[{self.recipe.name}] --inputs runs: {path} comes from {maker.name}: running it in {run_dir}")
-            Runner(
-                maker,
-                run_dir,
-                threads=self.threads,
-                device=self.device,
-                inputs=self.inputs,
-                data=self.data,
-                smoke=self.smoke,
-                log=self.log,
-            ).run()
-        return run_dir / "out" / path
+        maker = self.sibling(producer(path, all_recipes()))
+        if not (maker.out / path).is_file():
+            self.log(
+                f"[{self.recipe.name}] --inputs runs: {path} comes from {maker.recipe.name}: running it in {maker.dir}"
+            )
+            maker.run()
+        return maker.out / path
 
     # one stage -------------------------------------------------------------------------------------------
     def stage_config(self, stage: Stage) -> dict:
