@@ -550,30 +550,57 @@ def convention(src: Sources) -> str:
 
 
 def recipes_cost(src: Sources) -> str:
-    """The training cost of each bundled file, from its recipe's results (``python -m training.recipe NAME`` writes
-    benches/results/recipes/NAME.json). Nothing while no recipe has run to its end."""
-    found = src.glob("recipes/*.json")
-    if not found:
-        return ""
-    rows, total = [], 0.0
-    for name, d in found:
-        cpus = sorted({c for s in d.get("stages", []) for c in s.get("cpus", [])})
-        files = ", ".join(
-            f"`{f}`" + ("" if v.get("identical") else " (not the bundled bytes)") for f, v in d.get("files", {}).items()
-        )
+    """Every recipe (training/recipes/NAME.json): the files it produces, what a run from scratch costs by its stages'
+    recorded times (and GPU time, where a stage ran on one), and, where ``python -m training.recipe NAME`` has run to
+    its end (benches/results/recipes/NAME.json), that run's measured CPU-hours and its paired comparison with the
+    bundled file."""
+    runs = dict(src.glob("recipes/*.json"))
+    rows = []
+    for path in sorted(glob.glob(str(src.root / "training" / "recipes" / "*.json"))):
+        r = json.loads(Path(path).read_text())
+        src.read.append(path)
+        name, cost = r["name"], r.get("cost", {})
+        run = runs.get(name)
+        if run is None:
+            measured, verdict = NONE, "not run from scratch yet"
+        else:
+            measured = hours(run.get("cpu_hours"))
+            verdicts = sorted(
+                {
+                    "; ".join(f"{k}: {_verdict(v)}" for k, v in c.get("keys", {}).items())
+                    for c in run.get("comparisons", [])
+                }
+            )
+            verdict = "; ".join(verdicts) or NONE
         rows.append(
             [
                 f"[{name}](training/recipes/{name}.json)",
-                files,
-                hours(d.get("cpu_hours")),
-                hours(d.get("scoring_cpu_hours")),
-                count(d.get("windows")),
-                "; ".join(cpus) or NONE,
+                ", ".join(f"`{f}`" for f in r["produces"]),
+                hours(cost.get("cpu_hours")),
+                "yes" if cost.get("gpu") else "",
+                measured,
+                verdict,
             ]
         )
-        total += d.get("cpu_hours") or 0.0
-    rows.append(["in all", "", f"**{hours(total)}**", "", "", ""])
-    return table(["recipe", "produces", "CPU-hours (training)", "CPU-hours (scoring)", "windows", "CPU"], rows)
+    return table(
+        [
+            "recipe",
+            "produces",
+            "CPU-hours from scratch",
+            "a GPU stage",
+            "reproduced here (CPU-hours)",
+            "reproduction against the bundled (paired)",
+        ],
+        rows,
+    )
+
+
+def _verdict(key: dict) -> str:
+    """training.compare's verdict from the last lines of its report, as the runner keeps them."""
+    for line in key.get("report", []):
+        if '"verdict"' in line:
+            return line.split(":", 1)[1].strip().strip('",')
+    return "failed"
 
 
 def _sampler(s: dict) -> str:
