@@ -125,26 +125,23 @@ def test_inline_block(tmp_path, capsys):
     assert rc == 2 and "inline" in err
 
 
-def test_recipes_cost_reads_what_exists(tmp_path, capsys):
-    """No recipe results: an empty block; one: its row and the total."""
+def test_recipes_cost_lists_every_recipe_and_the_runs_that_ended(tmp_path):
+    """Every recipe of training/recipes/ gets a row with its recorded cost; a recipe whose run ended (its results
+    file) also gets that run's CPU-hours and its paired verdicts against the bundled file."""
     results = tmp_path / "results"
     (results / "recipes").mkdir(parents=True)
-    assert report.recipes_cost(report.Sources(results)) == ""
+    md = report.recipes_cost(report.Sources(results))
+    names = sorted(p.stem for p in (report.ROOT / "training" / "recipes").glob("*.json"))
+    assert names and all(f"[{n}](training/recipes/{n}.json)" in md for n in names)
+    assert md.count("not run from scratch yet") == len(names)
+    verdict = {"exit": 1, "report": ['  "mean_difference": 0.0,', '  "verdict": "within noise"', "}"]}
     (results / "recipes" / "h36m-prior.json").write_text(
-        json.dumps(
-            {
-                "recipe": "h36m-prior",
-                "files": {"weights/prior.safetensors": {"identical": False}},
-                "cpu_hours": 3.456,
-                "scoring_cpu_hours": 0.1,
-                "windows": 7530000,
-                "stages": [{"cpus": ["AMD EPYC"]}],
-            }
-        )
+        json.dumps({"recipe": "h36m-prior", "cpu_hours": 3.456, "comparisons": [{"keys": {"average": verdict}}]})
     )
     md = report.recipes_cost(report.Sources(results))
-    assert "[h36m-prior](training/recipes/h36m-prior.json)" in md and "| 3.46 |" in md and "7,530,000" in md
-    assert "(not the bundled bytes)" in md and "**3.46**" in md and "AMD EPYC" in md
+    row = next(line for line in md.splitlines() if line.startswith("| [h36m-prior]"))
+    assert "| 3.46 |" in row and "average: within noise" in row
+    assert md.count("not run from scratch yet") == len(names) - 1
 
 
 def test_stale_results_are_refused(tmp_path, capsys):
