@@ -187,6 +187,10 @@ def test_an_unfinished_run_is_carried_and_restored(tmp_path, monkeypatch):
     assert (fresh / "two" / "last.pt").read_bytes() == b"state"
     assert (fresh / "one" / "best.pt").read_bytes() == b"weights"
     assert json.loads((fresh / "one" / "done.json").read_text())["cpu_hours"] == 0.5
+    # a finished command stage before the last finished one runs again (its files are not carried)
+    (run_dir / "two" / "done.json").write_text(json.dumps({"stage": "two", "cpu_hours": 1.0}))
+    state = json.loads(R.Runner(rec, run_dir).carry().joinpath("state.json").read_text())
+    assert sorted(state) == ["two"]
 
 
 # ------------------------------------------------------------------------------------------ every recipe, smoked

@@ -536,6 +536,10 @@ class Runner:
         if last_done is not None:
             for f in sorted(last_done.glob("*.pt")):
                 shutil.copy2(f, dest / f"{last_done.name}.{f.name}")
+        # a finished command stage before the last finished one (an export, a fit) left files that are not carried:
+        # it runs again, where a later stage reads them
+        modules = {s.name for s in self.recipe.stages + self.recipe.evaluate if s.run == "module"}
+        state = {k: v for k, v in state.items() if k not in modules or "done" not in v or k == last_done.name}
         (dest / "state.json").write_text(json.dumps(state, indent=1) + "\n")
         return dest
 
