@@ -182,6 +182,8 @@ def test_an_unfinished_run_is_carried_and_restored(tmp_path, monkeypatch):
     (run_dir / "two" / "cost.json").write_text(json.dumps([{"cpu_s": 7.0}]))
     dest = R.Runner(rec, run_dir).carry()
     assert sorted(p.name for p in dest.iterdir()) == ["one.best.pt", "state.json", "two.last.pt"]
+    R.Runner(rec, tmp_path / "smoke", smoke=True, log=lambda m: None).restore_carried()
+    assert not (tmp_path / "smoke").exists() or not any((tmp_path / "smoke").iterdir())
     fresh = tmp_path / "fresh"
     R.Runner(rec, fresh, log=lambda m: None).restore_carried()
     assert (fresh / "two" / "last.pt").read_bytes() == b"state"

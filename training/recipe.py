@@ -548,8 +548,12 @@ class Runner:
         last finished stage's weights are carried: a later stage that reads an earlier one's (a warm start from
         further back) needs the run directory itself."""
         src = CARRIED / self.recipe.name
-        if not (src / "state.json").is_file() or any((self.dir / s.name).exists() for s in self.recipe.stages):
-            return
+        if (
+            self.smoke
+            or not (src / "state.json").is_file()
+            or any((self.dir / s.name).exists() for s in self.recipe.stages)
+        ):
+            return  # a smoke run starts from nothing: a carried checkpoint is of the real schedule
         for name, st in json.loads((src / "state.json").read_text()).items():
             sdir = self.dir / name
             sdir.mkdir(parents=True, exist_ok=True)
