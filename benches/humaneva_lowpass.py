@@ -75,7 +75,7 @@ def noise_scale(c: float):
     import dataclasses
 
     import tcd.engine as te
-    import tcd.model as tm
+    import tcd._model as tm
     from tcd import SamplerOptions
 
     sampler_keys = [f.name for f in dataclasses.fields(SamplerOptions)]  # the keywords a sampler is named by

@@ -55,7 +55,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import tcd  # noqa: E402
-from tcd import fk, layouts  # noqa: E402
+from tcd import _fk as fk, layouts  # noqa: E402
 from training.data.h36m import DEFAULT_H36M_DIR, H36MSource, find_indices_256, ACTIONS  # noqa: E402
 from training.masks import make_mask  # noqa: E402
 
@@ -117,7 +117,7 @@ H36M17_MODEL = [i for i, t in enumerate(layouts.LAYOUTS["h36m17"].to32) if t in 
 
 def world_xyz32(rows: np.ndarray) -> np.ndarray:
     """(T, 99) exp-map rows at 50 Hz -> (T, 32, 3) metres with the recorded global rotation and root position
-    (the row-vector convention of ``tcd.fk``: p_world = p_local R_root + root)."""
+    (the row-vector convention of ``tcd._fk``: p_world = p_local R_root + root)."""
     local = fk.expmap_to_xyz32(rows)
     rot = fk.expmap_to_rotmat(rows[:, 3:6])
     return (np.einsum("tjk,tkl->tjl", local, rot) + rows[:, None, 0:3]) / 1000.0

@@ -65,7 +65,7 @@ def model_file(args, tmp: Path) -> tuple[Path, str]:
 
 def windows(batch: int, obs_len: int) -> np.ndarray:
     """(batch, obs_len, K) float32: windows of the demo clip, repeated."""
-    from tcd.demo import load_clip
+    from tcd._demo import load_clip
 
     clip = load_clip()["poses"]
     clip = clip.reshape(len(clip), -1).astype(np.float32)

@@ -9,7 +9,7 @@ on it as a user would, timed from the outside:
 
 1. the Human3.6M S5 exp-map sequences (``../shared/data/h36m/h36m_expmap_50fps.npz`` or
    ``$TCD_DATA_DIR/h36m``), their first ``--max-frames`` frames (default 1000, 20 s), converted by forward
-   kinematics (``tcd.fk.expmap_to_model``) to the model's 22 joints **in millimetres at 50 fps** (so the
+   kinematics (``tcd._fk.expmap_to_model``) to the model's 22 joints **in millimetres at 50 fps** (so the
    ``--units`` and ``--fps`` paths are exercised), or with ``--fps 25`` every other frame (the model's rate);
 2. hidden entries: the sequence is cut into blocks of 50 frames and each block gets one of the
    benchmark's occlusion patterns (``training.masks``: random leg + arm 40 %, consecutive frames 20 %,
@@ -73,7 +73,7 @@ def build_inputs(data_dir: Path, indir: Path, files: int, max_frames: int, seed:
     gts, ms = {}, {}
     for i, key in enumerate(keys):
         rows = data[key][:max_frames][:: 50 // fps]  # 50 fps, or every other frame for 25 fps
-        gt = (tcd.fk.expmap_to_model(rows) * 1000.0).astype(np.float32)  # (T, 22, 3) mm
+        gt = (tcd._fk.expmap_to_model(rows) * 1000.0).astype(np.float32)  # (T, 22, 3) mm
         m = occlusion_mask(len(gt), gt.shape[1], np.random.default_rng([seed, i]))
         name = key.split("/", 1)[1]
         np.savez(indir / f"{name}.npz", poses=np.where(m[..., None], gt, np.nan).astype(np.float32), mask=m)

@@ -28,9 +28,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import tcd  # noqa: E402
-from tcd.batch_repair import RepairOptions, distributed  # noqa: E402
-from tcd.batch_repair.runner import collect_tasks, run_tasks  # noqa: E402
-from tcd.demo import load_clip  # noqa: E402
+from tcd._repair import RepairOptions, distributed  # noqa: E402
+from tcd._repair.runner import collect_tasks, run_tasks  # noqa: E402
+from tcd._demo import load_clip  # noqa: E402
 
 
 def make_files(d: Path, n: int, frames: int, seed: int) -> Path:

@@ -29,7 +29,7 @@ import numpy as np
 import pytest
 
 import tcd
-from tcd.demo import load_clip
+from tcd._demo import load_clip
 
 pytest.importorskip("pytest_benchmark")
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from fixtures_util import poses
-from tcd.cli import main
+from tcd._cli import main
 
 FAST = ["--steps", "2", "--sampler", "ddim", "--samples", "2"]
 FAST_KW = dict(num_inference_steps=2, sampler="ddim", num_samples=2)

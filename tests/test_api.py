@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import pydoc
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -90,7 +91,7 @@ def test_argument_types_match_their_checks():
 
     from tcd._interpolation import INTERPOLATIONS, Interpolation
     from tcd._poses import UNIT_SCALE, Units
-    from tcd.model import FILLS, Fill
+    from tcd._model import FILLS, Fill
 
     assert typing.get_args(Units) == tuple(UNIT_SCALE)
     assert typing.get_args(Interpolation) == INTERPOLATIONS
@@ -433,7 +434,7 @@ def test_bundled_repair_model():
     observed entries unchanged, with at most 0.75 x the error of linear interpolation."""
     if not (tcd.default_model_dir() / "repair.safetensors").is_file():
         pytest.skip("no bundled repair model in this build")
-    from tcd.demo import load_clip
+    from tcd._demo import load_clip
 
     m = tcd.load()
     r = m.repair_model
@@ -526,8 +527,8 @@ def test_sampler_settings_have_one_form(tiny_model, obs, tmp_path):
     """No second way in: an ``options=`` object, or any other keyword that is not a sampler setting, is a
     TypeError naming the four settings at every layer, before any work; timesteps and num_noise_blocks take no
     positional settings; a bad value is an InvalidInputError naming its field."""
-    from tcd import demo
-    from tcd.batch_repair import RepairOptions
+    from tcd import _demo as demo
+    from tcd._repair import RepairOptions
 
     d, long = tiny_model.short, tiny_model.long
     x, m = np.zeros((1, 66, 50), np.float32), np.ones((1, 66, 50), np.float32)
@@ -593,13 +594,31 @@ def test_native_attributes_read_only_and_documented(tiny_model):
         assert f"\n |  {name}\n |      " in text, name
 
 
-def test_batch_repair_package_holds_its_api_only():
-    """tcd.batch_repair's namespace is its __all__ (and its modules): no names kept under old homes."""
+def test_repair_package_holds_its_api_only():
+    """tcd._repair's namespace is its __all__ (and its modules): no names kept under old homes."""
     import types
 
-    import tcd.batch_repair as br
+    import tcd._repair as br
 
     names = {n for n, v in vars(br).items() if not n.startswith("_") and not isinstance(v, types.ModuleType)}
     assert names - {"annotations"} == set(br.__all__)
     for old in ("cli", "CLI_USAGE", "add_subparser", "window_starts", "write_npz_atomic"):
         assert not hasattr(br, old), old
+
+
+def test_every_module_without_an_underscore_is_listed_as_public():
+    """A module of the package whose name has no leading underscore is public: docs/usage.md lists it in its
+    "Public modules" table; every other module is private by name."""
+    import pkgutil
+
+    import tcd
+
+    usage = (Path(__file__).resolve().parents[1] / "docs" / "usage.md").read_text()
+    table = usage.split("## Public modules", 1)[1].split("\n## ", 1)[0]
+    listed = set(re.findall(r"^\| `(tcd(?:\.[a-z_]+)*)` \|", table, re.M))
+    public = {"tcd"} | {
+        info.name
+        for info in pkgutil.walk_packages(tcd.__path__, "tcd.")
+        if not any(part.startswith("_") for part in info.name.split(".")[1:])
+    }
+    assert public == listed

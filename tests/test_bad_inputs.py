@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from fixtures_util import poses
-from tcd.cli import main
+from tcd._cli import main
 
 
 def run_cli(argv) -> int:

@@ -493,7 +493,7 @@ def test_humaneva_spread_scales_each_sample_about_the_samples_mean():
 def test_humaneva_noise_scale_scales_the_starting_noise_of_both_stages():
     import_torch("benches/humaneva_lowpass.py (it samples through training/evaluate.py)")
     import tcd
-    import tcd.model as tm
+    import tcd._model as tm
 
     bench = load_bench("humaneva_lowpass")
     model = tcd.load(ROOT / "tests" / "fixtures" / "tiny_humaneva_model")  # random weights, around a prior

@@ -8,8 +8,8 @@ import pytest
 
 pytest.importorskip("bvhio")
 
-from tcd import bvh, wild  # noqa: E402
-from tcd.cli import main  # noqa: E402
+from tcd import _bvh as bvh, wild  # noqa: E402
+from tcd._cli import main  # noqa: E402
 
 # a small CMU-style hierarchy in centimetres: (name, parent, offset)
 JOINTS = [

@@ -12,7 +12,7 @@ import pytest
 
 import tcd
 from fixtures_util import poses
-from tcd.cli import main
+from tcd._cli import main
 
 FAST = ["--samples", "2", "--steps", "2", "--sampler", "ddim"]
 
@@ -44,9 +44,9 @@ def test_info(tiny_model_dir, capsys):
 
 
 def test_info_without_bundled_model(capsys, tmp_path, monkeypatch):
-    import tcd.model
+    import tcd._model
 
-    monkeypatch.setattr(tcd.model, "default_model_dir", lambda: tmp_path)  # an installation without weights
+    monkeypatch.setattr(tcd._model, "default_model_dir", lambda: tmp_path)  # an installation without weights
     code, out, err = run(["info"], capsys)
     assert code == 2 and out == ""
     assert "No default model is bundled" in err

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 import tcd
-import tcd.model
-from tcd import demo
-from tcd.cli import main
+import tcd._model
+from tcd import _demo as demo
+from tcd._cli import main
 from tcd.exceptions import WeightsError
 
 FAST = ["--samples", "2", "--steps", "2", "--sampler", "ddim", "--quiet"]
@@ -106,7 +106,7 @@ def test_demo_bad_steps_names_the_option(tiny_model_dir, tmp_path, capsys):
 
 def test_checksums_verified_when_present(tiny_model_dir, tmp_path):
     d = Path(shutil.copytree(tiny_model_dir, tmp_path / "m"))
-    tcd.model.write_checksums(d)
+    tcd._model.write_checksums(d)
     m = tcd.load(d)
     assert len(m.sha256) == 64 and set(m.file_sha256) == {"short.safetensors", "long.safetensors"}
     raw = bytearray((d / "long.safetensors").read_bytes())
@@ -118,10 +118,10 @@ def test_checksums_verified_when_present(tiny_model_dir, tmp_path):
 
 def test_bundled_model_requires_checksums(tiny_model_dir, tmp_path, monkeypatch):
     d = Path(shutil.copytree(tiny_model_dir, tmp_path / "bundled"))
-    monkeypatch.setattr(tcd.model, "default_model_dir", lambda: d)
+    monkeypatch.setattr(tcd._model, "default_model_dir", lambda: d)
     with pytest.raises(WeightsError, match="SHA256SUMS"):
         tcd.load()
-    tcd.model.write_checksums(d)
+    tcd._model.write_checksums(d)
     assert tcd.load().sha256 == tcd.load(d).sha256
 
 

@@ -135,11 +135,11 @@ def test_bad_options(tiny_model, obs, argument, kwargs):
 
 def test_settings_kept_for_later_are_checked_when_given(tiny_model_dir):
     """A thread count given to tcd.load, and tcd repair's options, are refused at once with the engine's rules
-    (tcd.batch_repair.RepairOptions is checked before any file is read)."""
+    (tcd._repair.RepairOptions is checked before any file is read)."""
     bad("threads", tcd.load, tiny_model_dir, threads=0)
     bad("threads", tcd.load, tiny_model_dir, threads=2000)
     m = tcd.load(tiny_model_dir)
-    from tcd.batch_repair import RepairOptions
+    from tcd._repair import RepairOptions
 
     bad("seed", RepairOptions.make, m, seed=-1)
     bad("num_samples", RepairOptions.make, m, num_samples=0)
@@ -226,10 +226,10 @@ def test_native_engine_error_mapping(tiny_model_dir):
 
 
 def test_load_without_bundled_model_explains(tmp_path, monkeypatch):
-    import tcd.model
+    import tcd._model
 
-    monkeypatch.setattr(tcd.model, "default_model_dir", lambda: tmp_path)  # an installation without weights
-    monkeypatch.setattr(tcd.model, "_default", None)
+    monkeypatch.setattr(tcd._model, "default_model_dir", lambda: tmp_path)  # an installation without weights
+    monkeypatch.setattr(tcd._model, "_default", None)
     with pytest.raises(FileNotFoundError, match="No default model is bundled"):
         tcd.load()
     with pytest.raises(FileNotFoundError, match="pass a model directory"):

@@ -69,7 +69,7 @@ def model(model_dir):
 
 def observation(batch: int = 3) -> np.ndarray:
     """(B, 15, 14, 3) float32 metres: windows of the bundled HumanEva-I demo clip."""
-    from tcd import demo
+    from tcd import _demo as demo
 
     clip = demo.load_clip(demo.HUMANEVA_CLIP_PATH)["poses"].astype(np.float32)
     return np.stack([clip[s : s + OBS] for s in range(0, 20 * batch, 20)])

@@ -57,7 +57,7 @@ def random_generator(seed: int = 0, hidden: int = 768, layers: int = 3) -> Gener
 @pytest.fixture(scope="module")
 def inputs():
     """(obs (7, 15, 42), the bundled prior's forecast (7, 60, 42)) float32 metres, from the HumanEva-I demo clip."""
-    from tcd import demo
+    from tcd import _demo as demo
 
     clip = demo.load_clip(demo.HUMANEVA_CLIP_PATH)["poses"]
     clip = clip.reshape(len(clip), -1).astype(np.float32)

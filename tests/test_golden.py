@@ -54,7 +54,7 @@ def observation() -> np.ndarray:
 def outputs(tmp: Path) -> dict[str, str]:
     """The checksummed outputs on the kernel path ``$TCD_KERNEL`` selects (read when a model file loads)."""
     import tcd
-    from tcd.cli import main as cli
+    from tcd._cli import main as cli
 
     model = tcd.load(MODEL_DIR)
     obs = observation()

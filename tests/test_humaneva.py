@@ -145,14 +145,14 @@ def test_humaneva15_forecast_with_a_human36m_model(tiny_model):
 
 
 def test_load_humaneva_when_not_bundled(tmp_path, monkeypatch, capsys):
-    import tcd.model
+    import tcd._model
 
-    monkeypatch.setattr(tcd.model, "humaneva_model_dir", lambda: tmp_path / "weights_humaneva")
+    monkeypatch.setattr(tcd._model, "humaneva_model_dir", lambda: tmp_path / "weights_humaneva")
     with pytest.raises(tcd.ModelNotBundledError, match="not bundled") as e:
         tcd.load("humaneva")
     assert isinstance(e.value, FileNotFoundError) and isinstance(e.value, tcd.TcdError)
     assert e.value.model == "humaneva" and "docs/training.md" in str(e.value)
-    from tcd.cli import main
+    from tcd._cli import main
 
     assert main(["demo", "--model", "humaneva", "-o", str(tmp_path / "d.npz"), "--quiet"]) == 2
     assert main(["info", "--model", "humaneva"]) == 2
@@ -160,17 +160,17 @@ def test_load_humaneva_when_not_bundled(tmp_path, monkeypatch, capsys):
 
 
 def test_load_humaneva_when_bundled(humaneva_model_dir, tmp_path, monkeypatch):
-    import tcd.model
+    import tcd._model
 
     d = tmp_path / "weights_humaneva"
     shutil.copytree(humaneva_model_dir, d)
-    monkeypatch.setattr(tcd.model, "humaneva_model_dir", lambda: d)
+    monkeypatch.setattr(tcd._model, "humaneva_model_dir", lambda: d)
     with pytest.raises(tcd.WeightsError, match="SHA256SUMS"):  # a bundled model is always checksummed
         tcd.load("humaneva")
-    tcd.model.write_checksums(d)
+    tcd._model.write_checksums(d)
     m = tcd.load("humaneva")
     assert m.path == d and m.num_joints == 14 and m.sha256 is not None
-    from tcd.cli import main
+    from tcd._cli import main
 
     assert (
         main(
@@ -251,7 +251,7 @@ def test_a_humaneva_model_repairs_world_poses_in_its_own_layout(humaneva_model_d
 
 
 def test_humaneva_demo_clip():
-    from tcd import demo
+    from tcd import _demo as demo
 
     clip = demo.load_clip(demo.HUMANEVA_CLIP_PATH)
     p = clip["poses"]
@@ -266,7 +266,7 @@ def test_humaneva_demo_clip():
 
 
 def test_demo_runs_the_humaneva_model(humaneva_model_dir, tmp_path, capsys):
-    from tcd import demo
+    from tcd import _demo as demo
 
     m = tcd.load(humaneva_model_dir)
     res = demo.run(m, samples=3, sampler="ddim", num_inference_steps=2, seed=0, quiet=True)
@@ -283,7 +283,7 @@ def test_demo_runs_the_humaneva_model(humaneva_model_dir, tmp_path, capsys):
 
 def test_demo_plot_draws_the_humaneva_skeleton(tmp_path):
     pytest.importorskip("matplotlib")
-    from tcd import demo
+    from tcd import _demo as demo
 
     clip = demo.load_clip(demo.HUMANEVA_CLIP_PATH)
     p = clip["poses"]

@@ -187,12 +187,12 @@ LAUNCH = (
     "os.execv(sys.executable, [sys.executable, '-c'] + sys.argv[2:])"
 )
 
-# The child: `tcd.cli.main` (the console script's) with a hook that says on stdout when the moment to send
+# The child: `tcd._cli.main` (the console script's) with a hook that says on stdout when the moment to send
 # the signal has come.
 CHILD = """
 import sys
 import tcd.engine
-from tcd.cli import main
+from tcd._cli import main
 
 def say(word):
     print(word, flush=True)
@@ -354,7 +354,7 @@ def test_cli_started_with_sigint_ignored_keeps_it_ignored_and_stops_on_sigterm(t
 
 
 def test_cli_main_leaves_the_signal_dispositions_as_it_found_them(capsys):
-    from tcd.cli import main
+    from tcd._cli import main
 
     before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
     assert main(["info"]) == 0

@@ -36,7 +36,7 @@ torch = import_torch("parity with the PyTorch reference")
 
 import tcd  # noqa: E402
 from fixtures_util import ALL_KERNELS, load_kernel  # noqa: E402
-from tcd.demo import load_clip, occlusion_mask  # noqa: E402
+from tcd._demo import load_clip, occlusion_mask  # noqa: E402
 from test_humaneva import HUMANEVA_FILE, needs_humaneva  # noqa: E402
 from training import diffusion as D  # noqa: E402
 from training.data.humaneva import humaneva_test_windows, load_humaneva  # noqa: E402

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import tcd
-from tcd.cli import main as cli
+from tcd._cli import main as cli
 from conftest import FIXTURES
 from tcd.exceptions import InvalidInputError
 

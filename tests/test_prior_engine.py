@@ -32,7 +32,7 @@ def synthetic_motion(seed: int, sequences: int = 12, frames: int = 160, k: int =
 
 def observations(batch: int, frames: int = 60) -> np.ndarray:
     """(B, T, K) float32 metres: real motion (the bundled demo clip) for the first windows, synthetic after."""
-    from tcd.demo import load_clip
+    from tcd._demo import load_clip
 
     clip = load_clip()["poses"]
     clip = clip.reshape(len(clip), -1).astype(np.float32)

@@ -12,7 +12,7 @@ import pytest
 ray = pytest.importorskip("ray")
 
 from repair_util import FAST, gappy, run, same_tree, tree  # noqa: E402
-from tcd.batch_repair import distributed  # noqa: E402
+from tcd._repair import distributed  # noqa: E402
 
 pytestmark = pytest.mark.slow
 RAY_INIT = dict(num_cpus=2, include_dashboard=False, logging_level="ERROR", log_to_driver=False)

@@ -21,10 +21,10 @@ import tcd
 from conftest import ROOT
 from repair_util import FAST, FAST_KW, W, gappy, load_npz, run, same_tree, tree
 from tcd._files import write_npz_atomic
-from tcd.batch_repair import options as repair_options
-from tcd.batch_repair import runner as repair_runner
-from tcd.batch_repair.windows import window_starts
-from tcd.cli import repair as repair_command
+from tcd._repair import options as repair_options
+from tcd._repair import runner as repair_runner
+from tcd._repair.windows import window_starts
+from tcd._cli import repair as repair_command
 
 
 # ---------------------------------------------------------------------------------------------- windows

@@ -12,8 +12,8 @@ import pytest
 import tcd
 from conftest import H36M_DIR, needs_h36m
 from repair_util import FAST, FAST_KW, gappy, load_npz, run
-from tcd import fk
-from tcd.batch_repair import windows
+from tcd import _fk as fk
+from tcd._repair import windows
 from tcd._resample import resample_backward, resample_forward
 
 

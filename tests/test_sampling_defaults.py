@@ -13,7 +13,7 @@ import pytest
 import tcd
 from fixtures_util import poses
 from tcd import SamplerOptions
-from tcd.cli import main
+from tcd._cli import main
 from tcd.exceptions import WeightsError
 
 DDIM2 = {"sampler": "ddim", "num_inference_steps": 2, "eta": 1.0}

@@ -1,4 +1,4 @@
-"""Tempo sampling (:mod:`tcd.tempo`): the observation replayed at each sample's tempo, the forecast read back on
+"""Tempo sampling (:mod:`tcd._tempo`): the observation replayed at each sample's tempo, the forecast read back on
 the original clock, through ``TCD.forecast(tempo=...)`` and a model directory's ``sampling.json`` default."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import pytest
 import tcd
 from fixtures_util import bad, poses
 from tcd.exceptions import WeightsError
-from tcd.tempo import check_tempo, tempi, tempo_forecast, unwarp_future, unwarp_history, warp
+from tcd._tempo import check_tempo, tempi, tempo_forecast, unwarp_future, unwarp_history, warp
 
 K, T, H = 6, 15, 20
 
@@ -158,7 +158,7 @@ def test_the_bundled_models_sample_no_tempi_by_default():
 def test_command_line_tempo(tiny_model_dir, tmp_path, capsys):
     """``tcd forecast --tempo LO HI`` is the call's ``tempo``; ``tcd info`` shows the default; a bad range is exit
     code 2 naming the flag, with nothing written."""
-    from tcd.cli import main
+    from tcd._cli import main
 
     obs = poses(np.random.default_rng(0), batch=2, missing=0.1)
     src = tmp_path / "in.npz"

@@ -8,7 +8,7 @@ import pytest
 
 from fixtures_util import bad
 from tcd import layouts, wild
-from tcd.demo import load_clip
+from tcd._demo import load_clip
 
 FAST = dict(num_samples=2, seed=0, sampler="ddim", num_inference_steps=3)
 SAME_PLACE = {16: 13, 20: 19, 23: 22, 24: 13, 28: 27, 31: 30}
@@ -170,7 +170,7 @@ def test_bad_wild_inputs(tiny_model):
 
 
 def test_cli_forecast_with_layout_fps_and_up(tiny_model_dir, tmp_path, capsys):
-    from tcd.cli import main
+    from tcd._cli import main
 
     x = in_layout(world(h36m32()), "h36m17")
     np.savez(tmp_path / "in.npz", poses=x * 1000)  # millimetres, z up, 25 fps
@@ -240,7 +240,7 @@ def test_repair_file_and_tcd_repair_with_a_layout(tiny_model_dir, tmp_path, caps
     """A long world-coordinate h36m17 file at 50 fps, repaired through the windows and back: observed values
     bit for bit, gaps filled, the provenance records the layout; tcd repair gives the same file."""
     from tcd._resample import resample_backward
-    from tcd.cli import main
+    from tcd._cli import main
 
     x = in_layout(world(h36m32(75)), "h36m17")
     x50 = resample_backward(x.reshape(75, -1), 149, 50.0, 25.0).reshape(149, 17, 3)

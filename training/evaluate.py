@@ -761,7 +761,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar=("LO", "HI"),
         default=None,
         help="--engine tcd: each sample from the observation replayed at its own tempo, LO to HI "
-        "(tcd.tempo; 1 1: none; default: the model directory's sampling.json)",
+        "(tcd._tempo; 1 1: none; default: the model directory's sampling.json)",
     )
     ap.add_argument(
         "--generator-share",

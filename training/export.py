@@ -50,7 +50,7 @@ PRIOR_FILE = "prior.safetensors"
 REPAIR_FILL_FILE = "repair_fill.safetensors"  # a prior with anchor "window": the repair model's fill (role "prior")
 GENERATOR_ROLE = "generator"  # the MLP sample generator's role (training/generator.py), in GENERATOR_FILE
 GENERATOR_FILE = "generator.safetensors"
-SAMPLING_FILE = "sampling.json"  # a model directory's default samplers (tcd.model reads it)
+SAMPLING_FILE = "sampling.json"  # a model directory's default samplers (tcd._model reads it)
 CONFIG_KEY = "tcd_config"
 
 # Windows of the Human3.6M cascade (spec section 5) and the repair model.
@@ -302,7 +302,7 @@ def random_init_dir(
 def write_checksums(d: str | Path) -> Path:
     """``SHA256SUMS`` for the weight files of a model directory: the file ``tcd.load`` checks (and requires
     for the bundled model). One implementation, the package's."""
-    from tcd.model import write_checksums as _write  # the built package (installed by the dev set-up)
+    from tcd._model import write_checksums as _write  # the built package (installed by the dev set-up)
 
     return _write(d)
 

@@ -24,7 +24,7 @@ from . import engine, exceptions
 from ._native import __version__
 from .exceptions import InvalidInputError, ModelNotBundledError, TcdError, WeightsError
 from ._interpolation import interpolate
-from .model import (
+from ._model import (
     BUNDLED_MODELS,
     TCD,
     Forecast,
@@ -36,8 +36,8 @@ from .model import (
     predict,
     repair,
 )
-from .options import SamplerOptions
-from .batch_repair import repair_file  # `tcd repair` / offline repair of files of any length (issue 6)
+from ._sampler import SamplerOptions
+from ._repair import repair_file  # `tcd repair` / offline repair of files of any length (issue 6)
 
 __all__ = [
     "__version__",

@@ -13,7 +13,7 @@ from typing import Any, Callable, Dict, List, Optional, Tuple, Union, final
 import numpy as np
 import numpy.typing as npt
 
-from .options import SamplerOptions
+from ._sampler import SamplerOptions
 
 # The module's __all__ (PyO3 fills it with every name crates/tcd-py/src/lib.rs adds), checked by
 # `python -m mypy.stubtest tcd._native` (tests/test_api.py).

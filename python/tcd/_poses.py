@@ -220,7 +220,7 @@ def validate_poses(
 
 
 def check_window(seen: np.ndarray, window: int, batched: bool) -> None:
-    """The length rule's one requirement on content (:mod:`tcd.model`): ``seen`` (B, ...) bool, the observed
+    """The length rule's one requirement on content (:mod:`tcd._model`): ``seen`` (B, ...) bool, the observed
     entries of the model's window of each sequence, has one per sequence, else an InvalidInputError naming
     ``obs`` (a longer observation whose last ``window`` frames are all missing)."""
     empty = ~seen.reshape(seen.shape[0], -1).any(axis=1)

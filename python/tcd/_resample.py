@@ -1,5 +1,5 @@
-"""Resampling pose sequences between frame rates, the one rule dataset repair (:mod:`tcd.batch_repair`), poses
-from the wild (:mod:`tcd.wild`) and tempo sampling (:mod:`tcd.tempo`) share."""
+"""Resampling pose sequences between frame rates, the one rule dataset repair (:mod:`tcd._repair`), poses
+from the wild (:mod:`tcd.wild`) and tempo sampling (:mod:`tcd._tempo`) share."""
 
 from __future__ import annotations
 

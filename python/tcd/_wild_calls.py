@@ -11,7 +11,7 @@ and made relative to the root joint of each frame (a frame without it: the root 
 the frames that have it; one is needed). The forecast's root continues the velocity of the last 0.2 s,
 decaying with ``tcd.wild.ROOT_DAMPING_S``, and everything comes back in the caller's axes, units and rate.
 
-Length, either way: the length rule of :mod:`tcd.model` counted in model frames (``wild.resample_to_model``:
+Length, either way: the length rule of :mod:`tcd._model` counted in model frames (``wild.resample_to_model``:
 the last ``obs_len`` of them, a shorter observation padded at the start with missing frames), and at least
 2 observed frames per sequence (the root's motion is measured on them).
 """
@@ -33,7 +33,7 @@ from .layouts import get_layout
 from .wild import Up
 
 if TYPE_CHECKING:
-    from .model import TCD
+    from ._model import TCD
 
 __all__ = ["forecast", "repair"]
 

@@ -29,7 +29,7 @@ from numpy.typing import ArrayLike
 
 from . import _checks, _native
 from ._attributes import NativeAttribute, NativeModel, PathLike
-from .options import SamplerOptions
+from ._sampler import SamplerOptions
 from ._generator import Generator
 from ._prior import Prior
 from ._progress import Progress, reporter

@@ -30,7 +30,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Dict, Optional, Tuple
 
-from . import _checks, fk
+from . import _checks, _fk as fk
 
 __all__ = ["Layout", "LAYOUTS", "get_layout", "MODEL_IDS", "FIXED_IDS", "NAMES32"]
 

@@ -58,7 +58,7 @@ from typing import Dict, List, Optional, Tuple, Union
 import numpy as np
 from numpy.typing import ArrayLike
 
-from . import _checks, fk
+from . import _checks, _fk as fk
 from .exceptions import InvalidInputError
 from .layouts import FIXED_IDS, MODEL_IDS, Layout
 from ._resample import resample_forward

@@ -1,12 +1,12 @@
 """Rotations and forward kinematics of the loaders.
 
 The exp-map kinematics (``expmap_to_rotmat``, ``fk_expmap``; Human3.6M and CMU) are the package's
-(``python/tcd/fk.py``), one copy for inference and training; the SMPL-style ``fk_axis_angle`` (AMASS,
+(``python/tcd/_fk.py``), one copy for inference and training; the SMPL-style ``fk_axis_angle`` (AMASS,
 3DPW) is training's own. All vectorised numpy, float64 internally.
 
-``fk.py`` is loaded from this repository's source tree rather than by ``import tcd``: the package's
+``_fk.py`` is loaded from this repository's source tree rather than by ``import tcd``: the package's
 ``__init__`` loads the compiled engine, and training must use this checkout's skeleton and kinematics
-whichever ``tcd`` is installed (``fk.py`` imports nothing from the package).
+whichever ``tcd`` is installed (``_fk.py`` imports nothing from the package).
 """
 
 from __future__ import annotations
@@ -19,10 +19,10 @@ import numpy as np
 
 
 def _load_package_fk():
-    """``python/tcd/fk.py`` of this checkout as the module ``training._tcd_fk`` (loaded once)."""
+    """``python/tcd/_fk.py`` of this checkout as the module ``training._tcd_fk`` (loaded once)."""
     key = "training._tcd_fk"
     if key not in sys.modules:
-        path = Path(__file__).resolve().parents[2] / "python" / "tcd" / "fk.py"
+        path = Path(__file__).resolve().parents[2] / "python" / "tcd" / "_fk.py"
         spec = importlib.util.spec_from_file_location(key, path)
         if spec is None or spec.loader is None:
             raise ImportError(f"cannot load {path}")

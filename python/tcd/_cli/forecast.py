@@ -106,7 +106,7 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
         nargs=2,
         default=None,
         metavar=("LO", "HI"),
-        help="each sample from the observation replayed at its own tempo, LO to HI (tcd.tempo; 1 1: "
+        help="each sample from the observation replayed at its own tempo, LO to HI (tcd._tempo; 1 1: "
         "none; default: the model's, `tcd info`)",
     )
     p.add_argument(
@@ -133,7 +133,7 @@ def _read_npz(path: Path) -> Dict[str, np.ndarray]:
 
 
 def _read_bvh(path: Path):
-    from ..bvh import read_bvh_h36m32
+    from .._bvh import read_bvh_h36m32
 
     if not path.is_file():
         raise _BadInput(f"The input file {path} does not exist.")

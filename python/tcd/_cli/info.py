@@ -8,7 +8,7 @@ import json
 from typing import Any, List
 
 from ..engine import supported_kernels
-from ..tempo import describe as describe_tempo
+from .._tempo import describe as describe_tempo
 from .common import EXIT_OK, add_model_flag, load_model
 
 

@@ -5,7 +5,7 @@ Inputs
       root-relative) and optionally ``mask`` ``(T, J, 3)`` or ``(T, J)`` (1 = observed; entries with
       mask 0 are repaired whatever their value);
     * Human3.6M exp-map ``.txt`` files (99 comma-separated values per row, 50 Hz), converted through
-      forward kinematics (:mod:`tcd.fk`) to the 22 model joints; NaN in a joint's exp-map marks the
+      forward kinematics (:mod:`tcd._fk`) to the 22 model joints; NaN in a joint's exp-map marks the
       joint's descendants missing.
 
 Windows
@@ -47,7 +47,7 @@ from __future__ import annotations
 
 # The package's modules, in the order of the work: options (settings, provenance), inputs (reading one
 # file), windows (resampling and the windows of one file), runner (the engine loop, repair_file, planning),
-# distributed (tcd repair --ray). The command line is tcd.cli.repair, the atomic writes tcd._files. Only the
+# distributed (tcd repair --ray). The command line is tcd._cli.repair, the atomic writes tcd._files. Only the
 # names of __all__ are imported here; everything else from the module that defines it.
 from .options import DEFAULT_OVERLAP, DEFAULT_SEED, INPUT_SUFFIXES, RepairOptions
 from .runner import repair_file

@@ -72,7 +72,7 @@ def connect(address: Optional[str] = None) -> str:
 
 def _repair_chunk(model_dir: str, tasks: Sequence[Task], opts: RepairOptions, overwrite: bool):
     """On a worker: the chunk's outcomes, with this worker's name."""
-    from ..model import load
+    from .._model import load
 
     model = _MODELS.get(model_dir)
     if model is None:

@@ -42,9 +42,9 @@ import numpy as np
 
 from ._files import write_named_atomic, write_npz_atomic
 from ._interpolation import interpolate
-from .model import TCD
-from .options import SamplerOptions
-from .tempo import describe as describe_tempo
+from ._model import TCD
+from ._sampler import SamplerOptions
+from ._tempo import describe as describe_tempo
 
 CLIP_PATH = Path(__file__).resolve().parent / "data" / "demo_walking.npz"
 #: the same walk for the HumanEva-I model (its 14 joints, 60 Hz, +z up)
@@ -286,7 +286,7 @@ def summary(res: Dict[str, Any], model: TCD) -> str:
         f"({'HumanEva-I layout' if model.data.get('dataset') == 'humaneva' else 'Human3.6M layout'}), "
         f"{len(res['observed'])} observed frames at {res['fps']:g} fps",
         f"forecast sampler {SamplerOptions(**s['sampling']['forecast']).describe(model.num_train_timesteps)}, "
-        + ("" if s["tempo"] is None else f"{describe_tempo(s['tempo'])} (tcd.tempo), ")
+        + ("" if s["tempo"] is None else f"{describe_tempo(s['tempo'])} (tcd._tempo), ")
         + f"{s['samples']} samples"
         + (f" ({s['generator_samples']} of them from the MLP generator)" if s.get("generator_samples") else "")
         + f", seed {s['seed']}",

@@ -32,8 +32,8 @@ from ._progress import Progress
 from .engine import Denoiser, Generator, Prior, cascade_raw, repair_raw
 from . import _native
 from .exceptions import InvalidInputError, ModelNotBundledError, WeightsError
-from .options import SamplerOptions
-from .tempo import Tempo, check_tempo, tempo_forecast
+from ._sampler import SamplerOptions
+from ._tempo import Tempo, check_tempo, tempo_forecast
 from .wild import Up
 
 __all__ = [
@@ -62,7 +62,7 @@ GENERATOR_FILE = "generator.safetensors"
 #: a model directory's own sampler defaults (:attr:`TCD.sampling`), optional: ``{"forecast": {...}, "repair":
 #: {...}, "why": "...", "forecast_tempo": [lo, hi]}``, each task's object holding :class:`SamplerOptions` fields; a
 #: task or field left out takes :class:`SamplerOptions`' defaults (the paper's DDPM over every training step);
-#: ``"forecast_tempo"`` is :attr:`TCD.forecast_tempo` (:mod:`tcd.tempo`), optional; ``"forecast_generator_share"``
+#: ``"forecast_tempo"`` is :attr:`TCD.forecast_tempo` (:mod:`tcd._tempo`), optional; ``"forecast_generator_share"``
 #: is :attr:`TCD.generator_share`, optional (0 when absent)
 SAMPLING_FILE = "sampling.json"
 #: the key of ``sampling.json`` holding :attr:`TCD.forecast_tempo`
@@ -290,7 +290,7 @@ class TCD:
         self.sampling: Dict[str, SamplerOptions] = {
             t: (sampling or {}).get(t) or SamplerOptions() for t in SAMPLING_TASKS
         }
-        #: the tempo range :meth:`forecast` samples when a call names none (:mod:`tcd.tempo`): the model
+        #: the tempo range :meth:`forecast` samples when a call names none (:mod:`tcd._tempo`): the model
         #: directory's ``sampling.json`` ``"forecast_tempo"``, else None (every sample at the observed tempo)
         self.forecast_tempo: Tempo = check_tempo(forecast_tempo, "forecast_tempo")
         #: the MLP sample generator (``generator.safetensors``: :class:`tcd.engine.Generator`), or None
@@ -511,7 +511,7 @@ class TCD:
             obs: ``(T, J, 3)`` or ``(B, T, J, 3)``, J = :attr:`num_joints`, in the model's joint order,
                 root-relative; NaN marks a missing value. Any T >= 1: the forecast conditions on the last
                 :attr:`obs_len` (50) frames, a shorter observation padded at the start with missing frames
-                (the length rule of :mod:`tcd.model`; a forecast from fewer frames knows less).
+                (the length rule of :mod:`tcd._model`; a forecast from fewer frames knows less).
             mask: optional, 1 = observed / 0 = missing, shape ``obs.shape`` or ``obs.shape[:-1]`` (per joint).
                 Entries with mask 0 are ignored (NaN or not); NaN where mask is 1 is an error.
             num_samples: S, samples per sequence (and per cascade stage). TCD: 5.
@@ -536,7 +536,7 @@ class TCD:
                 Any other keyword is a ``TypeError``.
             tempo: ``(lo, hi)`` with ``0 < lo <= 1 <= hi``: sample i of ``num_samples`` forecast from the
                 observation replayed at its own tempo, spaced geometrically from ``lo`` to ``hi``
-                (:mod:`tcd.tempo`: samples that differ in when a movement happens); ``(1, 1)`` every sample at
+                (:mod:`tcd._tempo`: samples that differ in when a movement happens); ``(1, 1)`` every sample at
                 the observed tempo; ``None`` the model's default (:attr:`forecast_tempo`; the bundled models set
                 none: their samples' mean gets worse with it, MODEL_CARD.md "Tempo sampling").
             generator_share: in [0, 1]: ``floor(num_samples * generator_share)`` of the samples come from the

@@ -1,5 +1,5 @@
 """One file through the model: resampling to the model's frame rate and back, the overlapping windows
-with their lookahead (:class:`FileJob`), as described in :mod:`tcd.batch_repair`."""
+with their lookahead (:class:`FileJob`), as described in :mod:`tcd._repair`."""
 
 from __future__ import annotations
 

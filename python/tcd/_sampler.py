@@ -27,7 +27,7 @@ class SamplerOptions:
     """The sampler of every chain. Checked when made (each bad value an
     :class:`~tcd.exceptions.InvalidInputError` naming the field); the number of steps is checked against a
     model's training steps when the model samples. Calls take these fields as keyword arguments, never the
-    object; it is the record of a run's settings (``tcd.batch_repair.RepairOptions.sampling``) and what the
+    object; it is the record of a run's settings (``tcd._repair.RepairOptions.sampling``) and what the
     binding reads.
 
     Attributes:

@@ -17,7 +17,7 @@ place (:mod:`tcd._files`), so it is complete or absent.
 
 Exit codes: 0 success; 2 bad input (arguments, input file, model directory, existing output);
 1 any other failure; 130 interrupted (Ctrl-C: one line, no traceback, nothing half-written); 143 terminated
-(SIGTERM, stopped the same way). ``tcd repair`` (see :mod:`tcd.batch_repair`): 1 when any input file failed
+(SIGTERM, stopped the same way). ``tcd repair`` (see :mod:`tcd._repair`): 1 when any input file failed
 (the others are still repaired), 2 for bad arguments, 130 / 143 when stopped (re-run it to resume). A closed
 pipe (``tcd info | head``) ends quietly.
 

@@ -14,7 +14,7 @@ from .._poses import check_units
 from .._native import __version__
 from ..engine import Denoiser
 from ..layouts import get_layout
-from ..options import SamplerOptions
+from .._sampler import SamplerOptions
 from ..wild import up_vector
 
 PathLike = Union[str, "os.PathLike[str]"]

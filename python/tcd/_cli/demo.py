@@ -1,4 +1,4 @@
-"""``tcd demo``: the command line of :mod:`tcd.demo` (which does the work)."""
+"""``tcd demo``: the command line of :mod:`tcd._demo` (which does the work)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from .. import demo
+from .. import _demo as demo
 from ..exceptions import InvalidInputError
 from .common import (
     EXIT_OK,

@@ -12,8 +12,8 @@ from pathlib import Path
 from typing import Any, Dict, Iterator, Optional, Tuple
 
 from ..exceptions import InvalidInputError, WeightsError
-from ..model import TCD, load
-from ..options import COUPLINGS, SAMPLERS, SPACINGS, SamplerOptions
+from .._model import TCD, load
+from .._sampler import COUPLINGS, SAMPLERS, SPACINGS, SamplerOptions
 
 EXIT_OK = 0
 EXIT_FAILURE = 1

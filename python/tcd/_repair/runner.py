@@ -234,7 +234,7 @@ def repair_file(
 ) -> Dict[str, Any]:
     """Repairs the pose sequence in ``src`` (an ``.npz`` with ``poses`` (T, J, 3), NaN = missing, and an
     optional ``mask``; or a Human3.6M exp-map ``.txt``) of any length T, and writes ``dst`` (an ``.npz``
-    with ``poses``, ``mask`` and ``provenance``) atomically. See :mod:`tcd.batch_repair` for the windowing,
+    with ``poses``, ``mask`` and ``provenance``) atomically. See :mod:`tcd._repair` for the windowing,
     the frame-rate conversion and the output format; ``tcd repair`` runs the same code on many files.
 
     Args:
@@ -258,7 +258,7 @@ def repair_file(
     :class:`tcd.exceptions.InvalidInputError` (``argument="src"``) when ``src`` cannot be repaired,
     ``FileExistsError`` when ``dst`` exists and not ``overwrite``, ``ValueError`` when ``dst`` is ``src``.
     """
-    from ..model import TCD, load
+    from .._model import TCD, load
 
     m = model if isinstance(model, TCD) else load(model)
     opts = RepairOptions.make(

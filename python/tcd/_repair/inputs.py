@@ -9,7 +9,7 @@ from typing import Any, Dict, Optional, Sequence, Tuple
 
 import numpy as np
 
-from .. import fk, wild
+from .. import _fk as fk, wild
 from ..exceptions import InvalidInputError
 from .._files import UnreadableFile, read_pose_npz
 from ..layouts import get_layout
@@ -143,7 +143,7 @@ def _converted(
 
 def _bvh_poses(path: Path) -> Tuple[np.ndarray, float]:
     """A BVH file as (T, 32, 3) h36m32 poses (NaN where it has no such joint) and its frame rate."""
-    from ..bvh import read_bvh_h36m32
+    from .._bvh import read_bvh_h36m32
 
     try:
         return read_bvh_h36m32(path)

@@ -1,4 +1,4 @@
-"""``tcd repair``: its arguments, its progress bar and its report; the work is :mod:`tcd.batch_repair`'s."""
+"""``tcd repair``: its arguments, its progress bar and its report; the work is :mod:`tcd._repair`'s."""
 
 from __future__ import annotations
 
@@ -11,15 +11,15 @@ from typing import Any
 from ..layouts import LAYOUTS
 from .._poses import UNIT_SCALE
 from .._native import __version__
-from ..batch_repair.inputs import peek_frames
-from ..batch_repair.options import (
+from .._repair.inputs import peek_frames
+from .._repair.options import (
     DEFAULT_FILES_PER_BATCH,
     DEFAULT_LOOKAHEAD,
     DEFAULT_OVERLAP,
     DEFAULT_SEED,
     RepairOptions,
 )
-from ..batch_repair.runner import Outcome, collect_tasks, run_tasks, same_path
+from .._repair.runner import Outcome, collect_tasks, run_tasks, same_path
 from ..exceptions import InvalidInputError
 from .._files import write_text_atomic
 from .common import (
@@ -197,7 +197,7 @@ def run(args: Any) -> int:
     except OSError as e:
         return bad(f"cannot create the output directory {out}: {e}")
     if args.ray is not None:
-        from ..batch_repair import distributed
+        from .._repair import distributed
 
         try:
             where = distributed.connect(args.ray or None)
