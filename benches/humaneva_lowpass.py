@@ -72,13 +72,9 @@ def noise_scale(c: float):
     """Within it, ``tcd.TCD.forecast`` draws its seeded noise as usual (``tcd.engine.seeded_noise``, the streams
     the engine draws itself) and scales each chain's x_T block by ``c`` in both stages of the cascade."""
     check_spread(c)
-    import dataclasses
-
     import tcd.engine as te
     import tcd._model as tm
-    from tcd import SamplerOptions
 
-    sampler_keys = [f.name for f in dataclasses.fields(SamplerOptions)]  # the keywords a sampler is named by
     plain = tm.cascade_raw
 
     def scaled(short, long, observed, mask, *, num_samples, seed, sequences=None, **kw):
@@ -87,7 +83,7 @@ def noise_scale(c: float):
         b, k, _ = np.shape(observed)
         noise = {}
         for name, model, stage in (("noise_short", short, te.STAGE_SHORT), ("noise_long", long, te.STAGE_LONG)):
-            blocks = model.num_noise_blocks(**{o: kw[o] for o in sampler_keys if o in kw})
+            blocks = model.num_noise_blocks(kw.get("sampler", te.DEFAULT_SAMPLER))
             noise[name] = te.seeded_noise(seed, stage, num_samples, blocks, b, k, model.seq_len)
             noise[name][:, 0] *= c
         return plain(short, long, observed, mask, num_samples=num_samples, **noise, **kw)

@@ -58,6 +58,7 @@ import tcd  # noqa: E402
 from tcd import _fk as fk, layouts  # noqa: E402
 from training.data.h36m import DEFAULT_H36M_DIR, H36MSource, find_indices_256, ACTIONS  # noqa: E402
 from training.masks import make_mask  # noqa: E402
+from tcd import SamplerOptions  # noqa: E402
 
 PAPER_PATTERNS = ("random_leg_arm", "consecutive_frames")
 
@@ -237,7 +238,11 @@ def main(argv=None) -> int:
 
     model = tcd.load(args.model)
     src = H36MSource(args.data)
-    kw = dict(num_samples=args.samples, sampler=args.sampler, num_inference_steps=args.steps, seed=args.seed)
+    kw = dict(
+        num_samples=args.samples,
+        sampler=SamplerOptions(sampler=args.sampler, num_inference_steps=args.steps),
+        seed=args.seed,
+    )
     rng = np.random.default_rng(args.seed)
     acc: dict = {}
     conversion: dict = {}

@@ -49,6 +49,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import tcd  # noqa: E402
 from machine import cpu_model, cpu_simd_flags  # noqa: E402
 from training.export import load_model_file, random_init_dir  # noqa: E402
+from tcd import SamplerOptions  # noqa: E402
 
 STEP = 25
 ALL_PEERS = ("tcd", "torch", "ort", "openvino")
@@ -149,7 +150,7 @@ def peak_rss_of_forecast(model_dir: Path, kw: dict) -> float:
     """MiB: the peak resident set (VmHWM) of a fresh process that imports tcd (no torch) and runs one
     forecast. VmHWM, not ru_maxrss: Linux carries ru_maxrss over exec from the (large) forking parent."""
     code = (
-        "import numpy as np, tcd\n"
+        "import numpy as np, tcd\nfrom tcd import SamplerOptions\n"
         f"m = tcd.load({str(model_dir)!r})\n"
         "obs = np.random.default_rng(0).normal(scale=0.3, size=(50, m.num_joints, 3)).astype(np.float32)\n"
         f"m.forecast(obs, **{kw!r})\n"
@@ -165,7 +166,7 @@ def whole_forecast(model_dir: Path, reps: int) -> dict:
     obs = np.random.default_rng(0).normal(scale=0.3, size=(50, m.num_joints, 3)).astype(np.float32)
     runs = {
         "ddpm50_x5": dict(num_samples=5, seed=0),
-        "ddim10_x1": dict(num_samples=1, num_inference_steps=10, sampler="ddim", seed=0),
+        "ddim10_x1": dict(num_samples=1, sampler=SamplerOptions(num_inference_steps=10, sampler="ddim"), seed=0),
     }
     out = {}
     for name, kw in runs.items():

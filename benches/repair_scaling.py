@@ -84,7 +84,7 @@ def main(argv=None) -> int:
         def opts(threads):
             return RepairOptions.make(
                 model,
-                sampler={"sampler": "ddpm", "num_inference_steps": args.steps},
+                sampler=tcd.SamplerOptions(sampler="ddpm", num_inference_steps=args.steps),
                 num_samples=args.samples,
                 threads=threads,
             )

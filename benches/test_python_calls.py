@@ -30,6 +30,7 @@ import pytest
 
 import tcd
 from tcd._demo import load_clip
+from tcd import SamplerOptions
 
 pytest.importorskip("pytest_benchmark")
 
@@ -71,7 +72,8 @@ def test_forward_long_L75(benchmark, model):
 @pytest.mark.parametrize("samples,steps,sampler", [(5, None, "ddpm"), (1, 10, "ddim")], ids=["ddpm50x5", "ddim10x1"])
 def test_forecast(benchmark, model, clip, samples, steps, sampler):
     obs = clip[: model.obs_len]
-    fc = benchmark(model.forecast, obs, num_samples=samples, num_inference_steps=steps, sampler=sampler, seed=0)
+    o = tcd.SamplerOptions(sampler=sampler, num_inference_steps=steps)
+    fc = benchmark(model.forecast, obs, num_samples=samples, sampler=o, seed=0)
     assert fc.mean.shape == (model.horizon, model.num_joints, 3) and np.isfinite(fc.mean).all()
 
 
@@ -98,7 +100,12 @@ def test_repair_file_500_frames(benchmark, model, clip, tmp_path):
 
     def run():
         return tcd.repair_file(
-            src, tmp_path / "out.npz", model, num_samples=1, num_inference_steps=10, sampler="ddim", overwrite=True
+            src,
+            tmp_path / "out.npz",
+            model,
+            num_samples=1,
+            sampler=SamplerOptions(num_inference_steps=10, sampler="ddim"),
+            overwrite=True,
         )
 
     benchmark(run)

@@ -9,9 +9,10 @@ import numpy as np
 
 from fixtures_util import poses
 from tcd._cli import main
+from tcd import SamplerOptions
 
 FAST = ["--steps", "2", "--sampler", "ddim", "--samples", "2"]
-FAST_KW = dict(num_inference_steps=2, sampler="ddim", num_samples=2)
+FAST_KW = dict(sampler=SamplerOptions(num_inference_steps=2, sampler="ddim"), num_samples=2)
 W = 50
 
 

@@ -17,8 +17,9 @@ from conftest import import_torch
 from fixtures_util import ALL_KERNELS, bad, config_of, copy_dir, poses, read_weights, with_config, write_weights
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from tcd import SamplerOptions
 
-FAST = dict(num_samples=2, sampler="ddim", num_inference_steps=3, eta=1.0)
+FAST = dict(num_samples=2, sampler=SamplerOptions(sampler="ddim", num_inference_steps=3, eta=1.0))
 
 
 @pytest.fixture()
@@ -189,10 +190,10 @@ def test_ddpm_default_runs_all_steps(tmp_path, obs):
     m = tcd.load(random_init_dir(tmp_path / "t10", "tiny", seed=1, diff_cfg=DiffusionConfig(num_train_timesteps=10)))
     assert m.num_train_timesteps == 10
     a = m.forecast(obs, seed=2, num_samples=1)
-    b = m.forecast(obs, seed=2, num_samples=1, num_inference_steps=10)
-    c = m.forecast(obs, seed=2, num_samples=1, num_inference_steps=5)
+    b = m.forecast(obs, seed=2, num_samples=1, sampler=SamplerOptions(num_inference_steps=10))
+    c = m.forecast(obs, seed=2, num_samples=1, sampler=SamplerOptions(num_inference_steps=5))
     assert np.array_equal(a.samples, b.samples) and not np.array_equal(a.samples, c.samples)
-    e = bad("num_inference_steps", m.forecast, obs, num_inference_steps=11)
+    e = bad("num_inference_steps", m.forecast, obs, sampler=SamplerOptions(num_inference_steps=11))
     assert "1..10" in str(e)
 
 
@@ -249,7 +250,7 @@ def test_nan_equals_mask(tiny_model, obs):
 
 
 def test_repair(tiny_model, obs):
-    kw = dict(num_samples=2, sampler="ddim", num_inference_steps=3)
+    kw = dict(num_samples=2, sampler=SamplerOptions(sampler="ddim", num_inference_steps=3))
     out = tiny_model.repair(obs, seed=1, **kw)
     assert isinstance(out, tcd.Repair) and out.seed == 1
     assert repr(out) == "Repair(poses=(50, 22, 3), seed=1)"
@@ -276,7 +277,7 @@ def test_repair_uses_repair_model_when_present(tiny_model_dir, tmp_path, obs):
     write_weights(d / "repair.safetensors", tensors, with_config(meta, cfg))
     m = tcd.load(d)
     assert m.repair_model is not None and m.repair_model.role == "repair"
-    kw = dict(seed=1, num_samples=1, sampler="ddim", num_inference_steps=2)
+    kw = dict(seed=1, num_samples=1, sampler=SamplerOptions(sampler="ddim", num_inference_steps=2))
     with_repair = m.repair(obs, **kw).poses
     without = tcd.load(tiny_model_dir).repair(obs, **kw).poses
     seen = ~np.isnan(obs)
@@ -286,7 +287,7 @@ def test_repair_uses_repair_model_when_present(tiny_model_dir, tmp_path, obs):
 
 def test_dpmpp2m_forecast_and_repair(tiny_model, obs):
     """DPM-Solver++(2M) through the public API: reproducible, observed entries kept, one noise block."""
-    kw = dict(seed=3, num_samples=2, sampler="dpmpp2m", num_inference_steps=3)
+    kw = dict(seed=3, num_samples=2, sampler=SamplerOptions(sampler="dpmpp2m", num_inference_steps=3))
     f = tiny_model.forecast(obs, **kw)
     assert f.samples.shape == (2, 25, 22, 3) and np.isfinite(f.samples).all()
     assert np.array_equal(f.samples, tiny_model.forecast(obs, **kw).samples)
@@ -294,10 +295,10 @@ def test_dpmpp2m_forecast_and_repair(tiny_model, obs):
     r = tiny_model.repair(obs, **kw).poses
     seen = ~np.isnan(obs)
     assert np.array_equal(r[seen], obs[seen]) and np.isfinite(r).all()
-    assert tiny_model.short.num_noise_blocks(sampler="dpmpp2m", num_inference_steps=3) == 1
-    assert tiny_model.short.timesteps(sampler="dpmpp2m", num_inference_steps=3) == tiny_model.short.timesteps(
-        sampler="ddim", num_inference_steps=3
-    )
+    assert tiny_model.short.num_noise_blocks(sampler=SamplerOptions(sampler="dpmpp2m", num_inference_steps=3)) == 1
+    assert tiny_model.short.timesteps(
+        sampler=SamplerOptions(sampler="dpmpp2m", num_inference_steps=3)
+    ) == tiny_model.short.timesteps(sampler=SamplerOptions(sampler="ddim", num_inference_steps=3))
 
 
 # ------------------------------------------------------------------------------------ low level
@@ -316,11 +317,16 @@ def test_denoiser_forward_and_seeded_noise(tiny_model_dir):
     assert np.array_equal(eps, d.forward(x.astype(np.float64), np.asfortranarray(x), m, 10))
     obs, mask = x[:1] * m[:1], m[:1]
     kw = dict(sampler="ddim", num_inference_steps=4, eta=1.0)
-    noise = tcd.engine.seeded_noise(5, tcd.engine.STAGE_SHORT, 3, d.num_noise_blocks(**kw), 1, 66, 55)
-    assert np.array_equal(d.sample(obs, mask, 3, seed=5, **kw), d.sample(obs, mask, 3, noise=noise, **kw))
+    noise = tcd.engine.seeded_noise(
+        5, tcd.engine.STAGE_SHORT, 3, d.num_noise_blocks(sampler=SamplerOptions(**kw)), 1, 66, 55
+    )
+    assert np.array_equal(
+        d.sample(obs, mask, 3, seed=5, sampler=SamplerOptions(**kw)),
+        d.sample(obs, mask, 3, noise=noise, sampler=SamplerOptions(**kw)),
+    )
     assert (
-        d.timesteps(**kw)
-        == d.timesteps(sampler="ddim", num_inference_steps=4, timestep_spacing="trailing")
+        d.timesteps(sampler=SamplerOptions(**kw))
+        == d.timesteps(sampler=SamplerOptions(sampler="ddim", num_inference_steps=4, timestep_spacing="trailing"))
         == [49, 37, 24, 11]
     )
     assert d.timesteps() == list(range(49, -1, -1))
@@ -333,7 +339,7 @@ def test_stream_ids_per_sequence(tiny_model_dir):
     rng = np.random.default_rng(1)
     m = (rng.random((2, 66, 55)) < 0.5).astype(np.float32)
     x = rng.standard_normal((2, 66, 55)).astype(np.float32) * m
-    kw = dict(seed=3, sampler="ddim", num_inference_steps=3)
+    kw = dict(seed=3, sampler=SamplerOptions(sampler="ddim", num_inference_steps=3))
     both = d.sample(x, m, 2, sequences=[7, 2], **kw)
     assert np.array_equal(both[:, :1], d.sample(x[:1], m[:1], 2, first_sequence=7, **kw))
     assert np.array_equal(both[:, 1:], d.sample(x[1:], m[1:], 2, sequences=np.array([2]), **kw))
@@ -359,8 +365,7 @@ def test_stream_ids_per_sequence(tiny_model_dir):
         1,
         noise=np.zeros((1, 4, 2, 66, 55), np.float32),
         sequences=[1, 2],
-        sampler="ddim",
-        num_inference_steps=3,
+        sampler=SamplerOptions(sampler="ddim", num_inference_steps=3),
     )
 
 
@@ -394,7 +399,9 @@ def test_property_shapes_and_observed_unchanged(tiny_model, batch, missing, seed
     elif mask_style == "coord":
         mask = np.repeat(joint_seen[..., None], 3, axis=-1).astype(np.float32)
         x = np.where(np.isnan(x), np.float32(3.0), x)
-    f = tiny_model.forecast(x, mask, seed=seed, num_samples=1, sampler="ddim", num_inference_steps=1, units=units)
+    f = tiny_model.forecast(
+        x, mask, seed=seed, num_samples=1, sampler=SamplerOptions(sampler="ddim", num_inference_steps=1), units=units
+    )
     lead = () if batch is None else (batch,)
     assert f.mean.shape == (*lead, 25, 22, 3) and f.samples.shape == (1, *lead, 25, 22, 3)
     assert f.repaired.shape == x.shape and f.seed == seed
@@ -445,7 +452,9 @@ def test_bundled_repair_model():
     rng = np.random.default_rng(0)
     mask = rng.random(clip.shape[:2]) >= 0.3
     mask[20:30] = False  # 10 dropped frames
-    out = m.repair(clip, mask, num_samples=5, num_inference_steps=10, sampler="ddpm", seed=0).poses
+    out = m.repair(
+        clip, mask, num_samples=5, sampler=SamplerOptions(num_inference_steps=10, sampler="ddpm"), seed=0
+    ).poses
     np.testing.assert_array_equal(out[mask], clip[mask])
     err_mm = np.linalg.norm(out - clip, axis=-1)[~mask].mean() * 1000
     # Against linear interpolation on the same gaps: the bundled model around its repair fill, the 10 frames filled
@@ -463,7 +472,10 @@ def test_bundled_repair_model():
     # measured 20.5 mm here (21.6 before the in-betweeners; the mean of 5 samples above 21.1, 22.1 before)
     fill = m.repair(clip, mask, num_samples=0, seed=0).poses
     assert np.array_equal(
-        m.repair(clip, mask, num_samples=0, seed=1, sampler="ddim", num_inference_steps=3).poses, fill
+        m.repair(
+            clip, mask, num_samples=0, seed=1, sampler=SamplerOptions(sampler="ddim", num_inference_steps=3)
+        ).poses,
+        fill,
     )
     keep = np.repeat(mask[..., None], 3, -1)
     flat = lambda a: np.ascontiguousarray(a, np.float32).reshape(1, 50, -1)  # noqa: E731
@@ -498,13 +510,10 @@ def test_repair_of_no_samples_needs_a_repair_fill(tiny_model, obs):
         tiny_model.forecast(obs, num_samples=0, seed=0)
 
 
-SAMPLER_SETTINGS = "eta, noise_coupling, num_inference_steps, sampler, timestep_spacing"
-
-
-def test_sampler_keywords_and_their_defaults(tiny_model, obs):
-    """The sampler is given as keywords; a setting left out takes SamplerOptions' default (in a directory without
-    ``sampling.json``, as here: tests/test_sampling_defaults.py has the directories' own defaults); timesteps and
-    num_noise_blocks read the same keywords."""
+def test_the_sampler_and_its_defaults(tiny_model, obs):
+    """A field left out takes SamplerOptions' default; an engine call without a sampler runs that default, and a
+    TCD call without one its directory's (here, without ``sampling.json``, the same: tests/test_sampling_defaults.py
+    has the directories' own); timesteps and num_noise_blocks read the same object."""
     defaults = dataclasses.asdict(tcd.SamplerOptions())
     assert defaults == {
         "sampler": "ddpm",
@@ -514,19 +523,21 @@ def test_sampler_keywords_and_their_defaults(tiny_model, obs):
         "noise_coupling": "independent",
     }
     short = tiny_model.short
-    assert short.timesteps() == short.timesteps(**defaults) == list(range(49, -1, -1))
+    assert short.timesteps() == short.timesteps(tcd.SamplerOptions(**defaults)) == list(range(49, -1, -1))
     assert short.num_noise_blocks() == 51
-    kw = dict(sampler="ddim", num_inference_steps=3, eta=1.0)
-    assert short.timesteps(**kw) == [49, 32, 16] and short.num_noise_blocks(**kw) == 4
-    a = tiny_model.forecast(obs, num_samples=1, seed=4, num_inference_steps=3)
-    b = tiny_model.forecast(obs, num_samples=1, seed=4, **dict(defaults, num_inference_steps=3))
+    o = SamplerOptions(sampler="ddim", num_inference_steps=3, eta=1.0)
+    assert short.timesteps(o) == [49, 32, 16] and short.num_noise_blocks(sampler=o) == 4
+    a = tiny_model.forecast(obs, num_samples=1, seed=4, sampler=SamplerOptions(num_inference_steps=3))
+    b = tiny_model.forecast(
+        obs, num_samples=1, seed=4, sampler=tiny_model.sampler_options("forecast", num_inference_steps=3)
+    )
     assert np.array_equal(a.samples, b.samples)
 
 
 def test_sampler_settings_have_one_form(tiny_model, obs, tmp_path):
-    """No second way in: an ``options=`` object, or any other keyword that is not a sampler setting, is a
-    TypeError naming the four settings at every layer, before any work; timesteps and num_noise_blocks take no
-    positional settings; a bad value is an InvalidInputError naming its field."""
+    """One way in at every layer: ``sampler=``, a tcd.SamplerOptions. Loose sampler keywords are a TypeError
+    (no catch-all takes them), anything else as ``sampler`` an InvalidInputError naming it, before any work; a
+    bad field is refused when the object is made."""
     from tcd import _demo as demo
     from tcd._repair import RepairOptions
 
@@ -535,26 +546,28 @@ def test_sampler_settings_have_one_form(tiny_model, obs, tmp_path):
     calls = {
         "TCD.forecast": lambda **k: tiny_model.forecast(obs, **k),
         "TCD.repair": lambda **k: tiny_model.repair(obs, **k),
+        "TCD.predict": lambda **k: tiny_model.predict(obs, **k),
         "Denoiser.sample": lambda **k: d.sample(np.zeros((1, 66, 55)), np.ones((1, 66, 55)), 1, seed=0, **k),
         "Denoiser.timesteps": d.timesteps,
         "Denoiser.num_noise_blocks": d.num_noise_blocks,
         "cascade_raw": lambda **k: tcd.engine.cascade_raw(d, long, x, m, seed=0, **k),
         "repair_raw": lambda **k: tcd.engine.repair_raw(d, x, m, seed=0, **k),
         "repair_file": lambda **k: tcd.repair_file(tmp_path / "in.npz", tmp_path / "out.npz", tiny_model, **k),
-        "demo.run": lambda **k: demo.run(tiny_model, quiet=True, **k),
+        "RepairOptions.make": lambda **k: RepairOptions.make(tiny_model, **k),
     }
-    for call in calls.values():  # the keys name the calls for a reader
-        for key, value in (("options", tcd.SamplerOptions()), ("num_steps", 3)):
-            with pytest.raises(TypeError, match=re.escape(f"{key!r} (sampler settings: {SAMPLER_SETTINGS})")):
-                call(**{key: value})
+    for name, call in calls.items():
+        for key in ("num_inference_steps", "options"):
+            with pytest.raises(TypeError, match=repr(key)):
+                call(**{key: 3})
+        if name != "TCD.predict":  # predict checks its model first (the tiny model has no prior)
+            for value in ("ddim", {"sampler": "ddim"}):
+                bad("sampler", call, sampler=value)
+    with pytest.raises(TypeError):
+        demo.run(tiny_model, quiet=True, num_inference_steps=3)
     assert not (tmp_path / "out.npz").exists()
-    for method in (d.timesteps, d.num_noise_blocks):
-        with pytest.raises(TypeError, match="positional"):
-            method("ddim", 3)
-    for key in ("options", "num_inference_steps"):  # RepairOptions.make: the sampler only as `sampler`
-        with pytest.raises(TypeError, match=repr(key)):
-            RepairOptions.make(tiny_model, **{key: None})
-    assert RepairOptions.make(tiny_model, sampler={"num_inference_steps": 3}).sampling.num_inference_steps == 3
+    assert (
+        RepairOptions.make(tiny_model, sampler=SamplerOptions(num_inference_steps=3)).sampling.num_inference_steps == 3
+    )
     for kw, argument in (
         ({"sampler": "euler"}, "sampler"),
         ({"eta": 2.0}, "eta"),
@@ -563,8 +576,23 @@ def test_sampler_settings_have_one_form(tiny_model, obs, tmp_path):
         ({"noise_coupling": "antithetic"}, "noise_coupling"),
     ):
         bad(argument, tcd.SamplerOptions, **kw)
-        bad(argument, d.timesteps, **kw)
-    bad("num_inference_steps", d.timesteps, num_inference_steps=51)  # more steps than the model was trained with
+    # more steps than the model was trained with: refused where the model samples
+    bad("num_inference_steps", d.timesteps, SamplerOptions(num_inference_steps=51))
+
+
+def test_sampler_options_are_checked_once_and_pickle(tiny_model, obs):
+    """A SamplerOptions holds the engine's checked sampler from when it was made; pickled and copied it is made
+    again from its fields (tcd repair --ray sends one to each worker) and samples the same."""
+    import copy
+    import pickle
+
+    o = tcd.SamplerOptions(sampler="ddim", num_inference_steps=3, noise_coupling="centered")
+    assert isinstance(o._engine, tcd._native.Sampler)
+    for twin in (pickle.loads(pickle.dumps(o)), copy.deepcopy(o), dataclasses.replace(o)):
+        assert twin == o and twin._engine is not o._engine
+        a = tiny_model.forecast(obs, num_samples=2, seed=1, sampler=o).samples
+        assert np.array_equal(a, tiny_model.forecast(obs, num_samples=2, seed=1, sampler=twin).samples)
+    assert "_engine" not in repr(o) and "_engine" not in dataclasses.asdict(o)
 
 
 def test_native_attributes_read_only_and_documented(tiny_model):

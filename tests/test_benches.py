@@ -13,6 +13,7 @@ import pytest
 
 from conftest import H36M_DIR, ROOT, import_torch, needs_data, needs_h36m
 from fixtures_util import make_model_dir
+from tcd import SamplerOptions
 
 
 def load_bench(name: str):
@@ -498,7 +499,12 @@ def test_humaneva_noise_scale_scales_the_starting_noise_of_both_stages():
     bench = load_bench("humaneva_lowpass")
     model = tcd.load(ROOT / "tests" / "fixtures" / "tiny_humaneva_model")  # random weights, around a prior
     obs = np.random.default_rng(2).normal(scale=0.3, size=(2, model.obs_len, model.num_joints, 3))
-    run = lambda: model.forecast(obs, num_samples=4, sampler="ddim", num_inference_steps=1, seed=7).samples  # noqa: E731
+
+    def run():
+        return model.forecast(
+            obs, num_samples=4, sampler=SamplerOptions(sampler="ddim", num_inference_steps=1), seed=7
+        ).samples
+
     plain, cascade = run(), tm.cascade_raw
     with bench.noise_scale(1.0):
         np.testing.assert_array_equal(run(), plain)  # the engine's own streams, drawn in the injected layout

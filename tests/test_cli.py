@@ -13,6 +13,7 @@ import pytest
 import tcd
 from fixtures_util import poses
 from tcd._cli import main
+from tcd import SamplerOptions
 
 FAST = ["--samples", "2", "--steps", "2", "--sampler", "ddim"]
 
@@ -44,9 +45,9 @@ def test_info(tiny_model_dir, capsys):
 
 
 def test_info_without_bundled_model(capsys, tmp_path, monkeypatch):
-    import tcd._model
+    import tcd._directory
 
-    monkeypatch.setattr(tcd._model, "default_model_dir", lambda: tmp_path)  # an installation without weights
+    monkeypatch.setattr(tcd._directory, "default_model_dir", lambda: tmp_path)  # an installation without weights
     code, out, err = run(["info"], capsys)
     assert code == 2 and out == ""
     assert "No default model is bundled" in err
@@ -75,7 +76,9 @@ def test_forecast_round_trip(tiny_model_dir, npz, tmp_path, capsys):
     assert got["mean"].shape == (25, 22, 3) and got["samples"].shape == (2, 25, 22, 3)
     assert got["repaired"].shape == (50, 22, 3) and int(got["seed"]) == 11
     poses_in = np.load(npz)["poses"]
-    want = tcd.load(tiny_model_dir).forecast(poses_in, seed=11, num_samples=2, num_inference_steps=2, sampler="ddim")
+    want = tcd.load(tiny_model_dir).forecast(
+        poses_in, seed=11, num_samples=2, sampler=SamplerOptions(num_inference_steps=2, sampler="ddim")
+    )
     assert np.array_equal(got["samples"], want.samples) and np.array_equal(got["repaired"], want.repaired)
     seen = ~np.isnan(poses_in)
     assert np.array_equal(got["repaired"][seen], poses_in[seen])
@@ -100,7 +103,9 @@ def test_forecast_any_length(tiny_model_dir, npz, tmp_path, capsys):
         capsys,
     )
     assert code == 0, err
-    want = tcd.load(tiny_model_dir).forecast(short, seed=3, num_samples=2, num_inference_steps=2, sampler="ddim")
+    want = tcd.load(tiny_model_dir).forecast(
+        short, seed=3, num_samples=2, sampler=SamplerOptions(num_inference_steps=2, sampler="ddim")
+    )
     with np.load(out_path) as f:
         assert f["repaired"].shape == (40, 22, 3) and np.array_equal(f["samples"], want.samples)
 
@@ -111,7 +116,7 @@ def test_forecast_dpmpp2m(tiny_model_dir, npz, tmp_path, capsys):
     code, _, err = run(["forecast", npz, "-o", out_path, "--model", tiny_model_dir, *args], capsys)
     assert code == 0, err
     want = tcd.load(tiny_model_dir).forecast(
-        np.load(npz)["poses"], seed=5, num_samples=2, num_inference_steps=3, sampler="dpmpp2m"
+        np.load(npz)["poses"], seed=5, num_samples=2, sampler=SamplerOptions(num_inference_steps=3, sampler="dpmpp2m")
     )
     with np.load(out_path) as f:
         assert np.array_equal(f["samples"], want.samples)
@@ -124,11 +129,15 @@ def test_forecast_noise_coupling(tiny_model_dir, npz, tmp_path, capsys):
     code, _, err = run(["forecast", npz, "-o", out_path, "--model", tiny_model_dir, *args], capsys)
     assert code == 0, err
     model, poses = tcd.load(tiny_model_dir), np.load(npz)["poses"]
-    kw = dict(seed=5, num_samples=3, num_inference_steps=1, sampler="ddim")
-    want = model.forecast(poses, noise_coupling="centered", **kw)
+    kw = dict(seed=5, num_samples=3)
+    ddim1 = dict(num_inference_steps=1, sampler="ddim")
+    want = model.forecast(poses, sampler=SamplerOptions(**ddim1, noise_coupling="centered"), **kw)
     with np.load(out_path) as f:
         assert np.array_equal(f["samples"], want.samples)
-        assert not np.array_equal(f["samples"], model.forecast(poses, noise_coupling="independent", **kw).samples)
+        assert not np.array_equal(
+            f["samples"],
+            model.forecast(poses, sampler=SamplerOptions(**ddim1, noise_coupling="independent"), **kw).samples,
+        )
 
 
 def test_forecast_batched_with_mask_and_random_seed(tiny_model_dir, tmp_path, capsys):
@@ -146,7 +155,7 @@ def test_forecast_batched_with_mask_and_random_seed(tiny_model_dir, tmp_path, ca
         repaired = f["repaired"]
     assert np.array_equal(repaired[:, :10], x[:, :10]) and not np.array_equal(repaired[:, 10:20], x[:, 10:20])
     want = tcd.load(tiny_model_dir).forecast(
-        x, mask, seed=seed, num_samples=2, num_inference_steps=2, sampler="ddim", units="mm"
+        x, mask, seed=seed, num_samples=2, sampler=SamplerOptions(num_inference_steps=2, sampler="ddim"), units="mm"
     )
     assert np.array_equal(repaired, want.repaired)
 

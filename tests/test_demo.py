@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import tcd
-import tcd._model
+import tcd._directory
 from tcd import _demo as demo
 from tcd._cli import main
 from tcd.exceptions import WeightsError
@@ -106,7 +106,7 @@ def test_demo_bad_steps_names_the_option(tiny_model_dir, tmp_path, capsys):
 
 def test_checksums_verified_when_present(tiny_model_dir, tmp_path):
     d = Path(shutil.copytree(tiny_model_dir, tmp_path / "m"))
-    tcd._model.write_checksums(d)
+    tcd._directory.write_checksums(d)
     m = tcd.load(d)
     assert len(m.sha256) == 64 and set(m.file_sha256) == {"short.safetensors", "long.safetensors"}
     raw = bytearray((d / "long.safetensors").read_bytes())
@@ -118,10 +118,10 @@ def test_checksums_verified_when_present(tiny_model_dir, tmp_path):
 
 def test_bundled_model_requires_checksums(tiny_model_dir, tmp_path, monkeypatch):
     d = Path(shutil.copytree(tiny_model_dir, tmp_path / "bundled"))
-    monkeypatch.setattr(tcd._model, "default_model_dir", lambda: d)
+    monkeypatch.setattr(tcd._directory, "default_model_dir", lambda: d)
     with pytest.raises(WeightsError, match="SHA256SUMS"):
         tcd.load()
-    tcd._model.write_checksums(d)
+    tcd._directory.write_checksums(d)
     assert tcd.load().sha256 == tcd.load(d).sha256
 
 
@@ -139,7 +139,9 @@ def test_summary_columns_stay_apart_for_any_error(tiny_model_dir):
     """An untrained model's errors reach metres (six digits in mm): the table widens instead of running
     numbers together."""
     model = tcd.load(tiny_model_dir)
-    res = demo.run(model, samples=1, num_inference_steps=2, quiet=True)
+    res = demo.run(
+        model, samples=1, quiet=True, sampling=dict.fromkeys(model.sampling, tcd.SamplerOptions(num_inference_steps=2))
+    )
     res["forecast_mm"] = {m: 123456.7 for m in res["forecast_mm"]}  # as the full-size random model gives
     rows = [
         line

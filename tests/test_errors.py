@@ -13,6 +13,7 @@ from tcd import _native
 from tcd.exceptions import TcdError, WeightsError
 
 from fixtures_util import bad, config_of, copy_dir, poses, read_weights, with_config, write_weights
+from tcd import SamplerOptions
 
 
 @pytest.fixture()
@@ -66,8 +67,12 @@ def test_poses_not_in_the_declared_units(tiny_model, obs):
         assert "no supported unit fits" in str(e)
     spread = tcd._poses.spread_m(obs[None], ~np.isnan(obs[None]), "m")
     assert 0.1 < spread < 1.0  # the test poses: a person's size
-    tiny_model.forecast(obs + 250.0, num_samples=1, num_inference_steps=1, sampler="ddim", seed=0)  # far away: fine
-    tiny_model.forecast(np.zeros((50, 22, 3)), num_samples=1, num_inference_steps=1, sampler="ddim", seed=0)
+    tiny_model.forecast(
+        obs + 250.0, num_samples=1, sampler=SamplerOptions(num_inference_steps=1, sampler="ddim"), seed=0
+    )  # far away: fine
+    tiny_model.forecast(
+        np.zeros((50, 22, 3)), num_samples=1, sampler=SamplerOptions(num_inference_steps=1, sampler="ddim"), seed=0
+    )
 
 
 def test_bad_mask(tiny_model, obs):
@@ -129,8 +134,27 @@ def test_all_missing_is_an_error(tiny_model, obs):
     ],
 )
 def test_bad_options(tiny_model, obs, argument, kwargs):
+    """Each bad setting is an error naming it: a sampler field when the tcd.SamplerOptions is made (its step count
+    against the model when the model samples), the others when the call is made."""
+    import dataclasses
+
+    if set(kwargs) <= {f.name for f in dataclasses.fields(tcd.SamplerOptions)}:
+        for call in (tiny_model.forecast, tiny_model.repair):
+            bad(argument, lambda call=call: call(obs, sampler=tcd.SamplerOptions(**kwargs)))
+        return
     bad(argument, tiny_model.forecast, obs, **kwargs)
     bad(argument, tiny_model.repair, obs, **kwargs)
+
+
+def test_the_sampler_is_an_options_object(tiny_model, obs):
+    """A call's sampler is a tcd.SamplerOptions: a name alone, a dict or loose sampler keywords are refused,
+    the error naming ``sampler`` and showing how to make one."""
+    e = bad("sampler", tiny_model.forecast, obs, sampler="ddim")
+    assert "tcd.SamplerOptions(sampler='ddim')" in str(e)
+    bad("sampler", tiny_model.repair, obs, sampler={"sampler": "ddim"})
+    bad("sampler", tiny_model.short.timesteps, "ddpm")
+    with pytest.raises(TypeError, match="num_inference_steps"):
+        tiny_model.forecast(obs, num_inference_steps=3)
 
 
 def test_settings_kept_for_later_are_checked_when_given(tiny_model_dir):
@@ -205,9 +229,17 @@ def test_native_errors_are_typed(tiny_model_dir, argument, kwargs):
     if argument != "seed":
         kw.setdefault("seed", 1)
     n = kw.pop("num_samples", 1)
-    # the sampler fields on a plain object: tcd.SamplerOptions would refuse them before the binding sees them
-    fields = {f.name: kw.pop(f.name, f.default) for f in dataclasses.fields(tcd.SamplerOptions)}
-    bad(argument, d.sample, x, np.ones_like(x), n, types.SimpleNamespace(**fields), **kw)
+    # the sampler fields straight to the engine's sampler (tcd.SamplerOptions checks its Python types first)
+    fields = [kw.pop(f.name, f.default) for f in dataclasses.fields(tcd.SamplerOptions)]
+    if argument in {f.name for f in dataclasses.fields(tcd.SamplerOptions)} and argument != "num_inference_steps":
+        bad(argument, _native.Sampler, *fields)
+        return
+    try:
+        sampler = types.SimpleNamespace(_engine=_native.Sampler(*fields))
+    except tcd.InvalidInputError as e:  # 0 steps: refused by the sampler itself; 51: by the model, below
+        assert e.argument == argument
+        return
+    bad(argument, d.sample, x, np.ones_like(x), n, sampler, **kw)
 
 
 def test_native_engine_error_mapping(tiny_model_dir):
@@ -226,9 +258,10 @@ def test_native_engine_error_mapping(tiny_model_dir):
 
 
 def test_load_without_bundled_model_explains(tmp_path, monkeypatch):
+    import tcd._directory
     import tcd._model
 
-    monkeypatch.setattr(tcd._model, "default_model_dir", lambda: tmp_path)  # an installation without weights
+    monkeypatch.setattr(tcd._directory, "default_model_dir", lambda: tmp_path)  # an installation without weights
     monkeypatch.setattr(tcd._model, "_default", None)
     with pytest.raises(FileNotFoundError, match="No default model is bundled"):
         tcd.load()
@@ -240,7 +273,7 @@ def test_bundled_model_forecasts():
     if not (tcd.default_model_dir() / "short.safetensors").is_file():
         pytest.skip("no bundled model in this build")
     obs = np.zeros((50, 22, 3), np.float32)
-    f = tcd.forecast(obs, num_samples=1, num_inference_steps=2, sampler="ddim", seed=0)
+    f = tcd.forecast(obs, num_samples=1, sampler=SamplerOptions(num_inference_steps=2, sampler="ddim"), seed=0)
     assert f.mean.shape == (25, 22, 3) and np.isfinite(f.mean).all()
     assert tcd.load().sha256 is not None
 

@@ -18,6 +18,7 @@ import tcd
 from conftest import FIXTURES
 from fixtures_util import bad, read_weights, write_weights
 from tcd.exceptions import InvalidInputError, WeightsError
+from tcd import SamplerOptions
 
 K, OBS, P, Z, C = 42, 15, 60, 64, 20
 
@@ -147,7 +148,7 @@ def test_forecast_mixture_is_the_cascade_then_the_generator(model):
     the last 3 the generator's of the observation and the prior's forecast of it (seeded alike); the mean is
     theirs; the default (the directory's share, 0 here) is the cascade alone."""
     obs = observation(2)
-    kw = dict(seed=5, sampler="ddim", num_inference_steps=1)
+    kw = dict(seed=5, sampler=SamplerOptions(sampler="ddim", num_inference_steps=1))
     mixed = model.forecast(obs, num_samples=6, generator_share=0.5, **kw)
     cascade = model.forecast(obs, num_samples=3, **kw)
     assert mixed.samples.shape == (6, 2, P, 14, 3)
@@ -171,7 +172,7 @@ def test_the_share_from_sampling_json_and_bad_shares(model_dir, tmp_path):
     m = tcd.load(d)
     assert m.generator_share == 0.5
     obs = observation(1)
-    kw = dict(seed=1, sampler="ddim", num_inference_steps=1)
+    kw = dict(seed=1, sampler=SamplerOptions(sampler="ddim", num_inference_steps=1))
     np.testing.assert_array_equal(
         m.forecast(obs, num_samples=4, **kw).samples, m.forecast(obs, num_samples=4, generator_share=0.5, **kw).samples
     )

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 import tcd
+from tcd import SamplerOptions
 
 
 @pytest.fixture(scope="module")
@@ -45,7 +46,9 @@ def _wakeups_while(workers: list[threading.Thread]) -> int:
 
 @pytest.mark.slow
 def test_other_python_threads_run_during_a_forecast(model, obs):
-    kw = dict(num_samples=2, seed=3, threads=1, sampler="ddpm")  # DDPM-50, both stages: ~200 forwards
+    kw = dict(
+        num_samples=2, seed=3, threads=1, sampler=SamplerOptions(sampler="ddpm")
+    )  # DDPM-50, both stages: ~200 forwards
     out = {}
     started = threading.Event()
 
@@ -62,7 +65,7 @@ def test_other_python_threads_run_during_a_forecast(model, obs):
 
 
 def test_two_threads_forecasting_at_once_match_serial_runs(model, obs):
-    kw = dict(num_samples=2, num_inference_steps=10, sampler="ddim", threads=1)
+    kw = dict(num_samples=2, sampler=SamplerOptions(num_inference_steps=10, sampler="ddim"), threads=1)
     serial = [model.forecast(obs, seed=s, **kw).samples for s in (1, 2)]
     got = {}
 

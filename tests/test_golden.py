@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from tcd import SamplerOptions
 
 ROOT = Path(__file__).resolve().parents[1]
 FIXTURES = ROOT / "tests" / "fixtures"
@@ -59,7 +60,7 @@ def outputs(tmp: Path) -> dict[str, str]:
     model = tcd.load(MODEL_DIR)
     obs = observation()
     out = {"kernel": model.short.kernel}
-    f = model.forecast(obs, num_samples=2, seed=0, num_inference_steps=10)
+    f = model.forecast(obs, num_samples=2, seed=0, sampler=SamplerOptions(num_inference_steps=10))
     out.update(
         {
             "forecast_ddpm10_mean": sha(f.mean),
@@ -67,11 +68,15 @@ def outputs(tmp: Path) -> dict[str, str]:
             "forecast_ddpm10_repaired": sha(f.repaired),
         }
     )
-    f = model.forecast(obs * 1000.0, num_samples=1, seed=3, sampler="ddim", num_inference_steps=5, units="mm")
+    f = model.forecast(
+        obs * 1000.0, num_samples=1, seed=3, sampler=SamplerOptions(sampler="ddim", num_inference_steps=5), units="mm"
+    )
     out["forecast_ddim5_mm_samples"] = sha(f.samples)
-    f = model.forecast(obs, num_samples=1, seed=4, sampler="dpmpp2m", num_inference_steps=5)
+    f = model.forecast(obs, num_samples=1, seed=4, sampler=SamplerOptions(sampler="dpmpp2m", num_inference_steps=5))
     out["forecast_dpmpp2m5_samples"] = sha(f.samples)
-    out["repair_ddpm10"] = sha(model.repair(obs, num_samples=2, seed=5, num_inference_steps=10).poses)
+    out["repair_ddpm10"] = sha(
+        model.repair(obs, num_samples=2, seed=5, sampler=SamplerOptions(num_inference_steps=10)).poses
+    )
     seq = np.concatenate([obs, observation()[::-1]])  # 100 frames: two windows and more
     (tmp / "in").mkdir(parents=True, exist_ok=True)
     np.savez(tmp / "in" / "take.npz", poses=seq)

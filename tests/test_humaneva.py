@@ -26,6 +26,7 @@ from training.data.humaneva import (
     training_actions,
     training_sequences,
 )
+from tcd import SamplerOptions
 
 needs_humaneva = needs_data("humaneva/humaneva_i_15j_60hz.npz")
 HUMANEVA_FILE = DATA / "humaneva" / "humaneva_i_15j_60hz.npz"
@@ -111,7 +112,7 @@ def test_humaneva_model_samples_any_number(humaneva_model_dir):
     assert (m.obs_len, m.horizon, m.num_joints, m.fps) == (15, 60, 14, 60.0)
     assert m.joint_names == list(HUMANEVA_MODEL_JOINT_NAMES)
     obs = walking(15, 3)[:, 1:] - walking(15, 3)[:, :1]
-    f = m.forecast(obs, num_samples=9, seed=1, sampler="ddim", num_inference_steps=2)
+    f = m.forecast(obs, num_samples=9, seed=1, sampler=SamplerOptions(sampler="ddim", num_inference_steps=2))
     assert f.samples.shape == (9, 60, 14, 3) and f.mean.shape == (60, 14, 3)
     assert np.isfinite(f.samples).all() and np.ptp(f.samples, axis=0).max() > 0
     p = m.predict(obs)
@@ -138,16 +139,22 @@ def test_humaneva15_forecast_with_a_human36m_model(tiny_model):
     """World coordinates of HumanEva-I (+z up, 60 Hz) through the Human3.6M model: 1 s back at 60 Hz."""
     obs = walking(40, 5)
     f = tiny_model.forecast(
-        obs, layout="humaneva15", fps=60, up="z", num_samples=3, seed=0, sampler="ddim", num_inference_steps=2
+        obs,
+        layout="humaneva15",
+        fps=60,
+        up="z",
+        num_samples=3,
+        seed=0,
+        sampler=SamplerOptions(sampler="ddim", num_inference_steps=2),
     )
     assert f.mean.shape == (60, 15, 3) and f.samples.shape == (3, 60, 15, 3)
     assert np.isfinite(f.mean).all() and np.allclose(f.times[[0, -1]], [1 / 60, 1.0])
 
 
 def test_load_humaneva_when_not_bundled(tmp_path, monkeypatch, capsys):
-    import tcd._model
+    import tcd._directory
 
-    monkeypatch.setattr(tcd._model, "humaneva_model_dir", lambda: tmp_path / "weights_humaneva")
+    monkeypatch.setattr(tcd._directory, "humaneva_model_dir", lambda: tmp_path / "weights_humaneva")
     with pytest.raises(tcd.ModelNotBundledError, match="not bundled") as e:
         tcd.load("humaneva")
     assert isinstance(e.value, FileNotFoundError) and isinstance(e.value, tcd.TcdError)
@@ -160,14 +167,14 @@ def test_load_humaneva_when_not_bundled(tmp_path, monkeypatch, capsys):
 
 
 def test_load_humaneva_when_bundled(humaneva_model_dir, tmp_path, monkeypatch):
-    import tcd._model
+    import tcd._directory
 
     d = tmp_path / "weights_humaneva"
     shutil.copytree(humaneva_model_dir, d)
-    monkeypatch.setattr(tcd._model, "humaneva_model_dir", lambda: d)
+    monkeypatch.setattr(tcd._directory, "humaneva_model_dir", lambda: d)
     with pytest.raises(tcd.WeightsError, match="SHA256SUMS"):  # a bundled model is always checksummed
         tcd.load("humaneva")
-    tcd._model.write_checksums(d)
+    tcd._directory.write_checksums(d)
     m = tcd.load("humaneva")
     assert m.path == d and m.num_joints == 14 and m.sha256 is not None
     from tcd._cli import main
@@ -205,7 +212,7 @@ def test_a_humaneva_model_forecasts_world_poses_in_its_own_layout(humaneva_model
     frame and put back, the caller's up axis turned onto the model's (+z), any frame rate."""
     m = tcd.load(humaneva_model_dir)
     world = walking(40, 6)  # +z up, 60 Hz, moving along +x
-    kw = dict(num_samples=3, seed=4, sampler="ddim", num_inference_steps=2)
+    kw = dict(num_samples=3, seed=4, sampler=SamplerOptions(sampler="ddim", num_inference_steps=2))
     f = m.forecast(world, layout="humaneva15", fps=60, up="z", **kw)
     assert f.mean.shape == (60, 15, 3) and f.samples.shape == (3, 60, 15, 3) and f.repaired.shape == world.shape
     np.testing.assert_allclose(f.times[[0, -1]], [1 / 60, 1.0])
@@ -242,7 +249,13 @@ def test_a_humaneva_model_repairs_world_poses_in_its_own_layout(humaneva_model_d
     gap[5:9, 3] = np.nan  # a wrist hidden for 4 frames
     gap[-5, 0] = np.nan  # and the pelvis once
     rep = m.repair(
-        gap, layout="humaneva15", fps=60, up="z", num_samples=2, seed=0, sampler="ddim", num_inference_steps=2
+        gap,
+        layout="humaneva15",
+        fps=60,
+        up="z",
+        num_samples=2,
+        seed=0,
+        sampler=SamplerOptions(sampler="ddim", num_inference_steps=2),
     ).poses
     assert rep.shape == (15, 15, 3) and np.isfinite(rep).all()
     seen = np.isfinite(gap)
@@ -269,7 +282,8 @@ def test_demo_runs_the_humaneva_model(humaneva_model_dir, tmp_path, capsys):
     from tcd import _demo as demo
 
     m = tcd.load(humaneva_model_dir)
-    res = demo.run(m, samples=3, sampler="ddim", num_inference_steps=2, seed=0, quiet=True)
+    ddim2 = tcd.SamplerOptions(sampler="ddim", num_inference_steps=2)
+    res = demo.run(m, samples=3, seed=0, quiet=True, sampling=dict.fromkeys(m.sampling, ddim2))
     assert res["forecast_samples"].shape == (3, 60, 14, 3) and res["fps"] == 60.0
     assert res["samples_apd_m"] > 0 and set(res["best_sample_mm"]) == set(res["forecast_mm"])
     assert "repair_skipped" in res and "repaired" not in res  # a prior-conditioned model without a repair model
@@ -319,8 +333,8 @@ def test_bundled_humaneva_model_loads_and_beats_zero_velocity():
     assert (default.sampler, default.num_inference_steps) == ("ddim", 1)
     err = lambda x: np.linalg.norm((x - w[:, 15:]).reshape(*x.shape[:-3], 60, -1), axis=-1).mean(-1)  # noqa: E731
     zv = err(np.repeat(w[:, 14:15], 60, axis=1)).mean()
-    for sampler in ({}, {"sampler": "ddpm", "num_inference_steps": 10}):
-        f = m.forecast(w[:, :15], num_samples=10, seed=0, **sampler)
+    for sampler in (None, tcd.SamplerOptions(sampler="ddpm", num_inference_steps=10)):
+        f = m.forecast(w[:, :15], num_samples=10, seed=0, sampler=sampler)
         best = err(f.samples).min(axis=0).mean()
         assert np.isfinite(f.samples).all() and best < 0.75 * zv, (sampler, best, zv)
 

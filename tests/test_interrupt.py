@@ -30,6 +30,7 @@ import pytest
 
 import tcd
 from fixtures_util import poses
+from tcd import SamplerOptions
 
 ROOT = Path(__file__).resolve().parents[1]
 FAST = dict(sampler="ddim", num_inference_steps=3)
@@ -38,22 +39,34 @@ FAST = dict(sampler="ddim", num_inference_steps=3)
 def test_progress_counts_every_forward(tiny_model):
     obs = poses(np.random.default_rng(0), batch=2)
     seen = []
-    tiny_model.forecast(obs, num_samples=3, seed=0, progress=lambda done, total: seen.append((done, total)), **FAST)
+    tiny_model.forecast(
+        obs,
+        num_samples=3,
+        seed=0,
+        progress=lambda done, total: seen.append((done, total)),
+        sampler=SamplerOptions(**FAST),
+    )
     total = 3 * 2 * 3 * 2  # samples x sequences x steps x (short, long)
     assert seen[-1] == (total, total)
     assert all(t == total for _, t in seen) and [d for d, _ in seen] == sorted(d for d, _ in seen)
     seen.clear()
-    tiny_model.repair(obs, num_samples=2, seed=0, progress=lambda d, t: seen.append((d, t)), **FAST)
+    tiny_model.repair(
+        obs, num_samples=2, seed=0, progress=lambda d, t: seen.append((d, t)), sampler=SamplerOptions(**FAST)
+    )
     assert seen[-1] == (2 * 2 * 3, 2 * 2 * 3)
-    a = tiny_model.forecast(obs, num_samples=2, seed=1, progress=True, **FAST)  # a tqdm bar on stderr
-    b = tiny_model.forecast(obs, num_samples=2, seed=1, **FAST)
+    a = tiny_model.forecast(
+        obs, num_samples=2, seed=1, progress=True, sampler=SamplerOptions(**FAST)
+    )  # a tqdm bar on stderr
+    b = tiny_model.forecast(obs, num_samples=2, seed=1, sampler=SamplerOptions(**FAST))
     np.testing.assert_array_equal(a.samples, b.samples)
 
 
 def test_bad_progress_argument(tiny_model):
     from fixtures_util import bad
 
-    bad("progress", tiny_model.forecast, poses(np.random.default_rng(0)), progress="yes", **FAST)
+    bad(
+        "progress", tiny_model.forecast, poses(np.random.default_rng(0)), progress="yes", sampler=SamplerOptions(**FAST)
+    )
 
 
 class Stop(Exception):
@@ -81,7 +94,14 @@ LONG = dict(batch=16, num_samples=5)  # DDPM over every training step, both stag
 def long_call(model, progress):
     """Runs a forecast of LONG's size on one thread."""
     obs = poses(np.random.default_rng(1), batch=LONG["batch"], missing=0.0)
-    model.forecast(obs, num_samples=LONG["num_samples"], seed=0, threads=1, progress=progress, sampler="ddpm")
+    model.forecast(
+        obs,
+        num_samples=LONG["num_samples"],
+        seed=0,
+        threads=1,
+        progress=progress,
+        sampler=SamplerOptions(sampler="ddpm"),
+    )
 
 
 def long_call_total(model) -> int:
@@ -121,8 +141,10 @@ def test_ctrl_c_stops_the_call_with_keyboard_interrupt(sigint_raises):
     assert done < total
     # the model is still usable, and the stopped call left nothing running that changes later results
     obs = poses(np.random.default_rng(2))
-    a = model.forecast(obs, num_samples=1, seed=3, **FAST)
-    np.testing.assert_array_equal(a.samples, model.forecast(obs, num_samples=1, seed=3, **FAST).samples)
+    a = model.forecast(obs, num_samples=1, seed=3, sampler=SamplerOptions(**FAST))
+    np.testing.assert_array_equal(
+        a.samples, model.forecast(obs, num_samples=1, seed=3, sampler=SamplerOptions(**FAST)).samples
+    )
 
 
 def test_ctrl_c_while_the_caller_waits_between_two_polls_stops_the_call(sigint_raises):

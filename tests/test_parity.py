@@ -22,6 +22,7 @@ import tcd  # noqa: E402
 from fixtures_util import ALL_KERNELS, load_kernel, make_model_dir  # noqa: E402
 from training import diffusion as D  # noqa: E402
 from training.export import load_model_file  # noqa: E402
+from tcd import SamplerOptions  # noqa: E402
 
 CHAIN_ATOL = 1e-4  # model units (metres)
 OBS_LEN = 50  # observed frames of the cascade
@@ -180,7 +181,9 @@ def test_cascade_every_kernel(reduced_dir, kernel, monkeypatch):
     kw = dict(sampler="ddpm", num_inference_steps=10, timestep_spacing="trailing")
     ns = rng.standard_normal((s, 11, 1, k, short.seq_len)).astype(np.float32)
     nl = rng.standard_normal((s, 11, 1, k, long.seq_len)).astype(np.float32)
-    got = tcd.engine.cascade_raw(short, long, observed, mask, num_samples=s, noise_short=ns, noise_long=nl, **kw)
+    got = tcd.engine.cascade_raw(
+        short, long, observed, mask, num_samples=s, noise_short=ns, noise_long=nl, sampler=SamplerOptions(**kw)
+    )
     want = D.cascade(
         ms,
         ss,
@@ -226,10 +229,10 @@ def test_chain_injected_noise(tiny, sampler, steps, eta, spacing, num_samples):
     b, k, length = 1, den.num_features, den.seq_len
     observed, mask = observation(rng, b, k, length, OBS_LEN)
     kw = dict(sampler=sampler, num_inference_steps=steps, eta=eta, timestep_spacing=spacing)
-    assert den.timesteps(**kw) == [t for t, _ in D.step_pairs(50, sampler, steps, spacing)]
-    blocks = den.num_noise_blocks(**kw)
+    assert den.timesteps(sampler=SamplerOptions(**kw)) == [t for t, _ in D.step_pairs(50, sampler, steps, spacing)]
+    blocks = den.num_noise_blocks(sampler=SamplerOptions(**kw))
     noise = rng.standard_normal((num_samples, blocks, b, k, length)).astype(np.float32)
-    got = den.sample(observed, mask, num_samples, noise=noise, **kw)
+    got = den.sample(observed, mask, num_samples, noise=noise, sampler=SamplerOptions(**kw))
     want = D.sample_many(
         model,
         sched,
@@ -254,12 +257,12 @@ def test_seeded_noise_matches_torch_fed_the_same_streams(tiny):
     b, k, length, s = 2, den.num_features, den.seq_len, 2
     observed, mask = observation(rng, b, k, length, OBS_LEN)
     kw = dict(sampler="ddim", num_inference_steps=8, eta=1.0, timestep_spacing="trailing")
-    blocks = den.num_noise_blocks(**kw)
+    blocks = den.num_noise_blocks(sampler=SamplerOptions(**kw))
     noise = tcd.engine.seeded_noise(1234, tcd.engine.STAGE_SHORT, s, blocks, b, k, length)
     assert noise.shape == (s, blocks, b, k, length) and noise.dtype == np.float32
     assert abs(float(noise.mean())) < 0.05 and abs(float(noise.std()) - 1) < 0.05
-    seeded = den.sample(observed, mask, s, seed=1234, **kw)
-    assert np.array_equal(seeded, den.sample(observed, mask, s, noise=noise, **kw))
+    seeded = den.sample(observed, mask, s, seed=1234, sampler=SamplerOptions(**kw))
+    assert np.array_equal(seeded, den.sample(observed, mask, s, noise=noise, sampler=SamplerOptions(**kw)))
     want = D.sample_many(
         model, sched, torch.from_numpy(observed), torch.from_numpy(mask), s, noise=torch.from_numpy(noise), **kw
     ).numpy()
@@ -295,11 +298,18 @@ def test_cascade_injected_noise(tiny, sampler, steps, eta, s):
     b, k = 1, short.num_features
     observed, mask = observation(rng, b, k, OBS_LEN, OBS_LEN, missing=0.3)
     kw = dict(sampler=sampler, num_inference_steps=steps, eta=eta, timestep_spacing="trailing")
-    n_s, n_l = short.num_noise_blocks(**kw), long.num_noise_blocks(**kw)
+    n_s, n_l = short.num_noise_blocks(sampler=SamplerOptions(**kw)), long.num_noise_blocks(sampler=SamplerOptions(**kw))
     noise_short = rng.standard_normal((s, n_s, b, k, short.seq_len)).astype(np.float32)
     noise_long = rng.standard_normal((s, n_l, b, k, long.seq_len)).astype(np.float32)
     got = tcd.engine.cascade_raw(
-        short, long, observed, mask, num_samples=s, noise_short=noise_short, noise_long=noise_long, **kw
+        short,
+        long,
+        observed,
+        mask,
+        num_samples=s,
+        noise_short=noise_short,
+        noise_long=noise_long,
+        sampler=SamplerOptions(**kw),
     )
     want = torch_cascade(tiny, observed, mask, s, noise_short, noise_long, **kw)
     samples = want["samples"].numpy()
@@ -321,10 +331,10 @@ def test_cascade_seeded_matches_torch_fed_the_same_streams(tiny):
     b, k, s = 2, short.num_features, 1
     observed, mask = observation(rng, b, k, OBS_LEN, OBS_LEN)
     kw = dict(sampler="ddim", num_inference_steps=5, eta=1.0, timestep_spacing="trailing")
-    n = short.num_noise_blocks(**kw)
+    n = short.num_noise_blocks(sampler=SamplerOptions(**kw))
     noise_short = tcd.engine.seeded_noise(99, tcd.engine.STAGE_SHORT, s, n, b, k, short.seq_len)
     noise_long = tcd.engine.seeded_noise(99, tcd.engine.STAGE_LONG, s, n, b, k, long.seq_len)
-    got = tcd.engine.cascade_raw(short, long, observed, mask, num_samples=s, seed=99, **kw)
+    got = tcd.engine.cascade_raw(short, long, observed, mask, num_samples=s, seed=99, sampler=SamplerOptions(**kw))
     want = torch_cascade(tiny, observed, mask, s, noise_short, noise_long, **kw)
     assert chain_close(got["samples"], want["samples"].numpy()[..., OBS_LEN:], "seeded cascade ddim n=5 eta=1")
 
@@ -340,12 +350,19 @@ def test_centred_noise_cascade_matches_torch(tiny, sampler, steps, eta):
     kw = dict(
         sampler=sampler, num_inference_steps=steps, eta=eta, timestep_spacing="trailing", noise_coupling="centered"
     )
-    n = short.num_noise_blocks(**kw)
+    n = short.num_noise_blocks(sampler=SamplerOptions(**kw))
     noise_short = tcd.engine.seeded_noise(5, tcd.engine.STAGE_SHORT, s, n, b, k, short.seq_len)
     noise_long = tcd.engine.seeded_noise(5, tcd.engine.STAGE_LONG, s, n, b, k, long.seq_len)
-    got = tcd.engine.cascade_raw(short, long, observed, mask, num_samples=s, seed=5, **kw)
+    got = tcd.engine.cascade_raw(short, long, observed, mask, num_samples=s, seed=5, sampler=SamplerOptions(**kw))
     injected = tcd.engine.cascade_raw(
-        short, long, observed, mask, num_samples=s, noise_short=noise_short, noise_long=noise_long, **kw
+        short,
+        long,
+        observed,
+        mask,
+        num_samples=s,
+        noise_short=noise_short,
+        noise_long=noise_long,
+        sampler=SamplerOptions(**kw),
     )
     assert all(np.array_equal(got[key], injected[key]) for key in got)
     want = torch_cascade(tiny, observed, mask, s, noise_short, noise_long, **kw)
@@ -353,7 +370,13 @@ def test_centred_noise_cascade_matches_torch(tiny, sampler, steps, eta):
     assert chain_close(got["short_mean"], want["short_mean"], what + " short_mean")
     assert chain_close(got["samples"], want["samples"].numpy()[..., OBS_LEN:], what + " samples")
     independent = tcd.engine.cascade_raw(
-        short, long, observed, mask, num_samples=s, seed=5, **{**kw, "noise_coupling": "independent"}
+        short,
+        long,
+        observed,
+        mask,
+        num_samples=s,
+        seed=5,
+        sampler=SamplerOptions(**{**kw, "noise_coupling": "independent"}),
     )
     assert not np.allclose(independent["samples"], got["samples"])  # the coupling changes what is sampled
     # the twin's coupling: x_T of each sequence sums to zero, each rescaled to unit variance; z's untouched
@@ -371,7 +394,7 @@ def test_repair_injected_noise(tiny):
     observed, mask = observation(rng, b, k, OBS_LEN, OBS_LEN, missing=0.4)
     kw = dict(sampler="ddim", num_inference_steps=10, eta=0.0, timestep_spacing="trailing")
     noise = rng.standard_normal((s, 11, b, k, den.seq_len)).astype(np.float32)
-    got = tcd.engine.repair_raw(den, observed, mask, num_samples=s, noise=noise, **kw)
+    got = tcd.engine.repair_raw(den, observed, mask, num_samples=s, noise=noise, sampler=SamplerOptions(**kw))
     want = D.repair(
         model,
         sched,
@@ -392,24 +415,26 @@ def test_dpmpp2m_noise_blocks_seeded_and_repair(tiny):
     """dpmpp2m consumes x_T only: one noise block; the seeded path equals `seeded_noise` with one block
     and PyTorch fed it; repair agrees with the reference."""
     den, model, sched = tiny["short"]
-    assert den.num_noise_blocks(sampler="dpmpp2m", num_inference_steps=10) == 1
-    assert den.num_noise_blocks(sampler="ddim", num_inference_steps=10) == 11
+    assert den.num_noise_blocks(sampler=SamplerOptions(sampler="dpmpp2m", num_inference_steps=10)) == 1
+    assert den.num_noise_blocks(sampler=SamplerOptions(sampler="ddim", num_inference_steps=10)) == 11
     rng = np.random.default_rng(61)
     b, k, s = 2, den.num_features, 2
     observed, mask = observation(rng, b, k, den.seq_len, OBS_LEN)
     kw = dict(sampler="dpmpp2m", num_inference_steps=10, timestep_spacing="trailing")
     noise = tcd.engine.seeded_noise(77, tcd.engine.STAGE_SHORT, s, 1, b, k, den.seq_len)
-    seeded = den.sample(observed, mask, s, seed=77, **kw)
-    assert np.array_equal(seeded, den.sample(observed, mask, s, noise=noise, **kw))
+    seeded = den.sample(observed, mask, s, seed=77, sampler=SamplerOptions(**kw))
+    assert np.array_equal(seeded, den.sample(observed, mask, s, noise=noise, sampler=SamplerOptions(**kw)))
     want = D.sample_many(
         model, sched, torch.from_numpy(observed), torch.from_numpy(mask), s, noise=torch.from_numpy(noise), **kw
     ).numpy()
     assert chain_close(seeded, want, "seeded chain dpmpp2m n=10")
     with pytest.raises(tcd.InvalidInputError, match="noise"):
-        den.sample(observed, mask, s, noise=np.zeros((s, 11, b, k, den.seq_len), np.float32), **kw)
+        den.sample(
+            observed, mask, s, noise=np.zeros((s, 11, b, k, den.seq_len), np.float32), sampler=SamplerOptions(**kw)
+        )
     obs, m = observation(rng, 1, k, OBS_LEN, OBS_LEN, missing=0.4)
     rnoise = rng.standard_normal((s, 1, 1, k, den.seq_len)).astype(np.float32)
-    got = tcd.engine.repair_raw(den, obs, m, num_samples=s, noise=rnoise, **kw)
+    got = tcd.engine.repair_raw(den, obs, m, num_samples=s, noise=rnoise, sampler=SamplerOptions(**kw))
     want = D.repair(
         model,
         sched,
@@ -479,7 +504,7 @@ def test_repair_cond_fill_linear_injected_noise(tiny_linear):
     observed, mask = observation(rng, b, k, OBS_LEN, OBS_LEN, missing=0.4)
     kw = dict(sampler="ddpm", num_inference_steps=10, timestep_spacing="trailing")
     noise = rng.standard_normal((s, 11, b, k, den.seq_len)).astype(np.float32)
-    got = tcd.engine.repair_raw(den, observed, mask, num_samples=s, noise=noise, **kw)
+    got = tcd.engine.repair_raw(den, observed, mask, num_samples=s, noise=noise, sampler=SamplerOptions(**kw))
     want = D.repair(
         model,
         sched,
@@ -539,7 +564,7 @@ def test_repair_residual_injected_noise(request, fill, sampler, steps):
     kw = dict(sampler=sampler, num_inference_steps=steps, timestep_spacing="trailing")
     blocks = 1 if sampler == "dpmpp2m" else steps + 1
     noise = rng.standard_normal((s, blocks, b, k, den.seq_len)).astype(np.float32)
-    got = tcd.engine.repair_raw(den, observed, mask, num_samples=s, noise=noise, **kw)
+    got = tcd.engine.repair_raw(den, observed, mask, num_samples=s, noise=noise, sampler=SamplerOptions(**kw))
     want = D.repair(
         model,
         sched,
@@ -593,7 +618,9 @@ def test_repair_around_a_repair_fill_every_kernel(fill_repair_dir, sampler, step
     mask[0, :, 10:25] = 0  # a long gap, all joints
     kw = dict(sampler=sampler, num_inference_steps=steps, timestep_spacing="trailing")
     noise = rng.standard_normal((s, steps + 1, b, k, den.seq_len)).astype(np.float32)
-    got = tcd.engine.repair_raw(den, observed, mask, num_samples=s, noise=noise, fill=fill, **kw)
+    got = tcd.engine.repair_raw(
+        den, observed, mask, num_samples=s, noise=noise, fill=fill, sampler=SamplerOptions(**kw)
+    )
     want = D.repair(
         model,
         sched,
@@ -613,7 +640,7 @@ def test_repair_around_a_repair_fill_every_kernel(fill_repair_dir, sampler, step
     assert not np.allclose(got["mean"], base, atol=1e-4)  # and the chain adds to it
     # without its fill the call is refused, naming it
     with pytest.raises(tcd.exceptions.InvalidInputError, match="repair fill") as ei:
-        tcd.engine.repair_raw(den, observed, mask, num_samples=s, noise=noise, **kw)
+        tcd.engine.repair_raw(den, observed, mask, num_samples=s, noise=noise, sampler=SamplerOptions(**kw))
     assert ei.value.argument == "fill"
 
 
@@ -679,14 +706,21 @@ def test_repair_around_a_gap_filling_repair_fill_every_kernel(gap_fill_repair_di
     kw = dict(sampler=sampler, num_inference_steps=steps, timestep_spacing="trailing")
     noise = rng.standard_normal((s, steps + 1, 3, den.num_features, den.seq_len)).astype(np.float32)
     got = tcd.engine.repair_raw(
-        den, observed, mask, num_samples=s, noise=noise, fill=fill, forecaster=forecaster, **kw
+        den, observed, mask, num_samples=s, noise=noise, fill=fill, forecaster=forecaster, sampler=SamplerOptions(**kw)
     )["mean"]
     want = {}
     for name, gap_fill in (("gaps", "forecaster"), ("plain", "none")):
         gapped.cfg.gap_fill = gap_fill
         model.attach_prior(gapped)
         want[name] = D.repair(
-            model, sched, obs_t, mask_t, seq_len=den.seq_len, num_samples=s, noise=torch.from_numpy(noise), **kw
+            model,
+            sched,
+            obs_t,
+            mask_t,
+            seq_len=den.seq_len,
+            num_samples=s,
+            noise=torch.from_numpy(noise),
+            **kw,
         ).numpy()
         want[name + " fill"] = prior_fill(gapped, obs_t, mask_t).numpy()
     assert chain_close(got, want["gaps"], f"repair around a gap-filling fill, {sampler} n={steps}, {kernel}")
@@ -704,7 +738,7 @@ def test_repair_around_a_gap_filling_repair_fill_every_kernel(gap_fill_repair_di
     with pytest.raises(tcd.exceptions.InvalidInputError, match="prior forecaster"):
         fill.fill(btk(observed), btk(mask))
     with pytest.raises(tcd.exceptions.InvalidInputError, match="prior forecaster") as ei:
-        tcd.engine.repair_raw(den, observed, mask, num_samples=s, noise=noise, fill=fill, **kw)
+        tcd.engine.repair_raw(den, observed, mask, num_samples=s, noise=noise, fill=fill, sampler=SamplerOptions(**kw))
     assert ei.value.argument == "forecaster"
 
 
@@ -769,7 +803,7 @@ def test_repair_fill_with_an_in_betweener_every_kernel(inbetween_repair_dir, ker
     s, kw = 2, dict(sampler="ddim", num_inference_steps=1, timestep_spacing="trailing")
     noise = rng.standard_normal((s, 2, 3, den.num_features, den.seq_len)).astype(np.float32)
     got = tcd.engine.repair_raw(
-        den, observed, mask, num_samples=s, noise=noise, fill=fill, forecaster=forecaster, **kw
+        den, observed, mask, num_samples=s, noise=noise, fill=fill, forecaster=forecaster, sampler=SamplerOptions(**kw)
     )["mean"]
     model.attach_prior(twin)
     ref = D.repair(
@@ -781,7 +815,7 @@ def test_repair_fill_with_an_in_betweener_every_kernel(inbetween_repair_dir, ker
 def assert_repairs_as_the_engine(m, poses, **fills):
     """``TCD.repair`` of ``poses`` (T, 22, 3, NaN hidden) is ``tcd.engine.repair_raw`` of the directory's repair
     model given ``fills`` (its ``fill`` and ``forecaster`` keywords), bit for bit."""
-    kw = dict(num_samples=2, seed=4, sampler="ddim", num_inference_steps=1)
+    kw = dict(num_samples=2, seed=4, sampler=SamplerOptions(sampler="ddim", num_inference_steps=1))
     engine = lambda a: np.ascontiguousarray(a.reshape(1, OBS_LEN, 66).transpose(0, 2, 1))  # noqa: E731
     want = tcd.engine.repair_raw(
         m.repair_model, engine(np.nan_to_num(poses)), engine((~np.isnan(poses)).astype(np.float32)), **fills, **kw

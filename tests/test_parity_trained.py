@@ -42,6 +42,7 @@ from training import diffusion as D  # noqa: E402
 from training.data.humaneva import humaneva_test_windows, load_humaneva  # noqa: E402
 from training.export import load_model_dir  # noqa: E402
 from training.model import prior_fill  # noqa: E402
+from tcd import SamplerOptions  # noqa: E402
 
 RTOL = 2e-5  # of the output's scale
 CONTRIBUTION = 1e3  # the network's contribution over the tolerance, at least
@@ -138,7 +139,7 @@ def check(got, want, silent, truth, mask, what):
 
 
 def noise_for(den, sampler, steps, samples, rng):
-    blocks = den.num_noise_blocks(sampler=sampler, num_inference_steps=steps)
+    blocks = den.num_noise_blocks(sampler=SamplerOptions(sampler=sampler, num_inference_steps=steps))
     return rng.standard_normal((samples, blocks, 1, den.num_features, den.seq_len)).astype(np.float32)
 
 
@@ -157,7 +158,7 @@ def test_chain_on_trained_weights(bundled, clip, role, sampler, steps, eta):
     truth, observed, mask = window(clip, 20, den.seq_len, obs_len)
     noise = noise_for(den, sampler, steps, 2, np.random.default_rng(CHAINS.index((sampler, steps, eta))))
     kw = dict(sampler=sampler, num_inference_steps=steps, eta=eta, timestep_spacing="trailing")
-    got = den.sample(engine_observed(model, observed, mask), mask, 2, noise=noise, **kw)
+    got = den.sample(engine_observed(model, observed, mask), mask, 2, noise=noise, sampler=SamplerOptions(**kw))
     args = (sched, torch.from_numpy(observed), torch.from_numpy(mask), 2)
     want = D.sample_many(model, *args, noise=torch.from_numpy(noise), **kw).numpy()
     silent = D.sample_many(silent_model, *args, noise=torch.from_numpy(noise), **kw).numpy()
@@ -172,7 +173,7 @@ def test_chain_on_trained_weights_every_kernel(bundled, clip, kernel, monkeypatc
     truth, observed, mask = window(clip, 40, den.seq_len, den.config["window"]["obs_len"])
     noise = noise_for(den, "ddim", 10, 1, np.random.default_rng(7))
     kw = dict(sampler="ddim", num_inference_steps=10, eta=0.0, timestep_spacing="trailing")
-    got = den.sample(engine_observed(model, observed, mask), mask, 1, noise=noise, **kw)
+    got = den.sample(engine_observed(model, observed, mask), mask, 1, noise=noise, sampler=SamplerOptions(**kw))
     args = (sched, torch.from_numpy(observed), torch.from_numpy(mask), 1)
     want = D.sample_many(model, *args, noise=torch.from_numpy(noise), **kw).numpy()
     silent = D.sample_many(silent_model, *args, noise=torch.from_numpy(noise), **kw).numpy()
@@ -250,7 +251,15 @@ def check_cascade(
     noise_short, noise_long = noise_for(short, sampler, steps, 2, rng), noise_for(long, sampler, steps, 2, rng)
     prior = tcd.engine.Prior.load(directory / "prior.safetensors")
     got = tcd.engine.cascade_raw(
-        short, long, observed, mask, num_samples=2, noise_short=noise_short, noise_long=noise_long, prior=prior, **kw
+        short,
+        long,
+        observed,
+        mask,
+        num_samples=2,
+        noise_short=noise_short,
+        noise_long=noise_long,
+        prior=prior,
+        sampler=SamplerOptions(**kw),
     )
 
     def reference(short_model, long_model):
@@ -304,7 +313,7 @@ def test_repair_on_trained_weights(bundled, clip, sampler):
     noise = noise_for(den, sampler, 10, 2, np.random.default_rng(13))
     kw = dict(sampler=sampler, num_inference_steps=10, eta=0.0, timestep_spacing="trailing")
     got = tcd.engine.repair_raw(
-        den, observed, mask, num_samples=2, noise=noise, fill=fill, forecaster=forecaster, **kw
+        den, observed, mask, num_samples=2, noise=noise, fill=fill, forecaster=forecaster, sampler=SamplerOptions(**kw)
     )["mean"]
 
     def reference(m):

@@ -42,6 +42,7 @@ from training import diffusion as D  # noqa: E402
 from training import export  # noqa: E402
 from training.diffusion import DiffusionConfig  # noqa: E402
 from training.model import prior_fill  # noqa: E402
+from tcd import SamplerOptions  # noqa: E402
 
 CHAIN_ATOL = 1e-4  # model units (metres), the cascade criterion of tests/test_parity.py
 CONTRIBUTION = 1e2  # what a feature changes, at least, over CHAIN_ATOL
@@ -150,7 +151,7 @@ def test_cascade_matches_pytorch(dirs, prediction, sampler, steps, eta, s, kerne
     assert short.config["diffusion"]["prediction_type"] == prediction
     eng, ref, mask, ns, nl, kw, want = reference(d, prediction, sampler, steps, eta, s)
     got = tcd.engine.cascade_raw(
-        short, long, eng, mask, num_samples=s, noise_short=ns, noise_long=nl, prior=prior, **kw
+        short, long, eng, mask, num_samples=s, noise_short=ns, noise_long=nl, prior=prior, sampler=SamplerOptions(**kw)
     )
     what = f"prior-conditioned cascade {prediction} {sampler} n={steps} eta={eta} S={s} kernel={kernel}"
     assert max_diff(got["short_mean"], want["short_mean"], what + " short_mean") <= CHAIN_ATOL
@@ -197,8 +198,10 @@ def test_tcd_load_passes_the_prior_and_matches_pytorch_on_the_seeded_streams(dir
     eng, ref, mask = observation(11, batch=1)
     kw = dict(sampler="ddim", num_inference_steps=5, eta=1.0, timestep_spacing="trailing")
     poses = np.ascontiguousarray(eng[0].T.reshape(OBS, 22, 3))
-    f = model.forecast(poses, num_samples=2, seed=21, **kw)
-    raw = tcd.engine.cascade_raw(model.short, model.long, eng, mask, num_samples=2, seed=21, prior=model.prior, **kw)
+    f = model.forecast(poses, num_samples=2, seed=21, sampler=SamplerOptions(**kw))
+    raw = tcd.engine.cascade_raw(
+        model.short, model.long, eng, mask, num_samples=2, seed=21, prior=model.prior, sampler=SamplerOptions(**kw)
+    )
     assert np.array_equal(f.mean, raw["mean"][0].T.reshape(-1, 22, 3))
     ns = tcd.engine.seeded_noise(21, tcd.engine.STAGE_SHORT, 2, 6, 1, 66, LS)
     nl = tcd.engine.seeded_noise(21, tcd.engine.STAGE_LONG, 2, 6, 1, 66, LL)
@@ -211,7 +214,7 @@ def test_errors_name_the_prior_and_the_missing_file(dirs, tmp_path):
     short, long = tcd.engine.Denoiser.load(d / "short.safetensors"), tcd.engine.Denoiser.load(d / "long.safetensors")
     prior = tcd.engine.Prior.load(d / export.PRIOR_FILE)
     eng, _, mask = observation(5, batch=1)
-    kw = dict(num_samples=1, seed=0, sampler="ddim", num_inference_steps=2)
+    kw = dict(num_samples=1, seed=0, sampler=SamplerOptions(sampler="ddim", num_inference_steps=2))
     e = bad("prior", tcd.engine.cascade_raw, short, long, eng, mask, **kw)
     assert "cond_fill" in str(e) and "short-term" in str(e)
     bad("prior", tcd.engine.cascade_raw, short, long, eng, mask, prior="prior.safetensors", **kw)
@@ -230,16 +233,17 @@ def test_errors_name_the_prior_and_the_missing_file(dirs, tmp_path):
             mask,
             num_samples=1,
             seed=0,
-            sampler="ddim",
-            num_inference_steps=2,
+            sampler=SamplerOptions(sampler="ddim", num_inference_steps=2),
             fill=fill,
         )
         assert "repair fill" in str(e)
     # the low-level calls read the fill from `observed`: NaN there is refused
     m = np.concatenate([mask, np.zeros((1, 66, LS - OBS), np.float32)], -1)
     x = np.concatenate([eng, np.zeros((1, 66, LS - OBS), np.float32)], -1)
-    bad("observed", short.sample, x, m, 1, seed=0, sampler="ddim", num_inference_steps=2)
-    assert short.sample(np.nan_to_num(x), m, 1, seed=0, sampler="ddim", num_inference_steps=2).shape == (1, 1, 66, LS)
+    bad("observed", short.sample, x, m, 1, seed=0, sampler=SamplerOptions(sampler="ddim", num_inference_steps=2))
+    assert short.sample(
+        np.nan_to_num(x), m, 1, seed=0, sampler=SamplerOptions(sampler="ddim", num_inference_steps=2)
+    ).shape == (1, 1, 66, LS)
     assert tcd.engine.cascade_raw(short, long, eng, mask, prior=prior, **kw)["mean"].shape == (1, 66, 25)
     # a model directory without its prior: the weights error names the missing file
     bare = tmp_path / "bare"
@@ -255,7 +259,10 @@ def test_errors_name_the_prior_and_the_missing_file(dirs, tmp_path):
     # the user-facing repair of a directory without a repair model uses the short model: refused too
     with pytest.raises(InvalidInputError, match="prior"):
         tcd.load(d).repair(
-            np.nan_to_num(eng[0].T.reshape(OBS, 22, 3)), seed=0, num_samples=1, sampler="ddim", num_inference_steps=2
+            np.nan_to_num(eng[0].T.reshape(OBS, 22, 3)),
+            seed=0,
+            num_samples=1,
+            sampler=SamplerOptions(sampler="ddim", num_inference_steps=2),
         )
 
 
@@ -307,7 +314,15 @@ def test_export_writes_and_restores_prior_conditioning_and_x0_prediction(tmp_pat
     ns = np.random.default_rng(1).standard_normal((1, 1, 1, 66, 14)).astype(np.float32)
     nl = np.random.default_rng(2).standard_normal((1, 1, 1, 66, 20)).astype(np.float32)
     got = tcd.engine.cascade_raw(
-        model.short, model.long, eng, mask, num_samples=1, noise_short=ns, noise_long=nl, prior=model.prior, **kw
+        model.short,
+        model.long,
+        eng,
+        mask,
+        num_samples=1,
+        noise_short=ns,
+        noise_long=nl,
+        prior=model.prior,
+        sampler=SamplerOptions(**kw),
     )
     (ms, ss, _), (ml, sl, _) = models["short"], models["long"]
     want = D.cascade(

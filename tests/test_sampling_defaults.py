@@ -52,8 +52,16 @@ def test_a_directory_may_centre_its_forecast_noise(model_dir, obs):
     m = tcd.load(model_dir)
     assert m.sampling["forecast"].noise_coupling == "centered"
     a = m.forecast(obs, num_samples=3, seed=3)
-    assert np.array_equal(a.samples, m.forecast(obs, num_samples=3, seed=3, noise_coupling="centered", **DDIM2).samples)
-    assert not np.array_equal(a.samples, m.forecast(obs, num_samples=3, seed=3, noise_coupling="independent").samples)
+    assert np.array_equal(
+        a.samples,
+        m.forecast(obs, num_samples=3, seed=3, sampler=SamplerOptions(**DDIM2, noise_coupling="centered")).samples,
+    )
+    assert not np.array_equal(
+        a.samples,
+        m.forecast(
+            obs, num_samples=3, seed=3, sampler=m.sampler_options("forecast", noise_coupling="independent")
+        ).samples,
+    )
     assert SamplerOptions.build(m.sampling["forecast"], sampler="ddpm").noise_coupling == "independent"
     assert m.sampling["forecast"].describe(50) == "ddim, 2 steps (eta 1, trailing spacing, centred noise)"
 
@@ -63,17 +71,20 @@ def test_load_reads_the_defaults(model_dir, tiny_model_dir, obs):
     assert m.sampling == {"forecast": SamplerOptions(**DDIM2), "repair": SamplerOptions(num_inference_steps=3)}
     assert tcd.load(tiny_model_dir).sampling == {"forecast": SamplerOptions(), "repair": SamplerOptions()}
     a = m.forecast(obs, num_samples=2, seed=3)
-    assert np.array_equal(a.samples, m.forecast(obs, num_samples=2, seed=3, **DDIM2).samples)
+    assert np.array_equal(a.samples, m.forecast(obs, num_samples=2, seed=3, sampler=SamplerOptions(**DDIM2)).samples)
     assert not np.array_equal(
-        a.samples, m.forecast(obs, num_samples=2, seed=3, sampler="ddim", num_inference_steps=3).samples
+        a.samples,
+        m.forecast(obs, num_samples=2, seed=3, sampler=SamplerOptions(sampler="ddim", num_inference_steps=3)).samples,
     )
-    # a keyword overrides its field only; the repair's default is the repair's
+    # sampler_options changes the fields it names only; the repair's default is the repair's
     assert np.array_equal(
-        m.forecast(obs, num_samples=2, seed=3, eta=0.0).samples,
-        m.forecast(obs, num_samples=2, seed=3, **dict(DDIM2, eta=0.0)).samples,
+        m.forecast(obs, num_samples=2, seed=3, sampler=m.sampler_options("forecast", eta=0.0)).samples,
+        m.forecast(obs, num_samples=2, seed=3, sampler=SamplerOptions(**dict(DDIM2, eta=0.0))).samples,
     )
     r = m.repair(obs, num_samples=2, seed=3).poses
-    assert np.array_equal(r, m.repair(obs, num_samples=2, seed=3, sampler="ddpm", num_inference_steps=3).poses)
+    assert np.array_equal(
+        r, m.repair(obs, num_samples=2, seed=3, sampler=SamplerOptions(sampler="ddpm", num_inference_steps=3)).poses
+    )
 
 
 def test_cli_and_repair_file_use_the_model_defaults(model_dir, obs, tmp_path, capsys):
@@ -98,7 +109,9 @@ def test_cli_and_repair_file_use_the_model_defaults(model_dir, obs, tmp_path, ca
         == 0
     )
     with np.load(tmp_path / "f.npz") as f:
-        assert np.array_equal(f["samples"], m.forecast(obs, num_samples=2, seed=4, **DDIM2).samples)
+        assert np.array_equal(
+            f["samples"], m.forecast(obs, num_samples=2, seed=4, sampler=SamplerOptions(**DDIM2)).samples
+        )
     assert (
         main(
             [
@@ -119,7 +132,9 @@ def test_cli_and_repair_file_use_the_model_defaults(model_dir, obs, tmp_path, ca
         == 0
     )
     with np.load(tmp_path / "g.npz") as f:
-        assert np.array_equal(f["samples"], m.forecast(obs, num_samples=2, seed=4, **dict(DDIM2, eta=0.0)).samples)
+        assert np.array_equal(
+            f["samples"], m.forecast(obs, num_samples=2, seed=4, sampler=SamplerOptions(**dict(DDIM2, eta=0.0))).samples
+        )
     s = tcd.repair_file(inp, tmp_path / "r.npz", m, num_samples=2)
     assert s["status"] == "repaired"
     with np.load(tmp_path / "r.npz", allow_pickle=False) as f:

@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 from fixtures_util import poses
+from tcd import SamplerOptions
 
-FAST = dict(sampler="ddim", num_inference_steps=2, num_samples=2)
+FAST = dict(sampler=SamplerOptions(sampler="ddim", num_inference_steps=2), num_samples=2)
 
 
 def rss_mib() -> float:

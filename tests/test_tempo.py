@@ -13,6 +13,7 @@ import tcd
 from fixtures_util import bad, poses
 from tcd.exceptions import WeightsError
 from tcd._tempo import check_tempo, tempi, tempo_forecast, unwarp_future, unwarp_history, warp
+from tcd import SamplerOptions
 
 K, T, H = 6, 15, 20
 
@@ -112,12 +113,13 @@ def test_forecast_with_tempo(tiny_model_dir):
     m = tcd.load(tiny_model_dir)
     assert m.forecast_tempo is None
     obs = poses(np.random.default_rng(0), batch=2, missing=0.1)
-    plain = m.forecast(obs, num_samples=4, seed=7, num_inference_steps=2)
+    plain = m.forecast(obs, num_samples=4, seed=7, sampler=SamplerOptions(num_inference_steps=2))
     assert np.array_equal(
-        plain.samples, m.forecast(obs, num_samples=4, seed=7, num_inference_steps=2, tempo=(1, 1)).samples
+        plain.samples,
+        m.forecast(obs, num_samples=4, seed=7, sampler=SamplerOptions(num_inference_steps=2), tempo=(1, 1)).samples,
     )
-    a = m.forecast(obs, num_samples=4, seed=7, num_inference_steps=2, tempo=(0.6, 1.6))
-    b = m.forecast(obs, num_samples=4, seed=7, num_inference_steps=2, tempo=(0.6, 1.6))
+    a = m.forecast(obs, num_samples=4, seed=7, sampler=SamplerOptions(num_inference_steps=2), tempo=(0.6, 1.6))
+    b = m.forecast(obs, num_samples=4, seed=7, sampler=SamplerOptions(num_inference_steps=2), tempo=(0.6, 1.6))
     assert a.samples.shape == plain.samples.shape and np.isfinite(a.samples).all()
     assert np.array_equal(a.samples, b.samples)  # seeded
     assert not np.allclose(a.samples, plain.samples)
@@ -126,9 +128,15 @@ def test_forecast_with_tempo(tiny_model_dir):
     assert np.isfinite(a.repaired).all()
     # sequence b's samples do not depend on the batch's size or other sequences (streams b * n + i), as without
     # tempo sampling (stream b)
-    alone = m.forecast(obs[:1], num_samples=4, seed=7, num_inference_steps=2, tempo=(0.6, 1.6))
+    alone = m.forecast(obs[:1], num_samples=4, seed=7, sampler=SamplerOptions(num_inference_steps=2), tempo=(0.6, 1.6))
     assert np.array_equal(alone.samples[:, 0], a.samples[:, 0])
-    other = m.forecast(np.stack([obs[0], obs[0][::-1]]), num_samples=4, seed=7, num_inference_steps=2, tempo=(0.6, 1.6))
+    other = m.forecast(
+        np.stack([obs[0], obs[0][::-1]]),
+        num_samples=4,
+        seed=7,
+        sampler=SamplerOptions(num_inference_steps=2),
+        tempo=(0.6, 1.6),
+    )
     assert np.array_equal(other.samples[:, 0], a.samples[:, 0])
     bad("tempo", m.forecast, obs, tempo="fast")
 
@@ -139,7 +147,7 @@ def test_sampling_file_sets_the_default_tempo(tiny_model_dir, tmp_path):
     m = tcd.load(d)
     assert m.forecast_tempo == (0.7, 1.4)
     obs = poses(np.random.default_rng(0), batch=2, missing=0.1)
-    kw = dict(num_samples=3, seed=1, num_inference_steps=2)
+    kw = dict(num_samples=3, seed=1, sampler=SamplerOptions(num_inference_steps=2))
     assert np.array_equal(m.forecast(obs, **kw).samples, m.forecast(obs, tempo=(0.7, 1.4), **kw).samples)
     assert np.array_equal(
         m.forecast(obs, tempo=(1, 1), **kw).samples, tcd.load(tiny_model_dir).forecast(obs, **kw).samples
@@ -167,7 +175,9 @@ def test_command_line_tempo(tiny_model_dir, tmp_path, capsys):
     assert main(["forecast", str(src), "-o", str(tmp_path / "a.npz"), "--tempo", "0.7", "1.4", *fast]) == 0
     with np.load(tmp_path / "a.npz") as f:
         got = f["samples"]
-    want = tcd.load(tiny_model_dir).forecast(obs, num_samples=3, seed=5, num_inference_steps=2, tempo=(0.7, 1.4))
+    want = tcd.load(tiny_model_dir).forecast(
+        obs, num_samples=3, seed=5, sampler=SamplerOptions(num_inference_steps=2), tempo=(0.7, 1.4)
+    )
     assert np.array_equal(got, want.samples)
     capsys.readouterr()
     assert main(["forecast", str(src), "-o", str(tmp_path / "b.npz"), "--tempo", "1.5", "2", *fast]) == 2
@@ -181,7 +191,7 @@ def test_tempo_through_the_wild_path(tiny_model_dir):
     samples come back in the caller's rate and shape, the observed frames as given."""
     m = tcd.load(tiny_model_dir)
     x = np.random.default_rng(0).normal(scale=0.3, size=(2, 60, 22, 3)).astype(np.float32)
-    kw = dict(num_samples=3, seed=1, num_inference_steps=2, layout="h36m22", fps=50)
+    kw = dict(num_samples=3, seed=1, sampler=SamplerOptions(num_inference_steps=2), layout="h36m22", fps=50)
     a, b = m.forecast(x, tempo=(0.7, 1.4), **kw), m.forecast(x, **kw)
     assert a.samples.shape == b.samples.shape and np.isfinite(a.samples).all()
     assert not np.allclose(a.samples, b.samples)

@@ -15,6 +15,7 @@ import tcd
 from conftest import FIXTURES, import_torch
 from fixtures_util import CONFIG_KEY, config_of, read_weights, write_weights
 from tcd.exceptions import WeightsError
+from tcd import SamplerOptions
 
 ROOT = Path(__file__).resolve().parents[1]
 SCHEMA = json.loads((ROOT / "docs" / "tcd_config.schema.json").read_text())
@@ -147,12 +148,14 @@ def test_engine_requires_what_the_schema_requires_and_defaults_the_rest(tmp_path
         assert name.split(".")[-1] in str(e.value), (name, str(e.value))
     # optional fields: the engine runs with the schema's default
     base = tcd.engine.Denoiser.load(write(tmp_path / "base.safetensors", golden))
-    x = base.sample(*_zeros(), 1, seed=0, sampler="ddim", num_inference_steps=2)
+    x = base.sample(*_zeros(), 1, seed=0, sampler=SamplerOptions(sampler="ddim", num_inference_steps=2))
     for name, sub, req in schema_fields():
         if req or "default" not in sub or name.count(".") != 1 or name.split(".")[-1] not in golden[name.split(".")[0]]:
             continue
         d = tcd.engine.Denoiser.load(write(tmp_path / f"default_{name}.safetensors", drop(golden, name)))
-        assert (d.sample(*_zeros(), 1, seed=0, sampler="ddim", num_inference_steps=2) == x).all(), name
+        assert (
+            d.sample(*_zeros(), 1, seed=0, sampler=SamplerOptions(sampler="ddim", num_inference_steps=2)) == x
+        ).all(), name
 
 
 def _zeros():

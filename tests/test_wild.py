@@ -9,8 +9,9 @@ import pytest
 from fixtures_util import bad
 from tcd import layouts, wild
 from tcd._demo import load_clip
+from tcd import SamplerOptions
 
-FAST = dict(num_samples=2, seed=0, sampler="ddim", num_inference_steps=3)
+FAST = dict(num_samples=2, seed=0, sampler=SamplerOptions(sampler="ddim", num_inference_steps=3))
 SAME_PLACE = {16: 13, 20: 19, 23: 22, 24: 13, 28: 27, 31: 30}
 
 
@@ -246,7 +247,7 @@ def test_repair_file_and_tcd_repair_with_a_layout(tiny_model_dir, tmp_path, caps
     x50 = resample_backward(x.reshape(75, -1), 149, 50.0, 25.0).reshape(149, 17, 3)
     x50[40:60, 11:14] = np.nan  # the left arm lost for 0.4 s
     np.savez(tmp_path / "take.npz", poses=x50 * 1000)
-    kw = dict(num_samples=1, num_inference_steps=2, sampler="ddim")
+    kw = dict(num_samples=1, sampler=SamplerOptions(num_inference_steps=2, sampler="ddim"))
     tcd_repair_file = __import__("tcd").repair_file
     tcd_repair_file(
         tmp_path / "take.npz", tmp_path / "api.npz", tiny_model_dir, fps=50, units="mm", layout="h36m17", up="z", **kw

@@ -174,13 +174,11 @@ def tcd_engine_predict(
     f = model.forecast(
         x,
         num_samples=samples,
-        num_inference_steps=steps,
-        sampler=sampler,
-        eta=eta,
-        timestep_spacing=spacing,
+        sampler=tcd.SamplerOptions(
+            num_inference_steps=steps, sampler=sampler, eta=eta, timestep_spacing=spacing, noise_coupling=noise_coupling
+        ),
         seed=int(seed),
         tempo=tempo,
-        noise_coupling=noise_coupling,
     )
     return {"samples": np.asarray(f.samples, np.float64), "repaired": np.asarray(f.repaired, np.float64)}
 
@@ -419,13 +417,15 @@ def humaneva_model_samples(args, obs: np.ndarray, log=lambda m: None) -> np.ndar
             f = model.forecast(
                 x,
                 num_samples=args.samples,
-                num_inference_steps=args.steps,
-                sampler=args.sampler,
-                eta=args.eta,
-                timestep_spacing=args.timestep_spacing,
+                sampler=tcd.SamplerOptions(
+                    num_inference_steps=args.steps,
+                    sampler=args.sampler,
+                    eta=args.eta,
+                    timestep_spacing=args.timestep_spacing,
+                    noise_coupling=coupling,
+                ),
                 seed=seed,
                 tempo=args.tempo,
-                noise_coupling=coupling,
                 generator_share=getattr(args, "generator_share", None),
             )
             outs.append(np.asarray(f.samples, np.float64))

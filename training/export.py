@@ -302,7 +302,7 @@ def random_init_dir(
 def write_checksums(d: str | Path) -> Path:
     """``SHA256SUMS`` for the weight files of a model directory: the file ``tcd.load`` checks (and requires
     for the bundled model). One implementation, the package's."""
-    from tcd._model import write_checksums as _write  # the built package (installed by the dev set-up)
+    from tcd._directory import write_checksums as _write  # the built package (installed by the dev set-up)
 
     return _write(d)
 

@@ -8,8 +8,8 @@
 
 High level: :func:`load`, :class:`TCD` (``forecast``, ``predict``: the prior's point forecast, ``repair``),
 :class:`Forecast`, :class:`Repair`, :func:`forecast`, :func:`predict`, :func:`repair`, :func:`repair_file`;
-the sampler of every call: the keyword arguments ``sampler``, ``num_inference_steps``, ``eta`` and
-``timestep_spacing`` (their defaults and checks: :class:`SamplerOptions`); the engine's fills of missing
+the sampler of every call: its ``sampler`` argument, a :class:`SamplerOptions` (its fields, defaults and
+checks); the engine's fills of missing
 values along time (linear, natural cubic spline): :func:`interpolate`.
 Engine level, in the engine's (B, K, L) layout: :mod:`tcd.engine` (``Denoiser``, ``cascade_raw``,
 ``repair_raw``, ``seeded_noise``, ``supported_kernels``, ``STAGE_SHORT``, ``STAGE_LONG``, and ``Prior``, the

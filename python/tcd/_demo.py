@@ -150,12 +150,13 @@ def run(
     threads: Optional[int] = None,
     quiet: bool = False,
     clip_path: Optional[Path] = None,
-    **sampler: Any,
+    sampling: Optional[Dict[str, SamplerOptions]] = None,
 ) -> Dict[str, Any]:
     """Runs the demo; returns every array and number (what ``tcd demo`` prints and saves). ``clip_path``:
-    by default the bundled clip in the model's layout (:func:`clip_for`). ``**sampler``: the sampler keywords
-    of :meth:`TCD.forecast`, given to every call (those not given: each task's default, :attr:`TCD.sampling`)."""
-    o = model.sampler_options("forecast", **sampler)  # checked before any work; shown and recorded
+    by default the bundled clip in the model's layout (:func:`clip_for`). ``sampling``: the sampler of each
+    task (``"forecast"``, ``"repair"``), those not given the model's (:attr:`TCD.sampling`)."""
+    sampling = {**model.sampling, **(sampling or {})}
+    o = sampling["forecast"]  # shown and recorded
     steps, sampler_name = o.num_inference_steps, o.sampler
     clip = load_clip(clip_for(model) if clip_path is None else clip_path)
     poses, fps, names = clip["poses"], clip["fps"], clip["joint_names"]
@@ -170,9 +171,9 @@ def run(
     if poses.shape[0] < n_obs + h:
         raise ValueError(f"the demo clip has {poses.shape[0]} frames; the model needs {n_obs + h}")
     obs, future = poses[:n_obs], poses[n_obs : n_obs + h]
-    kw = dict(num_samples=samples, seed=seed, threads=threads, **sampler)
+    kw = dict(num_samples=samples, seed=seed, threads=threads, sampler=o)
     # the repairs (TCD.repair, TCD.predict's fill) with the model's own sample count: the bundled model's fill alone
-    repair_kw = dict(kw, num_samples=model.repair_samples)
+    repair_kw = dict(kw, num_samples=model.repair_samples, sampler=sampling["repair"])
     res: Dict[str, Any] = {
         "fps": fps,
         "joint_names": names,
@@ -186,7 +187,7 @@ def run(
             "seed": seed,
             "tempo": None if model.forecast_tempo is None else list(model.forecast_tempo),
             "generator_samples": int(samples * model.generator_share),
-            "sampling": {t: dataclasses.asdict(model.sampler_options(t, **sampler)) for t in model.sampling},
+            "sampling": {t: dataclasses.asdict(o_t) for t, o_t in sampling.items()},
         },
         "timings_s": {},
     }

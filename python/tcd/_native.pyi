@@ -2,7 +2,8 @@
 
 Arrays are float32 in the engine's layout: sequences (B, K, L), samples (S, B, K, L), injected
 noise (S, n + 1, B, K, L) ((S, 1, B, K, L) for ``sampler="dpmpp2m"``). The sampler of a call is a
-``tcd.SamplerOptions`` (read by its attributes). Errors: ``tcd.exceptions.InvalidInputError`` (bad argument),
+``tcd.SamplerOptions``, read through the :class:`Sampler` it holds (``_engine``), checked once when it was made.
+Errors: ``tcd.exceptions.InvalidInputError`` (bad argument),
 ``tcd.exceptions.WeightsError`` (bad weight file), ``FileNotFoundError`` (missing file),
 ``OSError`` (unreadable file), ``tcd.exceptions.TcdError`` (anything else).
 """
@@ -28,12 +29,12 @@ __all__ = [
     "Denoiser",
     "Prior",
     "Generator",
+    "Sampler",
     "cascade",
     "repair",
     "seeded_noise",
     "interpolate",
     "supported_kernels",
-    "check_sampler_options",
     "check_call_settings",
     "SAMPLERS",
     "SPACINGS",
@@ -235,7 +236,20 @@ def seeded_noise(
     first_sequence: int = 0,
 ) -> _F32: ...
 def interpolate(observed: _F32, mask: _F32, method: str) -> _F32: ...
-def check_sampler_options(options: SamplerOptions) -> None: ...
+
+@final
+class Sampler:
+    """The engine's sampler, checked when made (``InvalidInputError`` naming the bad field)."""
+
+    def __new__(
+        cls,
+        sampler: str,
+        num_inference_steps: Optional[int],
+        eta: float,
+        timestep_spacing: str,
+        noise_coupling: str,
+    ) -> "Sampler": ...
+
 def check_call_settings(
     *,
     num_samples: Optional[int] = None,

@@ -238,3 +238,89 @@ def _index(idx: np.ndarray, batched: bool) -> Tuple[int, ...]:
     """An index into the caller's array (without the batch axis the caller did not give)."""
     i = tuple(int(v) for v in idx)
     return i if batched else i[1:]
+
+
+class Window:
+    """A validated pose input in the model's layout and the model's window of it, in the engine's layout; the
+    model's outputs converted back (the interface :class:`tcd._wild_calls.WildWindow` shares)."""
+
+    def __init__(
+        self,
+        observed: np.ndarray,
+        mask: np.ndarray,
+        original: np.ndarray,
+        full_mask: np.ndarray,
+        batched: bool,
+        scale: float,
+        dtype: np.dtype,
+        start: int,
+    ) -> None:
+        self.observed = observed  # (B, K, W) float32, model units, 0 where missing: the window
+        self.mask = mask  # (B, K, W) float32 0/1
+        self.original = original  # (B, T, J, 3) the caller's values
+        self.full_mask = full_mask  # (B, T, J, 3) bool
+        self.batched = batched
+        self.scale = scale
+        self.dtype = dtype
+        self.start = start  # the caller's frame at the window's first frame (< 0: padded)
+        self.times: Optional[np.ndarray] = None  # seconds of each forecast frame (set where the model has a rate)
+
+    def poses(self, bkl: np.ndarray) -> np.ndarray:
+        """(..., B, K, L) float32 model units -> (..., B?, L, J, 3) in the caller's units and dtype."""
+        *lead, b, k, length = bkl.shape
+        j = k // 3
+        out = np.swapaxes(bkl, -1, -2).reshape(*lead, b, length, j, 3).astype(self.dtype)
+        if self.scale != 1.0:
+            out = out * self.dtype.type(self.scale)
+        return out if self.batched else out[..., 0, :, :, :]
+
+    def repaired(self, bkt: np.ndarray) -> np.ndarray:
+        """The window's repair (B, K, W) -> the caller's observation filled (its shape, units and dtype)."""
+        out = self.poses(bkt)
+        original = self.original if self.batched else self.original[0]
+        full_mask = self.full_mask if self.batched else self.full_mask[0]
+        if self.start < 0:  # the padded frames dropped
+            out = out[..., -self.start :, :, :]
+        elif self.start > 0:  # the frames before the window as given
+            out = np.concatenate([original[..., : self.start, :, :].astype(self.dtype, copy=False), out], axis=-3)
+        # Observed entries bit for bit as given (also when units or dtype needed a conversion).
+        return np.where(full_mask, original.astype(self.dtype, copy=False), out)
+
+    def forecast(self, out: Dict[str, Any]) -> Tuple[Any, ...]:
+        """(mean, samples, repaired, times) from the model's ``out`` (``mean`` (B, K, H), ``samples``
+        (S, B, K, H) or None, ``repaired`` (B, K, W)), in the caller's units, dtype and batch axis."""
+        samples = None if out["samples"] is None else self.poses(out["samples"])
+        return self.poses(out["mean"]), samples, self.repaired(out["repaired"]), self.times
+
+
+def model_window(
+    obs: ArrayLike, mask: Optional[ArrayLike], num_joints: int, window: int, units: Units, *, repair: bool = False
+) -> Window:
+    """Checks ``obs`` / ``mask`` (see :meth:`TCD.forecast`) and converts the model's window of them (the
+    module docstring's length rule: its last ``window`` frames, padded at the start with missing frames when
+    shorter) to (B, K, window) float32. ``repair``: more than ``window`` frames is an error."""
+    p = validate_poses(obs, mask, num_joints=num_joints, units=units)
+    a4, full, dtype = p.values, p.observed, p.dtype
+    b, t = a4.shape[:2]
+    if repair and t > window:
+        raise InvalidInputError(
+            f"Argument `obs` must span at most the model's window ({window} frames) to be repaired in one call, "
+            f"but received {t} frames: repair longer sequences with tcd.repair_file (overlapping windows).",
+            "obs",
+        )
+    start = t - window
+    if start < 0:
+        pad = (b, -start) + a4.shape[2:]
+        a4w = np.concatenate([np.zeros(pad, a4.dtype), a4], axis=1)
+        full_w = np.concatenate([np.zeros(pad, bool), full], axis=1)
+    else:
+        a4w, full_w = a4[:, start:], full[:, start:]
+    check_window(full_w, window, p.batched)
+    scale = UNIT_SCALE[units]
+    x = np.where(full_w, a4w, 0.0)
+    if scale != 1.0:
+        x = x / scale
+    k = num_joints * 3
+    observed = np.ascontiguousarray(x.astype(np.float32).reshape(b, window, k).transpose(0, 2, 1))
+    mask_bkt = np.ascontiguousarray(full_w.astype(np.float32).reshape(b, window, k).transpose(0, 2, 1))
+    return Window(observed, mask_bkt, a4, full, p.batched, scale, dtype, start)

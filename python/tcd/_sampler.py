@@ -1,18 +1,18 @@
-"""How each chain is sampled: the one home of the sampler settings, their defaults and their checks.
+"""How each chain is sampled: :class:`SamplerOptions`, the one carrier of the sampler settings from the caller to
+the engine.
 
-Every layer that samples (``TCD.forecast`` / ``TCD.repair`` / ``TCD.predict``, :class:`tcd.engine.Denoiser`,
-:func:`tcd.engine.cascade_raw`, :func:`tcd.engine.repair_raw`, :func:`tcd.repair_file`, the command line) takes
-the settings as keyword arguments (``sampler``, ``num_inference_steps``, ``eta``, ``timestep_spacing``) and reads
-them with :meth:`SamplerOptions.build`; the binding converts the resulting :class:`SamplerOptions` into the engine's
-``SamplerConfig`` in one place (``SamplerOptions`` in crates/tcd-py/src/convert.rs, a ``FromPyObject``).
-The values are checked by the engine's rules (``SamplerConfig::from_names``), when an options object is
-made and again when it is used; Python checks only that each field has the Python type the binding reads.
+It is made once, from keywords (``SamplerOptions(sampler="ddim", num_inference_steps=10)``), from keywords over a
+model's defaults (:meth:`tcd.TCD.sampler_options`, :meth:`SamplerOptions.build`), from a model directory's
+``sampling.json`` or from the command line's sampler flags, and every call that samples takes it as its
+``sampler`` argument (``None`` where a model's default applies). The engine checks its values once, when it is
+made: the object holds the engine's checked sampler (``_engine``, a ``tcd._native.Sampler``), which the binding
+reads on every call without checking again.
 """
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields
-from typing import Any, Optional
+from dataclasses import asdict, astuple, dataclass, fields
+from typing import Any, Optional, Tuple
 
 from . import _checks, _native
 
@@ -24,11 +24,10 @@ COUPLINGS = tuple(_native.COUPLINGS)
 
 @dataclass(frozen=True)
 class SamplerOptions:
-    """The sampler of every chain. Checked when made (each bad value an
-    :class:`~tcd.exceptions.InvalidInputError` naming the field); the number of steps is checked against a
-    model's training steps when the model samples. Calls take these fields as keyword arguments, never the
-    object; it is the record of a run's settings (``tcd._repair.RepairOptions.sampling``) and what the
-    binding reads.
+    """The sampler of every chain, and the one place its fields are listed. Checked when made (each bad value
+    an :class:`~tcd.exceptions.InvalidInputError` naming the field); the number of steps is checked against a
+    model's training steps when the model samples. Every call that samples takes one as ``sampler``; it is
+    also the record of a run's settings (``RepairOptions.sampling``, a results file's ``sampling``).
 
     Attributes:
         sampler: ``"ddpm"`` (ancestral, the paper's), ``"ddim"`` (``eta``) or ``"dpmpp2m"``
@@ -60,25 +59,32 @@ class SamplerOptions:
         set_(self, "eta", _checks.real("eta", self.eta))
         set_(self, "timestep_spacing", _checks.text("timestep_spacing", self.timestep_spacing, SPACINGS))
         set_(self, "noise_coupling", _checks.text("noise_coupling", self.noise_coupling, COUPLINGS))
-        _native.check_sampler_options(self)  # the values, by the engine's rules
+        # The values, by the engine's rules, once: every call hands this checked sampler to the engine.
+        set_(self, "_engine", _native.Sampler(*astuple(self)))
+
+    def __reduce__(self) -> Tuple[Any, ...]:
+        """Pickled as its fields (``tcd repair --ray`` sends its options to the workers); made and checked
+        again where it is unpickled."""
+        return (type(self), astuple(self))
 
     @classmethod
-    def build(cls, defaults: Optional["SamplerOptions"] = None, **sampler: Any) -> "SamplerOptions":
-        """The settings named in ``sampler`` (the sampler keywords of a call), ``defaults`` for the rest (a
-        model's own defaults, :attr:`tcd.TCD.sampling`; ``None``: this class's). Naming a ``sampler`` other
+    def build(cls, defaults: Optional["SamplerOptions"] = None, **changes: Any) -> "SamplerOptions":
+        """The fields named in ``changes`` (a dict's, a ``sampling.json`` task's or the command line's sampler
+        flags), ``defaults`` for the rest (a model's own defaults, :attr:`tcd.TCD.sampling`; ``None``: this
+        class's). Naming a ``sampler`` other
         than the default's drops the default's other fields too (its step count and ``eta`` belong to it):
         ``sampler="ddpm"`` alone is the paper's DDPM over every step whatever the model's default. An unknown
         name is a ``TypeError`` naming the valid ones; a bad value an
         :class:`~tcd.exceptions.InvalidInputError` naming its field."""
         names = {f.name for f in fields(cls)}
-        unknown = sorted(set(sampler) - names)
+        unknown = sorted(set(changes) - names)
         if unknown:
             raise TypeError(
                 f"unexpected keyword argument {unknown[0]!r} (sampler settings: {', '.join(sorted(names))})"
             )
-        if defaults is None or sampler.get("sampler", defaults.sampler) != defaults.sampler:
-            return cls(**sampler)
-        return cls(**{**asdict(defaults), **sampler})
+        if defaults is None or changes.get("sampler", defaults.sampler) != defaults.sampler:
+            return cls(**changes)
+        return cls(**{**asdict(defaults), **changes})
 
     def describe(self, num_train_timesteps: int) -> str:
         """One line for people: ``"ddim, 1 step (eta 0, trailing spacing)"`` (``None`` steps: every training step),
@@ -87,3 +93,12 @@ class SamplerOptions:
         extra = f"eta {self.eta:g}, " if self.sampler == "ddim" else ""
         coupled = ", centred noise" if self.noise_coupling == "centered" else ""
         return f"{self.sampler}, {n} step{'' if n == 1 else 's'} ({extra}{self.timestep_spacing} spacing{coupled})"
+
+
+def checked(value: Any, name: str = "sampler") -> SamplerOptions:
+    """``value`` as a call's sampler: a :class:`SamplerOptions`; an :class:`~tcd.exceptions.InvalidInputError`
+    naming ``name`` for anything else (sampler keywords are not taken: make the object from them)."""
+    if not isinstance(value, SamplerOptions):
+        hint = f"tcd.SamplerOptions(sampler={value!r})" if isinstance(value, str) else "tcd.SamplerOptions(...)"
+        raise _checks.fail(name, f"a tcd.SamplerOptions (e.g. {hint})", repr(value))
+    return value

@@ -19,15 +19,13 @@ the last ``obs_len`` of them, a shorter observation padded at the start with mis
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any, Callable, Dict, Optional, Tuple, cast
+from typing import TYPE_CHECKING, Any, Dict, Optional, Tuple, cast
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from . import _checks, wild
 from ._poses import UNIT_SCALE, Units, check_window, validate_poses
-from ._progress import Progress
-from .engine import Denoiser, repair_raw
 from .exceptions import InvalidInputError
 from .layouts import get_layout
 from .wild import Up
@@ -35,7 +33,7 @@ from .wild import Up
 if TYPE_CHECKING:
     from ._model import TCD
 
-__all__ = ["forecast", "repair"]
+__all__ = ["WildWindow", "own_layout"]
 
 
 def _fps(value: Any, model_fps: float) -> float:
@@ -199,133 +197,100 @@ def _to_caller(
     return (y if p.batched else y[..., 0, :, :, :]), at
 
 
-def _own_forecast(
-    model: Any,
-    own: str,
-    obs: Any,
-    mask: Any,
-    *,
-    layout: Any,
-    fps: Any,
-    up: Any,
-    units: str,
-    run: Callable[[np.ndarray, np.ndarray], Dict[str, Any]],
-) -> Tuple[Any, ...]:
-    p, src_fps, times, root, world, observed, seen = _own_prepare(
-        model, own, obs, mask, layout, fps, up, units, model.obs_len
-    )
-    out = run(observed, seen)
-    h, model_fps, scale = model.horizon, float(model.fps), UNIT_SCALE[units]
-    root_f = _own_future_root(root, h, model_fps)
-    rep_w = world(out["repaired"], root)
-    mean, at = _to_caller(p, world(out["mean"], root_f), rep_w[:, -1:], h, model_fps, src_fps, scale)
-    samples = (
-        None
-        if out["samples"] is None
-        else _to_caller(p, world(out["samples"], root_f), rep_w[:, -1:], h, model_fps, src_fps, scale)[0]
-    )
-    return mean, samples, _repaired(p, rep_w, times, scale), at
+class WildWindow:
+    """Poses from the wild converted into the model's window, and the model's outputs converted back: what
+    :meth:`tcd.TCD.forecast`, :meth:`~tcd.TCD.predict` and :meth:`~tcd.TCD.repair` wrap around a model-layout call
+    (convert in, call, convert out). ``observed`` and ``mask`` are the engine's (B, K, ``frames``) window; a model in
+    its own layout (:func:`own_layout`) converts as the module docstring says."""
 
+    def __init__(
+        self,
+        model: "TCD",
+        obs: ArrayLike,
+        mask: Optional[ArrayLike],
+        *,
+        layout: str,
+        fps: Optional[float],
+        up: Up,
+        units: Units,
+        frames: int,
+    ) -> None:
+        self.own = own_layout(model)
+        self.units, self.horizon = units, model.horizon
+        self.model_fps = float(cast(float, model.fps)) if model.fps is not None else None
+        if self.own is not None:
+            p, src_fps, times, root, world, observed, seen = _own_prepare(
+                model, self.own, obs, mask, layout, fps, up, units, frames
+            )
+            self.root, self.world = root, world
+        else:
+            p, src_fps, scene, times, observed, seen = _prepare(model, obs, mask, layout, fps, up, units, frames)
+            self.scene = scene
+        self.p, self.src_fps, self.times = p, src_fps, times
+        self.observed, self.mask = observed, seen
 
-def forecast(
-    model: "TCD",
-    obs: ArrayLike,
-    mask: Optional[ArrayLike],
-    *,
-    layout: str,
-    fps: Optional[float],
-    up: Up,
-    units: Units,
-    run: Callable[[np.ndarray, np.ndarray], Dict[str, Any]],
-) -> Tuple[Any, ...]:
-    """(mean, samples, repaired, times): the forecast in the caller's layout, coordinates, units and frame
-    rate, ``times`` the seconds of each forecast frame after the last observed one. ``run(observed, seen)``
-    forecasts in the model's space and layout ((B, K, T) in, a dict of ``mean`` (B, K, H), ``samples``
-    (S, B, K, H) or None and ``repaired`` (B, K, T) out): the cascade (:meth:`TCD.forecast`) or the prior
-    (:meth:`TCD.predict`). A model in its own layout (:func:`own_layout`) converts as the module docstring says."""
-    own = own_layout(model)
-    if own is not None:
-        return _own_forecast(model, own, obs, mask, layout=layout, fps=fps, up=up, units=units, run=run)
-    p, src_fps, scene, times, observed, seen = _prepare(model, obs, mask, layout, fps, up, units, model.obs_len)
-    out = run(observed, seen)
-    h, model_fps = model.horizon, float(cast(float, model.fps))  # not None: _prepare checked it
-    root_f, rot_f = wild.future_frames(scene, h, model_fps, wild.ROOT_DAMPING_S)
-    mean_w = wild.from_model(_model_poses(out["mean"]), scene, root_f, rot_f, own_frames=False)
-    samples_w = (
-        None
-        if out["samples"] is None
-        else wild.from_model(_model_poses(out["samples"]), scene, root_f, rot_f, own_frames=False)
-    )
-    rep_w = wild.from_model(_model_poses(out["repaired"]), scene, scene.root, scene.rot, own_frames=True)
-    # future frames at the caller's rate: model frame k is (k + 1) / model_fps s after the last observed
-    # frame, which is time 0 (the repaired last frame)
-    model_t = np.arange(h + 1) / model_fps
-    n = int(math.floor(h / model_fps * src_fps + 1e-9))
-    at = np.arange(1, n + 1) / src_fps
-    scale = UNIT_SCALE[units]
-
-    # time 0, where the caller frames before the first model frame are interpolated from: each joint where it
-    # was last seen, in the caller's coordinates (Zero-Velocity's start; where the last frame hides a joint or
-    # a hip, neither the model's repair nor a root estimated without the hips is as close), the repaired last
-    # frame for a joint never seen
-    start = np.where(np.isfinite(scene.start[:, None]), scene.start[:, None], rep_w[:, -1:])
-
-    def caller(future_w: np.ndarray) -> np.ndarray:
-        last = np.broadcast_to(start, future_w.shape[:-3] + (1,) + future_w.shape[-2:])
-        y = _at_times(np.concatenate([last, future_w], axis=-3), model_t, at) * scale
-        y = y.astype(p.dtype)
-        return y if p.batched else y[..., 0, :, :, :]
-
-    samples = None if samples_w is None else caller(samples_w)
-    return caller(mean_w), samples, _repaired(p, rep_w, times, scale), at
-
-
-def repair(
-    model: "TCD",
-    den: Denoiser,
-    obs: ArrayLike,
-    mask: Optional[ArrayLike],
-    *,
-    layout: str,
-    fps: Optional[float],
-    up: Up,
-    num_samples: int,
-    sampling: Dict[str, Any],
-    seed: int,
-    units: Units,
-    threads: Optional[int],
-    progress: Progress,
-) -> np.ndarray:
-    """The observation with its missing entries filled by ``den``, in the caller's layout, coordinates,
-    units and frame rate; at most the model's window (longer files: :func:`tcd.repair_file`; a shorter one
-    is padded at the start with missing frames). ``sampling``: the sampler keywords of
-    :func:`tcd.engine.repair_raw`."""
-    own = own_layout(model)
-    if own is not None:
-        p, src_fps, times, root, world, observed, seen = _own_prepare(
-            model, own, obs, mask, layout, fps, up, units, den.obs_len
+    def forecast(self, out: Dict[str, Any]) -> Tuple[Any, ...]:
+        """(mean, samples, repaired, times) from the model's ``out`` (``mean`` (B, K, H), ``samples``
+        (S, B, K, H) or None, ``repaired`` (B, K, T)): the forecast in the caller's layout, coordinates, units and
+        frame rate, ``times`` the seconds of each forecast frame after the last observed one."""
+        p, h, scale = self.p, self.horizon, UNIT_SCALE[self.units]
+        model_fps, src_fps = cast(float, self.model_fps), self.src_fps  # not None: _prepare checked it
+        if self.own is not None:
+            root_f = _own_future_root(self.root, h, model_fps)
+            rep_w = self.world(out["repaired"], self.root)
+            mean, at = _to_caller(p, self.world(out["mean"], root_f), rep_w[:, -1:], h, model_fps, src_fps, scale)
+            samples = (
+                None
+                if out["samples"] is None
+                else _to_caller(p, self.world(out["samples"], root_f), rep_w[:, -1:], h, model_fps, src_fps, scale)[0]
+            )
+            return mean, samples, _repaired(p, rep_w, self.times, scale), at
+        scene = self.scene
+        root_f, rot_f = wild.future_frames(scene, h, model_fps, wild.ROOT_DAMPING_S)
+        mean_w = wild.from_model(_model_poses(out["mean"]), scene, root_f, rot_f, own_frames=False)
+        samples_w = (
+            None
+            if out["samples"] is None
+            else wild.from_model(_model_poses(out["samples"]), scene, root_f, rot_f, own_frames=False)
         )
-    else:
-        p, src_fps, scene, times, observed, seen = _prepare(model, obs, mask, layout, fps, up, units, den.obs_len)
-    if times[0] > 1e-9:
-        raise InvalidInputError(
-            f"Argument `obs` must span at most the model's window ({model.obs_len} frames at {model.fps:g} fps) "
-            f"to be repaired in one call, but received {p.values.shape[1]} frames at {src_fps:g} fps: repair "
-            "longer sequences with tcd.repair_file (overlapping windows).",
-            "obs",
-        )
-    out = repair_raw(
-        den,
-        observed,
-        seen,
-        num_samples=num_samples,
-        seed=seed,
-        threads=threads,
-        progress=progress,
-        **model._repair_fills(den),
-        **sampling,
-    )
-    if own is not None:
-        return _repaired(p, world(out["mean"], root), times, UNIT_SCALE[units])
-    rep_w = wild.from_model(_model_poses(out["mean"]), scene, scene.root, scene.rot, own_frames=True)
-    return _repaired(p, rep_w, times, UNIT_SCALE[units])
+        rep_w = wild.from_model(_model_poses(out["repaired"]), scene, scene.root, scene.rot, own_frames=True)
+        # future frames at the caller's rate: model frame k is (k + 1) / model_fps s after the last observed
+        # frame, which is time 0 (the repaired last frame)
+        model_t = np.arange(h + 1) / model_fps
+        n = int(math.floor(h / model_fps * src_fps + 1e-9))
+        at = np.arange(1, n + 1) / src_fps
+
+        # time 0, where the caller frames before the first model frame are interpolated from: each joint where it
+        # was last seen, in the caller's coordinates (Zero-Velocity's start; where the last frame hides a joint or
+        # a hip, neither the model's repair nor a root estimated without the hips is as close), the repaired last
+        # frame for a joint never seen
+        start = np.where(np.isfinite(scene.start[:, None]), scene.start[:, None], rep_w[:, -1:])
+
+        def caller(future_w: np.ndarray) -> np.ndarray:
+            last = np.broadcast_to(start, future_w.shape[:-3] + (1,) + future_w.shape[-2:])
+            y = _at_times(np.concatenate([last, future_w], axis=-3), model_t, at) * scale
+            y = y.astype(p.dtype)
+            return y if p.batched else y[..., 0, :, :, :]
+
+        samples = None if samples_w is None else caller(samples_w)
+        return caller(mean_w), samples, _repaired(p, rep_w, self.times, scale), at
+
+    def check_one_window(self, model: "TCD") -> None:
+        """A repair takes at most the model's window (longer files: :func:`tcd.repair_file`)."""
+        if self.times[0] > 1e-9:
+            raise InvalidInputError(
+                f"Argument `obs` must span at most the model's window ({model.obs_len} frames at {model.fps:g} fps) "
+                f"to be repaired in one call, but received {self.p.values.shape[1]} frames at {self.src_fps:g} fps: "
+                "repair longer sequences with tcd.repair_file (overlapping windows).",
+                "obs",
+            )
+
+    def repaired(self, mean: np.ndarray) -> np.ndarray:
+        """The observation with its missing entries filled from the model's repair ``mean`` (B, K, T), in the
+        caller's layout, coordinates, units and frame rate."""
+        scale = UNIT_SCALE[self.units]
+        if self.own is not None:
+            return _repaired(self.p, self.world(mean, self.root), self.times, scale)
+        scene = self.scene
+        rep_w = wild.from_model(_model_poses(mean), scene, scene.root, scene.rot, own_frames=True)
+        return _repaired(self.p, rep_w, self.times, scale)

@@ -15,21 +15,20 @@ the z of step i — with S = 1 the ``(num_steps + 1, B, K, L)`` array of ``train
 The deterministic ``sampler="dpmpp2m"`` (DPM-Solver++(2M)) draws no per-step noise: its noise is
 (S, 1, B, K, L), x_T only (:meth:`Denoiser.num_noise_blocks`).
 Pass ``noise`` for bit-exact parity tests, or a ``seed`` for the engine's seeded ChaCha8 streams
-(:func:`seeded_noise` materialises them). The sampler of every call: the keyword arguments ``sampler``,
-``num_inference_steps``, ``eta`` and ``timestep_spacing`` (:class:`tcd.SamplerOptions` has their defaults
-and checks).
+(:func:`seeded_noise` materialises them). The sampler of every call: its ``sampler`` argument, a
+:class:`tcd.SamplerOptions` (default: the paper's DDPM over every training step).
 """
 
 from __future__ import annotations
 
-from typing import Any, Dict, List, Optional, Sequence
+from typing import Dict, List, Optional, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from . import _checks, _native
 from ._attributes import NativeAttribute, NativeModel, PathLike
-from ._sampler import SamplerOptions
+from ._sampler import SamplerOptions, checked
 from ._generator import Generator
 from ._prior import Prior
 from ._progress import Progress, reporter
@@ -53,6 +52,8 @@ STAGE_SHORT: int = _native.STAGE_SHORT
 STAGE_LONG: int = _native.STAGE_LONG
 #: Stream stage of :meth:`Generator.sample` (its noise z, ``num_blocks`` 1, ``length`` 1 in :func:`seeded_noise`).
 STAGE_GENERATOR: int = _native.STAGE_GENERATOR
+#: The sampler of an engine call that names none: the paper's DDPM over every training step.
+DEFAULT_SAMPLER = SamplerOptions()
 
 
 class Denoiser(NativeModel[_native.Denoiser]):
@@ -75,17 +76,15 @@ class Denoiser(NativeModel[_native.Denoiser]):
     num_train_timesteps = NativeAttribute(int, "Diffusion steps the model was trained with.")
 
     # ------------------------------------------------------------------ compute
-    def timesteps(self, **sampler: Any) -> List[int]:
-        """The descending training steps the sampler visits, e.g. ``timesteps(sampler="ddim",
-        num_inference_steps=10)``: the sampler keywords (``sampler``, ``num_inference_steps``, ``eta``,
-        ``timestep_spacing``; :class:`tcd.SamplerOptions`); ``num_inference_steps=None`` (the default)
-        visits all of them."""
-        return list(self._native.timesteps(SamplerOptions.build(**sampler)))
+    def timesteps(self, sampler: SamplerOptions = DEFAULT_SAMPLER) -> List[int]:
+        """The descending training steps ``sampler`` visits, e.g. ``timesteps(tcd.SamplerOptions(sampler="ddim",
+        num_inference_steps=10))``; ``num_inference_steps=None`` (the default) visits all of them."""
+        return list(self._native.timesteps(checked(sampler)))
 
-    def num_noise_blocks(self, **sampler: Any) -> int:
+    def num_noise_blocks(self, sampler: SamplerOptions = DEFAULT_SAMPLER) -> int:
         """The second axis of injected noise: n + 1 (x_T, then one z per step) for ddpm / ddim, 1 (x_T
-        only) for the deterministic dpmpp2m. The sampler keywords, as :meth:`timesteps`."""
-        return int(self._native.num_noise_blocks(SamplerOptions.build(**sampler)))
+        only) for the deterministic dpmpp2m."""
+        return int(self._native.num_noise_blocks(checked(sampler)))
 
     def forward(
         self, noisy: ArrayLike, observed: ArrayLike, mask: ArrayLike, step: int, *, threads: Optional[int] = None
@@ -116,18 +115,17 @@ class Denoiser(NativeModel[_native.Denoiser]):
         sequences: Optional[Sequence[int]] = None,
         threads: Optional[int] = None,
         progress: Progress = None,
-        **sampler: Any,
+        sampler: SamplerOptions = DEFAULT_SAMPLER,
     ) -> np.ndarray:
         """``num_samples`` merged samples per sequence: observed, mask (B, K, L) -> (S, B, K, L).
 
         Exactly one of ``noise`` (S, n + 1, B, K, L) — (S, 1, B, K, L) for ``sampler="dpmpp2m"`` — and
         ``seed`` must be given; seeded sequence b draws stream ``first_sequence + b``, or ``sequences[b]``
-        (one id per sequence). The sampler: the keywords ``sampler``, ``num_inference_steps``, ``eta``,
-        ``timestep_spacing`` (:class:`tcd.SamplerOptions`). ``progress``: ``True`` a tqdm bar on stderr, a
-        callable ``f(done, total)`` the count of denoiser forwards about ten times a second (raising in it
+        (one id per sequence). ``sampler``: a :class:`tcd.SamplerOptions`. ``progress``: ``True`` a tqdm bar on
+        stderr, a callable ``f(done, total)`` the count of denoiser forwards about ten times a second (raising in it
         stops the call). Ctrl-C stops the call within about 0.1 s plus one forward (KeyboardInterrupt)."""
         num_samples = _checks.machine_int("num_samples", num_samples)
-        o = SamplerOptions.build(**sampler)
+        o = checked(sampler)
         with reporter(progress, "tcd sample") as callback:
             return self._native.sample(
                 _checks.float32_array("observed", observed),
@@ -155,14 +153,14 @@ def cascade_raw(
     threads: Optional[int] = None,
     progress: Progress = None,
     prior: Optional[Prior] = None,
-    **sampler: Any,
+    sampler: SamplerOptions = DEFAULT_SAMPLER,
 ) -> Dict[str, np.ndarray]:
     """The short-term -> long-term cascade in the engine's layout (``training.diffusion.cascade``).
 
     observed, mask: (B, K, O) with O = ``short.obs_len``. Noise: ``noise_short`` (S, n + 1, B, K, L_s)
     and ``noise_long`` (S, n + 1, B, K, L_l) (one block instead of n + 1 for ``sampler="dpmpp2m"``), or a
-    ``seed`` (streams numbered as in :meth:`Denoiser.sample`). The sampler: its keywords, as in
-    :meth:`Denoiser.sample`. Returns
+    ``seed`` (streams numbered as in :meth:`Denoiser.sample`). ``sampler``: a :class:`tcd.SamplerOptions`, both
+    stages'. Returns
     ``mean`` (B, K, P), ``samples`` (S, B, K, P) (P = L_l - O forecast frames), ``repaired`` (B, K, O) and
     ``short_mean`` (B, K, L_s).
 
@@ -177,7 +175,7 @@ def cascade_raw(
     if prior is not None and not isinstance(prior, Prior):
         raise _checks.fail("prior", "a tcd.engine.Prior or None", type(prior).__name__)
     num_samples = _checks.machine_int("num_samples", num_samples)
-    o = SamplerOptions.build(**sampler)
+    o = checked(sampler)
     with reporter(progress, "tcd forecast") as callback:
         return dict(
             _native.cascade(
@@ -210,14 +208,14 @@ def repair_raw(
     progress: Progress = None,
     fill: Optional[Prior] = None,
     forecaster: Optional[Prior] = None,
-    **sampler: Any,
+    sampler: SamplerOptions = DEFAULT_SAMPLER,
 ) -> Dict[str, np.ndarray]:
     """Fills the mask-0 entries of an observation (B, K, O), O = ``model.obs_len``
     (``training.diffusion.repair``). Returns ``mean`` (B, K, O; observed entries exact) and ``samples``
     (S, B, K, O); ``num_samples`` 0 returns the repair ``fill`` alone as ``mean`` (a model conditioned on it
     only; no chain runs, ``samples`` (0, B, K, O)). Noise: ``noise`` (S, n + 1, B, K, model.seq_len)
-    ((S, 1, ...) for ``sampler="dpmpp2m"``) or a ``seed`` (streams numbered as in :meth:`Denoiser.sample`). The
-    sampler: its keywords, as in :meth:`Denoiser.sample`.
+    ((S, 1, ...) for ``sampler="dpmpp2m"``) or a ``seed`` (streams numbered as in :meth:`Denoiser.sample`).
+    ``sampler``: a :class:`tcd.SamplerOptions`.
 
     ``fill``: the repair fill (a :class:`Prior` with ``anchor`` ``"window"`` over the model's window),
     required where the model is conditioned on it (``cond_fill`` ``"prior"``): before the chains the engine
@@ -232,7 +230,7 @@ def repair_raw(
         if p is not None and not isinstance(p, Prior):
             raise _checks.fail(name, "a tcd.engine.Prior or None", type(p).__name__)
     num_samples = _checks.machine_int("num_samples", num_samples)
-    o = SamplerOptions.build(**sampler)
+    o = checked(sampler)
     with reporter(progress, "tcd repair") as callback:
         return dict(
             _native.repair(

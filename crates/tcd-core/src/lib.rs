@@ -33,11 +33,12 @@ mod config;
 mod control;
 mod denoiser;
 mod error;
-mod forecast;
+mod fill;
 mod generator;
 mod kernels;
 mod nn;
 mod observation;
+mod pipeline;
 mod prior;
 mod rng;
 mod sampler;
@@ -59,11 +60,9 @@ pub use prior::{
 };
 pub use weights::{expected_tensors, Tensor, WeightFile, CONFIG_KEY};
 // Observations and what runs on them.
-pub use denoiser::{fill_linear, fill_rows, fill_spline};
-pub use forecast::{
-    cascade, prior_fill, repair, CascadeNoise, CascadeOutput, ForecastOptions, RepairOutput,
-};
+pub use fill::{fill_linear, fill_rows, fill_spline, prior_fill};
 pub use observation::Observation;
+pub use pipeline::{cascade, repair, CascadeNoise, CascadeOutput, ForecastOptions, RepairOutput};
 // Samplers and their noise.
 pub use rng::{seeded_noise, stage, Noise, NoiseCoupling, Sequences};
 pub use sampler::{sample, Plan, Sampler, SamplerConfig, SamplerKind, TimestepSpacing};

@@ -124,7 +124,7 @@ impl<'py> SamplingArgs<'py> {
             .max()
             .unwrap_or(frames);
         check_work(s, b, k, longest)?;
-        let sampler = self.options.config()?;
+        let sampler = self.options.config();
         let (seed, streams) = seed_args(self.seed, self.first_sequence, self.sequences)?;
         let blocks = stages
             .iter()

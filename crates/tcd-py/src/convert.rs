@@ -80,36 +80,46 @@ pub(crate) fn check_work(
     }
 }
 
-/// `tcd.SamplerOptions` (any object with its five attributes) → the engine's [`SamplerConfig`]: the
-/// one place where the sampler settings cross from Python. Their values are checked by the engine
-/// ([`SamplerConfig::from_names`]), also when the Python type is made (`check_sampler_options`).
+/// The engine's sampler, made once per `tcd.SamplerOptions` (its `_engine`, when the Python object is
+/// made): the one check of the settings' values ([`SamplerConfig::from_names`]) and the one place where
+/// they cross from Python. Every call reads the checked sampler back from there ([`SamplerOptions`]).
+#[pyclass(frozen, name = "Sampler", module = "tcd._native")]
+pub(crate) struct Sampler(SamplerConfig);
+
+#[pymethods]
+impl Sampler {
+    #[new]
+    #[pyo3(signature = (sampler, num_inference_steps, eta, timestep_spacing, noise_coupling))]
+    fn new(
+        sampler: &str,
+        num_inference_steps: Option<i64>,
+        eta: f64,
+        timestep_spacing: &str,
+        noise_coupling: &str,
+    ) -> Result<Self> {
+        let num_inference_steps = num_inference_steps
+            .map(|n| positive("num_inference_steps", n))
+            .transpose()?;
+        Ok(Sampler(SamplerConfig::from_names(
+            sampler,
+            num_inference_steps,
+            eta,
+            timestep_spacing,
+            noise_coupling,
+        )?))
+    }
+}
+
+/// A call's `tcd.SamplerOptions`: the engine's sampler it made when it was made, not checked again.
 #[derive(FromPyObject)]
 pub(crate) struct SamplerOptions {
-    #[pyo3(attribute)]
-    sampler: String,
-    #[pyo3(attribute)]
-    num_inference_steps: Option<i64>,
-    #[pyo3(attribute)]
-    eta: f64,
-    #[pyo3(attribute)]
-    timestep_spacing: String,
-    #[pyo3(attribute)]
-    noise_coupling: String,
+    #[pyo3(attribute("_engine"))]
+    engine: Py<Sampler>,
 }
 
 impl SamplerOptions {
-    pub(crate) fn config(&self) -> CoreResult<SamplerConfig> {
-        let num_inference_steps = self
-            .num_inference_steps
-            .map(|n| positive("num_inference_steps", n))
-            .transpose()?;
-        SamplerConfig::from_names(
-            &self.sampler,
-            num_inference_steps,
-            self.eta,
-            &self.timestep_spacing,
-            &self.noise_coupling,
-        )
+    pub(crate) fn config(&self) -> SamplerConfig {
+        self.engine.get().0.clone()
     }
 }
 

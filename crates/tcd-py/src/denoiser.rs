@@ -39,14 +39,14 @@ model_methods! {
         /// The descending training steps a sampler visits.
         fn timesteps(&self, options: SamplerOptions) -> Result<Vec<usize>> {
             let variance = self.inner.config().diffusion.variance_type;
-            let plan = options.config()?.plan(self.inner.schedule(), variance)?;
+            let plan = options.config().plan(self.inner.schedule(), variance)?;
             Ok(plan.timesteps())
         }
 
         /// Noise blocks per chain, the second axis of injected noise: n + 1 (x_T, then one z per
         /// step), or 1 for the deterministic `dpmpp2m`.
         fn num_noise_blocks(&self, options: SamplerOptions) -> Result<usize> {
-            Ok(noise_blocks(&self.inner, &options.config()?)?)
+            Ok(noise_blocks(&self.inner, &options.config())?)
         }
 
         /// ε̂ = net(noisy, observed, mask, step); all arrays (B, K, L) float32.

@@ -34,8 +34,7 @@ use tcd_core::stage;
 use crate::denoiser::PyDenoiser;
 use crate::generator::PyGenerator;
 use crate::pipeline::{
-    cascade, check_call_settings, check_sampler_options, interpolate, repair, seeded_noise,
-    supported_kernels,
+    cascade, check_call_settings, interpolate, repair, seeded_noise, supported_kernels,
 };
 use crate::prior::PyPrior;
 
@@ -49,12 +48,12 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyDenoiser>()?;
     m.add_class::<PyPrior>()?;
     m.add_class::<PyGenerator>()?;
+    m.add_class::<convert::Sampler>()?;
     m.add_function(wrap_pyfunction!(cascade, m)?)?;
     m.add_function(wrap_pyfunction!(repair, m)?)?;
     m.add_function(wrap_pyfunction!(seeded_noise, m)?)?;
     m.add_function(wrap_pyfunction!(interpolate, m)?)?;
     m.add_function(wrap_pyfunction!(supported_kernels, m)?)?;
-    m.add_function(wrap_pyfunction!(check_sampler_options, m)?)?;
     m.add_function(wrap_pyfunction!(check_call_settings, m)?)?;
     m.add("SAMPLERS", tcd_core::SamplerKind::NAMES.to_vec())?;
     m.add("SPACINGS", tcd_core::TimestepSpacing::NAMES.to_vec())?;

@@ -237,13 +237,6 @@ pub(crate) fn seeded_noise<'py>(
     to_numpy(py, &dims, data)
 }
 
-/// Checks a `tcd.SamplerOptions`'s values with the engine's rules (raises `InvalidInputError`).
-#[pyfunction]
-pub(crate) fn check_sampler_options(options: SamplerOptions) -> Result<()> {
-    options.config()?;
-    Ok(())
-}
-
 /// Checks settings a caller keeps for later calls (`tcd.load(threads=...)`, `tcd repair`'s options) with
 /// the very conversions every call applies to them, so that their ranges have one home (raises
 /// `InvalidInputError` naming the setting).

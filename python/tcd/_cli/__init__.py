@@ -52,7 +52,7 @@ from .common import (
     _BadInput,
     add_sampler_flags,
     flag_message,
-    sampler_keywords,
+    sampler_changes,
     stop_signals,
     stopped,
 )
@@ -68,7 +68,7 @@ __all__ = [
     "SAMPLER_FLAGS",
     "flag_message",
     "add_sampler_flags",
-    "sampler_keywords",
+    "sampler_changes",
 ]
 
 COMMANDS = {"info": info, "forecast": forecast, "demo": demo, "repair": repair}  # in the order of --help

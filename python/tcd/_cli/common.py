@@ -135,10 +135,9 @@ def add_sampler_flags(p: argparse.ArgumentParser, *, tuning: bool = True) -> Non
         )
 
 
-def sampler_keywords(args: argparse.Namespace) -> Dict[str, Any]:
-    """The sampler keywords of the API for the sampler flags given (only those: the model's own defaults,
-    :attr:`tcd.TCD.sampling`, fill the rest), checked by :meth:`SamplerOptions.build` before any file is
-    read; a bad value is an error naming its flag."""
+def sampler_changes(args: argparse.Namespace) -> Dict[str, Any]:
+    """The sampler fields the flags given set (only those: :meth:`tcd.TCD.sampler_options` puts them over the
+    model's own defaults), checked before any file is read; a bad value is an error naming its flag."""
     given = {f: getattr(args, f) for f in SAMPLER_FLAGS if getattr(args, f, None) is not None}
     try:
         checked = dataclasses.asdict(SamplerOptions.build(**given))

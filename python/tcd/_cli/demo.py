@@ -16,7 +16,7 @@ from .common import (
     flag_message,
     load_model,
     output_exists,
-    sampler_keywords,
+    sampler_changes,
     writing,
 )
 
@@ -63,9 +63,15 @@ def run(args: argparse.Namespace) -> int:
             raise _BadInput("--plot needs matplotlib: pip install 'tcd-forecast[plot]'") from None
     model = load_model(args.model)
     samples = demo.DEFAULT_SAMPLES if args.samples is None else args.samples
+    changes = sampler_changes(args)
     try:
         res = demo.run(
-            model, samples=samples, seed=args.seed, threads=args.threads, quiet=args.quiet, **sampler_keywords(args)
+            model,
+            samples=samples,
+            seed=args.seed,
+            threads=args.threads,
+            quiet=args.quiet,
+            sampling={t: model.sampler_options(t, **changes) for t in model.sampling},
         )
     except InvalidInputError as e:
         raise _BadInput(flag_message(e)) from None

@@ -22,7 +22,7 @@ from .common import (
     flag_message,
     load_model,
     output_exists,
-    sampler_keywords,
+    sampler_changes,
     writing,
 )
 
@@ -165,7 +165,7 @@ def run(args: argparse.Namespace) -> int:
         layout, fps = "h36m32", fps if fps is not None else file_fps
     else:
         data = _read_npz(Path(args.input))
-    sampler = sampler_keywords(args)
+    changes = sampler_changes(args)
     model = load_model(args.model)
     if args.point and model.prior is None:
         raise _BadInput(f"--point: the model directory {model.path} has no prior.safetensors.")
@@ -174,6 +174,7 @@ def run(args: argparse.Namespace) -> int:
     if args.point and args.generator_share is not None:
         raise _BadInput("--generator-share splits the samples of a forecast; --point forecasts one point forecast.")
     call = model.predict if args.point else model.forecast
+    sampler = model.sampler_options("repair" if args.point else "forecast", **changes)
     extra = {"fill": args.fill} if args.point else {"tempo": args.tempo, "generator_share": args.generator_share}
     try:
         f = call(
@@ -187,8 +188,8 @@ def run(args: argparse.Namespace) -> int:
             layout=layout,
             fps=fps,
             up=args.up,
+            sampler=sampler,
             **extra,
-            **sampler,
         )
     except InvalidInputError as e:
         raise _BadInput(flag_message(e, FLAGS)) from None

@@ -32,7 +32,7 @@ from .common import (
     add_sampler_flags,
     flag_message,
     load_model,
-    sampler_keywords,
+    sampler_changes,
     stopped,
 )
 
@@ -177,7 +177,7 @@ def run(args: Any) -> int:
         model = load_model(args.model)
         opts = RepairOptions.make(
             model,
-            sampler=sampler_keywords(args),
+            sampler=model.sampler_options("repair", **sampler_changes(args)),
             num_samples=args.samples,
             seed=args.seed,
             units=args.units,

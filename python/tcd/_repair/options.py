@@ -3,7 +3,6 @@ the provenance recorded in every output."""
 
 from __future__ import annotations
 
-import dataclasses
 import os
 from dataclasses import dataclass
 from typing import Any, Dict, Optional, Union
@@ -14,7 +13,7 @@ from .._poses import check_units
 from .._native import __version__
 from ..engine import Denoiser
 from ..layouts import get_layout
-from .._sampler import SamplerOptions
+from .._sampler import SamplerOptions, checked as checked_sampler
 from ..wild import up_vector
 
 PathLike = Union[str, "os.PathLike[str]"]
@@ -51,17 +50,17 @@ class RepairOptions:
     up: str = "y"  # the inputs' vertical axis, for layouts other than the model's
 
     @staticmethod
-    def make(model: Any, *, sampler: Optional[Dict[str, Any]] = None, **kw: Any) -> "RepairOptions":
-        """Checked settings: ``sampler``, the sampler keywords of :func:`repair_file` as a dict (read by
-        :meth:`SamplerOptions.build`); the rest as the other keywords of :func:`repair_file`."""
+    def make(model: Any, *, sampler: Optional[SamplerOptions] = None, **kw: Any) -> "RepairOptions":
+        """Checked settings: ``sampler``, the call's :class:`SamplerOptions` (``None``: the model's
+        ``sampling["repair"]``); the rest as the other keywords of :func:`repair_file`."""
         unknown = sorted(set(kw) - _MAKE_KEYWORDS)
         if unknown:
             raise TypeError(
                 f"unexpected keyword argument {unknown[0]!r} (settings: sampler, {', '.join(sorted(_MAKE_KEYWORDS))})"
             )
-        sampling = model.sampler_options("repair", **(sampler or {}))  # over the model's own defaults
+        sampling = model.sampling["repair"] if sampler is None else checked_sampler(sampler)
         den = _denoiser(model)
-        den.timesteps(**dataclasses.asdict(sampling))  # the step count against the model, before any file is read
+        den.timesteps(sampling)  # the step count against the model, before any file is read
         seed = kw.get("seed", DEFAULT_SEED)
         fps = kw.get("fps")
         if fps is not None:
@@ -112,7 +111,7 @@ def _denoiser(model: Any) -> Denoiser:
 
 def provenance(model: Any, opts: RepairOptions, fps: float) -> Dict[str, Any]:
     den = _denoiser(model)
-    steps = len(den.timesteps(**dataclasses.asdict(opts.sampling)))
+    steps = len(den.timesteps(opts.sampling))
     return {
         "tool": "tcd repair",
         "tcd_version": __version__,

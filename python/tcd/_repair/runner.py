@@ -3,7 +3,6 @@ and :func:`repair_file` for one file."""
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 import os
@@ -18,6 +17,7 @@ import numpy as np
 from ..engine import repair_raw
 from ..exceptions import InvalidInputError
 from .._files import write_npz_atomic
+from .._sampler import SamplerOptions
 from .inputs import load_input, peek_frames
 from .options import (
     DEFAULT_FILES_PER_BATCH,
@@ -154,7 +154,6 @@ def run_tasks(
                 continue
             active.append(Active(i, task, FileJob(loaded, w, opts.overlap, model.fps, opts.units, opts.lookahead), t0))
 
-    sampler = dataclasses.asdict(opts.sampling)  # repair_raw's sampler keywords
     refill()
     while active:
         obs, msk = [], []
@@ -171,8 +170,8 @@ def run_tasks(
             seed=opts.seed,
             sequences=[a.job.k for a in active],
             threads=opts.threads,
+            sampler=opts.sampling,
             **fills,
-            **sampler,
         )
         still: List[Active] = []
         for a, mean in zip(active, out["mean"]):
@@ -230,7 +229,7 @@ def repair_file(
     overwrite: bool = False,
     layout: Optional[str] = None,
     up: str = "y",
-    **sampler: Any,
+    sampler: Optional[SamplerOptions] = None,
 ) -> Dict[str, Any]:
     """Repairs the pose sequence in ``src`` (an ``.npz`` with ``poses`` (T, J, 3), NaN = missing, and an
     optional ``mask``; or a Human3.6M exp-map ``.txt``) of any length T, and writes ``dst`` (an ``.npz``
@@ -250,8 +249,7 @@ def repair_file(
         units: ``"m"``, ``"cm"`` or ``"mm"``, the units of the poses (and of the output).
         layout, up: poses in another joint layout (:mod:`tcd.layouts`), in world or camera coordinates with
             ``up`` the vertical axis: converted to the model's convention and back (:mod:`tcd.wild`).
-        ``**sampler``: the sampler keywords (``sampler``, ``num_inference_steps``, ``eta``,
-            ``timestep_spacing``; :class:`tcd.SamplerOptions`).
+        sampler: a :class:`tcd.SamplerOptions`; ``None`` the model's ``sampling["repair"]``.
         Others: as :meth:`tcd.TCD.repair`.
 
     Returns a summary dict (``status``, ``frames``, ``missing_values``, ``windows``, ...). Raises

@@ -20,7 +20,7 @@
 //! * `forward.rs`: the public forward calls (checks) and the per-sequence dispatch;
 //! * `portable.rs`: one sequence on the portable layers of [`crate::nn`];
 //! * `packed.rs`: one sequence on the SIMD kernels (weights packed at load);
-//! * `fill.rs`: the network input and the observed channel's fills ([`fill_linear`], [`fill_spline`]).
+//! * `input.rs`: the network input (its observed channel filled along time: [`crate::fill`]).
 
 use std::path::{Path, PathBuf};
 
@@ -29,14 +29,13 @@ use crate::kernels::Kernel;
 use crate::nn::{EncoderLayer, Linear};
 use crate::schedule::NoiseSchedule;
 
-mod fill;
 mod forward;
+mod input;
 mod load;
 mod packed;
 mod portable;
 mod workspace;
 
-pub use fill::{fill_linear, fill_rows, fill_spline};
 pub(crate) use forward::SequenceInputs;
 pub(crate) use workspace::CondTables;
 pub use workspace::{Prepared, Workspace};

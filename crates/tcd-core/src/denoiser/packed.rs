@@ -3,8 +3,8 @@
 
 use rayon::prelude::*;
 
-use super::fill::build_input;
 use super::forward::SequenceInputs;
+use super::input::build_input;
 use super::workspace::Workspace;
 use super::Denoiser;
 use crate::kernels::{

@@ -1,8 +1,8 @@
 //! One sequence through the network on the portable layers of [`crate::nn`] (the reference
 //! implementation; any target).
 
-use super::fill::build_input;
 use super::forward::SequenceInputs;
+use super::input::build_input;
 use super::workspace::Workspace;
 use super::Denoiser;
 use crate::nn::activation::{map_inplace, relu, sigmoid};

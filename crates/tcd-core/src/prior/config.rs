@@ -70,7 +70,7 @@ pub enum GapFill {
     #[default]
     None,
     /// With the prior forecaster (`prior.safetensors`) run forward into the gap and backward into it
-    /// (`crate::forecast`'s gap fill), averaged with the correction of the spline.
+    /// (`crate::fill`'s gap fill), averaged with the correction of the spline.
     Forecaster,
 }
 
@@ -90,7 +90,7 @@ pub enum Anchor {
     Last,
     /// The input window itself (`chunk` = `obs_len`): the output is that window corrected. A repair
     /// fill: its input is the natural cubic spline through a masked window's observed entries
-    /// ([`crate::forecast::repair`]).
+    /// ([`crate::pipeline::repair`]).
     Window,
 }
 

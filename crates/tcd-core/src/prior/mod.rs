@@ -13,7 +13,7 @@
 //!
 //! A prior with `anchor` [`Anchor::Window`] (`chunk` = L) adds the output to its input window instead of
 //! the last pose: it corrects a window rather than forecasting one, and is the repair fill of
-//! [`crate::forecast::repair`] (its input the spline through a masked window's observed entries).
+//! [`crate::pipeline::repair`] (its input the spline through a masked window's observed entries).
 //!
 //! # Layouts
 //! * Public arrays are **frame-major (B, T, K)** row-major f32, index `b·T·K + t·K + k` (unlike the
