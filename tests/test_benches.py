@@ -618,12 +618,13 @@ def test_repair_gap_refiner_starts_as_the_fill_and_moves_hidden_frames_only():
     assert torch.equal(out[seen], fill[seen]) and not torch.equal(out[~seen], fill[~seen])
 
 
-def test_humaneva_imle_mlp_starts_as_the_prior_and_pulls_each_target_s_nearest_draw():
-    """benches/humaneva_imle_mlp.py: the untrained generator is the prior's forecast whatever the noise, and the
+def test_generator_imle_starts_as_the_prior_and_pulls_each_target_s_nearest_draw():
+    """training/generator_imle.py: the untrained generator is the prior's forecast whatever the noise, and the
     IMLE loss is the mean over targets of the distance to the nearest of the draws (the same seeded draws,
     searched by brute force here), or, given a rival's distances, of the nearer of the two."""
-    torch = import_torch("benches/humaneva_imle_mlp.py")
-    bench = load_bench("humaneva_imle_mlp")
+    torch = import_torch("training/generator_imle.py")
+    import training.generator_imle as bench
+
     gen = bench.Generator(coords=6, hidden=16, layers=2, z_dim=4, coefs=5)
     g = torch.Generator().manual_seed(0)
     obs, prior = torch.randn(3, 15, 6, generator=g), torch.randn(3, 60, 6, generator=g)

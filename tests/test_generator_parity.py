@@ -7,7 +7,7 @@ Weights (the same file on both sides: the reference is loaded back from it with 
   a seeded normal head of std 8/sqrt(hidden) (the trained init's zero head would be the prior, testing nothing):
   the samples lie up to a few tenths of a metre from the prior's forecast (``pytest -s`` prints it);
 * ``bundled``: ``python/tcd/weights_humaneva/generator.safetensors`` where the package has one (skipped
-  otherwise), trained with IMLE by ``benches/humaneva_imle_mlp.py``.
+  otherwise), trained with IMLE by ``training/generator_imle.py``.
 Inputs: 15-frame windows of the bundled HumanEva-I demo clip (real motion) and the bundled HumanEva-I prior's
 forecast of them; the noise z (S, B, 64) injected, the same array on both sides.
 

@@ -10,7 +10,7 @@ MLP"), so the bundled directory draws half its samples from each. The generator:
     out   = prior + IDCT_P(y)                   y (C, K): the first C DCT coefficients of a residual
 
 Its head starts at zero, so the untrained generator is the prior. It is trained with IMLE (Li and Malik 2018) by
-``benches/humaneva_imle_mlp.py``: each window's targets pull the nearest of its candidates' samples.
+``training/generator_imle.py``: each window's targets pull the nearest of its candidates' samples.
 
 Its file, ``generator.safetensors`` in a model directory, holds the MLP's tensors ``layers.{i}.weight`` /
 ``layers.{i}.bias`` (i < layers) and ``head.weight`` / ``head.bias`` (PyTorch's (out, in) layout; the DCT is no
@@ -24,7 +24,7 @@ The Rust engine runs it (``tcd.engine.Generator``), its noise from its own seede
 ``tcd.engine.STAGE_GENERATOR``); ``tests/test_generator_parity.py`` checks the two agree.
 
     python -m training.generator --state-dict runs/he_mlp/stageC.pt --out models/humaneva \\
-        --description "IMLE, 7,149 steps, benches/humaneva_imle_mlp.py"
+        --description "IMLE, 7,149 steps, training/generator_imle.py"
 """
 
 from __future__ import annotations
@@ -50,7 +50,7 @@ from .export import (
 from .prior import dct_matrix
 
 #: the bundled HumanEva-I generator's sizes: hidden width, hidden layers, noise values, DCT coefficients (the
-#: defaults of ``benches/humaneva_imle_mlp.py`` and of this module's command line)
+#: defaults of ``training/generator_imle.py`` and of this module's command line)
 HIDDEN, LAYERS, Z_DIM, COEFS = 768, 3, 64, 20
 
 
@@ -180,7 +180,7 @@ def load_generator_file(path: str | Path) -> tuple[Generator, dict]:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--state-dict", required=True, help="a Generator state dict (benches/humaneva_imle_mlp.py --save)")
+    ap.add_argument("--state-dict", required=True, help="a Generator state dict (python -m training.generator_imle --save)")
     ap.add_argument("--out", required=True, help="the model directory (or .safetensors file) to write")
     ap.add_argument("--hidden", type=int, default=HIDDEN)
     ap.add_argument("--layers", type=int, default=LAYERS)

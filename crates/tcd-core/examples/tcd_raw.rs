@@ -161,10 +161,7 @@ fn main() -> R<()> {
                 None,
                 &Observation::new(&observed, &mask, [b, short.num_features(), short.obs_len()])?,
                 &opts,
-                CascadeNoise::Seeded {
-                    seed,
-                    sequences: Sequences::From(0),
-                },
+                CascadeNoise::seeded(seed, Sequences::From(0)),
                 &Control::default(),
             )?;
             let prefix = arg(&args, 12, "OUT_PREFIX")?;

@@ -16,7 +16,7 @@
 //! let mask = vec![1.0f32; b * k * o];   // 1 = observed
 //! let observed = Observation::new(&values, &mask, [b, k, o])?; // checked here, once
 //! let out = cascade(&short, &long, None, &observed, &ForecastOptions::default(),
-//!                   CascadeNoise::Seeded { seed: 0, sequences: Sequences::From(0) }, &Control::default())?;
+//!                   CascadeNoise::seeded(0, Sequences::From(0)), &Control::default())?;
 //! assert_eq!(out.mean.len(), b * k * out.future_len);
 //! # Ok(()) }
 //! ```

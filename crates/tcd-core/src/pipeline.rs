@@ -56,22 +56,31 @@ impl Default for ForecastOptions {
     }
 }
 
-/// The noise of a cascade.
+/// The noise of a cascade: one [`Noise`] per stage. A seeded stage draws its own streams (stage
+/// [`stage::SHORT`] or [`stage::LONG`] of its seed), so one seed for both is [`CascadeNoise::seeded`].
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub enum CascadeNoise<'a> {
-    /// Standard normals per stage: `short` (S, n + 1, B, K, L_s), `long` (S, n + 1, B, K, L_l).
-    Injected { short: &'a [f32], long: &'a [f32] },
-    /// Seeded ChaCha8 streams (see [`Noise`]); both stages number sequences alike.
-    Seeded { seed: u64, sequences: Sequences<'a> },
+pub struct CascadeNoise<'a> {
+    /// The short-term stage's: injected (S, n + 1, B, K, L_s) or seeded.
+    pub short: Noise<'a>,
+    /// The long-term stage's: injected (S, n + 1, B, K, L_l) or seeded.
+    pub long: Noise<'a>,
 }
 
-impl CascadeNoise<'_> {
-    fn stage(&self, long: bool) -> Noise<'_> {
-        match *self {
-            CascadeNoise::Injected { short, long: l } => {
-                Noise::Injected(if long { l } else { short })
-            }
-            CascadeNoise::Seeded { seed, sequences } => Noise::Seeded { seed, sequences },
+impl<'a> CascadeNoise<'a> {
+    /// Both stages from `seed`'s streams, sequences numbered alike.
+    pub fn seeded(seed: u64, sequences: Sequences<'a>) -> Self {
+        let noise = Noise::Seeded { seed, sequences };
+        CascadeNoise {
+            short: noise,
+            long: noise,
+        }
+    }
+
+    /// Caller-supplied standard normals per stage.
+    pub fn injected(short: &'a [f32], long: &'a [f32]) -> Self {
+        CascadeNoise {
+            short: Noise::Injected(short),
+            long: Noise::Injected(long),
         }
     }
 }
@@ -248,7 +257,7 @@ pub fn cascade(
         Observation::checked_by_construction(&x_long_placeholder, &m_long, long_shape),
         s,
         &options.sampler,
-        noise.stage(true),
+        noise.long,
         long_noise_name,
         stage::LONG,
     )?
@@ -259,7 +268,7 @@ pub fn cascade(
         Observation::checked_by_construction(&x_short, &m_short, [batch, k, ls]),
         s,
         &options.sampler,
-        noise.stage(false),
+        noise.short,
         "noise.short",
         stage::SHORT,
     )?;
@@ -279,7 +288,7 @@ pub fn cascade(
         Observation::checked_by_construction(&x_long, &m_long, long_shape),
         s,
         &options.sampler,
-        noise.stage(true),
+        noise.long,
         long_noise_name,
         stage::LONG,
     )?;

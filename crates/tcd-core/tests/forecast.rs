@@ -38,10 +38,7 @@ fn cascade_shapes_and_invariants() {
         num_samples: s,
         sampler: SamplerConfig::ddim(4, 0.5),
     };
-    let noise = CascadeNoise::Seeded {
-        seed: 4,
-        sequences: Sequences::From(0),
-    };
+    let noise = CascadeNoise::seeded(4, Sequences::From(0));
     let out = cascade(
         &short,
         &long,
@@ -106,10 +103,7 @@ fn cascade_short_stage_is_plain_sampling() {
         None,
         &Observation::new(&observed, &mask, [b, k, o]).unwrap(),
         &opts,
-        CascadeNoise::Seeded {
-            seed: 8,
-            sequences: Sequences::From(0),
-        },
+        CascadeNoise::seeded(8, Sequences::From(0)),
         &Control::default(),
     )
     .unwrap();
@@ -149,10 +143,7 @@ fn cascade_thread_independent_and_injected_equals_seeded() {
         num_samples: s,
         sampler: SamplerConfig::ddim(3, 1.0),
     };
-    let seeded = CascadeNoise::Seeded {
-        seed: 12,
-        sequences: Sequences::From(0),
-    };
+    let seeded = CascadeNoise::seeded(12, Sequences::From(0));
     let one = in_pool(1, || {
         cascade(
             &short,
@@ -186,10 +177,7 @@ fn cascade_thread_independent_and_injected_equals_seeded() {
         None,
         &Observation::new(&observed, &mask, [b, k, o]).unwrap(),
         &opts,
-        CascadeNoise::Injected {
-            short: &ns,
-            long: &nl,
-        },
+        CascadeNoise::injected(&ns, &nl),
         &Control::default(),
     )
     .unwrap();
@@ -200,10 +188,7 @@ fn cascade_thread_independent_and_injected_equals_seeded() {
         None,
         &Observation::new(&observed, &mask, [b, k, o]).unwrap(),
         &opts,
-        CascadeNoise::Seeded {
-            seed: 13,
-            sequences: Sequences::From(0),
-        },
+        CascadeNoise::seeded(13, Sequences::From(0)),
         &Control::default(),
     )
     .unwrap();
@@ -270,10 +255,7 @@ fn cascade_errors() {
         num_samples: 1,
         sampler: SamplerConfig::ddim(2, 0.0),
     };
-    let seeded = CascadeNoise::Seeded {
-        seed: 0,
-        sequences: Sequences::From(0),
-    };
+    let seeded = CascadeNoise::seeded(0, Sequences::From(0));
     // swapped models: the long model's obs_len (8) is not the short seq_len
     let e = cascade(
         &long,
@@ -314,10 +296,7 @@ fn cascade_errors() {
         None,
         &Observation::new(&observed, &mask, [1, k, 6]).unwrap(),
         &opts,
-        CascadeNoise::Injected {
-            short: &ns,
-            long: &nl,
-        },
+        CascadeNoise::injected(&ns, &nl),
         &Control::default(),
     )
     .unwrap_err();
@@ -467,10 +446,7 @@ fn cascade_with_a_prior_conditioned_pair_fills_each_stage_once() {
             let blocks = plan.num_noise_blocks();
             let ns = values(s * blocks * b * k * 8, 54, 1.5);
             let nl = values(s * blocks * b * k * 12, 55, 1.5);
-            let noise = CascadeNoise::Injected {
-                short: &ns,
-                long: &nl,
-            };
+            let noise = CascadeNoise::injected(&ns, &nl);
             let out = cascade(
                 &short,
                 &long,
@@ -554,10 +530,7 @@ fn cascade_with_a_prior_conditioned_pair_fills_each_stage_once() {
             num_samples: 1,
             sampler: SamplerConfig::ddim(3, 0.0),
         };
-        let seeded = CascadeNoise::Seeded {
-            seed: 5,
-            sequences: Sequences::From(0),
-        };
+        let seeded = CascadeNoise::seeded(5, Sequences::From(0));
         let one = cascade(
             &short,
             &long,
@@ -608,10 +581,7 @@ fn prior_conditioned_models_need_a_fitting_prior_and_repair_only_with_a_fill() {
         num_samples: 1,
         sampler: SamplerConfig::ddim(2, 0.0),
     };
-    let seeded = CascadeNoise::Seeded {
-        seed: 0,
-        sequences: Sequences::From(0),
-    };
+    let seeded = CascadeNoise::seeded(0, Sequences::From(0));
     let run = |s: &Denoiser, l: &Denoiser, p: Option<&tcd_core::Prior>| {
         cascade(
             s,

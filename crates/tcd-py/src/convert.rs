@@ -119,7 +119,7 @@ pub(crate) struct SamplerOptions {
 
 impl SamplerOptions {
     pub(crate) fn config(&self) -> SamplerConfig {
-        self.engine.get().0.clone()
+        self.engine.get().0
     }
 }
 

@@ -65,14 +65,9 @@ pub(crate) fn cascade<'py>(
     let call = args.prepare(Window::ObsLen("the short-term model's"), stages)?;
     let out = call.run(py, |job, control| {
         let noise = match &job.noise {
-            [NoiseSource::Injected(a), NoiseSource::Injected(c)] => {
-                CascadeNoise::Injected { short: a, long: c }
-            }
+            [NoiseSource::Injected(a), NoiseSource::Injected(c)] => CascadeNoise::injected(a, c),
             [NoiseSource::Seeded(seed, streams), _] | [_, NoiseSource::Seeded(seed, streams)] => {
-                CascadeNoise::Seeded {
-                    seed: *seed,
-                    sequences: streams.as_sequences(),
-                }
+                CascadeNoise::seeded(*seed, streams.as_sequences())
             }
         };
         core_cascade(

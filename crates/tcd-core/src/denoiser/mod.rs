@@ -132,4 +132,23 @@ impl Denoiser {
         let d = self.config.model.diffusion_embedding_dim;
         self.step_embedding.get(step * d..(step + 1) * d)
     }
+
+    /// A chain's result `x` (K·L values of one sequence, in the model's target space) back in poses: for a
+    /// residual target, `fill + x / target_scale` at every entry, the fill taken along time from `observed`
+    /// and `mask` as the target was ([`crate::config::Target::residual_fill`]); an absolute target is left
+    /// as it is. The observed entries are merged afterwards by the sampler.
+    pub(crate) fn to_poses(&self, x: &mut [f32], mask: &[f32], observed: &[f32]) {
+        let m = &self.config.model;
+        if let Some(fill) = m.target.residual_fill() {
+            let inv = (1.0 / m.target_scale) as f32;
+            let length = x.len() / self.num_features();
+            for ((row, mr), or) in x
+                .chunks_exact_mut(length)
+                .zip(mask.chunks_exact(length))
+                .zip(observed.chunks_exact(length))
+            {
+                fill.fill_row(mr, or, |ll, v| row[ll] = v + row[ll] * inv);
+            }
+        }
+    }
 }

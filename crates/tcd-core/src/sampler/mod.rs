@@ -511,18 +511,7 @@ pub(crate) fn run_chain(
         }
         sampler.step(&mut x, &mut eps, &z)?;
     }
-    let m = &denoiser.config().model;
-    if let Some(fill) = m.target.residual_fill() {
-        let inv = (1.0 / m.target_scale) as f32;
-        let length = n / denoiser.num_features();
-        for ((row, mr), or) in x
-            .chunks_exact_mut(length)
-            .zip(mask.chunks_exact(length))
-            .zip(observed.chunks_exact(length))
-        {
-            fill.fill_row(mr, or, |ll, v| row[ll] = v + row[ll] * inv);
-        }
-    }
+    denoiser.to_poses(&mut x, mask, observed);
     merge_observed(&mut x, observed, mask);
     Ok(x)
 }

@@ -1,36 +1,31 @@
-"""How much a plain MLP generator trained with IMLE learns per CPU-minute on HumanEva-I (issue 31): a lead, not a model.
+"""The trainer of the HumanEva-I MLP sample generator (``generator.safetensors``; recipe
+``training/recipes/humaneva-generator.json``), by IMLE around the prior's forecast.
 
-The bundled HumanEva-I long model (a 5 x 32 CSDI-style transformer sampled with one DDIM step and trained with the
-one-step sampler's IMLE loss) took 13.6 hours of this CPU to reach ADE 0.209 / FDE 0.256, and installments 25-31 on
-it moved nothing past the margin: its IMLE step (50 candidates through the transformer) costs 17-34 s, about 100
-steps an hour. This bench trains, within a time budget, a generator whose IMLE step costs a fraction of a second:
-
-* input: the observation's 15 DCT coefficients and the first ``--coefs`` of the bundled prior's 60-frame forecast
-  (both relative to the last observed pose, 42 coordinates each) and a noise vector z ~ N(0, I) of ``--z``;
+* input: the observation's 15 DCT coefficients and the first ``--coefs`` of the prior's 60-frame forecast (both
+  relative to the last observed pose, 42 coordinates each) and a noise vector z ~ N(0, I) of ``--z``;
 * an MLP of ``--layers`` x ``--hidden`` (GELU) to the first ``--coefs`` DCT coefficients of a residual over the
   prior's forecast; its last layer starts at zero, so the untrained generator is the prior;
 * IMLE (Li and Malik 2018): each training window draws ``--cands`` z, and each of its targets (its own future and,
   with ``--targets`` T > 1, the futures of its T - 1 nearest training windows by arrival pose and velocity, joined to
-  its last pose: ``training.augment.swap_futures``, what ``future_swap`` trains with) pulls the candidate nearest to
-  it, by the per-frame L2 error's mean plus ``--fde-weight`` x its last frame's (the protocol's ADE and FDE);
+  its last pose: ``training.augment.swap_futures``) pulls the candidate nearest to it, by the per-frame L2 error's
+  mean plus ``--fde-weight`` x its last frame's (the protocol's ADE and FDE);
 * with ``--rotate`` each window and its targets turned about the vertical by an angle in [0, 2 pi)
   (``training.augment.rotate_about``), with ``--mirror`` half of them reflected (``training.augment.mirror``), with
   ``--speed-range`` played faster or slower (``training.augment.resample``); Adam at ``--lr``, x 0.1 for the last
-  20 % of the budget;
-* with ``--complement``, for a mixture with the bundled model: the bundled model's samples of every training window
-  (turned and reflected with it) compete with the MLP's draws, and a target counts the nearer of the two, so the
-  MLP learns to reach what the bundled model's samples miss; ``--mix M`` scores the mixture of the bundled
-  model's first M protocol samples and the MLP's first 50 - M.
+  20 % of the run;
+* with ``--complement``, for a mixture with a model directory's cascade: the cascade's samples of every training
+  window (turned and reflected with it) compete with the MLP's draws, and a target counts the nearer of the two, so
+  the MLP learns to reach what the cascade's samples miss; ``--mix M`` scores the mixture of the cascade's first M
+  protocol samples and the MLP's first 50 - M.
 
 It scores 50 samples per window on the protocol's 188 windows (``training.evaluate.HumanEvaCases``: the same metrics
 and per-window values as ``python -m training.evaluate --protocol humaneva``, so ``training.compare`` pairs them),
 in PyTorch. The generator is ``training.generator.Generator``; ``python -m training.generator --state-dict`` writes
 a ``--save``d one as ``generator.safetensors``, which the engine runs (``tcd.engine.Generator``) and a model
-directory mixes into its forecasts (``tcd.TCD.forecast``'s ``generator_share``). ``--steps`` instead of ``--minutes``
-makes a run reproducible (with ``--threads 1``)::
+directory mixes into its forecasts. ``--steps`` (with ``--threads 1``) makes a run reproducible; ``--minutes``
+bounds a run by time instead::
 
-    python benches/humaneva_imle_mlp.py --minutes 12 --rotate --targets 8 --threads 2 \\
-        --json benches/results/humaneva_imle_mlp/t8_12min.json
+    python -m training.generator_imle --steps 1674 --rotate --targets 4 --threads 1 --save runs/gen/generator.pt
 """
 
 from __future__ import annotations
@@ -42,14 +37,12 @@ import time
 from pathlib import Path
 
 import numpy as np
+import torch
+
+from .data.humaneva import HUMANEVA_T_HIS as OBS, HUMANEVA_T_PRED as PRED
+from .generator import COEFS, HIDDEN, LAYERS, Z_DIM, Generator  # the model it trains
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-import torch  # noqa: E402
-
-from training.data.humaneva import HUMANEVA_T_HIS as OBS, HUMANEVA_T_PRED as PRED  # noqa: E402
-from training.generator import COEFS, HIDDEN, LAYERS, Z_DIM, Generator  # noqa: E402  (the model it trains)
 
 SAMPLES = 50  # the protocol's samples per window
 COMPLEMENT_SEED = 7  # the engine's seed for --complement's samples of the training windows (not the scoring's)
@@ -87,7 +80,7 @@ def engine_samples(model: str, obs: np.ndarray, samples: int, seed: int) -> np.n
     """(S, W, 60, J, 3): ``samples`` one-step DDIM samples of the model directory ``model``'s cascade (no generator
     samples) for obs (W, 15, J, 3), through the engine exactly as ``python -m training.evaluate --protocol humaneva
     --engine tcd --sampler ddim --steps 1 --seed SEED --generator-share 0`` draws them."""
-    from training.evaluate import build_parser, humaneva_model_samples
+    from .evaluate import build_parser, humaneva_model_samples
 
     args = build_parser().parse_args(
         [
@@ -210,10 +203,10 @@ def main(argv=None) -> int:
         raise SystemExit("--complement holds samples of the windows as recorded: not with --speed-range")
 
     import tcd
-    from training.augment import mirror, mirror_permutation, resample, rotate_about, sequence_ends, swap_futures
-    from training.batches import Windows
-    from training.data.humaneva import HUMANEVA_MODEL_JOINT_NAMES, training_sequences
-    from training.evaluate import HumanEvaCases
+    from .augment import mirror, mirror_permutation, resample, rotate_about, sequence_ends, swap_futures
+    from .batches import Windows
+    from .data.humaneva import HUMANEVA_MODEL_JOINT_NAMES, training_sequences
+    from .evaluate import HumanEvaCases
 
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
@@ -332,7 +325,7 @@ def main(argv=None) -> int:
     own = samples()
     sc = alone = cases.score(own)
     print(f"final, step {step} ({minutes:.1f} min): {brief(sc)}", file=sys.stderr)
-    method = "IMLE MLP generator around the prior (benches/humaneva_imle_mlp.py)"
+    method = "IMLE MLP generator around the prior (training/generator_imle.py)"
     if args.mix:  # the engine's first MIX samples as the protocol's evaluation draws them, then the MLP's
         theirs = engine_samples(args.model, cases.obs, SAMPLES, args.seed)[: args.mix]
         sc = cases.score(np.concatenate([theirs, own[: SAMPLES - args.mix]]))
