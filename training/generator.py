@@ -180,7 +180,7 @@ def load_generator_file(path: str | Path) -> tuple[Generator, dict]:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--state-dict", required=True, help="a Generator state dict (python -m training.generator_imle --save)")
+    ap.add_argument("--state-dict", required=True, help="a Generator state dict (training.generator_imle --save)")
     ap.add_argument("--out", required=True, help="the model directory (or .safetensors file) to write")
     ap.add_argument("--hidden", type=int, default=HIDDEN)
     ap.add_argument("--layers", type=int, default=LAYERS)
