@@ -58,7 +58,6 @@ import tcd  # noqa: E402
 from tcd import _fk as fk, layouts  # noqa: E402
 from training.data.h36m import DEFAULT_H36M_DIR, H36MSource, find_indices_256, ACTIONS  # noqa: E402
 from training.masks import make_mask  # noqa: E402
-from tcd import SamplerOptions  # noqa: E402
 
 PAPER_PATTERNS = ("random_leg_arm", "consecutive_frames")
 
@@ -240,7 +239,7 @@ def main(argv=None) -> int:
     src = H36MSource(args.data)
     kw = dict(
         num_samples=args.samples,
-        sampler=SamplerOptions(sampler=args.sampler, num_inference_steps=args.steps),
+        sampler=model.sampler_options("forecast", sampler=args.sampler, num_inference_steps=args.steps),
         seed=args.seed,
     )
     rng = np.random.default_rng(args.seed)

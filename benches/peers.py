@@ -49,7 +49,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import tcd  # noqa: E402
 from machine import cpu_model, cpu_simd_flags  # noqa: E402
 from training.export import load_model_file, random_init_dir  # noqa: E402
-from tcd import SamplerOptions  # noqa: E402
 
 STEP = 25
 ALL_PEERS = ("tcd", "torch", "ort", "openvino")
@@ -166,7 +165,9 @@ def whole_forecast(model_dir: Path, reps: int) -> dict:
     obs = np.random.default_rng(0).normal(scale=0.3, size=(50, m.num_joints, 3)).astype(np.float32)
     runs = {
         "ddpm50_x5": dict(num_samples=5, seed=0),
-        "ddim10_x1": dict(num_samples=1, sampler=SamplerOptions(num_inference_steps=10, sampler="ddim"), seed=0),
+        "ddim10_x1": dict(
+            num_samples=1, sampler=m.sampler_options("forecast", num_inference_steps=10, sampler="ddim"), seed=0
+        ),
     }
     out = {}
     for name, kw in runs.items():

@@ -48,7 +48,6 @@ import tcd  # noqa: E402
 from training import masks  # noqa: E402
 from training.data import h36m
 from training.data.h36m import random_windows as windows_from  # noqa: E402
-from tcd import SamplerOptions  # noqa: E402
 
 PATTERNS = (
     ("random leg + arm (40 %)", "random_leg_arm", 0.4),
@@ -196,7 +195,7 @@ def main(argv=None) -> int:
         pred = model.repair(
             obs,
             num_samples=args.samples,
-            sampler=SamplerOptions(num_inference_steps=args.steps, sampler=args.sampler),
+            sampler=model.sampler_options("repair", num_inference_steps=args.steps, sampler=args.sampler),
             seed=args.seed,
             threads=args.jobs,
         ).poses

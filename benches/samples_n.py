@@ -34,7 +34,6 @@ sys.path.insert(0, str(ROOT))
 import tcd  # noqa: E402
 from training.data.h36m import DEFAULT_DATA_ROOT, H36M, model_to_xyz32, xyz32_to_model  # noqa: E402
 from training.metrics import oracle_best, per_frame_error  # noqa: E402
-from tcd import SamplerOptions  # noqa: E402
 
 OBS, PRED = 50, 25
 AT = {"560": 13, "1000": 24}  # future frame index of each reported horizon (ms)
@@ -65,7 +64,7 @@ def run(args) -> dict:
         f = model.forecast(
             obs,
             num_samples=args.samples,
-            sampler=SamplerOptions(sampler=args.sampler, num_inference_steps=args.steps),
+            sampler=model.sampler_options("forecast", sampler=args.sampler, num_inference_steps=args.steps),
             seed=args.seed * 1000 + ai,
         )
         samples = np.asarray(f.samples, np.float64)  # (S, W, 25, 22, 3)

@@ -72,21 +72,19 @@ MASK_PATTERN = "random_leg_arm"
 
 def configurations() -> list[dict]:
     """name, sampler, num_inference_steps (None = all), eta; trailing spacing."""
-    out = [dict(name="DDPM-50", sampler=SamplerOptions(sampler="ddpm", eta=0.0), steps=None, reference=True)]
+    out = [dict(name="DDPM-50", sampler="ddpm", steps=None, eta=0.0, reference=True)]
     for n in (50, 25, 10, 5, 2):
         for eta in (0.0, 1.0):
-            out.append(dict(name=f"DDIM-{n} eta={eta:g}", sampler=SamplerOptions(sampler="ddim", eta=eta), steps=n))
+            out.append(dict(name=f"DDIM-{n} eta={eta:g}", sampler="ddim", steps=n, eta=eta))
     # One step from pure noise to the network's x0 estimate: no noise is added after it, so eta plays no part.
     # With an x0-predicting model it is the model's conditional-mean estimate, the far end of the step axis.
-    out.append(dict(name="DDIM-1", sampler=SamplerOptions(sampler="ddim", eta=0.0), steps=1))
+    out.append(dict(name="DDIM-1", sampler="ddim", steps=1, eta=0.0))
     # The bundled forecast's default: the same step from centred noise (docs/samplers.md, "Centred noise").
-    out.append(
-        dict(name="DDIM-1 centred", sampler=SamplerOptions(sampler="ddim", eta=0.0, noise_coupling="centered"), steps=1)
-    )
+    out.append(dict(name="DDIM-1 centred", sampler="ddim", steps=1, eta=0.0, noise_coupling="centered"))
     for n in (20, 10):
-        out.append(dict(name=f"DDPM-{n} (respaced)", sampler=SamplerOptions(sampler="ddpm", eta=0.0), steps=n))
+        out.append(dict(name=f"DDPM-{n} (respaced)", sampler="ddpm", steps=n, eta=0.0))
     for n in (20, 10, 5, 2):
-        out.append(dict(name=f"DPM++2M-{n}", sampler=SamplerOptions(sampler="dpmpp2m", eta=0.0), steps=n))
+        out.append(dict(name=f"DPM++2M-{n}", sampler="dpmpp2m", steps=n, eta=0.0))
     for c in out:
         c.setdefault("reference", False)
         c.setdefault("noise_coupling", "independent")
@@ -96,9 +94,11 @@ def configurations() -> list[dict]:
 
 def sampling_kw(cfg: dict) -> dict:
     return dict(
-        sampler=SamplerOptions(sampler=cfg["sampler"], eta=cfg["eta"], noise_coupling=cfg["noise_coupling"]),
+        sampler=cfg["sampler"],
         steps=cfg["steps"],
+        eta=cfg["eta"],
         spacing=cfg["timestep_spacing"],
+        noise_coupling=cfg["noise_coupling"],
     )
 
 

@@ -72,7 +72,7 @@ def test_forward_long_L75(benchmark, model):
 @pytest.mark.parametrize("samples,steps,sampler", [(5, None, "ddpm"), (1, 10, "ddim")], ids=["ddpm50x5", "ddim10x1"])
 def test_forecast(benchmark, model, clip, samples, steps, sampler):
     obs = clip[: model.obs_len]
-    o = tcd.SamplerOptions(sampler=sampler, num_inference_steps=steps)
+    o = model.sampler_options("forecast", sampler=sampler, num_inference_steps=steps)
     fc = benchmark(model.forecast, obs, num_samples=samples, sampler=o, seed=0)
     assert fc.mean.shape == (model.horizon, model.num_joints, 3) and np.isfinite(fc.mean).all()
 
