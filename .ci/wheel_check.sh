@@ -23,12 +23,13 @@ PATH="$nort_path" python - <<'PY'
 import numpy as np, tcd
 assert "/venv/" in tcd.__file__, tcd.__file__             # the installed wheel, not the checkout
 obs = np.load(tcd.__file__.replace("__init__.py", "data/demo_walking.npz"))["poses"][:50]
-f = tcd.load().forecast(obs, num_samples=2, seed=0, sampler="ddim", num_inference_steps=5)
+ddim5 = tcd.SamplerOptions(sampler="ddim", num_inference_steps=5)
+f = tcd.load().forecast(obs, num_samples=2, seed=0, sampler=ddim5)
 assert f.mean.shape == (25, 22, 3) and np.isfinite(f.mean).all()
 # the release build's kernels agree: the portable path equals the fastest this CPU has (read at load time)
 import os
 os.environ["TCD_KERNEL"] = "portable"
-p = tcd.load().forecast(obs, num_samples=2, seed=0, sampler="ddim", num_inference_steps=5)
+p = tcd.load().forecast(obs, num_samples=2, seed=0, sampler=ddim5)
 assert np.allclose(p.mean, f.mean, rtol=1e-4, atol=1e-5), np.abs(p.mean - f.mean).max()
 print("wheel check: smoke test passed,", tcd.__version__, tcd.engine.supported_kernels())
 PY
@@ -39,7 +40,8 @@ if [ -f "$root/python/tcd/weights_humaneva/short.safetensors" ]; then
 import numpy as np, tcd
 m = tcd.load("humaneva")
 assert "/venv/" in str(m.path), m.path
-f = m.forecast(np.zeros((15, 14, 3), np.float32), num_samples=50, seed=0, sampler="ddim", num_inference_steps=2)
+ddim2 = tcd.SamplerOptions(sampler="ddim", num_inference_steps=2)
+f = m.forecast(np.zeros((15, 14, 3), np.float32), num_samples=50, seed=0, sampler=ddim2)
 assert f.samples.shape == (50, 60, 14, 3) and np.isfinite(f.samples).all()
 print("wheel check: the bundled HumanEva-I model forecasts 50 samples")
 PY
