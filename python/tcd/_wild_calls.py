@@ -187,7 +187,7 @@ def _own_future_root(root: np.ndarray, count: int, fps: float) -> np.ndarray:
 def _to_caller(
     p: Any, future_w: np.ndarray, last: np.ndarray, h: int, model_fps: float, src_fps: float, scale: float
 ) -> Tuple[np.ndarray, np.ndarray]:
-    """Forecast frames (..., B, h, J, 3) at the model's rate, after the repaired last frame ``last``
+    """Forecast frames (..., B, h, J, 3) at the model's rate, after the frame ``last`` at time 0
     (B, 1, J, 3), at the caller's rate, units and dtype (and batch axis); with the times of its frames."""
     model_t = np.arange(h + 1) / model_fps
     n = int(math.floor(h / model_fps * src_fps + 1e-9))
@@ -254,26 +254,14 @@ class WildWindow:
             else wild.from_model(_model_poses(out["samples"]), scene, root_f, rot_f, own_frames=False)
         )
         rep_w = wild.from_model(_model_poses(out["repaired"]), scene, scene.root, scene.rot, own_frames=True)
-        # future frames at the caller's rate: model frame k is (k + 1) / model_fps s after the last observed
-        # frame, which is time 0 (the repaired last frame)
-        model_t = np.arange(h + 1) / model_fps
-        n = int(math.floor(h / model_fps * src_fps + 1e-9))
-        at = np.arange(1, n + 1) / src_fps
-
         # time 0, where the caller frames before the first model frame are interpolated from: each joint where it
         # was last seen, in the caller's coordinates (Zero-Velocity's start; where the last frame hides a joint or
         # a hip, neither the model's repair nor a root estimated without the hips is as close), the repaired last
         # frame for a joint never seen
         start = np.where(np.isfinite(scene.start[:, None]), scene.start[:, None], rep_w[:, -1:])
-
-        def caller(future_w: np.ndarray) -> np.ndarray:
-            last = np.broadcast_to(start, future_w.shape[:-3] + (1,) + future_w.shape[-2:])
-            y = _at_times(np.concatenate([last, future_w], axis=-3), model_t, at) * scale
-            y = y.astype(p.dtype)
-            return y if p.batched else y[..., 0, :, :, :]
-
-        samples = None if samples_w is None else caller(samples_w)
-        return caller(mean_w), samples, _repaired(p, rep_w, self.times, scale), at
+        mean, at = _to_caller(p, mean_w, start, h, model_fps, src_fps, scale)
+        samples = None if samples_w is None else _to_caller(p, samples_w, start, h, model_fps, src_fps, scale)[0]
+        return mean, samples, _repaired(p, rep_w, self.times, scale), at
 
     def check_one_window(self, model: "TCD") -> None:
         """A repair takes at most the model's window (longer files: :func:`tcd.repair_file`)."""
