@@ -15,7 +15,7 @@ mod common;
 use std::error::Error;
 use std::time::Instant;
 
-use tcd_core::{Denoiser, Kernel, Observation, Role, Workspace};
+use tcd_core::{Denoiser, Kernel, Network, Observation, Role, Workspace};
 
 /// Random-init weights of the paper's size (with `heads` attention heads) for windows of `obs` +
 /// `pred` frames.

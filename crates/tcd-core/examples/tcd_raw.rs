@@ -14,11 +14,11 @@
 use std::error::Error;
 use std::path::Path;
 
-use tcd_core::seeded_noise;
 use tcd_core::{
     cascade, sample, CascadeNoise, Control, Denoiser, ForecastOptions, Noise, Observation,
     SamplerConfig, SamplerKind, Sequences,
 };
+use tcd_core::{seeded_noise, Network};
 
 type R<T> = Result<T, Box<dyn Error>>;
 

@@ -7,7 +7,7 @@
 //! knows nothing of Python; the binding crate wraps this API.
 //!
 //! ```no_run
-//! use tcd_core::{cascade, CascadeNoise, Control, Denoiser, ForecastOptions, Observation, Sequences};
+//! use tcd_core::{cascade, CascadeNoise, Control, Denoiser, ForecastOptions, Network, Observation, Sequences};
 //! # fn main() -> tcd_core::Result<()> {
 //! let short = Denoiser::load("short.safetensors")?;
 //! let long = Denoiser::load("long.safetensors")?;
@@ -53,12 +53,11 @@ pub use config::{
     VarianceType, WindowConfig, FORMAT_VERSION,
 };
 pub use denoiser::{Denoiser, Prepared, Workspace};
-pub use generator::{generator_expected_tensors, Generator, GeneratorConfig, GeneratorModelConfig};
+pub use generator::{Generator, GeneratorConfig, GeneratorModelConfig};
 pub use prior::{
-    dct_matrix, inbetween_width, prior_expected_tensors, Anchor, GapFill, Prior, PriorConfig,
-    PriorModelConfig,
+    dct_matrix, inbetween_width, Anchor, GapFill, Prior, PriorConfig, PriorModelConfig,
 };
-pub use weights::{expected_tensors, Tensor, WeightFile, CONFIG_KEY};
+pub use weights::{Network, Weights, CONFIG_KEY};
 // Observations and what runs on them.
 pub use fill::{fill_linear, fill_rows, fill_spline, prior_fill};
 pub use observation::Observation;

@@ -8,7 +8,7 @@ use tcd_core::{
     cascade, repair, sample, CascadeNoise, Control, Denoiser, Error, ForecastOptions, Noise,
     Observation, Role, SamplerConfig, Sequences,
 };
-use tcd_core::{seeded_noise, stage};
+use tcd_core::{seeded_noise, stage, Network};
 
 fn models() -> (Denoiser, Denoiser) {
     (

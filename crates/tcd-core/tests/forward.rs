@@ -4,7 +4,7 @@
 mod common;
 
 use common::*;
-use tcd_core::{Error, Observation, Role, Workspace};
+use tcd_core::{Error, Network, Observation, Role, Workspace};
 
 #[test]
 fn matches_naive_reference() {
@@ -279,5 +279,4 @@ fn models_are_send_and_sync() {
     fn check<T: Send + Sync>() {}
     check::<tcd_core::Denoiser>();
     check::<tcd_core::Prepared>();
-    check::<tcd_core::WeightFile>();
 }

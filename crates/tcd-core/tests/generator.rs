@@ -10,8 +10,8 @@ use std::collections::BTreeMap;
 
 use common::*;
 use tcd_core::{
-    generator_expected_tensors, seeded_noise, stage, with_threads, Control, DataConfig, Denoiser,
-    Error, Generator, GeneratorConfig, GeneratorModelConfig, Kernel, Noise, Prior, Sequences,
+    seeded_noise, stage, with_threads, Control, DataConfig, Denoiser, Error, Generator,
+    GeneratorConfig, GeneratorModelConfig, Kernel, Network, Noise, Prior, Sequences,
 };
 
 /// K = 6 (2 joints × 3), O = 5, P = 12 with C = 4 coefficients, 3 hidden layers of 24, z_dim 7: the
@@ -37,7 +37,7 @@ fn config() -> GeneratorConfig {
 
 /// Seeded uniform weights of about unit gain (biases ±0.3): the MLP's residual is large.
 fn tensors(cfg: &GeneratorConfig, seed: u64) -> BTreeMap<String, RawTensor> {
-    uniform_tensors(generator_expected_tensors(&cfg.model), 6.0, seed)
+    uniform_tensors(Generator::tensor_shapes(cfg.clone()).unwrap(), 6.0, seed)
 }
 
 fn generator(seed: u64) -> (Generator, BTreeMap<String, RawTensor>) {
@@ -74,7 +74,8 @@ fn good_file_loads_with_its_config() {
     assert_eq!(g.path().to_str(), Some("generator.safetensors"));
     assert_eq!(g.config_json(), config().to_json());
     assert_eq!(config().model.input_width(), Some(61));
-    let names: Vec<String> = generator_expected_tensors(&config().model)
+    let names: Vec<String> = Generator::tensor_shapes(config())
+        .unwrap()
         .into_iter()
         .map(|(n, s)| format!("{n}{s:?}"))
         .collect();

@@ -5,7 +5,7 @@
 mod common;
 
 use common::*;
-use tcd_core::{Denoiser, Kernel, Observation, Role, TcdConfig, Workspace};
+use tcd_core::{Denoiser, Kernel, Network, Observation, Role, TcdConfig, Workspace};
 
 /// A config with the given sizes (K = joints·3).
 fn config(

@@ -9,8 +9,8 @@ use std::collections::BTreeMap;
 
 use common::*;
 use tcd_core::{
-    dct_matrix, with_threads, Anchor, Control, DataConfig, Denoiser, Error, GapFill, Kernel, Prior,
-    PriorConfig, PriorModelConfig,
+    dct_matrix, with_threads, Anchor, Control, DataConfig, Denoiser, Error, GapFill, Kernel,
+    Network, Prior, PriorConfig, PriorModelConfig,
 };
 
 /// K = 6 (2 joints × 3), L = 12, chunk 4, 3 blocks: small, and with a horizon that is no multiple of

@@ -5,7 +5,7 @@ mod common;
 
 use common::*;
 use safetensors::Dtype;
-use tcd_core::{Denoiser, Error, Role, WeightFile};
+use tcd_core::{Denoiser, Error, Network, Role};
 
 fn good() -> (
     tcd_core::TcdConfig,
@@ -38,8 +38,11 @@ fn good_file_loads_with_its_config() {
     assert!(d.path().ends_with("w.safetensors"));
     assert_eq!(d.schedule().betas(), cfg.diffusion.betas.as_slice());
     assert!(d.step_embedding(9).is_some() && d.step_embedding(10).is_none());
-    let wf = WeightFile::from_bytes(&serialize(&t, Some(json)), "mem").unwrap();
-    assert_eq!(wf.names().count(), t.len());
+    let shapes = Denoiser::tensor_shapes(cfg.clone()).unwrap();
+    assert_eq!(shapes.len(), t.len());
+    for (name, shape) in shapes {
+        assert_eq!(t[&name].shape, shape, "{name}");
+    }
 }
 
 #[test]
@@ -137,20 +140,11 @@ fn fuzzed_weight_files_load_or_fail_cleanly() {
                 b[i] = rng.random();
             }
         }
-        let got = std::panic::catch_unwind(|| WeightFile::from_bytes(&b, "fuzz.safetensors"));
+        let got = std::panic::catch_unwind(|| Denoiser::from_bytes(&b, "fuzz.safetensors"));
         match got {
             Err(_) => panic!("case {case}: the loader panicked"),
-            Ok(Ok(w)) => {
-                loaded += 1;
-                for (name, shape) in tcd_core::expected_tensors(&w.config().model) {
-                    let tensor = w.tensor(&name).unwrap();
-                    assert_eq!(tensor.shape, shape, "case {case}: {name}");
-                    assert!(
-                        tensor.data.iter().all(|v| v.is_finite()),
-                        "case {case}: {name} not finite"
-                    );
-                }
-            }
+            // a mutant that loads kept every tensor whole (the loader checks each where it is taken)
+            Ok(Ok(_)) => loaded += 1,
             Ok(Err(e)) => {
                 refused += 1;
                 assert!(e.is_weights_error(), "case {case}: {e:?}");

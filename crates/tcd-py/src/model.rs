@@ -12,7 +12,7 @@ macro_rules! model_methods {
             #[doc = concat!("Loads and validates a ", $what, ".")]
             #[staticmethod]
             fn load(py: ::pyo3::Python<'_>, path: ::std::path::PathBuf) -> $crate::error::Result<Self> {
-                let inner = py.detach(move || <$model>::load(&path))?;
+                let inner = py.detach(move || <$model as tcd_core::Network>::load(&path))?;
                 Ok(Self {
                     inner: ::std::sync::Arc::new(inner),
                 })
@@ -25,7 +25,7 @@ macro_rules! model_methods {
                 data: Vec<u8>,
                 name: ::std::path::PathBuf,
             ) -> $crate::error::Result<Self> {
-                let inner = py.detach(move || <$model>::from_bytes(&data, &name))?;
+                let inner = py.detach(move || <$model as tcd_core::Network>::from_bytes(&data, &name))?;
                 Ok(Self {
                     inner: ::std::sync::Arc::new(inner),
                 })

@@ -6,28 +6,27 @@ use std::path::Path;
 
 use super::packed::FastModel;
 use super::{Denoiser, ResidualLayer};
+use crate::config::TcdConfig;
 use crate::error::Result;
 use crate::kernels::{Isa, Kernel};
 use crate::nn::activation::{map_inplace, silu};
 use crate::nn::embedding::step_embedding_table;
 use crate::nn::{EncoderLayer, Linear};
-use crate::weights::WeightFile;
+use crate::weights::{Network, Weights};
 
-impl Denoiser {
-    /// Loads and validates a weight file.
-    pub fn load(path: impl AsRef<Path>) -> Result<Self> {
-        Self::from_weights(WeightFile::load(path)?)
+/// The denoiser's file: the `state_dict` of TCD_REFERENCE.md 10.1 (K = num_features, E =
+/// feature_embedding_dim, D = diffusion_embedding_dim, C = channels, S = side_dim, F = ffn_dim; the
+/// Conv1d weights keep their kernel dimension of 1).
+impl Network for Denoiser {
+    type Config = TcdConfig;
+
+    fn config(json: &str, path: &Path) -> Result<TcdConfig> {
+        let config = TcdConfig::from_json(json, path)?;
+        config.validate(path)?;
+        Ok(config)
     }
 
-    /// From the bytes of a weight file; `name` names it in errors.
-    pub fn from_bytes(bytes: &[u8], name: impl AsRef<Path>) -> Result<Self> {
-        Self::from_weights(WeightFile::from_bytes(bytes, name)?)
-    }
-
-    /// From a validated [`WeightFile`].
-    pub fn from_weights(mut w: WeightFile) -> Result<Self> {
-        let config = w.config().clone();
-        let config_json = w.config_json().to_string();
+    fn build(w: &mut Weights<'_>, config: TcdConfig, config_json: String) -> Result<Self> {
         let path = w.path().to_path_buf();
         let m = &config.model;
         let (k, c, d, e, te) = (
@@ -39,12 +38,12 @@ impl Denoiser {
         );
         let num_steps = config.diffusion.num_train_timesteps;
 
-        let feature_embedding = w.take("embed_layer.weight")?.data; // (K, E)
-        let input_projection = Linear::load(&mut w, "diffmodel.input_projection", c, 2)?;
-        let projection1 = Linear::load(&mut w, "diffmodel.diffusion_embedding.projection1", d, d)?;
-        let projection2 = Linear::load(&mut w, "diffmodel.diffusion_embedding.projection2", d, d)?;
-        let output_projection1 = Linear::load(&mut w, "diffmodel.output_projection1", c, c)?;
-        let output_projection2 = Linear::load(&mut w, "diffmodel.output_projection2", 1, c)?;
+        let feature_embedding = w.take("embed_layer.weight", &[k, e])?;
+        let input_projection = Linear::load_conv(w, "diffmodel.input_projection", c, 2)?;
+        let projection1 = Linear::load(w, "diffmodel.diffusion_embedding.projection1", d, d)?;
+        let projection2 = Linear::load(w, "diffmodel.diffusion_embedding.projection2", d, d)?;
+        let output_projection1 = Linear::load_conv(w, "diffmodel.output_projection1", c, c)?;
+        let output_projection2 = Linear::load_conv(w, "diffmodel.output_projection2", 1, c)?;
 
         // Step embedding e_t = SiLU(P2 · SiLU(P1 · table[t])) for every t.
         let table = step_embedding_table(num_steps, d);
@@ -60,8 +59,7 @@ impl Denoiser {
         let mut layers = Vec::with_capacity(num_layers);
         for i in 0..num_layers {
             let p = format!("diffmodel.residual_layers.{i}");
-            let diffusion_projection =
-                Linear::load(&mut w, &format!("{p}.diffusion_projection"), c, d)?;
+            let diffusion_projection = Linear::load(w, &format!("{p}.diffusion_projection"), c, d)?;
             for t in 0..num_steps {
                 let off = (t * num_layers + i) * c;
                 diffusion_projection.forward(
@@ -70,9 +68,9 @@ impl Denoiser {
                 );
             }
             // cond_projection (2C, S, 1): columns [time (te) | feature (E) | mask (1)].
-            let cw = w.take(&format!("{p}.cond_projection.weight"))?.data;
-            let cb = w.take(&format!("{p}.cond_projection.bias"))?.data;
             let s = m.side_dim;
+            let cw = w.take(&format!("{p}.cond_projection.weight"), &[2 * c, s, 1])?;
+            let cb = w.take(&format!("{p}.cond_projection.bias"), &[2 * c])?;
             let time_cols: Vec<f32> = cw
                 .chunks_exact(s)
                 .flat_map(|row| row[..te].iter().copied())
@@ -87,15 +85,11 @@ impl Denoiser {
                 }
             }
             layers.push(ResidualLayer {
-                time_layer: EncoderLayer::load(&mut w, &format!("{p}.time_layer.layers.0"), m)?,
-                feature_layer: EncoderLayer::load(
-                    &mut w,
-                    &format!("{p}.feature_layer.layers.0"),
-                    m,
-                )?,
-                mid_projection: Linear::load(&mut w, &format!("{p}.mid_projection"), 2 * c, c)?,
-                output_projection: Linear::load(
-                    &mut w,
+                time_layer: EncoderLayer::load(w, &format!("{p}.time_layer.layers.0"), m)?,
+                feature_layer: EncoderLayer::load(w, &format!("{p}.feature_layer.layers.0"), m)?,
+                mid_projection: Linear::load_conv(w, &format!("{p}.mid_projection"), 2 * c, c)?,
+                output_projection: Linear::load_conv(
+                    w,
                     &format!("{p}.output_projection"),
                     2 * c,
                     c,
@@ -123,7 +117,9 @@ impl Denoiser {
         }
         .with_kernel(kernel)
     }
+}
 
+impl Denoiser {
     /// The same model running `kernel` (`Auto`: the best this CPU supports). Errors if the CPU
     /// does not support the kernel. Packs the weights for it once.
     pub fn with_kernel(mut self, kernel: Kernel) -> Result<Self> {

@@ -110,21 +110,3 @@ impl GeneratorConfig {
         to_json(self)
     }
 }
-
-/// The tensor names and shapes of a generator with this configuration (PyTorch's (out, in) layout;
-/// the DCT matrices are no tensors: the engine computes them, [`crate::dct_matrix`]). The first
-/// layer reads [`GeneratorModelConfig::input_width`] values, the others `hidden`; the head writes
-/// C·K. A configuration that [`GeneratorConfig::validate`] refuses for its width gets a width of 0.
-pub fn generator_expected_tensors(m: &GeneratorModelConfig) -> Vec<(String, Vec<usize>)> {
-    let width = m.input_width().unwrap_or(0);
-    let mut v = Vec::with_capacity(2 * m.layers + 2);
-    for i in 0..m.layers {
-        let input = if i == 0 { width } else { m.hidden };
-        v.push((format!("layers.{i}.weight"), vec![m.hidden, input]));
-        v.push((format!("layers.{i}.bias"), vec![m.hidden]));
-    }
-    let out = m.coefs.saturating_mul(m.num_features);
-    v.push(("head.weight".into(), vec![out, m.hidden]));
-    v.push(("head.bias".into(), vec![out]));
-    v
-}

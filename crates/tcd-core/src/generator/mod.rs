@@ -30,12 +30,12 @@ use crate::error::Result;
 use crate::kernels::{Isa, Kernel};
 use crate::nn::{Dense, Linear};
 use crate::prior::dct_matrix;
-use crate::weights::{read_file, read_weights, take_data};
+use crate::weights::{Network, Weights};
 
 pub mod config;
 mod forward;
 
-pub use config::{generator_expected_tensors, GeneratorConfig, GeneratorModelConfig};
+pub use config::{GeneratorConfig, GeneratorModelConfig};
 
 /// A loaded sample generator. Immutable after load; `Send + Sync`, share it between threads freely.
 #[derive(Clone, Debug)]
@@ -55,32 +55,23 @@ pub struct Generator {
     head: Dense,
 }
 
-impl Generator {
-    /// Loads and validates a generator weight file. A missing file is [`crate::Error::NotFound`], an
-    /// unreadable one [`crate::Error::Io`]; everything about the content is a weight-file variant.
-    pub fn load(path: impl AsRef<Path>) -> Result<Self> {
-        let path = path.as_ref();
-        Self::from_bytes(&read_file(path)?, path)
+/// The generator's file: PyTorch's (out, in) layers `layers.{i}` (the first reads
+/// [`GeneratorModelConfig::input_width`] values, the others `hidden`) and `head` (C·K out); the DCT
+/// matrices are no tensors: the engine computes them, [`crate::dct_matrix`].
+impl Network for Generator {
+    type Config = GeneratorConfig;
+
+    fn config(json: &str, path: &Path) -> Result<GeneratorConfig> {
+        let config = GeneratorConfig::from_json(json, path)?;
+        config.validate(path)?;
+        Ok(config)
     }
 
-    /// From the bytes of a generator weight file; `name` names it in errors.
-    pub fn from_bytes(bytes: &[u8], name: impl AsRef<Path>) -> Result<Self> {
-        let path = name.as_ref().to_path_buf();
-        let (config, config_json, mut tensors) = read_weights(
-            bytes,
-            &path,
-            GeneratorConfig::from_json,
-            GeneratorConfig::validate,
-            |c| generator_expected_tensors(&c.model),
-        )?;
+    fn build(w: &mut Weights<'_>, config: GeneratorConfig, config_json: String) -> Result<Self> {
+        let path = w.path().to_path_buf();
         let m = &config.model;
-        let mut take = |name: &str| take_data(&mut tensors, name);
         let mut dense = |name: &str, out: usize, input: usize| -> Result<Dense> {
-            let (w, b) = (
-                take(&format!("{name}.weight")),
-                take(&format!("{name}.bias")),
-            );
-            Ok(Dense::new(Linear::from_torch(out, input, &w, &b)?))
+            Ok(Dense::new(Linear::load(w, name, out, input)?))
         };
         let width = m.input_width().unwrap_or(0); // validated
         let layers = (0..m.layers)
@@ -107,7 +98,9 @@ impl Generator {
         };
         generator.with_kernel(Kernel::from_env()?)
     }
+}
 
+impl Generator {
     /// The same model running `kernel` (`Auto`: the best this CPU supports); an error if the CPU
     /// does not support it. Packs the weights for it once.
     pub fn with_kernel(mut self, kernel: Kernel) -> Result<Self> {

@@ -6,7 +6,7 @@ use crate::config::ModelConfig;
 use crate::error::{Error, Result};
 use crate::nn::activation::exp_nonpositive;
 use crate::nn::linear::Linear;
-use crate::weights::WeightFile;
+use crate::weights::Weights;
 
 /// Self-attention over one sequence of C-vectors at a time.
 #[derive(Clone, Debug, PartialEq)]
@@ -50,11 +50,11 @@ impl MultiHeadAttention {
     }
 
     /// Loads `{prefix}.in_proj_weight`, `{prefix}.in_proj_bias`, `{prefix}.out_proj.{weight,bias}`.
-    pub fn load(w: &mut WeightFile, prefix: &str, cfg: &ModelConfig) -> Result<Self> {
+    pub fn load(w: &mut Weights<'_>, prefix: &str, cfg: &ModelConfig) -> Result<Self> {
         let c = cfg.channels;
-        let wi = w.take(&format!("{prefix}.in_proj_weight"))?;
-        let bi = w.take(&format!("{prefix}.in_proj_bias"))?;
-        let in_proj = Linear::from_torch(3 * c, c, &wi.data, &bi.data)?;
+        let wi = w.take(&format!("{prefix}.in_proj_weight"), &[3 * c, c])?;
+        let bi = w.take(&format!("{prefix}.in_proj_bias"), &[3 * c])?;
+        let in_proj = Linear::from_torch(3 * c, c, &wi, &bi)?;
         let out_proj = Linear::load(w, &format!("{prefix}.out_proj"), c, c)?;
         Self::new(in_proj, out_proj, cfg.num_heads)
     }

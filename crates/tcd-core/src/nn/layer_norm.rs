@@ -2,7 +2,7 @@
 //! square root).
 
 use crate::error::{Error, Result};
-use crate::weights::WeightFile;
+use crate::weights::Weights;
 
 /// LayerNorm with an affine weight and bias of width `dim`.
 #[derive(Clone, Debug, PartialEq)]
@@ -29,10 +29,10 @@ impl LayerNorm {
         })
     }
 
-    /// Loads `{prefix}.weight` / `{prefix}.bias`.
-    pub fn load(w: &mut WeightFile, prefix: &str, eps: f64) -> Result<Self> {
-        let weight = w.take(&format!("{prefix}.weight"))?.data;
-        let bias = w.take(&format!("{prefix}.bias"))?.data;
+    /// Loads `{prefix}.weight` / `{prefix}.bias`, each (dim).
+    pub fn load(w: &mut Weights<'_>, prefix: &str, dim: usize, eps: f64) -> Result<Self> {
+        let weight = w.take(&format!("{prefix}.weight"), &[dim])?;
+        let bias = w.take(&format!("{prefix}.bias"), &[dim])?;
         Self::new(weight, bias, eps)
     }
 

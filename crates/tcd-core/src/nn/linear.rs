@@ -2,7 +2,7 @@
 //! (the same operation once the activations are token-major).
 
 use crate::error::{Error, Result};
-use crate::weights::WeightFile;
+use crate::weights::Weights;
 
 /// Output columns per packed panel (register-tile width of the portable kernel).
 const NR: usize = 8;
@@ -65,11 +65,25 @@ impl Linear {
         })
     }
 
-    /// Loads `{prefix}.weight` / `{prefix}.bias` from a validated weight file.
-    pub fn load(w: &mut WeightFile, prefix: &str, out_dim: usize, in_dim: usize) -> Result<Self> {
-        let weight = w.take(&format!("{prefix}.weight"))?;
-        let bias = w.take(&format!("{prefix}.bias"))?;
-        Self::from_torch(out_dim, in_dim, &weight.data, &bias.data)
+    /// `{prefix}.weight` (out, in) and `{prefix}.bias` (out): PyTorch's `nn.Linear`.
+    pub fn load(w: &mut Weights<'_>, prefix: &str, out_dim: usize, in_dim: usize) -> Result<Self> {
+        Self::load_shaped(w, prefix, &[out_dim, in_dim])
+    }
+
+    /// `{prefix}.weight` (out, in, 1) and `{prefix}.bias` (out): PyTorch's `nn.Conv1d` with kernel 1.
+    pub fn load_conv(
+        w: &mut Weights<'_>,
+        prefix: &str,
+        out_dim: usize,
+        in_dim: usize,
+    ) -> Result<Self> {
+        Self::load_shaped(w, prefix, &[out_dim, in_dim, 1])
+    }
+
+    fn load_shaped(w: &mut Weights<'_>, prefix: &str, shape: &[usize]) -> Result<Self> {
+        let weight = w.take(&format!("{prefix}.weight"), shape)?;
+        let bias = w.take(&format!("{prefix}.bias"), &shape[..1])?;
+        Self::from_torch(shape[0], shape[1], &weight, &bias)
     }
 
     /// Input width.

@@ -11,7 +11,7 @@ use crate::nn::activation::{gelu_erf, map_inplace};
 use crate::nn::attention::{AttentionScratch, MultiHeadAttention};
 use crate::nn::layer_norm::LayerNorm;
 use crate::nn::linear::Linear;
-use crate::weights::WeightFile;
+use crate::weights::Weights;
 
 /// A transformer encoder layer over sequences of C-vectors.
 #[derive(Clone, Debug, PartialEq)]
@@ -54,14 +54,14 @@ impl EncoderScratch {
 impl EncoderLayer {
     /// Loads `{prefix}.self_attn.*`, `{prefix}.linear{1,2}.*`, `{prefix}.norm{1,2}.*`
     /// (prefix e.g. `diffmodel.residual_layers.0.time_layer.layers.0`).
-    pub fn load(w: &mut WeightFile, prefix: &str, cfg: &ModelConfig) -> Result<Self> {
+    pub fn load(w: &mut Weights<'_>, prefix: &str, cfg: &ModelConfig) -> Result<Self> {
         let (c, f) = (cfg.channels, cfg.ffn_dim);
         Ok(EncoderLayer {
             self_attn: MultiHeadAttention::load(w, &format!("{prefix}.self_attn"), cfg)?,
             linear1: Linear::load(w, &format!("{prefix}.linear1"), f, c)?,
             linear2: Linear::load(w, &format!("{prefix}.linear2"), c, f)?,
-            norm1: LayerNorm::load(w, &format!("{prefix}.norm1"), cfg.layer_norm_eps)?,
-            norm2: LayerNorm::load(w, &format!("{prefix}.norm2"), cfg.layer_norm_eps)?,
+            norm1: LayerNorm::load(w, &format!("{prefix}.norm1"), c, cfg.layer_norm_eps)?,
+            norm2: LayerNorm::load(w, &format!("{prefix}.norm2"), c, cfg.layer_norm_eps)?,
         })
     }
 

@@ -207,38 +207,3 @@ impl PriorConfig {
         to_json(self)
     }
 }
-
-/// The tensor names and shapes of a prior with this configuration (PyTorch `state_dict` names of
-/// `PriorNet`; the DCT matrix is no tensor: the engine computes it, [`super::dct_matrix`]).
-/// K = num_features, L = obs_len.
-pub fn prior_expected_tensors(m: &PriorModelConfig) -> Vec<(String, Vec<usize>)> {
-    let (k, l) = (m.num_features, m.obs_len);
-    let mut v: Vec<(String, Vec<usize>)> = vec![
-        ("fc_in.weight".into(), vec![k, k]),
-        ("fc_in.bias".into(), vec![k]),
-    ];
-    for i in 0..m.blocks {
-        v.push((format!("blocks.{i}.fc.weight"), vec![l, l]));
-        v.push((format!("blocks.{i}.fc.bias"), vec![l]));
-        v.push((format!("blocks.{i}.norm_weight"), vec![k]));
-        v.push((format!("blocks.{i}.norm_bias"), vec![k]));
-    }
-    v.push(("fc_out.weight".into(), vec![k, k]));
-    v.push(("fc_out.bias".into(), vec![k]));
-    for (prefix, context, max_gap) in [
-        ("inbetween", m.inbetween_context, m.inbetween_max_gap),
-        (
-            "joint_inbetween",
-            m.joint_inbetween_context,
-            m.joint_inbetween_max_gap,
-        ),
-    ] {
-        for n in 1..=max_gap {
-            v.push((
-                format!("{prefix}_{n}"),
-                vec![n, inbetween_width(n, context)],
-            ));
-        }
-    }
-    v
-}

@@ -40,14 +40,12 @@ use std::path::{Path, PathBuf};
 use crate::error::Result;
 use crate::kernels::{Isa, Kernel};
 use crate::nn::{Dense, Linear};
-use crate::weights::{read_file, read_weights, take_data};
+use crate::weights::{Network, Weights};
 
 pub mod config;
 mod forward;
 
-pub use config::{
-    inbetween_width, prior_expected_tensors, Anchor, GapFill, PriorConfig, PriorModelConfig,
-};
+pub use config::{inbetween_width, Anchor, GapFill, PriorConfig, PriorModelConfig};
 
 /// One temporal block: FC over the L frames (DCT coefficients) of each coordinate, layer norm over
 /// the K coordinates of each frame with affine `norm_weight`, `norm_bias`.
@@ -104,45 +102,34 @@ pub fn dct_matrix(n: usize) -> Vec<f32> {
     m
 }
 
-impl Prior {
-    /// Loads and validates a prior weight file. A missing file is [`crate::Error::NotFound`], an
-    /// unreadable one [`crate::Error::Io`]; everything about the content is a weight-file variant.
-    pub fn load(path: impl AsRef<Path>) -> Result<Self> {
-        let path = path.as_ref();
-        Self::from_bytes(&read_file(path)?, path)
+/// The prior's file: the `state_dict` of `training.prior.PriorNet` (K = num_features, L = obs_len;
+/// the DCT matrix is no tensor: the engine computes it, [`dct_matrix`]), and the fill's in-betweening
+/// kernels, `inbetween_{n}` and `joint_inbetween_{n}` (n × [`inbetween_width`]) for each gap length n.
+impl Network for Prior {
+    type Config = PriorConfig;
+
+    fn config(json: &str, path: &Path) -> Result<PriorConfig> {
+        let config = PriorConfig::from_json(json, path)?;
+        config.validate(path)?;
+        Ok(config)
     }
 
-    /// From the bytes of a prior weight file; `name` names it in errors.
-    pub fn from_bytes(bytes: &[u8], name: impl AsRef<Path>) -> Result<Self> {
-        let path = name.as_ref().to_path_buf();
-        let (config, config_json, mut tensors) = read_weights(
-            bytes,
-            &path,
-            PriorConfig::from_json,
-            PriorConfig::validate,
-            |c| prior_expected_tensors(&c.model),
-        )?;
+    fn build(w: &mut Weights<'_>, config: PriorConfig, config_json: String) -> Result<Self> {
+        let path = w.path().to_path_buf();
         let m = &config.model;
         let (k, l, chunk) = (m.num_features, m.obs_len, m.chunk);
-        let mut take = |name: &str| take_data(&mut tensors, name);
 
         let dct = dct_matrix(l);
         let zeros = |n: usize| vec![0.0f32; n];
-        let fc_in = Linear::from_torch(k, k, &take("fc_in.weight"), &take("fc_in.bias"))?;
+        let fc_in = Linear::load(w, "fc_in", k, k)?;
         let dct_layer = Linear::from_torch(l, l, &dct, &zeros(l))?;
         let mut blocks = Vec::with_capacity(m.blocks);
         for i in 0..m.blocks {
             let p = format!("blocks.{i}");
-            let fc = Linear::from_torch(
-                l,
-                l,
-                &take(&format!("{p}.fc.weight")),
-                &take(&format!("{p}.fc.bias")),
-            )?;
             blocks.push(Block {
-                fc: Dense::new(fc),
-                norm_weight: take(&format!("{p}.norm_weight")),
-                norm_bias: take(&format!("{p}.norm_bias")),
+                fc: Dense::new(Linear::load(w, &format!("{p}.fc"), l, l)?),
+                norm_weight: w.take(&format!("{p}.norm_weight"), &[k])?,
+                norm_bias: w.take(&format!("{p}.norm_bias"), &[k])?,
             });
         }
         let idct: Vec<f32> = (0..chunk)
@@ -150,20 +137,25 @@ impl Prior {
             .map(|(t, f)| dct[f * l + t])
             .collect();
         let idct_layer = Linear::from_torch(chunk, l, &idct, &zeros(chunk))?;
-        let fc_out = Linear::from_torch(k, k, &take("fc_out.weight"), &zeros(k))?;
-        let b_out = take("fc_out.bias");
+        let fc_out = Linear::from_torch(k, k, &w.take("fc_out.weight", &[k, k])?, &zeros(k))?;
+        let b_out = w.take("fc_out.bias", &[k])?;
         let mut out_bias = Vec::with_capacity(chunk * k);
         for t in 0..chunk {
             let through: f64 = (0..l).map(|f| dct[f * l + t] as f64).sum();
             out_bias.extend(b_out.iter().map(|&b| (b as f64 * through) as f32));
         }
         let eps = m.layer_norm_eps as f32;
-        let inbetween = (1..=m.inbetween_max_gap)
-            .map(|n| take(&format!("inbetween_{n}")))
-            .collect();
-        let joint_inbetween = (1..=m.joint_inbetween_max_gap)
-            .map(|n| take(&format!("joint_inbetween_{n}")))
-            .collect();
+        let mut kernels = |prefix: &str, context: usize, max_gap: usize| -> Result<Vec<Vec<f32>>> {
+            (1..=max_gap)
+                .map(|n| w.take(&format!("{prefix}_{n}"), &[n, inbetween_width(n, context)]))
+                .collect()
+        };
+        let inbetween = kernels("inbetween", m.inbetween_context, m.inbetween_max_gap)?;
+        let joint_inbetween = kernels(
+            "joint_inbetween",
+            m.joint_inbetween_context,
+            m.joint_inbetween_max_gap,
+        )?;
         let prior = Prior {
             path,
             config_json,
@@ -183,7 +175,9 @@ impl Prior {
         };
         prior.with_kernel(Kernel::from_env()?)
     }
+}
 
+impl Prior {
     /// The same model running `kernel` (`Auto`: the best this CPU supports); an error if the CPU
     /// does not support it. Packs the weights for it once.
     pub fn with_kernel(mut self, kernel: Kernel) -> Result<Self> {

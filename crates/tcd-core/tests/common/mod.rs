@@ -81,7 +81,7 @@ impl RawTensor {
 pub fn random_tensors(cfg: &TcdConfig, seed: u64) -> BTreeMap<String, RawTensor> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut out = BTreeMap::new();
-    for (name, shape) in expected_tensors(&cfg.model) {
+    for (name, shape) in Denoiser::tensor_shapes(cfg.clone()).unwrap() {
         let n: usize = shape.iter().product();
         let fan_in = if shape.len() >= 2 {
             shape[1..].iter().product::<usize>()
@@ -164,7 +164,7 @@ pub fn uniform_tensors(
 /// A prior's random weights: [`uniform_tensors`] of gain 3 (N(0, 1/fan_in) scale), norm weights
 /// around 1, so the network's contribution is large.
 pub fn prior_tensors(cfg: &PriorConfig, seed: u64) -> BTreeMap<String, RawTensor> {
-    uniform_tensors(prior_expected_tensors(&cfg.model), 3.0, seed)
+    uniform_tensors(Prior::tensor_shapes(cfg.clone()).unwrap(), 3.0, seed)
 }
 
 /// The config field an [`Error::InvalidConfig`] names; any other error fails the test.
