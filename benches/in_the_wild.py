@@ -280,7 +280,7 @@ def main(argv=None) -> int:
                     xin[i][~seen] = np.nan
             if variant.startswith("0.8"):
                 xin = xin[:, -short:]
-            f = model.forecast(xin, layout=layout, fps=fps, up=up, **kw)
+            f = model.forecast(xin, capture=tcd.Capture(layout, fps=fps, up=up), **kw)
             pred = f.mean[:, every - 1 :: every][:, : gt.shape[1]]
             last = np.repeat(last_observed(xin)[:, None], gt.shape[1], axis=1)  # Zero-Velocity, the same input
             name = label + (f", {variant}" if variant else "")

@@ -255,8 +255,8 @@ def humaneva_forecast(src: Sources) -> str:
     cols = ("ADE", "FDE", "MMADE", "MMFDE", "APD")
     labels = [
         ("tcd", "**tcd `forecast`: the mixture** (its default)"),
-        ("cascade", "its diffusion cascade alone (`generator_share=0`)"),
-        ("generator", "its MLP generator alone (`generator_share=1`)"),
+        ("cascade", "its diffusion cascade alone (`mode=tcd.Cascade()`)"),
+        ("generator", "its MLP generator alone (`mode=tcd.Mixture(1)`)"),
         ("prior", "tcd `predict`: the prior's point forecast"),
         ("neighbours", "the nearest training futures, joined (learns nothing)"),
         ("zero_velocity", "Zero-Velocity"),
@@ -623,9 +623,9 @@ def h36m_repair_sampler(src: Sources) -> str:
 
 
 def humaneva_sampler(src: Sources) -> str:
-    """Inline: the bundled HumanEva-I model's default forecast: its sampler and the generator's share."""
+    """Inline: the bundled HumanEva-I model's default forecast: its sampler and its mode (the generator's share)."""
     s = src.repo_json(f"{HUMANEVA_DIR}/sampling.json")
-    return f"{_sampler(s['forecast'])}; `generator_share={s.get('forecast_generator_share', 0):g}`"
+    return f"{_sampler(s['forecast'])}; `mode=tcd.Mixture({s.get('forecast_generator_share', 0):g})`"
 
 
 # ------------------------------------------------------------------------------------------ registration

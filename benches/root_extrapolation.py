@@ -4,9 +4,9 @@ constant, or the root held where it was.
 
     python3 benches/root_extrapolation.py [--json benches/results/root_extrapolation.json]
 
-The root path is the one ``TCD.forecast(..., layout=...)`` takes (resampled to the model's 25 fps over its
-2 s of observation, the root and heading measured by ``tcd.wild.to_model``, extrapolated, then read at the
-caller's frames), so its error here is the "root" error of ``benches/in_the_wild.py`` without the model's
+The root path is the one ``TCD.forecast(..., capture=tcd.Capture(layout, ...))`` takes (resampled to the model's
+25 fps over its 2 s of observation, the root and heading measured by ``tcd.wild.to_model``, extrapolated, then read
+at the caller's frames), so its error here is the "root" error of ``benches/in_the_wild.py`` without the model's
 cost. Sources, each in world coordinates with 2 s observed and 1 s forecast:
 
 * Human3.6M as ``h36m32`` at 50 fps: the training subjects (S1, S6, S7, S8, S9, S11; every action, a window

@@ -107,6 +107,58 @@ def test_argument_types_match_their_checks():
     assert typing.get_type_hints(tcd.engine.Prior.predict)["obs"] == ArrayLike
 
 
+def test_module_level_calls_have_the_methods_signatures():
+    """tcd.forecast / predict / repair take exactly what the bundled model's method takes (its signature less
+    ``self``), and no call takes loose keywords: a misspelt or removed argument is a TypeError."""
+    import inspect
+
+    for name in ("forecast", "predict", "repair"):
+        method = inspect.signature(getattr(tcd.TCD, name))
+        function = inspect.signature(getattr(tcd, name))
+        assert list(method.parameters)[0] == "self"
+        assert function == method.replace(parameters=list(method.parameters.values())[1:]), name
+        assert function.return_annotation == method.return_annotation
+        for sig in (method, function):
+            kinds = {p.kind for p in sig.parameters.values()}
+            assert inspect.Parameter.VAR_KEYWORD not in kinds and inspect.Parameter.VAR_POSITIONAL not in kinds, name
+            assert "capture" in sig.parameters and not {"layout", "fps", "up"} & set(sig.parameters), name
+        assert getattr(tcd, name).__name__ == name
+    forecast = inspect.signature(tcd.TCD.forecast).parameters
+    assert "mode" in forecast and not {"tempo", "generator_share"} & set(forecast)
+    for name in ("predict", "repair"):
+        assert "mode" not in inspect.signature(getattr(tcd.TCD, name)).parameters
+
+
+def test_mode_and_capture_are_objects(tiny_model, obs):
+    """A forecast's ``mode`` is a tcd.Cascade, tcd.Mixture or tcd.Tempo and its ``capture`` a tcd.Capture: a bare
+    pair, share, name or layout is an error naming the argument, on a model and through the module-level calls."""
+    for mode in ((0.8, 1.2), 0.5, "cascade", tcd.Cascade, tcd.Capture("h36m22")):
+        bad("mode", tiny_model.forecast, obs, mode=mode, **FAST)
+    bad("mode", tcd.forecast, obs, mode=(0.8, 1.2), **FAST)
+    for call in (tiny_model.forecast, tiny_model.repair, tcd.forecast, tcd.repair):
+        bad("capture", call, obs, capture="coco17", **FAST)
+    bad("capture", tcd.predict, obs, capture="coco17")
+    bad("capture", tiny_model.forecast, obs, capture=tcd.Tempo(0.8, 1.25), **FAST)
+    for mode in (tcd.Cascade(), tcd.Mixture(0), tcd.Tempo(1, 1)):  # each the cascade alone
+        np.testing.assert_array_equal(
+            tiny_model.forecast(obs, mode=mode, seed=3, **FAST).samples,
+            tiny_model.forecast(obs, seed=3, **FAST).samples,
+        )
+    with pytest.raises(TypeError):
+        tcd.forecast(obs, tempo=(0.8, 1.2))
+    with pytest.raises(TypeError):
+        tcd.repair(obs, layout="coco17")
+
+
+def test_the_modes_and_the_capture_are_exported():
+    assert {"Capture", "Cascade", "Mixture", "Tempo"} <= set(tcd.__all__)
+    for cls in (tcd.Capture, tcd.Cascade, tcd.Mixture, tcd.Tempo):
+        assert dataclasses.is_dataclass(cls) and cls.__dataclass_params__.frozen  # type: ignore[attr-defined]
+    assert tcd.Cascade() == tcd.Cascade() and tcd.Mixture(0.5) != tcd.Mixture(0.25)
+    assert tcd.Cascade().describe() == "the cascade"
+    assert "0.5" in tcd.Mixture(0.5).describe()
+
+
 def test_engine_names_live_in_tcd_engine_only():
     """One home per name: the engine-level API in tcd.engine, not in tcd; the modules no document presents
     are private by name."""

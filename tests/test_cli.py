@@ -42,6 +42,45 @@ def test_info(tiny_model_dir, capsys):
 
     info = json.loads(out)
     assert info["horizon"] == 25 and info["config"]["long"]["window"]["seq_len"] == 75
+    assert info["forecast_mode"] == {"mode": "cascade"}
+    assert "forecast_tempo" not in info and "generator_share" not in info
+    code, out, _ = run(["info", "--model", tiny_model_dir], capsys)
+    assert code == 0 and "default forecast mode: the cascade\n" in out and "generator: none" in out
+
+
+@pytest.mark.parametrize(
+    "sampling,mode,text",
+    [
+        ({"forecast_tempo": [0.7, 1.4]}, {"mode": "tempo", "lo": 0.7, "hi": 1.4}, "the cascade at tempi 0.7 to 1.4"),
+        ({"forecast_generator_share": 0}, {"mode": "cascade"}, "the cascade"),
+    ],
+)
+def test_info_shows_the_default_forecast_mode(tiny_model_dir, tmp_path, capsys, sampling, mode, text):
+    """``tcd info`` prints the directory's default mode (sampling.json), ``--json`` as ``forecast_mode``."""
+    import json
+
+    d = shutil.copytree(tiny_model_dir, tmp_path / "m")
+    (d / "sampling.json").write_text(json.dumps(sampling))
+    code, out, err = run(["info", "--model", d, "--json"], capsys)
+    assert code == 0, err
+    assert json.loads(out)["forecast_mode"] == mode
+    code, out, err = run(["info", "--model", d], capsys)
+    assert code == 0, err
+    assert f"default forecast mode: {text}\n" in out
+
+
+def test_info_humaneva_bundled_model_mixes_in_its_generator(capsys):
+    import json
+
+    if not (tcd.humaneva_model_dir() / "short.safetensors").is_file():
+        pytest.skip("no bundled HumanEva-I model in this build")
+    code, out, err = run(["info", "--model", "humaneva", "--json"], capsys)
+    assert code == 0, err
+    assert json.loads(out)["forecast_mode"] == {"mode": "mixture", "share": 0.5}
+    code, out, err = run(["info", "--model", "humaneva"], capsys)
+    assert code == 0, err
+    assert "default forecast mode: the cascade with a share of 0.5 of the samples from the generator" in out
+    assert "generator: MLP" in out
 
 
 def test_info_without_bundled_model(capsys, tmp_path, monkeypatch):

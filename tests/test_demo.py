@@ -61,6 +61,8 @@ def test_demo_cli_runs_and_writes_results(tiny_model_dir, tmp_path, capsys):
     assert np.isfinite(rep).all()
     assert set(summary["forecast_mm"]) == {"80", "160", "320", "400", "560", "720", "880", "1000"}
     assert summary["model_sha256"] == tcd.load(tiny_model_dir).sha256
+    assert summary["settings"]["mode"] == {"mode": "cascade"} and summary["settings"]["generator_samples"] == 0
+    assert "tempo" not in summary["settings"]
     # deterministic for a fixed seed
     out2 = tmp_path / "demo2.npz"
     assert main(["demo", "--model", str(tiny_model_dir), "-o", str(out2), *FAST]) == 0
@@ -163,8 +165,9 @@ def test_verdict_names_each_stage_size_where_they_differ():
     def stage(size):
         return SimpleNamespace(config={"model": {"num_layers": size[0], "channels": size[1]}})
 
-    def model(short, long, generator=None, share=0.0):
-        return SimpleNamespace(short=stage(short), long=stage(long), generator=generator, generator_share=share)
+    def model(short, long, generator=None, mode=None):
+        mode = tcd.Cascade() if mode is None else mode
+        return SimpleNamespace(short=stage(short), long=stage(long), generator=generator, forecast_mode=mode)
 
     res = {"forecast_mm": {80: 10.0, 1000: 150.0}, "zero_velocity_mm": {80: 20.0, 1000: 140.0}}
     same = demo.verdict(res, model((3, 32), (3, 32)))
@@ -176,6 +179,8 @@ def test_verdict_names_each_stage_size_where_they_differ():
     assert "reduced" in demo.verdict(res, model((12, 64), (4, 64)))
     mlp = SimpleNamespace(layers=3, hidden=768)  # a directory with a generator names it, and its share
     assert "and an MLP generator of 3 x 768 drawing 0.5 of the samples" in demo.verdict(
-        res, model((3, 32), (3, 32), mlp, 0.5)
+        res, model((3, 32), (3, 32), mlp, tcd.Mixture(0.5))
     )
-    assert "MLP" not in demo.verdict(res, model((3, 32), (3, 32), mlp, 0.0))
+    assert "MLP" not in demo.verdict(res, model((3, 32), (3, 32), mlp, tcd.Cascade()))
+    assert "MLP" not in demo.verdict(res, model((3, 32), (3, 32), mlp, tcd.Mixture(0.0)))  # a share of 0: none drawn
+    assert "MLP" not in demo.verdict(res, model((3, 32), (3, 32), mlp, tcd.Tempo(0.8, 1.25)))

@@ -146,6 +146,32 @@ def test_bad_options(tiny_model, obs, argument, kwargs):
     bad(argument, tiny_model.repair, obs, **kwargs)
 
 
+@pytest.mark.parametrize(
+    "argument,make",
+    [
+        ("tempo", lambda: tcd.Tempo(1.2, 2.0)),
+        ("tempo", lambda: tcd.Tempo(0.2, 1.5)),
+        ("share", lambda: tcd.Mixture(1.5)),
+        ("share", lambda: tcd.Mixture("half")),
+        ("layout", lambda: tcd.Capture("openpose25")),
+        ("fps", lambda: tcd.Capture("coco17", fps=0)),
+        ("up", lambda: tcd.Capture("coco17", up="w")),
+    ],
+)
+def test_bad_modes_and_captures_are_refused_when_made(argument, make):
+    bad(argument, make)
+
+
+def test_a_mode_or_capture_of_another_type_is_an_error_naming_it(tiny_model, obs):
+    bad("mode", tiny_model.forecast, obs, mode=(0.8, 1.2))
+    bad("mode", tiny_model.forecast, obs, mode={"mode": "cascade"})
+    for call in (tiny_model.forecast, tiny_model.repair):
+        bad("capture", call, obs, capture="coco17")
+        bad("capture", call, obs, capture=("coco17", 25))
+    with pytest.raises(TypeError, match="mode"):
+        tiny_model.repair(obs, mode=tcd.Cascade())
+
+
 def test_the_sampler_is_an_options_object(tiny_model, obs):
     """A call's sampler is a tcd.SamplerOptions: a name alone, a dict or loose sampler keywords are refused,
     the error naming ``sampler`` and showing how to make one."""

@@ -108,6 +108,9 @@ def test_tempo_runs_through_the_engine_and_is_recorded(tmp_path):
     with pytest.raises(SystemExit) as e:  # the PyTorch reference has no tempo sampling
         evaluate.main(args + ["--engine", "torch", "--tempo", "0.8", "1.25"])
     assert e.value.code == 2
+    with pytest.raises(SystemExit) as e:  # two forecast modes (tcd.Tempo, tcd.Mixture): refused
+        evaluate.main(args + ["--engine", "tcd", "--tempo", "0.8", "1.25", "--generator-share", "0"])
+    assert e.value.code == 2
 
 
 @needs_h36m

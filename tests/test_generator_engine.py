@@ -1,6 +1,6 @@
 """The MLP sample generator in the engine and the API (no torch): ``tcd.engine.Generator`` (its description,
 seeded streams that depend neither on threads nor on the batch, bad arguments and files) and the mixture of
-:meth:`tcd.TCD.forecast` (``generator_share``: the cascade's samples, then the generator's). On a small random
+:meth:`tcd.TCD.forecast` (``mode=tcd.Mixture(share)``: the cascade's samples, then the generator's). On a small random
 generator (2 x 32) written here with safetensors' numpy API into a copy of the committed tiny HumanEva-I model
 (tests/fixtures/tiny_humaneva_model, with its random prior). Parity with the PyTorch reference:
 tests/test_generator_parity.py."""
@@ -78,7 +78,7 @@ def observation(batch: int = 3) -> np.ndarray:
 
 def test_description(model, model_dir):
     g = model.generator
-    assert isinstance(g, tcd.engine.Generator) and model.generator_share == 0.0
+    assert isinstance(g, tcd.engine.Generator) and model.forecast_mode == tcd.Cascade()
     assert (g.num_features, g.num_joints, g.obs_len, g.pred_len, g.hidden, g.layers, g.z_dim, g.coefs) == (
         K,
         14,
@@ -144,12 +144,12 @@ def test_bad_files(model_dir, tmp_path):
 
 
 def test_forecast_mixture_is_the_cascade_then_the_generator(model):
-    """``generator_share`` 0.5 of 6 samples: the first 3 are the cascade's alone with 3 samples (the same seed),
+    """``tcd.Mixture(0.5)`` of 6 samples: the first 3 are the cascade's alone with 3 samples (the same seed),
     the last 3 the generator's of the observation and the prior's forecast of it (seeded alike); the mean is
     theirs; the default (the directory's share, 0 here) is the cascade alone."""
     obs = observation(2)
     kw = dict(seed=5, sampler=SamplerOptions(sampler="ddim", num_inference_steps=1))
-    mixed = model.forecast(obs, num_samples=6, generator_share=0.5, **kw)
+    mixed = model.forecast(obs, num_samples=6, mode=tcd.Mixture(0.5), **kw)
     cascade = model.forecast(obs, num_samples=3, **kw)
     assert mixed.samples.shape == (6, 2, P, 14, 3)
     np.testing.assert_array_equal(mixed.samples[:3], cascade.samples)
@@ -158,11 +158,14 @@ def test_forecast_mixture_is_the_cascade_then_the_generator(model):
     drawn = model.generator.sample(x, model.prior.predict(x, P), 3, seed=5).reshape(3, 2, P, 14, 3)
     np.testing.assert_allclose(mixed.samples[3:], drawn, rtol=0, atol=1e-7)
     np.testing.assert_allclose(mixed.mean, mixed.samples.mean(axis=0), rtol=1e-6, atol=1e-6)
-    np.testing.assert_array_equal(model.forecast(obs, num_samples=3, generator_share=0, **kw).samples, cascade.samples)
-    every = model.forecast(obs, num_samples=3, generator_share=1.0, **kw)  # no cascade: the observation kept
+    np.testing.assert_array_equal(
+        model.forecast(obs, num_samples=3, mode=tcd.Mixture(0), **kw).samples, cascade.samples
+    )
+    np.testing.assert_array_equal(model.forecast(obs, num_samples=3, mode=tcd.Cascade(), **kw).samples, cascade.samples)
+    every = model.forecast(obs, num_samples=3, mode=tcd.Mixture(1.0), **kw)  # no cascade: the observation kept
     np.testing.assert_allclose(every.samples, drawn, rtol=0, atol=1e-7)
     np.testing.assert_array_equal(every.repaired, obs)
-    odd = model.forecast(obs, num_samples=5, generator_share=0.5, **kw)  # floor(2.5) = 2 from the generator
+    odd = model.forecast(obs, num_samples=5, mode=tcd.Mixture(0.5), **kw)  # floor(2.5) = 2 from the generator
     np.testing.assert_array_equal(odd.samples[:3], cascade.samples)
 
 
@@ -170,16 +173,34 @@ def test_the_share_from_sampling_json_and_bad_shares(model_dir, tmp_path):
     d = Path(shutil.copytree(model_dir, tmp_path / "m"))
     (d / "sampling.json").write_text(json.dumps({"forecast_generator_share": 0.5}))
     m = tcd.load(d)
-    assert m.generator_share == 0.5
+    assert m.forecast_mode == tcd.Mixture(0.5)
     obs = observation(1)
     kw = dict(seed=1, sampler=SamplerOptions(sampler="ddim", num_inference_steps=1))
     np.testing.assert_array_equal(
-        m.forecast(obs, num_samples=4, **kw).samples, m.forecast(obs, num_samples=4, generator_share=0.5, **kw).samples
+        m.forecast(obs, num_samples=4, **kw).samples,
+        m.forecast(obs, num_samples=4, mode=tcd.Mixture(0.5), **kw).samples,
     )
-    bad("generator_share", m.forecast, obs, generator_share=1.5)
-    bad("generator_share", m.forecast, obs, generator_share="half")
-    bad("tempo", m.forecast, obs, num_samples=4, tempo=(0.8, 1.25))
-    m.forecast(obs, num_samples=4, tempo=(0.8, 1.25), generator_share=0, **kw)  # the cascade alone: fine
+    for share in (1.5, -0.1, "half", True, np.nan, None):
+        bad("share", tcd.Mixture, share)
+    bad("mode", m.forecast, obs, mode=0.5)  # a share is a tcd.Mixture
+    with pytest.raises(TypeError, match="generator_share"):
+        m.forecast(obs, generator_share=0.5)
+    # a mode replaces the directory's default mode: tempo sampling of the cascade alone on a model whose default
+    # mixes in the generator, the same samples as on the model without that default
+    tempo = m.forecast(obs, num_samples=4, mode=tcd.Tempo(0.8, 1.25), **kw)
+    plain = tcd.load(model_dir)
+    assert plain.forecast_mode == tcd.Cascade()
+    np.testing.assert_array_equal(
+        tempo.samples, plain.forecast(obs, num_samples=4, mode=tcd.Tempo(0.8, 1.25), **kw).samples
+    )
+    np.testing.assert_array_equal(
+        m.forecast(obs, num_samples=4, mode=tcd.Tempo(1, 1), **kw).samples,
+        plain.forecast(obs, num_samples=4, **kw).samples,
+    )
+    np.testing.assert_array_equal(
+        m.forecast(obs, num_samples=4, mode=tcd.Cascade(), **kw).samples,
+        plain.forecast(obs, num_samples=4, **kw).samples,
+    )
     (d / "sampling.json").write_text(json.dumps({"forecast_generator_share": 2}))
     with pytest.raises(WeightsError, match="forecast_generator_share"):
         tcd.load(d)
@@ -188,7 +209,16 @@ def test_the_share_from_sampling_json_and_bad_shares(model_dir, tmp_path):
     with pytest.raises(WeightsError, match="generator"):
         tcd.load(d)
     (d / "sampling.json").unlink()
-    bad("generator_share", tcd.load(d).forecast, obs, generator_share=0.5)
+    none = tcd.load(d)
+    assert none.generator is None and none.forecast_mode == tcd.Cascade()
+    e = bad("mode", none.forecast, obs, mode=tcd.Mixture(0.5))
+    assert "generator" in str(e)
+    # any share above 0, even one that draws no sample here (floor(2 * 0.1) = 0)
+    bad("mode", none.forecast, obs, num_samples=2, mode=tcd.Mixture(0.1), **kw)
+    np.testing.assert_array_equal(  # a share of 0 is the cascade
+        none.forecast(obs, num_samples=2, mode=tcd.Mixture(0), **kw).samples,
+        none.forecast(obs, num_samples=2, **kw).samples,
+    )
 
 
 def test_a_generator_that_does_not_fit_the_model_is_refused(model_dir, tmp_path):
@@ -199,3 +229,102 @@ def test_a_generator_that_does_not_fit_the_model_is_refused(model_dir, tmp_path)
     write_generator(d / "generator.safetensors", num_joints=15, num_features=45)
     with pytest.raises(WeightsError, match="num_features"):
         tcd.load(d)
+
+
+def test_the_constructor_takes_a_mode(model):
+    """``TCD(..., mode=...)`` is the default :attr:`TCD.forecast_mode` (the cascade without one), checked when the
+    model is made: a mode object, a mixture only with a generator; the old keywords are gone."""
+    parts = dict(prior=model.prior, generator=model.generator)
+    assert tcd.TCD(model.short, model.long, **parts).forecast_mode == tcd.Cascade()
+    mixed = tcd.TCD(model.short, model.long, mode=tcd.Mixture(0.5), **parts)
+    assert mixed.forecast_mode == tcd.Mixture(0.5)
+    obs = observation(1)
+    kw = dict(num_samples=4, seed=2, sampler=SamplerOptions(sampler="ddim", num_inference_steps=1))
+    np.testing.assert_array_equal(
+        mixed.forecast(obs, **kw).samples, model.forecast(obs, mode=tcd.Mixture(0.5), **kw).samples
+    )
+    assert tcd.TCD(model.short, model.long, mode=tcd.Tempo(0.8, 1.25), **parts).forecast_mode == tcd.Tempo(0.8, 1.25)
+    bad("mode", tcd.TCD, model.short, model.long, mode=(0.8, 1.25), **parts)
+    bad("mode", tcd.TCD, model.short, model.long, mode=0.5, **parts)
+    with pytest.raises(WeightsError, match="generator"):
+        tcd.TCD(model.short, model.long, prior=model.prior, mode=tcd.Mixture(0.5))
+    for old in ({"forecast_tempo": (0.8, 1.25)}, {"generator_share": 0.5}):
+        with pytest.raises(TypeError):
+            tcd.TCD(model.short, model.long, **parts, **old)
+
+
+def test_command_line_generator_share(model_dir, tmp_path, capsys):
+    """``tcd forecast --generator-share F`` is the call's ``mode=tcd.Mixture(F)``; a bad share, a share on a model
+    without a generator and a share with --tempo are exit code 2 naming the flag, with nothing written."""
+    from tcd._cli import main
+
+    src = tmp_path / "in.npz"
+    np.savez(src, poses=observation(2))
+    fast = ["--samples", "4", "--seed", "3", "--sampler", "ddim", "--steps", "1", "--quiet"]
+    assert (
+        main(
+            [
+                "forecast",
+                str(src),
+                "-o",
+                str(tmp_path / "a.npz"),
+                "--generator-share",
+                "0.5",
+                "--model",
+                str(model_dir),
+                *fast,
+            ]
+        )
+        == 0
+    )
+    want = tcd.load(model_dir).forecast(
+        observation(2),
+        num_samples=4,
+        seed=3,
+        sampler=SamplerOptions(sampler="ddim", num_inference_steps=1),
+        mode=tcd.Mixture(0.5),
+    )
+    with np.load(tmp_path / "a.npz") as f:
+        np.testing.assert_array_equal(f["samples"], want.samples)
+    capsys.readouterr()
+    assert (
+        main(
+            [
+                "forecast",
+                str(src),
+                "-o",
+                str(tmp_path / "b.npz"),
+                "--generator-share",
+                "1.5",
+                "--model",
+                str(model_dir),
+                *fast,
+            ]
+        )
+        == 2
+    )
+    assert "--generator-share" in capsys.readouterr().err and not (tmp_path / "b.npz").exists()
+    plain = Path(shutil.copytree(model_dir, tmp_path / "plain"))
+    (plain / "generator.safetensors").unlink()
+    assert (
+        main(
+            [
+                "forecast",
+                str(src),
+                "-o",
+                str(tmp_path / "c.npz"),
+                "--generator-share",
+                "0.5",
+                "--model",
+                str(plain),
+                *fast,
+            ]
+        )
+        == 2
+    )
+    err = capsys.readouterr().err
+    assert "--generator-share" in err and "generator" in err and not (tmp_path / "c.npz").exists()
+    argv = ["forecast", str(src), "-o", str(tmp_path / "d.npz"), "--generator-share", "0.5", "--tempo", "0.8", "1.25"]
+    assert main([*argv, "--model", str(model_dir), *fast]) == 2
+    err = capsys.readouterr().err
+    assert "--tempo" in err and "--generator-share" in err and not (tmp_path / "d.npz").exists()

@@ -1,6 +1,6 @@
 """Parity of the MLP sample generator in the Rust engine (``tcd.engine.Generator``) with the PyTorch reference
 (``training.generator.Generator``), on every kernel path this CPU supports, and its export. The model-level
-mixture (``tcd.TCD.forecast``'s ``generator_share``), which needs no torch, is tests/test_generator_engine.py.
+mixture (``tcd.TCD.forecast``'s ``mode=tcd.Mixture(share)``), which needs no torch, is tests/test_generator_engine.py.
 
 Weights (the same file on both sides: the reference is loaded back from it with ``load_generator_file``):
 * ``random``: the bundled size (3 x 768, z 64, 20 coefficients), PyTorch's default init of the hidden layers and

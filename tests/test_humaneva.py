@@ -140,9 +140,7 @@ def test_humaneva15_forecast_with_a_human36m_model(tiny_model):
     obs = walking(40, 5)
     f = tiny_model.forecast(
         obs,
-        layout="humaneva15",
-        fps=60,
-        up="z",
+        capture=tcd.Capture("humaneva15", fps=60, up="z"),
         num_samples=3,
         seed=0,
         sampler=SamplerOptions(sampler="ddim", num_inference_steps=2),
@@ -213,7 +211,7 @@ def test_a_humaneva_model_forecasts_world_poses_in_its_own_layout(humaneva_model
     m = tcd.load(humaneva_model_dir)
     world = walking(40, 6)  # +z up, 60 Hz, moving along +x
     kw = dict(num_samples=3, seed=4, sampler=SamplerOptions(sampler="ddim", num_inference_steps=2))
-    f = m.forecast(world, layout="humaneva15", fps=60, up="z", **kw)
+    f = m.forecast(world, capture=tcd.Capture("humaneva15", fps=60, up="z"), **kw)
     assert f.mean.shape == (60, 15, 3) and f.samples.shape == (3, 60, 15, 3) and f.repaired.shape == world.shape
     np.testing.assert_allclose(f.times[[0, -1]], [1 / 60, 1.0])
     np.testing.assert_array_equal(f.repaired, world)  # nothing was missing
@@ -224,21 +222,21 @@ def test_a_humaneva_model_forecasts_world_poses_in_its_own_layout(humaneva_model
     assert 0 < f.mean[0, 0, 0] - world[-1, 0, 0] <= 1.01 * step[0]  # the pelvis walks on, slowing down
     # the same poses with +y up give the same forecast, turned the same way
     turn = np.array([[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]])  # z -> y
-    g = m.forecast(world @ turn.T, layout="humaneva15", fps=60, up="y", **kw)
+    g = m.forecast(world @ turn.T, capture=tcd.Capture("humaneva15", fps=60, up="y"), **kw)
     np.testing.assert_allclose(g.samples, f.samples @ turn.T, atol=1e-5)
     # another frame rate: 30 fps in, 30 fps out
-    h = m.forecast(world[::2], layout="humaneva15", fps=30, up="z", **kw)
+    h = m.forecast(world[::2], capture=tcd.Capture("humaneva15", fps=30, up="z"), **kw)
     assert h.mean.shape == (30, 15, 3) and np.isfinite(h.mean).all()
     # a missing pelvis frame is interpolated; a pelvis never shown is refused
     gap = world.copy()
     gap[-5, 0] = np.nan
-    assert np.isfinite(m.forecast(gap, layout="humaneva15", fps=60, up="z", **kw).mean).all()
+    assert np.isfinite(m.forecast(gap, capture=tcd.Capture("humaneva15", fps=60, up="z"), **kw).mean).all()
     gone = world.copy()
     gone[:, 0] = np.nan
     with pytest.raises(tcd.InvalidInputError, match="pelvis"):
-        m.forecast(gone, layout="humaneva15", fps=60, up="z", **kw)
+        m.forecast(gone, capture=tcd.Capture("humaneva15", fps=60, up="z"), **kw)
     with pytest.raises(tcd.InvalidInputError, match="layout"):
-        m.forecast(np.zeros((20, 17, 3)), layout="coco17", fps=60, **kw)
+        m.forecast(np.zeros((20, 17, 3)), capture=tcd.Capture("coco17", fps=60), **kw)
 
 
 def test_a_humaneva_model_repairs_world_poses_in_its_own_layout(humaneva_model_dir, tmp_path):
@@ -250,9 +248,7 @@ def test_a_humaneva_model_repairs_world_poses_in_its_own_layout(humaneva_model_d
     gap[-5, 0] = np.nan  # and the pelvis once
     rep = m.repair(
         gap,
-        layout="humaneva15",
-        fps=60,
-        up="z",
+        capture=tcd.Capture("humaneva15", fps=60, up="z"),
         num_samples=2,
         seed=0,
         sampler=SamplerOptions(sampler="ddim", num_inference_steps=2),
@@ -323,7 +319,7 @@ def test_bundled_humaneva_model_loads_and_beats_zero_velocity():
         pytest.skip("no bundled HumanEva-I model in this build")
     m = tcd.load("humaneva")
     assert (m.obs_len, m.horizon, m.num_joints) == (15, 60, 14) and m.prior is not None
-    assert m.generator is not None and m.generator_share == 0.5
+    assert m.generator is not None and m.forecast_mode == tcd.Mixture(0.5)
     assert m.joint_names == list(HUMANEVA_MODEL_JOINT_NAMES)
     if not HUMANEVA_FILE.is_file():
         pytest.skip("HumanEva-I data absent")

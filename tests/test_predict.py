@@ -111,9 +111,18 @@ def test_a_directory_without_prior(tiny_model):
 
 def test_other_frame_rates_and_layouts(model):
     obs = clip()
-    f = model.predict(obs[::2], fps=12.5)  # half the model's rate: resampled both ways
+    f = model.predict(obs[::2], capture=tcd.Capture("h36m22", fps=12.5))  # half the model's rate: resampled both ways
     assert f.samples is None and f.mean.shape == (12, 22, 3)
     np.testing.assert_allclose(f.times, np.arange(1, 13) / 12.5)
+
+
+def test_the_capture_is_a_capture_object(model):
+    obs = clip()
+    with pytest.raises(InvalidInputError) as e:
+        model.predict(obs, capture="coco17")
+    assert e.value.argument == "capture" and "`capture`" in str(e.value)
+    with pytest.raises(TypeError, match="fps"):
+        model.predict(obs[::2], fps=12.5)
 
 
 def test_cli_point_forecast(model_dir, tmp_path, tiny_model_dir):

@@ -1,5 +1,6 @@
 """Tempo sampling (:mod:`tcd._tempo`): the observation replayed at each sample's tempo, the forecast read back on
-the original clock, through ``TCD.forecast(tempo=...)`` and a model directory's ``sampling.json`` default."""
+the original clock, through ``TCD.forecast(mode=tcd.Tempo(lo, hi))`` and a model directory's ``sampling.json``
+default."""
 
 from __future__ import annotations
 
@@ -109,17 +110,38 @@ def test_bad_tempo_is_an_error_naming_it(value):
     bad("tempo", check_tempo, value)
 
 
+def test_check_tempo_takes_no_none():
+    """None is no tempo range (a call without a mode takes the model's default, ``mode=None``)."""
+    bad("tempo", check_tempo, None)
+
+
+@pytest.mark.parametrize(
+    "lo,hi", [(1.2, 2.0), (0.5, 0.9), (0.0, 1.0), (0.2, 1.5), (np.nan, 1.0), (1.0, True), ("fast", 1)]
+)
+def test_a_bad_tempo_mode_is_an_error_naming_it(lo, hi):
+    bad("tempo", tcd.Tempo, lo, hi)
+
+
+def test_tempo_mode_keeps_its_range_as_floats():
+    t = tcd.Tempo(1, 2)
+    assert (t.lo, t.hi) == (1.0, 2.0) and isinstance(t.lo, float) and isinstance(t.hi, float)
+    assert t == tcd.Tempo(1.0, 2.0) and hash(t) == hash(tcd.Tempo(1.0, 2.0))
+    assert t.describe() == "the cascade at tempi 1 to 2"
+
+
 def test_forecast_with_tempo(tiny_model_dir):
     m = tcd.load(tiny_model_dir)
-    assert m.forecast_tempo is None
+    assert m.forecast_mode == tcd.Cascade()
     obs = poses(np.random.default_rng(0), batch=2, missing=0.1)
     plain = m.forecast(obs, num_samples=4, seed=7, sampler=SamplerOptions(num_inference_steps=2))
     assert np.array_equal(
         plain.samples,
-        m.forecast(obs, num_samples=4, seed=7, sampler=SamplerOptions(num_inference_steps=2), tempo=(1, 1)).samples,
+        m.forecast(
+            obs, num_samples=4, seed=7, sampler=SamplerOptions(num_inference_steps=2), mode=tcd.Tempo(1, 1)
+        ).samples,
     )
-    a = m.forecast(obs, num_samples=4, seed=7, sampler=SamplerOptions(num_inference_steps=2), tempo=(0.6, 1.6))
-    b = m.forecast(obs, num_samples=4, seed=7, sampler=SamplerOptions(num_inference_steps=2), tempo=(0.6, 1.6))
+    a = m.forecast(obs, num_samples=4, seed=7, sampler=SamplerOptions(num_inference_steps=2), mode=tcd.Tempo(0.6, 1.6))
+    b = m.forecast(obs, num_samples=4, seed=7, sampler=SamplerOptions(num_inference_steps=2), mode=tcd.Tempo(0.6, 1.6))
     assert a.samples.shape == plain.samples.shape and np.isfinite(a.samples).all()
     assert np.array_equal(a.samples, b.samples)  # seeded
     assert not np.allclose(a.samples, plain.samples)
@@ -128,44 +150,64 @@ def test_forecast_with_tempo(tiny_model_dir):
     assert np.isfinite(a.repaired).all()
     # sequence b's samples do not depend on the batch's size or other sequences (streams b * n + i), as without
     # tempo sampling (stream b)
-    alone = m.forecast(obs[:1], num_samples=4, seed=7, sampler=SamplerOptions(num_inference_steps=2), tempo=(0.6, 1.6))
+    alone = m.forecast(
+        obs[:1], num_samples=4, seed=7, sampler=SamplerOptions(num_inference_steps=2), mode=tcd.Tempo(0.6, 1.6)
+    )
     assert np.array_equal(alone.samples[:, 0], a.samples[:, 0])
     other = m.forecast(
         np.stack([obs[0], obs[0][::-1]]),
         num_samples=4,
         seed=7,
         sampler=SamplerOptions(num_inference_steps=2),
-        tempo=(0.6, 1.6),
+        mode=tcd.Tempo(0.6, 1.6),
     )
     assert np.array_equal(other.samples[:, 0], a.samples[:, 0])
-    bad("tempo", m.forecast, obs, tempo="fast")
+    bad("tempo", tcd.Tempo, "fast", 1.6)
+    bad("mode", m.forecast, obs, mode=(0.6, 1.6))  # a mode is a tcd.Tempo, not the pair
+    with pytest.raises(TypeError, match="tempo"):
+        m.forecast(obs, tempo=(0.6, 1.6))
 
 
 def test_sampling_file_sets_the_default_tempo(tiny_model_dir, tmp_path):
     d = shutil.copytree(tiny_model_dir, tmp_path / "m")
     (d / "sampling.json").write_text(json.dumps({"why": "a test", "forecast_tempo": [0.7, 1.4]}))
     m = tcd.load(d)
-    assert m.forecast_tempo == (0.7, 1.4)
+    assert m.forecast_mode == tcd.Tempo(0.7, 1.4)
     obs = poses(np.random.default_rng(0), batch=2, missing=0.1)
     kw = dict(num_samples=3, seed=1, sampler=SamplerOptions(num_inference_steps=2))
-    assert np.array_equal(m.forecast(obs, **kw).samples, m.forecast(obs, tempo=(0.7, 1.4), **kw).samples)
+    assert np.array_equal(m.forecast(obs, **kw).samples, m.forecast(obs, mode=tcd.Tempo(0.7, 1.4), **kw).samples)
     assert np.array_equal(
-        m.forecast(obs, tempo=(1, 1), **kw).samples, tcd.load(tiny_model_dir).forecast(obs, **kw).samples
+        m.forecast(obs, mode=tcd.Tempo(1, 1), **kw).samples, tcd.load(tiny_model_dir).forecast(obs, **kw).samples
+    )
+    assert np.array_equal(
+        m.forecast(obs, mode=tcd.Cascade(), **kw).samples, tcd.load(tiny_model_dir).forecast(obs, **kw).samples
     )
     (d / "sampling.json").write_text(json.dumps({"forecast_tempo": [1.5, 2.0]}))
     with pytest.raises(WeightsError, match="forecast_tempo"):
         tcd.load(d)
 
 
+def test_a_sampling_file_with_two_modes_is_a_weights_error(tiny_model_dir, tmp_path):
+    """``"forecast_tempo"`` and ``"forecast_generator_share"`` name two default modes: a directory has one (even a
+    share of 0 beside a tempo range)."""
+    d = shutil.copytree(tiny_model_dir, tmp_path / "m")
+    for share in (0.5, 0):
+        (d / "sampling.json").write_text(json.dumps({"forecast_tempo": [0.7, 1.4], "forecast_generator_share": share}))
+        with pytest.raises(WeightsError, match="forecast_tempo") as e:
+            tcd.load(d)
+        assert "forecast_generator_share" in str(e.value) and "sampling.json" in str(e.value)
+
+
 def test_the_bundled_models_sample_no_tempi_by_default():
-    """What the docs say (MODEL_CARD.md, "Tempo sampling": the samples' mean gets worse with it)."""
-    assert tcd.load(tcd.humaneva_model_dir()).forecast_tempo is None
-    assert tcd.load().forecast_tempo is None
+    """What the docs say (MODEL_CARD.md, "Tempo sampling": the samples' mean gets worse with it): the HumanEva-I
+    model's default mode is its generator's mixture, the Human3.6M model's the cascade."""
+    assert tcd.load(tcd.humaneva_model_dir()).forecast_mode == tcd.Mixture(0.5)
+    assert tcd.load().forecast_mode == tcd.Cascade()
 
 
 def test_command_line_tempo(tiny_model_dir, tmp_path, capsys):
-    """``tcd forecast --tempo LO HI`` is the call's ``tempo``; ``tcd info`` shows the default; a bad range is exit
-    code 2 naming the flag, with nothing written."""
+    """``tcd forecast --tempo LO HI`` is the call's ``mode=tcd.Tempo(LO, HI)``; ``tcd info`` shows the default mode;
+    a bad range is exit code 2 naming the flag, with nothing written."""
     from tcd._cli import main
 
     obs = poses(np.random.default_rng(0), batch=2, missing=0.1)
@@ -176,23 +218,45 @@ def test_command_line_tempo(tiny_model_dir, tmp_path, capsys):
     with np.load(tmp_path / "a.npz") as f:
         got = f["samples"]
     want = tcd.load(tiny_model_dir).forecast(
-        obs, num_samples=3, seed=5, sampler=SamplerOptions(num_inference_steps=2), tempo=(0.7, 1.4)
+        obs, num_samples=3, seed=5, sampler=SamplerOptions(num_inference_steps=2), mode=tcd.Tempo(0.7, 1.4)
     )
     assert np.array_equal(got, want.samples)
     capsys.readouterr()
     assert main(["forecast", str(src), "-o", str(tmp_path / "b.npz"), "--tempo", "1.5", "2", *fast]) == 2
     assert "--tempo" in capsys.readouterr().err and not (tmp_path / "b.npz").exists()
+    # --tempo and --generator-share name two modes: refused, naming both, nothing written
+    assert (
+        main(
+            [
+                "forecast",
+                str(src),
+                "-o",
+                str(tmp_path / "c.npz"),
+                "--tempo",
+                "0.7",
+                "1.4",
+                "--generator-share",
+                "0",
+                *fast,
+            ]
+        )
+        == 2
+    )
+    err = capsys.readouterr().err
+    assert "--tempo" in err and "--generator-share" in err and not (tmp_path / "c.npz").exists()
     assert main(["info", "--model", str(tiny_model_dir)]) == 0
-    assert "default tempo sampling, forecast: none" in capsys.readouterr().out
+    assert "default forecast mode: the cascade" in capsys.readouterr().out
 
 
 def test_tempo_through_the_wild_path(tiny_model_dir):
-    """Poses from the wild (``layout``, ``fps``: resampled to the model's rate and back) take the same tempi: the
-    samples come back in the caller's rate and shape, the observed frames as given."""
+    """Poses from the wild (``capture=tcd.Capture(layout, fps)``: resampled to the model's rate and back) take the
+    same tempi: the samples come back in the caller's rate and shape, the observed frames as given."""
     m = tcd.load(tiny_model_dir)
     x = np.random.default_rng(0).normal(scale=0.3, size=(2, 60, 22, 3)).astype(np.float32)
-    kw = dict(num_samples=3, seed=1, sampler=SamplerOptions(num_inference_steps=2), layout="h36m22", fps=50)
-    a, b = m.forecast(x, tempo=(0.7, 1.4), **kw), m.forecast(x, **kw)
+    kw = dict(
+        num_samples=3, seed=1, sampler=SamplerOptions(num_inference_steps=2), capture=tcd.Capture("h36m22", fps=50)
+    )
+    a, b = m.forecast(x, mode=tcd.Tempo(0.7, 1.4), **kw), m.forecast(x, **kw)
     assert a.samples.shape == b.samples.shape and np.isfinite(a.samples).all()
     assert not np.allclose(a.samples, b.samples)
     np.testing.assert_allclose(a.repaired, x, atol=1e-6)

@@ -1,5 +1,5 @@
 """Poses from the wild (issue 17, first part): the joint layouts' mappings, world coordinates, frame rates
-and lengths, through the public API (tcd.TCD.forecast / repair with layout=, fps=, up=)."""
+and lengths, through the public API (tcd.TCD.forecast / repair with capture=tcd.Capture(layout, fps, up))."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 from fixtures_util import bad
 from tcd import layouts, wild
 from tcd._demo import load_clip
-from tcd import SamplerOptions
+from tcd import Capture, SamplerOptions
 
 FAST = dict(num_samples=2, seed=0, sampler=SamplerOptions(sampler="ddim", num_inference_steps=3))
 SAME_PLACE = {16: 13, 20: 19, 23: 22, 24: 13, 28: 27, 31: 30}
@@ -71,7 +71,7 @@ def test_h36m32_on_the_model_skeleton_costs_nothing(tiny_model):
     x = h36m32()
     model = list(layouts.MODEL_IDS)
     native = tiny_model.forecast(x[:, model], **FAST)
-    f = tiny_model.forecast(x, layout="h36m32", **FAST)
+    f = tiny_model.forecast(x, capture=Capture("h36m32"), **FAST)
     n = wild.JOIN_FRAMES
     assert n == 5
     w = np.minimum(np.arange(1, 26) / n, 1.0)[:, None, None]
@@ -89,13 +89,13 @@ def test_world_coordinates_move_with_the_input(tiny_model, name):
     """Turning and moving the observation turns and moves the forecast and the repair with it."""
     a = in_layout(world(h36m32(), angle=0.2, shift=(0.0, 0.0, 0.0)), name)
     b = in_layout(world(h36m32(), angle=2.1, shift=(5.0, 7.0, -1.0)), name)
-    fa = tiny_model.forecast(a, layout=name, up="z", **FAST)
-    fb = tiny_model.forecast(b, layout=name, up="z", **FAST)
+    fa = tiny_model.forecast(a, capture=Capture(name, up="z"), **FAST)
+    fb = tiny_model.forecast(b, capture=Capture(name, up="z"), **FAST)
     turn = _world_rot(2.1) @ _world_rot(0.2).T
     np.testing.assert_allclose(np.einsum("ij,...j->...i", turn, fa.mean) + [5.0, 7.0, -1.0], fb.mean, atol=1e-9)
     gappy = b.copy()
     gappy[10:20, 3:6] = np.nan
-    r = tiny_model.repair(gappy, layout=name, up="z", **FAST).poses
+    r = tiny_model.repair(gappy, capture=Capture(name, up="z"), **FAST).poses
     seen = ~np.isnan(gappy)
     assert np.array_equal(r[seen], gappy[seen]) and np.isfinite(r[10:20, 3:6]).all()
 
@@ -105,19 +105,21 @@ def test_any_frame_rate_and_length(tiny_model):
     from tcd._resample import resample_backward
 
     x50 = resample_backward(x25.reshape(50, -1), 99, 50.0, 25.0).reshape(99, 32, 3)  # the same motion at 50 fps
-    f25 = tiny_model.forecast(x25, layout="h36m32", **FAST)
-    f50 = tiny_model.forecast(x50, layout="h36m32", fps=50, **FAST)
+    f25 = tiny_model.forecast(x25, capture=Capture("h36m32"), **FAST)
+    f50 = tiny_model.forecast(x50, capture=Capture("h36m32", fps=50), **FAST)
     assert f50.mean.shape == (50, 32, 3)
     np.testing.assert_allclose(f50.times, np.arange(1, 51) / 50)
     np.testing.assert_allclose(f50.mean[1::2], f25.mean, atol=1e-6)  # every other 50 fps frame is a model frame
-    short = tiny_model.forecast(x25[-20:], layout="h36m32", **FAST)  # 0.8 s: padded with missing frames
+    short = tiny_model.forecast(x25[-20:], capture=Capture("h36m32"), **FAST)  # 0.8 s: padded with missing frames
     assert short.mean.shape == (25, 32, 3) and short.repaired.shape == (20, 32, 3) and np.isfinite(short.mean).all()
-    long = tiny_model.forecast(np.concatenate([x25, x25]), layout="h36m32", **FAST)  # 4 s: the last 2 s are used
+    long = tiny_model.forecast(
+        np.concatenate([x25, x25]), capture=Capture("h36m32"), **FAST
+    )  # 4 s: the last 2 s are used
     np.testing.assert_allclose(long.mean, f25.mean, atol=1e-9)
-    bad("obs", tiny_model.repair, np.concatenate([x25, x25]), layout="h36m32")  # repair: one window at most
+    bad("obs", tiny_model.repair, np.concatenate([x25, x25]), capture=Capture("h36m32"))  # repair: one window at most
     gone = np.concatenate([x25, np.full_like(x25, np.nan)])  # the last 2 s missing: the window is empty
-    bad("obs", tiny_model.forecast, gone, layout="h36m32")  # (here: no hips in it to place the body)
-    e = bad("obs", tiny_model.forecast, gone[:, list(layouts.MODEL_IDS)], layout="h36m22")
+    bad("obs", tiny_model.forecast, gone, capture=Capture("h36m32"))  # (here: no hips in it to place the body)
+    e = bad("obs", tiny_model.forecast, gone[:, list(layouts.MODEL_IDS)], capture=Capture("h36m22"))
     assert "last 50 frames" in str(e)  # the rule without layout / fps
 
 
@@ -137,13 +139,13 @@ def test_the_future_root_continues_its_velocity_and_turn_rate(tiny_model, dampin
     x = h36m32()
     t = np.arange(50)[:, None, None]
     walking = x + t * np.array([0.0, 0.0, 0.05])  # 0.05 m per frame forward (1.25 m/s)
-    out = tiny_model.forecast(walking, layout="h36m32", **FAST)
+    out = tiny_model.forecast(walking, capture=Capture("h36m32"), **FAST)
     np.testing.assert_allclose(
         out.mean[:, 0], (49 * 0.05 + travel * 0.05 * 1.05 / 1.25)[:, None] * [0.0, 0.0, 1.0], atol=1e-9
     )
     rate = 0.02  # radians per frame about +y
     turning = np.stack([world_y(x[i], rate * i) for i in range(50)])
-    out = tiny_model.forecast(turning, layout="h36m32", **FAST)
+    out = tiny_model.forecast(turning, capture=Capture("h36m32"), **FAST)
     across = out.mean[:, 6] - out.mean[:, 1]  # right hip -> left hip
     heading = np.unwrap(np.arctan2(-across[:, 2], across[:, 0]))
     np.testing.assert_allclose(heading, rate * (49 + travel), atol=1e-9)
@@ -156,18 +158,80 @@ def world_y(pose: np.ndarray, angle: float) -> np.ndarray:
 
 def test_bad_wild_inputs(tiny_model):
     x = h36m32()
-    bad("layout", tiny_model.forecast, x, layout="openpose25")
-    bad("obs", tiny_model.forecast, x[:, :17], layout="h36m32")  # 17 joints are not h36m32's 32
+    bad("layout", Capture, "openpose25")  # a capture checks its fields when it is made
+    bad("obs", tiny_model.forecast, x[:, :17], capture=Capture("h36m32"))  # 17 joints are not h36m32's 32
     for fps in (0, -25, float("nan"), True, "25"):
-        bad("fps", tiny_model.forecast, x, layout="h36m32", fps=fps)
+        bad("fps", Capture, "h36m32", fps=fps)
     for up in ("w", (1.0, 1.0, 0.0), (0.0, 1.0)):
-        bad("up", tiny_model.forecast, x, layout="h36m32", up=up)
+        bad("up", Capture, "h36m32", up=up)
     one = np.full_like(x, np.nan)
     one[7] = x[7]
-    bad("obs", tiny_model.forecast, one, layout="h36m32")  # one observed frame: no motion
+    bad("obs", tiny_model.forecast, one, capture=Capture("h36m32"))  # one observed frame: no motion
     no_hips = x.copy()
     no_hips[:, [1, 6]] = np.nan
-    bad("obs", tiny_model.forecast, no_hips, layout="h36m32")  # nothing to place the body by
+    bad("obs", tiny_model.forecast, no_hips, capture=Capture("h36m32"))  # nothing to place the body by
+
+
+@pytest.mark.parametrize(
+    "field,kwargs",
+    [
+        ("layout", {"layout": "openpose25"}),
+        ("layout", {"layout": None}),
+        ("layout", {"layout": 32}),
+        ("fps", {"layout": "coco17", "fps": 0}),
+        ("fps", {"layout": "coco17", "fps": -25.0}),
+        ("fps", {"layout": "coco17", "fps": float("inf")}),
+        ("fps", {"layout": "coco17", "fps": float("nan")}),
+        ("fps", {"layout": "coco17", "fps": True}),
+        ("fps", {"layout": "coco17", "fps": "25"}),
+        ("up", {"layout": "coco17", "up": "w"}),
+        ("up", {"layout": "coco17", "up": None}),
+        ("up", {"layout": "coco17", "up": (1.0, 1.0, 0.0)}),
+        ("up", {"layout": "coco17", "up": (0.0, 1.0)}),
+        ("up", {"layout": "coco17", "up": (0.0, 0.0, 0.0)}),
+    ],
+)
+def test_a_bad_capture_is_an_error_naming_the_field(field, kwargs):
+    """tcd.Capture checks each field when it is made (no model needed): an InvalidInputError naming it."""
+    bad(field, Capture, **kwargs)
+
+
+def test_a_capture_is_frozen_and_normalised():
+    c = Capture("coco17", fps=30, up="z")
+    assert (c.layout, c.fps, c.up) == ("coco17", 30.0, "z") and isinstance(c.fps, float)
+    assert Capture("h36m32") == Capture("h36m32", fps=None, up="y")
+    v = Capture("coco17", up=np.array([0.0, 0.0, 1.0]))  # a vector: kept hashable
+    assert v.up == (0.0, 0.0, 1.0) and hash(v) == hash(Capture("coco17", up=[0.0, 0.0, 1.0]))
+    with pytest.raises(AttributeError):
+        c.fps = 25.0  # type: ignore[misc]
+
+
+def test_a_capture_is_a_capture_object(tiny_model):
+    """The layout alone, a dict or the old keywords are refused: ``capture`` names a tcd.Capture (TCD.predict:
+    tests/test_predict.py)."""
+    x = h36m32()
+    for call in (tiny_model.forecast, tiny_model.repair):
+        bad("capture", call, x, capture="coco17", **FAST)
+        bad("capture", call, x, capture={"layout": "h36m32"}, **FAST)
+        for old in ({"layout": "h36m32"}, {"fps": 50}, {"up": "z"}):
+            with pytest.raises(TypeError, match=next(iter(old))):
+                call(x, **old, **FAST)
+
+
+def test_a_capture_with_its_defaults_is_the_h36m22_wild_path(tiny_model):
+    """``Capture("h36m22", fps=...)`` (the old ``layout=None, fps=...``) resamples the model's own joints: at the
+    model's rate, the same forecast as ``Capture("h36m22")``; at twice the rate, twice the frames."""
+    x = h36m32()[:, list(layouts.MODEL_IDS)]
+    a = tiny_model.forecast(x, capture=Capture("h36m22", fps=25), **FAST)
+    b = tiny_model.forecast(x, capture=Capture("h36m22"), **FAST)
+    np.testing.assert_array_equal(a.samples, b.samples)
+    assert a.mean.shape == (25, 22, 3)
+    from tcd._resample import resample_backward
+
+    x50 = resample_backward(x.reshape(50, -1), 99, 50.0, 25.0).reshape(99, 22, 3)
+    f50 = tiny_model.forecast(x50, capture=Capture("h36m22", fps=50), **FAST)
+    assert f50.mean.shape == (50, 22, 3)
+    np.testing.assert_allclose(f50.times, np.arange(1, 51) / 50)
 
 
 def test_cli_forecast_with_layout_fps_and_up(tiny_model_dir, tmp_path, capsys):
@@ -205,7 +269,7 @@ def test_cli_forecast_with_layout_fps_and_up(tiny_model_dir, tmp_path, capsys):
         )
         == 0
     )
-    want = tcd_load(tiny_model_dir).forecast(x * 1000, layout="h36m17", fps=25, up="z", units="mm", **FAST)
+    want = tcd_load(tiny_model_dir).forecast(x * 1000, capture=Capture("h36m17", fps=25, up="z"), units="mm", **FAST)
     with np.load(out) as z:
         np.testing.assert_array_equal(z["mean"], want.mean)
         np.testing.assert_array_equal(z["times"], want.times)
@@ -302,14 +366,14 @@ def test_a_13_joint_smpl_observation_without_a_pelvis_forecasts(tiny_model):
     given[:, list(SOMOF13)] = full[:, list(SOMOF13)]
     with_pelvis = given.copy()
     with_pelvis[:, 0] = full[:, 0]
-    f = tiny_model.forecast(given, layout="smpl24", fps=25, up="z", **FAST)
-    want = tiny_model.forecast(with_pelvis, layout="smpl24", fps=25, up="z", **FAST)
+    f = tiny_model.forecast(given, capture=Capture("smpl24", fps=25, up="z"), **FAST)
+    want = tiny_model.forecast(with_pelvis, capture=Capture("smpl24", fps=25, up="z"), **FAST)
     assert f.mean.shape == (25, 24, 3) and np.isfinite(f.mean[:, list(SOMOF13)]).all()
     np.testing.assert_allclose(f.mean[:, list(SOMOF13)], want.mean[:, list(SOMOF13)], atol=1e-5)
     assert np.isnan(f.mean[:, 0]).all() and np.isnan(f.samples[..., 0, :]).all() and np.isnan(f.repaired[:, 0]).all()
     assert np.isfinite(want.mean[:, 0]).all()
     coco = in_layout(world(h36m32()), "coco17")  # COCO: hips only, as before
-    assert np.isfinite(tiny_model.forecast(coco, layout="coco17", up="z", **FAST).mean).all()
+    assert np.isfinite(tiny_model.forecast(coco, capture=Capture("coco17", up="z"), **FAST).mean).all()
 
 
 @pytest.mark.parametrize("name", ["h36m32", "smpl24"])
@@ -324,10 +388,10 @@ def test_a_pelvis_missing_in_some_frames_is_placed_by_the_hips(tiny_model, name)
     seen = in_layout(world(x), name)
     hidden = seen.copy()
     hidden[30:, 0] = np.nan
-    r = tiny_model.repair(hidden, layout=name, up="z", **FAST).poses
+    r = tiny_model.repair(hidden, capture=Capture(name, up="z"), **FAST).poses
     np.testing.assert_allclose(r[30:, 0], seen[30:, 0], atol=1e-9)
-    a = tiny_model.forecast(hidden, layout=name, up="z", **FAST)
-    b = tiny_model.forecast(seen, layout=name, up="z", **FAST)
+    a = tiny_model.forecast(hidden, capture=Capture(name, up="z"), **FAST)
+    b = tiny_model.forecast(seen, capture=Capture(name, up="z"), **FAST)
     np.testing.assert_allclose(a.mean, b.mean, atol=1e-9)
 
 

@@ -162,11 +162,11 @@ def tcd_engine_predict(
     eta: float,
     spacing: str,
     seed: int,
-    tempo=None,
+    mode=None,
     noise_coupling: str = "independent",
 ) -> dict:
     """The same cascade through the Rust engine (``tcd``): fast on the CPU, in parity with the reference.
-    Missing entries are passed as NaN."""
+    Missing entries are passed as NaN; ``mode``: ``tcd.TCD.forecast``'s (None: the directory's)."""
     import tcd
 
     model = tcd.load(model_dir)
@@ -178,31 +178,51 @@ def tcd_engine_predict(
             num_inference_steps=steps, sampler=sampler, eta=eta, timestep_spacing=spacing, noise_coupling=noise_coupling
         ),
         seed=int(seed),
-        tempo=tempo,
+        mode=mode,
     )
     return {"samples": np.asarray(f.samples, np.float64), "repaired": np.asarray(f.repaired, np.float64)}
 
 
-def generator_share_of(args) -> float:
-    """The share of each window's samples the model directory's MLP generator draws in this run: --generator-share,
-    else the directory's default (``tcd.TCD.generator_share``; 0 with --engine torch, which runs no generator)."""
-    if args.generator_share is not None or args.engine != "tcd":
-        return args.generator_share or 0.0
+def mode_of(args):
+    """The forecast mode of a run with --engine tcd (``tcd.TCD.forecast``'s ``mode``): --tempo (``tcd.Tempo``),
+    --generator-share (``tcd.Mixture``; 0: ``tcd.Cascade``), else None, the model directory's default
+    (``tcd.TCD.forecast_mode``: its sampling.json)."""
     import tcd
 
-    return tcd.load(args.model).generator_share
+    if args.tempo is not None:
+        return tcd.Tempo(*args.tempo)
+    share = getattr(args, "generator_share", None)
+    if share is not None:
+        return tcd.Mixture(share) if share else tcd.Cascade()
+    return None
+
+
+def _run_mode(args):
+    """The mode the samples ran with: :func:`mode_of`, the directory's where it is None; None with --engine torch
+    (the cascade alone, no generator)."""
+    if args.engine != "tcd":
+        return None
+    import tcd
+
+    mode = mode_of(args)
+    return tcd.load(args.model).forecast_mode if mode is None else mode
+
+
+def generator_share_of(args) -> float:
+    """The share of each window's samples the model directory's MLP generator draws in this run (a results file's
+    ``sampling.generator_share``; 0 with --engine torch, which runs no generator)."""
+    import tcd
+
+    mode = _run_mode(args)
+    return mode.share if isinstance(mode, tcd.Mixture) else 0.0
 
 
 def tempo_run(args) -> list | None:
-    """The tempo range the samples ran with (``--tempo``, else the model directory's default; None: none)."""
-    if args.engine != "tcd":
-        return None
-    if args.tempo is not None:
-        return None if tuple(args.tempo) == (1.0, 1.0) else list(args.tempo)
+    """The tempo range the samples ran with (a results file's ``sampling.tempo``; None: none)."""
     import tcd
 
-    t = tcd.load(args.model).forecast_tempo
-    return None if t is None else list(t)
+    mode = _run_mode(args)
+    return [mode.lo, mode.hi] if isinstance(mode, tcd.Tempo) and (mode.lo, mode.hi) != (1.0, 1.0) else None
 
 
 def prior_predict(args, obs: np.ndarray, jmask: np.ndarray, seed: int) -> np.ndarray:
@@ -301,7 +321,7 @@ def evaluate_h36m(args, models: dict | None = None, data: H36M | None = None, on
                 noise_coupling=coupling,
             )
             if args.engine == "tcd":
-                res = tcd_engine_predict(args.model, obs, jmask, tempo=args.tempo, **kw)
+                res = tcd_engine_predict(args.model, obs, jmask, mode=mode_of(args), **kw)
             else:
                 res = tcd_predict(models, obs, jmask, device=args.device, batch_size=args.batch_size, **kw)
             errs = np.stack([per_frame_error(model_to_xyz32(s, gt32), gt32) for s in res["samples"]])  # (S, W, 25)
@@ -410,6 +430,7 @@ def humaneva_model_samples(args, obs: np.ndarray, log=lambda m: None) -> np.ndar
             models["long"][2]["window"]["seq_len"] - w["obs_len"],
             models["short"][0].cfg.num_joints,
         )
+    mode = mode_of(args) if args.engine == "tcd" else None
     for b0 in range(0, W, args.batch_size):
         x = obs[b0 : b0 + args.batch_size]
         seed = args.seed * 1_000_003 + b0
@@ -425,8 +446,7 @@ def humaneva_model_samples(args, obs: np.ndarray, log=lambda m: None) -> np.ndar
                     noise_coupling=coupling,
                 ),
                 seed=seed,
-                tempo=args.tempo,
-                generator_share=getattr(args, "generator_share", None),
+                mode=mode,
             )
             outs.append(np.asarray(f.samples, np.float64))
         else:
@@ -768,7 +788,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=float,
         default=None,
         help="--engine tcd: the share of each window's samples the directory's MLP generator draws "
-        "(tcd.TCD.forecast's generator_share; 0: the cascade alone; default: the directory's "
+        "(tcd.Mixture's share; 0: the cascade alone, tcd.Cascade; default: the directory's "
         "sampling.json, 0.5 for the bundled HumanEva-I model)",
     )
     ap.add_argument(
@@ -824,6 +844,8 @@ def main(argv=None) -> int:
         ap.error("--baseline neighbours is a HumanEva-I baseline (--protocol humaneva)")
     if args.tempo is not None and (args.engine != "tcd" or not args.model):
         ap.error("--tempo needs --model with --engine tcd (tcd.TCD.forecast samples the tempi)")
+    if args.tempo is not None and getattr(args, "generator_share", None) is not None:
+        ap.error("--tempo and --generator-share name two forecast modes (tcd.Tempo, tcd.Mixture): pass one")
     if args.threads:
         torch.set_num_threads(args.threads)
     if args.data is None:

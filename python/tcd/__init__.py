@@ -9,7 +9,8 @@
 High level: :func:`load`, :class:`TCD` (``forecast``, ``predict``: the prior's point forecast, ``repair``),
 :class:`Forecast`, :class:`Repair`, :func:`forecast`, :func:`predict`, :func:`repair`, :func:`repair_file`;
 the sampler of every call: its ``sampler`` argument, a :class:`SamplerOptions` (its fields, defaults and
-checks); the engine's fills of missing
+checks); where a forecast's samples come from: its ``mode``, :class:`Cascade`, :class:`Mixture` or :class:`Tempo`;
+poses from the wild: a call's ``capture``, a :class:`Capture`; the engine's fills of missing
 values along time (linear, natural cubic spline): :func:`interpolate`.
 Engine level, in the engine's (B, K, L) layout: :mod:`tcd.engine` (``Denoiser``, ``cascade_raw``,
 ``repair_raw``, ``seeded_noise``, ``supported_kernels``, ``STAGE_SHORT``, ``STAGE_LONG``, and ``Prior``, the
@@ -36,7 +37,11 @@ from ._model import (
     predict,
     repair,
 )
+from ._cascade import Cascade
+from ._mixture import Mixture
 from ._sampler import SamplerOptions
+from ._tempo import Tempo
+from ._wild_calls import Capture
 from ._repair import repair_file  # `tcd repair` / offline repair of files of any length (issue 6)
 
 __all__ = [
@@ -51,6 +56,10 @@ __all__ = [
     "Forecast",
     "Repair",
     "SamplerOptions",
+    "Capture",
+    "Cascade",
+    "Mixture",
+    "Tempo",
     "default_model_dir",
     "humaneva_model_dir",
     "BUNDLED_MODELS",

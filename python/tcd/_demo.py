@@ -44,7 +44,8 @@ from ._files import write_named_atomic, write_npz_atomic
 from ._interpolation import interpolate
 from ._model import TCD
 from ._sampler import SamplerOptions
-from ._tempo import describe as describe_tempo
+from ._cascade import Cascade, as_dict
+from ._mixture import Mixture, generator_samples
 
 CLIP_PATH = Path(__file__).resolve().parent / "data" / "demo_walking.npz"
 #: the same walk for the HumanEva-I model (its 14 joints, 60 Hz, +z up)
@@ -185,8 +186,8 @@ def run(
             "steps": steps,
             "sampler": sampler_name,
             "seed": seed,
-            "tempo": None if model.forecast_tempo is None else list(model.forecast_tempo),
-            "generator_samples": int(samples * model.generator_share),
+            "mode": as_dict(model.forecast_mode),
+            "generator_samples": generator_samples(model.forecast_mode, samples),
             "sampling": {t: dataclasses.asdict(o_t) for t, o_t in sampling.items()},
         },
         "timings_s": {},
@@ -287,7 +288,7 @@ def summary(res: Dict[str, Any], model: TCD) -> str:
         f"({'HumanEva-I layout' if model.data.get('dataset') == 'humaneva' else 'Human3.6M layout'}), "
         f"{len(res['observed'])} observed frames at {res['fps']:g} fps",
         f"forecast sampler {SamplerOptions(**s['sampling']['forecast']).describe(model.num_train_timesteps)}, "
-        + ("" if s["tempo"] is None else f"{describe_tempo(s['tempo'])} (tcd._tempo), ")
+        + ("" if isinstance(model.forecast_mode, Cascade) else f"{model.forecast_mode.describe()}, ")
         + f"{s['samples']} samples"
         + (f" ({s['generator_samples']} of them from the MLP generator)" if s.get("generator_samples") else "")
         + f", seed {s['seed']}",
@@ -360,8 +361,9 @@ def verdict(res: Dict[str, Any], model: TCD) -> str:
     else:  # the stages may differ (the bundled long-term model is larger than the short-term one)
         shape = ", ".join(f"{role} {layers} layers x {channels} channels" for role, (layers, channels) in sizes.items())
     g = model.generator
-    if g is not None and model.generator_share:
-        shape += f"; and an MLP generator of {g.layers} x {g.hidden} drawing {model.generator_share:g} of the samples"
+    if g is not None and isinstance(model.forecast_mode, Mixture) and model.forecast_mode.share:
+        share = model.forecast_mode.share
+        shape += f"; and an MLP generator of {g.layers} x {g.hidden} drawing {share:g} of the samples"
     kind = (
         f"a full-size model ({shape}, the paper's size)"
         if full

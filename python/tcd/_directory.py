@@ -11,7 +11,8 @@ from pathlib import Path
 from typing import Dict, Optional, Tuple, Union
 
 from . import _checks
-from ._mixture import check_generator_share
+from ._cascade import Cascade, Mode
+from ._mixture import GENERATOR_FILE, Mixture, check_generator_share
 from ._sampler import SamplerOptions
 from ._tempo import Tempo, check_tempo
 from .engine import Denoiser, Generator, Prior
@@ -23,19 +24,18 @@ PathLike = Union[str, "os.PathLike[str]"]
 PRIOR_FILE = "prior.safetensors"
 #: the repair model's fill in a model directory (:attr:`TCD.repair_fill`), for a repair model conditioned on it
 REPAIR_FILL_FILE = "repair_fill.safetensors"
-#: the MLP sample generator in a model directory (:attr:`TCD.generator`), optional: a share of the forecast's
-#: samples drawn around the prior's forecast (``sampling.json`` ``"forecast_generator_share"``)
-GENERATOR_FILE = "generator.safetensors"
+#: the MLP sample generator in a model directory (:attr:`TCD.generator`), optional: ``GENERATOR_FILE``, named
+#: beside the mode that draws from it (:class:`tcd.Mixture`, ``sampling.json`` ``"forecast_generator_share"``)
 
 #: a model directory's own sampler defaults (:attr:`TCD.sampling`), optional: ``{"forecast": {...}, "repair":
 #: {...}, "why": "...", "forecast_tempo": [lo, hi]}``, each task's object holding :class:`SamplerOptions` fields; a
 #: task or field left out takes :class:`SamplerOptions`' defaults (the paper's DDPM over every training step);
-#: ``"forecast_tempo"`` is :attr:`TCD.forecast_tempo` (:mod:`tcd._tempo`), optional; ``"forecast_generator_share"``
-#: is :attr:`TCD.generator_share`, optional (0 when absent)
+#: ``"forecast_tempo"`` or ``"forecast_generator_share"``, optional (one at most), the default
+#: :attr:`TCD.forecast_mode`: ``tcd.Tempo(lo, hi)`` or ``tcd.Mixture(share)`` (``tcd.Cascade()`` without either)
 SAMPLING_FILE = "sampling.json"
-#: the key of ``sampling.json`` holding :attr:`TCD.forecast_tempo`
+#: the key of ``sampling.json`` holding the range of a default ``tcd.Tempo``
 TEMPO_KEY = "forecast_tempo"
-#: the key of ``sampling.json`` holding :attr:`TCD.generator_share`
+#: the key of ``sampling.json`` holding the share of a default ``tcd.Mixture``
 GENERATOR_SHARE_KEY = "forecast_generator_share"
 #: the tasks a model directory may set sampler defaults for: ``"forecast"`` the cascade (:meth:`TCD.forecast`),
 #: ``"repair"`` the repair model (:meth:`TCD.repair`, the model fill of :meth:`TCD.predict`, :func:`tcd.repair_file`)
@@ -135,12 +135,12 @@ def write_checksums(d: PathLike) -> Path:
     return out
 
 
-def _read_sampling(f: Path) -> Tuple[Dict[str, SamplerOptions], Tempo, float]:
+def _read_sampling(f: Path) -> Tuple[Dict[str, SamplerOptions], Mode]:
     """A model directory's ``sampling.json`` (:data:`SAMPLING_FILE`), read once and checked: its sampler settings by
-    task, its ``"forecast_tempo"`` and its ``"forecast_generator_share"`` (``{}``, None and 0 when there is no
-    file); a :class:`WeightsError` naming the file and the key for anything else."""
+    task and its forecast mode (``{}`` and the cascade when there is no file); a :class:`WeightsError` naming the
+    file and the key for anything else."""
     if not f.is_file():
-        return {}, None, 0.0
+        return {}, Cascade()
     try:
         doc = json.loads(f.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
@@ -163,12 +163,17 @@ def _read_sampling(f: Path) -> Tuple[Dict[str, SamplerOptions], Tempo, float]:
             out[key] = SamplerOptions.build(**value)  # the fields it leaves out: SamplerOptions' defaults
         except (TypeError, InvalidInputError) as e:
             raise WeightsError(f"{f}, {key!r}: {e}", str(f)) from None
+    if TEMPO_KEY in doc and GENERATOR_SHARE_KEY in doc:
+        raise WeightsError(
+            f'{f}: "{TEMPO_KEY}" and "{GENERATOR_SHARE_KEY}" name two forecast modes; a directory has one.', str(f)
+        )
     try:
-        tempo = check_tempo(doc.get(TEMPO_KEY), TEMPO_KEY)
+        if doc.get(TEMPO_KEY) is not None:
+            return out, Tempo(*check_tempo(doc[TEMPO_KEY], TEMPO_KEY))
         share = check_generator_share(doc.get(GENERATOR_SHARE_KEY, 0.0), GENERATOR_SHARE_KEY)
+        return out, Mixture(share) if share else Cascade()
     except InvalidInputError as e:
         raise WeightsError(f"{f}: {e}", str(f)) from None
-    return out, tempo, share
 
 
 @dataclass(frozen=True)
@@ -185,8 +190,7 @@ class Files:
     generator: Optional[Generator]
     file_sha256: Dict[str, str]
     sampling: Dict[str, SamplerOptions]
-    forecast_tempo: Tempo
-    generator_share: float
+    forecast_mode: Mode
 
 
 def read(path: Optional[PathLike]) -> Files:
@@ -223,7 +227,7 @@ def read(path: Optional[PathLike]) -> Files:
     generator = (
         Generator.from_bytes(blobs[GENERATOR_FILE], str(d / GENERATOR_FILE)) if GENERATOR_FILE in blobs else None
     )
-    sampling, forecast_tempo, share = _read_sampling(d / SAMPLING_FILE)
+    sampling, mode = _read_sampling(d / SAMPLING_FILE)
     return Files(
         path=d,
         short=short,
@@ -234,8 +238,7 @@ def read(path: Optional[PathLike]) -> Files:
         generator=generator,
         file_sha256=digests,
         sampling=sampling,
-        forecast_tempo=forecast_tempo,
-        generator_share=share,
+        forecast_mode=mode,
     )
 
 
@@ -247,7 +250,7 @@ def check_parts(
     prior: Optional[Prior],
     repair_fill: Optional[Prior],
     generator: Optional[Generator],
-    generator_share: float,
+    mode: Mode,
 ) -> None:
     """That the parts of a model directory fit together (each checked alone when read): the cascade's two
     stages, the prior each model conditioned on it needs, the repair model and its fill, the generator around the
@@ -332,9 +335,9 @@ def check_parts(
             f"{long.seq_len - short.obs_len}).",
             generator.path,
         )
-    if generator_share and generator is None:
+    if isinstance(mode, Mixture) and mode.share and generator is None:
         raise WeightsError(
-            f"{where}: generator_share = {generator_share}, but there is no generator ({GENERATOR_FILE}).",
+            f"{where}: the forecast mode is {mode}, but there is no generator ({GENERATOR_FILE}).",
             str(Path(path) / GENERATOR_FILE) if path is not None else GENERATOR_FILE,
         )
     if repair_fill is not None and repair_fill.gap_fill == "forecaster" and prior is None:

@@ -1,17 +1,23 @@
-"""The mixture mode of :meth:`tcd.TCD.forecast`: a share of the samples from the MLP sample generator
-(``generator.safetensors``), one forward each around the prior's forecast, the rest from the cascade."""
+"""The mixture mode of :meth:`tcd.TCD.forecast` (:mod:`tcd._cascade`): a share of the samples from the MLP sample
+generator (``generator.safetensors``), one forward each around the prior's forecast, the rest from the cascade."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any, Callable, Dict, Optional
 
 import numpy as np
 
 from . import _checks
+from ._cascade import Call
 from .engine import Generator, Prior
+from .exceptions import InvalidInputError
+
+#: the file of a model directory's generator (:attr:`tcd.TCD.generator`), optional
+GENERATOR_FILE = "generator.safetensors"
 
 
-def check_generator_share(value: Any, name: str = "generator_share") -> float:
+def check_generator_share(value: Any, name: str = "share") -> float:
     """``value`` as a share of samples in [0, 1]; an :class:`InvalidInputError` naming ``name`` otherwise."""
     if (
         isinstance(value, bool)
@@ -22,6 +28,52 @@ def check_generator_share(value: Any, name: str = "generator_share") -> float:
             name, "a number in [0, 1] (the share of a forecast's samples the generator draws)", repr(value)
         )
     return float(value)
+
+
+@dataclass(frozen=True)
+class Mixture:
+    """``floor(num_samples * share)`` of a forecast's samples from the model directory's MLP generator
+    (:attr:`tcd.TCD.generator`: one forward each, around the prior's forecast of the observation filled as the
+    cascade's prior fill fills it), after the cascade's; the cascade's stages run with the remaining samples.
+    ``mean`` is the mean of all of them, and ``repaired`` the cascade's (the prior's fill where every sample is the
+    generator's). ``share`` is in [0, 1]; the bundled HumanEva-I model's default is ``Mixture(0.5)``, whose best of
+    50 samples is best half and half (MODEL_CARD.md)."""
+
+    share: float
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "share", check_generator_share(self.share))
+
+    def draw(self, call: Call, observed: np.ndarray, seen: np.ndarray) -> Dict[str, np.ndarray]:
+        drawn = generator_samples(self, call.num_samples)  # the generator's samples; the cascade's are the rest
+        if self.share and (call.generator is None or call.prior is None):
+            raise InvalidInputError(
+                f"Argument `mode` is {self}, but the model has no generator ({GENERATOR_FILE}): pass "
+                "tcd.Cascade() or Mixture(0).",
+                "mode",
+            )
+        if not drawn:
+            return call.cascade(observed, seen, call.num_samples)
+        return mixture(
+            call.prior,
+            call.generator,
+            observed,
+            seen,
+            call.num_samples - drawn,
+            drawn,
+            call.seed,
+            call.threads,
+            call.cascade,
+        )
+
+    def describe(self) -> str:
+        """One line for people (``tcd info``, ``tcd demo``)."""
+        return f"the cascade with a share of {self.share:g} of the samples from the generator"
+
+
+def generator_samples(mode: object, num_samples: int) -> int:
+    """How many of a forecast's ``num_samples`` samples ``mode`` draws from the generator (0 but for a mixture)."""
+    return int(num_samples * mode.share) if isinstance(mode, Mixture) else 0
 
 
 def mixture(

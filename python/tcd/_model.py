@@ -5,7 +5,7 @@ Poses are ``(T, J, 3)`` or ``(B, T, J, 3)`` float arrays in the model's joint la
 a missing value; an explicit ``mask`` (1 = observed) may be given instead or as well. Outputs come
 back in the caller's units, with the caller's batch axis (present or not).
 
-One length rule, with or without ``layout`` / ``fps`` (then counted in frames at the model's frame rate):
+One length rule, with or without a ``capture`` (then counted in frames at the model's frame rate):
 the model sees a window of :attr:`TCD.obs_len` frames ending at the last input frame. A longer observation
 is forecast from its last ``obs_len`` frames (:meth:`TCD.repair` refuses it: :func:`tcd.repair_file`
 repairs any length); a shorter one is padded at the start with missing frames, which the model in-paints
@@ -15,36 +15,35 @@ like any missing value. ``repaired`` always has the input's frames: those before
 from __future__ import annotations
 
 import hashlib
+import inspect
 import os
 import threading
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Dict, List, Literal, Optional, Tuple, Union, get_args
+from typing import Any, Callable, Dict, List, Literal, Optional, Tuple, Union, get_args
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from . import _checks, _directory
+from ._cascade import Call, Cascade, Mode
 from ._directory import (
     check_parts,
     uses_prior,
     BUNDLED_MODELS,
-    GENERATOR_FILE,
     SAMPLING_TASKS,
     checksum_text,
     default_model_dir,
     humaneva_model_dir,
 )
-from ._mixture import check_generator_share, mixture
+from ._mixture import Mixture
 from ._predict import repair_then_predict
 from ._poses import Units, Window, check_units, model_window
 from ._progress import Progress
 from ._sampler import SamplerOptions, checked as checked_sampler
-from ._tempo import Tempo, check_tempo, tempo_forecast
-from ._wild_calls import WildWindow
-from .engine import Denoiser, Generator, Prior, cascade_raw, repair_raw
-from .exceptions import InvalidInputError
-from .wild import Up
+from ._tempo import Tempo
+from ._wild_calls import Capture, WildWindow
+from .engine import Denoiser, Generator, Prior, repair_raw
 
 __all__ = [
     "TCD",
@@ -115,6 +114,18 @@ class Repair:
         return f"Repair(poses={_checks.shape_str(self.poses.shape)}, seed={self.seed})"
 
 
+#: the modes :meth:`TCD.forecast` takes (:mod:`tcd._cascade`)
+MODES = (Cascade, Mixture, Tempo)
+
+
+def _check_mode(mode: Any) -> Mode:
+    if not isinstance(mode, MODES):
+        raise _checks.fail(
+            "mode", "None, tcd.Cascade(), tcd.Mixture(share) or tcd.Tempo(lo, hi)", f"{mode!r} ({type(mode).__name__})"
+        )
+    return mode
+
+
 def _seed(seed: Optional[int]) -> int:
     s = _checks.optional_machine_int("seed", seed, 128)  # its range (0..2**64 - 1) is the engine's to check
     return int.from_bytes(os.urandom(8), "little") if s is None else s
@@ -134,10 +145,9 @@ class TCD:
         file_sha256: Optional[Dict[str, str]] = None,
         prior: Optional[Prior] = None,
         sampling: Optional[Dict[str, SamplerOptions]] = None,
-        forecast_tempo: Tempo = None,
         repair_fill: Optional[Prior] = None,
         generator: Optional[Generator] = None,
-        generator_share: float = 0.0,
+        mode: Optional[Mode] = None,
     ) -> None:
         self.short = short
         self.long = long
@@ -158,21 +168,19 @@ class TCD:
         self.sampling: Dict[str, SamplerOptions] = {
             t: (sampling or {}).get(t) or SamplerOptions() for t in SAMPLING_TASKS
         }
-        #: the tempo range :meth:`forecast` samples when a call names none (:mod:`tcd._tempo`): the model
-        #: directory's ``sampling.json`` ``"forecast_tempo"``, else None (every sample at the observed tempo)
-        self.forecast_tempo: Tempo = check_tempo(forecast_tempo, "forecast_tempo")
         #: the MLP sample generator (``generator.safetensors``: :class:`tcd.engine.Generator`), or None
         self.generator = generator
-        #: the share of :meth:`forecast`'s samples the generator draws when a call names none: the model
-        #: directory's ``sampling.json`` ``"forecast_generator_share"``, else 0 (every sample from the cascade)
-        self.generator_share: float = check_generator_share(generator_share, "generator_share")
+        #: the mode of a :meth:`forecast` that names none (:mod:`tcd._cascade`): the model directory's
+        #: ``sampling.json`` (``"forecast_generator_share"``: :class:`tcd.Mixture`, ``"forecast_tempo"``:
+        #: :class:`tcd.Tempo`), else :class:`tcd.Cascade`
+        self.forecast_mode: Mode = Cascade() if mode is None else _check_mode(mode)
         #: SHA-256 (hex) of each weight file, by file name; empty when built from Denoisers directly.
         self.file_sha256: Dict[str, str] = dict(file_sha256 or {})
         #: SHA-256 (hex) identifying the model: the digest of its ``SHA256SUMS`` text (None without files).
         self.sha256: Optional[str] = (
             hashlib.sha256(checksum_text(self.file_sha256).encode()).hexdigest() if self.file_sha256 else None
         )
-        check_parts(path, short, long, repair, prior, repair_fill, generator, self.generator_share)
+        check_parts(path, short, long, repair, prior, repair_fill, generator, self.forecast_mode)
         #: the roles whose model is conditioned on the prior forecaster (``cond_fill`` ``"prior"``)
         self._prior_roles = tuple(role for role, m in (("short", short), ("long", long)) if uses_prior(m))
 
@@ -181,19 +189,18 @@ class TCD:
         obs: ArrayLike,
         mask: Optional[ArrayLike],
         units: Units,
-        layout: Any,
-        fps: Any,
-        up: Up,
+        capture: Optional[Capture],
         repair: bool = False,
     ) -> Union[Window, WildWindow]:
-        """The call's poses in the model's window: as given (the model's layout) or, with ``layout`` or ``fps``,
+        """The call's poses in the model's window: as given (the model's layout) or, with a ``capture``,
         converted from the wild (:mod:`tcd._wild_calls`); either converts the model's outputs back."""
-        if layout is None and fps is None:
+        if capture is None:
             w = model_window(obs, mask, self.num_joints, self.obs_len, units, repair=repair)
             w.times = None if self.fps is None else np.arange(1, self.horizon + 1) / float(self.fps)
             return w
-        layout = "h36m22" if layout is None else layout
-        ww = WildWindow(self, obs, mask, layout=layout, fps=fps, up=up, units=units, frames=self.obs_len)
+        if not isinstance(capture, Capture):
+            raise _checks.fail("capture", "None or a tcd.Capture", f"{capture!r} ({type(capture).__name__})")
+        ww = WildWindow(self, obs, mask, capture=capture, units=units, frames=self.obs_len)
         if repair:
             ww.check_one_window(self)
         return ww
@@ -297,11 +304,8 @@ class TCD:
         units: Units = "m",
         threads: Optional[int] = None,
         progress: Progress = False,
-        layout: Optional[str] = None,
-        fps: Optional[float] = None,
-        up: Up = "y",
-        tempo: Tempo = None,
-        generator_share: Optional[float] = None,
+        capture: Optional[Capture] = None,
+        mode: Optional[Mode] = None,
         sampler: Optional[SamplerOptions] = None,
     ) -> Forecast:
         """Forecasts the next :attr:`horizon` frames of ``obs``.
@@ -321,82 +325,35 @@ class TCD:
             progress: ``True`` shows a tqdm bar on stderr; a callable ``f(done, total)`` gets the count of
                 denoiser forwards, about ten times a second (raising in it stops the call). Ctrl-C stops the
                 call (KeyboardInterrupt) within about 0.1 s plus one forward, whatever ``progress`` is.
-            layout, fps, up: poses from the wild (:mod:`tcd.wild`): ``layout`` one of
-                :data:`tcd.layouts.LAYOUTS` (``"h36m32"``, ``"h36m17"``, ``"smpl24"``, ``"coco17"``; J its
-                joints) in world or camera coordinates with ``up`` the vertical axis (``"y"``, ``"z"``, ...
-                or a unit vector), at ``fps`` frames per second, of any length, the same rule counted at the
-                model's frame rate (and at least 2 observed frames, to measure the root's motion). The
-                forecast comes back in the same layout, coordinates and frame rate (``Forecast.times``).
+            capture: poses from the wild, a :class:`tcd.Capture` (their layout, frame rate and up axis;
+                :mod:`tcd.wild`); ``None``: the model's layout and frame rate. The forecast comes back in the
+                capture's layout, coordinates and frame rate (``Forecast.times``).
+            mode: where the samples come from (:mod:`tcd._cascade`): :class:`tcd.Cascade`, :class:`tcd.Mixture`
+                (a share from the directory's MLP generator) or :class:`tcd.Tempo` (each sample at its own tempo);
+                ``None`` the model's default (:attr:`forecast_mode`: ``Mixture(0.5)`` for the bundled HumanEva-I
+                model, the cascade for the Human3.6M one).
             sampler: a :class:`tcd.SamplerOptions`; ``None`` the model's default (``sampling["forecast"]``: the
                 bundled Human3.6M and HumanEva-I models one DDIM step, chosen from docs/samplers.md; a directory
                 without ``sampling.json`` the paper's DDPM over every training step). To change one field of the
                 default: :meth:`sampler_options`.
-            tempo: ``(lo, hi)`` with ``0 < lo <= 1 <= hi``: sample i of ``num_samples`` forecast from the
-                observation replayed at its own tempo, spaced geometrically from ``lo`` to ``hi``
-                (:mod:`tcd._tempo`: samples that differ in when a movement happens); ``(1, 1)`` every sample at
-                the observed tempo; ``None`` the model's default (:attr:`forecast_tempo`; the bundled models set
-                none: their samples' mean gets worse with it, MODEL_CARD.md "Tempo sampling").
-            generator_share: in [0, 1]: ``floor(num_samples * generator_share)`` of the samples come from the
-                directory's MLP generator (:attr:`generator`, one forward each, around the prior's forecast of the
-                observation filled as the cascade's prior fill fills it), after the cascade's; ``None`` the
-                model's default (:attr:`generator_share`: 0.5 for the bundled HumanEva-I model, whose best of 50
-                samples is best half and half, MODEL_CARD.md; 0 for a directory without a generator). The
-                cascade's stages run with the remaining samples; ``mean`` is the mean of all of them, and
-                ``repaired`` the cascade's (the prior's fill where every sample is the generator's). Not with
-                ``tempo``.
         """
         num_samples, sampling, units, threads = self._common("forecast", num_samples, sampler, units, threads)
-        tempo = self.forecast_tempo if tempo is None else check_tempo(tempo)
-        share = self.generator_share if generator_share is None else check_generator_share(generator_share)
-        drawn = int(num_samples * share)  # the generator's samples; the cascade's are the rest
-        if drawn and self.generator is None:
-            raise InvalidInputError(
-                f"Argument `generator_share` is {share}, but the model has no generator "
-                f"({GENERATOR_FILE}): pass 0 or None.",
-                "generator_share",
-            )
-        if drawn and tempo not in (None, (1.0, 1.0)):
-            raise InvalidInputError(
-                f"Argument `tempo` is {tempo}, but the generator draws {drawn} of the "
-                f"{num_samples} samples at the observed tempo: pass generator_share=0 with a "
-                "tempo.",
-                "tempo",
-            )
-        seed = _seed(seed)
-        prior = self.prior if self._prior_roles else None
-
-        def cascade(observed: np.ndarray, seen: np.ndarray, n: int, streams=None) -> Dict[str, np.ndarray]:
-            return cascade_raw(
-                self.short,
-                self.long,
-                observed,
-                seen,
-                num_samples=n,
-                seed=seed,
-                threads=threads,
-                progress=progress,
-                prior=prior,
-                sequences=streams,
-                sampler=sampling,
-            )
-
-        if drawn:
-            run = lambda observed, seen: mixture(  # noqa: E731
-                self.prior, self.generator, observed, seen, num_samples - drawn, drawn, seed, threads, cascade
-            )
-        elif tempo is None or tempo == (1.0, 1.0):
-            run = lambda observed, seen: cascade(observed, seen, num_samples)  # noqa: E731
-        else:
-            run = lambda observed, seen: tempo_forecast(  # noqa: E731
-                lambda o, m, ids: cascade(o, m, 1, ids),
-                observed,
-                seen,
-                num_samples,
-                tempo,
-            )
-        w = self._window(obs, mask, units, layout, fps, up)
-        mean, samples, repaired, times = w.forecast(run(w.observed, w.mask))
-        return Forecast(mean=mean, samples=samples, repaired=repaired, seed=seed, times=times)
+        mode = self.forecast_mode if mode is None else _check_mode(mode)
+        call = Call(
+            short=self.short,
+            long=self.long,
+            conditioning=self.prior if self._prior_roles else None,
+            prior=self.prior,
+            generator=self.generator,
+            num_samples=num_samples,
+            seed=_seed(seed),
+            threads=threads,
+            progress=progress,
+            sampler=sampling,
+        )
+        w = self._window(obs, mask, units, capture)
+        mean, samples, repaired, times = w.forecast(mode.draw(call, w.observed, w.mask))
+        return Forecast(mean=mean, samples=samples, repaired=repaired, seed=call.seed, times=times)
 
     def repair(
         self,
@@ -408,16 +365,14 @@ class TCD:
         units: Units = "m",
         threads: Optional[int] = None,
         progress: Progress = False,
-        layout: Optional[str] = None,
-        fps: Optional[float] = None,
-        up: Up = "y",
+        capture: Optional[Capture] = None,
         sampler: Optional[SamplerOptions] = None,
     ) -> Repair:
         """Fills the missing entries of ``obs`` (same arguments as :meth:`forecast`) with the mean of
         ``num_samples`` samples of the repair model (the short-term model when the directory has no
         ``repair.safetensors``), sampled by ``sampler`` (``None``: the model's ``sampling["repair"]``, DDPM over 10
         steps for the bundled Human3.6M model). ``obs`` spans
-        at most the model's window (:attr:`obs_len` frames, at the model's frame rate with ``layout`` / ``fps``; a
+        at most the model's window (:attr:`obs_len` frames, at the model's frame rate with a ``capture``; a
         shorter one is padded at the start with missing frames; longer ones: :func:`tcd.repair_file`).
 
         ``num_samples=0`` returns the repair fill alone (``repair_fill.safetensors``, which the repair model
@@ -433,7 +388,7 @@ class TCD:
         num_samples, sampling, units, threads = self._common("repair", num_samples, sampler, units, threads)
         seed = _seed(seed)
         model = self.repair_model if self.repair_model is not None else self.short
-        w = self._window(obs, mask, units, layout, fps, up, repair=True)
+        w = self._window(obs, mask, units, capture, repair=True)
         out = repair_raw(
             model,
             w.observed,
@@ -458,15 +413,12 @@ class TCD:
         units: Units = "m",
         threads: Optional[int] = None,
         progress: Progress = False,
-        layout: Optional[str] = None,
-        fps: Optional[float] = None,
-        up: Up = "y",
+        capture: Optional[Capture] = None,
         sampler: Optional[SamplerOptions] = None,
     ) -> Forecast:
         """The deterministic point forecast of the next :attr:`horizon` frames by the prior
         (``prior.safetensors``: a siMLPe-class network, one forward per 10 frames, no sampling), with the
-        inputs and conventions of :meth:`forecast` (mask/NaN, units, batches, the length rule,
-        ``layout``/``fps``/``up``).
+        inputs and conventions of :meth:`forecast` (mask/NaN, units, batches, the length rule, ``capture``).
 
         An observation with missing entries is repaired first, the paper's repair-then-predict pipeline:
         ``fill="auto"`` (default) uses the repair model where the directory has one (its sampler: the
@@ -492,27 +444,24 @@ class TCD:
         if fill == "auto":
             fill = "model" if self.repair_model is not None else "spline"
         den = self.repair_model if self.repair_model is not None else self.short
-        run = lambda observed, seen: repair_then_predict(  # noqa: E731
-            self.prior,
-            self.horizon,
-            observed,
-            seen,
-            fill=fill,
-            repair=lambda o, m: repair_raw(
+
+        def repair(observed: np.ndarray, seen: np.ndarray) -> np.ndarray:
+            return repair_raw(
                 den,
-                o,
-                m,
+                observed,
+                seen,
                 num_samples=num_samples,
                 seed=seed,
                 threads=threads,
                 progress=progress,
                 sampler=sampling,
                 **self._repair_fills(den),
-            )["mean"],
-            threads=threads,
-        )
-        w = self._window(obs, mask, units, layout, fps, up)
-        mean, _, repaired, times = w.forecast(run(w.observed, w.mask))
+            )["mean"]
+
+        w = self._window(obs, mask, units, capture)
+        prior, horizon = self.prior, self.horizon
+        out = repair_then_predict(prior, horizon, w.observed, w.mask, fill=fill, repair=repair, threads=threads)
+        mean, _, repaired, times = w.forecast(out)
         return Forecast(mean=mean, samples=None, repaired=repaired, seed=seed, times=times)
 
 
@@ -537,10 +486,9 @@ def load(path: Optional[PathLike] = None, *, threads: Optional[int] = None) -> T
         file_sha256=f.file_sha256,
         prior=f.prior,
         sampling=f.sampling,
-        forecast_tempo=f.forecast_tempo,
         repair_fill=f.repair_fill,
         generator=f.generator,
-        generator_share=f.generator_share,
+        mode=f.forecast_mode,
     )
 
 
@@ -556,16 +504,22 @@ def _default_model() -> TCD:
         return _default
 
 
-def forecast(obs: ArrayLike, mask: Optional[ArrayLike] = None, **kwargs: Any) -> Forecast:
-    """:meth:`TCD.forecast` with the bundled default model (see :func:`load`)."""
-    return _default_model().forecast(obs, mask, **kwargs)
+def _on_default_model(name: str) -> Callable[..., Any]:
+    """:class:`TCD`'s method ``name`` on the bundled default model (:func:`load`, loaded at the first call), with
+    that method's signature less ``self``: one signature, the method's, which checks every argument."""
+    method = getattr(TCD, name)
+
+    def call(*args: Any, **kwargs: Any) -> Any:
+        return method(_default_model(), *args, **kwargs)
+
+    signature = inspect.signature(method)
+    call.__signature__ = signature.replace(parameters=list(signature.parameters.values())[1:])  # type: ignore[attr-defined]
+    call.__annotations__ = dict(method.__annotations__)
+    call.__name__ = call.__qualname__ = name
+    call.__doc__ = f":meth:`TCD.{name}` with the bundled default model (see :func:`load`)."
+    return call
 
 
-def predict(obs: ArrayLike, mask: Optional[ArrayLike] = None, **kwargs: Any) -> Forecast:
-    """:meth:`TCD.predict` with the bundled default model (see :func:`load`)."""
-    return _default_model().predict(obs, mask, **kwargs)
-
-
-def repair(obs: ArrayLike, mask: Optional[ArrayLike] = None, **kwargs: Any) -> Repair:
-    """:meth:`TCD.repair` with the bundled default model (see :func:`load`)."""
-    return _default_model().repair(obs, mask, **kwargs)
+forecast = _on_default_model("forecast")
+predict = _on_default_model("predict")
+repair = _on_default_model("repair")

@@ -3,9 +3,9 @@
 A stochastic forecaster is scored by how well its samples cover the futures a person may take (the best of 50 on
 HumanEva-I). The bundled HumanEva-I model's samples spread about its prior's forecast without covering *when* a
 movement happens: scaling the spread up or low-passing it changes nothing (MODEL_CARD.md), while forecasts from
-the observation played faster or slower land closer. ``tempo=(lo, hi)`` in :meth:`tcd.TCD.forecast` gives sample
-i of n the tempo ``s_i``, the n values spaced geometrically from ``lo`` to ``hi`` (both included; one sample gets
-1). For each sample:
+the observation played faster or slower land closer. ``mode=tcd.Tempo(lo, hi)`` in :meth:`tcd.TCD.forecast`
+(:mod:`tcd._cascade`) gives sample i of n the tempo ``s_i``, the n values spaced geometrically from ``lo`` to
+``hi`` (both included; one sample gets 1). For each sample:
 
 1. the observation is resampled on the clock of tempo ``s``, aligned at its last frame: warped frame ``tau``
    is the original frame ``last + s * (tau - last)``, linearly interpolated; an entry is observed only where
@@ -23,26 +23,24 @@ observed entries are the observation's.
 
 from __future__ import annotations
 
-from typing import Callable, Dict, List, Optional, Sequence, Tuple
+from dataclasses import dataclass
+from typing import Callable, Dict, List, Sequence, Tuple
 
 import numpy as np
 
 from . import _checks
+from ._cascade import Call
 from ._resample import _EPS, resample_backward, resample_forward
 
-Tempo = Optional[Tuple[float, float]]
 
-
-def check_tempo(tempo: object, name: str = "tempo") -> Tempo:
-    """``None`` or a ``(lo, hi)`` pair with ``0 < lo <= 1 <= hi`` (the observed tempo inside the range) and
-    ``hi / lo <= 4``; an :class:`InvalidInputError` naming ``name`` otherwise."""
-    if tempo is None:
-        return None
+def check_tempo(tempo: object, name: str = "tempo") -> Tuple[float, float]:
+    """A ``(lo, hi)`` pair with ``0 < lo <= 1 <= hi`` (the observed tempo inside the range) and ``hi / lo <= 4``;
+    an :class:`InvalidInputError` naming ``name`` otherwise."""
     if isinstance(tempo, (str, bytes)) or not isinstance(tempo, Sequence) and not isinstance(tempo, np.ndarray):
-        raise _checks.fail(name, "None or a (lo, hi) pair of tempi", repr(tempo))
+        raise _checks.fail(name, "a (lo, hi) pair of tempi", repr(tempo))
     values = list(tempo)
     if len(values) != 2:
-        raise _checks.fail(name, "None or a (lo, hi) pair of tempi", repr(tempo))
+        raise _checks.fail(name, "a (lo, hi) pair of tempi", repr(tempo))
     lo, hi = (_checks.real(name, v) for v in values)
     if not (0.0 < lo <= 1.0 <= hi) or hi / lo > 4.0:
         raise _checks.fail(
@@ -53,9 +51,34 @@ def check_tempo(tempo: object, name: str = "tempo") -> Tempo:
     return (lo, hi)
 
 
-def describe(tempo: Tempo) -> str:
-    """One line for people: ``"none"`` or ``"tempi 0.6 to 1.6"`` (``tcd info``, ``tcd demo``)."""
-    return "none" if tempo is None else f"tempi {tempo[0]:g} to {tempo[1]:g}"
+@dataclass(frozen=True)
+class Tempo:
+    """Sample i of a forecast's n from the observation replayed at its own tempo, the n tempi spaced geometrically
+    from ``lo`` to ``hi`` (``0 < lo <= 1 <= hi``, ``hi / lo <= 4``): samples that differ in when a movement happens
+    (the module docstring of :mod:`tcd._tempo`). ``Tempo(1, 1)`` is every sample at the observed tempo, the
+    cascade. The bundled models do not use it by default: their samples' mean gets worse with it (MODEL_CARD.md,
+    "Tempo sampling")."""
+
+    lo: float
+    hi: float
+
+    def __post_init__(self) -> None:
+        lo, hi = check_tempo((self.lo, self.hi))
+        object.__setattr__(self, "lo", lo)
+        object.__setattr__(self, "hi", hi)
+
+    def draw(self, call: Call, observed: np.ndarray, seen: np.ndarray) -> Dict[str, np.ndarray]:
+        if (self.lo, self.hi) == (1.0, 1.0):
+            return call.cascade(observed, seen, call.num_samples)
+        return tempo_forecast(
+            lambda o, m, ids: call.cascade(o, m, 1, ids), observed, seen, call.num_samples, (self.lo, self.hi)
+        )
+
+    def describe(self) -> str:
+        """One line for people (``tcd info``, ``tcd demo``)."""
+        if (self.lo, self.hi) == (1.0, 1.0):
+            return "the cascade (every sample at the observed tempo)"
+        return f"the cascade at tempi {self.lo:g} to {self.hi:g}"
 
 
 def tempi(tempo: Tuple[float, float], n: int) -> np.ndarray:

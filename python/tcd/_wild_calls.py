@@ -1,6 +1,6 @@
-""":meth:`tcd.TCD.forecast` and :meth:`tcd.TCD.repair` on poses from the wild (``layout``, ``fps``, world
-coordinates): the checks, the conversions of :mod:`tcd.wild` around the engine, and the frame-rate
-interpolation of the outputs.
+""":meth:`tcd.TCD.forecast`, :meth:`~tcd.TCD.predict` and :meth:`~tcd.TCD.repair` on poses from the wild
+(``capture=tcd.Capture(layout, fps, up)``: another skeleton, world coordinates, another frame rate): the checks,
+the conversions of :mod:`tcd.wild` around the engine, and the frame-rate interpolation of the outputs.
 
 A model trained in another layout than Human3.6M's names it in its data block (``data.layout``, with
 ``data.root_joint`` and ``data.up``: the HumanEva-I model, ``"humaneva15"``, root ``"pelvis"``, +z up). It
@@ -19,6 +19,7 @@ the last ``obs_len`` of them, a shorter observation padded at the start with mis
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Dict, Optional, Tuple, cast
 
 import numpy as np
@@ -33,22 +34,51 @@ from .wild import Up
 if TYPE_CHECKING:
     from ._model import TCD
 
-__all__ = ["WildWindow", "own_layout"]
+__all__ = ["Capture", "WildWindow", "own_layout"]
 
 
-def _fps(value: Any, model_fps: float) -> float:
-    return model_fps if value is None else _checks.frame_rate(value)
+@dataclass(frozen=True)
+class Capture:
+    """How poses from the wild were captured, for a call's ``capture`` argument (:mod:`tcd.wild`): without one,
+    poses are in the model's own layout, joint order and frame rate, root-relative.
+
+    * ``layout``: one of :data:`tcd.layouts.LAYOUTS` (``"h36m32"``, ``"h36m17"``, ``"smpl24"``, ``"coco17"``,
+      ``"h36m22"``, ...; the poses' J its joints), in world or camera coordinates; a model trained in its own
+      layout (``data.layout``: the HumanEva-I model's ``"humaneva15"``) takes that one only;
+    * ``fps``: the poses' frame rate (``None``: the model's);
+    * ``up``: the vertical axis, ``"y"`` (default), ``"z"``, ``"-y"``, ... or a unit 3-vector.
+
+    The observation may have any length (the length rule of :mod:`tcd._model` counted at the model's frame rate,
+    and at least 2 observed frames, to measure the root's motion); the outputs come back in the same layout,
+    coordinates and frame rate (``Forecast.times``)."""
+
+    layout: str
+    fps: Optional[float] = None
+    up: Up = "y"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "layout", get_layout(self.layout).name)
+        if self.fps is not None:
+            object.__setattr__(self, "fps", _checks.frame_rate(self.fps))
+        v = wild.up_vector(self.up)  # checks it
+        if not isinstance(self.up, str):  # a vector: kept as a tuple, so that the capture stays hashable
+            object.__setattr__(self, "up", tuple(float(c) for c in v))
 
 
-def _prepare(model: Any, obs: Any, mask: Any, layout: Any, fps: Any, up: Any, units: str, frames: int):
-    """Checks the call's poses and settings; returns what the engine needs and how to come back."""
-    lay = get_layout(layout)
+def _model_fps(model: Any, fps: Optional[float]) -> float:
+    """The capture's frame rate (None: the model's); the model must record its own, to resample to it."""
     if model.fps is None:
         raise _checks.fail(
             "fps", "None: the model does not record its frame rate, so poses cannot be resampled", repr(fps)
         )
-    src_fps = _fps(fps, float(model.fps))
-    up_v = wild.up_vector(up)
+    return float(model.fps) if fps is None else fps
+
+
+def _prepare(model: Any, obs: Any, mask: Any, capture: Capture, units: str, frames: int):
+    """Checks the call's poses; returns what the engine needs and how to come back."""
+    lay = get_layout(capture.layout)
+    src_fps = _model_fps(model, capture.fps)
+    up_v = wild.up_vector(capture.up)
     p = validate_poses(obs, mask, num_joints=lay.num_joints, units=units)
     seen_frames = p.observed.reshape(p.observed.shape[0], p.observed.shape[1], -1).any(-1).sum(-1)
     if (seen_frames < 2).any():
@@ -114,22 +144,18 @@ def _rotation_onto(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.eye(3) + vx + vx @ vx / (1.0 + c)
 
 
-def _own_prepare(model: Any, own: str, obs: Any, mask: Any, layout: Any, fps: Any, up: Any, units: str, frames: int):
+def _own_prepare(model: Any, own: str, obs: Any, mask: Any, capture: Capture, units: str, frames: int):
     """:func:`_prepare` for a model in its own layout (see the module docstring)."""
-    lay = get_layout(layout)
+    lay = get_layout(capture.layout)
     if lay.name != own:
         raise _checks.fail(
             "layout",
             f"'{own}' (the layout this model was trained in; its poses without a layout "
             f"are {own}'s joints but the root, relative to it)",
-            repr(layout),
+            repr(capture.layout),
         )
-    if model.fps is None:
-        raise _checks.fail(
-            "fps", "None: the model does not record its frame rate, so poses cannot be resampled", repr(fps)
-        )
-    src_fps = _fps(fps, float(model.fps))
-    rot = _rotation_onto(wild.up_vector(up), wild.up_vector(model.data.get("up", "y")))  # caller -> model axes
+    src_fps = _model_fps(model, capture.fps)
+    rot = _rotation_onto(wild.up_vector(capture.up), wild.up_vector(model.data.get("up", "y")))  # caller -> model axes
     root_j = lay.joint_names.index(model.data.get("root_joint", lay.joint_names[0]))
     p = validate_poses(obs, mask, num_joints=lay.num_joints, units=units)
     seen_frames = p.observed.reshape(p.observed.shape[0], p.observed.shape[1], -1).any(-1).sum(-1)
@@ -209,9 +235,7 @@ class WildWindow:
         obs: ArrayLike,
         mask: Optional[ArrayLike],
         *,
-        layout: str,
-        fps: Optional[float],
-        up: Up,
+        capture: Capture,
         units: Units,
         frames: int,
     ) -> None:
@@ -220,11 +244,11 @@ class WildWindow:
         self.model_fps = float(cast(float, model.fps)) if model.fps is not None else None
         if self.own is not None:
             p, src_fps, times, root, world, observed, seen = _own_prepare(
-                model, self.own, obs, mask, layout, fps, up, units, frames
+                model, self.own, obs, mask, capture, units, frames
             )
             self.root, self.world = root, world
         else:
-            p, src_fps, scene, times, observed, seen = _prepare(model, obs, mask, layout, fps, up, units, frames)
+            p, src_fps, scene, times, observed, seen = _prepare(model, obs, mask, capture, units, frames)
             self.scene = scene
         self.p, self.src_fps, self.times = p, src_fps, times
         self.observed, self.mask = observed, seen

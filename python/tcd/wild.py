@@ -1,6 +1,7 @@
 """Poses from the wild into the model's convention and back: other joint layouts, world coordinates,
-any frame rate and any length (issue 17). Used by :meth:`tcd.TCD.forecast` and :meth:`tcd.TCD.repair`
-when ``layout``, ``fps`` or world coordinates are given.
+any frame rate and any length. Used by :meth:`tcd.TCD.forecast`, :meth:`~tcd.TCD.predict` and
+:meth:`~tcd.TCD.repair` when a call names a ``capture`` (:class:`tcd.Capture`), and by :func:`tcd.repair_file` with a
+``layout`` or ``fps``.
 
 The model's convention (Human3.6M, :mod:`tcd.layouts`): the root at the origin, the heading removed
 (+x the subject's left, +y up, +z forward), the 22 joints on the Human3.6M skeleton's bone lengths, 25 fps.
@@ -43,8 +44,8 @@ The rules, in the order they are applied:
    last observed one) is the last observed pose moved ``min(f / JOIN_FRAMES, 1)`` of the way to the
    model's forecast (5 frames, 0.2 s): the forecast starts where the person is and is the model's own from
    0.2 s on. A joint the last frame lacks starts where it was last seen (Zero-Velocity's choice; one never
-   seen is the model's throughout). (A call without ``layout`` and
-   ``fps`` does not come here: it returns the model's frames as they are.)
+   seen is the model's throughout). (A call without a
+   ``capture`` does not come here: it returns the model's frames as they are.)
 
 Observed values are returned unchanged in ``repaired``.
 """

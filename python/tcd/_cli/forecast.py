@@ -9,6 +9,9 @@ from typing import Any, Dict
 
 import numpy as np
 
+from .._mixture import Mixture
+from .._tempo import Tempo
+from .._wild_calls import Capture
 from ..exceptions import InvalidInputError
 from .._files import UnreadableFile, read_pose_npz, write_npz_atomic
 from ..layouts import LAYOUTS
@@ -36,7 +39,8 @@ FLAGS = {
     "up": "--up",
     "fill": "--fill",
     "tempo": "--tempo",
-    "generator_share": "--generator-share",
+    "share": "--generator-share",
+    "mode": "--generator-share",
 }
 
 
@@ -171,12 +175,20 @@ def run(args: argparse.Namespace) -> int:
         raise _BadInput(f"--point: the model directory {model.path} has no prior.safetensors.")
     if args.point and args.tempo is not None:
         raise _BadInput("--tempo samples tempi of the diffusion forecast; --point forecasts one point forecast.")
+    if args.tempo is not None and args.generator_share is not None:
+        raise _BadInput("--tempo and --generator-share name two forecast modes: pass one.")
     if args.point and args.generator_share is not None:
         raise _BadInput("--generator-share splits the samples of a forecast; --point forecasts one point forecast.")
     call = model.predict if args.point else model.forecast
     sampler = model.sampler_options("repair" if args.point else "forecast", **changes)
-    extra = {"fill": args.fill} if args.point else {"tempo": args.tempo, "generator_share": args.generator_share}
     try:
+        capture = None if layout is None and fps is None else Capture(layout or "h36m22", fps=fps, up=args.up)
+        if args.point:
+            extra: Dict[str, Any] = {"fill": args.fill}
+        elif args.tempo is not None:
+            extra = {"mode": Tempo(*args.tempo)}
+        else:
+            extra = {"mode": None if args.generator_share is None else Mixture(args.generator_share)}
         f = call(
             data["poses"],
             data.get("mask"),
@@ -185,9 +197,7 @@ def run(args: argparse.Namespace) -> int:
             units=args.units,
             threads=args.threads,
             progress=not args.quiet and sys.stderr.isatty(),
-            layout=layout,
-            fps=fps,
-            up=args.up,
+            capture=capture,
             sampler=sampler,
             **extra,
         )

@@ -8,7 +8,7 @@ import json
 from typing import Any, List
 
 from ..engine import supported_kernels
-from .._tempo import describe as describe_tempo
+from .._cascade import as_dict
 from .common import EXIT_OK, add_model_flag, load_model
 
 
@@ -30,8 +30,7 @@ def run(args: argparse.Namespace) -> int:
                     "horizon": m.horizon,
                     "num_joints": m.num_joints,
                     "sampling": {t: dataclasses.asdict(o) for t, o in m.sampling.items()},
-                    "forecast_tempo": None if m.forecast_tempo is None else list(m.forecast_tempo),
-                    "generator_share": m.generator_share,
+                    "forecast_mode": as_dict(m.forecast_mode),
                     "config": m.config,
                 },
                 indent=2,
@@ -67,13 +66,13 @@ def run(args: argparse.Namespace) -> int:
         )
     for task, o in m.sampling.items():
         lines.append(f"default sampler, {task}: {o.describe(m.num_train_timesteps)}")
-    lines.append(f"default tempo sampling, forecast: {describe_tempo(m.forecast_tempo)}")
+    lines.append(f"default forecast mode: {m.forecast_mode.describe()}")
     g = m.generator
     lines.append(
         "generator: none"
         if g is None
-        else f"generator: MLP {g.layers} x {g.hidden}, z {g.z_dim}, {g.coefs} DCT coefficients around the prior; "
-        f"draws {m.generator_share:g} of a forecast's samples by default"
+        else f"generator: MLP {g.layers} x {g.hidden}, z {g.z_dim}, {g.coefs} DCT coefficients around the prior "
+        "(tcd.Mixture draws from it)"
     )
     lines.append(f"kernels: {m.short.kernel} (this CPU supports: {', '.join(supported_kernels())})")
     print("\n".join(lines))
