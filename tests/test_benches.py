@@ -13,7 +13,6 @@ import pytest
 
 from conftest import H36M_DIR, ROOT, import_torch, needs_data, needs_h36m
 from fixtures_util import make_model_dir
-from tcd import SamplerOptions
 
 
 def load_bench(name: str):
@@ -244,68 +243,6 @@ def test_in_the_wild_smoke(tiny_model_dir, tmp_path):
     assert all(r["tcd_mm"]["1s"] > 0 and r["zero_velocity_mm"]["1s"] > 0 for r in rows)
 
 
-@needs_h36m
-def test_samples_n_rows_are_nested_prefixes(tiny_model_dir, tmp_path):
-    """benches/samples_n.py: one forecast call per action, the n rows from the first n samples, the prior and
-    Zero-Velocity beside, on the protocol's subject S5."""
-    import shutil
-    from conftest import FIXTURES
-
-    bench = load_bench("samples_n")
-    assert bench.sample_counts(5) == [1, 2, 5] and bench.sample_counts(7) == [1, 2, 5, 7]
-    d = tmp_path / "m"
-    shutil.copytree(tiny_model_dir, d)
-    shutil.copyfile(FIXTURES / "tiny_prior.safetensors", d / "prior.safetensors")
-    out = tmp_path / "n.json"
-    assert (
-        bench.main(
-            [
-                "--model",
-                str(d),
-                "--data",
-                str(H36M_DIR),
-                "--windows-per-action",
-                "1",
-                "--samples",
-                "3",
-                "--steps",
-                "2",
-                "--json",
-                str(out),
-            ]
-        )
-        == 0
-    )
-    r = json.loads(out.read_text())
-    assert list(r["mean_of_n"]) == ["1", "2", "3"] and r["protocol"]["subject"] == "S5"
-    assert r["best_of_n"]["1"] == r["mean_of_n"]["1"]  # one sample: its mean and the oracle's pick
-    assert r["mean_of_n"]["2"] != r["mean_of_n"]["1"]
-    assert all(v > 0 for v in (r["prior"]["1000"], r["zero_velocity"]["1000"]))
-
-
-@needs_h36m
-@needs_data("humaneva/humaneva_i_15j_60hz.npz")
-def test_heading_turns_windows_with_their_ground_truth(tmp_path):
-    """benches/heading.py: a forecast that rotates with its input (Zero-Velocity) scores the same turned as
-    recorded, so turning moves the ground truth with the observation; the prior's rows come out."""
-    import_torch("benches/heading.py reads the data through training/")
-    from conftest import FIXTURES
-
-    bench = load_bench("heading")
-    w = np.random.default_rng(0).normal(size=(4, 75, 14, 3))
-    turned = bench.rotate_about(w, "z", np.random.default_rng(0))
-    zv = lambda x: np.linalg.norm((np.repeat(x[:, 14:15], 60, 1) - x[:, 15:]).reshape(4, 60, -1), axis=-1)  # noqa: E731
-    np.testing.assert_allclose(zv(turned), zv(w), atol=1e-9)
-    out = tmp_path / "h.json"
-    assert (
-        bench.main(["--humaneva-model", str(FIXTURES / "tiny_humaneva_model"), "--skip", "h36m", "--json", str(out)])
-        == 0
-    )
-    r = json.loads(out.read_text())["humaneva"]
-    assert r["Train"]["windows"] > 0 and r["Validate"]["windows"] == 188
-    assert set(r["Validate"]["m"]) == {"as recorded", "turned"}
-
-
 @pytest.mark.slow
 def test_repair_scaling_smoke(tmp_path):
     """benches/repair_scaling.py runs the local and the Ray paths on the same files and reports the overhead."""
@@ -435,87 +372,64 @@ def test_train_speed_smoke(tmp_path):
     assert d["rows"][0]["windows_per_s"] > 0 and len(d["rows"][0]["blocks"]) == 5
 
 
-def test_bidirectional_fill_bends_each_forecast_to_meet_the_far_side_of_the_gap():
-    """benches/repair_learned_fills.py: with a prior that holds the last frame, the forward forecast bent to meet
-    the frame after the gap and the backward one bent to meet the frame before it are both the straight line
-    between them, so a trajectory linear in time is filled exactly; frames outside the gap are the spline's. A
-    reversal or a correction on the wrong side would miss the line."""
-    pytest.importorskip("scipy")
-    lf = load_bench("repair_learned_fills")
-
-    class Hold:
-        def predict(self, hist, n):
-            return np.repeat(hist[:, -1:], n, axis=1)
-
-    t = np.arange(lf.L, dtype=np.float64)[:, None, None]
-    gt = (0.3 + 0.01 * t * np.linspace(-1, 1, lf.J)[None, :, None] * np.array([1.0, 2.0, -0.5])).astype(np.float32)
-    gt = np.stack([gt, gt + 0.1])
-    m = np.ones((2, lf.L, lf.J), dtype=bool)
-    m[0, 12:22] = False  # an interior gap
-    m[1, 0:10] = False  # a gap at the start: the backward forecast only
-    spline = np.zeros_like(gt)
-    blend = lf.bidirectional_fill(Hold(), gt, m, spline)["prior forward + backward"]
-    np.testing.assert_allclose(blend[0, 12:22], gt[0, 12:22], atol=1e-5)
-    np.testing.assert_array_equal(blend[0, :12], spline[0, :12])
-    np.testing.assert_allclose(blend[1, :10], np.repeat(gt[1, 10:11], 10, 0), atol=1e-6)  # held: nothing before
-    mixed = lf.bidirectional_fill(Hold(), gt, m, spline)["prior forward + backward, averaged with the spline"]
-    np.testing.assert_allclose(mixed[0, 12:22], 0.5 * gt[0, 12:22], atol=1e-5)
+def test_repair_gap_lengths_hides_n_whole_frames_per_window():
+    """benches/repair_gap_lengths.py: each window hides every joint of exactly n consecutive frames, inside the
+    window, starts seeded by (seed, n)."""
+    gl = load_bench("repair_gap_lengths")
+    for n in (1, 10, 49):
+        m = gl.gap_masks(64, 50, n, 0)
+        hidden = ~m.any(2)
+        assert (hidden.sum(1) == n).all() and ((~m).sum((1, 2)) == 22 * n).all()
+        runs = np.diff(np.concatenate([np.zeros((64, 1)), hidden, np.zeros((64, 1))], 1).astype(int), axis=1)
+        assert ((runs == 1).sum(1) == 1).all()  # one run each
+        assert np.array_equal(m, gl.gap_masks(64, 50, n, 0)) and not np.array_equal(m, gl.gap_masks(64, 50, n, 1))
 
 
-def test_humaneva_lowpass_keeps_the_first_cosines_of_the_residual_over_the_prior():
-    import_torch("benches/humaneva_lowpass.py (it samples through training/evaluate.py)")
-    lowpass = load_bench("humaneva_lowpass").lowpass
-    rng = np.random.default_rng(0)
-    prior = rng.normal(size=(2, 60, 14, 3))
-    t = np.arange(60)[None, None, :, None, None]
-    slow, fast = (np.cos(np.pi * (2 * t + 1) * k / 120) for k in (2, 30))  # DCT-II cosines 2 and 30 of 60
-    a, b = rng.normal(size=(3, 2, 1, 14, 3)), rng.normal(size=(3, 2, 1, 14, 3))
-    samples = prior[None] + a * slow + b * fast
-    np.testing.assert_allclose(lowpass(samples, prior, 60), samples, atol=1e-12)  # all kept: unchanged
-    np.testing.assert_allclose(lowpass(samples, prior, 10), prior[None] + a * slow, atol=1e-12)  # cosine 30 gone
-    np.testing.assert_allclose(lowpass(samples, prior, 2), np.broadcast_to(prior, samples.shape), atol=1e-12)
-    with pytest.raises(ValueError, match="keep"):
-        lowpass(samples, prior, 0)
+def test_repair_gap_refiner_starts_as_the_fill_and_moves_hidden_frames_only():
+    """benches/repair_gap_refiner.py: the untrained refiner returns the fill bit for bit; once its output layer is
+    non-zero it changes the hidden frames and no seen one."""
+    torch = import_torch("benches/repair_gap_refiner.py (a PyTorch network)")
+    gr = load_bench("repair_gap_refiner")
+    torch.manual_seed(0)
+    net = gr.refiner(8, 2)
+    fill = torch.randn(3, 50, 66)
+    seen = torch.ones(3, 50, dtype=torch.bool)
+    seen[:, 10:20] = False
+    assert torch.equal(net(fill, seen), fill)
+    torch.nn.init.normal_(net.out.weight)
+    out = net(fill, seen)
+    assert torch.equal(out[seen], fill[seen]) and not torch.equal(out[~seen], fill[~seen])
 
 
-def test_humaneva_spread_scales_each_sample_about_the_samples_mean():
-    import_torch("benches/humaneva_lowpass.py (it samples through training/evaluate.py)")
-    spread = load_bench("humaneva_lowpass").spread
-    samples = np.random.default_rng(1).normal(size=(4, 2, 60, 14, 3))
-    mean = samples.mean(axis=0)
-    out = spread(samples, 1.5)
-    np.testing.assert_allclose(out.mean(axis=0), mean, atol=1e-12)  # the mean kept
-    np.testing.assert_allclose(out - mean, 1.5 * (samples - mean), atol=1e-12)  # deviations x 1.5
-    np.testing.assert_allclose(spread(samples, 1.0), samples, atol=1e-12)
-    with pytest.raises(ValueError, match="spread"):
-        spread(samples, 0.0)
+def test_generator_imle_starts_as_the_prior_and_pulls_each_target_s_nearest_draw():
+    """training/generator_imle.py: the untrained generator is the prior's forecast whatever the noise, and the
+    IMLE loss is the mean over targets of the distance to the nearest of the draws (the same seeded draws,
+    searched by brute force here), or, given a rival's distances, of the nearer of the two."""
+    torch = import_torch("training/generator_imle.py")
+    import training.generator_imle as bench
 
-
-def test_humaneva_noise_scale_scales_the_starting_noise_of_both_stages():
-    import_torch("benches/humaneva_lowpass.py (it samples through training/evaluate.py)")
-    import tcd
-    import tcd._model as tm
-
-    bench = load_bench("humaneva_lowpass")
-    model = tcd.load(ROOT / "tests" / "fixtures" / "tiny_humaneva_model")  # random weights, around a prior
-    obs = np.random.default_rng(2).normal(scale=0.3, size=(2, model.obs_len, model.num_joints, 3))
-
-    def run():
-        return model.forecast(
-            obs, num_samples=4, sampler=SamplerOptions(sampler="ddim", num_inference_steps=1), seed=7
-        ).samples
-
-    plain, cascade = run(), tm.cascade_raw
-    with bench.noise_scale(1.0):
-        np.testing.assert_array_equal(run(), plain)  # the engine's own streams, drawn in the injected layout
-    with bench.noise_scale(1e-9):  # x_T ~ 0 in both stages: DDIM-1 has nothing to vary
-        still = run()
-    assert tm.cascade_raw is cascade  # restored
-    spread = lambda s: np.abs(s - s.mean(axis=0)).max()  # noqa: E731
-    assert spread(plain) > 1e-3 and spread(still) < 1e-5 * spread(plain)
-    with pytest.raises(ValueError, match="spread"):
-        with bench.noise_scale(0.0):
-            pass
+    gen = bench.Generator(coords=6, hidden=16, layers=2, z_dim=4, coefs=5)
+    g = torch.Generator().manual_seed(0)
+    obs, prior = torch.randn(3, 15, 6, generator=g), torch.randn(3, 60, 6, generator=g)
+    out = gen(obs, prior, torch.randn(3, 7, 4, generator=g))
+    assert out.shape == (3, 7, 60, 6)
+    torch.testing.assert_close(out, prior[:, None].expand(-1, 7, -1, -1), rtol=0, atol=0)
+    torch.nn.init.normal_(gen.head.weight, std=0.5)  # now the draws differ
+    targets = torch.randn(3, 2, 60, 6, generator=g)
+    torch.manual_seed(5)
+    loss = bench.imle_loss(gen, obs, prior, targets, cands=9, fde_weight=2.0)
+    torch.manual_seed(5)
+    draws = gen(obs, prior, torch.randn(3, 9, 4))  # (3, 9, 60, 6)
+    err = torch.linalg.vector_norm(draws[:, :, None] - targets[:, None], dim=-1)  # (3, 9, 2, 60)
+    nearest = (err.mean(-1) + 2.0 * err[..., -1]).min(dim=1).values  # (3, 2)
+    torch.testing.assert_close(loss, nearest.mean())
+    assert nearest.std() > 0 and loss > 0
+    # with a rival generator's distances, each target counts the nearer of its draw and the rival
+    rival = nearest * torch.tensor([[0.5, 2.0], [2.0, 0.5], [0.5, 0.5]])
+    torch.manual_seed(5)
+    mixed = bench.imle_loss(gen, obs, prior, targets, cands=9, fde_weight=2.0, rival=rival)
+    torch.testing.assert_close(mixed, torch.minimum(nearest, rival).mean())
+    assert mixed < loss
 
 
 def test_repair_inbetween_features_are_aligned_on_the_gap():
@@ -587,63 +501,3 @@ def test_repair_inbetween_shared_rows_are_one_coordinate_each():
     t = y.reshape(5, ib.GAP, f).transpose(0, 2, 1).reshape(-1, ib.GAP)
     np.testing.assert_allclose(xtx, rows.T @ rows)
     np.testing.assert_allclose(xty, rows.T @ t)
-
-
-def test_repair_gap_lengths_hides_n_whole_frames_per_window():
-    """benches/repair_gap_lengths.py: each window hides every joint of exactly n consecutive frames, inside the
-    window, starts seeded by (seed, n)."""
-    gl = load_bench("repair_gap_lengths")
-    for n in (1, 10, 49):
-        m = gl.gap_masks(64, 50, n, 0)
-        hidden = ~m.any(2)
-        assert (hidden.sum(1) == n).all() and ((~m).sum((1, 2)) == 22 * n).all()
-        runs = np.diff(np.concatenate([np.zeros((64, 1)), hidden, np.zeros((64, 1))], 1).astype(int), axis=1)
-        assert ((runs == 1).sum(1) == 1).all()  # one run each
-        assert np.array_equal(m, gl.gap_masks(64, 50, n, 0)) and not np.array_equal(m, gl.gap_masks(64, 50, n, 1))
-
-
-def test_repair_gap_refiner_starts_as_the_fill_and_moves_hidden_frames_only():
-    """benches/repair_gap_refiner.py: the untrained refiner returns the fill bit for bit; once its output layer is
-    non-zero it changes the hidden frames and no seen one."""
-    torch = import_torch("benches/repair_gap_refiner.py (a PyTorch network)")
-    gr = load_bench("repair_gap_refiner")
-    torch.manual_seed(0)
-    net = gr.refiner(8, 2)
-    fill = torch.randn(3, 50, 66)
-    seen = torch.ones(3, 50, dtype=torch.bool)
-    seen[:, 10:20] = False
-    assert torch.equal(net(fill, seen), fill)
-    torch.nn.init.normal_(net.out.weight)
-    out = net(fill, seen)
-    assert torch.equal(out[seen], fill[seen]) and not torch.equal(out[~seen], fill[~seen])
-
-
-def test_generator_imle_starts_as_the_prior_and_pulls_each_target_s_nearest_draw():
-    """training/generator_imle.py: the untrained generator is the prior's forecast whatever the noise, and the
-    IMLE loss is the mean over targets of the distance to the nearest of the draws (the same seeded draws,
-    searched by brute force here), or, given a rival's distances, of the nearer of the two."""
-    torch = import_torch("training/generator_imle.py")
-    import training.generator_imle as bench
-
-    gen = bench.Generator(coords=6, hidden=16, layers=2, z_dim=4, coefs=5)
-    g = torch.Generator().manual_seed(0)
-    obs, prior = torch.randn(3, 15, 6, generator=g), torch.randn(3, 60, 6, generator=g)
-    out = gen(obs, prior, torch.randn(3, 7, 4, generator=g))
-    assert out.shape == (3, 7, 60, 6)
-    torch.testing.assert_close(out, prior[:, None].expand(-1, 7, -1, -1), rtol=0, atol=0)
-    torch.nn.init.normal_(gen.head.weight, std=0.5)  # now the draws differ
-    targets = torch.randn(3, 2, 60, 6, generator=g)
-    torch.manual_seed(5)
-    loss = bench.imle_loss(gen, obs, prior, targets, cands=9, fde_weight=2.0)
-    torch.manual_seed(5)
-    draws = gen(obs, prior, torch.randn(3, 9, 4))  # (3, 9, 60, 6)
-    err = torch.linalg.vector_norm(draws[:, :, None] - targets[:, None], dim=-1)  # (3, 9, 2, 60)
-    nearest = (err.mean(-1) + 2.0 * err[..., -1]).min(dim=1).values  # (3, 2)
-    torch.testing.assert_close(loss, nearest.mean())
-    assert nearest.std() > 0 and loss > 0
-    # with a rival generator's distances, each target counts the nearer of its draw and the rival
-    rival = nearest * torch.tensor([[0.5, 2.0], [2.0, 0.5], [0.5, 0.5]])
-    torch.manual_seed(5)
-    mixed = bench.imle_loss(gen, obs, prior, targets, cands=9, fde_weight=2.0, rival=rival)
-    torch.testing.assert_close(mixed, torch.minimum(nearest, rival).mean())
-    assert mixed < loss

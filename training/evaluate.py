@@ -536,7 +536,7 @@ def humaneva_protocol(windows: int, windows_in_protocol: int, split: str = "Vali
 @dataclass
 class HumanEvaCases:
     """The protocol's windows a HumanEva-I evaluation scores (all 188, or ``max_windows`` evenly spaced) and how:
-    one place for the evaluator and the benches that rescore samples (``benches/humaneva_lowpass.py``)."""
+    one place for the evaluator and the trainers that score samples (``training.generator_imle``)."""
 
     rows: np.ndarray  # which of the protocol's windows
     windows_in_protocol: int

@@ -416,7 +416,7 @@ def whole_frame_gaps(mask: torch.Tensor) -> list:
 
 def fill_gaps(forecaster: nn.Module, fill: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     """A filled (B, K, L) window with its whole-frame gaps (:func:`whole_frame_gaps`) filled from the prior
-    ``forecaster`` (the engine's ``fill_gaps``, the same steps; benches/repair_learned_fills.py measured them).
+    ``forecaster`` (the engine's ``fill_gaps``, the same steps).
     For a gap of n frames [s, e) and w_i = (i + 1) / (n + 1): forward (s > 0), the forecaster's n + 1 frames
     from the frames before the gap (its last ``obs_len``, the first repeated before them where fewer), frame
     i plus w_i times its n-th frame's miss against frame e where the window goes on; backward (e < L), the

@@ -806,8 +806,8 @@ fn repair_of_no_samples_is_the_fill_alone() {
     assert!(e.to_string().contains("repair fill"), "{e}");
 }
 
-/// The gap fill's steps written out once more, one gap and one side at a time (`benches/repair_learned_fills.py`'s
-/// `bidirectional_fill`): the history padded at its start, the forecast of n + 1 frames, its linear
+/// The gap fill's steps written out once more, one gap and one side at a time (as
+/// `training.model.fill_gaps` states them): the history padded at its start, the forecast of n + 1 frames, its linear
 /// correction towards the far frame, the blend, the average with the fill there.
 fn gap_fill_reference(
     forecaster: &tcd_core::Prior,
