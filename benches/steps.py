@@ -13,7 +13,7 @@ Protocol (reusing ``training.evaluate``, ``training.data.h36m``, ``training.mask
 * windows: Human3.6M S5, every test action, the first ``--windows-per-action`` windows of the 256-per-action
   protocol (RandomState(1234567890); smaller runs are prefixes of larger ones), 50 observed + 25 future
   frames;
-* forecast error: the clean observation through the cascade (``training.evaluate.tcd_engine_predict``),
+* forecast error: the clean observation through the cascade (``training.engines.tcd_engine_predict``),
   error of the **mean of the n samples** per future frame (mean over the 32 joints after pasting the 22
   model joints into the ground truth), averaged over windows, then over actions, at
   80 / 160 / 320 / 400 / 560 / 720 / 880 / 1000 ms; the oracle best-of-n is stored in the JSON too;
@@ -62,7 +62,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import tcd  # noqa: E402
 from training.data.h36m import DEFAULT_H36M_DIR, H36M, model_to_xyz32, xyz32_to_model  # noqa: E402
-from training.evaluate import OBS, PRED, summarize, tcd_engine_predict  # noqa: E402
+from training.engines import tcd_engine_predict  # noqa: E402
+from training.evaluate import OBS, PRED, summarize  # noqa: E402
 from training.masks import corrupt  # noqa: E402
 from training.metrics import HORIZONS_MS, oracle_best, per_frame_error, repair_ade  # noqa: E402
 from tcd import SamplerOptions  # noqa: E402

@@ -20,7 +20,7 @@ torch = import_torch("HumanEva-I training and evaluation (training/)")
 
 import tcd  # noqa: E402
 from test_humaneva import HUMANEVA_FILE, needs_humaneva, walking, write_synthetic_file  # noqa: E402
-from training import evaluate  # noqa: E402
+from training import evaluate, evaluate_humaneva  # noqa: E402
 from training.batches import Windows  # noqa: E402
 from training.data.humaneva import (  # noqa: E402
     HUMANEVA_MODEL_JOINT_NAMES,
@@ -299,7 +299,7 @@ def test_the_nearest_training_futures_baseline(synthetic_file, tmp_path):
     An observation that is a training window's own past finds that window first, and its own future unchanged."""
     train = [q for q in training_sequences(synthetic_file).values()]
     windows = np.stack([train[0][5:80], train[2][3:78]]).astype(np.float64)  # (2, 75, 14, 3)
-    f = evaluate.humaneva_neighbour_forecast(windows[:, :15], 3, synthetic_file)
+    f = evaluate_humaneva.humaneva_neighbour_forecast(windows[:, :15], 3, synthetic_file)
     assert f.shape == (3, 2, 60, 14, 3)
     np.testing.assert_allclose(f[0], windows[:, 15:], atol=1e-6)
     assert not np.allclose(f[1], windows[:, 15:])  # the next nearest: another
@@ -345,7 +345,7 @@ def test_the_nearest_training_futures_baseline(synthetic_file, tmp_path):
             ]
         )
     with pytest.raises(SystemExit, match="--samples must be in 1..108"):  # more than there are: an error
-        evaluate.humaneva_neighbour_forecast(windows[:, :15], 109, synthetic_file)
+        evaluate_humaneva.humaneva_neighbour_forecast(windows[:, :15], 109, synthetic_file)
     with pytest.raises(SystemExit):
         evaluate.main(["--baseline", "neighbours"])  # Human3.6M: not a baseline there
 

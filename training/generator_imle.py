@@ -18,12 +18,12 @@
   the MLP learns to reach what the cascade's samples miss; ``--mix M`` scores the mixture of the cascade's first M
   protocol samples and the MLP's first 50 - M.
 
-It scores 50 samples per window on the protocol's 188 windows (``training.evaluate.HumanEvaCases``: the same metrics
-and per-window values as ``python -m training.evaluate --protocol humaneva``, so ``training.compare`` pairs them),
-in PyTorch. The generator is ``training.generator.Generator``; ``python -m training.generator --state-dict`` writes
-a ``--save``d one as ``generator.safetensors``, which the engine runs (``tcd.engine.Generator``) and a model
-directory mixes into its forecasts. ``--steps`` (with ``--threads 1``) makes a run reproducible; ``--minutes``
-bounds a run by time instead::
+It scores 50 samples per window on the protocol's 188 windows (``training.evaluate_humaneva.HumanEvaCases``: the
+same metrics and per-window values as ``python -m training.evaluate --protocol humaneva``, so ``training.compare``
+pairs them), in PyTorch. The generator is ``training.generator.Generator``; ``python -m training.generator
+--state-dict`` writes a ``--save``d one as ``generator.safetensors``, which the engine runs
+(``tcd.engine.Generator``) and a model directory mixes into its forecasts. ``--steps`` (with ``--threads 1``) makes
+a run reproducible; ``--minutes`` bounds a run by time instead::
 
     python -m training.generator_imle --steps 1674 --rotate --targets 4 --threads 1 --save runs/gen/generator.pt
 """
@@ -80,7 +80,8 @@ def engine_samples(model: str, obs: np.ndarray, samples: int, seed: int) -> np.n
     """(S, W, 60, J, 3): ``samples`` one-step DDIM samples of the model directory ``model``'s cascade (no generator
     samples) for obs (W, 15, J, 3), through the engine exactly as ``python -m training.evaluate --protocol humaneva
     --engine tcd --sampler ddim --steps 1 --seed SEED --generator-share 0`` draws them."""
-    from .evaluate import build_parser, humaneva_model_samples
+    from .evaluate import build_parser
+    from .evaluate_humaneva import humaneva_model_samples
 
     args = build_parser().parse_args(
         [
@@ -206,7 +207,7 @@ def main(argv=None) -> int:
     from .augment import mirror, mirror_permutation, resample, rotate_about, sequence_ends, swap_futures
     from .batches import Windows
     from .data.humaneva import HUMANEVA_MODEL_JOINT_NAMES, training_sequences
-    from .evaluate import HumanEvaCases
+    from .evaluate_humaneva import HumanEvaCases
 
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)

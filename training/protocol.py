@@ -41,6 +41,7 @@ import torch
 from torch import nn
 
 from . import evaluate as E
+from .engines import from_bkl, joint_to_coord_mask, to_bkl
 from .data.h36m import DEFAULT_DATA_ROOT, H36M
 from .metrics import repair_ade
 
@@ -115,11 +116,11 @@ def repair_action(
     model, sched, cfg = models["repair"]
     seq_len = cfg["window"]["seq_len"]
     _, obs_clean, obs, jmask = E.protocol_windows(data, action, action_index, windows_per_action, pattern, mask_seed)
-    obs = obs * E.joint_to_coord_mask(jmask)
+    obs = obs * joint_to_coord_mask(jmask)
     sums, count = {"tcd": 0.0, "linear": 0.0, "spline": 0.0}, 0
     for b0 in range(0, len(obs), batch_size):
-        x = E.to_bkl(obs[b0 : b0 + batch_size]).to(device)
-        m = E.to_bkl(E.joint_to_coord_mask(jmask[b0 : b0 + batch_size])).to(device)
+        x = to_bkl(obs[b0 : b0 + batch_size]).to(device)
+        m = to_bkl(joint_to_coord_mask(jmask[b0 : b0 + batch_size])).to(device)
         gen = torch.Generator(device=device).manual_seed(seed * 1_000_003 + action_index * 10_007 + b0)
         filled = {
             "tcd": repair(
@@ -138,7 +139,7 @@ def repair_action(
             "spline": FILLS["spline"](x, m),
         }
         for name, value in filled.items():
-            total, c = repair_ade(E.from_bkl(value), obs_clean[b0 : b0 + batch_size], jmask[b0 : b0 + batch_size])
+            total, c = repair_ade(from_bkl(value), obs_clean[b0 : b0 + batch_size], jmask[b0 : b0 + batch_size])
             sums[name] += 1000.0 * total
         count += c
     return {
