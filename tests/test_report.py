@@ -7,7 +7,7 @@ import shutil
 
 import pytest
 
-from benches import report
+from benches import report, report_sources, report_tables
 
 PEERS = {
     "versions": {"cores": 2, "cpu": "x86_64", "cpu_simd_flags": ["avx2"]},
@@ -116,7 +116,7 @@ def test_inline_block(tmp_path, capsys):
     page = tmp_path / "page.md"
     page.write_text("It samples with <!-- report:h36m-sampler -->?<!-- /report:h36m-sampler --> by default.\n")
     assert run(capsys, "--write", page)[0] == 0
-    sampling = json.loads((report.ROOT / report.H36M_DIR / "sampling.json").read_text())["forecast"]
+    sampling = json.loads((report_sources.ROOT / report_sources.H36M_DIR / "sampling.json").read_text())["forecast"]
     text = page.read_text()
     assert text.count("\n") == 1 and f"{sampling['sampler'].upper()}, " in text
     assert run(capsys, "--check", page)[0] == 0
@@ -130,15 +130,15 @@ def test_recipes_cost_lists_every_recipe_and_the_runs_that_ended(tmp_path):
     file) also gets that run's CPU-hours and its paired verdicts against the bundled file."""
     results = tmp_path / "results"
     (results / "recipes").mkdir(parents=True)
-    md = report.recipes_cost(report.Sources(results))
-    names = sorted(p.stem for p in (report.ROOT / "training" / "recipes").glob("*.json"))
+    md = report_tables.recipes_cost(report_sources.Sources(results))
+    names = sorted(p.stem for p in (report_sources.ROOT / "training" / "recipes").glob("*.json"))
     assert names and all(f"[{n}](training/recipes/{n}.json)" in md for n in names)
     assert md.count("not run from scratch yet") == len(names)
     verdict = {"exit": 1, "report": ['  "mean_difference": 0.0,', '  "verdict": "within noise"', "}"]}
     (results / "recipes" / "h36m-prior.json").write_text(
         json.dumps({"recipe": "h36m-prior", "cpu_hours": 3.456, "comparisons": [{"keys": {"average": verdict}}]})
     )
-    md = report.recipes_cost(report.Sources(results))
+    md = report_tables.recipes_cost(report_sources.Sources(results))
     row = next(line for line in md.splitlines() if line.startswith("| [h36m-prior]"))
     assert "| 3.46 |" in row and "average: within noise" in row
     assert md.count("not run from scratch yet") == len(names) - 1
@@ -149,17 +149,17 @@ def test_stale_results_are_refused(tmp_path, capsys):
     results = tmp_path / "results"
     results.mkdir()
     for name in ("repair_quality_joint_inbetween_256.json", "repair_quality_joint_inbetween_256_ddpm10.json"):
-        shutil.copy(report.RESULTS / name, results / name)
+        shutil.copy(report_sources.RESULTS / name, results / name)
     d = json.loads((results / "repair_quality_joint_inbetween_256.json").read_text())
     d["model_sha256"] = "0" * 64
     (results / "repair_quality_joint_inbetween_256.json").write_text(json.dumps(d))
-    with pytest.raises(report.ReportError, match="run its benchmark again"):
-        report.h36m_repair(report.Sources(results))
+    with pytest.raises(report_sources.ReportError, match="run its benchmark again"):
+        report_tables.h36m_repair(report_sources.Sources(results))
 
 
 def test_every_generator_runs_on_the_repository_results():
-    for name, gen in report.GENERATORS.items():
-        assert isinstance(gen(report.Sources()), str), name
+    for name, gen in report_tables.GENERATORS.items():
+        assert isinstance(gen(report_sources.Sources()), str), name
         assert gen.__doc__, name
 
 
