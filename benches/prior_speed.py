@@ -1,5 +1,5 @@
 """Speed of the prior forecaster (issue 28): ``tcd.engine.Prior.predict`` against the same model in PyTorch eager
-(``training.prior.PriorNet.rollout``), in one run.
+(``training.prior_net.PriorNet.rollout``), in one run.
 
     python3 benches/prior_speed.py [--model DIR_OR_FILE | --random] [--reps 21] [--batch 1000] \
         [--threads 1 2] [--json benches/results/prior_speed.json]
@@ -8,7 +8,7 @@ Jobs: one forecast of ``--horizon`` (25) frames of one sequence, and of a batch 
 sequences; each at every ``--threads`` count (tcd's ``threads=``, torch's ``set_num_threads``). Inputs: 50-frame
 windows of the bundled demo clip (real motion, metres), repeated to fill the batch. The model: ``--model``
 (a model directory holding prior.safetensors, or the file), else the bundled prior where the package has one,
-else (or with ``--random``) a seeded random 24-block prior (``training.export.random_prior``; the speed does
+else (or with ``--random``) a seeded random 24-block prior (``training.prior_net.random_prior``; the speed does
 not depend on the weights). PyTorch runs the model loaded from the same file, under ``torch.inference_mode``.
 
 Each job times a block of torch calls, then (after a pause: torch's OpenMP workers spin on after a call and
@@ -42,7 +42,7 @@ import torch  # noqa: E402
 
 import tcd  # noqa: E402
 from machine import cpu_model, cpu_simd_flags  # noqa: E402
-from training import export  # noqa: E402
+from training import fileformat, prior_net  # noqa: E402
 
 GOALS_S = {"one": 1e-3, "batch": 0.1}  # the issue's goals, at 2 threads for the batch
 # After a block of torch calls: its OpenMP workers keep spinning after each call and take the cores (tcd's
@@ -54,12 +54,12 @@ def model_file(args, tmp: Path) -> tuple[Path, str]:
     """(prior.safetensors to time, a description of it)."""
     if args.model:
         p = Path(args.model)
-        p = p / export.PRIOR_FILE if p.is_dir() else p
+        p = p / fileformat.PRIOR_FILE if p.is_dir() else p
         return p, str(p)
-    bundled = tcd.default_model_dir() / export.PRIOR_FILE
+    bundled = tcd.default_model_dir() / fileformat.PRIOR_FILE
     if bundled.is_file() and not args.random:
         return bundled, "bundled"
-    path = export.save_prior(tmp / export.PRIOR_FILE, export.random_prior(blocks=args.blocks, seed=0))
+    path = prior_net.save_prior(tmp / fileformat.PRIOR_FILE, prior_net.random_prior(blocks=args.blocks, seed=0))
     return path, f"random, {args.blocks} blocks"
 
 
@@ -147,7 +147,7 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         path, what = model_file(args, Path(tmp))
         prior = tcd.engine.Prior.load(path)
-        model, _ = export.load_prior_file(path)
+        model, _ = prior_net.load_prior_file(path)
         rows = []
         for batch, reps in ((1, args.reps), (args.batch, max(1, args.reps // 3))):
             obs = windows(batch, prior.obs_len)

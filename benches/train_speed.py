@@ -35,15 +35,8 @@ import torch  # noqa: E402
 from machine import cpu_model, cpu_simd_flags  # noqa: E402
 from training import channels_last  # noqa: E402
 from training.batches import BatchSource, Windows  # noqa: E402
-from training.train import (  # noqa: E402
-    TrainConfig,
-    build_model,
-    load_sequences,
-    make_ema,
-    make_optimizer,
-    train_step,
-    training_forward,
-)
+from training.train import build_model, load_sequences, make_ema, make_optimizer, train_step, training_forward  # noqa: E402
+from training.train_config import TrainConfig  # noqa: E402
 
 
 def measure(cfg: TrainConfig, windows: Windows, variant: str, seconds: float, log, profile: int = 0) -> dict:

@@ -59,7 +59,8 @@ def test_mirror_swaps_left_and_right_through_a_vertical_plane():
 
 
 def test_prior_batches_mirror_and_need_the_vertical():
-    from training.prior import PriorConfig, batch
+    from training.prior import batch
+    from training.prior_net import PriorConfig
 
     with pytest.raises(ValueError, match="mirror_prob"):
         PriorConfig(dataset="humaneva", subjects=(1, 2, 3), mirror_prob=0.5)
@@ -98,7 +99,8 @@ def test_resample_reads_each_window_at_its_speed_inside_its_sequence():
 
 
 def test_prior_batches_play_windows_at_a_speed_in_range():
-    from training.prior import PriorConfig, batch
+    from training.prior import batch
+    from training.prior_net import PriorConfig
 
     for bad in ([1.2], [1.2, 0.8], [0.0, 1.0], [0.8, float("inf")]):
         with pytest.raises(ValueError, match="speed_range"):
@@ -127,7 +129,7 @@ def test_training_batches_turn_the_windows_and_keep_every_other_draw():
     poses are turned (about z: heights equal, horizontal distances to the root kept)."""
     import torch
     from training.batches import BatchSource, Windows
-    from training.train import TrainConfig
+    from training.train_config import TrainConfig
 
     rng = np.random.default_rng(0)
     seqs = [rng.normal(size=(40, 22, 3)).astype(np.float32) for _ in range(3)]
@@ -192,7 +194,7 @@ def test_training_batches_swap_a_share_of_the_futures_and_keep_every_other_draw(
     pure function of (seed, epoch, batch index)."""
     import torch
     from training.batches import BatchSource, Windows
-    from training.train import TrainConfig
+    from training.train_config import TrainConfig
 
     rng = np.random.default_rng(0)
     seqs = [np.cumsum(rng.normal(scale=0.01, size=(120, 22, 3)), axis=0).astype(np.float32) for _ in range(3)]
@@ -229,7 +231,7 @@ def test_training_batches_add_further_imle_targets_and_keep_every_other_draw():
     of one of its neighbours."""
     import torch
     from training.batches import BatchSource, Windows
-    from training.train import TrainConfig
+    from training.train_config import TrainConfig
 
     rng = np.random.default_rng(1)
     seqs = [np.cumsum(rng.normal(scale=0.01, size=(120, 22, 3)), axis=0).astype(np.float32) for _ in range(3)]
@@ -278,7 +280,7 @@ def test_action_balance_draws_each_action_by_its_weight_and_stays_seeded():
     """action_weights: n ** -balance per window, n its action's windows; BatchSource with weights draws an epoch's
     rows with replacement by them (every action alike at 1), from the (seed, epoch) stream as the permutation did."""
     from training.batches import BatchSource, Windows, action_weights
-    from training.train import TrainConfig
+    from training.train_config import TrainConfig
 
     rng = np.random.default_rng(0)
     seqs = [rng.normal(size=(200, 2, 3)).astype(np.float32), rng.normal(size=(30, 2, 3)).astype(np.float32)]

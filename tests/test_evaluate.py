@@ -183,7 +183,7 @@ def test_prior_checkpoint_evaluation(tmp_path):
     ~0), so on clean windows its errors are Zero-Velocity's; under an occlusion the missing entries are
     filled first (spline) and every horizon has a finite error."""
     import torch
-    from training.prior import PriorConfig, PriorNet
+    from training.prior_net import PriorConfig, PriorNet
 
     cfg = PriorConfig(blocks=2)
     torch.manual_seed(0)

@@ -12,8 +12,9 @@ torch = import_torch("the exporter (training/export.py)")
 
 from safetensors.torch import load_file, save_file  # noqa: E402
 
-from training import export  # noqa: E402
-from training.export import CONFIG_KEY, load_model_dir, load_model_file, main, random_init_dir, read_config  # noqa: E402
+from training import fileformat  # noqa: E402
+from training.export import load_model_dir, load_model_file, main, random_init_dir  # noqa: E402
+from training.fileformat import CONFIG_KEY, read_config  # noqa: E402
 from training.train import train  # noqa: E402
 from test_train import synthetic_motion, tiny_cfg  # noqa: E402
 
@@ -142,7 +143,7 @@ def test_committed_fixtures_are_what_make_fixtures_writes(tmp_path, monkeypatch)
     make_fixtures = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(make_fixtures)
     recorded = json.loads((FIXTURES / "tiny_model" / "model.json").read_text())["short"]["source_revision"]
-    monkeypatch.setattr(export, "source_revision", lambda: recorded)
+    monkeypatch.setattr(fileformat, "source_revision", lambda: recorded)
     out = make_fixtures.write(tmp_path / "fixtures")
     written = sorted(str(p.relative_to(out)) for p in out.rglob("*") if p.is_file())
     assert written == sorted(

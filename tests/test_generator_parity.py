@@ -36,7 +36,7 @@ torch = import_torch("parity with the PyTorch reference")
 
 import tcd  # noqa: E402
 from fixtures_util import ALL_KERNELS, load_kernel, read_weights, write_weights  # noqa: E402
-from training.export import humaneva_data_meta  # noqa: E402
+from training.fileformat import humaneva_data_meta  # noqa: E402
 from training.generator import Generator, load_generator_file, save_generator  # noqa: E402
 
 RTOL, ATOL = 1e-4, 1e-5

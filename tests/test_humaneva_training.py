@@ -28,10 +28,14 @@ from training.data.humaneva import (  # noqa: E402
     load_humaneva,
     training_sequences,
 )
-from training.export import HUMANEVA_WINDOWS, export_checkpoint, export_prior, load_prior_file, read_config  # noqa: E402
-from training.prior import PriorConfig, PriorNet, load as load_prior_checkpoint, training_frames  # noqa: E402
+from training.export import HUMANEVA_WINDOWS, export_checkpoint, export_prior  # noqa: E402
+from training.prior_net import load_prior_file  # noqa: E402
+from training.fileformat import read_config  # noqa: E402
+from training.prior import load as load_prior_checkpoint, training_frames  # noqa: E402
+from training.prior_net import PriorConfig, PriorNet  # noqa: E402
 from training.prior import train as train_prior  # noqa: E402
-from training.train import TrainConfig, train  # noqa: E402
+from training.train import train  # noqa: E402
+from training.train_config import TrainConfig  # noqa: E402
 
 CONFIGS = ROOT / "training" / "configs"
 PRIOR_MODEL = {"cond_fill": "prior", "target": "prior_residual", "target_scale": 10.0}
@@ -113,7 +117,7 @@ def test_prior_trains_exports_and_runs_in_the_engine(tmp_path):
     with torch.no_grad():
         for p in net.parameters():  # make every weight count before comparing with the engine
             p.add_(0.01 * torch.randn(p.shape, generator=torch.Generator().manual_seed(p.numel())))
-    from training.export import save_prior
+    from training.prior_net import save_prior
 
     save_prior(path, net)
     obs = np.stack(seqs)[:, :15].astype(np.float32).reshape(3, 15, 42)
@@ -152,7 +156,8 @@ def test_humaneva_train_configs_chain_into_the_cascade():
 
 @pytest.mark.slow
 def test_a_few_training_steps_on_humaneva_shaped_windows(tmp_path):
-    from training.export import random_prior, save_model_file, build_prior_config, data_meta
+    from training.prior_net import random_prior, build_prior_config
+    from training.fileformat import save_model_file, data_meta
 
     prior = random_prior(blocks=2, seed=0, obs_len=15, joints=14)
     prior_path = tmp_path / "prior.safetensors"
@@ -354,7 +359,8 @@ def test_the_nearest_training_futures_baseline(synthetic_file, tmp_path):
 
 
 def test_h36m_share_is_a_humaneva_option_and_the_weights_say_they_learnt_from_human36m():
-    from training.export import data_meta, prior_data_meta
+    from training.prior_net import prior_data_meta
+    from training.fileformat import data_meta
 
     for make in (
         lambda **kw: PriorConfig(obs_len=15, chunk=15, subjects=(1, 2, 3), **kw),

@@ -11,10 +11,12 @@ from conftest import import_torch
 torch = import_torch("IMLE training of the one-step sampler (training/)")
 
 from training.diffusion import DiffusionConfig, Schedule, masked_eps_loss, training_loss  # noqa: E402
-from training.export import build_config, random_prior  # noqa: E402
+from training.export import build_config  # noqa: E402
+from training.prior_net import random_prior  # noqa: E402
 from training.imle import EngineSearch, imle_choose, imle_loss, torch_search  # noqa: E402
 from training.model import ModelConfig, TCDModel, randomize_output_layer, to_target  # noqa: E402
-from training.train import TrainConfig, train_step  # noqa: E402
+from training.train import train_step  # noqa: E402
+from training.train_config import TrainConfig  # noqa: E402
 
 CFG = dict(
     channels=16,

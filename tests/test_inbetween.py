@@ -42,7 +42,8 @@ def test_set_inbetween_round_trip(tmp_path):
     takes them out."""
     from safetensors.numpy import load_file
 
-    from training.export import load_prior_file, set_inbetween
+    from training.export import set_inbetween
+    from training.prior_net import load_prior_file
 
     src = tcd.default_model_dir()
     if not (src / "repair_fill.safetensors").is_file():

@@ -604,7 +604,7 @@ def test_repair_around_a_repair_fill_every_kernel(fill_repair_dir, sampler, step
     """The engine fills the masked entries once with the repair fill's correction of the spline
     (``training.model.prior_fill``) and runs the chain on the residual over it, as PyTorch does, on each
     kernel path; observed entries come back bit for bit, and the fill is neither the spline nor ignored."""
-    from training.export import load_prior_file
+    from training.prior_net import load_prior_file
     from training.model import prior_fill, spline_fill
 
     den = load_kernel(fill_repair_dir / "repair.safetensors", kernel, monkeypatch)
@@ -650,15 +650,9 @@ def gap_fill_repair_dir(fill_repair_dir, tmp_path_factory):
     set to fill whole-frame gaps with it (``gap_fill: "forecaster"``; the same weights)."""
     import shutil
 
-    from training.export import (
-        PRIOR_FILE,
-        REPAIR_FILL_FILE,
-        build_prior_config,
-        load_prior_file,
-        random_prior,
-        save_model_file,
-        write_model_json,
-    )
+    from training.export import write_model_json
+    from training.prior_net import build_prior_config, load_prior_file, random_prior
+    from training.fileformat import PRIOR_FILE, REPAIR_FILL_FILE, save_model_file
 
     d = tmp_path_factory.mktemp("parity_gap_fill") / "model"
     shutil.copytree(fill_repair_dir, d)
@@ -688,7 +682,7 @@ def test_repair_around_a_gap_filling_repair_fill_every_kernel(gap_fill_repair_di
     prior forecaster, forward and backward (``training.model.fill_gaps``), after the fill's correction of the
     spline, as PyTorch does, on each kernel path; the gaps (and only they) differ from the plain fill, and the
     repair around them from the plain fill's; without the forecaster the call is refused, naming it."""
-    from training.export import load_prior_file
+    from training.prior_net import load_prior_file
     from training.model import prior_fill, whole_frame_gaps
 
     d = gap_fill_repair_dir
@@ -771,7 +765,7 @@ def test_repair_fill_with_an_in_betweener_every_kernel(inbetween_repair_dir, ker
     frames outside them, as PyTorch does (``training.model.prior_fill``), on each kernel path: in the fill
     (``tcd.engine.Prior.fill``), the fill alone (``num_samples=0``) and the repair around it; observed entries
     never change, the gaps' frames and the short runs' do."""
-    from training.export import load_prior_file
+    from training.prior_net import load_prior_file
     from training.model import prior_fill, whole_frame_gaps
 
     d = inbetween_repair_dir

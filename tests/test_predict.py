@@ -17,7 +17,7 @@ from tcd.exceptions import InvalidInputError
 @pytest.fixture(scope="module")
 def model_dir(tiny_model_dir, tmp_path_factory):
     """The tiny cascade plus a prior with random (non-trivial) weights: the committed
-    tests/fixtures/tiny_prior.safetensors (``training.export.random_prior(blocks=2, seed=0)``)."""
+    tests/fixtures/tiny_prior.safetensors (``training.prior_net.random_prior(blocks=2, seed=0)``)."""
     d = tmp_path_factory.mktemp("with_prior") / "m"
     shutil.copytree(tiny_model_dir, d)
     shutil.copyfile(FIXTURES / "tiny_prior.safetensors", d / "prior.safetensors")

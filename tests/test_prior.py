@@ -14,10 +14,7 @@ from conftest import import_torch
 torch = import_torch("the prior forecaster's PyTorch reference (training/prior.py)")
 
 from training.prior import (  # noqa: E402
-    PriorConfig,
-    PriorNet,
     batch,
-    dct_matrix,
     hidden_loss,
     load,
     load_grown,
@@ -27,6 +24,7 @@ from training.prior import (  # noqa: E402
     validation_windows,
     window_loss,
 )
+from training.prior_net import PriorConfig, PriorNet, dct_matrix  # noqa: E402
 
 
 def synthetic_frames(n_frames: int = 400, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -303,7 +301,7 @@ def test_a_repair_fill_corrects_the_spline_of_its_masked_windows(tmp_path):
     mask of the mix (observed entries exact), a pure function of (seed, iteration); the loss covers the hidden
     joints only; training lowers it below the spline's on windows the run never draws; and the exported file
     is ``repair_fill.safetensors``, a prior with anchor "window"."""
-    from training import export
+    from training import export, fileformat, prior_net
     from training.model import spline_fill
 
     torch.set_num_threads(1)
@@ -341,10 +339,10 @@ def test_a_repair_fill_corrects_the_spline_of_its_masked_windows(tmp_path):
         trained_loss = hidden_loss(load(tmp_path / "run" / "last.pt")(filled), wins, joint_mask).item()
     assert trained_loss < 0.8 * spline_loss, (spline_loss, trained_loss)
     assert export.main(["--prior", str(tmp_path / "run" / "last.pt"), "--out", str(tmp_path / "model")]) == 0
-    path = tmp_path / "model" / export.REPAIR_FILL_FILE
-    assert export.read_config(path)["model"]["anchor"] == "window"
-    assert not (tmp_path / "model" / export.PRIOR_FILE).exists()
-    model, _ = export.load_prior_file(path)
+    path = tmp_path / "model" / fileformat.REPAIR_FILL_FILE
+    assert fileformat.read_config(path)["model"]["anchor"] == "window"
+    assert not (tmp_path / "model" / fileformat.PRIOR_FILE).exists()
+    model, _ = prior_net.load_prior_file(path)
     assert model.cfg.anchor == "window"
     with pytest.raises(ValueError, match="does not forecast"):
         model.rollout(wins, 10)
@@ -354,7 +352,7 @@ def test_validation_keeps_the_best_weights(tmp_path):
     """val_every: the loss on the held-out subjects' fixed windows every val_every iterations, in the history;
     best.pt holds the weights (and iteration) of the lowest, which the exporter records; the held-out subjects
     cannot be trained on."""
-    from training import export
+    from training import export, fileformat
 
     torch.set_num_threads(1)
     frames, held_out = synthetic_frames(), synthetic_frames(seed=1)
@@ -372,7 +370,7 @@ def test_validation_keeps_the_best_weights(tmp_path):
     with torch.no_grad():
         assert window_loss(vcfg, net, net, val, 0).item() == pytest.approx(vals[best["iteration"]], rel=1e-6)
     export.export_prior(tmp_path / "best.pt", tmp_path / "model")
-    meta = export.read_config(tmp_path / "model" / export.REPAIR_FILL_FILE)["training"]
+    meta = fileformat.read_config(tmp_path / "model" / fileformat.REPAIR_FILL_FILE)["training"]
     assert meta["iteration"] == best["iteration"] and meta["val"] == pytest.approx(vals[best["iteration"]])
     with pytest.raises(ValueError, match="held out"):
         repair_fill_config(val_subjects=(1,), subjects=(1, 6))

@@ -3,7 +3,7 @@
 ``"sample"``), through the public ``tcd`` API, on the same weights and the same injected noise.
 
 Fixture: a seeded random-init ``tiny`` short (50 + 5) and long (55 + 20) pair with cond_fill prior / target
-prior_residual / target_scale 10 and a random 3-block prior forecaster (``training.export.random_prior``: every
+prior_residual / target_scale 10 and a random 3-block prior forecaster (``training.prior_net.random_prior``: every
 weight random, its forecast a few tenths of a metre from the last pose), written twice with the same weights:
 once epsilon-predicting, once x0-predicting. The reference is ``training.diffusion.cascade`` on the models
 ``training.export.load_model_dir`` reads back from the same directory (the prior attached to both).
@@ -39,7 +39,7 @@ import tcd  # noqa: E402
 from fixtures_util import ALL_KERNELS, bad, load_kernel, read_weights  # noqa: E402
 from tcd.exceptions import InvalidInputError, WeightsError  # noqa: E402
 from training import diffusion as D  # noqa: E402
-from training import export  # noqa: E402
+from training import export, fileformat, prior_net  # noqa: E402
 from training.diffusion import DiffusionConfig  # noqa: E402
 from training.model import prior_fill  # noqa: E402
 from tcd import SamplerOptions  # noqa: E402
@@ -147,7 +147,7 @@ def test_cascade_matches_pytorch(dirs, prediction, sampler, steps, eta, s, kerne
     d = dirs[prediction]
     short = load_kernel(d / "short.safetensors", kernel, monkeypatch)
     long = load_kernel(d / "long.safetensors", kernel, monkeypatch)
-    prior = load_kernel(d / export.PRIOR_FILE, kernel, monkeypatch, cls=tcd.engine.Prior)
+    prior = load_kernel(d / fileformat.PRIOR_FILE, kernel, monkeypatch, cls=tcd.engine.Prior)
     assert short.config["diffusion"]["prediction_type"] == prediction
     eng, ref, mask, ns, nl, kw, want = reference(d, prediction, sampler, steps, eta, s)
     got = tcd.engine.cascade_raw(
@@ -212,7 +212,7 @@ def test_tcd_load_passes_the_prior_and_matches_pytorch_on_the_seeded_streams(dir
 def test_errors_name_the_prior_and_the_missing_file(dirs, tmp_path):
     d = dirs["epsilon"]
     short, long = tcd.engine.Denoiser.load(d / "short.safetensors"), tcd.engine.Denoiser.load(d / "long.safetensors")
-    prior = tcd.engine.Prior.load(d / export.PRIOR_FILE)
+    prior = tcd.engine.Prior.load(d / fileformat.PRIOR_FILE)
     eng, _, mask = observation(5, batch=1)
     kw = dict(num_samples=1, seed=0, sampler=SamplerOptions(sampler="ddim", num_inference_steps=2))
     e = bad("prior", tcd.engine.cascade_raw, short, long, eng, mask, **kw)
@@ -220,7 +220,7 @@ def test_errors_name_the_prior_and_the_missing_file(dirs, tmp_path):
     bad("prior", tcd.engine.cascade_raw, short, long, eng, mask, prior="prior.safetensors", **kw)
     # a prior that reads the whole short window
     other = tmp_path / "p55.safetensors"
-    export.save_prior(other, export.random_prior(blocks=1, obs_len=55, chunk=5))
+    prior_net.save_prior(other, prior_net.random_prior(blocks=1, obs_len=55, chunk=5))
     e = bad("prior", tcd.engine.cascade_raw, short, long, eng, mask, prior=tcd.engine.Prior.load(other), **kw)
     assert "obs_len = 55" in str(e)
     # repair runs a prior-conditioned model only with a repair fill (anchor "window"), never the forecaster
@@ -276,8 +276,8 @@ def test_export_writes_and_restores_prior_conditioning_and_x0_prediction(tmp_pat
     from test_train import synthetic_motion, tiny_cfg
     from training.train import train
 
-    prior_file = export.save_prior(
-        tmp_path / "prior.safetensors", export.random_prior(blocks=2, obs_len=8, chunk=2, seed=3)
+    prior_file = prior_net.save_prior(
+        tmp_path / "prior.safetensors", prior_net.random_prior(blocks=2, obs_len=8, chunk=2, seed=3)
     )
     seqs = {"train": synthetic_motion(4, T=40, seed=0), "val": synthetic_motion(2, T=40, seed=1)}
     out = tmp_path / "out"
@@ -296,7 +296,7 @@ def test_export_writes_and_restores_prior_conditioning_and_x0_prediction(tmp_pat
         assert export.main(["--checkpoint", str(tmp_path / role / "last.pt"), "--out", str(out)]) == 0
     assert export.main(["--files", str(prior_file), "--out", str(out)]) == 0
     for role in ("short", "long"):
-        meta = json.loads(read_weights(out / f"{role}.safetensors")[1][export.CONFIG_KEY])
+        meta = json.loads(read_weights(out / f"{role}.safetensors")[1][fileformat.CONFIG_KEY])
         assert meta["model"]["cond_fill"] == "prior" and meta["model"]["target"] == "prior_residual"
         assert meta["model"]["target_scale"] == 10.0
         assert meta["diffusion"]["prediction_type"] == "sample"

@@ -20,9 +20,10 @@ from training.diffusion import (  # noqa: E402
     sample_many,
     training_loss,
 )
-from training.export import random_prior  # noqa: E402
+from training.prior_net import random_prior  # noqa: E402
 from training.model import ModelConfig, TCDModel, prior_fill, spline_fill, to_target  # noqa: E402
-from training.train import TrainConfig, load_prior  # noqa: E402
+from training.train import load_prior  # noqa: E402
+from training.train_config import TrainConfig  # noqa: E402
 
 PRIOR_CFG = dict(
     channels=16,
@@ -143,7 +144,7 @@ def test_x0_loss_is_on_the_clean_target():
 
 
 def test_train_config_prior_trains_a_step(tmp_path):
-    from training.export import save_prior
+    from training.prior_net import save_prior
 
     prior = prior_net()
     path = save_prior(tmp_path / "prior.safetensors", prior)

@@ -1,6 +1,6 @@
 """The prior forecaster's interface in the engine (``tcd.engine.Prior``): its description, results that do not
 depend on threads, batching or the caller's thread, the frames it reads, bad arguments and bad files; on the
-committed 2-block random prior (tests/fixtures/tiny_prior.safetensors, ``training.export.random_prior(blocks=2,
+committed 2-block random prior (tests/fixtures/tiny_prior.safetensors, ``training.prior_net.random_prior(blocks=2,
 seed=0)``: every weight shapes the output). No torch: its parity with the PyTorch reference is
 tests/test_prior_parity.py."""
 

@@ -1,10 +1,10 @@
 """Parity of the prior forecaster in the Rust engine (``tcd.engine.Prior``) with the PyTorch reference
-(``training.prior.PriorNet.rollout``), on every kernel path this CPU supports, and the prior's export. The
+(``training.prior_net.PriorNet.rollout``), on every kernel path this CPU supports, and the prior's export. The
 binding's interface, which needs no torch, is tests/test_prior_engine.py.
 
 Weights (the same file on both sides: the reference is loaded back from it with ``load_prior_file``):
 * ``random``: 24 blocks (the bundled size), every weight a seeded normal of unit-gain scale
-  (``training.export.random_prior``): the trained init is Zero-Velocity (fc_out ~ 1e-8), which would test
+  (``training.prior_net.random_prior``): the trained init is Zero-Velocity (fc_out ~ 1e-8), which would test
   nothing; here the forecast moves about a metre away from the last pose;
 * ``trained``: a 4-block prior trained 40 iterations on synthetic motion in the test (Adam at 1e-2 from the
   Zero-Velocity init), exported through the CLI (``python -m training.export --prior``);
@@ -41,8 +41,9 @@ import tcd  # noqa: E402
 import fixtures_util  # noqa: E402
 from fixtures_util import ALL_KERNELS, read_weights, write_weights  # noqa: E402
 from test_prior_engine import observations, synthetic_motion  # noqa: E402
-from training import export  # noqa: E402
-from training.prior import PriorConfig, dct_matrix, train  # noqa: E402
+from training import export, fileformat, prior_net  # noqa: E402
+from training.prior import train  # noqa: E402
+from training.prior_net import PriorConfig, dct_matrix  # noqa: E402
 
 RTOL, ATOL = 1e-4, 1e-5
 CONTRIBUTION = 1e3  # the network's contribution over ATOL, at least
@@ -54,8 +55,8 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 @pytest.fixture(scope="module")
 def random_file(tmp_path_factory):
-    return export.save_prior(
-        tmp_path_factory.mktemp("prior_random") / "prior.safetensors", export.random_prior(blocks=24, seed=0)
+    return prior_net.save_prior(
+        tmp_path_factory.mktemp("prior_random") / "prior.safetensors", prior_net.random_prior(blocks=24, seed=0)
     )
 
 
@@ -72,11 +73,11 @@ def trained_file(tmp_path_factory):
     train(cfg, d / "run", frames=(frames, starts), log=lambda m: None)
     out = d / "model"
     assert export.main(["--prior", str(d / "run" / "last.pt"), "--out", str(out)]) == 0
-    return out / export.PRIOR_FILE
+    return out / fileformat.PRIOR_FILE
 
 
 def bundled_file():
-    f = tcd.default_model_dir() / export.PRIOR_FILE
+    f = tcd.default_model_dir() / fileformat.PRIOR_FILE
     if not f.is_file():
         pytest.skip(f"no bundled prior ({f})")
     return f
@@ -90,7 +91,7 @@ def weights(request):
         "trained": lambda: request.getfixturevalue("trained_file"),
         "bundled": bundled_file,
     }[request.param]()
-    model, _ = export.load_prior_file(path)
+    model, _ = prior_net.load_prior_file(path)
     return path, model, request.param
 
 
@@ -128,7 +129,7 @@ def test_the_criterion_sees_a_small_change_of_one_weight(random_file, tmp_path):
     tensors, meta = read_weights(random_file)
     tensors["blocks.11.norm_weight"] = tensors["blocks.11.norm_weight"] * np.float32(1.001)
     prior = tcd.engine.Prior.load(write_weights(tmp_path / "prior.safetensors", tensors, meta))
-    model, _ = export.load_prior_file(random_file)
+    model, _ = prior_net.load_prior_file(random_file)
     obs = observations(3)
     with pytest.raises(AssertionError):
         np.testing.assert_allclose(prior.predict(obs, 25), reference(model, obs, 25), rtol=RTOL, atol=ATOL)
@@ -138,8 +139,8 @@ def test_the_criterion_sees_a_small_change_of_one_weight(random_file, tmp_path):
 def test_dct_matrix_is_pytorchs_bit_for_bit(obs_len, chunk, tmp_path, monkeypatch):
     """The engine computes the DCT (no tensor in the file): its float32 matrix equals the reference's buffer,
     and a prior of another shape (K = 6, other obs_len and chunk) agrees with PyTorch too."""
-    model = export.random_prior(blocks=3, seed=obs_len, obs_len=obs_len, chunk=chunk, joints=2)
-    path = export.save_prior(tmp_path / "prior.safetensors", model)
+    model = prior_net.random_prior(blocks=3, seed=obs_len, obs_len=obs_len, chunk=chunk, joints=2)
+    path = prior_net.save_prior(tmp_path / "prior.safetensors", model)
     for kernel in tcd.engine.supported_kernels():
         prior = load_kernel(path, kernel, monkeypatch)
         want = torch.from_numpy(dct_matrix(obs_len)).float().numpy()
@@ -159,7 +160,7 @@ def test_export_cli_writes_the_directory_as_for_the_denoisers(trained_file):
     import json
 
     d = trained_file.parent
-    cfg = export.read_config(trained_file)
+    cfg = fileformat.read_config(trained_file)
     assert cfg["role"] == "prior" and cfg["training"]["iteration"] == 40
     assert cfg["training"]["train_config"]["blocks"] == 4 and cfg["data"]["training_data"].startswith("Human3.6M S1,S6")
     assert json.loads((d / "model.json").read_text())["prior"] == cfg
@@ -172,15 +173,15 @@ def test_export_files_adopts_a_prior_file_after_loading_it(trained_file, random_
     strictly first."""
     out = tmp_path / "adopted"
     assert export.main(["--files", str(trained_file), "--out", str(out)]) == 0
-    assert (out / export.PRIOR_FILE).read_bytes() == trained_file.read_bytes()
+    assert (out / fileformat.PRIOR_FILE).read_bytes() == trained_file.read_bytes()
     tensors, meta = read_weights(random_file)
     del tensors["fc_out.bias"]
-    broken = tmp_path / "broken" / export.PRIOR_FILE
+    broken = tmp_path / "broken" / fileformat.PRIOR_FILE
     broken.parent.mkdir()
     write_weights(broken, tensors, meta)
     with pytest.raises(RuntimeError, match="fc_out.bias"):
         export.main(["--files", str(broken), "--out", str(out)])
-    assert (out / export.PRIOR_FILE).read_bytes() == trained_file.read_bytes()
+    assert (out / fileformat.PRIOR_FILE).read_bytes() == trained_file.read_bytes()
 
 
 @pytest.mark.parametrize("kernel", ALL_KERNELS)
@@ -189,8 +190,8 @@ def test_a_repair_fill_matches_pytorch(kernel, tmp_path, monkeypatch):
     unit-gain scale) in the engine against ``PriorNet.forward``: its window corrected, within the criterion,
     the correction (the network's contribution over its input) large against it. It corrects its window and
     no other horizon."""
-    model = export.random_prior(blocks=24, seed=3, obs_len=50, chunk=50, anchor="window")
-    path = export.save_prior(tmp_path / export.REPAIR_FILL_FILE, model)
+    model = prior_net.random_prior(blocks=24, seed=3, obs_len=50, chunk=50, anchor="window")
+    path = prior_net.save_prior(tmp_path / fileformat.REPAIR_FILL_FILE, model)
     fill = load_kernel(path, kernel, monkeypatch)
     assert fill.anchor == "window" and fill.chunk == fill.obs_len == 50
     obs = observations(7)[:, -50:]

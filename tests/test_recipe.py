@@ -12,12 +12,13 @@ import pytest
 from conftest import DATA, ROOT
 
 from training import recipe as R
+from training import recipe_file as RF
 
-BUNDLED = sorted(str(p.relative_to(R.PACKAGE)) for p in R.PACKAGE.glob("weights*/*.safetensors"))
+BUNDLED = sorted(str(p.relative_to(RF.PACKAGE)) for p in RF.PACKAGE.glob("weights*/*.safetensors"))
 
 
 def test_every_bundled_weight_file_has_exactly_one_recipe():
-    recipes = R.all_recipes()
+    recipes = RF.all_recipes()
     produced = [p for r in recipes.values() for p in r.produces]
     assert sorted(set(produced)) == sorted(produced), "a file is produced by two recipes"
     missing = sorted(set(BUNDLED) - set(produced))
@@ -33,13 +34,13 @@ def test_list_names_every_bundled_file():
 
 
 def test_recipes_name_only_stages_inputs_and_results_that_exist():
-    recipes = R.all_recipes()
+    recipes = RF.all_recipes()
     for r in recipes.values():
         for need in r.needs:
             if need.endswith(".safetensors"):
-                R.producer(need, recipes)  # raises when no recipe produces it
+                RF.producer(need, recipes)  # raises when no recipe produces it
             else:
-                assert (R.PACKAGE / need).is_file(), f"{r.name} needs {need}, which is not shipped"
+                assert (RF.PACKAGE / need).is_file(), f"{r.name} needs {need}, which is not shipped"
         for c in r.compare:
             assert (ROOT / c["bundled"]).is_file(), f"{r.name}: compares against missing {c['bundled']}"
         assert r.cost.get("cpu_hours"), f"{r.name}: say what a run from scratch costs"
@@ -48,7 +49,7 @@ def test_recipes_name_only_stages_inputs_and_results_that_exist():
 # ------------------------------------------------------------------------------------------ a recipe of its own
 
 
-def write_recipe(tmp_path: Path, stages: list, produces=("weights_test/a.json",), **extra) -> R.Recipe:
+def write_recipe(tmp_path: Path, stages: list, produces=("weights_test/a.json",), **extra) -> RF.Recipe:
     d = {
         "name": "toy",
         "description": "a toy",
@@ -59,7 +60,7 @@ def write_recipe(tmp_path: Path, stages: list, produces=("weights_test/a.json",)
     }
     p = tmp_path / "toy.json"
     p.write_text(json.dumps(d))
-    return R.Recipe.load(p)
+    return RF.Recipe.load(p)
 
 
 def copy_stage(name, src, dst):
@@ -94,7 +95,7 @@ def test_a_failed_stage_stops_the_run_and_runs_again_next_time(tmp_path, monkeyp
     monkeypatch.setattr(R, "RESULTS", tmp_path / "results")
     src = tmp_path / "src.json"
     rec = write_recipe(tmp_path, [copy_stage("one", str(src), "{out}/weights_test/a.json")])
-    with pytest.raises(R.RecipeError, match="stage one failed"):
+    with pytest.raises(RF.RecipeError, match="stage one failed"):
         R.Runner(rec, tmp_path / "run", log=lambda m: None).run()
     assert not (tmp_path / "run" / "one" / "done.json").exists()
     src.write_text("[1]")
@@ -104,9 +105,9 @@ def test_a_failed_stage_stops_the_run_and_runs_again_next_time(tmp_path, monkeyp
 
 def test_malformed_recipes_are_refused_naming_the_problem(tmp_path):
     ok = copy_stage("one", "a", "b")
-    with pytest.raises(R.RecipeError, match="unknown stage keys"):
+    with pytest.raises(RF.RecipeError, match="unknown stage keys"):
         write_recipe(tmp_path, [{**ok, "stpes": 3}])
-    with pytest.raises(R.RecipeError, match="no earlier stage"):
+    with pytest.raises(RF.RecipeError, match="no earlier stage"):
         write_recipe(
             tmp_path,
             [
@@ -114,16 +115,16 @@ def test_malformed_recipes_are_refused_naming_the_problem(tmp_path):
                 {"name": "b", "run": "prior", "config": {"iterations": 2}},
             ],
         )
-    with pytest.raises(R.RecipeError, match="not config.init_from"):
+    with pytest.raises(RF.RecipeError, match="not config.init_from"):
         write_recipe(tmp_path, [{"name": "a", "run": "prior", "config": {"init_from": "x.pt"}}])
-    with pytest.raises(R.RecipeError, match="'run' must be one of"):
+    with pytest.raises(RF.RecipeError, match="'run' must be one of"):
         write_recipe(tmp_path, [{"name": "a", "run": "shell", "module": "x"}])
-    with pytest.raises(R.RecipeError, match="stage names repeat"):
+    with pytest.raises(RF.RecipeError, match="stage names repeat"):
         write_recipe(tmp_path, [ok, ok])
     p = tmp_path / "other.json"
     p.write_text(json.dumps({"name": "toy", "description": "d", "produces": ["x"], "stages": [ok]}))
-    with pytest.raises(R.RecipeError, match="is not its file's"):
-        R.Recipe.load(p)
+    with pytest.raises(RF.RecipeError, match="is not its file's"):
+        RF.Recipe.load(p)
 
 
 def test_placeholders_resolve_and_unknown_ones_are_refused(tmp_path):
@@ -132,11 +133,11 @@ def test_placeholders_resolve_and_unknown_ones_are_refused(tmp_path):
     assert run.resolve(["{stage:one}/x", "{threads}", "{input:weights/prior.safetensors}"]) == [
         str(tmp_path / "run" / "one" / "x"),
         "3",
-        str(R.PACKAGE / "weights" / "prior.safetensors"),
+        str(RF.PACKAGE / "weights" / "prior.safetensors"),
     ]
-    with pytest.raises(R.RecipeError, match="unknown placeholder"):
+    with pytest.raises(RF.RecipeError, match="unknown placeholder"):
         run.resolve("{nope}")
-    with pytest.raises(R.RecipeError, match="not in its 'needs'"):
+    with pytest.raises(RF.RecipeError, match="not in its 'needs'"):
         run.resolve("{input:weights/long.safetensors}")
 
 
@@ -219,7 +220,7 @@ def tiny_data(tmp_path_factory):
 
 @pytest.mark.slow
 @pytest.mark.data
-@pytest.mark.parametrize("name", sorted(p.stem for p in R.RECIPES.glob("*.json")))
+@pytest.mark.parametrize("name", sorted(p.stem for p in RF.RECIPES.glob("*.json")))
 def test_every_recipe_smoke_runs(name, tmp_path, tiny_data):
     """Every stage of the recipe (and of those it reads from) for two steps on tiny data, then its export and its
     scoring on a window or two: what a run from scratch does, but for the budgets."""
@@ -242,5 +243,5 @@ def test_every_recipe_smoke_runs(name, tmp_path, tiny_data):
     )
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
     result = json.loads((tmp_path / "result.json").read_text())
-    assert sorted(result["files"]) == sorted(R.all_recipes()[name].produces)
+    assert sorted(result["files"]) == sorted(RF.all_recipes()[name].produces)
     assert all((tmp_path / "out" / p).is_file() for p in result["files"])

@@ -10,7 +10,8 @@ torch = import_torch("training (training/train.py)")
 from training.diffusion import DiffusionConfig, Schedule  # noqa: E402
 from training.model import ModelConfig, TCDModel  # noqa: E402
 from training.batches import Windows, make_batch  # noqa: E402
-from training.train import TrainConfig, learning_rate, train, validation_loss  # noqa: E402
+from training.train import learning_rate, train, validation_loss  # noqa: E402
+from training.train_config import TrainConfig  # noqa: E402
 
 
 def synthetic_motion(n_seq=6, T=60, J=22, seed=0):
@@ -143,7 +144,7 @@ def test_removed_keys_at_their_inert_values_are_dropped_and_otherwise_refused(tm
     "ema_probe_decays" and "choose_average": at the values that did nothing they load and resume as
     before; any other value is refused, naming the key and the git tag that has the code."""
     from dataclasses import asdict
-    from training.train import REMOVED_KEYS
+    from training.train_config import REMOVED_KEYS
 
     assert REMOVED_KEYS == REMOVED_AT_DEFAULTS
     seqs = {"train": synthetic_motion(4, seed=0), "val": synthetic_motion(2, seed=1)}
@@ -172,8 +173,8 @@ def test_config_files_load(tmp_path):
     """The configs the tests train from, and every trainer stage's config of every recipe, load as their
     trainer's (a recipe's stage names its warm start apart, as ``from``)."""
     from pathlib import Path
-    from training.prior import PriorConfig
-    from training.recipe import all_recipes
+    from training.prior_net import PriorConfig
+    from training.recipe_file import all_recipes
 
     files = sorted((Path(__file__).parents[1] / "training" / "configs").glob("*.json"))
     configs = [json.loads(p.read_text()) for p in files]

@@ -26,7 +26,8 @@ EXPORTER = "the exporter (training/export.py)"
 def golden_config() -> dict:
     """What the exporter writes for the tiny preset's short-term model (without the source revision)."""
     from training.diffusion import DiffusionConfig
-    from training.export import PRESETS, WINDOWS, build_config, h36m_data_meta
+    from training.export import PRESETS, WINDOWS, build_config
+    from training.fileformat import h36m_data_meta
 
     cfg = build_config(
         "short",
@@ -90,7 +91,8 @@ def test_schema_is_a_valid_json_schema():
 def test_every_exported_config_follows_the_schema():
     import_torch(EXPORTER)
     from training.diffusion import DiffusionConfig
-    from training.export import PRESETS, ROLES, WINDOWS, build_config, h36m_data_meta
+    from training.export import PRESETS, WINDOWS, build_config
+    from training.fileformat import ROLES, h36m_data_meta
     from training.model import ModelConfig
 
     for role in ROLES:
@@ -185,8 +187,8 @@ PRIOR_GOLDEN = FIXTURES / "tcd_config_prior_golden.json"
 
 def prior_golden_config() -> dict:
     """What the exporter writes for a 2-block prior of the default config (without the source revision)."""
-    from training.export import build_prior_config, prior_data_meta, random_prior
-    from training.prior import PriorConfig
+    from training.prior_net import build_prior_config, prior_data_meta, random_prior
+    from training.prior_net import PriorConfig
 
     cfg = build_prior_config(random_prior(blocks=2), prior_data_meta(PriorConfig()), {"random_init": True})
     cfg.pop("source_revision")
@@ -347,7 +349,7 @@ def write_generator(path: Path, cfg: dict) -> Path:
 
 def test_the_generator_exporter_follows_the_schema():
     import_torch(EXPORTER)
-    from training.export import humaneva_data_meta
+    from training.fileformat import humaneva_data_meta
     from training.generator import Generator, build_generator_config
 
     jsonschema.validate(build_generator_config(Generator(42, 16, 2, 8, 5), humaneva_data_meta(), {"steps": 1}), SCHEMA)

@@ -11,7 +11,8 @@ from conftest import import_torch
 torch = import_torch("the PyTorch reference model (training/model.py)")
 
 from training.diffusion import DiffusionConfig  # noqa: E402
-from training.export import CONFIG_KEY, build_config  # noqa: E402
+from training.export import build_config  # noqa: E402
+from training.fileformat import CONFIG_KEY  # noqa: E402
 from training.model import ModelConfig, TCDModel, condition, randomize_output_layer  # noqa: E402
 from training.widen import widen_state, widen_to, widened_config  # noqa: E402
 

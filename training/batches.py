@@ -13,16 +13,12 @@ With the config's ``future_swap`` a share of the windows take another training w
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 import torch
 
 from .augment import arrival_keys, future_neighbours, rotate_about, swap_futures
 from .masks import corrupt, mix_entry
-
-if TYPE_CHECKING:
-    from .train import TrainConfig
+from .train_config import TrainConfig
 
 
 class Windows:
@@ -49,7 +45,7 @@ class Windows:
         return future_neighbours(arrival_keys(ends, 3), self.index[:, 0], self.index[:, 1], k, exclude_frames)
 
 
-def make_batch(cfg: "TrainConfig", wins: np.ndarray, rng: np.random.Generator):
+def make_batch(cfg: TrainConfig, wins: np.ndarray, rng: np.random.Generator):
     """Clean windows (B, L, J, 3) -> (x0, observed, mask) tensors (B, K, L).
     Each window draws one pattern of ``mask_mix``; occluded observation entries become targets."""
     B, L, J, _ = wins.shape
@@ -91,7 +87,7 @@ class BatchSource:
     would have drawn."""
 
     def __init__(
-        self, cfg: "TrainConfig", windows: Windows, T: int, steps_per_epoch: int, weights: np.ndarray | None = None
+        self, cfg: TrainConfig, windows: Windows, T: int, steps_per_epoch: int, weights: np.ndarray | None = None
     ):
         self.cfg, self.windows, self.T, self.steps_per_epoch = cfg, windows, T, steps_per_epoch
         if weights is not None and np.shape(weights) != (len(windows),):

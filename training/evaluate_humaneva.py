@@ -43,7 +43,8 @@ def humaneva_model_samples(args, obs: np.ndarray, log=lambda m: None) -> np.ndar
         model = tcd.load(args.model)
         _check_humaneva_model(args.model, model.obs_len, model.horizon, model.num_joints)
     else:
-        from .export import GENERATOR_FILE, load_model_dir
+        from .export import load_model_dir
+        from .fileformat import GENERATOR_FILE
 
         if (Path(args.model) / GENERATOR_FILE).is_file() and getattr(args, "generator_share", None) != 0:
             raise SystemExit(

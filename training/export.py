@@ -32,112 +32,45 @@ import json
 import math
 import os
 import shutil
-import subprocess
 import sys
 from pathlib import Path
 
 import torch
-from safetensors import safe_open
 from safetensors.torch import save_file
 
 from .diffusion import DiffusionConfig, Schedule
+from . import fileformat  # source_revision through the module: tests fix it in one place
+from .fileformat import (
+    CONFIG_KEY,
+    DATASET_JOINTS,
+    FORMAT_VERSION,
+    GENERATOR_FILE,
+    GENERATOR_ROLE,
+    PRIOR_FILE,
+    PRIOR_ROLE,
+    REPAIR_FILL_FILE,
+    ROLES,
+    SAMPLING_FILE,
+    data_meta,
+    read_config,
+    save_model_file,
+)
 from .model import ModelConfig, TCDModel, randomize_output_layer
+from .prior_net import GAP_FILLS, build_prior_config, load_prior_file, random_prior, save_prior
 
-FORMAT_VERSION = 1
-ROLES = ("short", "long", "repair")  # the denoisers' roles
-PRIOR_ROLE = "prior"  # the prior forecaster's role, in PRIOR_FILE
-PRIOR_FILE = "prior.safetensors"
-REPAIR_FILL_FILE = "repair_fill.safetensors"  # a prior with anchor "window": the repair model's fill (role "prior")
-GENERATOR_ROLE = "generator"  # the MLP sample generator's role (training/generator.py), in GENERATOR_FILE
-GENERATOR_FILE = "generator.safetensors"
-SAMPLING_FILE = "sampling.json"  # a model directory's default samplers (tcd._model reads it)
-CONFIG_KEY = "tcd_config"
 
 # Windows of the Human3.6M cascade (spec section 5) and the repair model.
 WINDOWS = {"short": (50, 5), "long": (55, 20), "repair": (50, 0)}
 # HumanEva-I's cascade, 15 observed -> 60 at 60 Hz (configs/humaneva_short.json says why its first stage is one
-# frame), and a repair model of its observation; and the model joints of each dataset.
+# frame), and a repair model of its observation.
 HUMANEVA_WINDOWS = {"short": (15, 1), "long": (16, 59), "repair": (15, 0)}
 DATASET_WINDOWS = {"h36m": WINDOWS, "humaneva": HUMANEVA_WINDOWS}
-DATASET_JOINTS = {"h36m": 22, "humaneva": 14}
 
 PRESETS = {
     "full": ModelConfig(),
     "tiny": ModelConfig(channels=16, num_layers=2, num_heads=2, ffn_dim=16),
     "reduced": ModelConfig(channels=32, num_layers=3, num_heads=4, ffn_dim=32),  # the bundled model's size
 }
-
-
-def source_revision() -> str:
-    try:
-        out = subprocess.run(
-            ["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent, capture_output=True, text=True, timeout=5
-        )
-        rev = out.stdout.strip()
-        if out.returncode == 0 and rev:
-            dirty = subprocess.run(
-                ["git", "status", "--porcelain", "--untracked-files=no"],
-                cwd=Path(__file__).parent,
-                capture_output=True,
-                text=True,
-                timeout=5,
-            ).stdout.strip()
-            return rev + ("-dirty" if dirty else "")
-    except (OSError, subprocess.SubprocessError):
-        pass
-    return "unknown"
-
-
-def h36m_data_meta(training_data: str = "Human3.6M S1,S6,S7,S8,S9 (exp-map, 25 fps)") -> dict:
-    from .data.h36m import joint_names_22, joints_used
-
-    return {
-        "dataset": "h36m",
-        "fps": 25.0,
-        "units": "m",
-        "root_relative": True,
-        "joint_names": joint_names_22(),
-        "joint_index_32": joints_used(),
-        "training_data": training_data,
-        "licence": "Human3.6M: academic non-commercial research use only",
-    }
-
-
-def humaneva_data_meta(
-    training_data: str = "HumanEva-I Train split, S1,S2,S3 (60 Hz)", with_h36m: bool = False
-) -> dict:
-    """The ``data`` block of a HumanEva-I model: 14 joints (joints 1..14 of the 15-joint VideoPose3D layout
-    relative to the pelvis, the protocol's 42 dimensions), 60 Hz, metres, world axes with +z up (the global
-    rotation is kept, as the DLow / GSPS protocol does; only the translation is removed)."""
-    from .data.humaneva import HUMANEVA_FPS, HUMANEVA_MODEL_JOINT_NAMES
-
-    return {
-        "dataset": "humaneva",
-        "fps": float(HUMANEVA_FPS),
-        "units": "m",
-        "root_relative": True,
-        "joint_names": list(HUMANEVA_MODEL_JOINT_NAMES),
-        "layout": "humaneva15",
-        "root_joint": "pelvis",
-        "up": "z",
-        "training_data": training_data,
-        "licence": "HumanEva-I: research use only (registration required)"
-        + ("; Human3.6M: academic non-commercial use" if with_h36m else ""),
-    }
-
-
-def data_meta(dataset: str, training_data: str | None = None, h36m_share: float = 0.0) -> dict:
-    """The ``data`` block of a model trained on ``dataset`` ("h36m" or "humaneva"; a HumanEva-I model with
-    ``h36m_share`` > 0 learnt from Human3.6M too, and its block says so)."""
-    if dataset == "humaneva":
-        if h36m_share:
-            from .data.humaneva import mix_description
-
-            return humaneva_data_meta(mix_description(h36m_share), with_h36m=True)
-        return humaneva_data_meta() if training_data is None else humaneva_data_meta(training_data)
-    if dataset == "h36m":
-        return h36m_data_meta() if training_data is None else h36m_data_meta(training_data)
-    raise ValueError(f"unknown dataset {dataset!r}: 'h36m' or 'humaneva'")
 
 
 def build_config(
@@ -159,28 +92,14 @@ def build_config(
         "diffusion": diff_cfg.to_dict(),
         "data": data,
         "training": training or {},
-        "source_revision": source_revision(),
+        "source_revision": fileformat.source_revision(),
     }
-
-
-def save_model_file(path: str | Path, model: torch.nn.Module, config: dict) -> None:
-    tensors = {k: v.detach().to("cpu", torch.float32).contiguous() for k, v in model.state_dict().items()}
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    save_file(tensors, str(path), metadata={CONFIG_KEY: json.dumps(config)})
-
-
-def read_config(path: str | Path) -> dict:
-    with safe_open(str(path), framework="pt") as f:
-        meta = f.metadata() or {}
-    if CONFIG_KEY not in meta:
-        raise ValueError(f"{path}: no '{CONFIG_KEY}' entry in the safetensors metadata")
-    return json.loads(meta[CONFIG_KEY])
 
 
 def load_model_file(path: str | Path, device: str = "cpu", prior=None) -> tuple[TCDModel, Schedule, dict]:
     """Load a safetensors model file strictly into the reference classes (eval mode). The config's
     ``cond_fill`` / ``target`` and ``diffusion.prediction_type`` come back with it; ``prior`` (a
-    ``training.prior.PriorNet``, e.g. from :func:`load_prior_file`) is attached to a ``cond_fill="prior"``
+    ``training.prior_net.PriorNet``, e.g. from :func:`load_prior_file`) is attached to a ``cond_fill="prior"``
     model (the file holds the denoiser only; :func:`load_model_dir` attaches the directory's prior)."""
     from safetensors.torch import load_file
 
@@ -373,108 +292,6 @@ def copy_model_files(files: list[Path], out: Path) -> None:
 # ------------------------------------------------------------------------------- the prior forecaster
 
 
-def prior_data_meta(cfg) -> dict:
-    """The ``data`` block of a prior trained with ``cfg`` (a ``training.prior.PriorConfig``): the denoisers'
-    description of its dataset, naming the subjects the prior was trained on."""
-    subjects = ",".join(f"S{s}" for s in cfg.subjects)
-    if getattr(cfg, "dataset", "h36m") == "humaneva":
-        from .data.humaneva import mix_description
-
-        share = getattr(cfg, "h36m_share", 0.0)
-        return humaneva_data_meta(mix_description(share, cfg.subjects), with_h36m=bool(share))
-    return h36m_data_meta(training_data=f"Human3.6M {subjects} (exp-map, 25 fps)")
-
-
-def build_prior_config(model, data: dict, training: dict | None = None) -> dict:
-    """The ``tcd_config`` of a ``training.prior.PriorNet`` (docs/tcd_config.schema.json, role ``prior``)."""
-    k = model.fc_in.in_features
-    eps = {float(b.eps) for b in model.blocks}
-    if len(eps) != 1:
-        raise ValueError(f"the prior's blocks must share one layer-norm epsilon, got {sorted(eps)}")
-    m = {
-        "num_joints": k // 3,
-        "coords": 3,
-        "num_features": k,
-        "obs_len": model.cfg.obs_len,
-        "chunk": model.cfg.chunk,
-        "blocks": len(model.blocks),
-        "layer_norm_eps": eps.pop(),
-    }
-    if model.cfg.anchor != "last":  # a forecaster's file stays as before anchor existed (its default)
-        m["anchor"] = model.cfg.anchor
-    if model.cfg.gap_fill != "none":  # likewise every file written before gap_fill existed
-        m["gap_fill"] = model.cfg.gap_fill
-    for prefix in ("inbetween", "joint_inbetween"):  # and before the in-betweeners
-        if getattr(model.cfg, f"{prefix}_max_gap"):
-            m[f"{prefix}_context"] = getattr(model.cfg, f"{prefix}_context")
-            m[f"{prefix}_max_gap"] = getattr(model.cfg, f"{prefix}_max_gap")
-    return {
-        "format_version": FORMAT_VERSION,
-        "role": PRIOR_ROLE,
-        "model": m,
-        "data": data,
-        "training": training or {},
-        "source_revision": source_revision(),
-    }
-
-
-def load_prior_file(path: str | Path):
-    """(``training.prior.PriorNet`` in eval mode, its config) from a prior file, loaded strictly."""
-    from safetensors.torch import load_file
-
-    from .prior import PriorConfig, PriorNet
-
-    cfg = read_config(path)
-    if cfg.get("format_version") != FORMAT_VERSION or cfg.get("role") != PRIOR_ROLE:
-        raise ValueError(
-            f"{path}: not a prior file of format_version {FORMAT_VERSION} "
-            f"(role {cfg.get('role')!r}, format_version {cfg.get('format_version')!r})"
-        )
-    m = cfg["model"]
-    if m["coords"] != 3 or m["num_features"] != 3 * m["num_joints"]:
-        raise ValueError(f"{path}: PriorNet takes 3 coordinates per joint, got {m}")
-    model = PriorNet(
-        PriorConfig(
-            obs_len=m["obs_len"],
-            chunk=m["chunk"],
-            blocks=m["blocks"],
-            anchor=m.get("anchor", "last"),
-            gap_fill=m.get("gap_fill", "none"),
-            **{
-                k: m.get(k, 0)
-                for k in (
-                    "inbetween_context",
-                    "inbetween_max_gap",
-                    "joint_inbetween_context",
-                    "joint_inbetween_max_gap",
-                )
-            },
-        ),
-        joints=m["num_joints"],
-    )  # (files before anchor, gap_fill, the in-betweener)
-    for b in model.blocks:
-        b.eps = float(m["layer_norm_eps"])
-    model.load_state_dict(load_file(str(path)), strict=True)
-    if model.cfg.gap_fill == "forecaster":  # its forecaster is the model directory's, beside it
-        forecaster = Path(path).parent / PRIOR_FILE
-        if not forecaster.is_file():
-            raise ValueError(
-                f"{path}: the repair fill fills whole-frame gaps with the prior forecaster (gap_fill "
-                f'"forecaster"), but {forecaster} is missing'
-            )
-        from .prior import attach_gap_forecaster
-
-        attach_gap_forecaster(model, load_prior_file(forecaster)[0])
-    return model.eval(), cfg
-
-
-def save_prior(path: str | Path, model, training: dict | None = None) -> Path:
-    """Writes a ``training.prior.PriorNet`` as a prior file (its data block from its config's subjects)."""
-    path = Path(path)
-    save_model_file(path, model.eval(), build_prior_config(model, prior_data_meta(model.cfg), training))
-    return path
-
-
 def export_prior(ckpt_path: str | Path, out_dir: str | Path, description: str | None = None) -> Path:
     """``out_dir/prior.safetensors`` from a ``training.prior`` checkpoint (``last.pt``: its trained weights);
     ``out_dir/repair_fill.safetensors`` for a repair fill (anchor ``"window"``).
@@ -515,7 +332,7 @@ def _rewrite_repair_fill(out_dir: str | Path, edit, what: str) -> Path:
     if cfg["model"].get("anchor") != "window":
         raise ValueError(f'{path}: not a repair fill (anchor "window")')
     record = edit(cfg, tensors)
-    cfg.setdefault("training", {})[what] = {**record, "source_revision": source_revision()}
+    cfg.setdefault("training", {})[what] = {**record, "source_revision": fileformat.source_revision()}
     tmp = path.with_name(path.name + ".tmp")
     save_file(tensors, str(tmp), metadata={CONFIG_KEY: json.dumps(cfg)})
     try:
@@ -532,7 +349,6 @@ def set_gap_fill(out_dir: str | Path, gap_fill: str) -> Path:
     """Rewrites ``out_dir/repair_fill.safetensors`` with ``model.gap_fill`` set to ``gap_fill`` (``"none"``
     removes the key, as in a file written before it existed); its weights and the rest of its config stay as
     they are (:func:`_rewrite_repair_fill`)."""
-    from .prior import GAP_FILLS
 
     if gap_fill not in GAP_FILLS:
         raise ValueError(f"gap_fill must be one of {list(GAP_FILLS)}, got {gap_fill!r}")
@@ -580,33 +396,6 @@ def set_inbetween(out_dir: str | Path, kernels_path: str | Path | None, prefix: 
         }
 
     return _rewrite_repair_fill(out_dir, edit, f"{prefix}_set")
-
-
-def random_prior(
-    blocks: int = 24, seed: int = 0, obs_len: int = 50, chunk: int = 10, joints: int = 22, anchor: str = "last"
-):
-    """A ``training.prior.PriorNet`` with every weight drawn from a seeded normal of unit-gain scale (std
-    1/sqrt(fan_in) for the matrices, 0.1 for the biases, 1 + 0.1 N(0, 1) for the norm weights), fc_out then
-    scaled by 1/20 so that the forecast lies a few tenths of a metre (rms) from the last pose, the scale of
-    real motion (unscaled: metres): unlike the trained init (fc_out ~ 1e-8, i.e. Zero-Velocity) every
-    weight shapes the output. ``anchor="window"`` (chunk = obs_len): a repair fill, its correction as far from
-    its input window. A fixture for parity tests and benchmarks."""
-    from .prior import PriorConfig, PriorNet
-
-    model = PriorNet(PriorConfig(obs_len=obs_len, chunk=chunk, blocks=blocks, anchor=anchor), joints=joints)
-    g = torch.Generator().manual_seed(seed)
-    with torch.no_grad():
-        for name, p in model.named_parameters():
-            z = torch.randn(p.shape, generator=g)
-            if p.dim() == 2:
-                p.copy_(z / math.sqrt(p.shape[1]))
-            elif name.endswith("norm_weight"):
-                p.copy_(1.0 + 0.1 * z)
-            else:
-                p.copy_(0.1 * z)
-        model.fc_out.weight.mul_(0.05)
-        model.fc_out.bias.mul_(0.05)
-    return model.eval()
 
 
 def main(argv=None) -> int:

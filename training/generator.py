@@ -38,16 +38,16 @@ import torch
 from torch import nn
 
 from .data.humaneva import HUMANEVA_T_HIS, HUMANEVA_T_PRED
-from .export import (
+from . import fileformat  # source_revision through the module: tests fix it in one place
+from .fileformat import (
     CONFIG_KEY,
     FORMAT_VERSION,
     GENERATOR_FILE,
     GENERATOR_ROLE,
     humaneva_data_meta,
     read_config,
-    source_revision,
 )
-from .prior import dct_matrix
+from .prior_net import dct_matrix
 
 #: the bundled HumanEva-I generator's sizes: hidden width, hidden layers, noise values, DCT coefficients (the
 #: defaults of ``training/generator_imle.py`` and of this module's command line)
@@ -124,7 +124,7 @@ def build_generator_config(gen: Generator, data: dict, training: dict | None = N
         "model": m,
         "data": data,
         "training": training or {},
-        "source_revision": source_revision(),
+        "source_revision": fileformat.source_revision(),
     }
 
 

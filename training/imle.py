@@ -26,7 +26,7 @@ from typing import Callable, NamedTuple
 import torch
 
 from .diffusion import Schedule, _to_target, masked_eps_loss
-from .export import CONFIG_KEY
+from .fileformat import CONFIG_KEY
 from .model import condition
 
 #: ``search(noisy, observed, mask, rows, step) -> out``: the network's output without gradients for each of the N
@@ -54,7 +54,7 @@ def torch_search(model, chunk: int = 64) -> Search:
 class EngineSearch:
     """The candidates' forwards in the Rust engine (``tcd.engine.Denoiser.forward``): each call serialises the
     current weights of ``model`` (a ``training.model.TCDModel``; a few hundred kB) with ``config``, a weight
-    file's configuration (what ``training.export.build_config`` writes, stored under ``training.export.CONFIG_KEY``),
+    file's configuration (what ``training.export.build_config`` writes, under ``training.fileformat.CONFIG_KEY``),
     loads them from the bytes, and writes the conditioning fill of a ``cond_fill="prior"`` model into
     ``observed``'s masked entries, where the engine's forward reads it (the engine's cascade does the same)."""
 

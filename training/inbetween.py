@@ -114,7 +114,7 @@ def correct_runs(fill: np.ndarray, runs: list, kernels: dict, context: int) -> n
 
 
 def correct_window(prior, fill: np.ndarray, mask: np.ndarray, gaps: list) -> np.ndarray:
-    """A repair fill's (``prior``, a ``training.prior.PriorNet``) in-betweeners on its gap-filled window ``fill``
+    """A repair fill's (``prior``, a ``training.prior_net.PriorNet``) in-betweeners on its gap-filled window ``fill``
     (B, T, F) with ``mask`` (B, T, F): the whole-frame gaps ``gaps`` by :func:`correct`, the joint runs by
     :func:`correct_runs`, both read from ``fill`` as given (the engine's order)."""
     src = np.asarray(fill, dtype=np.float64)

@@ -227,7 +227,7 @@ class TCDModel(nn.Module):
         return self.__dict__.get("_prior")
 
     def attach_prior(self, prior: nn.Module) -> None:
-        """Give a ``cond_fill="prior"`` model its prior forecaster (a ``training.prior.PriorNet``). It is
+        """Give a ``cond_fill="prior"`` model its prior forecaster (a ``training.prior_net.PriorNet``). It is
         kept out of the module tree on purpose: not in the state_dict (the weight file holds the denoiser;
         the prior ships as its own file), not trained (frozen, eval mode)."""
         prior.eval()
@@ -376,7 +376,7 @@ def prior_fill(prior: nn.Module, observed: torch.Tensor, mask: torch.Tensor) -> 
             if forecaster is None:
                 raise ValueError(
                     "prior_fill: the repair fill fills whole-frame gaps with a forecaster (gap_fill "
-                    '"forecaster"): training.prior.attach_gap_forecaster'
+                    '"forecaster"): training.prior_net.attach_gap_forecaster'
                 )
             fill = fill_gaps(forecaster, fill, mask)
         if prior.cfg.inbetween_max_gap or prior.cfg.joint_inbetween_max_gap:  # training.inbetween

@@ -64,7 +64,7 @@ class Prior(NativeModel[_native.Prior]):
     dct_matrix = NativeAttribute(
         np.ndarray,
         "The (obs_len, obs_len) float32 DCT-II matrix the engine computes "
-        "(row f the f-th cosine); it equals ``training.prior.dct_matrix(obs_len)`` rounded "
+        "(row f the f-th cosine); it equals ``training.prior_net.dct_matrix(obs_len)`` rounded "
         "to float32.",
     )
 

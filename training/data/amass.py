@@ -19,6 +19,8 @@ from typing import Iterator
 
 import numpy as np
 
+from tcd.layouts import LAYOUTS
+
 from training.data.kinematics import fk_axis_angle
 
 # Dataset names of the AMASS splits used with ``all_data = True`` in the reference pipeline (spec 3.3).
@@ -33,32 +35,9 @@ AMASS_JOINT_START = 4
 AMASS_JOINT_STOP = 22
 AMASS_JOINTS_USED = list(range(AMASS_JOINT_START, AMASS_JOINT_STOP))  # 18 joints
 
-# Standard SMPL body-joint names (indices 0..21 are shared by SMPL and SMPL-H). "left" is the
-# subject's left, which is +x in the SMPL rest pose (p3d0[1] = left hip has x > 0).
-SMPL_BODY_JOINT_NAMES = [
-    "pelvis",
-    "left_hip",
-    "right_hip",
-    "spine1",
-    "left_knee",
-    "right_knee",
-    "spine2",
-    "left_ankle",
-    "right_ankle",
-    "spine3",
-    "left_foot",
-    "right_foot",
-    "neck",
-    "left_collar",
-    "right_collar",
-    "head",
-    "left_shoulder",
-    "right_shoulder",
-    "left_elbow",
-    "right_elbow",
-    "left_wrist",
-    "right_wrist",
-]
+# Standard SMPL body-joint names (indices 0..21 are shared by SMPL and SMPL-H): the package's ``smpl24`` layout
+# without its hands. "left" is the subject's left, which is +x in the SMPL rest pose (p3d0[1] = left hip has x > 0).
+SMPL_BODY_JOINT_NAMES = list(LAYOUTS["smpl24"].joint_names[:22])
 # Names of the 18 kept joints, in output order (SMPL joints 4..21).
 JOINTS_AMASS_18 = SMPL_BODY_JOINT_NAMES[AMASS_JOINT_START:AMASS_JOINT_STOP]
 

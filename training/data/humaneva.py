@@ -31,6 +31,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from tcd.layouts import LAYOUTS
+
+_HUMANEVA15 = LAYOUTS["humaneva15"]
 
 HUMANEVA_FILE_NAME = "humaneva_i_15j_60hz.npz"
 HUMANEVA_T_HIS = 15
@@ -38,28 +41,11 @@ HUMANEVA_T_PRED = 60
 HUMANEVA_FPS = 60
 HUMANEVA_NUM_JOINTS = 15
 
-# 15-joint HumanEva skeleton of VideoPose3D / DLow (parents of joints 0..14).
-HUMANEVA_PARENTS = [-1, 0, 1, 2, 3, 1, 5, 6, 0, 8, 9, 0, 11, 12, 1]
-
-# Names of the 15 joints in the file's order (VideoPose3D ``humaneva_dataset.py``: pelvis, thorax, lsho, lelb,
-# lwri, rsho, relb, rwri, lhip, lkne, lank, rhip, rkne, rank, head; left/right are the subject's).
-HUMANEVA_JOINT_NAMES = (
-    "pelvis",
-    "thorax",
-    "left_shoulder",
-    "left_elbow",
-    "left_wrist",
-    "right_shoulder",
-    "right_elbow",
-    "right_wrist",
-    "left_hip",
-    "left_knee",
-    "left_ankle",
-    "right_hip",
-    "right_knee",
-    "right_ankle",
-    "head",
-)
+# The 15-joint HumanEva skeleton of VideoPose3D / DLow, the file's joint order (pelvis, thorax, lsho, lelb, lwri, rsho,
+# relb, rwri, lhip, lkne, lank, rhip, rkne, rank, head; left/right are the subject's) and parents: the package's
+# ``humaneva15`` layout, one definition.
+HUMANEVA_JOINT_NAMES = _HUMANEVA15.joint_names
+HUMANEVA_PARENTS = list(_HUMANEVA15.parents)
 # The model's joints: joints 1..14 relative to the pelvis (the protocol's 42 dimensions).
 HUMANEVA_MODEL_JOINT_NAMES = HUMANEVA_JOINT_NAMES[1:]
 # The subjects of the Train split (S1, S2, S3), the only ones a model may be trained on.

@@ -87,7 +87,7 @@ pub struct Prior {
 }
 
 /// The orthonormal DCT-II matrix (n × n, row-major; row k is the k-th cosine, its transpose the
-/// inverse) in f32, computed in f64 with the operations of `training.prior.dct_matrix` in their
+/// inverse) in f32, computed in f64 with the operations of `training.prior_net.dct_matrix` in their
 /// order and rounded once, so that it equals PyTorch's `torch.from_numpy(dct_matrix(n)).float()`
 /// (checked bit for bit by `tests/test_prior_parity.py`).
 pub fn dct_matrix(n: usize) -> Vec<f32> {
@@ -102,7 +102,7 @@ pub fn dct_matrix(n: usize) -> Vec<f32> {
     m
 }
 
-/// The prior's file: the `state_dict` of `training.prior.PriorNet` (K = num_features, L = obs_len;
+/// The prior's file: the `state_dict` of `training.prior_net.PriorNet` (K = num_features, L = obs_len;
 /// the DCT matrix is no tensor: the engine computes it, [`dct_matrix`]), and the fill's in-betweening
 /// kernels, `inbetween_{n}` and `joint_inbetween_{n}` (n × [`inbetween_width`]) for each gap length n.
 impl Network for Prior {
