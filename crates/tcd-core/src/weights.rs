@@ -10,6 +10,7 @@
 //! tensors exists beside the code that reads them: [`Network::tensor_shapes`] runs the same build to
 //! list them.
 
+use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
 use safetensors::{Dtype, SafeTensors};
@@ -135,12 +136,10 @@ impl Weights<'_> {
         let Some(file) = &self.file else {
             return Ok(());
         };
+        let taken: BTreeSet<&str> = self.taken.iter().map(|(t, _)| t.as_str()).collect();
         let mut names: Vec<&str> = file.names();
         names.sort_unstable();
-        match names
-            .into_iter()
-            .find(|n| !self.taken.iter().any(|(t, _)| t == n))
-        {
+        match names.into_iter().find(|n| !taken.contains(n)) {
             Some(extra) => Err(Error::UnexpectedTensor {
                 path: self.path.clone(),
                 name: extra.to_string(),

@@ -9,11 +9,10 @@
 //! turned into ε̂ right after each forward ([`SampleToNoise`], set per step by [`Plan::for_prediction`]),
 //! so ddpm, ddim and dpmpp2m serve both.
 
+mod config;
 mod ddim;
 mod ddpm;
 mod dpmpp;
-
-use std::str::FromStr;
 
 use rayon::prelude::*;
 
@@ -26,88 +25,11 @@ use crate::rng::{stage, Centres, ChainNoise, Noise, NoiseCoupling};
 use crate::schedule::NoiseSchedule;
 use crate::validate;
 
+pub(crate) use config::timesteps;
+pub use config::{SamplerConfig, SamplerKind, TimestepSpacing};
 use ddim::DdimStep;
 use ddpm::DdpmStep;
 use dpmpp::DpmPp2mStep;
-
-/// How `num_inference_steps` steps are placed among the T training steps (diffusers semantics).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum TimestepSpacing {
-    /// t = arange(n) · (T // n), reversed (for n = 5, T = 50: 40, 30, 20, 10, 0).
-    Leading,
-    /// t = round(arange(T, 0, −T/n)) − 1 (for n = 5, T = 50: 49, 39, 29, 19, 9).
-    Trailing,
-    /// t = round(linspace(0, T − 1, n)), reversed.
-    Linspace,
-}
-
-impl TimestepSpacing {
-    /// Every spacing's name, the default (`trailing`) first.
-    pub const NAMES: [&'static str; 3] = ["trailing", "leading", "linspace"];
-
-    /// `leading` | `trailing` | `linspace`.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            TimestepSpacing::Leading => "leading",
-            TimestepSpacing::Trailing => "trailing",
-            TimestepSpacing::Linspace => "linspace",
-        }
-    }
-}
-
-impl FromStr for TimestepSpacing {
-    type Err = Error;
-    fn from_str(s: &str) -> Result<Self> {
-        match s {
-            "leading" => Ok(TimestepSpacing::Leading),
-            "trailing" => Ok(TimestepSpacing::Trailing),
-            "linspace" => Ok(TimestepSpacing::Linspace),
-            other => Err(Error::invalid_input(
-                "timestep_spacing",
-                "\"leading\", \"trailing\" or \"linspace\"",
-                format!("{other:?}"),
-            )),
-        }
-    }
-}
-
-/// The descending training steps visited by a sampler with `num_inference_steps` steps.
-/// Rounding is numpy's (half to even).
-pub(crate) fn timesteps(
-    num_train_timesteps: usize,
-    num_inference_steps: usize,
-    spacing: TimestepSpacing,
-) -> Result<Vec<usize>> {
-    let (t_total, n) = (num_train_timesteps, num_inference_steps);
-    if n == 0 || n > t_total {
-        return Err(Error::invalid_input(
-            "num_inference_steps",
-            format!("an integer in 1..{t_total} (num_train_timesteps = {t_total})"),
-            n.to_string(),
-        ));
-    }
-    let ts: Vec<usize> = match spacing {
-        TimestepSpacing::Leading => {
-            let ratio = t_total / n;
-            (0..n).rev().map(|i| i * ratio).collect()
-        }
-        TimestepSpacing::Trailing => {
-            let ratio = t_total as f64 / n as f64;
-            (0..n)
-                .map(|i| {
-                    let v = (t_total as f64 - i as f64 * ratio).round_ties_even();
-                    (v as usize).saturating_sub(1)
-                })
-                .collect()
-        }
-        TimestepSpacing::Linspace => crate::schedule::linspace(0.0, (t_total - 1) as f64, n)
-            .into_iter()
-            .rev()
-            .map(|v| v.round_ties_even() as usize)
-            .collect(),
-    };
-    Ok(ts)
-}
 
 /// The stochastic part of a DDPM / DDIM step: x ← x + σ z, element-wise in f32, where σ > 0 (a
 /// deterministic step, σ = 0, reads no noise).
@@ -129,105 +51,7 @@ fn step_pairs(timesteps: &[usize]) -> Vec<(usize, Option<usize>)> {
         .collect()
 }
 
-/// Which update rule a sampler uses.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum SamplerKind {
-    /// Ancestral DDPM; over all T steps it is the TCD reference.
-    Ddpm,
-    /// DDIM with stochasticity `eta` ∈ [0, 1].
-    Ddim { eta: f64 },
-    /// DPM-Solver++(2M): deterministic multistep solver (one noise block per chain, x_T).
-    DpmPp2m,
-}
-
-impl SamplerKind {
-    /// Every sampler's name, the default (`ddpm`, the paper's) first.
-    pub const NAMES: [&'static str; 3] = ["ddpm", "ddim", "dpmpp2m"];
-}
-
-/// A sampler: update rule, number of steps and their spacing.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct SamplerConfig {
-    pub kind: SamplerKind,
-    /// `None`: every training step (n = T).
-    pub num_inference_steps: Option<usize>,
-    pub timestep_spacing: TimestepSpacing,
-    /// How the S chains of a sequence share x_T ([`NoiseCoupling`]; independent by default).
-    pub noise_coupling: NoiseCoupling,
-}
-
 impl SamplerConfig {
-    /// The sampler named by the settings of the Python `SamplerOptions` and the command line: the one
-    /// check of their values. `sampler` is one of [`SamplerKind::NAMES`], `timestep_spacing` one of
-    /// [`TimestepSpacing::NAMES`], `noise_coupling` one of [`NoiseCoupling::NAMES`], and `eta` must lie
-    /// in [0, 1] whatever the sampler (only DDIM uses it, but a bad value is refused rather than
-    /// ignored). `num_inference_steps` is checked against a model's training steps by
-    /// [`SamplerConfig::plan`].
-    pub fn from_names(
-        sampler: &str,
-        num_inference_steps: Option<usize>,
-        eta: f64,
-        timestep_spacing: &str,
-        noise_coupling: &str,
-    ) -> Result<Self> {
-        ddim::check_eta(eta)?;
-        let kind = match sampler {
-            "ddpm" => SamplerKind::Ddpm,
-            "ddim" => SamplerKind::Ddim { eta },
-            "dpmpp2m" => SamplerKind::DpmPp2m,
-            other => {
-                return Err(Error::invalid_input(
-                    "sampler",
-                    "\"ddpm\", \"ddim\" or \"dpmpp2m\"",
-                    format!("{other:?}"),
-                ))
-            }
-        };
-        if num_inference_steps == Some(0) {
-            return Err(Error::invalid_input(
-                "num_inference_steps",
-                "at least 1 (or None for every training step)",
-                "0",
-            ));
-        }
-        Ok(SamplerConfig {
-            kind,
-            num_inference_steps,
-            timestep_spacing: timestep_spacing.parse()?,
-            noise_coupling: noise_coupling.parse()?,
-        })
-    }
-
-    /// The reference: DDPM over all T steps.
-    pub fn ddpm() -> Self {
-        SamplerConfig {
-            kind: SamplerKind::Ddpm,
-            num_inference_steps: None,
-            timestep_spacing: TimestepSpacing::Trailing,
-            noise_coupling: NoiseCoupling::Independent,
-        }
-    }
-
-    /// DDIM with `num_inference_steps` trailing-spaced steps.
-    pub fn ddim(num_inference_steps: usize, eta: f64) -> Self {
-        SamplerConfig {
-            kind: SamplerKind::Ddim { eta },
-            num_inference_steps: Some(num_inference_steps),
-            timestep_spacing: TimestepSpacing::Trailing,
-            noise_coupling: NoiseCoupling::Independent,
-        }
-    }
-
-    /// DPM-Solver++(2M) with `num_inference_steps` trailing-spaced steps.
-    pub fn dpmpp2m(num_inference_steps: usize) -> Self {
-        SamplerConfig {
-            kind: SamplerKind::DpmPp2m,
-            num_inference_steps: Some(num_inference_steps),
-            timestep_spacing: TimestepSpacing::Trailing,
-            noise_coupling: NoiseCoupling::Independent,
-        }
-    }
-
     /// The per-step coefficients for a model with this schedule and `variance` (its `variance_type`).
     pub fn plan(&self, schedule: &NoiseSchedule, variance: VarianceType) -> Result<Plan> {
         let t_total = schedule.num_train_timesteps();
@@ -267,12 +91,6 @@ impl SamplerConfig {
                 .collect(),
         };
         Ok(Plan { steps })
-    }
-}
-
-impl Default for SamplerConfig {
-    fn default() -> Self {
-        Self::ddpm()
     }
 }
 
@@ -684,145 +502,4 @@ pub fn sample(
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn spacing_reference_lists() {
-        let tr = |n| timesteps(50, n, TimestepSpacing::Trailing).unwrap();
-        let le = |n| timesteps(50, n, TimestepSpacing::Leading).unwrap();
-        let li = |n| timesteps(50, n, TimestepSpacing::Linspace).unwrap();
-        assert_eq!(tr(5), vec![49, 39, 29, 19, 9]);
-        assert_eq!(le(5), vec![40, 30, 20, 10, 0]);
-        assert_eq!(li(5), vec![49, 37, 24, 12, 0]);
-        // numpy: np.round(np.arange(50, 0, -12.5)) - 1 -> [49, 37, 24, 11] (half to even)
-        assert_eq!(tr(4), vec![49, 37, 24, 11]);
-        assert_eq!(tr(3), vec![49, 32, 16]);
-        assert_eq!(tr(1), vec![49]);
-        assert_eq!(le(1), vec![0]);
-        assert_eq!(li(1), vec![0]);
-        let all: Vec<usize> = (0..50).rev().collect();
-        for sp in [
-            TimestepSpacing::Leading,
-            TimestepSpacing::Trailing,
-            TimestepSpacing::Linspace,
-        ] {
-            assert_eq!(timesteps(50, 50, sp).unwrap(), all);
-            for n in 1..=50 {
-                let ts = timesteps(50, n, sp).unwrap();
-                assert_eq!(ts.len(), n);
-                assert!(ts.windows(2).all(|w| w[0] > w[1]), "{sp:?} n={n}: {ts:?}");
-                assert!(ts[0] < 50);
-            }
-        }
-    }
-
-    #[test]
-    fn spacing_errors_name_the_argument() {
-        for n in [0, 51] {
-            let e = timesteps(50, n, TimestepSpacing::Trailing).unwrap_err();
-            assert!(e.to_string().contains("num_inference_steps"), "{e}");
-        }
-        let e = "middle".parse::<TimestepSpacing>().unwrap_err();
-        assert!(e.to_string().contains("timestep_spacing"));
-        assert_eq!(
-            "linspace".parse::<TimestepSpacing>().unwrap(),
-            TimestepSpacing::Linspace
-        );
-    }
-
-    #[test]
-    fn sample_to_noise_recovers_the_noise_of_an_exact_x0() {
-        // x_t = sqrt(abar) x0 + sqrt(1 - abar) eps: given the exact x0 the conversion returns eps.
-        let s = NoiseSchedule::from_betas(crate::schedule::cosine_betas(50, 0.5));
-        for t in [0, 1, 17, 49] {
-            let c = SampleToNoise::new(&s, t);
-            let ab = s.alpha_bar(Some(t));
-            assert_eq!(c.a, ab.sqrt() as f32);
-            assert_eq!(c.inv_s, (1.0 / (1.0 - ab).sqrt()) as f32);
-            let (x0, eps) = ([0.3f64, -1.2, 2.5], [0.7f64, -0.4, 1.9]);
-            let x: Vec<f32> = x0
-                .iter()
-                .zip(&eps)
-                .map(|(a, e)| (ab.sqrt() * a + (1.0 - ab).sqrt() * e) as f32)
-                .collect();
-            let mut out: Vec<f32> = x0.iter().map(|&v| v as f32).collect();
-            c.apply(&x, &mut out);
-            for (got, want) in out.iter().zip(&eps) {
-                // f32 rounding of x amplified by inv_s (up to 1 / sqrt(1 - abar_0), about 1e2 at t = 0)
-                assert!(
-                    (*got as f64 - want).abs() < 1e-6 * c.inv_s as f64 * 4.0,
-                    "t={t}: {got} vs {want}"
-                );
-            }
-        }
-    }
-
-    #[test]
-    fn a_sampler_keeps_its_multistep_state_and_resets_for_a_new_chain() {
-        // A stand-in network (ε̂ a fixed function of x): a reset sampler repeats a fresh one's chain bit
-        // for bit, and the second-order steps do read the state (a sampler whose state is cleared before
-        // every step takes another chain).
-        let s = NoiseSchedule::from_betas(crate::schedule::cosine_betas(50, 0.5));
-        let plan = SamplerConfig::dpmpp2m(6)
-            .plan(&s, VarianceType::FixedSmall)
-            .unwrap();
-        let net = |x: &[f32]| -> Vec<f32> { x.iter().map(|v| 0.5 * v.sin() - 0.1).collect() };
-        let run = |sampler: &mut Sampler<'_>, forget: bool| {
-            let mut x = vec![0.3f32, -1.1, 2.0, 0.7];
-            while sampler.timestep().is_some() {
-                let mut eps = net(&x);
-                if forget {
-                    let next = sampler.index();
-                    sampler.reset();
-                    sampler.next = next;
-                }
-                sampler.step(&mut x, &mut eps, &[]).unwrap();
-            }
-            x
-        };
-        let mut sampler = Sampler::new(&plan, 4);
-        let first = run(&mut sampler, false);
-        assert!(sampler.step(&mut [0.0; 4], &mut [0.0; 4], &[]).is_err());
-        sampler.reset();
-        assert_eq!(sampler.timestep(), Some(plan.steps[0].t));
-        assert_eq!(run(&mut sampler, false), first);
-        assert_eq!(run(&mut Sampler::new(&plan, 4), false), first);
-        assert_ne!(run(&mut Sampler::new(&plan, 4), true), first);
-        // a buffer of the wrong size is refused, naming it
-        let mut fresh = Sampler::new(&plan, 4);
-        let e = fresh.step(&mut [0.0; 3], &mut [0.0; 4], &[]).unwrap_err();
-        assert!(e.to_string().contains("`x`"), "{e}");
-        assert_eq!(fresh.index(), 0);
-    }
-
-    #[test]
-    fn an_x0_plan_converts_the_output_at_every_step_and_an_epsilon_plan_at_none() {
-        let s = NoiseSchedule::from_betas(crate::schedule::cosine_betas(10, 0.5));
-        for sc in [
-            SamplerConfig::ddpm(),
-            SamplerConfig::ddim(4, 1.0),
-            SamplerConfig::dpmpp2m(4),
-        ] {
-            let plan = sc.plan(&s, VarianceType::FixedSmall).unwrap();
-            assert!(plan.steps.iter().all(|st| st.to_noise.is_none()));
-            let x0_plan = plan.clone().for_prediction(PredictionType::Sample, &s);
-            assert!(x0_plan
-                .steps
-                .iter()
-                .all(|st| st.to_noise == Some(SampleToNoise::new(&s, st.t))));
-            assert_eq!(
-                plan.clone().for_prediction(PredictionType::Epsilon, &s),
-                plan
-            );
-        }
-    }
-
-    #[test]
-    fn pairs_end_with_none() {
-        assert_eq!(
-            step_pairs(&[9, 4, 0]),
-            vec![(9, Some(4)), (4, Some(0)), (0, None)]
-        );
-    }
-}
+mod tests;
