@@ -213,6 +213,38 @@ class TCD:
         fill = self.repair_fill if den is self.repair_model else None
         return {"fill": fill, "forecaster": self.prior if fill is not None else None}
 
+    def _repairer(
+        self,
+        num_samples: Optional[int],
+        seed: Optional[int],
+        sampler: Optional[SamplerOptions],
+        units: Units,
+        threads: Optional[int],
+        progress: Progress,
+    ) -> Tuple[int, Units, Optional[int], Callable[[np.ndarray, np.ndarray], np.ndarray]]:
+        """A repair's arguments checked (:meth:`repair`, :meth:`predict`'s model fill) and the repair itself:
+        ``(seed, units, threads, run)``, ``run(observed, seen)`` the repair model's mean (B, K, T) in the engine's
+        layout (the short-term model in-painting where the directory has no repair model)."""
+        num_samples = self.repair_samples if num_samples is None else num_samples
+        num_samples, sampling, units, threads = self._common("repair", num_samples, sampler, units, threads)
+        seed = _seed(seed)
+        den = self.repair_model if self.repair_model is not None else self.short
+
+        def run(observed: np.ndarray, seen: np.ndarray) -> np.ndarray:
+            return repair_raw(
+                den,
+                observed,
+                seen,
+                num_samples=num_samples,
+                seed=seed,
+                threads=threads,
+                progress=progress,
+                sampler=sampling,
+                **self._repair_fills(den),
+            )["mean"]
+
+        return seed, units, threads, run
+
     # ------------------------------------------------------------------ description
     @property
     def repair_samples(self) -> int:
@@ -384,23 +416,9 @@ class TCD:
 
         Returns a :class:`Repair`: ``poses`` of the shape of ``obs`` (observed entries unchanged) and the
         ``seed`` used (drawn from ``os.urandom`` when ``seed`` is None): pass it back to reproduce."""
-        num_samples = self.repair_samples if num_samples is None else num_samples
-        num_samples, sampling, units, threads = self._common("repair", num_samples, sampler, units, threads)
-        seed = _seed(seed)
-        model = self.repair_model if self.repair_model is not None else self.short
+        seed_used, units, threads, run = self._repairer(num_samples, seed, sampler, units, threads, progress)
         w = self._window(obs, mask, units, capture, repair=True)
-        out = repair_raw(
-            model,
-            w.observed,
-            w.mask,
-            num_samples=num_samples,
-            seed=seed,
-            threads=threads,
-            progress=progress,
-            sampler=sampling,
-            **self._repair_fills(model),
-        )
-        return Repair(poses=w.repaired(out["mean"]), seed=seed)
+        return Repair(poses=w.repaired(run(w.observed, w.mask)), seed=seed_used)
 
     def predict(
         self,
@@ -438,31 +456,14 @@ class TCD:
             )
         if _checks.text("fill", fill, FILLS) not in FILLS:
             raise _checks.fail("fill", "one of " + ", ".join(repr(f) for f in FILLS), repr(fill))
-        num_samples = self.repair_samples if num_samples is None else num_samples
-        num_samples, sampling, units, threads = self._common("repair", num_samples, sampler, units, threads)
-        seed = _seed(seed)
+        seed_used, units, threads, run = self._repairer(num_samples, seed, sampler, units, threads, progress)
         if fill == "auto":
             fill = "model" if self.repair_model is not None else "spline"
-        den = self.repair_model if self.repair_model is not None else self.short
-
-        def repair(observed: np.ndarray, seen: np.ndarray) -> np.ndarray:
-            return repair_raw(
-                den,
-                observed,
-                seen,
-                num_samples=num_samples,
-                seed=seed,
-                threads=threads,
-                progress=progress,
-                sampler=sampling,
-                **self._repair_fills(den),
-            )["mean"]
-
         w = self._window(obs, mask, units, capture)
         prior, horizon = self.prior, self.horizon
-        out = repair_then_predict(prior, horizon, w.observed, w.mask, fill=fill, repair=repair, threads=threads)
+        out = repair_then_predict(prior, horizon, w.observed, w.mask, fill=fill, repair=run, threads=threads)
         mean, _, repaired, times = w.forecast(out)
-        return Forecast(mean=mean, samples=None, repaired=repaired, seed=seed, times=times)
+        return Forecast(mean=mean, samples=None, repaired=repaired, seed=seed_used, times=times)
 
 
 def load(path: Optional[PathLike] = None, *, threads: Optional[int] = None) -> TCD:

@@ -74,12 +74,10 @@ def _model_fps(model: Any, fps: Optional[float]) -> float:
     return float(model.fps) if fps is None else fps
 
 
-def _prepare(model: Any, obs: Any, mask: Any, capture: Capture, units: str, frames: int):
-    """Checks the call's poses; returns what the engine needs and how to come back."""
-    lay = get_layout(capture.layout)
-    src_fps = _model_fps(model, capture.fps)
-    up_v = wild.up_vector(capture.up)
-    p = validate_poses(obs, mask, num_joints=lay.num_joints, units=units)
+def _poses_with_motion(obs: Any, mask: Any, num_joints: int, units: str) -> Any:
+    """The call's poses checked (:func:`tcd._poses.validate_poses`), with at least 2 observed frames per sequence:
+    the root's motion is measured on them."""
+    p = validate_poses(obs, mask, num_joints=num_joints, units=units)
     seen_frames = p.observed.reshape(p.observed.shape[0], p.observed.shape[1], -1).any(-1).sum(-1)
     if (seen_frames < 2).any():
         raise _checks.fail(
@@ -87,6 +85,15 @@ def _prepare(model: Any, obs: Any, mask: Any, capture: Capture, units: str, fram
             "an observation with at least 2 observed frames per sequence (to measure motion)",
             f"{int(seen_frames.min())} observed frame(s)",
         )
+    return p
+
+
+def _prepare(model: Any, obs: Any, mask: Any, capture: Capture, units: str, frames: int):
+    """Checks the call's poses; returns what the engine needs and how to come back."""
+    lay = get_layout(capture.layout)
+    src_fps = _model_fps(model, capture.fps)
+    up_v = wild.up_vector(capture.up)
+    p = _poses_with_motion(obs, mask, lay.num_joints, units)
     joint_seen = p.observed.all(-1, keepdims=True)  # a joint is observed when all 3 coordinates are
     x = np.where(joint_seen, p.values, np.nan).astype(np.float64) / UNIT_SCALE[units]
     xm, times = wild.resample_to_model(x, src_fps, float(model.fps), frames)
@@ -157,14 +164,7 @@ def _own_prepare(model: Any, own: str, obs: Any, mask: Any, capture: Capture, un
     src_fps = _model_fps(model, capture.fps)
     rot = _rotation_onto(wild.up_vector(capture.up), wild.up_vector(model.data.get("up", "y")))  # caller -> model axes
     root_j = lay.joint_names.index(model.data.get("root_joint", lay.joint_names[0]))
-    p = validate_poses(obs, mask, num_joints=lay.num_joints, units=units)
-    seen_frames = p.observed.reshape(p.observed.shape[0], p.observed.shape[1], -1).any(-1).sum(-1)
-    if (seen_frames < 2).any():
-        raise _checks.fail(
-            "obs",
-            "an observation with at least 2 observed frames per sequence (to measure motion)",
-            f"{int(seen_frames.min())} observed frame(s)",
-        )
+    p = _poses_with_motion(obs, mask, lay.num_joints, units)
     joint_seen = p.observed.all(-1, keepdims=True)
     x = np.where(joint_seen, p.values, np.nan).astype(np.float64) / UNIT_SCALE[units] @ rot.T
     xm, times = wild.resample_to_model(x, src_fps, float(model.fps), frames)  # (B, O, J, 3)
