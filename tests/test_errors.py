@@ -265,7 +265,9 @@ def test_native_errors_are_typed(tiny_model_dir, argument, kwargs):
     except tcd.InvalidInputError as e:  # 0 steps: refused by the sampler itself; 51: by the model, below
         assert e.argument == argument
         return
-    bad(argument, d.sample, x, np.ones_like(x), n, sampler, **kw)
+    streams = {"seed": None, "first_sequence": 0, "sequences": None, "threads": None}
+    streams.update(kw)
+    bad(argument, d.sample, x, np.ones_like(x), n, sampler, streams=streams)
 
 
 def test_native_engine_error_mapping(tiny_model_dir):

@@ -60,8 +60,7 @@ class NativeAttribute(Generic[T]):
 class NativeModel(Generic[N]):
     """A loaded weight file: the engine's object ``_native`` (of the class ``_NATIVE``: ``N``) and its parsed
     ``tcd_config``; the base of :class:`tcd.engine.Denoiser`, :class:`tcd.engine.Prior` and
-    :class:`tcd.engine.Generator`, with what they have alike (each has its own ``load``, documented for its kind of
-    file)."""
+    :class:`tcd.engine.Generator`, with what they have alike."""
 
     __slots__ = ("_native", "_config")
     #: The engine's class of the file (``_native.Denoiser``, ``_native.Prior``, ``_native.Generator``).
@@ -75,7 +74,10 @@ class NativeModel(Generic[N]):
         self._config: Dict[str, Any] = json.loads(native.config_json)
 
     @classmethod
-    def _load(cls: Type[M], path: PathLike) -> M:
+    def load(cls: Type[M], path: PathLike) -> M:
+        """Loads and validates a weight file of this class's kind (its ``role``). Missing file:
+        ``FileNotFoundError``; invalid content, a file of another kind included:
+        :class:`tcd.exceptions.WeightsError`."""
         return cls(cls._NATIVE.load(os.fspath(path)))
 
     @classmethod

@@ -135,7 +135,7 @@ def stream_ids(value: Any) -> Optional[List[int]]:
     return [int(v) for v in a]
 
 
-def streams(seed: Any, first_sequence: Any, sequences: Any, threads: Any) -> dict:
+def streams(seed: Any, first_sequence: Any, sequences: Any, threads: Any) -> _native._Streams:
     """The keywords every seeded engine call takes (``seed``, ``first_sequence``, ``sequences``, ``threads``),
     checked and converted for the binding; the engine checks their ranges against the call."""
     return {

@@ -23,7 +23,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from . import _checks, _native
-from ._attributes import NativeAttribute, NativeModel, PathLike
+from ._attributes import NativeAttribute, NativeModel
 
 __all__ = ["Generator"]
 
@@ -34,12 +34,6 @@ class Generator(NativeModel[_native.Generator]):
 
     __slots__ = ()
     _NATIVE = _native.Generator
-
-    @classmethod
-    def load(cls, path: PathLike) -> "Generator":
-        """Loads and validates a generator weight file. Missing file: ``FileNotFoundError``; invalid content
-        (a denoiser's or a prior's file included): :class:`tcd.exceptions.WeightsError`."""
-        return cls._load(path)
 
     # The file's settings beyond NativeModel's, read from the engine's model (each read-only).
     obs_len = NativeAttribute(int, "O: observed frames it reads, the last ``obs_len`` of ``obs``.")
@@ -78,5 +72,5 @@ class Generator(NativeModel[_native.Generator]):
             _checks.float32_array("prior", prior),
             _checks.machine_int("num_samples", num_samples),
             noise=_checks.optional_float32_array("noise", noise),
-            **_checks.streams(seed, first_sequence, sequences, threads),
+            streams=_checks.streams(seed, first_sequence, sequences, threads),
         )

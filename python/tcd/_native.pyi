@@ -9,7 +9,7 @@ Errors: ``tcd.exceptions.InvalidInputError`` (bad argument),
 """
 
 import os
-from typing import Any, Callable, Dict, List, Optional, Tuple, Union, final
+from typing import Any, Callable, Dict, List, Optional, Tuple, TypedDict, Union, final
 
 import numpy as np
 import numpy.typing as npt
@@ -65,6 +65,14 @@ class WeightsError(TcdError, ValueError):
     @property
     def path(self) -> Optional[str]: ...
 
+class _Streams(TypedDict):
+    """How a seeded call numbers its noise streams, and its threads (``tcd._checks.streams`` builds it)."""
+
+    seed: Optional[int]
+    first_sequence: int
+    sequences: Optional[List[int]]
+    threads: Optional[int]
+
 # The getters every class of a loaded weight file has (the binding's `model_methods!`; its loaders are each class's
 # own): typing only, no runtime base class.
 class _WeightFile:
@@ -109,10 +117,7 @@ class Denoiser(_WeightFile):
         options: SamplerOptions,
         *,
         noise: Optional[_F32] = None,
-        seed: Optional[int] = None,
-        first_sequence: int = 0,
-        sequences: Optional[List[int]] = None,
-        threads: Optional[int] = None,
+        streams: _Streams,
         progress: Optional[Callable[[int, int], Any]] = None,
     ) -> _F32: ...
 
@@ -162,10 +167,7 @@ class Generator(_WeightFile):
         num_samples: int,
         *,
         noise: Optional[_F32] = None,
-        seed: Optional[int] = None,
-        first_sequence: int = 0,
-        sequences: Optional[List[int]] = None,
-        threads: Optional[int] = None,
+        streams: _Streams,
     ) -> _F32: ...
 
 def cascade(
@@ -178,10 +180,7 @@ def cascade(
     *,
     noise_short: Optional[_F32] = None,
     noise_long: Optional[_F32] = None,
-    seed: Optional[int] = None,
-    first_sequence: int = 0,
-    sequences: Optional[List[int]] = None,
-    threads: Optional[int] = None,
+    streams: _Streams,
     progress: Optional[Callable[[int, int], Any]] = None,
     prior: Optional[Prior] = None,
 ) -> Dict[str, _F32]: ...
@@ -193,10 +192,7 @@ def repair(
     options: SamplerOptions,
     *,
     noise: Optional[_F32] = None,
-    seed: Optional[int] = None,
-    first_sequence: int = 0,
-    sequences: Optional[List[int]] = None,
-    threads: Optional[int] = None,
+    streams: _Streams,
     progress: Optional[Callable[[int, int], Any]] = None,
     fill: Optional[Prior] = None,
     forecaster: Optional[Prior] = None,

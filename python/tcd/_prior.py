@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from . import _checks, _native
-from ._attributes import NativeAttribute, NativeModel, PathLike
+from ._attributes import NativeAttribute, NativeModel
 
 __all__ = ["Prior"]
 
@@ -35,12 +35,6 @@ class Prior(NativeModel[_native.Prior]):
 
     __slots__ = ()
     _NATIVE = _native.Prior
-
-    @classmethod
-    def load(cls, path: PathLike) -> "Prior":
-        """Loads and validates a prior weight file. Missing file: ``FileNotFoundError``; invalid content
-        (a denoiser's file included): :class:`tcd.exceptions.WeightsError`."""
-        return cls._load(path)
 
     # The file's settings beyond NativeModel's, read from the engine's model (each read-only).
     obs_len = NativeAttribute(int, "Frames one forward reads: the last ``obs_len`` frames of the input.")

@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from . import _checks, _native
-from ._attributes import NativeAttribute, NativeModel, PathLike
+from ._attributes import NativeAttribute, NativeModel
 from ._sampler import SamplerOptions, checked
 from ._generator import Generator
 from ._prior import Prior
@@ -61,12 +61,6 @@ class Denoiser(NativeModel[_native.Denoiser]):
 
     __slots__ = ()
     _NATIVE = _native.Denoiser
-
-    @classmethod
-    def load(cls, path: PathLike) -> "Denoiser":
-        """Loads and validates a weight file. Missing file: ``FileNotFoundError``; invalid content:
-        :class:`tcd.exceptions.WeightsError`."""
-        return cls._load(path)
 
     # The file's settings beyond NativeModel's, read from the engine's model (each read-only).
     role = NativeAttribute(str, "``short``, ``long`` or ``repair``.")
@@ -133,7 +127,7 @@ class Denoiser(NativeModel[_native.Denoiser]):
                 num_samples,
                 o,
                 noise=_checks.optional_float32_array("noise", noise),
-                **_checks.streams(seed, first_sequence, sequences, threads),
+                streams=_checks.streams(seed, first_sequence, sequences, threads),
                 progress=callback,
             )
 
@@ -187,7 +181,7 @@ def cascade_raw(
                 o,
                 noise_short=_checks.optional_float32_array("noise_short", noise_short),
                 noise_long=_checks.optional_float32_array("noise_long", noise_long),
-                **_checks.streams(seed, first_sequence, sequences, threads),
+                streams=_checks.streams(seed, first_sequence, sequences, threads),
                 progress=callback,
                 prior=None if prior is None else prior._native,
             )
@@ -240,7 +234,7 @@ def repair_raw(
                 num_samples,
                 o,
                 noise=_checks.optional_float32_array("noise", noise),
-                **_checks.streams(seed, first_sequence, sequences, threads),
+                streams=_checks.streams(seed, first_sequence, sequences, threads),
                 progress=callback,
                 fill=None if fill is None else fill._native,
                 forecaster=None if forecaster is None else forecaster._native,

@@ -13,6 +13,7 @@
 mod common;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+use tcd_core::FileConfig;
 use tcd_core::{Denoiser, Kernel, Network, Observation, Role, TcdConfig, Workspace};
 
 fn config(

@@ -14,6 +14,7 @@ mod common;
 
 use std::error::Error;
 use std::time::Instant;
+use tcd_core::FileConfig;
 
 use tcd_core::{Denoiser, Kernel, Network, Observation, Role, Workspace};
 

@@ -246,9 +246,9 @@ pub enum VarianceType {
     FixedLarge,
 }
 
-impl TcdConfig {
+impl FileConfig for TcdConfig {
     /// Parses the JSON string stored under `tcd_config`; `path` names the file in errors.
-    pub fn from_json(json: &str, path: &Path) -> Result<Self> {
+    fn from_json(json: &str, path: &Path) -> Result<Self> {
         // A prior's or generator's file given to the denoiser's loader: say what it holds, not that its
         // role is unknown.
         if let Some(role) = role_of(json).filter(|r| r == PRIOR_ROLE || r == GENERATOR_ROLE) {
@@ -262,7 +262,7 @@ impl TcdConfig {
     }
 
     /// Checks sizes, window and schedule for consistency; `path` names the file in errors.
-    pub fn validate(&self, path: &Path) -> Result<()> {
+    fn validate(&self, path: &Path) -> Result<()> {
         let checks = Checks(path);
         let bad = |field: &str, reason: String| checks.bad(field, reason);
         checks.format_version(self.format_version)?;
@@ -412,15 +412,70 @@ impl TcdConfig {
         }
         Ok(())
     }
+}
 
+impl TcdConfig {
     /// The noise schedule built from the stored (authoritative) betas.
     pub fn schedule(&self) -> NoiseSchedule {
         NoiseSchedule::from_betas(self.diffusion.betas.clone())
     }
+}
+
+/// A network file's configuration, the `tcd_config` JSON of its metadata: parsed, then checked
+/// ([`crate::Network::config`] does both).
+pub trait FileConfig: Sized + Clone + Serialize {
+    /// Parses the JSON stored under `tcd_config`; `path` names the file in errors. A file of another
+    /// kind is refused by its role before its fields are read.
+    fn from_json(json: &str, path: &Path) -> Result<Self>;
+
+    /// Checks it for consistency; `path` names the file in errors.
+    fn validate(&self, path: &Path) -> Result<()>;
 
     /// Serialises back to the JSON stored under `tcd_config`.
-    pub fn to_json(&self) -> String {
-        to_json(self)
+    fn to_json(&self) -> String {
+        // Serialising plain structs of numbers and strings cannot fail; fall back to "{}" anyway.
+        serde_json::to_string(self).unwrap_or_else(|_| "{}".to_string())
+    }
+}
+
+/// The `tcd_config` of a network whose file holds its `model` block and nothing of the denoisers'
+/// window or diffusion: the prior's ([`crate::PriorConfig`]) and the generator's
+/// ([`crate::GeneratorConfig`]). Other keys (`training`, `source_revision`) are informative: ignored
+/// here, kept in the network's `config_json`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ModelFile<M> {
+    /// Must be [`FORMAT_VERSION`].
+    pub format_version: u32,
+    /// Must be [`ModelBlock::ROLE`].
+    pub role: String,
+    pub model: M,
+    #[serde(default)]
+    pub data: DataConfig,
+}
+
+/// The `model` block of a [`ModelFile`]: its role and its own checks.
+pub trait ModelBlock: Clone + Serialize + DeserializeOwned {
+    /// The file's `role`.
+    const ROLE: &'static str;
+    /// What such a file holds, in the error refusing a file of another kind.
+    const HOLDS: &'static str;
+
+    /// Checks the block's sizes for consistency (the file's version and role are checked before);
+    /// `path` names the file in errors.
+    fn validate(&self, path: &Path) -> Result<()>;
+}
+
+impl<M: ModelBlock> FileConfig for ModelFile<M> {
+    fn from_json(json: &str, path: &Path) -> Result<Self> {
+        Checks(path).role_is(json, M::ROLE, M::HOLDS)?;
+        parse_json(json, path)
+    }
+
+    fn validate(&self, path: &Path) -> Result<()> {
+        let checks = Checks(path);
+        checks.format_version(self.format_version)?;
+        checks.role(&self.role, M::ROLE)?;
+        self.model.validate(path)
     }
 }
 
@@ -478,12 +533,6 @@ pub(crate) fn parse_json<T: DeserializeOwned>(json: &str, path: &Path) -> Result
         })?;
     de.end().map_err(|e| bad(e.to_string()))?; // nothing after the object (serde_json::from_str's check)
     Ok(value)
-}
-
-/// Serialises a config back to the JSON stored under `tcd_config`.
-pub(crate) fn to_json<T: Serialize>(config: &T) -> String {
-    // Serialising plain structs of numbers and strings cannot fail; fall back to "{}" anyway.
-    serde_json::to_string(config).unwrap_or_else(|_| "{}".to_string())
 }
 
 /// The checks of a config read from the file at this path.

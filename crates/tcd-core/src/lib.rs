@@ -49,8 +49,8 @@ mod weights;
 
 // Models and their files.
 pub use config::{
-    CondFill, DataConfig, DiffusionConfig, ModelConfig, PredictionType, Role, Target, TcdConfig,
-    VarianceType, WindowConfig, FORMAT_VERSION,
+    CondFill, DataConfig, DiffusionConfig, FileConfig, ModelBlock, ModelConfig, ModelFile,
+    PredictionType, Role, Target, TcdConfig, VarianceType, WindowConfig, FORMAT_VERSION,
 };
 pub use denoiser::{Denoiser, Prepared, Workspace};
 pub use generator::{Generator, GeneratorConfig, GeneratorModelConfig};

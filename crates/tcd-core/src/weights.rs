@@ -15,6 +15,7 @@ use std::path::{Path, PathBuf};
 
 use safetensors::{Dtype, SafeTensors};
 
+use crate::config::FileConfig;
 use crate::error::{Error, Result};
 
 /// The `__metadata__` key that holds the JSON configuration.
@@ -24,11 +25,15 @@ pub const CONFIG_KEY: &str = "tcd_config";
 /// repair fill, a prior), the MLP sample generator.
 pub trait Network: Sized {
     /// Its configuration, the file's [`CONFIG_KEY`] JSON parsed.
-    type Config: Clone;
+    type Config: FileConfig;
 
     /// Parses the [`CONFIG_KEY`] JSON and checks it (sizes, window, schedule); `path` names the file
     /// in errors.
-    fn config(json: &str, path: &Path) -> Result<Self::Config>;
+    fn config(json: &str, path: &Path) -> Result<Self::Config> {
+        let config = Self::Config::from_json(json, path)?;
+        config.validate(path)?;
+        Ok(config)
+    }
 
     /// Builds the network of `config` (the JSON exactly as stored beside it), taking every tensor it
     /// consumes from `weights`.

@@ -4,6 +4,7 @@
 mod common;
 
 use common::*;
+use tcd_core::FileConfig;
 use tcd_core::{
     cascade, repair, sample, CascadeNoise, Control, Denoiser, Error, ForecastOptions, Noise,
     Observation, Role, SamplerConfig, Sequences,

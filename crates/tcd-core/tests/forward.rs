@@ -4,6 +4,7 @@
 mod common;
 
 use common::*;
+use tcd_core::FileConfig;
 use tcd_core::{Error, Network, Observation, Role, Workspace};
 
 #[test]

@@ -5,6 +5,7 @@
 mod common;
 
 use common::*;
+use tcd_core::FileConfig;
 use tcd_core::{Denoiser, Kernel, Network, Observation, Role, TcdConfig, Workspace};
 
 /// A config with the given sizes (K = joints·3).

@@ -6,6 +6,7 @@
 mod common;
 
 use std::collections::BTreeMap;
+use tcd_core::FileConfig;
 
 use common::*;
 use tcd_core::{

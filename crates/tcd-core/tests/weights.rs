@@ -5,6 +5,7 @@ mod common;
 
 use common::*;
 use safetensors::Dtype;
+use tcd_core::FileConfig;
 use tcd_core::{Denoiser, Error, Network, Role};
 
 fn good() -> (

@@ -1,4 +1,5 @@
-//! A sampling call: the arguments `Denoiser.sample`, `cascade` and `repair` share ([`SamplingArgs`]),
+//! A sampling call: the arguments `Denoiser.sample`, `cascade` and `repair` share ([`SamplingArgs`],
+//! their seeded streams and threads one [`Streams`]),
 //! checked in one order by [`SamplingArgs::prepare`], and the checked [`Call`], run off the GIL by
 //! [`Call::run`]; and the noise arguments (`noise` xor `seed`, `first_sequence` xor `sequences`:
 //! [`seed_args`], [`noise_source`]), which `Generator.sample` takes too.
@@ -26,11 +27,19 @@ pub(crate) struct SamplingArgs<'py> {
     /// model has one); sampling and forecasting need at least 1.
     pub(crate) fill_alone: bool,
     pub(crate) options: SamplerOptions,
+    pub(crate) streams: Streams,
+    pub(crate) progress: Option<Bound<'py, PyAny>>,
+}
+
+/// How a seeded call numbers its noise streams and how many threads it runs: the `streams` dict of
+/// every sampling function (`tcd._checks.streams` builds it from the Python keywords of the same names).
+#[derive(FromPyObject)]
+#[pyo3(from_item_all)]
+pub(crate) struct Streams {
     pub(crate) seed: Option<i128>,
     pub(crate) first_sequence: i128,
     pub(crate) sequences: Option<Vec<i128>>,
     pub(crate) threads: Option<i64>,
-    pub(crate) progress: Option<Bound<'py, PyAny>>,
 }
 
 /// One model of a call with its injected noise: (model, the noise argument's name, its value).
@@ -125,7 +134,8 @@ impl<'py> SamplingArgs<'py> {
             .unwrap_or(frames);
         check_work(s, b, k, longest)?;
         let sampler = self.options.config();
-        let (seed, streams) = seed_args(self.seed, self.first_sequence, self.sequences)?;
+        let threads = self.streams.threads;
+        let (seed, streams) = seed_args(self.streams)?;
         let blocks = stages
             .iter()
             .map(|(model, _, _)| noise_blocks(model, &sampler))
@@ -154,7 +164,7 @@ impl<'py> SamplingArgs<'py> {
                 mask: mask.data,
                 noise,
             },
-            threads: threads_arg(self.threads)?,
+            threads: threads_arg(threads)?,
             progress: self.progress,
         })
     }
@@ -192,14 +202,10 @@ impl StreamIds {
 }
 
 /// `seed`, and `first_sequence` xor `sequences`, as the engine takes them (also `Generator.sample`'s).
-pub(crate) fn seed_args(
-    seed: Option<i128>,
-    first_sequence: i128,
-    sequences: Option<Vec<i128>>,
-) -> CoreResult<(Option<u64>, StreamIds)> {
-    let seed = seed.map(|v| u64_arg("seed", v)).transpose()?;
-    let first = u64_arg("first_sequence", first_sequence)?;
-    let ids = match sequences {
+pub(crate) fn seed_args(streams: Streams) -> CoreResult<(Option<u64>, StreamIds)> {
+    let seed = streams.seed.map(|v| u64_arg("seed", v)).transpose()?;
+    let first = u64_arg("first_sequence", streams.first_sequence)?;
+    let ids = match streams.sequences {
         None => StreamIds::From(first),
         Some(_) if seed.is_none() => {
             return Err(invalid(

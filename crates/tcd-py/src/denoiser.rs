@@ -6,7 +6,7 @@ use numpy::{PyArrayDyn, PyReadonlyArrayDyn};
 use pyo3::prelude::*;
 use tcd_core::{sample as core_sample, with_threads, Denoiser, Observation};
 
-use crate::call::{SamplingArgs, Window};
+use crate::call::{SamplingArgs, Streams, Window};
 use crate::convert::*;
 use crate::error::{invalid, Result};
 use crate::model::model_methods;
@@ -89,10 +89,8 @@ model_methods! {
         }
 
         /// `num_samples` merged samples per sequence, (S, B, K, L). Noise: injected `noise`
-        /// (S, n + 1, B, K, L) ((S, 1, B, K, L) for dpmpp2m) or a `seed` (stream stage 0, sequences
-        /// numbered from `first_sequence`, or one stream id per sequence in `sequences`).
-        #[pyo3(signature = (observed, mask, num_samples, options, *, noise=None, seed=None, first_sequence=0, sequences=None,
-                            threads=None, progress=None))]
+        /// (S, n + 1, B, K, L) ((S, 1, B, K, L) for dpmpp2m) or the `seed` of `streams` (stream stage 0).
+        #[pyo3(signature = (observed, mask, num_samples, options, *, noise=None, streams, progress=None))]
         #[expect(
             clippy::too_many_arguments,
             reason = "a Python signature: pyo3 maps each keyword argument to one parameter"
@@ -105,10 +103,7 @@ model_methods! {
             num_samples: i64,
             options: SamplerOptions,
             noise: Option<PyReadonlyArrayDyn<'py, f32>>,
-            seed: Option<i128>,
-            first_sequence: i128,
-            sequences: Option<Vec<i128>>,
-            threads: Option<i64>,
+            streams: Streams,
             progress: Option<Bound<'py, PyAny>>,
         ) -> Result<Bound<'py, PyArrayDyn<f32>>> {
             let model = &self.inner;
@@ -118,10 +113,7 @@ model_methods! {
                 num_samples,
                 fill_alone: false,
                 options,
-                seed,
-                first_sequence,
-                sequences,
-                threads,
+                streams,
                 progress,
             };
             let call = args.prepare(Window::Any, [(model, "noise", noise)])?;

@@ -7,7 +7,7 @@ use numpy::{PyArrayDyn, PyReadonlyArrayDyn};
 use pyo3::prelude::*;
 use tcd_core::{Control, Generator};
 
-use crate::call::{noise_source, seed_args};
+use crate::call::{noise_source, seed_args, Streams};
 use crate::convert::*;
 use crate::error::Result;
 use crate::model::model_methods;
@@ -44,14 +44,9 @@ model_methods! {
 
         /// `num_samples` forecasts of each sequence, (S, B, pred_len, K) float32: `obs` (B, T, K) float32 with
         /// T >= obs_len (the last obs_len frames are read), `prior` (B, pred_len, K) the prior forecaster's
-        /// forecast of each. Noise: injected `noise` (S, B, z_dim) or a `seed` (stream stage STAGE_GENERATOR,
-        /// sequences numbered from `first_sequence`, or one stream id per sequence in `sequences`).
-        #[pyo3(signature = (obs, prior, num_samples, *, noise=None, seed=None, first_sequence=0, sequences=None,
-                            threads=None))]
-        #[expect(
-            clippy::too_many_arguments,
-            reason = "a Python signature: pyo3 maps each keyword argument to one parameter"
-        )]
+        /// forecast of each. Noise: injected `noise` (S, B, z_dim) or the `seed` of `streams` (stream stage
+        /// STAGE_GENERATOR).
+        #[pyo3(signature = (obs, prior, num_samples, *, noise=None, streams))]
         fn sample<'py>(
             &self,
             py: Python<'py>,
@@ -59,10 +54,7 @@ model_methods! {
             prior: PyReadonlyArrayDyn<'py, f32>,
             num_samples: i64,
             noise: Option<PyReadonlyArrayDyn<'py, f32>>,
-            seed: Option<i128>,
-            first_sequence: i128,
-            sequences: Option<Vec<i128>>,
-            threads: Option<i64>,
+            streams: Streams,
         ) -> Result<Bound<'py, PyArrayDyn<f32>>> {
             let model = &self.inner;
             let (k, o, p, z) = (model.num_features(), model.obs_len(), model.pred_len(), model.z_dim());
@@ -72,7 +64,8 @@ model_methods! {
             let prior = Array::from_numpy(&prior);
             prior.expect_shape("prior", &[b, p, k], "= (B, pred_len, K): the prior's forecast of each sequence")?;
             check_work(s, b, k, p)?;
-            let (seed, streams) = seed_args(seed, first_sequence, sequences)?;
+            let threads = streams.threads;
+            let (seed, streams) = seed_args(streams)?;
             let noise = noise_source("noise", noise.as_ref(), seed, streams, &[s, b, z], "= (num_samples, B, z_dim)")?;
             let threads = threads_arg(threads)?;
             let out = interruptible(py, None, threads, |control: &Control| {

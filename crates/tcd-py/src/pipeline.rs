@@ -9,7 +9,7 @@ use tcd_core::{
     cascade as core_cascade, fill_rows, repair as core_repair, CascadeNoise, CondFill, Sequences,
 };
 
-use crate::call::{NoiseSource, SamplingArgs, Window};
+use crate::call::{NoiseSource, SamplingArgs, Streams, Window};
 use crate::convert::*;
 use crate::denoiser::PyDenoiser;
 use crate::error::{invalid, Result};
@@ -18,11 +18,11 @@ use crate::prior::PyPrior;
 /// The short-term → long-term cascade on an observation (B, K, O), O = the short model's obs_len.
 /// Returns a dict: `mean` (B, K, P), `samples` (S, B, K, P), `repaired` (B, K, O), `short_mean`
 /// (B, K, L_s). Noise: injected `noise_short` (S, n + 1, B, K, L_s) and `noise_long`
-/// (S, n + 1, B, K, L_l) (one block instead of n + 1 for dpmpp2m), or a `seed`. `prior`: the prior
+/// (S, n + 1, B, K, L_l) (one block instead of n + 1 for dpmpp2m), or the `seed` of `streams`. `prior`: the prior
 /// forecaster, required where a model is conditioned on it (`cond_fill` "prior"), unused otherwise.
 #[pyfunction]
 #[pyo3(signature = (short, long, observed, mask, num_samples, options, *, noise_short=None, noise_long=None,
-                    seed=None, first_sequence=0, sequences=None, threads=None, progress=None, prior=None))]
+                    streams, progress=None, prior=None))]
 #[expect(
     clippy::too_many_arguments,
     reason = "a Python signature: pyo3 maps each keyword argument to one parameter"
@@ -37,10 +37,7 @@ pub(crate) fn cascade<'py>(
     options: SamplerOptions,
     noise_short: Option<PyReadonlyArrayDyn<'py, f32>>,
     noise_long: Option<PyReadonlyArrayDyn<'py, f32>>,
-    seed: Option<i128>,
-    first_sequence: i128,
-    sequences: Option<Vec<i128>>,
-    threads: Option<i64>,
+    streams: Streams,
     progress: Option<Bound<'py, PyAny>>,
     prior: Option<&Bound<'py, PyPrior>>,
 ) -> Result<Bound<'py, PyDict>> {
@@ -52,10 +49,7 @@ pub(crate) fn cascade<'py>(
         num_samples,
         fill_alone: false,
         options,
-        seed,
-        first_sequence,
-        sequences,
-        threads,
+        streams,
         progress,
     };
     let stages = [
@@ -99,8 +93,8 @@ pub(crate) fn cascade<'py>(
 /// "prior"), unused otherwise. `forecaster`: the prior forecaster, required where that fill fills
 /// whole-frame gaps with it (`gap_fill` "forecaster"), unused otherwise.
 #[pyfunction]
-#[pyo3(signature = (model, observed, mask, num_samples, options, *, noise=None, seed=None, first_sequence=0,
-                    sequences=None, threads=None, progress=None, fill=None, forecaster=None))]
+#[pyo3(signature = (model, observed, mask, num_samples, options, *, noise=None, streams, progress=None,
+                    fill=None, forecaster=None))]
 #[expect(
     clippy::too_many_arguments,
     reason = "a Python signature: pyo3 maps each keyword argument to one parameter"
@@ -113,10 +107,7 @@ pub(crate) fn repair<'py>(
     num_samples: i64,
     options: SamplerOptions,
     noise: Option<PyReadonlyArrayDyn<'py, f32>>,
-    seed: Option<i128>,
-    first_sequence: i128,
-    sequences: Option<Vec<i128>>,
-    threads: Option<i64>,
+    streams: Streams,
     progress: Option<Bound<'py, PyAny>>,
     fill: Option<&Bound<'py, PyPrior>>,
     forecaster: Option<&Bound<'py, PyPrior>>,
@@ -130,10 +121,7 @@ pub(crate) fn repair<'py>(
         num_samples,
         fill_alone: true,
         options,
-        seed,
-        first_sequence,
-        sequences,
-        threads,
+        streams,
         progress,
     };
     let call = args.prepare(Window::ObsLen("the model's"), [(model, "noise", noise)])?;

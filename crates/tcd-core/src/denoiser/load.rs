@@ -2,8 +2,6 @@
 //! block's diffusion projection tabulated for all T steps, the cond projection split for
 //! hoisting, and the kernel chosen (weights packed for it).
 
-use std::path::Path;
-
 use super::packed::FastModel;
 use super::{Denoiser, ResidualLayer};
 use crate::config::TcdConfig;
@@ -19,12 +17,6 @@ use crate::weights::{Network, Weights};
 /// Conv1d weights keep their kernel dimension of 1).
 impl Network for Denoiser {
     type Config = TcdConfig;
-
-    fn config(json: &str, path: &Path) -> Result<TcdConfig> {
-        let config = TcdConfig::from_json(json, path)?;
-        config.validate(path)?;
-        Ok(config)
-    }
 
     fn build(w: &mut Weights<'_>, config: TcdConfig, config_json: String) -> Result<Self> {
         let path = w.path().to_path_buf();

@@ -6,7 +6,7 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use crate::config::{parse_json, to_json, Checks, DataConfig, GENERATOR_ROLE as ROLE};
+use crate::config::{Checks, ModelBlock, ModelFile, GENERATOR_ROLE as ROLE};
 use crate::error::Result;
 
 /// Sizes of the generator's MLP (`training/generator.py`, `Generator`).
@@ -44,34 +44,17 @@ impl GeneratorModelConfig {
     }
 }
 
-/// The whole `tcd_config` object of a generator file. Other keys (`training`, `source_revision`) are
-/// informative: ignored here, kept in [`crate::Generator::config_json`].
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct GeneratorConfig {
-    /// Must be [`FORMAT_VERSION`](crate::FORMAT_VERSION).
-    pub format_version: u32,
-    /// Must be `"generator"`.
-    pub role: String,
-    pub model: GeneratorModelConfig,
-    #[serde(default)]
-    pub data: DataConfig,
-}
+/// The whole `tcd_config` object of a generator file.
+pub type GeneratorConfig = ModelFile<GeneratorModelConfig>;
 
-impl GeneratorConfig {
-    /// Parses the JSON stored under `tcd_config`; `path` names the file in errors. A denoiser's or
-    /// prior's file is refused by its role before its fields are read.
-    pub fn from_json(json: &str, path: &Path) -> Result<Self> {
-        Checks(path).role_is(json, ROLE, "the MLP sample generator")?;
-        parse_json(json, path)
-    }
+impl ModelBlock for GeneratorModelConfig {
+    const ROLE: &'static str = ROLE;
+    const HOLDS: &'static str = "the MLP sample generator";
 
-    /// Checks sizes for consistency; `path` names the file in errors.
-    pub fn validate(&self, path: &Path) -> Result<()> {
+    fn validate(&self, path: &Path) -> Result<()> {
         let checks = Checks(path);
         let bad = |field: &str, reason: String| checks.bad(field, reason);
-        checks.format_version(self.format_version)?;
-        checks.role(&self.role, ROLE)?;
-        let m = &self.model;
+        let m = self;
         checks.at_least_one(&[
             ("model.num_joints", m.num_joints),
             ("model.coords", m.coords),
@@ -103,10 +86,5 @@ impl GeneratorConfig {
             ));
         }
         Ok(())
-    }
-
-    /// Serialises back to the JSON stored under `tcd_config`.
-    pub fn to_json(&self) -> String {
-        to_json(self)
     }
 }

@@ -61,12 +61,6 @@ pub struct Generator {
 impl Network for Generator {
     type Config = GeneratorConfig;
 
-    fn config(json: &str, path: &Path) -> Result<GeneratorConfig> {
-        let config = GeneratorConfig::from_json(json, path)?;
-        config.validate(path)?;
-        Ok(config)
-    }
-
     fn build(w: &mut Weights<'_>, config: GeneratorConfig, config_json: String) -> Result<Self> {
         let path = w.path().to_path_buf();
         let m = &config.model;

@@ -6,7 +6,7 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use crate::config::{parse_json, to_json, Checks, DataConfig, PRIOR_ROLE as ROLE};
+use crate::config::{Checks, ModelBlock, ModelFile, PRIOR_ROLE as ROLE};
 use crate::error::Result;
 
 /// Sizes of the prior network (`training/prior.py`, `PriorNet`).
@@ -102,32 +102,16 @@ impl Anchor {
 }
 
 /// The whole `tcd_config` object of a prior file.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct PriorConfig {
-    /// Must be [`FORMAT_VERSION`](crate::FORMAT_VERSION).
-    pub format_version: u32,
-    /// Must be `"prior"`.
-    pub role: String,
-    pub model: PriorModelConfig,
-    #[serde(default)]
-    pub data: DataConfig,
-}
+pub type PriorConfig = ModelFile<PriorModelConfig>;
 
-impl PriorConfig {
-    /// Parses the JSON stored under `tcd_config`; `path` names the file in errors. A denoiser's or
-    /// generator's file is refused by its role before its fields are read.
-    pub fn from_json(json: &str, path: &Path) -> Result<Self> {
-        Checks(path).role_is(json, ROLE, "the prior forecaster")?;
-        parse_json(json, path)
-    }
+impl ModelBlock for PriorModelConfig {
+    const ROLE: &'static str = ROLE;
+    const HOLDS: &'static str = "the prior forecaster";
 
-    /// Checks sizes for consistency; `path` names the file in errors.
-    pub fn validate(&self, path: &Path) -> Result<()> {
+    fn validate(&self, path: &Path) -> Result<()> {
         let checks = Checks(path);
         let bad = |field: &str, reason: String| checks.bad(field, reason);
-        checks.format_version(self.format_version)?;
-        checks.role(&self.role, ROLE)?;
-        let m = &self.model;
+        let m = self;
         checks.at_least_one(&[
             ("model.num_joints", m.num_joints),
             ("model.coords", m.coords),
@@ -200,10 +184,5 @@ impl PriorConfig {
         }
         checks.layer_norm_eps(m.layer_norm_eps)?;
         Ok(())
-    }
-
-    /// Serialises back to the JSON stored under `tcd_config`.
-    pub fn to_json(&self) -> String {
-        to_json(self)
     }
 }

@@ -108,12 +108,6 @@ pub fn dct_matrix(n: usize) -> Vec<f32> {
 impl Network for Prior {
     type Config = PriorConfig;
 
-    fn config(json: &str, path: &Path) -> Result<PriorConfig> {
-        let config = PriorConfig::from_json(json, path)?;
-        config.validate(path)?;
-        Ok(config)
-    }
-
     fn build(w: &mut Weights<'_>, config: PriorConfig, config_json: String) -> Result<Self> {
         let path = w.path().to_path_buf();
         let m = &config.model;
