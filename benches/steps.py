@@ -93,14 +93,10 @@ def configurations() -> list[dict]:
     return out
 
 
-def sampling_kw(cfg: dict) -> dict:
-    return dict(
-        sampler=cfg["sampler"],
-        steps=cfg["steps"],
-        eta=cfg["eta"],
-        spacing=cfg["timestep_spacing"],
-        noise_coupling=cfg["noise_coupling"],
-    )
+def sampler_of(cfg: dict) -> SamplerOptions:
+    """The sampler of one configuration of the sweep (its ``steps`` the sampler's ``num_inference_steps``)."""
+    fields = {k: v for k, v in cfg.items() if k in ("sampler", "eta", "timestep_spacing", "noise_coupling")}
+    return SamplerOptions(num_inference_steps=cfg["steps"], **fields)
 
 
 def load_windows(data_dir: str, per_action: int, mask_seed: int, actions=None) -> list[dict]:
@@ -125,7 +121,7 @@ def accuracy(model_arg, cfg: dict, windows: list[dict], samples: int, seed: int)
     mean_err, best_err, occ_err = {}, {}, {}
     rep_sum, rep_cnt = 0.0, 0
     for w in windows:
-        kw = dict(samples=samples, seed=seed * 1000 + w["index"], **sampling_kw(cfg))
+        kw = dict(samples=samples, seed=seed * 1000 + w["index"], sampler=sampler_of(cfg))
         gt32 = w["gt32"]
         clean = tcd_engine_predict(model_arg, w["obs"], np.ones(w["obs"].shape[:3], np.float32), **kw)
         errs = np.stack([per_frame_error(model_to_xyz32(s, gt32), gt32) for s in clean["samples"]])  # (S, W, 25)

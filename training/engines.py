@@ -46,18 +46,17 @@ def tcd_predict(
     jmask: np.ndarray,
     *,
     samples: int,
-    steps: int | None,
-    sampler: str,
-    eta: float,
-    spacing: str,
+    sampler,
     seed: int,
     device: str,
     batch_size: int = 16,
     horizon: int = 25,  # the Human3.6M protocol's (training.evaluate.PRED)
-    noise_coupling: str = "independent",
 ) -> dict:
-    """Cascade forecast for windows obs (W, O, J, 3) metres (Human3.6M: O = 50) with joint mask (W, O, J).
-    Returns samples (S, W, horizon, J, 3) and the repaired observation (W, O, J, 3) (mean of short-term samples)."""
+    """Cascade forecast for windows obs (W, O, J, 3) metres (Human3.6M: O = 50) with joint mask (W, O, J), sampled
+    by ``sampler`` (a ``tcd.SamplerOptions``: :func:`sampler_of`). Returns samples (S, W, horizon, J, 3) and the
+    repaired observation (W, O, J, 3) (mean of short-term samples)."""
+    import dataclasses
+
     from .diffusion import cascade
 
     short_m, short_s, short_cfg = models["short"]
@@ -86,11 +85,7 @@ def tcd_predict(
             long_len=long_len,
             num_samples=samples,
             generator=gen,
-            sampler=sampler,
-            num_inference_steps=steps,
-            eta=eta,
-            timestep_spacing=spacing,
-            noise_coupling=noise_coupling,
+            **dataclasses.asdict(sampler),
         )
         outs.append(from_bkl(res["samples"][..., obs_len:]))
         reps.append(from_bkl(res["short_mean"][..., :obs_len]))
@@ -103,13 +98,9 @@ def tcd_engine_predict(
     jmask: np.ndarray,
     *,
     samples: int,
-    steps: int | None,
-    sampler: str,
-    eta: float,
-    spacing: str,
+    sampler,
     seed: int,
     mode=None,
-    noise_coupling: str = "independent",
 ) -> dict:
     """The same cascade through the Rust engine (``tcd``): fast on the CPU, in parity with the reference.
     Missing entries are passed as NaN; ``mode``: ``tcd.TCD.forecast``'s (None: the directory's)."""
@@ -120,13 +111,25 @@ def tcd_engine_predict(
     f = model.forecast(
         x,
         num_samples=samples,
-        sampler=tcd.SamplerOptions(
-            num_inference_steps=steps, sampler=sampler, eta=eta, timestep_spacing=spacing, noise_coupling=noise_coupling
-        ),
+        sampler=sampler,
         seed=int(seed),
         mode=mode,
     )
     return {"samples": np.asarray(f.samples, np.float64), "repaired": np.asarray(f.repaired, np.float64)}
+
+
+def sampler_of(args):
+    """The sampler of a run (``tcd.SamplerOptions``), both engines': --sampler, --steps, --eta, --timestep-spacing
+    and :func:`noise_coupling_of`."""
+    import tcd
+
+    return tcd.SamplerOptions(
+        sampler=args.sampler,
+        num_inference_steps=args.steps,
+        eta=args.eta,
+        timestep_spacing=args.timestep_spacing,
+        noise_coupling=noise_coupling_of(args),
+    )
 
 
 def mode_of(args):

@@ -40,7 +40,15 @@ import numpy as np
 import torch
 
 from .data.h36m import DEFAULT_DATA_ROOT, H36M, model_to_xyz32, xyz32_to_model
-from .engines import joint_to_coord_mask, mode_of, noise_coupling_of, tcd_engine_predict, tcd_predict, tempo_run
+from .engines import (
+    joint_to_coord_mask,
+    mode_of,
+    noise_coupling_of,
+    sampler_of,
+    tcd_engine_predict,
+    tcd_predict,
+    tempo_run,
+)
 from .evaluate_humaneva import evaluate_humaneva, print_humaneva_table
 from .metrics import HORIZONS_MS, PUBLISHED_H36M, at_horizons, oracle_best, per_frame_error, repair_ade
 
@@ -134,6 +142,7 @@ def evaluate_h36m(args, models: dict | None = None, data: H36M | None = None, on
         models = load_model_dir(args.model, args.device)
     zv, zv_rep, best, mean, point = {}, {}, {}, {}, {}
     coupling = noise_coupling_of(args)
+    sampler = sampler_of(args) if models is not None else None
     rep_sum, rep_cnt = 0.0, 0
     t0 = time.time()
     for ai, action in enumerate(actions):
@@ -147,15 +156,7 @@ def evaluate_h36m(args, models: dict | None = None, data: H36M | None = None, on
             pred = prior_predict(args, obs, jmask, seed=args.seed * 1000 + ai)
             point[action] = per_frame_error(model_to_xyz32(pred, gt32), gt32).mean(axis=0)
         if models is not None:
-            kw = dict(
-                samples=args.samples,
-                steps=args.steps,
-                sampler=args.sampler,
-                eta=args.eta,
-                spacing=args.timestep_spacing,
-                seed=args.seed * 1000 + ai,
-                noise_coupling=coupling,
-            )
+            kw = dict(samples=args.samples, sampler=sampler, seed=args.seed * 1000 + ai)
             if args.engine == "tcd":
                 res = tcd_engine_predict(args.model, obs, jmask, mode=mode_of(args), **kw)
             else:

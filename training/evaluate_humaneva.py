@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .engines import generator_share_of, mode_of, noise_coupling_of, tcd_predict, tempo_run
+from .engines import generator_share_of, mode_of, noise_coupling_of, sampler_of, tcd_predict, tempo_run
 
 
 HE_OBS, HE_PRED = 15, 60  # HumanEva-I: 15 observed -> 60 predicted frames at 60 Hz
@@ -36,7 +36,7 @@ def humaneva_model_samples(args, obs: np.ndarray, log=lambda m: None) -> np.ndar
     W = len(obs)
     outs = []
     t0 = time.time()
-    coupling = noise_coupling_of(args)
+    sampler = sampler_of(args)
     if args.engine == "tcd":
         import tcd
 
@@ -67,13 +67,7 @@ def humaneva_model_samples(args, obs: np.ndarray, log=lambda m: None) -> np.ndar
             f = model.forecast(
                 x,
                 num_samples=args.samples,
-                sampler=tcd.SamplerOptions(
-                    num_inference_steps=args.steps,
-                    sampler=args.sampler,
-                    eta=args.eta,
-                    timestep_spacing=args.timestep_spacing,
-                    noise_coupling=coupling,
-                ),
+                sampler=sampler,
                 seed=seed,
                 mode=mode,
             )
@@ -84,15 +78,11 @@ def humaneva_model_samples(args, obs: np.ndarray, log=lambda m: None) -> np.ndar
                 x,
                 np.ones(x.shape[:3], np.float32),
                 samples=args.samples,
-                steps=args.steps,
-                sampler=args.sampler,
-                eta=args.eta,
-                spacing=args.timestep_spacing,
+                sampler=sampler,
                 seed=seed,
                 device=args.device,
                 batch_size=len(x),
                 horizon=HE_PRED,
-                noise_coupling=coupling,
             )
             outs.append(res["samples"])
         log(f"[{min(b0 + args.batch_size, W)}/{W} windows] {args.samples} samples each, {time.time() - t0:.0f} s")
