@@ -73,7 +73,9 @@ def test_fps_resampled_and_back(tiny_model, tmp_path, monkeypatch):
     x[rng.random((201, 22)) < 0.2] = np.nan
     x[100:111] = np.nan
     np.savez(tmp_path / "in.npz", poses=x)
-    tcd.repair_file(tmp_path / "in.npz", tmp_path / "out50.npz", tiny_model, fps=50, **FAST_KW)
+    tcd.repair_file(
+        tmp_path / "in.npz", tmp_path / "out50.npz", tiny_model, capture=tcd.Capture("h36m22", fps=50), **FAST_KW
+    )
     assert seen_frames == [101]  # 4 s at 25 fps
     got = load_npz(tmp_path / "out50.npz")
     seen = ~np.isnan(x)
@@ -81,7 +83,9 @@ def test_fps_resampled_and_back(tiny_model, tmp_path, monkeypatch):
     assert np.array_equal(got["poses"][seen], x[seen])
     assert json.loads(str(got["provenance"]))["fps"] == 50.0
     # at the model's rate (explicitly or by default) nothing is resampled
-    tcd.repair_file(tmp_path / "in.npz", tmp_path / "out25.npz", tiny_model, fps=25, **FAST_KW)
+    tcd.repair_file(
+        tmp_path / "in.npz", tmp_path / "out25.npz", tiny_model, capture=tcd.Capture("h36m22", fps=25), **FAST_KW
+    )
     tcd.repair_file(tmp_path / "in.npz", tmp_path / "outd.npz", tiny_model, **FAST_KW)
     assert seen_frames[1:] == [201, 201]
     assert np.array_equal(load_npz(tmp_path / "out25.npz")["poses"], load_npz(tmp_path / "outd.npz")["poses"])
@@ -109,7 +113,14 @@ def test_cli_fps_and_units(tiny_model_dir, tmp_path, capsys):
         capsys,
     )
     assert code == 0, err
-    tcd.repair_file(tmp_path / "in.npz", tmp_path / "api.npz", tiny_model_dir, fps=30, units="mm", **FAST_KW)
+    tcd.repair_file(
+        tmp_path / "in.npz",
+        tmp_path / "api.npz",
+        tiny_model_dir,
+        capture=tcd.Capture("h36m22", fps=30),
+        units="mm",
+        **FAST_KW,
+    )
     a, b = load_npz(tmp_path / "out" / "in.npz"), load_npz(tmp_path / "api.npz")
     assert np.array_equal(a["poses"], b["poses"])
     prov = json.loads(str(a["provenance"]))

@@ -314,7 +314,12 @@ def test_repair_file_and_tcd_repair_with_a_layout(tiny_model_dir, tmp_path, caps
     kw = dict(num_samples=1, sampler=SamplerOptions(num_inference_steps=2, sampler="ddim"))
     tcd_repair_file = __import__("tcd").repair_file
     tcd_repair_file(
-        tmp_path / "take.npz", tmp_path / "api.npz", tiny_model_dir, fps=50, units="mm", layout="h36m17", up="z", **kw
+        tmp_path / "take.npz",
+        tmp_path / "api.npz",
+        tiny_model_dir,
+        capture=Capture("h36m17", fps=50, up="z"),
+        units="mm",
+        **kw,
     )
     with np.load(tmp_path / "api.npz") as z:
         out, prov = z["poses"], z["provenance"]

@@ -13,7 +13,9 @@ from typing import Any, Dict, Iterator, Optional, Tuple
 
 from ..exceptions import InvalidInputError, WeightsError
 from .._model import TCD, load
+from ..layouts import LAYOUTS
 from .._sampler import COUPLINGS, SAMPLERS, SPACINGS, SamplerOptions
+from .._wild_calls import Capture
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
@@ -133,6 +135,30 @@ def add_sampler_flags(p: argparse.ArgumentParser, *, tuning: bool = True) -> Non
             help="how the samples of a sequence share their starting noise: centered (they sum to "
             f"zero) or independent (default: the model's, else {d.noise_coupling})",
         )
+
+
+def add_capture_flags(p: argparse.ArgumentParser, what: str, fps_help: str) -> None:
+    """--layout, --fps and --up: how ``what`` (the poses, the inputs) were captured (:func:`capture_of`)."""
+    p.add_argument(
+        "--layout",
+        default=None,
+        choices=tuple(LAYOUTS),
+        help=f"joint layout of {what} (default: the model's own, root-relative); with another "
+        "layout, world or camera coordinates are accepted (see --up)",
+    )
+    p.add_argument("--fps", type=float, default=None, metavar="F", help=fps_help)
+    p.add_argument(
+        "--up",
+        default="y",
+        choices=("x", "y", "z", "-x", "-y", "-z"),
+        help=f"the vertical axis of {what}' coordinates (default y)",
+    )
+
+
+def capture_of(layout: Optional[str], fps: Optional[float], up: str) -> Optional[Capture]:
+    """The ``tcd.Capture`` of the --layout, --fps and --up flags: None (the model's own layout and rate) where
+    neither --layout nor --fps is given."""
+    return None if layout is None and fps is None else Capture(layout or "h36m22", fps=fps, up=up)
 
 
 def sampler_changes(args: argparse.Namespace) -> Dict[str, Any]:

@@ -11,17 +11,17 @@ import numpy as np
 
 from .._mixture import Mixture
 from .._tempo import Tempo
-from .._wild_calls import Capture
 from ..exceptions import InvalidInputError
 from .._files import UnreadableFile, read_pose_npz, write_npz_atomic
-from ..layouts import LAYOUTS
 from .._poses import UNIT_SCALE
 from .common import (
     EXIT_OK,
     OPTION_FLAGS,
     _BadInput,
+    add_capture_flags,
     add_model_flag,
     add_sampler_flags,
+    capture_of,
     flag_message,
     load_model,
     output_exists,
@@ -88,22 +88,7 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
     add_sampler_flags(p)
     p.add_argument("--seed", type=int, default=None, help="noise seed (default: random, recorded in OUT)")
     p.add_argument("--units", default="m", choices=tuple(UNIT_SCALE), help="units of the poses: m (default), cm or mm")
-    p.add_argument(
-        "--layout",
-        default=None,
-        choices=tuple(LAYOUTS),
-        help="joint layout of the poses (default: the model's own, root-relative); with another "
-        "layout, world or camera coordinates are accepted (see --up)",
-    )
-    p.add_argument(
-        "--fps", type=float, default=None, metavar="F", help="frame rate of the poses (default: the model's)"
-    )
-    p.add_argument(
-        "--up",
-        default="y",
-        choices=("x", "y", "z", "-x", "-y", "-z"),
-        help="the vertical axis of the poses' coordinates (default y)",
-    )
+    add_capture_flags(p, "the poses", "frame rate of the poses (default: the model's)")
     p.add_argument(
         "--tempo",
         type=float,
@@ -182,7 +167,7 @@ def run(args: argparse.Namespace) -> int:
     call = model.predict if args.point else model.forecast
     sampler = model.sampler_options("repair" if args.point else "forecast", **changes)
     try:
-        capture = None if layout is None and fps is None else Capture(layout or "h36m22", fps=fps, up=args.up)
+        capture = capture_of(layout, fps, args.up)
         if args.point:
             extra: Dict[str, Any] = {"fill": args.fill}
         elif args.tempo is not None:

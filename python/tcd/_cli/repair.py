@@ -8,7 +8,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ..layouts import LAYOUTS
 from .._poses import UNIT_SCALE
 from .._native import __version__
 from .._repair.inputs import peek_frames
@@ -28,8 +27,10 @@ from .common import (
     EXIT_OK,
     OPTION_FLAGS,
     _BadInput,
+    add_capture_flags,
     add_model_flag,
     add_sampler_flags,
+    capture_of,
     flag_message,
     load_model,
     sampler_changes,
@@ -75,26 +76,11 @@ def add_parser(sub: Any) -> Any:
         choices=tuple(UNIT_SCALE),
         help="units of the poses: m (default), cm or mm (outputs in the same units)",
     )
-    rp.add_argument(
-        "--fps",
-        type=float,
-        default=None,
-        metavar="F",
-        help="frame rate of the inputs (default: the model's; 50 for exp-map .txt); other rates are "
+    add_capture_flags(
+        rp,
+        "the inputs",
+        "frame rate of the inputs (default: the model's; 50 for exp-map .txt); other rates are "
         "resampled to the model's and back",
-    )
-    rp.add_argument(
-        "--layout",
-        default=None,
-        choices=tuple(LAYOUTS),
-        help="joint layout of the inputs (default: the model's own, root-relative); with another "
-        "layout, world or camera coordinates are accepted (see --up)",
-    )
-    rp.add_argument(
-        "--up",
-        default="y",
-        choices=("x", "y", "z", "-x", "-y", "-z"),
-        help="the vertical axis of the inputs' coordinates (default y)",
     )
     add_sampler_flags(rp, tuning=False)
     rp.add_argument(
@@ -181,12 +167,10 @@ def run(args: Any) -> int:
             num_samples=args.samples,
             seed=args.seed,
             units=args.units,
-            fps=args.fps,
+            capture=capture_of(args.layout, args.fps, args.up),
             overlap=args.overlap,
             lookahead=args.lookahead,
             threads=args.jobs,
-            layout=args.layout,
-            up=args.up,
         )
     except _BadInput as e:
         return bad(str(e))

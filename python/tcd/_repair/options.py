@@ -12,9 +12,8 @@ from .. import _checks
 from .._poses import check_units
 from .._native import __version__
 from ..engine import Denoiser
-from ..layouts import get_layout
 from .._sampler import SamplerOptions, checked as checked_sampler
-from ..wild import up_vector
+from .._wild_calls import Capture
 
 PathLike = Union[str, "os.PathLike[str]"]
 
@@ -26,7 +25,7 @@ INPUT_SUFFIXES = (".npz", ".txt", ".bvh")
 
 
 #: the keywords of :meth:`RepairOptions.make` besides ``sampler`` (those of :func:`repair_file` it reads)
-_MAKE_KEYWORDS = frozenset({"num_samples", "seed", "units", "fps", "overlap", "lookahead", "threads", "layout", "up"})
+_MAKE_KEYWORDS = frozenset({"num_samples", "seed", "units", "capture", "overlap", "lookahead", "threads"})
 
 
 class BadFile(Exception):
@@ -42,12 +41,27 @@ class RepairOptions:
     sampling: SamplerOptions = SamplerOptions()
     seed: int = DEFAULT_SEED
     units: str = "m"
-    fps: Optional[float] = None
     overlap: int = DEFAULT_OVERLAP
     lookahead: int = DEFAULT_LOOKAHEAD
     threads: Optional[int] = None
-    layout: str = "h36m22"  # the inputs' joint layout (tcd.layouts); others are converted (tcd.wild)
-    up: str = "y"  # the inputs' vertical axis, for layouts other than the model's
+    #: how the inputs were captured (``None``: the model's layout, at their own or the model's rate); layouts other
+    #: than the model's are converted (tcd.wild), other rates resampled
+    capture: Optional[Capture] = None
+
+    @property
+    def fps(self) -> Optional[float]:
+        """The inputs' frame rate where the capture gives one (None: each file's own, else the model's)."""
+        return None if self.capture is None else self.capture.fps
+
+    @property
+    def layout(self) -> str:
+        """The inputs' joint layout (tcd.layouts)."""
+        return "h36m22" if self.capture is None else self.capture.layout
+
+    @property
+    def up(self) -> str:
+        """The inputs' vertical axis (a name: :meth:`make` refuses a vector)."""
+        return "y" if self.capture is None else str(self.capture.up)
 
     @staticmethod
     def make(model: Any, *, sampler: Optional[SamplerOptions] = None, **kw: Any) -> "RepairOptions":
@@ -62,12 +76,17 @@ class RepairOptions:
         den = _denoiser(model)
         den.timesteps(sampling)  # the step count against the model, before any file is read
         seed = kw.get("seed", DEFAULT_SEED)
-        fps = kw.get("fps")
-        if fps is not None:
-            fps = _checks.frame_rate(fps)
-            if model.fps is None:
+        capture = kw.get("capture")
+        if capture is not None:
+            if not isinstance(capture, Capture):
+                raise _checks.fail("capture", "a tcd.Capture or None", type(capture).__name__)
+            if not isinstance(capture.up, str):
+                raise _checks.fail("up", "'x', 'y' or 'z' (optionally signed) for tcd repair", repr(capture.up))
+            if capture.fps is not None and model.fps is None:
                 raise _checks.fail(
-                    "fps", "None: the model does not record its frame rate, so inputs cannot be resampled", repr(fps)
+                    "fps",
+                    "None: the model does not record its frame rate, so inputs cannot be resampled",
+                    repr(capture.fps),
                 )
         overlap = _checks.integer("overlap", kw.get("overlap", DEFAULT_OVERLAP), 1, model.obs_len - 1)
         lookahead = _checks.integer("lookahead", kw.get("lookahead", DEFAULT_LOOKAHEAD), 0, model.obs_len - 1 - overlap)
@@ -88,20 +107,11 @@ class RepairOptions:
             sampling=sampling,
             seed=_checks.seed(DEFAULT_SEED if seed is None else seed),
             units=check_units(kw.get("units", "m")),
-            fps=fps,
             overlap=overlap,
             lookahead=lookahead,
             threads=_checks.threads(kw.get("threads")),
-            layout=get_layout(kw.get("layout") or "h36m22").name,
-            up=_checked_up(kw.get("up", "y")),
+            capture=capture,
         )
-
-
-def _checked_up(up: Any) -> str:
-    up_vector(up)  # the check; the name is what the options and the provenance keep
-    if not isinstance(up, str):
-        raise _checks.fail("up", "'x', 'y' or 'z' (optionally signed) for tcd repair", repr(up))
-    return up
 
 
 def _denoiser(model: Any) -> Denoiser:

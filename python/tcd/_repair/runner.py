@@ -18,6 +18,7 @@ from ..engine import repair_raw
 from ..exceptions import InvalidInputError
 from .._files import write_npz_atomic
 from .._sampler import SamplerOptions
+from .._wild_calls import Capture
 from .inputs import load_input, peek_frames
 from .options import (
     DEFAULT_FILES_PER_BATCH,
@@ -222,13 +223,11 @@ def repair_file(
     num_samples: Optional[int] = None,
     seed: Optional[int] = DEFAULT_SEED,
     units: str = "m",
-    fps: Optional[float] = None,
+    capture: Optional[Capture] = None,
     overlap: int = DEFAULT_OVERLAP,
     lookahead: int = DEFAULT_LOOKAHEAD,
     threads: Optional[int] = None,
     overwrite: bool = False,
-    layout: Optional[str] = None,
-    up: str = "y",
     sampler: Optional[SamplerOptions] = None,
 ) -> Dict[str, Any]:
     """Repairs the pose sequence in ``src`` (an ``.npz`` with ``poses`` (T, J, 3), NaN = missing, and an
@@ -238,8 +237,11 @@ def repair_file(
 
     Args:
         model: a :class:`tcd.TCD`, a model directory, or ``None`` for the bundled model.
-        fps: the input's frame rate (default: the model's, 50 for exp-map ``.txt``); other rates than
-            the model's are resampled to it and back.
+        capture: how the poses were captured, a :class:`tcd.Capture` (``None``: in the model's layout and
+            coordinates, at the file's own rate (50 for exp-map ``.txt``, a ``.bvh``'s) or else the model's): another
+            joint layout, in world or camera coordinates with ``up`` the vertical axis (``"x"``, ``"y"`` or ``"z"``,
+            optionally signed), is converted to the model's convention and back (:mod:`tcd.wild`); its ``fps``, the
+            input's frame rate, overrides the file's; rates other than the model's are resampled to it and back.
         overlap: frames shared by consecutive windows (the conditioning on already repaired frames).
         lookahead: trailing frames of each window (but the last) left to the next window, which generates
             them again seeing the frames after them.
@@ -247,8 +249,6 @@ def repair_file(
             (0, the repair fill alone, for the bundled model).
         seed: the noise seed (default 0): the same seed gives the same output.
         units: ``"m"``, ``"cm"`` or ``"mm"``, the units of the poses (and of the output).
-        layout, up: poses in another joint layout (:mod:`tcd.layouts`), in world or camera coordinates with
-            ``up`` the vertical axis: converted to the model's convention and back (:mod:`tcd.wild`).
         sampler: a :class:`tcd.SamplerOptions`; ``None`` the model's ``sampling["repair"]``.
         Others: as :meth:`tcd.TCD.repair`.
 
@@ -265,12 +265,10 @@ def repair_file(
         num_samples=num_samples,
         seed=seed,
         units=units,
-        fps=fps,
+        capture=capture,
         overlap=overlap,
         lookahead=lookahead,
         threads=threads,
-        layout=layout,
-        up=up,
     )
     s, d = Path(src), Path(dst)
     if same_path(s, d):
