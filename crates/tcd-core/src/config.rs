@@ -460,8 +460,14 @@ pub trait ModelBlock: Clone + Serialize + DeserializeOwned {
     /// What such a file holds, in the error refusing a file of another kind.
     const HOLDS: &'static str;
 
-    /// Checks the block's sizes for consistency (the file's version and role are checked before);
-    /// `path` names the file in errors.
+    /// The block's sizes beyond its frame's that must be at least 1, each with its field's name.
+    fn sizes(&self) -> Vec<(&'static str, usize)>;
+
+    /// Its frame: (num_joints, coords, num_features), the last their product.
+    fn frame(&self) -> (usize, usize, usize);
+
+    /// Checks the rest of the block for consistency (the file's version and role, [`ModelBlock::sizes`]
+    /// and [`ModelBlock::frame`] are checked before); `path` names the file in errors.
     fn validate(&self, path: &Path) -> Result<()>;
 }
 
@@ -475,6 +481,10 @@ impl<M: ModelBlock> FileConfig for ModelFile<M> {
         let checks = Checks(path);
         checks.format_version(self.format_version)?;
         checks.role(&self.role, M::ROLE)?;
+        let (num_joints, coords, num_features) = self.model.frame();
+        checks.at_least_one(&[("model.num_joints", num_joints), ("model.coords", coords)])?;
+        checks.at_least_one(&self.model.sizes())?;
+        checks.num_features(num_joints, coords, num_features)?;
         self.model.validate(path)
     }
 }

@@ -51,21 +51,25 @@ impl ModelBlock for GeneratorModelConfig {
     const ROLE: &'static str = ROLE;
     const HOLDS: &'static str = "the MLP sample generator";
 
+    fn sizes(&self) -> Vec<(&'static str, usize)> {
+        vec![
+            ("model.obs_len", self.obs_len),
+            ("model.pred_len", self.pred_len),
+            ("model.hidden", self.hidden),
+            ("model.layers", self.layers),
+            ("model.z_dim", self.z_dim),
+            ("model.coefs", self.coefs),
+        ]
+    }
+
+    fn frame(&self) -> (usize, usize, usize) {
+        (self.num_joints, self.coords, self.num_features)
+    }
+
     fn validate(&self, path: &Path) -> Result<()> {
         let checks = Checks(path);
         let bad = |field: &str, reason: String| checks.bad(field, reason);
         let m = self;
-        checks.at_least_one(&[
-            ("model.num_joints", m.num_joints),
-            ("model.coords", m.coords),
-            ("model.obs_len", m.obs_len),
-            ("model.pred_len", m.pred_len),
-            ("model.hidden", m.hidden),
-            ("model.layers", m.layers),
-            ("model.z_dim", m.z_dim),
-            ("model.coefs", m.coefs),
-        ])?;
-        checks.num_features(m.num_joints, m.coords, m.num_features)?;
         if m.coefs > m.pred_len {
             return Err(bad(
                 "model.coefs",

@@ -108,18 +108,22 @@ impl ModelBlock for PriorModelConfig {
     const ROLE: &'static str = ROLE;
     const HOLDS: &'static str = "the prior forecaster";
 
+    fn sizes(&self) -> Vec<(&'static str, usize)> {
+        vec![
+            ("model.obs_len", self.obs_len),
+            ("model.chunk", self.chunk),
+            ("model.blocks", self.blocks),
+        ]
+    }
+
+    fn frame(&self) -> (usize, usize, usize) {
+        (self.num_joints, self.coords, self.num_features)
+    }
+
     fn validate(&self, path: &Path) -> Result<()> {
         let checks = Checks(path);
         let bad = |field: &str, reason: String| checks.bad(field, reason);
         let m = self;
-        checks.at_least_one(&[
-            ("model.num_joints", m.num_joints),
-            ("model.coords", m.coords),
-            ("model.obs_len", m.obs_len),
-            ("model.chunk", m.chunk),
-            ("model.blocks", m.blocks),
-        ])?;
-        checks.num_features(m.num_joints, m.coords, m.num_features)?;
         if m.chunk > m.obs_len {
             return Err(bad(
                 "model.chunk",
