@@ -90,6 +90,34 @@ pub(crate) struct Call<'py, const N: usize> {
 }
 
 impl<'py> SamplingArgs<'py> {
+    /// The arguments of a call that samples at least once (`num_samples` >= 1).
+    pub(crate) fn new(
+        observed: PyReadonlyArrayDyn<'py, f32>,
+        mask: PyReadonlyArrayDyn<'py, f32>,
+        num_samples: i64,
+        options: SamplerOptions,
+        streams: Streams,
+        progress: Option<Bound<'py, PyAny>>,
+    ) -> Self {
+        SamplingArgs {
+            observed,
+            mask,
+            num_samples,
+            fill_alone: false,
+            options,
+            streams,
+            progress,
+        }
+    }
+
+    /// The same arguments of a repair, whose `num_samples` may be 0 (its fill alone).
+    pub(crate) fn fill_alone(self) -> Self {
+        SamplingArgs {
+            fill_alone: true,
+            ..self
+        }
+    }
+
     /// Checks every argument (see the module's documentation) and copies the arrays out of numpy.
     pub(crate) fn prepare<const N: usize>(
         self,

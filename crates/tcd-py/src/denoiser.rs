@@ -107,15 +107,7 @@ model_methods! {
             progress: Option<Bound<'py, PyAny>>,
         ) -> Result<Bound<'py, PyArrayDyn<f32>>> {
             let model = &self.inner;
-            let args = SamplingArgs {
-                observed,
-                mask,
-                num_samples,
-                fill_alone: false,
-                options,
-                streams,
-                progress,
-            };
+            let args = SamplingArgs::new(observed, mask, num_samples, options, streams, progress);
             let call = args.prepare(Window::Any, [(model, "noise", noise)])?;
             let out = call.run(py, |job, control| {
                 let [noise] = &job.noise;

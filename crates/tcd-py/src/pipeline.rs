@@ -43,15 +43,7 @@ pub(crate) fn cascade<'py>(
 ) -> Result<Bound<'py, PyDict>> {
     let (short, long) = (&*short.get().inner, &*long.get().inner);
     let prior = prior.map(|p| &*p.get().inner);
-    let args = SamplingArgs {
-        observed,
-        mask,
-        num_samples,
-        fill_alone: false,
-        options,
-        streams,
-        progress,
-    };
+    let args = SamplingArgs::new(observed, mask, num_samples, options, streams, progress);
     let stages = [
         (short, "noise_short", noise_short),
         (long, "noise_long", noise_long),
@@ -115,15 +107,8 @@ pub(crate) fn repair<'py>(
     let model = &model.get().inner;
     let fill = fill.map(|p| &*p.get().inner);
     let forecaster = forecaster.map(|p| &*p.get().inner);
-    let args = SamplingArgs {
-        observed,
-        mask,
-        num_samples,
-        fill_alone: true,
-        options,
-        streams,
-        progress,
-    };
+    let args =
+        SamplingArgs::new(observed, mask, num_samples, options, streams, progress).fill_alone();
     let call = args.prepare(Window::ObsLen("the model's"), [(model, "noise", noise)])?;
     let out = call.run(py, |job, control| {
         let [noise] = &job.noise;
