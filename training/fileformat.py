@@ -106,9 +106,17 @@ def save_model_file(path: str | Path, model: torch.nn.Module, config: dict) -> N
     save_file(tensors, str(path), metadata={CONFIG_KEY: json.dumps(config)})
 
 
-def read_config(path: str | Path) -> dict:
+def read_config(path: str | Path, role: str | None = None, what: str = "") -> dict:
+    """The ``tcd_config`` of a weight file; with ``role``, refused (``ValueError``) unless the file is a ``what``
+    file of that role and of this format version."""
     with safe_open(str(path), framework="pt") as f:
         meta = f.metadata() or {}
     if CONFIG_KEY not in meta:
         raise ValueError(f"{path}: no '{CONFIG_KEY}' entry in the safetensors metadata")
-    return json.loads(meta[CONFIG_KEY])
+    cfg = json.loads(meta[CONFIG_KEY])
+    if role is not None and (cfg.get("format_version") != FORMAT_VERSION or cfg.get("role") != role):
+        raise ValueError(
+            f"{path}: not a {what} file of format_version {FORMAT_VERSION} "
+            f"(role {cfg.get('role')!r}, format_version {cfg.get('format_version')!r})"
+        )
+    return cfg

@@ -156,12 +156,7 @@ def load_generator_file(path: str | Path) -> tuple[Generator, dict]:
     """(:class:`Generator` in eval mode, its config) from a generator file, loaded strictly."""
     from safetensors.torch import load_file
 
-    cfg = read_config(path)
-    if cfg.get("format_version") != FORMAT_VERSION or cfg.get("role") != GENERATOR_ROLE:
-        raise ValueError(
-            f"{path}: not a generator file of format_version {FORMAT_VERSION} "
-            f"(role {cfg.get('role')!r}, format_version {cfg.get('format_version')!r})"
-        )
+    cfg = read_config(path, GENERATOR_ROLE, "generator")
     m = cfg["model"]
     gen = Generator(
         m["num_features"],

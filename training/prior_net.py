@@ -406,12 +406,7 @@ def load_prior_file(path: str | Path):
     """(``training.prior.PriorNet`` in eval mode, its config) from a prior file, loaded strictly."""
     from safetensors.torch import load_file
 
-    cfg = read_config(path)
-    if cfg.get("format_version") != FORMAT_VERSION or cfg.get("role") != PRIOR_ROLE:
-        raise ValueError(
-            f"{path}: not a prior file of format_version {FORMAT_VERSION} "
-            f"(role {cfg.get('role')!r}, format_version {cfg.get('format_version')!r})"
-        )
+    cfg = read_config(path, PRIOR_ROLE, "prior")
     m = cfg["model"]
     if m["coords"] != 3 or m["num_features"] != 3 * m["num_joints"]:
         raise ValueError(f"{path}: PriorNet takes 3 coordinates per joint, got {m}")
