@@ -33,6 +33,7 @@ mod config;
 mod control;
 mod denoiser;
 mod error;
+mod file_config;
 mod fill;
 mod generator;
 mod kernels;
@@ -49,10 +50,11 @@ mod weights;
 
 // Models and their files.
 pub use config::{
-    CondFill, DataConfig, DiffusionConfig, FileConfig, ModelBlock, ModelConfig, ModelFile,
-    PredictionType, Role, Target, TcdConfig, VarianceType, WindowConfig, FORMAT_VERSION,
+    CondFill, DataConfig, DiffusionConfig, ModelConfig, PredictionType, Role, Target, TcdConfig,
+    VarianceType, WindowConfig, FORMAT_VERSION,
 };
 pub use denoiser::{Denoiser, Prepared, Workspace};
+pub use file_config::{FileConfig, ModelBlock, ModelFile};
 pub use generator::{Generator, GeneratorConfig, GeneratorModelConfig};
 pub use prior::{
     dct_matrix, inbetween_width, Anchor, GapFill, Prior, PriorConfig, PriorModelConfig,

@@ -15,8 +15,8 @@ use std::path::{Path, PathBuf};
 
 use safetensors::{Dtype, SafeTensors};
 
-use crate::config::FileConfig;
 use crate::error::{Error, Result};
+use crate::file_config::FileConfig;
 
 /// The `__metadata__` key that holds the JSON configuration.
 pub const CONFIG_KEY: &str = "tcd_config";

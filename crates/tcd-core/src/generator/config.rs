@@ -6,8 +6,8 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use crate::config::{Checks, ModelBlock, ModelFile, GENERATOR_ROLE as ROLE};
 use crate::error::Result;
+use crate::file_config::{Checks, ModelBlock, ModelFile, GENERATOR_ROLE as ROLE};
 
 /// Sizes of the generator's MLP (`training/generator.py`, `Generator`).
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]

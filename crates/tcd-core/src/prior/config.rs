@@ -6,8 +6,8 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use crate::config::{Checks, ModelBlock, ModelFile, PRIOR_ROLE as ROLE};
 use crate::error::Result;
+use crate::file_config::{Checks, ModelBlock, ModelFile, PRIOR_ROLE as ROLE};
 
 /// Sizes of the prior network (`training/prior.py`, `PriorNet`).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
