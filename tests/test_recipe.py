@@ -196,6 +196,22 @@ def test_an_unfinished_run_is_carried_and_restored(tmp_path, monkeypatch):
     assert sorted(state) == ["two"]
 
 
+def test_a_carry_after_a_finished_command_stage_keeps_the_trainer_weights_it_reads(tmp_path, monkeypatch):
+    """A trainer, then an export that finished, then a fit running: the carry holds the trainer's weights and
+    leaves the export to run again (its files are not carried)."""
+    monkeypatch.setattr(R, "CARRIED", tmp_path / "carried")
+    trainer = {"name": "one", "run": "prior", "config": {"iterations": 5}}
+    rec = write_recipe(tmp_path, [trainer, copy_stage("two", "a", "b"), copy_stage("three", "b", "c")])
+    run_dir = tmp_path / "run"
+    for name in ("one", "two"):
+        (run_dir / name).mkdir(parents=True)
+        (run_dir / name / "done.json").write_text(json.dumps({"stage": name, "cpu_hours": 0.5}))
+    (run_dir / "one" / "best.pt").write_bytes(b"weights")
+    dest = R.Runner(rec, run_dir).carry()
+    assert sorted(p.name for p in dest.iterdir()) == ["one.best.pt", "state.json"]
+    assert sorted(json.loads((dest / "state.json").read_text())) == ["one"]
+
+
 # ------------------------------------------------------------------------------------------ every recipe, smoked
 
 

@@ -372,7 +372,8 @@ class Runner:
             sdir = self.dir / s.name
             if (sdir / "done.json").is_file():
                 state[s.name] = {"done": json.loads((sdir / "done.json").read_text())}
-                last_done = sdir
+                if any(sdir.glob("*.pt")):  # weights a later stage reads; an export's or a fit's files are not
+                    last_done = sdir
                 continue
             if (sdir / "cost.json").is_file():
                 state[s.name] = {"cost": json.loads((sdir / "cost.json").read_text())}
@@ -382,10 +383,11 @@ class Runner:
         if last_done is not None:
             for f in sorted(last_done.glob("*.pt")):
                 shutil.copy2(f, dest / f"{last_done.name}.{f.name}")
-        # a finished command stage before the last finished one (an export, a fit) left files that are not carried:
-        # it runs again, where a later stage reads them
+        # a finished command stage without weights (an export, a fit) left files that are not carried: it runs again,
+        # from the weights carried, those of the last finished stage that has any
         modules = {s.name for s in self.recipe.stages + self.recipe.evaluate if s.run == "module"}
-        state = {k: v for k, v in state.items() if k not in modules or "done" not in v or k == last_done.name}
+        carried = None if last_done is None else last_done.name
+        state = {k: v for k, v in state.items() if k not in modules or "done" not in v or k == carried}
         (dest / "state.json").write_text(json.dumps(state, indent=1) + "\n")
         return dest
 
