@@ -162,8 +162,7 @@ impl<'py> SamplingArgs<'py> {
             .unwrap_or(frames);
         check_work(s, b, k, longest)?;
         let sampler = self.options.config();
-        let threads = self.streams.threads;
-        let (seed, streams) = seed_args(self.streams)?;
+        let (seed, streams) = seed_args(&self.streams)?;
         let blocks = stages
             .iter()
             .map(|(model, _, _)| noise_blocks(model, &sampler))
@@ -192,7 +191,7 @@ impl<'py> SamplingArgs<'py> {
                 mask: mask.data,
                 noise,
             },
-            threads: threads_arg(threads)?,
+            threads: threads_arg(self.streams.threads)?,
             progress: self.progress,
         })
     }
@@ -230,10 +229,10 @@ impl StreamIds {
 }
 
 /// `seed`, and `first_sequence` xor `sequences`, as the engine takes them (also `Generator.sample`'s).
-pub(crate) fn seed_args(streams: Streams) -> CoreResult<(Option<u64>, StreamIds)> {
+pub(crate) fn seed_args(streams: &Streams) -> CoreResult<(Option<u64>, StreamIds)> {
     let seed = streams.seed.map(|v| u64_arg("seed", v)).transpose()?;
     let first = u64_arg("first_sequence", streams.first_sequence)?;
-    let ids = match streams.sequences {
+    let ids = match &streams.sequences {
         None => StreamIds::From(first),
         Some(_) if seed.is_none() => {
             return Err(invalid(
@@ -250,8 +249,8 @@ pub(crate) fn seed_args(streams: Streams) -> CoreResult<(Option<u64>, StreamIds)
             ))
         }
         Some(v) => StreamIds::Ids(
-            v.into_iter()
-                .map(|id| u64_arg("sequences", id))
+            v.iter()
+                .map(|&id| u64_arg("sequences", id))
                 .collect::<CoreResult<_>>()?,
         ),
     };

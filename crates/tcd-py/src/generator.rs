@@ -64,10 +64,9 @@ model_methods! {
             let prior = Array::from_numpy(&prior);
             prior.expect_shape("prior", &[b, p, k], "= (B, pred_len, K): the prior's forecast of each sequence")?;
             check_work(s, b, k, p)?;
-            let threads = streams.threads;
-            let (seed, streams) = seed_args(streams)?;
-            let noise = noise_source("noise", noise.as_ref(), seed, streams, &[s, b, z], "= (num_samples, B, z_dim)")?;
-            let threads = threads_arg(threads)?;
+            let (seed, ids) = seed_args(&streams)?;
+            let noise = noise_source("noise", noise.as_ref(), seed, ids, &[s, b, z], "= (num_samples, B, z_dim)")?;
+            let threads = threads_arg(streams.threads)?;
             let out = interruptible(py, None, threads, |control: &Control| {
                 model.sample(&obs.data, &prior.data, b, t, s, noise.as_noise(), control)
             })?;
