@@ -117,6 +117,14 @@ class TrainConfig:
             raise ValueError(f"{path}: unknown config keys {sorted(unknown)}")
         return cls(**{k: v for k, v in d.items() if k in known})
 
+    def _imle_count(self, name: str, counts: str) -> None:
+        """A count of the IMLE loss (imle_targets, imle_echo): at least 1, and above 1 only with imle_samples."""
+        value = getattr(self, name)
+        if value < 1 or (value > 1 and not self.imle_samples):
+            raise ValueError(
+                f"train config: {name} counts {counts}; it must be >= 1, and > 1 needs imle_samples > 0, got {value!r}"
+            )
+
     def __post_init__(self):
         if self.dataset not in DATASETS:
             raise ValueError(f"train config: dataset must be one of {DATASETS}, got {self.dataset!r}")
@@ -147,21 +155,13 @@ class TrainConfig:
                 "train config: imle_samples, imle_weight and imle_final_weight must be >= 0, got "
                 f"{self.imle_samples!r}, {self.imle_weight!r} and {self.imle_final_weight!r}"
             )
-        if self.imle_targets < 1 or (self.imle_targets > 1 and not self.imle_samples):
-            raise ValueError(
-                "train config: imle_targets counts the futures each window's IMLE loss covers; it must "
-                f"be >= 1, and > 1 needs imle_samples > 0, got {self.imle_targets!r}"
-            )
+        self._imle_count("imle_targets", "the futures each window's IMLE loss covers")
         if self.imle_targets > 1 and self.obs_len < 3:
             raise ValueError(
                 "train config: imle_targets > 1 draws futures of windows matched on their last 3 "
                 f"observed frames; obs_len is {self.obs_len}"
             )
-        if self.imle_echo < 1 or (self.imle_echo > 1 and not self.imle_samples):
-            raise ValueError(
-                "train config: imle_echo counts the optimizer steps of one batch's IMLE search; it "
-                f"must be >= 1, and > 1 needs imle_samples > 0, got {self.imle_echo!r}"
-            )
+        self._imle_count("imle_echo", "the optimizer steps of one batch's IMLE search")
         if self.imle_final_weight > 0 and not self.imle_samples:
             raise ValueError(
                 "train config: imle_final_weight weighs a term of the IMLE loss; it needs imle_samples > 0"

@@ -21,7 +21,8 @@ Pass ``noise`` for bit-exact parity tests, or a ``seed`` for the engine's seeded
 
 from __future__ import annotations
 
-from typing import Dict, List, Optional, Sequence
+import functools
+from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -118,18 +119,14 @@ class Denoiser(NativeModel[_native.Denoiser]):
         (one id per sequence). ``sampler``: a :class:`tcd.SamplerOptions`. ``progress``: ``True`` a tqdm bar on
         stderr, a callable ``f(done, total)`` the count of denoiser forwards about ten times a second (raising in it
         stops the call). Ctrl-C stops the call within about 0.1 s plus one forward (KeyboardInterrupt)."""
-        num_samples = _checks.machine_int("num_samples", num_samples)
-        o = checked(sampler)
-        with reporter(progress, "tcd sample") as callback:
-            return self._native.sample(
-                _checks.float32_array("observed", observed),
-                _checks.float32_array("mask", mask),
-                num_samples,
-                o,
-                noise=_checks.optional_float32_array("noise", noise),
-                streams=_checks.streams(seed, first_sequence, sequences, threads),
-                progress=callback,
-            )
+        return _chains(
+            self._native.sample,
+            "tcd sample",
+            (observed, mask, num_samples, sampler),
+            progress,
+            _checks.streams(seed, first_sequence, sequences, threads),
+            noise=_checks.optional_float32_array("noise", noise),
+        )
 
 
 def cascade_raw(
@@ -168,24 +165,16 @@ def cascade_raw(
             raise _checks.fail(name, "a tcd.engine.Denoiser", type(m).__name__)
     if prior is not None and not isinstance(prior, Prior):
         raise _checks.fail("prior", "a tcd.engine.Prior or None", type(prior).__name__)
-    num_samples = _checks.machine_int("num_samples", num_samples)
-    o = checked(sampler)
-    with reporter(progress, "tcd forecast") as callback:
-        return dict(
-            _native.cascade(
-                short._native,
-                long._native,
-                _checks.float32_array("observed", observed),
-                _checks.float32_array("mask", mask),
-                num_samples,
-                o,
-                noise_short=_checks.optional_float32_array("noise_short", noise_short),
-                noise_long=_checks.optional_float32_array("noise_long", noise_long),
-                streams=_checks.streams(seed, first_sequence, sequences, threads),
-                progress=callback,
-                prior=None if prior is None else prior._native,
-            )
-        )
+    return _chains(
+        functools.partial(_native.cascade, short._native, long._native),
+        "tcd forecast",
+        (observed, mask, num_samples, sampler),
+        progress,
+        _checks.streams(seed, first_sequence, sequences, threads),
+        noise_short=_checks.optional_float32_array("noise_short", noise_short),
+        noise_long=_checks.optional_float32_array("noise_long", noise_long),
+        prior=None if prior is None else prior._native,
+    )
 
 
 def repair_raw(
@@ -223,23 +212,43 @@ def repair_raw(
     for name, p in (("fill", fill), ("forecaster", forecaster)):
         if p is not None and not isinstance(p, Prior):
             raise _checks.fail(name, "a tcd.engine.Prior or None", type(p).__name__)
+    return _chains(
+        functools.partial(_native.repair, model._native),
+        "tcd repair",
+        (observed, mask, num_samples, sampler),
+        progress,
+        _checks.streams(seed, first_sequence, sequences, threads),
+        noise=_checks.optional_float32_array("noise", noise),
+        fill=None if fill is None else fill._native,
+        forecaster=None if forecaster is None else forecaster._native,
+    )
+
+
+def _chains(
+    run: Callable[..., Any],
+    desc: str,
+    call: Tuple[Any, Any, Any, Any],
+    progress: Progress,
+    streams: _native._Streams,
+    **rest: Any,
+) -> Any:
+    """Runs one of the binding's sampling calls (``run``: ``Denoiser.sample``, ``cascade`` or ``repair``, its
+    models bound) with the checks the three share: ``call`` is its (observed, mask, num_samples, sampler) as the
+    caller got them, ``progress`` shown as ``desc``; ``rest`` the call's own noise and models, already checked."""
+    observed, mask, num_samples, sampler = call
     num_samples = _checks.machine_int("num_samples", num_samples)
-    o = checked(sampler)
-    with reporter(progress, "tcd repair") as callback:
-        return dict(
-            _native.repair(
-                model._native,
-                _checks.float32_array("observed", observed),
-                _checks.float32_array("mask", mask),
-                num_samples,
-                o,
-                noise=_checks.optional_float32_array("noise", noise),
-                streams=_checks.streams(seed, first_sequence, sequences, threads),
-                progress=callback,
-                fill=None if fill is None else fill._native,
-                forecaster=None if forecaster is None else forecaster._native,
-            )
+    options = checked(sampler)
+    with reporter(progress, desc) as callback:
+        out = run(
+            _checks.float32_array("observed", observed),
+            _checks.float32_array("mask", mask),
+            num_samples,
+            options,
+            streams=streams,
+            progress=callback,
+            **rest,
         )
+    return dict(out) if isinstance(out, dict) else out
 
 
 def supported_kernels() -> List[str]:

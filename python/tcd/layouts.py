@@ -129,6 +129,9 @@ def _h36m22() -> Layout:
     )
 
 
+# The arms in the order h36m17 and humaneva15 both list them.
+_ARMS = ("left_shoulder", "left_elbow", "left_wrist", "right_shoulder", "right_elbow", "right_wrist")
+
 _H36M17_IDS = tuple(fk.skeleton()["joints_h36m_17"])  # 0,1,2,3,6,7,8,12,13,14,15,17,18,19,25,26,27
 H36M17 = Layout(
     "h36m17",
@@ -144,12 +147,7 @@ H36M17 = Layout(
         "thorax",
         "neck",
         "head",
-        "left_shoulder",
-        "left_elbow",
-        "left_wrist",
-        "right_shoulder",
-        "right_elbow",
-        "right_wrist",
+        *_ARMS,
     ),
     (-1, 0, 1, 2, 0, 4, 5, 0, 7, 8, 9, 8, 11, 12, 8, 14, 15),
     _H36M17_IDS,
@@ -224,12 +222,7 @@ HUMANEVA15 = Layout(
     (
         "pelvis",
         "thorax",
-        "left_shoulder",
-        "left_elbow",
-        "left_wrist",
-        "right_shoulder",
-        "right_elbow",
-        "right_wrist",
+        *_ARMS,
         "left_hip",
         "left_knee",
         "left_ankle",

@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from tcd.layouts import NAMES32  # the 32-joint skeleton's names: the package's, one list
+
 from .kinematics import SKELETON_PATH, fk_expmap
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -44,42 +46,6 @@ FPS = 25
 SOURCE_FPS = 50
 TEST_SEED = 1234567890
 
-# Names of the 32 skeleton joints (the HRI / LTD naming); the 22 used ones are the model layout.
-JOINT_NAMES_32 = (
-    "hip",
-    "right_hip",
-    "right_knee",
-    "right_ankle",
-    "right_toe",
-    "right_toe_site",
-    "left_hip",
-    "left_knee",
-    "left_ankle",
-    "left_toe",
-    "left_toe_site",
-    "spine",
-    "thorax",
-    "neck",
-    "head",
-    "head_site",
-    "left_shoulder_anchor",
-    "left_shoulder",
-    "left_elbow",
-    "left_wrist",
-    "left_wrist_dup",
-    "left_thumb",
-    "left_hand",
-    "left_hand_site",
-    "right_shoulder_anchor",
-    "right_shoulder",
-    "right_elbow",
-    "right_wrist",
-    "right_wrist_dup",
-    "right_thumb",
-    "right_hand",
-    "right_hand_site",
-)
-
 
 @lru_cache(maxsize=1)
 def skeleton() -> dict:
@@ -96,7 +62,7 @@ def joints_used() -> list[int]:
 
 
 def joint_names_22() -> list[str]:
-    return [JOINT_NAMES_32[j] for j in joints_used()]
+    return [NAMES32[j] for j in joints_used()]
 
 
 class H36MSource:

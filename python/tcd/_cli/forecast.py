@@ -14,24 +14,11 @@ from .._tempo import Tempo
 from ..exceptions import InvalidInputError
 from .._files import UnreadableFile, read_pose_npz, write_npz_atomic
 from .._poses import UNIT_SCALE
-from .common import (
-    EXIT_OK,
-    OPTION_FLAGS,
-    _BadInput,
-    add_capture_flags,
-    add_model_flag,
-    add_sampler_flags,
-    capture_of,
-    flag_message,
-    load_model,
-    output_exists,
-    sampler_changes,
-    writing,
-)
+from . import common
 
 # The arguments the input file sets, for the error messages.
 FLAGS = {
-    **OPTION_FLAGS,
+    **common.OPTION_FLAGS,
     "obs": "the `poses` array of the input file",
     "mask": "the `mask` array of the input file",
     "fps": "--fps",
@@ -64,7 +51,7 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
         required=True,
         help="output: mean, samples (not with --point), repaired, seed, times (s after the last observed frame)",
     )
-    add_model_flag(p)
+    common.add_model_flag(p)
     p.add_argument(
         "--point",
         action="store_true",
@@ -85,10 +72,10 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
         metavar="N",
         help="samples per sequence (default 5; with --point, of the repair)",
     )
-    add_sampler_flags(p)
+    common.add_sampler_flags(p)
     p.add_argument("--seed", type=int, default=None, help="noise seed (default: random, recorded in OUT)")
     p.add_argument("--units", default="m", choices=tuple(UNIT_SCALE), help="units of the poses: m (default), cm or mm")
-    add_capture_flags(p, "the poses", "frame rate of the poses (default: the model's)")
+    common.add_capture_flags(p, "the poses", "frame rate of the poses (default: the model's)")
     p.add_argument(
         "--tempo",
         type=float,
@@ -116,33 +103,33 @@ def _read_npz(path: Path) -> Dict[str, np.ndarray]:
     try:
         return read_pose_npz(path)
     except FileNotFoundError:
-        raise _BadInput(f"The input file {path} does not exist.") from None
+        raise common._BadInput(f"The input file {path} does not exist.") from None
     except UnreadableFile as e:
-        raise _BadInput(f"The input file {path} cannot be read: it is {e}.") from None
+        raise common._BadInput(f"The input file {path} cannot be read: it is {e}.") from None
 
 
 def _read_bvh(path: Path):
     from .._bvh import read_bvh_h36m32
 
     if not path.is_file():
-        raise _BadInput(f"The input file {path} does not exist.")
+        raise common._BadInput(f"The input file {path} does not exist.")
     try:
         poses, rate = read_bvh_h36m32(path)
     except (UnreadableFile, ImportError) as e:
-        raise _BadInput(f"The input file {path} cannot be read: {e}.") from None
+        raise common._BadInput(f"The input file {path} cannot be read: {e}.") from None
     return {"poses": poses}, rate
 
 
 def run(args: argparse.Namespace) -> int:
     out = Path(args.output)
     if out.exists() and not args.overwrite:
-        raise output_exists(out)
+        raise common.output_exists(out)
     if out.exists() and out.is_dir():
-        raise _BadInput(f"The output path {out} is a directory.")
+        raise common._BadInput(f"The output path {out} is a directory.")
     if not out.parent.is_dir():
-        raise _BadInput(f"The output directory {out.parent} does not exist.")
+        raise common._BadInput(f"The output directory {out.parent} does not exist.")
     if out.exists() and Path(args.input).exists() and out.samefile(args.input):
-        raise _BadInput(
+        raise common._BadInput(
             f"The output {out} is the input file: choose another output path (the input is never "
             "overwritten, with or without --overwrite)."
         )
@@ -150,24 +137,26 @@ def run(args: argparse.Namespace) -> int:
     if Path(args.input).suffix.lower() == ".bvh":
         data, file_fps = _read_bvh(Path(args.input))
         if layout not in (None, "h36m32"):
-            raise _BadInput(f"--layout {layout}: a BVH file is read as h36m32 joints (matched by name).")
+            raise common._BadInput(f"--layout {layout}: a BVH file is read as h36m32 joints (matched by name).")
         layout, fps = "h36m32", fps if fps is not None else file_fps
     else:
         data = _read_npz(Path(args.input))
-    changes = sampler_changes(args)
-    model = load_model(args.model)
+    changes = common.sampler_changes(args)
+    model = common.load_model(args.model)
     if args.point and model.prior is None:
-        raise _BadInput(f"--point: the model directory {model.path} has no prior.safetensors.")
+        raise common._BadInput(f"--point: the model directory {model.path} has no prior.safetensors.")
     if args.point and args.tempo is not None:
-        raise _BadInput("--tempo samples tempi of the diffusion forecast; --point forecasts one point forecast.")
+        raise common._BadInput("--tempo samples tempi of the diffusion forecast; --point forecasts one point forecast.")
     if args.tempo is not None and args.generator_share is not None:
-        raise _BadInput("--tempo and --generator-share name two forecast modes: pass one.")
+        raise common._BadInput("--tempo and --generator-share name two forecast modes: pass one.")
     if args.point and args.generator_share is not None:
-        raise _BadInput("--generator-share splits the samples of a forecast; --point forecasts one point forecast.")
+        raise common._BadInput(
+            "--generator-share splits the samples of a forecast; --point forecasts one point forecast."
+        )
     call = model.predict if args.point else model.forecast
     sampler = model.sampler_options("repair" if args.point else "forecast", **changes)
     try:
-        capture = capture_of(layout, fps, args.up)
+        capture = common.capture_of(layout, fps, args.up)
         if args.point:
             extra: Dict[str, Any] = {"fill": args.fill}
         elif args.tempo is not None:
@@ -187,14 +176,14 @@ def run(args: argparse.Namespace) -> int:
             **extra,
         )
     except InvalidInputError as e:
-        raise _BadInput(flag_message(e, FLAGS)) from None
+        raise common._BadInput(common.flag_message(e, FLAGS)) from None
     arrays = {"mean": f.mean, "repaired": f.repaired, "seed": np.uint64(f.seed)}
     if f.samples is not None:
         arrays["samples"] = f.samples
     if f.times is not None:
         arrays["times"] = f.times
-    with writing(out):
+    with common.writing(out):
         write_npz_atomic(out, args.overwrite, **arrays)
     shapes = ", ".join(f"{k} {v.shape}" for k, v in arrays.items() if k in ("mean", "samples", "repaired"))
     print(f"wrote {out}: {shapes}, seed {f.seed}")
-    return EXIT_OK
+    return common.EXIT_OK

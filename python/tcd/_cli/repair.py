@@ -21,25 +21,11 @@ from .._repair.options import (
 from .._repair.runner import Outcome, collect_tasks, run_tasks, same_path
 from ..exceptions import InvalidInputError
 from .._files import write_text_atomic
-from .common import (
-    EXIT_BAD_INPUT,
-    EXIT_FAILURE,
-    EXIT_OK,
-    OPTION_FLAGS,
-    _BadInput,
-    add_capture_flags,
-    add_model_flag,
-    add_sampler_flags,
-    capture_of,
-    flag_message,
-    load_model,
-    sampler_changes,
-    stopped,
-)
+from . import common
 
 # RepairOptions.make's arguments by the flag that sets each, for the error messages (--jobs sets threads).
 FLAGS = {
-    **OPTION_FLAGS,
+    **common.OPTION_FLAGS,
     "threads": "--jobs",
     "fps": "--fps",
     "overlap": "--overlap",
@@ -69,20 +55,20 @@ def add_parser(sub: Any) -> Any:
     )
     rp.add_argument("inputs", nargs="+", metavar="INPUT", help=".npz / .txt files or directories")
     rp.add_argument("-o", "--output", metavar="OUTDIR", required=True, help="output directory (created if needed)")
-    add_model_flag(rp)
+    common.add_model_flag(rp)
     rp.add_argument(
         "--units",
         default="m",
         choices=tuple(UNIT_SCALE),
         help="units of the poses: m (default), cm or mm (outputs in the same units)",
     )
-    add_capture_flags(
+    common.add_capture_flags(
         rp,
         "the inputs",
         "frame rate of the inputs (default: the model's; 50 for exp-map .txt); other rates are "
         "resampled to the model's and back",
     )
-    add_sampler_flags(rp, tuning=False)
+    common.add_sampler_flags(rp, tuning=False)
     rp.add_argument(
         "--samples",
         type=int,
@@ -146,7 +132,7 @@ def run(args: Any) -> int:
 
     def bad(msg: str) -> int:
         print(f"tcd repair: error: {msg}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+        return common.EXIT_BAD_INPUT
 
     out = Path(args.output)
     if out.exists() and not out.is_dir():
@@ -160,22 +146,22 @@ def run(args: Any) -> int:
     if args.report and any(same_path(Path(args.report), t.src) for t in tasks):
         return bad(f"the report {args.report} would overwrite an input.")
     try:
-        model = load_model(args.model)
+        model = common.load_model(args.model)
         opts = RepairOptions.make(
             model,
-            sampler=model.sampler_options("repair", **sampler_changes(args)),
+            sampler=model.sampler_options("repair", **common.sampler_changes(args)),
             num_samples=args.samples,
             seed=args.seed,
             units=args.units,
-            capture=capture_of(args.layout, args.fps, args.up),
+            capture=common.capture_of(args.layout, args.fps, args.up),
             overlap=args.overlap,
             lookahead=args.lookahead,
             threads=args.jobs,
         )
-    except _BadInput as e:
+    except common._BadInput as e:
         return bad(str(e))
     except InvalidInputError as e:
-        return bad(flag_message(e, FLAGS))
+        return bad(common.flag_message(e, FLAGS))
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:
@@ -228,7 +214,7 @@ def run(args: Any) -> int:
     except KeyboardInterrupt as e:  # Ctrl-C or SIGTERM
         if bar is not None:
             bar.close()
-        word, code = stopped(e)
+        word, code = common.stopped(e)
         print(f"tcd repair: {word}; finished outputs are complete, re-run the command to resume.", file=sys.stderr)
         return code
     finally:
@@ -271,11 +257,11 @@ def run(args: Any) -> int:
             write_text_atomic(Path(args.report), json.dumps(report, indent=2) + "\n")
         except OSError as e:
             print(f"tcd repair: error: cannot write the report {args.report}: {e}", file=sys.stderr)
-            return EXIT_FAILURE
+            return common.EXIT_FAILURE
     if not args.quiet:
         fps_txt = f", {summary['frames_per_second']} frames/s" if summary["frames_per_second"] else ""
         print(
             f"tcd repair: {count['repaired']} repaired, {count['skipped']} skipped, {count['failed']} failed "
             f"({frames} frames in {seconds:.1f} s{fps_txt}) -> {out}"
         )
-    return EXIT_FAILURE if count["failed"] else EXIT_OK
+    return common.EXIT_FAILURE if count["failed"] else common.EXIT_OK
