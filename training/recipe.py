@@ -21,7 +21,8 @@ A stage's strings may hold placeholders: ``{run}`` (the recipe's run directory),
 ``python/tcd``: the bundled file by default, that recipe's run output with ``--inputs runs``, run first where it has
 not), ``{recipe:NAME/STAGE}`` (another recipe's stage directory, for an input no bundled file holds: that recipe
 runs up to that stage first where it has not), ``{data}`` (the data
-root), ``{threads}`` and ``{device}``.
+root), ``{threads}``, ``{device}`` and ``{package}`` (``python/tcd``, whose ``weights*/`` are the bundled model
+directories). A trainer stage's ``"from"`` may also name another recipe's file by a placeholder, to fine-tune it.
 
     python -m training.recipe --list                      # each recipe and the files it produces
     python -m training.recipe NAME [--background] [--threads 1] [--device cuda] [--inputs bundled|runs]
@@ -147,6 +148,8 @@ class Runner:
                 return str(self.threads)
             if key == "device":
                 return self.device
+            if key == "package":  # python/tcd: its weights*/ are the bundled model directories
+                return str(PACKAGE)
             raise RecipeError(f"{self.recipe.path}: unknown placeholder {{{m.group(1)}}}")
 
         return re.sub(r"\{([a-z]+(?::[^{}]+)?)\}", sub, value)
@@ -194,7 +197,9 @@ class Runner:
     # one stage -------------------------------------------------------------------------------------------
     def stage_config(self, stage: Stage) -> dict:
         cfg = dict(self.resolve(stage.config))
-        if stage.init:
+        if stage.init.startswith("{"):  # another recipe's file: {input:...} or {recipe:...}/FILE
+            cfg["init_from"] = self.resolve(stage.init)
+        elif stage.init:
             src, _, file = stage.init.partition("/")
             cfg["init_from"] = str(self.dir / src / (file or LAST))
         if self.smoke:
@@ -335,7 +340,7 @@ class Runner:
             comparisons.append(
                 compare(
                     self.resolve(c["new"]),
-                    c["bundled"],
+                    self.resolve(c["bundled"]),
                     c.get("keys", ["average"]),
                     c.get("horizon", "1000"),
                     c.get("bundled_key"),
@@ -437,7 +442,7 @@ def smoke_overrides(run: str, cfg: dict) -> dict:
 
 def compare(new: str, bundled: str, keys: list, horizon: str, bundled_key: str | None) -> dict:
     """``training.compare``'s paired test of the reproduction's score against the bundled file's, per key."""
-    out = {"new": relative(new), "bundled": bundled, "keys": {}}
+    out = {"new": relative(new), "bundled": relative(bundled), "keys": {}}
     for key in keys:
         cmd = [sys.executable, "-m", "training.compare", new, bundled, "--key", key, "--horizon", horizon]
         if bundled_key:

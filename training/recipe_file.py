@@ -26,7 +26,9 @@ class Stage:
     name: str
     run: str  # "train" | "prior" (an inline config) | "module" (``module`` with ``args``)
     config: dict = field(default_factory=dict)
-    init: str = ""  # "from": an earlier stage ("s1" -> its last.pt, "s1/best.pt" -> that file)
+    # "from": an earlier stage ("s1" -> its last.pt, "s1/best.pt" -> that file), or a file named by a placeholder
+    # ("{input:weights/long.safetensors}": a model that another recipe produces, to fine-tune)
+    init: str = ""
     module: str = ""
     args: list = field(default_factory=list)
     smoke: dict = field(default_factory=dict)  # a module stage's "--flag": value replacements for --smoke
@@ -139,7 +141,7 @@ class Recipe:
         if len(set(names)) != len(names):
             raise RecipeError(f"{path}: stage names repeat: {names}")
         for i, s in enumerate(stages):
-            if s.init and s.init.split("/")[0] not in names[:i]:
+            if s.init and not s.init.startswith("{") and s.init.split("/")[0] not in names[:i]:
                 raise RecipeError(f"{path}: stage {s.name!r} starts from {s.init!r}, which is no earlier stage")
         return cls(
             name=d["name"],
