@@ -129,8 +129,9 @@ def _h36m22() -> Layout:
     )
 
 
-# The arms in the order h36m17 and humaneva15 both list them.
+# The arms as the layouts list them: side by side (h36m17, humaneva15) and in left / right pairs (smpl24, coco17).
 _ARMS = ("left_shoulder", "left_elbow", "left_wrist", "right_shoulder", "right_elbow", "right_wrist")
+_ARMS_PAIRED = ("left_shoulder", "right_shoulder", "left_elbow", "right_elbow", "left_wrist", "right_wrist")
 
 _H36M17_IDS = tuple(fk.skeleton()["joints_h36m_17"])  # 0,1,2,3,6,7,8,12,13,14,15,17,18,19,25,26,27
 H36M17 = Layout(
@@ -172,12 +173,7 @@ SMPL24 = Layout(
         "left_collar",
         "right_collar",
         "head",
-        "left_shoulder",
-        "right_shoulder",
-        "left_elbow",
-        "right_elbow",
-        "left_wrist",
-        "right_wrist",
+        *_ARMS_PAIRED,
         "left_hand",
         "right_hand",
     ),
@@ -195,12 +191,7 @@ COCO17 = Layout(
         "right_eye",
         "left_ear",
         "right_ear",
-        "left_shoulder",
-        "right_shoulder",
-        "left_elbow",
-        "right_elbow",
-        "left_wrist",
-        "right_wrist",
+        *_ARMS_PAIRED,
         "left_hip",
         "right_hip",
         "left_knee",
