@@ -86,6 +86,15 @@ def _same(a, b) -> bool:
         return str(a) == str(b)
 
 
+def _dataset(protocol: str) -> str:
+    """The ``protocol.dataset`` a ``training.evaluate --protocol PROTOCOL`` result names."""
+    if protocol == "h36m":
+        return "h36m"
+    from training.evaluate_stochastic import dataset_of
+
+    return dataset_of(protocol).dataset
+
+
 def mismatches(argv: list[str], d: dict, windows_per_action: int, max_windows: int | None) -> list[str]:
     """How a ``training.evaluate --json`` result ``d`` differs from the run ``argv`` would make (empty: it is
     that run): the model or prior, the protocol, the mask, the sampling options given and the window count."""
@@ -96,13 +105,13 @@ def mismatches(argv: list[str], d: dict, windows_per_action: int, max_windows: i
             bad.append(f"{what} is {got!r}, the table asks for {want!r}")
 
     proto = d.get("protocol", {})
-    humaneva = f.get("--protocol") == "humaneva"
-    check("protocol.dataset", proto.get("dataset"), "humaneva-i" if humaneva else "h36m")
+    stochastic = f.get("--protocol", "h36m") != "h36m"
+    check("protocol.dataset", proto.get("dataset"), _dataset(f.get("--protocol", "h36m")))
     if "--model" in f:
         check("method", d.get("method"), f"tcd {f['--model']}")
     if "--prior" in f:
         check("method", d.get("method"), f"prior {f['--prior']}")
-    if humaneva:
+    if stochastic:
         check("protocol.windows", proto.get("windows"), max_windows or proto.get("windows_in_protocol"))
     else:
         check("protocol.mask", proto.get("mask"), f.get("--mask", "none"))
@@ -144,8 +153,7 @@ class Runner:
         """Run ``name``: ``python -m training.evaluate ARGV`` with this table's window count, or its --from file."""
         if name in self.records:
             raise PaperError(f"run {name!r} asked for twice")
-        humaneva = _flags(argv).get("--protocol") == "humaneva"
-        if humaneva:
+        if _flags(argv).get("--protocol", "h36m") != "h36m":
             argv = argv + (["--max-windows", str(self.max_windows)] if self.max_windows else [])
         else:
             argv = argv + ["--windows-per-action", str(self.windows_per_action)]

@@ -46,3 +46,55 @@ def test_the_test_windows_and_zero_velocity_on_them():
     assert err.mean() == pytest.approx(0.563, abs=5e-4) and err[:, -1].mean() == pytest.approx(0.834, abs=5e-4)
     with pytest.raises(FileNotFoundError, match="subjects"):
         A.setting_a_sequences(subjects=(99,), data_dir=H36M_DIR)
+
+
+def test_multimodal_sets_are_dlow_s_without_copies():
+    """MultimodalSets holds indices; each set equals training.data.humaneva.multimodal_gt's copy."""
+    from training.data.humaneva import multimodal_gt
+    from training.evaluate_stochastic import MultimodalSets
+
+    rng = np.random.default_rng(0)
+    wins = rng.normal(scale=0.2, size=(40, 9, 2, 3))
+    sets, want = MultimodalSets(wins, 4), multimodal_gt(wins, 4)
+    assert len(sets) == 40 and list(sets.sizes()) == [len(w) for w in want] and sets.sizes().max() > 1
+    for i in range(40):
+        np.testing.assert_array_equal(sets[i], want[i])
+
+
+def test_the_multimodal_metrics_in_one_pass_equal_the_definitions():
+    from training.stochastic import _multimodal, mmade, mmfde
+
+    rng = np.random.default_rng(1)
+    pred, multi = rng.normal(size=(7, 5, 6)), rng.normal(size=(37, 5, 6))  # 37: more than one chunk of 16
+    got = _multimodal(pred, multi)
+    assert got[0] == pytest.approx(mmade(pred, multi), rel=1e-12) and got[1] == pytest.approx(
+        mmfde(pred, multi), rel=1e-12
+    )
+    with pytest.raises(ValueError, match="does not match"):
+        _multimodal(pred, multi[:, :4])
+
+
+@needs_h36m
+def test_the_setting_a_protocol_scores_zero_velocity(tmp_path):
+    """python -m training.evaluate --protocol h36m-a: Setting-A's block, its published rows, Zero-Velocity on a few
+    windows (their multimodal sets from all 4,313), and a model of another protocol refused by name."""
+    import json
+
+    from training import evaluate
+
+    out = tmp_path / "a.json"
+    argv = ["--protocol", "h36m-a", "--data", str(H36M_DIR), "--max-windows", "12", "--quiet"]
+    assert evaluate.main(argv + ["--baseline", "zero-velocity", "--json", str(out)]) == 0
+    r = json.loads(out.read_text())
+    p = r["protocol"]
+    assert (p["dataset"], p["split"], p["t_his"], p["t_pred"], p["fps"]) == ("h36m-setting-a", "S9+S11", 25, 100, 50)
+    assert p["windows"] == 12 and p["windows_in_protocol"] == 4313 and "48-dim" in p["units"]
+    assert r["method"] == "zero-velocity" and r["stochastic"]["APD"] == 0.0
+    assert (
+        0.1 < r["stochastic"]["ADE"] < r["stochastic"]["FDE"] < 2.0 and len(r["stochastic"]["per_window"]["ADE"]) == 12
+    )
+    assert r["multimodal_sets"]["mean"] >= 1 and r["published"]["TCD"]["FDE"] == 0.396
+    with pytest.raises(SystemExit, match="the Human3.6M Setting-A protocol (needs|gives) 25"):
+        evaluate.main(argv + ["--model", "python/tcd/weights_humaneva", "--engine", "tcd"])
+    with pytest.raises(SystemExit):
+        evaluate.main(argv + ["--baseline", "zero-velocity", "--split", "Validate"])  # HumanEva-I's split

@@ -1,4 +1,5 @@
-"""Evaluate a model directory or a baseline on the Human3.6M S5 protocol (or HumanEva-I, stochastic).
+"""Evaluate a model directory or a baseline on the Human3.6M S5 protocol (or a stochastic one: HumanEva-I, Human3.6M
+Setting-A).
 
 Human3.6M (Setting-B, spec sections 3.1, 6, 10.2): subject S5, the actions present in the data (13 of 15
 in our copy), ``--windows-per-action`` windows per action (256 = the full protocol) drawn with
@@ -16,6 +17,7 @@ computed and stored; ``--select`` picks the one printed first and stored under "
     python -m training.evaluate --protocol humaneva --baseline zero-velocity --data ../shared/data/humaneva
     python -m training.evaluate --protocol humaneva --model models/humaneva --engine tcd --samples 50
     python -m training.evaluate --protocol humaneva --prior models/humaneva     # the prior's point forecast
+    python -m training.evaluate --protocol h36m-a --baseline neighbours --data ../shared/data/h36m
 
 HumanEva-I (stochastic, the DLow / GSPS protocol of ``training.data.humaneva``): the 188 windows of the
 Validate split, 15 observed frames -> 60 predicted at 60 Hz, ``--samples`` (50: the protocol) samples per
@@ -25,6 +27,11 @@ windows that arrive at the observation's last pose and velocity, joined to it: a
 ``--baseline neighbours``), the model directory's prior (its deterministic point forecast, one sample) and the
 published numbers (``training.metrics.PUBLISHED_HUMANEVA``). ``--max-windows N`` scores N of the
 windows (evenly spaced; their multimodal futures still come from all 188): a quick look, not the protocol.
+
+Human3.6M Setting-A (``--protocol h36m-a``, stochastic, ``training.data.h36m_setting_a``): the same protocol on the
+4,313 windows of S9 and S11 in our copy, 25 observed frames -> 100 predicted at 50 Hz, 16 joints (48 dimensions),
+the nearest training futures from S1, S5, S6, S7 and S8; published numbers ``training.metrics.PUBLISHED_H36M_A``.
+Both stochastic protocols are ``training.evaluate_stochastic``.
     python -m training.evaluate --prior python/tcd/weights --mask consecutive_frames   # the point forecast
 """
 
@@ -49,7 +56,7 @@ from .engines import (
     tcd_predict,
     tempo_run,
 )
-from .evaluate_humaneva import evaluate_humaneva, print_humaneva_table
+from .evaluate_stochastic import DATASETS, evaluate_stochastic_protocol, print_stochastic_table
 from .metrics import HORIZONS_MS, PUBLISHED_H36M, at_horizons, oracle_best, per_frame_error, repair_ade
 
 OBS, PRED = 50, 25
@@ -267,7 +274,7 @@ def build_parser() -> argparse.ArgumentParser:
     who.add_argument(
         "--baseline",
         choices=["zero-velocity", "neighbours"],
-        help="neighbours (--protocol humaneva): the nearest training windows' futures",
+        help="neighbours (--protocol humaneva or h36m-a): the nearest training windows' futures",
     )
     who.add_argument("--model", help="model directory (short.safetensors + long.safetensors)")
     who.add_argument(
@@ -283,14 +290,19 @@ def build_parser() -> argparse.ArgumentParser:
         help="--prior: how missing observation entries are filled before predicting (auto: the "
         "repair model where one is loaded, else the natural cubic spline)",
     )
-    ap.add_argument("--protocol", choices=["h36m", "humaneva"], default="h36m")
+    ap.add_argument(
+        "--protocol",
+        choices=["h36m", *DATASETS],
+        default="h36m",
+        help="h36m: Setting-B (S5, deterministic horizons); humaneva, h36m-a: the stochastic DLow / GSPS protocol",
+    )
     ap.add_argument("--data", default=None, help="data directory (default ../shared/data/<dataset>)")
     ap.add_argument("--json", help="write the results here")
     ap.add_argument(
         "--samples",
         type=int,
         default=None,
-        help="samples per window (default 5; --protocol humaneva: 50, the protocol's)",
+        help="samples per window (default 5; --protocol humaneva / h36m-a: 50, the protocol's)",
     )
     ap.add_argument("--steps", type=int, default=None, help="inference steps (default: all training steps)")
     ap.add_argument("--sampler", choices=["ddpm", "ddim", "dpmpp2m"], default="ddpm")
@@ -332,17 +344,17 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--windows-per-action", type=int, default=256)
     ap.add_argument(
         "--split",
-        choices=["Validate", "Train"],
-        default="Validate",
-        help="--protocol humaneva: the split the windows come from (Validate: the protocol's test "
-        "windows; Train: the same rule on the data the models learnt, to see what a choice does "
-        "there)",
+        choices=sorted({s for d in DATASETS.values() for s in d.splits}),
+        default=None,
+        help="--protocol humaneva / h36m-a: the split the windows come from (default the protocol's test "
+        "windows: Validate, S9+S11; Train, S1+S5-S8: the same rule on the data the models learnt, to see "
+        "what a choice does there)",
     )
     ap.add_argument(
         "--max-windows",
         type=int,
         default=None,
-        help="--protocol humaneva: score this many of the 188 windows, evenly spaced (a quick look)",
+        help="--protocol humaneva / h36m-a: score this many of the windows, evenly spaced (a quick look)",
     )
     ap.add_argument("--batch-size", type=int, default=16, help="windows per sampling batch")
     ap.add_argument("--device", default="cpu")
@@ -364,13 +376,15 @@ def main(argv=None) -> int:
     if not 1 <= args.windows_per_action <= 256:
         ap.error("--windows-per-action must be in 1..256")
     if args.samples is None:
-        args.samples = 50 if args.protocol == "humaneva" else 5
+        args.samples = 5 if args.protocol == "h36m" else 50
     if args.samples < 1:
         ap.error("--samples must be >= 1")
     if args.max_windows is not None and args.max_windows < 1:
         ap.error("--max-windows must be >= 1")
-    if args.baseline == "neighbours" and args.protocol != "humaneva":
-        ap.error("--baseline neighbours is a HumanEva-I baseline (--protocol humaneva)")
+    if args.baseline == "neighbours" and args.protocol == "h36m":
+        ap.error("--baseline neighbours is a stochastic protocol's baseline (--protocol humaneva or h36m-a)")
+    if args.protocol != "h36m" and args.split is not None and args.split not in DATASETS[args.protocol].splits:
+        ap.error(f"--split: --protocol {args.protocol} has the splits {list(DATASETS[args.protocol].splits)}")
     if args.tempo is not None and (args.engine != "tcd" or not args.model):
         ap.error("--tempo needs --model with --engine tcd (tcd.TCD.forecast samples the tempi)")
     if args.tempo is not None and getattr(args, "generator_share", None) is not None:
@@ -378,14 +392,14 @@ def main(argv=None) -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
     if args.data is None:
-        args.data = str(DEFAULT_DATA_ROOT / ("h36m" if args.protocol == "h36m" else "humaneva"))
+        args.data = str(DEFAULT_DATA_ROOT / ("h36m" if args.protocol == "h36m" else DATASETS[args.protocol].data_dir))
     args.noise_coupling = noise_coupling_of(args)  # resolved once: the model directory is read here, not per use
-    out = evaluate_h36m(args) if args.protocol == "h36m" else evaluate_humaneva(args)
+    out = evaluate_h36m(args) if args.protocol == "h36m" else evaluate_stochastic_protocol(args)
     out["command"] = " ".join(["python -m training.evaluate"] + (argv if argv is not None else sys.argv[1:]))
     if args.protocol == "h36m":
         print_table(out)
     else:
-        print_humaneva_table(out)
+        print_stochastic_table(out)
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=2) + "\n")
     return 0

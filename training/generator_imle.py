@@ -18,7 +18,7 @@
   the MLP learns to reach what the cascade's samples miss; ``--mix M`` scores the mixture of the cascade's first M
   protocol samples and the MLP's first 50 - M.
 
-It scores 50 samples per window on the protocol's 188 windows (``training.evaluate_humaneva.HumanEvaCases``: the
+It scores 50 samples per window on the protocol's 188 windows (``training.evaluate_stochastic.StochasticCases``: the
 same metrics and per-window values as ``python -m training.evaluate --protocol humaneva``, so ``training.compare``
 pairs them), in PyTorch. The generator is ``training.generator.Generator``; ``python -m training.generator
 --state-dict`` writes a ``--save``d one as ``generator.safetensors``, which the engine runs
@@ -81,7 +81,7 @@ def engine_samples(model: str, obs: np.ndarray, samples: int, seed: int) -> np.n
     samples) for obs (W, 15, J, 3), through the engine exactly as ``python -m training.evaluate --protocol humaneva
     --engine tcd --sampler ddim --steps 1 --seed SEED --generator-share 0`` draws them."""
     from .evaluate import build_parser
-    from .evaluate_humaneva import humaneva_model_samples
+    from .evaluate_stochastic import HUMANEVA, model_samples
 
     args = build_parser().parse_args(
         [
@@ -105,7 +105,7 @@ def engine_samples(model: str, obs: np.ndarray, samples: int, seed: int) -> np.n
             "unused",
         ]
     )
-    return humaneva_model_samples(args, np.asarray(obs, np.float64))
+    return model_samples(HUMANEVA, args, np.asarray(obs, np.float64))
 
 
 def main(argv=None) -> int:
@@ -207,12 +207,12 @@ def main(argv=None) -> int:
     from .augment import mirror, mirror_permutation, resample, rotate_about, sequence_ends, swap_futures
     from .batches import Windows
     from .data.humaneva import HUMANEVA_MODEL_JOINT_NAMES, training_sequences
-    from .evaluate_humaneva import HumanEvaCases
+    from .evaluate_stochastic import HUMANEVA, StochasticCases
 
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
     prior = tcd.engine.Prior.load(Path(args.model) / "prior.safetensors")
-    cases = HumanEvaCases.load(args.data)
+    cases = StochasticCases.load(HUMANEVA, args.data)
     J = cases.obs.shape[2]
     K = 3 * J
 

@@ -101,6 +101,20 @@ def mmfde(pred, gt_multi) -> float:
     return float(np.mean([fde(pred, g) for g in gt_multi]))
 
 
+def _multimodal(pred, gt_multi, chunk: int = 16) -> tuple[float, float]:
+    """``(mmade(pred, gt_multi), mmfde(pred, gt_multi))`` with the same arithmetic, ``chunk`` futures at a time:
+    one pass over the errors instead of two Python loops over the futures (Setting-A's sets hold 59 on average)."""
+    pred, gt_multi = _as_samples(pred), _check_multi(gt_multi)
+    if gt_multi.shape[1:] != pred.shape[1:]:
+        raise ValueError(f"gt_multi {gt_multi.shape} does not match samples {pred.shape[1:]}")
+    ades, fdes = [], []
+    for a in range(0, len(gt_multi), chunk):
+        e = np.linalg.norm(pred[None] - gt_multi[a : a + chunk, None], axis=3)  # (m, S, t_pred)
+        ades.append(e.mean(axis=2).min(axis=1))
+        fdes.append(e[:, :, -1].min(axis=1))
+    return float(np.mean(np.concatenate(ades))), float(np.mean(np.concatenate(fdes)))
+
+
 def evaluate_stochastic(
     preds: Sequence[np.ndarray],
     gts: Sequence[np.ndarray],
@@ -125,8 +139,9 @@ def evaluate_stochastic(
         values["APD"].append(apd(pred))
         values["ADE"].append(ade(pred, gt))
         values["FDE"].append(fde(pred, gt))
-        values["MMADE"].append(mmade(pred, gt_multi))
-        values["MMFDE"].append(mmfde(pred, gt_multi))
+        mm_ade, mm_fde = _multimodal(pred, gt_multi)
+        values["MMADE"].append(mm_ade)
+        values["MMFDE"].append(mm_fde)
         if include_apd_top50:
             top50 += apd_top50(pred)
     n = len(preds)
