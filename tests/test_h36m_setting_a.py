@@ -3,7 +3,7 @@ increments, 16 root-relative joints in metres, DLow's test windows, and Zero-Vel
 
 import numpy as np
 import pytest
-from conftest import H36M_DIR, needs_h36m
+from conftest import H36M_DIR, import_torch, needs_h36m
 
 from training.data import h36m_setting_a as A
 from training.data.kinematics import expmap_to_rotmat
@@ -80,6 +80,7 @@ def test_the_setting_a_protocol_scores_zero_velocity(tmp_path):
     windows (their multimodal sets from all 4,313), and a model of another protocol refused by name."""
     import json
 
+    import_torch("training.evaluate")
     from training import evaluate
 
     out = tmp_path / "a.json"

@@ -19,9 +19,8 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
-import torch
 
-from .engines import generator_share_of, mode_of, noise_coupling_of, sampler_of, tcd_predict, tempo_run
+# torch (through .engines) is imported where a model runs: the datasets, windows and baselines need numpy alone
 
 
 # ------------------------------------------------------------------------------------------ the datasets
@@ -269,6 +268,8 @@ class ModelSampler:
     ``args.batch_size`` windows per call, each call seeded by (``args.seed``, its first window)."""
 
     def __init__(self, ds: StochasticDataset, args):
+        from .engines import mode_of, sampler_of
+
         self.ds, self.args = ds, args
         self.sampler = sampler_of(args)
         if args.engine == "tcd":
@@ -305,6 +306,8 @@ class ModelSampler:
                 f = self.model.forecast(x, num_samples=args.samples, sampler=self.sampler, seed=seed, mode=self.mode)
                 outs.append(np.asarray(f.samples, np.float64))
             else:
+                from .engines import tcd_predict
+
                 res = tcd_predict(
                     self.models,
                     x,
@@ -346,6 +349,8 @@ def prior_forecast(ds: StochasticDataset, path: str | Path, obs: np.ndarray) -> 
             )
         out = prior.predict(x, ds.t_pred)
     else:
+        import torch
+
         from .prior import load
 
         net = load(path)
@@ -403,6 +408,8 @@ class NeighbourForecaster:
 
 def evaluate_stochastic_protocol(args) -> dict:
     """The stochastic protocol ``args.protocol`` for ``args`` (the options of ``training.evaluate``)."""
+    from .engines import generator_share_of, noise_coupling_of, tempo_run
+
     ds = dataset_of(args.protocol)
     pub, pub_sources = published(ds)
     cases = StochasticCases.load(ds, args.data, getattr(args, "max_windows", None), getattr(args, "split", None))
