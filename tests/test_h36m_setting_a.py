@@ -62,16 +62,15 @@ def test_multimodal_sets_are_dlow_s_without_copies():
 
 
 def test_the_multimodal_metrics_in_one_pass_equal_the_definitions():
-    from training.stochastic import _multimodal, mmade, mmfde
+    """MMADE / MMFDE: each future's ADE / FDE, averaged over the futures (37: more than one chunk of 16)."""
+    from training.stochastic import ade, fde, mmade, mmfde
 
     rng = np.random.default_rng(1)
-    pred, multi = rng.normal(size=(7, 5, 6)), rng.normal(size=(37, 5, 6))  # 37: more than one chunk of 16
-    got = _multimodal(pred, multi)
-    assert got[0] == pytest.approx(mmade(pred, multi), rel=1e-12) and got[1] == pytest.approx(
-        mmfde(pred, multi), rel=1e-12
-    )
+    pred, multi = rng.normal(size=(7, 5, 6)), rng.normal(size=(37, 5, 6))
+    assert mmade(pred, multi) == pytest.approx(np.mean([ade(pred, g) for g in multi]), rel=1e-12)
+    assert mmfde(pred, multi) == pytest.approx(np.mean([fde(pred, g) for g in multi]), rel=1e-12)
     with pytest.raises(ValueError, match="does not match"):
-        _multimodal(pred, multi[:, :4])
+        mmade(pred, multi[:, :4])
 
 
 @needs_h36m

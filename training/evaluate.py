@@ -18,6 +18,7 @@ computed and stored; ``--select`` picks the one printed first and stored under "
     python -m training.evaluate --protocol humaneva --model models/humaneva --engine tcd --samples 50
     python -m training.evaluate --protocol humaneva --prior models/humaneva     # the prior's point forecast
     python -m training.evaluate --protocol h36m-a --baseline neighbours --data ../shared/data/h36m
+    python -m training.evaluate --prior python/tcd/weights --mask consecutive_frames   # the point forecast
 
 HumanEva-I (stochastic, the DLow / GSPS protocol of ``training.data.humaneva``): the 188 windows of the
 Validate split, 15 observed frames -> 60 predicted at 60 Hz, ``--samples`` (50: the protocol) samples per
@@ -32,7 +33,6 @@ Human3.6M Setting-A (``--protocol h36m-a``, stochastic, ``training.data.h36m_set
 4,313 windows of S9 and S11 in our copy, 25 observed frames -> 100 predicted at 50 Hz, 16 joints (48 dimensions),
 the nearest training futures from S1, S5, S6, S7 and S8; published numbers ``training.metrics.PUBLISHED_H36M_A``.
 Both stochastic protocols are ``training.evaluate_stochastic``.
-    python -m training.evaluate --prior python/tcd/weights --mask consecutive_frames   # the point forecast
 """
 
 from __future__ import annotations
@@ -383,8 +383,11 @@ def main(argv=None) -> int:
         ap.error("--max-windows must be >= 1")
     if args.baseline == "neighbours" and args.protocol == "h36m":
         ap.error("--baseline neighbours is a stochastic protocol's baseline (--protocol humaneva or h36m-a)")
-    if args.protocol != "h36m" and args.split is not None and args.split not in DATASETS[args.protocol].splits:
-        ap.error(f"--split: --protocol {args.protocol} has the splits {list(DATASETS[args.protocol].splits)}")
+    if args.protocol != "h36m":
+        try:
+            DATASETS[args.protocol].split_of(args.split)
+        except ValueError as e:
+            ap.error(f"--{e}")
     if args.tempo is not None and (args.engine != "tcd" or not args.model):
         ap.error("--tempo needs --model with --engine tcd (tcd.TCD.forecast samples the tempi)")
     if args.tempo is not None and getattr(args, "generator_share", None) is not None:
@@ -392,7 +395,7 @@ def main(argv=None) -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
     if args.data is None:
-        args.data = str(DEFAULT_DATA_ROOT / ("h36m" if args.protocol == "h36m" else DATASETS[args.protocol].data_dir))
+        args.data = str(DEFAULT_DATA_ROOT / "h36m" if args.protocol == "h36m" else DATASETS[args.protocol].data_path())
     args.noise_coupling = noise_coupling_of(args)  # resolved once: the model directory is read here, not per use
     out = evaluate_h36m(args) if args.protocol == "h36m" else evaluate_stochastic_protocol(args)
     out["command"] = " ".join(["python -m training.evaluate"] + (argv if argv is not None else sys.argv[1:]))

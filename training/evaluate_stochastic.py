@@ -78,6 +78,21 @@ class StochasticDataset:
     def dims(self) -> int:
         return 3 * self.num_joints
 
+    def data_path(self, data=None):
+        """``data``, or where ``../shared/data`` holds this dataset."""
+        if data is not None:
+            return data
+        from .data.h36m import DEFAULT_DATA_ROOT
+
+        return DEFAULT_DATA_ROOT / self.data_dir
+
+    def split_of(self, split: str | None) -> str:
+        """``split`` (default the test split), checked: ValueError naming the splits there are."""
+        split = split or self.splits[0]
+        if split not in self.splits:
+            raise ValueError(f"split: {self.title} has the splits {list(self.splits)}, not {split!r}")
+        return split
+
 
 HUMANEVA = StochasticDataset(
     "humaneva", "humaneva-i", "HumanEva-I", 15, 60, 60, 14, "humaneva", ("Validate", "Train"),
@@ -149,14 +164,8 @@ class StochasticCases:
         cls, ds: StochasticDataset | str, data=None, max_windows: int | None = None, split: str | None = None
     ) -> "StochasticCases":
         ds = dataset_of(ds) if isinstance(ds, str) else ds
-        split = split or ds.splits[0]
-        if split not in ds.splits:
-            raise ValueError(f"split: {ds.title} has the splits {list(ds.splits)}, not {split!r}")
-        if data is None:
-            from .data.h36m import DEFAULT_DATA_ROOT
-
-            data = DEFAULT_DATA_ROOT / ds.data_dir
-        wins, actions = ds.windows(data, split)  # (N, T, J, 3) metres
+        split = ds.split_of(split)
+        wins, actions = ds.windows(ds.data_path(data), split)  # (N, T, J, 3) metres
         sets = MultimodalSets(wins, ds.t_his)
         rows = np.arange(len(wins))
         if max_windows:
@@ -202,7 +211,8 @@ class StochasticCases:
             pred = np.asarray(draw(self.obs[lo:hi], lo), np.float64)
             S = pred.shape[0]
             flat = [pred[:, w].reshape(S, self.ds.t_pred, -1) for w in range(hi - lo)]
-            part = evaluate_stochastic(flat, self.gts[lo:hi], _Window(self.gt_multi, lo, hi), per_window=True)
+            multi = [self.gt_multi[i] for i in range(lo, hi)]  # copies of one block's sets only
+            part = evaluate_stochastic(flat, self.gts[lo:hi], multi, per_window=True)
             pw = part["per_window"]
             for name, metric in (("mean_ADE", ade), ("mean_FDE", fde)):
                 pw[name] = [metric(f.mean(axis=0, keepdims=True), gt) for f, gt in zip(flat, self.gts[lo:hi])]
@@ -235,19 +245,6 @@ class _Subset:
 
     def __getitem__(self, i: int) -> np.ndarray:
         return self.sets[int(self.rows[i])]
-
-
-class _Window:
-    """Items ``lo:hi`` of a sequence, read one at a time."""
-
-    def __init__(self, seq, lo: int, hi: int):
-        self.seq, self.lo, self.hi = seq, lo, hi
-
-    def __len__(self) -> int:
-        return self.hi - self.lo
-
-    def __iter__(self):
-        return (self.seq[i] for i in range(self.lo, self.hi))
 
 
 # ------------------------------------------------------------------------------------------ the forecasters
@@ -371,12 +368,8 @@ class NeighbourForecaster:
         from .augment import arrival_keys
         from .batches import Windows
 
-        if data is None:
-            from .data.h36m import DEFAULT_DATA_ROOT
-
-            data = DEFAULT_DATA_ROOT / ds.data_dir
         self.ds, self.n = ds, n
-        self.windows = Windows(ds.training(data), ds.t_his + ds.t_pred, 1)
+        self.windows = Windows(ds.training(ds.data_path(data)), ds.t_his + ds.t_pred, 1)
         if not 1 <= n <= len(self.windows):
             raise SystemExit(
                 f"the nearest training futures: --samples must be in 1..{len(self.windows)} (the training windows), "
@@ -420,7 +413,7 @@ def evaluate_stochastic_protocol(args) -> dict:
         args.model if args.model and (Path(args.model) / "prior.safetensors").is_file() else None
     )
     if prior_path:
-        results["prior"] = cases.score_by(lambda o, lo: prior_forecast(ds, prior_path, o)[None])
+        results["prior"] = cases.score(prior_forecast(ds, prior_path, cases.obs)[None])
     if cases.split == ds.splits[0]:  # on the training split each window would find itself
         say(f"the nearest training futures: {args.samples} per window")
         results["neighbours"] = cases.score_by(NeighbourForecaster(ds, args.samples, args.data))
