@@ -51,6 +51,12 @@ def one_step_samples(model, cand, x0, mask):
         return target, torch.stack([model(c, x0, mask, last) for c in cand])
 
 
+def searched(model, x0, mask, cand, sched=SCHED, observed=None, **search):
+    """imle_loss after a fresh imle_choose on the same arguments (``search``: its further options)."""
+    choice = imle_choose(model, sched, x0, mask, cand, observed=observed, **search)
+    return imle_loss(model, sched, x0, mask, cand, choice, observed=observed)
+
+
 def test_imle_trains_each_windows_nearest_candidate():
     model, x0, mask = model_and_window()
     S, B = 4, x0.shape[0]
@@ -59,17 +65,17 @@ def test_imle_trains_each_windows_nearest_candidate():
     dist = (((outs - target) * (1 - mask)) ** 2).sum((2, 3))
     best = dist.argmin(0)
     expected = masked_eps_loss(target, outs[best, torch.arange(B)], mask)
-    assert float(imle_loss(model, SCHED, x0, mask, cand).detach()) == pytest.approx(float(expected), rel=1e-5)
+    assert float(searched(model, x0, mask, cand).detach()) == pytest.approx(float(expected), rel=1e-5)
     # the nearest is what counts: putting it first and the others after changes nothing
     order = torch.stack(
         [torch.cat([best[b : b + 1], torch.tensor([s for s in range(S) if s != best[b]])]) for b in range(B)], 1
     )  # (S, B)
     moved = cand[order, torch.arange(B)]
-    assert float(imle_loss(model, SCHED, x0, mask, moved).detach()) == pytest.approx(float(expected), rel=1e-5)
+    assert float(searched(model, x0, mask, moved).detach()) == pytest.approx(float(expected), rel=1e-5)
     # and a worse candidate alone gives a larger loss than the nearest
     worst = dist.argmax(0)
     alone = cand[worst, torch.arange(B)].unsqueeze(0)
-    assert float(imle_loss(model, SCHED, x0, mask, alone).detach()) > float(expected)
+    assert float(searched(model, x0, mask, alone).detach()) > float(expected)
 
 
 @pytest.mark.parametrize("gap", [False, True])
@@ -87,7 +93,7 @@ def test_final_weight_adds_the_candidate_nearest_on_the_last_hidden_frame(gap):
     expected = masked_eps_loss(target, outs[best, torch.arange(B)], mask) + 0.5 * masked_eps_loss(
         target, outs[final_best, torch.arange(B)], mask
     )
-    got = imle_loss(model, SCHED, x0, mask, cand, final_weight=0.5)
+    got = searched(model, x0, mask, cand, final_weight=0.5)
     assert float(got.detach()) == pytest.approx(float(expected), rel=1e-5)
 
 
@@ -96,23 +102,22 @@ def test_further_targets_each_pull_their_nearest_candidate():
     mean over the targets, so copies of the window's own future change nothing."""
     model, x0, mask = model_and_window()
     cand = torch.randn(5, *x0.shape, generator=torch.Generator().manual_seed(11))
-    alone = float(imle_loss(model, SCHED, x0, mask, cand).detach())
+    alone = float(searched(model, x0, mask, cand).detach())
     copies = x0.expand(2, *x0.shape).clone()
-    assert float(imle_loss(model, SCHED, x0, mask, cand, others=copies).detach()) == pytest.approx(alone, rel=1e-5)
+    assert float(searched(model, x0, mask, cand, others=copies).detach()) == pytest.approx(alone, rel=1e-5)
     g = torch.Generator().manual_seed(12)
     others = x0 + torch.cumsum(torch.randn(2, *x0.shape, generator=g) * 0.02, dim=-1) * (1 - mask)
-    each = [alone] + [float(imle_loss(model, SCHED, o, mask, cand, observed=x0).detach()) for o in others]
-    got = float(imle_loss(model, SCHED, x0, mask, cand, others=others).detach())
+    each = [alone] + [float(searched(model, o, mask, cand, observed=x0).detach()) for o in others]
+    got = float(searched(model, x0, mask, cand, others=others).detach())
     assert got == pytest.approx(sum(each) / 3, rel=1e-5)
     assert not got == pytest.approx(alone, rel=1e-3)  # the further futures are not the window's own
     with pytest.raises(ValueError, match="others must be"):
-        imle_loss(model, SCHED, x0, mask, cand, others=x0)
+        searched(model, x0, mask, cand, others=x0)
 
 
 @pytest.mark.parametrize("variant", ["own", "others", "final"])
 def test_a_stored_choice_gives_the_loss_of_a_fresh_search_and_stays_as_chosen(variant):
-    """imle_echo's split: imle_choose's result passed to imle_loss gives the loss imle_loss computes by searching
-    itself; after the weights move, the stored choice still trains the candidates it chose (stale by design)."""
+    """imle_echo's split: a stored imle_choose result gives the loss of a fresh search; after the weights move, the stored choice still trains the candidates it chose (stale by design)."""
     model, x0, mask = model_and_window(seed=3)
     cand = torch.randn(6, *x0.shape, generator=torch.Generator().manual_seed(8))
     kw = {}
@@ -128,8 +133,8 @@ def test_a_stored_choice_gives_the_loss_of_a_fresh_search_and_stays_as_chosen(va
     assert torch.equal(choice.nearest[0], (((samples - target) * hidden) ** 2).sum((2, 3)).argmin(0))
     assert choice.nearest.shape == (3 if variant == "others" else 1, x0.shape[0])
     assert (choice.final is not None) == (variant == "final")
-    fresh = imle_loss(model, SCHED, x0, mask, cand, observed=x0, **kw)
-    stored = imle_loss(model, SCHED, x0, mask, cand, observed=x0, choice=choice, **kw)
+    fresh = searched(model, x0, mask, cand, observed=x0, **kw)
+    stored = imle_loss(model, SCHED, x0, mask, cand, choice, observed=x0)
     assert float(stored.detach()) == pytest.approx(float(fresh.detach()), rel=1e-6)
     with torch.no_grad():  # move the weights: a fresh search may choose otherwise, the stored not
         for p in model.parameters():
@@ -145,7 +150,7 @@ def test_a_stored_choice_gives_the_loss_of_a_fresh_search_and_stays_as_chosen(va
         by_hand = by_hand + 0.5 * masked_eps_loss(
             choice.targets[0], model(cand[choice.final, torch.arange(B)], x0, mask, last), mask
         )
-    got = imle_loss(model, SCHED, x0, mask, cand, observed=x0, choice=choice, **kw)
+    got = imle_loss(model, SCHED, x0, mask, cand, choice, observed=x0)
     assert float(got.detach()) == pytest.approx(float(by_hand.detach()), rel=1e-6)
     assert not torch.equal(again.nearest, choice.nearest)  # the moved weights do choose otherwise
 
@@ -153,7 +158,7 @@ def test_a_stored_choice_gives_the_loss_of_a_fresh_search_and_stays_as_chosen(va
 def test_imle_loss_gradient_reaches_the_weights():
     model, x0, mask = model_and_window()
     cand = torch.randn(3, *x0.shape, generator=torch.Generator().manual_seed(2))
-    loss = imle_loss(model, SCHED, x0, mask, cand)
+    loss = searched(model, x0, mask, cand)
     loss.backward()
     grads = [p.grad for p in model.parameters() if p.requires_grad]
     assert all(g is not None for g in grads) and any(float(g.abs().sum()) > 0 for g in grads)
@@ -179,9 +184,9 @@ def test_engine_search_equals_torch_search():
 def test_imle_needs_x0_prediction_and_matching_candidates():
     model, x0, mask = model_and_window()
     with pytest.raises(ValueError, match="x0-predicting"):
-        imle_loss(model, Schedule(DiffusionConfig(prediction_type="epsilon")), x0, mask, torch.zeros(2, *x0.shape))
+        searched(model, x0, mask, torch.zeros(2, *x0.shape), sched=Schedule(DiffusionConfig(prediction_type="epsilon")))
     with pytest.raises(ValueError, match="candidates must be"):
-        imle_loss(model, SCHED, x0, mask, torch.zeros(2, 1, 66, 75))
+        searched(model, x0, mask, torch.zeros(2, 1, 66, 75))
 
 
 def test_config_checks_and_train_step_adds_the_imle_term(tmp_path):
@@ -217,12 +222,12 @@ def test_config_checks_and_train_step_adds_the_imle_term(tmp_path):
     eps = torch.randn(x0.shape, generator=torch.Generator().manual_seed(4))
     cand = torch.randn(4, *x0.shape, generator=torch.Generator().manual_seed(5))
     plain = float(training_loss(model, SCHED, x0, mask, t=t, eps=eps, observed=x0).detach())
-    extra = float(imle_loss(model, SCHED, x0, mask, cand, observed=x0).detach())
+    extra = float(searched(model, x0, mask, cand, observed=x0).detach())
     opt = torch.optim.SGD(model.parameters(), lr=0.0)  # lr 0: the step reports the loss, weights stay
     got = float(train_step(model, opt, SCHED, (x0, x0, mask, t, eps, cand), False, imle_weight=0.5))
     assert got == pytest.approx(plain + 0.5 * extra, rel=1e-5)
     # the final-frame term reaches the IMLE loss through train_step
-    with_final = float(imle_loss(model, SCHED, x0, mask, cand, observed=x0, final_weight=0.25).detach())
+    with_final = float(searched(model, x0, mask, cand, observed=x0, final_weight=0.25).detach())
     assert with_final > extra
     got = float(
         train_step(model, opt, SCHED, (x0, x0, mask, t, eps, cand), False, imle_weight=0.5, imle_final_weight=0.25)
@@ -233,7 +238,7 @@ def test_config_checks_and_train_step_adds_the_imle_term(tmp_path):
     others = x0 + torch.cumsum(torch.randn(2, *x0.shape, generator=torch.Generator().manual_seed(6)) * 0.02, dim=-1) * (
         1 - mask
     )
-    with_others = float(imle_loss(model, SCHED, x0, mask, cand, observed=x0, others=others).detach())
+    with_others = float(searched(model, x0, mask, cand, observed=x0, others=others).detach())
     assert with_others != pytest.approx(extra, rel=1e-3)
     got = float(train_step(model, opt, SCHED, (x0, x0, mask, t, eps, cand, others), False, imle_weight=0.5))
     assert got == pytest.approx(plain + 0.5 * with_others, rel=1e-5)

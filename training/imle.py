@@ -79,11 +79,13 @@ class EngineSearch:
 class Choice(NamedTuple):
     """What :func:`imle_choose` picked for a batch: ``targets`` (M, B, K, L), the window's own future first and the
     further futures of ``imle_targets`` after it, in target units; ``nearest`` (M, B), the index of each target's
-    nearest candidate; ``final`` (B,) or None, each window's candidate nearest on its last hidden frame."""
+    nearest candidate; ``final`` (B,) or None, each window's candidate nearest on its last hidden frame, and
+    ``final_weight`` the weight :func:`imle_loss` gives its term."""
 
     targets: torch.Tensor
     nearest: torch.Tensor
     final: torch.Tensor | None
+    final_weight: float
 
 
 def imle_choose(
@@ -97,9 +99,24 @@ def imle_choose(
     final_weight: float = 0.0,
     others: torch.Tensor | None = None,
 ) -> Choice:
-    """The search half of :func:`imle_loss` (its arguments), without gradients: the S candidates' one-step
-    samples and each target's nearest. Apart so that a training step can echo one search over several optimizer
-    steps (``imle_echo``): the search is most of a step's cost."""
+    """The search of :func:`imle_loss`, without gradients: the S one-step samples from ``candidates`` (S, B, K, L)
+    standard normals (``search`` computes them, default ``model`` itself, :func:`torch_search`) and each target's
+    nearest among them (squared distance over the hidden entries, in target units). ``observed`` as in
+    ``training.diffusion.training_loss``.
+
+    ``others`` (M - 1, B, K, L): further futures of each window, laid out as x0 (its own observed frames, the
+    future of one of its nearest training windows: ``imle_targets``). Each also pulls its nearest of the same S
+    samples, and the loss is the mean over all M targets: the samples are taught to cover the futures of similar
+    pasts, not only the one each window had (the nearest-training-futures baseline shows how near those lie).
+
+    ``final_weight`` > 0 adds that weight x the same loss of each window's candidate nearest on its last hidden
+    frame alone (the forecast's final pose). Why it was tried: the stochastic protocol scores the best sample
+    twice, by ADE over the whole future and by FDE at its last frame, and the two bests are often different
+    samples (HumanEva-I's FDE was 1.24 x its ADE, TCD's 1.08 x). Measured there (docs/training.md, "The
+    final-frame term"): FDE within the margin, ADE worse and the samples narrower; off (0) by default.
+
+    Apart from the loss so that one search can serve several optimizer steps (``imle_echo``): the search is most
+    of a step's cost."""
     if sched.cfg.prediction_type != "sample":
         raise ValueError(
             "imle_loss trains the one-step sample of an x0-predicting model (prediction_type "
@@ -132,7 +149,7 @@ def imle_choose(
             last = (hidden.amax(1) * (frames + 1)).argmax(1)  # (B,): last hidden frame
             at_last = torch.gather(sq, 3, last.view(1, B, 1, 1).expand(S, B, sq.shape[2], 1))  # (S, B, K, 1)
             final = at_last.sum((2, 3)).argmin(0)
-    return Choice(targets, nearest, final)
+    return Choice(targets, nearest, final, final_weight)
 
 
 def imle_loss(
@@ -141,31 +158,14 @@ def imle_loss(
     x0: torch.Tensor,
     mask: torch.Tensor,
     candidates: torch.Tensor,
+    choice: Choice,
     observed: torch.Tensor | None = None,
-    search: Search | None = None,
-    final_weight: float = 0.0,
-    others: torch.Tensor | None = None,
-    choice: Choice | None = None,
 ) -> torch.Tensor:
-    """The one-step sampler's IMLE loss for clean windows x0 (B, K, L) (module docstring): of the S one-step
-    samples from ``candidates`` (S, B, K, L) standard normals, each window's nearest to its target (squared
-    distance over the hidden entries, in target units) is recomputed with gradients and scored by the masked
-    mean square of the diffusion loss. ``search`` computes the candidates' samples (default: ``model`` itself,
-    :func:`torch_search`); ``observed`` as in ``training.diffusion.training_loss``; ``choice``, when given, is
-    what :func:`imle_choose` returned for these arguments (the search is not run again).
-
-    ``others`` (M - 1, B, K, L): further futures of each window, laid out as x0 (its own observed frames, the
-    future of one of its nearest training windows: ``imle_targets``). Each also pulls its nearest of the same S
-    samples, and the loss is the mean over all M targets: the samples are taught to cover the futures of similar
-    pasts, not only the one each window had (the nearest-training-futures baseline shows how near those lie).
-
-    ``final_weight`` > 0 adds that weight x the same loss of each window's candidate nearest on its last hidden
-    frame alone (the forecast's final pose). Why it was tried: the stochastic protocol scores the best sample
-    twice, by ADE over the whole future and by FDE at its last frame, and the two bests are often different
-    samples (HumanEva-I's FDE was 1.24 x its ADE, TCD's 1.08 x). Measured there (docs/training.md, "The
-    final-frame term"): FDE within the margin, ADE worse and the samples narrower; off (0) by default."""
-    if choice is None:
-        choice = imle_choose(model, sched, x0, mask, candidates, observed, search, final_weight, others)
+    """The one-step sampler's IMLE loss for clean windows x0 (B, K, L) (module docstring): each target's nearest
+    of the one-step samples from ``candidates`` (S, B, K, L), as ``choice`` (:func:`imle_choose` on the same
+    arguments) found them, recomputed with gradients and scored by the masked mean square of the diffusion loss;
+    the mean over the targets, plus ``choice.final_weight`` x the loss of each window's candidate nearest on its
+    last hidden frame. ``observed``: the conditioning, as in the search (default ``x0``)."""
     observed = x0 if observed is None else observed
     B = x0.shape[0]
     windows = torch.arange(B, device=x0.device)
@@ -177,7 +177,7 @@ def imle_loss(
         masked_eps_loss(tm, model(candidates[nm, windows], observed, mask, t_last), mask)
         for tm, nm in zip(choice.targets, choice.nearest)
     ) / len(choice.targets)
-    if final_weight > 0:
+    if choice.final is not None:
         out = model(candidates[choice.final, windows], observed, mask, t_last)
-        loss = loss + final_weight * masked_eps_loss(choice.targets[0], out, mask)
+        loss = loss + choice.final_weight * masked_eps_loss(choice.targets[0], out, mask)
     return loss

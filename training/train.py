@@ -139,6 +139,22 @@ def amp_enabled(cfg: TrainConfig, device: str) -> bool:
     return cfg.amp and torch.device(device).type == "cuda"
 
 
+def imle_choice(forward, sched: Schedule, batch, search, final_weight: float) -> Choice:
+    """:func:`training.imle.imle_choose` on a batch (x0, observed, mask, t, eps, candidates[, others])."""
+    x0, obs, mask, _t, _eps, cands, *others = batch
+    return imle_choose(
+        forward,
+        sched,
+        x0,
+        mask,
+        cands,
+        observed=obs,
+        search=search,
+        final_weight=final_weight,
+        others=next(iter(others), None),
+    )
+
+
 def train_step(
     forward,
     opt: torch.optim.Optimizer,
@@ -159,18 +175,8 @@ def train_step(
     with torch.autocast(device_type=x0.device.type, dtype=torch.bfloat16, enabled=amp):
         loss = training_loss(forward, sched, x0, mask, t=t, eps=eps, observed=obs)
         if imle:
-            loss = loss + imle_weight * imle_loss(
-                forward,
-                sched,
-                x0,
-                mask,
-                imle[0],
-                observed=obs,
-                search=imle_search,
-                final_weight=imle_final_weight,
-                others=imle[1] if len(imle) > 1 else None,
-                choice=choice,
-            )
+            choice = choice or imle_choice(forward, sched, batch, imle_search, imle_final_weight)
+            loss = loss + imle_weight * imle_loss(forward, sched, x0, mask, imle[0], choice, observed=obs)
     opt.zero_grad(set_to_none=True)
     loss.backward()
     opt.step()
@@ -433,18 +439,7 @@ def train(
             if cfg.imle_echo > 1:
                 # data echoing (Choi et al., 2019): the search stands upstream of the optimizer as a slow input
                 # pipeline would, and one search serves imle_echo steps (docs/training.md: its one run was worse)
-                x0, obs, mask, *_, cands = batch[:6]
-                choice = imle_choose(
-                    forward,
-                    sched,
-                    x0,
-                    mask,
-                    cands,
-                    observed=obs,
-                    search=imle_search,
-                    final_weight=cfg.imle_final_weight,
-                    others=batch[6] if len(batch) > 6 else None,
-                )
+                choice = imle_choice(forward, sched, batch, imle_search, cfg.imle_final_weight)
             for _ in range(cfg.imle_echo):
                 loss = train_step(
                     forward, opt, sched, batch, amp, cfg.imle_weight, imle_search, cfg.imle_final_weight, choice
