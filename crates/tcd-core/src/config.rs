@@ -249,6 +249,14 @@ pub enum VarianceType {
 }
 
 impl FileConfig for TcdConfig {
+    fn num_features(&self) -> usize {
+        self.model.num_features
+    }
+
+    fn obs_len(&self) -> usize {
+        self.window.obs_len
+    }
+
     /// Parses the JSON string stored under `tcd_config`; `path` names the file in errors.
     fn from_json(json: &str, path: &Path) -> Result<Self> {
         // A prior's or generator's file given to the denoiser's loader: say what it holds, not that its

@@ -20,6 +20,12 @@ pub trait FileConfig: Sized + Clone + Serialize {
     /// Checks it for consistency; `path` names the file in errors.
     fn validate(&self, path: &Path) -> Result<()>;
 
+    /// K: coordinates per frame of the network's inputs and outputs.
+    fn num_features(&self) -> usize;
+
+    /// Frames of the observation the network reads.
+    fn obs_len(&self) -> usize;
+
     /// Serialises back to the JSON stored under `tcd_config`.
     fn to_json(&self) -> String {
         // Serialising plain structs of numbers and strings cannot fail; fall back to "{}" anyway.
@@ -55,9 +61,12 @@ pub trait ModelBlock: Clone + Serialize + DeserializeOwned {
     /// Its frame: (num_joints, coords, num_features), the last their product.
     fn frame(&self) -> (usize, usize, usize);
 
+    /// Frames of the observation it reads (`model.obs_len`).
+    fn obs_len(&self) -> usize;
+
     /// Checks the rest of the block for consistency (the file's version and role, [`ModelBlock::sizes`]
-    /// and [`ModelBlock::frame`] are checked before); `path` names the file in errors.
-    fn validate(&self, path: &Path) -> Result<()>;
+    /// and [`ModelBlock::frame`] are checked before), by `checks`, which name the file in errors.
+    fn validate(&self, checks: &Checks) -> Result<()>;
 }
 
 impl<M: ModelBlock> FileConfig for ModelFile<M> {
@@ -74,7 +83,15 @@ impl<M: ModelBlock> FileConfig for ModelFile<M> {
         checks.at_least_one(&[("model.num_joints", num_joints), ("model.coords", coords)])?;
         checks.at_least_one(&self.model.sizes())?;
         checks.num_features(num_joints, coords, num_features)?;
-        self.model.validate(path)
+        self.model.validate(&checks)
+    }
+
+    fn num_features(&self) -> usize {
+        self.model.frame().2
+    }
+
+    fn obs_len(&self) -> usize {
+        self.model.obs_len()
     }
 }
 
@@ -135,7 +152,7 @@ pub(crate) fn parse_json<T: DeserializeOwned>(json: &str, path: &Path) -> Result
 }
 
 /// The checks of a config read from the file at this path.
-pub(crate) struct Checks<'a>(pub(crate) &'a Path);
+pub struct Checks<'a>(pub(crate) &'a Path);
 
 impl Checks<'_> {
     /// The error for a bad `field`.
@@ -144,6 +161,20 @@ impl Checks<'_> {
             path: self.0.to_path_buf(),
             field: field.to_string(),
             reason,
+        }
+    }
+
+    /// Nothing where `ok` holds, else the error for a bad `field`, saying `reason()`.
+    pub(crate) fn require(
+        &self,
+        ok: bool,
+        field: &str,
+        reason: impl FnOnce() -> String,
+    ) -> Result<()> {
+        if ok {
+            Ok(())
+        } else {
+            Err(self.bad(field, reason()))
         }
     }
 

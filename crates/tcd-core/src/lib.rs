@@ -59,7 +59,7 @@ pub use generator::{Generator, GeneratorConfig, GeneratorModelConfig};
 pub use prior::{
     dct_matrix, inbetween_width, Anchor, GapFill, Prior, PriorConfig, PriorModelConfig,
 };
-pub use weights::{Network, Weights, CONFIG_KEY};
+pub use weights::{Network, Source, Weights, CONFIG_KEY};
 // Observations and what runs on them.
 pub use fill::{fill_linear, fill_rows, fill_spline, prior_fill};
 pub use observation::Observation;

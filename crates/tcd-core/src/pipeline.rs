@@ -37,6 +37,7 @@ use crate::observation::Observation;
 use crate::prior::{Anchor, Prior};
 use crate::rng::{stage, Noise, Sequences};
 use crate::sampler::{run_job, validate_job, SamplerConfig};
+use crate::weights::Network;
 
 /// Sampling options shared by both stages.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -29,15 +29,38 @@ pub trait Network: Sized {
 
     /// Parses the [`CONFIG_KEY`] JSON and checks it (sizes, window, schedule); `path` names the file
     /// in errors.
-    fn config(json: &str, path: &Path) -> Result<Self::Config> {
+    fn parse_config(json: &str, path: &Path) -> Result<Self::Config> {
         let config = Self::Config::from_json(json, path)?;
         config.validate(path)?;
         Ok(config)
     }
 
-    /// Builds the network of `config` (the JSON exactly as stored beside it), taking every tensor it
-    /// consumes from `weights`.
-    fn build(weights: &mut Weights<'_>, config: Self::Config, config_json: String) -> Result<Self>;
+    /// Builds the network of `source`'s configuration, taking every tensor it consumes from `weights`.
+    fn build(weights: &mut Weights<'_>, source: Source<Self::Config>) -> Result<Self>;
+
+    /// The file it was built from: its name and its configuration.
+    fn source(&self) -> &Source<Self::Config>;
+
+    /// The file the network came from (or the name given to [`Network::from_bytes`]).
+    fn path(&self) -> &Path {
+        &self.source().path
+    }
+    /// The parsed `tcd_config`.
+    fn config(&self) -> &Self::Config {
+        &self.source().config
+    }
+    /// The `tcd_config` JSON exactly as stored.
+    fn config_json(&self) -> &str {
+        &self.source().config_json
+    }
+    /// K: coordinates per frame.
+    fn num_features(&self) -> usize {
+        self.config().num_features()
+    }
+    /// Frames of the observation it reads (the last `obs_len` of a longer input).
+    fn obs_len(&self) -> usize {
+        self.config().obs_len()
+    }
 
     /// Reads and validates the file at `path`. A missing file is [`Error::NotFound`], a directory
     /// [`Error::NotAFile`], an unreadable one [`Error::Io`]; everything about the content is one of
@@ -51,14 +74,19 @@ pub trait Network: Sized {
     fn from_bytes(bytes: &[u8], name: impl AsRef<Path>) -> Result<Self> {
         let path = name.as_ref();
         let config_json = read_config_json(bytes, path)?;
-        let config = Self::config(&config_json, path)?;
+        let config = Self::parse_config(&config_json, path)?;
         let file = SafeTensors::deserialize(bytes).map_err(|e| corrupt(path, e))?;
         let mut weights = Weights {
             path: path.to_path_buf(),
             file: Some(file),
             taken: Vec::new(),
         };
-        let network = Self::build(&mut weights, config, config_json)?;
+        let source = Source {
+            path: path.to_path_buf(),
+            config,
+            config_json,
+        };
+        let network = Self::build(&mut weights, source)?;
         weights.check_all_taken()?;
         Ok(network)
     }
@@ -66,15 +94,29 @@ pub trait Network: Sized {
     /// The tensors (state_dict name, shape) a network of `config` reads, in the order it reads them:
     /// its build run on zeros (for tests and tools that write such files).
     fn tensor_shapes(config: Self::Config) -> Result<Vec<(String, Vec<usize>)>> {
-        let json = String::new();
+        let path = PathBuf::from("(tensor shapes)");
         let mut weights = Weights {
-            path: PathBuf::from("(tensor shapes)"),
+            path: path.clone(),
             file: None,
             taken: Vec::new(),
         };
-        Self::build(&mut weights, config, json)?;
+        let source = Source {
+            path,
+            config,
+            config_json: String::new(),
+        };
+        Self::build(&mut weights, source)?;
         Ok(weights.taken)
     }
+}
+
+/// Where a loaded network came from: the file's name and its [`CONFIG_KEY`] configuration, parsed and
+/// exactly as stored ([`Network::path`], [`Network::config`], [`Network::config_json`]).
+#[derive(Clone, Debug)]
+pub struct Source<C> {
+    pub(crate) path: PathBuf,
+    pub(crate) config: C,
+    pub(crate) config_json: String,
 }
 
 /// The tensors of one file as a network's build consumes them.

@@ -12,7 +12,7 @@
 
 use numpy::PyReadonlyArrayDyn;
 use pyo3::prelude::*;
-use tcd_core::{Control, Denoiser, ForecastOptions, Noise, Observation, Sequences};
+use tcd_core::{Control, Denoiser, ForecastOptions, Network, Noise, Observation, Sequences};
 
 use crate::convert::*;
 use crate::error::{internal, invalid, Result};

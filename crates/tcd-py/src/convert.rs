@@ -5,7 +5,7 @@ use numpy::ndarray::{ArrayD, IxDyn};
 use numpy::{IntoPyArray, PyArrayDyn, PyReadonlyArrayDyn, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
-use tcd_core::{Denoiser, Error, SamplerConfig};
+use tcd_core::{Denoiser, Error, Network, SamplerConfig};
 
 use crate::error::{internal, invalid, Result};
 

@@ -4,7 +4,7 @@ use std::sync::Arc;
 
 use numpy::{PyArrayDyn, PyReadonlyArrayDyn};
 use pyo3::prelude::*;
-use tcd_core::{sample as core_sample, with_threads, Denoiser, Observation};
+use tcd_core::{sample as core_sample, with_threads, Denoiser, Network, Observation};
 
 use crate::call::{SamplingArgs, Streams, Window};
 use crate::convert::*;

@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use numpy::{PyArrayDyn, PyReadonlyArrayDyn};
 use pyo3::prelude::*;
-use tcd_core::{Control, Generator};
+use tcd_core::{Control, Generator, Network};
 
 use crate::call::{noise_source, seed_args, Streams};
 use crate::convert::*;

@@ -33,12 +33,12 @@ macro_rules! model_methods {
 
             #[getter]
             fn path(&self) -> String {
-                self.inner.path().display().to_string()
+                tcd_core::Network::path(&*self.inner).display().to_string()
             }
             /// The `tcd_config` JSON exactly as stored in the file.
             #[getter]
             fn config_json(&self) -> String {
-                self.inner.config_json().to_string()
+                tcd_core::Network::config_json(&*self.inner).to_string()
             }
             /// The compute kernels this model runs (`portable`, `avx2` or `avx512`; chosen at load from
             /// `TCD_KERNEL`, default the best the CPU supports).
@@ -48,19 +48,19 @@ macro_rules! model_methods {
             }
             #[getter]
             fn num_features(&self) -> usize {
-                self.inner.num_features()
+                tcd_core::Network::num_features(&*self.inner)
             }
             #[getter]
             fn num_joints(&self) -> usize {
-                self.inner.config().model.num_joints
+                tcd_core::Network::config(&*self.inner).model.num_joints
             }
             #[getter]
             fn coords(&self) -> usize {
-                self.inner.config().model.coords
+                tcd_core::Network::config(&*self.inner).model.coords
             }
             #[getter]
             fn obs_len(&self) -> usize {
-                self.inner.obs_len()
+                tcd_core::Network::obs_len(&*self.inner)
             }
 
             $($methods)*

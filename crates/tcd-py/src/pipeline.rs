@@ -5,6 +5,7 @@ use numpy::{PyArrayDyn, PyReadonlyArrayDyn};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use tcd_core::seeded_noise as core_seeded_noise;
+use tcd_core::Network;
 use tcd_core::{
     cascade as core_cascade, fill_rows, repair as core_repair, CascadeNoise, CondFill, Sequences,
 };

@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use numpy::{PyArray2, PyArrayDyn, PyReadonlyArrayDyn};
 use pyo3::prelude::*;
-use tcd_core::{prior_fill, Control, Observation, Prior};
+use tcd_core::{prior_fill, Control, Network, Observation, Prior};
 
 use crate::convert::*;
 use crate::error::{internal, invalid, Result};

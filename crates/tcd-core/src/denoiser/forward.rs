@@ -6,6 +6,7 @@ use super::Denoiser;
 use crate::error::{Error, Result};
 use crate::observation::Observation;
 use crate::validate;
+use crate::weights::Network;
 
 /// The inputs of one sequence's forward: its mask, noisy sample x_t and observation x₀ (K × L
 /// values each, (k, l) order), the cond tables for its length and the diffusion step.
@@ -60,7 +61,7 @@ impl Denoiser {
         let (b, l, k) = (prepared.batch, prepared.length, self.num_features());
         let n = k * l;
         let shape = format!("({b}, {k}, {l})");
-        let c2 = 2 * self.config.model.channels;
+        let c2 = 2 * self.source.config.model.channels;
         let tables = &prepared.tables;
         if prepared.mask.len() != b * n
             || tables.width != c2
@@ -72,7 +73,7 @@ impl Denoiser {
                 format!(
                     "the result of `prepare` on this model (K = {k}, {} layers, channels = {})",
                     self.layers.len(),
-                    self.config.model.channels
+                    self.source.config.model.channels
                 ),
                 "one prepared by a model of a different shape",
             ));
@@ -81,7 +82,7 @@ impl Denoiser {
         crate::error::check_len("out", out.len(), b * n, &shape)?;
         self.check_step(step)?;
         if workspace.length != l
-            || workspace.dims != (k, self.config.model.channels)
+            || workspace.dims != (k, self.source.config.model.channels)
             || workspace.fast.is_empty() != self.fast.is_none()
         {
             *workspace = Workspace::with_threads(self, l, workspace.fast.len().max(1));

@@ -10,7 +10,7 @@ use crate::kernels::{Isa, Kernel};
 use crate::nn::activation::{map_inplace, silu};
 use crate::nn::embedding::step_embedding_table;
 use crate::nn::{EncoderLayer, Linear};
-use crate::weights::{Network, Weights};
+use crate::weights::{Network, Source, Weights};
 
 /// The denoiser's file: the `state_dict` of TCD_REFERENCE.md 10.1 (K = num_features, E =
 /// feature_embedding_dim, D = diffusion_embedding_dim, C = channels, S = side_dim, F = ffn_dim; the
@@ -18,8 +18,12 @@ use crate::weights::{Network, Weights};
 impl Network for Denoiser {
     type Config = TcdConfig;
 
-    fn build(w: &mut Weights<'_>, config: TcdConfig, config_json: String) -> Result<Self> {
-        let path = w.path().to_path_buf();
+    fn source(&self) -> &Source<TcdConfig> {
+        &self.source
+    }
+
+    fn build(w: &mut Weights<'_>, source: Source<TcdConfig>) -> Result<Self> {
+        let config = &source.config;
         let m = &config.model;
         let (k, c, d, e, te) = (
             m.num_features,
@@ -94,9 +98,7 @@ impl Network for Denoiser {
         let schedule = config.schedule();
         let kernel = Kernel::from_env()?;
         Denoiser {
-            path,
-            config,
-            config_json,
+            source,
             schedule,
             input_projection,
             step_embedding,

@@ -22,12 +22,11 @@
 //! * `packed.rs`: one sequence on the SIMD kernels (weights packed at load);
 //! * `input.rs`: the network input (its observed channel filled along time: [`crate::fill`]).
 
-use std::path::{Path, PathBuf};
-
 use crate::config::{Role, TcdConfig};
 use crate::kernels::Kernel;
 use crate::nn::{EncoderLayer, Linear};
 use crate::schedule::NoiseSchedule;
+use crate::weights::{Network, Source};
 
 mod forward;
 mod input;
@@ -60,9 +59,8 @@ struct ResidualLayer {
 /// The loaded model. Immutable after load; `Send + Sync`, share it between threads freely.
 #[derive(Clone, Debug)]
 pub struct Denoiser {
-    path: PathBuf,
-    config: TcdConfig,
-    config_json: String,
+    /// The file it was built from and its configuration.
+    source: Source<TcdConfig>,
     schedule: NoiseSchedule,
     /// Conv1d 2 → C.
     input_projection: Linear,
@@ -87,41 +85,21 @@ impl Denoiser {
         self.kernel
     }
 
-    /// The file the model came from (or the name given to [`Denoiser::from_bytes`]).
-    pub fn path(&self) -> &Path {
-        &self.path
-    }
-    /// The parsed `tcd_config`.
-    pub fn config(&self) -> &TcdConfig {
-        &self.config
-    }
-    /// The `tcd_config` JSON exactly as stored.
-    pub fn config_json(&self) -> &str {
-        &self.config_json
-    }
     /// The model's role (`short`, `long`, `repair`).
     pub fn role(&self) -> Role {
-        self.config.role
-    }
-    /// K: coordinates per frame.
-    pub fn num_features(&self) -> usize {
-        self.config.model.num_features
-    }
-    /// Observed frames of the training window.
-    pub fn obs_len(&self) -> usize {
-        self.config.window.obs_len
+        self.source.config.role
     }
     /// Predicted frames of the training window.
     pub fn pred_len(&self) -> usize {
-        self.config.window.pred_len
+        self.source.config.window.pred_len
     }
     /// L of the training window.
     pub fn seq_len(&self) -> usize {
-        self.config.window.seq_len
+        self.source.config.window.seq_len
     }
     /// T.
     pub fn num_train_timesteps(&self) -> usize {
-        self.config.diffusion.num_train_timesteps
+        self.source.config.diffusion.num_train_timesteps
     }
     /// betas and ᾱ in f64.
     pub fn schedule(&self) -> &NoiseSchedule {
@@ -129,7 +107,7 @@ impl Denoiser {
     }
     /// The step embedding e_t (D values) after both projections, for inspection.
     pub fn step_embedding(&self, step: usize) -> Option<&[f32]> {
-        let d = self.config.model.diffusion_embedding_dim;
+        let d = self.source.config.model.diffusion_embedding_dim;
         self.step_embedding.get(step * d..(step + 1) * d)
     }
 
@@ -138,7 +116,7 @@ impl Denoiser {
     /// and `mask` as the target was ([`crate::config::Target::residual_fill`]); an absolute target is left
     /// as it is. The observed entries are merged afterwards by the sampler.
     pub(crate) fn to_poses(&self, x: &mut [f32], mask: &[f32], observed: &[f32]) {
-        let m = &self.config.model;
+        let m = &self.source.config.model;
         if let Some(fill) = m.target.residual_fill() {
             let inv = (1.0 / m.target_scale) as f32;
             let length = x.len() / self.num_features();

@@ -67,7 +67,7 @@ impl Denoiser {
             observed,
             step,
         } = seq;
-        let m = &self.config.model;
+        let m = &self.source.config.model;
         let (k, l, c) = (m.num_features, tables.length, m.channels);
         let n = k * l;
         let num_layers = self.layers.len();

@@ -22,7 +22,7 @@ impl Denoiser {
             observed,
             step,
         } = seq;
-        let m = &self.config.model;
+        let m = &self.source.config.model;
         let (k, l, c) = (m.num_features, tables.length, m.channels);
         let n = k * l;
         let c2 = 2 * c;

@@ -8,6 +8,7 @@ use crate::nn::embedding::frame_embedding;
 use crate::nn::EncoderScratch;
 use crate::observation::Observation;
 use crate::validate;
+use crate::weights::Network;
 
 /// The length-dependent cond tables: for every block, `W_t · pe(l) + b` (L × 2C).
 #[derive(Clone, Debug)]
@@ -86,7 +87,7 @@ impl Workspace {
     /// and the block tail, frames for the feature transformer). Use 1 when independent chains
     /// already occupy the threads. Results do not depend on `threads`.
     pub fn with_threads(denoiser: &Denoiser, length: usize, threads: usize) -> Self {
-        let m = &denoiser.config.model;
+        let m = &denoiser.source.config.model;
         let n = m.num_features * length;
         let c = m.channels;
         Workspace {
@@ -117,8 +118,8 @@ impl Workspace {
 impl Denoiser {
     /// The cond tables for sequences of `length` frames (independent of mask and step).
     pub(crate) fn cond_tables(&self, length: usize) -> CondTables {
-        let te = self.config.model.time_embedding_dim;
-        let c2 = 2 * self.config.model.channels;
+        let te = self.source.config.model.time_embedding_dim;
+        let c2 = 2 * self.source.config.model.channels;
         let pe = frame_embedding(length, te);
         let time = self
             .layers
@@ -144,7 +145,7 @@ impl Denoiser {
         observed.expect(k, "the model's", None)?;
         let [batch, _, length] = observed.shape();
         let values = observed.values();
-        if self.config.model.cond_fill == crate::config::CondFill::Prior {
+        if self.source.config.model.cond_fill == crate::config::CondFill::Prior {
             // The masked entries hold the prior's fill, which the network reads (CondFill::Prior).
             let shape = format!("({batch}, {k}, {length})");
             validate::all_finite("observed", values, values.len(), &shape)?;

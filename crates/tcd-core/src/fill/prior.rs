@@ -7,6 +7,7 @@ use crate::control::Control;
 use crate::error::{Error, Result};
 use crate::observation::Observation;
 use crate::prior::{inbetween_width, Anchor, GapFill, Prior};
+use crate::weights::Network;
 
 use super::fill_spline;
 

@@ -2,8 +2,6 @@
 //! block. Same format version, metadata key and `data` block as the denoisers' ([`crate::config`]);
 //! `docs/tcd_config.schema.json` defines all three kinds.
 
-use std::path::Path;
-
 use serde::{Deserialize, Serialize};
 
 use crate::error::Result;
@@ -66,29 +64,24 @@ impl ModelBlock for GeneratorModelConfig {
         (self.num_joints, self.coords, self.num_features)
     }
 
-    fn validate(&self, path: &Path) -> Result<()> {
-        let checks = Checks(path);
-        let bad = |field: &str, reason: String| checks.bad(field, reason);
+    fn obs_len(&self) -> usize {
+        self.obs_len
+    }
+
+    fn validate(&self, checks: &Checks) -> Result<()> {
         let m = self;
-        if m.coefs > m.pred_len {
-            return Err(bad(
-                "model.coefs",
-                format!(
-                    "must not exceed pred_len = {} (the forecast's DCT coefficients), but is {}",
-                    m.pred_len, m.coefs
-                ),
-            ));
-        }
-        if m.input_width().is_none() {
-            return Err(bad(
-                "model.z_dim",
-                format!(
-                    "and (obs_len + coefs) * num_features must add up to a first-layer width that fits in \
-                     memory, but are {} and ({} + {}) * {}",
-                    m.z_dim, m.obs_len, m.coefs, m.num_features
-                ),
-            ));
-        }
-        Ok(())
+        checks.require(m.coefs <= m.pred_len, "model.coefs", || {
+            format!(
+                "must not exceed pred_len = {} (the forecast's DCT coefficients), but is {}",
+                m.pred_len, m.coefs
+            )
+        })?;
+        checks.require(m.input_width().is_some(), "model.z_dim", || {
+            format!(
+                "and (obs_len + coefs) * num_features must add up to a first-layer width that fits in memory, \
+                 but are {} and ({} + {}) * {}",
+                m.z_dim, m.obs_len, m.coefs, m.num_features
+            )
+        })
     }
 }

@@ -14,6 +14,7 @@
 //! 768; 50 samples of 188 sequences take about 1.1 s on one AVX2 core as it is), at the price of a
 //! second path through the first layer and another order of its sums.
 
+use crate::weights::Network;
 use rayon::prelude::*;
 
 use super::Generator;
@@ -107,7 +108,7 @@ impl Generator {
         out: &mut [f32],
         sc: &mut Scratch,
     ) {
-        let m = &self.config().model;
+        let m = &self.source.config.model;
         let (k, p, c, z) = (m.num_features, m.pred_len, m.coefs, m.z_dim);
         let cw = (m.obs_len + c) * k;
         let n = out.len() / (p * k);

@@ -24,13 +24,11 @@
 //! * `config.rs`: its `tcd_config` ([`GeneratorConfig`]) and the tensors it implies;
 //! * `forward.rs`: [`Generator::sample`], its argument checks and the rows split over threads.
 
-use std::path::{Path, PathBuf};
-
 use crate::error::Result;
-use crate::kernels::{Isa, Kernel};
-use crate::nn::{Dense, Linear};
+use crate::kernels::Kernel;
+use crate::nn::{pack_all, Dense, Linear};
 use crate::prior::dct_matrix;
-use crate::weights::{Network, Weights};
+use crate::weights::{Network, Source, Weights};
 
 pub mod config;
 mod forward;
@@ -40,9 +38,8 @@ pub use config::{GeneratorConfig, GeneratorModelConfig};
 /// A loaded sample generator. Immutable after load; `Send + Sync`, share it between threads freely.
 #[derive(Clone, Debug)]
 pub struct Generator {
-    path: PathBuf,
-    config: GeneratorConfig,
-    config_json: String,
+    /// The file it was built from and its configuration.
+    source: Source<GeneratorConfig>,
     /// The kernel in use (resolved: never `Auto`).
     kernel: Kernel,
     /// The observation's DCT: the orthonormal DCT-II matrix (O × O), row f the f-th cosine.
@@ -61,9 +58,12 @@ pub struct Generator {
 impl Network for Generator {
     type Config = GeneratorConfig;
 
-    fn build(w: &mut Weights<'_>, config: GeneratorConfig, config_json: String) -> Result<Self> {
-        let path = w.path().to_path_buf();
-        let m = &config.model;
+    fn source(&self) -> &Source<GeneratorConfig> {
+        &self.source
+    }
+
+    fn build(w: &mut Weights<'_>, source: Source<GeneratorConfig>) -> Result<Self> {
+        let m = &source.config.model;
         let mut dense = |name: &str, out: usize, input: usize| -> Result<Dense> {
             Ok(Dense::new(Linear::load(w, name, out, input)?))
         };
@@ -81,14 +81,12 @@ impl Network for Generator {
         let mut dct_pred = dct_matrix(m.pred_len);
         dct_pred.truncate(m.coefs * m.pred_len);
         let generator = Generator {
-            path,
             kernel: Kernel::Portable,
             dct_obs: dct_matrix(m.obs_len),
             dct_pred,
             layers,
             head,
-            config_json,
-            config,
+            source,
         };
         generator.with_kernel(Kernel::from_env()?)
     }
@@ -98,12 +96,7 @@ impl Generator {
     /// The same model running `kernel` (`Auto`: the best this CPU supports); an error if the CPU
     /// does not support it. Packs the weights for it once.
     pub fn with_kernel(mut self, kernel: Kernel) -> Result<Self> {
-        let kernel = kernel.resolve()?;
-        let isa = Isa::for_kernel(kernel);
-        for d in self.layers.iter_mut().chain([&mut self.head]) {
-            d.pack(isa);
-        }
-        self.kernel = kernel;
+        (self.kernel, _) = pack_all(kernel, self.layers.iter_mut().chain([&mut self.head]))?;
         Ok(self)
     }
 
@@ -111,44 +104,24 @@ impl Generator {
     pub fn kernel(&self) -> Kernel {
         self.kernel
     }
-    /// The file the model came from (or the name given to [`Generator::from_bytes`]).
-    pub fn path(&self) -> &Path {
-        &self.path
-    }
-    /// The parsed `tcd_config`.
-    pub fn config(&self) -> &GeneratorConfig {
-        &self.config
-    }
-    /// The `tcd_config` JSON exactly as stored.
-    pub fn config_json(&self) -> &str {
-        &self.config_json
-    }
-    /// K: coordinates per frame.
-    pub fn num_features(&self) -> usize {
-        self.config.model.num_features
-    }
-    /// O: frames of the observation it reads (the last `obs_len` of the input).
-    pub fn obs_len(&self) -> usize {
-        self.config.model.obs_len
-    }
     /// P: frames of the prior's forecast it takes and of each sample.
     pub fn pred_len(&self) -> usize {
-        self.config.model.pred_len
+        self.source.config.model.pred_len
     }
     /// Noise values one sample reads.
     pub fn z_dim(&self) -> usize {
-        self.config.model.z_dim
+        self.source.config.model.z_dim
     }
     /// C: DCT coefficients of the forecast it reads and of the residual it writes.
     pub fn coefs(&self) -> usize {
-        self.config.model.coefs
+        self.source.config.model.coefs
     }
     /// Width of the hidden layers.
     pub fn hidden(&self) -> usize {
-        self.config.model.hidden
+        self.source.config.model.hidden
     }
     /// Hidden layers.
     pub fn layers(&self) -> usize {
-        self.config.model.layers
+        self.source.config.model.layers
     }
 }

@@ -4,7 +4,8 @@
 
 use super::activation::{gelu_erf, map_inplace};
 use super::Linear;
-use crate::kernels::{self, Epilogue, FastLinear, Isa, Matrix, MatrixMut};
+use crate::error::Result;
+use crate::kernels::{self, Epilogue, FastLinear, Isa, Kernel, Matrix, MatrixMut};
 
 /// A dense layer `y = x · Wᵀ + b` on the kernel chosen at load: the portable [`Linear`], or its
 /// weights packed for the SIMD GEMM.
@@ -16,6 +17,20 @@ use crate::kernels::{self, Epilogue, FastLinear, Isa, Matrix, MatrixMut};
 pub(crate) struct Dense {
     linear: Linear,
     fast: Option<(Isa, FastLinear)>,
+}
+
+/// Resolves `kernel` (`Auto`: the best this CPU supports; an error if the CPU does not support it) and packs
+/// every one of `layers` for it, once: the kernel resolved and its instruction set (`None`: portable).
+pub(crate) fn pack_all<'a>(
+    kernel: Kernel,
+    layers: impl IntoIterator<Item = &'a mut Dense>,
+) -> Result<(Kernel, Option<Isa>)> {
+    let kernel = kernel.resolve()?;
+    let isa = Isa::for_kernel(kernel);
+    for d in layers {
+        d.pack(isa);
+    }
+    Ok((kernel, isa))
 }
 
 impl Dense {

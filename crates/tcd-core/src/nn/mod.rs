@@ -15,6 +15,6 @@ pub mod layer_norm;
 pub mod linear;
 pub mod transformer;
 
-pub(crate) use dense::Dense;
+pub(crate) use dense::{pack_all, Dense};
 pub use linear::Linear;
 pub use transformer::{EncoderLayer, EncoderScratch};

@@ -2,8 +2,6 @@
 //! Same format version, metadata key and `data` block as the denoisers' ([`crate::config`]);
 //! `docs/tcd_config.schema.json` defines both.
 
-use std::path::Path;
-
 use serde::{Deserialize, Serialize};
 
 use crate::error::Result;
@@ -120,34 +118,29 @@ impl ModelBlock for PriorModelConfig {
         (self.num_joints, self.coords, self.num_features)
     }
 
-    fn validate(&self, path: &Path) -> Result<()> {
-        let checks = Checks(path);
-        let bad = |field: &str, reason: String| checks.bad(field, reason);
+    fn obs_len(&self) -> usize {
+        self.obs_len
+    }
+
+    fn validate(&self, checks: &Checks) -> Result<()> {
         let m = self;
-        if m.chunk > m.obs_len {
-            return Err(bad(
-                "model.chunk",
-                format!(
-                    "must not exceed obs_len = {}, but is {}",
-                    m.obs_len, m.chunk
-                ),
-            ));
-        }
-        if m.anchor == Anchor::Window && m.chunk != m.obs_len {
-            return Err(bad(
-                "model.chunk",
-                format!(
-                    "must equal obs_len = {} for anchor \"window\" (the output corrects the whole input), but is {}",
-                    m.obs_len, m.chunk
-                ),
-            ));
-        }
-        if m.gap_fill != GapFill::None && m.anchor != Anchor::Window {
-            return Err(bad(
-                "model.gap_fill",
-                "is for a repair fill (anchor \"window\"); a forecaster fills no gaps".to_string(),
-            ));
-        }
+        checks.require(m.chunk <= m.obs_len, "model.chunk", || {
+            format!(
+                "must not exceed obs_len = {}, but is {}",
+                m.obs_len, m.chunk
+            )
+        })?;
+        checks.require(m.anchor != Anchor::Window || m.chunk == m.obs_len, "model.chunk", || {
+            format!(
+                "must equal obs_len = {} for anchor \"window\" (the output corrects the whole input), but is {}",
+                m.obs_len, m.chunk
+            )
+        })?;
+        checks.require(
+            m.gap_fill == GapFill::None || m.anchor == Anchor::Window,
+            "model.gap_fill",
+            || "is for a repair fill (anchor \"window\"); a forecaster fills no gaps".to_string(),
+        )?;
         // The two in-betweeners (training/inbetween.py): each a context and a longest gap, both 0 or both at
         // least 1, the gap shorter than the window, on the fills they are for.
         for (name, context, max_gap, fits, what) in [
@@ -170,21 +163,15 @@ impl ModelBlock for PriorModelConfig {
             ),
         ] {
             let field = format!("model.{name}_max_gap");
-            if (context > 0) != (max_gap > 0) {
-                return Err(bad(
-                    &field,
-                    format!("and {name}_context are both 0 or both at least 1, but are {max_gap} and {context}"),
-                ));
-            }
-            if max_gap > 0 && (!fits || max_gap >= m.obs_len) {
-                return Err(bad(
-                    &field,
-                    format!(
-                        "is for {what}, with runs shorter than its window (obs_len = {}), but is {max_gap}",
-                        m.obs_len
-                    ),
-                ));
-            }
+            checks.require((context > 0) == (max_gap > 0), &field, || {
+                format!("and {name}_context are both 0 or both at least 1, but are {max_gap} and {context}")
+            })?;
+            checks.require(max_gap == 0 || (fits && max_gap < m.obs_len), &field, || {
+                format!(
+                    "is for {what}, with runs shorter than its window (obs_len = {}), but is {max_gap}",
+                    m.obs_len
+                )
+            })?;
         }
         checks.layer_norm_eps(m.layer_norm_eps)?;
         Ok(())

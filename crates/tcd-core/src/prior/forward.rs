@@ -12,6 +12,7 @@ use crate::control::Control;
 use crate::error::{check_len, check_positive, Error, Result};
 use crate::kernels::{self, ColumnNorm};
 use crate::validate;
+use crate::weights::Network;
 
 /// Sequences per tile: one worker's unit of work. Its buffers (2 × 13 KiB per sequence at
 /// K = 66, L = 50) and the packed weights stay in L2; more rows per GEMM gain nothing.
@@ -150,7 +151,7 @@ impl Prior {
         self.idct_layer.forward(x, y, n * k);
         transpose(y, x, n, k, c);
         self.fc_out.forward(x, pred, n * c);
-        let window = self.config().model.anchor == Anchor::Window;
+        let window = self.source.config.model.anchor == Anchor::Window;
         for (p, h) in pred
             .chunks_exact_mut(c * k)
             .zip(hist.chunks_exact(l * k))
@@ -231,7 +232,7 @@ impl Prior {
         let (k, l) = (self.num_features(), self.obs_len());
         check_positive("batch", batch)?;
         check_positive("horizon", horizon)?;
-        if self.config().model.anchor == Anchor::Window && horizon != l {
+        if self.source.config.model.anchor == Anchor::Window && horizon != l {
             return Err(Error::invalid_input(
                 "horizon",
                 format!("obs_len = {l}: a prior with anchor \"window\" (a repair fill) corrects its window, it does not forecast"),

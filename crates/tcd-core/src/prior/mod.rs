@@ -35,12 +35,11 @@
 //! * `forward.rs`: the forward, the rollout and the batch split over threads.
 
 use std::f64::consts::PI;
-use std::path::{Path, PathBuf};
 
 use crate::error::Result;
 use crate::kernels::{Isa, Kernel};
-use crate::nn::{Dense, Linear};
-use crate::weights::{Network, Weights};
+use crate::nn::{pack_all, Dense, Linear};
+use crate::weights::{Network, Source, Weights};
 
 pub mod config;
 mod forward;
@@ -59,9 +58,8 @@ struct Block {
 /// A loaded prior. Immutable after load; `Send + Sync`, share it between threads freely.
 #[derive(Clone, Debug)]
 pub struct Prior {
-    path: PathBuf,
-    config: PriorConfig,
-    config_json: String,
+    /// The file it was built from and its configuration.
+    source: Source<PriorConfig>,
     /// The kernel in use (resolved: never `Auto`) and its instruction set (`None`: portable).
     kernel: Kernel,
     isa: Option<Isa>,
@@ -108,9 +106,12 @@ pub fn dct_matrix(n: usize) -> Vec<f32> {
 impl Network for Prior {
     type Config = PriorConfig;
 
-    fn build(w: &mut Weights<'_>, config: PriorConfig, config_json: String) -> Result<Self> {
-        let path = w.path().to_path_buf();
-        let m = &config.model;
+    fn source(&self) -> &Source<PriorConfig> {
+        &self.source
+    }
+
+    fn build(w: &mut Weights<'_>, source: Source<PriorConfig>) -> Result<Self> {
+        let m = &source.config.model;
         let (k, l, chunk) = (m.num_features, m.obs_len, m.chunk);
 
         let dct = dct_matrix(l);
@@ -151,8 +152,6 @@ impl Network for Prior {
             m.joint_inbetween_max_gap,
         )?;
         let prior = Prior {
-            path,
-            config_json,
             kernel: Kernel::Portable,
             isa: None,
             dct,
@@ -165,7 +164,7 @@ impl Network for Prior {
             eps,
             inbetween,
             joint_inbetween,
-            config,
+            source,
         };
         prior.with_kernel(Kernel::from_env()?)
     }
@@ -175,21 +174,14 @@ impl Prior {
     /// The same model running `kernel` (`Auto`: the best this CPU supports); an error if the CPU
     /// does not support it. Packs the weights for it once.
     pub fn with_kernel(mut self, kernel: Kernel) -> Result<Self> {
-        let kernel = kernel.resolve()?;
-        let isa = Isa::for_kernel(kernel);
-        for d in [
+        let layers = [
             &mut self.fc_in,
             &mut self.dct_layer,
             &mut self.idct_layer,
             &mut self.fc_out,
-        ] {
-            d.pack(isa);
-        }
-        for b in &mut self.blocks {
-            b.fc.pack(isa);
-        }
-        self.kernel = kernel;
-        self.isa = isa;
+        ];
+        let blocks = self.blocks.iter_mut().map(|b| &mut b.fc);
+        (self.kernel, self.isa) = pack_all(kernel, layers.into_iter().chain(blocks))?;
         Ok(self)
     }
 
@@ -197,29 +189,9 @@ impl Prior {
     pub fn kernel(&self) -> Kernel {
         self.kernel
     }
-    /// The file the model came from (or the name given to [`Prior::from_bytes`]).
-    pub fn path(&self) -> &Path {
-        &self.path
-    }
-    /// The parsed `tcd_config`.
-    pub fn config(&self) -> &PriorConfig {
-        &self.config
-    }
-    /// The `tcd_config` JSON exactly as stored.
-    pub fn config_json(&self) -> &str {
-        &self.config_json
-    }
-    /// K: coordinates per frame.
-    pub fn num_features(&self) -> usize {
-        self.config.model.num_features
-    }
-    /// Frames one forward reads (the last `obs_len` of the input).
-    pub fn obs_len(&self) -> usize {
-        self.config.model.obs_len
-    }
     /// Frames one forward predicts.
     pub fn chunk(&self) -> usize {
-        self.config.model.chunk
+        self.source.config.model.chunk
     }
     /// The in-betweening kernel of an n-frame gap ((n × [`inbetween_width`]) row-major, with the
     /// context of `config().model.inbetween_context`), if the fill has one for that length.

@@ -14,6 +14,7 @@ mod ddim;
 mod ddpm;
 mod dpmpp;
 
+use crate::weights::Network;
 use rayon::prelude::*;
 
 use crate::config::{CondFill, PredictionType, VarianceType};
