@@ -105,6 +105,27 @@ def test_a_failed_stage_stops_the_run_and_runs_again_next_time(tmp_path, monkeyp
     assert result["stages"][0]["attempts"] == 2
 
 
+def test_a_silent_stage_has_its_cost_and_progress_written_as_it_runs(tmp_path, monkeypatch):
+    """A trainer may print nothing for an hour (a long epoch): the runner still writes its cost and progress every
+    POLL_S, so a run killed then counts what it spent (written on output lines alone, it counted seconds of hours)."""
+    monkeypatch.setattr(R, "RESULTS", tmp_path / "results")
+    monkeypatch.setattr(R, "POLL_S", 0.05)
+    calls = []
+    monkeypatch.setattr(R.Runner, "write_progress", lambda self, *a: calls.append(a))
+    busy = {
+        "name": "busy",
+        "run": "module",
+        "module": "timeit",
+        "args": ["-n", "1", "-r", "1", "sum(range(6 * 10**7))"],
+    }
+    src = tmp_path / "src.json"
+    src.write_text("[1]")
+    rec = write_recipe(tmp_path, [busy, copy_stage("copy", str(src), "{out}/weights_test/a.json")])
+    R.Runner(rec, tmp_path / "run", log=lambda m: None).run()
+    assert len(calls) >= 5  # one line of output, at the end
+    assert "loop" in (tmp_path / "run" / "busy" / "log.txt").read_text()
+
+
 def test_malformed_recipes_are_refused_naming_the_problem(tmp_path):
     ok = copy_stage("one", "a", "b")
     with pytest.raises(RF.RecipeError, match="unknown stage keys"):

@@ -38,11 +38,13 @@ import hashlib
 import json
 import os
 import platform
+import queue
 import re
 import resource
 import shutil
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -87,6 +89,27 @@ PROGRESS = (
     re.compile(r"iteration (?P<step>\d+)/(?P<total>\d+): loss (?P<loss>[\d.eE+-]+)"),
     re.compile(r"^step (?P<step>\d+) \([\d.]+ min\): loss (?P<loss>[\d.eE+-]+)"),  # the generator's IMLE trainer
 )
+
+
+def stage_output(proc: subprocess.Popen):
+    """The lines a stage prints, and an empty string each POLL_S seconds it prints none: a trainer silent for an
+    hour (a long epoch) still has its cost and progress written as it runs, so a killed run counts what it spent."""
+    lines: queue.Queue = queue.Queue()
+
+    def pump():
+        for line in proc.stdout:
+            lines.put(line)
+        lines.put(None)
+
+    threading.Thread(target=pump, daemon=True).start()
+    while True:
+        try:
+            line = lines.get(timeout=POLL_S)
+        except queue.Empty:
+            line = ""
+        if line is None:
+            return
+        yield line
 
 
 def parse_progress(line: str) -> dict | None:
@@ -250,19 +273,19 @@ class Runner:
             proc = subprocess.Popen(
                 cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1
             )
-            assert proc.stdout is not None
-            for line in proc.stdout:
-                logf.write(line)
-                logf.flush()
-                p = parse_progress(line)
-                if p:
-                    progress = p
+            last_line = ""
+            for line in stage_output(proc):
+                if line:
+                    logf.write(line)
+                    logf.flush()
+                    last_line = line.strip()
+                    progress = parse_progress(line) or progress
                 now = time.time()
                 if now - last_poll > POLL_S:
                     last_poll = now
                     attempt.update(cpu_s=tree_cpu_seconds(proc.pid), wall_s=now - t0)
                     (sdir / "cost.json").write_text(json.dumps(costs, indent=1))
-                    self.write_progress(stage, index, total, progress, steps, t0, line.strip())
+                    self.write_progress(stage, index, total, progress, steps, t0, last_line)
             rc = proc.wait()
         attempt.update(wall_s=time.time() - t0, cpu_s=children_cpu_seconds() - cpu0)
         (sdir / "cost.json").write_text(json.dumps(costs, indent=1))

@@ -449,7 +449,7 @@ def train(
             run_loss, run_n = run_loss + loss.float(), run_n + 1
             batch_i += 1
             now = time.time()
-            if batch_i % 100 == 0:
+            if batch_i % min(100, steps_per_epoch) == 0:  # at least once an epoch: the runner's progress
                 log(
                     f"epoch {epoch} batch {batch_i}/{steps_per_epoch} loss {float(run_loss) / run_n:.4f} "
                     f"lr {lr:.1e} {now - t_start:.0f}s"
