@@ -10,6 +10,7 @@ descriptors". One declaration per attribute instead of a hand-written property t
 
 from __future__ import annotations
 
+import copy
 import json
 import os
 from typing import Any, ClassVar, Dict, Generic, Optional, Protocol, Type, TypeVar, Union, overload
@@ -90,6 +91,11 @@ class NativeModel(Generic[N]):
     def config(self) -> Dict[str, Any]:
         """The ``tcd_config`` JSON of the file, parsed (a fresh copy)."""
         return json.loads(json.dumps(self._config))
+
+    def _section(self, name: str) -> Dict[str, Any]:
+        """One top-level block of :attr:`config` (``{}`` where absent), a fresh copy of that block alone: the
+        calls that read ``data`` per call (the frame rate, the joint names) need not copy the whole config."""
+        return copy.deepcopy(self._config.get(name) or {})
 
     # The file's settings, read from the engine's model (each read-only); each class adds its own.
     path = NativeAttribute(str, "The weight file's path (or the name given to :meth:`from_bytes`).")

@@ -276,7 +276,7 @@ class TCD:
     @property
     def data(self) -> Dict[str, Any]:
         """The ``data`` section of the short-term model's config (dataset, fps, units, joint_names, ...)."""
-        return dict(self.short.config.get("data") or {})
+        return self.short._section("data")
 
     @property
     def joint_names(self) -> Optional[List[str]]:
