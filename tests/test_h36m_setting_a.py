@@ -98,3 +98,46 @@ def test_the_setting_a_protocol_scores_zero_velocity(tmp_path):
         evaluate.main(argv + ["--model", "python/tcd/weights_humaneva", "--engine", "tcd"])
     with pytest.raises(SystemExit):
         evaluate.main(argv + ["--baseline", "zero-velocity", "--split", "Validate"])  # HumanEva-I's split
+
+
+def test_a_setting_a_prior_config_names_its_subjects_and_data():
+    """``"dataset": "h36m-a"``: 16 joints, the Setting-A training subjects only (S9 and S11 are the test), and the
+    file's data block says 50 Hz, the h36m17 layout without its pelvis."""
+    import_torch("the prior trainer")
+    from training.prior import PriorConfig, dataset_joint_names
+    from training.prior_net import prior_data_meta
+
+    cfg = PriorConfig(dataset="h36m-a", obs_len=25, chunk=25, blocks=2, subjects=(1, 5, 6, 7, 8))
+    assert cfg.num_joints == 16 and len(dataset_joint_names("h36m-a")) == 16
+    meta = prior_data_meta(cfg)
+    assert (meta["dataset"], meta["fps"], meta["layout"], meta["joint_names"][0]) == (
+        "h36m-setting-a",
+        50.0,
+        "h36m17",
+        dataset_joint_names("h36m-a")[0],
+    )
+    assert "S1,S5,S6,S7,S8" in meta["training_data"]
+    for subjects in ((1, 9), ()):
+        with pytest.raises(ValueError, match="Setting-A prior trains on subjects among"):
+            PriorConfig(dataset="h36m-a", obs_len=25, chunk=25, subjects=subjects)
+
+
+@needs_h36m
+def test_a_setting_a_prior_trains_exports_and_scores_on_the_protocol(tmp_path):
+    """A few iterations on S1's Setting-A sequences, exported: the engine's prior forecasts Setting-A's 100 frames
+    from 25, as ``training.evaluate --protocol h36m-a --prior`` reads it."""
+    import_torch("the prior trainer")
+    from training import prior as P
+    from training.evaluate_stochastic import SETTING_A, prior_forecast
+    from training.export import export_prior
+
+    cfg = P.PriorConfig(
+        dataset="h36m-a", obs_len=25, chunk=25, blocks=2, batch_size=8, iterations=3, subjects=(1,), rotate_axis="y"
+    )
+    frames, starts = P.training_frames(cfg, str(H36M_DIR))
+    assert frames.shape[1] == 48 and len(starts) > 1000
+    P.train(cfg, tmp_path / "run", frames=(frames, starts), log=lambda m: None)
+    path = export_prior(tmp_path / "run" / "last.pt", tmp_path / "model")
+    obs = np.zeros((2, 25, 16, 3)) + np.linspace(0, 1, 48).reshape(16, 3)
+    out = prior_forecast(SETTING_A, tmp_path / "model", obs)
+    assert path.name == "prior.safetensors" and out.shape == (2, 100, 16, 3) and np.isfinite(out).all()

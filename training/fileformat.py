@@ -24,8 +24,9 @@ GENERATOR_ROLE = "generator"  # the MLP sample generator's role (training/genera
 GENERATOR_FILE = "generator.safetensors"
 SAMPLING_FILE = "sampling.json"  # a model directory's default samplers (tcd._model reads it)
 CONFIG_KEY = "tcd_config"
-#: the model joints of each dataset (Human3.6M: 22; HumanEva-I: joints 1..14 of 15)
-DATASET_JOINTS = {"h36m": 22, "humaneva": 14}
+#: the model joints of each dataset (Human3.6M: 22; HumanEva-I: joints 1..14 of 15; Human3.6M Setting-A: joints
+#: 1..16 of the 17 of the ``h36m17`` layout)
+DATASET_JOINTS = {"h36m": 22, "humaneva": 14, "h36m-a": 16}
 
 
 def source_revision() -> str:
@@ -86,9 +87,29 @@ def humaneva_data_meta(
     }
 
 
+def setting_a_data_meta(training_data: str = "Human3.6M S1,S5,S6,S7,S8 (exp-map, 50 fps)") -> dict:
+    """The ``data`` block of a Human3.6M Setting-A model (``training.data.h36m_setting_a``): joints 1..16 of the
+    ``h36m17`` layout relative to the pelvis (the protocol's 48 dimensions), 50 Hz, metres, the world rotation
+    kept (+y up)."""
+    from tcd.layouts import get_layout
+
+    return {
+        "dataset": "h36m-setting-a",
+        "fps": 50.0,
+        "units": "m",
+        "root_relative": True,
+        "joint_names": list(get_layout("h36m17").joint_names[1:]),
+        "layout": "h36m17",
+        "root_joint": "pelvis",
+        "up": "y",
+        "training_data": training_data,
+        "licence": "Human3.6M: academic non-commercial research use only",
+    }
+
+
 def data_meta(dataset: str, training_data: str | None = None, h36m_share: float = 0.0) -> dict:
-    """The ``data`` block of a model trained on ``dataset`` ("h36m" or "humaneva"; a HumanEva-I model with
-    ``h36m_share`` > 0 learnt from Human3.6M too, and its block says so)."""
+    """The ``data`` block of a model trained on ``dataset`` ("h36m", "humaneva" or "h36m-a"; a HumanEva-I model
+    with ``h36m_share`` > 0 learnt from Human3.6M too, and its block says so)."""
     if dataset == "humaneva":
         if h36m_share:
             from .data.humaneva import mix_description
@@ -97,7 +118,9 @@ def data_meta(dataset: str, training_data: str | None = None, h36m_share: float 
         return humaneva_data_meta() if training_data is None else humaneva_data_meta(training_data)
     if dataset == "h36m":
         return h36m_data_meta() if training_data is None else h36m_data_meta(training_data)
-    raise ValueError(f"unknown dataset {dataset!r}: 'h36m' or 'humaneva'")
+    if dataset == "h36m-a":
+        return setting_a_data_meta() if training_data is None else setting_a_data_meta(training_data)
+    raise ValueError(f"unknown dataset {dataset!r}: {' or '.join(map(repr, DATASET_JOINTS))}")
 
 
 def save_model_file(path: str | Path, model: torch.nn.Module, config: dict) -> None:

@@ -4,7 +4,8 @@ resumable installments.
 Training (``python -m training.prior``): random windows of ``obs_len + chunk`` frames (``obs_len +
 loss_frames`` when set) from the training subjects of ``dataset`` (``"h36m"``: Human3.6M, the 22 model joints
 at 25 fps; ``"humaneva"``: HumanEva-I's Train split, 14 root-relative joints at 60 Hz,
-``training.data.humaneva.training_sequences``), reversed in time with probability ``flip_prob``; loss = mean
+``training.data.humaneva.training_sequences``; ``"h36m-a"``: Human3.6M Setting-A's training subjects, 16
+root-relative joints at 50 Hz, ``training.data.h36m_setting_a``), reversed in time with probability ``flip_prob``; loss = mean
 per-joint L2 distance of the chunk (of the ``loss_frames`` frames rolled out, when set) plus the same on its
 frame-to-frame velocities; Adam with weight decay; the learning rate decays once at ``lr_decay_at`` of the
 iterations (``lr`` -> ``lr_final``). Every draw is a pure function of (seed, iteration), so a resumed run
@@ -50,6 +51,8 @@ def dataset_joint_names(dataset: str) -> tuple:
         return HUMANEVA_MODEL_JOINT_NAMES
     from tcd.layouts import get_layout
 
+    if dataset == "h36m-a":
+        return get_layout("h36m17").joint_names[1:]  # the pelvis is the origin, not a model joint
     return get_layout("h36m22").joint_names
 
 
@@ -59,6 +62,11 @@ def training_sequences(cfg: PriorConfig, data: str | None = None) -> list[np.nda
         from .data.humaneva import training_mix
 
         return training_mix(cfg.h36m_share, cfg.obs_len + cfg.future, data, cfg.subjects)
+    if cfg.dataset == "h36m-a":
+        from .data.h36m import DEFAULT_H36M_DIR
+        from .data.h36m_setting_a import setting_a_sequences
+
+        return [s.astype(np.float32) for s in setting_a_sequences(cfg.subjects, data or DEFAULT_H36M_DIR).values()]
     from .data.h36m import DEFAULT_H36M_DIR, H36M, SPLITS
 
     known = {s for subs in SPLITS.values() for s in subs}

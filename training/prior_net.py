@@ -40,6 +40,7 @@ from .fileformat import (
     PRIOR_ROLE,
     h36m_data_meta,
     humaneva_data_meta,
+    setting_a_data_meta,
     read_config,
     save_model_file,
 )
@@ -77,7 +78,8 @@ class PriorConfig:
     init_from: str = ""  # a later installment: the last.pt (or exported prior.safetensors) whose weights
     # start this run (fresh Adam;
     # a deeper config grows it: load_grown)
-    dataset: str = "h36m"  # "h36m" (Human3.6M, 22 joints) or "humaneva" (HumanEva-I Train split, 14 joints)
+    dataset: str = "h36m"  # "h36m" (Human3.6M, 22 joints), "humaneva" (HumanEva-I Train split, 14 joints) or
+    # "h36m-a" (Human3.6M Setting-A, 16 joints at 50 Hz: training.data.h36m_setting_a)
     h36m_share: float = 0.0  # HumanEva-I: the fraction of windows from Human3.6M retargeted to its skeleton
     # (training.data.humaneva.training_mix)
     val_subjects: tuple = ()  # held out from training: with val_every, the loss on val_windows fixed windows
@@ -148,6 +150,11 @@ class PriorConfig:
             raise ValueError(
                 "prior config: a HumanEva-I prior trains on subjects among [1, 2, 3] (the Train split's "
                 f'S1..S3); set "subjects": [1, 2, 3], got {list(self.subjects)}'
+            )
+        if self.dataset == "h36m-a" and not (self.subjects and set(self.subjects) <= {1, 5, 6, 7, 8}):
+            raise ValueError(
+                "prior config: a Human3.6M Setting-A prior trains on subjects among [1, 5, 6, 7, 8] (S9 and S11 "
+                f"are its test subjects), got {list(self.subjects)}"
             )
         from .data.humaneva import check_h36m_share
 
@@ -366,6 +373,8 @@ def prior_data_meta(cfg) -> dict:
 
         share = getattr(cfg, "h36m_share", 0.0)
         return humaneva_data_meta(mix_description(share, cfg.subjects), with_h36m=bool(share))
+    if getattr(cfg, "dataset", "h36m") == "h36m-a":
+        return setting_a_data_meta(training_data=f"Human3.6M {subjects} (exp-map, 50 fps, Setting-A)")
     return h36m_data_meta(training_data=f"Human3.6M {subjects} (exp-map, 25 fps)")
 
 
