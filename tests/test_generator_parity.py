@@ -178,3 +178,18 @@ def test_export_round_trip_and_cli(tmp_path):
     assert (e.hidden, e.layers, e.z_dim, e.coefs, e.pred_len, e.obs_len) == (32, 2, 64, 20, 60, 15)
     assert e.config["training"]["description"] == "a test"
     shutil.rmtree(tmp_path / "dir")
+
+
+def test_a_setting_a_generator_exports_for_its_protocol(tmp_path):
+    """``python -m training.generator --protocol h36m-a``: Setting-A's 16 joints, 25 -> 100 frames and its data block
+    (50 Hz); an unknown protocol is refused by name."""
+    g = Generator(48, 32, 2, 64, 20, obs_len=25, pred_len=100)
+    torch.save(g.state_dict(), tmp_path / "state.pt")
+    argv = [sys.executable, "-m", "training.generator", "--state-dict", str(tmp_path / "state.pt")]
+    argv += ["--out", str(tmp_path / "dir"), "--hidden", "32", "--layers", "2"]
+    subprocess.run(argv + ["--protocol", "h36m-a"], cwd=ROOT, check=True, capture_output=True)
+    e = tcd.engine.Generator.load(tmp_path / "dir" / "generator.safetensors")
+    assert (e.num_joints, e.obs_len, e.pred_len) == (16, 25, 100)
+    assert (e.config["data"]["dataset"], e.config["data"]["fps"]) == ("h36m-setting-a", 50.0)
+    bad = subprocess.run(argv + ["--protocol", "h36m-b"], cwd=ROOT, capture_output=True, text=True)
+    assert bad.returncode != 0 and "'h36m-b' is not a stochastic protocol" in bad.stderr

@@ -117,7 +117,8 @@ def test_further_targets_each_pull_their_nearest_candidate():
 
 @pytest.mark.parametrize("variant", ["own", "others", "final"])
 def test_a_stored_choice_gives_the_loss_of_a_fresh_search_and_stays_as_chosen(variant):
-    """imle_echo's split: a stored imle_choose result gives the loss of a fresh search; after the weights move, the stored choice still trains the candidates it chose (stale by design)."""
+    """imle_echo's split: a stored imle_choose result gives the loss of a fresh search; after the weights move, the
+    stored choice still trains the candidates it chose (stale by design)."""
     model, x0, mask = model_and_window(seed=3)
     cand = torch.randn(6, *x0.shape, generator=torch.Generator().manual_seed(8))
     kw = {}

@@ -68,6 +68,7 @@ class StochasticDataset:
     t_pred: int
     fps: int
     num_joints: int  # the model's joints (the root dropped)
+    up: str  # the data's vertical axis (the augmentations turn and reflect about it)
     data_dir: str  # under training.data.h36m.DEFAULT_DATA_ROOT
     splits: tuple  # the test split first; the next apply the same rule to the training data
     windows: Callable  # (data, split) -> ((N, t_his + t_pred, J, 3) metres, each window's action)
@@ -95,11 +96,11 @@ class StochasticDataset:
 
 
 HUMANEVA = StochasticDataset(
-    "humaneva", "humaneva-i", "HumanEva-I", 15, 60, 60, 14, "humaneva", ("Validate", "Train"),
+    "humaneva", "humaneva-i", "HumanEva-I", 15, 60, 60, 14, "z", "humaneva", ("Validate", "Train"),
     _humaneva_windows, _humaneva_training, "PUBLISHED_HUMANEVA",
 )  # fmt: skip
 SETTING_A = StochasticDataset(
-    "h36m-a", "h36m-setting-a", "Human3.6M Setting-A", 25, 100, 50, 16, "h36m", ("S9+S11", "S1+S5-S8"),
+    "h36m-a", "h36m-setting-a", "Human3.6M Setting-A", 25, 100, 50, 16, "y", "h36m", ("S9+S11", "S1+S5-S8"),
     _setting_a_windows, _setting_a_training, "PUBLISHED_H36M_A",
 )  # fmt: skip
 DATASETS = {d.protocol: d for d in (HUMANEVA, SETTING_A)}

@@ -44,7 +44,7 @@ from .fileformat import (
     FORMAT_VERSION,
     GENERATOR_FILE,
     GENERATOR_ROLE,
-    humaneva_data_meta,
+    data_meta,
     read_config,
 )
 from .prior_net import dct_matrix
@@ -181,7 +181,12 @@ def main(argv=None) -> int:
     ap.add_argument("--layers", type=int, default=LAYERS)
     ap.add_argument("--z", type=int, default=Z_DIM)
     ap.add_argument("--coefs", type=int, default=COEFS)
-    ap.add_argument("--joints", type=int, default=14)
+    ap.add_argument(
+        "--protocol",
+        default="humaneva",
+        help="the stochastic protocol's dataset it was trained on (training.evaluate_stochastic.DATASETS): its "
+        "joints, frames and the file's data block",
+    )
     ap.add_argument("--description", default=None, help="recorded in the file's training block")
     ap.add_argument(
         "--training-json",
@@ -189,7 +194,13 @@ def main(argv=None) -> int:
         help="a JSON file whose content joins the training block (e.g. a bench result's options)",
     )
     args = ap.parse_args(argv)
-    gen = Generator(3 * args.joints, args.hidden, args.layers, args.z, args.coefs)
+    from .evaluate_stochastic import dataset_of
+
+    try:
+        ds = dataset_of(args.protocol)
+    except ValueError as e:
+        raise SystemExit(str(e)) from None
+    gen = Generator(ds.dims, args.hidden, args.layers, args.z, args.coefs, obs_len=ds.t_his, pred_len=ds.t_pred)
     gen.load_state_dict(torch.load(args.state_dict, map_location="cpu"), strict=True)
     training = json.loads(Path(args.training_json).read_text()) if args.training_json else {}
     if args.description:
@@ -198,7 +209,7 @@ def main(argv=None) -> int:
     if out.suffix != ".safetensors":
         out.mkdir(parents=True, exist_ok=True)
         out = out / GENERATOR_FILE
-    print(save_generator(out, gen.eval(), humaneva_data_meta(), training), file=sys.stderr)
+    print(save_generator(out, gen.eval(), data_meta(ds.protocol), training), file=sys.stderr)
     return 0
 
 

@@ -1,15 +1,17 @@
-"""The trainer of the HumanEva-I MLP sample generator (``generator.safetensors``; recipe
-``training/recipes/humaneva-generator.json``), by IMLE around the prior's forecast.
+"""The trainer of the MLP sample generator (``generator.safetensors``; recipes
+``training/recipes/humaneva-generator.json`` and ``h36m-stochastic.json``), by IMLE around the prior's forecast, on
+a stochastic protocol's dataset (``--protocol``: HumanEva-I, 15 -> 60 frames of 14 joints, or Human3.6M Setting-A,
+25 -> 100 of 16; ``training.evaluate_stochastic.DATASETS``).
 
-* input: the observation's 15 DCT coefficients and the first ``--coefs`` of the prior's 60-frame forecast (both
-  relative to the last observed pose, 42 coordinates each) and a noise vector z ~ N(0, I) of ``--z``;
+* input: the observation's DCT coefficients and the first ``--coefs`` of the prior's forecast (both relative to the
+  last observed pose) and a noise vector z ~ N(0, I) of ``--z``;
 * an MLP of ``--layers`` x ``--hidden`` (GELU) to the first ``--coefs`` DCT coefficients of a residual over the
   prior's forecast; its last layer starts at zero, so the untrained generator is the prior;
 * IMLE (Li and Malik 2018): each training window draws ``--cands`` z, and each of its targets (its own future and,
   with ``--targets`` T > 1, the futures of its T - 1 nearest training windows by arrival pose and velocity, joined to
   its last pose: ``training.augment.swap_futures``) pulls the candidate nearest to it, by the per-frame L2 error's
   mean plus ``--fde-weight`` x its last frame's (the protocol's ADE and FDE);
-* with ``--rotate`` each window and its targets turned about the vertical by an angle in [0, 2 pi)
+* with ``--rotate`` each window and its targets turned about the data's vertical by an angle in [0, 2 pi)
   (``training.augment.rotate_about``), with ``--mirror`` half of them reflected (``training.augment.mirror``), with
   ``--speed-range`` played faster or slower (``training.augment.resample``); Adam at ``--lr``, x 0.1 for the last
   20 % of the run;
@@ -18,8 +20,8 @@
   the MLP learns to reach what the cascade's samples miss; ``--mix M`` scores the mixture of the cascade's first M
   protocol samples and the MLP's first 50 - M.
 
-It scores 50 samples per window on the protocol's 188 windows (``training.evaluate_stochastic.StochasticCases``: the
-same metrics and per-window values as ``python -m training.evaluate --protocol humaneva``, so ``training.compare``
+It scores 50 samples per window on the protocol's windows (``training.evaluate_stochastic.StochasticCases``: the
+same metrics and per-window values as ``python -m training.evaluate --protocol PROTOCOL``, so ``training.compare``
 pairs them), in PyTorch. The generator is ``training.generator.Generator``; ``python -m training.generator
 --state-dict`` writes a ``--save``d one as ``generator.safetensors``, which the engine runs
 (``tcd.engine.Generator``) and a model directory mixes into its forecasts. ``--steps`` (with ``--threads 1``) makes
@@ -39,7 +41,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .data.humaneva import HUMANEVA_T_HIS as OBS, HUMANEVA_T_PRED as PRED
+from .evaluate_stochastic import DATASETS, StochasticDataset, dataset_of
 from .generator import COEFS, HIDDEN, LAYERS, Z_DIM, Generator  # the model it trains
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -49,7 +51,7 @@ COMPLEMENT_SEED = 7  # the engine's seed for --complement's samples of the train
 
 
 def distance(x: torch.Tensor, y: torch.Tensor, fde_weight: float) -> torch.Tensor:
-    """(..., 60, K) pairs -> (...): the mean over frames of the per-frame L2 error plus ``fde_weight`` x the last's."""
+    """(..., P, K) pairs -> (...): the mean over frames of the per-frame L2 error plus ``fde_weight`` x the last's."""
     e = torch.linalg.vector_norm(x - y, dim=-1)
     return e.mean(-1) + fde_weight * e[..., -1]
 
@@ -63,7 +65,7 @@ def imle_loss(
     fde_weight: float,
     rival: torch.Tensor | None = None,
 ) -> torch.Tensor:
-    """``targets`` (B, T, 60, K): each pulls the nearest of ``cands`` draws of its window (searched without
+    """``targets`` (B, T, P, K): each pulls the nearest of ``cands`` draws of its window (searched without
     gradients, then generated again with them), the mean of those distances. With ``rival`` (B, T), the distance
     from each target to another generator's nearest sample, the mean of the smaller of the two: the best of a
     mixture of both generators' samples, so a target the rival already reaches pulls nothing."""
@@ -71,22 +73,22 @@ def imle_loss(
     z = torch.randn(B, cands, gen.z_dim)
     with torch.no_grad():
         best = distance(gen(obs, prior, z)[:, :, None], targets[:, None], fde_weight).argmin(1)  # (B, T)
-    chosen = gen(obs, prior, z[torch.arange(B)[:, None], best])  # (B, T, 60, K)
+    chosen = gen(obs, prior, z[torch.arange(B)[:, None], best])  # (B, T, P, K)
     d = distance(chosen, targets, fde_weight)
     return (d if rival is None else torch.minimum(d, rival)).mean()
 
 
-def engine_samples(model: str, obs: np.ndarray, samples: int, seed: int) -> np.ndarray:
-    """(S, W, 60, J, 3): ``samples`` one-step DDIM samples of the model directory ``model``'s cascade (no generator
-    samples) for obs (W, 15, J, 3), through the engine exactly as ``python -m training.evaluate --protocol humaneva
+def engine_samples(ds: StochasticDataset, model: str, obs: np.ndarray, samples: int, seed: int) -> np.ndarray:
+    """(S, W, P, J, 3): ``samples`` one-step DDIM samples of the model directory ``model``'s cascade (no generator
+    samples) for obs (W, O, J, 3), through the engine exactly as ``python -m training.evaluate --protocol PROTOCOL
     --engine tcd --sampler ddim --steps 1 --seed SEED --generator-share 0`` draws them."""
     from .evaluate import build_parser
-    from .evaluate_stochastic import HUMANEVA, model_samples
+    from .evaluate_stochastic import model_samples
 
     args = build_parser().parse_args(
         [
             "--protocol",
-            "humaneva",
+            ds.protocol,
             "--model",
             model,
             "--engine",
@@ -105,11 +107,12 @@ def engine_samples(model: str, obs: np.ndarray, samples: int, seed: int) -> np.n
             "unused",
         ]
     )
-    return model_samples(HUMANEVA, args, np.asarray(obs, np.float64))
+    return model_samples(ds, args, np.asarray(obs, np.float64))
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--protocol", default="humaneva", choices=sorted(DATASETS), help="the dataset and its protocol")
     ap.add_argument(
         "--minutes",
         type=float,
@@ -136,7 +139,13 @@ def main(argv=None) -> int:
     ap.add_argument("--hidden", type=int, default=HIDDEN)
     ap.add_argument("--layers", type=int, default=LAYERS)
     ap.add_argument("--z", type=int, default=Z_DIM, help="the noise vector's size")
-    ap.add_argument("--coefs", type=int, default=COEFS, help="DCT coefficients of the 60-frame residual (of 60)")
+    ap.add_argument("--coefs", type=int, default=COEFS, help="DCT coefficients of the residual (of its frames)")
+    ap.add_argument(
+        "--stride",
+        type=int,
+        default=1,
+        help="frames between the starts of two training windows (Setting-A's every window, at 50 Hz, would hold 7 GB)",
+    )
     ap.add_argument("--cands", type=int, default=50, help="IMLE candidates per window")
     ap.add_argument("--targets", type=int, default=1, help="targets per window: its own future and T - 1 others")
     ap.add_argument(
@@ -187,15 +196,16 @@ def main(argv=None) -> int:
     ap.add_argument("--eval-every", type=float, default=5.0, help="minutes between interim scores (stderr)")
     ap.add_argument(
         "--model",
-        default=str(ROOT / "python" / "tcd" / "weights_humaneva"),
-        help="the model directory whose prior.safetensors the generator forecasts around",
+        default=None,
+        help="the model directory whose prior.safetensors the generator forecasts around (default for "
+        "HumanEva-I: the bundled weights_humaneva)",
     )
-    ap.add_argument("--data", default=None, help="the HumanEva-I file or directory (default ../shared/data)")
+    ap.add_argument("--data", default=None, help="the dataset's file or directory (default under ../shared/data)")
     ap.add_argument("--json", required=True, help="the result: the protocol's metrics, per window and per action")
     ap.add_argument("--save", default=None, help="also save the generator's state dict here")
     args = ap.parse_args(argv)
-    if args.targets < 1 or args.cands < 1 or args.minutes < 0 or args.steps < 0:
-        raise SystemExit("--targets and --cands must be >= 1, --minutes and --steps >= 0")
+    if args.targets < 1 or args.cands < 1 or args.stride < 1 or args.minutes < 0 or args.steps < 0:
+        raise SystemExit("--targets, --cands and --stride must be >= 1, --minutes and --steps >= 0")
     if args.minutes and args.steps:
         raise SystemExit("--minutes or --steps, not both")
     if not 0 <= args.mix < SAMPLES:
@@ -203,36 +213,44 @@ def main(argv=None) -> int:
     if args.complement and args.speed_range:
         raise SystemExit("--complement holds samples of the windows as recorded: not with --speed-range")
 
+    ds = dataset_of(args.protocol)
+    if args.model is None:
+        if ds.protocol != "humaneva":
+            raise SystemExit(f"--model: the directory of the {ds.title} prior (no bundled default)")
+        args.model = str(ROOT / "python" / "tcd" / "weights_humaneva")
     import tcd
     from .augment import mirror, mirror_permutation, resample, rotate_about, sequence_ends, swap_futures
     from .batches import Windows
-    from .data.humaneva import HUMANEVA_MODEL_JOINT_NAMES, training_sequences
-    from .evaluate_stochastic import HUMANEVA, StochasticCases
+    from .evaluate_stochastic import StochasticCases
+    from .prior import dataset_joint_names
 
+    OBS, PRED, up = ds.t_his, ds.t_pred, ds.up
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
     prior = tcd.engine.Prior.load(Path(args.model) / "prior.safetensors")
-    cases = StochasticCases.load(HUMANEVA, args.data)
+    cases = StochasticCases.load(ds, args.data)
     J = cases.obs.shape[2]
     K = 3 * J
 
     def forecast(obs: np.ndarray) -> torch.Tensor:
         return torch.from_numpy(np.asarray(prior.predict(np.ascontiguousarray(obs, np.float32), PRED), np.float32))
 
-    windows = Windows(list(training_sequences(args.data).values()), OBS + PRED, 1)
+    windows = Windows(ds.training(ds.data_path(args.data)), OBS + PRED, args.stride)
     train = windows.gather(np.arange(len(windows))).reshape(len(windows), OBS + PRED, K)
     frames = np.concatenate(windows.seqs).reshape(-1, K).astype(np.float32)  # every sequence, end to end
     first = np.r_[0, np.cumsum([len(q) for q in windows.seqs])][windows.index[:, 0]] + windows.index[:, 1]
     ends = sequence_ends(first, OBS + PRED)  # each window's sequence's end
 
     def read(rows: np.ndarray, speeds: np.ndarray | None) -> np.ndarray:
-        """(B, 75, K) training windows, played at ``speeds`` (None: as recorded)."""
+        """(B, O + P, K) training windows, played at ``speeds`` (None: as recorded)."""
         return train[rows] if speeds is None else resample(frames, first[rows], ends[rows], OBS + PRED, speeds)
 
     others = windows.future_neighbours(OBS, args.targets - 1, args.exclude_frames) if args.targets > 1 else None
     if args.complement and not Path(args.complement).is_file():
         print(f"writing {args.complement}: {args.complement_samples} samples of each training window", file=sys.stderr)
-        c = engine_samples(args.model, train[:, :OBS].reshape(-1, OBS, J, 3), args.complement_samples, COMPLEMENT_SEED)
+        c = engine_samples(
+            ds, args.model, train[:, :OBS].reshape(-1, OBS, J, 3), args.complement_samples, COMPLEMENT_SEED
+        )
         np.save(
             args.complement,
             np.ascontiguousarray(c.transpose(1, 0, 2, 3, 4).reshape(len(train), -1, PRED, K), np.float32),
@@ -240,25 +258,29 @@ def main(argv=None) -> int:
     rivals = np.load(args.complement) if args.complement else None
     if rivals is not None and (rivals.ndim != 4 or rivals.shape[0] != len(train) or rivals.shape[2:] != (PRED, K)):
         raise SystemExit(f"--complement: shape {rivals.shape}, not ({len(train)}, C, {PRED}, {K})")
-    gen = Generator(K, args.hidden, args.layers, args.z, args.coefs, args.dropout)
-    perm = mirror_permutation(HUMANEVA_MODEL_JOINT_NAMES)
+    gen = Generator(K, args.hidden, args.layers, args.z, args.coefs, args.dropout, obs_len=OBS, pred_len=PRED)
+    perm = mirror_permutation(dataset_joint_names(ds.protocol))
     if args.init:
         gen.load_state_dict(torch.load(args.init))
     opt = torch.optim.Adam(gen.parameters(), lr=args.lr)
     val_obs = torch.from_numpy(cases.obs.reshape(len(cases.obs), OBS, K).astype(np.float32))
     val_prior = forecast(val_obs.numpy())
 
-    def samples() -> np.ndarray:
-        """The MLP's 50 samples of the protocol's windows (50, W, 60, J, 3), noise seeded by --seed."""
+    val_z = torch.randn(len(val_obs), SAMPLES, args.z, generator=torch.Generator().manual_seed(args.seed))
+
+    def samples(lo: int = 0, hi: int | None = None) -> np.ndarray:
+        """The MLP's 50 samples of the protocol's windows lo..hi (50, W, P, J, 3), noise seeded by --seed."""
+        rows = slice(lo, len(val_obs) if hi is None else hi)
         gen.eval()
         with torch.no_grad():
-            z = torch.randn(len(val_obs), SAMPLES, args.z, generator=torch.Generator().manual_seed(args.seed))
-            s = gen(val_obs, val_prior, z).numpy().astype(np.float64)  # (W, S, 60, K)
+            s = gen(val_obs[rows], val_prior[rows], val_z[rows]).numpy().astype(np.float64)  # (W, S, P, K)
         gen.train()
-        return s.transpose(1, 0, 2, 3).reshape(SAMPLES, len(val_obs), PRED, J, 3)
+        return s.transpose(1, 0, 2, 3).reshape(SAMPLES, len(s), PRED, J, 3)
 
     def score() -> dict:
-        return cases.score(samples())
+        # a block of windows at a time: Setting-A's 4,313 windows' 50 samples are 8 GB at once (HumanEva-I's 188
+        # are one block)
+        return cases.score_by(lambda obs, lo: samples(lo, lo + len(obs)), block=256)
 
     def brief(sc: dict) -> str:
         return " ".join(f"{k} {sc[k]:.4f}" for k in ("ADE", "FDE", "MMADE", "MMFDE", "APD", "mean_ADE"))
@@ -288,16 +310,16 @@ def main(argv=None) -> int:
                     ),
                 ],
                 1,
-            )  # (B, T, 75, K)
+            )  # (B, T, O + P, K)
         T = w.shape[1]
         if rivals is not None:  # the rival's samples after the window's observation, turned and reflected with it
             r = rivals[rows]
             w = np.concatenate([w, np.concatenate([np.repeat(own[:, None, :OBS], r.shape[1], 1), r], 2)], 1)
         if args.mirror:  # every target of a window reflected with it
             flip = np.repeat(rng.random(args.batch) < 0.5, w.shape[1])
-            w = mirror(w.reshape(-1, OBS + PRED, J, 3), "z", perm, flip).reshape(w.shape)
+            w = mirror(w.reshape(-1, OBS + PRED, J, 3), up, perm, flip).reshape(w.shape)
         if args.rotate:  # every target of a window turned with it
-            w = rotate_about(w.reshape(args.batch, w.shape[1], OBS + PRED, J, 3), "z", rng).reshape(w.shape)
+            w = rotate_about(w.reshape(args.batch, w.shape[1], OBS + PRED, J, 3), up, rng).reshape(w.shape)
         obs = np.ascontiguousarray(w[:, 0, :OBS])
         lr = args.lr * (0.1 if progress() >= 0.8 else 1.0)
         for group in opt.param_groups:
@@ -323,13 +345,12 @@ def main(argv=None) -> int:
                 flush=True,
             )
     minutes = (time.time() - t0) / 60
-    own = samples()
-    sc = alone = cases.score(own)
+    sc = alone = score()
     print(f"final, step {step} ({minutes:.1f} min): {brief(sc)}", file=sys.stderr)
     method = "IMLE MLP generator around the prior (training/generator_imle.py)"
     if args.mix:  # the engine's first MIX samples as the protocol's evaluation draws them, then the MLP's
-        theirs = engine_samples(args.model, cases.obs, SAMPLES, args.seed)[: args.mix]
-        sc = cases.score(np.concatenate([theirs, own[: SAMPLES - args.mix]]))
+        theirs = engine_samples(ds, args.model, cases.obs, SAMPLES, args.seed)[: args.mix]
+        sc = cases.score(np.concatenate([theirs, samples()[: SAMPLES - args.mix]]))
         method = (
             f"{args.mix} samples of {Path(args.model).name} (the engine, DDIM-1) and {SAMPLES - args.mix} "
             f"of an {method}"
