@@ -5,11 +5,11 @@ Training (``python -m training.prior``): random windows of ``obs_len + chunk`` f
 loss_frames`` when set) from the training subjects of ``dataset`` (``"h36m"``: Human3.6M, the 22 model joints
 at 25 fps; ``"humaneva"``: HumanEva-I's Train split, 14 root-relative joints at 60 Hz,
 ``training.data.humaneva.training_sequences``; ``"h36m-a"``: Human3.6M Setting-A's training subjects, 16
-root-relative joints at 50 Hz, ``training.data.h36m_setting_a``), reversed in time with probability ``flip_prob``; loss = mean
-per-joint L2 distance of the chunk (of the ``loss_frames`` frames rolled out, when set) plus the same on its
-frame-to-frame velocities; Adam with weight decay; the learning rate decays once at ``lr_decay_at`` of the
-iterations (``lr`` -> ``lr_final``). Every draw is a pure function of (seed, iteration), so a resumed run
-continues exactly where it stopped.
+root-relative joints at 50 Hz, ``training.data.h36m_setting_a``), reversed in time with probability
+``flip_prob``; loss = mean per-joint L2 distance of the chunk (of the ``loss_frames`` frames rolled out, when
+set) plus the same on its frame-to-frame velocities; Adam with weight decay; the learning rate decays once at
+``lr_decay_at`` of the iterations (``lr`` -> ``lr_final``). Every draw is a pure function of (seed, iteration), so
+a resumed run continues exactly where it stopped.
 
 A **repair fill** (``"anchor": "window"``, ``chunk`` = ``obs_len``; docs/repair.md) is the same network over a
 whole window, its output added to its input window instead of to the last pose: it trains on windows of
