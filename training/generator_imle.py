@@ -287,7 +287,7 @@ def main(argv=None) -> int:
 
     print(f"{len(train)} training windows, {sum(p.numel() for p in gen.parameters())} parameters", file=sys.stderr)
     rng = np.random.default_rng(0)
-    t0 = last = time.time()
+    t0 = last = logged = time.time()
     step = 0
 
     def progress() -> float:
@@ -337,13 +337,17 @@ def main(argv=None) -> int:
         loss.backward()
         opt.step()
         step += 1
-        if time.time() - last > args.eval_every * 60:
-            last = time.time()
+        now = time.time()
+        if now - last > args.eval_every * 60:
+            last = logged = now
             print(
-                f"step {step} ({(last - t0) / 60:.1f} min): loss {loss.item():.4f}; {brief(score())}",
+                f"step {step} ({(now - t0) / 60:.1f} min): loss {loss.item():.4f}; {brief(score())}",
                 file=sys.stderr,
                 flush=True,
             )
+        elif now - logged > 60:  # a progress line a minute between the scores (the recipe runner reads it)
+            logged = now
+            print(f"step {step} ({(now - t0) / 60:.1f} min): loss {loss.item():.4f}", file=sys.stderr, flush=True)
     minutes = (time.time() - t0) / 60
     sc = alone = score()
     print(f"final, step {step} ({minutes:.1f} min): {brief(sc)}", file=sys.stderr)
