@@ -404,3 +404,25 @@ def test_a_prior_starts_from_an_exported_prior_file(tmp_path):
     a = load_prior_checkpoint(first / "last.pt").state_dict()
     b = load_prior_checkpoint(tmp_path / "second" / "last.pt").state_dict()
     assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+
+
+@needs_humaneva
+def test_a_stopped_generator_run_resumes_to_the_weights_of_one_that_never_stopped(tmp_path):
+    """training.generator_imle --checkpoint: a run stopped after step 3 of 6 and resumed reaches, bit for bit, the
+    weights and scores of the same 6 steps in one go (one thread); a checkpoint of another schedule is refused."""
+    from training import generator_imle
+
+    base = ["--steps", "6", "--cands", "4", "--targets", "2", "--rotate", "--mirror", "--threads", "1"]
+    base += ["--hidden", "32", "--layers", "2", "--data", str(HUMANEVA_FILE)]
+    assert generator_imle.main(base + ["--json", str(tmp_path / "a.json"), "--save", str(tmp_path / "a.pt")]) == 0
+    ck = ["--checkpoint", str(tmp_path / "last.pt")]
+    b = base + ck + ["--json", str(tmp_path / "b.json"), "--save", str(tmp_path / "b.pt")]
+    assert generator_imle.main(b + ["--stop-after-steps", "3"]) == 0
+    assert not (tmp_path / "b.json").exists() and torch.load(tmp_path / "last.pt")["step"] == 3
+    assert generator_imle.main(b) == 0
+    a, r = torch.load(tmp_path / "a.pt"), torch.load(tmp_path / "b.pt")
+    assert all(torch.equal(a[k], r[k]) for k in a)
+    score = lambda p: json.loads(p.read_text())["stochastic"]  # noqa: E731
+    assert score(tmp_path / "a.json") == score(tmp_path / "b.json")
+    with pytest.raises(SystemExit, match="6-step run, not 8"):
+        generator_imle.main([*base[:1], "8", *base[2:], *ck, "--json", str(tmp_path / "c.json")])

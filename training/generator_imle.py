@@ -129,6 +129,21 @@ def main(argv=None) -> int:
     )
     ap.add_argument("--init", default=None, help="start from this state dict (--save of an earlier run)")
     ap.add_argument(
+        "--checkpoint",
+        default=None,
+        help="with --steps: the run's state (weights, optimizer, step, random streams), written every "
+        "--checkpoint-minutes and at a stop; a run whose checkpoint exists resumes from it and reaches the weights "
+        "of one that never stopped",
+    )
+    ap.add_argument("--checkpoint-minutes", type=float, default=5.0)
+    ap.add_argument(
+        "--stop-after-steps",
+        type=int,
+        default=0,
+        metavar="N",
+        help="with --checkpoint: stop (resumably) after step N of the --steps schedule",
+    )
+    ap.add_argument(
         "--seed",
         type=int,
         default=0,
@@ -208,6 +223,10 @@ def main(argv=None) -> int:
         raise SystemExit("--targets, --cands and --stride must be >= 1, --minutes and --steps >= 0")
     if args.minutes and args.steps:
         raise SystemExit("--minutes or --steps, not both")
+    if (args.checkpoint or args.stop_after_steps) and not args.steps:
+        raise SystemExit("--checkpoint and --stop-after-steps go with --steps (a clock's run does not resume)")
+    if args.stop_after_steps and not args.checkpoint:
+        raise SystemExit("--stop-after-steps needs --checkpoint (where the run resumes from)")
     if not 0 <= args.mix < SAMPLES:
         raise SystemExit(f"--mix must be in [0, {SAMPLES})")
     if args.complement and args.speed_range:
@@ -287,8 +306,32 @@ def main(argv=None) -> int:
 
     print(f"{len(train)} training windows, {sum(p.numel() for p in gen.parameters())} parameters", file=sys.stderr)
     rng = np.random.default_rng(0)
-    t0 = last = logged = time.time()
+    t0 = last = logged = saved = time.time()
     step = 0
+
+    def save_state() -> None:
+        state = {
+            "steps": args.steps,
+            "step": step,
+            "generator": gen.state_dict(),
+            "optimizer": opt.state_dict(),
+            "rng": rng.bit_generator.state,
+            "torch_rng": torch.get_rng_state(),
+        }
+        tmp = Path(args.checkpoint).with_suffix(".tmp")
+        torch.save(state, tmp)
+        tmp.replace(args.checkpoint)  # atomic: a kill mid-write leaves the previous checkpoint
+
+    if args.checkpoint and Path(args.checkpoint).is_file():
+        state = torch.load(args.checkpoint, weights_only=False)
+        if state["steps"] != args.steps:
+            raise SystemExit(f"--checkpoint {args.checkpoint} is of a {state['steps']}-step run, not {args.steps}")
+        gen.load_state_dict(state["generator"])
+        opt.load_state_dict(state["optimizer"])
+        rng.bit_generator.state = state["rng"]
+        torch.set_rng_state(state["torch_rng"])
+        step = state["step"]
+        print(f"resumed from {args.checkpoint} at step {step}", file=sys.stderr, flush=True)
 
     def progress() -> float:
         """The schedule's fraction done: of --steps, or of --minutes' clock."""
@@ -348,6 +391,12 @@ def main(argv=None) -> int:
         elif now - logged > 60:  # a progress line a minute between the scores (the recipe runner reads it)
             logged = now
             print(f"step {step} ({(now - t0) / 60:.1f} min): loss {loss.item():.4f}", file=sys.stderr, flush=True)
+        if args.checkpoint and (now - saved > 60 * args.checkpoint_minutes or step == args.stop_after_steps):
+            saved = now
+            save_state()
+        if step == args.stop_after_steps:
+            print(f"stopped after step {step} of {args.steps}: resume with the same --checkpoint", file=sys.stderr)
+            return 0
     minutes = (time.time() - t0) / 60
     sc = alone = score()
     print(f"final, step {step} ({minutes:.1f} min): {brief(sc)}", file=sys.stderr)
@@ -363,7 +412,11 @@ def main(argv=None) -> int:
     out = {
         "method": method,
         "protocol": cases.protocol(),
-        "options": {k: v for k, v in vars(args).items() if k not in ("json", "save")},
+        "options": {
+            k: v
+            for k, v in vars(args).items()
+            if k not in ("json", "save", "checkpoint", "checkpoint_minutes", "stop_after_steps")
+        },
         "seeds": {"sampling": args.seed},
         "steps": step,
         "minutes": minutes,
