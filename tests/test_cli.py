@@ -86,10 +86,10 @@ def test_info_humaneva_bundled_model_mixes_in_its_generator(capsys):
 def test_info_without_bundled_model(capsys, tmp_path, monkeypatch):
     import tcd._directory
 
-    monkeypatch.setattr(tcd._directory, "default_model_dir", lambda: tmp_path)  # an installation without weights
+    monkeypatch.setattr(tcd._directory, "bundled_model_dir", lambda name: tmp_path)  # an installation without weights
     code, out, err = run(["info"], capsys)
     assert code == 2 and out == ""
-    assert "No default model is bundled" in err
+    assert "'h36m' is not bundled" in err
 
 
 def test_info_bundled_model(capsys):

@@ -120,7 +120,7 @@ def test_checksums_verified_when_present(tiny_model_dir, tmp_path):
 
 def test_bundled_model_requires_checksums(tiny_model_dir, tmp_path, monkeypatch):
     d = Path(shutil.copytree(tiny_model_dir, tmp_path / "bundled"))
-    monkeypatch.setattr(tcd._directory, "default_model_dir", lambda: d)
+    monkeypatch.setattr(tcd._directory, "bundled_model_dir", lambda name: d)
     with pytest.raises(WeightsError, match="SHA256SUMS"):
         tcd.load()
     tcd._directory.write_checksums(d)

@@ -289,9 +289,9 @@ def test_load_without_bundled_model_explains(tmp_path, monkeypatch):
     import tcd._directory
     import tcd._model
 
-    monkeypatch.setattr(tcd._directory, "default_model_dir", lambda: tmp_path)  # an installation without weights
+    monkeypatch.setattr(tcd._directory, "bundled_model_dir", lambda name: tmp_path)  # an installation without weights
     monkeypatch.setattr(tcd._model, "_default", None)
-    with pytest.raises(FileNotFoundError, match="No default model is bundled"):
+    with pytest.raises(FileNotFoundError, match="'h36m' is not bundled"):
         tcd.load()
     with pytest.raises(FileNotFoundError, match="pass a model directory"):
         tcd.forecast(np.zeros((50, 22, 3), np.float32))

@@ -328,3 +328,66 @@ def test_command_line_generator_share(model_dir, tmp_path, capsys):
     assert main([*argv, "--model", str(model_dir), *fast]) == 2
     err = capsys.readouterr().err
     assert "--tempo" in err and "--generator-share" in err and not (tmp_path / "d.npz").exists()
+
+
+@pytest.fixture(scope="module")
+def generator_dir(model_dir, tmp_path_factory) -> Path:
+    """A generator directory: the generator and its prior, no cascade (as the bundled Setting-A model)."""
+    d = tmp_path_factory.mktemp("generator_dir") / "g"
+    d.mkdir()
+    for name in ("generator.safetensors", "prior.safetensors"):
+        shutil.copy(model_dir / name, d / name)
+    return d
+
+
+def test_a_generator_directory_forecasts_with_the_generator_alone(model, generator_dir):
+    """Without the cascade, a directory's forecasts are its generator's samples around its prior (``Mixture(1)``,
+    its default): the same samples as ``Mixture(1)`` on a directory that has the cascade too; its window is the
+    generator's, and its point forecast the prior's."""
+    g = tcd.load(generator_dir)
+    assert g.short is None and g.long is None and g.forecast_mode == tcd.Mixture(1.0)
+    assert (g.obs_len, g.horizon, g.num_joints) == (OBS, P, K // 3) and g.num_train_timesteps is None
+    assert g.fps == model.fps and g.joint_names == model.joint_names and set(g.config) == {"prior", "generator"}
+    obs = observation(2)
+    f = g.forecast(obs, num_samples=6, seed=4)
+    want = model.forecast(obs, num_samples=6, seed=4, mode=tcd.Mixture(1.0))
+    np.testing.assert_array_equal(f.samples, want.samples)
+    np.testing.assert_array_equal(f.mean, want.mean)
+    assert f.samples.shape == (6, 2, P, K // 3, 3)
+    np.testing.assert_array_equal(g.predict(obs).mean, model.predict(obs).mean)
+    assert "generator=True" in repr(g)
+
+
+def test_a_generator_directory_refuses_what_needs_the_cascade(generator_dir, tmp_path):
+    g = tcd.load(generator_dir)
+    obs = observation(1)
+    for mode in (tcd.Cascade(), tcd.Mixture(0.5), tcd.Tempo(0.8, 1.25)):
+        assert "no" in str(bad("mode", g.forecast, obs, num_samples=4, seed=0, mode=mode))
+    with pytest.raises(FileNotFoundError, match="cannot repair"):
+        g.repair(obs)
+    holed = obs.copy()
+    holed[0, 3:5, 2] = np.nan
+    with pytest.raises(FileNotFoundError, match="cannot repair"):
+        g.predict(holed, fill="model")
+    assert np.isfinite(g.predict(holed).mean).all()  # fill="auto": the spline
+    d = Path(shutil.copytree(generator_dir, tmp_path / "g"))
+    (d / "sampling.json").write_text(json.dumps({"forecast_generator_share": 0.5}))
+    with pytest.raises(WeightsError, match="no cascade"):
+        tcd.load(d)
+    (d / "sampling.json").write_text(json.dumps({"forecast_generator_share": 1.0}))
+    assert tcd.load(d).forecast_mode == tcd.Mixture(1.0)
+    (d / "prior.safetensors").unlink()
+    with pytest.raises(WeightsError, match="prior.safetensors is missing"):
+        tcd.load(d)
+    shutil.copy(FIXTURES / "tiny_humaneva_model" / "short.safetensors", d / "short.safetensors")
+    with pytest.raises(FileNotFoundError, match="long.safetensors"):
+        tcd.load(d)
+
+
+def test_tcd_info_describes_a_generator_directory(generator_dir, capsys):
+    from tcd._cli import main
+
+    assert main(["info", "--model", str(generator_dir)]) == 0
+    out = capsys.readouterr().out
+    assert "short: none" in out and "long: none" in out and "generator: MLP" in out
+    assert "default sampler" not in out and "the generator" in out

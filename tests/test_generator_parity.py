@@ -21,6 +21,7 @@ Criteria (stated once, used throughout):
 
 from __future__ import annotations
 
+import json
 import math
 import shutil
 import subprocess
@@ -182,14 +183,28 @@ def test_export_round_trip_and_cli(tmp_path):
 
 def test_a_setting_a_generator_exports_for_its_protocol(tmp_path):
     """``python -m training.generator --protocol h36m-a``: Setting-A's 16 joints, 25 -> 100 frames and its data block
-    (50 Hz); an unknown protocol is refused by name."""
+    (50 Hz), into a model directory whose summary and checksums it rewrites: with the prior beside it, a generator
+    directory that ``tcd.load`` opens (25 -> 100 frames, the generator alone); an unknown protocol is refused by
+    name."""
+    from training.fileformat import save_model_file, setting_a_data_meta
+    from training.prior_net import build_prior_config, random_prior
+
+    d = tmp_path / "dir"
+    d.mkdir()
+    prior = random_prior(blocks=2, seed=1, obs_len=25, chunk=25, joints=16)
+    save_model_file(d / "prior.safetensors", prior, build_prior_config(prior, setting_a_data_meta()))
     g = Generator(48, 32, 2, 64, 20, obs_len=25, pred_len=100)
     torch.save(g.state_dict(), tmp_path / "state.pt")
     argv = [sys.executable, "-m", "training.generator", "--state-dict", str(tmp_path / "state.pt")]
-    argv += ["--out", str(tmp_path / "dir"), "--hidden", "32", "--layers", "2"]
+    argv += ["--out", str(d), "--hidden", "32", "--layers", "2"]
     subprocess.run(argv + ["--protocol", "h36m-a"], cwd=ROOT, check=True, capture_output=True)
-    e = tcd.engine.Generator.load(tmp_path / "dir" / "generator.safetensors")
+    e = tcd.engine.Generator.load(d / "generator.safetensors")
     assert (e.num_joints, e.obs_len, e.pred_len) == (16, 25, 100)
     assert (e.config["data"]["dataset"], e.config["data"]["fps"]) == ("h36m-setting-a", 50.0)
+    assert set(json.loads((d / "model.json").read_text())) == {"prior", "generator"}
+    assert "generator.safetensors" in (d / "SHA256SUMS").read_text()
+    m = tcd.load(d)
+    assert (m.obs_len, m.horizon, m.num_joints, m.fps, m.forecast_mode) == (25, 100, 16, 50.0, tcd.Mixture(1.0))
+    assert m.forecast(np.zeros((25, 16, 3), np.float32), num_samples=50, seed=0).samples.shape == (50, 100, 16, 3)
     bad = subprocess.run(argv + ["--protocol", "h36m-b"], cwd=ROOT, capture_output=True, text=True)
     assert bad.returncode != 0 and "'h36m-b' is not a stochastic protocol" in bad.stderr

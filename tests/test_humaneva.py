@@ -152,7 +152,7 @@ def test_humaneva15_forecast_with_a_human36m_model(tiny_model):
 def test_load_humaneva_when_not_bundled(tmp_path, monkeypatch, capsys):
     import tcd._directory
 
-    monkeypatch.setattr(tcd._directory, "humaneva_model_dir", lambda: tmp_path / "weights_humaneva")
+    monkeypatch.setattr(tcd._directory, "bundled_model_dir", lambda name: tmp_path / "weights_humaneva")
     with pytest.raises(tcd.ModelNotBundledError, match="not bundled") as e:
         tcd.load("humaneva")
     assert isinstance(e.value, FileNotFoundError) and isinstance(e.value, tcd.TcdError)
@@ -169,7 +169,7 @@ def test_load_humaneva_when_bundled(humaneva_model_dir, tmp_path, monkeypatch):
 
     d = tmp_path / "weights_humaneva"
     shutil.copytree(humaneva_model_dir, d)
-    monkeypatch.setattr(tcd._directory, "humaneva_model_dir", lambda: d)
+    monkeypatch.setattr(tcd._directory, "bundled_model_dir", lambda name: d)
     with pytest.raises(tcd.WeightsError, match="SHA256SUMS"):  # a bundled model is always checksummed
         tcd.load("humaneva")
     tcd._directory.write_checksums(d)

@@ -206,10 +206,16 @@ def main(argv=None) -> int:
     if args.description:
         training["description"] = args.description
     out = Path(args.out)
-    if out.suffix != ".safetensors":
+    directory = out.suffix != ".safetensors"
+    if directory:
         out.mkdir(parents=True, exist_ok=True)
         out = out / GENERATOR_FILE
     print(save_generator(out, gen.eval(), data_meta(ds.protocol), training), file=sys.stderr)
+    if directory:  # a model directory: its summary and checksums name the new file too
+        from .export import write_checksums, write_model_json
+
+        write_model_json(out.parent)
+        print(write_checksums(out.parent), file=sys.stderr)
     return 0
 
 

@@ -3,6 +3,7 @@
     >>> import tcd
     >>> model = tcd.load("models/h36m")          # short.safetensors + long.safetensors
     >>> tcd.load("humaneva")                     # the bundled HumanEva-I model, where installed
+    >>> tcd.load("h36m-stochastic")              # Human3.6M Setting-A, 25 -> 100 frames at 50 Hz, where installed
     >>> f = model.forecast(obs, seed=0)          # obs: (50, 22, 3) metres, NaN = missing
     >>> f.mean.shape, f.samples.shape            # (25, 22, 3), (5, 25, 22, 3)
 

@@ -22,6 +22,7 @@ from typing import Dict, Optional, Protocol, Sequence
 import numpy as np
 
 from ._progress import Progress
+from .exceptions import InvalidInputError
 from ._sampler import SamplerOptions
 from .engine import Denoiser, Generator, Prior, cascade_raw
 
@@ -30,8 +31,9 @@ from .engine import Denoiser, Generator, Prior, cascade_raw
 class Call:
     """One forecast: the model's networks and the call's settings, what a mode draws with."""
 
-    short: Denoiser
-    long: Denoiser
+    #: the cascade's stages (None in a generator directory, whose only mode is the generator alone)
+    short: Optional[Denoiser]
+    long: Optional[Denoiser]
     #: the prior forecaster the cascade's stages are conditioned on (None where no stage is)
     conditioning: Optional[Prior]
     #: the directory's prior forecaster (``prior.safetensors``), or None
@@ -48,6 +50,13 @@ class Call:
         self, observed: np.ndarray, seen: np.ndarray, n: int, streams: Optional[Sequence[int]] = None
     ) -> Dict[str, np.ndarray]:
         """``n`` cascade samples of each sequence (sequence j from noise stream ``streams[j]`` where given)."""
+        if self.short is None or self.long is None:
+            raise InvalidInputError(
+                "Argument `mode` draws samples from the cascade, but this model has none (a generator directory: "
+                "generator.safetensors around its prior): its only mode is the generator alone, tcd.Mixture(1), "
+                "its default.",
+                "mode",
+            )
         return cascade_raw(
             self.short,
             self.long,

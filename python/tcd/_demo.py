@@ -267,7 +267,9 @@ def can_repair(model: TCD) -> bool:
     """Whether :meth:`TCD.repair` runs on this model: it has a repair model (with its repair fill, when it is
     conditioned on one: :func:`tcd.load` checks that), or its short-term model (which repairs without one) is not
     conditioned on the prior forecaster (a repair never runs the forecaster)."""
-    return model.repair_model is not None or (model.short.config.get("model") or {}).get("cond_fill", "zero") != "prior"
+    if model.repair_model is not None:
+        return True
+    return model.short is not None and (model.short.config.get("model") or {}).get("cond_fill", "zero") != "prior"
 
 
 def summary(res: Dict[str, Any], model: TCD) -> str:

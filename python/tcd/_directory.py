@@ -27,6 +27,10 @@ REPAIR_FILL_FILE = "repair_fill.safetensors"
 #: the MLP sample generator in a model directory (:attr:`TCD.generator`), optional: ``GENERATOR_FILE``, named
 #: beside the mode that draws from it (:class:`tcd.Mixture`, ``sampling.json`` ``"forecast_generator_share"``)
 
+#: what a model directory without the cascade holds (a generator directory, such as the bundled Setting-A
+#: model): its samples come from the generator alone (``tcd.Mixture(1)``), around the prior's forecast
+GENERATOR_ONLY = f"a generator directory: {GENERATOR_FILE} and the {PRIOR_FILE} it samples around"
+
 #: a model directory's own sampler defaults (:attr:`TCD.sampling`), optional: ``{"forecast": {...}, "repair":
 #: {...}, "why": "...", "forecast_tempo": [lo, hi]}``, each task's object holding :class:`SamplerOptions` fields; a
 #: task or field left out takes :class:`SamplerOptions`' defaults (the paper's DDPM over every training step);
@@ -42,42 +46,45 @@ GENERATOR_SHARE_KEY = "forecast_generator_share"
 SAMPLING_TASKS = ("forecast", "repair")
 
 
+#: the bundled model directories by name (:func:`tcd.load` takes the name), each a folder of the package:
+#: ``"h36m"`` the default (Human3.6M Setting-B, 50 -> 25 frames at 25 fps: the cascade, its prior, the repair
+#: model), ``"humaneva"`` the HumanEva-I model (15 -> 60 frames at 60 Hz), ``"h36m-stochastic"`` the Human3.6M
+#: Setting-A model (25 -> 100 frames at 50 Hz: a prior and the MLP generator around it, no cascade)
+BUNDLED_DIRS: Dict[str, str] = {
+    "h36m": "weights",
+    "humaneva": "weights_humaneva",
+    "h36m-stochastic": "weights_h36m_stochastic",
+}
+#: the names :func:`load` takes for the bundled model directories (:data:`BUNDLED_DIRS`), when the installation
+#: holds them
+BUNDLED_MODELS = tuple(BUNDLED_DIRS)
+
+
+def bundled_model_dir(name: str) -> Path:
+    """Where the bundled model ``name`` (:data:`BUNDLED_MODELS`) lives in the package, installed or not."""
+    if name not in BUNDLED_DIRS:
+        raise _checks.fail("name", "one of " + ", ".join(repr(n) for n in BUNDLED_MODELS), repr(name))
+    return Path(__file__).resolve().parent / BUNDLED_DIRS[name]
+
+
 def default_model_dir() -> Path:
     """Where the bundled default model lives (``tcd/weights/``)."""
-    return Path(__file__).resolve().parent / "weights"
+    return bundled_model_dir("h36m")
 
 
 def humaneva_model_dir() -> Path:
-    """Where the bundled HumanEva-I model lives (``tcd/weights_humaneva/``), once one is trained and bundled
-    (docs/training.md, "HumanEva-I"): ``tcd.load("humaneva")``."""
-    return Path(__file__).resolve().parent / "weights_humaneva"
-
-
-#: the names :func:`load` takes for the bundled model directories: ``"h36m"`` the default (Human3.6M, 50 -> 25
-#: frames at 25 fps), ``"humaneva"`` the HumanEva-I model (15 -> 60 frames at 60 Hz), when the installation has it
-BUNDLED_MODELS = ("h36m", "humaneva")
+    """Where the bundled HumanEva-I model lives (``tcd/weights_humaneva/``): ``tcd.load("humaneva")``."""
+    return bundled_model_dir("humaneva")
 
 
 def _bundled_dir(name: str) -> Path:
     """The directory of the bundled model ``name``; :class:`ModelNotBundledError` when it is not installed."""
-    if name == "h36m":
-        d = default_model_dir()
-        if not (d / "short.safetensors").is_file():
-            raise ModelNotBundledError(
-                "No default model is bundled with tcd yet: pass a model directory, e.g. "
-                "tcd.load('path/to/model') or `--model DIR` on the command line (a directory holding "
-                "short.safetensors and long.safetensors, as written by `python -m training.export`).",
-                name,
-                str(d),
-            )
-        return d
-    d = humaneva_model_dir()
-    if not (d / "short.safetensors").is_file():
+    d = bundled_model_dir(name)
+    if not any((d / f).is_file() for f in ("short.safetensors", GENERATOR_FILE)):
         raise ModelNotBundledError(
-            f"The HumanEva-I model is not bundled with this installation of tcd yet ({d} holds no "
-            'short.safetensors). Train and export it as docs/training.md (section "HumanEva-I") says, then '
-            "pass its directory, e.g. tcd.load('models/humaneva') or `--model models/humaneva`; a release that "
-            "bundles it opens it with tcd.load('humaneva').",
+            f"The model {name!r} is not bundled with this installation of tcd ({d} holds no model files): "
+            "pass a model directory instead, e.g. tcd.load('path/to/model') or `--model DIR` on the command "
+            "line, as written by `python -m training.export` (docs/training.md).",
             name,
             str(d),
         )
@@ -135,12 +142,12 @@ def write_checksums(d: PathLike) -> Path:
     return out
 
 
-def _read_sampling(f: Path) -> Tuple[Dict[str, SamplerOptions], Mode]:
+def _read_sampling(f: Path) -> Tuple[Dict[str, SamplerOptions], Optional[Mode]]:
     """A model directory's ``sampling.json`` (:data:`SAMPLING_FILE`), read once and checked: its sampler settings by
-    task and its forecast mode (``{}`` and the cascade when there is no file); a :class:`WeightsError` naming the
-    file and the key for anything else."""
+    task and its forecast mode (``{}`` and None, the directory's own default (:func:`default_mode`), when there is
+    no file or it names no mode); a :class:`WeightsError` naming the file and the key for anything else."""
     if not f.is_file():
-        return {}, Cascade()
+        return {}, None
     try:
         doc = json.loads(f.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
@@ -170,7 +177,9 @@ def _read_sampling(f: Path) -> Tuple[Dict[str, SamplerOptions], Mode]:
     try:
         if doc.get(TEMPO_KEY) is not None:
             return out, Tempo(*check_tempo(doc[TEMPO_KEY], TEMPO_KEY))
-        share = check_generator_share(doc.get(GENERATOR_SHARE_KEY, 0.0), GENERATOR_SHARE_KEY)
+        if doc.get(GENERATOR_SHARE_KEY) is None:
+            return out, None
+        share = check_generator_share(doc[GENERATOR_SHARE_KEY], GENERATOR_SHARE_KEY)
         return out, Mixture(share) if share else Cascade()
     except InvalidInputError as e:
         raise WeightsError(f"{f}: {e}", str(f)) from None
@@ -182,15 +191,17 @@ class Files:
     the parts fit together."""
 
     path: Path
-    short: Denoiser
-    long: Denoiser
+    #: the cascade's two stages; both None in a generator directory (:data:`GENERATOR_ONLY`)
+    short: Optional[Denoiser]
+    long: Optional[Denoiser]
     repair: Optional[Denoiser]
     prior: Optional[Prior]
     repair_fill: Optional[Prior]
     generator: Optional[Generator]
     file_sha256: Dict[str, str]
     sampling: Dict[str, SamplerOptions]
-    forecast_mode: Mode
+    #: the mode ``sampling.json`` names, None where it names none (:func:`default_mode`)
+    forecast_mode: Optional[Mode]
 
 
 def read(path: Optional[PathLike]) -> Files:
@@ -209,18 +220,21 @@ def read(path: Optional[PathLike]) -> Files:
             raise NotADirectoryError(
                 f"{d} is not a directory: pass the model directory that holds short.safetensors and long.safetensors."
             )
-    for role in ("short", "long"):
+    cascade = any((d / f"{role}.safetensors").is_file() for role in ("short", "long"))
+    for role in ("short", "long") if cascade or not (d / GENERATOR_FILE).is_file() else ():
         if not (d / f"{role}.safetensors").is_file():
             raise FileNotFoundError(
-                f"The model directory {d} has no {role}.safetensors: a model directory holds "
-                "short.safetensors and long.safetensors (and optionally repair.safetensors)."
+                f"The model directory {d} has no {role}.safetensors: a model directory holds the cascade, "
+                f"short.safetensors and long.safetensors (and optionally repair.safetensors), or {GENERATOR_ONLY}."
             )
     names = [f"{r}.safetensors" for r in ROLES if (d / f"{r}.safetensors").is_file()]
     blobs = {n: (d / n).read_bytes() for n in names}
     digests = {n: hashlib.sha256(b).hexdigest() for n, b in blobs.items()}
     _verify_checksums(d, digests, bundled=bundled)
-    short = Denoiser.from_bytes(blobs["short.safetensors"], str(d / "short.safetensors"))
-    long = Denoiser.from_bytes(blobs["long.safetensors"], str(d / "long.safetensors"))
+    short, long = (
+        Denoiser.from_bytes(blobs[n], str(d / n)) if n in blobs else None
+        for n in ("short.safetensors", "long.safetensors")
+    )
     rp = "repair.safetensors"
     repair_model = Denoiser.from_bytes(blobs[rp], str(d / rp)) if rp in blobs else None
     priors = {n: Prior.from_bytes(blobs[n], str(d / n)) if n in blobs else None for n in (PRIOR_FILE, REPAIR_FILL_FILE)}
@@ -242,10 +256,16 @@ def read(path: Optional[PathLike]) -> Files:
     )
 
 
+def default_mode(short: Optional[Denoiser]) -> Mode:
+    """The forecast mode of a model directory whose ``sampling.json`` names none: the cascade, or the generator
+    alone (``Mixture(1)``) in a directory without one (:data:`GENERATOR_ONLY`)."""
+    return Cascade() if short is not None else Mixture(1.0)
+
+
 def check_parts(
     path: Optional[PathLike],
-    short: Denoiser,
-    long: Denoiser,
+    short: Optional[Denoiser],
+    long: Optional[Denoiser],
     repair: Optional[Denoiser],
     prior: Optional[Prior],
     repair_fill: Optional[Prior],
@@ -256,6 +276,9 @@ def check_parts(
     stages, the prior each model conditioned on it needs, the repair model and its fill, the generator around the
     prior's forecast. A :class:`WeightsError` naming the file that does not fit."""
     where = str(path) if path is not None else "the model"
+    if short is None or long is None:
+        _check_generator_only(where, path, short, long, repair, prior, repair_fill, generator, mode)
+        return
     k = short.num_features
     if short.num_features % 3:
         raise WeightsError(f"{where}: the short-term model has num_features = {k}, not joints x 3.", short.path)
@@ -346,6 +369,55 @@ def check_parts(
             f"{where}: the repair fill fills whole-frame gaps with the prior forecaster (gap_fill "
             f'"forecaster"), but {missing} is missing: the model directory must hold it.',
             missing,
+        )
+
+
+def _check_generator_only(
+    where: str,
+    path: Optional[PathLike],
+    short: Optional[Denoiser],
+    long: Optional[Denoiser],
+    repair: Optional[Denoiser],
+    prior: Optional[Prior],
+    repair_fill: Optional[Prior],
+    generator: Optional[Generator],
+    mode: Mode,
+) -> None:
+    """:func:`check_parts` for a directory without the cascade: :data:`GENERATOR_ONLY`, nothing else."""
+
+    def file(name: str) -> str:
+        return str(Path(path) / name) if path is not None else name
+
+    if short is not None or long is not None:
+        given = short or long
+        raise WeightsError(
+            f"{where}: the cascade needs both its stages, short and long; only {given.path} is given.", given.path
+        )
+    if generator is None or prior is None:
+        missing = file(GENERATOR_FILE if generator is None else PRIOR_FILE)
+        raise WeightsError(
+            f"{where}: without the cascade a model directory is {GENERATOR_ONLY}; {missing} is missing.", missing
+        )
+    extra = repair or repair_fill
+    if extra is not None:
+        raise WeightsError(
+            f"{where}: {extra.path} is a repair model or fill, which repairs with the cascade's short-term model's "
+            "window; this directory has no cascade.",
+            extra.path,
+        )
+    if prior.anchor != "last" or prior.num_features != generator.num_features or prior.obs_len != generator.obs_len:
+        raise WeightsError(
+            f"{where}: the generator (num_features = {generator.num_features}, obs_len = {generator.obs_len}) samples "
+            f'around the prior\'s forecast, so the prior must be a forecaster (anchor "last", not '
+            f'"{prior.anchor}") of the same num_features and obs_len (it has {prior.num_features} and '
+            f"{prior.obs_len}).",
+            prior.path,
+        )
+    if mode != Mixture(1.0):
+        raise WeightsError(
+            f"{where}: the forecast mode is {mode}, but the directory has no cascade: its mode is the generator "
+            "alone, tcd.Mixture(1).",
+            file(SAMPLING_FILE),
         )
 
 

@@ -29,6 +29,7 @@ from . import _checks, _directory
 from ._cascade import Call, Cascade, Mode
 from ._directory import (
     check_parts,
+    default_mode,
     uses_prior,
     BUNDLED_MODELS,
     SAMPLING_TASKS,
@@ -133,12 +134,13 @@ def _seed(seed: Optional[int]) -> int:
 
 class TCD:
     """A Temporal Cascaded Diffusion model directory: short-term and long-term denoisers (and an
-    optional repair model). Load with :func:`tcd.load`. Immutable and thread-safe."""
+    optional repair model), or a generator directory without them (an MLP generator around its prior
+    forecaster, :data:`tcd._directory.GENERATOR_ONLY`). Load with :func:`tcd.load`. Immutable and thread-safe."""
 
     def __init__(
         self,
-        short: Denoiser,
-        long: Denoiser,
+        short: Optional[Denoiser],
+        long: Optional[Denoiser],
         repair: Optional[Denoiser] = None,
         path: Optional[PathLike] = None,
         threads: Optional[int] = None,
@@ -172,8 +174,8 @@ class TCD:
         self.generator = generator
         #: the mode of a :meth:`forecast` that names none (:mod:`tcd._cascade`): the model directory's
         #: ``sampling.json`` (``"forecast_generator_share"``: :class:`tcd.Mixture`, ``"forecast_tempo"``:
-        #: :class:`tcd.Tempo`), else :class:`tcd.Cascade`
-        self.forecast_mode: Mode = Cascade() if mode is None else _check_mode(mode)
+        #: :class:`tcd.Tempo`), else :class:`tcd.Cascade` (``Mixture(1)``, the generator alone, without a cascade)
+        self.forecast_mode: Mode = default_mode(short) if mode is None else _check_mode(mode)
         #: SHA-256 (hex) of each weight file, by file name; empty when built from Denoisers directly.
         self.file_sha256: Dict[str, str] = dict(file_sha256 or {})
         #: SHA-256 (hex) identifying the model: the digest of its ``SHA256SUMS`` text (None without files).
@@ -182,7 +184,9 @@ class TCD:
         )
         check_parts(path, short, long, repair, prior, repair_fill, generator, self.forecast_mode)
         #: the roles whose model is conditioned on the prior forecaster (``cond_fill`` ``"prior"``)
-        self._prior_roles = tuple(role for role, m in (("short", short), ("long", long)) if uses_prior(m))
+        self._prior_roles = tuple(role for role, m in (("short", short), ("long", long)) if m and uses_prior(m))
+        #: the network whose window the calls take: the short-term model, or the generator without a cascade
+        self._front: Union[Denoiser, Generator] = short if short is not None else generator  # type: ignore[assignment]
 
     def _window(
         self,
@@ -213,6 +217,18 @@ class TCD:
         fill = self.repair_fill if den is self.repair_model else None
         return {"fill": fill, "forecaster": self.prior if fill is not None else None}
 
+    def _repair_denoiser(self) -> Denoiser:
+        """The denoiser a repair runs: the repair model, else the short-term model in-painting; a
+        ``FileNotFoundError`` in a directory with neither (a generator directory)."""
+        den = self.repair_model if self.repair_model is not None else self.short
+        if den is None:
+            raise FileNotFoundError(
+                f"The model directory {self.path} has neither a repair model (repair.safetensors) nor the "
+                "cascade's short-term model to in-paint with: it cannot repair. TCD.predict(obs, mask) fills "
+                "the gaps with the spline instead (fill='spline')."
+            )
+        return den
+
     def _repairer(
         self,
         num_samples: Optional[int],
@@ -228,9 +244,9 @@ class TCD:
         num_samples = self.repair_samples if num_samples is None else num_samples
         num_samples, sampling, units, threads = self._common("repair", num_samples, sampler, units, threads)
         seed = _seed(seed)
-        den = self.repair_model if self.repair_model is not None else self.short
 
         def run(observed: np.ndarray, seen: np.ndarray) -> np.ndarray:
+            den = self._repair_denoiser()
             return repair_raw(
                 den,
                 observed,
@@ -258,25 +274,29 @@ class TCD:
     @property
     def obs_len(self) -> int:
         """Observed frames a forecast conditions on (TCD: 50)."""
-        return self.short.obs_len
+        return self._front.obs_len
 
     @property
     def horizon(self) -> int:
         """Forecast frames H (TCD: 25)."""
+        if self.short is None or self.long is None:
+            return self._front.pred_len  # type: ignore[union-attr]
         return self.long.seq_len - self.short.obs_len
 
     @property
     def num_joints(self) -> int:
-        return self.short.num_features // 3
+        return self._front.num_features // 3
 
     @property
-    def num_train_timesteps(self) -> int:
-        return self.short.num_train_timesteps
+    def num_train_timesteps(self) -> Optional[int]:
+        """The diffusion's training steps (None without a cascade)."""
+        return None if self.short is None else self.short.num_train_timesteps
 
     @property
     def data(self) -> Dict[str, Any]:
-        """The ``data`` section of the short-term model's config (dataset, fps, units, joint_names, ...)."""
-        return self.short._section("data")
+        """The ``data`` section of the short-term model's config (the generator's without a cascade): dataset,
+        fps, units, joint_names, ..."""
+        return self._front._section("data")
 
     @property
     def joint_names(self) -> Optional[List[str]]:
@@ -290,14 +310,9 @@ class TCD:
     @property
     def config(self) -> Dict[str, Dict[str, Any]]:
         """Each model's ``tcd_config``, by role."""
-        out = {"short": self.short.config, "long": self.long.config}
-        if self.repair_model is not None:
-            out["repair"] = self.repair_model.config
-        if self.prior is not None:
-            out["prior"] = self.prior.config
-        if self.generator is not None:
-            out["generator"] = self.generator.config
-        return out
+        roles = (("short", self.short), ("long", self.long), ("repair", self.repair_model))
+        roles += (("prior", self.prior), ("generator", self.generator))
+        return {role: m.config for role, m in roles if m is not None}
 
     def __repr__(self) -> str:
         return (
@@ -468,10 +483,11 @@ class TCD:
 
 def load(path: Optional[PathLike] = None, *, threads: Optional[int] = None) -> TCD:
     """Loads a model directory: ``short.safetensors`` + ``long.safetensors`` (+ ``repair.safetensors``), as
-    written by ``python -m training.export``. ``path=None`` loads the bundled default model; a bundled
-    model's name (:data:`BUNDLED_MODELS`: ``"h36m"``, the default, or ``"humaneva"``, the HumanEva-I model)
-    loads that one: a string equal to a name is the bundled model, so pass a local directory of that name
-    as ``"./humaneva"`` or a ``Path``.
+    written by ``python -m training.export``, or a generator directory (``generator.safetensors`` and the
+    ``prior.safetensors`` it samples around, no cascade). ``path=None`` loads the bundled default model; a
+    bundled model's name (:data:`BUNDLED_MODELS`: ``"h36m"``, the default; ``"humaneva"``, the HumanEva-I
+    model; ``"h36m-stochastic"``, the Human3.6M Setting-A generator directory) loads that one: a string equal
+    to a name is the bundled model, so pass a local directory of that name as ``"./humaneva"`` or a ``Path``.
 
     Raises ``FileNotFoundError`` when a file is missing (:class:`tcd.exceptions.ModelNotBundledError`, one,
     for a bundled model this installation does not hold), :class:`tcd.exceptions.WeightsError` when a file

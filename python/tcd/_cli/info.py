@@ -64,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
                 else f", target {mc['target']} (scale {mc.get('target_scale', 1.0):g})"
             )
         )
-    for task, o in m.sampling.items():
+    for task, o in m.sampling.items() if m.short is not None else ():  # a generator directory runs no sampler
         lines.append(f"default sampler, {task}: {o.describe(m.num_train_timesteps)}")
     lines.append(f"default forecast mode: {m.forecast_mode.describe()}")
     g = m.generator
@@ -74,6 +74,6 @@ def run(args: argparse.Namespace) -> int:
         else f"generator: MLP {g.layers} x {g.hidden}, z {g.z_dim}, {g.coefs} DCT coefficients around the prior "
         "(tcd.Mixture draws from it)"
     )
-    lines.append(f"kernels: {m.short.kernel} (this CPU supports: {', '.join(supported_kernels())})")
+    lines.append(f"kernels: {m._front.kernel} (this CPU supports: {', '.join(supported_kernels())})")
     print("\n".join(lines))
     return EXIT_OK

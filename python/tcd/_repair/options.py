@@ -115,8 +115,9 @@ class RepairOptions:
 
 
 def _denoiser(model: Any) -> Denoiser:
-    """The denoiser :meth:`TCD.repair` uses: the repair model, else the short-term model."""
-    return model.repair_model if model.repair_model is not None else model.short
+    """The denoiser :meth:`TCD.repair` uses: the repair model, else the short-term model (a
+    ``FileNotFoundError`` in a directory with neither)."""
+    return model._repair_denoiser()
 
 
 def provenance(model: Any, opts: RepairOptions, fps: float) -> Dict[str, Any]:
