@@ -57,6 +57,18 @@ else:
     raise SystemExit('tcd.load(\"humaneva\") loaded a model the tree does not bundle')
 "
 fi
+# the Setting-A model, where this tree bundles it (python/tcd/weights_h36m_stochastic/: a generator directory)
+if [ -f "$root/python/tcd/weights_h36m_stochastic/generator.safetensors" ]; then
+    PATH="$nort_path" python - <<'PY'
+import numpy as np, tcd
+m = tcd.load("h36m-stochastic")
+assert "/venv/" in str(m.path), m.path
+f = m.forecast(np.zeros((25, 16, 3), np.float32), num_samples=50, seed=0)
+assert f.samples.shape == (50, 100, 16, 3) and np.isfinite(f.samples).all()
+print("wheel check: the bundled Setting-A model forecasts 50 samples of 100 frames")
+PY
+    PATH="$nort_path" tcd demo --model h36m-stochastic -o "$work/demo_setting_a.npz" --quiet | tail -n 1
+fi
 # the oldest CPython the abi3 wheel claims, where this machine has it (on the PATH or under pyenv)
 py39=""
 for candidate in python3.9 "$HOME"/.pyenv/versions/3.9*/bin/python3.9; do
@@ -82,5 +94,11 @@ if "short.safetensors" in bundled:
     missing = [f for f in bundled if not f.startswith(".") and "tcd/weights_humaneva/" + f not in names]
     assert not missing, missing
     print("wheel check: ... and the HumanEva-I model,", ", ".join(bundled))
+setting_a = sorted(os.listdir("python/tcd/weights_h36m_stochastic")) if os.path.isdir("python/tcd/weights_h36m_stochastic") else []
+if "generator.safetensors" in setting_a:
+    missing = [f for f in setting_a if "tcd/weights_h36m_stochastic/" + f not in names]
+    missing += [] if "tcd/data/demo_walking_setting_a.npz" in names else ["demo_walking_setting_a.npz"]
+    assert not missing, missing
+    print("wheel check: ... and the Setting-A model,", ", ".join(setting_a))
 print("wheel check: the sdist builds a wheel with the weights and the demo clip")
 PY

@@ -3,7 +3,7 @@
     python -m benches.paper --list
     python -m benches.paper table1 [--windows-per-action N] [--out FILE]     # Human3.6M Setting-B, clean input
     python -m benches.paper table2 [--windows-per-action N] [--out FILE]     # imperfect observations
-    python -m benches.paper table3 [--max-windows N] [--out FILE]            # HumanEva-I, stochastic
+    python -m benches.paper table3 [--max-windows N] [--out FILE]            # stochastic: Setting-A, HumanEva-I
     python -m benches.paper table1 --from cascade=benches/results/protocol_bundled/full_none_ddim1_centred.json
 
 Each table runs the evaluation protocol (``training.evaluate``, in this process) on the bundled model directories
@@ -16,7 +16,7 @@ A table's runs are named (``--list`` shows them). ``--from NAME=FILE`` takes run
 input pattern. The file must be the run the table asks for (its model, sampler, mask and window count are checked);
 its own command is recorded beside the table's. ``--windows-per-action`` (Human3.6M, 256: the protocol) and
 ``--max-windows`` (HumanEva-I, all 188 when not given) make a quick look, not the protocol: write it elsewhere
-(``--out /tmp/...``).
+(``--out /tmp/...``). ``--max-windows`` applies to Setting-A's 4,313 windows too.
 
 Adding a table: one function ``def tableN(run: Runner) -> dict`` (below, "The tables") that asks ``run.evaluate`` for
 the runs it needs and returns its rows, and one line in ``TABLES``.
@@ -39,6 +39,7 @@ from typing import Callable
 ROOT = Path(__file__).resolve().parents[1]
 H36M = "python/tcd/weights"
 HUMANEVA = "python/tcd/weights_humaneva"
+SETTING_A = "python/tcd/weights_h36m_stochastic"
 HORIZONS = ("80", "160", "320", "400", "560", "720", "880", "1000")
 STOCHASTIC = ("ADE", "FDE", "MMADE", "MMFDE", "APD")
 PAPER = "Saadatnejad et al., ICRA 2023"
@@ -54,8 +55,10 @@ class PaperError(ValueError):
 def default_sampler_flags(model_dir: str) -> list[str]:
     """The ``training.evaluate`` flags of a model directory's default forecast sampler (its ``sampling.json``):
     the tables score the bundled models as ``tcd.load(DIR).forecast`` runs them."""
-    s = json.loads((ROOT / model_dir / "sampling.json").read_text())
-    f = s.get("forecast", {})
+    f = ROOT / model_dir / "sampling.json"
+    if not f.is_file():  # a generator directory: no sampler to name (its samples are one forward each)
+        return []
+    f = json.loads(f.read_text()).get("forecast", {})
     flags = ["--sampler", f.get("sampler", "ddpm")]
     if f.get("num_inference_steps") is not None:
         flags += ["--steps", str(f["num_inference_steps"])]
@@ -236,6 +239,13 @@ def published_humaneva() -> dict:
     return PUBLISHED_HUMANEVA
 
 
+def published_setting_a() -> tuple[dict, dict]:
+    """The published Human3.6M Setting-A rows and who published each (training.metrics)."""
+    from training.metrics import PUBLISHED_H36M_A, PUBLISHED_H36M_A_SOURCES
+
+    return PUBLISHED_H36M_A, PUBLISHED_H36M_A_SOURCES
+
+
 #: who published each method's Human3.6M numbers (training.metrics): siMLPe's own paper, the others the TCD paper's
 H36M_SOURCES = {"siMLPe": "Guo et al., WACV 2023"}
 
@@ -323,40 +333,74 @@ def table2(run: Runner) -> dict:
 
 
 def table3(run: Runner) -> dict:
-    """HumanEva-I, stochastic (the paper's Table 3, its HumanEva-I half): the bundled mixture (its default), its
-    cascade alone and its generator alone, each 50 samples; the prior, the nearest training futures and
-    Zero-Velocity; beside the published numbers."""
-    base = [
-        "--protocol",
-        "humaneva",
-        "--model",
-        HUMANEVA,
-        "--engine",
-        "tcd",
-        "--samples",
-        "50",
-        *default_sampler_flags(HUMANEVA),
-    ]
-    mix = run.evaluate("mixture", base)
-    cascade = run.evaluate("cascade", base + ["--generator-share", "0"])
-    gen = run.evaluate("generator", base + ["--generator-share", "1"])
-    keep = STOCHASTIC + ("mean_ADE", "mean_FDE")
-    ours = [
-        row("tcd", "tcd forecast (the mixture, its default)", mix["model"], keep, run="mixture"),
-        row("cascade", "the cascade alone", cascade["model"], keep, run="cascade"),
-        row("generator", "the generator alone", gen["model"], keep, run="generator"),
-        row("prior", "tcd predict (the prior)", mix["prior"], keep, run="mixture"),
-        row("neighbours", "nearest training futures, joined", mix["neighbours"], keep, run="mixture"),
-        row("zero_velocity", "Zero-Velocity", mix["zero_velocity"], keep, run="mixture"),
-    ]
-    pub = published_humaneva()
-    paper_rows = [row(k, k, v, STOCHASTIC, source=PAPER) for k, v in pub.items() if v]
+    """Stochastic forecasting, 50 samples (the paper's Table 3, both halves): Human3.6M Setting-A (the bundled
+    generator directory) and HumanEva-I (the bundled mixture, its cascade alone and its generator alone); the prior,
+    the nearest training futures and Zero-Velocity on each; beside the published numbers."""
     return {
-        "title": "HumanEva-I, stochastic, 50 samples (the paper's Table 3, HumanEva-I)",
+        "title": "stochastic forecasting, 50 samples (the paper's Table 3)",
+        "halves": {"h36m-a": _setting_a(run), "humaneva": _humaneva(run)},
+    }
+
+
+def _stochastic_flags(protocol: str, model_dir: str) -> list[str]:
+    """``training.evaluate`` on a bundled directory by the stochastic protocol, as ``tcd.load(DIR).forecast`` runs
+    it: the engine, 50 samples, the directory's default sampler."""
+    flags = ["--protocol", protocol, "--model", model_dir, "--engine", "tcd", "--samples", "50"]
+    return flags + default_sampler_flags(model_dir)
+
+
+#: the stochastic metrics a half's rows keep
+KEEP = STOCHASTIC + ("mean_ADE", "mean_FDE")
+
+
+def _baselines(d: dict, run_name: str) -> list[dict]:
+    """The rows every half has from its model's run: the prior's point forecast, the nearest training futures,
+    Zero-Velocity."""
+    return [
+        row("prior", "tcd predict (the prior)", d["prior"], KEEP, run=run_name),
+        row("neighbours", "nearest training futures, joined", d["neighbours"], KEEP, run=run_name),
+        row("zero_velocity", "Zero-Velocity", d["zero_velocity"], KEEP, run=run_name),
+    ]
+
+
+def _setting_a(run: Runner) -> dict:
+    if not (ROOT / SETTING_A / "generator.safetensors").is_file():
+        raise PaperError(f"{SETTING_A} holds no model: train it (python -m training.recipe h36m-stochastic)")
+    gen = run.evaluate("setting_a", _stochastic_flags("h36m-a", SETTING_A))
+    pub, sources = published_setting_a()
+    return {
+        "title": "Human3.6M Setting-A",
         "units": "m",
         "columns": list(STOCHASTIC),
         "column_unit": "",
-        "paper_rows": paper_rows,
+        "paper_rows": [row(k, k, v, STOCHASTIC, source=sources[k]) for k, v in pub.items() if v],
+        "our_rows": [
+            row("tcd", "tcd forecast (the generator, its default)", gen["model"], KEEP, run="setting_a"),
+            *_baselines(gen, "setting_a"),
+        ],
+        "per_action": {"tcd": gen.get("per_action")},
+        "protocol": {"ours": gen["protocol"], "paper": "DLow / GSPS protocol, 50 samples"},
+    }
+
+
+def _humaneva(run: Runner) -> dict:
+    base = _stochastic_flags("humaneva", HUMANEVA)
+    mix = run.evaluate("mixture", base)
+    cascade = run.evaluate("cascade", base + ["--generator-share", "0"])
+    gen = run.evaluate("generator", base + ["--generator-share", "1"])
+    ours = [
+        row("tcd", "tcd forecast (the mixture, its default)", mix["model"], KEEP, run="mixture"),
+        row("cascade", "the cascade alone", cascade["model"], KEEP, run="cascade"),
+        row("generator", "the generator alone", gen["model"], KEEP, run="generator"),
+        *_baselines(mix, "mixture"),
+    ]
+    pub = published_humaneva()
+    return {
+        "title": "HumanEva-I",
+        "units": "m",
+        "columns": list(STOCHASTIC),
+        "column_unit": "",
+        "paper_rows": [row(k, k, v, STOCHASTIC, source=PAPER) for k, v in pub.items() if v],
         "our_rows": ours,
         "not_given": [k for k, v in pub.items() if not v],
         "per_action": {"tcd": mix.get("per_action")},
@@ -376,7 +420,7 @@ class Table:
 TABLES: dict[str, Table] = {
     "table1": Table(table1, "benches/results/paper_table1.json", ("cascade", "prior")),
     "table2": Table(table2, "benches/results/paper_table2.json", PATTERNS),
-    "table3": Table(table3, "benches/results/paper_table3.json", ("mixture", "cascade", "generator")),
+    "table3": Table(table3, "benches/results/paper_table3.json", ("setting_a", "mixture", "cascade", "generator")),
 }
 
 
@@ -390,7 +434,11 @@ def _cell(v, units: str) -> str:
 
 
 def format_table(result: dict) -> str:
-    """The paper's rows above ours, aligned in plain text."""
+    """The paper's rows above ours, aligned in plain text; a table of halves, each half so."""
+    if "halves" in result:
+        return "\n\n".join(
+            format_table({**half, "table": f"{result['table']}, {key}"}) for key, half in result["halves"].items()
+        )
     cols, units = result["columns"], result["units"]
     width = max(len(r["name"]) for r in result["paper_rows"] + result["our_rows"]) + 2
     unit = result.get("column_unit", "")

@@ -14,6 +14,9 @@ RESULTS = ROOT / "benches" / "results"
 DEFAULT_FILES = ("README.md", "MODEL_CARD.md", "docs/**/*.md")
 H36M_DIR = "python/tcd/weights"
 HUMANEVA_DIR = "python/tcd/weights_humaneva"
+SETTING_A_DIR = "python/tcd/weights_h36m_stochastic"
+#: the bundled model directories, in the order the generated tables list them
+BUNDLED_DIRS = (H36M_DIR, HUMANEVA_DIR, SETTING_A_DIR)
 HORIZONS = ("80", "160", "320", "400", "560", "720", "880", "1000")
 NONE = "—"
 

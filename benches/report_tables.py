@@ -12,6 +12,7 @@ from typing import Callable
 from .report_sources import (
     H36M_DIR,
     HORIZONS,
+    BUNDLED_DIRS,
     HUMANEVA_DIR,
     NONE,
     count,
@@ -102,43 +103,121 @@ def h36m_imperfect(src: Sources) -> str:
     return caption + "\n\n" + table(["mm"] + list(HORIZONS) + ["÷ ZV"], _horizon_rows(rows))
 
 
+STOCHASTIC_COLS = ("ADE", "FDE", "MMADE", "MMFDE", "APD")
+STOCHASTIC_CAPTION = (
+    "ADE / FDE: the best sample's mean / final error; MMADE / MMFDE: the same against the multimodal futures; "
+    "APD: the samples' diversity (higher is more diverse); mean ADE: the ADE of the samples' mean (a point forecast)."
+)
+
+
+def _half(src: Sources, key: str) -> tuple[dict, dict]:
+    """One half of ``paper_table3.json`` (``"h36m-a"`` or ``"humaneva"``) and the whole file (its runs)."""
+    d = paper_table(src, "paper_table3.json")
+    return d["halves"][key], d
+
+
+def _protocol_line(half: dict, d: dict, run: str) -> str:
+    p = half["protocol"]["ours"]
+    return (
+        f"`{p['split']}`, {count(p['windows'])} windows, {p['t_his']} observed → {p['t_pred']} forecast frames at "
+        f"{p['fps']:g} Hz, {d['runs'][run]['sampling']['samples']} samples per window"
+    )
+
+
+def _stochastic_rows(half: dict, labels: list[tuple[str, str]]) -> list[list[str]]:
+    """Our rows by label, then the published ones, each in the stochastic columns and the mean ADE."""
+    ours, pub = rows_by_key(half), rows_by_key(half, "paper_rows")
+    cols = STOCHASTIC_COLS + ("mean_ADE",)
+    rows = [[label] + [metres(ours[k]["values"].get(c)) for c in cols] for k, label in labels]
+    return rows + [[f"{k} (published)"] + [metres(r["values"].get(c)) for c in cols] for k, r in pub.items()]
+
+
+BASELINE_LABELS = [
+    ("prior", "tcd `predict`: the prior's point forecast"),
+    ("neighbours", "the nearest training futures, joined (learns nothing)"),
+    ("zero_velocity", "Zero-Velocity"),
+]
+
+
+def setting_a_forecast(src: Sources) -> str:
+    """Human3.6M Setting-A, stochastic: the bundled generator directory and the baselines beside the published."""
+    half, d = _half(src, "h36m-a")
+    labels = [("tcd", '**tcd `forecast`** (`tcd.load("h36m-stochastic")`: the generator around the prior)')]
+    caption = (
+        f"**Human3.6M Setting-A, stochastic** (the paper's Table 3): metres; {_protocol_line(half, d, 'setting_a')}, "
+        f"16 joints. {STOCHASTIC_CAPTION}"
+    )
+    return (
+        caption
+        + "\n\n"
+        + table(["m"] + list(STOCHASTIC_COLS) + ["mean ADE"], _stochastic_rows(half, labels + BASELINE_LABELS))
+    )
+
+
 def humaneva_forecast(src: Sources) -> str:
     """HumanEva-I, stochastic: the bundled mixture, its halves and the baselines beside the published numbers."""
-    d = paper_table(src, "paper_table3.json")
-    ours, pub = rows_by_key(d), rows_by_key(d, "paper_rows")
-    cols = ("ADE", "FDE", "MMADE", "MMFDE", "APD")
+    half, d = _half(src, "humaneva")
     labels = [
         ("tcd", "**tcd `forecast`: the mixture** (its default)"),
         ("cascade", "its diffusion cascade alone (`mode=tcd.Cascade()`)"),
         ("generator", "its MLP generator alone (`mode=tcd.Mixture(1)`)"),
-        ("prior", "tcd `predict`: the prior's point forecast"),
-        ("neighbours", "the nearest training futures, joined (learns nothing)"),
-        ("zero_velocity", "Zero-Velocity"),
     ]
-    rows = [[label] + [metres(ours[k]["values"].get(c)) for c in cols + ("mean_ADE",)] for k, label in labels]
-    for k, r in pub.items():
-        rows.append([f"{k} (published)"] + [metres(r["values"].get(c)) for c in cols + ("mean_ADE",)])
-    p = d["protocol"]["ours"]
-    samples = d["runs"]["mixture"]["sampling"]["samples"]
     caption = (
-        f"**HumanEva-I, stochastic** (the paper's Table 3): metres; `{p['split']}`, {p['windows']} windows, "
-        f"{p['t_his']} observed → {p['t_pred']} forecast frames at {p['fps']} Hz, {samples} samples per "
-        f"window. ADE / FDE: the best sample's mean / final "
-        f"error; MMADE / MMFDE: the same against the multimodal futures; APD: the samples' diversity "
-        f"(higher is more diverse); mean ADE: the ADE of the samples' mean (a point forecast)."
+        f"**HumanEva-I, stochastic** (the paper's Table 3): metres; {_protocol_line(half, d, 'mixture')}. "
+        f"{STOCHASTIC_CAPTION}"
     )
-    return caption + "\n\n" + table(["m"] + list(cols) + ["mean ADE"], rows)
+    return (
+        caption
+        + "\n\n"
+        + table(["m"] + list(STOCHASTIC_COLS) + ["mean ADE"], _stochastic_rows(half, labels + BASELINE_LABELS))
+    )
+
+
+def stochastic_summary(src: Sources) -> str:
+    """Both halves of Table 3 side by side: each bundled model's default, the paper's TCD and the best published
+    number of each column (training.metrics), Zero-Velocity."""
+    halves = {k: _half(src, k)[0] for k in ("h36m-a", "humaneva")}
+    head = ["m"] + [f"{c} {tag}" for tag in ("H36M", "HE") for c in STOCHASTIC_COLS]
+
+    def cells(rows: dict, key: str) -> list[str]:
+        return [metres(rows.get(key, {}).get("values", {}).get(c)) for c in STOCHASTIC_COLS]
+
+    def best(half: dict) -> list[str]:
+        pub = rows_by_key(half, "paper_rows").values()
+        out = []
+        for c in STOCHASTIC_COLS:
+            vals = [r["values"][c] for r in pub if c in r["values"]]
+            out.append(metres(min(vals)) if vals and c != "APD" else NONE)  # more spread is not better by itself
+        return out
+
+    ours = {k: rows_by_key(h) for k, h in halves.items()}
+    pub = {k: rows_by_key(h, "paper_rows") for k, h in halves.items()}
+    rows = [
+        ["**tcd `forecast`**, the bundled model's default"]
+        + cells(ours["h36m-a"], "tcd")
+        + cells(ours["humaneva"], "tcd"),
+        ["TCD (published)"] + cells(pub["h36m-a"], "TCD") + cells(pub["humaneva"], "TCD"),
+        ["the best published, per column"] + best(halves["h36m-a"]) + best(halves["humaneva"]),
+        ["Zero-Velocity"] + cells(ours["h36m-a"], "zero_velocity") + cells(ours["humaneva"], "zero_velocity"),
+    ]
+    caption = (
+        "**Stochastic forecasting** (the paper's Table 3, `python -m benches.paper table3`): metres, 50 samples; "
+        'Human3.6M Setting-A (`tcd.load("h36m-stochastic")`, 25 → 100 frames at 50 Hz, S9 and S11) and '
+        'HumanEva-I (`tcd.load("humaneva")`, 15 → 60 frames at 60 Hz). ADE / FDE: the best sample\'s; MMADE / '
+        "MMFDE: against the multimodal futures; APD: the samples' diversity (no best: more is not better by "
+        "itself). The best published of MotionDiff, HumanMAC, SkeletonDiffusion, KHMP and TCD: MODEL_CARD.md."
+    )
+    return caption + "\n\n" + table(head, rows)
 
 
 def humaneva_per_action(src: Sources) -> str:
     """The bundled HumanEva-I mixture per action (its windows' means)."""
-    d = paper_table(src, "paper_table3.json")
-    per = d["per_action"]["tcd"]
-    cols = ("ADE", "FDE", "MMADE", "MMFDE", "APD")
-    rows = [[a, count(v["windows"])] + [metres(v[c]) for c in cols] for a, v in per.items()]
+    half, _ = _half(src, "humaneva")
+    per = half["per_action"]["tcd"]
+    rows = [[a, count(v["windows"])] + [metres(v[c]) for c in STOCHASTIC_COLS] for a, v in per.items()]
     return (
         "**HumanEva-I, per action**: the bundled mixture, the means over each action's windows (metres).\n\n"
-        + table(["action", "windows"] + list(cols), rows)
+        + table(["action", "windows"] + list(STOCHASTIC_COLS), rows)
     )
 
 
@@ -347,7 +426,7 @@ def _predicts(cfg: dict) -> str:
 def model_details(src: Sources) -> str:
     """Each bundled weight file: its network, its size (parameters, from the safetensors) and what it predicts."""
     rows = []
-    for d in (H36M_DIR, HUMANEVA_DIR):
+    for d in BUNDLED_DIRS:
         names = list(src.repo_json(f"{d}/model.json"))
         total = 0
         for role in names:
@@ -369,7 +448,7 @@ def model_details(src: Sources) -> str:
 def training_data(src: Sources) -> str:
     """What each bundled directory was trained on and the licence its weights inherit (their metadata)."""
     rows = []
-    for d in (H36M_DIR, HUMANEVA_DIR):
+    for d in BUNDLED_DIRS:
         seen: dict[tuple, list] = {}
         for role in src.repo_json(f"{d}/model.json"):
             _, cfg = src.safetensors(f"{d}/{role}.safetensors")
@@ -383,10 +462,13 @@ def training_data(src: Sources) -> str:
 def convention(src: Sources) -> str:
     """The input / output convention of each bundled directory (its model.json)."""
     rows = []
-    for d, up in ((H36M_DIR, "y"), (HUMANEVA_DIR, None)):
+    for d in BUNDLED_DIRS:
         m = src.repo_json(f"{d}/model.json")
         data = m["prior"]["data"]
-        short, long_ = m["short"]["window"], m["long"]["window"]
+        if "short" in m:
+            frames = m["short"]["window"]["obs_len"], m["long"]["window"]["seq_len"] - m["short"]["window"]["obs_len"]
+        else:  # a generator directory: the generator's window
+            frames = m["generator"]["model"]["obs_len"], m["generator"]["model"]["pred_len"]
         rows.append(
             [
                 f"`{d.removeprefix('python/tcd/')}`",
@@ -394,8 +476,8 @@ def convention(src: Sources) -> str:
                 f"{data['fps']:g} fps",
                 data["units"],
                 "yes" if data.get("root_relative") else "no",
-                f"+{data.get('up', up)}",
-                f"{short['obs_len']} → {long_['seq_len'] - short['obs_len']}",
+                f"+{data.get('up', 'y')}",
+                f"{frames[0]} → {frames[1]}",
             ]
         )
     return table(
@@ -492,6 +574,8 @@ GENERATORS: dict[str, Callable[[Sources], str]] = {
     "h36m-repair": h36m_repair,
     "repair-dataset": repair_dataset,
     "humaneva-forecast": humaneva_forecast,
+    "setting-a-forecast": setting_a_forecast,
+    "stochastic-summary": stochastic_summary,
     "humaneva-per-action": humaneva_per_action,
     "speed-peers": speed_peers,
     "speed-whole": speed_whole,

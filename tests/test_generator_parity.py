@@ -6,10 +6,11 @@ Weights (the same file on both sides: the reference is loaded back from it with 
 * ``random``: the bundled size (3 x 768, z 64, 20 coefficients), PyTorch's default init of the hidden layers and
   a seeded normal head of std 8/sqrt(hidden) (the trained init's zero head would be the prior, testing nothing):
   the samples lie up to a few tenths of a metre from the prior's forecast (``pytest -s`` prints it);
-* ``bundled``: ``python/tcd/weights_humaneva/generator.safetensors`` where the package has one (skipped
-  otherwise), trained with IMLE by ``training/generator_imle.py``.
-Inputs: 15-frame windows of the bundled HumanEva-I demo clip (real motion) and the bundled HumanEva-I prior's
-forecast of them; the noise z (S, B, 64) injected, the same array on both sides.
+* ``bundled``: ``python/tcd/weights_humaneva/generator.safetensors`` and the Setting-A model's
+  ``python/tcd/weights_h36m_stochastic/generator.safetensors`` where the package has them (skipped otherwise),
+  trained with IMLE by ``training/generator_imle.py``.
+Inputs: windows of the bundled demo clip of the model's layout (real motion: 15 HumanEva-I frames, 25 Setting-A
+frames) and the bundled prior's forecast of them; the noise z (S, B, 64) injected, the same array on both sides.
 
 Criteria (stated once, used throughout):
 * every value: ``assert_allclose(rtol=1e-4, atol=1e-5)`` (metres), the prior's and the denoiser's tolerance;
@@ -44,6 +45,7 @@ RTOL, ATOL = 1e-4, 1e-5
 CONTRIBUTION = 100
 ROOT = Path(__file__).resolve().parents[1]
 BUNDLED = tcd.humaneva_model_dir() / "generator.safetensors"
+SETTING_A = tcd.humaneva_model_dir().with_name("weights_h36m_stochastic")
 
 
 def random_generator(seed: int = 0, hidden: int = 768, layers: int = 3) -> Generator:
@@ -55,16 +57,23 @@ def random_generator(seed: int = 0, hidden: int = 768, layers: int = 3) -> Gener
     return g.eval()
 
 
+def clip_inputs(clip_path: Path, model_dir: Path, obs_len: int, horizon: int):
+    """(obs (7, obs_len, K), the directory's prior's forecast (7, horizon, K)) float32 metres from a demo clip."""
+    from tcd import _demo as demo
+
+    clip = demo.load_clip(clip_path)["poses"]
+    clip = clip.reshape(len(clip), -1).astype(np.float32)
+    starts = np.linspace(0, len(clip) - obs_len, 7).astype(int)
+    obs = np.ascontiguousarray(np.stack([clip[s : s + obs_len] for s in starts]))
+    return obs, tcd.engine.Prior.load(model_dir / "prior.safetensors").predict(obs, horizon)
+
+
 @pytest.fixture(scope="module")
 def inputs():
     """(obs (7, 15, 42), the bundled prior's forecast (7, 60, 42)) float32 metres, from the HumanEva-I demo clip."""
     from tcd import _demo as demo
 
-    clip = demo.load_clip(demo.HUMANEVA_CLIP_PATH)["poses"]
-    clip = clip.reshape(len(clip), -1).astype(np.float32)
-    obs = np.ascontiguousarray(np.stack([clip[s : s + 15] for s in np.linspace(0, len(clip) - 15, 7).astype(int)]))
-    prior = tcd.engine.Prior.load(tcd.humaneva_model_dir() / "prior.safetensors")
-    return obs, prior.predict(obs, 60)
+    return clip_inputs(demo.HUMANEVA_CLIP_PATH, tcd.humaneva_model_dir(), 15, 60)
 
 
 @pytest.fixture(scope="module")
@@ -90,7 +99,7 @@ def check(path: Path, kernel: str, monkeypatch, inputs, samples: int = 5) -> Non
     z = np.random.default_rng(1).standard_normal((samples, len(obs), 64)).astype(np.float32)
     engine = load_kernel(path, kernel, monkeypatch, tcd.engine.Generator).sample(obs, prior, samples, noise=z)
     ref = reference(path, obs, prior, z)
-    assert engine.shape == ref.shape == (samples, len(obs), 60, 42) and engine.dtype == np.float32
+    assert engine.shape == ref.shape == (samples, *prior.shape) and engine.dtype == np.float32
     contribution = np.abs(ref - prior[None]).max()
     print(
         f"{path.name} [{kernel}]: max |engine - torch| {np.abs(engine - ref).max():.2e}, "
@@ -110,6 +119,17 @@ def test_bundled_weights_match_pytorch(kernel, monkeypatch, inputs):
     if not BUNDLED.is_file():
         pytest.skip("no bundled HumanEva-I generator in this build")
     check(BUNDLED, kernel, monkeypatch, inputs, samples=8)
+
+
+@pytest.mark.parametrize("kernel", ALL_KERNELS)
+def test_bundled_setting_a_weights_match_pytorch(kernel, monkeypatch):
+    """The Setting-A model's generator (16 joints, 25 -> 100 frames) on its own clip and prior."""
+    from tcd import _demo as demo
+
+    if not (SETTING_A / "generator.safetensors").is_file():
+        pytest.skip("no bundled Setting-A generator in this build")
+    inputs = clip_inputs(demo.SETTING_A_CLIP_PATH, SETTING_A, 25, 100)
+    check(SETTING_A / "generator.safetensors", kernel, monkeypatch, inputs, samples=8)
 
 
 def test_a_perturbed_head_bias_fails_the_criterion(random_file, tmp_path, inputs):

@@ -141,3 +141,26 @@ def test_a_setting_a_prior_trains_exports_and_scores_on_the_protocol(tmp_path):
     obs = np.zeros((2, 25, 16, 3)) + np.linspace(0, 1, 48).reshape(16, 3)
     out = prior_forecast(SETTING_A, tmp_path / "model", obs)
     assert path.name == "prior.safetensors" and out.shape == (2, 100, 16, 3) and np.isfinite(out).all()
+
+
+def test_the_bundled_setting_a_model_loads_and_runs_the_demo():
+    """``tcd.load("h36m-stochastic")``: the Setting-A generator directory, 25 -> 100 frames at 50 Hz on 16 joints,
+    the protocol's call ``forecast(obs, num_samples=50)``; ``tcd demo`` runs it on its own clip (no repair: the
+    directory has no repair model)."""
+    import tcd
+    from tcd import _demo as demo
+
+    if (
+        "h36m-stochastic" not in tcd.BUNDLED_MODELS
+        or not (tcd.default_model_dir().with_name("weights_h36m_stochastic") / "generator.safetensors").is_file()
+    ):
+        pytest.skip("no bundled Setting-A model in this build")
+    m = tcd.load("h36m-stochastic")
+    assert (m.obs_len, m.horizon, m.num_joints, m.fps) == (25, 100, 16, 50.0)
+    assert m.forecast_mode == tcd.Mixture(1.0) and m.data["dataset"] == "h36m-setting-a"
+    clip = demo.load_clip(demo.SETTING_A_CLIP_PATH)
+    f = m.forecast(clip["poses"][:25], num_samples=50, seed=0)
+    assert f.samples.shape == (50, 100, 16, 3) and np.allclose(f.times[[0, -1]], [0.02, 2.0])
+    res = demo.run(m, quiet=True)
+    assert "repair_skipped" in res and res["forecast_mm"][1000] > 0
+    assert "Setting-A layout" in demo.summary(res, m)

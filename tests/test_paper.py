@@ -145,3 +145,68 @@ def test_command_line_errors(tmp_path, capsys):
     with pytest.raises(SystemExit):  # a quick look must not overwrite the protocol's file
         paper.main(["table1", "--windows-per-action", "2"])
     assert paper.main(["--list"]) == 0 and "paper_table1.json" in capsys.readouterr().out
+
+
+def stochastic_result(method: str, dataset: str, windows: int, scale: float = 1.0, **sampling) -> dict:
+    """A small stand-in for a ``training.evaluate --protocol ... --json`` result (the stochastic protocol)."""
+
+    def metrics(k: float) -> dict:
+        return {c: k * (0.1 + 0.01 * i) for i, c in enumerate(paper.KEEP)}
+
+    return {
+        "protocol": {
+            "dataset": dataset,
+            "split": "test",
+            "t_his": 25,
+            "t_pred": 100,
+            "fps": 50,
+            "windows": windows,
+            "windows_in_protocol": windows,
+        },
+        "method": method,
+        "model": metrics(scale),
+        "prior": metrics(2 * scale),
+        "neighbours": metrics(3 * scale),
+        "zero_velocity": metrics(4 * scale),
+        "per_action": {"walking": {"windows": windows, **metrics(scale)}},
+        "sampling": {"engine": "tcd", "samples": 50, **sampling},
+        "command": f"python -m training.evaluate --fake {method}",
+    }
+
+
+def test_table3_has_both_halves(tmp_path, monkeypatch, capsys):
+    """table3 on fake runs: Setting-A's half from the generator directory's run (the published rows of
+    training.metrics beside it), HumanEva-I's from its mixture, cascade and generator runs; both printed."""
+    from training.metrics import PUBLISHED_H36M_A
+
+    gen_dir = tmp_path / "weights_h36m_stochastic"
+    gen_dir.mkdir()
+    (gen_dir / "generator.safetensors").write_bytes(b"")
+    monkeypatch.setattr(paper, "SETTING_A", str(gen_dir))
+    s = json.loads((paper.ROOT / paper.HUMANEVA / "sampling.json").read_text())["forecast"]
+    he = dict(sampler=s["sampler"], steps=s["num_inference_steps"])
+    files = {
+        "setting_a": stochastic_result(f"tcd {gen_dir}", "h36m-setting-a", 3),
+        "mixture": stochastic_result(f"tcd {paper.HUMANEVA}", "humaneva-i", 3, 0.5, **he),
+        "cascade": stochastic_result(f"tcd {paper.HUMANEVA}", "humaneva-i", 3, 0.6, generator_share=0, **he),
+        "generator": stochastic_result(f"tcd {paper.HUMANEVA}", "humaneva-i", 3, 0.7, generator_share=1, **he),
+    }
+    sources = []
+    for name, d in files.items():
+        (tmp_path / f"{name}.json").write_text(json.dumps(d))
+        sources.append(f"{name}={tmp_path / name}.json")
+    out = tmp_path / "t3.json"
+    assert paper.main(["table3", "--max-windows", "3", "--from", *sources, "--out", str(out)]) == 0
+    d = json.loads(out.read_text())
+    a, h = d["halves"]["h36m-a"], d["halves"]["humaneva"]
+    assert {r["key"]: r["values"]["ADE"] for r in a["our_rows"]} == pytest.approx(
+        {"tcd": 0.1, "prior": 0.2, "neighbours": 0.3, "zero_velocity": 0.4}
+    )
+    assert {r["key"] for r in a["paper_rows"]} == set(PUBLISHED_H36M_A)
+    assert [r["key"] for r in h["our_rows"]][:3] == ["tcd", "cascade", "generator"]
+    assert h["our_rows"][1]["values"]["ADE"] == pytest.approx(0.06)
+    text = capsys.readouterr().out
+    assert "table3, h36m-a: Human3.6M Setting-A (m)" in text and "table3, humaneva: HumanEva-I (m)" in text
+    (gen_dir / "generator.safetensors").unlink()
+    assert paper.main(["table3", "--max-windows", "3", "--from", *sources, "--out", str(out)]) == 2
+    assert "h36m-stochastic" in capsys.readouterr().err

@@ -91,6 +91,21 @@ def test_a_run_writes_its_files_records_each_stage_and_resumes(tmp_path, monkeyp
     logs.clear()
     R.Runner(rec, tmp_path / "run", log=logs.append).run()
     assert sum("done before, skipped" in m for m in logs) == 2
+    # a stage the recipe now runs with another command runs again, not the record of the old one
+    other = tmp_path / "other.json"
+    other.write_text('{"x": 2}')
+    rec = write_recipe(
+        tmp_path,
+        [
+            copy_stage("one", str(src), "{stage:one}/a.json"),
+            copy_stage("two", str(other), "{out}/weights_test/a.json"),
+        ],
+    )
+    logs.clear()
+    R.Runner(rec, tmp_path / "run", log=logs.append).run()
+    assert sum("done before, skipped" in m for m in logs) == 1
+    assert any("two: done before as another command, run again" in m for m in logs)
+    assert json.loads((tmp_path / "run" / "out" / "weights_test" / "a.json").read_text()) == {"x": 2}
 
 
 def test_a_failed_stage_stops_the_run_and_runs_again_next_time(tmp_path, monkeypatch):

@@ -1,8 +1,9 @@
-"""Builds the demo clips bundled with the package (``python/tcd/data/demo_walking.npz`` and, for the HumanEva-I
-model, ``python/tcd/data/demo_walking_humaneva.npz``).
+"""Builds the demo clips bundled with the package (``python/tcd/data/demo_walking.npz``; for the HumanEva-I
+model ``python/tcd/data/demo_walking_humaneva.npz``; for the Setting-A model ``demo_walking_setting_a.npz``).
 
     python -m training.make_demo_clip [--cmu ../shared/data/cmu/cmu_expmap_train.npz] [--key walking/walking_2]
     python -m training.make_demo_clip --layout humaneva [--humaneva ../shared/data/humaneva]
+    python -m training.make_demo_clip --layout setting-a
 
 Source: the CMU Graphics Lab Motion Capture Database (mocap.cs.cmu.edu; free for research and for use in
 products, with attribution), exp-map release of the LTD / ConvSeq2Seq CMU benchmark.
@@ -24,6 +25,10 @@ rebuilt the same way on the Human3.6M skeleton, then on HumanEva-I's 15 joints: 
 from its HumanEva parent of the Human3.6M joint it stands for (``tcd.layouts`` ``humaneva15``) and HumanEva-I's
 bone length (the median over the Train split's frames: 14 numbers, no motion of the licensed data); +z up, as
 HumanEva-I; the model's 14 joints relative to the pelvis, metres.
+
+The Setting-A clip (``--layout setting-a``) is the same CMU clip resampled to 50 Hz and rebuilt on the Human3.6M
+skeleton, then joints 1..16 of its 17 (``h36m17``) relative to the pelvis, metres, +y up: the Setting-A model's
+input.
 """
 
 from __future__ import annotations
@@ -175,6 +180,34 @@ def build_humaneva(cmu_path: str, key: str, humaneva_path=None) -> dict:
     }
 
 
+SETTING_A_FPS = 50.0
+SETTING_A_OUT = OUT.with_name("demo_walking_setting_a.npz")
+
+
+def build_setting_a(cmu_path: str, key: str) -> dict:
+    from tcd.layouts import get_layout
+    from training.data.h36m_setting_a import joints17
+
+    seqs = load_cmu_npz(cmu_path)
+    if key not in seqs:
+        raise KeyError(f"{key} not in {cmu_path}")
+    # the release's first frame is not part of the motion (as for the HumanEva-I clip): dropped
+    cmu = resample(expmap_to_positions_cmu(seqs[key], sample_rate=1)[1:], CMU_FPS, SETTING_A_FPS)
+    p17 = (cmu_to_h36m32(cmu) / 1000.0)[:, joints17()]
+    return {
+        "poses": (p17[:, 1:] - p17[:, :1]).astype(np.float32),
+        "fps": np.float32(SETTING_A_FPS),
+        "joint_names": np.array(get_layout("h36m17").joint_names[1:]),
+        "source": cmu_source(
+            key,
+            {
+                "conversion": "python -m training.make_demo_clip --layout setting-a (CMU bone directions, Human3.6M "
+                "bone lengths, joints 1..16 of h36m17 relative to the pelvis, metres, +y up, 50 fps)",
+            },
+        ),
+    }
+
+
 def build(cmu_path: str, key: str) -> dict:
     seqs = load_cmu_npz(cmu_path)
     if key not in seqs:
@@ -206,15 +239,17 @@ def main(argv=None) -> int:
     ap.add_argument("--key", default="walking/walking_2")
     ap.add_argument(
         "--layout",
-        choices=["h36m", "humaneva"],
+        choices=["h36m", "humaneva", "setting-a"],
         default="h36m",
-        help="the model the clip is for: the Human3.6M 22-joint model or the HumanEva-I model",
+        help="the model the clip is for: the Human3.6M 22-joint model, the HumanEva-I model or the Setting-A model",
     )
     ap.add_argument("--humaneva", default=None, help="HumanEva-I data (bone lengths; default ../shared/data/humaneva)")
-    ap.add_argument("--out", default=None, help="default: python/tcd/data/demo_walking[_humaneva].npz")
+    ap.add_argument("--out", default=None, help="default: python/tcd/data/demo_walking[_humaneva|_setting_a].npz")
     args = ap.parse_args(argv)
     if args.layout == "humaneva":
         clip, out = build_humaneva(args.cmu, args.key, args.humaneva), args.out or str(HUMANEVA_OUT)
+    elif args.layout == "setting-a":
+        clip, out = build_setting_a(args.cmu, args.key), args.out or str(SETTING_A_OUT)
     else:
         clip, out = build(args.cmu, args.key), args.out or str(OUT)
     Path(out).parent.mkdir(parents=True, exist_ok=True)

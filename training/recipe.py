@@ -243,8 +243,19 @@ class Runner:
         sdir = self.dir / stage.name
         done = sdir / "done.json"
         if done.is_file():
-            self.log(f"[{self.recipe.name}] stage {index + 1}/{total} {stage.name}: done before, skipped")
-            return json.loads(done.read_text())
+            record = json.loads(done.read_text())
+            if stage.run in TRAINERS or record.get("command") == [
+                relative(c) for c in ["-m", stage.module, *self.module_args(stage)]
+            ]:
+                self.log(f"[{self.recipe.name}] stage {index + 1}/{total} {stage.name}: done before, skipped")
+                return record
+            # a module stage whose recorded command is not the recipe's now (the recipe changed): its output is
+            # another stage's, so it runs again
+            self.log(
+                f"[{self.recipe.name}] stage {index + 1}/{total} {stage.name}: done before as another command, "
+                "run again"
+            )
+            done.unlink()
         if stage.gpu and self.device == "cpu":
             self.log(
                 f"[{self.recipe.name}] stage {stage.name} ran on a GPU ({stage.gpu}); on this CPU it takes "

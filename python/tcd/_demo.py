@@ -50,6 +50,12 @@ from ._mixture import Mixture, generator_samples
 CLIP_PATH = Path(__file__).resolve().parent / "data" / "demo_walking.npz"
 #: the same walk for the HumanEva-I model (its 14 joints, 60 Hz, +z up)
 HUMANEVA_CLIP_PATH = CLIP_PATH.with_name("demo_walking_humaneva.npz")
+#: the same walk for the Setting-A model (joints 1..16 of h36m17, 50 Hz, +y up)
+SETTING_A_CLIP_PATH = CLIP_PATH.with_name("demo_walking_setting_a.npz")
+#: the clip of each model's dataset (its ``data.dataset``), the Human3.6M one for any other
+CLIPS = {"humaneva": HUMANEVA_CLIP_PATH, "h36m-setting-a": SETTING_A_CLIP_PATH}
+#: the layout each clip is in, for the demo's summary
+CLIP_LAYOUTS = {"humaneva": "HumanEva-I layout", "h36m-setting-a": "Human3.6M Setting-A layout"}
 HORIZONS_MS = (80, 160, 320, 400, 560, 720, 880, 1000)
 
 # Demo defaults: 5 samples; each task samples with the model's own defaults (TCD.sampling: the bundled
@@ -85,8 +91,9 @@ BONES = (
 
 
 def clip_for(model: TCD) -> Path:
-    """The bundled clip in the model's layout: the HumanEva-I clip for a HumanEva-I model, else the Human3.6M one."""
-    return HUMANEVA_CLIP_PATH if model.data.get("dataset") == "humaneva" else CLIP_PATH
+    """The bundled clip in the model's layout (:data:`CLIPS`): the HumanEva-I clip for a HumanEva-I model, the
+    Setting-A one for a Setting-A model, else the Human3.6M one."""
+    return CLIPS.get(str(model.data.get("dataset")), CLIP_PATH)
 
 
 def apd(samples: np.ndarray) -> float:
@@ -164,7 +171,7 @@ def run(
     if model.joint_names is not None and list(model.joint_names) != names:
         raise ValueError(
             "the demo clip's joints do not match the model's: the demo needs a 22-joint "
-            "Human3.6M-layout model or the HumanEva-I model"
+            "Human3.6M-layout model, a HumanEva-I model or a Setting-A model"
         )
     if model.fps is not None and abs(float(model.fps) - fps) > 1e-6:
         raise ValueError(f"the demo clip is at {fps:g} fps, the model at {model.fps:g} fps")
@@ -197,9 +204,7 @@ def run(
 
     stages = 4 if model.prior is not None else 3
     _say(
-        f"[1/{stages}] forecasting {h} frames from {n_obs} observed ({samples} samples, "
-        f"{o.describe(model.num_train_timesteps)})...",
-        quiet,
+        f"[1/{stages}] forecasting {h} frames from {n_obs} observed ({samples} samples, {drawn_by(model, o)})...", quiet
     )
     t0 = time.perf_counter()
     f = model.forecast(obs, **kw)
@@ -246,6 +251,8 @@ def run(
         res["repair_skipped"] = (
             "this model has no repair model, and its short-term model is conditioned on the "
             "prior forecaster, which a repair does not run"
+            if model.short is not None
+            else "this model has neither a repair model nor a cascade to repair with"
         )
         _say(f"[{stages}/{stages}] repair skipped: {res['repair_skipped']}", quiet)
         return res
@@ -261,6 +268,14 @@ def run(
     res["repaired_observed_unchanged"] = bool(np.array_equal(rep[~hidden], obs[~hidden]))
     _say(f"      done in {res['timings_s']['repair']:.1f} s", quiet)
     return res
+
+
+def drawn_by(model: TCD, sampler: SamplerOptions) -> str:
+    """What draws a forecast's samples, for people: the cascade's sampler, or the generator of a directory
+    without a cascade."""
+    if model.short is None:
+        return "the MLP generator, one forward each"
+    return sampler.describe(model.num_train_timesteps)  # type: ignore[arg-type]
 
 
 def can_repair(model: TCD) -> bool:
@@ -287,12 +302,20 @@ def summary(res: Dict[str, Any], model: TCD) -> str:
     s = res["settings"]
     lines = [
         f"tcd demo: model {model.path} (sha256 {str(model.sha256)[:12]}), clip: CMU walking "
-        f"({'HumanEva-I layout' if model.data.get('dataset') == 'humaneva' else 'Human3.6M layout'}), "
+        f"({CLIP_LAYOUTS.get(str(model.data.get('dataset')), 'Human3.6M layout')}), "
         f"{len(res['observed'])} observed frames at {res['fps']:g} fps",
-        f"forecast sampler {SamplerOptions(**s['sampling']['forecast']).describe(model.num_train_timesteps)}, "
-        + ("" if isinstance(model.forecast_mode, Cascade) else f"{model.forecast_mode.describe()}, ")
+        f"forecast by {drawn_by(model, SamplerOptions(**s['sampling']['forecast']))}, "
+        + (
+            ""
+            if isinstance(model.forecast_mode, Cascade) or model.short is None
+            else f"{model.forecast_mode.describe()}, "
+        )
         + f"{s['samples']} samples"
-        + (f" ({s['generator_samples']} of them from the MLP generator)" if s.get("generator_samples") else "")
+        + (
+            f" ({s['generator_samples']} of them from the MLP generator)"
+            if s.get("generator_samples") and model.short is not None
+            else ""
+        )
         + f", seed {s['seed']}",
         "",
         "forecast error, mm (mean per-joint position error of the mean of the samples):",
@@ -350,19 +373,25 @@ PAPER_SIZE = (12, 64)
 
 def verdict(res: Dict[str, Any], model: TCD) -> str:
     """One sentence on how good this model is, from its own metadata (each stage's size) and this run's numbers."""
+    ms = [m for m in HORIZONS_MS if m in res["forecast_mm"]]
+    wins = sum(res["forecast_mm"][m] < res["zero_velocity_mm"][m] for m in ms)
+    g = model.generator
+    if model.short is None:  # a generator directory: the network is the generator around the prior
+        return (
+            f"This is an MLP generator ({g.layers} x {g.hidden}) around a prior forecaster, no cascade: on this clip "
+            f"it beats Zero-Velocity at {wins} of {len(ms)} horizons; one clip is not a benchmark (MODEL_CARD.md "
+            "has the stochastic protocol's numbers)."
+        )
     sizes = {
         role: (stage.config["model"]["num_layers"], stage.config["model"]["channels"])
         for role, stage in (("short-term", model.short), ("long-term", model.long))
     }
-    ms = [m for m in HORIZONS_MS if m in res["forecast_mm"]]
-    wins = sum(res["forecast_mm"][m] < res["zero_velocity_mm"][m] for m in ms)
     full = all(layers >= PAPER_SIZE[0] and channels >= PAPER_SIZE[1] for layers, channels in sizes.values())
     if len(set(sizes.values())) == 1:
         layers, channels = sizes["short-term"]
         shape = f"{layers} layers x {channels} channels"
     else:  # the stages may differ (the bundled long-term model is larger than the short-term one)
         shape = ", ".join(f"{role} {layers} layers x {channels} channels" for role, (layers, channels) in sizes.items())
-    g = model.generator
     if g is not None and isinstance(model.forecast_mode, Mixture) and model.forecast_mode.share:
         share = model.forecast_mode.share
         shape += f"; and an MLP generator of {g.layers} x {g.hidden} drawing {share:g} of the samples"

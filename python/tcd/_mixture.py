@@ -68,6 +68,8 @@ class Mixture:
 
     def describe(self) -> str:
         """One line for people (``tcd info``, ``tcd demo``)."""
+        if self.share == 1.0:
+            return "every sample from the generator"
         return f"the cascade with a share of {self.share:g} of the samples from the generator"
 
 
