@@ -139,38 +139,28 @@ BASELINE_LABELS = [
 ]
 
 
+def _stochastic_block(src: Sources, key: str, run: str, title: str, labels: list, what: str = "") -> str:
+    """One half of Table 3 as a captioned table: our rows by label, the baselines, the published."""
+    half, d = _half(src, key)
+    caption = f"**{title}, stochastic** (the paper's Table 3): metres; {_protocol_line(half, d, run)}{what}. "
+    rows = _stochastic_rows(half, labels + BASELINE_LABELS)
+    return caption + STOCHASTIC_CAPTION + "\n\n" + table(["m"] + list(STOCHASTIC_COLS) + ["mean ADE"], rows)
+
+
 def setting_a_forecast(src: Sources) -> str:
     """Human3.6M Setting-A, stochastic: the bundled generator directory and the baselines beside the published."""
-    half, d = _half(src, "h36m-a")
     labels = [("tcd", '**tcd `forecast`** (`tcd.load("h36m-stochastic")`: the generator around the prior)')]
-    caption = (
-        f"**Human3.6M Setting-A, stochastic** (the paper's Table 3): metres; {_protocol_line(half, d, 'setting_a')}, "
-        f"16 joints. {STOCHASTIC_CAPTION}"
-    )
-    return (
-        caption
-        + "\n\n"
-        + table(["m"] + list(STOCHASTIC_COLS) + ["mean ADE"], _stochastic_rows(half, labels + BASELINE_LABELS))
-    )
+    return _stochastic_block(src, "h36m-a", "setting_a", "Human3.6M Setting-A", labels, ", 16 joints")
 
 
 def humaneva_forecast(src: Sources) -> str:
     """HumanEva-I, stochastic: the bundled mixture, its halves and the baselines beside the published numbers."""
-    half, d = _half(src, "humaneva")
     labels = [
         ("tcd", "**tcd `forecast`: the mixture** (its default)"),
         ("cascade", "its diffusion cascade alone (`mode=tcd.Cascade()`)"),
         ("generator", "its MLP generator alone (`mode=tcd.Mixture(1)`)"),
     ]
-    caption = (
-        f"**HumanEva-I, stochastic** (the paper's Table 3): metres; {_protocol_line(half, d, 'mixture')}. "
-        f"{STOCHASTIC_CAPTION}"
-    )
-    return (
-        caption
-        + "\n\n"
-        + table(["m"] + list(STOCHASTIC_COLS) + ["mean ADE"], _stochastic_rows(half, labels + BASELINE_LABELS))
-    )
+    return _stochastic_block(src, "humaneva", "mixture", "HumanEva-I", labels)
 
 
 def stochastic_summary(src: Sources) -> str:

@@ -277,7 +277,7 @@ def check_parts(
     prior's forecast. A :class:`WeightsError` naming the file that does not fit."""
     where = str(path) if path is not None else "the model"
     if short is None or long is None:
-        _check_generator_only(where, path, short, long, repair, prior, repair_fill, generator, mode)
+        _check_generator_only(where, path, short or long, repair or repair_fill, prior, generator, mode)
         return
     k = short.num_features
     if short.num_features % 3:
@@ -375,30 +375,27 @@ def check_parts(
 def _check_generator_only(
     where: str,
     path: Optional[PathLike],
-    short: Optional[Denoiser],
-    long: Optional[Denoiser],
-    repair: Optional[Denoiser],
+    stage: Optional[Denoiser],
+    extra: Union[Denoiser, Prior, None],
     prior: Optional[Prior],
-    repair_fill: Optional[Prior],
     generator: Optional[Generator],
     mode: Mode,
 ) -> None:
-    """:func:`check_parts` for a directory without the cascade: :data:`GENERATOR_ONLY`, nothing else."""
+    """:func:`check_parts` for a directory without the cascade (at most one ``stage`` of it, refused):
+    :data:`GENERATOR_ONLY`, nothing ``extra`` (a repair model or fill, refused)."""
 
     def file(name: str) -> str:
         return str(Path(path) / name) if path is not None else name
 
-    if short is not None or long is not None:
-        given = short or long
+    if stage is not None:
         raise WeightsError(
-            f"{where}: the cascade needs both its stages, short and long; only {given.path} is given.", given.path
+            f"{where}: the cascade needs both its stages, short and long; only {stage.path} is given.", stage.path
         )
     if generator is None or prior is None:
         missing = file(GENERATOR_FILE if generator is None else PRIOR_FILE)
         raise WeightsError(
             f"{where}: without the cascade a model directory is {GENERATOR_ONLY}; {missing} is missing.", missing
         )
-    extra = repair or repair_fill
     if extra is not None:
         raise WeightsError(
             f"{where}: {extra.path} is a repair model or fill, which repairs with the cascade's short-term model's "
