@@ -239,14 +239,16 @@ class Runner:
                     args += [flag] + ([] if value is True else [str(value)])
         return args
 
+    def module_command(self, stage: Stage) -> list:
+        """The command of a module stage, as it runs (the record keeps it without the interpreter, relative)."""
+        return [sys.executable, "-m", stage.module, *self.module_args(stage)]
+
     def run_stage(self, stage: Stage, index: int, total: int) -> dict:
         sdir = self.dir / stage.name
         done = sdir / "done.json"
         if done.is_file():
             record = json.loads(done.read_text())
-            if stage.run in TRAINERS or record.get("command") == [
-                relative(c) for c in ["-m", stage.module, *self.module_args(stage)]
-            ]:
+            if stage.run in TRAINERS or record.get("command") == [relative(c) for c in self.module_command(stage)[1:]]:
                 self.log(f"[{self.recipe.name}] stage {index + 1}/{total} {stage.name}: done before, skipped")
                 return record
             # a module stage whose recorded command is not the recipe's now (the recipe changed): its output is
@@ -271,7 +273,7 @@ class Runner:
                 cmd.append("--no-compile")  # compiling costs more than a smoke run's two steps
         else:
             resume = False
-            cmd = [sys.executable, "-m", stage.module, *self.module_args(stage)]
+            cmd = self.module_command(stage)
         env = {**os.environ, "OMP_NUM_THREADS": str(self.threads), "PYTHONUNBUFFERED": "1"}
         env["PYTHONPATH"] = os.pathsep.join([str(ROOT), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
         costs = json.loads((sdir / "cost.json").read_text()) if (sdir / "cost.json").is_file() else []
