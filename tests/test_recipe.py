@@ -11,6 +11,7 @@ import pytest
 
 from conftest import DATA, ROOT
 
+from training import carry as C
 from training import recipe as R
 from training import recipe_file as RF
 
@@ -217,7 +218,7 @@ def test_the_trainers_progress_lines_are_read():
 
 
 def test_an_unfinished_run_is_carried_and_restored(tmp_path, monkeypatch):
-    monkeypatch.setattr(R, "CARRIED", tmp_path / "carried")
+    monkeypatch.setattr(C, "CARRIED", tmp_path / "carried")
     rec = write_recipe(
         tmp_path,
         [copy_stage("one", "a", "b"), {"name": "two", "run": "prior", "config": {"iterations": 5}, "from": "one"}],
@@ -229,25 +230,25 @@ def test_an_unfinished_run_is_carried_and_restored(tmp_path, monkeypatch):
     (run_dir / "two").mkdir()
     (run_dir / "two" / "last.pt").write_bytes(b"state")
     (run_dir / "two" / "cost.json").write_text(json.dumps([{"cpu_s": 7.0}]))
-    dest = R.Runner(rec, run_dir).carry()
+    dest = C.carry(R.Runner(rec, run_dir))
     assert sorted(p.name for p in dest.iterdir()) == ["one.best.pt", "state.json", "two.last.pt"]
-    R.Runner(rec, tmp_path / "smoke", smoke=True, log=lambda m: None).restore_carried()
+    C.restore(R.Runner(rec, tmp_path / "smoke", smoke=True, log=lambda m: None))
     assert not (tmp_path / "smoke").exists() or not any((tmp_path / "smoke").iterdir())
     fresh = tmp_path / "fresh"
-    R.Runner(rec, fresh, log=lambda m: None).restore_carried()
+    C.restore(R.Runner(rec, fresh, log=lambda m: None))
     assert (fresh / "two" / "last.pt").read_bytes() == b"state"
     assert (fresh / "one" / "best.pt").read_bytes() == b"weights"
     assert json.loads((fresh / "one" / "done.json").read_text())["cpu_hours"] == 0.5
     # a finished command stage before the last finished one runs again (its files are not carried)
     (run_dir / "two" / "done.json").write_text(json.dumps({"stage": "two", "cpu_hours": 1.0}))
-    state = json.loads(R.Runner(rec, run_dir).carry().joinpath("state.json").read_text())
+    state = json.loads(C.carry(R.Runner(rec, run_dir)).joinpath("state.json").read_text())
     assert sorted(state) == ["two"]
 
 
 def test_a_carry_after_a_finished_command_stage_keeps_the_trainer_weights_it_reads(tmp_path, monkeypatch):
     """A trainer, then an export that finished, then a fit running: the carry holds the trainer's weights and
     leaves the export to run again (its files are not carried)."""
-    monkeypatch.setattr(R, "CARRIED", tmp_path / "carried")
+    monkeypatch.setattr(C, "CARRIED", tmp_path / "carried")
     trainer = {"name": "one", "run": "prior", "config": {"iterations": 5}}
     rec = write_recipe(tmp_path, [trainer, copy_stage("two", "a", "b"), copy_stage("three", "b", "c")])
     run_dir = tmp_path / "run"
@@ -255,9 +256,44 @@ def test_a_carry_after_a_finished_command_stage_keeps_the_trainer_weights_it_rea
         (run_dir / name).mkdir(parents=True)
         (run_dir / name / "done.json").write_text(json.dumps({"stage": name, "cpu_hours": 0.5}))
     (run_dir / "one" / "best.pt").write_bytes(b"weights")
-    dest = R.Runner(rec, run_dir).carry()
+    dest = C.carry(R.Runner(rec, run_dir))
     assert sorted(p.name for p in dest.iterdir()) == ["one.best.pt", "state.json"]
     assert sorted(json.loads((dest / "state.json").read_text())) == ["one"]
+
+
+def test_a_checkpoint_over_the_limit_is_carried_compacted_and_resumes(tmp_path, monkeypatch):
+    """A running stage's last.pt over the committed-file limit is carried as STAGE.last.pt.xz (Adam's moments in
+    bfloat16, the weights exact) and restored to a last.pt that an optimizer loads; one still over it is refused."""
+    torch = pytest.importorskip("torch")
+    monkeypatch.setattr(C, "CARRIED", tmp_path / "carried")
+    rec = write_recipe(tmp_path, [{"name": "one", "run": "prior", "config": {"iterations": 5}}])
+    net = torch.nn.Linear(64, 64)
+    opt = torch.optim.Adam(net.parameters())
+    net(torch.randn(8, 64)).square().sum().backward()
+    opt.step()
+    run_dir = tmp_path / "run"
+    (run_dir / "one").mkdir(parents=True)
+    torch.save({"model": net.state_dict(), "optimizer": opt.state_dict(), "step": 1}, run_dir / "one" / "last.pt")
+    size = (run_dir / "one" / "last.pt").stat().st_size
+    monkeypatch.setattr(C, "LIMIT", size - 1)
+    dest = C.carry(R.Runner(rec, run_dir))
+    assert sorted(p.name for p in dest.iterdir()) == ["one.last.pt.xz", "state.json"]
+    fresh = tmp_path / "fresh"
+    C.restore(R.Runner(rec, fresh, log=lambda m: None))
+    ck = torch.load(fresh / "one" / "last.pt", weights_only=False)
+    for k, v in net.state_dict().items():
+        assert torch.equal(ck["model"][k], v)
+    moments = ck["optimizer"]["state"][0]
+    assert moments["exp_avg"].dtype == torch.bfloat16
+    exact = opt.state_dict()["state"][0]["exp_avg"]
+    assert torch.equal(moments["exp_avg"], exact.to(torch.bfloat16))
+    assert not torch.equal(moments["exp_avg"].float(), exact)
+    again = torch.optim.Adam(net.parameters())
+    again.load_state_dict(ck["optimizer"])
+    assert again.state_dict()["state"][0]["exp_avg_sq"].dtype == torch.float32
+    monkeypatch.setattr(C, "LIMIT", 100)
+    with pytest.raises(RF.RecipeError, match="cannot be carried"):
+        C.carry(R.Runner(rec, run_dir))
 
 
 # ------------------------------------------------------------------------------------------ every recipe, smoked

@@ -41,17 +41,16 @@ import platform
 import queue
 import re
 import resource
-import shutil
 import subprocess
 import sys
 import threading
 import time
 from pathlib import Path
 
+from . import carry
 from .recipe_file import LAST, PACKAGE, ROOT, TRAINERS, Recipe, RecipeError, Stage, all_recipes, producer
 
 RESULTS = ROOT / "benches" / "results" / "recipes"
-CARRIED = ROOT / "training" / "checkpoints"
 #: how often the runner samples a running stage's CPU time and writes its progress (seconds)
 POLL_S = 10.0
 
@@ -342,7 +341,7 @@ class Runner:
     # the whole recipe ------------------------------------------------------------------------------------
     def run(self, until: str | None = None) -> dict:
         self.dir.mkdir(parents=True, exist_ok=True)
-        self.restore_carried()
+        carry.restore(self)
         for p in self.recipe.produces:  # the stages that write them need not make the folders
             (self.out / p).parent.mkdir(parents=True, exist_ok=True)
         stages = self.recipe.stages + self.recipe.evaluate
@@ -399,60 +398,6 @@ class Runner:
             "windows": sum(r["windows"] or 0 for r in train),
             "comparisons": comparisons,
         }
-
-    # carrying an unfinished run between machines --------------------------------------------------------
-    def carry(self) -> Path:
-        """The finished stages' records, the last finished stage's weights (what the next stage starts from) and
-        the running trainer stage's last.pt into training/checkpoints/NAME/."""
-        dest = CARRIED / self.recipe.name
-        if dest.exists():
-            shutil.rmtree(dest)
-        dest.mkdir(parents=True)
-        state, last_done = {}, None
-        for s in self.recipe.stages + self.recipe.evaluate:
-            sdir = self.dir / s.name
-            if (sdir / "done.json").is_file():
-                state[s.name] = {"done": json.loads((sdir / "done.json").read_text())}
-                if any(sdir.glob("*.pt")):  # weights a later stage reads; an export's or a fit's files are not
-                    last_done = sdir
-                continue
-            if (sdir / "cost.json").is_file():
-                state[s.name] = {"cost": json.loads((sdir / "cost.json").read_text())}
-            if (sdir / LAST).is_file():
-                shutil.copy2(sdir / LAST, dest / f"{s.name}.{LAST}")
-            break
-        if last_done is not None:
-            for f in sorted(last_done.glob("*.pt")):
-                shutil.copy2(f, dest / f"{last_done.name}.{f.name}")
-        # a finished command stage without weights (an export, a fit) left files that are not carried: it runs again,
-        # from the weights carried, those of the last finished stage that has any
-        modules = {s.name for s in self.recipe.stages + self.recipe.evaluate if s.run == "module"}
-        carried = None if last_done is None else last_done.name
-        state = {k: v for k, v in state.items() if k not in modules or "done" not in v or k == carried}
-        (dest / "state.json").write_text(json.dumps(state, indent=1) + "\n")
-        return dest
-
-    def restore_carried(self):
-        """Start from a carried run (training/checkpoints/NAME/) when this run directory has no stage yet. Only the
-        last finished stage's weights are carried: a later stage that reads an earlier one's (a warm start from
-        further back) needs the run directory itself."""
-        src = CARRIED / self.recipe.name
-        if (
-            self.smoke
-            or not (src / "state.json").is_file()
-            or any((self.dir / s.name).exists() for s in self.recipe.stages)
-        ):
-            return  # a smoke run starts from nothing: a carried checkpoint is of the real schedule
-        for name, st in json.loads((src / "state.json").read_text()).items():
-            sdir = self.dir / name
-            sdir.mkdir(parents=True, exist_ok=True)
-            if "done" in st:
-                (sdir / "done.json").write_text(json.dumps(st["done"], indent=1) + "\n")
-            if "cost" in st:
-                (sdir / "cost.json").write_text(json.dumps(st["cost"], indent=1))
-            for f in src.glob(f"{name}.*.pt"):
-                shutil.copy2(f, sdir / f.name[len(name) + 1 :])
-        self.log(f"[{self.recipe.name}] restored the carried run from {src}")
 
 
 def children_cpu_seconds() -> float:
@@ -570,7 +515,7 @@ def main(argv=None) -> int:
         recipe, run_dir, threads=args.threads, device=args.device, inputs=args.inputs, data=args.data, smoke=args.smoke
     )
     if args.carry:
-        print(f"carried into {runner.carry()}")
+        print(f"carried into {carry.carry(runner)}")
         return 0
     if args.background:
         run_dir.mkdir(parents=True, exist_ok=True)
