@@ -267,7 +267,8 @@ def test_native_errors_are_typed(tiny_model_dir, argument, kwargs):
         return
     streams = {"seed": None, "first_sequence": 0, "sequences": None, "threads": None}
     streams.update(kw)
-    bad(argument, d.sample, x, np.ones_like(x), n, sampler, streams=streams)
+    call = {"observed": x, "mask": np.ones_like(x), "num_samples": n, "options": sampler}
+    bad(argument, d.sample, {**call, "streams": streams, "progress": None})
 
 
 def test_native_engine_error_mapping(tiny_model_dir):

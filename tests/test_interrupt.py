@@ -189,11 +189,13 @@ def test_ctrl_c_before_the_worker_starts_stops_the_call_before_any_forward(sigin
     options = tcd.SamplerOptions(sampler="ddim", num_inference_steps=2)
     with pytest.raises(KeyboardInterrupt):
         streams = {"seed": 0, "first_sequence": 0, "sequences": None, "threads": _SigintOnConversion()}
-        d._native.sample(obs, np.ones_like(obs), 1, options, streams=streams, progress=reports.__setitem__)
+        call = {"observed": obs, "mask": np.ones_like(obs), "num_samples": 1, "options": options}
+        d._native.sample({**call, "streams": streams, "progress": reports.__setitem__})
     assert reports == {}
     # the same call without the signal runs and reports its 2 forwards
     streams = {"seed": 0, "first_sequence": 0, "sequences": None, "threads": 2}
-    d._native.sample(obs, np.ones_like(obs), 1, options, streams=streams, progress=reports.__setitem__)
+    call = {"observed": obs, "mask": np.ones_like(obs), "num_samples": 1, "options": options}
+    d._native.sample({**call, "streams": streams, "progress": reports.__setitem__})
     assert reports == {2: 2}
 
 

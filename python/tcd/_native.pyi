@@ -9,7 +9,7 @@ Errors: ``tcd.exceptions.InvalidInputError`` (bad argument),
 """
 
 import os
-from typing import Any, Callable, Dict, List, Optional, Tuple, TypedDict, Union, final
+from typing import Any, Callable, Dict, List, Optional, Tuple, Type, TypedDict, TypeVar, Union, final
 
 import numpy as np
 import numpy.typing as npt
@@ -73,9 +73,26 @@ class _Streams(TypedDict):
     sequences: Optional[List[int]]
     threads: Optional[int]
 
-# The getters every class of a loaded weight file has (the binding's `model_methods!`; its loaders are each class's
-# own): typing only, no runtime base class.
+class _Call(TypedDict):
+    """The arguments a sampling call (``Denoiser.sample``, ``cascade``, ``repair``) has beside its models and their
+    injected noise (``tcd.engine._chains`` builds it)."""
+
+    observed: _F32
+    mask: _F32
+    num_samples: int
+    options: SamplerOptions
+    streams: _Streams
+    progress: Optional[Callable[[int, int], Any]]
+
+_W = TypeVar("_W", bound="_WeightFile")
+
+# The loaders and getters every class of a loaded weight file has (the binding's `model_methods!`): typing only,
+# no runtime base class.
 class _WeightFile:
+    @classmethod
+    def load(cls: Type[_W], path: Union[str, os.PathLike[str]]) -> _W: ...
+    @classmethod
+    def from_bytes(cls: Type[_W], data: bytes, name: Union[str, os.PathLike[str]]) -> _W: ...
     @property
     def path(self) -> str: ...
     @property
@@ -94,10 +111,6 @@ class _WeightFile:
 # PyO3 classes cannot be subclassed (no #[pyclass(subclass)]).
 @final
 class Denoiser(_WeightFile):
-    @staticmethod
-    def load(path: Union[str, os.PathLike[str]]) -> Denoiser: ...
-    @staticmethod
-    def from_bytes(data: bytes, name: Union[str, os.PathLike[str]]) -> Denoiser: ...
     @property
     def role(self) -> str: ...
     @property
@@ -109,25 +122,11 @@ class Denoiser(_WeightFile):
     def timesteps(self, options: SamplerOptions) -> List[int]: ...
     def num_noise_blocks(self, options: SamplerOptions) -> int: ...
     def forward(self, noisy: _F32, observed: _F32, mask: _F32, step: int, *, threads: Optional[int] = None) -> _F32: ...
-    def sample(
-        self,
-        observed: _F32,
-        mask: _F32,
-        num_samples: int,
-        options: SamplerOptions,
-        *,
-        noise: Optional[_F32] = None,
-        streams: _Streams,
-        progress: Optional[Callable[[int, int], Any]] = None,
-    ) -> _F32: ...
+    def sample(self, call: _Call, *, noise: Optional[_F32] = None) -> _F32: ...
 
 @final
 class Prior(_WeightFile):
     """The deterministic prior forecaster; arrays (B, T, K) float32, frame-major."""
-    @staticmethod
-    def load(path: Union[str, os.PathLike[str]]) -> Prior: ...
-    @staticmethod
-    def from_bytes(data: bytes, name: Union[str, os.PathLike[str]]) -> Prior: ...
     @property
     def chunk(self) -> int: ...
     @property
@@ -146,10 +145,6 @@ class Prior(_WeightFile):
 @final
 class Generator(_WeightFile):
     """The MLP sample generator; arrays (B, T, K) float32, frame-major; samples (S, B, pred_len, K)."""
-    @staticmethod
-    def load(path: Union[str, os.PathLike[str]]) -> Generator: ...
-    @staticmethod
-    def from_bytes(data: bytes, name: Union[str, os.PathLike[str]]) -> Generator: ...
     @property
     def pred_len(self) -> int: ...
     @property
@@ -173,40 +168,21 @@ class Generator(_WeightFile):
 def cascade(
     short: Denoiser,
     long: Denoiser,
-    observed: _F32,
-    mask: _F32,
-    num_samples: int,
-    options: SamplerOptions,
+    call: _Call,
     *,
     noise_short: Optional[_F32] = None,
     noise_long: Optional[_F32] = None,
-    streams: _Streams,
-    progress: Optional[Callable[[int, int], Any]] = None,
     prior: Optional[Prior] = None,
 ) -> Dict[str, _F32]: ...
 def repair(
     model: Denoiser,
-    observed: _F32,
-    mask: _F32,
-    num_samples: int,
-    options: SamplerOptions,
+    call: _Call,
     *,
     noise: Optional[_F32] = None,
-    streams: _Streams,
-    progress: Optional[Callable[[int, int], Any]] = None,
     fill: Optional[Prior] = None,
     forecaster: Optional[Prior] = None,
 ) -> Dict[str, _F32]: ...
-def seeded_noise(
-    seed: int,
-    stage: int,
-    num_samples: int,
-    num_blocks: int,
-    batch: int,
-    num_features: int,
-    length: int,
-    first_sequence: int = 0,
-) -> _F32: ...
+def seeded_noise(seed: int, stage: int, shape: Tuple[int, int, int, int, int], first_sequence: int = 0) -> _F32: ...
 def interpolate(observed: _F32, mask: _F32, method: str) -> _F32: ...
 
 @final

@@ -239,15 +239,15 @@ def _chains(
     num_samples = _checks.machine_int("num_samples", num_samples)
     options = checked(sampler)
     with reporter(progress, desc) as callback:
-        out = run(
-            _checks.float32_array("observed", observed),
-            _checks.float32_array("mask", mask),
-            num_samples,
-            options,
-            streams=streams,
-            progress=callback,
-            **rest,
-        )
+        args: _native._Call = {
+            "observed": _checks.float32_array("observed", observed),
+            "mask": _checks.float32_array("mask", mask),
+            "num_samples": num_samples,
+            "options": options,
+            "streams": streams,
+            "progress": callback,
+        }
+        out = run(args, **rest)
     return dict(out) if isinstance(out, dict) else out
 
 
@@ -272,13 +272,12 @@ def seeded_noise(
     :meth:`Denoiser.sample` / :func:`repair_raw` / the cascade's first stage, :data:`STAGE_LONG` for
     its second; :data:`STAGE_GENERATOR` with ``num_blocks`` 1, ``num_features`` z_dim and ``length`` 1 for
     :meth:`Generator.sample`, reshaped to (S, B, z_dim))."""
-    return _native.seeded_noise(
-        _checks.machine_int("seed", seed, 128),
-        _checks.machine_int("stage", stage, 128),
+    shape = (
         _checks.machine_int("num_samples", num_samples),
         _checks.machine_int("num_blocks", num_blocks),
         _checks.machine_int("batch", batch),
         _checks.machine_int("num_features", num_features),
         _checks.machine_int("length", length),
-        _checks.machine_int("first_sequence", first_sequence, 128),
     )
+    seed, stage = _checks.machine_int("seed", seed, 128), _checks.machine_int("stage", stage, 128)
+    return _native.seeded_noise(seed, stage, shape, _checks.machine_int("first_sequence", first_sequence, 128))

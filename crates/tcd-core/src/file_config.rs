@@ -48,6 +48,22 @@ pub struct ModelFile<M> {
     pub data: DataConfig,
 }
 
+/// [`ModelBlock::frame`] and [`ModelBlock::obs_len`] of a block that names its frame and window as every
+/// model block does (`num_joints`, `coords`, `num_features`, `obs_len`): written once, here, for each.
+macro_rules! frame_and_window {
+    () => {
+        fn frame(&self) -> (usize, usize, usize) {
+            (self.num_joints, self.coords, self.num_features)
+        }
+
+        fn obs_len(&self) -> usize {
+            self.obs_len
+        }
+    };
+}
+
+pub(crate) use frame_and_window;
+
 /// The `model` block of a [`ModelFile`]: its role and its own checks.
 pub trait ModelBlock: Clone + Serialize + DeserializeOwned {
     /// The file's `role`.

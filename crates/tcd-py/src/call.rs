@@ -18,14 +18,14 @@ use crate::convert::*;
 use crate::error::{internal, invalid, Result};
 use crate::run::interruptible;
 
-/// The arguments of a sampling call other than its models and their injected noise.
+/// The arguments of a sampling call other than its models and their injected noise: the `call` dict of
+/// `Denoiser.sample`, `cascade` and `repair` (`tcd.engine._chains` builds it; `_native._Call` in the stubs).
+#[derive(FromPyObject)]
+#[pyo3(from_item_all)]
 pub(crate) struct SamplingArgs<'py> {
     pub(crate) observed: PyReadonlyArrayDyn<'py, f32>,
     pub(crate) mask: PyReadonlyArrayDyn<'py, f32>,
     pub(crate) num_samples: i64,
-    /// Whether `num_samples` may be 0: a repair, whose 0 is its fill alone (the engine checks that the
-    /// model has one); sampling and forecasting need at least 1.
-    pub(crate) fill_alone: bool,
     pub(crate) options: SamplerOptions,
     pub(crate) streams: Streams,
     pub(crate) progress: Option<Bound<'py, PyAny>>,
@@ -52,6 +52,14 @@ pub(crate) enum Window<'a> {
     /// The first model's obs_len, each model's chains on its seq_len frames (the observation padded);
     /// the string names the first model in the message ("the model's").
     ObsLen(&'a str),
+}
+
+/// How many samples a call may ask for.
+pub(crate) enum SampleCount {
+    /// Sampling and forecasting: at least 1.
+    AtLeastOne,
+    /// A repair: 0 is its fill alone (the engine checks that the model has one).
+    ZeroIsFillAlone,
 }
 
 /// A checked call's inputs, as the engine takes them: `Send`, for the worker thread.
@@ -90,38 +98,11 @@ pub(crate) struct Call<'py, const N: usize> {
 }
 
 impl<'py> SamplingArgs<'py> {
-    /// The arguments of a call that samples at least once (`num_samples` >= 1).
-    pub(crate) fn new(
-        observed: PyReadonlyArrayDyn<'py, f32>,
-        mask: PyReadonlyArrayDyn<'py, f32>,
-        num_samples: i64,
-        options: SamplerOptions,
-        streams: Streams,
-        progress: Option<Bound<'py, PyAny>>,
-    ) -> Self {
-        SamplingArgs {
-            observed,
-            mask,
-            num_samples,
-            fill_alone: false,
-            options,
-            streams,
-            progress,
-        }
-    }
-
-    /// The same arguments of a repair, whose `num_samples` may be 0 (its fill alone).
-    pub(crate) fn fill_alone(self) -> Self {
-        SamplingArgs {
-            fill_alone: true,
-            ..self
-        }
-    }
-
     /// Checks every argument (see the module's documentation) and copies the arrays out of numpy.
     pub(crate) fn prepare<const N: usize>(
         self,
         window: Window<'_>,
+        count: SampleCount,
         stages: [Stage<'_, 'py>; N],
     ) -> Result<Call<'py, N>> {
         let py = self.observed.py();
@@ -132,10 +113,9 @@ impl<'py> SamplingArgs<'py> {
             .map(|(model, _, _)| *model)
             .ok_or_else(|| internal(py, "a sampling call without a model"))?;
         let k = first.num_features();
-        let s = if self.fill_alone {
-            non_negative("num_samples", self.num_samples)?
-        } else {
-            positive("num_samples", self.num_samples)?
+        let s = match count {
+            SampleCount::AtLeastOne => positive("num_samples", self.num_samples)?,
+            SampleCount::ZeroIsFillAlone => non_negative("num_samples", self.num_samples)?,
         };
         let (b, frames) = observed.bkl("observed", k)?;
         if let Window::ObsLen(whose) = window {

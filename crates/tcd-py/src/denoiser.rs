@@ -6,7 +6,7 @@ use numpy::{PyArrayDyn, PyReadonlyArrayDyn};
 use pyo3::prelude::*;
 use tcd_core::{sample as core_sample, with_threads, Denoiser, Network, Observation};
 
-use crate::call::{SamplingArgs, Streams, Window};
+use crate::call::{SampleCount, SamplingArgs, Window};
 use crate::convert::*;
 use crate::error::{invalid, Result};
 use crate::model::model_methods;
@@ -88,27 +88,18 @@ model_methods! {
             to_numpy(py, &shape, out)
         }
 
-        /// `num_samples` merged samples per sequence, (S, B, K, L). Noise: injected `noise`
-        /// (S, n + 1, B, K, L) ((S, 1, B, K, L) for dpmpp2m) or the `seed` of `streams` (stream stage 0).
-        #[pyo3(signature = (observed, mask, num_samples, options, *, noise=None, streams, progress=None))]
-        #[expect(
-            clippy::too_many_arguments,
-            reason = "a Python signature: pyo3 maps each keyword argument to one parameter"
-        )]
+        /// `num_samples` merged samples per sequence, (S, B, K, L), of the `call` dict (observed, mask,
+        /// num_samples, options, streams, progress). Noise: injected `noise` (S, n + 1, B, K, L)
+        /// ((S, 1, B, K, L) for dpmpp2m) or the `seed` of the call's `streams` (stream stage 0).
+        #[pyo3(signature = (call, *, noise=None))]
         fn sample<'py>(
             &self,
             py: Python<'py>,
-            observed: PyReadonlyArrayDyn<'py, f32>,
-            mask: PyReadonlyArrayDyn<'py, f32>,
-            num_samples: i64,
-            options: SamplerOptions,
+            call: SamplingArgs<'py>,
             noise: Option<PyReadonlyArrayDyn<'py, f32>>,
-            streams: Streams,
-            progress: Option<Bound<'py, PyAny>>,
         ) -> Result<Bound<'py, PyArrayDyn<f32>>> {
             let model = &self.inner;
-            let args = SamplingArgs::new(observed, mask, num_samples, options, streams, progress);
-            let call = args.prepare(Window::Any, [(model, "noise", noise)])?;
+            let call = call.prepare(Window::Any, SampleCount::AtLeastOne, [(model, "noise", noise)])?;
             let out = call.run(py, |job, control| {
                 let [noise] = &job.noise;
                 core_sample(

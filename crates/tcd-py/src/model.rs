@@ -1,5 +1,6 @@
 //! What the classes of a loaded weight file, `Denoiser`, `Prior` and `Generator`, have alike: their
-//! loaders and the getters of the file and its sizes.
+//! loaders (class methods, so that the stubs declare them once, on `_WeightFile`) and the getters of the
+//! file and its sizes.
 
 /// The `#[pymethods]` of a frozen pyclass `$class { inner: Arc<$model> }` over one loaded weight
 /// file: `load`, `from_bytes` (`$what` names the file in their docstrings) and the getters `path`,
@@ -10,8 +11,12 @@ macro_rules! model_methods {
         #[::pyo3::pymethods]
         impl $class {
             #[doc = concat!("Loads and validates a ", $what, ".")]
-            #[staticmethod]
-            fn load(py: ::pyo3::Python<'_>, path: ::std::path::PathBuf) -> $crate::error::Result<Self> {
+            #[classmethod]
+            fn load(
+                _cls: &::pyo3::Bound<'_, ::pyo3::types::PyType>,
+                py: ::pyo3::Python<'_>,
+                path: ::std::path::PathBuf,
+            ) -> $crate::error::Result<Self> {
                 let inner = py.detach(move || <$model as tcd_core::Network>::load(&path))?;
                 Ok(Self {
                     inner: ::std::sync::Arc::new(inner),
@@ -19,8 +24,9 @@ macro_rules! model_methods {
             }
 
             #[doc = concat!("Loads and validates the bytes of a ", $what, "; `name` names it in error messages.")]
-            #[staticmethod]
+            #[classmethod]
             fn from_bytes(
+                _cls: &::pyo3::Bound<'_, ::pyo3::types::PyType>,
                 py: ::pyo3::Python<'_>,
                 data: Vec<u8>,
                 name: ::std::path::PathBuf,

@@ -10,46 +10,36 @@ use tcd_core::{
     cascade as core_cascade, fill_rows, repair as core_repair, CascadeNoise, CondFill, Sequences,
 };
 
-use crate::call::{NoiseSource, SamplingArgs, Streams, Window};
+use crate::call::{NoiseSource, SampleCount, SamplingArgs, Window};
 use crate::convert::*;
 use crate::denoiser::PyDenoiser;
 use crate::error::{invalid, Result};
 use crate::prior::PyPrior;
 
-/// The short-term → long-term cascade on an observation (B, K, O), O = the short model's obs_len.
+/// The short-term → long-term cascade on the `call` dict's observation (B, K, O), O = the short model's obs_len.
 /// Returns a dict: `mean` (B, K, P), `samples` (S, B, K, P), `repaired` (B, K, O), `short_mean`
 /// (B, K, L_s). Noise: injected `noise_short` (S, n + 1, B, K, L_s) and `noise_long`
 /// (S, n + 1, B, K, L_l) (one block instead of n + 1 for dpmpp2m), or the `seed` of `streams`. `prior`: the prior
 /// forecaster, required where a model is conditioned on it (`cond_fill` "prior"), unused otherwise.
 #[pyfunction]
-#[pyo3(signature = (short, long, observed, mask, num_samples, options, *, noise_short=None, noise_long=None,
-                    streams, progress=None, prior=None))]
-#[expect(
-    clippy::too_many_arguments,
-    reason = "a Python signature: pyo3 maps each keyword argument to one parameter"
-)]
+#[pyo3(signature = (short, long, call, *, noise_short=None, noise_long=None, prior=None))]
 pub(crate) fn cascade<'py>(
     py: Python<'py>,
     short: &Bound<'py, PyDenoiser>,
     long: &Bound<'py, PyDenoiser>,
-    observed: PyReadonlyArrayDyn<'py, f32>,
-    mask: PyReadonlyArrayDyn<'py, f32>,
-    num_samples: i64,
-    options: SamplerOptions,
+    call: SamplingArgs<'py>,
     noise_short: Option<PyReadonlyArrayDyn<'py, f32>>,
     noise_long: Option<PyReadonlyArrayDyn<'py, f32>>,
-    streams: Streams,
-    progress: Option<Bound<'py, PyAny>>,
     prior: Option<&Bound<'py, PyPrior>>,
 ) -> Result<Bound<'py, PyDict>> {
     let (short, long) = (&*short.get().inner, &*long.get().inner);
     let prior = prior.map(|p| &*p.get().inner);
-    let args = SamplingArgs::new(observed, mask, num_samples, options, streams, progress);
     let stages = [
         (short, "noise_short", noise_short),
         (long, "noise_long", noise_long),
     ];
-    let call = args.prepare(Window::ObsLen("the short-term model's"), stages)?;
+    let window = Window::ObsLen("the short-term model's");
+    let call = call.prepare(window, SampleCount::AtLeastOne, stages)?;
     let out = call.run(py, |job, control| {
         let noise = match &job.noise {
             [NoiseSource::Injected(a), NoiseSource::Injected(c)] => CascadeNoise::injected(a, c),
@@ -80,37 +70,30 @@ pub(crate) fn cascade<'py>(
     )
 }
 
-/// Repairs the mask-0 entries of an observation (B, K, O), O = the model's obs_len. Returns a
+/// Repairs the mask-0 entries of the `call` dict's observation (B, K, O), O = the model's obs_len. Returns a
 /// dict: `mean` (B, K, O; observed entries exact) and `samples` (S, B, K, O). `fill`: the repair fill
 /// (a `Prior` with anchor "window"), required where the model is conditioned on it (`cond_fill`
 /// "prior"), unused otherwise. `forecaster`: the prior forecaster, required where that fill fills
 /// whole-frame gaps with it (`gap_fill` "forecaster"), unused otherwise.
 #[pyfunction]
-#[pyo3(signature = (model, observed, mask, num_samples, options, *, noise=None, streams, progress=None,
-                    fill=None, forecaster=None))]
-#[expect(
-    clippy::too_many_arguments,
-    reason = "a Python signature: pyo3 maps each keyword argument to one parameter"
-)]
+#[pyo3(signature = (model, call, *, noise=None, fill=None, forecaster=None))]
 pub(crate) fn repair<'py>(
     py: Python<'py>,
     model: &Bound<'py, PyDenoiser>,
-    observed: PyReadonlyArrayDyn<'py, f32>,
-    mask: PyReadonlyArrayDyn<'py, f32>,
-    num_samples: i64,
-    options: SamplerOptions,
+    call: SamplingArgs<'py>,
     noise: Option<PyReadonlyArrayDyn<'py, f32>>,
-    streams: Streams,
-    progress: Option<Bound<'py, PyAny>>,
     fill: Option<&Bound<'py, PyPrior>>,
     forecaster: Option<&Bound<'py, PyPrior>>,
 ) -> Result<Bound<'py, PyDict>> {
     let model = &model.get().inner;
     let fill = fill.map(|p| &*p.get().inner);
     let forecaster = forecaster.map(|p| &*p.get().inner);
-    let args =
-        SamplingArgs::new(observed, mask, num_samples, options, streams, progress).fill_alone();
-    let call = args.prepare(Window::ObsLen("the model's"), [(model, "noise", noise)])?;
+    let window = Window::ObsLen("the model's");
+    let call = call.prepare(
+        window,
+        SampleCount::ZeroIsFillAlone,
+        [(model, "noise", noise)],
+    )?;
     let out = call.run(py, |job, control| {
         let [noise] = &job.noise;
         core_repair(
@@ -153,35 +136,33 @@ pub(crate) fn interpolate<'py>(
     to_numpy(py, &observed.shape, out)
 }
 
-/// The seeded noise streams exactly as the engine consumes them, (S, num_blocks, B, K, L):
+/// The names of the seeded noise's dimensions, in `seeded_noise`'s errors (`tcd.engine.seeded_noise`'s arguments).
+const NOISE_DIMS: [&str; 5] = [
+    "num_samples",
+    "num_blocks",
+    "batch",
+    "num_features",
+    "length",
+];
+
+/// The seeded noise streams exactly as the engine consumes them, `shape` = (S, num_blocks, B, K, L):
 /// ChaCha8 keyed by (seed, first_sequence + b, sample, stage), standard normals in block order.
 #[pyfunction]
-#[pyo3(signature = (seed, stage, num_samples, num_blocks, batch, num_features, length, first_sequence=0))]
-#[expect(
-    clippy::too_many_arguments,
-    reason = "a Python signature: pyo3 maps each keyword argument to one parameter"
-)]
+#[pyo3(signature = (seed, stage, shape, first_sequence=0))]
 pub(crate) fn seeded_noise<'py>(
     py: Python<'py>,
     seed: i128,
     stage: i128,
-    num_samples: i64,
-    num_blocks: i64,
-    batch: i64,
-    num_features: i64,
-    length: i64,
+    shape: [i64; 5],
     first_sequence: i128,
 ) -> Result<Bound<'py, PyArrayDyn<f32>>> {
     let seed = u64_arg("seed", seed)?;
     let stage = u64_arg("stage", stage)?;
     let first_sequence = u64_arg("first_sequence", first_sequence)?;
-    let dims = [
-        positive("num_samples", num_samples)?,
-        positive("num_blocks", num_blocks)?,
-        positive("batch", batch)?,
-        positive("num_features", num_features)?,
-        positive("length", length)?,
-    ];
+    let mut dims = [0; 5];
+    for ((d, name), value) in dims.iter_mut().zip(NOISE_DIMS).zip(shape) {
+        *d = positive(name, value)?;
+    }
     // Refuse absurd sizes rather than abort on allocation failure (2^31 values = 8 GiB).
     if !within_limit(&dims) {
         return Err(invalid(

@@ -5,7 +5,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::error::Result;
-use crate::file_config::{Checks, ModelBlock, ModelFile, GENERATOR_ROLE as ROLE};
+use crate::file_config::{frame_and_window, Checks, ModelBlock, ModelFile, GENERATOR_ROLE as ROLE};
 
 /// Sizes of the generator's MLP (`training/generator.py`, `Generator`).
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -60,13 +60,7 @@ impl ModelBlock for GeneratorModelConfig {
         ]
     }
 
-    fn frame(&self) -> (usize, usize, usize) {
-        (self.num_joints, self.coords, self.num_features)
-    }
-
-    fn obs_len(&self) -> usize {
-        self.obs_len
-    }
+    frame_and_window!();
 
     fn validate(&self, checks: &Checks) -> Result<()> {
         let m = self;

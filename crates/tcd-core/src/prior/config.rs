@@ -5,7 +5,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::error::Result;
-use crate::file_config::{Checks, ModelBlock, ModelFile, PRIOR_ROLE as ROLE};
+use crate::file_config::{frame_and_window, Checks, ModelBlock, ModelFile, PRIOR_ROLE as ROLE};
 
 /// Sizes of the prior network (`training/prior.py`, `PriorNet`).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -114,13 +114,7 @@ impl ModelBlock for PriorModelConfig {
         ]
     }
 
-    fn frame(&self) -> (usize, usize, usize) {
-        (self.num_joints, self.coords, self.num_features)
-    }
-
-    fn obs_len(&self) -> usize {
-        self.obs_len
-    }
+    frame_and_window!();
 
     fn validate(&self, checks: &Checks) -> Result<()> {
         let m = self;
