@@ -385,7 +385,8 @@ def test_a_13_joint_smpl_observation_without_a_pelvis_forecasts(tiny_model):
 def test_a_pelvis_missing_in_some_frames_is_placed_by_the_hips(tiny_model, name):
     """Where the pelvis is missing, the root is the mid-point of the hips moved by the pelvis's own offset from
     it (measured in the root frame on the frames that show both): a pelvis 5 cm above its hips, as SMPL's,
-    hidden for the last 0.8 s, is repaired exactly and forecasts as if it had been seen."""
+    hidden for the last 0.8 s, is repaired to within the body frame's smoothing (tcd.wild.BODY_FRAME_SIGMA: under
+    10 um on this turning walk; exactly without it) and forecasts as if it had been seen."""
     x = h36m32()
     x[:, 0] += [0.0, 0.05, 0.01]  # up and forward of the hips' mid-point
     x = np.stack([world_y(pose, 0.01 * i) for i, pose in enumerate(x)])  # turning while walking
@@ -394,10 +395,10 @@ def test_a_pelvis_missing_in_some_frames_is_placed_by_the_hips(tiny_model, name)
     hidden = seen.copy()
     hidden[30:, 0] = np.nan
     r = tiny_model.repair(hidden, capture=Capture(name, up="z"), **FAST).poses
-    np.testing.assert_allclose(r[30:, 0], seen[30:, 0], atol=1e-9)
+    np.testing.assert_allclose(r[30:, 0], seen[30:, 0], atol=1e-5)
     a = tiny_model.forecast(hidden, capture=Capture(name, up="z"), **FAST)
     b = tiny_model.forecast(seen, capture=Capture(name, up="z"), **FAST)
-    np.testing.assert_allclose(a.mean, b.mean, atol=1e-9)
+    np.testing.assert_allclose(a.mean, b.mean, atol=1e-5)
 
 
 @pytest.mark.parametrize("name", ["h36m32", "h36m17", "smpl24", "coco17"])
@@ -437,10 +438,10 @@ def test_a_joint_never_shown_does_not_carry_the_bones_below_it():
     np.testing.assert_allclose(back[:, list(SOMOF13)], x[:, list(SOMOF13)], rtol=0, atol=1e-12)
 
 
-def test_a_joint_whose_ancestor_a_frame_hides_is_missing_there():
+def test_a_joint_whose_ancestor_a_frame_hides_is_placed_from_an_ancestor_the_frame_shows():
     """random_leg_arm on h36m32 hides the left shoulder, elbow and wrist but not the hand: in those frames the
-    model's hand is missing (in-painted), not put along the thorax-to-hand direction at the rest pose's
-    distance from the thorax; in the other frames every joint is where it is with the arm in view."""
+    hand is placed by the caller's offset from the thorax (times the size ratio, 1 on the model's skeleton), where
+    it is with the arm in view, not at the rest pose's distance from the thorax; the arm is missing (in-painted)."""
     full = world(h36m32())
     x = full.copy()
     hidden = np.arange(0, 50, 3)
@@ -449,10 +450,42 @@ def test_a_joint_whose_ancestor_a_frame_hides_is_missing_there():
     lay, up = layouts.get_layout("h36m32"), wild.up_vector("z")
     y = wild.to_model(x[None], lay, up)[0][0]
     y_full = wild.to_model(full[None], lay, up)[0][0]
-    hand = list(layouts.MODEL_IDS).index(21)
-    assert np.isnan(y[hidden, hand]).all()
+    hand, elbow = list(layouts.MODEL_IDS).index(21), list(layouts.MODEL_IDS).index(18)
+    np.testing.assert_allclose(y[:, hand], y_full[:, hand], rtol=0, atol=1e-6)  # the float32 clip: scale 1 +- 1e-7
+    assert np.isnan(y[hidden, elbow]).all()
     shown = np.setdiff1d(np.arange(50), hidden)
     np.testing.assert_allclose(y[shown], y_full[shown], rtol=0, atol=1e-12)
+
+
+def test_a_joint_seen_only_while_its_hip_is_hidden_is_placed_and_repaired_off_the_root():
+    """Issue 73, first defect: h36m17, the right hip hidden in frames 0-24 and the right knee in 25-49. The knee
+    is placed where it is seen (from the hip's median in the root frame: the hips are rigid in it) and the ankle
+    where it is seen (from the hip, by the caller's offset): the model sees what the native layout would show.
+    The repair puts the hidden knee near the native repair's, not at the root (it came back at the pelvis,
+    447 mm off)."""
+    import tcd
+
+    lay, up = layouts.get_layout("h36m17"), wild.up_vector("z")
+    full = in_layout(world(h36m32()), "h36m17")
+    hip, knee = lay.to32.index(1), lay.to32.index(2)
+    x = full.copy()
+    x[:25, hip] = np.nan
+    x[25:, knee] = np.nan
+    y = wild.to_model(x[None], lay, up)[0][0]
+    y_full = wild.to_model(full[None], lay, up)[0][0]
+    k, ankle = list(layouts.MODEL_IDS).index(2), list(layouts.MODEL_IDS).index(3)
+    np.testing.assert_allclose(y[:25, k], y_full[:25, k], rtol=0, atol=1e-6)
+    np.testing.assert_allclose(y[:, ankle], y_full[:, ankle], rtol=0, atol=1e-6)
+    assert np.isnan(y[25:, k]).all()
+    model = tcd.load()
+    wild_knee = model.repair(x, capture=Capture("h36m17", fps=25, up="z")).poses[25:, knee]
+    assert (np.linalg.norm(wild_knee - full[25:, 0], axis=-1) > 0.25).all()
+    native = h36m32()[:, list(layouts.MODEL_IDS)]
+    truth = native[25:, k].copy()
+    native[25:, k] = np.nan
+    native_err = np.linalg.norm(model.repair(native).poses[25:, k] - truth, axis=-1).mean()
+    wild_err = np.linalg.norm(wild_knee - full[25:, knee], axis=-1).mean()
+    assert wild_err <= 1.05 * native_err
 
 
 def test_a_joint_the_last_frame_lacks_starts_where_it_was_last_seen(monkeypatch):
