@@ -531,3 +531,42 @@ def test_the_last_sighting_is_taken_at_the_callers_frame_rate():
     assert np.linalg.norm(own_rate.last[0, wrist] - canon[0, -3, wrist]) > 1e-3  # a model frame further back
     np.testing.assert_array_equal(caller_rate.start[0, wrist], x[-3, wrist])  # time 0, caller coordinates
     np.testing.assert_array_equal(caller_rate.start[0, :wrist], x[-1, :wrist])
+
+
+def _swapped(x: np.ndarray, name: str) -> np.ndarray:
+    """``x`` in layout ``name`` with its left and right joints exchanged (the labels, not the motion)."""
+    lay = layouts.get_layout(name)
+    names = [layouts.NAMES32[t] if t is not None else None for t in lay.to32]
+    order = list(range(lay.num_joints))
+    for i, n in enumerate(names):
+        if n and n.startswith("left_") and "right_" + n[5:] in names:
+            j = names.index("right_" + n[5:])
+            order[i], order[j] = j, i
+    return x[:, order]
+
+
+@pytest.mark.parametrize("name", ["h36m17", "smpl24", "coco17"])
+def test_left_and_right_swapped_are_told_by_the_knees(tiny_model, name):
+    """Issue 73, the left/right trap: the body frame comes from the hips, so swapped labels turn the walker round
+    and mirror it, and its bent knees point backward: a MirroredPosesWarning; the walk as given warns nothing."""
+    import warnings
+
+    from tcd.exceptions import MirroredPosesWarning
+
+    x = in_layout(world(h36m32()), name)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", MirroredPosesWarning)
+        tiny_model.forecast(x, capture=Capture(name, up="z"), **FAST)
+    with pytest.warns(MirroredPosesWarning, match="left and right are swapped"):
+        tiny_model.forecast(_swapped(x, name), capture=Capture(name, up="z"), **FAST)
+
+
+def test_a_straight_legged_sequence_is_not_called_mirrored():
+    """Knees that never bend (a person standing) say nothing about chirality: no verdict either way."""
+    lay, up = layouts.get_layout("h36m32"), wild.up_vector("z")
+    x = world(np.repeat(h36m32()[:1], 50, axis=0))
+    for hip, knee, ankle in wild._LEGS:  # straight legs: knee on the hip-ankle line
+        x[:, knee] = 0.5 * (x[:, hip] + x[:, ankle])
+    canon = wild._canonical(x[None], lay, up, "obs")[2]
+    src = {j: wild._mean_of(canon, lay.source_of(j)) for j in (1, 2, 3, 6, 7, 8)}
+    assert not wild.mirrored(src).any()

@@ -13,6 +13,9 @@ model file or directory:
 * :class:`ModelNotBundledError` — :func:`tcd.load` was given the name of a bundled model (``"humaneva"``)
   that this installation does not hold yet. Also a ``FileNotFoundError``. ``.model`` is the name, ``.path``
   the directory where it would be.
+
+And one warning: :class:`MirroredPosesWarning` (a ``UserWarning``), for poses from the wild whose left and
+right look swapped.
 """
 
 from typing import Optional
@@ -23,7 +26,7 @@ from ._native import InvalidInputError, TcdError, WeightsError
 # without importing this module; they are defined there once and re-exported here. Construct them as
 # ``InvalidInputError(message, argument)`` and ``WeightsError(message, path)``.
 
-__all__ = ["TcdError", "InvalidInputError", "WeightsError", "ModelNotBundledError"]
+__all__ = ["TcdError", "InvalidInputError", "WeightsError", "ModelNotBundledError", "MirroredPosesWarning"]
 
 
 class ModelNotBundledError(TcdError, FileNotFoundError):
@@ -36,3 +39,10 @@ class ModelNotBundledError(TcdError, FileNotFoundError):
         self.model = model
         #: the directory where the model would be
         self.path = path
+
+
+class MirroredPosesWarning(UserWarning):
+    """Poses from the wild (a call with a ``capture``) whose knees bend forward only if left and right are swapped:
+    the layout's joint order may not be the one named (lifters and toolkits order the 17 joints differently). The
+    body frame is built from the hips, so swapped labels turn the person round and mirror them (docs/wild.md,
+    "Left and right")."""

@@ -56,6 +56,7 @@ Observed values are returned unchanged in ``repaired``.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import Dict, List, Optional, Tuple, Union
@@ -64,7 +65,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from . import _checks, _fk as fk
-from .exceptions import InvalidInputError
+from .exceptions import InvalidInputError, MirroredPosesWarning
 from .layouts import FIXED_IDS, MODEL_IDS, Layout
 from ._resample import resample_forward
 
@@ -78,6 +79,7 @@ __all__ = [
     "join",
     "future_frames",
     "resample_to_model",
+    "mirrored",
 ]
 
 UP_AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
@@ -416,6 +418,30 @@ def _place(src: Dict[int, np.ndarray], ancestor: Dict[int, np.ndarray]) -> Dict[
     return model
 
 
+#: (hip, knee, ankle) 32-ids of the two legs: a knee bends forward, the chirality cue of :func:`mirrored`
+_LEGS = ((1, 2, 3), (6, 7, 8))
+#: A knee counts as bent where it stands this far (m) off its hip-ankle line along the root frame's forward axis.
+BENT_KNEE_M = 0.03
+
+
+def mirrored(src: Dict[int, np.ndarray]) -> np.ndarray:
+    """Per sequence (B,), whether its left and right look swapped: the caller's hips, knees and ankles in the root
+    frame (``src``: 32-id -> (B, T, 3), NaN = missing; forward is +z) show at least 5 bent knees (frames x legs, off
+    the hip-ankle line by :data:`BENT_KNEE_M`) and 80 % of them bend backward. A knee bends forward only; the root
+    frame is built from the hips, so swapped labels turn the person round and mirror them, and every bent knee
+    then points backward. A straight-legged sequence cannot tell (False)."""
+    bent, backward = 0, 0
+    for hip, knee, ankle in _LEGS:
+        h, k, a = src[hip], src[knee], src[ankle]
+        u = a - h
+        n2 = np.einsum("btc,btc->bt", u, u)
+        off = (k - h) - (np.einsum("btc,btc->bt", k - h, u) / np.where(n2 > 1e-12, n2, np.nan))[..., None] * u
+        fwd = np.nan_to_num(off[..., 2])  # a leg a frame does not show is not bent
+        bent = bent + (np.abs(fwd) > BENT_KNEE_M).sum(-1)
+        backward = backward + (fwd < -BENT_KNEE_M).sum(-1)
+    return (bent >= 5) & (backward >= 0.8 * bent)
+
+
 def to_model(
     x: np.ndarray, layout: Layout, up: np.ndarray, arg: str = "obs", sightings: Optional[np.ndarray] = None
 ) -> Tuple[np.ndarray, Scene]:
@@ -432,6 +458,16 @@ def to_model(
     src[0] = np.zeros_like(src[0])  # the root is the origin of its own frame
     shown = {j: np.isfinite(src[j]).all(-1).any(-1) for j in placed}
     shown[0] = np.ones_like(shown[0])
+    flipped = np.flatnonzero(mirrored(src))
+    if len(flipped):
+        which = f"sequences {flipped.tolist()} of `{arg}`" if len(src[0]) > 1 else f"`{arg}`"
+        warnings.warn(
+            f"{which} in layout {layout.name!r}: the knees bend backward in the body frame built from the hips, "
+            "as they do when left and right are swapped. Check that the joints are in the layout's order "
+            "(tcd.layouts; docs/wild.md, 'Left and right').",
+            MirroredPosesWarning,
+            stacklevel=4,
+        )
     ancestor = {j: _shown_ancestor(shown, j) for j in MODEL_IDS}
     model = _place(src, ancestor)
     lengths = {}
