@@ -3,7 +3,7 @@ world coordinates, at 50 fps, against the native path on the same windows; CMU i
 
     python3 benches/in_the_wild.py [--data ../shared/data/h36m] [--windows-per-action 8] [--samples 1] \
         [--sampler ddim --steps 10] [--somof13] [--first-window 0] [--variants all] [--join-frames N] \
-        [--json benches/results/in_the_wild.json]
+        [--noise MM ...] [--body-frame-sigma N] [--json benches/results/in_the_wild.json]
 
 Windows: the S5 test protocol's first ``--windows-per-action`` windows per action (``H36M.test_windows``
 order). The native path gets the protocol's input (22 model joints, root and global rotation removed per
@@ -23,7 +23,9 @@ AMASS (``--amass``): the sample takes in world coordinates (z up, root orientati
 ``smpl24`` joints at 120 fps, 2 s observed, 1 s forecast, windows every second; with ``--somof13`` also as
 the 13 joints 3DPW gives through SoMoF (hips, knees, ankles, neck, shoulders, elbows, wrists: no pelvis;
 errors over those 13, the root the mid-point of the hips). Every source runs in every variant (as given,
-the two occlusion patterns, the last 0.8 s; ``--variants as-given``: the first only).
+the two occlusion patterns, the last 0.8 s; ``--variants as-given``: the first only), and with ``--noise MM``
+each of these again with detector jitter: Gaussian noise of MM mm on every observed coordinate (Zero-Velocity
+holds the same noisy pose); ``--body-frame-sigma`` sets ``tcd.wild.BODY_FRAME_SIGMA`` for the run.
 
 Errors (mm, mean per-joint position error of the mean forecast) at the first forecast frame (40 ms for
 Human3.6M, whose truth is at 25 fps; 8.3 ms at 120 fps, 33.3 ms at 30 fps), 80 ms, 160 ms, 0.5 s and 1 s (the
@@ -223,6 +225,20 @@ def main(argv=None) -> int:
         "--join-frames", type=int, default=None, help="tcd.wild.JOIN_FRAMES for this run (default: the library's)"
     )
     ap.add_argument(
+        "--body-frame-sigma",
+        type=float,
+        default=None,
+        help="tcd.wild.BODY_FRAME_SIGMA for this run (default: the library's)",
+    )
+    ap.add_argument(
+        "--noise",
+        type=float,
+        nargs="*",
+        default=[],
+        metavar="MM",
+        help="also each variant with detector jitter: Gaussian noise of MM mm on every observed coordinate (seeded)",
+    )
+    ap.add_argument(
         "--somof13",
         action="store_true",
         help="also the AMASS takes as the 13 joints 3DPW gives through SoMoF (no pelvis)",
@@ -233,7 +249,12 @@ def main(argv=None) -> int:
         from tcd import wild as wild_rules
 
         wild_rules.JOIN_FRAMES = args.join_frames
-    variants = ("",) if args.variants == "as-given" else ("", *PAPER_PATTERNS, "0.8 s observed")
+    if args.body_frame_sigma is not None:
+        from tcd import wild as wild_rules
+
+        wild_rules.BODY_FRAME_SIGMA = args.body_frame_sigma
+    patterns = ("",) if args.variants == "as-given" else ("", *PAPER_PATTERNS, "0.8 s observed")
+    variants = [(p, 0.0) for p in patterns] + [(p, mm) for mm in args.noise for p in patterns]  # (pattern, noise)
 
     model = tcd.load(args.model)
     src = H36MSource(args.data)
@@ -253,6 +274,7 @@ def main(argv=None) -> int:
         row["zero_velocity"].append(zv_err)
 
     somof_rng = np.random.default_rng(args.seed)  # its own: the other rows' masks stay as they are
+    noise_rng = np.random.default_rng([args.seed, 1])  # the jitter's own stream, likewise
 
     def wild(label, x, gt, layout, fps, up, joints, every=1, root=(0,), masks=None):
         """Runs the wild path on x (B, T, J, 3) in every variant; ``gt`` (B, F, J, 3) at the forecast's
@@ -272,18 +294,20 @@ def main(argv=None) -> int:
         for k, v in conversion_offset_mm(x, layout, up, fps, joints).items():
             c[k] = c.get(k, 0.0) + v * len(x)
         c["windows"] += len(x)
-        for variant in variants:
+        for pattern, noise in variants:
             xin = x.copy()
-            if variant in PAPER_PATTERNS:  # the paper's occlusions (training/masks.py)
+            if pattern in PAPER_PATTERNS:  # the paper's occlusions (training/masks.py)
                 for i in range(len(xin)):
-                    seen = make_mask(variant, xin.shape[1], xin.shape[1], masks or rng, joints32=to) > 0
+                    seen = make_mask(pattern, xin.shape[1], xin.shape[1], masks or rng, joints32=to) > 0
                     xin[i][~seen] = np.nan
-            if variant.startswith("0.8"):
+            if noise:  # detector jitter, seeded by its own stream (the masks' stream is left as it is)
+                xin = xin + noise_rng.normal(0.0, noise / 1000.0, xin.shape)
+            if pattern.startswith("0.8"):
                 xin = xin[:, -short:]
             f = model.forecast(xin, capture=tcd.Capture(layout, fps=fps, up=up), **kw)
             pred = f.mean[:, every - 1 :: every][:, : gt.shape[1]]
             last = np.repeat(last_observed(xin)[:, None], gt.shape[1], axis=1)  # Zero-Velocity, the same input
-            name = label + (f", {variant}" if variant else "")
+            name = label + "".join(f", {part}" for part in (pattern, f"{noise:g} mm noise" if noise else "") if part)
             add(
                 name,
                 "root-relative",

@@ -29,7 +29,9 @@ The rules, in the order they are applied:
    shows, by the caller's offset from it times the sequence's size ratio (the model's bones over the
    caller's, median); a fixed joint (the root, the hips, the spine) is rigid in the root frame, so its median
    stands in where a frame hides it. Every joint a frame shows is placed; the root and hips are the model's
-   fixed joints. A model joint the layout lacks is missing and in-painted by the model.
+   fixed joints. A model joint the layout lacks is carried rigidly on its parent's bone where it is an end the
+   layout stops short of (hands, toes, sites: the rest pose's offset, turned with the bone), and missing and
+   in-painted by the model otherwise (coco17's thorax).
 4. **Back.** Forecast and repaired poses are put back on the caller's bone lengths: each model bone, from
    the joint's nearest ancestor that the sequence shows in some frame, scaled by the caller's length over
    the model's (per sequence the median over observed frames; a joint the caller never showed keeps the
@@ -42,8 +44,9 @@ The rules, in the order they are applied:
 5. **Future root.** The forecast's root starts at the velocity and turn rate (about ``up``) of the last
    0.2 s of the observation, the speed less ``ROOT_DEAD_ZONE_MPS`` (0.2 m/s, never below 0), both decaying
    with a time constant of ``ROOT_DAMPING_S`` (0.4 s): a walker keeps walking, a person shifting in place or
-   a jittering root is held, a turn or a stop is not carried on for a whole second. Future frames come at the
-   caller's frame rate, with their times in seconds after the last observed frame.
+   a jittering root is held, a turn or a stop is not carried on for a whole second. The path starts at the
+   root the last frame measures (unsmoothed) and joins the smoothed one over ``JOIN_FRAMES`` (rule 6). Future
+   frames come at the caller's frame rate, with their times in seconds after the last observed frame.
 6. **Joining the observation.** In the root frame, forecast frame ``f`` (1, 2, ... model frames after the
    last observed one) is the last observed pose moved ``min(f / JOIN_FRAMES, 1)`` of the way to the
    model's forecast (5 frames, 0.2 s): the forecast starts where the person is and is the model's own from
@@ -112,6 +115,11 @@ JOIN_FRAMES = 5
 #: 0.854 at 25 mm of noise, 0.984 / 0.826 / 0.794 / 0.783 / 0.777 at 50 mm, and 0.944-0.946 on clean input.
 #: 4: most of the gain, the shortest reach for real turns.
 BODY_FRAME_SIGMA = 4.0
+#: Whether a model joint the caller's layout stops short of (a hand, a toe, a site) is carried on its parent's
+#: bone (rule 3, :func:`_carry_ends`) instead of reaching the model with nothing observed (False). Human3.6M S5 as
+#: h36m17 in world coordinates, DDIM-1, mean of 5 at 1 s root-relative: 105.9 -> 94.6 mm (Zero-Velocity 117.0;
+#: the native input on the same joints 94.8) (benches/in_the_wild.py --variants as-given --samples 5 --steps 1).
+CARRY_ENDS = True
 
 
 def up_vector(up: Up) -> np.ndarray:
@@ -219,14 +227,15 @@ def _smooth(v: np.ndarray, ok: np.ndarray, sigma: Optional[float] = None) -> np.
     return out
 
 
-def _frames(x: np.ndarray, layout: Layout, up: np.ndarray, arg: str) -> Tuple[np.ndarray, np.ndarray]:
+def _frames(x: np.ndarray, layout: Layout, up: np.ndarray, arg: str) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per frame of (B, T, J, 3) poses: the root (B, T, 3) and the rotation (B, T, 3, 3) whose columns are
-    the root frame's axes (left, up, forward) in the caller's coordinates; interpolated where missing. The
+    the root frame's axes (left, up, forward) in the caller's coordinates, smoothed over the window and
+    interpolated where missing; and the root as each frame measures it (B, T, 3), NaN where it does not. The
     root is the pelvis, or where the pelvis is missing, the mid-point of the hips moved by the pelvis's
     offset from it (:func:`_hip_root_offset`)."""
     b, t = x.shape[:2]
     if layout.canonical:
-        return np.zeros((b, t, 3)), np.broadcast_to(np.eye(3), (b, t, 3, 3)).copy()
+        return np.zeros((b, t, 3)), np.broadcast_to(np.eye(3), (b, t, 3, 3)).copy(), np.zeros((b, t, 3))
     left_hip, right_hip = _mean_of(x, layout.source_of(6)), _mean_of(x, layout.source_of(1))
     across = left_hip - right_hip
     across = across - (across @ up)[..., None] * up
@@ -249,6 +258,7 @@ def _frames(x: np.ndarray, layout: Layout, up: np.ndarray, arg: str) -> Tuple[np
     from_hips = np.where(hips[..., None], mid + np.einsum("btck,bk->btc", rot, offset), np.nan)
     root = np.where(np.isfinite(root).all(-1, keepdims=True), root, from_hips)
     has_root = np.isfinite(root).all(-1)  # every frame with both hips, and more
+    measured = root.copy()
     frames = np.arange(t)
     e1, e2 = _plane(up)
     angle = np.zeros((b, t))
@@ -263,7 +273,7 @@ def _frames(x: np.ndarray, layout: Layout, up: np.ndarray, arg: str) -> Tuple[np
     left = np.cos(angle)[..., None] * e1 + np.sin(angle)[..., None] * e2
     forward = np.cross(left, up)
     rot = np.stack([left, np.broadcast_to(up, left.shape), forward], axis=-1)
-    return root, rot
+    return root, rot, measured
 
 
 def _plane(up: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
@@ -315,6 +325,7 @@ class Scene:
     carried: Dict[int, Tuple[int, np.ndarray]]  # layout joint -> (anchor 32-id, (B, T, 3) offset)
     last: np.ndarray  # (B, J, 3) each joint where last seen, in that frame's root frame (last_seen)
     start: np.ndarray  # (B, J, 3) each joint where last seen, caller coordinates: a forecast's time 0
+    root_last: np.ndarray  # (B, 3) the root as the last frame measures it, unsmoothed (NaN: it does not)
 
     def value(self, per_frame: np.ndarray, frames: bool) -> np.ndarray:
         """``per_frame`` on the observation's own frames where finite (``frames``), else (and for other
@@ -352,9 +363,10 @@ def _anchor32(layout: Layout, i: int) -> int:
 
 
 def _canonical(x: np.ndarray, layout: Layout, up: np.ndarray, arg: str) -> Tuple[np.ndarray, ...]:
-    """(B, T, J, 3) caller poses -> (root, rot, the poses along their root frame's axes, root subtracted)."""
-    root, rot = _frames(x, layout, up, arg)
-    return root, rot, np.einsum("btjc,btck->btjk", x - root[:, :, None, :], rot)
+    """(B, T, J, 3) caller poses -> (root, rot, the poses along their root frame's axes, root subtracted, the
+    root as each frame measures it)."""
+    root, rot, measured = _frames(x, layout, up, arg)
+    return root, rot, np.einsum("btjc,btck->btjk", x - root[:, :, None, :], rot), measured
 
 
 def _scale(src: Dict[int, np.ndarray], ancestor: Dict[int, np.ndarray]) -> np.ndarray:
@@ -373,6 +385,44 @@ def _scale(src: Dict[int, np.ndarray], ancestor: Dict[int, np.ndarray]) -> np.nd
     r = np.stack(ratios, axis=-1)
     ok = np.isfinite(r)
     return np.array([np.median(row[m]) if m.any() else 1.0 for row, m in zip(r, ok)])
+
+
+def _rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The least rotation taking direction ``a`` (3,) onto the directions ``b`` (..., 3): (..., 3, 3)."""
+    a = a / np.linalg.norm(a)
+    b = b / np.linalg.norm(b, axis=-1, keepdims=True)
+    v, c = np.cross(a, b), b @ a
+    k = np.zeros(b.shape[:-1] + (3, 3))
+    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    k = k - np.swapaxes(k, -1, -2)
+    scale = (1.0 / np.maximum(1.0 + c, 1e-9))[..., None, None]  # c = -1 (opposite) does not occur for a bone
+    return np.eye(3) + k + k @ k * scale
+
+
+def _carry_ends(model: Dict[int, np.ndarray], shown: Dict[int, np.ndarray]) -> None:
+    """Places, in ``model``, each end the caller's layout stops short of (a hand, a toe: a model joint the
+    sequence never shows, below a joint it does show, with nothing shown below it) rigidly on its parent's bone:
+    the rest pose's offset from the parent, turned by the least rotation that takes the rest bone into the
+    current one. Without it these rows reached the model with nothing observed, and its in-painting of them
+    cost the forecast of the joints the layout does give (issue 73)."""
+    rest, _ = _rest()
+    order, chains = _tree()
+    below: Dict[int, np.ndarray] = {j: np.zeros_like(shown[j]) for j in order}
+    for j in reversed(order):  # children first: whether anything below j is shown
+        for p in chains[j][:1]:
+            below[p] = below[p] | shown[j] | below[j]
+    have = dict(shown)  # shown, or carried here (a toe, then its site)
+    for j in order:
+        if j in FIXED_IDS or len(chains[j]) < 2:
+            continue
+        p, g = chains[j][0], chains[j][1]
+        end = ~shown[j] & ~below[j] & have[p]
+        if not end.any():
+            continue
+        turn = _rotation_between(rest[p] - rest[g], model[p] - model[g])
+        placed = model[p] + turn @ (rest[j] - rest[p])
+        model[j] = np.where(end[:, None, None], placed, model[j])
+        have[j] = shown[j] | end
 
 
 def _place(src: Dict[int, np.ndarray], ancestor: Dict[int, np.ndarray]) -> Dict[int, np.ndarray]:
@@ -451,7 +501,7 @@ def to_model(
     model's rate a frame shows a joint only where both input frames around it do, so at 120 fps a joint hidden
     for a few input frames is missing for a whole model frame or two."""
     rest, _ = _rest()
-    root, rot, canon = _canonical(x, layout, up, arg)
+    root, rot, canon, measured = _canonical(x, layout, up, arg)
     placed = set(FIXED_IDS) | set(MODEL_IDS)
     src = {j: _mean_of(canon, layout.source_of(j)) for j in placed}
     pelvis_seen = np.isfinite(src[0]).all(-1, keepdims=True)
@@ -470,6 +520,8 @@ def to_model(
         )
     ancestor = {j: _shown_ancestor(shown, j) for j in MODEL_IDS}
     model = _place(src, ancestor)
+    if CARRY_ENDS:
+        _carry_ends(model, shown)
     lengths = {}
     for j in MODEL_IDS:
         lengths[j] = np.full(src[j].shape[:-1], np.nan)
@@ -485,7 +537,7 @@ def to_model(
             carried[i] = (a, canon[:, :, i] - src[a])
     last = last_seen(canon if sightings is None else _canonical(sightings, layout, up, arg)[2])
     start = last_seen(x if sightings is None else sightings)
-    scene = Scene(layout, up, root, rot, lengths, ancestor, fixed, carried, last, start)
+    scene = Scene(layout, up, root, rot, lengths, ancestor, fixed, carried, last, start, measured[:, -1])
     return np.stack([model[j] for j in MODEL_IDS], axis=2), scene
 
 
@@ -571,14 +623,20 @@ def future_frames(
 ) -> Tuple[np.ndarray, np.ndarray]:
     """Root (B, count, 3) and root frames (B, count, 3, 3) of the ``count`` model frames (at ``fps``) after
     the last observed one: the velocity (its speed less ROOT_DEAD_ZONE_MPS) and turn rate of the last
-    EXTRAPOLATION_FRAMES frames, held (``damping_s`` None) or decaying exponentially with that time constant in
-    seconds (0 holds the root)."""
+    EXTRAPOLATION_FRAMES frames of the smoothed body frame, held (``damping_s`` None) or decaying exponentially
+    with that time constant in seconds (0 holds the root), from the root the last frame measures, joined to the
+    smoothed path over JOIN_FRAMES."""
     root, rot, up = scene.root, scene.rot, scene.up
     t = root.shape[1]
     k = min(EXTRAPOLATION_FRAMES, t - 1)
     f = np.arange(1, count + 1, dtype=np.float64)
+    # the root path starts where the last frame put the root (unsmoothed) and joins the smoothed path over
+    # JOIN_FRAMES (rule 6): on clean poses the first frame's root stays where Zero-Velocity holds it
+    shift = np.nan_to_num(scene.root_last - root[:, -1])
+    lag = 1.0 - np.minimum(f / JOIN_FRAMES, 1.0) if JOIN_FRAMES > 0 else np.zeros_like(f)
+    start = root[:, -1:, :] + lag[None, :, None] * shift[:, None, :]
     if k == 0 or scene.layout.canonical or damping_s == 0:
-        return (np.repeat(root[:, -1:], count, 1), np.repeat(rot[:, -1:], count, 1))
+        return start, np.repeat(rot[:, -1:], count, 1)
     # frames travelled at the last velocity: f itself, or tau (1 - exp(-f / tau)) as the velocity decays
     travel = f if damping_s is None else damping_s * fps * -np.expm1(-f / (damping_s * fps))
     velocity = (root[:, -1] - root[:, -1 - k]) / k
@@ -587,10 +645,7 @@ def future_frames(
         velocity = velocity * np.clip(1.0 - ROOT_DEAD_ZONE_MPS / np.maximum(speed, 1e-12), 0.0, None)
     heading = _heading(rot, up)
     rate = (heading[:, -1] - heading[:, -1 - k]) / k
-    return (
-        root[:, -1:, :] + velocity[:, None, :] * travel[None, :, None],
-        _turn(rot[:, -1], rate[:, None] * travel, up),
-    )
+    return start + velocity[:, None, :] * travel[None, :, None], _turn(rot[:, -1], rate[:, None] * travel, up)
 
 
 # ---------------------------------------------------------------------------------------------- frame rates
