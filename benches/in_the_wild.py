@@ -8,7 +8,8 @@ world coordinates, at 50 fps, against the native path on the same windows; CMU i
 Windows: the S5 test protocol's first ``--windows-per-action`` windows per action (``H36M.test_windows``
 order). The native path gets the protocol's input (22 model joints, root and global rotation removed per
 frame, 25 fps, 50 frames). The wild paths get the same motion as the sensor would: the 32 (``h36m32``) or 17
-(``h36m17``) joints with the recorded global rotation and root position, at 50 fps (99 frames), ``up="y"``;
+(``h36m17``) joints with the recorded global rotation and root position, at 50 fps (99 frames), ``up="y"``,
+and the 17 joints at 25 fps too (50 frames ending at the same frame);
 variants hide joints with the paper's occlusion patterns (``random_leg_arm``: 40 % of the frames lose a leg
 or an arm; ``consecutive_frames``: 20 % of the frames in one block; ``training/masks.py``, seeded) or keep only
 the last 0.8 s.
@@ -342,6 +343,8 @@ def main(argv=None) -> int:
             wild(
                 f"H36M {name} world 50fps", world[:, :99][:, :, to], future[:, :, to], name, 50.0, "y", joints, every=2
             )
+        to = list(layouts.LAYOUTS["h36m17"].to32)  # the lifter's layout at 25 fps too: 50 frames ending at the same one
+        wild("H36M h36m17 world 25fps", world[:, :99:2][:, :, to], future[:, :, to], "h36m17", 25.0, "y", H36M17_MODEL)
     if args.cmu is not None and Path(args.cmu).is_file():
         from training.data.cmu import load_cmu_npz
 
@@ -423,6 +426,8 @@ def main(argv=None) -> int:
             "variants": args.variants,
             "somof13": args.somof13,
             "join_frames": tcd.wild.JOIN_FRAMES,
+            "body_frame_sigma": tcd.wild.BODY_FRAME_SIGMA,
+            "noise_mm": args.noise,
             "sampler": args.sampler,
             "steps": args.steps,
             "samples": args.samples,

@@ -9,6 +9,7 @@ import math
 from pathlib import Path
 from typing import Callable
 
+from .report_wild import wild_layouts
 from .report_sources import (
     H36M_DIR,
     HORIZONS,
@@ -578,4 +579,5 @@ GENERATORS: dict[str, Callable[[Sources], str]] = {
     "h36m-repair-sampler": h36m_repair_sampler,
     "humaneva-sampler": humaneva_sampler,
     # docs/*.md: add yours here, one line each
+    "wild-layouts": wild_layouts,
 }

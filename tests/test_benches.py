@@ -228,6 +228,8 @@ def test_in_the_wild_smoke(tiny_model_dir, tmp_path):
                 "1",
                 "--steps",
                 "1",
+                "--noise",
+                "25",
                 "--json",
                 str(out),
             ]
@@ -237,7 +239,9 @@ def test_in_the_wild_smoke(tiny_model_dir, tmp_path):
     rows = json.loads(out.read_text())["rows"]
     cmu = bench.DEFAULT_CMU.is_file()
     amass = (bench.DEFAULT_AMASS / "smpl_skeleton.npz").is_file()
-    assert len(rows) == 26 + 24 * cmu + 12 * amass
+    # 2 native rows; each wild input (3 of Human3.6M, 2 of CMU, 1 of AMASS) in 4 variants x 3 spaces, clean and noisy
+    assert len(rows) == 2 + 2 * (36 + 24 * cmu + 12 * amass)
+    assert sum("25 mm noise" in r["input"] for r in rows) == 36 + 24 * cmu + 12 * amass
     assert {r["space"] for r in rows} == {"canonical", "root-relative", "world", "root"}
     assert any(r["input"].startswith("CMU h36m32 world 120fps") for r in rows) == cmu
     assert all(r["tcd_mm"]["1s"] > 0 and r["zero_velocity_mm"]["1s"] > 0 for r in rows)

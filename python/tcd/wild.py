@@ -44,9 +44,8 @@ The rules, in the order they are applied:
 5. **Future root.** The forecast's root starts at the velocity and turn rate (about ``up``) of the last
    0.2 s of the observation, the speed less ``ROOT_DEAD_ZONE_MPS`` (0.2 m/s, never below 0), both decaying
    with a time constant of ``ROOT_DAMPING_S`` (0.4 s): a walker keeps walking, a person shifting in place or
-   a jittering root is held, a turn or a stop is not carried on for a whole second. The path starts at the
-   root the last frame measures (unsmoothed) and joins the smoothed one over ``JOIN_FRAMES`` (rule 6). Future
-   frames come at the caller's frame rate, with their times in seconds after the last observed frame.
+   a jittering root is held, a turn or a stop is not carried on for a whole second. Future frames come at the
+   caller's frame rate, with their times in seconds after the last observed frame.
 6. **Joining the observation.** In the root frame, forecast frame ``f`` (1, 2, ... model frames after the
    last observed one) is the last observed pose moved ``min(f / JOIN_FRAMES, 1)`` of the way to the
    model's forecast (5 frames, 0.2 s): the forecast starts where the person is and is the model's own from
@@ -109,11 +108,12 @@ ROOT_DEAD_ZONE_MPS = 0.2
 JOIN_FRAMES = 5
 #: Frames (model frames, 25 fps: 160 ms) of the Gaussian weights with which the body frame (the root and the
 #: heading, rule 2) is smoothed over the window (:func:`_smooth`), so that detector noise on the pelvis and hips
-#: does not turn and move the whole body frame by frame; 0: per frame, as measured. Human3.6M S5 as h36m17 in
-#: world coordinates, 104 windows of 25 frames, half the leg entries hidden, mean of 5 at 1 s root-relative
-#: against Zero-Velocity on the same noisy input: 0 / 2 / 4 / 6 / 8 frames gave 0.962 / 0.880 / 0.861 / 0.857 /
-#: 0.854 at 25 mm of noise, 0.984 / 0.826 / 0.794 / 0.783 / 0.777 at 50 mm, and 0.944-0.946 on clean input.
-#: 4: most of the gain, the shortest reach for real turns.
+#: does not turn and move the whole body frame by frame; 0: per frame, as measured. Against 0, with 25 / 50 mm of
+#: jitter on every coordinate, S5 as h36m17 at 50 fps, 1 s root-relative: 129.8 -> 109.8 / 204.2 -> 140.7 mm
+#: (Zero-Velocity 137.6 / 177.5), the same on clean input (94.4 -> 94.6); on clean CMU at 120 fps the root's first
+#: frame 3.7 -> 5.5 mm (Zero-Velocity 7.9) (benches/in_the_wild.py --variants as-given --noise 25 50 --samples 5
+#: --steps 1 --body-frame-sigma 0 | 4). 4 frames was chosen over 2, 6 and 8 on 25-frame S5 windows with half the
+#: leg entries hidden: most of the gain, the shortest reach for real turns.
 BODY_FRAME_SIGMA = 4.0
 #: Whether a model joint the caller's layout stops short of (a hand, a toe, a site) is carried on its parent's
 #: bone (rule 3, :func:`_carry_ends`) instead of reaching the model with nothing observed (False). Human3.6M S5 as
@@ -227,15 +227,14 @@ def _smooth(v: np.ndarray, ok: np.ndarray, sigma: Optional[float] = None) -> np.
     return out
 
 
-def _frames(x: np.ndarray, layout: Layout, up: np.ndarray, arg: str) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _frames(x: np.ndarray, layout: Layout, up: np.ndarray, arg: str) -> Tuple[np.ndarray, np.ndarray]:
     """Per frame of (B, T, J, 3) poses: the root (B, T, 3) and the rotation (B, T, 3, 3) whose columns are
     the root frame's axes (left, up, forward) in the caller's coordinates, smoothed over the window and
-    interpolated where missing; and the root as each frame measures it (B, T, 3), NaN where it does not. The
-    root is the pelvis, or where the pelvis is missing, the mid-point of the hips moved by the pelvis's
-    offset from it (:func:`_hip_root_offset`)."""
+    interpolated where missing. The root is the pelvis, or where the pelvis is missing, the mid-point of the
+    hips moved by the pelvis's offset from it (:func:`_hip_root_offset`)."""
     b, t = x.shape[:2]
     if layout.canonical:
-        return np.zeros((b, t, 3)), np.broadcast_to(np.eye(3), (b, t, 3, 3)).copy(), np.zeros((b, t, 3))
+        return np.zeros((b, t, 3)), np.broadcast_to(np.eye(3), (b, t, 3, 3)).copy()
     left_hip, right_hip = _mean_of(x, layout.source_of(6)), _mean_of(x, layout.source_of(1))
     across = left_hip - right_hip
     across = across - (across @ up)[..., None] * up
@@ -258,7 +257,6 @@ def _frames(x: np.ndarray, layout: Layout, up: np.ndarray, arg: str) -> Tuple[np
     from_hips = np.where(hips[..., None], mid + np.einsum("btck,bk->btc", rot, offset), np.nan)
     root = np.where(np.isfinite(root).all(-1, keepdims=True), root, from_hips)
     has_root = np.isfinite(root).all(-1)  # every frame with both hips, and more
-    measured = root.copy()
     frames = np.arange(t)
     e1, e2 = _plane(up)
     angle = np.zeros((b, t))
@@ -273,7 +271,7 @@ def _frames(x: np.ndarray, layout: Layout, up: np.ndarray, arg: str) -> Tuple[np
     left = np.cos(angle)[..., None] * e1 + np.sin(angle)[..., None] * e2
     forward = np.cross(left, up)
     rot = np.stack([left, np.broadcast_to(up, left.shape), forward], axis=-1)
-    return root, rot, measured
+    return root, rot
 
 
 def _plane(up: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
@@ -325,7 +323,6 @@ class Scene:
     carried: Dict[int, Tuple[int, np.ndarray]]  # layout joint -> (anchor 32-id, (B, T, 3) offset)
     last: np.ndarray  # (B, J, 3) each joint where last seen, in that frame's root frame (last_seen)
     start: np.ndarray  # (B, J, 3) each joint where last seen, caller coordinates: a forecast's time 0
-    root_last: np.ndarray  # (B, 3) the root as the last frame measures it, unsmoothed (NaN: it does not)
 
     def value(self, per_frame: np.ndarray, frames: bool) -> np.ndarray:
         """``per_frame`` on the observation's own frames where finite (``frames``), else (and for other
@@ -363,10 +360,9 @@ def _anchor32(layout: Layout, i: int) -> int:
 
 
 def _canonical(x: np.ndarray, layout: Layout, up: np.ndarray, arg: str) -> Tuple[np.ndarray, ...]:
-    """(B, T, J, 3) caller poses -> (root, rot, the poses along their root frame's axes, root subtracted, the
-    root as each frame measures it)."""
-    root, rot, measured = _frames(x, layout, up, arg)
-    return root, rot, np.einsum("btjc,btck->btjk", x - root[:, :, None, :], rot), measured
+    """(B, T, J, 3) caller poses -> (root, rot, the poses along their root frame's axes, root subtracted)."""
+    root, rot = _frames(x, layout, up, arg)
+    return root, rot, np.einsum("btjc,btck->btjk", x - root[:, :, None, :], rot)
 
 
 def _scale(src: Dict[int, np.ndarray], ancestor: Dict[int, np.ndarray]) -> np.ndarray:
@@ -501,7 +497,7 @@ def to_model(
     model's rate a frame shows a joint only where both input frames around it do, so at 120 fps a joint hidden
     for a few input frames is missing for a whole model frame or two."""
     rest, _ = _rest()
-    root, rot, canon, measured = _canonical(x, layout, up, arg)
+    root, rot, canon = _canonical(x, layout, up, arg)
     placed = set(FIXED_IDS) | set(MODEL_IDS)
     src = {j: _mean_of(canon, layout.source_of(j)) for j in placed}
     pelvis_seen = np.isfinite(src[0]).all(-1, keepdims=True)
@@ -536,8 +532,13 @@ def to_model(
             a = _anchor32(layout, i)
             carried[i] = (a, canon[:, :, i] - src[a])
     last = last_seen(canon if sightings is None else _canonical(sightings, layout, up, arg)[2])
+    if sightings is not None:
+        # the joints the last frame shows in the root frame the forecast continues from (the model's last frame:
+        # the same instant), not in the sightings' own, which their rate smooths differently
+        final = np.einsum("bjc,bck->bjk", sightings[:, -1] - root[:, -1, None, :], rot[:, -1])
+        last = np.where(np.isfinite(final), final, last)
     start = last_seen(x if sightings is None else sightings)
-    scene = Scene(layout, up, root, rot, lengths, ancestor, fixed, carried, last, start, measured[:, -1])
+    scene = Scene(layout, up, root, rot, lengths, ancestor, fixed, carried, last, start)
     return np.stack([model[j] for j in MODEL_IDS], axis=2), scene
 
 
@@ -624,19 +625,14 @@ def future_frames(
     """Root (B, count, 3) and root frames (B, count, 3, 3) of the ``count`` model frames (at ``fps``) after
     the last observed one: the velocity (its speed less ROOT_DEAD_ZONE_MPS) and turn rate of the last
     EXTRAPOLATION_FRAMES frames of the smoothed body frame, held (``damping_s`` None) or decaying exponentially
-    with that time constant in seconds (0 holds the root), from the root the last frame measures, joined to the
-    smoothed path over JOIN_FRAMES."""
+    with that time constant in seconds (0 holds the root)."""
     root, rot, up = scene.root, scene.rot, scene.up
     t = root.shape[1]
     k = min(EXTRAPOLATION_FRAMES, t - 1)
     f = np.arange(1, count + 1, dtype=np.float64)
-    # the root path starts where the last frame put the root (unsmoothed) and joins the smoothed path over
-    # JOIN_FRAMES (rule 6): on clean poses the first frame's root stays where Zero-Velocity holds it
-    shift = np.nan_to_num(scene.root_last - root[:, -1])
-    lag = 1.0 - np.minimum(f / JOIN_FRAMES, 1.0) if JOIN_FRAMES > 0 else np.zeros_like(f)
-    start = root[:, -1:, :] + lag[None, :, None] * shift[:, None, :]
+    start = root[:, -1:, :]
     if k == 0 or scene.layout.canonical or damping_s == 0:
-        return start, np.repeat(rot[:, -1:], count, 1)
+        return np.repeat(start, count, 1), np.repeat(rot[:, -1:], count, 1)
     # frames travelled at the last velocity: f itself, or tau (1 - exp(-f / tau)) as the velocity decays
     travel = f if damping_s is None else damping_s * fps * -np.expm1(-f / (damping_s * fps))
     velocity = (root[:, -1] - root[:, -1 - k]) / k
