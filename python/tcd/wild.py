@@ -60,16 +60,17 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
-from functools import lru_cache
 from typing import Dict, List, Optional, Tuple, Union
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from . import _checks, _fk as fk
-from .exceptions import InvalidInputError, MirroredPosesWarning
-from .layouts import FIXED_IDS, MODEL_IDS, Layout
+from . import _checks
+from ._body_frame import _frames, _heading, _turn
 from ._resample import resample_forward
+from ._skeleton import _anchor32, _carry_ends, _mean_of, _median, _place, _rest, _shown_ancestor, _tree
+from .exceptions import MirroredPosesWarning
+from .layouts import FIXED_IDS, MODEL_IDS, Layout
 
 __all__ = [
     "UP_AXES",
@@ -139,175 +140,7 @@ def up_vector(up: Up) -> np.ndarray:
     return v
 
 
-# ---------------------------------------------------------------------------------------------- the skeleton
-@lru_cache(maxsize=1)
-def _rest() -> Tuple[np.ndarray, Tuple[int, ...]]:
-    """Rest positions of the 32 joints in metres (zero rotations), and the 32-skeleton's parents."""
-    sk = fk.skeleton()
-    parents = tuple(int(p) for p in sk["parents"])
-    off = np.asarray(sk["offsets_mm"], dtype=np.float64) / 1000.0
-    pos = np.zeros((32, 3))
-    for j in range(32):
-        pos[j] = off[j] if parents[j] < 0 else pos[parents[j]] + off[j]
-    return pos, parents
-
-
-# Joints of the 32-skeleton that always sit where another joint is (the clavicle anchors on the neck, the
-# wrist, hand and thumb ends on their parents: Human3.6M's evaluation copies them the same way): a bone from
-# one of them is a bone from the joint it sits on, so every step of the tree below has a constant length.
-_SAME_PLACE = {16: 13, 24: 13, 20: 19, 23: 22, 28: 27, 31: 30}
-
-
-@lru_cache(maxsize=1)
-def _tree() -> Tuple[Tuple[int, ...], Dict[int, Tuple[int, ...]]]:
-    """The joints the conversion places (the fixed ones and the model's), parents first, and for each its
-    ancestors among them, nearest first."""
-    _, parents = _rest()
-    placed = set(FIXED_IDS) | set(MODEL_IDS)
-    ancestors = {}
-    for j in placed:
-        chain, p = [], parents[j]
-        while p >= 0:
-            p = _SAME_PLACE.get(p, p)
-            if p in placed and p not in chain:
-                chain.append(p)
-            p = parents[p]
-        ancestors[j] = tuple(chain)
-    order = tuple(sorted(placed, key=lambda j: len(ancestors[j])))
-    return order, ancestors
-
-
-def _mean_of(x: np.ndarray, joints: Tuple[int, ...]) -> np.ndarray:
-    """The mean position of ``joints`` (..., 3), NaN where any of them is missing."""
-    if not joints:
-        return np.full(x.shape[:-2] + (3,), np.nan)
-    return x[..., list(joints), :].mean(axis=-2)
-
-
-# ---------------------------------------------------------------------------------------------- root frames
-def _hip_root_offset(
-    layout: Layout, x: np.ndarray, mid: np.ndarray, rot: np.ndarray, width: np.ndarray, hips: np.ndarray
-) -> np.ndarray:
-    """Per sequence, the pelvis's offset from the mid-point of the hips along the root frame's axes (B, 3):
-    the median over the frames that show the pelvis and both hips; for a sequence that never shows its
-    pelvis, the model skeleton's offset scaled by the caller's hip width over the model's (on the Human3.6M
-    skeleton the pelvis is the mid-point of the hips: the offset is 0 to 1e-7 m)."""
-    rest, _ = _rest()
-    pelvis = _mean_of(x, layout.source_of(0))
-    both = np.isfinite(pelvis).all(-1) & hips
-    own = np.einsum("btc,btck->btk", np.where(both[..., None], pelvis - mid, np.nan), rot)
-    model_width = np.linalg.norm(rest[6] - rest[1])
-    model_off = rest[0] - 0.5 * (rest[1] + rest[6])
-    out = _median(own)
-    caller_width = _median(np.where(hips, width, np.nan))
-    none = ~np.isfinite(out).all(-1)
-    out[none] = model_off * (caller_width[none, None] / model_width)
-    return out
-
-
-def _smooth(v: np.ndarray, ok: np.ndarray, sigma: Optional[float] = None) -> np.ndarray:
-    """(T, C) values over the frames ``ok`` (T,) smoothed along time by local linear regression with Gaussian
-    weights of ``sigma`` frames (:data:`BODY_FRAME_SIGMA`): a constant velocity passes unchanged, up to the
-    window's last frame, where a plain average would lag; (T, C) at the ``ok`` frames (others: NaN)."""
-    sigma = BODY_FRAME_SIGMA if sigma is None else sigma
-    out = np.full(v.shape, np.nan)
-    idx = np.flatnonzero(ok)
-    if sigma <= 0 or len(idx) < 2:
-        out[idx] = v[idx]
-        return out
-    d = (idx[None, :] - idx[:, None]).astype(np.float64)  # (at, from)
-    w = np.exp(-0.5 * (d / sigma) ** 2)
-    s0, s1, s2 = w.sum(1), (w * d).sum(1), (w * d * d).sum(1)
-    t0, t1 = w @ v[idx], (w * d) @ v[idx]
-    det = s0 * s2 - s1 * s1
-    flat = det <= 1e-9 * s0 * s0  # a frame with no neighbour in reach: its weighted mean (itself)
-    det = np.where(flat, 1.0, det)
-    line = (s2[:, None] * t0 - s1[:, None] * t1) / det[:, None]
-    out[idx] = np.where(flat[:, None], t0 / s0[:, None], line)
-    return out
-
-
-def _frames(x: np.ndarray, layout: Layout, up: np.ndarray, arg: str) -> Tuple[np.ndarray, np.ndarray]:
-    """Per frame of (B, T, J, 3) poses: the root (B, T, 3) and the rotation (B, T, 3, 3) whose columns are
-    the root frame's axes (left, up, forward) in the caller's coordinates, smoothed over the window and
-    interpolated where missing. The root is the pelvis, or where the pelvis is missing, the mid-point of the
-    hips moved by the pelvis's offset from it (:func:`_hip_root_offset`)."""
-    b, t = x.shape[:2]
-    if layout.canonical:
-        return np.zeros((b, t, 3)), np.broadcast_to(np.eye(3), (b, t, 3, 3)).copy()
-    left_hip, right_hip = _mean_of(x, layout.source_of(6)), _mean_of(x, layout.source_of(1))
-    across = left_hip - right_hip
-    across = across - (across @ up)[..., None] * up
-    norm = np.linalg.norm(across, axis=-1)
-    hips = np.isfinite(norm) & (norm > 1e-6)
-    for i in range(b):
-        if not hips[i].any():
-            which = f"sequence {i} of `{arg}`" if b > 1 else f"`{arg}`"
-            raise InvalidInputError(
-                f"Argument `{arg}` must show both hips in at least one frame, to place the body (the root is "
-                f"the pelvis, or the mid-point of the hips where the pelvis is missing), but {which} has no "
-                "frame with both hips.",
-                arg,
-            )
-    left = across / np.where(hips, norm, 1.0)[..., None]
-    rot = np.stack([left, np.broadcast_to(up, left.shape), np.cross(left, up)], axis=-1)
-    mid = 0.5 * (left_hip + right_hip)
-    offset = _hip_root_offset(layout, x, mid, rot, np.linalg.norm(left_hip - right_hip, axis=-1), hips)
-    root = _mean_of(x, layout.source_of(0))
-    from_hips = np.where(hips[..., None], mid + np.einsum("btck,bk->btc", rot, offset), np.nan)
-    root = np.where(np.isfinite(root).all(-1, keepdims=True), root, from_hips)
-    has_root = np.isfinite(root).all(-1)  # every frame with both hips, and more
-    frames = np.arange(t)
-    e1, e2 = _plane(up)
-    angle = np.zeros((b, t))
-    for i in range(b):
-        # the heading as an angle about up (unwrapped), so that a constant turn rate is smoothed unchanged
-        seen = np.flatnonzero(hips[i])
-        a = np.unwrap(np.arctan2(across[i, seen] @ e2, across[i, seen] @ e1))
-        angle[i] = np.interp(frames, seen, _smooth(a[:, None], np.ones(len(seen), bool))[:, 0])
-        smooth_root = _smooth(root[i], has_root[i])
-        for c in range(3):
-            root[i, :, c] = np.interp(frames, np.flatnonzero(has_root[i]), smooth_root[has_root[i], c])
-    left = np.cos(angle)[..., None] * e1 + np.sin(angle)[..., None] * e2
-    forward = np.cross(left, up)
-    rot = np.stack([left, np.broadcast_to(up, left.shape), forward], axis=-1)
-    return root, rot
-
-
-def _plane(up: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
-    """An orthonormal basis (e1, e2) of the plane normal to ``up``, e2 = up x e1: headings are angles in it."""
-    e1 = np.array([1.0, 0.0, 0.0]) if abs(up[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    e1 = e1 - (e1 @ up) * up
-    e1 /= np.linalg.norm(e1)
-    return e1, np.cross(up, e1)
-
-
-def _heading(rot: np.ndarray, up: np.ndarray) -> np.ndarray:
-    """The angle (radians, unwrapped over time) of the left axis about ``up``, (B, T)."""
-    e1, e2 = _plane(up)
-    left = rot[..., :, 0]
-    return np.unwrap(np.arctan2(left @ e2, left @ e1), axis=-1)
-
-
-def _turn(rot: np.ndarray, angle: np.ndarray, up: np.ndarray) -> np.ndarray:
-    """``rot`` (B, 3, 3) turned by ``angle`` (B, F) about ``up``: (B, F, 3, 3) (Rodrigues)."""
-    k = np.array([[0, -up[2], up[1]], [up[2], 0, -up[0]], [-up[1], up[0], 0]])
-    s, c = np.sin(angle)[..., None, None], np.cos(angle)[..., None, None]
-    turn = np.eye(3) + s * k + (1 - c) * (k @ k)
-    return turn @ rot[:, None]
-
-
 # ---------------------------------------------------------------------------------------------- scene
-def _median(v: np.ndarray) -> np.ndarray:
-    """Per sequence, the median over frames of (B, T, ...) values where finite (NaN where none is)."""
-    out = np.full((v.shape[0],) + v.shape[2:], np.nan)
-    for i, r in enumerate(v):
-        ok = np.isfinite(r).reshape(r.shape[0], -1).all(-1)
-        if ok.any():
-            out[i] = np.median(r[ok], axis=0)
-    return out
-
-
 @dataclass
 class Scene:
     """What :func:`to_model` learnt of the caller's poses, for :func:`from_model`. Per-frame values are
@@ -333,135 +166,10 @@ class Scene:
         return np.where(np.isfinite(per_frame), per_frame, med)
 
 
-def _shown_ancestor(shown: Dict[int, np.ndarray], j: int) -> np.ndarray:
-    """Per sequence (B,), the nearest ancestor of ``j`` among the placed joints that the sequence shows in
-    some frame (``shown``: 32-id -> (B,) bool); the root at worst. A joint the caller's layout has but never
-    showed (3DPW's 13 joints as smpl24: no spine) is skipped, so the bone is measured from a joint that
-    was seen."""
-    out = np.zeros(len(shown[0]), dtype=np.int64)
-    for a in reversed(_tree()[1][j]):
-        out = np.where(shown[a], a, out)
-    return out
-
-
-def _anchor32(layout: Layout, i: int) -> int:
-    """The 32-id a carried layout joint hangs from: the layout's own choice (``Layout.anchors``: COCO's
-    face points on the head), else its nearest layout ancestor that stands for a placed joint, else the root."""
-    if i in layout.anchors:
-        return layout.anchors[i]
-    placed = set(FIXED_IDS) | set(MODEL_IDS)
-    p = layout.parents[i]
-    while p >= 0:
-        t = layout.to32[p]
-        if t is not None and t in placed:
-            return t
-        p = layout.parents[p]
-    return 0
-
-
 def _canonical(x: np.ndarray, layout: Layout, up: np.ndarray, arg: str) -> Tuple[np.ndarray, ...]:
     """(B, T, J, 3) caller poses -> (root, rot, the poses along their root frame's axes, root subtracted)."""
-    root, rot = _frames(x, layout, up, arg)
+    root, rot = _frames(x, layout, up, arg, BODY_FRAME_SIGMA)
     return root, rot, np.einsum("btjc,btck->btjk", x - root[:, :, None, :], rot)
-
-
-def _scale(src: Dict[int, np.ndarray], ancestor: Dict[int, np.ndarray]) -> np.ndarray:
-    """Per sequence (B,), the model's size over the caller's: the median over the model's bones (each from
-    its nearest shown ancestor) of the model's length over the caller's (its median over the frames that show
-    both ends); 1 where no bone is measured."""
-    rest, _ = _rest()
-    ratios = []
-    for j, anc in ancestor.items():
-        r = np.full(len(anc), np.nan)
-        for a in np.unique(anc):
-            use = anc == a
-            caller = _median(np.linalg.norm(src[j][use] - src[a][use], axis=-1)[..., None])[:, 0]
-            r[use] = np.linalg.norm(rest[j] - rest[a]) / np.where(caller > 1e-6, caller, np.nan)
-        ratios.append(r)
-    r = np.stack(ratios, axis=-1)
-    ok = np.isfinite(r)
-    return np.array([np.median(row[m]) if m.any() else 1.0 for row, m in zip(r, ok)])
-
-
-def _rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The least rotation taking direction ``a`` (3,) onto the directions ``b`` (..., 3): (..., 3, 3)."""
-    a = a / np.linalg.norm(a)
-    b = b / np.linalg.norm(b, axis=-1, keepdims=True)
-    v, c = np.cross(a, b), b @ a
-    k = np.zeros(b.shape[:-1] + (3, 3))
-    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
-    k = k - np.swapaxes(k, -1, -2)
-    scale = (1.0 / np.maximum(1.0 + c, 1e-9))[..., None, None]  # c = -1 (opposite) does not occur for a bone
-    return np.eye(3) + k + k @ k * scale
-
-
-def _carry_ends(model: Dict[int, np.ndarray], shown: Dict[int, np.ndarray]) -> None:
-    """Places, in ``model``, each end the caller's layout stops short of (a hand, a toe: a model joint the
-    sequence never shows, below a joint it does show, with nothing shown below it) rigidly on its parent's bone:
-    the rest pose's offset from the parent, turned by the least rotation that takes the rest bone into the
-    current one. Without it these rows reached the model with nothing observed, and its in-painting of them
-    cost the forecast of the joints the layout does give (issue 73)."""
-    rest, _ = _rest()
-    order, chains = _tree()
-    below: Dict[int, np.ndarray] = {j: np.zeros_like(shown[j]) for j in order}
-    for j in reversed(order):  # children first: whether anything below j is shown
-        for p in chains[j][:1]:
-            below[p] = below[p] | shown[j] | below[j]
-    have = dict(shown)  # shown, or carried here (a toe, then its site)
-    for j in order:
-        if j in FIXED_IDS or len(chains[j]) < 2:
-            continue
-        p, g = chains[j][0], chains[j][1]
-        end = ~shown[j] & ~below[j] & have[p]
-        if not end.any():
-            continue
-        turn = _rotation_between(rest[p] - rest[g], model[p] - model[g])
-        placed = model[p] + turn @ (rest[j] - rest[p])
-        model[j] = np.where(end[:, None, None], placed, model[j])
-        have[j] = shown[j] | end
-
-
-def _place(src: Dict[int, np.ndarray], ancestor: Dict[int, np.ndarray]) -> Dict[int, np.ndarray]:
-    """The model's joints (32-id -> (B, T, 3)) from the caller's in the root frame (``src``, NaN = missing), parents
-    first: the fixed joints at the model's rest pose; each other joint, in a frame that shows it,
-
-    1. along the caller's direction from its nearest ancestor that the sequence shows (``ancestor``), at the
-       model's distance for that pair: retargeting by bone direction, where that ancestor is in the frame too;
-    2. else from the nearest ancestor the frame does show, by the caller's offset from it times the sequence's
-       size ratio (:func:`_scale`): a knee seen while its hip is hidden, an ankle while its knee is. Placing it at
-       the rest pose's distance instead put a hand seen without its arm 37 mm further from the truth than
-       Zero-Velocity at the forecast's start; leaving it missing left a knee hidden in turn with its hip with
-       nothing observed in the window, which the repair fill put at the root, 447 mm off (issue 73).
-
-    A fixed ancestor (the root, a hip, the spine) is rigid in the root frame: in a frame that hides it, its
-    sequence median stands in. Every joint a frame shows is placed; one it hides is missing (in-painted)."""
-    rest, _ = _rest()
-    order, chains = _tree()
-    shape = src[0].shape
-    at = {a: np.where(np.isfinite(src[a]), src[a], _median(src[a])[:, None]) for a in FIXED_IDS}
-    model: Dict[int, np.ndarray] = {j: np.broadcast_to(rest[j], shape).copy() for j in FIXED_IDS}
-    scale = _scale(src, ancestor)[:, None, None]
-    for j in order:
-        if j in FIXED_IDS:
-            continue
-        val = src[j]
-        seen = np.isfinite(val).all(-1)
-        out = np.full(shape, np.nan)
-        for a in np.unique(ancestor[j]):
-            from_a = at.get(a, src[a])
-            use = (ancestor[j] == a)[:, None] & seen & np.isfinite(from_a).all(-1)
-            d = val - from_a
-            n = np.linalg.norm(d, axis=-1, keepdims=True)
-            step = np.where(
-                n > 1e-12, d / np.where(n > 1e-12, n, 1.0) * np.linalg.norm(rest[j] - rest[a]), rest[j] - rest[a]
-            )
-            out[use] = (model[a] + step)[use]
-        for a in chains[j]:  # nearest first; the root, last, is always there
-            from_a = at.get(a, src[a])
-            use = seen & ~np.isfinite(out).all(-1) & np.isfinite(from_a).all(-1) & np.isfinite(model[a]).all(-1)
-            out[use] = (model[a] + (val - from_a) * scale)[use]
-        model[j] = out
-    return model
 
 
 #: (hip, knee, ankle) 32-ids of the two legs: a knee bends forward, the chirality cue of :func:`mirrored`
