@@ -23,6 +23,8 @@ The rules, in the order they are applied:
    with Gaussian weights of :data:`BODY_FRAME_SIGMA` frames: detector noise on three joints no longer turns and
    moves the whole body frame by frame, while a constant velocity or turn rate passes unchanged. A pelvis
    placed by the hips only places the body: where the caller never showed one, the outputs' pelvis stays NaN.
+   A sequence whose bent knees point backward in that frame, as swapped left and right make them, gets a
+   :class:`tcd.exceptions.MirroredPosesWarning` (:func:`mirrored`).
 3. **Skeleton.** Each model joint is placed along the caller's direction from its nearest ancestor that
    the sequence shows (in the Human3.6M tree), at the model's distance for that pair (retargeting by bone
    direction). In a frame that hides that ancestor, the joint is placed from the nearest ancestor the frame
