@@ -10,7 +10,7 @@ import numpy as np
 
 from .exceptions import InvalidInputError
 from .layouts import Layout
-from ._skeleton import _mean_of, _median, _rest
+from ._skeleton import _mean_of, _median, _rest, skew
 
 
 def _hip_root_offset(
@@ -90,7 +90,7 @@ def _frames(x: np.ndarray, layout: Layout, up: np.ndarray, arg: str, sigma: floa
     for i in range(b):
         # the heading as an angle about up (unwrapped), so that a constant turn rate is smoothed unchanged
         seen = np.flatnonzero(hips[i])
-        a = np.unwrap(np.arctan2(across[i, seen] @ e2, across[i, seen] @ e1))
+        a = _heading(across[i, seen], up)
         angle[i] = np.interp(frames, seen, _smooth(a[:, None], np.ones(len(seen), bool), sigma)[:, 0])
         smooth_root = _smooth(root[i], has_root[i], sigma)
         for c in range(3):
@@ -109,16 +109,16 @@ def _plane(up: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
     return e1, np.cross(up, e1)
 
 
-def _heading(rot: np.ndarray, up: np.ndarray) -> np.ndarray:
-    """The angle (radians, unwrapped over time) of the left axis about ``up``, (B, T)."""
+def _heading(left: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """The angle (radians, unwrapped over time, the last axis) of directions ``left`` (..., T, 3) about ``up`` in
+    :func:`_plane`'s basis, (..., T)."""
     e1, e2 = _plane(up)
-    left = rot[..., :, 0]
     return np.unwrap(np.arctan2(left @ e2, left @ e1), axis=-1)
 
 
 def _turn(rot: np.ndarray, angle: np.ndarray, up: np.ndarray) -> np.ndarray:
     """``rot`` (B, 3, 3) turned by ``angle`` (B, F) about ``up``: (B, F, 3, 3) (Rodrigues)."""
-    k = np.array([[0, -up[2], up[1]], [up[2], 0, -up[0]], [-up[1], up[0], 0]])
+    k = skew(up)
     s, c = np.sin(angle)[..., None, None], np.cos(angle)[..., None, None]
     turn = np.eye(3) + s * k + (1 - c) * (k @ k)
     return turn @ rot[:, None]

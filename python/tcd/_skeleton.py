@@ -93,32 +93,33 @@ def _anchor32(layout: Layout, i: int) -> int:
     return 0
 
 
-def _scale(src: Dict[int, np.ndarray], ancestor: Dict[int, np.ndarray]) -> np.ndarray:
+def _scale(lengths: Dict[int, np.ndarray], ancestor: Dict[int, np.ndarray]) -> np.ndarray:
     """Per sequence (B,), the model's size over the caller's: the median over the model's bones (each from
-    its nearest shown ancestor) of the model's length over the caller's (its median over the frames that show
-    both ends); 1 where no bone is measured."""
+    its nearest shown ancestor) of the model's length over the caller's (``lengths``: 32-id -> (B, T), its median
+    over the frames that show both ends); 1 where no bone is measured."""
     rest, _ = _rest()
     ratios = []
     for j, anc in ancestor.items():
-        r = np.full(len(anc), np.nan)
-        for a in np.unique(anc):
-            use = anc == a
-            caller = _median(np.linalg.norm(src[j][use] - src[a][use], axis=-1)[..., None])[:, 0]
-            r[use] = np.linalg.norm(rest[j] - rest[a]) / np.where(caller > 1e-6, caller, np.nan)
-        ratios.append(r)
+        caller = _median(lengths[j][..., None])[:, 0]
+        model = np.linalg.norm(rest[j] - rest[anc], axis=-1)
+        ratios.append(model / np.where(caller > 1e-6, caller, np.nan))
     r = np.stack(ratios, axis=-1)
     ok = np.isfinite(r)
     return np.array([np.median(row[m]) if m.any() else 1.0 for row, m in zip(r, ok)])
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    """The cross-product matrices (..., 3, 3) of vectors ``v`` (..., 3): ``skew(v) @ w == cross(v, w)``."""
+    k = np.zeros(v.shape[:-1] + (3, 3))
+    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    return k - np.swapaxes(k, -1, -2)
 
 
 def _rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The least rotation taking direction ``a`` (3,) onto the directions ``b`` (..., 3): (..., 3, 3)."""
     a = a / np.linalg.norm(a)
     b = b / np.linalg.norm(b, axis=-1, keepdims=True)
-    v, c = np.cross(a, b), b @ a
-    k = np.zeros(b.shape[:-1] + (3, 3))
-    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
-    k = k - np.swapaxes(k, -1, -2)
+    k, c = skew(np.cross(a, b)), b @ a
     scale = (1.0 / np.maximum(1.0 + c, 1e-9))[..., None, None]  # c = -1 (opposite) does not occur for a bone
     return np.eye(3) + k + k @ k * scale
 
@@ -133,7 +134,8 @@ def _carry_ends(model: Dict[int, np.ndarray], shown: Dict[int, np.ndarray]) -> N
     order, chains = _tree()
     below: Dict[int, np.ndarray] = {j: np.zeros_like(shown[j]) for j in order}
     for j in reversed(order):  # children first: whether anything below j is shown
-        for p in chains[j][:1]:
+        if chains[j]:
+            p = chains[j][0]
             below[p] = below[p] | shown[j] | below[j]
     have = dict(shown)  # shown, or carried here (a toe, then its site)
     for j in order:
@@ -149,26 +151,30 @@ def _carry_ends(model: Dict[int, np.ndarray], shown: Dict[int, np.ndarray]) -> N
         have[j] = shown[j] | end
 
 
-def _place(src: Dict[int, np.ndarray], ancestor: Dict[int, np.ndarray]) -> Dict[int, np.ndarray]:
+def _place(
+    src: Dict[int, np.ndarray], ancestor: Dict[int, np.ndarray], lengths: Dict[int, np.ndarray]
+) -> Dict[int, np.ndarray]:
     """The model's joints (32-id -> (B, T, 3)) from the caller's in the root frame (``src``, NaN = missing), parents
     first: the fixed joints at the model's rest pose; each other joint, in a frame that shows it,
 
     1. along the caller's direction from its nearest ancestor that the sequence shows (``ancestor``), at the
        model's distance for that pair: retargeting by bone direction, where that ancestor is in the frame too;
     2. else from the nearest ancestor the frame does show, by the caller's offset from it times the sequence's
-       size ratio (:func:`_scale`): a knee seen while its hip is hidden, an ankle while its knee is. Placing it at
-       the rest pose's distance instead put a hand seen without its arm 37 mm further from the truth than
-       Zero-Velocity at the forecast's start; leaving it missing left a knee hidden in turn with its hip with
-       nothing observed in the window, which the repair fill put at the root, 447 mm off (issue 73).
+       size ratio (:func:`_scale` of the caller's bone ``lengths``): a knee seen while its hip is hidden, an
+       ankle while its knee is. Placing it at the rest pose's distance instead put a hand seen without its arm
+       37 mm further from the truth than Zero-Velocity at the forecast's start; leaving it missing left a knee
+       hidden in turn with its hip with nothing observed in the window, which the repair fill put at the root,
+       447 mm off (issue 73).
 
     A fixed ancestor (the root, a hip, the spine) is rigid in the root frame: in a frame that hides it, its
     sequence median stands in. Every joint a frame shows is placed; one it hides is missing (in-painted)."""
     rest, _ = _rest()
     order, chains = _tree()
     shape = src[0].shape
-    at = {a: np.where(np.isfinite(src[a]), src[a], _median(src[a])[:, None]) for a in FIXED_IDS}
+    # where each ancestor is in each frame: the caller's joint, a fixed one's median where the frame hides it
+    at = {**src, **{a: np.where(np.isfinite(src[a]), src[a], _median(src[a])[:, None]) for a in FIXED_IDS}}
     model: Dict[int, np.ndarray] = {j: np.broadcast_to(rest[j], shape).copy() for j in FIXED_IDS}
-    scale = _scale(src, ancestor)[:, None, None]
+    scale = _scale(lengths, ancestor)[:, None, None]
     for j in order:
         if j in FIXED_IDS:
             continue
@@ -176,17 +182,15 @@ def _place(src: Dict[int, np.ndarray], ancestor: Dict[int, np.ndarray]) -> Dict[
         seen = np.isfinite(val).all(-1)
         out = np.full(shape, np.nan)
         for a in np.unique(ancestor[j]):
-            from_a = at.get(a, src[a])
-            use = (ancestor[j] == a)[:, None] & seen & np.isfinite(from_a).all(-1)
-            d = val - from_a
+            use = (ancestor[j] == a)[:, None] & seen & np.isfinite(at[a]).all(-1)
+            d = val - at[a]
             n = np.linalg.norm(d, axis=-1, keepdims=True)
             step = np.where(
                 n > 1e-12, d / np.where(n > 1e-12, n, 1.0) * np.linalg.norm(rest[j] - rest[a]), rest[j] - rest[a]
             )
             out[use] = (model[a] + step)[use]
         for a in chains[j]:  # nearest first; the root, last, is always there
-            from_a = at.get(a, src[a])
-            use = seen & ~np.isfinite(out).all(-1) & np.isfinite(from_a).all(-1) & np.isfinite(model[a]).all(-1)
-            out[use] = (model[a] + (val - from_a) * scale)[use]
+            use = seen & ~np.isfinite(out).all(-1) & np.isfinite(at[a]).all(-1) & np.isfinite(model[a]).all(-1)
+            out[use] = (model[a] + (val - at[a]) * scale)[use]
         model[j] = out
     return model

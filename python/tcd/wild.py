@@ -206,7 +206,6 @@ def to_model(
     from them), from which ``Scene.last`` takes where each joint was last seen (default: ``x``). At the
     model's rate a frame shows a joint only where both input frames around it do, so at 120 fps a joint hidden
     for a few input frames is missing for a whole model frame or two."""
-    rest, _ = _rest()
     root, rot, canon = _canonical(x, layout, up, arg)
     placed = set(FIXED_IDS) | set(MODEL_IDS)
     src = {j: _mean_of(canon, layout.source_of(j)) for j in placed}
@@ -225,15 +224,15 @@ def to_model(
             stacklevel=4,
         )
     ancestor = {j: _shown_ancestor(shown, j) for j in MODEL_IDS}
-    model = _place(src, ancestor)
-    if CARRY_ENDS:
-        _carry_ends(model, shown)
-    lengths = {}
+    lengths = {}  # each model bone's caller length per frame, from the joint's nearest shown ancestor
     for j in MODEL_IDS:
         lengths[j] = np.full(src[j].shape[:-1], np.nan)
         for a in np.unique(ancestor[j]):
             use = ancestor[j] == a
             lengths[j][use] = np.linalg.norm(src[j][use] - src[a][use], axis=-1)
+    model = _place(src, ancestor, lengths)
+    if CARRY_ENDS:
+        _carry_ends(model, shown)
     fixed = {j: src[j] for j in FIXED_IDS}
     fixed[0] = np.where(pelvis_seen, src[0], np.nan)  # where the caller showed a pelvis (else: the hips')
     carried = {}
@@ -349,7 +348,7 @@ def future_frames(
     if ROOT_DEAD_ZONE_MPS > 0:  # soft threshold: the speed less the dead zone, never below 0
         speed = np.linalg.norm(velocity, axis=-1, keepdims=True) * fps
         velocity = velocity * np.clip(1.0 - ROOT_DEAD_ZONE_MPS / np.maximum(speed, 1e-12), 0.0, None)
-    heading = _heading(rot, up)
+    heading = _heading(rot[..., :, 0], up)
     rate = (heading[:, -1] - heading[:, -1 - k]) / k
     return start + velocity[:, None, :] * travel[None, :, None], _turn(rot[:, -1], rate[:, None] * travel, up)
 
